@@ -1,0 +1,1 @@
+//! Audio in and out: WAV files (any rate, resampled to 8 kHz mono).

@@ -1,0 +1,4 @@
+//! lipcall: voice chat with lip-synced heads driven by the Speex decoder's own LSPs.
+
+pub mod audio;
+pub mod speex;
