@@ -1,0 +1,414 @@
+//! A small safe wrapper over the reference libspeex 1.2.1 narrowband encoder and decoder.
+//!
+//! libspeex is built statically by `speex-sys` from its bundled C source (float build). Every
+//! unsafe call lives in this file; each state is owned by exactly one Rust value and freed on drop.
+
+use std::ffi::{c_int, c_void};
+use std::ptr::NonNull;
+
+use speex_sys as sys;
+
+use super::FRAME_SIZE;
+
+/// Largest packet we ever produce: 8 frames of the biggest mode (492 bits) plus a terminator.
+pub const MAX_PACKET_BYTES: usize = 8 * 62 + 1;
+
+#[derive(Debug, thiserror::Error, PartialEq, Eq)]
+pub enum CodecError {
+    #[error("libspeex could not allocate a codec state")]
+    Init,
+    #[error("quality {0} is outside 0..=10")]
+    Quality(u8),
+    #[error("complexity {0} is outside 1..=10")]
+    Complexity(u8),
+    #[error("frames per packet must be 1..=8, not {0}")]
+    FramesPerPacket(usize),
+    #[error("corrupted Speex packet")]
+    Corrupted,
+    #[error("Speex packet is shorter than its frames claim")]
+    Overflow,
+    #[error("a packet of {0} bytes is larger than any Speex packet can be")]
+    PacketTooLarge(usize),
+}
+
+/// How the encoder is set up. The defaults are speexenc's: quality 8, CBR, complexity 3.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub struct EncoderConfig {
+    pub quality: u8,
+    pub vbr: bool,
+    pub complexity: u8,
+    pub frames_per_packet: usize,
+}
+
+impl Default for EncoderConfig {
+    fn default() -> Self {
+        Self {
+            quality: 8,
+            vbr: false,
+            complexity: 3,
+            frames_per_packet: 1,
+        }
+    }
+}
+
+impl EncoderConfig {
+    fn validate(&self) -> Result<(), CodecError> {
+        if self.quality > 10 {
+            return Err(CodecError::Quality(self.quality));
+        }
+        if !(1..=10).contains(&self.complexity) {
+            return Err(CodecError::Complexity(self.complexity));
+        }
+        if !(1..=8).contains(&self.frames_per_packet) {
+            return Err(CodecError::FramesPerPacket(self.frames_per_packet));
+        }
+        Ok(())
+    }
+}
+
+/// The bit-packer libspeex reads from and writes to.
+struct Bits(Box<sys::SpeexBits>);
+
+impl Bits {
+    fn new() -> Self {
+        // SAFETY: SpeexBits is plain data; speex_bits_init fills every field and allocates its
+        // buffer, which speex_bits_destroy frees in Drop.
+        let mut bits: Box<sys::SpeexBits> = Box::new(unsafe { std::mem::zeroed() });
+        unsafe { sys::speex_bits_init(bits.as_mut()) };
+        Self(bits)
+    }
+
+    fn ptr(&mut self) -> *mut sys::SpeexBits {
+        self.0.as_mut()
+    }
+}
+
+impl Drop for Bits {
+    fn drop(&mut self) {
+        // SAFETY: initialised in `new`, destroyed once.
+        unsafe { sys::speex_bits_destroy(self.ptr()) };
+    }
+}
+
+// SAFETY: the bit buffer is owned by this value alone and never shared between threads.
+unsafe impl Send for Bits {}
+
+/// A narrowband Speex encoder producing packets of `frames_per_packet` frames.
+pub struct Encoder {
+    state: NonNull<c_void>,
+    bits: Bits,
+    config: EncoderConfig,
+    frames_pending: usize,
+}
+
+// SAFETY: the encoder state is owned exclusively by this value; libspeex keeps no global state.
+unsafe impl Send for Encoder {}
+
+impl Encoder {
+    pub fn new(config: EncoderConfig) -> Result<Self, CodecError> {
+        config.validate()?;
+        // SAFETY: speex_nb_mode is a static of the library; init returns null only on OOM.
+        let raw = unsafe { sys::speex_encoder_init(&sys::speex_nb_mode) };
+        let state = NonNull::new(raw).ok_or(CodecError::Init)?;
+        let mut encoder = Self {
+            state,
+            bits: Bits::new(),
+            config,
+            frames_pending: 0,
+        };
+        encoder.ctl(sys::SPEEX_SET_COMPLEXITY, i32::from(config.complexity));
+        if config.vbr {
+            encoder.ctl(sys::SPEEX_SET_VBR, 1);
+            // VBR takes a float quality; speexenc passes the integer quality as a float.
+            let mut q = f32::from(config.quality);
+            // SAFETY: SPEEX_SET_VBR_QUALITY reads one float.
+            unsafe {
+                sys::speex_encoder_ctl(
+                    state.as_ptr(),
+                    sys::SPEEX_SET_VBR_QUALITY,
+                    (&mut q as *mut f32).cast(),
+                )
+            };
+        } else {
+            encoder.ctl(sys::SPEEX_SET_QUALITY, i32::from(config.quality));
+        }
+        Ok(encoder)
+    }
+
+    fn ctl(&mut self, request: i32, value: i32) {
+        let mut v: c_int = value;
+        // SAFETY: every request passed here reads one int.
+        unsafe { sys::speex_encoder_ctl(self.state.as_ptr(), request, (&mut v as *mut c_int).cast()) };
+    }
+
+    pub fn config(&self) -> EncoderConfig {
+        self.config
+    }
+
+    /// Samples the encoder delays its input by (its analysis look-ahead).
+    pub fn lookahead(&self) -> usize {
+        let mut v: c_int = 0;
+        // SAFETY: SPEEX_GET_LOOKAHEAD writes one int.
+        unsafe {
+            sys::speex_encoder_ctl(
+                self.state.as_ptr(),
+                sys::SPEEX_GET_LOOKAHEAD,
+                (&mut v as *mut c_int).cast(),
+            )
+        };
+        usize::try_from(v).unwrap_or(0)
+    }
+
+    /// Encodes one 20 ms frame. When the packet is complete (after `frames_per_packet` frames)
+    /// it is written to `packet` and its length returned.
+    pub fn encode_frame(
+        &mut self,
+        frame: &[i16; FRAME_SIZE],
+        packet: &mut [u8; MAX_PACKET_BYTES],
+    ) -> Option<usize> {
+        // libspeex takes a mutable pointer but only reads the input of speex_encode_int.
+        let mut input = *frame;
+        // SAFETY: input holds exactly one frame; state and bits are valid.
+        unsafe { sys::speex_encode_int(self.state.as_ptr(), input.as_mut_ptr(), self.bits.ptr()) };
+        self.frames_pending += 1;
+        if self.frames_pending < self.config.frames_per_packet {
+            return None;
+        }
+        Some(self.flush(packet))
+    }
+
+    /// Ends the packet being built, padding it with terminators up to `frames_per_packet`
+    /// frames as speexenc does at the end of a stream. Returns `None` if no frame is pending.
+    pub fn finish(&mut self, packet: &mut [u8; MAX_PACKET_BYTES]) -> Option<usize> {
+        if self.frames_pending == 0 {
+            return None;
+        }
+        while self.frames_pending < self.config.frames_per_packet {
+            // SAFETY: packs 5 bits into the valid bit buffer.
+            unsafe { sys::speex_bits_pack(self.bits.ptr(), 15, 5) };
+            self.frames_pending += 1;
+        }
+        Some(self.flush(packet))
+    }
+
+    fn flush(&mut self, packet: &mut [u8; MAX_PACKET_BYTES]) -> usize {
+        // SAFETY: bits is valid; write copies at most MAX_PACKET_BYTES into `packet`.
+        let written = unsafe {
+            sys::speex_bits_insert_terminator(self.bits.ptr());
+            let n = sys::speex_bits_write(
+                self.bits.ptr(),
+                packet.as_mut_ptr().cast(),
+                MAX_PACKET_BYTES as c_int,
+            );
+            sys::speex_bits_reset(self.bits.ptr());
+            n
+        };
+        self.frames_pending = 0;
+        usize::try_from(written).unwrap_or(0)
+    }
+}
+
+impl Drop for Encoder {
+    fn drop(&mut self) {
+        // SAFETY: created by speex_encoder_init, destroyed once.
+        unsafe { sys::speex_encoder_destroy(self.state.as_ptr()) };
+    }
+}
+
+/// A narrowband Speex decoder with loss concealment.
+pub struct Decoder {
+    state: NonNull<c_void>,
+    bits: Bits,
+}
+
+// SAFETY: as for Encoder.
+unsafe impl Send for Decoder {}
+
+/// What decoding one frame slot of a packet gave.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum FrameOutcome {
+    /// A frame was decoded into the output.
+    Decoded,
+    /// The packet ended (terminator or no bits left): nothing was written.
+    EndOfPacket,
+}
+
+impl Decoder {
+    /// `enhancer` is the perceptual enhancer (speexdec's default is on).
+    pub fn new(enhancer: bool) -> Result<Self, CodecError> {
+        // SAFETY: as for the encoder.
+        let raw = unsafe { sys::speex_decoder_init(&sys::speex_nb_mode) };
+        let state = NonNull::new(raw).ok_or(CodecError::Init)?;
+        let mut decoder = Self {
+            state,
+            bits: Bits::new(),
+        };
+        let mut enh: c_int = i32::from(enhancer);
+        // SAFETY: SPEEX_SET_ENH reads one int.
+        unsafe {
+            sys::speex_decoder_ctl(
+                decoder.state.as_ptr(),
+                sys::SPEEX_SET_ENH,
+                (&mut enh as *mut c_int).cast(),
+            )
+        };
+        decoder.load(&[])?;
+        Ok(decoder)
+    }
+
+    /// Hands a packet to the decoder; follow with `decode_next` for each of its frames.
+    pub fn load(&mut self, packet: &[u8]) -> Result<(), CodecError> {
+        if packet.len() > MAX_PACKET_BYTES * 4 {
+            return Err(CodecError::PacketTooLarge(packet.len()));
+        }
+        // SAFETY: libspeex copies `len` bytes from the slice (growing its own buffer if needed).
+        unsafe {
+            sys::speex_bits_read_from(
+                self.bits.ptr(),
+                packet.as_ptr().cast::<std::ffi::c_char>().cast_mut(),
+                packet.len() as c_int,
+            )
+        };
+        Ok(())
+    }
+
+    /// Decodes the next frame of the loaded packet.
+    pub fn decode_next(&mut self, out: &mut [i16; FRAME_SIZE]) -> Result<FrameOutcome, CodecError> {
+        // SAFETY: out holds one frame, state and bits are valid.
+        let ret = unsafe {
+            sys::speex_decode_int(self.state.as_ptr(), self.bits.ptr(), out.as_mut_ptr())
+        };
+        match ret {
+            0 => {
+                // SAFETY: bits is valid.
+                if unsafe { sys::speex_bits_remaining(self.bits.ptr()) } < 0 {
+                    Err(CodecError::Overflow)
+                } else {
+                    Ok(FrameOutcome::Decoded)
+                }
+            }
+            -1 => Ok(FrameOutcome::EndOfPacket),
+            _ => Err(CodecError::Corrupted),
+        }
+    }
+
+    /// Synthesises a frame for a lost packet from the decoder's state (packet loss concealment).
+    pub fn conceal(&mut self, out: &mut [i16; FRAME_SIZE]) {
+        // SAFETY: a null bits pointer asks libspeex for concealment; out holds one frame.
+        unsafe { sys::speex_decode_int(self.state.as_ptr(), std::ptr::null_mut(), out.as_mut_ptr()) };
+    }
+
+    /// Samples of delay the decoder adds (speexdec trims them at the start of a stream).
+    pub fn lookahead(&self) -> usize {
+        let mut v: c_int = 0;
+        // SAFETY: SPEEX_GET_LOOKAHEAD writes one int.
+        unsafe {
+            sys::speex_decoder_ctl(
+                self.state.as_ptr(),
+                sys::SPEEX_GET_LOOKAHEAD,
+                (&mut v as *mut c_int).cast(),
+            )
+        };
+        usize::try_from(v).unwrap_or(0)
+    }
+}
+
+impl Drop for Decoder {
+    fn drop(&mut self) {
+        // SAFETY: created by speex_decoder_init, destroyed once.
+        unsafe { sys::speex_decoder_destroy(self.state.as_ptr()) };
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn tone(n: usize) -> Vec<i16> {
+        (0..n)
+            .map(|i| {
+                let t = i as f32 / 8000.0;
+                (6000.0 * (2.0 * std::f32::consts::PI * 220.0 * t).sin()
+                    + 3000.0 * (2.0 * std::f32::consts::PI * 660.0 * t).sin()) as i16
+            })
+            .collect()
+    }
+
+    #[test]
+    fn packet_sizes_follow_the_mode_table() {
+        // Bits per frame for qualities 0..=10 (design brief), padded to whole bytes.
+        let bits = [43, 79, 119, 160, 160, 220, 220, 300, 300, 364, 492];
+        for (quality, bits) in bits.iter().enumerate() {
+            let mut enc = Encoder::new(EncoderConfig {
+                quality: quality as u8,
+                ..Default::default()
+            })
+            .unwrap();
+            let mut packet = [0u8; MAX_PACKET_BYTES];
+            let frame = [100i16; FRAME_SIZE];
+            let n = enc.encode_frame(&frame, &mut packet).unwrap();
+            assert_eq!(n, usize::div_ceil(*bits, 8), "quality {quality}");
+        }
+    }
+
+    #[test]
+    fn round_trip_keeps_the_tone() {
+        let input = tone(8000);
+        let mut enc = Encoder::new(EncoderConfig::default()).unwrap();
+        let mut dec = Decoder::new(false).unwrap();
+        let mut packet = [0u8; MAX_PACKET_BYTES];
+        let mut out = Vec::new();
+        for frame in input.chunks_exact(FRAME_SIZE) {
+            let n = enc.encode_frame(frame.try_into().unwrap(), &mut packet).unwrap();
+            dec.load(&packet[..n]).unwrap();
+            let mut pcm = [0i16; FRAME_SIZE];
+            assert_eq!(dec.decode_next(&mut pcm).unwrap(), FrameOutcome::Decoded);
+            out.extend_from_slice(&pcm);
+        }
+        let energy_in: f64 = input.iter().map(|&s| f64::from(s).powi(2)).sum();
+        let energy_out: f64 = out.iter().map(|&s| f64::from(s).powi(2)).sum();
+        assert!(energy_out > 0.5 * energy_in && energy_out < 1.5 * energy_in);
+    }
+
+    #[test]
+    fn several_frames_per_packet_decode_then_end() {
+        let input = tone(FRAME_SIZE * 3);
+        let mut enc = Encoder::new(EncoderConfig {
+            frames_per_packet: 3,
+            ..Default::default()
+        })
+        .unwrap();
+        let mut packet = [0u8; MAX_PACKET_BYTES];
+        let mut len = None;
+        for frame in input.chunks_exact(FRAME_SIZE) {
+            len = enc.encode_frame(frame.try_into().unwrap(), &mut packet);
+        }
+        let mut dec = Decoder::new(true).unwrap();
+        dec.load(&packet[..len.unwrap()]).unwrap();
+        let mut pcm = [0i16; FRAME_SIZE];
+        for _ in 0..3 {
+            assert_eq!(dec.decode_next(&mut pcm).unwrap(), FrameOutcome::Decoded);
+        }
+        assert_eq!(dec.decode_next(&mut pcm).unwrap(), FrameOutcome::EndOfPacket);
+    }
+
+    #[test]
+    fn concealment_fades_instead_of_failing() {
+        let mut dec = Decoder::new(true).unwrap();
+        let mut pcm = [1i16; FRAME_SIZE];
+        dec.conceal(&mut pcm);
+        assert!(pcm.iter().all(|&s| s.abs() < 10));
+    }
+
+    #[test]
+    fn bad_settings_are_refused() {
+        let bad = |c: EncoderConfig| Encoder::new(c).err();
+        let d = EncoderConfig::default();
+        assert_eq!(bad(EncoderConfig { quality: 11, ..d }), Some(CodecError::Quality(11)));
+        assert_eq!(bad(EncoderConfig { complexity: 0, ..d }), Some(CodecError::Complexity(0)));
+        assert_eq!(
+            bad(EncoderConfig { frames_per_packet: 9, ..d }),
+            Some(CodecError::FramesPerPacket(9))
+        );
+    }
+}
