@@ -10,7 +10,10 @@ use crate::speex::SAMPLE_RATE;
 #[derive(Debug, thiserror::Error)]
 pub enum WavError {
     #[error("{path}: {source}")]
-    Open { path: String, source: std::io::Error },
+    Open {
+        path: String,
+        source: std::io::Error,
+    },
     #[error("{path}: not a readable WAV file ({reason})")]
     Format { path: String, reason: String },
     #[error("{path}: the WAV file holds no audio")]
@@ -42,8 +45,8 @@ pub fn read_mono(path: &Path) -> Result<MonoAudio, WavError> {
         path: name(),
         source,
     })?;
-    let reader = hound::WavReader::new(std::io::BufReader::new(file))
-        .map_err(|e| format_error(path, e))?;
+    let reader =
+        hound::WavReader::new(std::io::BufReader::new(file)).map_err(|e| format_error(path, e))?;
     let spec = reader.spec();
     let channels = usize::from(spec.channels);
     if channels == 0 || spec.sample_rate == 0 {

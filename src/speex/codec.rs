@@ -138,7 +138,9 @@ impl Encoder {
     fn ctl(&mut self, request: i32, value: i32) {
         let mut v: c_int = value;
         // SAFETY: every request passed here reads one int.
-        unsafe { sys::speex_encoder_ctl(self.state.as_ptr(), request, (&mut v as *mut c_int).cast()) };
+        unsafe {
+            sys::speex_encoder_ctl(self.state.as_ptr(), request, (&mut v as *mut c_int).cast())
+        };
     }
 
     pub fn config(&self) -> EncoderConfig {
@@ -295,7 +297,9 @@ impl Decoder {
     /// Synthesises a frame for a lost packet from the decoder's state (packet loss concealment).
     pub fn conceal(&mut self, out: &mut [i16; FRAME_SIZE]) {
         // SAFETY: a null bits pointer asks libspeex for concealment; out holds one frame.
-        unsafe { sys::speex_decode_int(self.state.as_ptr(), std::ptr::null_mut(), out.as_mut_ptr()) };
+        unsafe {
+            sys::speex_decode_int(self.state.as_ptr(), std::ptr::null_mut(), out.as_mut_ptr())
+        };
     }
 
     /// Samples of delay the decoder adds (speexdec trims them at the start of a stream).
@@ -329,7 +333,8 @@ mod tests {
             .map(|i| {
                 let t = i as f32 / 8000.0;
                 (6000.0 * (2.0 * std::f32::consts::PI * 220.0 * t).sin()
-                    + 3000.0 * (2.0 * std::f32::consts::PI * 660.0 * t).sin()) as i16
+                    + 3000.0 * (2.0 * std::f32::consts::PI * 660.0 * t).sin())
+                    as i16
             })
             .collect()
     }
@@ -359,7 +364,9 @@ mod tests {
         let mut packet = [0u8; MAX_PACKET_BYTES];
         let mut out = Vec::new();
         for frame in input.chunks_exact(FRAME_SIZE) {
-            let n = enc.encode_frame(frame.try_into().unwrap(), &mut packet).unwrap();
+            let n = enc
+                .encode_frame(frame.try_into().unwrap(), &mut packet)
+                .unwrap();
             dec.load(&packet[..n]).unwrap();
             let mut pcm = [0i16; FRAME_SIZE];
             assert_eq!(dec.decode_next(&mut pcm).unwrap(), FrameOutcome::Decoded);
@@ -389,7 +396,10 @@ mod tests {
         for _ in 0..3 {
             assert_eq!(dec.decode_next(&mut pcm).unwrap(), FrameOutcome::Decoded);
         }
-        assert_eq!(dec.decode_next(&mut pcm).unwrap(), FrameOutcome::EndOfPacket);
+        assert_eq!(
+            dec.decode_next(&mut pcm).unwrap(),
+            FrameOutcome::EndOfPacket
+        );
     }
 
     #[test]
@@ -404,10 +414,19 @@ mod tests {
     fn bad_settings_are_refused() {
         let bad = |c: EncoderConfig| Encoder::new(c).err();
         let d = EncoderConfig::default();
-        assert_eq!(bad(EncoderConfig { quality: 11, ..d }), Some(CodecError::Quality(11)));
-        assert_eq!(bad(EncoderConfig { complexity: 0, ..d }), Some(CodecError::Complexity(0)));
         assert_eq!(
-            bad(EncoderConfig { frames_per_packet: 9, ..d }),
+            bad(EncoderConfig { quality: 11, ..d }),
+            Some(CodecError::Quality(11))
+        );
+        assert_eq!(
+            bad(EncoderConfig { complexity: 0, ..d }),
+            Some(CodecError::Complexity(0))
+        );
+        assert_eq!(
+            bad(EncoderConfig {
+                frames_per_packet: 9,
+                ..d
+            }),
             Some(CodecError::FramesPerPacket(9))
         );
     }

@@ -352,8 +352,14 @@ mod tests {
     fn file_round_trips_pages_and_granules() {
         let h = SpeexHeader::narrowband(false, 1);
         let packets: Vec<Vec<u8>> = (0..120u8).map(|i| vec![i; 20]).collect();
-        let bytes = write(&h, &["ENCODER=test".into()], &packets, |i| (i as u64 + 1) * 160 - 40, 7)
-            .unwrap();
+        let bytes = write(
+            &h,
+            &["ENCODER=test".into()],
+            &packets,
+            |i| (i as u64 + 1) * 160 - 40,
+            7,
+        )
+        .unwrap();
         let f = read(&bytes).unwrap();
         assert_eq!(f.header, h);
         assert_eq!(f.comments, vec!["ENCODER=test".to_string()]);
@@ -369,7 +375,10 @@ mod tests {
         let h = SpeexHeader::narrowband(false, 1);
         let packets: Vec<Vec<u8>> = (0..60u8).map(|i| vec![i; 20]).collect();
         let bytes = write(&h, &[], &packets, |i| i as u64 * 160, 1).unwrap();
-        assert!(matches!(read(&bytes[..bytes.len() - 7]), Err(OggSpeexError::Truncated)));
+        assert!(matches!(
+            read(&bytes[..bytes.len() - 7]),
+            Err(OggSpeexError::Truncated)
+        ));
         assert!(matches!(read(b""), Err(OggSpeexError::Empty)));
         assert!(matches!(read(b"RIFF....WAVE"), Err(OggSpeexError::NotOgg)));
     }
