@@ -1,0 +1,69 @@
+//! Helpers shared by the integration tests: running the reference tools and reading WAVs.
+#![allow(dead_code)]
+
+use std::path::{Path, PathBuf};
+use std::process::{Command, Output};
+
+pub fn lipcall() -> Command {
+    Command::new(env!("CARGO_BIN_EXE_lipcall"))
+}
+
+/// Runs a command that must exist and succeed (the reference tools are installed by .ci/run).
+pub fn run(cmd: &mut Command) -> Output {
+    let out = cmd
+        .output()
+        .unwrap_or_else(|e| panic!("cannot run {:?}: {e} (install it: see README)", cmd));
+    assert!(
+        out.status.success(),
+        "{:?} failed: {}",
+        cmd,
+        String::from_utf8_lossy(&out.stderr)
+    );
+    out
+}
+
+pub fn read_wav_i16(path: &Path) -> (u32, Vec<i16>) {
+    let mut r = hound::WavReader::open(path).unwrap();
+    let rate = r.spec().sample_rate;
+    (rate, r.samples::<i16>().map(Result::unwrap).collect())
+}
+
+pub fn repo_file(rel: &str) -> PathBuf {
+    Path::new(env!("CARGO_MANIFEST_DIR")).join(rel)
+}
+
+/// The TIMIT sample shipped beside the repository (never copied into it).
+pub fn timit_dir() -> PathBuf {
+    repo_file("../shared/data/timit-sample")
+}
+
+/// The project's demo speech, resampled by sox to 8 kHz mono 16-bit, in `dir`.
+pub fn demo_8k(dir: &Path) -> PathBuf {
+    let out = dir.join("demo8k.wav");
+    run(Command::new("sox")
+        .arg(repo_file("assets/speech/demo.wav"))
+        .args(["-r", "8000", "-b", "16", "-c", "1"])
+        .arg(&out));
+    out
+}
+
+/// A TIMIT utterance resampled by sox to 8 kHz mono 16-bit, in `dir`.
+pub fn timit_8k(dir: &Path, speaker: &str, utterance: &str) -> PathBuf {
+    let out = dir.join(format!("{speaker}-{utterance}-8k.wav"));
+    run(Command::new("sox")
+        .arg(timit_dir().join(speaker).join(format!("{utterance}.wav")))
+        .args(["-r", "8000", "-b", "16", "-c", "1"])
+        .arg(&out));
+    out
+}
+
+pub fn snr_db(reference: &[i16], test: &[i16]) -> f64 {
+    let n = reference.len().min(test.len());
+    let signal: f64 = reference[..n].iter().map(|&s| f64::from(s).powi(2)).sum();
+    let noise: f64 = reference[..n]
+        .iter()
+        .zip(&test[..n])
+        .map(|(&a, &b)| (f64::from(a) - f64::from(b)).powi(2))
+        .sum();
+    10.0 * (signal / noise.max(1e-9)).log10()
+}
