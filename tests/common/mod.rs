@@ -42,7 +42,7 @@ pub fn demo_8k(dir: &Path) -> PathBuf {
     let out = dir.join("demo8k.wav");
     run(Command::new("sox")
         .arg(repo_file("assets/speech/demo.wav"))
-        .args(["-r", "8000", "-b", "16", "-c", "1"])
+        .args(["-D", "-r", "8000", "-b", "16", "-c", "1"])
         .arg(&out));
     out
 }
@@ -52,7 +52,7 @@ pub fn timit_8k(dir: &Path, speaker: &str, utterance: &str) -> PathBuf {
     let out = dir.join(format!("{speaker}-{utterance}-8k.wav"));
     run(Command::new("sox")
         .arg(timit_dir().join(speaker).join(format!("{utterance}.wav")))
-        .args(["-r", "8000", "-b", "16", "-c", "1"])
+        .args(["-D", "-r", "8000", "-b", "16", "-c", "1"])
         .arg(&out));
     out
 }
