@@ -448,7 +448,7 @@ mod tests {
         let mut r = BitReader::new(&data);
         assert_eq!(r.read(1), Ok(1));
         assert_eq!(r.read(3), Ok(0b011));
-        assert_eq!(r.read(6), Ok(0b0010_01));
+        assert_eq!(r.read(6), Ok(0b00_1001));
         assert_eq!(r.remaining(), 30);
         r.skip(6).unwrap();
         assert_eq!(r.read(24), Ok(0xA55AFF));
@@ -511,9 +511,9 @@ mod tests {
 
     #[test]
     fn first_stage_codes_are_ordered() {
-        for a in 0..64 {
+        for (a, entry) in CDBK_NB.iter().enumerate() {
             let mut lsp = lsp_base();
-            add_stage(&mut lsp, &CDBK_NB[a], DIV_256);
+            add_stage(&mut lsp, entry, DIV_256);
             assert_ordered(&lsp, &format!("first stage {a}"));
         }
     }
@@ -765,5 +765,52 @@ mod tests {
             BitstreamError::TooManyWidebandLayers { frame: 4 }.frame(),
             4
         );
+    }
+
+    /// A random valid frame: (mode, LSP indices).
+    fn arb_frame() -> impl proptest::strategy::Strategy<Value = (u32, Vec<u32>)> {
+        use proptest::prelude::*;
+        (0u32..=8).prop_flat_map(|mode| {
+            let count = match mode {
+                0 => 0,
+                5..=7 => 5,
+                _ => 3,
+            };
+            (Just(mode), prop::collection::vec(0u32..64, count))
+        })
+    }
+
+    proptest::proptest! {
+        #[test]
+        fn random_bytes_never_panic(packet in proptest::collection::vec(proptest::num::u8::ANY, 0..300)) {
+            let mut walker = Walker::new();
+            let frames = walker.frames(&packet).count();
+            // Every frame takes at least five bits.
+            proptest::prop_assert!(frames <= packet.len() * 8 / 5);
+        }
+
+        #[test]
+        fn valid_packets_walk_and_mutated_ones_do_not_panic(
+            frames in proptest::collection::vec(arb_frame(), 0..8),
+            flips in proptest::collection::vec(proptest::num::usize::ANY, 0..4),
+            cut in proptest::num::usize::ANY,
+        ) {
+            let fields: Vec<_> = frames.iter().flat_map(|(m, i)| frame_fields(*m, i)).collect();
+            let packet = pack(&fields);
+            let walked = Walker::new().walk_packet(&packet).unwrap();
+            let modes: Vec<u32> = walked.iter().map(|f| u32::from(f.mode())).collect();
+            let expected: Vec<u32> = frames.iter().map(|(m, _)| *m).collect();
+            proptest::prop_assert_eq!(modes, expected);
+
+            let mut mutated = packet.clone();
+            if !mutated.is_empty() {
+                for flip in flips {
+                    let bit = flip % (mutated.len() * 8);
+                    mutated[bit / 8] ^= 0x80 >> (bit % 8);
+                }
+                mutated.truncate(cut % (mutated.len() + 1));
+            }
+            let _ = Walker::new().walk_packet(&mutated);
+        }
     }
 }
