@@ -5,6 +5,12 @@
 //! that it finds exactly the frames `nb_decode` would decode. The LSPs are dequantised with
 //! the same constants and the same floating-point steps as the float build of libspeex, so
 //! they are bit-identical to the decoder's `old_qlsp` after each frame.
+//!
+//! Being the decoder's raw values, they are not always ordered or inside (0, pi): about 2% of
+//! the 18-bit codes and 4% of the 30-bit codes give overlapping LSPs, and a few 30-bit codes
+//! a first LSP at or below zero. The decoder enforces its stability margins only on the
+//! per-subframe interpolated copies it builds filters from; consumers needing ordered LSPs
+//! must do the same.
 
 use super::LSP_COUNT;
 use super::lsp_tables::{CDBK_NB, CDBK_NB_HIGH1, CDBK_NB_HIGH2, CDBK_NB_LOW1, CDBK_NB_LOW2};
@@ -33,7 +39,8 @@ const MODE_TERMINATOR: u32 = 15;
 /// One narrowband frame found in a packet.
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub enum Frame {
-    /// A frame of mode 1..=8; `lsp` is what the decoder's `old_qlsp` holds after it.
+    /// A frame of mode 1..=8; `lsp` is what the decoder's `old_qlsp` holds after it (which
+    /// may be unordered, see the module documentation).
     Speech { mode: u8, lsp: Lsp },
     /// A mode-0 frame, which carries no LSPs. The decoder leaves `old_qlsp` untouched, so it
     /// still holds the last speech frame's LSPs (`held_lsp`); before any speech frame it holds
@@ -60,6 +67,10 @@ impl Frame {
 }
 
 /// Why a packet could not be walked. `frame` counts the frames already found before it.
+///
+/// The reference decoder reports the same packets as corrupt (-2), except truncation: there
+/// it decodes the missing bits as zeros, or takes a cut-off in-band message or wideband
+/// layer as the end of the packet.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, thiserror::Error)]
 pub enum BitstreamError {
     #[error("frame {frame}: packet truncated ({needed} bits needed, {remaining} left)")]
