@@ -31,6 +31,24 @@ pub fn flat_lsp() -> [f32; LSP_COUNT] {
     std::array::from_fn(|i| std::f32::consts::PI * (i + 1) as f32 / (LSP_COUNT + 1) as f32)
 }
 
+/// Smallest gap kept between neighbouring LSPs and from 0 and pi.
+pub const LSP_MARGIN: f32 = 0.002;
+
+/// The decoder stores LSPs exactly as dequantised, and a few quantiser codes give overlapping
+/// or non-positive values (the decoder only spaces the interpolated copies it filters with).
+/// Features promise `0 < lsp1 < ... < lsp10 < pi`, so sort and space them here.
+pub fn ordered_lsp(mut lsp: [f32; LSP_COUNT]) -> [f32; LSP_COUNT] {
+    lsp.sort_by(f32::total_cmp);
+    let top = std::f32::consts::PI - LSP_MARGIN;
+    let mut floor = LSP_MARGIN;
+    for (i, l) in lsp.iter_mut().enumerate() {
+        let ceiling = top - LSP_MARGIN * (LSP_COUNT - 1 - i) as f32;
+        *l = l.clamp(floor, ceiling);
+        floor = *l + LSP_MARGIN;
+    }
+    lsp
+}
+
 /// Mean-square energy of 16-bit samples in dB re full scale, floored at [`SILENCE_DB`].
 pub fn energy_db(samples: &[i16]) -> f32 {
     if samples.is_empty() {
@@ -90,8 +108,8 @@ impl FrameTracker {
                 break;
             }
             self.pending[self.pending_len] = Some(match frame {
-                Frame::Speech { mode, lsp } => (mode, lsp),
-                Frame::Silence { held_lsp } => (0, held_lsp.unwrap_or_else(flat_lsp)),
+                Frame::Speech { mode, lsp } => (mode, ordered_lsp(lsp)),
+                Frame::Silence { held_lsp } => (0, held_lsp.map_or_else(flat_lsp, ordered_lsp)),
             });
             self.pending_len += 1;
         }
@@ -126,7 +144,9 @@ impl FrameTracker {
     }
 
     fn held_lsp(&self) -> [f32; LSP_COUNT] {
-        self.walker.held_lsp().copied().unwrap_or_else(flat_lsp)
+        self.walker
+            .held_lsp()
+            .map_or_else(flat_lsp, |&lsp| ordered_lsp(lsp))
     }
 }
 
@@ -196,6 +216,17 @@ mod tests {
         assert_eq!(energy_db(&[0; 160]), SILENCE_DB);
         let half: Vec<i16> = vec![16384; 160];
         assert!((energy_db(&half) + 6.02).abs() < 0.01);
+    }
+
+    #[test]
+    fn overlapping_and_negative_lsps_are_ordered_and_spaced() {
+        let raw = [-0.061, 0.3, 0.29, 0.29, 1.0, 1.5, 2.0, 2.5, 3.0, 3.2];
+        let l = ordered_lsp(raw);
+        assert!(l[0] >= LSP_MARGIN);
+        assert!(l[9] <= std::f32::consts::PI - LSP_MARGIN);
+        assert!(l.windows(2).all(|w| w[1] - w[0] >= LSP_MARGIN * 0.999));
+        let fine = flat_lsp();
+        assert_eq!(ordered_lsp(fine), fine);
     }
 
     #[test]

@@ -1,0 +1,51 @@
+//! Decode alone against decode + LSP/energy features, per 20 ms frame (goal: ratio <= 1.05).
+
+use std::hint::black_box;
+use std::path::Path;
+
+use criterion::{Criterion, Throughput, criterion_group, criterion_main};
+use lipcall::audio::wav;
+use lipcall::speex::codec::{Decoder, EncoderConfig};
+use lipcall::speex::features::FrameTracker;
+use lipcall::speex::{FRAME_SIZE, ogg_file, stream};
+
+fn demo_packets() -> Vec<Vec<u8>> {
+    let path = Path::new(env!("CARGO_MANIFEST_DIR")).join("assets/speech/demo.wav");
+    let pcm = wav::read_narrowband(&path).expect("demo speech");
+    let spx = stream::encode(&pcm, EncoderConfig::default()).expect("encode");
+    let file = ogg_file::read(&spx).expect("read back");
+    file.pages.into_iter().flat_map(|p| p.packets).collect()
+}
+
+fn decode_vs_features(c: &mut Criterion) {
+    let packets = demo_packets();
+    let mut group = c.benchmark_group("decode");
+    group.throughput(Throughput::Elements(packets.len() as u64));
+    group.bench_function("decode alone", |b| {
+        let mut decoder = Decoder::new(true).unwrap();
+        let mut out = [0i16; FRAME_SIZE];
+        b.iter(|| {
+            for p in &packets {
+                decoder.load(p).unwrap();
+                black_box(decoder.decode_next(&mut out).unwrap());
+            }
+        })
+    });
+    group.bench_function("decode + features", |b| {
+        let mut decoder = Decoder::new(true).unwrap();
+        let mut tracker = FrameTracker::new();
+        let mut out = [0i16; FRAME_SIZE];
+        b.iter(|| {
+            for p in &packets {
+                decoder.load(p).unwrap();
+                tracker.start_packet(p).unwrap();
+                black_box(decoder.decode_next(&mut out).unwrap());
+                black_box(tracker.decoded(&out));
+            }
+        })
+    });
+    group.finish();
+}
+
+criterion_group!(benches, decode_vs_features);
+criterion_main!(benches);
