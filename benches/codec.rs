@@ -44,6 +44,26 @@ fn decode_vs_features(c: &mut Criterion) {
             }
         })
     });
+    // The features' own cost, measured apart so that the ratio survives a noisy machine.
+    group.bench_function("features alone", |b| {
+        let mut decoder = Decoder::new(true).unwrap();
+        let mut tracker = FrameTracker::new();
+        let decoded: Vec<[i16; FRAME_SIZE]> = packets
+            .iter()
+            .map(|p| {
+                let mut out = [0i16; FRAME_SIZE];
+                decoder.load(p).unwrap();
+                decoder.decode_next(&mut out).unwrap();
+                out
+            })
+            .collect();
+        b.iter(|| {
+            for (p, pcm) in packets.iter().zip(&decoded) {
+                tracker.start_packet(p).unwrap();
+                black_box(tracker.decoded(pcm));
+            }
+        })
+    });
     group.finish();
 }
 
