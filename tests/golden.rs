@@ -67,3 +67,29 @@ fn golden_file_gives_golden_features() {
         );
     }
 }
+
+#[test]
+fn round_trip_rows_line_up_with_the_input() {
+    // A 1 kHz burst from 0.5 s to 1.0 s: the loud rows must be exactly rows 25..50.
+    let pcm: Vec<i16> = (0..16_000)
+        .map(|i| {
+            let on = (4000..8000).contains(&i);
+            if on {
+                (8000.0 * (i as f32 * 0.785_398).sin()) as i16
+            } else {
+                0
+            }
+        })
+        .collect();
+    let decoded =
+        stream::round_trip(&pcm, lipcall::speex::codec::EncoderConfig::default()).unwrap();
+    let loud: Vec<usize> = decoded
+        .features
+        .iter()
+        .enumerate()
+        .filter(|(_, f)| f.energy_db > -30.0)
+        .map(|(n, _)| n)
+        .collect();
+    assert_eq!(loud.first(), Some(&25), "{loud:?}");
+    assert!(matches!(loud.last(), Some(&49) | Some(&50)), "{loud:?}");
+}

@@ -148,3 +148,9 @@ pub fn decode_file(file: &SpeexFile, enhancer: bool) -> Result<Decoded, StreamEr
         corrupt_packets,
     })
 }
+
+/// What a receiver would see of `pcm`: encoded at `config`, decoded with the enhancer on, and
+/// trimmed as speexdec trims, so feature row `n` lines up with input samples `160n..160n+160`.
+pub fn round_trip(pcm: &[i16], config: EncoderConfig) -> Result<Decoded, StreamError> {
+    decode(&encode(pcm, config)?, true)
+}
