@@ -3,3 +3,4 @@
 pub mod audio;
 pub mod lipsync;
 pub mod speex;
+pub mod train;
