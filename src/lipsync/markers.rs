@@ -80,7 +80,7 @@ impl MarkerTrack {
             2
         };
         let axes = ["_x", "_y", "_z"];
-        if coords.is_empty() || coords.len() % point_dim != 0 {
+        if coords.is_empty() || !coords.len().is_multiple_of(point_dim) {
             return Err(MarkerError::BadHeader(format!(
                 "{} coordinate columns do not make whole {point_dim}D points",
                 coords.len()

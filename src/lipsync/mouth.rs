@@ -138,7 +138,7 @@ impl VisemeShapes {
         }
         let coords = shapes.first().map_or(0, |(_, s)| s.len());
         for (_, s) in &shapes {
-            if s.len() != coords || coords % point_dim != 0 {
+            if s.len() != coords || !coords.is_multiple_of(point_dim) {
                 return Err(ShapeError::WrongLength {
                     expected: coords - coords % point_dim,
                     found: s.len(),

@@ -759,3 +759,78 @@ mod tests {
         ));
     }
 }
+
+/// Full experiments on the stand-in features (`cargo test --release --lib experiment -- --ignored
+/// --nocapture`): trains on the standard split and scores the TEST speakers.
+#[cfg(test)]
+mod experiments {
+    use super::*;
+    use crate::train::corpus::tests::timit_root;
+    use crate::train::eval::evaluate_prepared;
+    use crate::train::stand_in;
+
+    #[test]
+    #[ignore = "full training run, minutes in release"]
+    fn experiment_standard_split() {
+        let corpus = Corpus::open(&timit_root()).unwrap();
+        let split = SpeakerSplit::standard(&corpus).unwrap();
+        let load = |speakers: &[String]| {
+            prepare(
+                &corpus.utterances_of(speakers).unwrap(),
+                &stand_in::features_for_utterance,
+            )
+            .unwrap()
+        };
+        let (train, validation, test) = (
+            load(&split.train),
+            load(&split.validation),
+            load(&split.test),
+        );
+        let variants: Vec<(usize, usize, usize, f32)> = std::env::var("LIPCALL_VARIANTS")
+            .unwrap_or_else(|_| "6:2:10:4".into())
+            .split(',')
+            .map(|v| {
+                let p: Vec<&str> = v.split(':').collect();
+                (
+                    p[0].parse().unwrap(),
+                    p[1].parse().unwrap(),
+                    p[2].parse().unwrap(),
+                    p[3].parse().unwrap(),
+                )
+            })
+            .collect();
+        for (visemes, context, hidden, closure_weight) in variants {
+            let config = TrainConfig {
+                visemes: VisemeSet::reduced(visemes).unwrap(),
+                context,
+                hidden,
+                closure_weight,
+                show_progress: false,
+                allow_over_budget: true,
+                curves_csv: Some(std::env::temp_dir().join(format!(
+                    "lipcall-curves-{visemes}-{context}-{hidden}-{closure_weight}.csv"
+                ))),
+                ..TrainConfig::default()
+            };
+            let mut report = train_on(&config, &train, &validation).unwrap();
+            report.split = split.clone();
+            println!(
+                "== visemes {visemes} context {context} hidden {hidden} closure weight {closure_weight}"
+            );
+            println!("{report}");
+            let on_validation = evaluate_prepared(
+                &report.model,
+                &validation,
+                &split.validation,
+                &config.shapes,
+            );
+            println!("{}", on_validation.unwrap());
+            if std::env::var("LIPCALL_TEST").is_ok() {
+                println!(
+                    "{}",
+                    evaluate_prepared(&report.model, &test, &split.test, &config.shapes).unwrap()
+                );
+            }
+        }
+    }
+}
