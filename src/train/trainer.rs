@@ -411,23 +411,35 @@ fn percentile(values: &mut [f32], q: f32) -> f32 {
     values[i]
 }
 
+/// Scaling fitted on the training frames: each of the 11 inputs maps its 2nd..98th percentile
+/// onto [-1, 1]. Each LSP moves within a small part of [0, pi], so the paper's fixed
+/// [0, pi] -> [-1, 1] would leave the inputs nearly constant.
+fn fitted_scaling(train: &[PreparedUtterance]) -> InputScaling {
+    let mut scaling = InputScaling::new(-80.0, -10.0);
+    for i in 0..FEATURES_PER_FRAME {
+        let mut values: Vec<f32> = train
+            .iter()
+            .flat_map(|u| u.features.iter())
+            .map(|f| if i < 10 { f.lsp[i] } else { f.energy_db })
+            .filter(|v| v.is_finite())
+            .collect();
+        if values.is_empty() {
+            continue;
+        }
+        let low = percentile(&mut values, 0.02);
+        let high = percentile(&mut values, 0.98);
+        if high > low {
+            scaling.offset[i] = 0.5 * (low + high);
+            scaling.scale[i] = 2.0 / (high - low);
+        }
+    }
+    scaling
+}
+
 fn initial_model(config: &TrainConfig, train: &[PreparedUtterance], rng: &mut Rng) -> Model {
-    let mut energies: Vec<f32> = train
-        .iter()
-        .flat_map(|u| u.features.iter().map(|f| f.energy_db))
-        .filter(|e| e.is_finite())
-        .collect();
-    let (low, high) = if energies.is_empty() {
-        (-80.0, -10.0)
-    } else {
-        (
-            percentile(&mut energies, 0.02),
-            percentile(&mut energies, 0.98),
-        )
-    };
     let mut model = Model::zeros(
         config.visemes.clone(),
-        InputScaling::new(low, high),
+        fitted_scaling(train),
         config.context,
         config.hidden,
     );
