@@ -798,6 +798,22 @@ mod experiments {
             load(&split.validation),
             load(&split.test),
         );
+        let shapes = VisemeShapes::point_model();
+        let mut track = PointTrack::new(shapes.point_dim(), shapes.coords());
+        for utt in &train {
+            let full = VisemeSet::full();
+            let weights = utt.targets.weights.iter().map(|w| &w[..]);
+            for frame in PointTrack::from_weights(&shapes, &full, weights)
+                .unwrap()
+                .frames()
+            {
+                track.push(frame).unwrap();
+            }
+        }
+        println!(
+            "{}",
+            crate::lipsync::decompose::table_i_reduced(&track, &shapes).unwrap()
+        );
         let variants: Vec<(usize, usize, usize, f32)> = std::env::var("LIPCALL_VARIANTS")
             .unwrap_or_else(|_| "6:2:10:4".into())
             .split(',')
