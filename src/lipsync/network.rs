@@ -561,3 +561,37 @@ mod tests {
         assert!((scaling.energy_db_at(0.0) + 40.0).abs() < 1e-5);
     }
 }
+
+#[cfg(test)]
+mod timing {
+    use super::*;
+
+    /// `cargo test --release --lib inference_time -- --ignored --nocapture`
+    #[test]
+    #[ignore = "timing, meaningful in release only"]
+    fn inference_time_per_frame() {
+        let model = Model::zeros(
+            VisemeSet::reduced(6).unwrap(),
+            InputScaling::new(-70.0, -10.0),
+            2,
+            10,
+        );
+        let mut state = model.new_state();
+        let mut features = silence_features();
+        let mut weights = [0.0; 6];
+        let frames = 1_000_000;
+        let start = std::time::Instant::now();
+        for n in 0..frames {
+            features.energy_db = -60.0 + (n % 50) as f32;
+            model.step(&mut state, std::hint::black_box(&features), &mut weights);
+            std::hint::black_box(&weights);
+        }
+        let per_frame = start.elapsed().as_secs_f64() / frames as f64;
+        println!(
+            "{} multiply-adds, {:.0} ns per frame",
+            model.multiply_adds(),
+            per_frame * 1e9
+        );
+        assert!(per_frame < 1e-6);
+    }
+}
