@@ -2,4 +2,6 @@
 
 pub mod audio;
 pub mod commands;
+pub mod lipsync;
 pub mod speex;
+pub mod train;

@@ -1,0 +1,597 @@
+//! The per-frame network: 11 decoder features (10 LSPs + energy) of the current frame and a few
+//! past ones, scaled to [-1, 1], one tanh hidden layer, and a softmax over the viseme set so the
+//! output weights are convex. Inference allocates nothing.
+//!
+//! # Model file (text, UTF-8, fit for `include_str!`)
+//!
+//! ```text
+//! # any number of comment lines (kept as notes), e.g. what the weights were trained on
+//! lipcall-viseme-mlp 1
+//! visemes PP aa I O E FF        names from the 15, in output order
+//! context 2                     past frames fed besides the current one
+//! hidden 10                     hidden units
+//! input_offset <11 numbers>     scaled input = clamp((x - offset) * scale, -1, 1)
+//! input_scale <11 numbers>      in the order lsp1..lsp10, energy_db
+//! w1 <hidden x inputs numbers>  row-major, one row per hidden unit
+//! b1 <hidden numbers>
+//! w2 <outputs x hidden numbers> row-major, one row per viseme
+//! b2 <outputs numbers>
+//! end
+//! ```
+//!
+//! Inputs are ordered frame by frame, newest first: current frame's 11 values, then the frame
+//! before, and so on. Numbers are written in Rust's shortest round-trip form, so a save and load
+//! gives bit-identical weights. Anything malformed, missing or trailing is a [`ModelError`].
+
+use std::fmt::Write as _;
+use std::path::Path;
+
+use super::visemes::{VisemeError, VisemeSet};
+use crate::speex::features::FrameFeatures;
+
+/// Features per frame: 10 LSPs and the energy.
+pub const FEATURES_PER_FRAME: usize = 11;
+
+/// Multiply-adds per frame the paper budgets for the network (Section III.D).
+pub const MULTIPLY_ADD_BUDGET: usize = 400;
+
+const MAGIC: &str = "lipcall-viseme-mlp";
+const VERSION: &str = "1";
+const MAX_CONTEXT: usize = 32;
+const MAX_HIDDEN: usize = 1024;
+
+/// Per input: `scaled = clamp((x - offset) * scale, -1, 1)`.
+#[derive(Debug, Clone, PartialEq)]
+pub struct InputScaling {
+    pub offset: [f32; FEATURES_PER_FRAME],
+    pub scale: [f32; FEATURES_PER_FRAME],
+}
+
+impl InputScaling {
+    /// LSPs from [0, pi] and the energy from `[energy_low_db, energy_high_db]` onto [-1, 1].
+    pub fn new(energy_low_db: f32, energy_high_db: f32) -> Self {
+        let half_pi = std::f32::consts::FRAC_PI_2;
+        let mut offset = [half_pi; FEATURES_PER_FRAME];
+        let mut scale = [1.0 / half_pi; FEATURES_PER_FRAME];
+        offset[10] = 0.5 * (energy_low_db + energy_high_db);
+        scale[10] = 2.0 / (energy_high_db - energy_low_db).max(1e-3);
+        Self { offset, scale }
+    }
+
+    /// Writes the 11 scaled inputs of one frame into `out`.
+    pub fn apply(&self, features: &FrameFeatures, out: &mut [f32]) {
+        let raw = features
+            .lsp
+            .iter()
+            .chain(std::iter::once(&features.energy_db));
+        for (i, (o, &x)) in out.iter_mut().zip(raw).enumerate() {
+            let scaled = (x - self.offset[i]) * self.scale[i];
+            // NaN from a broken frame must not poison the history.
+            *o = if scaled.is_nan() {
+                0.0
+            } else {
+                scaled.clamp(-1.0, 1.0)
+            };
+        }
+    }
+
+    /// Energy in dB that maps to the scaled value `s` in [-1, 1].
+    pub fn energy_db_at(&self, s: f32) -> f32 {
+        self.offset[10] + s / self.scale[10]
+    }
+}
+
+/// What a silent stream looks like before its first frame: evenly spread LSPs, no energy.
+pub fn silence_features() -> FrameFeatures {
+    let mut lsp = [0.0; 10];
+    for (i, l) in lsp.iter_mut().enumerate() {
+        *l = std::f32::consts::PI * (i + 1) as f32 / 11.0;
+    }
+    FrameFeatures {
+        mode: None,
+        lsp,
+        energy_db: -100.0,
+    }
+}
+
+/// A one-hidden-layer network from decoder features to convex viseme weights.
+#[derive(Debug, Clone, PartialEq)]
+pub struct Model {
+    pub visemes: VisemeSet,
+    pub scaling: InputScaling,
+    /// Past frames used besides the current one (no look-ahead).
+    pub context: usize,
+    pub hidden: usize,
+    /// `hidden x inputs`, row-major.
+    pub w1: Vec<f32>,
+    pub b1: Vec<f32>,
+    /// `outputs x hidden`, row-major.
+    pub w2: Vec<f32>,
+    pub b2: Vec<f32>,
+    /// Free text kept as comment lines at the top of the file (provenance of the weights).
+    pub notes: Vec<String>,
+}
+
+/// Per-stream state of a running model: the scaled input history and scratch space.
+#[derive(Debug, Clone)]
+pub struct InferenceState {
+    input: Vec<f32>,
+    hidden: Vec<f32>,
+}
+
+impl Model {
+    /// A network with all weights zero (uniform output), to be trained.
+    pub fn zeros(visemes: VisemeSet, scaling: InputScaling, context: usize, hidden: usize) -> Self {
+        let inputs = FEATURES_PER_FRAME * (1 + context);
+        let outputs = visemes.len();
+        Self {
+            visemes,
+            scaling,
+            context,
+            hidden,
+            w1: vec![0.0; hidden * inputs],
+            b1: vec![0.0; hidden],
+            w2: vec![0.0; outputs * hidden],
+            b2: vec![0.0; outputs],
+            notes: Vec::new(),
+        }
+    }
+
+    pub fn inputs(&self) -> usize {
+        FEATURES_PER_FRAME * (1 + self.context)
+    }
+
+    pub fn outputs(&self) -> usize {
+        self.visemes.len()
+    }
+
+    /// Multiply-adds of one frame through both layers.
+    pub fn multiply_adds(&self) -> usize {
+        multiply_adds(self.context, self.hidden, self.visemes.len())
+    }
+
+    pub fn new_state(&self) -> InferenceState {
+        let mut state = InferenceState {
+            input: vec![0.0; self.inputs()],
+            hidden: vec![0.0; self.hidden],
+        };
+        self.reset(&mut state);
+        state
+    }
+
+    /// Forgets the history: as if the stream had been silent.
+    pub fn reset(&self, state: &mut InferenceState) {
+        let mut silent = [0.0; FEATURES_PER_FRAME];
+        self.scaling.apply(&silence_features(), &mut silent);
+        for frame in state.input.chunks_exact_mut(FEATURES_PER_FRAME) {
+            frame.copy_from_slice(&silent);
+        }
+    }
+
+    /// Feeds one frame and writes convex weights over `self.visemes` into `weights`
+    /// (which must hold `self.outputs()` values). Allocates nothing.
+    pub fn step(&self, state: &mut InferenceState, features: &FrameFeatures, weights: &mut [f32]) {
+        let len = state.input.len();
+        state
+            .input
+            .copy_within(0..len - FEATURES_PER_FRAME, FEATURES_PER_FRAME);
+        self.scaling
+            .apply(features, &mut state.input[..FEATURES_PER_FRAME]);
+        self.forward(&state.input, &mut state.hidden, weights);
+    }
+
+    /// Both layers on an already scaled input vector.
+    pub(crate) fn forward(&self, input: &[f32], hidden: &mut [f32], weights: &mut [f32]) {
+        let inputs = input.len();
+        for ((h, row), b) in hidden
+            .iter_mut()
+            .zip(self.w1.chunks_exact(inputs))
+            .zip(&self.b1)
+        {
+            *h = (b + dot(row, input)).tanh();
+        }
+        for ((o, row), b) in weights
+            .iter_mut()
+            .zip(self.w2.chunks_exact(self.hidden))
+            .zip(&self.b2)
+        {
+            *o = b + dot(row, hidden);
+        }
+        softmax_in_place(weights);
+    }
+
+    /// The model in its text file format.
+    pub fn to_text(&self) -> String {
+        let mut text = String::new();
+        for note in &self.notes {
+            let _ = writeln!(text, "# {note}");
+        }
+        let _ = writeln!(text, "{MAGIC} {VERSION}");
+        let names: Vec<&str> = self.visemes.members().iter().map(|v| v.name()).collect();
+        let _ = writeln!(text, "visemes {}", names.join(" "));
+        let _ = writeln!(text, "context {}", self.context);
+        let _ = writeln!(text, "hidden {}", self.hidden);
+        for (key, values) in [
+            ("input_offset", &self.scaling.offset[..]),
+            ("input_scale", &self.scaling.scale[..]),
+            ("w1", &self.w1),
+            ("b1", &self.b1),
+            ("w2", &self.w2),
+            ("b2", &self.b2),
+        ] {
+            text.push_str(key);
+            for v in values {
+                let _ = write!(text, " {v}");
+            }
+            text.push('\n');
+        }
+        text.push_str("end\n");
+        text
+    }
+
+    /// Parses the text file format.
+    pub fn from_text(text: &str) -> Result<Self, ModelError> {
+        let mut notes = Vec::new();
+        let mut lines = text.lines().enumerate().filter_map(|(i, line)| {
+            let line = line.trim();
+            if let Some(note) = line.strip_prefix('#') {
+                notes.push(note.trim().to_string());
+                None
+            } else if line.is_empty() {
+                None
+            } else {
+                Some((i + 1, line))
+            }
+        });
+        let mut next = |key: &'static str| -> Result<(usize, Vec<&str>), ModelError> {
+            let (line, text) = lines.next().ok_or(ModelError::Truncated(key))?;
+            let mut words = text.split_whitespace();
+            let found = words.next().unwrap_or_default();
+            if found != key {
+                return Err(ModelError::UnexpectedKey {
+                    line,
+                    expected: key,
+                    found: found.to_string(),
+                });
+            }
+            Ok((line, words.collect()))
+        };
+
+        let (line, version) = next(MAGIC).map_err(|e| match e {
+            ModelError::UnexpectedKey { .. } | ModelError::Truncated(_) => ModelError::NotAModel,
+            other => other,
+        })?;
+        if version != [VERSION] {
+            return Err(ModelError::Version {
+                line,
+                found: version.join(" "),
+            });
+        }
+        let (line, names) = next("visemes")?;
+        let visemes = VisemeSet::parse(&names.join(","))
+            .map_err(|source| ModelError::Visemes { line, source })?;
+        let context = parse_size(next("context")?, "context", MAX_CONTEXT)?;
+        let hidden = parse_size(next("hidden")?, "hidden", MAX_HIDDEN)?;
+        let inputs = FEATURES_PER_FRAME * (1 + context);
+        let outputs = visemes.len();
+        let offset = parse_floats(next("input_offset")?, "input_offset", FEATURES_PER_FRAME)?;
+        let scale = parse_floats(next("input_scale")?, "input_scale", FEATURES_PER_FRAME)?;
+        let w1 = parse_floats(next("w1")?, "w1", hidden * inputs)?;
+        let b1 = parse_floats(next("b1")?, "b1", hidden)?;
+        let w2 = parse_floats(next("w2")?, "w2", outputs * hidden)?;
+        let b2 = parse_floats(next("b2")?, "b2", outputs)?;
+        let (line, rest) = next("end")?;
+        if !rest.is_empty() {
+            return Err(ModelError::TrailingData { line });
+        }
+        if let Some((line, _)) = lines.next() {
+            return Err(ModelError::TrailingData { line });
+        }
+        let mut scaling = InputScaling::new(-1.0, 1.0);
+        scaling.offset.copy_from_slice(&offset);
+        scaling.scale.copy_from_slice(&scale);
+        Ok(Self {
+            visemes,
+            scaling,
+            context,
+            hidden,
+            w1,
+            b1,
+            w2,
+            b2,
+            notes,
+        })
+    }
+
+    pub fn load(path: &Path) -> Result<Self, ModelError> {
+        let text = std::fs::read_to_string(path).map_err(|source| ModelError::Io {
+            path: path.display().to_string(),
+            source,
+        })?;
+        Self::from_text(&text)
+    }
+
+    pub fn save(&self, path: &Path) -> Result<(), ModelError> {
+        std::fs::write(path, self.to_text()).map_err(|source| ModelError::Io {
+            path: path.display().to_string(),
+            source,
+        })
+    }
+}
+
+/// Multiply-adds of one frame for a network of this shape.
+pub fn multiply_adds(context: usize, hidden: usize, outputs: usize) -> usize {
+    FEATURES_PER_FRAME * (1 + context) * hidden + hidden * outputs
+}
+
+fn dot(a: &[f32], b: &[f32]) -> f32 {
+    a.iter().zip(b).map(|(x, y)| x * y).sum()
+}
+
+pub(crate) fn softmax_in_place(values: &mut [f32]) {
+    let max = values.iter().copied().fold(f32::NEG_INFINITY, f32::max);
+    let mut total = 0.0;
+    for v in values.iter_mut() {
+        *v = (*v - max).exp();
+        total += *v;
+    }
+    for v in values.iter_mut() {
+        *v /= total;
+    }
+}
+
+fn parse_size(
+    (line, words): (usize, Vec<&str>),
+    key: &'static str,
+    max: usize,
+) -> Result<usize, ModelError> {
+    let [word] = words[..] else {
+        return Err(ModelError::WrongCount {
+            line,
+            key,
+            expected: 1,
+            found: words.len(),
+        });
+    };
+    let value: usize = word.parse().map_err(|_| ModelError::BadNumber {
+        line,
+        key,
+        text: word.to_string(),
+    })?;
+    if value > max || (key == "hidden" && value == 0) {
+        return Err(ModelError::OutOfRange {
+            line,
+            key,
+            value,
+            max,
+        });
+    }
+    Ok(value)
+}
+
+fn parse_floats(
+    (line, words): (usize, Vec<&str>),
+    key: &'static str,
+    expected: usize,
+) -> Result<Vec<f32>, ModelError> {
+    if words.len() != expected {
+        return Err(ModelError::WrongCount {
+            line,
+            key,
+            expected,
+            found: words.len(),
+        });
+    }
+    words
+        .iter()
+        .map(|word| match word.parse::<f32>() {
+            Ok(v) if v.is_finite() => Ok(v),
+            _ => Err(ModelError::BadNumber {
+                line,
+                key,
+                text: word.to_string(),
+            }),
+        })
+        .collect()
+}
+
+#[derive(Debug, thiserror::Error)]
+pub enum ModelError {
+    #[error("not a lipcall viseme model (the first line must be `{MAGIC} {VERSION}`)")]
+    NotAModel,
+    #[error("line {line}: unsupported model version {found:?} (this build reads {VERSION})")]
+    Version { line: usize, found: String },
+    #[error("model file ends early: `{0}` is missing")]
+    Truncated(&'static str),
+    #[error("line {line}: expected `{expected}`, found {found:?}")]
+    UnexpectedKey {
+        line: usize,
+        expected: &'static str,
+        found: String,
+    },
+    #[error("line {line}: `{key}` has {found} values, expected {expected}")]
+    WrongCount {
+        line: usize,
+        key: &'static str,
+        expected: usize,
+        found: usize,
+    },
+    #[error("line {line}: bad number {text:?} in `{key}`")]
+    BadNumber {
+        line: usize,
+        key: &'static str,
+        text: String,
+    },
+    #[error("line {line}: `{key}` {value} is out of range (1..={max})")]
+    OutOfRange {
+        line: usize,
+        key: &'static str,
+        value: usize,
+        max: usize,
+    },
+    #[error("line {line}: {source}")]
+    Visemes { line: usize, source: VisemeError },
+    #[error("line {line}: data after `end`")]
+    TrailingData { line: usize },
+    #[error("{path}: {source}")]
+    Io {
+        path: String,
+        source: std::io::Error,
+    },
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn sample_model() -> Model {
+        let mut model = Model::zeros(
+            VisemeSet::reduced(3).unwrap(),
+            InputScaling::new(-70.0, -10.0),
+            2,
+            4,
+        );
+        let mut x = 0.37f32;
+        for w in model
+            .w1
+            .iter_mut()
+            .chain(&mut model.b1)
+            .chain(&mut model.w2)
+            .chain(&mut model.b2)
+        {
+            x = (x * 3.7 + 0.11).fract();
+            *w = (x - 0.5) * 1.3e-3 / (x + 0.01);
+        }
+        model.notes.push("test weights".into());
+        model
+    }
+
+    fn frame(energy_db: f32) -> FrameFeatures {
+        let mut f = silence_features();
+        f.energy_db = energy_db;
+        f.lsp[0] = 0.2;
+        f
+    }
+
+    #[test]
+    fn outputs_are_convex_and_use_the_past() {
+        let model = sample_model();
+        let mut state = model.new_state();
+        let mut first = [0.0; 3];
+        model.step(&mut state, &frame(-20.0), &mut first);
+        assert!((first.iter().sum::<f32>() - 1.0).abs() < 1e-6);
+        assert!(first.iter().all(|&w| w > 0.0));
+        let mut second = [0.0; 3];
+        model.step(&mut state, &frame(-20.0), &mut second);
+        assert_ne!(first, second, "the history changed the answer");
+        model.reset(&mut state);
+        model.step(&mut state, &frame(-20.0), &mut second);
+        assert_eq!(first, second);
+        assert_eq!(model.multiply_adds(), 33 * 4 + 4 * 3);
+    }
+
+    #[test]
+    fn model_file_round_trips_exactly() {
+        let model = sample_model();
+        let text = model.to_text();
+        assert!(text.starts_with("# test weights\nlipcall-viseme-mlp 1\nvisemes PP aa I\n"));
+        assert_eq!(Model::from_text(&text).unwrap(), model);
+    }
+
+    #[test]
+    fn corrupt_model_files_are_typed_errors() {
+        let text = sample_model().to_text();
+        let cut = &text[..text.len() / 2];
+        let truncated_at_line = cut.rfind('\n').map_or(cut, |i| &cut[..i]);
+        assert!(matches!(
+            Model::from_text(truncated_at_line),
+            Err(ModelError::Truncated(_))
+        ));
+        assert!(matches!(
+            Model::from_text(cut),
+            Err(ModelError::WrongCount { .. } | ModelError::BadNumber { .. })
+        ));
+        assert!(matches!(Model::from_text(""), Err(ModelError::NotAModel)));
+        assert!(matches!(
+            Model::from_text("GIF89a"),
+            Err(ModelError::NotAModel)
+        ));
+        let cases = [
+            ("lipcall-viseme-mlp 1\n", "lipcall-viseme-mlp 2\n"),
+            ("visemes PP aa I", "visemes PP xx I"),
+            ("hidden 4", "hidden 99999999"),
+            ("hidden 4", "hidden 0"),
+            ("context 2", "context -1"),
+            ("end\n", "end\nw1 1\n"),
+        ];
+        for (from, to) in cases {
+            let broken = text.replacen(from, to, 1);
+            assert!(Model::from_text(&broken).is_err(), "accepted {to:?}");
+        }
+        for bad in ["1e999", "NaN", "x"] {
+            let broken: Vec<String> = text
+                .lines()
+                .map(|line| match line.strip_prefix("b1 ") {
+                    Some(values) => {
+                        let rest = values.split_once(' ').map_or("", |(_, r)| r);
+                        format!("b1 {bad} {rest}")
+                    }
+                    None => line.to_string(),
+                })
+                .collect();
+            let message = Model::from_text(&broken.join("\n"))
+                .unwrap_err()
+                .to_string();
+            assert!(
+                message.contains(&format!("bad number \"{bad}\" in `b1`")),
+                "{message}"
+            );
+        }
+    }
+
+    #[test]
+    fn scaling_clamps_and_ignores_nan() {
+        let scaling = InputScaling::new(-70.0, -10.0);
+        let mut out = [0.0; 11];
+        let mut f = frame(0.0);
+        f.lsp[1] = f32::NAN;
+        scaling.apply(&f, &mut out);
+        assert_eq!(out[10], 1.0);
+        assert_eq!(out[1], 0.0);
+        assert!((scaling.energy_db_at(0.0) + 40.0).abs() < 1e-5);
+    }
+}
+
+#[cfg(test)]
+mod timing {
+    use super::*;
+
+    /// `cargo test --release --lib inference_time -- --ignored --nocapture`
+    #[test]
+    #[ignore = "timing, meaningful in release only"]
+    fn inference_time_per_frame() {
+        let model = Model::zeros(
+            VisemeSet::reduced(6).unwrap(),
+            InputScaling::new(-70.0, -10.0),
+            2,
+            10,
+        );
+        let mut state = model.new_state();
+        let mut features = silence_features();
+        let mut weights = [0.0; 6];
+        let frames = 1_000_000;
+        let start = std::time::Instant::now();
+        for n in 0..frames {
+            features.energy_db = -60.0 + (n % 50) as f32;
+            model.step(&mut state, std::hint::black_box(&features), &mut weights);
+            std::hint::black_box(&weights);
+        }
+        let per_frame = start.elapsed().as_secs_f64() / frames as f64;
+        println!(
+            "{} multiply-adds, {:.0} ns per frame",
+            model.multiply_adds(),
+            per_frame * 1e9
+        );
+        assert!(per_frame < 1e-6);
+    }
+}

@@ -1,0 +1,321 @@
+//! Scores of a viseme animator on held-out speakers, against the phone-derived targets.
+//!
+//! - Eq. 1 error: generated vs target feature points of the point model, per point divided by the
+//!   target's deviation, on the paper's important points (deviation above average).
+//! - Frame accuracy: the predicted argmax viseme equals the target's argmax over the 15 visemes
+//!   (a reduced set can only ever be right on the visemes it has).
+//! - Openness r: Pearson correlation of predicted and target mouth openness (jaw + aperture).
+//! - Closures: the share of /p b m/ segments with at least one frame whose lip aperture is below
+//!   [`CLOSED_APERTURE`]; false closures: the share of frames that are at least
+//!   `CLOSURE_MARGIN_FRAMES` away from any bilabial or silence and still closed.
+
+use std::fmt;
+
+use crate::lipsync::decompose::{PointTrack, eq1_error, important_points};
+use crate::lipsync::jaw::JawBaseline;
+use crate::lipsync::mouth::{CLOSED_APERTURE, ShapeError, VisemeShapes, lip_aperture, openness};
+use crate::lipsync::network::Model;
+use crate::lipsync::visemes::{Viseme, VisemeSet};
+use crate::lipsync::{Animator, ModelAnimator};
+use crate::train::corpus::{Corpus, CorpusError, FeatureFn, PreparedUtterance, prepare};
+
+#[derive(Debug, thiserror::Error)]
+pub enum EvalError {
+    #[error(transparent)]
+    Corpus(#[from] CorpusError),
+    #[error(transparent)]
+    Shape(#[from] ShapeError),
+    #[error("nothing to evaluate: no frames")]
+    NoFrames,
+}
+
+/// The metrics of one animator.
+#[derive(Debug, Clone, PartialEq)]
+pub struct Scores {
+    pub frames: usize,
+    pub eq1_error: f64,
+    pub frame_accuracy: f64,
+    pub openness_r: f64,
+    pub bilabial_segments: usize,
+    pub closed_segments: usize,
+    pub false_closure_rate: f64,
+}
+
+impl Scores {
+    pub fn closure_share(&self) -> f64 {
+        self.closed_segments as f64 / self.bilabial_segments.max(1) as f64
+    }
+}
+
+fn pearson(a: &[f64], b: &[f64]) -> f64 {
+    let n = a.len().min(b.len()) as f64;
+    let (ma, mb) = (a.iter().sum::<f64>() / n, b.iter().sum::<f64>() / n);
+    let (mut cov, mut va, mut vb) = (0.0, 0.0, 0.0);
+    for (x, y) in a.iter().zip(b) {
+        cov += (x - ma) * (y - mb);
+        va += (x - ma) * (x - ma);
+        vb += (y - mb) * (y - mb);
+    }
+    if va <= 0.0 || vb <= 0.0 {
+        0.0
+    } else {
+        cov / (va * vb).sqrt()
+    }
+}
+
+/// Scores predictions (per utterance, frames x `set.len()` flattened) against the targets.
+pub fn score(
+    set: &VisemeSet,
+    shapes: &VisemeShapes,
+    utterances: &[PreparedUtterance],
+    predictions: &[Vec<f32>],
+) -> Result<Scores, EvalError> {
+    let full = VisemeSet::full();
+    let k = set.len();
+    let mut target_points = PointTrack::new(shapes.point_dim(), shapes.coords());
+    let mut predicted_points = PointTrack::new(shapes.point_dim(), shapes.coords());
+    let mut frame = vec![0.0; shapes.coords()];
+    let (mut target_open, mut predicted_open) = (Vec::new(), Vec::new());
+    let (mut correct, mut segments, mut closed_segments) = (0usize, 0usize, 0usize);
+    let (mut elsewhere, mut false_closed) = (0usize, 0usize);
+    for (utt, predicted) in utterances.iter().zip(predictions) {
+        let targets = &utt.targets;
+        let mut closed = Vec::with_capacity(targets.len());
+        for (n, (target, weights)) in targets
+            .weights
+            .iter()
+            .zip(predicted.chunks_exact(k))
+            .enumerate()
+        {
+            shapes.blend_into(&full, target, &mut frame)?;
+            target_points.push(&frame).expect("shape length");
+            shapes.blend_into(set, weights, &mut frame)?;
+            predicted_points.push(&frame).expect("shape length");
+            target_open.push(openness(&full, target) as f64);
+            predicted_open.push(openness(set, weights) as f64);
+            if argmax_viseme(set, weights) == argmax_viseme(&full, target) {
+                correct += 1;
+            }
+            let is_closed = lip_aperture(set, weights) < CLOSED_APERTURE;
+            closed.push(is_closed);
+            if !targets.closure_allowed[n] {
+                elsewhere += 1;
+                false_closed += usize::from(is_closed);
+            }
+        }
+        for seg in &targets.bilabial_segments {
+            segments += 1;
+            closed_segments += usize::from(closed[seg.clone()].iter().any(|&c| c));
+        }
+    }
+    let frames = target_points.len();
+    if frames == 0 {
+        return Err(EvalError::NoFrames);
+    }
+    let sigmas = target_points.point_sigmas();
+    Ok(Scores {
+        frames,
+        eq1_error: eq1_error(
+            &predicted_points,
+            &target_points,
+            &important_points(&sigmas),
+            &sigmas,
+        ),
+        frame_accuracy: correct as f64 / frames as f64,
+        openness_r: pearson(&target_open, &predicted_open),
+        bilabial_segments: segments,
+        closed_segments,
+        false_closure_rate: false_closed as f64 / elsewhere.max(1) as f64,
+    })
+}
+
+fn argmax_viseme(set: &VisemeSet, weights: &[f32]) -> Viseme {
+    let best =
+        weights.iter().enumerate().fold(
+            (0, f32::MIN),
+            |best, (i, &w)| if w > best.1 { (i, w) } else { best },
+        );
+    set.members()[best.0]
+}
+
+/// Runs an animator over every utterance (reset at each start).
+pub fn predict(animator: &mut dyn Animator, utterances: &[PreparedUtterance]) -> Vec<Vec<f32>> {
+    let k = animator.visemes().len();
+    utterances
+        .iter()
+        .map(|utt| {
+            animator.reset();
+            let mut out = vec![0.0; utt.features.len() * k];
+            for (f, w) in utt.features.iter().zip(out.chunks_exact_mut(k)) {
+                animator.animate(f, w);
+            }
+            out
+        })
+        .collect()
+}
+
+/// The evaluation of a model next to the jaw baseline and the targets themselves.
+#[derive(Debug, Clone, PartialEq)]
+pub struct EvalReport {
+    pub speakers: Vec<String>,
+    pub utterances: usize,
+    /// `(name, scores)`: the phone-derived targets, the network, the jaw baseline.
+    pub rows: Vec<(String, Scores)>,
+}
+
+impl EvalReport {
+    pub fn scores(&self, name: &str) -> Option<&Scores> {
+        self.rows.iter().find(|(n, _)| n == name).map(|(_, s)| s)
+    }
+}
+
+/// Row names of [`EvalReport`].
+pub const TARGETS_ROW: &str = "targets";
+pub const NETWORK_ROW: &str = "network";
+pub const JAW_ROW: &str = "jaw baseline";
+
+/// Evaluates `model` and the jaw baseline (scaled like the model's energy input) on `speakers`.
+pub fn evaluate(
+    model: &Model,
+    corpus: &Corpus,
+    speakers: &[String],
+    features: &FeatureFn,
+    shapes: &VisemeShapes,
+) -> Result<EvalReport, EvalError> {
+    let utterances = prepare(&corpus.utterances_of(speakers)?, features)?;
+    evaluate_prepared(model, &utterances, speakers, shapes)
+}
+
+pub fn evaluate_prepared(
+    model: &Model,
+    utterances: &[PreparedUtterance],
+    speakers: &[String],
+    shapes: &VisemeShapes,
+) -> Result<EvalReport, EvalError> {
+    let full = VisemeSet::full();
+    let targets: Vec<Vec<f32>> = utterances
+        .iter()
+        .map(|u| u.targets.weights.iter().flatten().copied().collect())
+        .collect();
+    let network = predict(&mut ModelAnimator::new(model), utterances);
+    let mut jaw = JawBaseline::from_model(model);
+    let baseline = predict(&mut jaw, utterances);
+    Ok(EvalReport {
+        speakers: speakers.to_vec(),
+        utterances: utterances.len(),
+        rows: vec![
+            (
+                TARGETS_ROW.into(),
+                score(&full, shapes, utterances, &targets)?,
+            ),
+            (
+                NETWORK_ROW.into(),
+                score(&model.visemes, shapes, utterances, &network)?,
+            ),
+            (
+                JAW_ROW.into(),
+                score(jaw.visemes(), shapes, utterances, &baseline)?,
+            ),
+        ],
+    })
+}
+
+impl fmt::Display for EvalReport {
+    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        writeln!(
+            f,
+            "held-out speakers: {} ({} utterances)",
+            self.speakers.join(" "),
+            self.utterances
+        )?;
+        writeln!(
+            f,
+            "{:<14} {:>7} {:>8} {:>9} {:>11} {:>14} {:>10}",
+            "", "frames", "Eq.1 err", "accuracy", "openness r", "/p b m/ closed", "false cl."
+        )?;
+        for (name, s) in &self.rows {
+            writeln!(
+                f,
+                "{:<14} {:>7} {:>7.2}% {:>8.1}% {:>11.3} {:>6.1}% {:>3}/{:<3} {:>9.1}%",
+                name,
+                s.frames,
+                100.0 * s.eq1_error,
+                100.0 * s.frame_accuracy,
+                s.openness_r,
+                100.0 * s.closure_share(),
+                s.closed_segments,
+                s.bilabial_segments,
+                100.0 * s.false_closure_rate
+            )?;
+        }
+        Ok(())
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::train::corpus::{PhoneSegment, targets_from_phones};
+
+    fn utterance() -> PreparedUtterance {
+        let phones: Vec<PhoneSegment> = [
+            (0, 3200, "h#"),
+            (3200, 6400, "aa"),
+            (6400, 8000, "m"),
+            (8000, 11200, "aa"),
+            (11200, 14400, "s"),
+            (14400, 16000, "h#"),
+        ]
+        .into_iter()
+        .map(|(start, end, phone)| PhoneSegment {
+            start,
+            end,
+            phone: phone.into(),
+        })
+        .collect();
+        let targets = targets_from_phones(&phones, 16000, 16000).unwrap();
+        let features = vec![crate::lipsync::network::silence_features(); targets.len()];
+        PreparedUtterance {
+            speaker: "x".into(),
+            id: "y".into(),
+            features,
+            targets,
+        }
+    }
+
+    #[test]
+    fn perfect_predictions_score_perfectly() {
+        let utt = utterance();
+        let full = VisemeSet::full();
+        let exact: Vec<f32> = utt.targets.weights.iter().flatten().copied().collect();
+        let s = score(
+            &full,
+            &VisemeShapes::point_model(),
+            std::slice::from_ref(&utt),
+            &[exact],
+        )
+        .unwrap();
+        assert_eq!(s.frame_accuracy, 1.0);
+        assert!(s.eq1_error < 1e-6 && (s.openness_r - 1.0).abs() < 1e-9);
+        assert_eq!((s.bilabial_segments, s.closed_segments), (1, 1));
+        assert_eq!(s.false_closure_rate, 0.0);
+    }
+
+    #[test]
+    fn an_always_closed_mouth_closes_everywhere() {
+        let utt = utterance();
+        let set = VisemeSet::reduced(2).unwrap();
+        let closed: Vec<f32> = (0..utt.targets.len()).flat_map(|_| [1.0, 0.0]).collect();
+        let s = score(
+            &set,
+            &VisemeShapes::point_model(),
+            std::slice::from_ref(&utt),
+            &[closed],
+        )
+        .unwrap();
+        assert_eq!(s.closure_share(), 1.0);
+        assert_eq!(s.false_closure_rate, 1.0);
+        assert_eq!(s.openness_r, 0.0);
+        assert!(s.eq1_error > 0.5);
+    }
+}

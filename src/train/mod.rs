@@ -1,0 +1,10 @@
+//! Offline training and evaluation of the lip-sync network on a TIMIT-style corpus.
+
+pub mod corpus;
+pub mod eval;
+pub mod trainer;
+
+pub use trainer::{TrainConfig, TrainReport, run};
+
+#[cfg(test)]
+pub(crate) mod stand_in;

@@ -1,0 +1,864 @@
+//! Backpropagation training of the viseme network with early stopping on held-out speakers.
+//!
+//! Loss: per frame, the Kullback-Leibler divergence from the target weights to the softmax
+//! output (soft-target cross-entropy), frames inside /p b m/ segments weighted by
+//! `closure_weight`: a closure is a few frames among hundreds, and an average of closed and
+//! open neighbours is never closed. Adam on shuffled mini-batches, a fixed-seed xorshift PRNG.
+
+use std::fmt;
+use std::io::Write as _;
+use std::path::PathBuf;
+
+use indicatif::{ProgressBar, ProgressStyle};
+
+use crate::lipsync::decompose::{DecomposeError, Decomposer, PointTrack};
+use crate::lipsync::mouth::VisemeShapes;
+use crate::lipsync::network::{
+    FEATURES_PER_FRAME, InputScaling, MULTIPLY_ADD_BUDGET, Model, multiply_adds, silence_features,
+};
+use crate::lipsync::visemes::VisemeSet;
+use crate::train::corpus::{
+    Corpus, CorpusError, FeatureFn, PreparedUtterance, SpeakerSplit, prepare,
+};
+use crate::train::eval::{EvalError, Scores, score};
+
+#[derive(Debug, Clone)]
+pub struct TrainConfig {
+    pub corpus_root: PathBuf,
+    /// `None`: [`SpeakerSplit::standard`].
+    pub split: Option<SpeakerSplit>,
+    pub visemes: VisemeSet,
+    /// Source of the feature points that reduced-set targets are decomposed on.
+    pub shapes: VisemeShapes,
+    /// Past frames fed to the network besides the current one.
+    pub context: usize,
+    pub hidden: usize,
+    pub max_epochs: usize,
+    /// Epochs without a better validation loss before stopping.
+    pub patience: usize,
+    pub learning_rate: f32,
+    pub batch_size: usize,
+    pub seed: u64,
+    /// Loss weight of frames inside /p b m/ segments (1 = none).
+    pub closure_weight: f32,
+    /// Utterances per speaker (all when `None`), for quick runs.
+    pub utterances_per_speaker: Option<usize>,
+    /// Writes the learning curves here (CSV).
+    pub curves_csv: Option<PathBuf>,
+    pub show_progress: bool,
+    /// Accept a network costing more than [`MULTIPLY_ADD_BUDGET`] per frame.
+    pub allow_over_budget: bool,
+}
+
+impl Default for TrainConfig {
+    fn default() -> Self {
+        Self {
+            corpus_root: PathBuf::from("../shared/data/timit-sample"),
+            split: None,
+            visemes: VisemeSet::reduced(6).expect("6 is a reduced set size"),
+            shapes: VisemeShapes::point_model(),
+            context: 2,
+            hidden: 10,
+            max_epochs: 400,
+            patience: 40,
+            learning_rate: 0.003,
+            batch_size: 32,
+            seed: 0x5EED_CAFE,
+            closure_weight: 4.0,
+            utterances_per_speaker: None,
+            curves_csv: None,
+            show_progress: true,
+            allow_over_budget: false,
+        }
+    }
+}
+
+#[derive(Debug, thiserror::Error)]
+pub enum TrainError {
+    #[error(transparent)]
+    Corpus(#[from] CorpusError),
+    #[error(transparent)]
+    Decompose(#[from] DecomposeError),
+    #[error(transparent)]
+    Eval(#[from] EvalError),
+    #[error(
+        "the network costs {cost} multiply-adds per frame, over the budget of {MULTIPLY_ADD_BUDGET} \
+         (fewer hidden units or context frames, or allow it explicitly)"
+    )]
+    OverBudget { cost: usize },
+    #[error("bad training setting: {0}")]
+    BadConfig(String),
+    #[error("no training frames")]
+    NoFrames,
+    #[error("{path}: {source}")]
+    Io {
+        path: PathBuf,
+        source: std::io::Error,
+    },
+}
+
+/// One point of the learning curves.
+#[derive(Debug, Clone, PartialEq)]
+pub struct EpochStats {
+    pub epoch: usize,
+    pub train_loss: f64,
+    pub validation_loss: f64,
+    pub validation_closure_share: f64,
+    pub validation_openness_r: f64,
+}
+
+#[derive(Debug, Clone)]
+pub struct TrainReport {
+    /// The weights of the epoch with the lowest validation loss.
+    pub model: Model,
+    pub split: SpeakerSplit,
+    pub best_epoch: usize,
+    pub curve: Vec<EpochStats>,
+    pub train_frames: usize,
+    pub validation_frames: usize,
+    /// Scores of the chosen model on the validation speakers.
+    pub validation: Scores,
+}
+
+impl fmt::Display for TrainReport {
+    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        let best = &self.curve[self.best_epoch.saturating_sub(1).min(self.curve.len() - 1)];
+        writeln!(
+            f,
+            "visemes {} | context {} | hidden {} | {} multiply-adds/frame",
+            self.model.visemes,
+            self.model.context,
+            self.model.hidden,
+            self.model.multiply_adds()
+        )?;
+        writeln!(
+            f,
+            "train {} frames ({}), validation {} frames ({})",
+            self.train_frames,
+            self.split.train.join(" "),
+            self.validation_frames,
+            self.split.validation.join(" ")
+        )?;
+        writeln!(
+            f,
+            "best epoch {} of {}: train loss {:.4}, validation loss {:.4}",
+            self.best_epoch,
+            self.curve.len(),
+            best.train_loss,
+            best.validation_loss
+        )?;
+        write!(
+            f,
+            "validation: openness r {:.3}, /p b m/ closed {:.1}% ({}/{}), false closures {:.1}%, Eq.1 {:.2}%",
+            self.validation.openness_r,
+            100.0 * self.validation.closure_share(),
+            self.validation.closed_segments,
+            self.validation.bilabial_segments,
+            100.0 * self.validation.false_closure_rate,
+            100.0 * self.validation.eq1_error
+        )
+    }
+}
+
+/// xorshift64*: small, fast and reproducible.
+#[derive(Debug, Clone)]
+pub struct Rng(u64);
+
+impl Rng {
+    pub fn new(seed: u64) -> Self {
+        Self(seed ^ 0x9E37_79B9_7F4A_7C15 | 1)
+    }
+
+    pub fn next_u64(&mut self) -> u64 {
+        self.0 ^= self.0 >> 12;
+        self.0 ^= self.0 << 25;
+        self.0 ^= self.0 >> 27;
+        self.0.wrapping_mul(0x2545_F491_4F6C_DD1D)
+    }
+
+    /// Uniform in [0, 1).
+    pub fn next_f32(&mut self) -> f32 {
+        (self.next_u64() >> 40) as f32 / (1u64 << 24) as f32
+    }
+
+    pub fn shuffle<T>(&mut self, items: &mut [T]) {
+        for i in (1..items.len()).rev() {
+            let j = (self.next_u64() % (i as u64 + 1)) as usize;
+            items.swap(i, j);
+        }
+    }
+}
+
+/// Scaled network inputs, targets over the model's set and loss weights, frame by frame.
+#[derive(Debug, Clone)]
+pub(crate) struct Dataset {
+    inputs: Vec<f32>,
+    targets: Vec<f32>,
+    weights: Vec<f32>,
+    /// Frames per utterance, in order.
+    lengths: Vec<usize>,
+    input_len: usize,
+    outputs: usize,
+}
+
+impl Dataset {
+    fn frames(&self) -> usize {
+        self.weights.len()
+    }
+
+    fn input(&self, n: usize) -> &[f32] {
+        &self.inputs[n * self.input_len..(n + 1) * self.input_len]
+    }
+
+    fn target(&self, n: usize) -> &[f32] {
+        &self.targets[n * self.outputs..(n + 1) * self.outputs]
+    }
+}
+
+/// Per utterance: its targets over `set`, frames x `set.len()` flattened. Reduced sets are
+/// decomposed from the 15-viseme targets' feature points (the paper's pipeline).
+pub fn set_targets(
+    set: &VisemeSet,
+    shapes: &VisemeShapes,
+    utterances: &[PreparedUtterance],
+) -> Result<Vec<Vec<f32>>, DecomposeError> {
+    let full = VisemeSet::full();
+    if set.len() == full.len() {
+        return Ok(utterances
+            .iter()
+            .map(|u| {
+                u.targets
+                    .weights
+                    .iter()
+                    .flat_map(|w| set.members().iter().map(|v| w[v.index()]))
+                    .collect()
+            })
+            .collect());
+    }
+    let tracks = utterances
+        .iter()
+        .map(|u| PointTrack::from_weights(shapes, &full, u.targets.weights.iter().map(|w| &w[..])))
+        .collect::<Result<Vec<_>, _>>()?;
+    let mut all = PointTrack::new(shapes.point_dim(), shapes.coords());
+    for frame in tracks.iter().flat_map(PointTrack::frames) {
+        all.push(frame)?;
+    }
+    let decomposer = Decomposer::new(shapes, set, &all.point_sigmas())?;
+    Ok(tracks
+        .iter()
+        .map(|track| {
+            let mut w = vec![1.0 / set.len() as f32; set.len()];
+            let mut out = Vec::with_capacity(track.len() * set.len());
+            for frame in track.frames() {
+                decomposer.fit(frame, &mut w);
+                out.extend_from_slice(&w);
+            }
+            out
+        })
+        .collect())
+}
+
+pub(crate) fn build_dataset(
+    model: &Model,
+    utterances: &[PreparedUtterance],
+    targets: &[Vec<f32>],
+    closure_weight: f32,
+) -> Dataset {
+    let input_len = model.inputs();
+    let mut data = Dataset {
+        inputs: Vec::new(),
+        targets: targets.concat(),
+        weights: Vec::new(),
+        lengths: Vec::new(),
+        input_len,
+        outputs: model.outputs(),
+    };
+    let mut silent = [0.0; FEATURES_PER_FRAME];
+    model.scaling.apply(&silence_features(), &mut silent);
+    let mut history = vec![0.0; input_len];
+    for utt in utterances {
+        for frame in history.chunks_exact_mut(FEATURES_PER_FRAME) {
+            frame.copy_from_slice(&silent);
+        }
+        for (n, features) in utt.features.iter().enumerate() {
+            history.copy_within(0..input_len - FEATURES_PER_FRAME, FEATURES_PER_FRAME);
+            model
+                .scaling
+                .apply(features, &mut history[..FEATURES_PER_FRAME]);
+            data.inputs.extend_from_slice(&history);
+            let in_closure = utt.targets.in_bilabial(n);
+            data.weights
+                .push(if in_closure { closure_weight } else { 1.0 });
+        }
+        data.lengths.push(utt.features.len());
+    }
+    data
+}
+
+/// Gradients (or Adam moments) shaped like the model's parameters.
+#[derive(Debug, Clone)]
+pub(crate) struct Params {
+    w1: Vec<f32>,
+    b1: Vec<f32>,
+    w2: Vec<f32>,
+    b2: Vec<f32>,
+}
+
+impl Params {
+    fn zeros_like(model: &Model) -> Self {
+        Self {
+            w1: vec![0.0; model.w1.len()],
+            b1: vec![0.0; model.b1.len()],
+            w2: vec![0.0; model.w2.len()],
+            b2: vec![0.0; model.b2.len()],
+        }
+    }
+
+    fn slices_mut(&mut self) -> [&mut Vec<f32>; 4] {
+        [&mut self.w1, &mut self.b1, &mut self.w2, &mut self.b2]
+    }
+
+    fn clear(&mut self) {
+        for s in self.slices_mut() {
+            s.fill(0.0);
+        }
+    }
+}
+
+fn model_params_mut(model: &mut Model) -> [&mut Vec<f32>; 4] {
+    [&mut model.w1, &mut model.b1, &mut model.w2, &mut model.b2]
+}
+
+/// Weighted mean KL loss over `frames`; adds its gradient into `grad` when given.
+pub(crate) fn loss_and_gradient(
+    model: &Model,
+    data: &Dataset,
+    frames: &[usize],
+    mut grad: Option<&mut Params>,
+) -> f64 {
+    let (hidden_len, outputs) = (model.hidden, model.outputs());
+    let mut hidden = vec![0.0; hidden_len];
+    let mut probs = vec![0.0; outputs];
+    let mut delta_out = vec![0.0; outputs];
+    let mut delta_hidden = vec![0.0; hidden_len];
+    let total_weight: f64 = frames.iter().map(|&n| data.weights[n] as f64).sum();
+    if total_weight <= 0.0 {
+        return 0.0;
+    }
+    let mut loss = 0.0f64;
+    for &n in frames {
+        let (x, t) = (data.input(n), data.target(n));
+        model.forward(x, &mut hidden, &mut probs);
+        let weight = data.weights[n] as f64 / total_weight;
+        let kl: f64 = t
+            .iter()
+            .zip(&probs)
+            .filter(|(t, _)| **t > 0.0)
+            .map(|(&t, &p)| t as f64 * ((t as f64) / (p as f64).max(1e-30)).ln())
+            .sum();
+        loss += weight * kl;
+        let Some(grad) = grad.as_deref_mut() else {
+            continue;
+        };
+        for ((d, p), t) in delta_out.iter_mut().zip(&probs).zip(t) {
+            *d = weight as f32 * (p - t);
+        }
+        delta_hidden.fill(0.0);
+        for (k, &d) in delta_out.iter().enumerate() {
+            grad.b2[k] += d;
+            let row = k * hidden_len..(k + 1) * hidden_len;
+            for ((g, w), (h, dh)) in grad.w2[row.clone()]
+                .iter_mut()
+                .zip(&model.w2[row])
+                .zip(hidden.iter().zip(delta_hidden.iter_mut()))
+            {
+                *g += d * h;
+                *dh += d * w;
+            }
+        }
+        for (j, (dh, h)) in delta_hidden.iter().zip(&hidden).enumerate() {
+            let da = dh * (1.0 - h * h);
+            grad.b1[j] += da;
+            for (g, xi) in grad.w1[j * x.len()..(j + 1) * x.len()].iter_mut().zip(x) {
+                *g += da * xi;
+            }
+        }
+    }
+    loss
+}
+
+fn predictions(model: &Model, data: &Dataset) -> Vec<Vec<f32>> {
+    let mut hidden = vec![0.0; model.hidden];
+    let mut out = vec![0.0; model.outputs()];
+    let mut start = 0;
+    data.lengths
+        .iter()
+        .map(|&len| {
+            let mut utt = Vec::with_capacity(len * out.len());
+            for n in start..start + len {
+                model.forward(data.input(n), &mut hidden, &mut out);
+                utt.extend_from_slice(&out);
+            }
+            start += len;
+            utt
+        })
+        .collect()
+}
+
+fn percentile(values: &mut [f32], q: f32) -> f32 {
+    values.sort_by(f32::total_cmp);
+    let i = ((values.len() - 1) as f32 * q).round() as usize;
+    values[i]
+}
+
+/// Scaling fitted on the training frames: each of the 11 inputs maps its 2nd..98th percentile
+/// onto [-1, 1]. Each LSP moves within a small part of [0, pi], so the paper's fixed
+/// [0, pi] -> [-1, 1] would leave the inputs nearly constant.
+fn fitted_scaling(train: &[PreparedUtterance]) -> InputScaling {
+    let mut scaling = InputScaling::new(-80.0, -10.0);
+    for i in 0..FEATURES_PER_FRAME {
+        let mut values: Vec<f32> = train
+            .iter()
+            .flat_map(|u| u.features.iter())
+            .map(|f| if i < 10 { f.lsp[i] } else { f.energy_db })
+            .filter(|v| v.is_finite())
+            .collect();
+        if values.is_empty() {
+            continue;
+        }
+        let low = percentile(&mut values, 0.02);
+        let high = percentile(&mut values, 0.98);
+        if high > low {
+            scaling.offset[i] = 0.5 * (low + high);
+            scaling.scale[i] = 2.0 / (high - low);
+        }
+    }
+    scaling
+}
+
+fn initial_model(config: &TrainConfig, train: &[PreparedUtterance], rng: &mut Rng) -> Model {
+    let mut model = Model::zeros(
+        config.visemes.clone(),
+        fitted_scaling(train),
+        config.context,
+        config.hidden,
+    );
+    let (inputs, outputs) = (model.inputs() as f32, model.outputs() as f32);
+    let hidden = config.hidden as f32;
+    let limit1 = (6.0 / (inputs + hidden)).sqrt();
+    let limit2 = (6.0 / (hidden + outputs)).sqrt();
+    for w in &mut model.w1 {
+        *w = limit1 * (2.0 * rng.next_f32() - 1.0);
+    }
+    for w in &mut model.w2 {
+        *w = limit2 * (2.0 * rng.next_f32() - 1.0);
+    }
+    model
+}
+
+/// Trains on the split's training speakers, stopping early on its validation speakers.
+/// `features` is the codec boundary: decoder features of one WAV file.
+pub fn run(config: &TrainConfig, features: &FeatureFn) -> Result<TrainReport, TrainError> {
+    let corpus = Corpus::open(&config.corpus_root)?;
+    let split = match &config.split {
+        Some(split) => split.clone(),
+        None => SpeakerSplit::standard(&corpus)?,
+    };
+    let pick = |speakers: &[String]| -> Result<Vec<PreparedUtterance>, CorpusError> {
+        let mut chosen = Vec::new();
+        for name in speakers {
+            let utts = &corpus.speaker(name)?.utterances;
+            let n = config
+                .utterances_per_speaker
+                .unwrap_or(utts.len())
+                .min(utts.len());
+            chosen.extend(utts[..n].iter());
+        }
+        prepare(&chosen, features)
+    };
+    let train = pick(&split.train)?;
+    let validation = pick(&split.validation)?;
+    let mut report = train_on(config, &train, &validation)?;
+    report.split = split;
+    report.model.notes = vec![
+        "Derived from the TIMIT corpus sample (Copyright 1993 Linguistic Data Consortium, CC BY-NC-SA)."
+            .into(),
+        format!("training speakers: {}", report.split.train.join(" ")),
+        format!("validation speakers: {}", report.split.validation.join(" ")),
+        format!(
+            "seed {:#x}, closure weight {}, best epoch {}",
+            config.seed, config.closure_weight, report.best_epoch
+        ),
+    ];
+    Ok(report)
+}
+
+/// Trains on already prepared utterances (the split inside the report is left empty).
+pub fn train_on(
+    config: &TrainConfig,
+    train: &[PreparedUtterance],
+    validation: &[PreparedUtterance],
+) -> Result<TrainReport, TrainError> {
+    let cost = multiply_adds(config.context, config.hidden, config.visemes.len());
+    if cost > MULTIPLY_ADD_BUDGET && !config.allow_over_budget {
+        return Err(TrainError::OverBudget { cost });
+    }
+    if config.hidden == 0 || config.batch_size == 0 || config.max_epochs == 0 {
+        return Err(TrainError::BadConfig(
+            "hidden units, batch size and epochs must be positive".into(),
+        ));
+    }
+    let mut rng = Rng::new(config.seed);
+    let mut model = initial_model(config, train, &mut rng);
+    let train_targets = set_targets(&config.visemes, &config.shapes, train)?;
+    let validation_targets = set_targets(&config.visemes, &config.shapes, validation)?;
+    let train_data = build_dataset(&model, train, &train_targets, config.closure_weight);
+    let validation_data = build_dataset(
+        &model,
+        validation,
+        &validation_targets,
+        config.closure_weight,
+    );
+    if train_data.frames() == 0 || validation_data.frames() == 0 {
+        return Err(TrainError::NoFrames);
+    }
+    let all_train: Vec<usize> = (0..train_data.frames()).collect();
+    let all_validation: Vec<usize> = (0..validation_data.frames()).collect();
+
+    let progress = if config.show_progress {
+        ProgressBar::new(config.max_epochs as u64)
+    } else {
+        ProgressBar::hidden()
+    };
+    progress.set_style(
+        ProgressStyle::with_template("{bar:30} {pos}/{len} epochs {elapsed} {msg}")
+            .unwrap_or_else(|_| ProgressStyle::default_bar()),
+    );
+
+    let mut grad = Params::zeros_like(&model);
+    let mut first_moment = Params::zeros_like(&model);
+    let mut second_moment = Params::zeros_like(&model);
+    let (beta1, beta2, epsilon) = (0.9f32, 0.999f32, 1e-8f32);
+    let mut step = 0i32;
+    let mut order = all_train.clone();
+    let mut curve = Vec::new();
+    let mut best = (f64::INFINITY, 0usize, model.clone());
+    for epoch in 1..=config.max_epochs {
+        rng.shuffle(&mut order);
+        for batch in order.chunks(config.batch_size) {
+            grad.clear();
+            loss_and_gradient(&model, &train_data, batch, Some(&mut grad));
+            step += 1;
+            let correction1 = 1.0 - beta1.powi(step);
+            let correction2 = 1.0 - beta2.powi(step);
+            let params = model_params_mut(&mut model);
+            let grads = grad.slices_mut();
+            let m1 = first_moment.slices_mut();
+            let m2 = second_moment.slices_mut();
+            for (((p, g), m), v) in params.into_iter().zip(grads).zip(m1).zip(m2) {
+                for (((p, g), m), v) in p
+                    .iter_mut()
+                    .zip(g.iter())
+                    .zip(m.iter_mut())
+                    .zip(v.iter_mut())
+                {
+                    *m = beta1 * *m + (1.0 - beta1) * g;
+                    *v = beta2 * *v + (1.0 - beta2) * g * g;
+                    *p -= config.learning_rate * (*m / correction1)
+                        / ((*v / correction2).sqrt() + epsilon);
+                }
+            }
+        }
+        let train_loss = loss_and_gradient(&model, &train_data, &all_train, None);
+        let validation_loss = loss_and_gradient(&model, &validation_data, &all_validation, None);
+        let scores = score(
+            &model.visemes,
+            &config.shapes,
+            validation,
+            &predictions(&model, &validation_data),
+        )?;
+        curve.push(EpochStats {
+            epoch,
+            train_loss,
+            validation_loss,
+            validation_closure_share: scores.closure_share(),
+            validation_openness_r: scores.openness_r,
+        });
+        if validation_loss < best.0 {
+            best = (validation_loss, epoch, model.clone());
+        }
+        progress.inc(1);
+        progress.set_message(format!(
+            "train {train_loss:.4} val {validation_loss:.4} closed {:.0}% r {:.3}",
+            100.0 * scores.closure_share(),
+            scores.openness_r
+        ));
+        if epoch - best.1 >= config.patience {
+            break;
+        }
+    }
+    progress.finish_and_clear();
+    let (_, best_epoch, model) = best;
+    let validation_scores = score(
+        &model.visemes,
+        &config.shapes,
+        validation,
+        &predictions(&model, &validation_data),
+    )?;
+    if let Some(path) = &config.curves_csv {
+        write_curves(path, &curve)?;
+    }
+    Ok(TrainReport {
+        model,
+        split: SpeakerSplit {
+            train: Vec::new(),
+            validation: Vec::new(),
+            test: Vec::new(),
+        },
+        best_epoch,
+        curve,
+        train_frames: train_data.frames(),
+        validation_frames: validation_data.frames(),
+        validation: validation_scores,
+    })
+}
+
+/// Learning curves as CSV: `epoch,train_loss,validation_loss,validation_closure_share,validation_openness_r`.
+pub fn write_curves(path: &std::path::Path, curve: &[EpochStats]) -> Result<(), TrainError> {
+    let io = |source| TrainError::Io {
+        path: path.to_path_buf(),
+        source,
+    };
+    let mut out = std::io::BufWriter::new(std::fs::File::create(path).map_err(io)?);
+    writeln!(
+        out,
+        "epoch,train_loss,validation_loss,validation_closure_share,validation_openness_r"
+    )
+    .map_err(io)?;
+    for e in curve {
+        writeln!(
+            out,
+            "{},{},{},{},{}",
+            e.epoch,
+            e.train_loss,
+            e.validation_loss,
+            e.validation_closure_share,
+            e.validation_openness_r
+        )
+        .map_err(io)?;
+    }
+    out.flush().map_err(io)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::train::corpus::tests::timit_root;
+    use crate::train::stand_in;
+
+    fn tiny_data() -> (Vec<PreparedUtterance>, Vec<PreparedUtterance>) {
+        let corpus = Corpus::open(&timit_root()).unwrap();
+        let take = |speaker: &str, n: usize| {
+            let utts: Vec<_> = corpus
+                .speaker(speaker)
+                .unwrap()
+                .utterances
+                .iter()
+                .take(n)
+                .collect();
+            prepare(&utts, &stand_in::features_for_utterance).unwrap()
+        };
+        (take("dr1-fvmh0", 3), take("dr4-maeb0", 1))
+    }
+
+    #[test]
+    fn backprop_gradient_matches_finite_differences() {
+        let (train, _) = tiny_data();
+        let config = TrainConfig {
+            visemes: VisemeSet::reduced(3).unwrap(),
+            hidden: 4,
+            context: 1,
+            ..TrainConfig::default()
+        };
+        let mut rng = Rng::new(7);
+        let mut model = initial_model(&config, &train[..1], &mut rng);
+        for b in model.b1.iter_mut().chain(&mut model.b2) {
+            *b = rng.next_f32() - 0.5;
+        }
+        let targets = set_targets(&config.visemes, &config.shapes, &train[..1]).unwrap();
+        let data = build_dataset(&model, &train[..1], &targets, 3.0);
+        let frames: Vec<usize> = (0..data.frames()).step_by(7).collect();
+        let mut grad = Params::zeros_like(&model);
+        loss_and_gradient(&model, &data, &frames, Some(&mut grad));
+        let analytic = [
+            grad.w1.clone(),
+            grad.b1.clone(),
+            grad.w2.clone(),
+            grad.b2.clone(),
+        ];
+        let h = 1e-2f32;
+        let mut checked = 0;
+        for (which, analytic) in analytic.iter().enumerate() {
+            for i in (0..analytic.len()).step_by(5) {
+                let mut plus = model.clone();
+                model_params_mut(&mut plus)[which][i] += h;
+                let mut minus = model.clone();
+                model_params_mut(&mut minus)[which][i] -= h;
+                let numeric = (loss_and_gradient(&plus, &data, &frames, None)
+                    - loss_and_gradient(&minus, &data, &frames, None))
+                    / (2.0 * h as f64);
+                let a = analytic[i] as f64;
+                assert!(
+                    (a - numeric).abs() < 1e-3 + 2e-2 * numeric.abs(),
+                    "param {which}[{i}]: backprop {a} vs numeric {numeric}"
+                );
+                checked += 1;
+            }
+        }
+        assert!(checked > 20);
+    }
+
+    #[test]
+    fn tiny_training_run_learns_and_stops_early() {
+        let (train, validation) = tiny_data();
+        let curves =
+            std::env::temp_dir().join(format!("lipcall-curves-{}.csv", std::process::id()));
+        let config = TrainConfig {
+            visemes: VisemeSet::reduced(2).unwrap(),
+            hidden: 6,
+            context: 1,
+            max_epochs: 60,
+            patience: 5,
+            learning_rate: 0.01,
+            show_progress: false,
+            curves_csv: Some(curves.clone()),
+            ..TrainConfig::default()
+        };
+        let report = train_on(&config, &train, &validation).unwrap();
+        let first = &report.curve[0];
+        let last = report.curve.last().unwrap();
+        assert!(
+            last.train_loss < 0.9 * first.train_loss,
+            "{first:?} -> {last:?}"
+        );
+        let best = &report.curve[report.best_epoch - 1];
+        assert!(
+            report
+                .curve
+                .iter()
+                .all(|e| e.validation_loss >= best.validation_loss)
+        );
+        assert!(report.curve.len() - report.best_epoch <= config.patience);
+        // Output: convex weights over the chosen set, and same seed, same model.
+        assert_eq!(report.model.visemes, config.visemes);
+        let again = train_on(&config, &train, &validation).unwrap();
+        assert_eq!(again.model, report.model);
+        let csv = std::fs::read_to_string(&curves).unwrap();
+        assert!(csv.starts_with("epoch,train_loss,validation_loss,"));
+        assert_eq!(csv.lines().count(), report.curve.len() + 1);
+        std::fs::remove_file(curves).unwrap();
+    }
+
+    #[test]
+    fn over_budget_networks_are_refused() {
+        let config = TrainConfig {
+            hidden: 40,
+            ..TrainConfig::default()
+        };
+        assert!(matches!(
+            train_on(&config, &[], &[]),
+            Err(TrainError::OverBudget { .. })
+        ));
+    }
+}
+
+/// Full experiments on the stand-in features (`cargo test --release --lib experiment -- --ignored
+/// --nocapture`): trains on the standard split and scores the TEST speakers.
+#[cfg(test)]
+mod experiments {
+    use super::*;
+    use crate::train::corpus::tests::timit_root;
+    use crate::train::eval::evaluate_prepared;
+    use crate::train::stand_in;
+
+    #[test]
+    #[ignore = "full training run, minutes in release"]
+    fn experiment_standard_split() {
+        let corpus = Corpus::open(&timit_root()).unwrap();
+        let split = SpeakerSplit::standard(&corpus).unwrap();
+        let load = |speakers: &[String]| {
+            prepare(
+                &corpus.utterances_of(speakers).unwrap(),
+                &stand_in::features_for_utterance,
+            )
+            .unwrap()
+        };
+        let (train, validation, test) = (
+            load(&split.train),
+            load(&split.validation),
+            load(&split.test),
+        );
+        let shapes = VisemeShapes::point_model();
+        let mut track = PointTrack::new(shapes.point_dim(), shapes.coords());
+        for utt in &train {
+            let full = VisemeSet::full();
+            let weights = utt.targets.weights.iter().map(|w| &w[..]);
+            for frame in PointTrack::from_weights(&shapes, &full, weights)
+                .unwrap()
+                .frames()
+            {
+                track.push(frame).unwrap();
+            }
+        }
+        println!(
+            "{}",
+            crate::lipsync::decompose::table_i_reduced(&track, &shapes).unwrap()
+        );
+        let variants: Vec<(usize, usize, usize, f32)> = std::env::var("LIPCALL_VARIANTS")
+            .unwrap_or_else(|_| "6:2:10:4".into())
+            .split(',')
+            .map(|v| {
+                let p: Vec<&str> = v.split(':').collect();
+                (
+                    p[0].parse().unwrap(),
+                    p[1].parse().unwrap(),
+                    p[2].parse().unwrap(),
+                    p[3].parse().unwrap(),
+                )
+            })
+            .collect();
+        for (visemes, context, hidden, closure_weight) in variants {
+            let config = TrainConfig {
+                visemes: VisemeSet::reduced(visemes).unwrap(),
+                context,
+                hidden,
+                closure_weight,
+                show_progress: false,
+                allow_over_budget: true,
+                curves_csv: Some(std::env::temp_dir().join(format!(
+                    "lipcall-curves-{visemes}-{context}-{hidden}-{closure_weight}.csv"
+                ))),
+                ..TrainConfig::default()
+            };
+            let mut report = train_on(&config, &train, &validation).unwrap();
+            report.split = split.clone();
+            println!(
+                "== visemes {visemes} context {context} hidden {hidden} closure weight {closure_weight}"
+            );
+            println!("{report}");
+            let on_validation = evaluate_prepared(
+                &report.model,
+                &validation,
+                &split.validation,
+                &config.shapes,
+            );
+            println!("{}", on_validation.unwrap());
+            if std::env::var("LIPCALL_TEST").is_ok() {
+                println!(
+                    "{}",
+                    evaluate_prepared(&report.model, &test, &split.test, &config.shapes).unwrap()
+                );
+            }
+        }
+    }
+}
