@@ -43,6 +43,22 @@ enum Command {
         #[arg(long)]
         no_enh: bool,
     },
+    /// Viseme weights (and rendered frames) for a WAV or Speex file, as a receiver would show them.
+    Animate {
+        input: PathBuf,
+        /// Write WEIGHTS.csv: frame,time_s,<viseme names>.
+        #[arg(long, value_name = "WEIGHTS.csv")]
+        weights: Option<PathBuf>,
+        /// Viseme set: a count (2..6 or 15) or names such as PP,aa,I.
+        #[arg(long, value_name = "N|NAMES")]
+        visemes: Option<String>,
+        /// A model file from `lipcall train` instead of the built-in network.
+        #[arg(long, value_name = "FILE")]
+        model: Option<PathBuf>,
+        /// Compare with a baseline instead of the network: `jaw` opens the jaw with the energy.
+        #[arg(long, value_parser = ["jaw"])]
+        baseline: Option<String>,
+    },
 }
 
 fn main() -> ExitCode {
@@ -71,6 +87,19 @@ fn main() -> ExitCode {
             features,
             no_enh,
         } => commands::codec::decode(&input, &output, features.as_deref(), !no_enh),
+        Command::Animate {
+            input,
+            weights,
+            visemes,
+            model,
+            baseline,
+        } => commands::animate::animate(&commands::animate::AnimateArgs {
+            input,
+            weights,
+            visemes,
+            model,
+            baseline_jaw: baseline.is_some(),
+        }),
     };
     match result {
         Ok(()) => ExitCode::SUCCESS,

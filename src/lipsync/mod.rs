@@ -8,6 +8,7 @@ pub mod markers;
 pub mod mouth;
 pub mod network;
 pub mod phones;
+pub mod reproject;
 pub mod visemes;
 
 use crate::speex::features::FrameFeatures;

@@ -1,0 +1,133 @@
+//! `lipcall animate`: audio in, viseme weights per 20 ms frame out (and rendered frames).
+
+use std::io::Write;
+use std::path::{Path, PathBuf};
+
+use anyhow::{Context, Result, bail};
+
+use crate::audio::wav;
+use crate::lipsync::jaw::JawBaseline;
+use crate::lipsync::mouth::VisemeShapes;
+use crate::lipsync::network::Model;
+use crate::lipsync::reproject::Reprojector;
+use crate::lipsync::visemes::VisemeSet;
+use crate::lipsync::{Animator, ModelAnimator};
+use crate::speex::codec::EncoderConfig;
+use crate::speex::features::FrameFeatures;
+use crate::speex::{FRAME_SIZE, stream};
+
+pub struct AnimateArgs {
+    pub input: PathBuf,
+    pub weights: Option<PathBuf>,
+    pub visemes: Option<String>,
+    pub model: Option<PathBuf>,
+    pub baseline_jaw: bool,
+}
+
+/// Viseme weights for every 20 ms frame of a stream, with the audio they belong to.
+pub struct WeightTrack {
+    pub visemes: VisemeSet,
+    pub rows: Vec<Vec<f32>>,
+    pub rate: u32,
+    pub pcm: Vec<i16>,
+}
+
+/// Features as a receiver would see them: a .spx is decoded; anything else is read as WAV,
+/// resampled to 8 kHz and sent through the codec at the default quality.
+pub fn receiver_features(input: &Path) -> Result<(u32, Vec<i16>, Vec<FrameFeatures>)> {
+    let is_spx = input
+        .extension()
+        .is_some_and(|e| e.eq_ignore_ascii_case("spx") || e.eq_ignore_ascii_case("ogg"));
+    let decoded = if is_spx {
+        let bytes =
+            std::fs::read(input).with_context(|| format!("cannot read {}", input.display()))?;
+        stream::decode(&bytes, true).with_context(|| input.display().to_string())?
+    } else {
+        let pcm = wav::read_narrowband(input)?;
+        if pcm.len() < FRAME_SIZE {
+            bail!(
+                "{}: too short: {} samples at 8 kHz, a frame needs {FRAME_SIZE}",
+                input.display(),
+                pcm.len()
+            );
+        }
+        stream::round_trip(&pcm, EncoderConfig::default())?
+    };
+    if decoded.features.is_empty() {
+        bail!("{}: holds no audio frame", input.display());
+    }
+    Ok((decoded.header.rate, decoded.pcm, decoded.features))
+}
+
+pub fn weight_track(args: &AnimateArgs) -> Result<WeightTrack> {
+    let (rate, pcm, features) = receiver_features(&args.input)?;
+    let model = match &args.model {
+        Some(path) => Model::load(path).with_context(|| path.display().to_string())?,
+        None => bail!("no model given: pass --model FILE (see `lipcall train`)"),
+    };
+    let mut animator: Box<dyn Animator + '_> = if args.baseline_jaw {
+        Box::new(JawBaseline::from_model(&model))
+    } else {
+        Box::new(ModelAnimator::new(&model))
+    };
+    let source = animator.visemes().clone();
+    let target = match &args.visemes {
+        Some(arg) => VisemeSet::parse(arg).with_context(|| format!("--visemes {arg}"))?,
+        None => source.clone(),
+    };
+    let mut reprojector =
+        Reprojector::new(source.clone(), target.clone(), VisemeShapes::point_model())?;
+    let mut raw = vec![0.0f32; source.len()];
+    let mut rows = Vec::with_capacity(features.len());
+    for f in &features {
+        animator.animate(f, &mut raw);
+        let mut out = vec![0.0f32; target.len()];
+        reprojector.project(&raw, &mut out)?;
+        rows.push(out);
+    }
+    Ok(WeightTrack {
+        visemes: target,
+        rows,
+        rate,
+        pcm,
+    })
+}
+
+pub fn animate(args: &AnimateArgs) -> Result<()> {
+    let track = weight_track(args)?;
+    if let Some(path) = &args.weights {
+        write_weights_csv(path, &track)?;
+        eprintln!(
+            "{}: {} frames of weights over {}",
+            path.display(),
+            track.rows.len(),
+            track
+                .visemes
+                .members()
+                .iter()
+                .map(|v| v.name())
+                .collect::<Vec<_>>()
+                .join(" ")
+        );
+    }
+    Ok(())
+}
+
+/// WEIGHTS.csv: `frame,time_s,<viseme names>`, one row per 20 ms.
+pub fn write_weights_csv(path: &Path, track: &WeightTrack) -> Result<()> {
+    let file =
+        std::fs::File::create(path).with_context(|| format!("cannot write {}", path.display()))?;
+    let mut out = std::io::BufWriter::new(file);
+    let names: Vec<&str> = track.visemes.members().iter().map(|v| v.name()).collect();
+    writeln!(out, "frame,time_s,{}", names.join(","))?;
+    for (n, row) in track.rows.iter().enumerate() {
+        let time = (n * FRAME_SIZE) as f64 / f64::from(track.rate);
+        write!(out, "{n},{time:.3}")?;
+        for w in row {
+            write!(out, ",{w:.4}")?;
+        }
+        writeln!(out)?;
+    }
+    out.flush()
+        .with_context(|| format!("cannot write {}", path.display()))
+}
