@@ -1,4 +1,5 @@
 //! lipcall: voice chat with lip-synced heads driven by the Speex decoder's own LSPs.
 
 pub mod audio;
+pub mod render;
 pub mod speex;

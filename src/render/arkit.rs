@@ -1,0 +1,1 @@
+//! ARKit blendshapes to visemes (stub).

@@ -1,0 +1,1 @@
+//! GLB writing (stub).
