@@ -60,3 +60,19 @@ pub enum RenderError {
     #[error("bad frame options: {0}")]
     Options(String),
 }
+
+/// Path of the bundled default head, relative to the repository root.
+pub const DEFAULT_HEAD_PATH: &str = "assets/heads/default.glb";
+
+/// The bundled default head (built by `cargo run --release --example build_head`).
+pub fn default_head() -> Result<HeadModel, RenderError> {
+    gltf_load::load_head_from_slice(include_bytes!("../../assets/heads/default.glb"))
+}
+
+/// Loads `--head FILE.glb` if given, else the bundled default head.
+pub fn load_head_or_default(path: Option<&std::path::Path>) -> Result<HeadModel, RenderError> {
+    match path {
+        Some(p) => gltf_load::load_head(p),
+        None => default_head(),
+    }
+}

@@ -110,7 +110,7 @@ impl HeadShape {
         bumps += 0.0012 * bump((ax / 0.0045).powi(2) + ((dy - 0.012) / 0.006).powi(2))
             * (1.0 - 2.0 * bump((ax / 0.002).powi(2)))
             * front;
-        bumps -= 0.003 * bump((p.x / 0.014).powi(2) + ((dy + 0.019) / 0.004).powi(2)) * front;
+        bumps -= 0.002 * bump((p.x / 0.014).powi(2) + ((dy + 0.019) / 0.004).powi(2)) * front;
         // Mouth corners sink a little.
         bumps -= 0.003 * bump(((ax - self.half_width) / 0.004).powi(2) + (dy / 0.005).powi(2)) * front;
         // Hair volume on the cranium.
@@ -177,6 +177,8 @@ struct PartMesh {
     colors: Vec<[f32; 4]>,
     parts: Vec<Part>,
     uvs: Vec<[f32; 2]>,
+    /// Vertices that move exactly like another one (inner lips follow the lip edge).
+    anchors: Vec<Option<u32>>,
     indices: Vec<u32>,
     morphs: bool,
 }
@@ -190,6 +192,7 @@ impl PartMesh {
             colors: Vec::new(),
             parts: Vec::new(),
             uvs: Vec::new(),
+            anchors: Vec::new(),
             indices: Vec::new(),
             morphs,
         }
@@ -200,6 +203,7 @@ impl PartMesh {
         self.colors.push(color);
         self.parts.push(part);
         self.uvs.push(uv);
+        self.anchors.push(None);
         (self.positions.len() - 1) as u32
     }
 
@@ -227,17 +231,28 @@ impl PartMesh {
             if *pose == MouthPose::default() {
                 continue;
             }
-            let moved: Vec<Vec3> = self
+            let mut moved: Vec<Vec3> = self
                 .positions
                 .iter()
                 .zip(&self.parts)
                 .map(|(&p, &part)| deform(p, part, pose, anatomy))
                 .collect();
+            for (i, anchor) in self.anchors.iter().enumerate() {
+                if let Some(a) = anchor {
+                    let a = *a as usize;
+                    moved[i] = self.positions[i] + (moved[a] - self.positions[a]);
+                }
+            }
             let moved_normals = smooth_normals(&moved, &self.indices);
             let deltas: Vec<MorphDelta> = (0..moved.len())
-                .map(|i| MorphDelta {
-                    position: (moved[i] - self.positions[i]).into(),
-                    normal: (moved_normals[i] - normals[i]).into(),
+                .map(|i| {
+                    // Drop sub-micrometre noise so the GLB's sparse targets stay small.
+                    let dp = moved[i] - self.positions[i];
+                    let dn = moved_normals[i] - normals[i];
+                    MorphDelta {
+                        position: if dp.length() < 2e-6 { [0.0; 3] } else { dp.into() },
+                        normal: if dn.length() < 1e-3 { [0.0; 3] } else { dn.into() },
+                    }
                 })
                 .collect();
             if deltas.iter().any(|d| d.position != [0.0; 3]) {
@@ -284,7 +299,7 @@ pub fn build_default_head() -> HeadModel {
     let phi_mouth = 0.5 * (lo + hi);
     let mouth_center = shape.cast(direction(0.0, phi_mouth));
     let mouth_z = mouth_center.z;
-    let teeth_z = mouth_z - 0.0095;
+    let teeth_z = mouth_z - 0.0102;
     let anatomy = Anatomy {
         mouth_y,
         mouth_z,
@@ -343,10 +358,11 @@ pub fn build_default_head() -> HeadModel {
 
     // --- skin ---
     let mut skin = PartMesh::new("skin", 0, true);
-    let corner_theta = (half_width / (mouth_z + 0.005)).atan();
+    let slit_x: Vec<f32> = (0..COLUMNS)
+        .map(|i| shape.cast(direction(column_angle(i), phi_mouth)).x)
+        .collect();
     let is_slit_column = |i: usize| {
-        let th = column_angle(i);
-        th.abs() < corner_theta * 0.985
+        column_angle(i).abs() < 1.0 && slit_x[i].abs() < half_width * 0.97
     };
     let rows = phis.len();
     let mut grid = vec![0u32; rows * COLUMNS];
@@ -394,7 +410,7 @@ pub fn build_default_head() -> HeadModel {
 
     // --- inner lips: from the lip line back towards the teeth ---
     let inner_color = srgb(0.62, 0.28, 0.30);
-    let upper_profile = [(0.0, 0.0), (0.001, -0.003), (0.003, -0.006), (0.006, -0.0075), (0.01, -0.0085)];
+    let upper_profile = [(0.0, 0.0), (0.001, -0.0035), (0.0025, -0.007), (0.0045, -0.0095), (0.007, -0.0115)];
     let slit_cols: Vec<usize> = (0..COLUMNS).filter(|&i| is_slit_column(i)).collect();
     let mut corner_cols = Vec::new();
     if let (Some(&first), Some(&last)) = (slit_cols.first(), slit_cols.last()) {
@@ -420,7 +436,9 @@ pub fn build_default_head() -> HeadModel {
                 let depth = dz * taper.max(0.08);
                 let q = Vec3::new(base.x * (1.0 - 0.12 * k as f32 / 4.0), base.y + sign * dy * taper.max(0.08), base.z + depth);
                 let c = mix4(inner_color, srgb(0.35, 0.12, 0.13), k as f32 / 4.0);
-                column.push(skin.push(q, c, part, [0.5, 0.5]));
+                let id = skin.push(q, c, part, [0.5, 0.5]);
+                skin.anchors[id as usize] = Some(edge);
+                column.push(id);
             }
             strip_rows.push(column);
         }
@@ -557,7 +575,7 @@ fn teeth_arch(mesh: &mut PartMesh, a: &Anatomy, upper: bool) {
     const STEPS: usize = 72;
     let sign = if upper { 1.0 } else { -1.0 };
     let part = if upper { Part::UpperTeeth } else { Part::LowerTeeth };
-    let front_z = if upper { a.teeth_z } else { a.teeth_z - 0.0018 };
+    let front_z = if upper { a.teeth_z } else { a.teeth_z - 0.0025 };
     let half = if upper { 0.0235 } else { 0.021 };
     // Tooth widths from the middle outwards (incisors, canine, premolars, molar).
     let widths: &[f32] = if upper {
@@ -567,7 +585,7 @@ fn teeth_arch(mesh: &mut PartMesh, a: &Anatomy, upper: bool) {
     };
     let edge_y = a.mouth_y + if upper { -0.0012 } else { -0.0006 };
     let crown = if upper { 0.0105 } else { 0.0095 };
-    let gum = 0.005;
+    let gum = if upper { 0.005 } else { 0.003 };
     let white = srgb(0.93, 0.91, 0.84);
     let gum_color = srgb(0.78, 0.42, 0.44);
     let gap = srgb(0.55, 0.5, 0.45);

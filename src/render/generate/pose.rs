@@ -117,7 +117,7 @@ pub fn viseme_poses() -> [MouthPose; 15] {
         },
         // U
         MouthPose {
-            ..p(0.25, 0.45, -0.85, 1.0)
+            ..p(0.18, 0.3, -0.85, 1.0)
         },
     ]
 }
@@ -234,7 +234,8 @@ pub fn deform(p: Vec3, part: Part, pose: &MouthPose, a: &Anatomy) -> Vec3 {
             q.y += 0.0025 * spread * xs.abs().min(1.2) * lips;
 
             // Protrusion and rounding: lips forward, lip edges flare.
-            q.z += 0.012 * pose.protrusion * near;
+            let pushed = lip_weight(p, a, 1.3, 0.03);
+            q.z += 0.012 * pose.protrusion * pushed;
             q.y += sign * 0.0025 * pose.protrusion * verm * across;
             q.z += 0.003 * narrow * verm;
 
