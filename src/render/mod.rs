@@ -17,7 +17,7 @@ pub mod offscreen;
 pub mod renderer;
 
 pub use camera::{Camera, Framing};
-pub use head::{HeadModel, VISEME_COUNT, VISEME_NAMES, VisemeWeights};
+pub use head::{HeadModel, VISEME_COUNT, VISEME_NAMES, VisemeWeights, viseme_index};
 pub use offscreen::{FrameOptions, GpuContext, OffscreenRenderer, WeightTrack, render_frames};
 pub use renderer::{GpuHead, HeadInstance, HeadRenderer};
 

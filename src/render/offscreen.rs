@@ -316,6 +316,16 @@ impl OffscreenRenderer {
             .ok_or_else(|| RenderError::Readback("frame size mismatch".into()))
     }
 
+    /// The first head's blended vertices as the vertex shader computes them, read back from the
+    /// GPU (model order), for the weights of the last frame drawn.
+    pub fn blend_on_gpu(
+        &self,
+        ctx: &GpuContext,
+    ) -> Result<Vec<super::head::MorphDelta>, RenderError> {
+        self.renderer
+            .blend_on_gpu(&ctx.device, &ctx.queue, &self.instances[0])
+    }
+
     /// Direct access for callers that draw extra heads or change uniforms.
     pub fn renderer(&self) -> &HeadRenderer {
         &self.renderer
