@@ -26,7 +26,8 @@ fn main() -> anyhow::Result<()> {
     };
     let mut offscreen = OffscreenRenderer::new(&ctx, &model, options)?;
     let (cols, rows) = (5u32, 3u32);
-    let mut sheet = image::RgbaImage::from_pixel(cols * tile, rows * tile, image::Rgba([0, 0, 0, 255]));
+    let mut sheet =
+        image::RgbaImage::from_pixel(cols * tile, rows * tile, image::Rgba([0, 0, 0, 255]));
     for (i, name) in VISEME_NAMES.iter().enumerate() {
         let weights = VisemeWeights::one_hot(i);
         let img = offscreen.render(&ctx, &weights)?;

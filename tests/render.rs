@@ -55,16 +55,26 @@ fn pixel_difference(a: &image::RgbaImage, b: &image::RgbaImage) -> usize {
 fn default_head_has_all_fifteen_named_visemes() {
     let head = default_head();
     assert_eq!(head.source, TargetSource::Visemes);
-    assert!(head.missing_visemes.is_empty(), "{:?}", head.missing_visemes);
+    assert!(
+        head.missing_visemes.is_empty(),
+        "{:?}",
+        head.missing_visemes
+    );
     for (v, name) in VISEME_NAMES.iter().enumerate().skip(1) {
         assert!(
             head.primitives.iter().any(|p| !p.targets[v].is_empty()),
             "no shape for {name}"
         );
     }
-    assert!(head.primitives.len() >= 5, "skin, mouth, teeth, tongue, eyes");
+    assert!(
+        head.primitives.len() >= 5,
+        "skin, mouth, teeth, tongue, eyes"
+    );
     let frame = head.face_frame();
-    assert!(frame.mouth_width > 0.02 && frame.mouth_width < 0.08, "{frame:?}");
+    assert!(
+        frame.mouth_width > 0.02 && frame.mouth_width < 0.08,
+        "{frame:?}"
+    );
 }
 
 #[test]
@@ -73,7 +83,8 @@ fn gpu_blend_matches_cpu_reference() {
     let head = default_head();
     let mut offscreen = mouth_renderer(&ctx, head);
     // A convex mix touching several shapes, and single shapes.
-    let mut mixes = vec![VisemeWeights::from_named([("aa", 0.5), ("U", 0.3), ("PP", 0.2)]).unwrap()];
+    let mut mixes =
+        vec![VisemeWeights::from_named([("aa", 0.5), ("U", 0.3), ("PP", 0.2)]).unwrap()];
     mixes.push(VisemeWeights::single("TH").unwrap());
     mixes.push(VisemeWeights::neutral());
     for weights in mixes {
@@ -112,19 +123,32 @@ fn aa_opens_the_mouth_and_pp_closes_it() {
     let Some(ctx) = gpu() else { return };
     let mut offscreen = mouth_renderer(&ctx, default_head());
     let render = |o: &mut OffscreenRenderer, name: &str| {
-        o.render(&ctx, &VisemeWeights::single(name).unwrap()).unwrap()
+        o.render(&ctx, &VisemeWeights::single(name).unwrap())
+            .unwrap()
     };
     let sil = render(&mut offscreen, "sil");
     let aa = render(&mut offscreen, "aa");
     let pp = render(&mut offscreen, "PP");
     let (d_sil, d_aa, d_pp) = (dark_pixels(&sil), dark_pixels(&aa), dark_pixels(&pp));
     let region = (96 * 3 / 5) * (96 * 3 / 5);
-    assert!(pixel_difference(&sil, &aa) > region / 10, "aa barely changes the mouth");
-    assert!(d_aa > d_sil + 150, "aa should show the dark mouth interior ({d_aa} vs {d_sil})");
-    assert!(d_pp * 10 < d_aa, "PP should close the mouth ({d_pp} dark pixels vs {d_aa} for aa)");
+    assert!(
+        pixel_difference(&sil, &aa) > region / 10,
+        "aa barely changes the mouth"
+    );
+    assert!(
+        d_aa > d_sil + 150,
+        "aa should show the dark mouth interior ({d_aa} vs {d_sil})"
+    );
+    assert!(
+        d_pp * 10 < d_aa,
+        "PP should close the mouth ({d_pp} dark pixels vs {d_aa} for aa)"
+    );
     // Half-way between aa and PP is less open than aa.
     let mix = offscreen
-        .render(&ctx, &VisemeWeights::from_named([("aa", 0.5), ("PP", 0.5)]).unwrap())
+        .render(
+            &ctx,
+            &VisemeWeights::from_named([("aa", 0.5), ("PP", 0.5)]).unwrap(),
+        )
         .unwrap();
     assert!(dark_pixels(&mix) < d_aa);
 }
@@ -165,13 +189,24 @@ fn grid_glb(targets: &[(&str, f32)], with_normals: bool) -> Vec<u8> {
     for j in 0..n - 1 {
         for i in 0..n - 1 {
             let a = (j * n + i) as u32;
-            idx.extend_from_slice(&[a, a + 1, a + n as u32 + 1, a, a + n as u32 + 1, a + n as u32]);
+            idx.extend_from_slice(&[
+                a,
+                a + 1,
+                a + n as u32 + 1,
+                a,
+                a + n as u32 + 1,
+                a + n as u32,
+            ]);
         }
     }
     let mut bin: Vec<u8> = Vec::new();
     let mut views = Vec::new();
     let mut accessors = Vec::new();
-    let mut add = |bytes: Vec<u8>, count: usize, kind: &str, ctype: u32, bounds: Option<([f32; 3], [f32; 3])>| {
+    let mut add = |bytes: Vec<u8>,
+                   count: usize,
+                   kind: &str,
+                   ctype: u32,
+                   bounds: Option<([f32; 3], [f32; 3])>| {
         let offset = bin.len();
         bin.extend_from_slice(&bytes);
         while bin.len() % 4 != 0 {
@@ -186,18 +221,47 @@ fn grid_glb(targets: &[(&str, f32)], with_normals: bool) -> Vec<u8> {
         accessors.push(a);
         accessors.len() - 1
     };
-    let f32s = |v: &[[f32; 3]]| v.iter().flatten().flat_map(|f| f.to_le_bytes()).collect::<Vec<u8>>();
-    let p = add(f32s(&pos), pos.len(), "VEC3", 5126, Some(([-0.1, -0.1, 0.0], [0.1, 0.1, 0.0])));
+    let f32s = |v: &[[f32; 3]]| {
+        v.iter()
+            .flatten()
+            .flat_map(|f| f.to_le_bytes())
+            .collect::<Vec<u8>>()
+    };
+    let p = add(
+        f32s(&pos),
+        pos.len(),
+        "VEC3",
+        5126,
+        Some(([-0.1, -0.1, 0.0], [0.1, 0.1, 0.0])),
+    );
     let nrm = vec![[0.0, 0.0, 1.0f32]; pos.len()];
     let nacc = add(f32s(&nrm), pos.len(), "VEC3", 5126, None);
-    let i = add(idx.iter().flat_map(|i| i.to_le_bytes()).collect(), idx.len(), "SCALAR", 5125, None);
+    let i = add(
+        idx.iter().flat_map(|i| i.to_le_bytes()).collect(),
+        idx.len(),
+        "SCALAR",
+        5125,
+        None,
+    );
     let mut target_json = Vec::new();
     for (k, (_, amount)) in targets.iter().enumerate() {
         let deltas: Vec<[f32; 3]> = pos
             .iter()
-            .map(|p| if p[1] < 0.0 { [0.01 * k as f32, -amount, 0.0] } else { [0.0; 3] })
+            .map(|p| {
+                if p[1] < 0.0 {
+                    [0.01 * k as f32, -amount, 0.0]
+                } else {
+                    [0.0; 3]
+                }
+            })
             .collect();
-        let d = add(f32s(&deltas), deltas.len(), "VEC3", 5126, Some(([0.0, -amount, 0.0], [0.01 * k as f32, 0.0, 0.0])));
+        let d = add(
+            f32s(&deltas),
+            deltas.len(),
+            "VEC3",
+            5126,
+            Some(([0.0, -amount, 0.0], [0.01 * k as f32, 0.0, 0.0])),
+        );
         target_json.push(json!({"POSITION": d}));
     }
     let mut attributes = json!({"POSITION": p});
@@ -227,7 +291,14 @@ fn grid_glb(targets: &[(&str, f32)], with_normals: bool) -> Vec<u8> {
 
 #[test]
 fn arkit_head_animates_through_the_recipe() {
-    let glb = grid_glb(&[("jawOpen", 0.05), ("mouthPucker", 0.01), ("eyeBlinkLeft", 0.02)], true);
+    let glb = grid_glb(
+        &[
+            ("jawOpen", 0.05),
+            ("mouthPucker", 0.01),
+            ("eyeBlinkLeft", 0.02),
+        ],
+        true,
+    );
     let head = load_head_from_slice(&glb).expect("ARKit grid loads");
     assert_eq!(head.source, TargetSource::Arkit);
     // jawOpen is in the recipe of aa; PP (press/roll/close) has none of these shapes.
@@ -236,7 +307,10 @@ fn arkit_head_animates_through_the_recipe() {
     assert!(head.missing_visemes.contains(&"PP".to_owned()));
     // Node scale 2 applies to positions and deltas.
     let blended = head.blend_cpu(&VisemeWeights::single("aa").unwrap());
-    let min_y = blended.iter().map(|v| v.position[1]).fold(f32::INFINITY, f32::min);
+    let min_y = blended
+        .iter()
+        .map(|v| v.position[1])
+        .fold(f32::INFINITY, f32::min);
     assert!((min_y - (-0.2 - 2.0 * 0.05 * 0.75)).abs() < 1e-5, "{min_y}");
 
     let Some(ctx) = gpu() else { return };
@@ -247,13 +321,21 @@ fn arkit_head_animates_through_the_recipe() {
     };
     let mut offscreen = OffscreenRenderer::new(&ctx, &head, options).unwrap();
     let rest = offscreen.render(&ctx, &VisemeWeights::neutral()).unwrap();
-    let open = offscreen.render(&ctx, &VisemeWeights::single("aa").unwrap()).unwrap();
-    assert!(pixel_difference(&rest, &open) > 20, "ARKit jawOpen should move the grid");
+    let open = offscreen
+        .render(&ctx, &VisemeWeights::single("aa").unwrap())
+        .unwrap();
+    assert!(
+        pixel_difference(&rest, &open) > 20,
+        "ARKit jawOpen should move the grid"
+    );
 }
 
 #[test]
 fn viseme_names_with_and_without_prefix_are_matched() {
-    let glb = grid_glb(&[("viseme_aa", 0.05), ("PP", 0.0), ("Viseme_U", 0.02)], false);
+    let glb = grid_glb(
+        &[("viseme_aa", 0.05), ("PP", 0.0), ("Viseme_U", 0.02)],
+        false,
+    );
     let head = load_head_from_slice(&glb).unwrap();
     assert_eq!(head.source, TargetSource::Visemes);
     for name in ["aa", "U"] {
@@ -262,7 +344,12 @@ fn viseme_names_with_and_without_prefix_are_matched() {
     }
     assert!(head.missing_visemes.contains(&"E".to_owned()));
     // Normals were missing from the file and are computed.
-    assert!(head.primitives[0].vertices.iter().all(|v| (v.normal[2] - 1.0).abs() < 1e-4));
+    assert!(
+        head.primitives[0]
+            .vertices
+            .iter()
+            .all(|v| (v.normal[2] - 1.0).abs() < 1e-4)
+    );
 }
 
 #[test]
@@ -271,7 +358,10 @@ fn heads_without_usable_targets_are_refused_with_what_is_missing() {
     let err = load_head_from_slice(&none).unwrap_err();
     assert!(matches!(err, RenderError::NoUsableTargets { .. }), "{err}");
     let msg = err.to_string();
-    assert!(msg.contains("viseme_aa") && msg.contains("jawOpen"), "{msg}");
+    assert!(
+        msg.contains("viseme_aa") && msg.contains("jawOpen"),
+        "{msg}"
+    );
 
     let unrelated = grid_glb(&[("smile", 0.01), ("browUp", 0.01)], true);
     let msg = load_head_from_slice(&unrelated).unwrap_err().to_string();
@@ -286,7 +376,10 @@ fn malformed_glb_files_give_errors_not_panics() {
     let good = grid_glb(&[("jawOpen", 0.05)], true);
     // Every truncation.
     for len in (0..good.len()).step_by(7) {
-        assert!(load_head_from_slice(&good[..len]).is_err(), "truncated at {len}");
+        assert!(
+            load_head_from_slice(&good[..len]).is_err(),
+            "truncated at {len}"
+        );
     }
     // Deterministic byte corruption all over the file: any outcome but a panic.
     let mut state = 0x2545F4914F6CDD1Du64;
@@ -306,7 +399,10 @@ fn malformed_glb_files_give_errors_not_panics() {
     let mut doc: serde_json::Value = serde_json::from_str(text.trim_end()).unwrap();
     doc["accessors"][0]["count"] = json!(1_000_000);
     let out_of_range = glb_container(doc.to_string().as_bytes(), &good[bin_start..]);
-    assert!(matches!(load_head_from_slice(&out_of_range), Err(RenderError::Gltf(_))));
+    assert!(matches!(
+        load_head_from_slice(&out_of_range),
+        Err(RenderError::Gltf(_))
+    ));
     let mut doc2: serde_json::Value = serde_json::from_str(text.trim_end()).unwrap();
     doc2["accessors"][0]["componentType"] = json!(5123);
     let wrong_type = glb_container(doc2.to_string().as_bytes(), &good[bin_start..]);
@@ -324,7 +420,11 @@ fn missing_head_file_is_an_io_error() {
 fn weight_track_samples_by_time() {
     let track = WeightTrack::from_columns(
         &["sil", "aa"],
-        &[(0.0, vec![1.0, 0.0]), (0.02, vec![0.0, 1.0]), (0.04, vec![1.0, 0.0])],
+        &[
+            (0.0, vec![1.0, 0.0]),
+            (0.02, vec![0.0, 1.0]),
+            (0.04, vec![1.0, 0.0]),
+        ],
     )
     .unwrap();
     let mid = track.sample(0.01);
@@ -341,7 +441,9 @@ fn frames_are_written_at_25_and_50_fps() {
     let mut track = WeightTrack::default();
     for k in 0..10 {
         let name = if k % 2 == 0 { "aa" } else { "PP" };
-        track.push(k as f64 * 0.02, VisemeWeights::single(name).unwrap()).unwrap();
+        track
+            .push(k as f64 * 0.02, VisemeWeights::single(name).unwrap())
+            .unwrap();
     }
     let dir = std::env::temp_dir().join(format!("lipcall-frames-{}", std::process::id()));
     for (fps, expected) in [(25, 5), (50, 10)] {
@@ -352,8 +454,14 @@ fn frames_are_written_at_25_and_50_fps() {
             fps,
             ..Default::default()
         };
-        let summary = lipcall::render::offscreen::render_frames_with(&ctx, default_head(), &track, &dir, &options)
-            .unwrap();
+        let summary = lipcall::render::offscreen::render_frames_with(
+            &ctx,
+            default_head(),
+            &track,
+            &dir,
+            &options,
+        )
+        .unwrap();
         assert_eq!(summary.frames, expected);
         for k in 0..expected {
             let path = dir.join(format!("frame_{k:06}.png"));

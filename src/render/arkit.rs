@@ -53,7 +53,9 @@ pub const ARKIT_NAMES: [&str; 19] = [
 /// before a '.' (such as `blendShape1.jawOpen`).
 pub fn arkit_index(name: &str) -> Option<usize> {
     let base = name.rsplit('.').next().unwrap_or(name);
-    ARKIT_NAMES.iter().position(|a| a.eq_ignore_ascii_case(base))
+    ARKIT_NAMES
+        .iter()
+        .position(|a| a.eq_ignore_ascii_case(base))
 }
 
 /// The recipe: for each viseme, (ARKit shape, weight) pairs; `Left/Right` pairs spelled out.
@@ -68,7 +70,11 @@ pub fn recipe() -> [Vec<(&'static str, f32)>; VISEME_COUNT] {
         }
     };
     let mut v: [Vec<(&'static str, f32)>; VISEME_COUNT] = Default::default();
-    v[1] = vec![("mouthClose", 0.2), ("mouthRollLower", 0.3), ("mouthRollUpper", 0.3)];
+    v[1] = vec![
+        ("mouthClose", 0.2),
+        ("mouthRollLower", 0.3),
+        ("mouthRollUpper", 0.3),
+    ];
     v[1].extend(both("mouthPress", 0.6));
     v[2] = vec![("jawOpen", 0.12), ("mouthRollLower", 0.8)];
     v[2].extend(both("mouthUpperUp", 0.25));
@@ -81,7 +87,11 @@ pub fn recipe() -> [Vec<(&'static str, f32)>; VISEME_COUNT] {
     v[5] = vec![("jawOpen", 0.35)];
     v[5].extend(both("mouthStretch", 0.1));
     v[5].extend(both("mouthLowerDown", 0.15));
-    v[6] = vec![("jawOpen", 0.15), ("mouthFunnel", 0.6), ("mouthPucker", 0.2)];
+    v[6] = vec![
+        ("jawOpen", 0.15),
+        ("mouthFunnel", 0.6),
+        ("mouthPucker", 0.2),
+    ];
     v[6].extend(both("mouthUpperUp", 0.3));
     v[6].extend(both("mouthLowerDown", 0.3));
     v[7] = vec![("jawOpen", 0.1)];
@@ -92,7 +102,11 @@ pub fn recipe() -> [Vec<(&'static str, f32)>; VISEME_COUNT] {
     v[8] = vec![("jawOpen", 0.25), ("tongueOut", 0.1)];
     v[8].extend(both("mouthStretch", 0.1));
     v[8].extend(both("mouthUpperUp", 0.15));
-    v[9] = vec![("jawOpen", 0.2), ("mouthFunnel", 0.35), ("mouthPucker", 0.3)];
+    v[9] = vec![
+        ("jawOpen", 0.2),
+        ("mouthFunnel", 0.35),
+        ("mouthPucker", 0.3),
+    ];
     v[10] = vec![("jawOpen", 0.75)];
     v[10].extend(both("mouthLowerDown", 0.3));
     v[10].extend(both("mouthUpperUp", 0.15));
@@ -106,8 +120,16 @@ pub fn recipe() -> [Vec<(&'static str, f32)>; VISEME_COUNT] {
     v[12].extend(both("mouthSmile", 0.35));
     v[12].extend(both("mouthUpperUp", 0.35));
     v[12].extend(both("mouthLowerDown", 0.3));
-    v[13] = vec![("jawOpen", 0.45), ("mouthFunnel", 0.7), ("mouthPucker", 0.25)];
-    v[14] = vec![("jawOpen", 0.15), ("mouthPucker", 0.85), ("mouthFunnel", 0.4)];
+    v[13] = vec![
+        ("jawOpen", 0.45),
+        ("mouthFunnel", 0.7),
+        ("mouthPucker", 0.25),
+    ];
+    v[14] = vec![
+        ("jawOpen", 0.15),
+        ("mouthPucker", 0.85),
+        ("mouthFunnel", 0.4),
+    ];
     v
 }
 

@@ -70,6 +70,7 @@ impl Camera {
         } else {
             1.0
         };
-        glam::camera::rh::proj::directx::perspective(self.fov_y, aspect, self.near, self.far) * self.view()
+        glam::camera::rh::proj::directx::perspective(self.fov_y, aspect, self.near, self.far)
+            * self.view()
     }
 }

@@ -32,14 +32,19 @@ impl Builder {
     }
 
     fn vec_accessor<const N: usize>(&mut self, items: &[[f32; N]], with_bounds: bool) -> usize {
-        let bytes: Vec<u8> = items.iter().flatten().flat_map(|f| f.to_le_bytes()).collect();
+        let bytes: Vec<u8> = items
+            .iter()
+            .flatten()
+            .flat_map(|f| f.to_le_bytes())
+            .collect();
         let view = self.view(&bytes, Some(ARRAY_BUFFER));
         let kind = match N {
             2 => "VEC2",
             3 => "VEC3",
             _ => "VEC4",
         };
-        let mut a = json!({"bufferView": view, "componentType": FLOAT, "count": items.len(), "type": kind});
+        let mut a =
+            json!({"bufferView": view, "componentType": FLOAT, "count": items.len(), "type": kind});
         if with_bounds {
             let mut min = [f32::INFINITY; N];
             let mut max = [f32::NEG_INFINITY; N];
@@ -117,7 +122,8 @@ pub fn write_glb(model: &HeadModel) -> Vec<u8> {
         });
         let idx_bytes: Vec<u8> = p.indices.iter().flat_map(|i| i.to_le_bytes()).collect();
         let iv = b.view(&idx_bytes, Some(ELEMENT_ARRAY_BUFFER));
-        b.accessors.push(json!({"bufferView": iv, "componentType": UNSIGNED_INT,
+        b.accessors
+            .push(json!({"bufferView": iv, "componentType": UNSIGNED_INT,
                                 "count": p.indices.len(), "type": "SCALAR"}));
         let indices = b.accessors.len() - 1;
         let mut primitive = json!({"attributes": attributes, "indices": indices,
@@ -130,7 +136,10 @@ pub fn write_glb(model: &HeadModel) -> Vec<u8> {
                 let dp: Vec<[f32; 3]> = deltas.iter().map(|d| d.position).collect();
                 let dn: Vec<[f32; 3]> = deltas.iter().map(|d| d.normal).collect();
                 let (dp, dn) = if deltas.is_empty() {
-                    (vec![[0.0; 3]; p.vertices.len()], vec![[0.0; 3]; p.vertices.len()])
+                    (
+                        vec![[0.0; 3]; p.vertices.len()],
+                        vec![[0.0; 3]; p.vertices.len()],
+                    )
                 } else {
                     (dp, dn)
                 };
@@ -181,7 +190,14 @@ pub fn glb_container(json_chunk: &[u8], bin_chunk: &[u8]) -> Vec<u8> {
         bin_chunk.push(0);
     }
     let (json_chunk, bin_chunk) = (&json_chunk[..], &bin_chunk[..]);
-    let total = 12 + 8 + json_chunk.len() + if bin_chunk.is_empty() { 0 } else { 8 + bin_chunk.len() };
+    let total = 12
+        + 8
+        + json_chunk.len()
+        + if bin_chunk.is_empty() {
+            0
+        } else {
+            8 + bin_chunk.len()
+        };
     let mut out = Vec::with_capacity(total);
     out.extend_from_slice(b"glTF");
     out.extend_from_slice(&2u32.to_le_bytes());

@@ -59,7 +59,10 @@ fn classify(name: &str) -> TargetKind {
     if let Some(v) = VISEME_NAMES.iter().position(|v| *v == stripped) {
         return TargetKind::Viseme(v);
     }
-    if let Some(v) = VISEME_NAMES.iter().position(|v| v.eq_ignore_ascii_case(stripped)) {
+    if let Some(v) = VISEME_NAMES
+        .iter()
+        .position(|v| v.eq_ignore_ascii_case(stripped))
+    {
         return TargetKind::Viseme(v);
     }
     match arkit::arkit_index(base) {
@@ -116,9 +119,16 @@ fn load_head_from_slice_in(bytes: &[u8], base: Option<&Path>) -> Result<HeadMode
         let local = Mat4::from_cols_array_2d(&node.transform().matrix());
         let world = parent * local;
         if let Some(mesh) = node.mesh() {
-            let transform = if node.skin().is_some() { Mat4::IDENTITY } else { world };
+            let transform = if node.skin().is_some() {
+                Mat4::IDENTITY
+            } else {
+                world
+            };
             if !transform.is_finite() {
-                return Err(RenderError::Gltf(format!("node {} has a non-finite transform", node.index())));
+                return Err(RenderError::Gltf(format!(
+                    "node {} has a non-finite transform",
+                    node.index()
+                )));
             }
             let names = target_names(&mesh);
             all_target_names.extend(names.iter().cloned());
@@ -126,7 +136,8 @@ fn load_head_from_slice_in(bytes: &[u8], base: Option<&Path>) -> Result<HeadMode
                 if prim.mode() != gltf::mesh::Mode::Triangles {
                     continue;
                 }
-                let raw = read_primitive(&prim, &mesh, &names, transform, &buffers, default_material)?;
+                let raw =
+                    read_primitive(&prim, &mesh, &names, transform, &buffers, default_material)?;
                 total_vertices += raw.vertices.len();
                 if total_vertices > MAX_VERTICES {
                     return Err(RenderError::Unsupported(format!(
@@ -141,7 +152,9 @@ fn load_head_from_slice_in(bytes: &[u8], base: Option<&Path>) -> Result<HeadMode
         }
     }
     if raws.is_empty() {
-        return Err(RenderError::InvalidHead("the file has no triangle meshes".into()));
+        return Err(RenderError::InvalidHead(
+            "the file has no triangle meshes".into(),
+        ));
     }
     all_target_names.sort();
     all_target_names.dedup();
@@ -179,7 +192,11 @@ fn build_model(
         if viseme_mode && has_viseme[v] {
             continue;
         }
-        if recipe[v].iter().zip(&has_arkit).any(|(&w, &h)| w > 0.0 && h) {
+        if recipe[v]
+            .iter()
+            .zip(&has_arkit)
+            .any(|(&w, &h)| w > 0.0 && h)
+        {
             use_arkit[v] = true;
         } else {
             missing.push(VISEME_NAMES[v].to_owned());
@@ -204,14 +221,19 @@ fn build_model(
             };
             for (kind, deltas) in &raw.targets {
                 match *kind {
-                    TargetKind::Viseme(t) if t == v && !use_arkit[v] && viseme_mode => add(deltas, 1.0),
+                    TargetKind::Viseme(t) if t == v && !use_arkit[v] && viseme_mode => {
+                        add(deltas, 1.0)
+                    }
                     TargetKind::Arkit(a) if use_arkit[v] && recipe[v][a] > 0.0 => {
                         add(deltas, recipe[v][a])
                     }
                     _ => {}
                 }
             }
-            if acc.iter().any(|d| d.position != [0.0; 3] || d.normal != [0.0; 3]) {
+            if acc
+                .iter()
+                .any(|d| d.position != [0.0; 3] || d.normal != [0.0; 3])
+            {
                 prim.targets[v] = acc;
             }
         }
@@ -347,12 +369,21 @@ fn load_material(m: &gltf::Material, buffers: &[Vec<u8>], base: Option<&Path>) -
     });
     Material {
         name: m.name().unwrap_or("material").to_owned(),
-        base_color: factor.map(|c| if c.is_finite() { c.clamp(0.0, 1.0) } else { 1.0 }),
+        base_color: factor.map(|c| {
+            if c.is_finite() {
+                c.clamp(0.0, 1.0)
+            } else {
+                1.0
+            }
+        }),
         texture,
     }
 }
 
-fn view_slice<'a>(view: &gltf::buffer::View, buffers: &'a [Vec<u8>]) -> Result<&'a [u8], RenderError> {
+fn view_slice<'a>(
+    view: &gltf::buffer::View,
+    buffers: &'a [Vec<u8>],
+) -> Result<&'a [u8], RenderError> {
     let data = buffers
         .get(view.buffer().index())
         .ok_or_else(|| RenderError::Gltf("buffer view of a missing buffer".into()))?;
@@ -383,7 +414,11 @@ fn check_accessor(
     if a.count() == 0 || a.count() > MAX_VERTICES * 3 {
         return Err(bad(format!("count {}", a.count())));
     }
-    let fits = |view: &gltf::buffer::View, offset: usize, count: usize, size: usize| -> Result<(), RenderError> {
+    let fits = |view: &gltf::buffer::View,
+                offset: usize,
+                count: usize,
+                size: usize|
+     -> Result<(), RenderError> {
         let slice = view_slice(view, buffers)?;
         let stride = view.stride().unwrap_or(size);
         if stride < size {
@@ -436,12 +471,17 @@ fn read_primitive(
         .ok_or_else(|| RenderError::Gltf("primitive without POSITION".into()))?;
     check_accessor(&pos_acc, buffers, &vec3, "POSITION")?;
     let n = pos_acc.count();
-    let attr_ok = |sem: gltf::Semantic, allowed: &[(DataType, Dimensions)], what: &str| -> Result<bool, RenderError> {
+    let attr_ok = |sem: gltf::Semantic,
+                   allowed: &[(DataType, Dimensions)],
+                   what: &str|
+     -> Result<bool, RenderError> {
         match prim.get(&sem) {
             Some(acc) => {
                 check_accessor(&acc, buffers, allowed, what)?;
                 if acc.count() != n {
-                    return Err(RenderError::Gltf(format!("{what} count differs from POSITION")));
+                    return Err(RenderError::Gltf(format!(
+                        "{what} count differs from POSITION"
+                    )));
                 }
                 Ok(true)
             }
@@ -485,8 +525,17 @@ fn read_primitive(
 
     let indices: Vec<u32> = match prim.indices() {
         Some(acc) => {
-            check_accessor(&acc, buffers, &[(U8, Scalar), (U16, Scalar), (U32, Scalar)], "indices")?;
-            let idx: Vec<u32> = reader.read_indices().ok_or_else(missing)?.into_u32().collect();
+            check_accessor(
+                &acc,
+                buffers,
+                &[(U8, Scalar), (U16, Scalar), (U32, Scalar)],
+                "indices",
+            )?;
+            let idx: Vec<u32> = reader
+                .read_indices()
+                .ok_or_else(missing)?
+                .into_u32()
+                .collect();
             if idx.iter().any(|&i| i as usize >= n) {
                 return Err(RenderError::Gltf("triangle index out of range".into()));
             }
@@ -506,12 +555,20 @@ fn read_primitive(
         smooth_normals(&positions, &indices)
     };
     let uvs: Vec<[f32; 2]> = if has_uv {
-        reader.read_tex_coords(0).ok_or_else(missing)?.into_f32().collect()
+        reader
+            .read_tex_coords(0)
+            .ok_or_else(missing)?
+            .into_f32()
+            .collect()
     } else {
         vec![[0.0; 2]; n]
     };
     let colors: Vec<[f32; 4]> = if has_color {
-        reader.read_colors(0).ok_or_else(missing)?.into_rgba_f32().collect()
+        reader
+            .read_colors(0)
+            .ok_or_else(missing)?
+            .into_rgba_f32()
+            .collect()
     } else {
         vec![[1.0; 4]; n]
     };
@@ -537,13 +594,17 @@ fn read_primitive(
         if let Some(acc) = target.positions() {
             check_accessor(&acc, buffers, &vec3, "morph POSITION")?;
             if acc.count() != n {
-                return Err(RenderError::Gltf("morph target count differs from POSITION".into()));
+                return Err(RenderError::Gltf(
+                    "morph target count differs from POSITION".into(),
+                ));
             }
         }
         if let Some(acc) = target.normals() {
             check_accessor(&acc, buffers, &vec3, "morph NORMAL")?;
             if acc.count() != n {
-                return Err(RenderError::Gltf("morph target count differs from POSITION".into()));
+                return Err(RenderError::Gltf(
+                    "morph target count differs from POSITION".into(),
+                ));
             }
         }
         targets.push((kind, t));
@@ -564,10 +625,13 @@ fn read_primitive(
                     d.normal = (normal_matrix * Vec3::from(v)).into();
                 }
             }
-            if deltas.iter().any(|d| {
-                !Vec3::from(d.position).is_finite() || !Vec3::from(d.normal).is_finite()
-            }) {
-                return Err(RenderError::Gltf("morph target has non-finite values".into()));
+            if deltas
+                .iter()
+                .any(|d| !Vec3::from(d.position).is_finite() || !Vec3::from(d.normal).is_finite())
+            {
+                return Err(RenderError::Gltf(
+                    "morph target has non-finite values".into(),
+                ));
             }
             out_targets.push((kind, deltas));
         }

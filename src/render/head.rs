@@ -52,7 +52,8 @@ impl VisemeWeights {
     ) -> Result<Self, RenderError> {
         let mut w = [0.0; VISEME_COUNT];
         for (name, value) in pairs {
-            let i = viseme_index(name).ok_or_else(|| RenderError::UnknownViseme(name.to_owned()))?;
+            let i =
+                viseme_index(name).ok_or_else(|| RenderError::UnknownViseme(name.to_owned()))?;
             w[i] += value;
         }
         Ok(Self(w))
@@ -204,9 +205,7 @@ impl HeadModel {
             }
         }
         if !self.primitives.iter().any(Primitive::has_targets) {
-            return Err(RenderError::NoUsableTargets {
-                found: Vec::new(),
-            });
+            return Err(RenderError::NoUsableTargets { found: Vec::new() });
         }
         Ok(())
     }

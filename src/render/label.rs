@@ -26,7 +26,14 @@ fn glyph(c: char) -> Option<[u8; 7]> {
 }
 
 /// Draws `text` at (x, y) with each font pixel `scale` pixels wide; unknown characters are blank.
-pub fn draw_text(img: &mut image::RgbaImage, x: u32, y: u32, scale: u32, text: &str, color: [u8; 4]) {
+pub fn draw_text(
+    img: &mut image::RgbaImage,
+    x: u32,
+    y: u32,
+    scale: u32,
+    text: &str,
+    color: [u8; 4],
+) {
     for (n, c) in text.chars().enumerate() {
         let Some(rows) = glyph(c) else { continue };
         let ox = x + n as u32 * 6 * scale;

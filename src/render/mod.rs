@@ -42,7 +42,9 @@ pub enum RenderError {
     NoUsableTargets { found: Vec<String> },
     #[error("invalid head: {0}")]
     InvalidHead(String),
-    #[error("unknown viseme name {0:?} (expected one of sil PP FF TH DD kk CH SS nn RR aa E I O U)")]
+    #[error(
+        "unknown viseme name {0:?} (expected one of sil PP FF TH DD kk CH SS nn RR aa E I O U)"
+    )]
     UnknownViseme(String),
     #[error("no GPU adapter available (not even a software one): {0}")]
     NoAdapter(String),

@@ -82,7 +82,10 @@ impl GpuContext {
 }
 
 /// Maps a buffer, waits for the GPU and copies its bytes out.
-pub(crate) fn read_buffer(device: &wgpu::Device, buffer: &wgpu::Buffer) -> Result<Vec<u8>, RenderError> {
+pub(crate) fn read_buffer(
+    device: &wgpu::Device,
+    buffer: &wgpu::Buffer,
+) -> Result<Vec<u8>, RenderError> {
     let (tx, rx) = std::sync::mpsc::channel();
     buffer.map_async(wgpu::MapMode::Read, .., move |r| {
         let _ = tx.send(r);
@@ -141,7 +144,11 @@ pub struct OffscreenRenderer {
 
 impl OffscreenRenderer {
     /// Uploads `model` and builds a target of `options.width` x `options.height`.
-    pub fn new(ctx: &GpuContext, model: &HeadModel, options: FrameOptions) -> Result<Self, RenderError> {
+    pub fn new(
+        ctx: &GpuContext,
+        model: &HeadModel,
+        options: FrameOptions,
+    ) -> Result<Self, RenderError> {
         Self::with_heads(ctx, model, options, 1)
     }
 
@@ -154,7 +161,8 @@ impl OffscreenRenderer {
         count: usize,
     ) -> Result<Self, RenderError> {
         let max = ctx.device.limits().max_texture_dimension_2d;
-        if options.width == 0 || options.height == 0 || options.width > max || options.height > max {
+        if options.width == 0 || options.height == 0 || options.width > max || options.height > max
+        {
             return Err(RenderError::Options(format!(
                 "frame size {}x{} outside 1..={max}",
                 options.width, options.height
@@ -164,7 +172,9 @@ impl OffscreenRenderer {
         let renderer = HeadRenderer::new(device, COLOR_FORMAT, Some(DEPTH_FORMAT));
         let head = renderer.upload(device, &ctx.queue, model, "lipcall head")?;
         let instances = (0..count.max(1))
-            .map(|i| renderer.new_instance(device, head.clone(), &format!("lipcall head instance {i}")))
+            .map(|i| {
+                renderer.new_instance(device, head.clone(), &format!("lipcall head instance {i}"))
+            })
             .collect();
         let size = wgpu::Extent3d {
             width: options.width,
@@ -238,11 +248,14 @@ impl OffscreenRenderer {
         let neutral = VisemeWeights::neutral();
         for (i, instance) in self.instances.iter_mut().enumerate() {
             let w = weights.get(i).or(weights.last()).unwrap_or(&neutral);
-            self.renderer.prepare(&ctx.queue, instance, &self.camera, aspect, w);
+            self.renderer
+                .prepare(&ctx.queue, instance, &self.camera, aspect, w);
         }
-        let mut encoder = ctx.device.create_command_encoder(&wgpu::CommandEncoderDescriptor {
-            label: Some("lipcall offscreen frame encoder"),
-        });
+        let mut encoder = ctx
+            .device
+            .create_command_encoder(&wgpu::CommandEncoderDescriptor {
+                label: Some("lipcall offscreen frame encoder"),
+            });
         {
             let [r, g, b] = self.options.background;
             let mut pass = encoder.begin_render_pass(&wgpu::RenderPassDescriptor {
@@ -270,7 +283,14 @@ impl OffscreenRenderer {
             });
             for (i, instance) in self.instances.iter().enumerate() {
                 let (c, r) = (i as u32 % cols, i as u32 / cols);
-                pass.set_viewport((c * tw) as f32, (r * th) as f32, tw as f32, th as f32, 0.0, 1.0);
+                pass.set_viewport(
+                    (c * tw) as f32,
+                    (r * th) as f32,
+                    tw as f32,
+                    th as f32,
+                    0.0,
+                    1.0,
+                );
                 self.renderer.paint(&mut pass, instance);
             }
         }
@@ -284,9 +304,11 @@ impl OffscreenRenderer {
         weights: &VisemeWeights,
     ) -> Result<image::RgbaImage, RenderError> {
         self.draw(ctx, std::slice::from_ref(weights));
-        let mut encoder = ctx.device.create_command_encoder(&wgpu::CommandEncoderDescriptor {
-            label: Some("lipcall offscreen readback encoder"),
-        });
+        let mut encoder = ctx
+            .device
+            .create_command_encoder(&wgpu::CommandEncoderDescriptor {
+                label: Some("lipcall offscreen readback encoder"),
+            });
         encoder.copy_texture_to_buffer(
             wgpu::TexelCopyTextureInfo {
                 texture: &self.color,
@@ -369,7 +391,9 @@ impl WeightTrack {
     /// Appends a row; times must increase.
     pub fn push(&mut self, time_s: f64, weights: VisemeWeights) -> Result<(), RenderError> {
         if !time_s.is_finite() || self.times.last().is_some_and(|&last| time_s <= last) {
-            return Err(RenderError::Options(format!("weight row time {time_s} is not increasing")));
+            return Err(RenderError::Options(format!(
+                "weight row time {time_s} is not increasing"
+            )));
         }
         self.times.push(time_s);
         self.weights.push(weights);
@@ -425,7 +449,10 @@ pub fn render_frames(
     options: &FrameOptions,
 ) -> Result<FramesSummary, RenderError> {
     if options.fps != 25 && options.fps != 50 {
-        return Err(RenderError::Options(format!("fps must be 25 or 50, not {}", options.fps)));
+        return Err(RenderError::Options(format!(
+            "fps must be 25 or 50, not {}",
+            options.fps
+        )));
     }
     let ctx = GpuContext::new_headless()?;
     render_frames_with(&ctx, model, track, dir, options)

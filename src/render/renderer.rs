@@ -133,8 +133,7 @@ impl HeadRenderer {
         if !caps.flags.contains(wgpu::DownlevelFlags::VERTEX_STORAGE) {
             missing.push("storage buffers in the vertex stage".to_owned());
         }
-        if limits.max_storage_buffers_per_shader_stage < need.max_storage_buffers_per_shader_stage
-        {
+        if limits.max_storage_buffers_per_shader_stage < need.max_storage_buffers_per_shader_stage {
             missing.push(format!(
                 "max_storage_buffers_per_shader_stage {} < {}",
                 limits.max_storage_buffers_per_shader_stage,
@@ -310,7 +309,8 @@ impl HeadRenderer {
         if vertex_count >= u32::MAX as usize / 16 || index_count >= u32::MAX as usize {
             return Err(RenderError::InvalidHead("too many vertices".into()));
         }
-        let delta_bytes = (VISEME_COUNT * morph_vertices * std::mem::size_of::<MorphDelta>()) as u64;
+        let delta_bytes =
+            (VISEME_COUNT * morph_vertices * std::mem::size_of::<MorphDelta>()) as u64;
         let max_binding = device.limits().max_storage_buffer_binding_size as u64;
         if delta_bytes > max_binding {
             return Err(RenderError::Unsupported(format!(
@@ -527,7 +527,12 @@ impl HeadRenderer {
             model: instance.model.to_cols_array_2d(),
             eye: camera.eye.extend(1.0).into(),
             light_dir: light.extend(0.0).into(),
-            counts: [instance.head.morph_vertices, instance.head.vertex_count, 0, 0],
+            counts: [
+                instance.head.morph_vertices,
+                instance.head.vertex_count,
+                0,
+                0,
+            ],
         };
         if instance.last_view != Some(view) {
             queue.write_buffer(&instance.view_buffer, 0, bytemuck::bytes_of(&view));
@@ -574,10 +579,7 @@ impl HeadRenderer {
         let head = &instance.head;
         let blend_layout = device.create_bind_group_layout(&wgpu::BindGroupLayoutDescriptor {
             label: Some("lipcall blend readback layout"),
-            entries: &[
-                storage_entry(0, true),
-                storage_entry(1, false),
-            ],
+            entries: &[storage_entry(0, true), storage_entry(1, false)],
         });
         let layout = device.create_pipeline_layout(&wgpu::PipelineLayoutDescriptor {
             label: Some("lipcall blend readback pipeline layout"),

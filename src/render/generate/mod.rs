@@ -62,7 +62,11 @@ impl HeadShape {
     fn field(&self, p: Vec3) -> f32 {
         let ax = p.x.abs();
         // Cranium.
-        let cranium = ellipsoid(p, Vec3::new(0.0, 0.042, -0.014), Vec3::new(0.0755, 0.1, 0.102));
+        let cranium = ellipsoid(
+            p,
+            Vec3::new(0.0, 0.042, -0.014),
+            Vec3::new(0.0755, 0.1, 0.102),
+        );
         // Lower face and jaw, narrowing to the chin.
         let taper = 1.0 - 0.33 * smoothstep(0.0, -0.09, p.y);
         let jaw = ellipsoid(
@@ -72,7 +76,15 @@ impl HeadShape {
         );
         let mut f = smin(cranium, jaw, 0.02);
         // Chin.
-        f = smin(f, ellipsoid(p, Vec3::new(0.0, -0.072, 0.07), Vec3::new(0.022, 0.016, 0.02)), 0.012);
+        f = smin(
+            f,
+            ellipsoid(
+                p,
+                Vec3::new(0.0, -0.072, 0.07),
+                Vec3::new(0.022, 0.016, 0.02),
+            ),
+            0.012,
+        );
         // Neck, slanting slightly forward.
         let neck_c = Vec2::new(p.x, p.z - (-0.018 + 0.1 * (p.y + 0.1)));
         let neck = (neck_c / Vec2::new(0.047, 0.045)).length() * 0.045 - 0.045;
@@ -96,9 +108,11 @@ impl HeadShape {
         let wings = bump(((ax - 0.0135) / 0.0065).powi(2) + ((p.y + 0.006) / 0.0065).powi(2));
         bumps += 0.008 * wings * front;
         // Brow ridge and forehead.
-        bumps += 0.006 * bump(((ax - 0.03) / 0.02).powi(2) + ((p.y - 0.05) / 0.008).powi(2)) * front;
+        bumps +=
+            0.006 * bump(((ax - 0.03) / 0.02).powi(2) + ((p.y - 0.05) / 0.008).powi(2)) * front;
         // Cheekbones.
-        bumps += 0.006 * bump(((ax - 0.044) / 0.016).powi(2) + ((p.y - 0.008) / 0.014).powi(2)) * front;
+        bumps +=
+            0.006 * bump(((ax - 0.044) / 0.016).powi(2) + ((p.y - 0.008) / 0.014).powi(2)) * front;
         // Lips: upper with a cupid's bow, fuller lower lip, philtrum and chin fold.
         let dy = p.y - self.mouth_y;
         let lipx = (p.x / self.half_width).powi(2);
@@ -107,12 +121,14 @@ impl HeadShape {
         let upper = bump(((dy - 0.0045 + bow) / 0.0045).powi(2)) * lip_span;
         let lower = bump(((dy + 0.0055) / 0.005).powi(2)) * lip_span;
         bumps += (0.0032 * upper + 0.0045 * lower) * front;
-        bumps += 0.0012 * bump((ax / 0.0045).powi(2) + ((dy - 0.012) / 0.006).powi(2))
+        bumps += 0.0012
+            * bump((ax / 0.0045).powi(2) + ((dy - 0.012) / 0.006).powi(2))
             * (1.0 - 2.0 * bump((ax / 0.002).powi(2)))
             * front;
         bumps -= 0.002 * bump((p.x / 0.014).powi(2) + ((dy + 0.019) / 0.004).powi(2)) * front;
         // Mouth corners sink a little.
-        bumps -= 0.003 * bump(((ax - self.half_width) / 0.004).powi(2) + (dy / 0.005).powi(2)) * front;
+        bumps -=
+            0.003 * bump(((ax - self.half_width) / 0.004).powi(2) + (dy / 0.005).powi(2)) * front;
         // Hair volume on the cranium.
         bumps += 0.005 * hair_mask(p);
         f - bumps
@@ -250,8 +266,16 @@ impl PartMesh {
                     let dp = moved[i] - self.positions[i];
                     let dn = moved_normals[i] - normals[i];
                     MorphDelta {
-                        position: if dp.length() < 2e-6 { [0.0; 3] } else { dp.into() },
-                        normal: if dn.length() < 1e-3 { [0.0; 3] } else { dn.into() },
+                        position: if dp.length() < 2e-6 {
+                            [0.0; 3]
+                        } else {
+                            dp.into()
+                        },
+                        normal: if dn.length() < 1e-3 {
+                            [0.0; 3]
+                        } else {
+                            dn.into()
+                        },
                     }
                 })
                 .collect();
@@ -347,7 +371,8 @@ pub fn build_default_head() -> HeadModel {
         };
         c = mix4(c, lip_color, in_lip * front * smoothstep(0.0, 0.05, span));
         // Eyebrows: an arch above each eye.
-        let arch = 0.049 + 0.005 * bump(((ax - 0.03) / 0.012).powi(2)) - 0.03 * (ax - 0.03).powi(2) * 10.0;
+        let arch =
+            0.049 + 0.005 * bump(((ax - 0.03) / 0.012).powi(2)) - 0.03 * (ax - 0.03).powi(2) * 10.0;
         let brow = smoothstep(0.0042, 0.0025, (p.y - arch).abs())
             * smoothstep(0.054, 0.046, ax)
             * smoothstep(0.009, 0.013, ax)
@@ -361,9 +386,8 @@ pub fn build_default_head() -> HeadModel {
     let slit_x: Vec<f32> = (0..COLUMNS)
         .map(|i| shape.cast(direction(column_angle(i), phi_mouth)).x)
         .collect();
-    let is_slit_column = |i: usize| {
-        column_angle(i).abs() < 1.0 && slit_x[i].abs() < half_width * 0.97
-    };
+    let is_slit_column =
+        |i: usize| column_angle(i).abs() < 1.0 && slit_x[i].abs() < half_width * 0.97;
     let rows = phis.len();
     let mut grid = vec![0u32; rows * COLUMNS];
     let mut lower_slit = vec![u32::MAX; COLUMNS];
@@ -382,7 +406,11 @@ pub fn build_default_head() -> HeadModel {
                 lower_slit[i] = skin.push(p, dark, Part::SkinLower, uv);
             } else {
                 let below = j > slit_row && p.y < mouth_y + 0.002 && p.x.abs() < half_width * 1.5;
-                let part = if below { Part::SkinLower } else { Part::SkinUpper };
+                let part = if below {
+                    Part::SkinLower
+                } else {
+                    Part::SkinUpper
+                };
                 grid[j * COLUMNS + i] = skin.push(p, color_at(p), part, uv);
             }
         }
@@ -410,7 +438,13 @@ pub fn build_default_head() -> HeadModel {
 
     // --- inner lips: from the lip line back towards the teeth ---
     let inner_color = srgb(0.62, 0.28, 0.30);
-    let upper_profile = [(0.0, 0.0), (0.001, -0.0035), (0.0025, -0.007), (0.0045, -0.0095), (0.007, -0.0115)];
+    let upper_profile = [
+        (0.0, 0.0),
+        (0.001, -0.0035),
+        (0.0025, -0.007),
+        (0.0045, -0.0095),
+        (0.007, -0.0115),
+    ];
     let slit_cols: Vec<usize> = (0..COLUMNS).filter(|&i| is_slit_column(i)).collect();
     let mut corner_cols = Vec::new();
     if let (Some(&first), Some(&last)) = (slit_cols.first(), slit_cols.last()) {
@@ -420,11 +454,19 @@ pub fn build_default_head() -> HeadModel {
     }
     for upper in [true, false] {
         let sign = if upper { 1.0 } else { -1.0 };
-        let part = if upper { Part::SkinUpper } else { Part::SkinLower };
+        let part = if upper {
+            Part::SkinUpper
+        } else {
+            Part::SkinLower
+        };
         let mut strip_rows: Vec<Vec<u32>> = Vec::new();
         for &i in &corner_cols {
             let (edge, base) = if is_slit_column(i) {
-                let id = if upper { grid[slit_row * COLUMNS + i] } else { lower_slit[i] };
+                let id = if upper {
+                    grid[slit_row * COLUMNS + i]
+                } else {
+                    lower_slit[i]
+                };
                 (id, slit_points[i])
             } else {
                 let id = grid[slit_row * COLUMNS + i];
@@ -434,7 +476,11 @@ pub fn build_default_head() -> HeadModel {
             let mut column = vec![edge];
             for (k, &(dy, dz)) in upper_profile.iter().enumerate().skip(1) {
                 let depth = dz * taper.max(0.08);
-                let q = Vec3::new(base.x * (1.0 - 0.12 * k as f32 / 4.0), base.y + sign * dy * taper.max(0.08), base.z + depth);
+                let q = Vec3::new(
+                    base.x * (1.0 - 0.12 * k as f32 / 4.0),
+                    base.y + sign * dy * taper.max(0.08),
+                    base.z + depth,
+                );
                 let c = mix4(inner_color, srgb(0.35, 0.12, 0.13), k as f32 / 4.0);
                 let id = skin.push(q, c, part, [0.5, 0.5]);
                 skin.anchors[id as usize] = Some(edge);
@@ -459,10 +505,19 @@ pub fn build_default_head() -> HeadModel {
     let mut cavity = PartMesh::new("mouth", 1, true);
     let cav_c = Vec3::new(0.0, mouth_y - 0.004, teeth_z - 0.027);
     let cav_r = Vec3::new(0.0215, 0.019, 0.028);
-    ellipsoid_mesh(&mut cavity, cav_c, cav_r, 24, 32, Part::Cavity, |q| {
-        let depth = smoothstep(cav_c.z + 0.02, cav_c.z - 0.02, q.z);
-        mix4(srgb(0.40, 0.14, 0.15), srgb(0.16, 0.05, 0.06), depth)
-    }, |q| q.z < teeth_z - 0.001);
+    ellipsoid_mesh(
+        &mut cavity,
+        cav_c,
+        cav_r,
+        24,
+        32,
+        Part::Cavity,
+        |q| {
+            let depth = smoothstep(cav_c.z + 0.02, cav_c.z - 0.02, q.z);
+            mix4(srgb(0.40, 0.14, 0.15), srgb(0.16, 0.05, 0.06), depth)
+        },
+        |q| q.z < teeth_z - 0.001,
+    );
     let cavity_prim = cavity.finish(&anatomy, &poses);
 
     // --- teeth ---
@@ -474,31 +529,53 @@ pub fn build_default_head() -> HeadModel {
     // --- tongue ---
     let mut tongue = PartMesh::new("tongue", 3, true);
     let t_c = Vec3::new(0.0, mouth_y - 0.0115, teeth_z - 0.024);
-    ellipsoid_mesh(&mut tongue, t_c, Vec3::new(0.02, 0.0075, 0.024), 20, 28, Part::Tongue, |q| {
-        let top = smoothstep(t_c.y - 0.002, t_c.y + 0.006, q.y);
-        mix4(srgb(0.62, 0.26, 0.28), srgb(0.80, 0.42, 0.44), top)
-    }, |_| true);
+    ellipsoid_mesh(
+        &mut tongue,
+        t_c,
+        Vec3::new(0.02, 0.0075, 0.024),
+        20,
+        28,
+        Part::Tongue,
+        |q| {
+            let top = smoothstep(t_c.y - 0.002, t_c.y + 0.006, q.y);
+            mix4(srgb(0.62, 0.26, 0.28), srgb(0.80, 0.42, 0.44), top)
+        },
+        |_| true,
+    );
     let tongue_prim = tongue.finish(&anatomy, &poses);
 
     // --- eyes ---
     let mut eyes = PartMesh::new("eyes", 4, false);
     for side in [-1.0f32, 1.0] {
         let c = Vec3::new(side * EYE_X, EYE_Y, EYE_Z - 0.0025);
-        ellipsoid_mesh(&mut eyes, c, Vec3::splat(EYE_R), 24, 32, Part::Rigid, |q| {
-            // Looking straight ahead, slightly converged.
-            let axis = Vec3::new(-side * 0.06, 0.0, 1.0).normalize();
-            let cosang = (q - c).normalize().dot(axis);
-            let ang = cosang.clamp(-1.0, 1.0).acos();
-            if ang < 0.2 {
-                srgb(0.03, 0.02, 0.02)
-            } else if ang < 0.46 {
-                mix4(srgb(0.36, 0.24, 0.14), srgb(0.20, 0.12, 0.07), (ang - 0.2) / 0.26)
-            } else if ang < 0.5 {
-                srgb(0.15, 0.10, 0.07)
-            } else {
-                srgb(0.93, 0.91, 0.88)
-            }
-        }, |_| true);
+        ellipsoid_mesh(
+            &mut eyes,
+            c,
+            Vec3::splat(EYE_R),
+            24,
+            32,
+            Part::Rigid,
+            |q| {
+                // Looking straight ahead, slightly converged.
+                let axis = Vec3::new(-side * 0.06, 0.0, 1.0).normalize();
+                let cosang = (q - c).normalize().dot(axis);
+                let ang = cosang.clamp(-1.0, 1.0).acos();
+                if ang < 0.2 {
+                    srgb(0.03, 0.02, 0.02)
+                } else if ang < 0.46 {
+                    mix4(
+                        srgb(0.36, 0.24, 0.14),
+                        srgb(0.20, 0.12, 0.07),
+                        (ang - 0.2) / 0.26,
+                    )
+                } else if ang < 0.5 {
+                    srgb(0.15, 0.10, 0.07)
+                } else {
+                    srgb(0.93, 0.91, 0.88)
+                }
+            },
+            |_| true,
+        );
     }
     let eyes_prim = eyes.finish(&anatomy, &poses);
 
@@ -554,7 +631,12 @@ fn ellipsoid_mesh(
         for i in 0..=segments {
             let th = std::f32::consts::TAU * i as f32 / segments as f32;
             let q = c + r * direction(th, -phi);
-            mesh.push(q, color(q), part, [i as f32 / segments as f32, j as f32 / rings as f32]);
+            mesh.push(
+                q,
+                color(q),
+                part,
+                [i as f32 / segments as f32, j as f32 / rings as f32],
+            );
         }
     }
     let row = segments as u32 + 1;
@@ -574,7 +656,11 @@ fn ellipsoid_mesh(
 fn teeth_arch(mesh: &mut PartMesh, a: &Anatomy, upper: bool) {
     const STEPS: usize = 72;
     let sign = if upper { 1.0 } else { -1.0 };
-    let part = if upper { Part::UpperTeeth } else { Part::LowerTeeth };
+    let part = if upper {
+        Part::UpperTeeth
+    } else {
+        Part::LowerTeeth
+    };
     let front_z = if upper { a.teeth_z } else { a.teeth_z - 0.0025 };
     let half = if upper { 0.0235 } else { 0.021 };
     // Tooth widths from the middle outwards (incisors, canine, premolars, molar).
@@ -629,13 +715,29 @@ fn teeth_arch(mesh: &mut PartMesh, a: &Anatomy, upper: bool) {
         let tip = edge_y - sign * 0.0 + sign * 0.0013 * (1.0 - rounded);
         let bulge = 0.0007 * rounded;
         let front = s.abs() < 0.4;
-        let heights = [0.0, 0.0008, 0.3 * crown, 0.7 * crown, crown, crown + gum * 0.5, crown + gum];
+        let heights = [
+            0.0,
+            0.0008,
+            0.3 * crown,
+            0.7 * crown,
+            crown,
+            crown + gum * 0.5,
+            crown + gum,
+        ];
         let depth = [0.0, 0.0, 0.0, 0.0, 0.0, -0.0003, -0.001];
         let mut column = Vec::new();
         for k in 0..rows {
             let y = tip + sign * heights[k];
-            let p = base + outward * (bulge * if k < 5 { 1.0 } else { 0.0 } + depth[k] - if k == 0 { 0.0008 } else { 0.0 }) + Vec3::Y * y;
-            let mut c = if k >= 5 { gum_color } else { mix4(gap, white, rounded.powf(0.2)) };
+            let p = base
+                + outward
+                    * (bulge * if k < 5 { 1.0 } else { 0.0 } + depth[k]
+                        - if k == 0 { 0.0008 } else { 0.0 })
+                + Vec3::Y * y;
+            let mut c = if k >= 5 {
+                gum_color
+            } else {
+                mix4(gap, white, rounded.powf(0.2))
+            };
             if !front {
                 c = mix4(c, srgb(0.6, 0.55, 0.5), 0.3);
             }
@@ -645,7 +747,11 @@ fn teeth_arch(mesh: &mut PartMesh, a: &Anatomy, upper: bool) {
         for k in (0..rows).rev() {
             let y = tip + sign * heights[k];
             let p = base - outward * (0.0065 - 0.002 * (k as f32 / rows as f32)) + Vec3::Y * y;
-            let c = if k >= 5 { gum_color } else { mix4(gap, white, rounded.powf(0.3)) };
+            let c = if k >= 5 {
+                gum_color
+            } else {
+                mix4(gap, white, rounded.powf(0.3))
+            };
             column.push(mesh.push(p, c, part, [s, 1.0]));
         }
         let _ = column;

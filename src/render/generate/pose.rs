@@ -220,7 +220,8 @@ pub fn deform(p: Vec3, part: Part, pose: &MouthPose, a: &Anatomy) -> Vec3 {
             let near = lip_weight(p, a, 1.2, 0.016);
             let dy = p.y - a.mouth_y;
             // Vermilion: the red of the lips, up to ~8 mm from the lip line.
-            let verm = smoothstep(0.011, 0.002, dy.abs()) * smoothstep(1.1 * hw, 0.6 * hw, p.x.abs());
+            let verm =
+                smoothstep(0.011, 0.002, dy.abs()) * smoothstep(1.1 * hw, 0.6 * hw, p.x.abs());
             let across = (1.0 - (p.x / hw).powi(2)).max(0.0);
             let sign = if lower { -1.0 } else { 1.0 };
             let xs = p.x / hw;
