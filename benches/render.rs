@@ -84,7 +84,7 @@ fn bench(c: &mut Criterion) {
                 }
                 black_box(encoder.finish());
                 // Flush the staged weight write so staging memory does not pile up.
-                if i % 64 == 0 {
+                if i.is_multiple_of(64) {
                     ctx.queue.submit([]);
                     let _ = device.poll(wgpu::PollType::wait_indefinitely());
                 }

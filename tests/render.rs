@@ -209,7 +209,7 @@ fn grid_glb(targets: &[(&str, f32)], with_normals: bool) -> Vec<u8> {
                    bounds: Option<([f32; 3], [f32; 3])>| {
         let offset = bin.len();
         bin.extend_from_slice(&bytes);
-        while bin.len() % 4 != 0 {
+        while !bin.len().is_multiple_of(4) {
             bin.push(0);
         }
         views.push(json!({"buffer": 0, "byteOffset": offset, "byteLength": bytes.len()}));

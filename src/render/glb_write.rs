@@ -18,7 +18,7 @@ struct Builder {
 
 impl Builder {
     fn view(&mut self, bytes: &[u8], target: Option<u32>) -> usize {
-        while self.bin.len() % 4 != 0 {
+        while !self.bin.len().is_multiple_of(4) {
             self.bin.push(0);
         }
         let offset = self.bin.len();
@@ -162,7 +162,7 @@ pub fn write_glb(model: &HeadModel) -> Vec<u8> {
                 "baseColorFactor": m.base_color.to_vec(), "metallicFactor": 0.0, "roughnessFactor": 0.7}})
         })
         .collect();
-    while b.bin.len() % 4 != 0 {
+    while !b.bin.len().is_multiple_of(4) {
         b.bin.push(0);
     }
     let doc = json!({
@@ -182,11 +182,11 @@ pub fn write_glb(model: &HeadModel) -> Vec<u8> {
 /// Wraps a JSON chunk and a binary chunk into a GLB container (padding both to 4 bytes).
 pub fn glb_container(json_chunk: &[u8], bin_chunk: &[u8]) -> Vec<u8> {
     let mut json_chunk = json_chunk.to_vec();
-    while json_chunk.len() % 4 != 0 {
+    while !json_chunk.len().is_multiple_of(4) {
         json_chunk.push(b' ');
     }
     let mut bin_chunk = bin_chunk.to_vec();
-    while bin_chunk.len() % 4 != 0 {
+    while !bin_chunk.len().is_multiple_of(4) {
         bin_chunk.push(0);
     }
     let (json_chunk, bin_chunk) = (&json_chunk[..], &bin_chunk[..]);

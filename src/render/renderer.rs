@@ -311,7 +311,7 @@ impl HeadRenderer {
         }
         let delta_bytes =
             (VISEME_COUNT * morph_vertices * std::mem::size_of::<MorphDelta>()) as u64;
-        let max_binding = device.limits().max_storage_buffer_binding_size as u64;
+        let max_binding = device.limits().max_storage_buffer_binding_size;
         if delta_bytes > max_binding {
             return Err(RenderError::Unsupported(format!(
                 "{morph_vertices} morphing vertices need {delta_bytes} bytes of deltas, more than \

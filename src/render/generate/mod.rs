@@ -507,10 +507,7 @@ pub fn build_default_head() -> HeadModel {
     let cav_r = Vec3::new(0.0215, 0.019, 0.028);
     ellipsoid_mesh(
         &mut cavity,
-        cav_c,
-        cav_r,
-        24,
-        32,
+        Ellipsoid(cav_c, cav_r, 24, 32),
         Part::Cavity,
         |q| {
             let depth = smoothstep(cav_c.z + 0.02, cav_c.z - 0.02, q.z);
@@ -531,10 +528,7 @@ pub fn build_default_head() -> HeadModel {
     let t_c = Vec3::new(0.0, mouth_y - 0.0115, teeth_z - 0.024);
     ellipsoid_mesh(
         &mut tongue,
-        t_c,
-        Vec3::new(0.02, 0.0075, 0.024),
-        20,
-        28,
+        Ellipsoid(t_c, Vec3::new(0.02, 0.0075, 0.024), 20, 28),
         Part::Tongue,
         |q| {
             let top = smoothstep(t_c.y - 0.002, t_c.y + 0.006, q.y);
@@ -550,10 +544,7 @@ pub fn build_default_head() -> HeadModel {
         let c = Vec3::new(side * EYE_X, EYE_Y, EYE_Z - 0.0025);
         ellipsoid_mesh(
             &mut eyes,
-            c,
-            Vec3::splat(EYE_R),
-            24,
-            32,
+            Ellipsoid(c, Vec3::splat(EYE_R), 24, 32),
             Part::Rigid,
             |q| {
                 // Looking straight ahead, slightly converged.
@@ -615,12 +606,12 @@ pub fn build_default_head() -> HeadModel {
 }
 
 /// A UV-sphere ellipsoid; `keep` filters which latitude/longitude cells are emitted.
+/// Centre, radii, rings and segments of a UV-sphere ellipsoid.
+struct Ellipsoid(Vec3, Vec3, usize, usize);
+
 fn ellipsoid_mesh(
     mesh: &mut PartMesh,
-    c: Vec3,
-    r: Vec3,
-    rings: usize,
-    segments: usize,
+    Ellipsoid(c, r, rings, segments): Ellipsoid,
     part: Part,
     color: impl Fn(Vec3) -> [f32; 4],
     keep: impl Fn(Vec3) -> bool,
@@ -694,7 +685,7 @@ fn teeth_arch(mesh: &mut PartMesh, a: &Anatomy, upper: bool) {
         lengths.push(length);
     }
     let mid = lengths[STEPS / 2];
-    for i in 0..=STEPS {
+    for (i, &arc) in lengths.iter().enumerate() {
         let s = -1.0 + 2.0 * i as f32 / STEPS as f32;
         let base = arch(s);
         let outward = {
@@ -702,7 +693,7 @@ fn teeth_arch(mesh: &mut PartMesh, a: &Anatomy, upper: bool) {
             Vec3::new(ahead.z, 0.0, -ahead.x).normalize_or_zero() * -1.0
         };
         // Position within its tooth: 0 at a boundary, 1 at the middle of a tooth.
-        let mut along = (lengths[i] - mid).abs();
+        let mut along = (arc - mid).abs();
         let mut within = 0.0;
         for &w in widths {
             if along < w {
