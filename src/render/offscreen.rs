@@ -24,8 +24,23 @@ impl GpuContext {
     /// Picks an adapter that can run the head renderer: a real GPU if one qualifies, otherwise the
     /// software one (lavapipe / llvmpipe). `WGPU_BACKEND` (vulkan, gl, ...) restricts the search.
     pub fn new_headless() -> Result<Self, RenderError> {
-        let backends =
-            wgpu::Backends::from_env().unwrap_or(wgpu::Backends::VULKAN | wgpu::Backends::GL);
+        // Vulkan first; GL (whose EGL probing is noisy without a display) only if needed.
+        let choices = match wgpu::Backends::from_env() {
+            Some(b) => vec![b],
+            None => vec![wgpu::Backends::VULKAN, wgpu::Backends::GL],
+        };
+        let mut last_err = None;
+        for backends in choices {
+            match Self::with_backends(backends) {
+                Ok(ctx) => return Ok(ctx),
+                Err(e) => last_err = Some(e),
+            }
+        }
+        Err(last_err.unwrap_or_else(|| RenderError::NoAdapter("no backends".into())))
+    }
+
+    /// Like [`Self::new_headless`] restricted to `backends`.
+    pub fn with_backends(backends: wgpu::Backends) -> Result<Self, RenderError> {
         let mut desc = wgpu::InstanceDescriptor::new_without_display_handle();
         desc.backends = backends;
         let instance = wgpu::Instance::new(desc);
