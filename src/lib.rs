@@ -3,5 +3,6 @@
 pub mod audio;
 pub mod commands;
 pub mod lipsync;
+pub mod render;
 pub mod speex;
 pub mod train;

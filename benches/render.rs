@@ -1,0 +1,125 @@
+//! Head renderer benchmarks on whatever adapter wgpu finds (lavapipe when there is no GPU):
+//! - `head_frame_cpu`: CPU time per head per frame, weights upload + draw encoding;
+//! - `offscreen_frame/N`: a whole 480x480 offscreen frame with N heads (1, 4, 16), GPU included;
+//!   frames per second = 1 / time.
+
+use std::hint::black_box;
+
+use criterion::{Criterion, criterion_group, criterion_main};
+use lipcall::render::offscreen::{FrameOptions, GpuContext, OffscreenRenderer};
+use lipcall::render::renderer::{DEPTH_FORMAT, HeadRenderer};
+use lipcall::render::{Camera, Framing, VisemeWeights};
+
+fn weights_at(i: usize) -> VisemeWeights {
+    let t = (i % 50) as f32 / 50.0;
+    VisemeWeights::from_named([("aa", t), ("PP", 1.0 - t)]).unwrap_or_default()
+}
+
+fn bench(c: &mut Criterion) {
+    let ctx = match GpuContext::new_headless() {
+        Ok(ctx) => ctx,
+        Err(e) => {
+            eprintln!("SKIPPED: no GPU adapter: {e}");
+            return;
+        }
+    };
+    eprintln!("adapter: {}", ctx.adapter_description());
+    let model = lipcall::render::default_head().expect("bundled head");
+
+    {
+        let device = &ctx.device;
+        let format = lipcall::render::offscreen::COLOR_FORMAT;
+        let renderer = HeadRenderer::new(device, format, Some(DEPTH_FORMAT));
+        let head = renderer
+            .upload(device, &ctx.queue, &model, "bench head")
+            .unwrap();
+        let mut instance = renderer.new_instance(device, head.clone(), "bench instance");
+        let camera = Camera::framing(head.face_frame(), Framing::Face);
+        let size = wgpu::Extent3d {
+            width: 64,
+            height: 64,
+            depth_or_array_layers: 1,
+        };
+        let target = |format, label| {
+            device
+                .create_texture(&wgpu::TextureDescriptor {
+                    label: Some(label),
+                    size,
+                    mip_level_count: 1,
+                    sample_count: 1,
+                    dimension: wgpu::TextureDimension::D2,
+                    format,
+                    usage: wgpu::TextureUsages::RENDER_ATTACHMENT,
+                    view_formats: &[],
+                })
+                .create_view(&Default::default())
+        };
+        let color = target(format, "bench colour");
+        let depth = target(DEPTH_FORMAT, "bench depth");
+        let mut i = 0usize;
+        c.bench_function("head_frame_cpu (weights upload + draw encoding)", |b| {
+            b.iter(|| {
+                i += 1;
+                renderer.prepare(&ctx.queue, &mut instance, &camera, 1.0, &weights_at(i));
+                let mut encoder = device.create_command_encoder(&Default::default());
+                {
+                    let mut pass = encoder.begin_render_pass(&wgpu::RenderPassDescriptor {
+                        label: Some("bench pass"),
+                        color_attachments: &[Some(wgpu::RenderPassColorAttachment {
+                            view: &color,
+                            depth_slice: None,
+                            resolve_target: None,
+                            ops: wgpu::Operations::default(),
+                        })],
+                        depth_stencil_attachment: Some(wgpu::RenderPassDepthStencilAttachment {
+                            view: &depth,
+                            depth_ops: Some(wgpu::Operations::default()),
+                            stencil_ops: None,
+                        }),
+                        timestamp_writes: None,
+                        occlusion_query_set: None,
+                        multiview_mask: None,
+                    });
+                    renderer.paint(&mut pass, &instance);
+                }
+                black_box(encoder.finish());
+                // Flush the staged weight write so staging memory does not pile up.
+                if i.is_multiple_of(64) {
+                    ctx.queue.submit([]);
+                    let _ = device.poll(wgpu::PollType::wait_indefinitely());
+                }
+            })
+        });
+    }
+
+    let mut group = c.benchmark_group("offscreen_frame");
+    group.sample_size(10);
+    group.measurement_time(std::time::Duration::from_secs(8));
+    for heads in [1usize, 4, 16] {
+        let options = FrameOptions {
+            width: 480,
+            height: 480,
+            ..Default::default()
+        };
+        let mut offscreen = OffscreenRenderer::with_heads(&ctx, &model, options, heads).unwrap();
+        let mut i = 0usize;
+        group.bench_function(format!("{heads}_heads"), |b| {
+            b.iter(|| {
+                i += 1;
+                let weights: Vec<VisemeWeights> =
+                    (0..heads).map(|h| weights_at(i + 7 * h)).collect();
+                let index = offscreen.draw(&ctx, &weights);
+                ctx.device
+                    .poll(wgpu::PollType::Wait {
+                        submission_index: Some(index),
+                        timeout: None,
+                    })
+                    .unwrap();
+            })
+        });
+    }
+    group.finish();
+}
+
+criterion_group!(benches, bench);
+criterion_main!(benches);

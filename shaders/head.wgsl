@@ -1,0 +1,127 @@
+// Morph-target blending of a talking head. The deltas of the 15 visemes are uploaded once as one
+// storage buffer (6 floats per vertex per viseme: position xyz, normal xyz); the weights are a
+// small uniform rewritten every frame, and the weighted sum is done here per vertex.
+
+struct View {
+    view_proj: mat4x4<f32>,
+    model: mat4x4<f32>,
+    eye: vec4<f32>,
+    light_dir: vec4<f32>,
+    // x: vertices with morph deltas (they come first; stride between two visemes' blocks)
+    // y: all vertices of the head
+    counts: vec4<u32>,
+}
+
+struct Weights {
+    w: array<vec4<f32>, 4>,
+}
+
+struct Material {
+    base_color: vec4<f32>,
+}
+
+@group(0) @binding(0) var<uniform> view: View;
+@group(0) @binding(1) var<uniform> weights: Weights;
+@group(0) @binding(2) var<storage, read> deltas: array<f32>;
+
+@group(1) @binding(0) var<uniform> material: Material;
+@group(1) @binding(1) var base_tex: texture_2d<f32>;
+@group(1) @binding(2) var base_sampler: sampler;
+
+struct VertexIn {
+    @location(0) position: vec3<f32>,
+    @location(1) normal: vec3<f32>,
+    @location(2) uv: vec2<f32>,
+    @location(3) color: vec4<f32>,
+}
+
+struct VertexOut {
+    @builtin(position) clip: vec4<f32>,
+    @location(0) world: vec3<f32>,
+    @location(1) normal: vec3<f32>,
+    @location(2) uv: vec2<f32>,
+    @location(3) color: vec4<f32>,
+}
+
+struct Blended {
+    position: vec3<f32>,
+    normal: vec3<f32>,
+}
+
+fn blend(vid: u32, position: vec3<f32>, normal: vec3<f32>) -> Blended {
+    var p = position;
+    var n = normal;
+    let count = view.counts.x;
+    // Vertices past `count` belong to meshes without morph targets and have no deltas.
+    if (vid >= count) {
+        return Blended(p, n);
+    }
+    for (var t = 0u; t < 15u; t = t + 1u) {
+        let w = weights.w[t / 4u][t % 4u];
+        if (w != 0.0) {
+            let b = (t * count + vid) * 6u;
+            p = p + w * vec3<f32>(deltas[b], deltas[b + 1u], deltas[b + 2u]);
+            n = n + w * vec3<f32>(deltas[b + 3u], deltas[b + 4u], deltas[b + 5u]);
+        }
+    }
+    return Blended(p, n);
+}
+
+@vertex
+fn vs_main(in: VertexIn, @builtin(vertex_index) vid: u32) -> VertexOut {
+    let b = blend(vid, in.position, in.normal);
+    let world = view.model * vec4<f32>(b.position, 1.0);
+    var out: VertexOut;
+    out.clip = view.view_proj * world;
+    out.world = world.xyz;
+    // The model matrix is a rotation + uniform scale, so it transforms normals too.
+    out.normal = (view.model * vec4<f32>(b.normal, 0.0)).xyz;
+    out.uv = in.uv;
+    out.color = in.color;
+    return out;
+}
+
+@fragment
+fn fs_main(in: VertexOut, @builtin(front_facing) front: bool) -> @location(0) vec4<f32> {
+    let albedo = material.base_color * in.color * textureSample(base_tex, base_sampler, in.uv);
+    var n = normalize(in.normal);
+    if (!front) {
+        n = -n;
+    }
+    let l = normalize(-view.light_dir.xyz);
+    let v = normalize(view.eye.xyz - in.world);
+    let h = normalize(l + v);
+    let diffuse = max(dot(n, l), 0.0);
+    // Fill light from the camera side keeps the mouth interior readable.
+    let fill = 0.35 * max(dot(n, v), 0.0);
+    let sky = 0.5 + 0.5 * n.y;
+    let ambient = mix(vec3<f32>(0.16, 0.14, 0.13), vec3<f32>(0.28, 0.29, 0.32), sky);
+    let spec = 0.12 * pow(max(dot(n, h), 0.0), 40.0);
+    let rim = 0.12 * pow(1.0 - max(dot(n, v), 0.0), 3.0);
+    let lit = albedo.rgb * (ambient + vec3<f32>(0.85 * diffuse + fill)) + vec3<f32>(spec + rim);
+    return vec4<f32>(lit, 1.0);
+}
+
+// Debug/test entry: the same blend as the vertex stage, written out for readback.
+@group(2) @binding(0) var<storage, read> blend_in: array<f32>;
+@group(2) @binding(1) var<storage, read_write> blend_out: array<f32>;
+
+@compute @workgroup_size(64)
+fn cs_blend(@builtin(global_invocation_id) gid: vec3<u32>) {
+    let vid = gid.x;
+    if (vid >= view.counts.y) {
+        return;
+    }
+    // Vertex layout: position(3) normal(3) uv(2) color(4) = 12 floats.
+    let s = vid * 12u;
+    let p = vec3<f32>(blend_in[s], blend_in[s + 1u], blend_in[s + 2u]);
+    let n = vec3<f32>(blend_in[s + 3u], blend_in[s + 4u], blend_in[s + 5u]);
+    let b = blend(vid, p, n);
+    let o = vid * 6u;
+    blend_out[o] = b.position.x;
+    blend_out[o + 1u] = b.position.y;
+    blend_out[o + 2u] = b.position.z;
+    blend_out[o + 3u] = b.normal.x;
+    blend_out[o + 4u] = b.normal.y;
+    blend_out[o + 5u] = b.normal.z;
+}

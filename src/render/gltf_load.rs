@@ -1,0 +1,646 @@
+//! Loading glTF 2.0 / GLB heads: meshes and primitives under their node transforms, base colour
+//! factors and PNG base colour textures, and morph targets matched by name to the visemes
+//! (`viseme_aa` or `aa`) or to ARKit blendshapes combined through [`super::arkit`].
+//!
+//! Every accessor is bounds-checked before it is read, so malformed files give errors, not panics.
+//! Skinned meshes are taken in their bind pose (their node transform is ignored, as the glTF
+//! specification says).
+
+use std::path::Path;
+
+use glam::{Mat3, Mat4, Vec3};
+use gltf::accessor::{DataType, Dimensions};
+
+use super::RenderError;
+use super::arkit::{self, ARKIT_NAMES};
+use super::head::{
+    HeadModel, Material, MorphDelta, Primitive, TargetSource, Texture, VISEME_COUNT, VISEME_NAMES,
+    Vertex, smooth_normals,
+};
+
+/// Refuse absurd sizes before allocating for them.
+const MAX_VERTICES: usize = 4_000_000;
+const MAX_NODE_DEPTH: usize = 64;
+
+/// Loads a head from a `.glb` or `.gltf` file (external buffers and images are read from beside it).
+pub fn load_head(path: &Path) -> Result<HeadModel, RenderError> {
+    let bytes = std::fs::read(path).map_err(|source| RenderError::Io {
+        path: path.to_owned(),
+        source,
+    })?;
+    load_head_from_slice_in(&bytes, path.parent())
+}
+
+/// Loads a head from GLB bytes (or glTF JSON with embedded `data:` buffers).
+pub fn load_head_from_slice(bytes: &[u8]) -> Result<HeadModel, RenderError> {
+    load_head_from_slice_in(bytes, None)
+}
+
+fn gltf_err(e: impl std::fmt::Display) -> RenderError {
+    RenderError::Gltf(e.to_string())
+}
+
+/// A morph target's name resolved to what it drives.
+#[derive(Debug, Clone, Copy, PartialEq)]
+enum TargetKind {
+    Viseme(usize),
+    Arkit(usize),
+    Unused,
+}
+
+/// Resolves a target name: `viseme_aa`, `aa`, `Viseme_AA`, `mesh.viseme_aa` and ARKit names.
+fn classify(name: &str) -> TargetKind {
+    let base = name.rsplit('.').next().unwrap_or(name);
+    let stripped = base
+        .strip_prefix("viseme_")
+        .or_else(|| base.strip_prefix("Viseme_"))
+        .or_else(|| base.strip_prefix("VISEME_"))
+        .unwrap_or(base);
+    if let Some(v) = VISEME_NAMES.iter().position(|v| *v == stripped) {
+        return TargetKind::Viseme(v);
+    }
+    if let Some(v) = VISEME_NAMES
+        .iter()
+        .position(|v| v.eq_ignore_ascii_case(stripped))
+    {
+        return TargetKind::Viseme(v);
+    }
+    match arkit::arkit_index(base) {
+        Some(a) => TargetKind::Arkit(a),
+        None => TargetKind::Unused,
+    }
+}
+
+/// A primitive read from the file, with its raw morph targets.
+struct RawPrimitive {
+    name: String,
+    material: usize,
+    vertices: Vec<Vertex>,
+    indices: Vec<u32>,
+    targets: Vec<(TargetKind, Vec<MorphDelta>)>,
+}
+
+fn load_head_from_slice_in(bytes: &[u8], base: Option<&Path>) -> Result<HeadModel, RenderError> {
+    let gltf = gltf::Gltf::from_slice(bytes).map_err(gltf_err)?;
+    let doc = &gltf.document;
+    let buffers = load_buffers(doc, gltf.blob.as_deref(), base)?;
+
+    let mut materials: Vec<Material> = doc
+        .materials()
+        .map(|m| load_material(&m, &buffers, base))
+        .collect();
+    let default_material = materials.len();
+    materials.push(Material::default());
+
+    let mut raws = Vec::new();
+    let mut all_target_names = Vec::new();
+    let mut total_vertices = 0usize;
+    let roots: Vec<gltf::Node> = match doc.default_scene().or_else(|| doc.scenes().next()) {
+        Some(scene) => scene.nodes().collect(),
+        None => {
+            // No scene: every node that is nobody's child.
+            let mut is_child = vec![false; doc.nodes().len()];
+            for n in doc.nodes() {
+                for c in n.children() {
+                    if let Some(flag) = is_child.get_mut(c.index()) {
+                        *flag = true;
+                    }
+                }
+            }
+            doc.nodes().filter(|n| !is_child[n.index()]).collect()
+        }
+    };
+    let mut stack: Vec<(gltf::Node, Mat4, usize)> =
+        roots.into_iter().map(|n| (n, Mat4::IDENTITY, 0)).collect();
+    while let Some((node, parent, depth)) = stack.pop() {
+        if depth > MAX_NODE_DEPTH {
+            return Err(RenderError::Gltf("node hierarchy too deep (cycle?)".into()));
+        }
+        let local = Mat4::from_cols_array_2d(&node.transform().matrix());
+        let world = parent * local;
+        if let Some(mesh) = node.mesh() {
+            let transform = if node.skin().is_some() {
+                Mat4::IDENTITY
+            } else {
+                world
+            };
+            if !transform.is_finite() {
+                return Err(RenderError::Gltf(format!(
+                    "node {} has a non-finite transform",
+                    node.index()
+                )));
+            }
+            let names = target_names(&mesh);
+            all_target_names.extend(names.iter().cloned());
+            for prim in mesh.primitives() {
+                if prim.mode() != gltf::mesh::Mode::Triangles {
+                    continue;
+                }
+                let raw =
+                    read_primitive(&prim, &mesh, &names, transform, &buffers, default_material)?;
+                total_vertices += raw.vertices.len();
+                if total_vertices > MAX_VERTICES {
+                    return Err(RenderError::Unsupported(format!(
+                        "more than {MAX_VERTICES} vertices"
+                    )));
+                }
+                raws.push(raw);
+            }
+        }
+        for child in node.children() {
+            stack.push((child, world, depth + 1));
+        }
+    }
+    if raws.is_empty() {
+        return Err(RenderError::InvalidHead(
+            "the file has no triangle meshes".into(),
+        ));
+    }
+    all_target_names.sort();
+    all_target_names.dedup();
+    build_model(raws, materials, all_target_names)
+}
+
+fn build_model(
+    raws: Vec<RawPrimitive>,
+    materials: Vec<Material>,
+    all_target_names: Vec<String>,
+) -> Result<HeadModel, RenderError> {
+    let mut has_viseme = [false; VISEME_COUNT];
+    let mut has_arkit = [false; ARKIT_NAMES.len()];
+    for raw in &raws {
+        for (kind, _) in &raw.targets {
+            match *kind {
+                TargetKind::Viseme(v) => has_viseme[v] = true,
+                TargetKind::Arkit(a) => has_arkit[a] = true,
+                TargetKind::Unused => {}
+            }
+        }
+    }
+    let viseme_mode = has_viseme.iter().skip(1).any(|&h| h);
+    let arkit_mode = has_arkit.iter().any(|&h| h);
+    if !viseme_mode && !arkit_mode {
+        return Err(RenderError::NoUsableTargets {
+            found: all_target_names,
+        });
+    }
+    let recipe = arkit::matrix();
+    let mut missing = Vec::new();
+    // Per viseme: from its own target, else from the ARKit recipe where those shapes exist.
+    let mut use_arkit = [false; VISEME_COUNT];
+    for v in 1..VISEME_COUNT {
+        if viseme_mode && has_viseme[v] {
+            continue;
+        }
+        if recipe[v]
+            .iter()
+            .zip(&has_arkit)
+            .any(|(&w, &h)| w > 0.0 && h)
+        {
+            use_arkit[v] = true;
+        } else {
+            missing.push(VISEME_NAMES[v].to_owned());
+        }
+    }
+    let mut primitives = Vec::with_capacity(raws.len());
+    for raw in raws {
+        let n = raw.vertices.len();
+        let mut prim = Primitive::new(&raw.name, raw.material, raw.vertices, raw.indices);
+        for v in 0..VISEME_COUNT {
+            let mut acc: Vec<MorphDelta> = Vec::new();
+            let mut add = |deltas: &[MorphDelta], w: f32| {
+                if acc.is_empty() {
+                    acc = vec![MorphDelta::default(); n];
+                }
+                for (dst, src) in acc.iter_mut().zip(deltas) {
+                    for k in 0..3 {
+                        dst.position[k] += w * src.position[k];
+                        dst.normal[k] += w * src.normal[k];
+                    }
+                }
+            };
+            for (kind, deltas) in &raw.targets {
+                match *kind {
+                    TargetKind::Viseme(t) if t == v && !use_arkit[v] && viseme_mode => {
+                        add(deltas, 1.0)
+                    }
+                    TargetKind::Arkit(a) if use_arkit[v] && recipe[v][a] > 0.0 => {
+                        add(deltas, recipe[v][a])
+                    }
+                    _ => {}
+                }
+            }
+            if acc
+                .iter()
+                .any(|d| d.position != [0.0; 3] || d.normal != [0.0; 3])
+            {
+                prim.targets[v] = acc;
+            }
+        }
+        primitives.push(prim);
+    }
+    let model = HeadModel {
+        primitives,
+        materials,
+        source: if viseme_mode {
+            TargetSource::Visemes
+        } else {
+            TargetSource::Arkit
+        },
+        missing_visemes: missing,
+    };
+    match model.validate() {
+        Err(RenderError::NoUsableTargets { .. }) => Err(RenderError::NoUsableTargets {
+            found: all_target_names,
+        }),
+        other => other.map(|()| model),
+    }
+}
+
+fn target_names(mesh: &gltf::Mesh) -> Vec<String> {
+    let parse = |raw: &Option<Box<serde_json::value::RawValue>>| -> Option<Vec<String>> {
+        let value: serde_json::Value = serde_json::from_str(raw.as_ref()?.get()).ok()?;
+        let names = value.get("targetNames")?.as_array()?;
+        Some(
+            names
+                .iter()
+                .map(|n| n.as_str().unwrap_or_default().to_owned())
+                .collect(),
+        )
+    };
+    if let Some(names) = parse(mesh.extras()) {
+        return names;
+    }
+    mesh.primitives()
+        .find_map(|p| parse(p.extras()))
+        .unwrap_or_default()
+}
+
+fn load_buffers(
+    doc: &gltf::Document,
+    blob: Option<&[u8]>,
+    base: Option<&Path>,
+) -> Result<Vec<Vec<u8>>, RenderError> {
+    let mut out = Vec::new();
+    for buffer in doc.buffers() {
+        let data = match buffer.source() {
+            gltf::buffer::Source::Bin => blob
+                .ok_or_else(|| RenderError::Gltf("GLB binary chunk missing".into()))?
+                .to_vec(),
+            gltf::buffer::Source::Uri(uri) => read_uri(uri, base)?,
+        };
+        if data.len() < buffer.length() {
+            return Err(RenderError::Gltf(format!(
+                "buffer {} has {} bytes, declares {}",
+                buffer.index(),
+                data.len(),
+                buffer.length()
+            )));
+        }
+        out.push(data);
+    }
+    Ok(out)
+}
+
+fn read_uri(uri: &str, base: Option<&Path>) -> Result<Vec<u8>, RenderError> {
+    if let Some(rest) = uri.strip_prefix("data:") {
+        let (_, payload) = rest
+            .split_once(";base64,")
+            .ok_or_else(|| RenderError::Unsupported("data URI that is not base64".into()))?;
+        return decode_base64(payload);
+    }
+    let base = base.ok_or_else(|| {
+        RenderError::Unsupported(format!("external resource {uri:?} without a file path"))
+    })?;
+    if uri.contains("..") || uri.contains("://") || uri.starts_with('/') {
+        return Err(RenderError::Unsupported(format!("resource path {uri:?}")));
+    }
+    let path = base.join(uri.replace("%20", " "));
+    std::fs::read(&path).map_err(|source| RenderError::Io { path, source })
+}
+
+fn decode_base64(s: &str) -> Result<Vec<u8>, RenderError> {
+    let value = |c: u8| -> Option<u32> {
+        Some(match c {
+            b'A'..=b'Z' => c - b'A',
+            b'a'..=b'z' => c - b'a' + 26,
+            b'0'..=b'9' => c - b'0' + 52,
+            b'+' | b'-' => 62,
+            b'/' | b'_' => 63,
+            _ => return None,
+        } as u32)
+    };
+    let mut out = Vec::with_capacity(s.len() * 3 / 4);
+    let mut acc = 0u32;
+    let mut bits = 0;
+    for &c in s.as_bytes() {
+        if c == b'=' || c.is_ascii_whitespace() {
+            continue;
+        }
+        let v = value(c).ok_or_else(|| RenderError::Gltf("bad base64 in data URI".into()))?;
+        acc = (acc << 6) | v;
+        bits += 6;
+        if bits >= 8 {
+            bits -= 8;
+            out.push((acc >> bits) as u8);
+            acc &= (1 << bits) - 1;
+        }
+    }
+    Ok(out)
+}
+
+fn load_material(m: &gltf::Material, buffers: &[Vec<u8>], base: Option<&Path>) -> Material {
+    let pbr = m.pbr_metallic_roughness();
+    let factor = pbr.base_color_factor();
+    let texture = pbr.base_color_texture().and_then(|info| {
+        let image = info.texture().source();
+        let bytes = match image.source() {
+            gltf::image::Source::View { view, .. } => view_slice(&view, buffers).ok()?.to_vec(),
+            gltf::image::Source::Uri { uri, .. } => read_uri(uri, base).ok()?,
+        };
+        // PNG only (the crate is built without JPEG); other images fall back to the factor.
+        let decoded = image::load_from_memory_with_format(&bytes, image::ImageFormat::Png).ok()?;
+        let rgba = decoded.to_rgba8();
+        Some(Texture {
+            width: rgba.width(),
+            height: rgba.height(),
+            rgba: rgba.into_raw(),
+        })
+    });
+    Material {
+        name: m.name().unwrap_or("material").to_owned(),
+        base_color: factor.map(|c| {
+            if c.is_finite() {
+                c.clamp(0.0, 1.0)
+            } else {
+                1.0
+            }
+        }),
+        texture,
+    }
+}
+
+fn view_slice<'a>(
+    view: &gltf::buffer::View,
+    buffers: &'a [Vec<u8>],
+) -> Result<&'a [u8], RenderError> {
+    let data = buffers
+        .get(view.buffer().index())
+        .ok_or_else(|| RenderError::Gltf("buffer view of a missing buffer".into()))?;
+    let end = view
+        .offset()
+        .checked_add(view.length())
+        .ok_or_else(|| RenderError::Gltf("buffer view overflows".into()))?;
+    data.get(view.offset()..end)
+        .ok_or_else(|| RenderError::Gltf(format!("buffer view {} out of range", view.index())))
+}
+
+/// Checks that an accessor of `count` elements fits its buffer view (and sparse parts fit theirs),
+/// and that its element type is one of `allowed`.
+fn check_accessor(
+    a: &gltf::Accessor,
+    buffers: &[Vec<u8>],
+    allowed: &[(DataType, Dimensions)],
+    what: &str,
+) -> Result<(), RenderError> {
+    let bad = |msg: String| RenderError::Gltf(format!("{what} accessor {}: {msg}", a.index()));
+    if !allowed.contains(&(a.data_type(), a.dimensions())) {
+        return Err(bad(format!(
+            "unsupported type {:?} {:?}",
+            a.data_type(),
+            a.dimensions()
+        )));
+    }
+    if a.count() == 0 || a.count() > MAX_VERTICES * 3 {
+        return Err(bad(format!("count {}", a.count())));
+    }
+    let fits = |view: &gltf::buffer::View,
+                offset: usize,
+                count: usize,
+                size: usize|
+     -> Result<(), RenderError> {
+        let slice = view_slice(view, buffers)?;
+        let stride = view.stride().unwrap_or(size);
+        if stride < size {
+            return Err(bad(format!("stride {stride} < element size {size}")));
+        }
+        let end = stride
+            .checked_mul(count - 1)
+            .and_then(|x| x.checked_add(offset))
+            .and_then(|x| x.checked_add(size))
+            .ok_or_else(|| bad("size overflows".into()))?;
+        if end > slice.len() {
+            return Err(bad(format!("needs {end} bytes, view has {}", slice.len())));
+        }
+        Ok(())
+    };
+    match a.view() {
+        Some(view) => fits(&view, a.offset(), a.count(), a.size())?,
+        None if a.sparse().is_none() => return Err(bad("no buffer view".into())),
+        None => {}
+    }
+    if let Some(sparse) = a.sparse() {
+        let n = sparse.count();
+        if n == 0 || n > a.count() {
+            return Err(bad(format!("sparse count {n}")));
+        }
+        let idx = sparse.indices();
+        fits(&idx.view(), idx.offset(), n, idx.index_type().size())?;
+        let vals = sparse.values();
+        fits(&vals.view(), vals.offset(), n, a.size())?;
+    }
+    Ok(())
+}
+
+fn read_primitive(
+    prim: &gltf::Primitive,
+    mesh: &gltf::Mesh,
+    names: &[String],
+    transform: Mat4,
+    buffers: &[Vec<u8>],
+    default_material: usize,
+) -> Result<RawPrimitive, RenderError> {
+    use DataType::{F32, U8, U16, U32};
+    use Dimensions::{Scalar, Vec2, Vec4};
+    let vec3 = [(F32, Dimensions::Vec3)];
+    let get = |b: gltf::Buffer| buffers.get(b.index()).map(|v| v.as_slice());
+    let reader = prim.reader(get);
+
+    let pos_acc = prim
+        .get(&gltf::Semantic::Positions)
+        .ok_or_else(|| RenderError::Gltf("primitive without POSITION".into()))?;
+    check_accessor(&pos_acc, buffers, &vec3, "POSITION")?;
+    let n = pos_acc.count();
+    let attr_ok = |sem: gltf::Semantic,
+                   allowed: &[(DataType, Dimensions)],
+                   what: &str|
+     -> Result<bool, RenderError> {
+        match prim.get(&sem) {
+            Some(acc) => {
+                check_accessor(&acc, buffers, allowed, what)?;
+                if acc.count() != n {
+                    return Err(RenderError::Gltf(format!(
+                        "{what} count differs from POSITION"
+                    )));
+                }
+                Ok(true)
+            }
+            None => Ok(false),
+        }
+    };
+    let has_normals = attr_ok(gltf::Semantic::Normals, &vec3, "NORMAL")?;
+    let has_uv = attr_ok(
+        gltf::Semantic::TexCoords(0),
+        &[(F32, Vec2), (U8, Vec2), (U16, Vec2)],
+        "TEXCOORD_0",
+    )?;
+    let has_color = attr_ok(
+        gltf::Semantic::Colors(0),
+        &[
+            (F32, Dimensions::Vec3),
+            (F32, Vec4),
+            (U8, Dimensions::Vec3),
+            (U8, Vec4),
+            (U16, Dimensions::Vec3),
+            (U16, Vec4),
+        ],
+        "COLOR_0",
+    )?;
+
+    let missing = || RenderError::Gltf("accessor data missing".into());
+    let linear = Mat3::from_mat4(transform);
+    let normal_matrix = if linear.determinant().abs() > 1e-12 {
+        linear.inverse().transpose()
+    } else {
+        Mat3::IDENTITY
+    };
+    let positions: Vec<Vec3> = reader
+        .read_positions()
+        .ok_or_else(missing)?
+        .map(|p| transform.transform_point3(Vec3::from(p)))
+        .collect();
+    if positions.len() != n || positions.iter().any(|p| !p.is_finite()) {
+        return Err(RenderError::Gltf("POSITION has non-finite values".into()));
+    }
+
+    let indices: Vec<u32> = match prim.indices() {
+        Some(acc) => {
+            check_accessor(
+                &acc,
+                buffers,
+                &[(U8, Scalar), (U16, Scalar), (U32, Scalar)],
+                "indices",
+            )?;
+            let idx: Vec<u32> = reader
+                .read_indices()
+                .ok_or_else(missing)?
+                .into_u32()
+                .collect();
+            if idx.iter().any(|&i| i as usize >= n) {
+                return Err(RenderError::Gltf("triangle index out of range".into()));
+            }
+            idx
+        }
+        None => (0..n as u32).collect(),
+    };
+    let indices: Vec<u32> = indices[..indices.len() - indices.len() % 3].to_vec();
+
+    let normals: Vec<Vec3> = if has_normals {
+        reader
+            .read_normals()
+            .ok_or_else(missing)?
+            .map(|v| (normal_matrix * Vec3::from(v)).normalize_or_zero())
+            .collect()
+    } else {
+        smooth_normals(&positions, &indices)
+    };
+    let uvs: Vec<[f32; 2]> = if has_uv {
+        reader
+            .read_tex_coords(0)
+            .ok_or_else(missing)?
+            .into_f32()
+            .collect()
+    } else {
+        vec![[0.0; 2]; n]
+    };
+    let colors: Vec<[f32; 4]> = if has_color {
+        reader
+            .read_colors(0)
+            .ok_or_else(missing)?
+            .into_rgba_f32()
+            .collect()
+    } else {
+        vec![[1.0; 4]; n]
+    };
+    if normals.len() != n || uvs.len() != n || colors.len() != n {
+        return Err(RenderError::Gltf("attribute lengths differ".into()));
+    }
+    let vertices: Vec<Vertex> = (0..n)
+        .map(|i| Vertex {
+            position: positions[i].into(),
+            normal: normals[i].into(),
+            uv: uvs[i],
+            color: colors[i],
+        })
+        .collect();
+
+    let mut targets = Vec::new();
+    for (t, target) in prim.morph_targets().enumerate() {
+        let name = names.get(t).map(String::as_str).unwrap_or("");
+        let kind = classify(name);
+        if kind == TargetKind::Unused {
+            continue;
+        }
+        if let Some(acc) = target.positions() {
+            check_accessor(&acc, buffers, &vec3, "morph POSITION")?;
+            if acc.count() != n {
+                return Err(RenderError::Gltf(
+                    "morph target count differs from POSITION".into(),
+                ));
+            }
+        }
+        if let Some(acc) = target.normals() {
+            check_accessor(&acc, buffers, &vec3, "morph NORMAL")?;
+            if acc.count() != n {
+                return Err(RenderError::Gltf(
+                    "morph target count differs from POSITION".into(),
+                ));
+            }
+        }
+        targets.push((kind, t));
+    }
+    let mut out_targets = Vec::new();
+    if !targets.is_empty() {
+        let read: Vec<_> = reader.read_morph_targets().collect();
+        for (kind, t) in targets {
+            let (p, nrm, _) = read.get(t).ok_or_else(missing)?;
+            let mut deltas = vec![MorphDelta::default(); n];
+            if let Some(p) = p.clone() {
+                for (d, v) in deltas.iter_mut().zip(p) {
+                    d.position = (linear * Vec3::from(v)).into();
+                }
+            }
+            if let Some(nrm) = nrm.clone() {
+                for (d, v) in deltas.iter_mut().zip(nrm) {
+                    d.normal = (normal_matrix * Vec3::from(v)).into();
+                }
+            }
+            if deltas
+                .iter()
+                .any(|d| !Vec3::from(d.position).is_finite() || !Vec3::from(d.normal).is_finite())
+            {
+                return Err(RenderError::Gltf(
+                    "morph target has non-finite values".into(),
+                ));
+            }
+            out_targets.push((kind, deltas));
+        }
+    }
+    Ok(RawPrimitive {
+        name: mesh.name().unwrap_or("mesh").to_owned(),
+        material: prim.material().index().unwrap_or(default_material),
+        vertices,
+        indices,
+        targets: out_targets,
+    })
+}

@@ -1,0 +1,665 @@
+//! The wgpu head renderer: one pipeline, heads uploaded once, weights written per frame.
+
+use std::sync::Arc;
+
+use bytemuck::{Pod, Zeroable};
+use glam::{Mat4, Vec3};
+use wgpu::util::DeviceExt;
+
+use super::RenderError;
+use super::camera::Camera;
+use super::head::{FaceFrame, HeadModel, MorphDelta, VISEME_COUNT, Vertex, VisemeWeights};
+
+/// The WGSL source of the head shader (`shaders/head.wgsl`).
+pub const SHADER_SOURCE: &str = include_str!("../../shaders/head.wgsl");
+
+/// Depth format used by the offscreen target; any depth format works with [`HeadRenderer::new`].
+pub const DEPTH_FORMAT: wgpu::TextureFormat = wgpu::TextureFormat::Depth32Float;
+
+#[repr(C)]
+#[derive(Debug, Clone, Copy, PartialEq, Pod, Zeroable)]
+struct ViewUniform {
+    view_proj: [[f32; 4]; 4],
+    model: [[f32; 4]; 4],
+    eye: [f32; 4],
+    light_dir: [f32; 4],
+    counts: [u32; 4],
+}
+
+#[repr(C)]
+#[derive(Debug, Clone, Copy, PartialEq, Pod, Zeroable)]
+struct WeightsUniform {
+    w: [f32; 16],
+}
+
+#[repr(C)]
+#[derive(Debug, Clone, Copy, PartialEq, Pod, Zeroable)]
+struct MaterialUniform {
+    base_color: [f32; 4],
+}
+
+/// Pipeline, layouts and sampler shared by every head drawn into one kind of target.
+pub struct HeadRenderer {
+    pipeline: wgpu::RenderPipeline,
+    shader: wgpu::ShaderModule,
+    head_layout: wgpu::BindGroupLayout,
+    material_layout: wgpu::BindGroupLayout,
+    sampler: wgpu::Sampler,
+    color_format: wgpu::TextureFormat,
+    depth_format: Option<wgpu::TextureFormat>,
+}
+
+/// A draw call of one primitive.
+#[derive(Debug, Clone)]
+struct DrawRange {
+    indices: std::ops::Range<u32>,
+    material: usize,
+}
+
+struct GpuMaterial {
+    bind_group: wgpu::BindGroup,
+    _uniform: wgpu::Buffer,
+    _texture: Option<wgpu::Texture>,
+}
+
+/// A head's meshes and morph deltas on the GPU, uploaded once and shareable between instances.
+pub struct GpuHead {
+    label: String,
+    vertex_buffer: wgpu::Buffer,
+    index_buffer: wgpu::Buffer,
+    delta_buffer: wgpu::Buffer,
+    materials: Vec<GpuMaterial>,
+    draws: Vec<DrawRange>,
+    morph_vertices: u32,
+    vertex_count: u32,
+    /// For each model primitive, its first vertex in the GPU vertex buffer.
+    primitive_offsets: Vec<(u32, u32)>,
+    frame: FaceFrame,
+}
+
+impl GpuHead {
+    /// Where the mouth is and how big the head is, for [`Camera::framing`].
+    pub fn face_frame(&self) -> &FaceFrame {
+        &self.frame
+    }
+
+    pub fn vertex_count(&self) -> u32 {
+        self.vertex_count
+    }
+
+    pub fn label(&self) -> &str {
+        &self.label
+    }
+}
+
+/// One head on screen: its own uniforms (camera, placement, weights) over a shared [`GpuHead`].
+pub struct HeadInstance {
+    head: Arc<GpuHead>,
+    view_buffer: wgpu::Buffer,
+    weights_buffer: wgpu::Buffer,
+    bind_group: wgpu::BindGroup,
+    last_view: Option<ViewUniform>,
+    last_weights: Option<WeightsUniform>,
+    /// Placement of the head in the scene (rotation, uniform scale, translation).
+    pub model: Mat4,
+}
+
+impl HeadInstance {
+    pub fn head(&self) -> &Arc<GpuHead> {
+        &self.head
+    }
+}
+
+impl HeadRenderer {
+    /// Limits a device must be created with for this renderer: WebGPU's downlevel defaults, which
+    /// (unlike the WebGL2 limits egui-wgpu asks for on GL by default) allow storage buffers in the
+    /// vertex stage. Combine with the adapter's own limits via `.using_resolution(adapter.limits())`
+    /// if textures larger than 2048 px are needed.
+    pub fn required_limits() -> wgpu::Limits {
+        wgpu::Limits::downlevel_defaults()
+    }
+
+    /// Downlevel capabilities the adapter must have (checked by [`Self::check_adapter`]).
+    pub fn required_downlevel_flags() -> wgpu::DownlevelFlags {
+        wgpu::DownlevelFlags::VERTEX_STORAGE | wgpu::DownlevelFlags::COMPUTE_SHADERS
+    }
+
+    /// Tells whether an adapter can run this renderer, and what it lacks if not.
+    pub fn check_adapter(adapter: &wgpu::Adapter) -> Result<(), RenderError> {
+        let caps = adapter.get_downlevel_capabilities();
+        let limits = adapter.limits();
+        let need = Self::required_limits();
+        let mut missing = Vec::new();
+        if !caps.flags.contains(wgpu::DownlevelFlags::VERTEX_STORAGE) {
+            missing.push("storage buffers in the vertex stage".to_owned());
+        }
+        if limits.max_storage_buffers_per_shader_stage < need.max_storage_buffers_per_shader_stage {
+            missing.push(format!(
+                "max_storage_buffers_per_shader_stage {} < {}",
+                limits.max_storage_buffers_per_shader_stage,
+                need.max_storage_buffers_per_shader_stage
+            ));
+        }
+        if missing.is_empty() {
+            Ok(())
+        } else {
+            Err(RenderError::AdapterUnsuitable {
+                adapter: adapter.get_info().name,
+                missing: missing.join(", "),
+            })
+        }
+    }
+
+    /// Builds the pipeline for targets of `color_format`, with a depth attachment of
+    /// `depth_format` if given (heads need one to look right; egui tiles may have none).
+    pub fn new(
+        device: &wgpu::Device,
+        color_format: wgpu::TextureFormat,
+        depth_format: Option<wgpu::TextureFormat>,
+    ) -> Self {
+        let shader = device.create_shader_module(wgpu::ShaderModuleDescriptor {
+            label: Some("lipcall head shader"),
+            source: wgpu::ShaderSource::Wgsl(SHADER_SOURCE.into()),
+        });
+        let uniform_entry = |binding, visibility| wgpu::BindGroupLayoutEntry {
+            binding,
+            visibility,
+            ty: wgpu::BindingType::Buffer {
+                ty: wgpu::BufferBindingType::Uniform,
+                has_dynamic_offset: false,
+                min_binding_size: None,
+            },
+            count: None,
+        };
+        let stages = wgpu::ShaderStages::VERTEX_FRAGMENT | wgpu::ShaderStages::COMPUTE;
+        let head_layout = device.create_bind_group_layout(&wgpu::BindGroupLayoutDescriptor {
+            label: Some("lipcall head bind group layout"),
+            entries: &[
+                uniform_entry(0, stages),
+                uniform_entry(1, wgpu::ShaderStages::VERTEX | wgpu::ShaderStages::COMPUTE),
+                wgpu::BindGroupLayoutEntry {
+                    binding: 2,
+                    visibility: wgpu::ShaderStages::VERTEX | wgpu::ShaderStages::COMPUTE,
+                    ty: wgpu::BindingType::Buffer {
+                        ty: wgpu::BufferBindingType::Storage { read_only: true },
+                        has_dynamic_offset: false,
+                        min_binding_size: None,
+                    },
+                    count: None,
+                },
+            ],
+        });
+        let material_layout = device.create_bind_group_layout(&wgpu::BindGroupLayoutDescriptor {
+            label: Some("lipcall head material bind group layout"),
+            entries: &[
+                uniform_entry(0, wgpu::ShaderStages::FRAGMENT),
+                wgpu::BindGroupLayoutEntry {
+                    binding: 1,
+                    visibility: wgpu::ShaderStages::FRAGMENT,
+                    ty: wgpu::BindingType::Texture {
+                        sample_type: wgpu::TextureSampleType::Float { filterable: true },
+                        view_dimension: wgpu::TextureViewDimension::D2,
+                        multisampled: false,
+                    },
+                    count: None,
+                },
+                wgpu::BindGroupLayoutEntry {
+                    binding: 2,
+                    visibility: wgpu::ShaderStages::FRAGMENT,
+                    ty: wgpu::BindingType::Sampler(wgpu::SamplerBindingType::Filtering),
+                    count: None,
+                },
+            ],
+        });
+        let layout = device.create_pipeline_layout(&wgpu::PipelineLayoutDescriptor {
+            label: Some("lipcall head pipeline layout"),
+            bind_group_layouts: &[Some(&head_layout), Some(&material_layout)],
+            immediate_size: 0,
+        });
+        let attributes = wgpu::vertex_attr_array![
+            0 => Float32x3, 1 => Float32x3, 2 => Float32x2, 3 => Float32x4
+        ];
+        let pipeline = device.create_render_pipeline(&wgpu::RenderPipelineDescriptor {
+            label: Some("lipcall head pipeline"),
+            layout: Some(&layout),
+            vertex: wgpu::VertexState {
+                module: &shader,
+                entry_point: Some("vs_main"),
+                compilation_options: Default::default(),
+                buffers: &[Some(wgpu::VertexBufferLayout {
+                    array_stride: std::mem::size_of::<Vertex>() as u64,
+                    step_mode: wgpu::VertexStepMode::Vertex,
+                    attributes: &attributes,
+                })],
+            },
+            primitive: wgpu::PrimitiveState {
+                topology: wgpu::PrimitiveTopology::TriangleList,
+                // Avatars are often double-sided and the mouth is seen from inside.
+                cull_mode: None,
+                ..Default::default()
+            },
+            depth_stencil: depth_format.map(|format| wgpu::DepthStencilState {
+                format,
+                depth_write_enabled: Some(true),
+                depth_compare: Some(wgpu::CompareFunction::Less),
+                stencil: Default::default(),
+                bias: Default::default(),
+            }),
+            multisample: wgpu::MultisampleState::default(),
+            fragment: Some(wgpu::FragmentState {
+                module: &shader,
+                entry_point: Some("fs_main"),
+                compilation_options: Default::default(),
+                targets: &[Some(wgpu::ColorTargetState {
+                    format: color_format,
+                    blend: None,
+                    write_mask: wgpu::ColorWrites::ALL,
+                })],
+            }),
+            multiview_mask: None,
+            cache: None,
+        });
+        let sampler = device.create_sampler(&wgpu::SamplerDescriptor {
+            label: Some("lipcall head base colour sampler"),
+            address_mode_u: wgpu::AddressMode::Repeat,
+            address_mode_v: wgpu::AddressMode::Repeat,
+            mag_filter: wgpu::FilterMode::Linear,
+            min_filter: wgpu::FilterMode::Linear,
+            ..Default::default()
+        });
+        Self {
+            pipeline,
+            shader,
+            head_layout,
+            material_layout,
+            sampler,
+            color_format,
+            depth_format,
+        }
+    }
+
+    pub fn color_format(&self) -> wgpu::TextureFormat {
+        self.color_format
+    }
+
+    pub fn depth_format(&self) -> Option<wgpu::TextureFormat> {
+        self.depth_format
+    }
+
+    /// Uploads a head's meshes, materials and morph deltas (once).
+    pub fn upload(
+        &self,
+        device: &wgpu::Device,
+        queue: &wgpu::Queue,
+        model: &HeadModel,
+        label: &str,
+    ) -> Result<Arc<GpuHead>, RenderError> {
+        model.validate()?;
+        // Primitives with morph targets first, so only they need delta storage.
+        let mut order: Vec<usize> = (0..model.primitives.len()).collect();
+        order.sort_by_key(|&i| !model.primitives[i].has_targets());
+        let morph_vertices: usize = model
+            .primitives
+            .iter()
+            .filter(|p| p.has_targets())
+            .map(|p| p.vertices.len())
+            .sum();
+        let vertex_count = model.vertex_count();
+        let index_count: usize = model.primitives.iter().map(|p| p.indices.len()).sum();
+        if vertex_count >= u32::MAX as usize / 16 || index_count >= u32::MAX as usize {
+            return Err(RenderError::InvalidHead("too many vertices".into()));
+        }
+        let delta_bytes =
+            (VISEME_COUNT * morph_vertices * std::mem::size_of::<MorphDelta>()) as u64;
+        let max_binding = device.limits().max_storage_buffer_binding_size;
+        if delta_bytes > max_binding {
+            return Err(RenderError::Unsupported(format!(
+                "{morph_vertices} morphing vertices need {delta_bytes} bytes of deltas, more than \
+                 the device's storage binding limit of {max_binding}"
+            )));
+        }
+
+        let mut vertices: Vec<Vertex> = Vec::with_capacity(vertex_count);
+        let mut indices: Vec<u32> = Vec::with_capacity(index_count);
+        let mut deltas = vec![MorphDelta::default(); VISEME_COUNT * morph_vertices];
+        let mut draws = Vec::new();
+        let mut primitive_offsets = vec![(0u32, 0u32); model.primitives.len()];
+        for &pi in &order {
+            let p = &model.primitives[pi];
+            let base = vertices.len();
+            primitive_offsets[pi] = (base as u32, p.vertices.len() as u32);
+            let first = indices.len() as u32;
+            indices.extend(p.indices.iter().map(|&i| i + base as u32));
+            draws.push(DrawRange {
+                indices: first..indices.len() as u32,
+                material: p.material,
+            });
+            if p.has_targets() {
+                for (t, target) in p.targets.iter().enumerate() {
+                    if !target.is_empty() {
+                        let start = t * morph_vertices + base;
+                        deltas[start..start + target.len()].copy_from_slice(target);
+                    }
+                }
+            }
+            vertices.extend_from_slice(&p.vertices);
+        }
+
+        let vertex_buffer = device.create_buffer_init(&wgpu::util::BufferInitDescriptor {
+            label: Some(&format!("{label} vertices")),
+            contents: bytemuck::cast_slice(&vertices),
+            usage: wgpu::BufferUsages::VERTEX | wgpu::BufferUsages::STORAGE,
+        });
+        let index_buffer = device.create_buffer_init(&wgpu::util::BufferInitDescriptor {
+            label: Some(&format!("{label} indices")),
+            contents: bytemuck::cast_slice(&indices),
+            usage: wgpu::BufferUsages::INDEX,
+        });
+        // A zero-sized storage binding is invalid; keep one dummy delta.
+        if deltas.is_empty() {
+            deltas.push(MorphDelta::default());
+        }
+        let delta_buffer = device.create_buffer_init(&wgpu::util::BufferInitDescriptor {
+            label: Some(&format!("{label} morph deltas")),
+            contents: bytemuck::cast_slice(&deltas),
+            usage: wgpu::BufferUsages::STORAGE,
+        });
+        let materials = model
+            .materials
+            .iter()
+            .enumerate()
+            .map(|(i, m)| self.upload_material(device, queue, m, &format!("{label} material {i}")))
+            .collect();
+        Ok(Arc::new(GpuHead {
+            label: label.to_owned(),
+            vertex_buffer,
+            index_buffer,
+            delta_buffer,
+            materials,
+            draws,
+            morph_vertices: morph_vertices as u32,
+            vertex_count: vertex_count as u32,
+            primitive_offsets,
+            frame: model.face_frame(),
+        }))
+    }
+
+    fn upload_material(
+        &self,
+        device: &wgpu::Device,
+        queue: &wgpu::Queue,
+        material: &super::head::Material,
+        label: &str,
+    ) -> GpuMaterial {
+        let uniform = device.create_buffer_init(&wgpu::util::BufferInitDescriptor {
+            label: Some(&format!("{label} uniform")),
+            contents: bytemuck::bytes_of(&MaterialUniform {
+                base_color: material.base_color,
+            }),
+            usage: wgpu::BufferUsages::UNIFORM,
+        });
+        let white = super::head::Texture {
+            width: 1,
+            height: 1,
+            rgba: vec![255; 4],
+        };
+        let image = material
+            .texture
+            .as_ref()
+            .filter(|t| {
+                let max = device.limits().max_texture_dimension_2d;
+                t.width > 0
+                    && t.height > 0
+                    && t.width <= max
+                    && t.height <= max
+                    && t.rgba.len() == 4 * t.width as usize * t.height as usize
+            })
+            .unwrap_or(&white);
+        let texture = device.create_texture_with_data(
+            queue,
+            &wgpu::TextureDescriptor {
+                label: Some(&format!("{label} base colour")),
+                size: wgpu::Extent3d {
+                    width: image.width,
+                    height: image.height,
+                    depth_or_array_layers: 1,
+                },
+                mip_level_count: 1,
+                sample_count: 1,
+                dimension: wgpu::TextureDimension::D2,
+                format: wgpu::TextureFormat::Rgba8UnormSrgb,
+                usage: wgpu::TextureUsages::TEXTURE_BINDING,
+                view_formats: &[],
+            },
+            wgpu::util::TextureDataOrder::LayerMajor,
+            &image.rgba,
+        );
+        let view = texture.create_view(&wgpu::TextureViewDescriptor {
+            label: Some(&format!("{label} base colour view")),
+            ..Default::default()
+        });
+        let bind_group = device.create_bind_group(&wgpu::BindGroupDescriptor {
+            label: Some(&format!("{label} bind group")),
+            layout: &self.material_layout,
+            entries: &[
+                wgpu::BindGroupEntry {
+                    binding: 0,
+                    resource: uniform.as_entire_binding(),
+                },
+                wgpu::BindGroupEntry {
+                    binding: 1,
+                    resource: wgpu::BindingResource::TextureView(&view),
+                },
+                wgpu::BindGroupEntry {
+                    binding: 2,
+                    resource: wgpu::BindingResource::Sampler(&self.sampler),
+                },
+            ],
+        });
+        GpuMaterial {
+            bind_group,
+            _uniform: uniform,
+            _texture: Some(texture),
+        }
+    }
+
+    /// Creates the per-head uniforms for drawing `head` (many instances may share one head).
+    pub fn new_instance(
+        &self,
+        device: &wgpu::Device,
+        head: Arc<GpuHead>,
+        label: &str,
+    ) -> HeadInstance {
+        let view_buffer = device.create_buffer(&wgpu::BufferDescriptor {
+            label: Some(&format!("{label} view uniform")),
+            size: std::mem::size_of::<ViewUniform>() as u64,
+            usage: wgpu::BufferUsages::UNIFORM | wgpu::BufferUsages::COPY_DST,
+            mapped_at_creation: false,
+        });
+        let weights_buffer = device.create_buffer(&wgpu::BufferDescriptor {
+            label: Some(&format!("{label} viseme weights")),
+            size: std::mem::size_of::<WeightsUniform>() as u64,
+            usage: wgpu::BufferUsages::UNIFORM | wgpu::BufferUsages::COPY_DST,
+            mapped_at_creation: false,
+        });
+        let bind_group = device.create_bind_group(&wgpu::BindGroupDescriptor {
+            label: Some(&format!("{label} bind group")),
+            layout: &self.head_layout,
+            entries: &[
+                wgpu::BindGroupEntry {
+                    binding: 0,
+                    resource: view_buffer.as_entire_binding(),
+                },
+                wgpu::BindGroupEntry {
+                    binding: 1,
+                    resource: weights_buffer.as_entire_binding(),
+                },
+                wgpu::BindGroupEntry {
+                    binding: 2,
+                    resource: head.delta_buffer.as_entire_binding(),
+                },
+            ],
+        });
+        HeadInstance {
+            head,
+            view_buffer,
+            weights_buffer,
+            bind_group,
+            last_view: None,
+            last_weights: None,
+            model: Mat4::IDENTITY,
+        }
+    }
+
+    /// Writes this frame's uniforms: the weights (at most 15 floats) and, only when the camera,
+    /// aspect or placement changed, the view. Call before the render pass is begun.
+    pub fn prepare(
+        &self,
+        queue: &wgpu::Queue,
+        instance: &mut HeadInstance,
+        camera: &Camera,
+        aspect: f32,
+        weights: &VisemeWeights,
+    ) {
+        let light = Vec3::new(-0.45, -0.55, -0.7).normalize();
+        let view = ViewUniform {
+            view_proj: camera.view_proj(aspect).to_cols_array_2d(),
+            model: instance.model.to_cols_array_2d(),
+            eye: camera.eye.extend(1.0).into(),
+            light_dir: light.extend(0.0).into(),
+            counts: [
+                instance.head.morph_vertices,
+                instance.head.vertex_count,
+                0,
+                0,
+            ],
+        };
+        if instance.last_view != Some(view) {
+            queue.write_buffer(&instance.view_buffer, 0, bytemuck::bytes_of(&view));
+            instance.last_view = Some(view);
+        }
+        let mut w = WeightsUniform { w: [0.0; 16] };
+        for (dst, &src) in w.w.iter_mut().zip(weights.0.iter()) {
+            *dst = if src.is_finite() { src } else { 0.0 };
+        }
+        if instance.last_weights != Some(w) {
+            queue.write_buffer(
+                &instance.weights_buffer,
+                0,
+                bytemuck::cast_slice(&w.w[..VISEME_COUNT]),
+            );
+            instance.last_weights = Some(w);
+        }
+    }
+
+    /// Records the head's draws into `pass` (whose viewport the caller has set).
+    pub fn paint(&self, pass: &mut wgpu::RenderPass<'_>, instance: &HeadInstance) {
+        let head = &instance.head;
+        pass.set_pipeline(&self.pipeline);
+        pass.set_bind_group(0, &instance.bind_group, &[]);
+        pass.set_vertex_buffer(0, head.vertex_buffer.slice(..));
+        pass.set_index_buffer(head.index_buffer.slice(..), wgpu::IndexFormat::Uint32);
+        for draw in &head.draws {
+            if let Some(material) = head.materials.get(draw.material) {
+                pass.set_bind_group(1, &material.bind_group, &[]);
+                pass.draw_indexed(draw.indices.clone(), 0, 0..1);
+            }
+        }
+    }
+
+    /// Runs the vertex shader's blend function in a compute pass and reads back the blended
+    /// positions and normals, in the model's primitive/vertex order (for tests and debugging).
+    /// Uses the weights last written by [`Self::prepare`].
+    pub fn blend_on_gpu(
+        &self,
+        device: &wgpu::Device,
+        queue: &wgpu::Queue,
+        instance: &HeadInstance,
+    ) -> Result<Vec<MorphDelta>, RenderError> {
+        let head = &instance.head;
+        let blend_layout = device.create_bind_group_layout(&wgpu::BindGroupLayoutDescriptor {
+            label: Some("lipcall blend readback layout"),
+            entries: &[storage_entry(0, true), storage_entry(1, false)],
+        });
+        let layout = device.create_pipeline_layout(&wgpu::PipelineLayoutDescriptor {
+            label: Some("lipcall blend readback pipeline layout"),
+            bind_group_layouts: &[Some(&self.head_layout), None, Some(&blend_layout)],
+            immediate_size: 0,
+        });
+        let pipeline = device.create_compute_pipeline(&wgpu::ComputePipelineDescriptor {
+            label: Some("lipcall blend readback pipeline"),
+            layout: Some(&layout),
+            module: &self.shader,
+            entry_point: Some("cs_blend"),
+            compilation_options: Default::default(),
+            cache: None,
+        });
+        let out_size = (head.vertex_count as u64 * std::mem::size_of::<MorphDelta>() as u64).max(4);
+        let out = device.create_buffer(&wgpu::BufferDescriptor {
+            label: Some("lipcall blend readback output"),
+            size: out_size,
+            usage: wgpu::BufferUsages::STORAGE | wgpu::BufferUsages::COPY_SRC,
+            mapped_at_creation: false,
+        });
+        let staging = device.create_buffer(&wgpu::BufferDescriptor {
+            label: Some("lipcall blend readback staging"),
+            size: out_size,
+            usage: wgpu::BufferUsages::MAP_READ | wgpu::BufferUsages::COPY_DST,
+            mapped_at_creation: false,
+        });
+        let bind_group = device.create_bind_group(&wgpu::BindGroupDescriptor {
+            label: Some("lipcall blend readback bind group"),
+            layout: &blend_layout,
+            entries: &[
+                wgpu::BindGroupEntry {
+                    binding: 0,
+                    resource: head.vertex_buffer.as_entire_binding(),
+                },
+                wgpu::BindGroupEntry {
+                    binding: 1,
+                    resource: out.as_entire_binding(),
+                },
+            ],
+        });
+        let mut encoder = device.create_command_encoder(&wgpu::CommandEncoderDescriptor {
+            label: Some("lipcall blend readback encoder"),
+        });
+        {
+            let mut pass = encoder.begin_compute_pass(&wgpu::ComputePassDescriptor {
+                label: Some("lipcall blend readback pass"),
+                timestamp_writes: None,
+            });
+            pass.set_pipeline(&pipeline);
+            pass.set_bind_group(0, &instance.bind_group, &[]);
+            pass.set_bind_group(2, &bind_group, &[]);
+            pass.dispatch_workgroups(head.vertex_count.div_ceil(64), 1, 1);
+        }
+        encoder.copy_buffer_to_buffer(&out, 0, &staging, 0, out_size);
+        queue.submit([encoder.finish()]);
+        let bytes = super::offscreen::read_buffer(device, &staging)?;
+        let used = head.vertex_count as usize * std::mem::size_of::<MorphDelta>();
+        let gpu: Vec<MorphDelta> = bytemuck::pod_collect_to_vec(
+            bytes
+                .get(..used)
+                .ok_or_else(|| RenderError::Readback("short blend readback".into()))?,
+        );
+        let mut result = Vec::with_capacity(gpu.len());
+        for &(start, len) in &head.primitive_offsets {
+            result.extend_from_slice(&gpu[start as usize..(start + len) as usize]);
+        }
+        Ok(result)
+    }
+}
+
+fn storage_entry(binding: u32, read_only: bool) -> wgpu::BindGroupLayoutEntry {
+    wgpu::BindGroupLayoutEntry {
+        binding,
+        visibility: wgpu::ShaderStages::COMPUTE,
+        ty: wgpu::BindingType::Buffer {
+            ty: wgpu::BufferBindingType::Storage { read_only },
+            has_dynamic_offset: false,
+            min_binding_size: None,
+        },
+        count: None,
+    }
+}
