@@ -49,6 +49,18 @@ enum Command {
         /// Write WEIGHTS.csv: frame,time_s,<viseme names>.
         #[arg(long, value_name = "WEIGHTS.csv")]
         weights: Option<PathBuf>,
+        /// Render numbered PNG frames of the head (plus weights.csv and audio.wav) into DIR.
+        #[arg(long, value_name = "DIR")]
+        frames: Option<PathBuf>,
+        /// A glTF/GLB head with viseme or ARKit morph targets instead of the bundled one.
+        #[arg(long, value_name = "HEAD.glb")]
+        head: Option<PathBuf>,
+        /// Frames per second of the rendered frames.
+        #[arg(long, default_value_t = 25, value_parser = parse_fps)]
+        fps: u32,
+        /// Frame the mouth close-up (the lipreading view) instead of the whole face.
+        #[arg(long)]
+        mouth: bool,
         /// Viseme set: a count (2..6 or 15) or names such as PP,aa,I.
         #[arg(long, value_name = "N|NAMES")]
         visemes: Option<String>,
@@ -59,6 +71,14 @@ enum Command {
         #[arg(long, value_parser = ["jaw"])]
         baseline: Option<String>,
     },
+}
+
+fn parse_fps(arg: &str) -> Result<u32, String> {
+    match arg {
+        "25" => Ok(25),
+        "50" => Ok(50),
+        _ => Err("must be 25 or 50".into()),
+    }
 }
 
 fn main() -> ExitCode {
@@ -90,12 +110,20 @@ fn main() -> ExitCode {
         Command::Animate {
             input,
             weights,
+            frames,
+            head,
+            fps,
+            mouth,
             visemes,
             model,
             baseline,
         } => commands::animate::animate(&commands::animate::AnimateArgs {
             input,
             weights,
+            frames,
+            head,
+            fps,
+            mouth_close_up: mouth,
             visemes,
             model,
             baseline_jaw: baseline.is_some(),

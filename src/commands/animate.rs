@@ -12,6 +12,7 @@ use crate::lipsync::network::Model;
 use crate::lipsync::reproject::Reprojector;
 use crate::lipsync::visemes::VisemeSet;
 use crate::lipsync::{Animator, ModelAnimator};
+use crate::render::{self, FrameOptions, Framing, HeadModel};
 use crate::speex::codec::EncoderConfig;
 use crate::speex::features::FrameFeatures;
 use crate::speex::{FRAME_SIZE, stream};
@@ -19,13 +20,17 @@ use crate::speex::{FRAME_SIZE, stream};
 pub struct AnimateArgs {
     pub input: PathBuf,
     pub weights: Option<PathBuf>,
+    pub frames: Option<PathBuf>,
+    pub head: Option<PathBuf>,
+    pub fps: u32,
+    pub mouth_close_up: bool,
     pub visemes: Option<String>,
     pub model: Option<PathBuf>,
     pub baseline_jaw: bool,
 }
 
 /// Viseme weights for every 20 ms frame of a stream, with the audio they belong to.
-pub struct WeightTrack {
+pub struct Animation {
     pub visemes: VisemeSet,
     pub rows: Vec<Vec<f32>>,
     pub rate: u32,
@@ -59,7 +64,7 @@ pub fn receiver_features(input: &Path) -> Result<(u32, Vec<i16>, Vec<FrameFeatur
     Ok((decoded.header.rate, decoded.pcm, decoded.features))
 }
 
-pub fn weight_track(args: &AnimateArgs) -> Result<WeightTrack> {
+pub fn weight_track(args: &AnimateArgs) -> Result<Animation> {
     let (rate, pcm, features) = receiver_features(&args.input)?;
     let model = match &args.model {
         Some(path) => Model::load(path).with_context(|| path.display().to_string())?,
@@ -85,7 +90,7 @@ pub fn weight_track(args: &AnimateArgs) -> Result<WeightTrack> {
         reprojector.project(&raw, &mut out)?;
         rows.push(out);
     }
-    Ok(WeightTrack {
+    Ok(Animation {
         visemes: target,
         rows,
         rate,
@@ -94,8 +99,23 @@ pub fn weight_track(args: &AnimateArgs) -> Result<WeightTrack> {
 }
 
 pub fn animate(args: &AnimateArgs) -> Result<()> {
+    if args.weights.is_none() && args.frames.is_none() {
+        bail!("nothing to do: give --weights FILE and/or --frames DIR");
+    }
+    // Load the head first: a bad head should fail before any audio work.
+    let head = match &args.frames {
+        Some(_) => Some(render::load_head_or_default(args.head.as_deref())?),
+        None => None,
+    };
     let track = weight_track(args)?;
-    if let Some(path) = &args.weights {
+    let weights_path = args
+        .weights
+        .clone()
+        .or_else(|| args.frames.as_ref().map(|dir| dir.join("weights.csv")));
+    if let (Some(dir), Some(head)) = (&args.frames, &head) {
+        render_frames(dir, head, &track, args)?;
+    }
+    if let Some(path) = &weights_path {
         write_weights_csv(path, &track)?;
         eprintln!(
             "{}: {} frames of weights over {}",
@@ -113,8 +133,65 @@ pub fn animate(args: &AnimateArgs) -> Result<()> {
     Ok(())
 }
 
+fn render_frames(
+    dir: &Path,
+    head: &HeadModel,
+    track: &Animation,
+    args: &AnimateArgs,
+) -> Result<()> {
+    let missing: Vec<&str> = track
+        .visemes
+        .members()
+        .iter()
+        .map(|v| v.name())
+        .filter(|name| head.missing_visemes.iter().any(|m| m == name))
+        .collect();
+    if !missing.is_empty() {
+        bail!(
+            "the head has no shape for viseme(s) {} of the model's set",
+            missing.join(", ")
+        );
+    }
+    let names: Vec<&str> = track.visemes.members().iter().map(|v| v.name()).collect();
+    let rows: Vec<(f64, Vec<f32>)> = track
+        .rows
+        .iter()
+        .enumerate()
+        .map(|(n, w)| ((n * FRAME_SIZE) as f64 / f64::from(track.rate), w.clone()))
+        .collect();
+    let weights = render::offscreen::WeightTrack::from_columns(&names, &rows)?;
+    let options = FrameOptions {
+        fps: args.fps,
+        framing: if args.mouth_close_up {
+            Framing::Mouth
+        } else {
+            Framing::Face
+        },
+        ..FrameOptions::default()
+    };
+    let summary = render::offscreen::render_frames(head, &weights, dir, &options)?;
+    let audio = dir.join("audio.wav");
+    wav::write_mono_i16(&audio, track.rate, &track.pcm)?;
+    eprintln!(
+        "{}: {} frames at {} fps ({}) and the audio as heard in {}",
+        dir.display(),
+        summary.frames,
+        summary.fps,
+        summary.adapter,
+        audio.display()
+    );
+    eprintln!(
+        "make a video: ffmpeg -framerate {} -i {}/{} -i {} -c:v libx264 -pix_fmt yuv420p -c:a aac -shortest out.mp4",
+        summary.fps,
+        dir.display(),
+        summary.pattern,
+        audio.display()
+    );
+    Ok(())
+}
+
 /// WEIGHTS.csv: `frame,time_s,<viseme names>`, one row per 20 ms.
-pub fn write_weights_csv(path: &Path, track: &WeightTrack) -> Result<()> {
+pub fn write_weights_csv(path: &Path, track: &Animation) -> Result<()> {
     let file =
         std::fs::File::create(path).with_context(|| format!("cannot write {}", path.display()))?;
     let mut out = std::io::BufWriter::new(file);
