@@ -43,6 +43,15 @@ enum Command {
         #[arg(long)]
         no_enh: bool,
     },
+    /// List audio devices and try the default (or chosen) ones; no audio is not an error.
+    Devices {
+        /// Output device id (from the list), or "default".
+        #[arg(long)]
+        output: Option<String>,
+        /// Input device id (from the list), or "default".
+        #[arg(long)]
+        input: Option<String>,
+    },
 }
 
 fn main() -> ExitCode {
@@ -71,6 +80,9 @@ fn main() -> ExitCode {
             features,
             no_enh,
         } => commands::codec::decode(&input, &output, features.as_deref(), !no_enh),
+        Command::Devices { output, input } => {
+            commands::audio::devices(output.as_deref(), input.as_deref())
+        }
     };
     match result {
         Ok(()) => ExitCode::SUCCESS,

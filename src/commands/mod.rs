@@ -1,4 +1,5 @@
 //! The command-line subcommands. Each takes its parsed arguments and returns an anyhow error
 //! whose one-line rendering is what the user sees.
 
+pub mod audio;
 pub mod codec;
