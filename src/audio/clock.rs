@@ -68,6 +68,8 @@ pub struct OutputClock {
 
 impl OutputClock {
     pub fn new(rate: u32) -> Self {
+        // Fix the time origin now, so the callback never initialises it.
+        instant_to_nanos(Instant::now());
         Self {
             rate: rate.max(1),
             seq: AtomicU64::new(0),
@@ -300,7 +302,8 @@ impl PeerClock {
         self.segments.push_back(seg);
     }
 
-    fn drain(&mut self) {
+    /// Takes what the mixer sent (its ring holds about 10 s).
+    pub fn drain(&mut self) {
         while let Some(seg) = self.incoming.as_mut().and_then(|c| c.pop().ok()) {
             self.push(seg);
         }

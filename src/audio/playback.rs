@@ -438,9 +438,12 @@ impl Playback {
         &self.status
     }
 
-    /// Call regularly (each UI frame): when the device has gone, switches to the silent sink
-    /// and returns the status line to show.
+    /// Call regularly (each UI frame): keeps the peers' clocks current and, when the device
+    /// has gone, switches to the silent sink and returns the status line to show.
     pub fn poll(&mut self) -> Option<&OutputStatus> {
+        for p in self.peers.values_mut() {
+            p.clock.drain();
+        }
         let lost =
             matches!(&self.sink, Sink::Device { fault, .. } if fault.lost.load(Ordering::Relaxed));
         if !lost {
@@ -549,6 +552,25 @@ impl Drop for Playback {
             let _ = t.join();
         }
     }
+}
+
+/// An output callback over a fresh ring, for tests that drive it by hand.
+#[cfg(test)]
+pub(crate) fn test_output_state(
+    rate: u32,
+    channels: usize,
+    capacity: usize,
+) -> (rtrb::Producer<f32>, impl FnMut(&mut [f32], Instant)) {
+    let (tx, rx) = rtrb::RingBuffer::new(capacity);
+    let mut st = OutputState {
+        ring: rx,
+        clock: Arc::new(OutputClock::new(rate)),
+        channels,
+        consumed: 0,
+    };
+    (tx, move |data: &mut [f32], at: Instant| {
+        st.fill(data, at, Duration::from_millis(10))
+    })
 }
 
 #[cfg(test)]
