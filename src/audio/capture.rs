@@ -377,9 +377,7 @@ where
             shared.errors.fetch_add(1, Ordering::Relaxed);
             if matches!(
                 e.kind(),
-                cpal::ErrorKind::DeviceNotAvailable
-                    | cpal::ErrorKind::StreamInvalidated
-                    | cpal::ErrorKind::DeviceChanged
+                cpal::ErrorKind::DeviceNotAvailable | cpal::ErrorKind::StreamInvalidated
             ) {
                 shared.lost.store(true, Ordering::Relaxed);
             }

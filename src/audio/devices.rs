@@ -77,8 +77,13 @@ fn device_name(device: &cpal::Device) -> String {
         .unwrap_or_else(|_| device.to_string())
 }
 
+/// The platform's default host (ALSA on Linux; its pulse plugin reaches PulseAudio/PipeWire).
+pub(crate) fn host() -> cpal::Host {
+    cpal::default_host()
+}
+
 fn list(dir: Direction) -> Result<Vec<DeviceInfo>, AudioError> {
-    let host = cpal::default_host();
+    let host = host();
     let default = match dir {
         Direction::Input => host.default_input_device(),
         Direction::Output => host.default_output_device(),
@@ -139,19 +144,22 @@ pub(crate) fn no_device(dir: Direction, reason: impl Into<String>) -> AudioError
 
 /// Finds the chosen device and its native (default) format.
 pub(crate) fn open(choice: &DeviceChoice, dir: Direction) -> Result<Opened, AudioError> {
-    let host = cpal::default_host();
     let device = match choice {
-        DeviceChoice::Default => match dir {
-            Direction::Input => host.default_input_device(),
-            Direction::Output => host.default_output_device(),
+        DeviceChoice::Default => {
+            let host = host();
+            match dir {
+                Direction::Input => host.default_input_device(),
+                Direction::Output => host.default_output_device(),
+            }
+            .ok_or_else(|| no_device(dir, "the system has none"))?
         }
-        .ok_or_else(|| no_device(dir, "the system has none"))?,
         DeviceChoice::Id(id) => {
-            let parsed: cpal::DeviceId = id
-                .parse()
-                .map_err(|_| AudioError::DeviceNotFound { id: id.clone() })?;
-            host.device_by_id(&parsed)
-                .ok_or_else(|| AudioError::DeviceNotFound { id: id.clone() })?
+            let not_found = || AudioError::DeviceNotFound { id: id.clone() };
+            let parsed: cpal::DeviceId = id.parse().map_err(|_| not_found())?;
+            cpal::host_from_id(parsed.host())
+                .ok()
+                .and_then(|h| h.device_by_id(&parsed))
+                .ok_or_else(not_found)?
         }
     };
     let config = default_config(&device, dir).map_err(|e| no_device(dir, e.to_string()))?;

@@ -15,7 +15,7 @@ use std::time::{Duration, Instant};
 use cpal::traits::{DeviceTrait, StreamTrait};
 use cpal::{FromSample, Sample, SizedSample};
 
-use super::clock::{OutputClock, PeerClock, SinkMapping};
+use super::clock::{OutputClock, PeerClock, Schedule, SinkMapping};
 use super::devices::{self, DeviceChoice, Direction};
 use super::error::AudioError;
 use super::mixer::{CHUNK, MAX_PEERS, Mixer, MixerPeer, PeerControls, PeerFeed, PeerId, Upsampler};
@@ -133,7 +133,15 @@ pub struct Playback {
     mixer: Option<JoinHandle<()>>,
     peers: HashMap<PeerId, PeerEntry>,
     next_id: u32,
+    /// Frames played and device errors at the last poll that saw playback advance, and when.
+    progress: (u64, u64, Instant),
 }
+
+/// A device that has played nothing for this long while reporting errors is taken as gone:
+/// a server that drops our stream leaves cpal's ALSA host repeating a backend error, not
+/// reporting a disconnect. (A stall without errors is not enough: an idle PulseAudio null
+/// sink can take up to two seconds to start consuming a new stream.)
+const STALL: Duration = Duration::from_millis(500);
 
 impl std::fmt::Debug for Playback {
     fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
@@ -214,9 +222,7 @@ where
             fault.errors.fetch_add(1, Ordering::Relaxed);
             if matches!(
                 e.kind(),
-                cpal::ErrorKind::DeviceNotAvailable
-                    | cpal::ErrorKind::StreamInvalidated
-                    | cpal::ErrorKind::DeviceChanged
+                cpal::ErrorKind::DeviceNotAvailable | cpal::ErrorKind::StreamInvalidated
             ) {
                 fault.lost.store(true, Ordering::Relaxed);
             }
@@ -431,6 +437,7 @@ impl Playback {
             mixer: Some(mixer),
             peers: HashMap::new(),
             next_id: 1,
+            progress: (0, 0, Instant::now()),
         })
     }
 
@@ -444,13 +451,21 @@ impl Playback {
         for p in self.peers.values_mut() {
             p.clock.drain();
         }
-        let lost =
-            matches!(&self.sink, Sink::Device { fault, .. } if fault.lost.load(Ordering::Relaxed));
+        let played = self.sink.clock().frames_played();
+        let errors = self.stats().device_errors;
+        let now = Instant::now();
+        if played != self.progress.0 {
+            self.progress = (played, errors, now);
+        }
+        let stalled = now.duration_since(self.progress.2) > STALL && errors > self.progress.1;
+        let lost = matches!(&self.sink, Sink::Device { fault, .. }
+            if fault.lost.load(Ordering::Relaxed) || stalled);
         if !lost {
             return None;
         }
         let (sink, ring, target) = virtual_sink(self.config.buffer);
         self.attach(sink, ring, target).ok()?;
+        self.progress = (0, 0, Instant::now());
         self.status = OutputStatus::Silent {
             reason: "the output device disappeared: playing nothing".into(),
         };
@@ -463,6 +478,7 @@ impl Playback {
         self.attach(sink, ring, target)?;
         self.config.device = choice;
         self.status = status;
+        self.progress = (0, 0, Instant::now());
         Ok(())
     }
 
@@ -528,6 +544,19 @@ impl Playback {
     pub fn last_heard_position(&mut self, id: PeerId, now: Instant) -> Option<u64> {
         let mix = self.heard_mix_position(now)?;
         self.peers.get_mut(&id)?.clock.last_stream_position(mix)
+    }
+
+    /// The row of `schedule` (peer `id`'s weights, tagged with the positions
+    /// [`PeerFeed::push`] returned) that belongs to the audio heard at `now`; `None` while the
+    /// peer is silent (show the neutral face) or its row has not arrived.
+    pub fn weights_now<'s, W>(
+        &mut self,
+        schedule: &'s mut Schedule<W>,
+        id: PeerId,
+        now: Instant,
+    ) -> Option<&'s W> {
+        let pos = self.heard_position(id, now)?;
+        schedule.at(pos)
     }
 
     pub fn stats(&self) -> PlaybackStats {
@@ -609,13 +638,19 @@ mod tests {
         assert!(matches!(pb.status(), OutputStatus::Silent { .. }));
         let mut feed = pb.add_peer().unwrap();
         let id = feed.id();
-        let (start, n) = feed.push(&[1000; 8000]);
-        assert_eq!((start, n), (0, 8000));
+        let (mut rows, mut schedule) = Schedule::channel(64);
+        for f in 0..50u64 {
+            let (start, n) = feed.push(&[1000; 160]);
+            assert_eq!((start, n), (f * 160, 160));
+            rows.send(start, f);
+        }
         std::thread::sleep(Duration::from_millis(400));
         let now = Instant::now();
         let pos = pb.heard_position(id, now).expect("peer heard");
         // Heard within the last 400 ms: past the start, not past what 400 ms can play.
         assert!(pos > 0 && pos < 3200, "{pos}");
+        let row = *pb.weights_now(&mut schedule, id, now).expect("a row");
+        assert_eq!(row, pos / 160);
         pb.peer_controls(id).unwrap().set_volume(0.5);
         assert!(pb.stats().frames_played > 0);
         pb.remove_peer(id);
