@@ -4,6 +4,36 @@
 //! Threads: the device callbacks (capture, output) only touch rtrb rings and atomics; the
 //! mixer thread sums peers and resamples; decoder threads push PCM into per-peer queues; the
 //! app thread reads meters, sets volumes and asks the clock what is heard now.
+//!
+//! What the app does with it:
+//! ```no_run
+//! use std::time::Instant;
+//! use lipcall::audio::{Capture, DeviceChoice, OutputStatus, Playback, PlaybackConfig, Schedule};
+//! # fn main() -> Result<(), lipcall::audio::AudioError> {
+//! // Never fails for want of a device: without one it runs silent on a virtual clock.
+//! let mut playback = Playback::start(PlaybackConfig::default())?;
+//! if let OutputStatus::Silent { reason } = playback.status() {
+//!     println!("{reason}");
+//! }
+//! // Per remote peer: the feed goes to its decoder thread, with the weights' sender.
+//! let mut feed = playback.add_peer()?;
+//! let (mut rows, mut weights) = Schedule::<[f32; 6]>::channel(256);
+//! let (pos, _queued) = feed.push(&[0i16; 160]); // a decoded 20 ms frame
+//! rows.send(pos, [1.0, 0.0, 0.0, 0.0, 0.0, 0.0]); // its viseme weights
+//! // Each UI frame: notice a lost device, then the weights of what is heard now.
+//! playback.poll();
+//! let _shown = playback.weights_now(&mut weights, feed.id(), Instant::now());
+//! // The microphone: an error means receive-only (show its line).
+//! match Capture::start(&DeviceChoice::Default) {
+//!     Ok(mut mic) => {
+//!         let mut frame = [0i16; 160];
+//!         while let Some(_gate) = mic.read_frame(&mut frame)? { /* encode and send */ }
+//!     }
+//!     Err(e) => println!("{e}"),
+//! }
+//! # Ok(())
+//! # }
+//! ```
 
 pub mod capture;
 pub mod clock;
@@ -55,6 +85,17 @@ mod realtime_tests {
             // SAFETY: forwarded unchanged to the system allocator.
             unsafe { System.realloc(p, l, n) }
         }
+    }
+
+    #[test]
+    fn engine_parts_move_between_threads() {
+        fn send<T: Send>() {}
+        send::<super::Playback>();
+        send::<super::Capture>();
+        send::<super::FrameReader>();
+        send::<super::PeerFeed>();
+        send::<super::ScheduleSender<[f32; 6]>>();
+        send::<super::MicControls>();
     }
 
     #[global_allocator]
