@@ -182,14 +182,19 @@ fn av_offset_on_the_null_sink() {
 
     // Poll the clock: (instant, heard stream position).
     let mut polls: Vec<(Instant, u64)> = Vec::new();
-    let deadline = Instant::now() + Duration::from_secs_f64(pcm.len() as f64 / 8000.0 + 1.5);
-    while Instant::now() < deadline {
+    // Until the last burst has been heard; generous for a slow start on a loaded machine (an
+    // idle null sink can take up to 2 s to begin consuming).
+    let last = burst_at[BURSTS - 1] + 800;
+    let deadline = Instant::now() + Duration::from_secs_f64(pcm.len() as f64 / 8000.0 + 5.0);
+    while Instant::now() < deadline && polls.last().is_none_or(|&(_, p)| p < last) {
         let now = Instant::now();
         if let Some(p) = pb.heard_position(id, now) {
             polls.push((now, p));
         }
         std::thread::sleep(Duration::from_millis(1));
     }
+    // Let parec deliver the end.
+    std::thread::sleep(Duration::from_millis(300));
     let stats = pb.stats();
     drop(pb);
     std::thread::sleep(Duration::from_millis(100));
@@ -214,18 +219,32 @@ fn av_offset_on_the_null_sink() {
         .map(|&i| origin + Duration::from_secs_f64(i as f64 / f64::from(REC_RATE)))
         .collect();
     assert_eq!(predicted.len(), BURSTS, "clock polls: {}", polls.len());
-    assert_eq!(heard.len(), BURSTS, "bursts found in the recording");
-    let offsets_ms: Vec<f64> = heard
+    // Pair each predicted burst with the nearest onset heard within 100 ms: on a loaded machine
+    // the server may glitch (a rewind can replay a block into the monitor), so an onset may be
+    // missing or doubled; such bursts are left out, not mismatched.
+    let signed_ms = |h: Instant, p: Instant| {
+        if h >= p {
+            h.duration_since(p).as_secs_f64() * 1000.0
+        } else {
+            -(p.duration_since(h).as_secs_f64() * 1000.0)
+        }
+    };
+    let offsets_ms: Vec<f64> = predicted
         .iter()
-        .zip(&predicted)
-        .map(|(h, p)| {
-            if h >= p {
-                h.duration_since(*p).as_secs_f64() * 1000.0
-            } else {
-                -(p.duration_since(*h).as_secs_f64() * 1000.0)
-            }
+        .filter_map(|&p| {
+            heard
+                .iter()
+                .map(|&h| signed_ms(h, p))
+                .filter(|d| d.abs() < 100.0)
+                .min_by(|a, b| a.abs().total_cmp(&b.abs()))
         })
         .collect();
+    assert!(
+        offsets_ms.len() >= BURSTS - 2,
+        "bursts paired: {} of {BURSTS} ({} onsets heard)",
+        offsets_ms.len(),
+        heard.len()
+    );
     let mut sorted = offsets_ms.clone();
     sorted.sort_by(f64::total_cmp);
     let median = sorted[sorted.len() / 2];
