@@ -61,7 +61,7 @@ pub struct OutputClock {
     frames_played: AtomicU64,
     /// Device frames of silence played because the ring was empty.
     underrun_frames: AtomicU64,
-    /// Callbacks that found the ring short.
+    /// Callbacks that found the ring short (once it had started delivering).
     underruns: AtomicU64,
     mapping: MappingCell,
 }
@@ -115,7 +115,8 @@ impl OutputClock {
         self.frames_played
             .fetch_add(buffer_frames, Ordering::Relaxed);
         let short = buffer_frames.saturating_sub(ring_end.saturating_sub(ring_frame));
-        if short > 0 {
+        // Silence before the mixer's first frame is the start, not an underrun.
+        if short > 0 && ring_end > 0 {
             self.underrun_frames.fetch_add(short, Ordering::Relaxed);
             self.underruns.fetch_add(1, Ordering::Relaxed);
         }
