@@ -71,6 +71,15 @@ enum Command {
         #[arg(long, value_parser = ["jaw"])]
         baseline: Option<String>,
     },
+    /// List audio devices and try the default (or chosen) ones; no audio is not an error.
+    Devices {
+        /// Output device id (from the list), or "default".
+        #[arg(long)]
+        output: Option<String>,
+        /// Input device id (from the list), or "default".
+        #[arg(long)]
+        input: Option<String>,
+    },
 }
 
 fn parse_fps(arg: &str) -> Result<u32, String> {
@@ -128,6 +137,9 @@ fn main() -> ExitCode {
             model,
             baseline_jaw: baseline.is_some(),
         }),
+        Command::Devices { output, input } => {
+            commands::audio::devices(output.as_deref(), input.as_deref())
+        }
     };
     match result {
         Ok(()) => ExitCode::SUCCESS,

@@ -1,3 +1,166 @@
-//! Audio in and out: WAV files (any rate, resampled to 8 kHz mono).
+//! Audio in and out: WAV files (any rate, resampled to 8 kHz mono), and the real-time device
+//! layer of the app: capture, per-peer mixing, playback and the playback clock for lip-sync.
+//!
+//! Threads: the device callbacks (capture, output) only touch rtrb rings and atomics; the
+//! mixer thread sums peers and resamples; decoder threads push PCM into per-peer queues; the
+//! app thread reads meters, sets volumes and asks the clock what is heard now.
+//!
+//! What the app does with it:
+//! ```no_run
+//! use std::time::Instant;
+//! use lipcall::audio::{Capture, DeviceChoice, OutputStatus, Playback, PlaybackConfig, Schedule};
+//! # fn main() -> Result<(), lipcall::audio::AudioError> {
+//! // Never fails for want of a device: without one it runs silent on a virtual clock.
+//! let mut playback = Playback::start(PlaybackConfig::default())?;
+//! if let OutputStatus::Silent { reason } = playback.status() {
+//!     println!("{reason}");
+//! }
+//! // Per remote peer: the feed goes to its decoder thread, with the weights' sender.
+//! let mut feed = playback.add_peer()?;
+//! let (mut rows, mut weights) = Schedule::<[f32; 6]>::channel(256);
+//! let (pos, _queued) = feed.push(&[0i16; 160]); // a decoded 20 ms frame
+//! rows.send(pos, [1.0, 0.0, 0.0, 0.0, 0.0, 0.0]); // its viseme weights
+//! // Each UI frame: notice a lost device, then the weights of what is heard now.
+//! playback.poll();
+//! let _shown = playback.weights_now(&mut weights, feed.id(), Instant::now());
+//! // The microphone: an error means receive-only (show its line).
+//! match Capture::start(&DeviceChoice::Default) {
+//!     Ok(mut mic) => {
+//!         let mut frame = [0i16; 160];
+//!         while let Some(_gate) = mic.read_frame(&mut frame)? { /* encode and send */ }
+//!     }
+//!     Err(e) => println!("{e}"),
+//! }
+//! # Ok(())
+//! # }
+//! ```
 
+pub mod capture;
+pub mod clock;
+pub mod devices;
+pub mod error;
+pub mod mixer;
+pub mod playback;
 pub mod wav;
+
+pub use capture::{Capture, FrameReader, Gate, InputFeeder, Level, MicControls};
+pub use clock::{OutputClock, PeerClock, Schedule, ScheduleSender};
+pub use devices::{DeviceChoice, DeviceInfo, input_devices, output_devices};
+pub use error::AudioError;
+pub use mixer::{PeerControls, PeerFeed, PeerId};
+pub use playback::{OutputStatus, Playback, PlaybackConfig, PlaybackStats};
+
+/// The real-time paths allocate nothing once running: checked with a counting allocator.
+#[cfg(test)]
+mod realtime_tests {
+    use std::alloc::{GlobalAlloc, Layout, System};
+    use std::cell::Cell;
+    use std::sync::Arc;
+    use std::sync::atomic::{AtomicU64, Ordering};
+    use std::time::{Duration, Instant};
+
+    struct Counting;
+
+    static ALLOCS: AtomicU64 = AtomicU64::new(0);
+    thread_local! {
+        static ARMED: Cell<bool> = const { Cell::new(false) };
+    }
+
+    unsafe impl GlobalAlloc for Counting {
+        unsafe fn alloc(&self, l: Layout) -> *mut u8 {
+            if ARMED.with(Cell::get) {
+                ALLOCS.fetch_add(1, Ordering::Relaxed);
+            }
+            // SAFETY: forwarded unchanged to the system allocator.
+            unsafe { System.alloc(l) }
+        }
+        unsafe fn dealloc(&self, p: *mut u8, l: Layout) {
+            // SAFETY: forwarded unchanged to the system allocator.
+            unsafe { System.dealloc(p, l) }
+        }
+        unsafe fn realloc(&self, p: *mut u8, l: Layout, n: usize) -> *mut u8 {
+            if ARMED.with(Cell::get) {
+                ALLOCS.fetch_add(1, Ordering::Relaxed);
+            }
+            // SAFETY: forwarded unchanged to the system allocator.
+            unsafe { System.realloc(p, l, n) }
+        }
+    }
+
+    #[test]
+    fn engine_parts_move_between_threads() {
+        fn send<T: Send>() {}
+        send::<super::Playback>();
+        send::<super::Capture>();
+        send::<super::FrameReader>();
+        send::<super::PeerFeed>();
+        send::<super::ScheduleSender<[f32; 6]>>();
+        send::<super::MicControls>();
+    }
+
+    #[global_allocator]
+    static GLOBAL: Counting = Counting;
+
+    fn allocations(f: impl FnOnce()) -> u64 {
+        let before = ALLOCS.load(Ordering::Relaxed);
+        ARMED.with(|a| a.set(true));
+        f();
+        ARMED.with(|a| a.set(false));
+        ALLOCS.load(Ordering::Relaxed) - before
+    }
+
+    #[test]
+    fn callbacks_mixer_and_frame_reader_do_not_allocate() {
+        use super::capture::capture_pipeline;
+        use super::mixer::{CHUNK, Mixer, PeerControls, PeerId, Upsampler, peer_channel};
+        use super::playback::test_output_state;
+
+        // The counter sees allocations at all.
+        assert!(allocations(|| drop(std::hint::black_box(vec![1u8; 10]))) > 0);
+
+        // Capture callback and the encoder's reader, full ring and empty ring included.
+        let (mut feeder, mut reader) =
+            capture_pipeline(44_100, 2, Duration::from_millis(100)).unwrap();
+        let block = vec![1000i16; 2 * 441];
+        let mut frame = [0i16; crate::speex::FRAME_SIZE];
+        let n = allocations(|| {
+            for _ in 0..40 {
+                feeder.feed(&block);
+                while reader.read_frame(&mut frame).unwrap().is_some() {}
+            }
+            for _ in 0..40 {
+                feeder.feed(&block);
+            }
+        });
+        assert_eq!(n, 0, "capture path allocated");
+
+        // Mixer thread's step and the output callback, with underruns.
+        let mut mixer = Mixer::new();
+        let mut feeds = Vec::new();
+        for i in 0..4 {
+            let (f, m, _) = peer_channel(PeerId(i), 8000, Arc::new(PeerControls::default()));
+            mixer.add(m).unwrap();
+            feeds.push(f);
+        }
+        let mut up = Upsampler::new(48_000).unwrap();
+        let (mut ring, mut out) = test_output_state(48_000, 2, 48_000);
+        let mut chunk = [0.0f32; CHUNK];
+        let mut data = vec![0.0f32; 2 * 512];
+        let pcm = [500i16; CHUNK];
+        let n = allocations(|| {
+            for _ in 0..100 {
+                for f in &mut feeds {
+                    f.push(&pcm);
+                }
+                mixer.mix(&mut chunk);
+                let o = up.process(&chunk).unwrap();
+                let _ = ring.push_partial_slice(o);
+                out(&mut data, Instant::now());
+            }
+            for _ in 0..200 {
+                out(&mut data, Instant::now());
+            }
+        });
+        assert_eq!(n, 0, "mixer or output path allocated");
+    }
+}

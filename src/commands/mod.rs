@@ -2,4 +2,5 @@
 //! whose one-line rendering is what the user sees.
 
 pub mod animate;
+pub mod audio;
 pub mod codec;

@@ -1,0 +1,97 @@
+//! An output that disappears mid-call (the sound server drops our stream): the engine says
+//! so and goes on silently, peers and clock included. Needs the PulseAudio null sink; without
+//! a server (and outside CI) there is nothing to lose and the test only says so.
+
+use std::process::{Command, Stdio};
+use std::time::{Duration, Instant};
+
+use lipcall::audio::{OutputStatus, Playback, PlaybackConfig};
+
+fn pactl(args: &[&str]) -> Option<String> {
+    let out = Command::new("pactl")
+        .args(args)
+        .stderr(Stdio::null())
+        .output()
+        .ok()?;
+    out.status
+        .success()
+        .then(|| String::from_utf8_lossy(&out.stdout).into_owned())
+}
+
+/// Indices of the sink inputs (playback streams) this process owns.
+fn our_sink_inputs() -> Vec<String> {
+    let pid = format!("application.process.id = \"{}\"", std::process::id());
+    let list = pactl(&["list", "sink-inputs"]).unwrap_or_default();
+    let mut out = Vec::new();
+    let mut current: Option<String> = None;
+    for line in list.lines() {
+        if let Some(idx) = line.strip_prefix("Sink Input #") {
+            current = Some(idx.trim().to_string());
+        } else if line.trim() == pid
+            && let Some(idx) = current.take()
+        {
+            out.push(idx);
+        }
+    }
+    out
+}
+
+#[test]
+fn losing_the_output_goes_silent_and_keeps_time() {
+    if pactl(&["info"]).is_none() {
+        assert!(
+            std::env::var_os("CI").is_none(),
+            "CI must provide PulseAudio"
+        );
+        eprintln!("no PulseAudio server: nothing to lose");
+        return;
+    }
+    let mut pb = Playback::start(PlaybackConfig::default()).unwrap();
+    assert!(
+        matches!(pb.status(), OutputStatus::Playing { .. }),
+        "{:?}",
+        pb.status()
+    );
+    let mut feed = pb.add_peer().unwrap();
+    let id = feed.id();
+    feed.push(&[1000; 8000]);
+    // An idle null sink may take a while to start consuming a new stream.
+    let deadline = Instant::now() + Duration::from_secs(4);
+    while pb.stats().frames_played < 4800 && Instant::now() < deadline {
+        std::thread::sleep(Duration::from_millis(20));
+        assert!(pb.poll().is_none(), "a slow start is not a loss");
+    }
+    let before = pb.stats().frames_played;
+    assert!(before >= 4800, "the device is playing: {before} frames");
+    assert!(pb.poll().is_none());
+    let inputs = our_sink_inputs();
+    assert!(!inputs.is_empty(), "our stream is not listed");
+    for i in &inputs {
+        // pactl has no kill-sink-input; pacmd has.
+        let ok = Command::new("pacmd")
+            .args(["kill-sink-input", i])
+            .stdout(Stdio::null())
+            .status()
+            .is_ok_and(|s| s.success());
+        assert!(ok, "pacmd kill-sink-input {i}");
+    }
+    let deadline = Instant::now() + Duration::from_secs(5);
+    let mut switched = None;
+    while Instant::now() < deadline {
+        if let Some(s) = pb.poll() {
+            switched = Some(s.clone());
+            break;
+        }
+        std::thread::sleep(Duration::from_millis(10));
+    }
+    let Some(OutputStatus::Silent { reason }) = switched else {
+        panic!("no switch to silent: {:?}, {:?}", pb.status(), pb.stats());
+    };
+    eprintln!("after loss: {reason}");
+    // The virtual clock takes over: the peer's audio goes on being "heard".
+    std::thread::sleep(Duration::from_millis(300));
+    let a = pb.heard_position(id, Instant::now());
+    std::thread::sleep(Duration::from_millis(200));
+    let b = pb.heard_position(id, Instant::now());
+    assert!(matches!((a, b), (Some(a), Some(b)) if b > a), "{a:?} {b:?}");
+}
