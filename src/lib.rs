@@ -3,3 +3,4 @@
 pub mod audio;
 pub mod commands;
 pub mod speex;
+pub mod net;
