@@ -441,7 +441,10 @@ impl JitterBuffer {
                 self.play_ref = (self.next, now + FRAME_SECONDS);
                 return Playout::Stretch;
             }
-            if low > margin + 2.0 * FRAME_SECONDS && self.entries.contains_key(&(self.next + 1))
+            // Shrinking waits for a fuller picture: start-up bursts look like spare delay.
+            if self.slack.len() >= SLACK_WINDOW / 2
+                && low > margin + 2.0 * FRAME_SECONDS
+                && self.entries.contains_key(&(self.next + 1))
             {
                 self.since_adjust = 0;
                 self.slack.iter_mut().for_each(|s| *s -= FRAME_SECONDS);
