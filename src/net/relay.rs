@@ -210,6 +210,14 @@ impl RelayCore {
             self.stats.refused += 1;
             return false;
         }
+        // A member moving rooms keeps its rate budget.
+        let bucket = self.members.get(&from).map_or(
+            Bucket {
+                tokens: self.config.burst,
+                at: now,
+            },
+            |m| m.bucket,
+        );
         self.remove(from);
         self.rooms.entry(room).or_default().push(from);
         self.members.insert(
@@ -217,10 +225,7 @@ impl RelayCore {
             Member {
                 room,
                 last_seen: now,
-                bucket: Bucket {
-                    tokens: self.config.burst,
-                    at: now,
-                },
+                bucket,
             },
         );
         self.stats.joins += 1;
