@@ -2,5 +2,5 @@
 
 pub mod audio;
 pub mod commands;
-pub mod speex;
 pub mod net;
+pub mod speex;

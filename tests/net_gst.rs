@@ -6,14 +6,19 @@ use std::path::Path;
 use std::process::Command;
 use std::time::Duration;
 
-use common::net::{align, decode_frames, fields, finish, free_port, interrupt, num, ogg_packets, spawn};
+use common::net::{
+    align, decode_frames, fields, finish, free_port, interrupt, num, ogg_packets, spawn,
+};
 use common::{lipcall, read_wav_i16, run};
 use lipcall::net::srtp::MasterKey;
 
 fn clip(dir: &Path, seconds: &str) -> std::path::PathBuf {
     let demo = common::demo_8k(dir);
     let out = dir.join("clip.wav");
-    run(Command::new("sox").arg(&demo).arg(&out).args(["trim", "0", seconds]));
+    run(Command::new("sox")
+        .arg(&demo)
+        .arg(&out)
+        .args(["trim", "0", seconds]));
     out
 }
 
@@ -61,7 +66,12 @@ fn gst_to_lipcall(srtp: bool) {
     }
     let receiver = spawn(&mut receive);
     std::thread::sleep(Duration::from_millis(300));
-    run(&mut gst_send(&clip, port, srtp.then_some(key.as_str()), &reference));
+    run(&mut gst_send(
+        &clip,
+        port,
+        srtp.then_some(key.as_str()),
+        &reference,
+    ));
     let (_, stderr) = finish(receiver, Duration::from_secs(60), "lipcall receive");
     let peer = fields(&stderr, "peer ");
     assert!(num(&peer, "received") >= 140.0, "{stderr}");
@@ -75,7 +85,10 @@ fn gst_to_lipcall(srtp: bool) {
     // Played = the stream, plus at most the concealed tail before the talk spurt times out.
     let frames = got.len() as i64 / 160;
     let sent = expected.len() as i64 / 160;
-    assert!(frames >= sent - 1 && frames <= sent + 17, "{frames} vs {sent}");
+    assert!(
+        frames >= sent - 1 && frames <= sent + 17,
+        "{frames} vs {sent}"
+    );
     let a = align(&expected, &got, 2000);
     assert!(a.chunk_snr.len() >= 8, "{a:?}");
     assert!(a.median() > 60.0, "median SNR {:.1} dB: {a:?}", a.median());
@@ -124,8 +137,17 @@ fn lipcall_to_gst(srtp: bool) {
     if srtp {
         gst.args(["!", "srtpdec"]);
     }
-    gst.args(["!", "rtpspeexdepay", "!", "speexdec", "!", "wavenc", "!", "filesink"])
-        .arg(format!("location={}", out.display()));
+    gst.args([
+        "!",
+        "rtpspeexdepay",
+        "!",
+        "speexdec",
+        "!",
+        "wavenc",
+        "!",
+        "filesink",
+    ])
+    .arg(format!("location={}", out.display()));
     let gst = spawn(&mut gst);
     std::thread::sleep(Duration::from_millis(800));
     let mut send = lipcall();

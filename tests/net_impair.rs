@@ -4,8 +4,8 @@
 
 mod common;
 
-use std::collections::BinaryHeap;
 use std::cmp::Reverse;
+use std::collections::BinaryHeap;
 use std::net::{SocketAddr, UdpSocket};
 use std::process::Command;
 use std::sync::Arc;
@@ -42,6 +42,9 @@ struct Impairment {
     seed: u64,
 }
 
+/// A datagram waiting in the proxy: release time, arrival order, destination, bytes.
+type Scheduled = (Instant, u64, SocketAddr, Vec<u8>);
+
 #[derive(Debug, Default, Clone, Copy)]
 struct ProxyCounts {
     media: u64,
@@ -64,7 +67,7 @@ fn proxy(
         .unwrap();
     let mut rng = Rng(imp.seed);
     let mut counts = ProxyCounts::default();
-    let mut queue: BinaryHeap<Reverse<(Instant, u64, SocketAddr, Vec<u8>)>> = BinaryHeap::new();
+    let mut queue: BinaryHeap<Reverse<Scheduled>> = BinaryHeap::new();
     let mut sender: Option<SocketAddr> = None;
     let mut order = 0u64;
     let mut last_release_seq: Option<u16> = None;
@@ -87,7 +90,11 @@ fn proxy(
                         continue;
                     }
                 }
-                let copies = if rtp && rng.unit() < imp.duplicate { 2 } else { 1 };
+                let copies = if rtp && rng.unit() < imp.duplicate {
+                    2
+                } else {
+                    1
+                };
                 counts.duplicated += copies - 1;
                 for _ in 0..copies {
                     let spread = (rng.unit() * 2.0 - 1.0) * imp.jitter.as_secs_f64();
@@ -118,7 +125,10 @@ fn impaired_call(imp: Impairment) {
     let dir = tempfile::tempdir().unwrap();
     let demo = common::demo_8k(dir.path());
     let clip = dir.path().join("clip.wav");
-    run(Command::new("sox").arg(&demo).arg(&clip).args(["trim", "0", "4"]));
+    run(Command::new("sox")
+        .arg(&demo)
+        .arg(&clip)
+        .args(["trim", "0", "4"]));
     let out = dir.path().join("played.wav");
     let features = dir.path().join("features.csv");
 
@@ -142,10 +152,14 @@ fn impaired_call(imp: Impairment) {
             .args(["--key", "impaired", "--seconds", "15"]),
     );
     std::thread::sleep(Duration::from_millis(300));
-    run(lipcall()
-        .arg("send")
-        .arg(&clip)
-        .args(["--to", &proxy_addr.to_string(), "--key", "impaired", "--name", "Imp"]));
+    run(lipcall().arg("send").arg(&clip).args([
+        "--to",
+        &proxy_addr.to_string(),
+        "--key",
+        "impaired",
+        "--name",
+        "Imp",
+    ]));
     // The receiver stops by itself once the sender's BYE has been played out.
     let (_, stderr) = finish(receiver, Duration::from_secs(40), "lipcall receive");
     stop.store(true, Ordering::Relaxed);
@@ -154,7 +168,10 @@ fn impaired_call(imp: Impairment) {
 
     let sent_frames = 200; // 4 s of 20 ms frames
     assert_eq!(counts.media, sent_frames);
-    assert!(counts.reordered > 0, "the proxy reordered nothing: {counts:?}");
+    assert!(
+        counts.reordered > 0,
+        "the proxy reordered nothing: {counts:?}"
+    );
     assert!(counts.duplicated > 0, "{counts:?}");
 
     let peer = fields(&stderr, "peer ");
@@ -178,7 +195,10 @@ fn impaired_call(imp: Impairment) {
     // Every missing frame was concealed, and only those (plus inserted frames).
     assert_eq!(concealed, lost + stretched);
     assert!(lost >= counts.dropped as f64, "{peer:?}");
-    assert!(lost <= counts.dropped as f64 + late + dropped + 2.0, "{peer:?}");
+    assert!(
+        lost <= counts.dropped as f64 + late + dropped + 2.0,
+        "{peer:?}"
+    );
 
     // Duration: every frame of the stream was played or concealed exactly once; frames the
     // buffer inserted or skipped to follow the jitter are accounted for explicitly.
@@ -196,7 +216,11 @@ fn impaired_call(imp: Impairment) {
     // Continuous: one feature row per played frame, no gap in the timeline; concealed rows
     // carry no mode and their energy falls (the mouth closes).
     let csv = std::fs::read_to_string(&features).unwrap();
-    let rows: Vec<Vec<&str>> = csv.lines().skip(1).map(|l| l.split(',').collect()).collect();
+    let rows: Vec<Vec<&str>> = csv
+        .lines()
+        .skip(1)
+        .map(|l| l.split(',').collect())
+        .collect();
     assert_eq!(rows.len() as f64, frames);
     for (i, row) in rows.iter().enumerate() {
         assert_eq!(row[0], i.to_string());
@@ -209,7 +233,13 @@ fn impaired_call(imp: Impairment) {
     let zero_run = pcm
         .chunks(160)
         .map(|c| c.iter().all(|&s| s == 0))
-        .fold((0, 0), |(run, max), z| if z { (run + 1, max.max(run + 1)) } else { (0, max) })
+        .fold((0, 0), |(run, max), z| {
+            if z {
+                (run + 1, max.max(run + 1))
+            } else {
+                (0, max)
+            }
+        })
         .1;
     assert!(zero_run < 3, "{zero_run} silent frames in a row");
 }

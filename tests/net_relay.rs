@@ -10,12 +10,12 @@ use std::sync::Arc;
 use std::sync::atomic::{AtomicBool, Ordering};
 use std::time::{Duration, Instant};
 
+use lipcall::net::peer::FrameKind;
 use lipcall::net::relay::{Relay, RelayConfig};
 use lipcall::net::session::{PeerFrame, Session, SessionConfig};
 use lipcall::net::srtp::MasterKey;
 use lipcall::speex::FRAME_SIZE;
 use lipcall::speex::codec::{Encoder, EncoderConfig, MAX_PACKET_BYTES};
-use lipcall::net::peer::FrameKind;
 
 const FRAMES: u32 = 100; // 2 s
 
@@ -89,7 +89,10 @@ fn call(talkers: &[(&Session, Vec<Vec<u8>>)], listeners: &[&Session]) -> Vec<Hea
             for f in &frames {
                 if f.frame.kind == FrameKind::Decoded {
                     *h.decoded.entry(f.ssrc).or_default() += 1;
-                    h.pcm.entry(f.ssrc).or_default().extend_from_slice(&f.frame.pcm);
+                    h.pcm
+                        .entry(f.ssrc)
+                        .or_default()
+                        .extend_from_slice(&f.frame.pcm);
                 }
             }
         }
@@ -98,7 +101,9 @@ fn call(talkers: &[(&Session, Vec<Vec<u8>>)], listeners: &[&Session]) -> Vec<Hea
 }
 
 fn flood(relay: SocketAddr, stop: Arc<AtomicBool>) -> u64 {
-    let sockets: Vec<UdpSocket> = (0..4).map(|_| UdpSocket::bind("127.0.0.1:0").unwrap()).collect();
+    let sockets: Vec<UdpSocket> = (0..4)
+        .map(|_| UdpSocket::bind("127.0.0.1:0").unwrap())
+        .collect();
     let mut state = 0x1234_5678_9abc_def0u64;
     let mut sent = 0u64;
     let deadline = Instant::now() + Duration::from_secs(20);
@@ -123,7 +128,7 @@ fn flood(relay: SocketAddr, stop: Arc<AtomicBool>) -> u64 {
             let _ = s.send_to(&data, relay);
             sent += 1;
         }
-        if sent % 64 == 0 {
+        if sent.is_multiple_of(64) {
             std::thread::sleep(Duration::from_micros(200));
         }
     }
@@ -173,9 +178,15 @@ fn three_peers_hear_each_other_and_nobody_else_does_under_a_flood() {
                 continue;
             }
             let got = heard[i].decoded.get(&talker.ssrc()).copied().unwrap_or(0);
-            assert!(got >= FRAMES * 9 / 10, "peer {i} decoded {got} frames of peer {j}");
+            assert!(
+                got >= FRAMES * 9 / 10,
+                "peer {i} decoded {got} frames of peer {j}"
+            );
             let p = pitch(&heard[i].pcm[&talker.ssrc()]);
-            assert!((p - freq).abs() < freq * 0.05, "peer {i} heard {p} Hz from peer {j}");
+            assert!(
+                (p - freq).abs() < freq * 0.05,
+                "peer {i} heard {p} Hz from peer {j}"
+            );
         }
         assert!(!heard[i].decoded.contains_key(&intruder.ssrc()));
         assert!(!heard[i].decoded.contains_key(&listener.ssrc()));
@@ -194,6 +205,9 @@ fn three_peers_hear_each_other_and_nobody_else_does_under_a_flood() {
     let rs = relay.stats();
     eprintln!("flood of {flooded} datagrams; relay {rs:?}");
     assert!(flooded > 1000);
-    assert!(rs.unknown_source + rs.malformed + rs.refused > flooded / 2, "{rs:?}");
+    assert!(
+        rs.unknown_source + rs.malformed + rs.refused > flooded / 2,
+        "{rs:?}"
+    );
     assert!(rs.rooms <= 64 && rs.members <= 64 * 16, "{rs:?}");
 }

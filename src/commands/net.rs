@@ -379,11 +379,7 @@ fn write_rows(path: &Path, rows: &[Row]) -> Result<()> {
     writeln!(out, "frame,time_s,mode,{},energy_db", lsp_names.join(","))?;
     for row in rows {
         let time = row.frame as f64 * TICK.as_secs_f64();
-        let mode = row
-            .features
-            .mode
-            .map(|m| m.to_string())
-            .unwrap_or_default();
+        let mode = row.features.mode.map(|m| m.to_string()).unwrap_or_default();
         write!(out, "{},{time:.3},{mode}", row.frame)?;
         for l in row.features.lsp {
             write!(out, ",{l:.6}")?;

@@ -104,7 +104,10 @@ mod tests {
             room: RoomId::from_name("kitchen"),
         };
         let bytes = c.encode();
-        assert_eq!(crate::net::classify(&bytes), crate::net::DatagramKind::Control);
+        assert_eq!(
+            crate::net::classify(&bytes),
+            crate::net::DatagramKind::Control
+        );
         assert_eq!(Control::decode(&bytes), Ok(c));
         assert_ne!(RoomId::from_name("kitchen"), RoomId::from_name("garden"));
         let mut bad = bytes;

@@ -222,7 +222,11 @@ impl JitterBuffer {
         let ext = extend(self.seq_max, u64::from(seq), 16);
         if ext > self.seq_max {
             let shift = (ext - self.seq_max) as u32;
-            self.seq_seen = if shift >= 128 { 0 } else { self.seq_seen << shift } | 1;
+            self.seq_seen = if shift >= 128 {
+                0
+            } else {
+                self.seq_seen << shift
+            } | 1;
             self.seq_max = ext;
             return true;
         }
@@ -278,7 +282,8 @@ impl JitterBuffer {
                     .push_back(ref_time + (index - ref_index) as f64 * FRAME_SECONDS - now);
                 return;
             }
-            if index > self.next + max_gap || (marker && self.entries.is_empty() && index > self.next + 1)
+            if index > self.next + max_gap
+                || (marker && self.entries.is_empty() && index > self.next + 1)
             {
                 // A new talk spurt after a pause: start it with fresh timing.
                 self.state = State::Idle;
@@ -321,7 +326,8 @@ impl JitterBuffer {
             return;
         }
         self.sorted.clear();
-        self.sorted.extend(self.delays.iter().map(|d| d - self.base));
+        self.sorted
+            .extend(self.delays.iter().map(|d| d - self.base));
         self.sorted.sort_by(f64::total_cmp);
         let q = self.sorted[(self.sorted.len() - 1) * 97 / 100];
         let target = q + self.config.margin.as_secs_f64();
@@ -434,7 +440,9 @@ impl JitterBuffer {
             self.slack_sorted.sort_by(f64::total_cmp);
             let low = self.slack_sorted[self.slack_sorted.len() / 50];
             let margin = self.config.margin.as_secs_f64();
-            if low < 0.25 * margin && self.delay_at(now, self.next) < self.config.max_delay.as_secs_f64() {
+            if low < 0.25 * margin
+                && self.delay_at(now, self.next) < self.config.max_delay.as_secs_f64()
+            {
                 self.since_adjust = 0;
                 self.stats.stretched += 1;
                 self.slack.iter_mut().for_each(|s| *s += FRAME_SECONDS);
@@ -574,7 +582,10 @@ mod tests {
         assert!((2..=3).contains(&first), "{first}");
         assert_eq!(played(&out), (0..100).map(|i| i as u8).collect::<Vec<_>>());
         // Nothing lost until the stream ends, then concealment until the spurt times out.
-        let last = out.iter().rposition(|p| matches!(p, Playout::Packet(_))).unwrap();
+        let last = out
+            .iter()
+            .rposition(|p| matches!(p, Playout::Packet(_)))
+            .unwrap();
         assert!(out[..last].iter().all(|p| !matches!(p, Playout::Lost)));
         assert!(stats.lost <= 16);
         assert_eq!(stats.stretched + stats.dropped, 0);
@@ -651,11 +662,24 @@ mod tests {
     fn clock_drift_is_corrected_both_ways() {
         // Sender 1 % fast: packets every 19.8 ms. Without correction the buffer would grow by
         // 60 ms over 30 s; with it the delay stays near the target.
-        let (_, fast) = simulate(1500, Duration::from_micros(19_800), |_| Some(FRAME / 4), 1500);
+        let (_, fast) = simulate(
+            1500,
+            Duration::from_micros(19_800),
+            |_| Some(FRAME / 4),
+            1500,
+        );
         assert!(fast.dropped >= 10, "{fast:?}");
-        assert!(fast.current_delay_ms < fast.target_delay_ms + 35.0, "{fast:?}");
+        assert!(
+            fast.current_delay_ms < fast.target_delay_ms + 35.0,
+            "{fast:?}"
+        );
         // Sender 1 % slow: the buffer stretches instead of running dry again and again.
-        let (_, slow) = simulate(1500, Duration::from_micros(20_200), |_| Some(FRAME / 4), 1550);
+        let (_, slow) = simulate(
+            1500,
+            Duration::from_micros(20_200),
+            |_| Some(FRAME / 4),
+            1550,
+        );
         assert!(slow.stretched >= 10, "{slow:?}");
         // No packet arrives too late; the only concealment is the tail after the stream.
         assert_eq!(slow.late, 0, "{slow:?}");

@@ -178,7 +178,11 @@ impl RelayCore {
                 }
             }
             ControlKind::Leave => {
-                if self.members.get(&from).is_some_and(|m| m.room == control.room) {
+                if self
+                    .members
+                    .get(&from)
+                    .is_some_and(|m| m.room == control.room)
+                {
                     self.remove(from);
                     self.stats.leaves += 1;
                 }
@@ -192,10 +196,11 @@ impl RelayCore {
             if member.room == room {
                 return true;
             }
-        } else if !self
-            .joins
-            .take(now, self.config.joins_per_second, self.config.joins_per_second)
-        {
+        } else if !self.joins.take(
+            now,
+            self.config.joins_per_second,
+            self.config.joins_per_second,
+        ) {
             self.stats.rate_limited += 1;
             self.stats.refused += 1;
             return false;
@@ -320,7 +325,12 @@ impl Drop for Relay {
     }
 }
 
-fn relay_loop(socket: &UdpSocket, config: RelayConfig, stats: &Mutex<RelayStats>, stop: &AtomicBool) {
+fn relay_loop(
+    socket: &UdpSocket,
+    config: RelayConfig,
+    stats: &Mutex<RelayStats>,
+    stop: &AtomicBool,
+) {
     let mut core = RelayCore::new(config, Instant::now());
     let mut buf = vec![0u8; MAX_DATAGRAM];
     let mut next_expiry = Instant::now() + Duration::from_secs(1);
@@ -371,7 +381,10 @@ mod tests {
                 true
             });
         }
-        assert!(out.iter().all(|(d, _)| Control::decode(d).unwrap().kind == ControlKind::Joined));
+        assert!(
+            out.iter()
+                .all(|(d, _)| Control::decode(d).unwrap().kind == ControlKind::Joined)
+        );
         out.clear();
         let rtp = [0x80u8, 110, 0, 1, 0, 0, 0, 0, 0, 0, 0, 9, 1, 2];
         core.handle(&rtp, addr(1), now, |d, to| {
@@ -384,7 +397,9 @@ mod tests {
         out.clear();
         core.handle(&rtp, addr(9), now, |_, _| panic!("stranger forwarded"));
         assert_eq!(core.stats().unknown_source, 1);
-        core.handle(&[0xff; 30], addr(1), now, |_, _| panic!("garbage forwarded"));
+        core.handle(&[0xff; 30], addr(1), now, |_, _| {
+            panic!("garbage forwarded")
+        });
         assert_eq!(core.stats().malformed, 1);
     }
 

@@ -676,7 +676,11 @@ fn net_loop(shared: &Shared, socket: &UdpSocket) {
                 datagram.extend_from_slice(&buf[..n.min(buf.len())]);
                 shared.handle(&mut datagram, from, Instant::now());
             }
-            Err(e) if matches!(e.kind(), std::io::ErrorKind::WouldBlock | std::io::ErrorKind::TimedOut) => {}
+            Err(e)
+                if matches!(
+                    e.kind(),
+                    std::io::ErrorKind::WouldBlock | std::io::ErrorKind::TimedOut
+                ) => {}
             // ICMP errors from earlier sends surface here; they do not stop the session.
             Err(_) => {}
         }

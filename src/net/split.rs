@@ -156,7 +156,10 @@ mod tests {
                     b.load(part).unwrap();
                     assert_eq!(b.decode_next(&mut out_b).unwrap(), FrameOutcome::Decoded);
                     assert_eq!(out_a, out_b);
-                    assert_eq!(b.decode_next(&mut out_b).unwrap(), FrameOutcome::EndOfPacket);
+                    assert_eq!(
+                        b.decode_next(&mut out_b).unwrap(),
+                        FrameOutcome::EndOfPacket
+                    );
                 }
             }
         }

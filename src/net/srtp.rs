@@ -69,7 +69,7 @@ impl MasterKey {
 
     pub fn from_hex(hex: &str) -> Result<Self, SrtpError> {
         let hex = hex.trim();
-        if !hex.is_ascii() || hex.len() % 2 != 0 {
+        if !hex.is_ascii() || !hex.len().is_multiple_of(2) {
             return Err(SrtpError::KeyFormat);
         }
         let bytes = (0..hex.len())
@@ -460,9 +460,11 @@ mod tests {
         derive(&master, 1, &mut auth);
         assert_eq!(
             auth.to_vec(),
-            hex("CEBE321F6FF7716B6FD4AB49AF256A156D38BAA48F0A0ACF3C34E2359E6CDBCE
+            hex(
+                "CEBE321F6FF7716B6FD4AB49AF256A156D38BAA48F0A0ACF3C34E2359E6CDBCE
                  E049646C43D9327AD175578EF72270986371C10C9A369AC2F94A8C5FBCDDDC25
-                 6D6E919A48B610EF17C2041E474035766B68642C59BBFC2F34DB60DBDFB2")
+                 6D6E919A48B610EF17C2041E474035766B68642C59BBFC2F34DB60DBDFB2"
+            )
         );
     }
 

@@ -112,7 +112,9 @@ impl Alignment {
 }
 
 pub fn align(reference: &[i16], test: &[i16], max_offset: usize) -> Alignment {
-    let window = 4000.min(reference.len()).min(test.len().saturating_sub(max_offset));
+    let window = 4000
+        .min(reference.len())
+        .min(test.len().saturating_sub(max_offset));
     let start = reference
         .chunks(FRAME_SIZE)
         .position(|c| energy(c) > 1e6 * c.len() as f64)
