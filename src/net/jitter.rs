@@ -451,7 +451,7 @@ impl JitterBuffer {
             }
             // Shrinking waits for a fuller picture: start-up bursts look like spare delay.
             if self.slack.len() >= SLACK_WINDOW / 2
-                && low > margin + 2.0 * FRAME_SECONDS
+                && low > margin + 1.5 * FRAME_SECONDS
                 && self.entries.contains_key(&(self.next + 1))
             {
                 self.since_adjust = 0;

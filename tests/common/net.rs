@@ -138,7 +138,7 @@ pub fn align(reference: &[i16], test: &[i16], max_offset: usize) -> Alignment {
     for (i, t) in test.chunks_exact(chunk).enumerate() {
         // Only where the reference runs (not the concealed tail after the stream).
         let end = ((i + 1) * chunk) as i64 - offset;
-        if energy(t) < 1e6 * chunk as f64 || end > reference.len() as i64 {
+        if energy(t) < 1e6 * chunk as f64 || end + 4 * FRAME_SIZE as i64 > reference.len() as i64 {
             continue;
         }
         let mut best_chunk = f64::NEG_INFINITY;
