@@ -3,6 +3,7 @@
 pub mod audio;
 pub mod commands;
 pub mod lipsync;
+pub mod net;
 pub mod render;
 pub mod speex;
 pub mod train;

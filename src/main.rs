@@ -3,6 +3,7 @@ use std::process::ExitCode;
 
 use clap::{Parser, Subcommand};
 use lipcall::commands;
+use lipcall::commands::net::{KeyArgs, ReceiveArgs, SendArgs};
 use lipcall::speex::codec::EncoderConfig;
 
 /// Voice chat with lip-synced 3D heads, driven by the Speex decoder's own LSPs.
@@ -80,6 +81,67 @@ enum Command {
         #[arg(long)]
         input: Option<String>,
     },
+    /// Send a WAV or Ogg Speex file as RTP/Speex over UDP, paced in real time.
+    Send {
+        /// Audio to send: .wav (any rate, encoded here) or .spx (sent as it is).
+        input: PathBuf,
+        /// Receiver (or relay, with --room) as HOST:PORT.
+        #[arg(long, value_name = "HOST:PORT")]
+        to: String,
+        #[command(flatten)]
+        key: KeyOpts,
+        /// Display name sent to peers (RTCP SDES NAME).
+        #[arg(long)]
+        name: Option<String>,
+        /// Join this room on the relay given by --to.
+        #[arg(long)]
+        room: Option<String>,
+        /// Speex quality for .wav input, 0 to 10.
+        #[arg(long, default_value_t = 8, value_parser = clap::value_parser!(u8).range(0..=10))]
+        quality: u8,
+        /// Send no RTCP (for receivers that take RTP only, such as a bare GStreamer udpsrc).
+        #[arg(long)]
+        no_rtcp: bool,
+        /// Use this SSRC (hex) instead of a random one, for set-ups that need it in advance.
+        #[arg(long, value_parser = parse_hex_u32)]
+        ssrc: Option<u32>,
+    },
+    /// Receive a call: jitter buffer, decode, features; write the audio as played.
+    Receive {
+        /// Address to listen on, HOST:PORT (port 0 picks one).
+        #[arg(long, value_name = "HOST:PORT")]
+        listen: String,
+        /// Write the audio as played (all peers mixed).
+        #[arg(long, value_name = "OUT.wav")]
+        wav: Option<PathBuf>,
+        /// Write viseme weights (needs the lip-sync network; not in this build yet).
+        #[arg(long, value_name = "WEIGHTS.csv")]
+        weights: Option<PathBuf>,
+        /// Write per-frame LSP + energy features aligned to OUT.wav (one file per peer).
+        #[arg(long, value_name = "FEATURES.csv")]
+        features: Option<PathBuf>,
+        #[command(flatten)]
+        key: KeyOpts,
+        /// Stop after this many seconds (otherwise when every peer has said BYE).
+        #[arg(long)]
+        seconds: Option<f64>,
+        /// Join a room on this relay (with --room).
+        #[arg(long, value_name = "HOST:PORT")]
+        relay: Option<String>,
+        #[arg(long)]
+        room: Option<String>,
+        /// Display name sent to peers.
+        #[arg(long)]
+        name: Option<String>,
+    },
+    /// Run a relay: forwards each room member's packets to the others, without decoding them.
+    Relay {
+        #[arg(long, value_name = "HOST:PORT")]
+        listen: String,
+        /// Stop after this many seconds (otherwise run until killed).
+        #[arg(long)]
+        seconds: Option<f64>,
+    },
 }
 
 fn parse_fps(arg: &str) -> Result<u32, String> {
@@ -88,6 +150,30 @@ fn parse_fps(arg: &str) -> Result<u32, String> {
         "50" => Ok(50),
         _ => Err("must be 25 or 50".into()),
     }
+}
+
+#[derive(clap::Args)]
+struct KeyOpts {
+    /// Room passphrase: encrypts and authenticates media with SRTP. Without it (or
+    /// --key-hex) the call is plain RTP.
+    #[arg(long, value_name = "PASSPHRASE")]
+    key: Option<String>,
+    /// Raw SRTP master key + salt (60 hex digits), e.g. to talk to GStreamer's srtpenc.
+    #[arg(long, value_name = "HEX")]
+    key_hex: Option<String>,
+}
+
+impl From<KeyOpts> for KeyArgs {
+    fn from(k: KeyOpts) -> Self {
+        KeyArgs {
+            passphrase: k.key,
+            hex: k.key_hex,
+        }
+    }
+}
+
+fn parse_hex_u32(s: &str) -> Result<u32, String> {
+    u32::from_str_radix(s.trim_start_matches("0x"), 16).map_err(|e| e.to_string())
 }
 
 fn main() -> ExitCode {
@@ -140,6 +226,47 @@ fn main() -> ExitCode {
         Command::Devices { output, input } => {
             commands::audio::devices(output.as_deref(), input.as_deref())
         }
+        Command::Send {
+            input,
+            to,
+            key,
+            name,
+            room,
+            quality,
+            no_rtcp,
+            ssrc,
+        } => commands::net::send(&SendArgs {
+            input,
+            to,
+            key: key.into(),
+            name,
+            room,
+            quality,
+            no_rtcp,
+            ssrc,
+        }),
+        Command::Receive {
+            listen,
+            wav,
+            weights,
+            features,
+            key,
+            seconds,
+            relay,
+            room,
+            name,
+        } => commands::net::receive(&ReceiveArgs {
+            listen,
+            wav,
+            weights,
+            features,
+            key: key.into(),
+            seconds,
+            relay,
+            room,
+            name,
+        }),
+        Command::Relay { listen, seconds } => commands::net::relay(&listen, seconds),
     };
     match result {
         Ok(()) => ExitCode::SUCCESS,

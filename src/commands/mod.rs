@@ -4,3 +4,4 @@
 pub mod animate;
 pub mod audio;
 pub mod codec;
+pub mod net;

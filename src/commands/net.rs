@@ -1,0 +1,429 @@
+//! `lipcall send`, `lipcall receive` and `lipcall relay`: the headless real-time transport.
+
+use std::io::Write;
+use std::net::{SocketAddr, ToSocketAddrs};
+use std::path::{Path, PathBuf};
+use std::time::{Duration, Instant};
+
+use anyhow::{Context, Result, bail};
+
+use crate::audio::wav;
+use crate::net::relay::{Relay, RelayConfig};
+use crate::net::session::{PeerFrame, PeerInfo, Session, SessionConfig};
+use crate::net::split::split_frames;
+use crate::net::srtp::MasterKey;
+use crate::speex::codec::{Encoder, EncoderConfig, MAX_PACKET_BYTES};
+use crate::speex::features::FrameFeatures;
+use crate::speex::{FRAME_SIZE, SAMPLE_RATE, ogg_file};
+
+const TICK: Duration = Duration::from_millis(20);
+
+/// How the call is keyed.
+#[derive(Debug, Clone, Default)]
+pub struct KeyArgs {
+    /// Room passphrase (PBKDF2 over passphrase and room name).
+    pub passphrase: Option<String>,
+    /// A raw 30-byte SRTP master key + salt in hex, for interop with other SRTP stacks.
+    pub hex: Option<String>,
+}
+
+impl KeyArgs {
+    fn master_key(&self, room: Option<&str>) -> Result<Option<MasterKey>> {
+        match (&self.passphrase, &self.hex) {
+            (Some(_), Some(_)) => bail!("give either --key or --key-hex, not both"),
+            (Some(p), None) => Ok(Some(MasterKey::from_passphrase(p, room.unwrap_or("")))),
+            (None, Some(h)) => Ok(Some(MasterKey::from_hex(h).context("--key-hex")?)),
+            (None, None) => Ok(None),
+        }
+    }
+}
+
+fn resolve(addr: &str) -> Result<SocketAddr> {
+    addr.to_socket_addrs()
+        .with_context(|| format!("cannot resolve {addr}"))?
+        .next()
+        .with_context(|| format!("{addr} resolves to no address"))
+}
+
+fn any_port_like(addr: SocketAddr) -> SocketAddr {
+    let ip: std::net::IpAddr = match addr {
+        SocketAddr::V4(a) if a.ip().is_loopback() => [127, 0, 0, 1].into(),
+        SocketAddr::V4(_) => [0, 0, 0, 0].into(),
+        SocketAddr::V6(a) if a.ip().is_loopback() => std::net::Ipv6Addr::LOCALHOST.into(),
+        SocketAddr::V6(_) => std::net::Ipv6Addr::UNSPECIFIED.into(),
+    };
+    SocketAddr::new(ip, 0)
+}
+
+fn announce_security(key: &Option<MasterKey>) {
+    if key.is_some() {
+        eprintln!("lipcall: media encrypted and authenticated (SRTP AES_CM_128_HMAC_SHA1_80)");
+    } else {
+        eprintln!("lipcall: warning: the call is NOT encrypted (plain RTP); use --key to encrypt");
+    }
+}
+
+/// Speex packets to send, each with its frame count.
+fn load_packets(input: &Path, quality: u8) -> Result<Vec<(Vec<u8>, u32)>> {
+    let ext = input
+        .extension()
+        .and_then(|e| e.to_str())
+        .map(str::to_ascii_lowercase);
+    match ext.as_deref() {
+        Some("spx") | Some("ogg") => {
+            let bytes =
+                std::fs::read(input).with_context(|| format!("cannot read {}", input.display()))?;
+            let file = ogg_file::read(&bytes).with_context(|| input.display().to_string())?;
+            let per_packet = file.header.frames_per_packet.max(1) as u32;
+            let mut out = Vec::new();
+            for packet in file.pages.iter().flat_map(|p| &p.packets) {
+                match split_frames(packet) {
+                    Some(frames) => out.extend(frames.into_iter().map(|f| (f, 1))),
+                    None => out.push((packet.clone(), per_packet)),
+                }
+            }
+            Ok(out)
+        }
+        Some("wav") => {
+            let pcm = wav::read_narrowband(input)?;
+            let mut encoder = Encoder::new(EncoderConfig {
+                quality,
+                ..Default::default()
+            })?;
+            let mut packet = [0u8; MAX_PACKET_BYTES];
+            let mut out = Vec::new();
+            for chunk in pcm.chunks(FRAME_SIZE) {
+                let mut frame = [0i16; FRAME_SIZE];
+                frame[..chunk.len()].copy_from_slice(chunk);
+                if let Some(n) = encoder.encode_frame(&frame, &mut packet) {
+                    out.push((packet[..n].to_vec(), 1));
+                }
+            }
+            Ok(out)
+        }
+        _ => bail!("{}: expected a .wav or .spx file", input.display()),
+    }
+}
+
+#[derive(Debug, Clone)]
+pub struct SendArgs {
+    pub input: PathBuf,
+    pub to: String,
+    pub key: KeyArgs,
+    pub name: Option<String>,
+    pub room: Option<String>,
+    pub quality: u8,
+    pub no_rtcp: bool,
+    pub ssrc: Option<u32>,
+}
+
+pub fn send(args: &SendArgs) -> Result<()> {
+    let packets = load_packets(&args.input, args.quality)?;
+    if packets.is_empty() {
+        bail!("{}: no audio to send", args.input.display());
+    }
+    let to = resolve(&args.to)?;
+    let key = args.key.master_key(args.room.as_deref())?;
+    announce_security(&key);
+    let mut config = SessionConfig::new(any_port_like(to));
+    config.destinations = vec![to];
+    config.room = args.room.clone();
+    config.key = key;
+    config.name = args.name.clone();
+    config.send_rtcp = !args.no_rtcp;
+    config.ssrc = args.ssrc;
+    let session = Session::start(config)?;
+    if args.room.is_some() {
+        wait_for_relay(&session)?;
+    }
+    let frames: u32 = packets.iter().map(|(_, f)| f).sum();
+    eprintln!(
+        "lipcall: sending {:.2} s ({} packets) to {to} as SSRC {:08x}",
+        f64::from(frames) * 0.02,
+        packets.len(),
+        session.ssrc()
+    );
+    let start = Instant::now();
+    let mut at = 0u32;
+    for (payload, count) in &packets {
+        let due = start + TICK * at;
+        if let Some(wait) = due.checked_duration_since(Instant::now()) {
+            std::thread::sleep(wait);
+        }
+        session.send_speex(payload, *count)?;
+        at += count;
+    }
+    // Let the last packet's slot pass before saying BYE.
+    std::thread::sleep(TICK);
+    session.leave();
+    let stats = session.stats();
+    eprintln!(
+        "lipcall: sent {} packets in {:.2} s; send_errors={}",
+        stats.sent_rtp,
+        start.elapsed().as_secs_f64(),
+        stats.send_errors
+    );
+    for peer in session.peers() {
+        print_peer(&peer);
+    }
+    Ok(())
+}
+
+fn wait_for_relay(session: &Session) -> Result<()> {
+    let deadline = Instant::now() + Duration::from_secs(3);
+    while Instant::now() < deadline {
+        let stats = session.stats();
+        if stats.relay_refused {
+            bail!("the relay refused to join the room (full, or too many rooms)");
+        }
+        if stats.relay_joined {
+            return Ok(());
+        }
+        std::thread::sleep(Duration::from_millis(10));
+    }
+    bail!("the relay did not answer the join within 3 s")
+}
+
+fn print_peer(peer: &PeerInfo) {
+    let j = &peer.receiver.jitter;
+    let opt = |v: Option<f64>| v.map_or_else(|| "-".to_string(), |v| format!("{v:.1}"));
+    eprintln!(
+        "peer ssrc={:08x} name={:?} addr={} received={} played={} lost={} late={} duplicates={} \
+         reordered={} concealed={} stretched={} dropped={} jitter_ms={:.1} target_ms={:.1} \
+         delay_ms={:.1} rtt_ms={} their_loss={} bye={}",
+        peer.ssrc,
+        peer.name.as_deref().unwrap_or(""),
+        peer.addr,
+        j.received,
+        j.played,
+        j.lost,
+        j.late,
+        j.duplicates,
+        j.reordered,
+        peer.receiver.concealed,
+        j.stretched,
+        j.dropped,
+        j.jitter_ms,
+        j.target_delay_ms,
+        j.current_delay_ms,
+        opt(peer.rtt_ms),
+        opt(peer.their_loss),
+        peer.said_bye
+    );
+}
+
+#[derive(Debug, Clone)]
+pub struct ReceiveArgs {
+    pub listen: String,
+    pub wav: Option<PathBuf>,
+    pub weights: Option<PathBuf>,
+    pub features: Option<PathBuf>,
+    pub key: KeyArgs,
+    pub seconds: Option<f64>,
+    pub relay: Option<String>,
+    pub room: Option<String>,
+    pub name: Option<String>,
+}
+
+/// One feature row of one peer, on the output timeline.
+struct Row {
+    frame: usize,
+    features: FrameFeatures,
+}
+
+pub fn receive(args: &ReceiveArgs) -> Result<()> {
+    receive_with(args, &mut |_, _, _| {})
+}
+
+/// The whole receive side; `on_frame(ssrc, time_s, features)` sees every played frame's
+/// features as it is played (where the lip-sync network plugs in).
+pub fn receive_with(
+    args: &ReceiveArgs,
+    on_frame: &mut dyn FnMut(u32, f64, &FrameFeatures),
+) -> Result<()> {
+    if args.weights.is_some() {
+        eprintln!(
+            "lipcall: note: --weights needs the lip-sync network, which this build does not \
+             include yet; no WEIGHTS.csv is written"
+        );
+    }
+    if args.room.is_some() != args.relay.is_some() {
+        bail!("--relay and --room go together");
+    }
+    let listen = resolve(&args.listen)?;
+    let key = args.key.master_key(args.room.as_deref())?;
+    announce_security(&key);
+    let mut config = SessionConfig::new(listen);
+    if let Some(relay) = &args.relay {
+        config.destinations = vec![resolve(relay)?];
+        config.room = args.room.clone();
+    }
+    config.key = key;
+    config.name = args.name.clone();
+    let session = Session::start(config)?;
+    eprintln!("lipcall: listening on {}", session.local_addr()?);
+    if args.room.is_some() {
+        wait_for_relay(&session)?;
+    }
+
+    let limit = args.seconds.map(Duration::from_secs_f64);
+    let start = Instant::now();
+    let mut pcm: Vec<i16> = Vec::new();
+    let mut rows: Vec<(u32, Vec<Row>)> = Vec::new();
+    let mut frames: Vec<PeerFrame> = Vec::new();
+    // Output ticks since the first audible one, and the last tick that had audio.
+    let mut timeline: Option<usize> = None;
+    let mut last_audible = 0usize;
+    let mut tick = 0u32;
+    loop {
+        let due = start + TICK * tick;
+        tick += 1;
+        if let Some(wait) = due.checked_duration_since(Instant::now()) {
+            std::thread::sleep(wait);
+        }
+        if limit.is_some_and(|l| due.duration_since(start) >= l) {
+            break;
+        }
+        frames.clear();
+        session.pull(due, &mut frames);
+        if frames.is_empty() && timeline.is_some() {
+            let peers = session.peers();
+            if !peers.is_empty() && peers.iter().all(|p| p.said_bye) && limit.is_none() {
+                break;
+            }
+        }
+        if frames.is_empty() && timeline.is_none() {
+            continue;
+        }
+        let row = timeline.get_or_insert(0);
+        let index = *row;
+        *row += 1;
+        let mut mix = [0i32; FRAME_SIZE];
+        for f in &frames {
+            for (m, &s) in mix.iter_mut().zip(&f.frame.pcm) {
+                *m += i32::from(s);
+            }
+            let time = index as f64 * TICK.as_secs_f64();
+            on_frame(f.ssrc, time, &f.frame.features);
+            let slot = match rows.iter().position(|(s, _)| *s == f.ssrc) {
+                Some(i) => i,
+                None => {
+                    rows.push((f.ssrc, Vec::new()));
+                    rows.len() - 1
+                }
+            };
+            rows[slot].1.push(Row {
+                frame: index,
+                features: f.frame.features,
+            });
+        }
+        if !frames.is_empty() {
+            last_audible = index + 1;
+        }
+        pcm.extend(mix.iter().map(|&m| m.clamp(-32768, 32767) as i16));
+    }
+    pcm.truncate(last_audible * FRAME_SIZE);
+    session.leave();
+
+    let stats = session.stats();
+    eprintln!(
+        "lipcall: played {:.2} s; datagrams={} rtp={} rtcp={} malformed={} unknown={} \
+         auth_failed={} replayed={} too_many_peers={}",
+        pcm.len() as f64 / f64::from(SAMPLE_RATE),
+        stats.datagrams,
+        stats.rtp,
+        stats.rtcp,
+        stats.malformed,
+        stats.unknown,
+        stats.auth_failed,
+        stats.replayed,
+        stats.too_many_peers
+    );
+    for peer in session.peers() {
+        print_peer(&peer);
+    }
+    if let Some(path) = &args.wav {
+        wav::write_mono_i16(path, SAMPLE_RATE, &pcm)?;
+    }
+    if let Some(path) = &args.features {
+        for (i, (ssrc, peer_rows)) in rows.iter().enumerate() {
+            let target = if i == 0 {
+                path.clone()
+            } else {
+                peer_path(path, *ssrc)
+            };
+            write_rows(&target, peer_rows)?;
+        }
+        if rows.is_empty() {
+            write_rows(path, &[])?;
+        }
+    }
+    Ok(())
+}
+
+/// FEATURES.csv of a second or later peer: `NAME-<ssrc>.csv` beside the first.
+fn peer_path(path: &Path, ssrc: u32) -> PathBuf {
+    let stem = path
+        .file_stem()
+        .map(|s| s.to_string_lossy().into_owned())
+        .unwrap_or_default();
+    path.with_file_name(format!("{stem}-{ssrc:08x}.csv"))
+}
+
+/// FEATURES.csv rows on the output timeline: `frame` counts 20 ms ticks of OUT.wav.
+fn write_rows(path: &Path, rows: &[Row]) -> Result<()> {
+    let file =
+        std::fs::File::create(path).with_context(|| format!("cannot write {}", path.display()))?;
+    let mut out = std::io::BufWriter::new(file);
+    let lsp_names: Vec<String> = (1..=10).map(|i| format!("lsp{i}")).collect();
+    writeln!(out, "frame,time_s,mode,{},energy_db", lsp_names.join(","))?;
+    for row in rows {
+        let time = row.frame as f64 * TICK.as_secs_f64();
+        let mode = row.features.mode.map(|m| m.to_string()).unwrap_or_default();
+        write!(out, "{},{time:.3},{mode}", row.frame)?;
+        for l in row.features.lsp {
+            write!(out, ",{l:.6}")?;
+        }
+        writeln!(out, ",{:.2}", row.features.energy_db)?;
+    }
+    out.flush()
+        .with_context(|| format!("cannot write {}", path.display()))
+}
+
+pub fn relay(listen: &str, seconds: Option<f64>) -> Result<()> {
+    let relay = Relay::start(resolve(listen)?, RelayConfig::default())?;
+    eprintln!("lipcall: relay listening on {}", relay.local_addr());
+    let start = Instant::now();
+    let mut next_report = start + Duration::from_secs(10);
+    loop {
+        std::thread::sleep(Duration::from_millis(100));
+        if seconds.is_some_and(|s| start.elapsed().as_secs_f64() >= s) {
+            break;
+        }
+        if Instant::now() >= next_report {
+            print_relay(&relay);
+            next_report += Duration::from_secs(10);
+        }
+    }
+    print_relay(&relay);
+    Ok(())
+}
+
+fn print_relay(relay: &Relay) {
+    let s = relay.stats();
+    eprintln!(
+        "relay rooms={} members={} datagrams={} forwarded={} copies={} joins={} refused={} \
+         expired={} unknown_source={} malformed={} rate_limited={}",
+        s.rooms,
+        s.members,
+        s.datagrams,
+        s.forwarded,
+        s.copies,
+        s.joins,
+        s.refused,
+        s.expired,
+        s.unknown_source,
+        s.malformed,
+        s.rate_limited
+    );
+}

@@ -1,0 +1,737 @@
+//! A per-peer adaptive jitter buffer, pulled once per 20 ms of output.
+//!
+//! Timing model. For every packet the buffer notes its relative delay `r = arrival - ts/8000`
+//! (network transit plus the unknown offset between the two clocks). The smallest `r` over a
+//! sliding window is the fastest path (`base`); the spread above it is the jitter to absorb.
+//! The target delay is a high quantile of that spread plus a margin, starting at 40 ms and
+//! bounded. At each pull the buffer knows the delay it actually plays at, `(now - ts/8000) -
+//! base`; when that strays from the target it inserts a concealed frame (too little delay) or
+//! skips one (too much), at most once per adaptation interval. Sender/receiver clock drift
+//! moves `base` slowly and is corrected by the same mechanism, so the buffer neither grows
+//! without bound nor starves.
+//!
+//! Lost frames (a later packet is there, or nothing arrives in time) are reported as `Lost`
+//! for the decoder to conceal; packets arriving after their slot was played are `late` and
+//! dropped; repeated sequence numbers are `duplicates`.
+
+use std::collections::{BTreeMap, VecDeque};
+use std::time::{Duration, Instant};
+
+use super::{CLOCK_RATE, TIMESTAMP_STEP};
+
+/// Packets whose slack steers the delay while playing.
+const SLACK_WINDOW: usize = 100;
+const FRAME_SECONDS: f64 = TIMESTAMP_STEP as f64 / CLOCK_RATE as f64;
+
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct JitterConfig {
+    pub initial_delay: Duration,
+    pub min_delay: Duration,
+    pub max_delay: Duration,
+    /// Safety added to the measured jitter quantile.
+    pub margin: Duration,
+    /// Packets held at most; more are dropped (counted as overflow).
+    pub capacity: usize,
+    /// Packets whose delays form the jitter estimate.
+    pub window: usize,
+    /// Output frames between two delay adjustments.
+    pub adapt_interval: u32,
+    /// With nothing buffered for this long the talk spurt is over and playback stops.
+    pub spurt_timeout: Duration,
+}
+
+impl Default for JitterConfig {
+    fn default() -> Self {
+        Self {
+            initial_delay: Duration::from_millis(40),
+            min_delay: Duration::from_millis(20),
+            max_delay: Duration::from_millis(400),
+            margin: Duration::from_millis(10),
+            capacity: 256,
+            window: 150,
+            adapt_interval: 10,
+            spurt_timeout: Duration::from_millis(300),
+        }
+    }
+}
+
+/// What to play for the next 20 ms.
+#[derive(Debug, Clone, PartialEq, Eq)]
+pub enum Playout {
+    /// Decode the first frame of this packet.
+    Packet(Vec<u8>),
+    /// Decode the next frame of the packet handed out before.
+    NextFrame,
+    /// The frame is missing: conceal it.
+    Lost,
+    /// A frame inserted to grow the delay (conceal it too).
+    Stretch,
+    /// Nothing is playing for this peer.
+    Silent,
+}
+
+#[derive(Debug, Clone, Copy, Default, PartialEq)]
+pub struct JitterStats {
+    pub received: u64,
+    pub duplicates: u64,
+    pub late: u64,
+    pub reordered: u64,
+    pub overflow: u64,
+    /// Frames decoded from packets.
+    pub played: u64,
+    /// Frames concealed because their packet was missing.
+    pub lost: u64,
+    /// Frames inserted to grow the delay.
+    pub stretched: u64,
+    /// Frames skipped to shrink the delay.
+    pub dropped: u64,
+    /// Talk spurts started.
+    pub spurts: u64,
+    /// RFC 3550 interarrival jitter in ms.
+    pub jitter_ms: f64,
+    pub target_delay_ms: f64,
+    /// The delay the buffer plays at now (above the fastest packet seen).
+    pub current_delay_ms: f64,
+    pub buffered_frames: usize,
+}
+
+#[derive(Debug)]
+struct Entry {
+    payload: Vec<u8>,
+    frames: u32,
+}
+
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+enum State {
+    Idle,
+    Playing,
+    Ended,
+}
+
+/// Extends 16- and 32-bit RTP counters to 64 bits around the last value seen.
+fn extend(last: i64, value: u64, bits: u32) -> i64 {
+    let modulus = 1i64 << bits;
+    let low = last.rem_euclid(modulus);
+    let mut diff = value as i64 - low;
+    if diff > modulus / 2 {
+        diff -= modulus;
+    } else if diff < -modulus / 2 {
+        diff += modulus;
+    }
+    last + diff
+}
+
+#[derive(Debug)]
+pub struct JitterBuffer {
+    config: JitterConfig,
+    epoch: Instant,
+    state: State,
+    /// Packets by frame index (timestamp / 160 from the first packet).
+    entries: BTreeMap<i64, Entry>,
+    origin_ts: Option<i64>,
+    last_ts: i64,
+    /// Next frame index to play.
+    next: i64,
+    /// Frames of the current packet still to decode.
+    continuing: u32,
+    delays: VecDeque<f64>,
+    sorted: Vec<f64>,
+    base: f64,
+    target: f64,
+    since_adjust: u32,
+    /// Output time at which frame `play_index` is (or was) played.
+    play_ref: (i64, f64),
+    /// How early each recent packet arrived before its playout slot, in seconds.
+    slack: VecDeque<f64>,
+    slack_sorted: Vec<f64>,
+    last_arrival: f64,
+    empty_since: Option<f64>,
+    start_hint: Option<i64>,
+    end_hint: Option<i64>,
+    // Sequence bookkeeping (RFC 3550 A.1, A.3) for duplicates and receiver reports.
+    seq_base: Option<i64>,
+    seq_max: i64,
+    seq_seen: u128,
+    expected_prior: i64,
+    received_prior: u64,
+    transit: Option<f64>,
+    jitter: f64,
+    stats: JitterStats,
+}
+
+impl JitterBuffer {
+    pub fn new(config: JitterConfig, epoch: Instant) -> Self {
+        Self {
+            config,
+            epoch,
+            state: State::Idle,
+            entries: BTreeMap::new(),
+            origin_ts: None,
+            last_ts: 0,
+            next: 0,
+            continuing: 0,
+            delays: VecDeque::with_capacity(config.window),
+            sorted: Vec::with_capacity(config.window),
+            base: 0.0,
+            target: config.initial_delay.as_secs_f64(),
+            since_adjust: 0,
+            play_ref: (0, 0.0),
+            slack: VecDeque::with_capacity(SLACK_WINDOW),
+            slack_sorted: Vec::with_capacity(SLACK_WINDOW),
+            last_arrival: 0.0,
+            empty_since: None,
+            start_hint: None,
+            end_hint: None,
+            seq_base: None,
+            seq_max: 0,
+            seq_seen: 0,
+            expected_prior: 0,
+            received_prior: 0,
+            transit: None,
+            jitter: 0.0,
+            stats: JitterStats::default(),
+        }
+    }
+
+    fn seconds(&self, t: Instant) -> f64 {
+        t.saturating_duration_since(self.epoch).as_secs_f64()
+    }
+
+    fn index_of(&mut self, ts: u32) -> (i64, i64) {
+        let ext = match self.origin_ts {
+            None => {
+                self.origin_ts = Some(i64::from(ts));
+                i64::from(ts)
+            }
+            Some(_) => extend(self.last_ts, u64::from(ts), 32),
+        };
+        self.last_ts = ext;
+        let origin = self.origin_ts.unwrap_or(ext);
+        let step = i64::from(TIMESTAMP_STEP);
+        ((ext - origin + step / 2).div_euclid(step), ext)
+    }
+
+    /// Records the sequence number; returns false for a duplicate.
+    fn note_sequence(&mut self, seq: u16) -> bool {
+        let Some(_) = self.seq_base else {
+            self.seq_base = Some(i64::from(seq));
+            self.seq_max = i64::from(seq);
+            self.seq_seen = 1;
+            return true;
+        };
+        let ext = extend(self.seq_max, u64::from(seq), 16);
+        if ext > self.seq_max {
+            let shift = (ext - self.seq_max) as u32;
+            self.seq_seen = if shift >= 128 {
+                0
+            } else {
+                self.seq_seen << shift
+            } | 1;
+            self.seq_max = ext;
+            return true;
+        }
+        let age = (self.seq_max - ext) as u32;
+        if age < 128 {
+            if self.seq_seen & (1 << age) != 0 {
+                return false;
+            }
+            self.seq_seen |= 1 << age;
+        }
+        self.stats.reordered += 1;
+        true
+    }
+
+    /// Files a received packet holding `frames` frames.
+    pub fn insert(
+        &mut self,
+        seq: u16,
+        ts: u32,
+        marker: bool,
+        payload: &[u8],
+        frames: u32,
+        arrival: Instant,
+    ) {
+        if !self.note_sequence(seq) {
+            self.stats.duplicates += 1;
+            return;
+        }
+        self.stats.received += 1;
+        let (index, ext_ts) = self.index_of(ts);
+        let now = self.seconds(arrival);
+        self.last_arrival = now;
+        self.observe_delay(now - ext_ts as f64 / f64::from(CLOCK_RATE));
+        self.observe_jitter(now, ext_ts);
+
+        if self.state == State::Ended {
+            // A stream that said BYE does not come back under the same SSRC.
+            return;
+        }
+        if self.state == State::Idle && self.stats.spurts > 0 && index < self.next {
+            self.stats.late += 1;
+            return;
+        }
+        if self.state == State::Playing {
+            let max_gap = (self.config.max_delay.as_secs_f64() / FRAME_SECONDS) as i64 * 4;
+            if index < self.next {
+                self.stats.late += 1;
+                let (ref_index, ref_time) = self.play_ref;
+                if self.slack.len() == SLACK_WINDOW {
+                    self.slack.pop_front();
+                }
+                self.slack
+                    .push_back(ref_time + (index - ref_index) as f64 * FRAME_SECONDS - now);
+                return;
+            }
+            if index > self.next + max_gap
+                || (marker && self.entries.is_empty() && index > self.next + 1)
+            {
+                // A new talk spurt after a pause: start it with fresh timing.
+                self.state = State::Idle;
+                self.entries.clear();
+                self.continuing = 0;
+            }
+        }
+        if self.entries.contains_key(&index) {
+            self.stats.duplicates += 1;
+            return;
+        }
+        if self.state == State::Playing {
+            let (ref_index, ref_time) = self.play_ref;
+            let slot = ref_time + (index - ref_index) as f64 * FRAME_SECONDS;
+            if self.slack.len() == SLACK_WINDOW {
+                self.slack.pop_front();
+            }
+            self.slack.push_back(slot - now);
+        }
+        if self.entries.len() >= self.config.capacity {
+            self.stats.overflow += 1;
+            return;
+        }
+        self.entries.insert(
+            index,
+            Entry {
+                payload: payload.to_vec(),
+                frames: frames.clamp(1, 64),
+            },
+        );
+    }
+
+    fn observe_delay(&mut self, r: f64) {
+        if self.delays.len() == self.config.window {
+            self.delays.pop_front();
+        }
+        self.delays.push_back(r);
+        self.base = self.delays.iter().copied().fold(f64::INFINITY, f64::min);
+        if self.delays.len() < 10 {
+            return;
+        }
+        self.sorted.clear();
+        self.sorted
+            .extend(self.delays.iter().map(|d| d - self.base));
+        self.sorted.sort_by(f64::total_cmp);
+        let q = self.sorted[(self.sorted.len() - 1) * 97 / 100];
+        let target = q + self.config.margin.as_secs_f64();
+        self.target = target.clamp(
+            self.config.min_delay.as_secs_f64(),
+            self.config.max_delay.as_secs_f64(),
+        );
+    }
+
+    fn observe_jitter(&mut self, now: f64, ext_ts: i64) {
+        let transit = now * f64::from(CLOCK_RATE) - ext_ts as f64;
+        if let Some(prev) = self.transit {
+            let d = (transit - prev).abs();
+            self.jitter += (d - self.jitter) / 16.0;
+        }
+        self.transit = Some(transit);
+    }
+
+    /// The sender said where its stream starts (an SR sent before its first packet).
+    pub fn hint_start(&mut self, ts: u32) {
+        if self.stats.spurts == 0 {
+            let (index, _) = self.index_of(ts);
+            self.start_hint = Some(index);
+        }
+    }
+
+    /// The sender said where its stream ends (the SR sent with its BYE): play up to there.
+    pub fn hint_end(&mut self, ts: u32) {
+        let (index, _) = self.index_of(ts);
+        self.end_hint = Some(index);
+    }
+
+    /// True once the stream has ended (BYE played out) and nothing more will come.
+    pub fn ended(&self) -> bool {
+        self.state == State::Ended
+    }
+
+    /// Idle and nothing waiting: the peer is silent.
+    pub fn idle(&self) -> bool {
+        self.state != State::Playing && self.entries.is_empty()
+    }
+
+    fn delay_at(&self, now: f64, index: i64) -> f64 {
+        let ts = self.origin_ts.unwrap_or(0) + index * i64::from(TIMESTAMP_STEP);
+        now - ts as f64 / f64::from(CLOCK_RATE) - self.base
+    }
+
+    /// What to play for the 20 ms of output starting at `now` (on the output clock).
+    pub fn pop(&mut self, now: Instant) -> Playout {
+        let now = self.seconds(now);
+        match self.state {
+            State::Ended => return Playout::Silent,
+            State::Idle => {
+                let Some((&first, _)) = self.entries.first_key_value() else {
+                    return self.check_end(Playout::Silent);
+                };
+                let start = match self.start_hint {
+                    Some(h) if h <= first && first - h <= 10 => h,
+                    _ => first,
+                };
+                if self.delay_at(now, start) < self.target - 0.5 * FRAME_SECONDS {
+                    return Playout::Silent;
+                }
+                self.slack.clear();
+                self.start_hint = None;
+                self.state = State::Playing;
+                self.next = start;
+                self.continuing = 0;
+                self.since_adjust = 0;
+                self.empty_since = None;
+                self.stats.spurts += 1;
+            }
+            State::Playing => {}
+        }
+        if let Some(end) = self.end_hint
+            && self.next >= end
+            && self.continuing == 0
+        {
+            return self.check_end(Playout::Silent);
+        }
+        if self.continuing > 0 {
+            self.continuing -= 1;
+            self.next += 1;
+            self.stats.played += 1;
+            return Playout::NextFrame;
+        }
+        // Drop entries that fell behind (a skip or a resync moved past them).
+        while let Some((&k, _)) = self.entries.first_key_value() {
+            if k >= self.next {
+                break;
+            }
+            self.entries.pop_first();
+            self.stats.late += 1;
+        }
+        if self.entries.is_empty() {
+            let since = *self.empty_since.get_or_insert(now);
+            if now - since >= self.config.spurt_timeout.as_secs_f64() {
+                self.state = State::Idle;
+                return Playout::Silent;
+            }
+        } else {
+            self.empty_since = None;
+        }
+        self.play_ref = (self.next, now);
+        self.stats.current_delay_ms = self.delay_at(now, self.next) * 1000.0;
+        self.since_adjust = self.since_adjust.saturating_add(1);
+        if self.since_adjust >= self.config.adapt_interval && self.slack.len() >= 10 {
+            self.slack_sorted.clear();
+            self.slack_sorted.extend(self.slack.iter().copied());
+            self.slack_sorted.sort_by(f64::total_cmp);
+            let low = self.slack_sorted[self.slack_sorted.len() / 50];
+            let margin = self.config.margin.as_secs_f64();
+            if low < 0.25 * margin
+                && self.delay_at(now, self.next) < self.config.max_delay.as_secs_f64()
+            {
+                self.since_adjust = 0;
+                self.stats.stretched += 1;
+                self.slack.iter_mut().for_each(|s| *s += FRAME_SECONDS);
+                self.play_ref = (self.next, now + FRAME_SECONDS);
+                return Playout::Stretch;
+            }
+            // Shrinking waits for a fuller picture: start-up bursts look like spare delay.
+            if self.slack.len() >= SLACK_WINDOW / 2
+                && low > margin + 1.5 * FRAME_SECONDS
+                && self.entries.contains_key(&(self.next + 1))
+            {
+                self.since_adjust = 0;
+                self.slack.iter_mut().for_each(|s| *s -= FRAME_SECONDS);
+                self.entries.remove(&self.next);
+                self.next += 1;
+                self.play_ref = (self.next, now);
+                self.stats.dropped += 1;
+            }
+        }
+        match self.entries.remove(&self.next) {
+            Some(entry) => {
+                self.continuing = entry.frames - 1;
+                self.next += 1;
+                self.stats.played += 1;
+                Playout::Packet(entry.payload)
+            }
+            None => {
+                self.next += 1;
+                self.stats.lost += 1;
+                Playout::Lost
+            }
+        }
+    }
+
+    fn check_end(&mut self, otherwise: Playout) -> Playout {
+        if let Some(end) = self.end_hint
+            && (self.state == State::Playing || self.entries.is_empty())
+            && (self.next >= end || self.stats.spurts == 0)
+        {
+            self.state = State::Ended;
+            self.entries.clear();
+        } else if self.state == State::Playing {
+            self.state = State::Idle;
+        }
+        otherwise
+    }
+
+    pub fn stats(&self) -> JitterStats {
+        JitterStats {
+            jitter_ms: self.jitter / f64::from(CLOCK_RATE) * 1000.0,
+            target_delay_ms: self.target * 1000.0,
+            buffered_frames: self.entries.values().map(|e| e.frames as usize).sum(),
+            ..self.stats
+        }
+    }
+
+    /// Counts for an RTCP report block: (fraction lost /256 since the last call, cumulative
+    /// lost, extended highest sequence, jitter in timestamp units).
+    pub fn report(&mut self) -> Option<(u8, u32, u32, u32)> {
+        let base = self.seq_base?;
+        let expected = self.seq_max - base + 1;
+        let received = self.stats.received;
+        let lost = (expected - received as i64).max(0);
+        let expected_interval = expected - self.expected_prior;
+        let received_interval = received as i64 - self.received_prior as i64;
+        self.expected_prior = expected;
+        self.received_prior = received;
+        let lost_interval = expected_interval - received_interval;
+        let fraction = if expected_interval <= 0 || lost_interval <= 0 {
+            0
+        } else {
+            ((lost_interval << 8) / expected_interval).min(255) as u8
+        };
+        Some((
+            fraction,
+            lost.min(0x7f_ffff) as u32,
+            self.seq_max as u32,
+            self.jitter as u32,
+        ))
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    const FRAME: Duration = Duration::from_millis(20);
+
+    /// Drives a buffer with packets sent every `send_period` and pulled every 20 ms of the
+    /// output clock; `delay(i)` is packet i's network delay, `None` when lost.
+    fn simulate(
+        n: usize,
+        send_period: Duration,
+        delay: impl Fn(usize) -> Option<Duration>,
+        pulls: usize,
+    ) -> (Vec<Playout>, JitterStats) {
+        let t0 = Instant::now();
+        let mut jb = JitterBuffer::new(JitterConfig::default(), t0);
+        let mut arrivals: Vec<(Instant, usize)> = (0..n)
+            .filter_map(|i| delay(i).map(|d| (t0 + send_period * i as u32 + d, i)))
+            .collect();
+        arrivals.sort();
+        let mut out = Vec::new();
+        let mut a = 0;
+        for k in 0..pulls {
+            let now = t0 + FRAME * k as u32;
+            while a < arrivals.len() && arrivals[a].0 <= now {
+                let i = arrivals[a].1;
+                jb.insert(
+                    1000u16.wrapping_add(i as u16),
+                    (i as u32).wrapping_mul(160).wrapping_add(u32::MAX - 5000),
+                    i == 0,
+                    &[i as u8],
+                    1,
+                    arrivals[a].0,
+                );
+                a += 1;
+            }
+            out.push(jb.pop(now));
+        }
+        (out, jb.stats())
+    }
+
+    fn played(out: &[Playout]) -> Vec<u8> {
+        out.iter()
+            .filter_map(|p| match p {
+                Playout::Packet(v) => Some(v[0]),
+                _ => None,
+            })
+            .collect()
+    }
+
+    #[test]
+    fn steady_stream_plays_in_order_after_initial_delay() {
+        let (out, stats) = simulate(100, FRAME, |_| Some(Duration::from_millis(5)), 200);
+        let first = out.iter().position(|p| *p != Playout::Silent).unwrap();
+        assert!((2..=3).contains(&first), "{first}");
+        assert_eq!(played(&out), (0..100).map(|i| i as u8).collect::<Vec<_>>());
+        // Nothing lost until the stream ends, then concealment until the spurt times out.
+        let last = out
+            .iter()
+            .rposition(|p| matches!(p, Playout::Packet(_)))
+            .unwrap();
+        assert!(out[..last].iter().all(|p| !matches!(p, Playout::Lost)));
+        assert!(stats.lost <= 16);
+        assert_eq!(stats.stretched + stats.dropped, 0);
+        assert!(stats.jitter_ms < 0.5);
+        // After the stream, the spurt times out to silence.
+        assert_eq!(*out.last().unwrap(), Playout::Silent);
+    }
+
+    #[test]
+    fn reordering_and_duplicates_within_the_delay_are_absorbed() {
+        let t0 = Instant::now();
+        let mut jb = JitterBuffer::new(JitterConfig::default(), t0);
+        for &i in &[0u32, 2, 1, 1, 3] {
+            jb.insert(i as u16, i * 160, false, &[i as u8], 1, t0);
+        }
+        let s = jb.stats();
+        assert_eq!((s.received, s.duplicates, s.reordered), (4, 1, 1));
+        let mut got = Vec::new();
+        for k in 0..8 {
+            if let Playout::Packet(p) = jb.pop(t0 + FRAME * (2 + k)) {
+                got.push(p[0]);
+            }
+        }
+        assert_eq!(got, vec![0, 1, 2, 3]);
+    }
+
+    #[test]
+    fn losses_are_concealed_and_late_packets_dropped() {
+        // Every 10th packet lost; packet 50 arrives 300 ms late.
+        let (out, stats) = simulate(
+            200,
+            FRAME,
+            |i| match i {
+                _ if i % 10 == 5 => None,
+                50 => Some(Duration::from_millis(300)),
+                _ => Some(Duration::from_millis(2)),
+            },
+            260,
+        );
+        // 20 lost, one late, and up to the spurt timeout (15 frames) concealed after the end.
+        assert!((21..=21 + 16).contains(&stats.lost), "{stats:?}");
+        assert!(stats.late >= 1);
+        let start = out.iter().position(|p| *p != Playout::Silent).unwrap();
+        let end = out.iter().rposition(|p| *p != Playout::Silent).unwrap();
+        // Continuous: no silence in the middle of the spurt.
+        assert!(out[start..=end].iter().all(|p| *p != Playout::Silent));
+    }
+
+    #[test]
+    fn target_follows_jitter_and_stays_bounded() {
+        // Delays 0..60 ms in a fixed pseudo-random pattern.
+        let (_, stats) = simulate(
+            500,
+            FRAME,
+            |i| Some(Duration::from_millis(((i * 37) % 61) as u64)),
+            560,
+        );
+        assert!(
+            stats.target_delay_ms > 55.0 && stats.target_delay_ms < 90.0,
+            "{stats:?}"
+        );
+        let late_share = stats.late as f64 / 500.0;
+        assert!(late_share < 0.05, "{stats:?}");
+        let (_, wild) = simulate(
+            300,
+            FRAME,
+            |i| Some(Duration::from_millis(((i * 7919) % 2000) as u64)),
+            500,
+        );
+        assert!(wild.target_delay_ms <= 400.0 + 1e-9, "{wild:?}");
+    }
+
+    #[test]
+    fn clock_drift_is_corrected_both_ways() {
+        // Sender 1 % fast: packets every 19.8 ms. Without correction the buffer would grow by
+        // 60 ms over 30 s; with it the delay stays near the target.
+        let (_, fast) = simulate(
+            1500,
+            Duration::from_micros(19_800),
+            |_| Some(FRAME / 4),
+            1500,
+        );
+        assert!(fast.dropped >= 10, "{fast:?}");
+        assert!(
+            fast.current_delay_ms < fast.target_delay_ms + 35.0,
+            "{fast:?}"
+        );
+        // Sender 1 % slow: the buffer stretches instead of running dry again and again.
+        let (_, slow) = simulate(
+            1500,
+            Duration::from_micros(20_200),
+            |_| Some(FRAME / 4),
+            1550,
+        );
+        assert!(slow.stretched >= 10, "{slow:?}");
+        // No packet arrives too late; the only concealment is the tail after the stream.
+        assert_eq!(slow.late, 0, "{slow:?}");
+        assert!(slow.lost <= 16, "{slow:?}");
+    }
+
+    #[test]
+    fn end_hint_stops_exactly_and_start_hint_covers_a_lost_first_packet() {
+        let t0 = Instant::now();
+        let mut jb = JitterBuffer::new(JitterConfig::default(), t0);
+        jb.hint_start(0);
+        for i in 1..10u32 {
+            jb.insert(i as u16, i * 160, false, &[i as u8], 1, t0 + FRAME * i);
+        }
+        jb.hint_end(10 * 160);
+        let mut out = Vec::new();
+        for k in 0..30 {
+            out.push(jb.pop(t0 + FRAME * k));
+        }
+        let audible: Vec<_> = out.iter().filter(|p| **p != Playout::Silent).collect();
+        assert_eq!(audible.len(), 10);
+        assert_eq!(*audible[0], Playout::Lost);
+        assert!(jb.ended());
+    }
+
+    #[test]
+    fn multi_frame_packets_play_every_frame() {
+        let t0 = Instant::now();
+        let mut jb = JitterBuffer::new(JitterConfig::default(), t0);
+        jb.insert(1, 0, true, &[1], 3, t0);
+        jb.insert(2, 480, false, &[2], 3, t0 + FRAME * 3);
+        let mut out = Vec::new();
+        for k in 0..12 {
+            out.push(jb.pop(t0 + FRAME * (2 + k)));
+        }
+        let kinds: Vec<_> = out
+            .iter()
+            .filter(|p| **p != Playout::Silent)
+            .take(6)
+            .map(|p| match p {
+                Playout::Packet(v) => v[0],
+                Playout::NextFrame => 0,
+                _ => 9,
+            })
+            .collect();
+        assert_eq!(kinds, vec![1, 0, 0, 2, 0, 0]);
+    }
+
+    #[test]
+    fn sequence_and_timestamp_wrap() {
+        assert_eq!(extend(65535, 0, 16), 65536);
+        assert_eq!(extend(65536, 65535, 16), 65535);
+        assert_eq!(extend(i64::from(u32::MAX), 5, 32), i64::from(u32::MAX) + 6);
+    }
+}

@@ -1,0 +1,177 @@
+//! Helpers for the transport tests: ports, child processes, reference decodes, alignment.
+
+use std::net::UdpSocket;
+use std::path::Path;
+use std::process::{Child, Command, Stdio};
+use std::time::{Duration, Instant};
+
+use lipcall::speex::FRAME_SIZE;
+use lipcall::speex::codec::{Decoder, FrameOutcome};
+use lipcall::speex::ogg_file;
+
+/// A loopback UDP port that was free a moment ago.
+pub fn free_port() -> u16 {
+    UdpSocket::bind("127.0.0.1:0")
+        .and_then(|s| s.local_addr())
+        .map(|a| a.port())
+        .expect("a free loopback port")
+}
+
+pub fn spawn(cmd: &mut Command) -> Child {
+    cmd.stdout(Stdio::piped())
+        .stderr(Stdio::piped())
+        .spawn()
+        .unwrap_or_else(|e| panic!("cannot run {cmd:?}: {e} (install it: see README)"))
+}
+
+/// Waits for a child with a deadline; kills it (and fails) if it overruns.
+pub fn finish(mut child: Child, limit: Duration, what: &str) -> (String, String) {
+    let deadline = Instant::now() + limit;
+    loop {
+        match child.try_wait().expect("wait") {
+            Some(_) => break,
+            None if Instant::now() > deadline => {
+                let _ = child.kill();
+                let out = child.wait_with_output().expect("output");
+                panic!(
+                    "{what} did not finish within {limit:?}: {}",
+                    String::from_utf8_lossy(&out.stderr)
+                );
+            }
+            None => std::thread::sleep(Duration::from_millis(20)),
+        }
+    }
+    let out = child.wait_with_output().expect("output");
+    let stderr = String::from_utf8_lossy(&out.stderr).into_owned();
+    assert!(out.status.success(), "{what} failed: {stderr}");
+    (String::from_utf8_lossy(&out.stdout).into_owned(), stderr)
+}
+
+/// Sends SIGINT (gst-launch -e then finishes its files cleanly).
+pub fn interrupt(child: &Child) {
+    let _ = Command::new("kill")
+        .args(["-INT", &child.id().to_string()])
+        .status();
+}
+
+/// Audio packets of an Ogg Speex file.
+pub fn ogg_packets(path: &Path) -> Vec<Vec<u8>> {
+    let bytes = std::fs::read(path).expect("read spx");
+    let file = ogg_file::read(&bytes).expect("parse spx");
+    file.pages.into_iter().flat_map(|p| p.packets).collect()
+}
+
+/// Every frame of every packet decoded in order, untrimmed, as real-time playback hears it.
+pub fn decode_frames(packets: &[Vec<u8>]) -> Vec<i16> {
+    let mut decoder = Decoder::new(true).expect("decoder");
+    let mut out = Vec::new();
+    let mut pcm = [0i16; FRAME_SIZE];
+    for p in packets {
+        decoder.load(p).expect("load");
+        while let Ok(FrameOutcome::Decoded) = decoder.decode_next(&mut pcm) {
+            out.extend_from_slice(&pcm);
+        }
+    }
+    out
+}
+
+fn energy(x: &[i16]) -> f64 {
+    x.iter().map(|&s| f64::from(s).powi(2)).sum()
+}
+
+fn snr(reference: &[i16], test: &[i16]) -> f64 {
+    let noise: f64 = reference
+        .iter()
+        .zip(test)
+        .map(|(&a, &b)| (f64::from(a) - f64::from(b)).powi(2))
+        .sum();
+    10.0 * (energy(reference) / noise.max(1e-9)).log10()
+}
+
+/// How well `test` reproduces `reference` played out with an unknown start offset and a few
+/// whole frames inserted or skipped by a jitter buffer.
+#[derive(Debug, Clone)]
+pub struct Alignment {
+    /// `test[i]` lines up with `reference[i - offset]` at the start.
+    pub offset: i64,
+    /// SNR of each 200 ms chunk of `test` that carries speech, at its best frame shift.
+    pub chunk_snr: Vec<f64>,
+}
+
+impl Alignment {
+    pub fn median(&self) -> f64 {
+        let mut v = self.chunk_snr.clone();
+        v.sort_by(f64::total_cmp);
+        v.get(v.len() / 2).copied().unwrap_or(f64::NEG_INFINITY)
+    }
+
+    pub fn share_above(&self, db: f64) -> f64 {
+        self.chunk_snr.iter().filter(|&&s| s > db).count() as f64
+            / self.chunk_snr.len().max(1) as f64
+    }
+}
+
+pub fn align(reference: &[i16], test: &[i16], max_offset: usize) -> Alignment {
+    let window = 4000
+        .min(reference.len())
+        .min(test.len().saturating_sub(max_offset));
+    let start = reference
+        .chunks(FRAME_SIZE)
+        .position(|c| energy(c) > 1e6 * c.len() as f64)
+        .unwrap_or(0)
+        * FRAME_SIZE;
+    let reference_part = &reference[start..(start + window).min(reference.len())];
+    let mut best = (f64::NEG_INFINITY, 0i64);
+    for lag in 0..=max_offset as i64 {
+        let from = start as i64 + lag;
+        let Some(t) = test.get(from as usize..from as usize + reference_part.len()) else {
+            continue;
+        };
+        let s = snr(reference_part, t);
+        if s > best.0 {
+            best = (s, lag);
+        }
+    }
+    let offset = best.1;
+    let chunk = 10 * FRAME_SIZE;
+    let mut chunk_snr = Vec::new();
+    for (i, t) in test.chunks_exact(chunk).enumerate() {
+        // Only where the reference runs (not the concealed tail after the stream).
+        let end = ((i + 1) * chunk) as i64 - offset;
+        if energy(t) < 1e6 * chunk as f64 || end + 4 * FRAME_SIZE as i64 > reference.len() as i64 {
+            continue;
+        }
+        let mut best_chunk = f64::NEG_INFINITY;
+        for shift in -4i64..=4 {
+            let r0 = (i * chunk) as i64 - offset + shift * FRAME_SIZE as i64;
+            if r0 < 0 {
+                continue;
+            }
+            let Some(r) = reference.get(r0 as usize..r0 as usize + chunk) else {
+                continue;
+            };
+            best_chunk = best_chunk.max(snr(r, t));
+        }
+        chunk_snr.push(best_chunk);
+    }
+    Alignment { offset, chunk_snr }
+}
+
+/// `key=value` fields of the first stderr line starting with `prefix`.
+pub fn fields(stderr: &str, prefix: &str) -> std::collections::HashMap<String, String> {
+    stderr
+        .lines()
+        .find(|l| l.starts_with(prefix))
+        .unwrap_or_else(|| panic!("no line starting {prefix:?} in:\n{stderr}"))
+        .split_whitespace()
+        .filter_map(|kv| kv.split_once('='))
+        .map(|(k, v)| (k.to_string(), v.trim_matches('"').to_string()))
+        .collect()
+}
+
+pub fn num(fields: &std::collections::HashMap<String, String>, key: &str) -> f64 {
+    fields
+        .get(key)
+        .and_then(|v| v.parse().ok())
+        .unwrap_or_else(|| panic!("no numeric {key} in {fields:?}"))
+}
