@@ -8,10 +8,35 @@ use lipcall::speex::codec::EncoderConfig;
 
 /// Voice chat with lip-synced 3D heads, driven by the Speex decoder's own LSPs.
 #[derive(Parser)]
-#[command(name = "lipcall", version, arg_required_else_help = true)]
+#[command(name = "lipcall", version)]
 struct Cli {
     #[command(subcommand)]
-    command: Command,
+    command: Option<Command>,
+    #[command(flatten)]
+    app: AppFlags,
+}
+
+/// Without a subcommand: the desktop app.
+#[derive(clap::Args)]
+struct AppFlags {
+    /// App: listen for calls on IP:PORT (otherwise only on a loopback port for the demo peer).
+    #[arg(long, value_name = "IP:PORT")]
+    listen: Option<String>,
+    /// App: no demo peer.
+    #[arg(long)]
+    no_demo: bool,
+    /// App: close the window after this many seconds.
+    #[arg(long, value_name = "SECONDS")]
+    quit_after: Option<f64>,
+    /// App: write per-peer status lines (animation frames, ...) to FILE twice a second.
+    #[arg(long, value_name = "FILE")]
+    status: Option<PathBuf>,
+    /// App: open no audio device (silent playback, receive-only).
+    #[arg(long)]
+    no_audio: bool,
+    /// App: settings file (default: $XDG_CONFIG_HOME/lipcall/settings.json).
+    #[arg(long, value_name = "FILE")]
+    settings: Option<PathBuf>,
 }
 
 #[derive(Subcommand)]
@@ -178,7 +203,18 @@ fn parse_hex_u32(s: &str) -> Result<u32, String> {
 
 fn main() -> ExitCode {
     let cli = Cli::parse();
-    let result = match cli.command {
+    let Some(command) = cli.command else {
+        let a = cli.app;
+        return finish(lipcall::app::run(lipcall::app::AppOptions {
+            listen: a.listen,
+            no_demo: a.no_demo,
+            quit_after: a.quit_after,
+            status: a.status,
+            no_audio: a.no_audio,
+            settings: a.settings,
+        }));
+    };
+    let result = match command {
         Command::Encode {
             input,
             output,
@@ -268,6 +304,10 @@ fn main() -> ExitCode {
         }),
         Command::Relay { listen, seconds } => commands::net::relay(&listen, seconds),
     };
+    finish(result)
+}
+
+fn finish(result: anyhow::Result<()>) -> ExitCode {
     match result {
         Ok(()) => ExitCode::SUCCESS,
         Err(e) => {

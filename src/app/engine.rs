@@ -1,0 +1,686 @@
+//! The call engine: a worker thread that owns the sessions, the microphone and the per-peer
+//! decoders' animators, paced at 20 ms. The UI sees it through [`Shared`] (one short lock per
+//! UI frame) and steers it with [`Command`]s.
+
+use std::collections::HashMap;
+use std::net::{SocketAddr, ToSocketAddrs};
+use std::sync::atomic::{AtomicBool, AtomicU64, Ordering};
+use std::sync::mpsc::{Receiver, Sender, TryRecvError};
+use std::sync::{Arc, Mutex, MutexGuard};
+use std::thread::JoinHandle;
+use std::time::{Duration, Instant};
+
+use crate::audio::{
+    Capture, DeviceChoice, Gate, MicControls, OutputStatus, PeerFeed, PeerId, Playback,
+    PlaybackConfig, Schedule, ScheduleSender,
+};
+use crate::lipsync::jaw::JawBaseline;
+use crate::lipsync::mouth::VisemeShapes;
+use crate::lipsync::network::Model;
+use crate::lipsync::reproject::Reprojector;
+use crate::lipsync::visemes::{FullWeights, VisemeSet};
+use crate::lipsync::{Animator, ModelAnimator};
+use crate::net::peer::FrameKind;
+use crate::net::session::{PeerFrame, PeerInfo, Session, SessionConfig};
+use crate::net::srtp::MasterKey;
+use crate::speex::FRAME_SIZE;
+use crate::speex::codec::{Encoder, EncoderConfig, MAX_PACKET_BYTES};
+use crate::speex::features::FrameFeatures;
+
+use super::settings::PeerPrefs;
+
+const TICK: Duration = Duration::from_millis(20);
+/// Name the demo peer announces (SDES), so the UI can tell it apart.
+pub const DEMO_NAME: &str = "Demo speaker";
+const DEMO_WAV: &[u8] = include_bytes!("../../assets/speech/demo.wav");
+
+/// What the engine is asked to do.
+#[derive(Debug, Clone)]
+pub enum Command {
+    Call(CallSpec),
+    Leave,
+    SetInput(DeviceChoice),
+    SetOutput(DeviceChoice),
+}
+
+/// A call: a peer's (or relay's) address, with a room for a relay.
+#[derive(Debug, Clone, Default)]
+pub struct CallSpec {
+    pub address: String,
+    pub room: Option<String>,
+    pub passphrase: Option<String>,
+    pub name: String,
+}
+
+/// How the engine starts.
+#[derive(Debug, Clone)]
+pub struct EngineConfig {
+    /// Where the idle session listens (peers may call it); loopback port 0 if none.
+    pub listen: Option<SocketAddr>,
+    pub demo: bool,
+    pub name: String,
+    pub input: DeviceChoice,
+    pub output: DeviceChoice,
+    /// Run without any audio device (tests): silent playback, no microphone.
+    pub no_audio: bool,
+}
+
+/// One remote peer as the UI shows it.
+#[derive(Debug, Clone)]
+pub struct PeerView {
+    pub ssrc: u32,
+    pub name: String,
+    pub addr: SocketAddr,
+    pub feed: PeerId,
+    pub is_demo: bool,
+    pub talking: bool,
+    pub loss_percent: f64,
+    pub jitter_ms: f64,
+    pub delay_ms: f64,
+    /// Frames the network (or jaw baseline) turned into weights.
+    pub frames_animated: u64,
+    pub frames_received: u64,
+}
+
+/// The call as the UI shows it.
+#[derive(Debug, Clone, Default)]
+pub struct CallStatus {
+    /// Human-readable state ("idle, listening on ..", "in call with ..").
+    pub state: String,
+    pub in_call: bool,
+    pub encrypted: bool,
+    pub local_addr: Option<SocketAddr>,
+    pub error: Option<String>,
+}
+
+/// State both threads touch; the engine holds the lock only briefly each tick.
+pub struct Shared {
+    pub playback: Playback,
+    pub schedules: HashMap<u32, Schedule<FullWeights>>,
+    pub peers: Vec<PeerView>,
+    /// Per-peer choices, by SSRC; the UI edits them, the engine follows them.
+    pub prefs: HashMap<u32, PeerPrefs>,
+    pub call: CallStatus,
+    pub output_status: String,
+    pub input_status: String,
+    pub mic: Option<MicControls>,
+}
+
+/// Time spent in the animation network (and re-projection), for the CPU report.
+#[derive(Debug, Default)]
+pub struct EngineCounters {
+    pub network_ns: AtomicU64,
+    pub frames_animated: AtomicU64,
+    pub ticks: AtomicU64,
+}
+
+pub struct Engine {
+    pub shared: Arc<Mutex<Shared>>,
+    pub counters: Arc<EngineCounters>,
+    commands: Sender<Command>,
+    stop: Arc<AtomicBool>,
+    thread: Option<JoinHandle<()>>,
+}
+
+/// Locks the shared state, carrying on if the other side panicked while holding it.
+pub fn lock(shared: &Mutex<Shared>) -> MutexGuard<'_, Shared> {
+    shared.lock().unwrap_or_else(|e| e.into_inner())
+}
+
+impl Engine {
+    pub fn start(config: EngineConfig) -> anyhow::Result<Self> {
+        let playback_config = PlaybackConfig {
+            device: config.output.clone(),
+            ..Default::default()
+        };
+        let playback = if config.no_audio {
+            Playback::start_silent(playback_config)?
+        } else {
+            Playback::start(playback_config)?
+        };
+        let output_status = describe_output(playback.status());
+        let shared = Arc::new(Mutex::new(Shared {
+            playback,
+            schedules: HashMap::new(),
+            peers: Vec::new(),
+            prefs: HashMap::new(),
+            call: CallStatus::default(),
+            output_status,
+            input_status: String::new(),
+            mic: None,
+        }));
+        let counters = Arc::new(EngineCounters::default());
+        let stop = Arc::new(AtomicBool::new(false));
+        let (tx, rx) = std::sync::mpsc::channel();
+        let worker = Worker::new(config, shared.clone(), counters.clone(), rx)?;
+        let stop2 = stop.clone();
+        let thread = std::thread::Builder::new()
+            .name("lipcall-engine".into())
+            .spawn(move || worker.run(&stop2))?;
+        Ok(Self {
+            shared,
+            counters,
+            commands: tx,
+            stop,
+            thread: Some(thread),
+        })
+    }
+
+    pub fn send(&self, command: Command) {
+        let _ = self.commands.send(command);
+    }
+}
+
+impl Drop for Engine {
+    fn drop(&mut self) {
+        self.stop.store(true, Ordering::Relaxed);
+        if let Some(t) = self.thread.take() {
+            let _ = t.join();
+        }
+    }
+}
+
+fn describe_output(status: &OutputStatus) -> String {
+    match status {
+        OutputStatus::Silent { reason } => format!("no audio output ({reason}): playing silently"),
+        other => format!("{other:?}"),
+    }
+}
+
+/// The shipped network when this build has one.
+fn shipped_model() -> Option<&'static Model> {
+    None
+}
+
+/// Turns one peer's decoded frames into weights over a chosen viseme set, or does nothing at
+/// all when the peer's animation is off.
+pub struct PeerAnimation {
+    animator: Box<dyn Animator + Send>,
+    reprojector: Option<Reprojector>,
+    target: VisemeSet,
+    raw: Vec<f32>,
+    out: Vec<f32>,
+    key: (String, bool),
+    pub frames_animated: u64,
+}
+
+impl PeerAnimation {
+    pub fn new(prefs: &PeerPrefs) -> Self {
+        let animator: Box<dyn Animator + Send> = match (prefs.jaw, shipped_model()) {
+            (false, Some(model)) => Box::new(ModelAnimator::new(model)),
+            (true, Some(model)) => Box::new(JawBaseline::from_model(model)),
+            (_, None) => Box::new(JawBaseline::new(-60.0, -20.0)),
+        };
+        let source = animator.visemes().clone();
+        let target = VisemeSet::parse(&prefs.visemes).unwrap_or_else(|_| source.clone());
+        let reprojector =
+            Reprojector::new(source.clone(), target.clone(), VisemeShapes::point_model()).ok();
+        let target = if reprojector.is_some() {
+            target
+        } else {
+            source.clone()
+        };
+        Self {
+            raw: vec![0.0; source.len()],
+            out: vec![0.0; target.len()],
+            animator,
+            reprojector,
+            target,
+            key: (prefs.visemes.clone(), prefs.jaw),
+            frames_animated: 0,
+        }
+    }
+
+    /// The viseme set the weights are expressed over.
+    pub fn target(&self) -> &VisemeSet {
+        &self.target
+    }
+
+    /// Weights for one frame, or `None` (and no network run) when animation is off.
+    pub fn step(&mut self, prefs: &PeerPrefs, features: &FrameFeatures) -> Option<FullWeights> {
+        if self.key != (prefs.visemes.clone(), prefs.jaw) {
+            let count = self.frames_animated;
+            *self = Self::new(prefs);
+            self.frames_animated = count;
+        }
+        if !prefs.animate {
+            return None;
+        }
+        self.animator.animate(features, &mut self.raw);
+        match &mut self.reprojector {
+            Some(r) if r.project(&self.raw, &mut self.out).is_ok() => {}
+            _ => self.out.copy_from_slice(&self.raw[..self.out.len()]),
+        }
+        self.frames_animated += 1;
+        Some(self.target.to_full(&self.out))
+    }
+}
+
+struct PeerState {
+    feed: PeerFeed,
+    weights: ScheduleSender<FullWeights>,
+    animation: PeerAnimation,
+    last_voice: Option<Instant>,
+    frames_received: u64,
+}
+
+/// The bundled speech sample at 8 kHz.
+fn demo_speech() -> anyhow::Result<Vec<i16>> {
+    use crate::audio::wav;
+    let reader = hound::WavReader::new(std::io::Cursor::new(DEMO_WAV))?;
+    let spec = reader.spec();
+    let channels = usize::from(spec.channels.max(1));
+    let scale = 1.0 / (1u64 << (spec.bits_per_sample.clamp(1, 32) - 1)) as f32;
+    let interleaved: Vec<f32> = reader
+        .into_samples::<i32>()
+        .map(|s| s.map(|v| v as f32 * scale))
+        .collect::<Result<_, _>>()?;
+    let samples = interleaved
+        .chunks_exact(channels)
+        .map(|f| f.iter().sum::<f32>() / channels as f32)
+        .collect();
+    let audio = wav::MonoAudio {
+        rate: spec.sample_rate,
+        samples,
+    };
+    Ok(wav::to_i16(&wav::resample(&audio, crate::speex::SAMPLE_RATE)?))
+}
+
+/// The looped demo speech, encoded frame by frame and sent to our own session.
+struct Demo {
+    session: Session,
+    encoder: Encoder,
+    pcm: Vec<i16>,
+    at: usize,
+}
+
+impl Demo {
+    fn start(to: SocketAddr) -> anyhow::Result<Self> {
+        let pcm = demo_speech()?;
+        anyhow::ensure!(pcm.len() >= FRAME_SIZE, "the demo speech sample is empty");
+        let mut config = SessionConfig::new(SocketAddr::new(to.ip(), 0));
+        config.destinations = vec![to];
+        config.name = Some(DEMO_NAME.into());
+        let session = Session::start(config)?;
+        Ok(Self {
+            session,
+            encoder: Encoder::new(EncoderConfig::default())?,
+            pcm,
+            at: 0,
+        })
+    }
+
+    fn tick(&mut self) {
+        let mut frame = [0i16; FRAME_SIZE];
+        for s in frame.iter_mut() {
+            *s = self.pcm[self.at];
+            self.at = (self.at + 1) % self.pcm.len();
+        }
+        let mut packet = [0u8; MAX_PACKET_BYTES];
+        if let Some(n) = self.encoder.encode_frame(&frame, &mut packet) {
+            let _ = self.session.send_speex(&packet[..n], 1);
+        }
+    }
+}
+
+struct Worker {
+    config: EngineConfig,
+    shared: Arc<Mutex<Shared>>,
+    counters: Arc<EngineCounters>,
+    commands: Receiver<Command>,
+    session: Session,
+    demo: Option<Demo>,
+    mic: Option<Capture>,
+    encoder: Encoder,
+    peers: HashMap<u32, PeerState>,
+}
+
+fn resolve(addr: &str) -> anyhow::Result<SocketAddr> {
+    use anyhow::Context;
+    addr.trim()
+        .to_socket_addrs()
+        .with_context(|| format!("cannot resolve {addr:?} (expected HOST:PORT)"))?
+        .next()
+        .with_context(|| format!("{addr} resolves to no address"))
+}
+
+fn idle_session(config: &EngineConfig) -> anyhow::Result<Session> {
+    let bind = config
+        .listen
+        .unwrap_or_else(|| SocketAddr::from(([127, 0, 0, 1], 0)));
+    let mut sc = SessionConfig::new(bind);
+    sc.name = Some(config.name.clone());
+    Ok(Session::start(sc)?)
+}
+
+impl Worker {
+    fn new(
+        config: EngineConfig,
+        shared: Arc<Mutex<Shared>>,
+        counters: Arc<EngineCounters>,
+        commands: Receiver<Command>,
+    ) -> anyhow::Result<Self> {
+        let session = idle_session(&config)?;
+        let mut worker = Self {
+            encoder: Encoder::new(EncoderConfig::default())?,
+            session,
+            demo: None,
+            mic: None,
+            peers: HashMap::new(),
+            config,
+            shared,
+            counters,
+            commands,
+        };
+        worker.set_idle_status();
+        if worker.config.demo {
+            worker.start_demo();
+        }
+        let input = worker.config.input.clone();
+        worker.open_mic(&input);
+        Ok(worker)
+    }
+
+    fn start_demo(&mut self) {
+        let addr = match self.session.local_addr() {
+            Ok(a) if a.ip().is_unspecified() => SocketAddr::from(([127, 0, 0, 1], a.port())),
+            Ok(a) => a,
+            Err(_) => return,
+        };
+        match Demo::start(addr) {
+            Ok(d) => self.demo = Some(d),
+            Err(e) => lock(&self.shared).call.error = Some(format!("demo peer: {e:#}")),
+        }
+    }
+
+    fn open_mic(&mut self, choice: &DeviceChoice) {
+        self.mic = None;
+        let (mic, status) = if self.config.no_audio {
+            (None, "no microphone (audio disabled): receive-only".to_owned())
+        } else {
+            match Capture::start(choice) {
+                Ok(c) => {
+                    let s = format!("microphone: {}", c.device_name());
+                    (Some(c), s)
+                }
+                Err(e) => (None, format!("no microphone ({e}): receive-only")),
+            }
+        };
+        let controls = mic.as_ref().map(Capture::controls);
+        self.mic = mic;
+        let mut s = lock(&self.shared);
+        s.input_status = status;
+        s.mic = controls;
+    }
+
+    fn set_idle_status(&self) {
+        let addr = self.session.local_addr().ok();
+        let mut s = lock(&self.shared);
+        s.call = CallStatus {
+            state: match addr {
+                Some(a) => format!("not in a call; listening on {a}"),
+                None => "not in a call".into(),
+            },
+            in_call: false,
+            encrypted: false,
+            local_addr: addr,
+            error: s.call.error.take(),
+        };
+    }
+
+    fn call(&mut self, spec: &CallSpec) -> anyhow::Result<()> {
+        let to = resolve(&spec.address)?;
+        let room = spec.room.clone().filter(|r| !r.trim().is_empty());
+        let key = spec
+            .passphrase
+            .as_deref()
+            .filter(|p| !p.is_empty())
+            .map(|p| MasterKey::from_passphrase(p, room.as_deref().unwrap_or("")));
+        let bind = match self.config.listen {
+            Some(l) => l,
+            None if to.ip().is_loopback() => SocketAddr::new(to.ip(), 0),
+            None if to.is_ipv4() => SocketAddr::from(([0, 0, 0, 0], 0)),
+            None => SocketAddr::from((std::net::Ipv6Addr::UNSPECIFIED, 0)),
+        };
+        let mut sc = SessionConfig::new(bind);
+        sc.destinations = vec![to];
+        sc.room = room.clone();
+        sc.key = key;
+        sc.name = Some(if spec.name.trim().is_empty() {
+            self.config.name.clone()
+        } else {
+            spec.name.clone()
+        });
+        // Free the listening port first when the call reuses it.
+        self.session.leave();
+        self.demo = None;
+        let session = match Session::start(sc) {
+            Ok(s) => s,
+            Err(e) => {
+                self.session = idle_session(&self.config)?;
+                return Err(e.into());
+            }
+        };
+        self.session = session;
+        self.drop_peers();
+        let encrypted = self.session.encrypted();
+        let mut s = lock(&self.shared);
+        s.call = CallStatus {
+            state: match &room {
+                Some(r) => format!("in room {r:?} on relay {to}"),
+                None => format!("calling {to}"),
+            },
+            in_call: true,
+            encrypted,
+            local_addr: self.session.local_addr().ok(),
+            error: None,
+        };
+        Ok(())
+    }
+
+    fn leave(&mut self) -> anyhow::Result<()> {
+        self.session.leave();
+        self.drop_peers();
+        self.session = idle_session(&self.config)?;
+        self.set_idle_status();
+        Ok(())
+    }
+
+    fn drop_peers(&mut self) {
+        let mut s = lock(&self.shared);
+        for (ssrc, p) in self.peers.drain() {
+            s.playback.remove_peer(p.feed.id());
+            s.schedules.remove(&ssrc);
+        }
+        s.peers.clear();
+    }
+
+    fn handle(&mut self, command: Command) {
+        let result = match command {
+            Command::Call(spec) => self.call(&spec),
+            Command::Leave => self.leave(),
+            Command::SetInput(choice) => {
+                self.open_mic(&choice);
+                Ok(())
+            }
+            Command::SetOutput(choice) => {
+                let mut s = lock(&self.shared);
+                let r = s.playback.set_output(choice);
+                let status = describe_output(s.playback.status());
+                s.output_status = status;
+                r.map_err(Into::into)
+            }
+        };
+        if let Err(e) = result {
+            lock(&self.shared).call.error = Some(format!("{e:#}"));
+        }
+    }
+
+    fn run(mut self, stop: &AtomicBool) {
+        let start = Instant::now();
+        let mut frames: Vec<PeerFrame> = Vec::new();
+        let mut tick = 0u32;
+        let mut infos: Vec<PeerInfo> = Vec::new();
+        while !stop.load(Ordering::Relaxed) {
+            let due = start + TICK * tick;
+            tick = tick.wrapping_add(1);
+            if let Some(wait) = due.checked_duration_since(Instant::now()) {
+                std::thread::sleep(wait);
+            } else if Instant::now().duration_since(due) > TICK * 10 {
+                // Far behind (suspended?): rebase instead of bursting.
+                tick = ((Instant::now() - start).as_millis() / TICK.as_millis()) as u32;
+            }
+            loop {
+                match self.commands.try_recv() {
+                    Ok(c) => self.handle(c),
+                    Err(TryRecvError::Empty) => break,
+                    Err(TryRecvError::Disconnected) => return,
+                }
+            }
+            if let Some(demo) = &mut self.demo {
+                demo.tick();
+            }
+            self.send_mic();
+            frames.clear();
+            self.session.pull(Instant::now(), &mut frames);
+            self.counters.ticks.fetch_add(1, Ordering::Relaxed);
+            if tick % 10 == 0 {
+                infos = self.session.peers();
+            }
+            self.process(&frames, &infos, tick % 10 == 0);
+        }
+        self.session.leave();
+    }
+
+    fn send_mic(&mut self) {
+        let Some(mic) = &mut self.mic else { return };
+        let in_call = !self.session.local_addr().is_err() && self.demo.is_none();
+        let mut frame = [0i16; FRAME_SIZE];
+        let mut packet = [0u8; MAX_PACKET_BYTES];
+        loop {
+            match mic.read_frame(&mut frame) {
+                Ok(Some(Gate::Open)) if in_call => {
+                    if let Some(n) = self.encoder.encode_frame(&frame, &mut packet) {
+                        let _ = self.session.send_speex(&packet[..n], 1);
+                    }
+                }
+                Ok(Some(_)) => {
+                    if in_call {
+                        self.session.skip_frames(1);
+                    }
+                }
+                Ok(None) => break,
+                Err(e) => {
+                    self.mic = None;
+                    let mut s = lock(&self.shared);
+                    s.input_status = format!("microphone lost ({e}): receive-only");
+                    s.mic = None;
+                    break;
+                }
+            }
+        }
+    }
+
+    fn process(&mut self, frames: &[PeerFrame], infos: &[PeerInfo], refresh: bool) {
+        let now = Instant::now();
+        let mut s = lock(&self.shared);
+        for f in frames {
+            if !self.peers.contains_key(&f.ssrc) {
+                let Ok(feed) = s.playback.add_peer() else {
+                    continue;
+                };
+                let (tx, rx) = Schedule::channel(256);
+                s.schedules.insert(f.ssrc, rx);
+                let prefs = s.prefs.entry(f.ssrc).or_default().clone();
+                self.peers.insert(
+                    f.ssrc,
+                    PeerState {
+                        feed,
+                        weights: tx,
+                        animation: PeerAnimation::new(&prefs),
+                        last_voice: None,
+                        frames_received: 0,
+                    },
+                );
+            }
+            let Some(peer) = self.peers.get_mut(&f.ssrc) else {
+                continue;
+            };
+            let prefs = s.prefs.get(&f.ssrc).cloned().unwrap_or_default();
+            if let Some(c) = s.playback.peer_controls(peer.feed.id()) {
+                c.set_muted(prefs.muted);
+                c.set_volume(prefs.volume);
+            }
+            let (pos, _) = peer.feed.push(&f.frame.pcm);
+            peer.frames_received += 1;
+            if f.frame.kind == FrameKind::Decoded && f.frame.features.energy_db > -45.0 {
+                peer.last_voice = Some(now);
+            }
+            let t0 = Instant::now();
+            if let Some(w) = peer.animation.step(&prefs, &f.frame.features) {
+                self.counters
+                    .network_ns
+                    .fetch_add(t0.elapsed().as_nanos() as u64, Ordering::Relaxed);
+                self.counters.frames_animated.fetch_add(1, Ordering::Relaxed);
+                peer.weights.send(pos, w);
+            }
+        }
+        if !refresh {
+            return;
+        }
+        // Forget peers the session no longer knows or that said goodbye and went quiet.
+        let gone: Vec<u32> = self
+            .peers
+            .keys()
+            .copied()
+            .filter(|ssrc| !infos.iter().any(|i| i.ssrc == *ssrc && !i.ended))
+            .collect();
+        for ssrc in gone {
+            if let Some(p) = self.peers.remove(&ssrc) {
+                s.playback.remove_peer(p.feed.id());
+                s.schedules.remove(&ssrc);
+            }
+        }
+        let real_peer = infos
+            .iter()
+            .any(|i| i.name.as_deref() != Some(DEMO_NAME) && !i.ended);
+        s.peers = infos
+            .iter()
+            .filter_map(|i| {
+                let p = self.peers.get(&i.ssrc)?;
+                let j = &i.receiver.jitter;
+                let expected = j.played + j.lost;
+                Some(PeerView {
+                    ssrc: i.ssrc,
+                    name: i
+                        .name
+                        .clone()
+                        .or_else(|| i.cname.clone())
+                        .unwrap_or_else(|| format!("{:08x}", i.ssrc)),
+                    addr: i.addr,
+                    feed: p.feed.id(),
+                    is_demo: i.name.as_deref() == Some(DEMO_NAME),
+                    talking: p
+                        .last_voice
+                        .is_some_and(|t| now.duration_since(t) < Duration::from_millis(300)),
+                    loss_percent: if expected == 0 {
+                        0.0
+                    } else {
+                        100.0 * j.lost as f64 / expected as f64
+                    },
+                    jitter_ms: j.jitter_ms,
+                    delay_ms: j.current_delay_ms,
+                    frames_animated: p.animation.frames_animated,
+                    frames_received: p.frames_received,
+                })
+            })
+            .collect();
+        drop(s);
+        // A real peer takes the demo's place.
+        if real_peer && self.demo.is_some() {
+            if let Some(d) = self.demo.take() {
+                d.session.leave();
+            }
+        }
+    }
+}

@@ -1,0 +1,640 @@
+//! The desktop app: an eframe/egui window with one head tile per remote peer.
+//!
+//! Threads: the UI thread (egui, wgpu) reads the engine's snapshot once per frame and looks up
+//! each peer's weights at the audio position heard now; the engine thread ([`engine`]) runs
+//! the sessions, the microphone and the per-peer animation at 20 ms.
+
+pub mod engine;
+pub mod settings;
+pub mod tiles;
+
+use std::io::Write;
+use std::net::SocketAddr;
+use std::path::PathBuf;
+use std::sync::Arc;
+use std::sync::atomic::Ordering;
+use std::time::{Duration, Instant};
+
+use anyhow::Context;
+use eframe::egui;
+
+use crate::audio::{DeviceChoice, DeviceInfo};
+use crate::render::{Framing, VisemeWeights};
+use engine::{CallSpec, Command, Engine, EngineConfig, PeerView};
+use settings::{PeerPrefs, Settings};
+use tiles::{HeadTile, RenderCounters};
+
+/// How the app starts (the command line's top-level flags).
+#[derive(Debug, Clone, Default)]
+pub struct AppOptions {
+    /// Listen for calls on this address (otherwise a loopback port for the demo peer).
+    pub listen: Option<String>,
+    /// No demo peer.
+    pub no_demo: bool,
+    /// Close the window after this many seconds (tests, screenshots).
+    pub quit_after: Option<f64>,
+    /// Write a status line per peer to this file twice a second.
+    pub status: Option<PathBuf>,
+    /// Use no audio device (silent playback, no microphone).
+    pub no_audio: bool,
+    /// Settings file instead of the XDG one.
+    pub settings: Option<PathBuf>,
+}
+
+/// Opens the window and runs until it is closed.
+pub fn run(options: AppOptions) -> anyhow::Result<()> {
+    let listen = match &options.listen {
+        Some(a) => Some(
+            a.parse::<SocketAddr>()
+                .with_context(|| format!("--listen {a}: expected IP:PORT"))?,
+        ),
+        None => None,
+    };
+    let settings_path = options.settings.clone().or_else(settings::default_path);
+    let (settings, settings_note) = match &settings_path {
+        Some(p) => Settings::load(p),
+        None => (Settings::default(), None),
+    };
+    let choice = |id: &str| DeviceChoice::from_option((!id.is_empty()).then_some(id));
+    let engine = Engine::start(EngineConfig {
+        listen,
+        demo: !options.no_demo,
+        name: settings.name.clone(),
+        input: choice(&settings.input_device),
+        output: choice(&settings.output_device),
+        no_audio: options.no_audio,
+    })?;
+    if let Some(addr) = engine::lock(&engine.shared).call.local_addr {
+        eprintln!("lipcall: listening on {addr}");
+    }
+
+    let mut wgpu_options = eframe::egui_wgpu::WgpuConfiguration::default();
+    if let eframe::egui_wgpu::WgpuSetup::CreateNew(create) = &mut wgpu_options.wgpu_setup {
+        create.device_descriptor = Arc::new(|adapter| wgpu::DeviceDescriptor {
+            label: Some("lipcall device"),
+            required_limits: crate::render::HeadRenderer::required_limits()
+                .using_resolution(adapter.limits()),
+            ..Default::default()
+        });
+    }
+    let native = eframe::NativeOptions {
+        viewport: egui::ViewportBuilder::default()
+            .with_title("lipcall")
+            .with_inner_size([1280.0, 720.0])
+            .with_min_inner_size([480.0, 320.0]),
+        renderer: eframe::Renderer::Wgpu,
+        depth_buffer: 32,
+        wgpu_options,
+        ..Default::default()
+    };
+    let counters = Arc::new(RenderCounters::default());
+    let result = eframe::run_native(
+        "lipcall",
+        native,
+        Box::new(move |cc| {
+            let mut notes: Vec<String> = settings_note.into_iter().collect();
+            match &cc.wgpu_render_state {
+                Some(state) => {
+                    if let Err(e) = tiles::install(state, counters.clone()) {
+                        notes.push(format!("heads cannot be drawn: {e:#}"));
+                    }
+                }
+                None => notes.push("heads cannot be drawn: no wgpu renderer".into()),
+            }
+            Ok(Box::new(LipcallApp::new(
+                engine,
+                settings,
+                settings_path,
+                options,
+                counters,
+                notes,
+            )))
+        }),
+    );
+    result.map_err(|e| anyhow::anyhow!("the window failed: {e}"))
+}
+
+/// The call form's fields.
+#[derive(Debug, Clone, Default)]
+pub struct CallForm {
+    pub address: String,
+    pub room: String,
+    pub passphrase: String,
+}
+
+pub struct LipcallApp {
+    engine: Engine,
+    settings: Settings,
+    settings_path: Option<PathBuf>,
+    options: AppOptions,
+    form: CallForm,
+    notes: Vec<String>,
+    started: Instant,
+    last_status: Instant,
+    last_save: Instant,
+    counters: Arc<RenderCounters>,
+    /// Frames each peer's tile showed with weights of the audio heard then.
+    shown: std::collections::HashMap<u32, u64>,
+    frames: u64,
+    inputs: Vec<DeviceInfo>,
+    outputs: Vec<DeviceInfo>,
+}
+
+impl LipcallApp {
+    fn new(
+        engine: Engine,
+        settings: Settings,
+        settings_path: Option<PathBuf>,
+        options: AppOptions,
+        counters: Arc<RenderCounters>,
+        notes: Vec<String>,
+    ) -> Self {
+        let form = CallForm {
+            address: settings.last_address.clone(),
+            room: settings.last_room.clone(),
+            passphrase: String::new(),
+        };
+        let (inputs, outputs) = if options.no_audio {
+            (Vec::new(), Vec::new())
+        } else {
+            (
+                crate::audio::input_devices().unwrap_or_default(),
+                crate::audio::output_devices().unwrap_or_default(),
+            )
+        };
+        if let Some(mic) = &engine::lock(&engine.shared).mic {
+            mic.set_push_to_talk(settings.push_to_talk);
+        }
+        Self {
+            engine,
+            settings,
+            settings_path,
+            options,
+            form,
+            notes,
+            started: Instant::now(),
+            last_status: Instant::now(),
+            last_save: Instant::now(),
+            counters,
+            shown: Default::default(),
+            frames: 0,
+            inputs,
+            outputs,
+        }
+    }
+
+    fn save_settings(&self) {
+        if let Some(p) = &self.settings_path
+            && let Err(e) = self.settings.save(p)
+        {
+            eprintln!("lipcall: cannot save settings to {}: {e}", p.display());
+        }
+    }
+
+    fn write_status(&self, peers: &[PeerView]) {
+        let Some(path) = &self.options.status else {
+            return;
+        };
+        let c = &self.engine.counters;
+        let mut text = format!(
+            "time_s={:.2} ui_frames={} network_ms={:.1} frames_animated={} record_ms={:.1} \
+             tiles_drawn={}\n",
+            self.started.elapsed().as_secs_f64(),
+            self.frames,
+            c.network_ns.load(Ordering::Relaxed) as f64 / 1e6,
+            c.frames_animated.load(Ordering::Relaxed),
+            self.counters.record_ns.load(Ordering::Relaxed) as f64 / 1e6,
+            self.counters.tiles_drawn.load(Ordering::Relaxed),
+        );
+        for p in peers {
+            text += &format!(
+                "peer ssrc={:08x} name={:?} demo={} talking={} animated={} shown={} received={}\n",
+                p.ssrc,
+                p.name,
+                p.is_demo,
+                p.talking,
+                p.frames_animated,
+                self.shown.get(&p.ssrc).copied().unwrap_or(0),
+                p.frames_received,
+            );
+        }
+        let tmp = path.with_extension("tmp");
+        let ok = std::fs::File::create(&tmp)
+            .and_then(|mut f| f.write_all(text.as_bytes()))
+            .and_then(|()| std::fs::rename(&tmp, path));
+        if let Err(e) = ok {
+            eprintln!("lipcall: cannot write {}: {e}", path.display());
+        }
+    }
+
+    /// Keyboard shortcuts: M toggles the microphone's mute; Space talks in push-to-talk mode.
+    fn shortcuts(&mut self, ctx: &egui::Context) {
+        let typing = ctx.egui_wants_keyboard_input();
+        let (m, space) = ctx.input(|i| (i.key_pressed(egui::Key::M), i.key_down(egui::Key::Space)));
+        let s = engine::lock(&self.engine.shared);
+        if let Some(mic) = &s.mic {
+            if m && !typing {
+                mic.set_muted(!mic.muted());
+            }
+            mic.set_talk_pressed(space && !typing);
+        }
+    }
+}
+
+impl eframe::App for LipcallApp {
+    fn ui(&mut self, ui: &mut egui::Ui, _frame: &mut eframe::Frame) {
+        let ctx = ui.ctx().clone();
+        self.frames += 1;
+        self.shortcuts(&ctx);
+        let now = Instant::now();
+
+        // One lock: the snapshot, and each peer's weights for the audio heard now.
+        let (peers, call, output_status, input_status, mic, weights) = {
+            let mut guard = engine::lock(&self.engine.shared);
+            let s = &mut *guard;
+            s.playback.poll();
+            let peers = s.peers.clone();
+            for p in &peers {
+                if !s.prefs.contains_key(&p.ssrc) {
+                    let prefs = self.settings.peers.get(&p.name).cloned().unwrap_or_default();
+                    s.prefs.insert(p.ssrc, prefs);
+                }
+            }
+            let mut weights = Vec::with_capacity(peers.len());
+            for p in &peers {
+                let w = s
+                    .schedules
+                    .get_mut(&p.ssrc)
+                    .and_then(|sch| s.playback.weights_now(sch, p.feed, now).copied());
+                weights.push(w);
+            }
+            (
+                peers,
+                s.call.clone(),
+                s.output_status.clone(),
+                s.input_status.clone(),
+                s.mic.clone(),
+                weights,
+            )
+        };
+        for (p, w) in peers.iter().zip(&weights) {
+            if w.is_some() {
+                *self.shown.entry(p.ssrc).or_default() += 1;
+            }
+        }
+        let mut prefs: Vec<PeerPrefs> = {
+            let s = engine::lock(&self.engine.shared);
+            peers
+                .iter()
+                .map(|p| s.prefs.get(&p.ssrc).cloned().unwrap_or_default())
+                .collect()
+        };
+        let before = prefs.clone();
+
+        egui::Panel::top("call").show_inside(ui, |ui| {
+            call_ui(
+                ui,
+                &mut self.form,
+                &mut self.settings,
+                &call,
+                &self.engine,
+            );
+        });
+        egui::Panel::bottom("audio").show_inside(ui, |ui| {
+            audio_ui(
+                ui,
+                &mut self.settings,
+                mic.as_ref(),
+                &output_status,
+                &input_status,
+                &self.inputs,
+                &self.outputs,
+                &self.engine,
+            );
+            for n in &self.notes {
+                ui.colored_label(egui::Color32::YELLOW, n);
+            }
+        });
+        egui::Panel::left("peers")
+            .resizable(true)
+            .default_size(260.0)
+            .show_inside(ui, |ui| peer_list_ui(ui, &peers));
+        egui::CentralPanel::default().show_inside(ui, |ui| {
+            tiles_ui(ui, &peers, &weights, &mut prefs);
+        });
+
+        if prefs != before {
+            let mut s = engine::lock(&self.engine.shared);
+            for (p, pr) in peers.iter().zip(&prefs) {
+                s.prefs.insert(p.ssrc, pr.clone());
+                if !p.is_demo {
+                    self.settings.peers.insert(p.name.clone(), pr.clone());
+                }
+            }
+        }
+
+        if self.last_status.elapsed() >= Duration::from_millis(500) {
+            self.last_status = Instant::now();
+            self.write_status(&peers);
+        }
+        if self.last_save.elapsed() >= Duration::from_secs(5) {
+            self.last_save = Instant::now();
+            self.save_settings();
+        }
+        if self
+            .options
+            .quit_after
+            .is_some_and(|s| self.started.elapsed().as_secs_f64() >= s)
+        {
+            self.write_status(&peers);
+            ctx.send_viewport_cmd(egui::ViewportCommand::Close);
+        }
+        ctx.request_repaint_after(Duration::from_millis(20));
+    }
+
+    fn on_exit(&mut self) {
+        self.save_settings();
+        engine::lock(&self.engine.shared).call.in_call = false;
+        self.engine.send(Command::Leave);
+    }
+}
+
+/// Join a room on a relay or call a peer directly; leave; the encryption indicator.
+fn call_ui(
+    ui: &mut egui::Ui,
+    form: &mut CallForm,
+    settings: &mut Settings,
+    call: &engine::CallStatus,
+    engine: &Engine,
+) {
+    ui.horizontal_wrapped(|ui| {
+        ui.strong("lipcall");
+        ui.separator();
+        ui.label("Name");
+        ui.add(egui::TextEdit::singleline(&mut settings.name).desired_width(90.0));
+        ui.label("Address");
+        ui.add(
+            egui::TextEdit::singleline(&mut form.address)
+                .hint_text("host:port")
+                .desired_width(150.0),
+        );
+        ui.label("Room");
+        ui.add(
+            egui::TextEdit::singleline(&mut form.room)
+                .hint_text("(direct call)")
+                .desired_width(90.0),
+        );
+        ui.label("Passphrase");
+        ui.add(
+            egui::TextEdit::singleline(&mut form.passphrase)
+                .password(true)
+                .desired_width(90.0),
+        );
+        let label = if form.room.trim().is_empty() {
+            "Call"
+        } else {
+            "Join room"
+        };
+        if ui
+            .add_enabled(!form.address.trim().is_empty(), egui::Button::new(label))
+            .clicked()
+        {
+            settings.last_address = form.address.clone();
+            settings.last_room = form.room.clone();
+            engine.send(Command::Call(CallSpec {
+                address: form.address.clone(),
+                room: Some(form.room.clone()),
+                passphrase: Some(form.passphrase.clone()),
+                name: settings.name.clone(),
+            }));
+        }
+        if ui
+            .add_enabled(call.in_call, egui::Button::new("Leave"))
+            .clicked()
+        {
+            engine.send(Command::Leave);
+        }
+        ui.separator();
+        if call.encrypted {
+            ui.colored_label(egui::Color32::LIGHT_GREEN, "🔒 encrypted (SRTP)");
+        } else {
+            ui.colored_label(egui::Color32::from_rgb(230, 160, 60), "🔓 not encrypted");
+        }
+        ui.label(&call.state);
+        if let Some(e) = &call.error {
+            ui.colored_label(egui::Color32::LIGHT_RED, e);
+        }
+    });
+}
+
+/// Device pickers, the mic level meter, mute and push-to-talk.
+#[allow(clippy::too_many_arguments)]
+fn audio_ui(
+    ui: &mut egui::Ui,
+    settings: &mut Settings,
+    mic: Option<&crate::audio::MicControls>,
+    output_status: &str,
+    input_status: &str,
+    inputs: &[DeviceInfo],
+    outputs: &[DeviceInfo],
+    engine: &Engine,
+) {
+    ui.horizontal_wrapped(|ui| {
+        if device_picker_ui(ui, "Microphone", &mut settings.input_device, inputs) {
+            engine.send(Command::SetInput(DeviceChoice::from_option(
+                Some(settings.input_device.as_str()).filter(|s| !s.is_empty()),
+            )));
+        }
+        if device_picker_ui(ui, "Speaker", &mut settings.output_device, outputs) {
+            engine.send(Command::SetOutput(DeviceChoice::from_option(
+                Some(settings.output_device.as_str()).filter(|s| !s.is_empty()),
+            )));
+        }
+        match mic {
+            Some(mic) => {
+                let level = mic.level();
+                let fill = ((level.peak_dbfs + 60.0) / 60.0).clamp(0.0, 1.0);
+                ui.add(
+                    egui::ProgressBar::new(fill)
+                        .desired_width(120.0)
+                        .text(format!("{:.0} dBFS", level.peak_dbfs.max(-99.0))),
+                );
+                let mut muted = mic.muted();
+                if ui.checkbox(&mut muted, "Mute (M)").changed() {
+                    mic.set_muted(muted);
+                }
+                if ui
+                    .checkbox(&mut settings.push_to_talk, "Push-to-talk (hold Space)")
+                    .changed()
+                {
+                    mic.set_push_to_talk(settings.push_to_talk);
+                }
+                ui.label(if mic.transmitting() { "🎙 sending" } else { "" });
+            }
+            None => {
+                ui.label(input_status);
+            }
+        }
+        ui.separator();
+        ui.label(output_status);
+    });
+}
+
+/// A device combo box; true when the choice changed.
+fn device_picker_ui(
+    ui: &mut egui::Ui,
+    label: &str,
+    chosen: &mut String,
+    devices: &[DeviceInfo],
+) -> bool {
+    let shown = if chosen.is_empty() {
+        "default".to_owned()
+    } else {
+        devices
+            .iter()
+            .find(|d| &d.id == chosen)
+            .map_or_else(|| chosen.clone(), |d| d.name.clone())
+    };
+    let mut changed = false;
+    ui.label(label);
+    egui::ComboBox::from_id_salt(label)
+        .selected_text(shown)
+        .width(160.0)
+        .show_ui(ui, |ui| {
+            changed |= ui.selectable_value(chosen, String::new(), "default").changed();
+            for d in devices {
+                changed |= ui
+                    .selectable_value(chosen, d.id.clone(), &d.name)
+                    .changed();
+            }
+        });
+    changed
+}
+
+/// Names, talking indicators and link statistics.
+pub fn peer_list_ui(ui: &mut egui::Ui, peers: &[PeerView]) {
+    ui.heading("Peers");
+    if peers.is_empty() {
+        ui.label("Nobody here yet.");
+    }
+    for p in peers {
+        ui.horizontal(|ui| {
+            let colour = if p.talking {
+                egui::Color32::LIGHT_GREEN
+            } else {
+                egui::Color32::DARK_GRAY
+            };
+            ui.colored_label(colour, "●");
+            ui.strong(&p.name);
+            if p.is_demo {
+                ui.weak("(demo)");
+            }
+        });
+        ui.weak(format!(
+            "{}  loss {:.1}%  jitter {:.1} ms  delay {:.0} ms",
+            p.addr, p.loss_percent, p.jitter_ms, p.delay_ms
+        ));
+        ui.separator();
+    }
+}
+
+/// The viseme sets offered (the paper's reduced sets and the full one).
+pub const VISEME_CHOICES: [&str; 6] = ["2", "3", "4", "5", "6", "15"];
+
+/// One peer's controls: animation, mute, volume, lipreading view, viseme set, jaw mode.
+pub fn peer_controls_ui(ui: &mut egui::Ui, id: u32, prefs: &mut PeerPrefs) {
+    ui.horizontal_wrapped(|ui| {
+        ui.checkbox(&mut prefs.animate, "Animate");
+        ui.checkbox(&mut prefs.muted, "Mute");
+        ui.add(
+            egui::Slider::new(&mut prefs.volume, 0.0..=2.0)
+                .text("Vol")
+                .max_decimals(1),
+        );
+        ui.checkbox(&mut prefs.lipreading, "Lipreading");
+        ui.checkbox(&mut prefs.jaw, "Jaw only");
+        egui::ComboBox::from_id_salt(("visemes", id))
+            .selected_text(format!("{} visemes", prefs.visemes))
+            .width(90.0)
+            .show_ui(ui, |ui| {
+                for c in VISEME_CHOICES {
+                    ui.selectable_value(&mut prefs.visemes, c.to_owned(), format!("{c} visemes"));
+                }
+            });
+    });
+}
+
+/// A grid of head tiles, each with its controls beneath.
+pub fn tiles_ui(
+    ui: &mut egui::Ui,
+    peers: &[PeerView],
+    weights: &[Option<[f32; 15]>],
+    prefs: &mut [PeerPrefs],
+) {
+    if peers.is_empty() {
+        ui.centered_and_justified(|ui| {
+            ui.label("Waiting for someone to talk… (call a peer or join a room above)");
+        });
+        return;
+    }
+    let n = peers.len();
+    let avail = ui.available_size();
+    let cols = (1..=n)
+        .min_by_key(|&c| {
+            let rows = n.div_ceil(c);
+            let w = avail.x / c as f32;
+            let h = avail.y / rows as f32 - 60.0;
+            // The largest square head that fits.
+            -(w.min(h).max(1.0) as i64)
+        })
+        .unwrap_or(1);
+    let rows = n.div_ceil(cols);
+    let tile_w = (avail.x / cols as f32 - 8.0).max(50.0);
+    let tile_h = (avail.y / rows as f32 - 8.0).max(80.0);
+    egui::Grid::new("tiles")
+        .spacing([8.0, 8.0])
+        .show(ui, |ui| {
+            for (i, p) in peers.iter().enumerate() {
+                ui.allocate_ui(egui::vec2(tile_w, tile_h), |ui| {
+                    ui.set_min_size(egui::vec2(tile_w, tile_h));
+                    ui.vertical(|ui| {
+                        ui.horizontal(|ui| {
+                            ui.strong(&p.name);
+                            if p.talking {
+                                ui.colored_label(egui::Color32::LIGHT_GREEN, "talking");
+                            }
+                        });
+                        let head_h = (tile_h - 70.0).max(40.0);
+                        let (rect, _) = ui.allocate_exact_size(
+                            egui::vec2(tile_w, head_h),
+                            egui::Sense::hover(),
+                        );
+                        ui.painter()
+                            .rect_filled(rect, 6.0, egui::Color32::from_gray(38));
+                        let w = match (prefs[i].animate, weights[i]) {
+                            (true, Some(w)) => VisemeWeights(w),
+                            _ => VisemeWeights::neutral(),
+                        };
+                        tiles::head_ui(
+                            ui,
+                            rect,
+                            HeadTile {
+                                id: u64::from(p.ssrc),
+                                framing: if prefs[i].lipreading {
+                                    Framing::Mouth
+                                } else {
+                                    Framing::Face
+                                },
+                                aspect: rect.width() / rect.height().max(1.0),
+                                weights: w,
+                            },
+                        );
+                        peer_controls_ui(ui, p.ssrc, &mut prefs[i]);
+                    });
+                });
+                if (i + 1) % cols == 0 {
+                    ui.end_row();
+                }
+            }
+        });
+}

@@ -1,0 +1,130 @@
+//! Settings kept between runs: a small JSON file under the XDG config directory.
+
+use std::collections::BTreeMap;
+use std::path::{Path, PathBuf};
+
+use serde::{Deserialize, Serialize};
+
+/// What the receiver does with one peer (all local choices; nothing crosses the network).
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(default)]
+pub struct PeerPrefs {
+    /// Off: a still head, and no network runs for this peer.
+    pub animate: bool,
+    pub muted: bool,
+    /// Linear gain, 0..=2.
+    pub volume: f32,
+    /// The large close-up of the mouth.
+    pub lipreading: bool,
+    /// Viseme set: a count (2..=6 or 15) or names, as `--visemes` takes.
+    pub visemes: String,
+    /// Jaw-from-energy instead of the network, for comparison.
+    pub jaw: bool,
+}
+
+impl Default for PeerPrefs {
+    fn default() -> Self {
+        Self {
+            animate: true,
+            muted: false,
+            volume: 1.0,
+            lipreading: false,
+            visemes: "15".into(),
+            jaw: false,
+        }
+    }
+}
+
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(default)]
+pub struct Settings {
+    pub name: String,
+    pub last_address: String,
+    pub last_room: String,
+    /// Device ids from the pickers; empty means the default device.
+    pub input_device: String,
+    pub output_device: String,
+    pub push_to_talk: bool,
+    /// Per-peer choices by display name (SSRCs change every call).
+    pub peers: BTreeMap<String, PeerPrefs>,
+}
+
+impl Default for Settings {
+    fn default() -> Self {
+        Self {
+            name: std::env::var("USER").unwrap_or_else(|_| "me".into()),
+            last_address: String::new(),
+            last_room: String::new(),
+            input_device: String::new(),
+            output_device: String::new(),
+            push_to_talk: false,
+            peers: BTreeMap::new(),
+        }
+    }
+}
+
+/// `$XDG_CONFIG_HOME/lipcall/settings.json`, else `~/.config/lipcall/settings.json`.
+pub fn default_path() -> Option<PathBuf> {
+    let base = std::env::var_os("XDG_CONFIG_HOME")
+        .filter(|v| !v.is_empty())
+        .map(PathBuf::from)
+        .or_else(|| std::env::var_os("HOME").map(|h| PathBuf::from(h).join(".config")))?;
+    Some(base.join("lipcall").join("settings.json"))
+}
+
+impl Settings {
+    /// Loads the settings; a missing or unreadable file gives the defaults (and says why).
+    pub fn load(path: &Path) -> (Self, Option<String>) {
+        match std::fs::read_to_string(path) {
+            Ok(text) => match serde_json::from_str(&text) {
+                Ok(s) => (s, None),
+                Err(e) => (
+                    Self::default(),
+                    Some(format!("{}: ignored ({e})", path.display())),
+                ),
+            },
+            Err(e) if e.kind() == std::io::ErrorKind::NotFound => (Self::default(), None),
+            Err(e) => (
+                Self::default(),
+                Some(format!("{}: ignored ({e})", path.display())),
+            ),
+        }
+    }
+
+    pub fn save(&self, path: &Path) -> std::io::Result<()> {
+        if let Some(dir) = path.parent() {
+            std::fs::create_dir_all(dir)?;
+        }
+        let text = serde_json::to_string_pretty(self).map_err(std::io::Error::other)?;
+        let tmp = path.with_extension("json.tmp");
+        std::fs::write(&tmp, text)?;
+        std::fs::rename(&tmp, path)
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn settings_round_trip_and_bad_files_give_defaults() {
+        let dir = tempfile::tempdir().unwrap();
+        let path = dir.path().join("sub").join("settings.json");
+        let mut s = Settings::default();
+        s.name = "Ada".into();
+        s.peers.insert(
+            "Bob".into(),
+            PeerPrefs {
+                animate: false,
+                visemes: "3".into(),
+                ..Default::default()
+            },
+        );
+        s.save(&path).unwrap();
+        assert_eq!(Settings::load(&path), (s, None));
+        std::fs::write(&path, "{not json").unwrap();
+        let (d, why) = Settings::load(&path);
+        assert_eq!(d, Settings::default());
+        assert!(why.is_some());
+    }
+}
