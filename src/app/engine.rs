@@ -247,9 +247,13 @@ impl PeerAnimation {
             return None;
         }
         self.animator.animate(features, &mut self.raw);
-        match &mut self.reprojector {
-            Some(r) if r.project(&self.raw, &mut self.out).is_ok() => {}
-            _ => self.out.copy_from_slice(&self.raw[..self.out.len()]),
+        let projected = self
+            .reprojector
+            .as_mut()
+            .is_some_and(|r| r.project(&self.raw, &mut self.out).is_ok());
+        if !projected {
+            let n = self.out.len();
+            self.out.copy_from_slice(&self.raw[..n]);
         }
         self.frames_animated += 1;
         Some(self.target.to_full(&self.out))
@@ -283,7 +287,10 @@ fn demo_speech() -> anyhow::Result<Vec<i16>> {
         rate: spec.sample_rate,
         samples,
     };
-    Ok(wav::to_i16(&wav::resample(&audio, crate::speex::SAMPLE_RATE)?))
+    Ok(wav::to_i16(&wav::resample(
+        &audio,
+        crate::speex::SAMPLE_RATE,
+    )?))
 }
 
 /// The looped demo speech, encoded frame by frame and sent to our own session.
@@ -396,7 +403,10 @@ impl Worker {
     fn open_mic(&mut self, choice: &DeviceChoice) {
         self.mic = None;
         let (mic, status) = if self.config.no_audio {
-            (None, "no microphone (audio disabled): receive-only".to_owned())
+            (
+                None,
+                "no microphone (audio disabled): receive-only".to_owned(),
+            )
         } else {
             match Capture::start(choice) {
                 Ok(c) => {
@@ -621,7 +631,9 @@ impl Worker {
                 self.counters
                     .network_ns
                     .fetch_add(t0.elapsed().as_nanos() as u64, Ordering::Relaxed);
-                self.counters.frames_animated.fetch_add(1, Ordering::Relaxed);
+                self.counters
+                    .frames_animated
+                    .fetch_add(1, Ordering::Relaxed);
                 peer.weights.send(pos, w);
             }
         }

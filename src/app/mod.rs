@@ -256,7 +256,12 @@ impl eframe::App for LipcallApp {
             let peers = s.peers.clone();
             for p in &peers {
                 if !s.prefs.contains_key(&p.ssrc) {
-                    let prefs = self.settings.peers.get(&p.name).cloned().unwrap_or_default();
+                    let prefs = self
+                        .settings
+                        .peers
+                        .get(&p.name)
+                        .cloned()
+                        .unwrap_or_default();
                     s.prefs.insert(p.ssrc, prefs);
                 }
             }
@@ -291,16 +296,10 @@ impl eframe::App for LipcallApp {
         };
         let before = prefs.clone();
 
-        egui::Panel::top("call").show_inside(ui, |ui| {
-            call_ui(
-                ui,
-                &mut self.form,
-                &mut self.settings,
-                &call,
-                &self.engine,
-            );
+        egui::Panel::top("call").show(ui, |ui| {
+            call_ui(ui, &mut self.form, &mut self.settings, &call, &self.engine);
         });
-        egui::Panel::bottom("audio").show_inside(ui, |ui| {
+        egui::Panel::bottom("audio").show(ui, |ui| {
             audio_ui(
                 ui,
                 &mut self.settings,
@@ -318,8 +317,8 @@ impl eframe::App for LipcallApp {
         egui::Panel::left("peers")
             .resizable(true)
             .default_size(260.0)
-            .show_inside(ui, |ui| peer_list_ui(ui, &peers));
-        egui::CentralPanel::default().show_inside(ui, |ui| {
+            .show(ui, |ui| peer_list_ui(ui, &peers));
+        egui::CentralPanel::default().show(ui, |ui| {
             tiles_ui(ui, &peers, &weights, &mut prefs);
         });
 
@@ -416,9 +415,9 @@ fn call_ui(
         }
         ui.separator();
         if call.encrypted {
-            ui.colored_label(egui::Color32::LIGHT_GREEN, "🔒 encrypted (SRTP)");
+            ui.colored_label(egui::Color32::LIGHT_GREEN, "encrypted (SRTP)");
         } else {
-            ui.colored_label(egui::Color32::from_rgb(230, 160, 60), "🔓 not encrypted");
+            ui.colored_label(egui::Color32::from_rgb(230, 160, 60), "NOT encrypted");
         }
         ui.label(&call.state);
         if let Some(e) = &call.error {
@@ -469,7 +468,7 @@ fn audio_ui(
                 {
                     mic.set_push_to_talk(settings.push_to_talk);
                 }
-                ui.label(if mic.transmitting() { "🎙 sending" } else { "" });
+                ui.label(if mic.transmitting() { "sending" } else { "" });
             }
             None => {
                 ui.label(input_status);
@@ -501,11 +500,11 @@ fn device_picker_ui(
         .selected_text(shown)
         .width(160.0)
         .show_ui(ui, |ui| {
-            changed |= ui.selectable_value(chosen, String::new(), "default").changed();
+            changed |= ui
+                .selectable_value(chosen, String::new(), "default")
+                .changed();
             for d in devices {
-                changed |= ui
-                    .selectable_value(chosen, d.id.clone(), &d.name)
-                    .changed();
+                changed |= ui.selectable_value(chosen, d.id.clone(), &d.name).changed();
             }
         });
     changed
@@ -524,7 +523,7 @@ pub fn peer_list_ui(ui: &mut egui::Ui, peers: &[PeerView]) {
             } else {
                 egui::Color32::DARK_GRAY
             };
-            ui.colored_label(colour, "●");
+            ui.colored_label(colour, "⏺");
             ui.strong(&p.name);
             if p.is_demo {
                 ui.weak("(demo)");
@@ -591,50 +590,46 @@ pub fn tiles_ui(
     let rows = n.div_ceil(cols);
     let tile_w = (avail.x / cols as f32 - 8.0).max(50.0);
     let tile_h = (avail.y / rows as f32 - 8.0).max(80.0);
-    egui::Grid::new("tiles")
-        .spacing([8.0, 8.0])
-        .show(ui, |ui| {
-            for (i, p) in peers.iter().enumerate() {
-                ui.allocate_ui(egui::vec2(tile_w, tile_h), |ui| {
-                    ui.set_min_size(egui::vec2(tile_w, tile_h));
-                    ui.vertical(|ui| {
-                        ui.horizontal(|ui| {
-                            ui.strong(&p.name);
-                            if p.talking {
-                                ui.colored_label(egui::Color32::LIGHT_GREEN, "talking");
-                            }
-                        });
-                        let head_h = (tile_h - 70.0).max(40.0);
-                        let (rect, _) = ui.allocate_exact_size(
-                            egui::vec2(tile_w, head_h),
-                            egui::Sense::hover(),
-                        );
-                        ui.painter()
-                            .rect_filled(rect, 6.0, egui::Color32::from_gray(38));
-                        let w = match (prefs[i].animate, weights[i]) {
-                            (true, Some(w)) => VisemeWeights(w),
-                            _ => VisemeWeights::neutral(),
-                        };
-                        tiles::head_ui(
-                            ui,
-                            rect,
-                            HeadTile {
-                                id: u64::from(p.ssrc),
-                                framing: if prefs[i].lipreading {
-                                    Framing::Mouth
-                                } else {
-                                    Framing::Face
-                                },
-                                aspect: rect.width() / rect.height().max(1.0),
-                                weights: w,
-                            },
-                        );
-                        peer_controls_ui(ui, p.ssrc, &mut prefs[i]);
+    egui::Grid::new("tiles").spacing([8.0, 8.0]).show(ui, |ui| {
+        for (i, p) in peers.iter().enumerate() {
+            ui.allocate_ui(egui::vec2(tile_w, tile_h), |ui| {
+                ui.set_min_size(egui::vec2(tile_w, tile_h));
+                ui.vertical(|ui| {
+                    ui.horizontal(|ui| {
+                        ui.strong(&p.name);
+                        if p.talking {
+                            ui.colored_label(egui::Color32::LIGHT_GREEN, "talking");
+                        }
                     });
+                    let head_h = (tile_h - 70.0).max(40.0);
+                    let (rect, _) =
+                        ui.allocate_exact_size(egui::vec2(tile_w, head_h), egui::Sense::hover());
+                    ui.painter()
+                        .rect_filled(rect, 6.0, egui::Color32::from_gray(38));
+                    let w = match (prefs[i].animate, weights[i]) {
+                        (true, Some(w)) => VisemeWeights(w),
+                        _ => VisemeWeights::neutral(),
+                    };
+                    tiles::head_ui(
+                        ui,
+                        rect,
+                        HeadTile {
+                            id: u64::from(p.ssrc),
+                            framing: if prefs[i].lipreading {
+                                Framing::Mouth
+                            } else {
+                                Framing::Face
+                            },
+                            aspect: rect.width() / rect.height().max(1.0),
+                            weights: w,
+                        },
+                    );
+                    peer_controls_ui(ui, p.ssrc, &mut prefs[i]);
                 });
-                if (i + 1) % cols == 0 {
-                    ui.end_row();
-                }
+            });
+            if (i + 1) % cols == 0 {
+                ui.end_row();
             }
-        });
+        }
+    });
 }

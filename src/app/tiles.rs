@@ -111,5 +111,6 @@ impl CallbackTrait for HeadTile {
 
 /// Paints a head into `rect` (a no-op where there is no wgpu renderer, as in UI tests).
 pub fn head_ui(ui: &mut egui::Ui, rect: egui::Rect, tile: HeadTile) {
-    ui.painter().add(egui_wgpu::Callback::new_paint_callback(rect, tile));
+    ui.painter()
+        .add(egui_wgpu::Callback::new_paint_callback(rect, tile));
 }

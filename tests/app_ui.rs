@@ -1,0 +1,76 @@
+//! The per-peer controls, driven through egui_kittest, and what the engine does with them.
+
+use eframe::egui;
+use egui_kittest::Harness;
+use egui_kittest::kittest::Queryable;
+use lipcall::app::engine::PeerAnimation;
+use lipcall::app::peer_controls_ui;
+use lipcall::app::settings::PeerPrefs;
+use lipcall::speex::features::FrameFeatures;
+
+fn voiced() -> FrameFeatures {
+    let mut f = lipcall::lipsync::network::silence_features();
+    f.energy_db = -25.0;
+    f
+}
+
+fn harness() -> Harness<'static, PeerPrefs> {
+    Harness::new_ui_state(
+        |ui: &mut egui::Ui, prefs: &mut PeerPrefs| peer_controls_ui(ui, 7, prefs),
+        PeerPrefs::default(),
+    )
+}
+
+#[test]
+fn animation_off_runs_no_network_for_that_peer() {
+    let mut h = harness();
+    let mut animation = PeerAnimation::new(h.state());
+    assert!(animation.step(h.state(), &voiced()).is_some());
+    assert_eq!(animation.frames_animated, 1);
+
+    h.get_by_label("Animate").click();
+    h.run();
+    assert!(!h.state().animate);
+    for _ in 0..10 {
+        assert_eq!(animation.step(h.state(), &voiced()), None);
+    }
+    assert_eq!(animation.frames_animated, 1, "the network ran while off");
+
+    h.get_by_label("Animate").click();
+    h.run();
+    assert!(animation.step(h.state(), &voiced()).is_some());
+    assert_eq!(animation.frames_animated, 2);
+}
+
+#[test]
+fn viseme_set_change_reprojects_onto_the_chosen_shapes() {
+    let mut h = harness();
+    h.get_by_label("15 visemes").click();
+    h.run();
+    h.get_by_label("3 visemes").click();
+    h.run();
+    assert_eq!(h.state().visemes, "3");
+    let mut animation = PeerAnimation::new(h.state());
+    assert_eq!(animation.target().len(), 3);
+    let w = animation.step(h.state(), &voiced()).unwrap();
+    let used = w.iter().filter(|&&x| x > 1e-6).count();
+    assert!(used <= 3, "weights outside the 3-shape set: {w:?}");
+    assert!((w.iter().sum::<f32>() - 1.0).abs() < 1e-3);
+}
+
+#[test]
+fn mute_and_jaw_mode_toggle() {
+    let mut h = harness();
+    h.get_by_label("Mute").click();
+    h.run();
+    assert!(h.state().muted);
+    h.get_by_label("Jaw only").click();
+    h.run();
+    assert!(h.state().jaw);
+    let mut animation = PeerAnimation::new(h.state());
+    let w = animation.step(h.state(), &voiced()).unwrap();
+    assert!((w.iter().sum::<f32>() - 1.0).abs() < 1e-3);
+    h.get_by_label("Lipreading").click();
+    h.run();
+    assert!(h.state().lipreading);
+}
