@@ -43,6 +43,13 @@ enum Command {
         #[arg(long)]
         no_enh: bool,
     },
+    /// Train the viseme network on a TIMIT-style corpus through the real Speex codec.
+    Train(commands::lipsync::TrainArgs),
+    /// Score a model and the jaw baseline on held-out speakers (Eq. 1, accuracy, openness r,
+    /// /p b m/ closures, false closures).
+    Evaluate(commands::lipsync::EvaluateArgs),
+    /// The paper's Table I (decomposition error for 2..6 visemes), or decompose real marker tracks.
+    Decompose(commands::lipsync::DecomposeArgs),
 }
 
 fn main() -> ExitCode {
@@ -71,6 +78,9 @@ fn main() -> ExitCode {
             features,
             no_enh,
         } => commands::codec::decode(&input, &output, features.as_deref(), !no_enh),
+        Command::Train(args) => commands::lipsync::train(&args),
+        Command::Evaluate(args) => commands::lipsync::evaluate(&args),
+        Command::Decompose(args) => commands::lipsync::decompose(&args),
     };
     match result {
         Ok(()) => ExitCode::SUCCESS,

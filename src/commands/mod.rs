@@ -2,3 +2,4 @@
 //! whose one-line rendering is what the user sees.
 
 pub mod codec;
+pub mod lipsync;
