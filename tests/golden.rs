@@ -75,7 +75,7 @@ fn round_trip_rows_line_up_with_the_input() {
         .map(|i| {
             let on = (4000..8000).contains(&i);
             if on {
-                (8000.0 * (i as f32 * 0.785_398).sin()) as i16
+                (8000.0 * (i as f32 * std::f32::consts::FRAC_PI_4).sin()) as i16
             } else {
                 0
             }

@@ -8,6 +8,8 @@ use plotters::prelude::*;
 
 use crate::train::trainer::EpochStats;
 
+type Series = Vec<(Vec<(f64, f64)>, RGBColor)>;
+
 #[derive(Debug, thiserror::Error)]
 #[error("cannot draw the learning curves: {0}")]
 pub struct PlotError(String);
@@ -29,7 +31,7 @@ pub fn learning_curves(path: &Path, curve: &[EpochStats]) -> Result<(), PlotErro
         .flat_map(|e| [e.train_loss, e.validation_loss])
         .filter(|v| v.is_finite())
         .fold(1e-6, f64::max);
-    let panels: [(_, f64, Vec<(Vec<(f64, f64)>, RGBColor)>); 2] = [
+    let panels: [(_, f64, Series); 2] = [
         (
             top,
             max_loss * 1.05,
