@@ -127,6 +127,9 @@ pub struct DecomposeArgs {
     /// Decompose onto this set: a count or names (with --markers: default all key-frame visemes).
     #[arg(long, value_name = "N|NAMES")]
     pub visemes: Option<String>,
+    /// Utterances per speaker for Table I (all by default).
+    #[arg(long, value_name = "N")]
+    pub utterances: Option<usize>,
     /// Write the weights per marker frame: frame,<viseme names>.
     #[arg(long, value_name = "OUT.csv", requires = "markers")]
     pub weights: Option<PathBuf>,
@@ -366,7 +369,8 @@ fn decompose_targets(args: &DecomposeArgs) -> Result<()> {
     let mut track = PointTrack::new(shapes.point_dim(), shapes.coords());
     let mut utterances = 0;
     for speaker in &corpus.speakers {
-        for utt in &speaker.utterances {
+        let n = args.utterances.unwrap_or(speaker.utterances.len());
+        for utt in speaker.utterances.iter().take(n) {
             let targets = crate::train::corpus::utterance_targets(utt)?;
             let weights = targets.weights.iter().map(|w| &w[..]);
             for frame in PointTrack::from_weights(&shapes, &full, weights)?.frames() {

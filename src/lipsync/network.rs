@@ -410,7 +410,7 @@ impl Model {
         };
         let (line, names) = next("visemes")?;
         let visemes = VisemeSet::parse(&names.join(","))
-            .map_err(|source| ModelError::Visemes { line, source })?;
+            .map_err(|error| ModelError::Visemes { line, error })?;
         let context = parse_size(next("context")?, "context", MAX_CONTEXT)?;
         let (dynamics, closure_snap) = if version_two {
             let (line, words) = next("dynamics")?;
@@ -492,20 +492,22 @@ impl Model {
     }
 
     pub fn load(path: &Path) -> Result<Self, ModelError> {
-        let text = std::fs::read_to_string(path).map_err(|source| ModelError::Io {
+        let in_file = |error| ModelError::InFile {
             path: path.display().to_string(),
-            source,
+            error: Box::new(error),
+        };
+        let bytes = std::fs::read(path).map_err(|error| ModelError::Io {
+            path: path.display().to_string(),
+            error,
         })?;
-        Self::from_text(&text).map_err(|source| ModelError::InFile {
-            path: path.display().to_string(),
-            source: Box::new(source),
-        })
+        let text = String::from_utf8(bytes).map_err(|_| in_file(ModelError::NotAModel))?;
+        Self::from_text(&text).map_err(in_file)
     }
 
     pub fn save(&self, path: &Path) -> Result<(), ModelError> {
-        std::fs::write(path, self.to_text()).map_err(|source| ModelError::Io {
+        std::fs::write(path, self.to_text()).map_err(|error| ModelError::Io {
             path: path.display().to_string(),
-            source,
+            error,
         })
     }
 }
@@ -629,19 +631,16 @@ pub enum ModelError {
         value: usize,
         max: usize,
     },
-    #[error("line {line}: {source}")]
-    Visemes { line: usize, source: VisemeError },
+    #[error("line {line}: {error}")]
+    Visemes { line: usize, error: VisemeError },
     #[error("line {line}: data after `end`")]
     TrailingData { line: usize },
-    #[error("{path}: {source}")]
-    Io {
-        path: String,
-        source: std::io::Error,
-    },
-    #[error("{path}: {source}")]
+    #[error("{path}: {error}")]
+    Io { path: String, error: std::io::Error },
+    #[error("{path}: {error}")]
     InFile {
         path: String,
-        source: Box<ModelError>,
+        error: Box<ModelError>,
     },
 }
 
