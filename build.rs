@@ -90,7 +90,7 @@ fn generate(text: &str) -> Result<String, Failure> {
         FEATURES_PER_FRAME + 2
     };
     let (line, snap) = next("closure_snap")?;
-    let snap = floats((line, snap), 1)?[0];
+    let snap = floats("closure_snap", (line, snap), 1)?[0];
     if !(0.0..=1.0).contains(&snap) {
         return Err((line, format!("closure_snap {snap} outside [0, 1]")));
     }
@@ -99,12 +99,12 @@ fn generate(text: &str) -> Result<String, Failure> {
         return Err((line, "no hidden units".into()));
     }
     let inputs = width * (1 + context) + energy_context;
-    let offset = floats(next("input_offset")?, FEATURES_PER_FRAME)?;
-    let scale = floats(next("input_scale")?, FEATURES_PER_FRAME)?;
-    let w1 = floats(next("w1")?, hidden * inputs)?;
-    let b1 = floats(next("b1")?, hidden)?;
-    let w2 = floats(next("w2")?, visemes.len() * hidden)?;
-    let b2 = floats(next("b2")?, visemes.len())?;
+    let offset = floats("input_offset", next("input_offset")?, FEATURES_PER_FRAME)?;
+    let scale = floats("input_scale", next("input_scale")?, FEATURES_PER_FRAME)?;
+    let w1 = floats("w1", next("w1")?, hidden * inputs)?;
+    let b1 = floats("b1", next("b1")?, hidden)?;
+    let w2 = floats("w2", next("w2")?, visemes.len() * hidden)?;
+    let b2 = floats("b2", next("b2")?, visemes.len())?;
     let (line, rest) = next("end")?;
     if !rest.is_empty() {
         return Err((line, "data after `end`".into()));
