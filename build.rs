@@ -155,9 +155,17 @@ fn float(line: usize, word: &str) -> Result<f32, Failure> {
     }
 }
 
-fn floats((line, words): (usize, Vec<&str>), expected: usize) -> Result<Vec<f32>, Failure> {
+fn floats(
+    key: &str,
+    (line, words): (usize, Vec<&str>),
+    expected: usize,
+) -> Result<Vec<f32>, Failure> {
     if words.len() != expected {
-        return Err((line, format!("{} values, expected {expected}", words.len())));
+        let found = words.len();
+        return Err((
+            line,
+            format!("`{key}` has {found} values, expected {expected}"),
+        ));
     }
     words.iter().map(|w| float(line, w)).collect()
 }
