@@ -772,6 +772,54 @@ mod tests {
     }
 
     #[test]
+    fn dynamics_track_the_energy_and_closure_snap_closes() {
+        let mut model = Model::zeros_with(
+            VisemeSet::reduced(3).unwrap(),
+            InputScaling::new(-70.0, -10.0),
+            1,
+            Some(Dynamics {
+                peak_decay_db: 0.5,
+                energy_context: 2,
+            }),
+            2,
+        );
+        assert_eq!(model.inputs(), 13 * 2 + 2);
+        let mut state = model.new_state();
+        let mut w = [0.0; 3];
+        model.step(&mut state, &frame(-20.0), &mut w);
+        // At the peak: relative energy 0 dB -> 1; a 20 dB rise clamps at +1.
+        assert_eq!(&state.input()[11..13], &[1.0, 1.0]);
+        model.step(&mut state, &frame(-40.0), &mut w);
+        let relative = (-40.0 - (-20.5) + 20.0) / 20.0;
+        assert!((state.input()[11] - relative).abs() < 1e-6);
+        assert!((state.input()[12] + 1.0).abs() < 1e-6);
+        // The older peak-relative energies follow the full frames.
+        model.step(&mut state, &frame(-40.0), &mut w);
+        assert_eq!(state.input()[26], 1.0);
+        // Snap: uniform output (1/3) snaps at 0.3, not at 0.5.
+        model.closure_snap = 0.5;
+        model.step(&mut state, &frame(-40.0), &mut w);
+        assert!((w[0] - 1.0 / 3.0).abs() < 1e-6);
+        model.closure_snap = 0.3;
+        model.step(&mut state, &frame(-40.0), &mut w);
+        assert_eq!(w, [1.0, 0.0, 0.0]);
+        assert_eq!(Model::from_text(&model.to_text()).unwrap(), model);
+        assert_eq!(model.viseme_names(), ["PP", "aa", "I"]);
+    }
+
+    #[test]
+    fn version_one_files_load_as_raw_feature_models() {
+        let v2 = sample_model().to_text();
+        let v1 = v2
+            .replace("lipcall-viseme-mlp 2", "lipcall-viseme-mlp 1")
+            .replace("dynamics off\n", "")
+            .replace("closure_snap 0\n", "");
+        let model = Model::from_text(&v1).unwrap();
+        assert_eq!(model, sample_model());
+        assert_eq!(model.dynamics, None);
+    }
+
+    #[test]
     fn scaling_clamps_and_ignores_nan() {
         let scaling = InputScaling::new(-70.0, -10.0);
         let mut out = [0.0; 11];
