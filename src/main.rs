@@ -167,6 +167,13 @@ enum Command {
         #[arg(long)]
         seconds: Option<f64>,
     },
+    /// Train the viseme network on a TIMIT-style corpus through the real Speex codec.
+    Train(commands::lipsync::TrainArgs),
+    /// Score a model and the jaw baseline on held-out speakers (Eq. 1, accuracy, openness r,
+    /// /p b m/ closures, false closures).
+    Evaluate(commands::lipsync::EvaluateArgs),
+    /// The paper's Table I (decomposition error for 2..6 visemes), or decompose real marker tracks.
+    Decompose(commands::lipsync::DecomposeArgs),
 }
 
 fn parse_fps(arg: &str) -> Result<u32, String> {
@@ -303,6 +310,9 @@ fn main() -> ExitCode {
             name,
         }),
         Command::Relay { listen, seconds } => commands::net::relay(&listen, seconds),
+        Command::Train(args) => commands::lipsync::train(&args),
+        Command::Evaluate(args) => commands::lipsync::evaluate(&args),
+        Command::Decompose(args) => commands::lipsync::decompose(&args),
     };
     finish(result)
 }

@@ -131,6 +131,7 @@ fn impaired_call(imp: Impairment) {
         .args(["trim", "0", "4"]));
     let out = dir.path().join("played.wav");
     let features = dir.path().join("features.csv");
+    let weights = dir.path().join("weights.csv");
 
     let rx_port = free_port();
     let receiver_addr: SocketAddr = format!("127.0.0.1:{rx_port}").parse().unwrap();
@@ -149,6 +150,8 @@ fn impaired_call(imp: Impairment) {
             .arg(&out)
             .arg("--features")
             .arg(&features)
+            .arg("--weights")
+            .arg(&weights)
             .args(["--key", "impaired", "--seconds", "15"]),
     );
     std::thread::sleep(Duration::from_millis(300));
@@ -228,6 +231,21 @@ fn impaired_call(imp: Impairment) {
     }
     let concealed_rows = rows.iter().filter(|r| r[2].is_empty()).count() as f64;
     assert_eq!(concealed_rows, concealed);
+    // Weights keep coming through the loss: one convex row per played frame.
+    let weights_csv = std::fs::read_to_string(&weights).unwrap();
+    let weight_rows: Vec<Vec<f32>> = weights_csv
+        .lines()
+        .skip(1)
+        .map(|l| l.split(',').skip(2).map(|v| v.parse().unwrap()).collect())
+        .collect();
+    assert_eq!(weight_rows.len() as f64, frames);
+    for row in &weight_rows {
+        let sum: f32 = row.iter().sum();
+        assert!(
+            (sum - 1.0).abs() < 2e-3 && row.iter().all(|&w| w >= 0.0),
+            "{row:?}"
+        );
+    }
     // Audio never drops to digital silence for a whole frame inside the spurt unless the
     // source was silent there: check the played audio has no run of 3+ all-zero frames.
     let zero_run = pcm

@@ -8,7 +8,6 @@ use anyhow::{Context, Result, bail};
 use crate::audio::wav;
 use crate::lipsync::jaw::JawBaseline;
 use crate::lipsync::mouth::VisemeShapes;
-use crate::lipsync::network::Model;
 use crate::lipsync::reproject::Reprojector;
 use crate::lipsync::visemes::VisemeSet;
 use crate::lipsync::{Animator, ModelAnimator};
@@ -66,10 +65,7 @@ pub fn receiver_features(input: &Path) -> Result<(u32, Vec<i16>, Vec<FrameFeatur
 
 pub fn weight_track(args: &AnimateArgs) -> Result<Animation> {
     let (rate, pcm, features) = receiver_features(&args.input)?;
-    let model = match &args.model {
-        Some(path) => Model::load(path).with_context(|| path.display().to_string())?,
-        None => bail!("no model given: pass --model FILE (see `lipcall train`)"),
-    };
+    let model = super::lipsync::load_model(args.model.as_deref())?;
     let mut animator: Box<dyn Animator + '_> = if args.baseline_jaw {
         Box::new(JawBaseline::from_model(&model))
     } else {

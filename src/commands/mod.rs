@@ -4,4 +4,5 @@
 pub mod animate;
 pub mod audio;
 pub mod codec;
+pub mod lipsync;
 pub mod net;

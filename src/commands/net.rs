@@ -8,6 +8,7 @@ use std::time::{Duration, Instant};
 use anyhow::{Context, Result, bail};
 
 use crate::audio::wav;
+use crate::lipsync::{self, Animator, ModelAnimator};
 use crate::net::relay::{Relay, RelayConfig};
 use crate::net::session::{PeerFrame, PeerInfo, Session, SessionConfig};
 use crate::net::split::split_frames;
@@ -229,6 +230,15 @@ pub struct ReceiveArgs {
 struct Row {
     frame: usize,
     features: FrameFeatures,
+    /// Viseme weights from the peer's network, when `--weights` asked for them.
+    weights: Vec<f32>,
+}
+
+/// What the receiver keeps per remote speaker: its rows and, with `--weights`, its network state.
+struct PeerTrack<'m> {
+    ssrc: u32,
+    rows: Vec<Row>,
+    animator: Option<ModelAnimator<'m>>,
 }
 
 pub fn receive(args: &ReceiveArgs) -> Result<()> {
@@ -241,12 +251,7 @@ pub fn receive_with(
     args: &ReceiveArgs,
     on_frame: &mut dyn FnMut(u32, f64, &FrameFeatures),
 ) -> Result<()> {
-    if args.weights.is_some() {
-        eprintln!(
-            "lipcall: note: --weights needs the lip-sync network, which this build does not \
-             include yet; no WEIGHTS.csv is written"
-        );
-    }
+    let model = args.weights.as_ref().map(|_| lipsync::default_model());
     if args.room.is_some() != args.relay.is_some() {
         bail!("--relay and --room go together");
     }
@@ -269,7 +274,7 @@ pub fn receive_with(
     let limit = args.seconds.map(Duration::from_secs_f64);
     let start = Instant::now();
     let mut pcm: Vec<i16> = Vec::new();
-    let mut rows: Vec<(u32, Vec<Row>)> = Vec::new();
+    let mut tracks: Vec<PeerTrack> = Vec::new();
     let mut frames: Vec<PeerFrame> = Vec::new();
     // Output ticks since the first audible one, and the last tick that had audio.
     let mut timeline: Option<usize> = None;
@@ -305,16 +310,27 @@ pub fn receive_with(
             }
             let time = index as f64 * TICK.as_secs_f64();
             on_frame(f.ssrc, time, &f.frame.features);
-            let slot = match rows.iter().position(|(s, _)| *s == f.ssrc) {
+            let slot = match tracks.iter().position(|t| t.ssrc == f.ssrc) {
                 Some(i) => i,
                 None => {
-                    rows.push((f.ssrc, Vec::new()));
-                    rows.len() - 1
+                    tracks.push(PeerTrack {
+                        ssrc: f.ssrc,
+                        rows: Vec::new(),
+                        animator: model.as_ref().map(ModelAnimator::new),
+                    });
+                    tracks.len() - 1
                 }
             };
-            rows[slot].1.push(Row {
+            let track = &mut tracks[slot];
+            let mut weights = Vec::new();
+            if let Some(animator) = &mut track.animator {
+                weights.resize(animator.visemes().len(), 0.0);
+                animator.animate(&f.frame.features, &mut weights);
+            }
+            track.rows.push(Row {
                 frame: index,
                 features: f.frame.features,
+                weights,
             });
         }
         if !frames.is_empty() {
@@ -346,16 +362,30 @@ pub fn receive_with(
         wav::write_mono_i16(path, SAMPLE_RATE, &pcm)?;
     }
     if let Some(path) = &args.features {
-        for (i, (ssrc, peer_rows)) in rows.iter().enumerate() {
+        for (i, track) in tracks.iter().enumerate() {
             let target = if i == 0 {
                 path.clone()
             } else {
-                peer_path(path, *ssrc)
+                peer_path(path, track.ssrc)
             };
-            write_rows(&target, peer_rows)?;
+            write_rows(&target, &track.rows)?;
         }
-        if rows.is_empty() {
+        if tracks.is_empty() {
             write_rows(path, &[])?;
+        }
+    }
+    if let (Some(path), Some(model)) = (&args.weights, &model) {
+        let names = model.viseme_names();
+        for (i, track) in tracks.iter().enumerate() {
+            let target = if i == 0 {
+                path.clone()
+            } else {
+                peer_path(path, track.ssrc)
+            };
+            write_weight_rows(&target, &names, &track.rows)?;
+        }
+        if tracks.is_empty() {
+            write_weight_rows(path, &names, &[])?;
         }
     }
     Ok(())
@@ -385,6 +415,28 @@ fn write_rows(path: &Path, rows: &[Row]) -> Result<()> {
             write!(out, ",{l:.6}")?;
         }
         writeln!(out, ",{:.2}", row.features.energy_db)?;
+    }
+    out.flush()
+        .with_context(|| format!("cannot write {}", path.display()))
+}
+
+/// WEIGHTS.csv rows on the output timeline, like FEATURES.csv.
+fn write_weight_rows(path: &Path, names: &[&str], rows: &[Row]) -> Result<()> {
+    let file =
+        std::fs::File::create(path).with_context(|| format!("cannot write {}", path.display()))?;
+    let mut out = std::io::BufWriter::new(file);
+    writeln!(out, "frame,time_s,{}", names.join(","))?;
+    for row in rows {
+        write!(
+            out,
+            "{},{:.3}",
+            row.frame,
+            row.frame as f64 * TICK.as_secs_f64()
+        )?;
+        for w in &row.weights {
+            write!(out, ",{w:.4}")?;
+        }
+        writeln!(out)?;
     }
     out.flush()
         .with_context(|| format!("cannot write {}", path.display()))

@@ -1,6 +1,7 @@
 //! Lip sync: viseme sets, phone-derived targets, mouth geometry, the paper's decomposition, the
 //! per-frame network and the jaw-from-energy baseline.
 
+pub mod builtin;
 pub mod coarticulation;
 pub mod decompose;
 pub mod jaw;
@@ -8,8 +9,11 @@ pub mod markers;
 pub mod mouth;
 pub mod network;
 pub mod phones;
+pub mod recipe;
 pub mod reproject;
 pub mod visemes;
+
+pub use builtin::default_model;
 
 use crate::speex::features::FrameFeatures;
 use network::{InferenceState, Model};

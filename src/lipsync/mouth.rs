@@ -152,6 +152,11 @@ impl VisemeShapes {
         })
     }
 
+    /// The visemes that have a shape, in order.
+    pub fn visemes(&self) -> Vec<Viseme> {
+        self.shapes.iter().map(|(v, _)| *v).collect()
+    }
+
     /// All 15 visemes from the point model (3D points).
     pub fn point_model() -> Self {
         let shapes = Viseme::ALL

@@ -6,9 +6,13 @@
 //!
 //! ```text
 //! # any number of comment lines (kept as notes), e.g. what the weights were trained on
-//! lipcall-viseme-mlp 1
+//! lipcall-viseme-mlp 2
 //! visemes PP aa I O E FF        names from the 15, in output order
 //! context 2                     past frames fed besides the current one
+//! dynamics 0.15 6               (version 2) peak decay dB/frame, extra energy-only past frames;
+//!                               `dynamics off` for the 11 raw features only
+//! closure_snap 0.55             (version 2) closed-viseme weight that snaps to a full closure;
+//!                               0 = off
 //! hidden 10                     hidden units
 //! input_offset <11 numbers>     scaled input = clamp((x - offset) * scale, -1, 1)
 //! input_scale <11 numbers>      in the order lsp1..lsp10, energy_db
@@ -19,15 +23,19 @@
 //! end
 //! ```
 //!
-//! Inputs are ordered frame by frame, newest first: current frame's 11 values, then the frame
-//! before, and so on. Numbers are written in Rust's shortest round-trip form, so a save and load
+//! Version 1 files (no `dynamics` and `closure_snap` lines) still load, as raw-feature models.
+//!
+//! Inputs are ordered frame by frame, newest first: the current frame's values (11 raw, or 13
+//! with dynamics: the raw ones, the energy relative to a running peak and the energy change from
+//! the previous frame), then the frame before, and so on; with dynamics, `energy_context` more
+//! past frames' peak-relative energies follow (older frames, newest first). Numbers are written in Rust's shortest round-trip form, so a save and load
 //! gives bit-identical weights. Anything malformed, missing or trailing is a [`ModelError`].
 
 use std::fmt::Write as _;
 use std::path::Path;
 
-use super::visemes::{VisemeError, VisemeSet};
-use crate::speex::features::FrameFeatures;
+use super::visemes::{Viseme, VisemeError, VisemeSet};
+use crate::speex::features::{FrameFeatures, SILENCE_DB};
 
 /// Features per frame: 10 LSPs and the energy.
 pub const FEATURES_PER_FRAME: usize = 11;
@@ -36,7 +44,8 @@ pub const FEATURES_PER_FRAME: usize = 11;
 pub const MULTIPLY_ADD_BUDGET: usize = 400;
 
 const MAGIC: &str = "lipcall-viseme-mlp";
-const VERSION: &str = "1";
+const VERSION: &str = "2";
+const OLD_VERSION: &str = "1";
 const MAX_CONTEXT: usize = 32;
 const MAX_HIDDEN: usize = 1024;
 
@@ -94,6 +103,30 @@ pub fn silence_features() -> FrameFeatures {
     }
 }
 
+/// Stateful, causal inputs derived from the energy (model file version 2). A running peak
+/// follows the loudest recent frame and falls by `peak_decay_db` per frame, so the energy
+/// relative to it is independent of the talker's level and the codec's gain; the dip of a stop
+/// closure shows in it and in the frame-to-frame energy change.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct Dynamics {
+    pub peak_decay_db: f32,
+    /// Past frames beyond `context` whose peak-relative energy is fed as well.
+    pub energy_context: usize,
+}
+
+/// The running peak never falls below this, so leading silence reads as quiet, not as loud.
+pub const PEAK_FLOOR_DB: f32 = -55.0;
+/// Peak-relative energy: 0 dB maps to 1, -40 dB to -1.
+const RELATIVE_SPAN_DB: f32 = 20.0;
+/// Energy change per frame: +-15 dB maps to +-1.
+const DELTA_SPAN_DB: f32 = 15.0;
+const MAX_ENERGY_CONTEXT: usize = 64;
+
+/// Values fed per frame: 11 raw, 13 with dynamics.
+pub fn frame_width(dynamics: Option<Dynamics>) -> usize {
+    FEATURES_PER_FRAME + if dynamics.is_some() { 2 } else { 0 }
+}
+
 /// A one-hidden-layer network from decoder features to convex viseme weights.
 #[derive(Debug, Clone, PartialEq)]
 pub struct Model {
@@ -101,6 +134,11 @@ pub struct Model {
     pub scaling: InputScaling,
     /// Past frames used besides the current one (no look-ahead).
     pub context: usize,
+    /// Energy-derived inputs (version 2); `None` for the paper's raw 11 features.
+    pub dynamics: Option<Dynamics>,
+    /// When the closed viseme's weight reaches this, the output snaps to a full closure
+    /// (0 = never). A cheap causal rule: an average of closed and open is never closed.
+    pub closure_snap: f32,
     pub hidden: usize,
     /// `hidden x inputs`, row-major.
     pub w1: Vec<f32>,
@@ -112,22 +150,47 @@ pub struct Model {
     pub notes: Vec<String>,
 }
 
-/// Per-stream state of a running model: the scaled input history and scratch space.
+/// Per-stream state of a running model: the scaled input history, the energy tracker and
+/// scratch space.
 #[derive(Debug, Clone)]
 pub struct InferenceState {
     input: Vec<f32>,
     hidden: Vec<f32>,
+    peak_db: f32,
+    previous_db: f32,
+    /// Scaled peak-relative energies, newest first, `1 + context + energy_context` of them.
+    relative: Vec<f32>,
+}
+
+impl InferenceState {
+    /// The network's input vector after the last frame pushed.
+    pub fn input(&self) -> &[f32] {
+        &self.input
+    }
 }
 
 impl Model {
-    /// A network with all weights zero (uniform output), to be trained.
+    /// A raw-feature network with all weights zero (uniform output), to be trained.
     pub fn zeros(visemes: VisemeSet, scaling: InputScaling, context: usize, hidden: usize) -> Self {
-        let inputs = FEATURES_PER_FRAME * (1 + context);
+        Self::zeros_with(visemes, scaling, context, None, hidden)
+    }
+
+    /// A network with all weights zero, with or without dynamics.
+    pub fn zeros_with(
+        visemes: VisemeSet,
+        scaling: InputScaling,
+        context: usize,
+        dynamics: Option<Dynamics>,
+        hidden: usize,
+    ) -> Self {
+        let inputs = input_count(context, dynamics);
         let outputs = visemes.len();
         Self {
             visemes,
             scaling,
             context,
+            dynamics,
+            closure_snap: 0.0,
             hidden,
             w1: vec![0.0; hidden * inputs],
             b1: vec![0.0; hidden],
@@ -138,7 +201,7 @@ impl Model {
     }
 
     pub fn inputs(&self) -> usize {
-        FEATURES_PER_FRAME * (1 + self.context)
+        input_count(self.context, self.dynamics)
     }
 
     pub fn outputs(&self) -> usize {
@@ -147,13 +210,30 @@ impl Model {
 
     /// Multiply-adds of one frame through both layers.
     pub fn multiply_adds(&self) -> usize {
-        multiply_adds(self.context, self.hidden, self.visemes.len())
+        self.inputs() * self.hidden + self.hidden * self.outputs()
+    }
+
+    /// The names of the visemes the output weights drive, in output order (a head must have
+    /// a shape for each).
+    pub fn viseme_names(&self) -> Vec<&'static str> {
+        self.visemes.members().iter().map(|v| v.name()).collect()
+    }
+
+    /// Output index of the closed shape (PP, else sil) that `closure_snap` drives.
+    pub fn closed_index(&self) -> Option<usize> {
+        self.visemes
+            .position(Viseme::PP)
+            .or_else(|| self.visemes.position(Viseme::Sil))
     }
 
     pub fn new_state(&self) -> InferenceState {
+        let relative_len = 1 + self.context + self.dynamics.map_or(0, |d| d.energy_context);
         let mut state = InferenceState {
             input: vec![0.0; self.inputs()],
             hidden: vec![0.0; self.hidden],
+            peak_db: PEAK_FLOOR_DB,
+            previous_db: SILENCE_DB,
+            relative: vec![0.0; relative_len],
         };
         self.reset(&mut state);
         state
@@ -161,27 +241,78 @@ impl Model {
 
     /// Forgets the history: as if the stream had been silent.
     pub fn reset(&self, state: &mut InferenceState) {
-        let mut silent = [0.0; FEATURES_PER_FRAME];
-        self.scaling.apply(&silence_features(), &mut silent);
-        for frame in state.input.chunks_exact_mut(FEATURES_PER_FRAME) {
-            frame.copy_from_slice(&silent);
+        state.peak_db = PEAK_FLOOR_DB;
+        state.previous_db = SILENCE_DB;
+        let silence = silence_features();
+        let mut silent = [0.0; FEATURES_PER_FRAME + 2];
+        let width = frame_width(self.dynamics);
+        self.scaling
+            .apply(&silence, &mut silent[..FEATURES_PER_FRAME]);
+        if self.dynamics.is_some() {
+            silent[FEATURES_PER_FRAME] = scale_relative(SILENCE_DB - PEAK_FLOOR_DB);
+            silent[FEATURES_PER_FRAME + 1] = 0.0;
         }
+        let frames = width * (1 + self.context);
+        for frame in state.input[..frames].chunks_exact_mut(width) {
+            frame.copy_from_slice(&silent[..width]);
+        }
+        state.relative.fill(silent[FEATURES_PER_FRAME]);
+        state.input[frames..].fill(silent[FEATURES_PER_FRAME]);
+    }
+
+    /// Feeds one frame into the state's input vector (the history shifts by one frame).
+    pub fn push_frame(&self, state: &mut InferenceState, features: &FrameFeatures) {
+        let width = frame_width(self.dynamics);
+        let frames = width * (1 + self.context);
+        state.input.copy_within(0..frames - width, width);
+        self.scaling
+            .apply(features, &mut state.input[..FEATURES_PER_FRAME]);
+        let Some(dynamics) = self.dynamics else {
+            return;
+        };
+        let energy = if features.energy_db.is_nan() {
+            SILENCE_DB
+        } else {
+            features.energy_db.max(SILENCE_DB)
+        };
+        state.peak_db = energy
+            .max(state.peak_db - dynamics.peak_decay_db)
+            .max(PEAK_FLOOR_DB);
+        let relative = scale_relative(energy - state.peak_db);
+        let delta = ((energy - state.previous_db) / DELTA_SPAN_DB).clamp(-1.0, 1.0);
+        state.previous_db = energy;
+        state.input[FEATURES_PER_FRAME] = relative;
+        state.input[FEATURES_PER_FRAME + 1] = delta;
+        let len = state.relative.len();
+        state.relative.copy_within(0..len - 1, 1);
+        state.relative[0] = relative;
+        let extra = &state.relative[1 + self.context..];
+        state.input[frames..].copy_from_slice(extra);
     }
 
     /// Feeds one frame and writes convex weights over `self.visemes` into `weights`
     /// (which must hold `self.outputs()` values). Allocates nothing.
     pub fn step(&self, state: &mut InferenceState, features: &FrameFeatures, weights: &mut [f32]) {
-        let len = state.input.len();
-        state
-            .input
-            .copy_within(0..len - FEATURES_PER_FRAME, FEATURES_PER_FRAME);
-        self.scaling
-            .apply(features, &mut state.input[..FEATURES_PER_FRAME]);
+        self.push_frame(state, features);
         self.forward(&state.input, &mut state.hidden, weights);
+        self.snap(weights);
     }
 
-    /// Both layers on an already scaled input vector.
-    pub(crate) fn forward(&self, input: &[f32], hidden: &mut [f32], weights: &mut [f32]) {
+    /// The closure rule on one frame's output weights.
+    pub fn snap(&self, weights: &mut [f32]) {
+        if self.closure_snap <= 0.0 {
+            return;
+        }
+        if let Some(closed) = self.closed_index()
+            && weights[closed] >= self.closure_snap
+        {
+            weights.fill(0.0);
+            weights[closed] = 1.0;
+        }
+    }
+
+    /// Both layers on an already scaled input vector (no closure rule).
+    pub fn forward(&self, input: &[f32], hidden: &mut [f32], weights: &mut [f32]) {
         let inputs = input.len();
         for ((h, row), b) in hidden
             .iter_mut()
@@ -200,16 +331,22 @@ impl Model {
         softmax_in_place(weights);
     }
 
-    /// The model in its text file format.
+    /// The model in its text file format (version 2).
     pub fn to_text(&self) -> String {
         let mut text = String::new();
         for note in &self.notes {
             let _ = writeln!(text, "# {note}");
         }
         let _ = writeln!(text, "{MAGIC} {VERSION}");
-        let names: Vec<&str> = self.visemes.members().iter().map(|v| v.name()).collect();
-        let _ = writeln!(text, "visemes {}", names.join(" "));
+        let _ = writeln!(text, "visemes {}", self.viseme_names().join(" "));
         let _ = writeln!(text, "context {}", self.context);
+        match self.dynamics {
+            Some(d) => {
+                let _ = writeln!(text, "dynamics {} {}", d.peak_decay_db, d.energy_context);
+            }
+            None => text.push_str("dynamics off\n"),
+        }
+        let _ = writeln!(text, "closure_snap {}", self.closure_snap);
         let _ = writeln!(text, "hidden {}", self.hidden);
         for (key, values) in [
             ("input_offset", &self.scaling.offset[..]),
@@ -229,7 +366,7 @@ impl Model {
         text
     }
 
-    /// Parses the text file format.
+    /// Parses the text file format (versions 1 and 2).
     pub fn from_text(text: &str) -> Result<Self, ModelError> {
         let mut notes = Vec::new();
         let mut lines = text.lines().enumerate().filter_map(|(i, line)| {
@@ -261,18 +398,67 @@ impl Model {
             ModelError::UnexpectedKey { .. } | ModelError::Truncated(_) => ModelError::NotAModel,
             other => other,
         })?;
-        if version != [VERSION] {
-            return Err(ModelError::Version {
-                line,
-                found: version.join(" "),
-            });
-        }
+        let version_two = match version[..] {
+            [v] if v == VERSION => true,
+            [v] if v == OLD_VERSION => false,
+            _ => {
+                return Err(ModelError::Version {
+                    line,
+                    found: version.join(" "),
+                });
+            }
+        };
         let (line, names) = next("visemes")?;
         let visemes = VisemeSet::parse(&names.join(","))
-            .map_err(|source| ModelError::Visemes { line, source })?;
+            .map_err(|error| ModelError::Visemes { line, error })?;
         let context = parse_size(next("context")?, "context", MAX_CONTEXT)?;
+        let (dynamics, closure_snap) = if version_two {
+            let (line, words) = next("dynamics")?;
+            let dynamics = match words[..] {
+                ["off"] => None,
+                [decay, extra] => {
+                    let decay = parse_floats((line, vec![decay]), "dynamics", 1)?[0];
+                    if !(0.0..=10.0).contains(&decay) {
+                        return Err(ModelError::BadNumber {
+                            line,
+                            key: "dynamics",
+                            text: decay.to_string(),
+                        });
+                    }
+                    let energy_context = parse_size(
+                        (line, vec![extra]),
+                        "dynamics energy context",
+                        MAX_ENERGY_CONTEXT,
+                    )?;
+                    Some(Dynamics {
+                        peak_decay_db: decay,
+                        energy_context,
+                    })
+                }
+                _ => {
+                    return Err(ModelError::WrongCount {
+                        line,
+                        key: "dynamics",
+                        expected: 2,
+                        found: words.len(),
+                    });
+                }
+            };
+            let (line, words) = next("closure_snap")?;
+            let snap = parse_floats((line, words), "closure_snap", 1)?[0];
+            if !(0.0..=1.0).contains(&snap) {
+                return Err(ModelError::BadNumber {
+                    line,
+                    key: "closure_snap",
+                    text: snap.to_string(),
+                });
+            }
+            (dynamics, snap)
+        } else {
+            (None, 0.0)
+        };
         let hidden = parse_size(next("hidden")?, "hidden", MAX_HIDDEN)?;
-        let inputs = FEATURES_PER_FRAME * (1 + context);
+        let inputs = input_count(context, dynamics);
         let outputs = visemes.len();
         let offset = parse_floats(next("input_offset")?, "input_offset", FEATURES_PER_FRAME)?;
         let scale = parse_floats(next("input_scale")?, "input_scale", FEATURES_PER_FRAME)?;
@@ -294,6 +480,8 @@ impl Model {
             visemes,
             scaling,
             context,
+            dynamics,
+            closure_snap,
             hidden,
             w1,
             b1,
@@ -304,28 +492,58 @@ impl Model {
     }
 
     pub fn load(path: &Path) -> Result<Self, ModelError> {
-        let text = std::fs::read_to_string(path).map_err(|source| ModelError::Io {
+        let in_file = |error| ModelError::InFile {
             path: path.display().to_string(),
-            source,
+            error: Box::new(error),
+        };
+        let bytes = std::fs::read(path).map_err(|error| ModelError::Io {
+            path: path.display().to_string(),
+            error,
         })?;
-        Self::from_text(&text)
+        let text = String::from_utf8(bytes).map_err(|_| in_file(ModelError::NotAModel))?;
+        Self::from_text(&text).map_err(in_file)
     }
 
     pub fn save(&self, path: &Path) -> Result<(), ModelError> {
-        std::fs::write(path, self.to_text()).map_err(|source| ModelError::Io {
+        std::fs::write(path, self.to_text()).map_err(|error| ModelError::Io {
             path: path.display().to_string(),
-            source,
+            error,
         })
     }
 }
 
-/// Multiply-adds of one frame for a network of this shape.
+fn scale_relative(relative_db: f32) -> f32 {
+    ((relative_db + RELATIVE_SPAN_DB) / RELATIVE_SPAN_DB).clamp(-1.0, 1.0)
+}
+
+/// Network inputs for this context and dynamics.
+pub fn input_count(context: usize, dynamics: Option<Dynamics>) -> usize {
+    frame_width(dynamics) * (1 + context) + dynamics.map_or(0, |d| d.energy_context)
+}
+
+/// Multiply-adds of one frame for a raw-feature network of this shape.
 pub fn multiply_adds(context: usize, hidden: usize, outputs: usize) -> usize {
     FEATURES_PER_FRAME * (1 + context) * hidden + hidden * outputs
 }
 
+/// Eight independent sums, so the compiler can keep them in SIMD lanes.
 fn dot(a: &[f32], b: &[f32]) -> f32 {
-    a.iter().zip(b).map(|(x, y)| x * y).sum()
+    let n = a.len().min(b.len());
+    let (a, b) = (&a[..n], &b[..n]);
+    let mut lanes = [0.0f32; 8];
+    let (chunks_a, chunks_b) = (a.chunks_exact(8), b.chunks_exact(8));
+    let tail: f32 = chunks_a
+        .remainder()
+        .iter()
+        .zip(chunks_b.remainder())
+        .map(|(x, y)| x * y)
+        .sum();
+    for (ca, cb) in chunks_a.zip(chunks_b) {
+        for i in 0..8 {
+            lanes[i] += ca[i] * cb[i];
+        }
+    }
+    lanes.iter().sum::<f32>() + tail
 }
 
 pub(crate) fn softmax_in_place(values: &mut [f32]) {
@@ -429,14 +647,16 @@ pub enum ModelError {
         value: usize,
         max: usize,
     },
-    #[error("line {line}: {source}")]
-    Visemes { line: usize, source: VisemeError },
+    #[error("line {line}: {error}")]
+    Visemes { line: usize, error: VisemeError },
     #[error("line {line}: data after `end`")]
     TrailingData { line: usize },
-    #[error("{path}: {source}")]
-    Io {
+    #[error("{path}: {error}")]
+    Io { path: String, error: std::io::Error },
+    #[error("{path}: {error}")]
+    InFile {
         path: String,
-        source: std::io::Error,
+        error: Box<ModelError>,
     },
 }
 
@@ -494,7 +714,7 @@ mod tests {
     fn model_file_round_trips_exactly() {
         let model = sample_model();
         let text = model.to_text();
-        assert!(text.starts_with("# test weights\nlipcall-viseme-mlp 1\nvisemes PP aa I\n"));
+        assert!(text.starts_with("# test weights\nlipcall-viseme-mlp 2\nvisemes PP aa I\n"));
         assert_eq!(Model::from_text(&text).unwrap(), model);
     }
 
@@ -517,7 +737,9 @@ mod tests {
             Err(ModelError::NotAModel)
         ));
         let cases = [
-            ("lipcall-viseme-mlp 1\n", "lipcall-viseme-mlp 2\n"),
+            ("lipcall-viseme-mlp 2\n", "lipcall-viseme-mlp 3\n"),
+            ("dynamics off", "dynamics 1"),
+            ("closure_snap 0", "closure_snap 2"),
             ("visemes PP aa I", "visemes PP xx I"),
             ("hidden 4", "hidden 99999999"),
             ("hidden 4", "hidden 0"),
@@ -547,6 +769,54 @@ mod tests {
                 "{message}"
             );
         }
+    }
+
+    #[test]
+    fn dynamics_track_the_energy_and_closure_snap_closes() {
+        let mut model = Model::zeros_with(
+            VisemeSet::reduced(3).unwrap(),
+            InputScaling::new(-70.0, -10.0),
+            1,
+            Some(Dynamics {
+                peak_decay_db: 0.5,
+                energy_context: 2,
+            }),
+            2,
+        );
+        assert_eq!(model.inputs(), 13 * 2 + 2);
+        let mut state = model.new_state();
+        let mut w = [0.0; 3];
+        model.step(&mut state, &frame(-20.0), &mut w);
+        // At the peak: relative energy 0 dB -> 1; a 20 dB rise clamps at +1.
+        assert_eq!(&state.input()[11..13], &[1.0, 1.0]);
+        model.step(&mut state, &frame(-40.0), &mut w);
+        let relative = (-40.0 - (-20.5) + 20.0) / 20.0;
+        assert!((state.input()[11] - relative).abs() < 1e-6);
+        assert!((state.input()[12] + 1.0).abs() < 1e-6);
+        // The older peak-relative energies follow the full frames.
+        model.step(&mut state, &frame(-40.0), &mut w);
+        assert_eq!(state.input()[26], 1.0);
+        // Snap: uniform output (1/3) snaps at 0.3, not at 0.5.
+        model.closure_snap = 0.5;
+        model.step(&mut state, &frame(-40.0), &mut w);
+        assert!((w[0] - 1.0 / 3.0).abs() < 1e-6);
+        model.closure_snap = 0.3;
+        model.step(&mut state, &frame(-40.0), &mut w);
+        assert_eq!(w, [1.0, 0.0, 0.0]);
+        assert_eq!(Model::from_text(&model.to_text()).unwrap(), model);
+        assert_eq!(model.viseme_names(), ["PP", "aa", "I"]);
+    }
+
+    #[test]
+    fn version_one_files_load_as_raw_feature_models() {
+        let v2 = sample_model().to_text();
+        let v1 = v2
+            .replace("lipcall-viseme-mlp 2", "lipcall-viseme-mlp 1")
+            .replace("dynamics off\n", "")
+            .replace("closure_snap 0\n", "");
+        let model = Model::from_text(&v1).unwrap();
+        assert_eq!(model, sample_model());
+        assert_eq!(model.dynamics, None);
     }
 
     #[test]

@@ -1,7 +1,9 @@
 //! Offline training and evaluation of the lip-sync network on a TIMIT-style corpus.
 
+pub mod codec_features;
 pub mod corpus;
 pub mod eval;
+pub mod plot;
 pub mod trainer;
 
 pub use trainer::{TrainConfig, TrainReport, run};

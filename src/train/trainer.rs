@@ -14,9 +14,9 @@ use indicatif::{ProgressBar, ProgressStyle};
 use crate::lipsync::decompose::{DecomposeError, Decomposer, PointTrack};
 use crate::lipsync::mouth::VisemeShapes;
 use crate::lipsync::network::{
-    FEATURES_PER_FRAME, InputScaling, MULTIPLY_ADD_BUDGET, Model, multiply_adds, silence_features,
+    Dynamics, FEATURES_PER_FRAME, InputScaling, MULTIPLY_ADD_BUDGET, Model, input_count,
 };
-use crate::lipsync::visemes::VisemeSet;
+use crate::lipsync::visemes::{Viseme, VisemeSet};
 use crate::train::corpus::{
     Corpus, CorpusError, FeatureFn, PreparedUtterance, SpeakerSplit, prepare,
 };
@@ -32,6 +32,13 @@ pub struct TrainConfig {
     pub shapes: VisemeShapes,
     /// Past frames fed to the network besides the current one.
     pub context: usize,
+    /// Energy-derived stateful inputs (`None`: the paper's raw 11 features).
+    pub dynamics: Option<Dynamics>,
+    /// Targets inside /p b m/ segments become a full closure (one-hot PP) instead of the
+    /// coarticulated blend.
+    pub sharp_closures: bool,
+    /// After training, pick the closure-snap threshold on the validation speakers.
+    pub tune_closure_snap: bool,
     pub hidden: usize,
     pub max_epochs: usize,
     /// Epochs without a better validation loss before stopping.
@@ -58,6 +65,9 @@ impl Default for TrainConfig {
             visemes: VisemeSet::reduced(6).expect("6 is a reduced set size"),
             shapes: VisemeShapes::point_model(),
             context: 2,
+            dynamics: None,
+            sharp_closures: false,
+            tune_closure_snap: false,
             hidden: 10,
             max_epochs: 400,
             patience: 40,
@@ -123,11 +133,20 @@ pub struct TrainReport {
 impl fmt::Display for TrainReport {
     fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
         let best = &self.curve[self.best_epoch.saturating_sub(1).min(self.curve.len() - 1)];
+        let dynamics = match self.model.dynamics {
+            Some(d) => format!(
+                "peak decay {} dB/frame, {} extra energy frames",
+                d.peak_decay_db, d.energy_context
+            ),
+            None => "off".into(),
+        };
         writeln!(
             f,
-            "visemes {} | context {} | hidden {} | {} multiply-adds/frame",
+            "visemes {} | context {} | dynamics {} | closure snap {} | hidden {} | {} multiply-adds/frame",
             self.model.visemes,
             self.model.context,
+            dynamics,
+            self.model.closure_snap,
             self.model.hidden,
             self.model.multiply_adds()
         )?;
@@ -263,33 +282,36 @@ pub(crate) fn build_dataset(
     utterances: &[PreparedUtterance],
     targets: &[Vec<f32>],
     closure_weight: f32,
+    sharp_closures: bool,
 ) -> Dataset {
     let input_len = model.inputs();
+    let outputs = model.outputs();
     let mut data = Dataset {
         inputs: Vec::new(),
         targets: targets.concat(),
         weights: Vec::new(),
         lengths: Vec::new(),
         input_len,
-        outputs: model.outputs(),
+        outputs,
     };
-    let mut silent = [0.0; FEATURES_PER_FRAME];
-    model.scaling.apply(&silence_features(), &mut silent);
-    let mut history = vec![0.0; input_len];
+    let closed = model.visemes.position(Viseme::PP);
+    let mut state = model.new_state();
+    let mut start = 0;
     for utt in utterances {
-        for frame in history.chunks_exact_mut(FEATURES_PER_FRAME) {
-            frame.copy_from_slice(&silent);
-        }
+        model.reset(&mut state);
         for (n, features) in utt.features.iter().enumerate() {
-            history.copy_within(0..input_len - FEATURES_PER_FRAME, FEATURES_PER_FRAME);
-            model
-                .scaling
-                .apply(features, &mut history[..FEATURES_PER_FRAME]);
-            data.inputs.extend_from_slice(&history);
+            model.push_frame(&mut state, features);
+            data.inputs.extend_from_slice(state.input());
             let in_closure = utt.targets.in_bilabial(n);
             data.weights
                 .push(if in_closure { closure_weight } else { 1.0 });
+            if let (true, true, Some(closed)) = (sharp_closures, in_closure, closed) {
+                let target = &mut data.targets[(start + n) * outputs..(start + n + 1) * outputs];
+                target.fill(0.0);
+                target[closed] = 1.0;
+            }
         }
+        start += utt.features.len();
         data.lengths.push(utt.features.len());
     }
     data
@@ -387,6 +409,40 @@ pub(crate) fn loss_and_gradient(
     loss
 }
 
+/// How much a false-closure share costs against the closure share when the closure-snap
+/// threshold is chosen: a closure elsewhere is a wrong cue, but a few frames of them (silences
+/// within words, /f v/) are a smaller harm than missing the /p b m/ cue.
+pub const FALSE_CLOSURE_COST: f64 = 3.0;
+
+/// The closure-snap threshold with the best `closure share - FALSE_CLOSURE_COST * false
+/// closures` on `validation` (0 = off, when nothing beats no rule).
+pub fn tune_closure_snap(
+    model: &Model,
+    shapes: &VisemeShapes,
+    validation: &[PreparedUtterance],
+) -> Result<f32, TrainError> {
+    let mut candidate = model.clone();
+    let mut best = (f64::NEG_INFINITY, 0.0);
+    for step in 0..=14 {
+        let snap = if step == 0 {
+            0.0
+        } else {
+            0.25 + 0.05 * step as f32
+        };
+        candidate.closure_snap = snap;
+        let predicted = crate::train::eval::predict(
+            &mut crate::lipsync::ModelAnimator::new(&candidate),
+            validation,
+        );
+        let s = score(&candidate.visemes, shapes, validation, &predicted)?;
+        let value = s.closure_share() - FALSE_CLOSURE_COST * s.false_closure_rate;
+        if value > best.0 + 1e-9 {
+            best = (value, snap);
+        }
+    }
+    Ok(best.1)
+}
+
 fn predictions(model: &Model, data: &Dataset) -> Vec<Vec<f32>> {
     let mut hidden = vec![0.0; model.hidden];
     let mut out = vec![0.0; model.outputs()];
@@ -397,6 +453,7 @@ fn predictions(model: &Model, data: &Dataset) -> Vec<Vec<f32>> {
             let mut utt = Vec::with_capacity(len * out.len());
             for n in start..start + len {
                 model.forward(data.input(n), &mut hidden, &mut out);
+                model.snap(&mut out);
                 utt.extend_from_slice(&out);
             }
             start += len;
@@ -437,10 +494,11 @@ fn fitted_scaling(train: &[PreparedUtterance]) -> InputScaling {
 }
 
 fn initial_model(config: &TrainConfig, train: &[PreparedUtterance], rng: &mut Rng) -> Model {
-    let mut model = Model::zeros(
+    let mut model = Model::zeros_with(
         config.visemes.clone(),
         fitted_scaling(train),
         config.context,
+        config.dynamics,
         config.hidden,
     );
     let (inputs, outputs) = (model.inputs() as f32, model.outputs() as f32);
@@ -499,7 +557,8 @@ pub fn train_on(
     train: &[PreparedUtterance],
     validation: &[PreparedUtterance],
 ) -> Result<TrainReport, TrainError> {
-    let cost = multiply_adds(config.context, config.hidden, config.visemes.len());
+    let inputs = input_count(config.context, config.dynamics);
+    let cost = inputs * config.hidden + config.hidden * config.visemes.len();
     if cost > MULTIPLY_ADD_BUDGET && !config.allow_over_budget {
         return Err(TrainError::OverBudget { cost });
     }
@@ -512,12 +571,19 @@ pub fn train_on(
     let mut model = initial_model(config, train, &mut rng);
     let train_targets = set_targets(&config.visemes, &config.shapes, train)?;
     let validation_targets = set_targets(&config.visemes, &config.shapes, validation)?;
-    let train_data = build_dataset(&model, train, &train_targets, config.closure_weight);
+    let train_data = build_dataset(
+        &model,
+        train,
+        &train_targets,
+        config.closure_weight,
+        config.sharp_closures,
+    );
     let validation_data = build_dataset(
         &model,
         validation,
         &validation_targets,
         config.closure_weight,
+        config.sharp_closures,
     );
     if train_data.frames() == 0 || validation_data.frames() == 0 {
         return Err(TrainError::NoFrames);
@@ -598,7 +664,10 @@ pub fn train_on(
         }
     }
     progress.finish_and_clear();
-    let (_, best_epoch, model) = best;
+    let (_, best_epoch, mut model) = best;
+    if config.tune_closure_snap {
+        model.closure_snap = tune_closure_snap(&model, &config.shapes, validation)?;
+    }
     let validation_scores = score(
         &model.visemes,
         &config.shapes,
@@ -686,7 +755,7 @@ mod tests {
             *b = rng.next_f32() - 0.5;
         }
         let targets = set_targets(&config.visemes, &config.shapes, &train[..1]).unwrap();
-        let data = build_dataset(&model, &train[..1], &targets, 3.0);
+        let data = build_dataset(&model, &train[..1], &targets, 3.0, false);
         let frames: Vec<usize> = (0..data.frames()).step_by(7).collect();
         let mut grad = Params::zeros_like(&model);
         loss_and_gradient(&model, &data, &frames, Some(&mut grad));

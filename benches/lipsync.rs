@@ -1,0 +1,49 @@
+//! Features -> viseme weights per frame for the built-in default network.
+
+use std::hint::black_box;
+
+use criterion::{Criterion, criterion_group, criterion_main};
+use lipcall::lipsync::default_model;
+use lipcall::speex::features::FrameFeatures;
+
+fn frames() -> Vec<FrameFeatures> {
+    (0..64)
+        .map(|n| {
+            let x = n as f32;
+            let mut lsp = [0.0; 10];
+            for (i, l) in lsp.iter_mut().enumerate() {
+                *l = 0.28 * (i + 1) as f32 + 0.03 * (0.3 * x + i as f32).sin();
+            }
+            FrameFeatures {
+                mode: Some(5),
+                lsp,
+                energy_db: -40.0 + 20.0 * (0.4 * x).sin(),
+            }
+        })
+        .collect()
+}
+
+fn bench(c: &mut Criterion) {
+    let model = default_model();
+    let mut state = model.new_state();
+    let frames = frames();
+    let mut weights = vec![0.0; model.outputs()];
+    let mut n = 0;
+    c.bench_function(
+        &format!("default network step ({} MACs)", model.multiply_adds()),
+        |b| {
+            b.iter(|| {
+                model.step(
+                    &mut state,
+                    black_box(&frames[n % frames.len()]),
+                    &mut weights,
+                );
+                n += 1;
+                black_box(&weights);
+            })
+        },
+    );
+}
+
+criterion_group!(benches, bench);
+criterion_main!(benches);

@@ -1,0 +1,446 @@
+//! `lipcall train`, `lipcall evaluate` and `lipcall decompose`.
+
+use std::io::Write as _;
+use std::path::{Path, PathBuf};
+
+use anyhow::{Context, Result, bail};
+use indicatif::{ProgressBar, ProgressStyle};
+
+use crate::lipsync::decompose::{PointTrack, decompose_track, table_i, table_i_reduced};
+use crate::lipsync::markers::MarkerTrack;
+use crate::lipsync::mouth::VisemeShapes;
+use crate::lipsync::network::{Dynamics, Model};
+use crate::lipsync::visemes::VisemeSet;
+use crate::lipsync::{self, recipe};
+use crate::speex::codec::EncoderConfig;
+use crate::train::codec_features::{
+    CodecFeatures, EVALUATION_QUALITY, LOW_QUALITY, augmentation_settings, quality,
+};
+use crate::train::corpus::{Corpus, PreparedUtterance, SpeakerSplit, Utterance};
+use crate::train::eval::{EvalReport, evaluate_prepared};
+use crate::train::plot;
+use crate::train::trainer::{TrainConfig, train_on};
+
+const DEFAULT_CORPUS: &str = "../shared/data/timit-sample";
+
+#[derive(Debug, clap::Args)]
+pub struct TrainArgs {
+    /// TIMIT-style corpus: <speaker>/<utt>.wav with <utt>.phn beside it.
+    #[arg(long, value_name = "DIR", default_value = DEFAULT_CORPUS)]
+    pub corpus: PathBuf,
+    /// Viseme set: a count (2..6, the paper's reduced sets) or names, e.g. PP,aa,I.
+    #[arg(long, value_name = "N|NAMES", default_value = recipe::VISEMES)]
+    pub visemes: String,
+    #[arg(long, value_name = "H", default_value_t = recipe::HIDDEN)]
+    pub hidden: usize,
+    /// Past frames fed besides the current one.
+    #[arg(long, value_name = "C", default_value_t = recipe::CONTEXT)]
+    pub context: usize,
+    /// Extra past frames of peak-relative energy (with dynamics).
+    #[arg(long, value_name = "E", default_value_t = recipe::ENERGY_CONTEXT)]
+    pub energy_context: usize,
+    /// Fall of the running energy peak, dB per frame.
+    #[arg(long, value_name = "DB", default_value_t = recipe::PEAK_DECAY_DB)]
+    pub peak_decay: f32,
+    /// Only the paper's 11 raw features per frame (no energy dynamics).
+    #[arg(long)]
+    pub no_dynamics: bool,
+    /// Loss weight of frames inside /p b m/ segments.
+    #[arg(long, value_name = "W", default_value_t = recipe::CLOSURE_WEIGHT)]
+    pub closure_weight: f32,
+    /// Keep the coarticulated targets inside /p b m/ (default: a full closure there).
+    #[arg(long)]
+    pub soft_closures: bool,
+    /// Closure snap: `auto` (tuned on the validation speakers), `off`, or a threshold in (0, 1].
+    #[arg(long, value_name = "auto|off|T", default_value = "auto")]
+    pub snap: String,
+    /// Codec versions of each training utterance (settings rotate over qualities 3..10 and VBR).
+    #[arg(long, value_name = "N", default_value_t = recipe::CODEC_VERSIONS)]
+    pub versions: usize,
+    #[arg(long, default_value_t = 400)]
+    pub epochs: usize,
+    /// Epochs without a better validation loss before stopping.
+    #[arg(long, default_value_t = 40)]
+    pub patience: usize,
+    #[arg(long, default_value_t = 0.003)]
+    pub learning_rate: f32,
+    #[arg(long, default_value_t = 32)]
+    pub batch: usize,
+    #[arg(long, value_name = "S", default_value_t = recipe::SEED)]
+    pub seed: u64,
+    /// Utterances per speaker (all by default), for quick runs.
+    #[arg(long, value_name = "N")]
+    pub utterances: Option<usize>,
+    /// Where the trained model goes.
+    #[arg(long, value_name = "MODEL", default_value = "lipsync.lipmodel")]
+    pub out: PathBuf,
+    /// Learning curves as CSV.
+    #[arg(long, value_name = "CSV")]
+    pub curves: Option<PathBuf>,
+    /// Learning curves as a PNG plot.
+    #[arg(long, value_name = "PNG")]
+    pub plot: Option<PathBuf>,
+    /// Accept a network over the 400 multiply-add budget.
+    #[arg(long)]
+    pub allow_over_budget: bool,
+    /// No progress bars.
+    #[arg(long)]
+    pub quiet: bool,
+}
+
+#[derive(Debug, clap::Args)]
+pub struct EvaluateArgs {
+    /// Model file (default: the built-in model).
+    #[arg(long, value_name = "FILE")]
+    pub model: Option<PathBuf>,
+    #[arg(long, value_name = "DIR", default_value = DEFAULT_CORPUS)]
+    pub corpus: PathBuf,
+    /// Speex quality of the round trip.
+    #[arg(long, value_name = "Q", default_value_t = EVALUATION_QUALITY,
+          value_parser = clap::value_parser!(u8).range(0..=10))]
+    pub quality: u8,
+    #[arg(long)]
+    pub vbr: bool,
+    /// Which held-out speakers: test (dr5, dr6) or validation (dr4).
+    #[arg(long, value_name = "SET", default_value = "test",
+          value_parser = ["test", "validation", "train"])]
+    pub speakers: String,
+    /// Utterances per speaker (all by default).
+    #[arg(long, value_name = "N")]
+    pub utterances: Option<usize>,
+}
+
+#[derive(Debug, clap::Args)]
+pub struct DecomposeArgs {
+    /// Corpus whose phone-derived targets make the Table I track (without --markers).
+    #[arg(long, value_name = "DIR", default_value = DEFAULT_CORPUS)]
+    pub corpus: PathBuf,
+    /// Marker tracks CSV: frame,<p>_x,<p>_y,...
+    #[arg(long, value_name = "TRACKS.csv", requires = "key_frames")]
+    pub markers: Option<PathBuf>,
+    /// Key frames CSV: viseme,frame (the viseme shapes).
+    #[arg(long, value_name = "KEYS.csv", requires = "markers")]
+    pub key_frames: Option<PathBuf>,
+    /// Marker subtracted from every point of its row (e.g. the nose).
+    #[arg(long, value_name = "NAME")]
+    pub origin: Option<String>,
+    /// Decompose onto this set: a count or names (with --markers: default all key-frame visemes).
+    #[arg(long, value_name = "N|NAMES")]
+    pub visemes: Option<String>,
+    /// Utterances per speaker for Table I (all by default).
+    #[arg(long, value_name = "N")]
+    pub utterances: Option<usize>,
+    /// Write the weights per marker frame: frame,<viseme names>.
+    #[arg(long, value_name = "OUT.csv", requires = "markers")]
+    pub weights: Option<PathBuf>,
+}
+
+fn bar(len: usize, what: &str, quiet: bool) -> ProgressBar {
+    if quiet {
+        return ProgressBar::hidden();
+    }
+    let bar = ProgressBar::new(len as u64);
+    bar.set_style(
+        ProgressStyle::with_template("{bar:30} {pos}/{len} {msg} {elapsed}")
+            .unwrap_or_else(|_| ProgressStyle::default_bar()),
+    );
+    bar.set_message(what.to_string());
+    bar
+}
+
+fn pick<'c>(
+    corpus: &'c Corpus,
+    speakers: &[String],
+    per_speaker: Option<usize>,
+) -> Result<Vec<&'c Utterance>> {
+    let mut chosen = Vec::new();
+    for name in speakers {
+        let utts = &corpus.speaker(name)?.utterances;
+        let n = per_speaker.unwrap_or(utts.len()).min(utts.len());
+        chosen.extend(utts[..n].iter());
+    }
+    Ok(chosen)
+}
+
+fn prepare_at(
+    codec: &CodecFeatures,
+    utts: &[&Utterance],
+    config: EncoderConfig,
+    what: &str,
+    quiet: bool,
+) -> Result<Vec<PreparedUtterance>> {
+    let progress = bar(utts.len(), what, quiet);
+    let mut out = Vec::with_capacity(utts.len());
+    for utt in utts {
+        out.extend(codec.prepare(std::slice::from_ref(utt), config)?);
+        progress.inc(1);
+    }
+    progress.finish_and_clear();
+    Ok(out)
+}
+
+fn parse_snap(text: &str) -> Result<Option<f32>> {
+    match text {
+        "auto" => Ok(None),
+        "off" => Ok(Some(0.0)),
+        _ => match text.parse::<f32>() {
+            Ok(t) if t > 0.0 && t <= 1.0 => Ok(Some(t)),
+            _ => bail!("--snap takes auto, off or a threshold in (0, 1], not {text:?}"),
+        },
+    }
+}
+
+pub fn train(args: &TrainArgs) -> Result<()> {
+    let visemes = VisemeSet::parse(&args.visemes).context("--visemes")?;
+    let snap = parse_snap(&args.snap)?;
+    let corpus = Corpus::open(&args.corpus)?;
+    let split = SpeakerSplit::standard(&corpus)?;
+    let settings = augmentation_settings();
+    eprintln!(
+        "Training the viseme network ({visemes}) on the Speex-decoded features of {} \
+         (training speakers {}; validation speakers {} steer early stopping; the test speakers {} \
+         are not touched). Each training utterance is seen at {} codec settings.",
+        args.corpus.display(),
+        split.train.join(" "),
+        split.validation.join(" "),
+        split.test.join(" "),
+        args.versions.clamp(1, settings.len())
+    );
+    let codec = CodecFeatures::new();
+    let train_utts = pick(&corpus, &split.train, args.utterances)?;
+    let validation_utts = pick(&corpus, &split.validation, args.utterances)?;
+    let versions = args.versions.clamp(1, settings.len());
+    let progress = bar(
+        train_utts.len() * versions,
+        "Speex round trips (training)",
+        args.quiet,
+    );
+    let train = codec.prepare_augmented(&train_utts, &settings, versions, &|| progress.inc(1))?;
+    progress.finish_and_clear();
+    let validation = prepare_at(
+        &codec,
+        &validation_utts,
+        quality(EVALUATION_QUALITY),
+        "Speex round trips (validation)",
+        args.quiet,
+    )?;
+
+    let config = TrainConfig {
+        corpus_root: args.corpus.clone(),
+        split: Some(split.clone()),
+        visemes,
+        shapes: VisemeShapes::point_model(),
+        context: args.context,
+        dynamics: (!args.no_dynamics).then_some(Dynamics {
+            peak_decay_db: args.peak_decay,
+            energy_context: args.energy_context,
+        }),
+        sharp_closures: !args.soft_closures,
+        tune_closure_snap: snap.is_none(),
+        hidden: args.hidden,
+        max_epochs: args.epochs,
+        patience: args.patience,
+        learning_rate: args.learning_rate,
+        batch_size: args.batch,
+        seed: args.seed,
+        closure_weight: args.closure_weight,
+        utterances_per_speaker: args.utterances,
+        curves_csv: args.curves.clone(),
+        show_progress: !args.quiet,
+        allow_over_budget: args.allow_over_budget,
+    };
+    let mut report = train_on(&config, &train, &validation)?;
+    if let Some(threshold) = snap {
+        report.model.closure_snap = threshold;
+    }
+    report.split = split.clone();
+    report.model.notes = vec![
+        "Derived from the TIMIT corpus sample (Copyright 1993 Linguistic Data Consortium, \
+         CC BY-NC-SA); see assets/models/README.md."
+            .into(),
+        format!(
+            "features: Speex NB round trip, training at {versions} rotating settings of \
+             qualities 3..10 and VBR 4/8, validation at quality {EVALUATION_QUALITY}"
+        ),
+        format!("training speakers: {}", split.train.join(" ")),
+        format!("validation speakers: {}", split.validation.join(" ")),
+        format!(
+            "seed {}, closure weight {}, sharp closures {}, best epoch {}",
+            args.seed, args.closure_weight, config.sharp_closures, report.best_epoch
+        ),
+    ];
+    report
+        .model
+        .save(&args.out)
+        .with_context(|| format!("cannot save the model to {}", args.out.display()))?;
+    let low = prepare_at(
+        &codec,
+        &validation_utts,
+        quality(LOW_QUALITY),
+        "Speex round trips (validation, low quality)",
+        args.quiet,
+    )?;
+    println!("{report}");
+    let shapes = VisemeShapes::point_model();
+    println!("validation at quality {EVALUATION_QUALITY}:");
+    println!(
+        "{}",
+        evaluate_prepared(&report.model, &validation, &split.validation, &shapes)?
+    );
+    println!("validation at quality {LOW_QUALITY}:");
+    println!(
+        "{}",
+        evaluate_prepared(&report.model, &low, &split.validation, &shapes)?
+    );
+    eprintln!("wrote the model to {}", args.out.display());
+    if let Some(path) = &args.curves {
+        eprintln!("wrote the learning curves to {}", path.display());
+    }
+    if let Some(path) = &args.plot {
+        plot::learning_curves(path, &report.curve)
+            .with_context(|| format!("cannot plot to {}", path.display()))?;
+        eprintln!(
+            "wrote the learning-curve plot to {} (losses top, validation closure share and \
+             openness r bottom)",
+            path.display()
+        );
+    }
+    Ok(())
+}
+
+/// The model `--model` names, or the built-in one.
+pub fn load_model(path: Option<&Path>) -> Result<Model> {
+    match path {
+        Some(path) => Ok(Model::load(path).context("cannot load the model")?),
+        None => Ok(lipsync::default_model()),
+    }
+}
+
+pub fn evaluate(args: &EvaluateArgs) -> Result<()> {
+    let model = load_model(args.model.as_deref())?;
+    let corpus = Corpus::open(&args.corpus)?;
+    let split = SpeakerSplit::standard(&corpus)?;
+    let speakers = match args.speakers.as_str() {
+        "validation" => &split.validation,
+        "train" => &split.train,
+        _ => &split.test,
+    };
+    let config = EncoderConfig {
+        quality: args.quality,
+        vbr: args.vbr,
+        ..EncoderConfig::default()
+    };
+    let utts = pick(&corpus, speakers, args.utterances)?;
+    let prepared = prepare_at(
+        &CodecFeatures::new(),
+        &utts,
+        config,
+        "Speex round trips",
+        false,
+    )?;
+    let report: EvalReport =
+        evaluate_prepared(&model, &prepared, speakers, &VisemeShapes::point_model())?;
+    println!(
+        "model: {} ({} visemes: {}; {} multiply-adds/frame), Speex quality {}{}",
+        args.model
+            .as_deref()
+            .map_or_else(|| "built-in".to_string(), |p| p.display().to_string()),
+        model.outputs(),
+        model.viseme_names().join(" "),
+        model.multiply_adds(),
+        args.quality,
+        if args.vbr { " VBR" } else { "" }
+    );
+    print!("{report}");
+    Ok(())
+}
+
+pub fn decompose(args: &DecomposeArgs) -> Result<()> {
+    match (&args.markers, &args.key_frames) {
+        (Some(markers), Some(keys)) => decompose_markers(args, markers, keys),
+        _ => decompose_targets(args),
+    }
+}
+
+fn decompose_targets(args: &DecomposeArgs) -> Result<()> {
+    let corpus = Corpus::open(&args.corpus)?;
+    let shapes = VisemeShapes::point_model();
+    let full = VisemeSet::full();
+    let mut track = PointTrack::new(shapes.point_dim(), shapes.coords());
+    let mut utterances = 0;
+    for speaker in &corpus.speakers {
+        let n = args.utterances.unwrap_or(speaker.utterances.len());
+        for utt in speaker.utterances.iter().take(n) {
+            let targets = crate::train::corpus::utterance_targets(utt)?;
+            let weights = targets.weights.iter().map(|w| &w[..]);
+            for frame in PointTrack::from_weights(&shapes, &full, weights)?.frames() {
+                track.push(frame)?;
+            }
+            utterances += 1;
+        }
+    }
+    println!(
+        "Table I: phone-derived viseme targets of {} ({} utterances, {} speakers) through the \
+         point model, decomposed onto the reduced sets",
+        args.corpus.display(),
+        utterances,
+        corpus.speakers.len()
+    );
+    let table = match &args.visemes {
+        Some(names) => table_i(&track, &shapes, &[VisemeSet::parse(names)?])?,
+        None => table_i_reduced(&track, &shapes)?,
+    };
+    print!("{table}");
+    Ok(())
+}
+
+fn decompose_markers(args: &DecomposeArgs, markers: &Path, keys: &Path) -> Result<()> {
+    let track = MarkerTrack::load(markers, args.origin.as_deref())?;
+    let shapes = track
+        .load_key_frame_shapes(keys)
+        .with_context(|| format!("{}", keys.display()))?;
+    let key_set = VisemeSet::new(shapes.visemes())
+        .context("the key frames must name at least 2 different visemes")?;
+    let set = match &args.visemes {
+        Some(names) => VisemeSet::parse(names)?,
+        None => key_set.clone(),
+    };
+    shapes
+        .for_set(&set)
+        .context("a viseme of --visemes has no key frame")?;
+    // Table I over the reduced sets the key frames cover, then the chosen set.
+    let mut sets: Vec<VisemeSet> = (2..=6)
+        .filter_map(|n| VisemeSet::reduced(n).ok())
+        .filter(|s| shapes.for_set(s).is_ok())
+        .collect();
+    if !sets.contains(&set) {
+        sets.push(set.clone());
+    }
+    println!(
+        "{} marker frames of {} markers, shapes from {} key frames",
+        track.points.len(),
+        track.marker_names.len(),
+        key_set.len()
+    );
+    print!("{}", table_i(&track.points, &shapes, &sets)?);
+    if let Some(out) = &args.weights {
+        let sigmas = track.points.point_sigmas();
+        let weights = decompose_track(&track.points, &shapes, &set, &sigmas)?;
+        let file = std::fs::File::create(out)
+            .with_context(|| format!("cannot write {}", out.display()))?;
+        let mut w = std::io::BufWriter::new(file);
+        let names: Vec<&str> = set.members().iter().map(|v| v.name()).collect();
+        writeln!(w, "frame,{}", names.join(","))?;
+        for (frame, row) in track.frame_numbers.iter().zip(&weights) {
+            write!(w, "{frame}")?;
+            for v in row {
+                write!(w, ",{v:.5}")?;
+            }
+            writeln!(w)?;
+        }
+        w.flush()
+            .with_context(|| format!("cannot write {}", out.display()))?;
+        eprintln!("wrote the weights over {set} to {}", out.display());
+    }
+    Ok(())
+}

@@ -1,0 +1,14 @@
+//! The recipe of the shipped default network (`assets/models/default.lipmodel`), and the
+//! defaults of `lipcall train`. docs/model.md logs how each value was chosen on the validation
+//! speakers.
+
+/// Viseme set of the default network (`--visemes`).
+pub const VISEMES: &str = "3";
+pub const HIDDEN: usize = 8;
+pub const CONTEXT: usize = 2;
+pub const ENERGY_CONTEXT: usize = 6;
+pub const PEAK_DECAY_DB: f32 = 0.15;
+pub const CLOSURE_WEIGHT: f32 = 4.0;
+/// Codec versions of each training utterance.
+pub const CODEC_VERSIONS: usize = 4;
+pub const SEED: u64 = 0x5EED_CAFE;

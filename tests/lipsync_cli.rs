@@ -1,0 +1,244 @@
+//! The lip-sync subcommands from the outside: bad input gives a one-line error and exit 1 (2 for
+//! bad usage), never a panic. Trainings here are tiny (1 utterance per speaker, a few epochs).
+
+use std::path::{Path, PathBuf};
+use std::process::{Command, Output};
+
+fn lipcall(args: &[&str]) -> Output {
+    Command::new(env!("CARGO_BIN_EXE_lipcall"))
+        .args(args)
+        .output()
+        .expect("run lipcall")
+}
+
+fn corpus() -> PathBuf {
+    Path::new(env!("CARGO_MANIFEST_DIR")).join("../shared/data/timit-sample")
+}
+
+fn stderr(out: &Output) -> String {
+    String::from_utf8_lossy(&out.stderr).into_owned()
+}
+
+fn assert_clean_failure(out: &Output, needle: &str) {
+    let err = stderr(out);
+    assert_eq!(out.status.code(), Some(1), "{err}");
+    assert!(err.contains(needle), "{err}");
+    assert!(!err.contains("panicked"), "{err}");
+    assert_eq!(err.trim().lines().count(), 1, "{err}");
+}
+
+#[test]
+fn corrupt_and_truncated_model_files_are_clear_errors() {
+    let dir = tempfile::tempdir().unwrap();
+    let shipped = std::fs::read_to_string(
+        Path::new(env!("CARGO_MANIFEST_DIR")).join("assets/models/default.lipmodel"),
+    )
+    .unwrap();
+    let truncated = dir.path().join("truncated.lipmodel");
+    std::fs::write(&truncated, &shipped[..shipped.len() / 2]).unwrap();
+    let garbage = dir.path().join("garbage.lipmodel");
+    std::fs::write(&garbage, b"\x89PNG\r\n\x1a\n").unwrap();
+    let bad_viseme = dir.path().join("bad_viseme.lipmodel");
+    std::fs::write(&bad_viseme, shipped.replacen("visemes PP", "visemes XX", 1)).unwrap();
+    let c = corpus();
+    for (file, needle) in [
+        (&truncated, "truncated.lipmodel"),
+        (&garbage, "not a lipcall viseme model"),
+        (&bad_viseme, "unknown viseme \"XX\""),
+        (&dir.path().join("missing.lipmodel"), "missing.lipmodel"),
+    ] {
+        let out = lipcall(&[
+            "evaluate",
+            "--model",
+            file.to_str().unwrap(),
+            "--corpus",
+            c.to_str().unwrap(),
+        ]);
+        assert_clean_failure(&out, needle);
+    }
+}
+
+fn tiny_corpus(dir: &Path, phn: &str, samples: usize) -> PathBuf {
+    let root = dir.join("corpus");
+    for speaker in ["dr1-a", "dr4-b", "dr5-c"] {
+        let d = root.join(speaker);
+        std::fs::create_dir_all(&d).unwrap();
+        let spec = hound::WavSpec {
+            channels: 1,
+            sample_rate: 16000,
+            bits_per_sample: 16,
+            sample_format: hound::SampleFormat::Int,
+        };
+        let mut w = hound::WavWriter::create(d.join("u1.wav"), spec).unwrap();
+        for i in 0..samples {
+            w.write_sample(((i as f32 * 0.07).sin() * 3000.0) as i16)
+                .unwrap();
+        }
+        w.finalize().unwrap();
+        std::fs::write(d.join("u1.phn"), phn).unwrap();
+    }
+    root
+}
+
+#[test]
+fn unknown_phones_and_too_short_audio_are_clear_errors() {
+    let dir = tempfile::tempdir().unwrap();
+    let bad_phone = tiny_corpus(dir.path(), "0 8000 h#\n8000 16000 zz9\n", 16000);
+    let out = lipcall(&[
+        "evaluate",
+        "--corpus",
+        bad_phone.to_str().unwrap(),
+        "--speakers",
+        "test",
+    ]);
+    assert_clean_failure(&out, "zz9");
+
+    let short_dir = tempfile::tempdir().unwrap();
+    let short = tiny_corpus(short_dir.path(), "0 100 h#\n", 100);
+    let out = lipcall(&["evaluate", "--corpus", short.to_str().unwrap()]);
+    assert_clean_failure(&out, "shorter than one 20 ms frame");
+
+    let out = lipcall(&["evaluate", "--corpus", "/nonexistent/corpus"]);
+    assert_clean_failure(&out, "/nonexistent/corpus");
+}
+
+#[test]
+fn bad_usage_exits_2() {
+    for args in [
+        &["train", "--visemes", "PP,PP"][..],
+        &["evaluate", "--quality", "11"],
+        &["decompose", "--markers", "x.csv"],
+    ] {
+        let out = lipcall(args);
+        let code = out.status.code();
+        // --visemes is checked after parsing, so it is a failure (1), not usage (2).
+        assert!(code == Some(2) || code == Some(1), "{args:?}: {code:?}");
+        assert!(!stderr(&out).contains("panicked"));
+    }
+    let out = lipcall(&["train", "--visemes", "PP,PP", "--quiet"]);
+    assert_clean_failure(&out, "twice");
+}
+
+#[test]
+fn tiny_training_writes_model_curves_and_plot_then_evaluates() {
+    let dir = tempfile::tempdir().unwrap();
+    let model = dir.path().join("m.lipmodel");
+    let curves = dir.path().join("c.csv");
+    let plot = dir.path().join("c.png");
+    let c = corpus();
+    let out = lipcall(&[
+        "train",
+        "--corpus",
+        c.to_str().unwrap(),
+        "--utterances",
+        "1",
+        "--versions",
+        "1",
+        "--epochs",
+        "3",
+        "--hidden",
+        "4",
+        "--snap",
+        "off",
+        "--quiet",
+        "--out",
+        model.to_str().unwrap(),
+        "--curves",
+        curves.to_str().unwrap(),
+        "--plot",
+        plot.to_str().unwrap(),
+    ]);
+    assert!(out.status.success(), "{}", stderr(&out));
+    let text = String::from_utf8_lossy(&out.stdout);
+    assert!(text.contains("jaw baseline"), "{text}");
+    assert!(
+        std::fs::read_to_string(&model)
+            .unwrap()
+            .contains("lipcall-viseme-mlp 2")
+    );
+    assert_eq!(std::fs::read_to_string(&curves).unwrap().lines().count(), 4);
+    assert!(std::fs::read(&plot).unwrap().starts_with(b"\x89PNG"));
+    assert!(stderr(&out).contains("wrote the model to"));
+
+    let out = lipcall(&[
+        "evaluate",
+        "--model",
+        model.to_str().unwrap(),
+        "--corpus",
+        c.to_str().unwrap(),
+        "--speakers",
+        "validation",
+        "--utterances",
+        "1",
+        "--quality",
+        "3",
+    ]);
+    assert!(out.status.success(), "{}", stderr(&out));
+    let text = String::from_utf8_lossy(&out.stdout);
+    for row in [
+        "targets",
+        "network",
+        "jaw baseline",
+        "openness r",
+        "false cl.",
+    ] {
+        assert!(text.contains(row), "{text}");
+    }
+}
+
+#[test]
+fn decompose_prints_table_i_and_decomposes_marker_tracks() {
+    let c = corpus();
+    let out = lipcall(&[
+        "decompose",
+        "--corpus",
+        c.to_str().unwrap(),
+        "--utterances",
+        "1",
+        "--visemes",
+        "3",
+    ]);
+    assert!(out.status.success(), "{}", stderr(&out));
+    let text = String::from_utf8_lossy(&out.stdout);
+    assert!(
+        text.contains("Table I") && text.contains("PP aa I"),
+        "{text}"
+    );
+
+    let dir = tempfile::tempdir().unwrap();
+    let tracks = dir.path().join("tracks.csv");
+    std::fs::write(
+        &tracks,
+        "frame,nose_x,nose_y,lip_x,lip_y,chin_x,chin_y\n\
+         10,100,50,100,80,100,120\n11,101,50,101,90,101,140\n12,100,50,100,85,100,130\n",
+    )
+    .unwrap();
+    let keys = dir.path().join("keys.csv");
+    std::fs::write(&keys, "viseme,frame\nPP,10\naa,11\n").unwrap();
+    let weights = dir.path().join("w.csv");
+    let out = lipcall(&[
+        "decompose",
+        "--markers",
+        tracks.to_str().unwrap(),
+        "--key-frames",
+        keys.to_str().unwrap(),
+        "--origin",
+        "nose",
+        "--weights",
+        weights.to_str().unwrap(),
+    ]);
+    assert!(out.status.success(), "{}", stderr(&out));
+    let csv = std::fs::read_to_string(&weights).unwrap();
+    assert!(csv.starts_with("frame,PP,aa\n10,"), "{csv}");
+    assert!(csv.contains("12,0.5"), "{csv}");
+
+    std::fs::write(&keys, "viseme,frame\nPP,10\nXX,11\n").unwrap();
+    let out = lipcall(&[
+        "decompose",
+        "--markers",
+        tracks.to_str().unwrap(),
+        "--key-frames",
+        keys.to_str().unwrap(),
+    ]);
+    assert_clean_failure(&out, "unknown viseme \"XX\"");
+}
