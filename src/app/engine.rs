@@ -187,9 +187,10 @@ fn describe_output(status: &OutputStatus) -> String {
     }
 }
 
-/// The shipped network when this build has one.
+/// The shipped network, built once and shared by every peer's animator.
 fn shipped_model() -> Option<&'static Model> {
-    None
+    static MODEL: std::sync::OnceLock<Model> = std::sync::OnceLock::new();
+    Some(MODEL.get_or_init(crate::lipsync::default_model))
 }
 
 /// Turns one peer's decoded frames into weights over a chosen viseme set, or does nothing at

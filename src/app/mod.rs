@@ -135,6 +135,8 @@ pub struct LipcallApp {
     counters: Arc<RenderCounters>,
     /// Frames each peer's tile showed with weights of the audio heard then.
     shown: std::collections::HashMap<u32, u64>,
+    /// Peers whose saved choices were applied.
+    applied: std::collections::HashSet<u32>,
     frames: u64,
     inputs: Vec<DeviceInfo>,
     outputs: Vec<DeviceInfo>,
@@ -177,6 +179,7 @@ impl LipcallApp {
             last_save: Instant::now(),
             counters,
             shown: Default::default(),
+            applied: Default::default(),
             frames: 0,
             inputs,
             outputs,
@@ -316,7 +319,8 @@ impl eframe::App for LipcallApp {
         });
         egui::Panel::left("peers")
             .resizable(true)
-            .default_size(260.0)
+            .default_size(240.0)
+            .min_size(200.0)
             .show(ui, |ui| peer_list_ui(ui, &peers));
         egui::CentralPanel::default().show(ui, |ui| {
             tiles_ui(ui, &peers, &weights, &mut prefs);
@@ -523,7 +527,8 @@ pub fn peer_list_ui(ui: &mut egui::Ui, peers: &[PeerView]) {
             } else {
                 egui::Color32::DARK_GRAY
             };
-            ui.colored_label(colour, "⏺");
+            let (dot, _) = ui.allocate_exact_size(egui::vec2(12.0, 12.0), egui::Sense::hover());
+            ui.painter().circle_filled(dot.center(), 5.0, colour);
             ui.strong(&p.name);
             if p.is_demo {
                 ui.weak("(demo)");
