@@ -257,15 +257,12 @@ impl eframe::App for LipcallApp {
             let s = &mut *guard;
             s.playback.poll();
             let peers = s.peers.clone();
+            // A peer's saved choices apply once its name (SDES) is known.
             for p in &peers {
-                if !s.prefs.contains_key(&p.ssrc) {
-                    let prefs = self
-                        .settings
-                        .peers
-                        .get(&p.name)
-                        .cloned()
-                        .unwrap_or_default();
-                    s.prefs.insert(p.ssrc, prefs);
+                if let Some(saved) = self.settings.peers.get(&p.name)
+                    && self.applied.insert(p.ssrc)
+                {
+                    s.prefs.insert(p.ssrc, saved.clone());
                 }
             }
             let mut weights = Vec::with_capacity(peers.len());
