@@ -496,8 +496,7 @@ fn device_picker_ui(
             .map_or_else(|| chosen.clone(), |d| d.name.clone())
     };
     let mut changed = false;
-    ui.label(label);
-    egui::ComboBox::from_id_salt(label)
+    egui::ComboBox::from_label(label)
         .selected_text(shown)
         .width(160.0)
         .show_ui(ui, |ui| {
@@ -539,8 +538,16 @@ pub fn peer_list_ui(ui: &mut egui::Ui, peers: &[PeerView]) {
     }
 }
 
-/// The viseme sets offered (the paper's reduced sets and the full one).
-pub const VISEME_CHOICES: [&str; 6] = ["2", "3", "4", "5", "6", "15"];
+/// The viseme sets offered: the network's own, the paper's reduced sets and the full one.
+pub const VISEME_CHOICES: [&str; 7] = ["", "2", "3", "4", "5", "6", "15"];
+
+fn visemes_label(choice: &str) -> String {
+    if choice.is_empty() {
+        "network's visemes".into()
+    } else {
+        format!("{choice} visemes")
+    }
+}
 
 /// One peer's controls: animation, mute, volume, lipreading view, viseme set, jaw mode.
 pub fn peer_controls_ui(ui: &mut egui::Ui, id: u32, prefs: &mut PeerPrefs) {
@@ -554,12 +561,12 @@ pub fn peer_controls_ui(ui: &mut egui::Ui, id: u32, prefs: &mut PeerPrefs) {
         );
         ui.checkbox(&mut prefs.lipreading, "Lipreading");
         ui.checkbox(&mut prefs.jaw, "Jaw only");
-        egui::ComboBox::from_id_salt(("visemes", id))
-            .selected_text(format!("{} visemes", prefs.visemes))
-            .width(90.0)
+        egui::ComboBox::new(("visemes", id), "Visemes")
+            .selected_text(visemes_label(&prefs.visemes))
+            .width(140.0)
             .show_ui(ui, |ui| {
                 for c in VISEME_CHOICES {
-                    ui.selectable_value(&mut prefs.visemes, c.to_owned(), format!("{c} visemes"));
+                    ui.selectable_value(&mut prefs.visemes, c.to_owned(), visemes_label(c));
                 }
             });
     });

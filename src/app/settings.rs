@@ -16,7 +16,8 @@ pub struct PeerPrefs {
     pub volume: f32,
     /// The large close-up of the mouth.
     pub lipreading: bool,
-    /// Viseme set: a count (2..=6 or 15) or names, as `--visemes` takes.
+    /// Viseme set: a count (2..=6 or 15) or names, as `--visemes` takes; empty: the
+    /// network's own set (no re-projection).
     pub visemes: String,
     /// Jaw-from-energy instead of the network, for comparison.
     pub jaw: bool,
@@ -29,7 +30,7 @@ impl Default for PeerPrefs {
             muted: false,
             volume: 1.0,
             lipreading: false,
-            visemes: "15".into(),
+            visemes: String::new(),
             jaw: false,
         }
     }
