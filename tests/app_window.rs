@@ -130,6 +130,7 @@ fn demo_peer_talks_and_its_mouth_moves() {
         .windows(2)
         .map(|w| mouth_difference(&w[0], &w[1], (x0, y0, x1, y1)))
         .fold(0.0, f64::max);
+    eprintln!("head: {n} skin pixels in {x0},{y0}..{x1},{y1}; largest mouth change {most:.2}");
     assert!(
         most > 1.0,
         "the mouth did not move between screenshots (largest mean difference {most:.3})"

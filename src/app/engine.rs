@@ -341,6 +341,8 @@ struct Worker {
     mic: Option<Capture>,
     encoder: Encoder,
     peers: HashMap<u32, PeerState>,
+    /// The session has destinations: the microphone is sent.
+    in_call: bool,
 }
 
 fn resolve(addr: &str) -> anyhow::Result<SocketAddr> {
@@ -375,6 +377,7 @@ impl Worker {
             demo: None,
             mic: None,
             peers: HashMap::new(),
+            in_call: false,
             config,
             shared,
             counters,
@@ -447,11 +450,13 @@ impl Worker {
             .as_deref()
             .filter(|p| !p.is_empty())
             .map(|p| MasterKey::from_passphrase(p, room.as_deref().unwrap_or("")));
-        let bind = match self.config.listen {
-            Some(l) => l,
-            None if to.ip().is_loopback() => SocketAddr::new(to.ip(), 0),
-            None if to.is_ipv4() => SocketAddr::from(([0, 0, 0, 0], 0)),
-            None => SocketAddr::from((std::net::Ipv6Addr::UNSPECIFIED, 0)),
+        // A fresh port: the listening session still holds its own until replaced.
+        let bind = if to.ip().is_loopback() {
+            SocketAddr::new(to.ip(), 0)
+        } else if to.is_ipv4() {
+            SocketAddr::from(([0, 0, 0, 0], 0))
+        } else {
+            SocketAddr::from((std::net::Ipv6Addr::UNSPECIFIED, 0))
         };
         let mut sc = SessionConfig::new(bind);
         sc.destinations = vec![to];
@@ -462,17 +467,11 @@ impl Worker {
         } else {
             spec.name.clone()
         });
-        // Free the listening port first when the call reuses it.
+        let session = Session::start(sc)?;
         self.session.leave();
         self.demo = None;
-        let session = match Session::start(sc) {
-            Ok(s) => s,
-            Err(e) => {
-                self.session = idle_session(&self.config)?;
-                return Err(e.into());
-            }
-        };
         self.session = session;
+        self.in_call = true;
         self.drop_peers();
         let encrypted = self.session.encrypted();
         let mut s = lock(&self.shared);
@@ -491,7 +490,10 @@ impl Worker {
 
     fn leave(&mut self) -> anyhow::Result<()> {
         self.session.leave();
+        self.in_call = false;
         self.drop_peers();
+        // Release the call's socket before the idle session binds the listening port again.
+        self.session = Session::start(SessionConfig::new(SocketAddr::from(([127, 0, 0, 1], 0))))?;
         self.session = idle_session(&self.config)?;
         self.set_idle_status();
         Ok(())
@@ -555,17 +557,18 @@ impl Worker {
             frames.clear();
             self.session.pull(Instant::now(), &mut frames);
             self.counters.ticks.fetch_add(1, Ordering::Relaxed);
-            if tick % 10 == 0 {
+            let refresh = tick.is_multiple_of(10);
+            if refresh {
                 infos = self.session.peers();
             }
-            self.process(&frames, &infos, tick % 10 == 0);
+            self.process(&frames, &infos, refresh);
         }
         self.session.leave();
     }
 
     fn send_mic(&mut self) {
         let Some(mic) = &mut self.mic else { return };
-        let in_call = !self.session.local_addr().is_err() && self.demo.is_none();
+        let in_call = self.in_call;
         let mut frame = [0i16; FRAME_SIZE];
         let mut packet = [0u8; MAX_PACKET_BYTES];
         loop {
@@ -596,26 +599,23 @@ impl Worker {
         let now = Instant::now();
         let mut s = lock(&self.shared);
         for f in frames {
-            if !self.peers.contains_key(&f.ssrc) {
-                let Ok(feed) = s.playback.add_peer() else {
-                    continue;
-                };
-                let (tx, rx) = Schedule::channel(256);
-                s.schedules.insert(f.ssrc, rx);
-                let prefs = s.prefs.entry(f.ssrc).or_default().clone();
-                self.peers.insert(
-                    f.ssrc,
-                    PeerState {
+            let peer = match self.peers.entry(f.ssrc) {
+                std::collections::hash_map::Entry::Occupied(e) => e.into_mut(),
+                std::collections::hash_map::Entry::Vacant(e) => {
+                    let Ok(feed) = s.playback.add_peer() else {
+                        continue;
+                    };
+                    let (tx, rx) = Schedule::channel(256);
+                    s.schedules.insert(f.ssrc, rx);
+                    let prefs = s.prefs.entry(f.ssrc).or_default().clone();
+                    e.insert(PeerState {
                         feed,
                         weights: tx,
                         animation: PeerAnimation::new(&prefs),
                         last_voice: None,
                         frames_received: 0,
-                    },
-                );
-            }
-            let Some(peer) = self.peers.get_mut(&f.ssrc) else {
-                continue;
+                    })
+                }
             };
             let prefs = s.prefs.get(&f.ssrc).cloned().unwrap_or_default();
             if let Some(c) = s.playback.peer_controls(peer.feed.id()) {
@@ -690,10 +690,8 @@ impl Worker {
             .collect();
         drop(s);
         // A real peer takes the demo's place.
-        if real_peer && self.demo.is_some() {
-            if let Some(d) = self.demo.take() {
-                d.session.leave();
-            }
+        if real_peer && let Some(d) = self.demo.take() {
+            d.session.leave();
         }
     }
 }

@@ -111,8 +111,10 @@ mod tests {
     fn settings_round_trip_and_bad_files_give_defaults() {
         let dir = tempfile::tempdir().unwrap();
         let path = dir.path().join("sub").join("settings.json");
-        let mut s = Settings::default();
-        s.name = "Ada".into();
+        let mut s = Settings {
+            name: "Ada".into(),
+            ..Default::default()
+        };
         s.peers.insert(
             "Bob".into(),
             PeerPrefs {
