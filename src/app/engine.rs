@@ -492,8 +492,6 @@ impl Worker {
         self.session.leave();
         self.in_call = false;
         self.drop_peers();
-        // Release the call's socket before the idle session binds the listening port again.
-        self.session = Session::start(SessionConfig::new(SocketAddr::from(([127, 0, 0, 1], 0))))?;
         self.session = idle_session(&self.config)?;
         self.set_idle_status();
         Ok(())
