@@ -101,7 +101,7 @@ fn demo_peer_talks_and_its_mouth_moves() {
         pid=$!
         i=0
         while [ $i -lt 400 ]; do
-            if grep -q 'demo=true.*shown=[1-9][0-9][0-9]' status.txt 2>/dev/null; then break; fi
+            if grep -Eq 'demo=true.*shown=([3-9][0-9]|[0-9]{3,}) ' status.txt 2>/dev/null; then break; fi
             sleep 0.1; i=$((i+1))
         done
         for k in 0 1 2 3 4 5; do import -window root shot$k.png; sleep 0.25; done

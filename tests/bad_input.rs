@@ -99,3 +99,12 @@ fn a_48k_stereo_wav_is_resampled_not_refused() {
     let snr = snr_db(&reference, &decoded);
     assert!(snr > 3.0, "SNR against the mono reference {snr:.2} dB");
 }
+
+#[test]
+fn the_app_refuses_a_bad_listen_address_before_opening_a_window() {
+    let p = Path::new;
+    fails_cleanly(
+        &[p("--listen"), p("not-an-address"), p("--no-audio")],
+        "--listen",
+    );
+}
