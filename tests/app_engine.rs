@@ -1,0 +1,75 @@
+//! The app's engine without a window: it joins an encrypted room on a relay, and a sender in
+//! the same room is heard and animated.
+
+use std::time::{Duration, Instant};
+
+use lipcall::app::engine::{CallSpec, Command, Engine, EngineConfig, lock};
+use lipcall::audio::DeviceChoice;
+use lipcall::commands::net::{KeyArgs, SendArgs, send};
+use lipcall::net::relay::{Relay, RelayConfig};
+
+#[test]
+fn the_engine_joins_an_encrypted_room_and_animates_a_sender() {
+    let relay = Relay::start("127.0.0.1:0".parse().unwrap(), RelayConfig::default()).unwrap();
+    let relay_addr = relay.local_addr().to_string();
+    let engine = Engine::start(EngineConfig {
+        listen: None,
+        demo: false,
+        name: "Eve".into(),
+        input: DeviceChoice::Default,
+        output: DeviceChoice::Default,
+        no_audio: true,
+    })
+    .unwrap();
+    engine.send(Command::Call(CallSpec {
+        address: relay_addr.clone(),
+        room: Some("lab".into()),
+        passphrase: Some("open sesame".into()),
+        name: "Eve".into(),
+    }));
+    let deadline = Instant::now() + Duration::from_secs(10);
+    while !lock(&engine.shared).call.in_call {
+        assert!(Instant::now() < deadline, "{:?}", lock(&engine.shared).call);
+        std::thread::sleep(Duration::from_millis(20));
+    }
+    let args = SendArgs {
+        input: concat!(env!("CARGO_MANIFEST_DIR"), "/assets/speech/demo.wav").into(),
+        to: relay_addr,
+        key: KeyArgs {
+            passphrase: Some("open sesame".into()),
+            hex: None,
+        },
+        name: Some("Mallory".into()),
+        room: Some("lab".into()),
+        quality: 8,
+        no_rtcp: false,
+        ssrc: None,
+    };
+    std::thread::spawn(move || send(&args));
+    let deadline = Instant::now() + Duration::from_secs(20);
+    loop {
+        {
+            let s = lock(&engine.shared);
+            assert!(s.call.encrypted, "the call is not encrypted");
+            assert!(s.call.error.is_none(), "{:?}", s.call.error);
+            if let Some(p) = s.peers.iter().find(|p| p.name == "Mallory")
+                && p.frames_animated > 50
+            {
+                assert!(!p.is_demo);
+                break;
+            }
+        }
+        assert!(
+            Instant::now() < deadline,
+            "no animated peer: {:?}",
+            lock(&engine.shared).peers
+        );
+        std::thread::sleep(Duration::from_millis(50));
+    }
+    engine.send(Command::Leave);
+    let deadline = Instant::now() + Duration::from_secs(5);
+    while lock(&engine.shared).call.in_call {
+        assert!(Instant::now() < deadline, "leave did not end the call");
+        std::thread::sleep(Duration::from_millis(20));
+    }
+}
