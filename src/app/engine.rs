@@ -558,6 +558,10 @@ impl Worker {
             let refresh = tick.is_multiple_of(10);
             if refresh {
                 infos = self.session.peers();
+                if self.in_call && self.session.stats().relay_refused {
+                    lock(&self.shared).call.error =
+                        Some("the relay refused to join the room (full, or too many rooms)".into());
+                }
             }
             self.process(&frames, &infos, refresh);
         }
