@@ -496,7 +496,8 @@ fn device_picker_ui(
             .map_or_else(|| chosen.clone(), |d| d.name.clone())
     };
     let mut changed = false;
-    egui::ComboBox::from_label(label)
+    ui.label(label);
+    egui::ComboBox::from_id_salt(label)
         .selected_text(shown)
         .width(160.0)
         .show_ui(ui, |ui| {
@@ -591,7 +592,7 @@ pub fn tiles_ui(
         .min_by_key(|&c| {
             let rows = n.div_ceil(c);
             let w = avail.x / c as f32;
-            let h = avail.y / rows as f32 - 60.0;
+            let h = avail.y / rows as f32 - 100.0;
             // The largest square head that fits.
             -(w.min(h).max(1.0) as i64)
         })
@@ -610,7 +611,8 @@ pub fn tiles_ui(
                             ui.colored_label(egui::Color32::LIGHT_GREEN, "talking");
                         }
                     });
-                    let head_h = (tile_h - 70.0).max(40.0);
+                    // Room for the name line and up to three rows of controls.
+                    let head_h = (tile_h - 100.0).max(40.0);
                     let (rect, _) =
                         ui.allocate_exact_size(egui::vec2(tile_w, head_h), egui::Sense::hover());
                     ui.painter()
