@@ -16,6 +16,7 @@ use rubato::{Fft, FixedSync, Resampler};
 
 use super::devices::{self, DeviceChoice, Direction};
 use super::error::AudioError;
+use super::resample::fft_resampler;
 use crate::speex::{FRAME_SIZE, SAMPLE_RATE};
 
 /// Level floor: what silence reads as.
@@ -177,24 +178,7 @@ impl std::fmt::Debug for Downsampler {
 
 impl Downsampler {
     pub fn new(rate: u32) -> Result<Self, AudioError> {
-        let err = |e: &dyn std::fmt::Display| AudioError::Resampler(e.to_string());
-        if rate == 0 {
-            return Err(AudioError::Resampler("device rate 0".into()));
-        }
-        let resampler = if rate == SAMPLE_RATE {
-            None
-        } else {
-            Some(
-                Fft::<f32>::new(
-                    rate as usize,
-                    SAMPLE_RATE as usize,
-                    FRAME_SIZE,
-                    1,
-                    FixedSync::Output,
-                )
-                .map_err(|e| err(&e))?,
-            )
-        };
+        let resampler = fft_resampler(rate, SAMPLE_RATE, FRAME_SIZE, FixedSync::Output)?;
         let (imax, omax) = resampler.as_ref().map_or((FRAME_SIZE, FRAME_SIZE), |r| {
             (r.input_frames_max(), r.output_frames_max())
         });

@@ -12,6 +12,7 @@ use rubato::{Fft, FixedSync, Resampler};
 
 use super::clock::{PeerClock, Segment};
 use super::error::AudioError;
+use super::resample::fft_resampler;
 use crate::speex::{FRAME_SIZE, SAMPLE_RATE};
 
 /// Samples of the 8 kHz mix produced per step (one Speex frame, 20 ms).
@@ -275,24 +276,7 @@ impl std::fmt::Debug for Upsampler {
 
 impl Upsampler {
     pub fn new(rate: u32) -> Result<Self, AudioError> {
-        let err = |e: &dyn std::fmt::Display| AudioError::Resampler(e.to_string());
-        if rate == 0 {
-            return Err(AudioError::Resampler("device rate 0".into()));
-        }
-        let resampler = if rate == SAMPLE_RATE {
-            None
-        } else {
-            Some(
-                Fft::<f32>::new(
-                    SAMPLE_RATE as usize,
-                    rate as usize,
-                    CHUNK,
-                    1,
-                    FixedSync::Input,
-                )
-                .map_err(|e| err(&e))?,
-            )
-        };
+        let resampler = fft_resampler(SAMPLE_RATE, rate, CHUNK, FixedSync::Input)?;
         let max = resampler.as_ref().map_or(CHUNK, |r| r.output_frames_max());
         Ok(Self {
             resampler,

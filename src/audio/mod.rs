@@ -41,6 +41,7 @@ pub mod devices;
 pub mod error;
 pub mod mixer;
 pub mod playback;
+mod resample;
 pub mod wav;
 
 pub use capture::{Capture, FrameReader, Gate, InputFeeder, Level, MicControls};
