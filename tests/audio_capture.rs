@@ -1,20 +1,14 @@
 //! Capture from a real device: the PulseAudio null sink's monitor (the default source there)
 //! hears a tone the playback engine plays. Without a server (outside CI): the no-input path.
 
-use std::process::{Command, Stdio};
+mod common;
+
+use common::pulse_running;
+
 use std::time::{Duration, Instant};
 
 use lipcall::audio::{Capture, DeviceChoice, Gate, OutputStatus, Playback, PlaybackConfig};
 use lipcall::speex::FRAME_SIZE;
-
-fn pulse_running() -> bool {
-    Command::new("pactl")
-        .arg("info")
-        .stdout(Stdio::null())
-        .stderr(Stdio::null())
-        .status()
-        .is_ok_and(|s| s.success())
-}
 
 #[test]
 fn loopback_through_the_monitor_gives_8k_frames_meter_and_gates() {

@@ -6,21 +6,16 @@
 //! machine without one) it checks the "no audio" path instead; in CI (`CI` set) the server must
 //! be there.
 
+mod common;
+
+use common::pulse_running;
+
 use std::io::Read;
 use std::process::{Command, Stdio};
 use std::sync::{Arc, Mutex};
 use std::time::{Duration, Instant};
 
 use lipcall::audio::{OutputStatus, Playback, PlaybackConfig};
-
-fn pulse_running() -> bool {
-    Command::new("pactl")
-        .arg("info")
-        .stdout(Stdio::null())
-        .stderr(Stdio::null())
-        .status()
-        .is_ok_and(|s| s.success())
-}
 
 fn require_pulse() -> bool {
     if pulse_running() {

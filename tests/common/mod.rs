@@ -68,3 +68,13 @@ pub fn snr_db(reference: &[i16], test: &[i16]) -> f64 {
     10.0 * (signal / noise.max(1e-9)).log10()
 }
 pub mod net;
+
+/// Whether a PulseAudio server answers (the null sink of .ci/pulse-null-sink.sh).
+pub fn pulse_running() -> bool {
+    Command::new("pactl")
+        .arg("info")
+        .stdout(std::process::Stdio::null())
+        .stderr(std::process::Stdio::null())
+        .status()
+        .is_ok_and(|s| s.success())
+}
