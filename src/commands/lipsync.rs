@@ -17,6 +17,7 @@ use crate::train::codec_features::{
     CodecFeatures, EVALUATION_QUALITY, LOW_QUALITY, augmentation_settings, quality,
 };
 use crate::train::corpus::{Corpus, PreparedUtterance, SpeakerSplit, Utterance};
+use crate::train::crossval::{SpeakerGroup, cross_validate, train_final};
 use crate::train::eval::{EvalReport, evaluate_prepared};
 use crate::train::plot;
 use crate::train::trainer::{TrainConfig, train_on};
@@ -83,6 +84,10 @@ pub struct TrainArgs {
     /// Accept a network over the 400 multiply-add budget.
     #[arg(long)]
     pub allow_over_budget: bool,
+    /// Hold out each dialect region of the non-test speakers in turn, report the pooled
+    /// held-out scores, then train the model on all of them for the folds' median best epoch.
+    #[arg(long)]
+    pub cross_validate: bool,
     /// No progress bars.
     #[arg(long)]
     pub quiet: bool,
@@ -190,11 +195,43 @@ fn parse_snap(text: &str) -> Result<Option<f32>> {
     }
 }
 
+fn train_config(args: &TrainArgs, split: &SpeakerSplit, snap: Option<f32>) -> Result<TrainConfig> {
+    Ok(TrainConfig {
+        corpus_root: args.corpus.clone(),
+        split: Some(split.clone()),
+        visemes: VisemeSet::parse(&args.visemes).context("--visemes")?,
+        shapes: VisemeShapes::point_model(),
+        context: args.context,
+        dynamics: (!args.no_dynamics).then_some(Dynamics {
+            peak_decay_db: args.peak_decay,
+            energy_context: args.energy_context,
+        }),
+        sharp_closures: !args.soft_closures,
+        tune_closure_snap: snap.is_none(),
+        hidden: args.hidden,
+        max_epochs: args.epochs,
+        patience: args.patience,
+        keep_last: false,
+        learning_rate: args.learning_rate,
+        batch_size: args.batch,
+        seed: args.seed,
+        closure_weight: args.closure_weight,
+        utterances_per_speaker: args.utterances,
+        curves_csv: args.curves.clone(),
+        show_progress: !args.quiet,
+        allow_over_budget: args.allow_over_budget,
+    })
+}
+
 pub fn train(args: &TrainArgs) -> Result<()> {
-    let visemes = VisemeSet::parse(&args.visemes).context("--visemes")?;
+    if args.cross_validate {
+        return train_cross_validated(args);
+    }
     let snap = parse_snap(&args.snap)?;
     let corpus = Corpus::open(&args.corpus)?;
     let split = SpeakerSplit::standard(&corpus)?;
+    let config = train_config(args, &split, snap)?;
+    let visemes = &config.visemes;
     let settings = augmentation_settings();
     eprintln!(
         "Training the viseme network ({visemes}) on the Speex-decoded features of {} \
@@ -225,30 +262,6 @@ pub fn train(args: &TrainArgs) -> Result<()> {
         args.quiet,
     )?;
 
-    let config = TrainConfig {
-        corpus_root: args.corpus.clone(),
-        split: Some(split.clone()),
-        visemes,
-        shapes: VisemeShapes::point_model(),
-        context: args.context,
-        dynamics: (!args.no_dynamics).then_some(Dynamics {
-            peak_decay_db: args.peak_decay,
-            energy_context: args.energy_context,
-        }),
-        sharp_closures: !args.soft_closures,
-        tune_closure_snap: snap.is_none(),
-        hidden: args.hidden,
-        max_epochs: args.epochs,
-        patience: args.patience,
-        learning_rate: args.learning_rate,
-        batch_size: args.batch,
-        seed: args.seed,
-        closure_weight: args.closure_weight,
-        utterances_per_speaker: args.utterances,
-        curves_csv: args.curves.clone(),
-        show_progress: !args.quiet,
-        allow_over_budget: args.allow_over_budget,
-    };
     let mut report = train_on(&config, &train, &validation)?;
     if let Some(threshold) = snap {
         report.model.closure_snap = threshold;
@@ -304,6 +317,119 @@ pub fn train(args: &TrainArgs) -> Result<()> {
              openness r bottom)",
             path.display()
         );
+    }
+    Ok(())
+}
+
+/// The non-test speakers grouped by dialect region (`dr4-falr0` -> `dr4`).
+fn regions(split: &SpeakerSplit) -> Vec<(String, Vec<String>)> {
+    let mut groups: Vec<(String, Vec<String>)> = Vec::new();
+    for speaker in split.train.iter().chain(&split.validation) {
+        let region = speaker.split('-').next().unwrap_or(speaker).to_string();
+        match groups.iter_mut().find(|(name, _)| *name == region) {
+            Some((_, members)) => members.push(speaker.clone()),
+            None => groups.push((region, vec![speaker.clone()])),
+        }
+    }
+    groups
+}
+
+fn train_cross_validated(args: &TrainArgs) -> Result<()> {
+    let snap = parse_snap(&args.snap)?;
+    let corpus = Corpus::open(&args.corpus)?;
+    let split = SpeakerSplit::standard(&corpus)?;
+    let config = train_config(args, &split, snap)?;
+    let regions = regions(&split);
+    let settings = augmentation_settings();
+    let versions = args.versions.clamp(1, settings.len());
+    eprintln!(
+        "Cross-validating the viseme network ({}) over {} folds, each holding out one dialect \
+         region of {} (the test speakers {} are not touched); then training it on all of them.",
+        config.visemes,
+        regions.len(),
+        regions
+            .iter()
+            .map(|(name, speakers)| format!("{name}: {}", speakers.join(" ")))
+            .collect::<Vec<_>>()
+            .join(", "),
+        split.test.join(" ")
+    );
+    let codec = CodecFeatures::new();
+    let mut groups = Vec::new();
+    for (name, speakers) in &regions {
+        let utts = pick(&corpus, speakers, args.utterances)?;
+        let progress = bar(
+            utts.len() * (versions + 1),
+            &format!("Speex round trips ({name})"),
+            args.quiet,
+        );
+        let augmented = codec.prepare_augmented(&utts, &settings, versions, &|| progress.inc(1))?;
+        let mut held_out = Vec::with_capacity(utts.len());
+        for utt in &utts {
+            held_out.extend(codec.prepare(std::slice::from_ref(utt), quality(EVALUATION_QUALITY))?);
+            progress.inc(1);
+        }
+        progress.finish_and_clear();
+        groups.push(SpeakerGroup {
+            name: name.clone(),
+            augmented,
+            held_out,
+        });
+    }
+    let progress = bar(regions.len(), "folds", args.quiet);
+    progress.enable_steady_tick(std::time::Duration::from_secs(1));
+    let cv = cross_validate(&config, &groups, snap)?;
+    progress.finish_and_clear();
+    println!("cross-validation, Speex quality {EVALUATION_QUALITY}:");
+    println!("{cv}");
+    eprintln!(
+        "Training on all {} speakers for {} epochs.",
+        regions.iter().map(|(_, s)| s.len()).sum::<usize>(),
+        cv.epochs
+    );
+    let mut report = train_final(&config, &groups, &cv)?;
+    report.split = SpeakerSplit {
+        train: regions.iter().flat_map(|(_, s)| s.clone()).collect(),
+        validation: Vec::new(),
+        test: split.test.clone(),
+    };
+    report.model.notes = vec![
+        "Derived from the TIMIT corpus sample (Copyright 1993 Linguistic Data Consortium, \
+         CC BY-NC-SA); see assets/models/README.md."
+            .into(),
+        format!(
+            "features: Speex NB round trip, training at {versions} rotating settings of \
+             qualities 3..10 and VBR 4/8"
+        ),
+        format!("training speakers: {}", report.split.train.join(" ")),
+        format!(
+            "cross-validated by dialect region: pooled held-out openness r {:.3}, /p b m/ closed \
+             {:.1}%, false closures {:.1}%",
+            cv.pooled.openness_r,
+            100.0 * cv.pooled.closure_share(),
+            100.0 * cv.pooled.false_closure_rate
+        ),
+        format!(
+            "seed {}, closure weight {}, sharp closures {}, epochs {}, closure snap {}",
+            args.seed, args.closure_weight, config.sharp_closures, cv.epochs, cv.closure_snap
+        ),
+    ];
+    report
+        .model
+        .save(&args.out)
+        .with_context(|| format!("cannot save the model to {}", args.out.display()))?;
+    eprintln!("wrote the model to {}", args.out.display());
+    if let Some(path) = &args.curves {
+        eprintln!(
+            "wrote the learning curves to {} (its validation columns are the training speakers \
+             at quality {EVALUATION_QUALITY}: in-sample)",
+            path.display()
+        );
+    }
+    if let Some(path) = &args.plot {
+        plot::learning_curves(path, &report.curve)
+            .with_context(|| format!("cannot plot to {}", path.display()))?;
+        eprintln!("wrote the learning-curve plot to {}", path.display());
     }
     Ok(())
 }

@@ -2,6 +2,7 @@
 
 pub mod codec_features;
 pub mod corpus;
+pub mod crossval;
 pub mod eval;
 pub mod plot;
 pub mod trainer;

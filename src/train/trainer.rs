@@ -43,6 +43,9 @@ pub struct TrainConfig {
     pub max_epochs: usize,
     /// Epochs without a better validation loss before stopping.
     pub patience: usize,
+    /// Train exactly `max_epochs` and keep the last weights (the epoch count chosen beforehand,
+    /// e.g. by cross-validation; the validation set then only draws the curves).
+    pub keep_last: bool,
     pub learning_rate: f32,
     pub batch_size: usize,
     pub seed: u64,
@@ -71,6 +74,7 @@ impl Default for TrainConfig {
             hidden: 10,
             max_epochs: 400,
             patience: 40,
+            keep_last: false,
             learning_rate: 0.003,
             batch_size: 32,
             seed: 0x5EED_CAFE,
@@ -415,13 +419,12 @@ pub(crate) fn loss_and_gradient(
 pub const FALSE_CLOSURE_COST: f64 = 3.0;
 
 /// The closure-snap threshold with the best `closure share - FALSE_CLOSURE_COST * false
-/// closures` on `validation` (0 = off, when nothing beats no rule).
+/// closures` (0 = off, when nothing beats no rule), over the pooled predictions of each model on
+/// its own held-out utterances.
 pub fn tune_closure_snap(
-    model: &Model,
+    held_out: &[(&Model, &[PreparedUtterance])],
     shapes: &VisemeShapes,
-    validation: &[PreparedUtterance],
 ) -> Result<f32, TrainError> {
-    let mut candidate = model.clone();
     let mut best = (f64::NEG_INFINITY, 0.0);
     for step in 0..=14 {
         let snap = if step == 0 {
@@ -429,18 +432,37 @@ pub fn tune_closure_snap(
         } else {
             0.25 + 0.05 * step as f32
         };
-        candidate.closure_snap = snap;
-        let predicted = crate::train::eval::predict(
-            &mut crate::lipsync::ModelAnimator::new(&candidate),
-            validation,
-        );
-        let s = score(&candidate.visemes, shapes, validation, &predicted)?;
+        let s = pooled_scores(held_out, snap, shapes)?;
         let value = s.closure_share() - FALSE_CLOSURE_COST * s.false_closure_rate;
         if value > best.0 + 1e-9 {
             best = (value, snap);
         }
     }
     Ok(best.1)
+}
+
+/// Scores of each model (with the closure snap at `snap`) on its own held-out utterances,
+/// pooled into one table.
+pub fn pooled_scores(
+    held_out: &[(&Model, &[PreparedUtterance])],
+    snap: f32,
+    shapes: &VisemeShapes,
+) -> Result<Scores, TrainError> {
+    let Some((first, _)) = held_out.first() else {
+        return Err(TrainError::NoFrames);
+    };
+    let mut utterances = Vec::new();
+    let mut predicted = Vec::new();
+    for (model, utts) in held_out {
+        let mut candidate = (*model).clone();
+        candidate.closure_snap = snap;
+        predicted.extend(crate::train::eval::predict(
+            &mut crate::lipsync::ModelAnimator::new(&candidate),
+            utts,
+        ));
+        utterances.extend(utts.iter().cloned());
+    }
+    Ok(score(&first.visemes, shapes, &utterances, &predicted)?)
 }
 
 fn predictions(model: &Model, data: &Dataset) -> Vec<Vec<f32>> {
@@ -650,7 +672,7 @@ pub fn train_on(
             validation_closure_share: scores.closure_share(),
             validation_openness_r: scores.openness_r,
         });
-        if validation_loss < best.0 {
+        if validation_loss < best.0 || config.keep_last {
             best = (validation_loss, epoch, model.clone());
         }
         progress.inc(1);
@@ -659,14 +681,14 @@ pub fn train_on(
             100.0 * scores.closure_share(),
             scores.openness_r
         ));
-        if epoch - best.1 >= config.patience {
+        if !config.keep_last && epoch - best.1 >= config.patience {
             break;
         }
     }
     progress.finish_and_clear();
     let (_, best_epoch, mut model) = best;
     if config.tune_closure_snap {
-        model.closure_snap = tune_closure_snap(&model, &config.shapes, validation)?;
+        model.closure_snap = tune_closure_snap(&[(&model, validation)], &config.shapes)?;
     }
     let validation_scores = score(
         &model.visemes,
