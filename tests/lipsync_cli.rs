@@ -187,6 +187,77 @@ fn tiny_training_writes_model_curves_and_plot_then_evaluates() {
 }
 
 #[test]
+fn cross_validated_training_holds_out_each_region_and_evaluation_dumps_frames() {
+    let dir = tempfile::tempdir().unwrap();
+    let model = dir.path().join("cv.lipmodel");
+    let frames = dir.path().join("frames.csv");
+    let c = corpus();
+    let out = lipcall(&[
+        "train",
+        "--cross-validate",
+        "--corpus",
+        c.to_str().unwrap(),
+        "--utterances",
+        "1",
+        "--versions",
+        "1",
+        "--epochs",
+        "3",
+        "--hidden",
+        "4",
+        "--warp",
+        "0.1",
+        "--segment-closure-weight",
+        "1",
+        "--quiet",
+        "--out",
+        model.to_str().unwrap(),
+    ]);
+    assert!(out.status.success(), "{}", stderr(&out));
+    let text = String::from_utf8_lossy(&out.stdout);
+    for region in ["dr1 ", "dr2 ", "dr3 ", "dr4 ", "pooled "] {
+        assert!(text.contains(region), "{text}");
+    }
+    assert!(!text.contains("dr5") && !text.contains("dr6"), "{text}");
+    let saved = std::fs::read_to_string(&model).unwrap();
+    assert!(
+        saved.contains("cross-validated by dialect region"),
+        "{saved}"
+    );
+    assert!(
+        !saved.contains("dr5-") && !saved.contains("dr6-"),
+        "{saved}"
+    );
+
+    let out = lipcall(&[
+        "evaluate",
+        "--model",
+        model.to_str().unwrap(),
+        "--corpus",
+        c.to_str().unwrap(),
+        "--utterances",
+        "2",
+        "--per-frame",
+        frames.to_str().unwrap(),
+    ]);
+    assert!(out.status.success(), "{}", stderr(&out));
+    let csv = std::fs::read_to_string(&frames).unwrap();
+    let mut lines = csv.lines();
+    assert!(
+        lines
+            .next()
+            .unwrap()
+            .starts_with("speaker,utterance,frame,target_openness,")
+    );
+    let rows: Vec<Vec<&str>> = lines.map(|l| l.split(',').collect()).collect();
+    assert!(rows.len() > 8 * 50, "{} rows", rows.len());
+    assert!(rows.iter().all(|r| r.len() == 12 && r[0].starts_with("dr")));
+    // sa2 has the /m/ of "me".
+    let bilabial = rows.iter().filter(|r| r[9] == "1").count();
+    assert!(bilabial > 0 && bilabial < rows.len() / 4, "{bilabial}");
+}
+
+#[test]
 fn decompose_prints_table_i_and_decomposes_marker_tracks() {
     let c = corpus();
     let out = lipcall(&[

@@ -18,7 +18,7 @@ use crate::train::codec_features::{
 };
 use crate::train::corpus::{Corpus, PreparedUtterance, SpeakerSplit, Utterance};
 use crate::train::crossval::{SpeakerGroup, cross_validate, train_final};
-use crate::train::eval::{EvalReport, evaluate_prepared};
+use crate::train::eval::{EvalReport, evaluate_prepared, write_frames};
 use crate::train::plot;
 use crate::train::trainer::{TrainConfig, train_on};
 
@@ -49,6 +49,14 @@ pub struct TrainArgs {
     /// Loss weight of frames inside /p b m/ segments.
     #[arg(long, value_name = "W", default_value_t = recipe::CLOSURE_WEIGHT)]
     pub closure_weight: f32,
+    /// Weight of the segment closure loss: per /p b m/ segment, -ln P(the lips close in at
+    /// least one frame); 0 = off.
+    #[arg(long, value_name = "W", default_value_t = recipe::SEGMENT_CLOSURE_WEIGHT)]
+    pub segment_closure_weight: f32,
+    /// Vocal-tract-length augmentation: LSPs of each training utterance scaled by a factor in
+    /// [1 - W, 1 + W]; 0 = off.
+    #[arg(long, value_name = "W", default_value_t = recipe::WARP)]
+    pub warp: f32,
     /// Keep the coarticulated targets inside /p b m/ (default: a full closure there).
     #[arg(long)]
     pub soft_closures: bool,
@@ -106,13 +114,16 @@ pub struct EvaluateArgs {
     pub quality: u8,
     #[arg(long)]
     pub vbr: bool,
-    /// Which held-out speakers: test (dr5, dr6) or validation (dr4).
-    #[arg(long, value_name = "SET", default_value = "test",
-          value_parser = ["test", "validation", "train"])]
+    /// Which speakers: test (dr5, dr6), validation (dr4), train (dr1-dr3), or a comma list of
+    /// speaker names or their prefixes (e.g. dr2 for a cross-validation fold).
+    #[arg(long, value_name = "SET", default_value = "test")]
     pub speakers: String,
     /// Utterances per speaker (all by default).
     #[arg(long, value_name = "N")]
     pub utterances: Option<usize>,
+    /// Also write the per-frame openness and aperture of targets, network and jaw baseline.
+    #[arg(long, value_name = "CSV")]
+    pub per_frame: Option<PathBuf>,
 }
 
 #[derive(Debug, clap::Args)]
@@ -216,6 +227,8 @@ fn train_config(args: &TrainArgs, split: &SpeakerSplit, snap: Option<f32>) -> Re
         batch_size: args.batch,
         seed: args.seed,
         closure_weight: args.closure_weight,
+        segment_closure_weight: args.segment_closure_weight,
+        warp: args.warp,
         utterances_per_speaker: args.utterances,
         curves_csv: args.curves.clone(),
         show_progress: !args.quiet,
@@ -382,6 +395,18 @@ fn train_cross_validated(args: &TrainArgs) -> Result<()> {
     progress.finish_and_clear();
     println!("cross-validation, Speex quality {EVALUATION_QUALITY}:");
     println!("{cv}");
+    for fold in &cv.folds {
+        let path = args
+            .out
+            .with_extension(format!("fold-{}.lipmodel", fold.held_out));
+        fold.model
+            .save(&path)
+            .with_context(|| format!("cannot save a fold model to {}", path.display()))?;
+    }
+    eprintln!(
+        "wrote the fold models beside it ({})",
+        args.out.with_extension("fold-*.lipmodel").display()
+    );
     eprintln!(
         "Training on all {} speakers for {} epochs.",
         regions.iter().map(|(_, s)| s.len()).sum::<usize>(),
@@ -446,10 +471,31 @@ pub fn evaluate(args: &EvaluateArgs) -> Result<()> {
     let model = load_model(args.model.as_deref())?;
     let corpus = Corpus::open(&args.corpus)?;
     let split = SpeakerSplit::standard(&corpus)?;
+    let chosen: Vec<String>;
     let speakers = match args.speakers.as_str() {
+        "test" => &split.test,
         "validation" => &split.validation,
         "train" => &split.train,
-        _ => &split.test,
+        list => {
+            let prefixes: Vec<&str> = list.split(',').map(str::trim).collect();
+            chosen = corpus
+                .speakers
+                .iter()
+                .map(|s| s.name.clone())
+                .filter(|name| {
+                    prefixes
+                        .iter()
+                        .any(|p| !p.is_empty() && name.starts_with(p))
+                })
+                .collect();
+            if chosen.is_empty() {
+                bail!(
+                    "--speakers {list:?} names no speaker of {}",
+                    args.corpus.display()
+                );
+            }
+            &chosen
+        }
     };
     let config = EncoderConfig {
         quality: args.quality,
@@ -478,6 +524,15 @@ pub fn evaluate(args: &EvaluateArgs) -> Result<()> {
         if args.vbr { " VBR" } else { "" }
     );
     print!("{report}");
+    if let Some(path) = &args.per_frame {
+        let file = std::fs::File::create(path)
+            .with_context(|| format!("cannot create {}", path.display()))?;
+        let mut out = std::io::BufWriter::new(file);
+        write_frames(&mut out, &model, &VisemeShapes::point_model(), &prepared)
+            .and_then(|()| Ok(out.flush()?))
+            .with_context(|| format!("cannot write {}", path.display()))?;
+        eprintln!("wrote the per-frame values to {}", path.display());
+    }
     Ok(())
 }
 

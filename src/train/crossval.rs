@@ -13,7 +13,7 @@ use crate::lipsync::network::Model;
 use crate::train::corpus::PreparedUtterance;
 use crate::train::eval::Scores;
 use crate::train::trainer::{
-    TrainConfig, TrainError, TrainReport, pooled_scores, train_on, tune_closure_snap,
+    TrainConfig, TrainError, TrainReport, best_snap, pooled_scores, snap_curve, train_on,
 };
 
 /// The speakers held out by one fold, prepared twice: as training material (codec-augmented)
@@ -31,6 +31,8 @@ pub struct FoldResult {
     pub best_epoch: usize,
     /// Scores on the held-out group at the pooled closure-snap threshold.
     pub scores: Scores,
+    /// The fold's model (with the pooled closure snap).
+    pub model: Model,
 }
 
 #[derive(Debug, Clone)]
@@ -39,6 +41,8 @@ pub struct CrossValidation {
     /// All held-out predictions scored as one set.
     pub pooled: Scores,
     pub closure_snap: f32,
+    /// Pooled scores at every candidate closure-snap threshold.
+    pub snap_curve: Vec<(f32, Scores)>,
     /// Median of the folds' best epochs: how long the final model trains.
     pub epochs: usize,
 }
@@ -98,19 +102,20 @@ pub fn cross_validate(
         .zip(groups)
         .map(|(r, g)| (&r.model, &g.held_out[..]))
         .collect();
-    let closure_snap = match snap {
-        Some(threshold) => threshold,
-        None => tune_closure_snap(&held_out, &config.shapes)?,
-    };
+    let snap_curve = snap_curve(&held_out, &config.shapes)?;
+    let closure_snap = snap.unwrap_or_else(|| best_snap(&snap_curve));
     let folds = held_out
         .iter()
         .zip(groups)
         .zip(&reports)
         .map(|((one, group), report)| {
+            let mut model = report.model.clone();
+            model.closure_snap = closure_snap;
             Ok(FoldResult {
                 held_out: group.name.clone(),
                 best_epoch: report.best_epoch,
                 scores: pooled_scores(std::slice::from_ref(one), closure_snap, &config.shapes)?,
+                model,
             })
         })
         .collect::<Result<Vec<_>, TrainError>>()?;
@@ -120,6 +125,7 @@ pub fn cross_validate(
         folds,
         pooled: pooled_scores(&held_out, closure_snap, &config.shapes)?,
         closure_snap,
+        snap_curve,
         epochs: epochs[epochs.len() / 2].max(1),
     })
 }
@@ -182,6 +188,21 @@ impl fmt::Display for CrossValidation {
             )?;
         }
         row(f, "pooled", &self.epochs.to_string(), &self.pooled)?;
+        writeln!(f, "closure-snap trade-off on the pooled folds:")?;
+        for (snap, s) in &self.snap_curve {
+            let snap = if *snap > 0.0 {
+                format!("{snap:.3}")
+            } else {
+                "off".into()
+            };
+            writeln!(
+                f,
+                "  snap {snap:<4} closed {:>5.1}%  false closures {:>4.1}%  openness r {:.3}",
+                100.0 * s.closure_share(),
+                100.0 * s.false_closure_rate,
+                s.openness_r
+            )?;
+        }
         write!(
             f,
             "closure snap (tuned on the pooled folds): {}",

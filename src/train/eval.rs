@@ -29,6 +29,14 @@ pub enum EvalError {
     NoFrames,
 }
 
+#[derive(Debug, thiserror::Error)]
+pub enum FramesError {
+    #[error(transparent)]
+    Decompose(#[from] crate::lipsync::decompose::DecomposeError),
+    #[error(transparent)]
+    Io(#[from] std::io::Error),
+}
+
 /// The metrics of one animator.
 #[derive(Debug, Clone, PartialEq)]
 pub struct Scores {
@@ -218,6 +226,68 @@ pub fn evaluate_prepared(
             ),
         ],
     })
+}
+
+/// Frame by frame, for analysis outside: `speaker,utterance,frame,target_openness,
+/// set_target_openness,network_openness,jaw_openness,target_aperture,network_aperture,bilabial,
+/// closure_allowed,network_closed` (`set_target`: the targets decomposed onto the model's
+/// reduced set, what the network is trained towards; `network_closed`: the closed viseme's
+/// weight before the closure snap).
+pub fn write_frames(
+    out: &mut dyn std::io::Write,
+    model: &Model,
+    shapes: &VisemeShapes,
+    utterances: &[PreparedUtterance],
+) -> Result<(), FramesError> {
+    let full = VisemeSet::full();
+    let set_targets = crate::train::trainer::set_targets(&model.visemes, shapes, utterances)?;
+    let network = predict(&mut ModelAnimator::new(model), utterances);
+    let mut unsnapped = model.clone();
+    unsnapped.closure_snap = 0.0;
+    let raw = predict(&mut ModelAnimator::new(&unsnapped), utterances);
+    let closed = model.closed_index();
+    let mut jaw = JawBaseline::from_model(model);
+    let baseline = predict(&mut jaw, utterances);
+    let (k, jaw_set) = (model.visemes.len(), jaw.visemes().clone());
+    writeln!(
+        out,
+        "speaker,utterance,frame,target_openness,set_target_openness,network_openness,\
+         jaw_openness,target_aperture,network_aperture,bilabial,closure_allowed,network_closed"
+    )?;
+    for ((((utt, predicted), flap), set_target), raw) in utterances
+        .iter()
+        .zip(&network)
+        .zip(&baseline)
+        .zip(&set_targets)
+        .zip(&raw)
+    {
+        let t = &utt.targets;
+        for (n, (((target, weights), jaw_weights), set_weights)) in t
+            .weights
+            .iter()
+            .zip(predicted.chunks_exact(k))
+            .zip(flap.chunks_exact(jaw_set.len()))
+            .zip(set_target.chunks_exact(k))
+            .enumerate()
+        {
+            let raw_closed = closed.map_or(0.0, |c| raw[n * k + c]);
+            writeln!(
+                out,
+                "{},{},{n},{},{},{},{},{},{},{},{},{raw_closed}",
+                utt.speaker,
+                utt.id,
+                openness(&full, target),
+                openness(&model.visemes, set_weights),
+                openness(&model.visemes, weights),
+                openness(&jaw_set, jaw_weights),
+                lip_aperture(&full, target),
+                lip_aperture(&model.visemes, weights),
+                u8::from(t.in_bilabial(n)),
+                u8::from(t.closure_allowed[n]),
+            )?;
+        }
+    }
+    Ok(())
 }
 
 impl fmt::Display for EvalReport {

@@ -17,6 +17,7 @@ use crate::lipsync::network::{
     Dynamics, FEATURES_PER_FRAME, InputScaling, MULTIPLY_ADD_BUDGET, Model, input_count,
 };
 use crate::lipsync::visemes::{Viseme, VisemeSet};
+use crate::speex::LSP_COUNT;
 use crate::train::corpus::{
     Corpus, CorpusError, FeatureFn, PreparedUtterance, SpeakerSplit, prepare,
 };
@@ -51,6 +52,15 @@ pub struct TrainConfig {
     pub seed: u64,
     /// Loss weight of frames inside /p b m/ segments (1 = none).
     pub closure_weight: f32,
+    /// Weight of the segment closure loss (0 = off): per /p b m/ segment, minus the log of the
+    /// chance that the lips close in at least one of its frames (noisy-OR of the closed
+    /// viseme's weights). It asks for one closure per segment wherever the audio shows it best,
+    /// not for a closure in every frame, many of which sound like any other stop closure.
+    pub segment_closure_weight: f32,
+    /// Vocal-tract-length augmentation: each training utterance's LSPs are scaled by a factor
+    /// drawn from `[1 - warp, 1 + warp]` (formants move with them), so the few training voices
+    /// stand for longer and shorter vocal tracts too. 0 = off.
+    pub warp: f32,
     /// Utterances per speaker (all when `None`), for quick runs.
     pub utterances_per_speaker: Option<usize>,
     /// Writes the learning curves here (CSV).
@@ -79,6 +89,8 @@ impl Default for TrainConfig {
             batch_size: 32,
             seed: 0x5EED_CAFE,
             closure_weight: 4.0,
+            segment_closure_weight: 0.0,
+            warp: 0.0,
             utterances_per_speaker: None,
             curves_csv: None,
             show_progress: true,
@@ -189,7 +201,12 @@ pub struct Rng(u64);
 
 impl Rng {
     pub fn new(seed: u64) -> Self {
-        Self(seed ^ 0x9E37_79B9_7F4A_7C15 | 1)
+        // One splitmix64 step: a bijection, so different seeds start from different states.
+        let mut z = seed.wrapping_add(0x9E37_79B9_7F4A_7C15);
+        z = (z ^ (z >> 30)).wrapping_mul(0xBF58_476D_1CE4_E5B9);
+        z = (z ^ (z >> 27)).wrapping_mul(0x94D0_49BB_1331_11EB);
+        z ^= z >> 31;
+        Self(z.max(1))
     }
 
     pub fn next_u64(&mut self) -> u64 {
@@ -220,6 +237,8 @@ pub(crate) struct Dataset {
     weights: Vec<f32>,
     /// Frames per utterance, in order.
     lengths: Vec<usize>,
+    /// Frame ranges of the /p b m/ segments.
+    segments: Vec<std::ops::Range<usize>>,
     input_len: usize,
     outputs: usize,
 }
@@ -295,6 +314,7 @@ pub(crate) fn build_dataset(
         targets: targets.concat(),
         weights: Vec::new(),
         lengths: Vec::new(),
+        segments: Vec::new(),
         input_len,
         outputs,
     };
@@ -315,10 +335,37 @@ pub(crate) fn build_dataset(
                 target[closed] = 1.0;
             }
         }
+        data.segments.extend(
+            utt.targets
+                .bilabial_segments
+                .iter()
+                .map(|seg| start + seg.start..start + seg.end.min(utt.features.len()))
+                .filter(|seg| !seg.is_empty()),
+        );
         start += utt.features.len();
         data.lengths.push(utt.features.len());
     }
     data
+}
+
+/// Copies of `utterances` whose LSPs are scaled by a random factor in `[1 - warp, 1 + warp]`
+/// per utterance, kept increasing and inside (0, pi).
+fn warp_lsps(utterances: &[PreparedUtterance], warp: f32, rng: &mut Rng) -> Vec<PreparedUtterance> {
+    const TOP: f32 = std::f32::consts::PI - 0.01;
+    utterances
+        .iter()
+        .map(|utt| {
+            let factor = 1.0 + warp * (2.0 * rng.next_f32() - 1.0);
+            let mut utt = utt.clone();
+            for frame in &mut utt.features {
+                for (i, lsp) in frame.lsp.iter_mut().enumerate() {
+                    let ceiling = TOP - 0.01 * (LSP_COUNT - 1 - i) as f32;
+                    *lsp = (*lsp * factor).min(ceiling);
+                }
+            }
+            utt
+        })
+        .collect()
 }
 
 /// Gradients (or Adam moments) shaped like the model's parameters.
@@ -389,25 +436,101 @@ pub(crate) fn loss_and_gradient(
         for ((d, p), t) in delta_out.iter_mut().zip(&probs).zip(t) {
             *d = weight as f32 * (p - t);
         }
-        delta_hidden.fill(0.0);
-        for (k, &d) in delta_out.iter().enumerate() {
-            grad.b2[k] += d;
-            let row = k * hidden_len..(k + 1) * hidden_len;
-            for ((g, w), (h, dh)) in grad.w2[row.clone()]
-                .iter_mut()
-                .zip(&model.w2[row])
-                .zip(hidden.iter().zip(delta_hidden.iter_mut()))
-            {
-                *g += d * h;
-                *dh += d * w;
-            }
+        backprop(model, x, &hidden, &delta_out, &mut delta_hidden, grad);
+    }
+    loss
+}
+
+/// Adds the gradient of one frame into `grad`, given the loss gradient at the output logits.
+fn backprop(
+    model: &Model,
+    x: &[f32],
+    hidden: &[f32],
+    delta_out: &[f32],
+    delta_hidden: &mut [f32],
+    grad: &mut Params,
+) {
+    let hidden_len = model.hidden;
+    delta_hidden.fill(0.0);
+    for (k, &d) in delta_out.iter().enumerate() {
+        grad.b2[k] += d;
+        let row = k * hidden_len..(k + 1) * hidden_len;
+        for ((g, w), (h, dh)) in grad.w2[row.clone()]
+            .iter_mut()
+            .zip(&model.w2[row])
+            .zip(hidden.iter().zip(delta_hidden.iter_mut()))
+        {
+            *g += d * h;
+            *dh += d * w;
         }
-        for (j, (dh, h)) in delta_hidden.iter().zip(&hidden).enumerate() {
-            let da = dh * (1.0 - h * h);
-            grad.b1[j] += da;
-            for (g, xi) in grad.w1[j * x.len()..(j + 1) * x.len()].iter_mut().zip(x) {
-                *g += da * xi;
+    }
+    for (j, (dh, h)) in delta_hidden.iter().zip(hidden).enumerate() {
+        let da = dh * (1.0 - h * h);
+        grad.b1[j] += da;
+        for (g, xi) in grad.w1[j * x.len()..(j + 1) * x.len()].iter_mut().zip(x) {
+            *g += da * xi;
+        }
+    }
+}
+
+/// Mean over `segments` (indices into the dataset's segments) of `-ln P(closed somewhere)`,
+/// `P = 1 - prod(1 - p_closed)` over the segment's frames, times `scale`; adds its gradient
+/// into `grad` when given.
+pub(crate) fn segment_loss_and_gradient(
+    model: &Model,
+    data: &Dataset,
+    segments: &[usize],
+    scale: f32,
+    mut grad: Option<&mut Params>,
+) -> f64 {
+    let Some(closed) = model.closed_index() else {
+        return 0.0;
+    };
+    if segments.is_empty() || scale <= 0.0 {
+        return 0.0;
+    }
+    let (hidden_len, outputs) = (model.hidden, model.outputs());
+    let mut delta_out = vec![0.0; outputs];
+    let mut delta_hidden = vec![0.0; hidden_len];
+    let per_segment = scale as f64 / segments.len() as f64;
+    let mut loss = 0.0;
+    for &s in segments {
+        let frames = data.segments[s].clone();
+        let forward: Vec<(Vec<f32>, Vec<f32>)> = frames
+            .clone()
+            .map(|n| {
+                let (mut h, mut p) = (vec![0.0; hidden_len], vec![0.0; outputs]);
+                model.forward(data.input(n), &mut h, &mut p);
+                (h, p)
+            })
+            .collect();
+        let open: Vec<f64> = forward
+            .iter()
+            .map(|(_, p)| (1.0 - p[closed] as f64).max(1e-12))
+            .collect();
+        let all_open: f64 = open.iter().product();
+        let closes = (1.0 - all_open).max(1e-12);
+        loss += per_segment * -closes.ln();
+        let Some(grad) = grad.as_deref_mut() else {
+            continue;
+        };
+        for ((n, (hidden, p)), open_here) in frames.zip(&forward).zip(&open) {
+            // d(-ln P)/d p_t = -prod_{s != t}(1 - p_s) / P; through the softmax:
+            // d p_t / d z_k = p_t (1[k = closed] - p_k).
+            let d_closed = -(all_open / open_here) / closes * per_segment;
+            let p_closed = p[closed] as f64;
+            for (k, d) in delta_out.iter_mut().enumerate() {
+                let indicator = if k == closed { 1.0 } else { 0.0 };
+                *d = (d_closed * p_closed * (indicator - p[k] as f64)) as f32;
             }
+            backprop(
+                model,
+                data.input(n),
+                hidden,
+                &delta_out,
+                &mut delta_hidden,
+                grad,
+            );
         }
     }
     loss
@@ -418,27 +541,42 @@ pub(crate) fn loss_and_gradient(
 /// within words, /f v/) are a smaller harm than missing the /p b m/ cue.
 pub const FALSE_CLOSURE_COST: f64 = 3.0;
 
-/// The closure-snap threshold with the best `closure share - FALSE_CLOSURE_COST * false
-/// closures` (0 = off, when nothing beats no rule), over the pooled predictions of each model on
-/// its own held-out utterances.
+/// Closure-snap thresholds tried: 0 (off) and 0.5 to 0.95 in steps of 0.025 (below 0.5 the
+/// closed shape is not even the largest weight of three).
+pub fn snap_candidates() -> impl Iterator<Item = f32> {
+    std::iter::once(0.0).chain((0..=18).map(|step| 0.5 + 0.025 * step as f32))
+}
+
+/// The pooled held-out scores at every candidate closure-snap threshold: the trade-off between
+/// closing in /p b m/ and closing elsewhere.
+pub fn snap_curve(
+    held_out: &[(&Model, &[PreparedUtterance])],
+    shapes: &VisemeShapes,
+) -> Result<Vec<(f32, Scores)>, TrainError> {
+    snap_candidates()
+        .map(|snap| Ok((snap, pooled_scores(held_out, snap, shapes)?)))
+        .collect()
+}
+
+/// The threshold of `curve` with the best `closure share - FALSE_CLOSURE_COST * false
+/// closures` (0 = off, when nothing beats no rule).
+pub fn best_snap(curve: &[(f32, Scores)]) -> f32 {
+    let mut best = (f64::NEG_INFINITY, 0.0);
+    for (snap, s) in curve {
+        let value = s.closure_share() - FALSE_CLOSURE_COST * s.false_closure_rate;
+        if value > best.0 + 1e-9 {
+            best = (value, *snap);
+        }
+    }
+    best.1
+}
+
+/// [`best_snap`] over the pooled predictions of each model on its own held-out utterances.
 pub fn tune_closure_snap(
     held_out: &[(&Model, &[PreparedUtterance])],
     shapes: &VisemeShapes,
 ) -> Result<f32, TrainError> {
-    let mut best = (f64::NEG_INFINITY, 0.0);
-    for step in 0..=14 {
-        let snap = if step == 0 {
-            0.0
-        } else {
-            0.25 + 0.05 * step as f32
-        };
-        let s = pooled_scores(held_out, snap, shapes)?;
-        let value = s.closure_share() - FALSE_CLOSURE_COST * s.false_closure_rate;
-        if value > best.0 + 1e-9 {
-            best = (value, snap);
-        }
-    }
-    Ok(best.1)
+    Ok(best_snap(&snap_curve(held_out, shapes)?))
 }
 
 /// Scores of each model (with the closure snap at `snap`) on its own held-out utterances,
@@ -590,6 +728,13 @@ pub fn train_on(
         ));
     }
     let mut rng = Rng::new(config.seed);
+    let warped;
+    let train = if config.warp > 0.0 {
+        warped = warp_lsps(train, config.warp, &mut rng);
+        &warped[..]
+    } else {
+        train
+    };
     let mut model = initial_model(config, train, &mut rng);
     let train_targets = set_targets(&config.visemes, &config.shapes, train)?;
     let validation_targets = set_targets(&config.visemes, &config.shapes, validation)?;
@@ -612,6 +757,13 @@ pub fn train_on(
     }
     let all_train: Vec<usize> = (0..train_data.frames()).collect();
     let all_validation: Vec<usize> = (0..validation_data.frames()).collect();
+    let train_segments: Vec<usize> = (0..train_data.segments.len()).collect();
+    let validation_segments: Vec<usize> = (0..validation_data.segments.len()).collect();
+    let segment_weight = config.segment_closure_weight;
+    let total_loss = |model: &Model, data: &Dataset, frames: &[usize], segments: &[usize]| {
+        loss_and_gradient(model, data, frames, None)
+            + segment_loss_and_gradient(model, data, segments, segment_weight, None)
+    };
 
     let progress = if config.show_progress {
         ProgressBar::new(config.max_epochs as u64)
@@ -636,6 +788,16 @@ pub fn train_on(
         for batch in order.chunks(config.batch_size) {
             grad.clear();
             loss_and_gradient(&model, &train_data, batch, Some(&mut grad));
+            if segment_weight > 0.0 && !train_segments.is_empty() {
+                let pick = (rng.next_u64() % train_segments.len() as u64) as usize;
+                segment_loss_and_gradient(
+                    &model,
+                    &train_data,
+                    &[pick],
+                    segment_weight,
+                    Some(&mut grad),
+                );
+            }
             step += 1;
             let correction1 = 1.0 - beta1.powi(step);
             let correction2 = 1.0 - beta2.powi(step);
@@ -657,8 +819,13 @@ pub fn train_on(
                 }
             }
         }
-        let train_loss = loss_and_gradient(&model, &train_data, &all_train, None);
-        let validation_loss = loss_and_gradient(&model, &validation_data, &all_validation, None);
+        let train_loss = total_loss(&model, &train_data, &all_train, &train_segments);
+        let validation_loss = total_loss(
+            &model,
+            &validation_data,
+            &all_validation,
+            &validation_segments,
+        );
         let scores = score(
             &model.visemes,
             &config.shapes,
@@ -807,6 +974,82 @@ mod tests {
             }
         }
         assert!(checked > 20);
+    }
+
+    #[test]
+    fn segment_closure_gradient_matches_finite_differences() {
+        let (train, _) = tiny_data();
+        let config = TrainConfig {
+            visemes: VisemeSet::reduced(3).unwrap(),
+            hidden: 4,
+            context: 1,
+            ..TrainConfig::default()
+        };
+        let mut rng = Rng::new(11);
+        let model = initial_model(&config, &train, &mut rng);
+        let targets = set_targets(&config.visemes, &config.shapes, &train).unwrap();
+        let data = build_dataset(&model, &train, &targets, 1.0, false);
+        assert!(data.segments.len() >= 3, "{:?}", data.segments);
+        let segments: Vec<usize> = (0..data.segments.len()).collect();
+        let mut grad = Params::zeros_like(&model);
+        let loss = segment_loss_and_gradient(&model, &data, &segments, 2.0, Some(&mut grad));
+        assert!(loss > 0.0);
+        let h = 1e-2f32;
+        let mut checked = 0;
+        for which in 0..4 {
+            let analytic = match which {
+                0 => &grad.w1,
+                1 => &grad.b1,
+                2 => &grad.w2,
+                _ => &grad.b2,
+            };
+            for i in (0..analytic.len()).step_by(3) {
+                let mut plus = model.clone();
+                model_params_mut(&mut plus)[which][i] += h;
+                let mut minus = model.clone();
+                model_params_mut(&mut minus)[which][i] -= h;
+                let numeric = (segment_loss_and_gradient(&plus, &data, &segments, 2.0, None)
+                    - segment_loss_and_gradient(&minus, &data, &segments, 2.0, None))
+                    / (2.0 * h as f64);
+                let a = analytic[i] as f64;
+                assert!(
+                    (a - numeric).abs() < 1e-3 + 2e-2 * numeric.abs(),
+                    "param {which}[{i}]: backprop {a} vs numeric {numeric}"
+                );
+                checked += 1;
+            }
+        }
+        assert!(checked > 20);
+        // One closed frame per segment is enough: the loss falls as closures get likelier.
+        let mut closing = model.clone();
+        let closed = closing.closed_index().unwrap();
+        closing.b2[closed] += 3.0;
+        assert!(segment_loss_and_gradient(&closing, &data, &segments, 2.0, None) < loss);
+    }
+
+    #[test]
+    fn warped_lsps_stay_ordered_inside_the_band() {
+        let (train, _) = tiny_data();
+        let mut rng = Rng::new(3);
+        let warped = warp_lsps(&train, 0.2, &mut rng);
+        let mut factors = Vec::new();
+        for (a, b) in train.iter().zip(&warped) {
+            assert_eq!(a.targets, b.targets);
+            for (fa, fb) in a.features.iter().zip(&b.features) {
+                assert!(fb.lsp.windows(2).all(|w| w[0] < w[1]), "{:?}", fb.lsp);
+                assert!(fb.lsp[0] > 0.0 && fb.lsp[9] < std::f32::consts::PI);
+                assert_eq!(fa.energy_db, fb.energy_db);
+            }
+            factors.push(b.features[40].lsp[0] / a.features[40].lsp[0]);
+        }
+        assert!(
+            factors.iter().all(|f| (0.8..=1.2).contains(f)),
+            "{factors:?}"
+        );
+        assert!(
+            factors.iter().any(|f| (f - 1.0).abs() > 0.01),
+            "{factors:?}"
+        );
     }
 
     #[test]
