@@ -57,6 +57,9 @@ pub struct TrainArgs {
     /// [1 - W, 1 + W]; 0 = off.
     #[arg(long, value_name = "W", default_value_t = recipe::WARP)]
     pub warp: f32,
+    /// Decoupled weight decay (AdamW), per step as a fraction of the learning rate; 0 = off.
+    #[arg(long, value_name = "D", default_value_t = recipe::WEIGHT_DECAY)]
+    pub weight_decay: f32,
     /// Keep the coarticulated targets inside /p b m/ (default: a full closure there).
     #[arg(long)]
     pub soft_closures: bool,
@@ -229,6 +232,7 @@ fn train_config(args: &TrainArgs, split: &SpeakerSplit, snap: Option<f32>) -> Re
         closure_weight: args.closure_weight,
         segment_closure_weight: args.segment_closure_weight,
         warp: args.warp,
+        weight_decay: args.weight_decay,
         utterances_per_speaker: args.utterances,
         curves_csv: args.curves.clone(),
         show_progress: !args.quiet,

@@ -61,6 +61,8 @@ pub struct TrainConfig {
     /// drawn from `[1 - warp, 1 + warp]` (formants move with them), so the few training voices
     /// stand for longer and shorter vocal tracts too. 0 = off.
     pub warp: f32,
+    /// Decoupled weight decay per step, as a fraction of the learning rate (AdamW); 0 = off.
+    pub weight_decay: f32,
     /// Utterances per speaker (all when `None`), for quick runs.
     pub utterances_per_speaker: Option<usize>,
     /// Writes the learning curves here (CSV).
@@ -91,6 +93,7 @@ impl Default for TrainConfig {
             closure_weight: 4.0,
             segment_closure_weight: 0.0,
             warp: 0.0,
+            weight_decay: 0.0,
             utterances_per_speaker: None,
             curves_csv: None,
             show_progress: true,
@@ -814,8 +817,9 @@ pub fn train_on(
                 {
                     *m = beta1 * *m + (1.0 - beta1) * g;
                     *v = beta2 * *v + (1.0 - beta2) * g * g;
-                    *p -= config.learning_rate * (*m / correction1)
-                        / ((*v / correction2).sqrt() + epsilon);
+                    *p -= config.learning_rate
+                        * ((*m / correction1) / ((*v / correction2).sqrt() + epsilon)
+                            + config.weight_decay * *p);
                 }
             }
         }
