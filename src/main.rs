@@ -96,6 +96,11 @@ enum Command {
         /// Compare with a baseline instead of the network: `jaw` opens the jaw with the energy.
         #[arg(long, value_parser = ["jaw"])]
         baseline: Option<String>,
+        /// Lip closures, from -1 (fewer, only the surest) through 0 (the model's balance) to 1
+        /// (close for nearly every /p b m/, and more often where there is none).
+        #[arg(long, value_name = "B", default_value_t = 0.0, allow_hyphen_values = true,
+              value_parser = lipcall::lipsync::parse_closure_bias)]
+        closures: f32,
     },
     /// List audio devices and try the default (or chosen) ones; no audio is not an error.
     Devices {
@@ -255,6 +260,7 @@ fn main() -> ExitCode {
             visemes,
             model,
             baseline,
+            closures,
         } => commands::animate::animate(&commands::animate::AnimateArgs {
             input,
             weights,
@@ -265,6 +271,7 @@ fn main() -> ExitCode {
             visemes,
             model,
             baseline_jaw: baseline.is_some(),
+            closure_bias: closures,
         }),
         Command::Devices { output, input } => {
             commands::audio::devices(output.as_deref(), input.as_deref())

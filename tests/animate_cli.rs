@@ -65,6 +65,38 @@ fn weights_from_wav_and_from_its_speex_file_agree() {
 }
 
 #[test]
+fn the_closure_bias_moves_how_often_the_lips_shut() {
+    let dir = tempfile::tempdir().unwrap();
+    let d = dir.path();
+    let wav = demo_8k(d);
+    let closed_frames = |bias: &str| {
+        let out = d.join(format!("closures{bias}.csv"));
+        run(lipcall()
+            .arg("animate")
+            .arg(&wav)
+            .args(["--closures", bias, "--weights"])
+            .arg(&out));
+        let (header, rows) = read_weights(&out);
+        assert_convex(&rows);
+        let pp = header.iter().position(|h| h == "PP").unwrap() - 2;
+        rows.iter().filter(|r| r[pp] > 0.999).count()
+    };
+    let (fewer, balanced, more) = (closed_frames("-1"), closed_frames("0"), closed_frames("1"));
+    assert!(
+        fewer <= balanced && balanced <= more && fewer < more,
+        "closed frames: {fewer} (-1), {balanced} (0), {more} (1)"
+    );
+    let out = lipcall()
+        .arg("animate")
+        .arg(&wav)
+        .args(["--closures", "2"])
+        .output()
+        .unwrap();
+    assert_eq!(out.status.code(), Some(2));
+    assert!(String::from_utf8_lossy(&out.stderr).contains("from -1 to 1"));
+}
+
+#[test]
 fn other_viseme_sets_and_the_jaw_baseline() {
     let dir = tempfile::tempdir().unwrap();
     let d = dir.path();

@@ -59,6 +59,35 @@ fn viseme_set_change_reprojects_onto_the_chosen_shapes() {
 }
 
 #[test]
+fn the_closures_slider_changes_how_readily_the_lips_shut() {
+    let h = harness();
+    h.get_by_label("Closures");
+    // Features of real speech through the codec: count full closures at both ends.
+    let (_, _, features) = lipcall::commands::animate::receiver_features(
+        &std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("assets/speech/demo.wav"),
+    )
+    .unwrap();
+    let closed = |closures: f32| {
+        let prefs = PeerPrefs {
+            closures,
+            ..PeerPrefs::default()
+        };
+        let mut animation = PeerAnimation::new(&prefs);
+        features
+            .iter()
+            .filter_map(|f| animation.step(&prefs, f))
+            .filter(|w| w[lipcall::lipsync::visemes::Viseme::PP.index()] > 0.999)
+            .count()
+    };
+    assert!(
+        closed(1.0) > closed(-1.0),
+        "{} vs {}",
+        closed(1.0),
+        closed(-1.0)
+    );
+}
+
+#[test]
 fn mute_and_jaw_mode_toggle() {
     let mut h = harness();
     h.get_by_label("Mute").click();

@@ -193,6 +193,28 @@ fn shipped_model() -> Option<&'static Model> {
     Some(MODEL.get_or_init(crate::lipsync::default_model))
 }
 
+/// The choices an animator is built from; a change rebuilds it.
+#[derive(Debug, Clone, PartialEq)]
+struct AnimationKey {
+    visemes: String,
+    jaw: bool,
+    closures: f32,
+}
+
+impl AnimationKey {
+    fn of(prefs: &PeerPrefs) -> Self {
+        Self {
+            visemes: prefs.visemes.clone(),
+            jaw: prefs.jaw,
+            closures: prefs.closures,
+        }
+    }
+
+    fn matches(&self, prefs: &PeerPrefs) -> bool {
+        self.visemes == prefs.visemes && self.jaw == prefs.jaw && self.closures == prefs.closures
+    }
+}
+
 /// Turns one peer's decoded frames into weights over a chosen viseme set, or does nothing at
 /// all when the peer's animation is off.
 pub struct PeerAnimation {
@@ -201,14 +223,16 @@ pub struct PeerAnimation {
     target: VisemeSet,
     raw: Vec<f32>,
     out: Vec<f32>,
-    key: (String, bool),
+    key: AnimationKey,
     pub frames_animated: u64,
 }
 
 impl PeerAnimation {
     pub fn new(prefs: &PeerPrefs) -> Self {
         let animator: Box<dyn Animator + Send> = match (prefs.jaw, shipped_model()) {
-            (false, Some(model)) => Box::new(ModelAnimator::new(model)),
+            (false, Some(model)) => {
+                Box::new(ModelAnimator::with_closure_bias(model, prefs.closures))
+            }
             (true, Some(model)) => Box::new(JawBaseline::from_model(model)),
             (_, None) => Box::new(JawBaseline::new(-60.0, -20.0)),
         };
@@ -227,7 +251,7 @@ impl PeerAnimation {
             animator,
             reprojector,
             target,
-            key: (prefs.visemes.clone(), prefs.jaw),
+            key: AnimationKey::of(prefs),
             frames_animated: 0,
         }
     }
@@ -239,7 +263,7 @@ impl PeerAnimation {
 
     /// Weights for one frame, or `None` (and no network run) when animation is off.
     pub fn step(&mut self, prefs: &PeerPrefs, features: &FrameFeatures) -> Option<FullWeights> {
-        if self.key != (prefs.visemes.clone(), prefs.jaw) {
+        if !self.key.matches(prefs) {
             let count = self.frames_animated;
             *self = Self::new(prefs);
             self.frames_animated = count;

@@ -550,7 +550,8 @@ fn visemes_label(choice: &str) -> String {
     }
 }
 
-/// One peer's controls: animation, mute, volume, lipreading view, viseme set, jaw mode.
+/// One peer's controls: animation, mute, volume, lipreading view, jaw mode, viseme set, lip
+/// closures.
 pub fn peer_controls_ui(ui: &mut egui::Ui, id: u32, prefs: &mut PeerPrefs) {
     ui.horizontal_wrapped(|ui| {
         ui.checkbox(&mut prefs.animate, "Animate");
@@ -570,6 +571,17 @@ pub fn peer_controls_ui(ui: &mut egui::Ui, id: u32, prefs: &mut PeerPrefs) {
                     ui.selectable_value(&mut prefs.visemes, c.to_owned(), visemes_label(c));
                 }
             });
+        ui.add_enabled(
+            !prefs.jaw,
+            egui::Slider::new(&mut prefs.closures, -1.0..=1.0)
+                .text("Closures")
+                .step_by(0.25)
+                .show_value(false),
+        )
+        .on_hover_text(
+            "Lip closures for /p b m/: left, only the surest; right, nearly all of them, \
+             at the cost of closing where there is none",
+        );
     });
 }
 

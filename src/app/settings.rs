@@ -21,6 +21,9 @@ pub struct PeerPrefs {
     pub visemes: String,
     /// Jaw-from-energy instead of the network, for comparison.
     pub jaw: bool,
+    /// Lip closures: -1 fewer (only the surest) .. 0 the model's balance .. 1 more (nearly
+    /// every /p b m/, and more often where there is none); for lipreading.
+    pub closures: f32,
 }
 
 impl Default for PeerPrefs {
@@ -32,6 +35,7 @@ impl Default for PeerPrefs {
             lipreading: false,
             visemes: String::new(),
             jaw: false,
+            closures: 0.0,
         }
     }
 }

@@ -26,6 +26,8 @@ pub struct AnimateArgs {
     pub visemes: Option<String>,
     pub model: Option<PathBuf>,
     pub baseline_jaw: bool,
+    /// [`ModelAnimator::with_closure_bias`]: -1 fewer lip closures .. 1 more.
+    pub closure_bias: f32,
 }
 
 /// Viseme weights for every 20 ms frame of a stream, with the audio they belong to.
@@ -69,7 +71,7 @@ pub fn weight_track(args: &AnimateArgs) -> Result<Animation> {
     let mut animator: Box<dyn Animator + '_> = if args.baseline_jaw {
         Box::new(JawBaseline::from_model(&model))
     } else {
-        Box::new(ModelAnimator::new(&model))
+        Box::new(ModelAnimator::with_closure_bias(&model, args.closure_bias))
     };
     let source = animator.visemes().clone();
     let target = match &args.visemes {

@@ -124,6 +124,11 @@ pub struct EvaluateArgs {
     /// Utterances per speaker (all by default).
     #[arg(long, value_name = "N")]
     pub utterances: Option<usize>,
+    /// Lip closures from -1 (fewer) through 0 (the model's balance) to 1 (more), as `animate
+    /// --closures` takes.
+    #[arg(long, value_name = "B", default_value_t = 0.0, allow_hyphen_values = true,
+          value_parser = crate::lipsync::parse_closure_bias)]
+    pub closures: f32,
     /// Also write the per-frame openness and aperture of targets, network and jaw baseline.
     #[arg(long, value_name = "CSV")]
     pub per_frame: Option<PathBuf>,
@@ -472,7 +477,9 @@ pub fn load_model(path: Option<&Path>) -> Result<Model> {
 }
 
 pub fn evaluate(args: &EvaluateArgs) -> Result<()> {
-    let model = load_model(args.model.as_deref())?;
+    let mut model = load_model(args.model.as_deref())?;
+    model.closure_snap =
+        crate::lipsync::ModelAnimator::with_closure_bias(&model, args.closures).closure_snap();
     let corpus = Corpus::open(&args.corpus)?;
     let split = SpeakerSplit::standard(&corpus)?;
     let chosen: Vec<String>;
@@ -517,13 +524,14 @@ pub fn evaluate(args: &EvaluateArgs) -> Result<()> {
     let report: EvalReport =
         evaluate_prepared(&model, &prepared, speakers, &VisemeShapes::point_model())?;
     println!(
-        "model: {} ({} visemes: {}; {} multiply-adds/frame), Speex quality {}{}",
+        "model: {} ({} visemes: {}; {} multiply-adds/frame; closure snap {}), Speex quality {}{}",
         args.model
             .as_deref()
             .map_or_else(|| "built-in".to_string(), |p| p.display().to_string()),
         model.outputs(),
         model.viseme_names().join(" "),
         model.multiply_adds(),
+        model.closure_snap,
         args.quality,
         if args.vbr { " VBR" } else { "" }
     );

@@ -293,18 +293,33 @@ impl Model {
     /// Feeds one frame and writes convex weights over `self.visemes` into `weights`
     /// (which must hold `self.outputs()` values). Allocates nothing.
     pub fn step(&self, state: &mut InferenceState, features: &FrameFeatures, weights: &mut [f32]) {
+        self.step_with_snap(state, features, weights, self.closure_snap);
+    }
+
+    /// [`Model::step`] with another closure-snap threshold than the model's own.
+    pub fn step_with_snap(
+        &self,
+        state: &mut InferenceState,
+        features: &FrameFeatures,
+        weights: &mut [f32],
+        closure_snap: f32,
+    ) {
         self.push_frame(state, features);
         self.forward(&state.input, &mut state.hidden, weights);
-        self.snap(weights);
+        self.snap_at(weights, closure_snap);
     }
 
     /// The closure rule on one frame's output weights.
     pub fn snap(&self, weights: &mut [f32]) {
-        if self.closure_snap <= 0.0 {
+        self.snap_at(weights, self.closure_snap);
+    }
+
+    fn snap_at(&self, weights: &mut [f32], closure_snap: f32) {
+        if closure_snap <= 0.0 {
             return;
         }
         if let Some(closed) = self.closed_index()
-            && weights[closed] >= self.closure_snap
+            && weights[closed] >= closure_snap
         {
             weights.fill(0.0);
             weights[closed] = 1.0;
