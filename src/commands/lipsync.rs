@@ -57,6 +57,9 @@ pub struct TrainArgs {
     /// [1 - W, 1 + W]; 0 = off.
     #[arg(long, value_name = "W", default_value_t = recipe::WARP)]
     pub warp: f32,
+    /// Weight of a squared-error term on mouth openness beside the KL loss; 0 = off.
+    #[arg(long, value_name = "W", default_value_t = recipe::OPENNESS_WEIGHT)]
+    pub openness_weight: f32,
     /// Decoupled weight decay (AdamW), per step as a fraction of the learning rate; 0 = off.
     #[arg(long, value_name = "D", default_value_t = recipe::WEIGHT_DECAY)]
     pub weight_decay: f32,
@@ -238,6 +241,7 @@ fn train_config(args: &TrainArgs, split: &SpeakerSplit, snap: Option<f32>) -> Re
         segment_closure_weight: args.segment_closure_weight,
         warp: args.warp,
         weight_decay: args.weight_decay,
+        openness_weight: args.openness_weight,
         utterances_per_speaker: args.utterances,
         curves_csv: args.curves.clone(),
         show_progress: !args.quiet,

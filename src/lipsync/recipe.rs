@@ -12,6 +12,7 @@ pub const CLOSURE_WEIGHT: f32 = 4.0;
 pub const SEGMENT_CLOSURE_WEIGHT: f32 = 0.0;
 pub const WARP: f32 = 0.0;
 pub const WEIGHT_DECAY: f32 = 0.0;
+pub const OPENNESS_WEIGHT: f32 = 20.0;
 /// Codec versions of each training utterance.
 pub const CODEC_VERSIONS: usize = 4;
 pub const SEED: u64 = 0x5EED_CAFE;

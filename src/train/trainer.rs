@@ -61,6 +61,9 @@ pub struct TrainConfig {
     /// drawn from `[1 - warp, 1 + warp]` (formants move with them), so the few training voices
     /// stand for longer and shorter vocal tracts too. 0 = off.
     pub warp: f32,
+    /// Weight of a squared-error term on mouth openness (linear in the weights) beside the KL
+    /// loss; 0 = off.
+    pub openness_weight: f32,
     /// Decoupled weight decay per step, as a fraction of the learning rate (AdamW); 0 = off.
     pub weight_decay: f32,
     /// Utterances per speaker (all when `None`), for quick runs.
@@ -94,6 +97,7 @@ impl Default for TrainConfig {
             segment_closure_weight: 0.0,
             warp: 0.0,
             weight_decay: 0.0,
+            openness_weight: 0.0,
             utterances_per_speaker: None,
             curves_csv: None,
             show_progress: true,
@@ -242,6 +246,9 @@ pub(crate) struct Dataset {
     lengths: Vec<usize>,
     /// Frame ranges of the /p b m/ segments.
     segments: Vec<std::ops::Range<usize>>,
+    /// Openness of each output viseme, and the weight of the openness error term.
+    openness: Vec<f32>,
+    openness_weight: f32,
     input_len: usize,
     outputs: usize,
 }
@@ -318,6 +325,13 @@ pub(crate) fn build_dataset(
         weights: Vec::new(),
         lengths: Vec::new(),
         segments: Vec::new(),
+        openness: model
+            .visemes
+            .members()
+            .iter()
+            .map(|v| crate::lipsync::mouth::Articulation::of(*v).openness())
+            .collect(),
+        openness_weight: 0.0,
         input_len,
         outputs,
     };
@@ -432,12 +446,17 @@ pub(crate) fn loss_and_gradient(
             .filter(|(t, _)| **t > 0.0)
             .map(|(&t, &p)| t as f64 * ((t as f64) / (p as f64).max(1e-30)).ln())
             .sum();
-        loss += weight * kl;
+        let open = |w: &[f32]| -> f32 { w.iter().zip(&data.openness).map(|(w, o)| w * o).sum() };
+        let open_error = open(&probs[..]) - open(t);
+        let beta = data.openness_weight;
+        loss += weight * (kl + (beta * open_error * open_error) as f64);
         let Some(grad) = grad.as_deref_mut() else {
             continue;
         };
-        for ((d, p), t) in delta_out.iter_mut().zip(&probs).zip(t) {
-            *d = weight as f32 * (p - t);
+        let predicted_open = open(&probs[..]);
+        for (((d, p), t), o) in delta_out.iter_mut().zip(&probs).zip(t).zip(&data.openness) {
+            let open_term = 2.0 * beta * open_error * p * (o - predicted_open);
+            *d = weight as f32 * (p - t + open_term);
         }
         backprop(model, x, &hidden, &delta_out, &mut delta_hidden, grad);
     }
@@ -741,20 +760,22 @@ pub fn train_on(
     let mut model = initial_model(config, train, &mut rng);
     let train_targets = set_targets(&config.visemes, &config.shapes, train)?;
     let validation_targets = set_targets(&config.visemes, &config.shapes, validation)?;
-    let train_data = build_dataset(
+    let mut train_data = build_dataset(
         &model,
         train,
         &train_targets,
         config.closure_weight,
         config.sharp_closures,
     );
-    let validation_data = build_dataset(
+    let mut validation_data = build_dataset(
         &model,
         validation,
         &validation_targets,
         config.closure_weight,
         config.sharp_closures,
     );
+    train_data.openness_weight = config.openness_weight;
+    validation_data.openness_weight = config.openness_weight;
     if train_data.frames() == 0 || validation_data.frames() == 0 {
         return Err(TrainError::NoFrames);
     }
@@ -948,7 +969,8 @@ mod tests {
             *b = rng.next_f32() - 0.5;
         }
         let targets = set_targets(&config.visemes, &config.shapes, &train[..1]).unwrap();
-        let data = build_dataset(&model, &train[..1], &targets, 3.0, false);
+        let mut data = build_dataset(&model, &train[..1], &targets, 3.0, false);
+        data.openness_weight = 5.0;
         let frames: Vec<usize> = (0..data.frames()).step_by(7).collect();
         let mut grad = Params::zeros_like(&model);
         loss_and_gradient(&model, &data, &frames, Some(&mut grad));
