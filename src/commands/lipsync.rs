@@ -304,8 +304,10 @@ pub fn train(args: &TrainArgs) -> Result<()> {
         format!("training speakers: {}", split.train.join(" ")),
         format!("validation speakers: {}", split.validation.join(" ")),
         format!(
-            "seed {}, closure weight {}, sharp closures {}, best epoch {}",
-            args.seed, args.closure_weight, config.sharp_closures, report.best_epoch
+            "seed {}, {}, best epoch {}",
+            args.seed,
+            loss_note(&config),
+            report.best_epoch
         ),
     ];
     report
@@ -345,6 +347,25 @@ pub fn train(args: &TrainArgs) -> Result<()> {
         );
     }
     Ok(())
+}
+
+/// The loss and augmentation settings, for the model file's notes (the optional ones only
+/// when used).
+fn loss_note(config: &TrainConfig) -> String {
+    let mut note = format!(
+        "closure weight {}, sharp closures {}, openness weight {}",
+        config.closure_weight, config.sharp_closures, config.openness_weight
+    );
+    for (name, value) in [
+        ("segment closure weight", config.segment_closure_weight),
+        ("warp", config.warp),
+        ("weight decay", config.weight_decay),
+    ] {
+        if value != 0.0 {
+            note.push_str(&format!(", {name} {value}"));
+        }
+    }
+    note
 }
 
 /// The non-test speakers grouped by dialect region (`dr4-falr0` -> `dr4`).
@@ -448,8 +469,11 @@ fn train_cross_validated(args: &TrainArgs) -> Result<()> {
             100.0 * cv.pooled.false_closure_rate
         ),
         format!(
-            "seed {}, closure weight {}, sharp closures {}, epochs {}, closure snap {}",
-            args.seed, args.closure_weight, config.sharp_closures, cv.epochs, cv.closure_snap
+            "seed {}, {}, epochs {}, closure snap {}",
+            args.seed,
+            loss_note(&config),
+            cv.epochs,
+            cv.closure_snap
         ),
     ];
     report
