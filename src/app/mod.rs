@@ -571,17 +571,21 @@ pub fn peer_controls_ui(ui: &mut egui::Ui, id: u32, prefs: &mut PeerPrefs) {
                     ui.selectable_value(&mut prefs.visemes, c.to_owned(), visemes_label(c));
                 }
             });
-        ui.add_enabled(
-            !prefs.jaw,
-            egui::Slider::new(&mut prefs.closures, -1.0..=1.0)
-                .text("Closures")
-                .step_by(0.25)
-                .show_value(false),
-        )
-        .on_hover_text(
-            "Lip closures for /p b m/: left, only the surest; right, nearly all of them, \
-             at the cost of closing where there is none",
-        );
+        ui.scope(|ui| {
+            // Narrower than the volume slider, so the row fits a third-of-the-window tile.
+            ui.spacing_mut().slider_width = 64.0;
+            ui.add_enabled(
+                !prefs.jaw,
+                egui::Slider::new(&mut prefs.closures, -1.0..=1.0)
+                    .text("Closures")
+                    .step_by(0.25)
+                    .show_value(false),
+            )
+            .on_hover_text(
+                "Lip closures for /p b m/: left, only the surest; right, nearly all of them, \
+                 at the cost of closing where there is none",
+            );
+        });
     });
 }
 
