@@ -1054,6 +1054,15 @@ mod tests {
     }
 
     #[test]
+    fn neighbouring_seeds_give_different_streams() {
+        let first = |seed| Rng::new(seed).next_u64();
+        let values: Vec<u64> = (0..64).map(first).collect();
+        for (i, a) in values.iter().enumerate() {
+            assert!(values[i + 1..].iter().all(|b| b != a), "seed {i} repeats");
+        }
+    }
+
+    #[test]
     fn warped_lsps_stay_ordered_inside_the_band() {
         let (train, _) = tiny_data();
         let mut rng = Rng::new(3);
