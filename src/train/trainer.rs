@@ -954,6 +954,35 @@ mod tests {
         (take("dr1-fvmh0", 3), take("dr4-maeb0", 1))
     }
 
+    /// Compares the analytic gradient `grad` of `loss` at `model` with central differences on
+    /// every `stride`-th parameter of each block; returns how many it compared.
+    fn assert_gradient(
+        model: &Model,
+        grad: &Params,
+        stride: usize,
+        loss: impl Fn(&Model) -> f64,
+    ) -> usize {
+        let h = 1e-2f32;
+        let analytic = [&grad.w1, &grad.b1, &grad.w2, &grad.b2];
+        let mut checked = 0;
+        for (which, analytic) in analytic.iter().enumerate() {
+            for i in (0..analytic.len()).step_by(stride) {
+                let mut plus = model.clone();
+                model_params_mut(&mut plus)[which][i] += h;
+                let mut minus = model.clone();
+                model_params_mut(&mut minus)[which][i] -= h;
+                let numeric = (loss(&plus) - loss(&minus)) / (2.0 * h as f64);
+                let a = analytic[i] as f64;
+                assert!(
+                    (a - numeric).abs() < 1e-3 + 2e-2 * numeric.abs(),
+                    "param {which}[{i}]: backprop {a} vs numeric {numeric}"
+                );
+                checked += 1;
+            }
+        }
+        checked
+    }
+
     #[test]
     fn backprop_gradient_matches_finite_differences() {
         let (train, _) = tiny_data();
@@ -974,31 +1003,9 @@ mod tests {
         let frames: Vec<usize> = (0..data.frames()).step_by(7).collect();
         let mut grad = Params::zeros_like(&model);
         loss_and_gradient(&model, &data, &frames, Some(&mut grad));
-        let analytic = [
-            grad.w1.clone(),
-            grad.b1.clone(),
-            grad.w2.clone(),
-            grad.b2.clone(),
-        ];
-        let h = 1e-2f32;
-        let mut checked = 0;
-        for (which, analytic) in analytic.iter().enumerate() {
-            for i in (0..analytic.len()).step_by(5) {
-                let mut plus = model.clone();
-                model_params_mut(&mut plus)[which][i] += h;
-                let mut minus = model.clone();
-                model_params_mut(&mut minus)[which][i] -= h;
-                let numeric = (loss_and_gradient(&plus, &data, &frames, None)
-                    - loss_and_gradient(&minus, &data, &frames, None))
-                    / (2.0 * h as f64);
-                let a = analytic[i] as f64;
-                assert!(
-                    (a - numeric).abs() < 1e-3 + 2e-2 * numeric.abs(),
-                    "param {which}[{i}]: backprop {a} vs numeric {numeric}"
-                );
-                checked += 1;
-            }
-        }
+        let checked = assert_gradient(&model, &grad, 5, |m| {
+            loss_and_gradient(m, &data, &frames, None)
+        });
         assert!(checked > 20);
     }
 
@@ -1020,31 +1027,9 @@ mod tests {
         let mut grad = Params::zeros_like(&model);
         let loss = segment_loss_and_gradient(&model, &data, &segments, 2.0, Some(&mut grad));
         assert!(loss > 0.0);
-        let h = 1e-2f32;
-        let mut checked = 0;
-        for which in 0..4 {
-            let analytic = match which {
-                0 => &grad.w1,
-                1 => &grad.b1,
-                2 => &grad.w2,
-                _ => &grad.b2,
-            };
-            for i in (0..analytic.len()).step_by(3) {
-                let mut plus = model.clone();
-                model_params_mut(&mut plus)[which][i] += h;
-                let mut minus = model.clone();
-                model_params_mut(&mut minus)[which][i] -= h;
-                let numeric = (segment_loss_and_gradient(&plus, &data, &segments, 2.0, None)
-                    - segment_loss_and_gradient(&minus, &data, &segments, 2.0, None))
-                    / (2.0 * h as f64);
-                let a = analytic[i] as f64;
-                assert!(
-                    (a - numeric).abs() < 1e-3 + 2e-2 * numeric.abs(),
-                    "param {which}[{i}]: backprop {a} vs numeric {numeric}"
-                );
-                checked += 1;
-            }
-        }
+        let checked = assert_gradient(&model, &grad, 3, |m| {
+            segment_loss_and_gradient(m, &data, &segments, 2.0, None)
+        });
         assert!(checked > 20);
         // One closed frame per segment is enough: the loss falls as closures get likelier.
         let mut closing = model.clone();
