@@ -506,8 +506,7 @@ pub fn load_model(path: Option<&Path>) -> Result<Model> {
 
 pub fn evaluate(args: &EvaluateArgs) -> Result<()> {
     let mut model = load_model(args.model.as_deref())?;
-    model.closure_snap =
-        crate::lipsync::ModelAnimator::with_closure_bias(&model, args.closures).closure_snap();
+    model.closure_snap = model.closure_snap_with_bias(args.closures);
     let corpus = Corpus::open(&args.corpus)?;
     let split = SpeakerSplit::standard(&corpus)?;
     let chosen: Vec<String>;

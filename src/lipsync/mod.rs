@@ -50,23 +50,9 @@ impl<'a> ModelAnimator<'a> {
         }
     }
 
-    /// The model's closure snap moved by `bias` in [-1, 1]: positive closes the lips more
-    /// readily (every /p b m/, and more often elsewhere), negative less; 0 is the model's own
-    /// balance, chosen in training. A model without the rule keeps it off at 0 and below.
+    /// With the model's closure snap moved by `bias` ([`Model::closure_snap_with_bias`]).
     pub fn with_closure_bias(model: &'a Model, bias: f32) -> Self {
-        let bias = if bias.is_finite() {
-            bias.clamp(-1.0, 1.0)
-        } else {
-            0.0
-        };
-        let own = model.closure_snap;
-        let snap = if own <= 0.0 && bias <= 0.0 {
-            0.0
-        } else {
-            let from = if own > 0.0 { own } else { 1.0 };
-            (from - CLOSURE_BIAS_SPAN * bias).clamp(0.5, 1.0)
-        };
-        Self::with_closure_snap(model, snap)
+        Self::with_closure_snap(model, model.closure_snap_with_bias(bias))
     }
 
     pub fn closure_snap(&self) -> f32 {
@@ -81,11 +67,6 @@ pub fn parse_closure_bias(text: &str) -> Result<f32, String> {
         _ => Err(format!("{text:?} is not a number from -1 to 1")),
     }
 }
-
-/// How far a full closure bias moves the closure-snap threshold. On the shipped model's
-/// cross-validation a move of 0.05 trades about 14 points of /p b m/ closures against 6 of
-/// false closures (docs/model.md).
-pub const CLOSURE_BIAS_SPAN: f32 = 0.1;
 
 impl Animator for ModelAnimator<'_> {
     fn visemes(&self) -> &VisemeSet {
@@ -119,7 +100,7 @@ mod tests {
         model.closure_snap = 0.0;
         assert_eq!(snap(&model, 0.0), 0.0);
         assert_eq!(snap(&model, -1.0), 0.0);
-        assert!((snap(&model, 1.0) - (1.0 - CLOSURE_BIAS_SPAN)).abs() < 1e-6);
+        assert!((snap(&model, 1.0) - (1.0 - network::CLOSURE_BIAS_SPAN)).abs() < 1e-6);
         assert!(parse_closure_bias("-0.5").is_ok() && parse_closure_bias("1.5").is_err());
     }
 }
