@@ -311,7 +311,7 @@ impl Model {
     ) {
         self.push_frame(state, features);
         self.forward(&state.input, &mut state.hidden, weights);
-        self.snap_at(weights, closure_snap);
+        self.snap_with(weights, closure_snap);
     }
 
     /// The closure snap moved by `bias` in [-1, 1]: positive closes the lips more readily
@@ -333,10 +333,11 @@ impl Model {
 
     /// The closure rule on one frame's output weights.
     pub fn snap(&self, weights: &mut [f32]) {
-        self.snap_at(weights, self.closure_snap);
+        self.snap_with(weights, self.closure_snap);
     }
 
-    fn snap_at(&self, weights: &mut [f32], closure_snap: f32) {
+    /// The closure rule at another threshold than the model's own (0 = none).
+    pub fn snap_with(&self, weights: &mut [f32], closure_snap: f32) {
         if closure_snap <= 0.0 {
             return;
         }

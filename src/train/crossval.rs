@@ -13,7 +13,7 @@ use crate::lipsync::network::Model;
 use crate::train::corpus::PreparedUtterance;
 use crate::train::eval::Scores;
 use crate::train::trainer::{
-    TrainConfig, TrainError, TrainReport, best_snap, pooled_scores, snap_curve, train_on,
+    HeldOutPredictions, TrainConfig, TrainError, TrainReport, best_snap, train_on,
 };
 
 /// The speakers held out by one fold, prepared twice: as training material (codec-augmented)
@@ -97,24 +97,25 @@ pub fn cross_validate(
         .into_iter()
         .map(|r| r.expect("every fold ran"))
         .collect::<Result<Vec<_>, _>>()?;
-    let held_out: Vec<(&Model, &[PreparedUtterance])> = reports
+    let held_out: Vec<HeldOutPredictions> = reports
         .iter()
         .zip(groups)
-        .map(|(r, g)| (&r.model, &g.held_out[..]))
+        .map(|(r, g)| HeldOutPredictions::new(&r.model, &g.held_out))
         .collect();
-    let snap_curve = snap_curve(&held_out, &config.shapes)?;
+    let pooled = HeldOutPredictions::pool(&held_out)?;
+    let snap_curve = pooled.snap_curve(&config.shapes)?;
     let closure_snap = snap.unwrap_or_else(|| best_snap(&snap_curve));
     let folds = held_out
         .iter()
         .zip(groups)
         .zip(&reports)
-        .map(|((one, group), report)| {
+        .map(|((predictions, group), report)| {
             let mut model = report.model.clone();
             model.closure_snap = closure_snap;
             Ok(FoldResult {
                 held_out: group.name.clone(),
                 best_epoch: report.best_epoch,
-                scores: pooled_scores(std::slice::from_ref(one), closure_snap, &config.shapes)?,
+                scores: predictions.scores(closure_snap, &config.shapes)?,
                 model,
             })
         })
@@ -123,7 +124,7 @@ pub fn cross_validate(
     epochs.sort_unstable();
     Ok(CrossValidation {
         folds,
-        pooled: pooled_scores(&held_out, closure_snap, &config.shapes)?,
+        pooled: pooled.scores(closure_snap, &config.shapes)?,
         closure_snap,
         snap_curve,
         epochs: epochs[epochs.len() / 2].max(1),

@@ -569,15 +569,75 @@ pub fn snap_candidates() -> impl Iterator<Item = f32> {
     std::iter::once(0.0).chain((0..=18).map(|step| 0.5 + 0.025 * step as f32))
 }
 
-/// The pooled held-out scores at every candidate closure-snap threshold: the trade-off between
-/// closing in /p b m/ and closing elsewhere.
-pub fn snap_curve(
-    held_out: &[(&Model, &[PreparedUtterance])],
-    shapes: &VisemeShapes,
-) -> Result<Vec<(f32, Scores)>, TrainError> {
-    snap_candidates()
-        .map(|snap| Ok((snap, pooled_scores(held_out, snap, shapes)?)))
-        .collect()
+/// Predictions on held-out utterances before the closure snap: the network runs once and
+/// every threshold is scored on the same outputs (the snap changes no state).
+#[derive(Debug, Clone)]
+pub struct HeldOutPredictions {
+    /// Decides the viseme set and the closed shape the snap drives.
+    model: Model,
+    utterances: Vec<PreparedUtterance>,
+    unsnapped: Vec<Vec<f32>>,
+}
+
+impl HeldOutPredictions {
+    /// `model` on `utterances`.
+    pub fn new(model: &Model, utterances: &[PreparedUtterance]) -> Self {
+        let unsnapped = crate::train::eval::predict(
+            &mut crate::lipsync::ModelAnimator::with_closure_snap(model, 0.0),
+            utterances,
+        );
+        Self {
+            model: model.clone(),
+            utterances: utterances.to_vec(),
+            unsnapped,
+        }
+    }
+
+    /// Several models' predictions (each on its own utterances, same viseme set) as one set.
+    pub fn pool(parts: &[HeldOutPredictions]) -> Result<Self, TrainError> {
+        let first = parts.first().ok_or(TrainError::NoFrames)?;
+        Ok(Self {
+            model: first.model.clone(),
+            utterances: parts
+                .iter()
+                .flat_map(|p| p.utterances.iter().cloned())
+                .collect(),
+            unsnapped: parts
+                .iter()
+                .flat_map(|p| p.unsnapped.iter().cloned())
+                .collect(),
+        })
+    }
+
+    /// The scores with the closure snap at `snap`.
+    pub fn scores(&self, snap: f32, shapes: &VisemeShapes) -> Result<Scores, TrainError> {
+        let k = self.model.outputs();
+        let snapped: Vec<Vec<f32>> = self
+            .unsnapped
+            .iter()
+            .map(|utt| {
+                let mut utt = utt.clone();
+                for weights in utt.chunks_exact_mut(k) {
+                    self.model.snap_with(weights, snap);
+                }
+                utt
+            })
+            .collect();
+        Ok(score(
+            &self.model.visemes,
+            shapes,
+            &self.utterances,
+            &snapped,
+        )?)
+    }
+
+    /// The scores at every candidate closure-snap threshold: the trade-off between closing in
+    /// /p b m/ and closing elsewhere.
+    pub fn snap_curve(&self, shapes: &VisemeShapes) -> Result<Vec<(f32, Scores)>, TrainError> {
+        snap_candidates()
+            .map(|snap| Ok((snap, self.scores(snap, shapes)?)))
+            .collect()
+    }
 }
 
 /// The threshold of `curve` with the best `closure share - FALSE_CLOSURE_COST * false
@@ -591,38 +651,6 @@ pub fn best_snap(curve: &[(f32, Scores)]) -> f32 {
         }
     }
     best.1
-}
-
-/// [`best_snap`] over the pooled predictions of each model on its own held-out utterances.
-pub fn tune_closure_snap(
-    held_out: &[(&Model, &[PreparedUtterance])],
-    shapes: &VisemeShapes,
-) -> Result<f32, TrainError> {
-    Ok(best_snap(&snap_curve(held_out, shapes)?))
-}
-
-/// Scores of each model (with the closure snap at `snap`) on its own held-out utterances,
-/// pooled into one table.
-pub fn pooled_scores(
-    held_out: &[(&Model, &[PreparedUtterance])],
-    snap: f32,
-    shapes: &VisemeShapes,
-) -> Result<Scores, TrainError> {
-    let Some((first, _)) = held_out.first() else {
-        return Err(TrainError::NoFrames);
-    };
-    let mut utterances = Vec::new();
-    let mut predicted = Vec::new();
-    for (model, utts) in held_out {
-        let mut candidate = (*model).clone();
-        candidate.closure_snap = snap;
-        predicted.extend(crate::train::eval::predict(
-            &mut crate::lipsync::ModelAnimator::new(&candidate),
-            utts,
-        ));
-        utterances.extend(utts.iter().cloned());
-    }
-    Ok(score(&first.visemes, shapes, &utterances, &predicted)?)
 }
 
 fn predictions(model: &Model, data: &Dataset) -> Vec<Vec<f32>> {
@@ -880,7 +908,8 @@ pub fn train_on(
     progress.finish_and_clear();
     let (_, best_epoch, mut model) = best;
     if config.tune_closure_snap {
-        model.closure_snap = tune_closure_snap(&[(&model, validation)], &config.shapes)?;
+        let curve = HeldOutPredictions::new(&model, validation).snap_curve(&config.shapes)?;
+        model.closure_snap = best_snap(&curve);
     }
     let validation_scores = score(
         &model.visemes,
