@@ -241,14 +241,23 @@ pub fn write_frames(
 ) -> Result<(), FramesError> {
     let full = VisemeSet::full();
     let set_targets = crate::train::trainer::set_targets(&model.visemes, shapes, utterances)?;
-    let network = predict(&mut ModelAnimator::new(model), utterances);
-    let mut unsnapped = model.clone();
-    unsnapped.closure_snap = 0.0;
-    let raw = predict(&mut ModelAnimator::new(&unsnapped), utterances);
+    let raw = predict(
+        &mut ModelAnimator::with_closure_snap(model, 0.0),
+        utterances,
+    );
+    let k = model.visemes.len();
+    let network: Vec<Vec<f32>> = raw
+        .iter()
+        .map(|utt| {
+            let mut utt = utt.clone();
+            utt.chunks_exact_mut(k).for_each(|w| model.snap(w));
+            utt
+        })
+        .collect();
     let closed = model.closed_index();
     let mut jaw = JawBaseline::from_model(model);
     let baseline = predict(&mut jaw, utterances);
-    let (k, jaw_set) = (model.visemes.len(), jaw.visemes().clone());
+    let jaw_set = jaw.visemes().clone();
     writeln!(
         out,
         "speaker,utterance,frame,target_openness,set_target_openness,network_openness,\
