@@ -77,8 +77,7 @@ pub fn cross_validate(
         train_on(&fold_config, &train, &groups[k].held_out)
     };
     let workers = std::thread::available_parallelism().map_or(1, |n| n.get());
-    let mut reports: Vec<Option<Result<TrainReport, TrainError>>> =
-        (0..groups.len()).map(|_| None).collect();
+    let mut reports = Vec::with_capacity(groups.len());
     for chunk in (0..groups.len()).collect::<Vec<_>>().chunks(workers) {
         std::thread::scope(|scope| {
             let handles: Vec<_> = chunk
@@ -86,17 +85,15 @@ pub fn cross_validate(
                 .map(|&k| (k, scope.spawn(move || train_fold(k))))
                 .collect();
             for (k, handle) in handles {
-                reports[k] =
-                    Some(handle.join().unwrap_or_else(|_| {
+                reports.push(
+                    handle.join().unwrap_or_else(|_| {
                         Err(TrainError::BadConfig(format!("fold {k} panicked")))
-                    }));
+                    }),
+                );
             }
         });
     }
-    let reports = reports
-        .into_iter()
-        .map(|r| r.expect("every fold ran"))
-        .collect::<Result<Vec<_>, _>>()?;
+    let reports = reports.into_iter().collect::<Result<Vec<_>, _>>()?;
     let held_out: Vec<HeldOutPredictions> = reports
         .iter()
         .zip(groups)
