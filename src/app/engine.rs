@@ -14,12 +14,9 @@ use crate::audio::{
     Capture, DeviceChoice, Gate, MicControls, OutputStatus, PeerFeed, PeerId, Playback,
     PlaybackConfig, Schedule, ScheduleSender,
 };
-use crate::lipsync::jaw::JawBaseline;
-use crate::lipsync::mouth::VisemeShapes;
 use crate::lipsync::network::Model;
-use crate::lipsync::reproject::Reprojector;
 use crate::lipsync::visemes::{FullWeights, VisemeSet};
-use crate::lipsync::{Animator, ModelAnimator};
+use crate::lipsync::{LipSync, LipSyncOptions};
 use crate::net::peer::FrameKind;
 use crate::net::session::{PeerFrame, PeerInfo, Session, SessionConfig};
 use crate::net::srtp::MasterKey;
@@ -188,9 +185,9 @@ fn describe_output(status: &OutputStatus) -> String {
 }
 
 /// The shipped network, built once and shared by every peer's animator.
-fn shipped_model() -> Option<&'static Model> {
+fn shipped_model() -> &'static Model {
     static MODEL: std::sync::OnceLock<Model> = std::sync::OnceLock::new();
-    Some(MODEL.get_or_init(crate::lipsync::default_model))
+    MODEL.get_or_init(crate::lipsync::default_model)
 }
 
 /// The choices an animator is built from; a change rebuilds it.
@@ -215,54 +212,58 @@ impl AnimationKey {
     }
 }
 
-/// Turns one peer's decoded frames into weights over a chosen viseme set, or does nothing at
-/// all when the peer's animation is off.
+/// Turns one peer's decoded frames into weights over a chosen viseme set (the one receiver
+/// pipeline, [`LipSync`]), or does nothing at all when the peer's animation is off.
 pub struct PeerAnimation {
-    animator: Box<dyn Animator + Send>,
-    reprojector: Option<Reprojector>,
-    target: VisemeSet,
-    raw: Vec<f32>,
-    out: Vec<f32>,
+    lipsync: Option<LipSync<'static>>,
+    /// The set the weights are over (the lip sync's own, kept beside it).
+    target: Option<VisemeSet>,
     key: AnimationKey,
     pub frames_animated: u64,
 }
 
 impl PeerAnimation {
     pub fn new(prefs: &PeerPrefs) -> Self {
-        let animator: Box<dyn Animator + Send> = match (prefs.jaw, shipped_model()) {
-            (false, Some(model)) => {
-                Box::new(ModelAnimator::with_closure_bias(model, prefs.closures))
-            }
-            (true, Some(model)) => Box::new(JawBaseline::from_model(model)),
-            (_, None) => Box::new(JawBaseline::new(-60.0, -20.0)),
+        let model = shipped_model();
+        let options = LipSyncOptions {
+            jaw: prefs.jaw,
+            closure_bias: prefs.closures,
+            visemes: VisemeSet::parse(&prefs.visemes).ok(),
         };
-        let source = animator.visemes().clone();
-        let target = VisemeSet::parse(&prefs.visemes).unwrap_or_else(|_| source.clone());
-        let reprojector =
-            Reprojector::new(source.clone(), target.clone(), VisemeShapes::point_model()).ok();
-        let target = if reprojector.is_some() {
-            target
-        } else {
-            source.clone()
-        };
+        // A set the shapes cannot express falls back to the network's own.
+        let lipsync = LipSync::new(model, &options)
+            .or_else(|_| {
+                LipSync::new(
+                    model,
+                    &LipSyncOptions {
+                        visemes: None,
+                        ..options
+                    },
+                )
+            })
+            .ok();
         Self {
-            raw: vec![0.0; source.len()],
-            out: vec![0.0; target.len()],
-            animator,
-            reprojector,
-            target,
+            target: lipsync.as_ref().map(|l| l.visemes().clone()),
+            lipsync,
             key: AnimationKey::of(prefs),
             frames_animated: 0,
         }
     }
 
     /// The viseme set the weights are expressed over.
-    pub fn target(&self) -> &VisemeSet {
-        &self.target
+    pub fn target(&self) -> Option<&VisemeSet> {
+        self.target.as_ref()
     }
 
-    /// Weights for one frame, or `None` (and no network run) when animation is off.
-    pub fn step(&mut self, prefs: &PeerPrefs, features: &FrameFeatures) -> Option<FullWeights> {
+    /// Feeds one decoded frame, tagged with its stream position. Returns the weights of the
+    /// frame the network's look-ahead has now completed, with its tag, or `None` (and no
+    /// network run when animation is off).
+    pub fn step(
+        &mut self,
+        prefs: &PeerPrefs,
+        tag: u64,
+        features: &FrameFeatures,
+    ) -> Option<(u64, FullWeights)> {
         if !self.key.matches(prefs) {
             let count = self.frames_animated;
             *self = Self::new(prefs);
@@ -271,17 +272,17 @@ impl PeerAnimation {
         if !prefs.animate {
             return None;
         }
-        self.animator.animate(features, &mut self.raw);
-        let projected = self
-            .reprojector
-            .as_mut()
-            .is_some_and(|r| r.project(&self.raw, &mut self.out).is_ok());
-        if !projected {
-            let n = self.out.len();
-            self.out.copy_from_slice(&self.raw[..n]);
-        }
+        let lipsync = self.lipsync.as_mut()?;
         self.frames_animated += 1;
-        Some(self.target.to_full(&self.out))
+        let (tag, w) = lipsync.push(tag, features)?;
+        Some((tag, self.target.as_ref()?.to_full(w)))
+    }
+
+    /// The oldest frame still waiting for its look-ahead, now: the peer's next frame did not
+    /// come in time (loss, end of a talk spurt, the jitter buffer at its floor).
+    pub fn flush(&mut self) -> Option<(u64, FullWeights)> {
+        let (tag, w) = self.lipsync.as_mut()?.flush()?;
+        Some((tag, self.target.as_ref()?.to_full(w)))
     }
 }
 
@@ -654,13 +655,25 @@ impl Worker {
                 peer.last_voice = Some(now);
             }
             let t0 = Instant::now();
-            if let Some(w) = peer.animation.step(&prefs, &f.frame.features) {
+            let animated = peer.animation.frames_animated;
+            let out = peer.animation.step(&prefs, pos, &f.frame.features);
+            if peer.animation.frames_animated > animated {
                 self.counters
                     .network_ns
                     .fetch_add(t0.elapsed().as_nanos() as u64, Ordering::Relaxed);
                 self.counters
                     .frames_animated
                     .fetch_add(1, Ordering::Relaxed);
+            }
+            if let Some((pos, w)) = out {
+                peer.weights.send(pos, w);
+            }
+        }
+        // A peer without a frame this tick: its waiting frame goes out without its future.
+        for (ssrc, peer) in &mut self.peers {
+            if !frames.iter().any(|f| f.ssrc == *ssrc)
+                && let Some((pos, w)) = peer.animation.flush()
+            {
                 peer.weights.send(pos, w);
             }
         }

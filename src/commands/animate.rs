@@ -6,11 +6,9 @@ use std::path::{Path, PathBuf};
 use anyhow::{Context, Result, bail};
 
 use crate::audio::wav;
-use crate::lipsync::jaw::JawBaseline;
-use crate::lipsync::mouth::VisemeShapes;
-use crate::lipsync::reproject::Reprojector;
+use crate::lipsync::receiver::animate_stream;
 use crate::lipsync::visemes::VisemeSet;
-use crate::lipsync::{Animator, ModelAnimator};
+use crate::lipsync::{LipSync, LipSyncOptions};
 use crate::render::{self, FrameOptions, Framing, HeadModel};
 use crate::speex::codec::EncoderConfig;
 use crate::speex::features::FrameFeatures;
@@ -68,26 +66,18 @@ pub fn receiver_features(input: &Path) -> Result<(u32, Vec<i16>, Vec<FrameFeatur
 pub fn weight_track(args: &AnimateArgs) -> Result<Animation> {
     let (rate, pcm, features) = receiver_features(&args.input)?;
     let model = super::lipsync::load_model(args.model.as_deref())?;
-    let mut animator: Box<dyn Animator + '_> = if args.baseline_jaw {
-        Box::new(JawBaseline::from_model(&model))
-    } else {
-        Box::new(ModelAnimator::with_closure_bias(&model, args.closure_bias))
+    let visemes = match &args.visemes {
+        Some(arg) => Some(VisemeSet::parse(arg).with_context(|| format!("--visemes {arg}"))?),
+        None => None,
     };
-    let source = animator.visemes().clone();
-    let target = match &args.visemes {
-        Some(arg) => VisemeSet::parse(arg).with_context(|| format!("--visemes {arg}"))?,
-        None => source.clone(),
+    let options = LipSyncOptions {
+        jaw: args.baseline_jaw,
+        closure_bias: args.closure_bias,
+        visemes,
     };
-    let mut reprojector =
-        Reprojector::new(source.clone(), target.clone(), VisemeShapes::point_model())?;
-    let mut raw = vec![0.0f32; source.len()];
-    let mut rows = Vec::with_capacity(features.len());
-    for f in &features {
-        animator.animate(f, &mut raw);
-        let mut out = vec![0.0f32; target.len()];
-        reprojector.project(&raw, &mut out)?;
-        rows.push(out);
-    }
+    let mut lipsync = LipSync::new(&model, &options)?;
+    let rows = animate_stream(&mut lipsync, &features);
+    let target = lipsync.visemes().clone();
     Ok(Animation {
         visemes: target,
         rows,

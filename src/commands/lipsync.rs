@@ -20,7 +20,7 @@ use crate::train::corpus::{Corpus, PreparedUtterance, SpeakerSplit, Utterance};
 use crate::train::crossval::{SpeakerGroup, cross_validate, train_final};
 use crate::train::eval::{EvalReport, evaluate_prepared, write_frames};
 use crate::train::plot;
-use crate::train::trainer::{TrainConfig, train_on};
+use crate::train::trainer::{EpochStats, TrainConfig, train_on};
 
 const DEFAULT_CORPUS: &str = "../shared/data/timit-sample";
 
@@ -34,9 +34,16 @@ pub struct TrainArgs {
     pub visemes: String,
     #[arg(long, value_name = "H", default_value_t = recipe::HIDDEN)]
     pub hidden: usize,
-    /// Past frames fed besides the current one.
+    /// Frames fed besides the newest one.
     #[arg(long, value_name = "C", default_value_t = recipe::CONTEXT)]
     pub context: usize,
+    /// Of those, frames after the one the output describes (0..=2; each is 20 ms the
+    /// receiver's buffers hide).
+    #[arg(long, value_name = "L", default_value_t = recipe::LOOKAHEAD)]
+    pub lookahead: usize,
+    /// Per-speaker LSP normalisation over about this many speech frames; 0 = off.
+    #[arg(long, value_name = "FRAMES", default_value_t = recipe::SPEAKER_NORM_FRAMES)]
+    pub normalise: u32,
     /// Extra past frames of peak-relative energy (with dynamics).
     #[arg(long, value_name = "E", default_value_t = recipe::ENERGY_CONTEXT)]
     pub energy_context: usize,
@@ -60,6 +67,12 @@ pub struct TrainArgs {
     /// Weight of a squared-error term on mouth openness beside the KL loss; 0 = off.
     #[arg(long, value_name = "W", default_value_t = recipe::OPENNESS_WEIGHT)]
     pub openness_weight: f32,
+    /// The same for lip width (spread vs narrowed).
+    #[arg(long, value_name = "W", default_value_t = recipe::WIDTH_WEIGHT)]
+    pub width_weight: f32,
+    /// The same for lip rounding (protrusion).
+    #[arg(long, value_name = "W", default_value_t = recipe::ROUNDING_WEIGHT)]
+    pub rounding_weight: f32,
     /// Decoupled weight decay (AdamW), per step as a fraction of the learning rate; 0 = off.
     #[arg(long, value_name = "D", default_value_t = recipe::WEIGHT_DECAY)]
     pub weight_decay: f32,
@@ -224,6 +237,8 @@ fn train_config(args: &TrainArgs, split: &SpeakerSplit, snap: Option<f32>) -> Re
         visemes: VisemeSet::parse(&args.visemes).context("--visemes")?,
         shapes: VisemeShapes::point_model(),
         context: args.context,
+        lookahead: args.lookahead,
+        speaker_norm_frames: (args.normalise > 0).then_some(args.normalise),
         dynamics: (!args.no_dynamics).then_some(Dynamics {
             peak_decay_db: args.peak_decay,
             energy_context: args.energy_context,
@@ -242,6 +257,8 @@ fn train_config(args: &TrainArgs, split: &SpeakerSplit, snap: Option<f32>) -> Re
         warp: args.warp,
         weight_decay: args.weight_decay,
         openness_weight: args.openness_weight,
+        width_weight: args.width_weight,
+        rounding_weight: args.rounding_weight,
         utterances_per_speaker: args.utterances,
         curves_csv: args.curves.clone(),
         show_progress: !args.quiet,
@@ -293,14 +310,11 @@ pub fn train(args: &TrainArgs) -> Result<()> {
         report.model.closure_snap = threshold;
     }
     report.split = split.clone();
-    report.model.notes = vec![
-        "Derived from the TIMIT corpus sample (Copyright 1993 Linguistic Data Consortium, \
-         CC BY-NC-SA); see assets/models/README.md."
-            .into(),
-        format!(
-            "features: Speex NB round trip, training at {versions} rotating settings of \
-             qualities 3..10 and VBR 4/8, validation at quality {EVALUATION_QUALITY}"
-        ),
+    report.model.notes = provenance_notes(
+        versions,
+        &format!(", validation at quality {EVALUATION_QUALITY}"),
+    );
+    report.model.notes.extend([
         format!("training speakers: {}", split.train.join(" ")),
         format!("validation speakers: {}", split.validation.join(" ")),
         format!(
@@ -309,7 +323,7 @@ pub fn train(args: &TrainArgs) -> Result<()> {
             loss_note(&config),
             report.best_epoch
         ),
-    ];
+    ]);
     report
         .model
         .save(&args.out)
@@ -337,8 +351,25 @@ pub fn train(args: &TrainArgs) -> Result<()> {
     if let Some(path) = &args.curves {
         eprintln!("wrote the learning curves to {}", path.display());
     }
-    if let Some(path) = &args.plot {
-        plot::learning_curves(path, &report.curve)
+    plot_curves(args.plot.as_deref(), &report.curve)
+}
+
+/// The first notes of a trained model file: where its weights come from.
+fn provenance_notes(versions: usize, features_tail: &str) -> Vec<String> {
+    vec![
+        "Derived from the TIMIT corpus sample (Copyright 1993 Linguistic Data Consortium, \
+         CC BY-NC-SA); see assets/models/README.md."
+            .into(),
+        format!(
+            "features: Speex NB round trip, training at {versions} rotating settings of \
+             qualities 3..10 and VBR 4/8{features_tail}"
+        ),
+    ]
+}
+
+fn plot_curves(path: Option<&Path>, curve: &[EpochStats]) -> Result<()> {
+    if let Some(path) = path {
+        plot::learning_curves(path, curve)
             .with_context(|| format!("cannot plot to {}", path.display()))?;
         eprintln!(
             "wrote the learning-curve plot to {} (losses top, validation closure share and \
@@ -452,14 +483,8 @@ fn train_cross_validated(args: &TrainArgs) -> Result<()> {
         validation: Vec::new(),
         test: split.test.clone(),
     };
-    report.model.notes = vec![
-        "Derived from the TIMIT corpus sample (Copyright 1993 Linguistic Data Consortium, \
-         CC BY-NC-SA); see assets/models/README.md."
-            .into(),
-        format!(
-            "features: Speex NB round trip, training at {versions} rotating settings of \
-             qualities 3..10 and VBR 4/8"
-        ),
+    report.model.notes = provenance_notes(versions, "");
+    report.model.notes.extend([
         format!("training speakers: {}", report.split.train.join(" ")),
         format!(
             "cross-validated by dialect region: pooled held-out openness r {:.3}, /p b m/ closed \
@@ -475,7 +500,7 @@ fn train_cross_validated(args: &TrainArgs) -> Result<()> {
             cv.epochs,
             cv.closure_snap
         ),
-    ];
+    ]);
     report
         .model
         .save(&args.out)
@@ -488,12 +513,7 @@ fn train_cross_validated(args: &TrainArgs) -> Result<()> {
             path.display()
         );
     }
-    if let Some(path) = &args.plot {
-        plot::learning_curves(path, &report.curve)
-            .with_context(|| format!("cannot plot to {}", path.display()))?;
-        eprintln!("wrote the learning-curve plot to {}", path.display());
-    }
-    Ok(())
+    plot_curves(args.plot.as_deref(), &report.curve)
 }
 
 /// The model `--model` names, or the built-in one.

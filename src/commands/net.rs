@@ -8,7 +8,7 @@ use std::time::{Duration, Instant};
 use anyhow::{Context, Result, bail};
 
 use crate::audio::wav;
-use crate::lipsync::{self, Animator, ModelAnimator};
+use crate::lipsync::{self, LipSync, LipSyncOptions};
 use crate::net::relay::{Relay, RelayConfig};
 use crate::net::session::{PeerFrame, PeerInfo, Session, SessionConfig};
 use crate::net::split::split_frames;
@@ -234,11 +234,36 @@ struct Row {
     weights: Vec<f32>,
 }
 
-/// What the receiver keeps per remote speaker: its rows and, with `--weights`, its network state.
+/// What the receiver keeps per remote speaker: its rows and, with `--weights`, its lip sync.
 struct PeerTrack<'m> {
     ssrc: u32,
     rows: Vec<Row>,
-    animator: Option<ModelAnimator<'m>>,
+    lipsync: Option<LipSync<'m>>,
+}
+
+impl PeerTrack<'_> {
+    /// Weights the lip sync gave out (frame `tag` of this track) go into their row.
+    fn store(rows: &mut [Row], out: Option<(u64, &[f32])>) {
+        if let Some((tag, w)) = out
+            && let Some(row) = rows.get_mut(tag as usize)
+        {
+            row.weights.clear();
+            row.weights.extend_from_slice(w);
+        }
+    }
+
+    /// The frames still waiting for their look-ahead, given out now (the peer's next frame
+    /// did not come in time, or the call ended).
+    fn flush(&mut self, all: bool) {
+        if let Some(lipsync) = &mut self.lipsync {
+            while let Some(out) = lipsync.flush() {
+                Self::store(&mut self.rows, Some(out));
+                if !all {
+                    break;
+                }
+            }
+        }
+    }
 }
 
 pub fn receive(args: &ReceiveArgs) -> Result<()> {
@@ -313,25 +338,33 @@ pub fn receive_with(
             let slot = match tracks.iter().position(|t| t.ssrc == f.ssrc) {
                 Some(i) => i,
                 None => {
+                    let lipsync = match &model {
+                        Some(model) => Some(LipSync::new(model, &LipSyncOptions::default())?),
+                        None => None,
+                    };
                     tracks.push(PeerTrack {
                         ssrc: f.ssrc,
                         rows: Vec::new(),
-                        animator: model.as_ref().map(ModelAnimator::new),
+                        lipsync,
                     });
                     tracks.len() - 1
                 }
             };
             let track = &mut tracks[slot];
-            let mut weights = Vec::new();
-            if let Some(animator) = &mut track.animator {
-                weights.resize(animator.visemes().len(), 0.0);
-                animator.animate(&f.frame.features, &mut weights);
-            }
+            let tag = track.rows.len() as u64;
             track.rows.push(Row {
                 frame: index,
                 features: f.frame.features,
-                weights,
+                weights: Vec::new(),
             });
+            if let Some(lipsync) = &mut track.lipsync {
+                PeerTrack::store(&mut track.rows, lipsync.push(tag, &f.frame.features));
+            }
+        }
+        for track in &mut tracks {
+            if !frames.iter().any(|f| f.ssrc == track.ssrc) {
+                track.flush(false);
+            }
         }
         if !frames.is_empty() {
             last_audible = index + 1;
@@ -340,6 +373,9 @@ pub fn receive_with(
     }
     pcm.truncate(last_audible * FRAME_SIZE);
     session.leave();
+    for track in &mut tracks {
+        track.flush(true);
+    }
 
     let stats = session.stats();
     eprintln!(
@@ -375,7 +411,11 @@ pub fn receive_with(
         }
     }
     if let (Some(path), Some(model)) = (&args.weights, &model) {
-        let names = model.viseme_names();
+        let names: Vec<&str> = tracks
+            .first()
+            .and_then(|t| t.lipsync.as_ref())
+            .map(|l| l.visemes().members().iter().map(|v| v.name()).collect())
+            .unwrap_or_else(|| model.viseme_names());
         for (i, track) in tracks.iter().enumerate() {
             let target = if i == 0 {
                 path.clone()

@@ -9,11 +9,13 @@ pub mod markers;
 pub mod mouth;
 pub mod network;
 pub mod phones;
+pub mod receiver;
 pub mod recipe;
 pub mod reproject;
 pub mod visemes;
 
 pub use builtin::default_model;
+pub use receiver::{LipSync, LipSyncOptions};
 
 use crate::speex::features::FrameFeatures;
 use network::{InferenceState, Model};
@@ -24,8 +26,19 @@ pub trait Animator {
     fn visemes(&self) -> &VisemeSet;
     /// Starts a new stream (forget the past frames).
     fn reset(&mut self);
-    /// Writes weights over `self.visemes()` for the next frame into `weights`.
+    /// Feeds the next frame and writes weights over `self.visemes()` into `weights`: those of
+    /// the frame fed `self.lookahead()` calls ago.
     fn animate(&mut self, features: &FrameFeatures, weights: &mut [f32]);
+    /// Frames the output lags the input (the future frames it looks at).
+    fn lookahead(&self) -> usize {
+        0
+    }
+    /// The weights [`Animator::animate`] would write if `extra` more frames, each a repeat of
+    /// the last one fed, were fed now; changes no state. The fallback for a frame whose future
+    /// has not arrived in time.
+    fn peek(&mut self, extra: usize, weights: &mut [f32]) {
+        let _ = (extra, weights);
+    }
 }
 
 /// A trained model with its per-stream state.
@@ -33,6 +46,9 @@ pub trait Animator {
 pub struct ModelAnimator<'a> {
     model: &'a Model,
     state: InferenceState,
+    /// Scratch for [`Animator::peek`], so the fallback allocates nothing.
+    scratch: InferenceState,
+    last: FrameFeatures,
     closure_snap: f32,
 }
 
@@ -43,9 +59,12 @@ impl<'a> ModelAnimator<'a> {
 
     /// With another closure-snap threshold than the model's (0 = no snapping).
     pub fn with_closure_snap(model: &'a Model, closure_snap: f32) -> Self {
+        let state = model.new_state();
         Self {
             model,
-            state: model.new_state(),
+            scratch: state.clone(),
+            state,
+            last: network::silence_features(),
             closure_snap,
         }
     }
@@ -75,11 +94,26 @@ impl Animator for ModelAnimator<'_> {
 
     fn reset(&mut self) {
         self.model.reset(&mut self.state);
+        self.last = network::silence_features();
     }
 
     fn animate(&mut self, features: &FrameFeatures, weights: &mut [f32]) {
+        self.last = *features;
         self.model
             .step_with_snap(&mut self.state, features, weights, self.closure_snap);
+    }
+
+    fn lookahead(&self) -> usize {
+        self.model.lookahead
+    }
+
+    fn peek(&mut self, extra: usize, weights: &mut [f32]) {
+        self.scratch.copy_from(&self.state);
+        for _ in 0..extra {
+            self.model.push_frame(&mut self.scratch, &self.last);
+        }
+        self.model
+            .infer(&mut self.scratch, weights, self.closure_snap);
     }
 }
 

@@ -52,6 +52,50 @@ impl Articulation {
     pub fn openness(&self) -> f32 {
         0.5 * (self.jaw + self.lip_aperture)
     }
+
+    /// Lip rounding: the protrusion of the lips (0 none, 1 a fully rounded /u/).
+    pub fn rounding(&self) -> f32 {
+        self.protrusion
+    }
+
+    /// The three continuous targets lipreaders see, in [`Cue`] order.
+    pub fn cues(&self) -> [f32; CUE_COUNT] {
+        [self.openness(), self.width, self.rounding()]
+    }
+}
+
+/// The articulatory dimensions the network is trained on and scored by, beside the visemes.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum Cue {
+    Openness,
+    /// Spread (+) or narrowed (-) lips.
+    Width,
+    Rounding,
+}
+
+pub const CUE_COUNT: usize = 3;
+
+impl Cue {
+    pub const ALL: [Cue; CUE_COUNT] = [Cue::Openness, Cue::Width, Cue::Rounding];
+
+    pub fn name(self) -> &'static str {
+        match self {
+            Cue::Openness => "openness",
+            Cue::Width => "width",
+            Cue::Rounding => "rounding",
+        }
+    }
+}
+
+/// Openness, width and rounding of convex weights over `set` (each linear in the weights).
+pub fn cues(set: &VisemeSet, weights: &[f32]) -> [f32; CUE_COUNT] {
+    let mut out = [0.0; CUE_COUNT];
+    for (v, w) in set.members().iter().zip(weights) {
+        for (o, c) in out.iter_mut().zip(Articulation::of(*v).cues()) {
+            *o += w * c;
+        }
+    }
+    out
 }
 
 /// Lip aperture below which the lips count as closed: 10 % of the full opening (about 1 mm on

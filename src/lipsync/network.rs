@@ -6,9 +6,14 @@
 //!
 //! ```text
 //! # any number of comment lines (kept as notes), e.g. what the weights were trained on
-//! lipcall-viseme-mlp 2
+//! lipcall-viseme-mlp 3
 //! visemes PP aa I O E FF        names from the 15, in output order
-//! context 2                     past frames fed besides the current one
+//! context 2                     frames fed besides the newest one
+//! lookahead 1                   (version 3) of those frames, how many lie after the frame the
+//!                               output describes (0: the output describes the newest frame)
+//! normalise 150 <10 numbers>    (version 3) per-speaker LSP normalisation: the running mean of
+//!                               the speech frames' LSPs (over about 150 of them, starting
+//!                               from the 10 prior means) is replaced by the prior; `off`
 //! dynamics 0.15 6               (version 2) peak decay dB/frame, extra energy-only past frames;
 //!                               `dynamics off` for the 11 raw features only
 //! closure_snap 0.55             (version 2) closed-viseme weight that snaps to a full closure;
@@ -23,7 +28,8 @@
 //! end
 //! ```
 //!
-//! Version 1 files (no `dynamics` and `closure_snap` lines) still load, as raw-feature models.
+//! Version 1 files (no `dynamics` and `closure_snap` lines) still load, as raw-feature models;
+//! version 2 files (no `lookahead` line) as models without look-ahead.
 //!
 //! Inputs are ordered frame by frame, newest first: the current frame's values (11 raw, or 13
 //! with dynamics: the raw ones, the energy relative to a running peak and the energy change from
@@ -35,6 +41,7 @@ use std::fmt::Write as _;
 use std::path::Path;
 
 use super::visemes::{Viseme, VisemeError, VisemeSet};
+use crate::speex::LSP_COUNT;
 use crate::speex::features::{FrameFeatures, SILENCE_DB};
 
 /// Features per frame: 10 LSPs and the energy.
@@ -49,8 +56,13 @@ pub const CLOSURE_BIAS_SPAN: f32 = 0.1;
 pub const MULTIPLY_ADD_BUDGET: usize = 400;
 
 const MAGIC: &str = "lipcall-viseme-mlp";
-const VERSION: &str = "2";
+const VERSION: &str = "3";
+const VERSION_TWO: &str = "2";
 const OLD_VERSION: &str = "1";
+/// The largest weight, bias or scale a model file may hold.
+const MAX_PARAMETER: f32 = 1.0e4;
+/// Look-ahead frames a model may use: each costs 20 ms that the receiver's buffers must hide.
+pub const MAX_LOOKAHEAD: usize = 2;
 const MAX_CONTEXT: usize = 32;
 const MAX_HIDDEN: usize = 1024;
 
@@ -137,8 +149,13 @@ pub fn frame_width(dynamics: Option<Dynamics>) -> usize {
 pub struct Model {
     pub visemes: VisemeSet,
     pub scaling: InputScaling,
-    /// Past frames used besides the current one (no look-ahead).
+    /// Frames fed besides the newest one.
     pub context: usize,
+    /// How many of the fed frames lie after the frame the output describes: the weights of
+    /// frame n come out when frame n + lookahead is pushed (at most `context`).
+    pub lookahead: usize,
+    /// Causal per-speaker normalisation of the LSPs (version 3).
+    pub speaker_norm: Option<SpeakerNorm>,
     /// Energy-derived inputs (version 2); `None` for the paper's raw 11 features.
     pub dynamics: Option<Dynamics>,
     /// When the closed viseme's weight reaches this, the output snaps to a full closure
@@ -165,12 +182,67 @@ pub struct InferenceState {
     previous_db: f32,
     /// Scaled peak-relative energies, newest first, `1 + context + energy_context` of them.
     relative: Vec<f32>,
+    /// The speaker's running LSP means and the speech frames they have seen.
+    lsp_mean: [f32; LSP_COUNT],
+    speech_frames: u32,
+}
+
+/// Causal per-speaker normalisation: a voice's LSPs sit higher or lower (vocal tract length,
+/// microphone, codec) as a whole. The receiver follows the speaker's mean LSPs over speech
+/// frames and moves every frame by the difference to the training speakers' mean, so a new voice
+/// settles within a few seconds of speech.
+#[derive(Debug, Clone, PartialEq)]
+pub struct SpeakerNorm {
+    /// Speech frames the running mean spans once settled.
+    pub frames: u32,
+    /// The training speakers' mean LSPs, where every speaker starts.
+    pub prior: [f32; LSP_COUNT],
+}
+
+/// The prior counts as this many speech frames of the speaker's own.
+const NORM_PRIOR_FRAMES: u32 = 25;
+/// Frames this far below the running peak (or below the floor) are not speech.
+const NORM_SPEECH_BELOW_PEAK_DB: f32 = 25.0;
+const MAX_NORM_FRAMES: u32 = 100_000;
+
+impl SpeakerNorm {
+    fn update(&self, state: &mut InferenceState, energy_db: f32, features: &mut FrameFeatures) {
+        let speech = energy_db > PEAK_FLOOR_DB
+            && energy_db > state.peak_db - NORM_SPEECH_BELOW_PEAK_DB
+            && features.lsp.iter().all(|l| l.is_finite());
+        if speech {
+            state.speech_frames = state.speech_frames.saturating_add(1);
+            let span = NORM_PRIOR_FRAMES + state.speech_frames.min(self.frames);
+            for (m, x) in state.lsp_mean.iter_mut().zip(&features.lsp) {
+                *m += (x - *m) / span as f32;
+            }
+        }
+        for ((x, m), p) in features
+            .lsp
+            .iter_mut()
+            .zip(&state.lsp_mean)
+            .zip(&self.prior)
+        {
+            *x += p - m;
+        }
+    }
 }
 
 impl InferenceState {
     /// The network's input vector after the last frame pushed.
     pub fn input(&self) -> &[f32] {
         &self.input
+    }
+
+    /// Becomes a copy of `other` (a state of the same model) without allocating.
+    pub fn copy_from(&mut self, other: &Self) {
+        self.input.clone_from_slice(&other.input);
+        self.hidden.clone_from_slice(&other.hidden);
+        self.relative.clone_from_slice(&other.relative);
+        self.peak_db = other.peak_db;
+        self.previous_db = other.previous_db;
+        self.lsp_mean = other.lsp_mean;
+        self.speech_frames = other.speech_frames;
     }
 }
 
@@ -194,6 +266,8 @@ impl Model {
             visemes,
             scaling,
             context,
+            lookahead: 0,
+            speaker_norm: None,
             dynamics,
             closure_snap: 0.0,
             hidden,
@@ -239,6 +313,8 @@ impl Model {
             peak_db: PEAK_FLOOR_DB,
             previous_db: SILENCE_DB,
             relative: vec![0.0; relative_len],
+            lsp_mean: [0.0; LSP_COUNT],
+            speech_frames: 0,
         };
         self.reset(&mut state);
         state
@@ -248,6 +324,10 @@ impl Model {
     pub fn reset(&self, state: &mut InferenceState) {
         state.peak_db = PEAK_FLOOR_DB;
         state.previous_db = SILENCE_DB;
+        state.speech_frames = 0;
+        if let Some(norm) = &self.speaker_norm {
+            state.lsp_mean = norm.prior;
+        }
         let silence = silence_features();
         let mut silent = [0.0; FEATURES_PER_FRAME + 2];
         let width = frame_width(self.dynamics);
@@ -270,19 +350,30 @@ impl Model {
         let width = frame_width(self.dynamics);
         let frames = width * (1 + self.context);
         state.input.copy_within(0..frames - width, width);
-        self.scaling
-            .apply(features, &mut state.input[..FEATURES_PER_FRAME]);
-        let Some(dynamics) = self.dynamics else {
-            return;
-        };
         let energy = if features.energy_db.is_nan() {
             SILENCE_DB
         } else {
             features.energy_db.max(SILENCE_DB)
         };
-        state.peak_db = energy
-            .max(state.peak_db - dynamics.peak_decay_db)
-            .max(PEAK_FLOOR_DB);
+        if let Some(dynamics) = self.dynamics {
+            state.peak_db = energy
+                .max(state.peak_db - dynamics.peak_decay_db)
+                .max(PEAK_FLOOR_DB);
+        }
+        match &self.speaker_norm {
+            Some(norm) => {
+                let mut normalised = *features;
+                norm.update(state, energy, &mut normalised);
+                self.scaling
+                    .apply(&normalised, &mut state.input[..FEATURES_PER_FRAME]);
+            }
+            None => self
+                .scaling
+                .apply(features, &mut state.input[..FEATURES_PER_FRAME]),
+        }
+        if self.dynamics.is_none() {
+            return;
+        }
         let relative = scale_relative(energy - state.peak_db);
         let delta = ((energy - state.previous_db) / DELTA_SPAN_DB).clamp(-1.0, 1.0);
         state.previous_db = energy;
@@ -310,6 +401,11 @@ impl Model {
         closure_snap: f32,
     ) {
         self.push_frame(state, features);
+        self.infer(state, weights, closure_snap);
+    }
+
+    /// The weights for the frames already pushed (no new frame).
+    pub fn infer(&self, state: &mut InferenceState, weights: &mut [f32], closure_snap: f32) {
         self.forward(&state.input, &mut state.hidden, weights);
         self.snap_with(weights, closure_snap);
     }
@@ -378,6 +474,17 @@ impl Model {
         let _ = writeln!(text, "{MAGIC} {VERSION}");
         let _ = writeln!(text, "visemes {}", self.viseme_names().join(" "));
         let _ = writeln!(text, "context {}", self.context);
+        let _ = writeln!(text, "lookahead {}", self.lookahead);
+        match &self.speaker_norm {
+            Some(norm) => {
+                let _ = write!(text, "normalise {}", norm.frames);
+                for p in norm.prior {
+                    let _ = write!(text, " {p}");
+                }
+                text.push('\n');
+            }
+            None => text.push_str("normalise off\n"),
+        }
         match self.dynamics {
             Some(d) => {
                 let _ = writeln!(text, "dynamics {} {}", d.peak_decay_db, d.energy_context);
@@ -436,9 +543,10 @@ impl Model {
             ModelError::UnexpectedKey { .. } | ModelError::Truncated(_) => ModelError::NotAModel,
             other => other,
         })?;
-        let version_two = match version[..] {
-            [v] if v == VERSION => true,
-            [v] if v == OLD_VERSION => false,
+        let (version_two, version_three) = match version[..] {
+            [v] if v == VERSION => (true, true),
+            [v] if v == VERSION_TWO => (true, false),
+            [v] if v == OLD_VERSION => (false, false),
             _ => {
                 return Err(ModelError::Version {
                     line,
@@ -450,6 +558,59 @@ impl Model {
         let visemes = VisemeSet::parse(&names.join(","))
             .map_err(|error| ModelError::Visemes { line, error })?;
         let context = parse_size(next("context")?, "context", MAX_CONTEXT)?;
+        let lookahead = if version_three {
+            let (line, words) = next("lookahead")?;
+            let lookahead = parse_size((line, words), "lookahead", MAX_LOOKAHEAD)?;
+            if lookahead > context {
+                return Err(ModelError::OutOfRange {
+                    line,
+                    key: "lookahead",
+                    value: lookahead,
+                    max: context,
+                });
+            }
+            lookahead
+        } else {
+            0
+        };
+        let speaker_norm = if version_three {
+            let (line, words) = next("normalise")?;
+            match words[..] {
+                ["off"] => None,
+                [frames, ..] => {
+                    let frames =
+                        parse_size((line, vec![frames]), "normalise", MAX_NORM_FRAMES as usize)?;
+                    let prior = parse_floats((line, words[1..].to_vec()), "normalise", LSP_COUNT)?;
+                    if frames == 0
+                        || prior
+                            .iter()
+                            .any(|p| !(0.0..=std::f32::consts::PI).contains(p))
+                    {
+                        return Err(ModelError::BadNumber {
+                            line,
+                            key: "normalise",
+                            text: words.join(" "),
+                        });
+                    }
+                    let mut norm = SpeakerNorm {
+                        frames: frames as u32,
+                        prior: [0.0; LSP_COUNT],
+                    };
+                    norm.prior.copy_from_slice(&prior);
+                    Some(norm)
+                }
+                [] => {
+                    return Err(ModelError::WrongCount {
+                        line,
+                        key: "normalise",
+                        expected: 1 + LSP_COUNT,
+                        found: 0,
+                    });
+                }
+            }
+        } else {
+            None
+        };
         let (dynamics, closure_snap) = if version_two {
             let (line, words) = next("dynamics")?;
             let dynamics = match words[..] {
@@ -518,6 +679,8 @@ impl Model {
             visemes,
             scaling,
             context,
+            lookahead,
+            speaker_norm,
             dynamics,
             closure_snap,
             hidden,
@@ -641,7 +804,8 @@ fn parse_floats(
     words
         .iter()
         .map(|word| match word.parse::<f32>() {
-            Ok(v) if v.is_finite() => Ok(v),
+            // Larger weights overflow the logits into NaN; no trained network comes near.
+            Ok(v) if v.abs() <= MAX_PARAMETER => Ok(v),
             _ => Err(ModelError::BadNumber {
                 line,
                 key,
@@ -655,7 +819,7 @@ fn parse_floats(
 pub enum ModelError {
     #[error("not a lipcall viseme model (the first line must be `{MAGIC} {VERSION}`)")]
     NotAModel,
-    #[error("line {line}: unsupported model version {found:?} (this build reads {VERSION})")]
+    #[error("line {line}: unsupported model version {found:?} (this build reads 1 to {VERSION})")]
     Version { line: usize, found: String },
     #[error("model file ends early: `{0}` is missing")]
     Truncated(&'static str),
@@ -678,7 +842,7 @@ pub enum ModelError {
         key: &'static str,
         text: String,
     },
-    #[error("line {line}: `{key}` {value} is out of range (1..={max})")]
+    #[error("line {line}: `{key}` {value} is out of range (at most {max})")]
     OutOfRange {
         line: usize,
         key: &'static str,
@@ -752,8 +916,15 @@ mod tests {
     fn model_file_round_trips_exactly() {
         let model = sample_model();
         let text = model.to_text();
-        assert!(text.starts_with("# test weights\nlipcall-viseme-mlp 2\nvisemes PP aa I\n"));
+        assert!(text.starts_with("# test weights\nlipcall-viseme-mlp 3\nvisemes PP aa I\n"));
         assert_eq!(Model::from_text(&text).unwrap(), model);
+        let mut ahead = model.clone();
+        ahead.lookahead = 1;
+        ahead.speaker_norm = Some(SpeakerNorm {
+            frames: 150,
+            prior: silence_features().lsp,
+        });
+        assert_eq!(Model::from_text(&ahead.to_text()).unwrap(), ahead);
     }
 
     #[test]
@@ -775,7 +946,12 @@ mod tests {
             Err(ModelError::NotAModel)
         ));
         let cases = [
-            ("lipcall-viseme-mlp 2\n", "lipcall-viseme-mlp 3\n"),
+            ("lipcall-viseme-mlp 3\n", "lipcall-viseme-mlp 4\n"),
+            ("lookahead 0", "lookahead 3"),
+            ("lookahead 0", "lookahead 1 1"),
+            ("normalise off", "normalise 150 1 2"),
+            ("normalise off", "normalise 0 1 2 3 4 5 6 7 8 9 10"),
+            ("normalise off", "normalise"),
             ("dynamics off", "dynamics 1"),
             ("closure_snap 0", "closure_snap 2"),
             ("visemes PP aa I", "visemes PP xx I"),
@@ -788,7 +964,7 @@ mod tests {
             let broken = text.replacen(from, to, 1);
             assert!(Model::from_text(&broken).is_err(), "accepted {to:?}");
         }
-        for bad in ["1e999", "NaN", "x"] {
+        for bad in ["1e999", "NaN", "x", "3e38"] {
             let broken: Vec<String> = text
                 .lines()
                 .map(|line| match line.strip_prefix("b1 ") {
@@ -847,7 +1023,12 @@ mod tests {
 
     #[test]
     fn version_one_files_load_as_raw_feature_models() {
-        let v2 = sample_model().to_text();
+        let v3 = sample_model().to_text();
+        let v2 = v3
+            .replace("lipcall-viseme-mlp 3", "lipcall-viseme-mlp 2")
+            .replace("lookahead 0\n", "")
+            .replace("normalise off\n", "");
+        assert_eq!(Model::from_text(&v2).unwrap(), sample_model());
         let v1 = v2
             .replace("lipcall-viseme-mlp 2", "lipcall-viseme-mlp 1")
             .replace("dynamics off\n", "")
@@ -855,6 +1036,58 @@ mod tests {
         let model = Model::from_text(&v1).unwrap();
         assert_eq!(model, sample_model());
         assert_eq!(model.dynamics, None);
+    }
+
+    #[test]
+    fn speaker_normalisation_takes_out_a_voices_offset_within_seconds() {
+        let dynamics = Some(Dynamics {
+            peak_decay_db: 0.15,
+            energy_context: 0,
+        });
+        let mut model = Model::zeros_with(
+            VisemeSet::reduced(3).unwrap(),
+            InputScaling::new(-70.0, -10.0),
+            0,
+            dynamics,
+            2,
+        );
+        let prior = silence_features().lsp;
+        model.speaker_norm = Some(SpeakerNorm { frames: 150, prior });
+        let voice = |shift: f32, n: usize| {
+            let mut f = silence_features();
+            f.energy_db = -25.0;
+            for (i, l) in f.lsp.iter_mut().enumerate() {
+                *l += shift + 0.05 * ((n + i) % 3) as f32;
+            }
+            f
+        };
+        let run = |model: &Model, shift: f32, frames: usize| {
+            let mut state = model.new_state();
+            for n in 0..frames {
+                model.push_frame(&mut state, &voice(shift, n));
+            }
+            state.input()[..LSP_COUNT].to_vec()
+        };
+        let gap = |a: &[f32], b: &[f32]| {
+            a.iter()
+                .zip(b)
+                .map(|(x, y)| (x - y).abs())
+                .fold(0.0, f32::max)
+        };
+        // Three seconds of speech: the lower voice's inputs meet the prior voice's.
+        assert!(gap(&run(&model, 0.0, 150), &run(&model, -0.08, 150)) < 0.01);
+        // Without it they stay apart.
+        let mut plain = model.clone();
+        plain.speaker_norm = None;
+        assert!(gap(&run(&plain, 0.0, 150), &run(&plain, -0.08, 150)) > 0.05);
+        // Silence does not move the mean.
+        let mut state = model.new_state();
+        let mut quiet = voice(-0.3, 0);
+        quiet.energy_db = -90.0;
+        for _ in 0..100 {
+            model.push_frame(&mut state, &quiet);
+        }
+        assert_eq!(state.lsp_mean, prior);
     }
 
     #[test]

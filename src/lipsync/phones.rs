@@ -81,6 +81,55 @@ pub fn is_bilabial(phone: &str) -> bool {
     matches!(phone, "p" | "b" | "m" | "em" | "pcl" | "bcl")
 }
 
+/// Phone classes whose segments the evaluation checks one by one: does the mouth show them?
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum CueClass {
+    /// /aa ae ah ax ay aw/: the mouth should open wide.
+    OpenVowel,
+    /// /uw ux uh ow oy ao w/: the lips should round.
+    Rounded,
+    /// /f v/: the lower lip should go under the upper teeth.
+    Labiodental,
+}
+
+impl CueClass {
+    pub const ALL: [CueClass; 3] = [
+        CueClass::OpenVowel,
+        CueClass::Rounded,
+        CueClass::Labiodental,
+    ];
+
+    /// The class of a phone, if it has one.
+    pub fn of(phone: &str) -> Option<Self> {
+        match phone {
+            "aa" | "ae" | "ah" | "ax" | "ay" | "aw" => Some(CueClass::OpenVowel),
+            "uw" | "ux" | "uh" | "ow" | "oy" | "ao" | "w" => Some(CueClass::Rounded),
+            "f" | "v" => Some(CueClass::Labiodental),
+            _ => None,
+        }
+    }
+
+    /// Segments shorter than this are not scored (too short to see).
+    pub fn min_seconds(self) -> f64 {
+        match self {
+            CueClass::OpenVowel | CueClass::Rounded => 0.06,
+            CueClass::Labiodental => 0.04,
+        }
+    }
+
+    /// Frames of slack on each side of a segment (the /f v/ lip can lead or lag by 20 ms).
+    pub fn slack_frames(self) -> usize {
+        match self {
+            CueClass::OpenVowel | CueClass::Rounded => 0,
+            CueClass::Labiodental => 1,
+        }
+    }
+
+    pub fn index(self) -> usize {
+        self as usize
+    }
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -109,5 +158,18 @@ mod tests {
             assert_eq!(phone_target(phone), Ok(PhoneTarget::Single(Viseme::PP)));
         }
         assert!(!is_bilabial("f"));
+    }
+
+    #[test]
+    fn cue_classes_are_timit_phones() {
+        for phone in TIMIT_PHONES.split_whitespace() {
+            if let Some(class) = CueClass::of(phone) {
+                assert!(phone_target(phone).is_ok());
+                assert!(class.min_seconds() >= 0.04);
+            }
+        }
+        assert_eq!(CueClass::of("w"), Some(CueClass::Rounded));
+        assert_eq!(CueClass::of("v"), Some(CueClass::Labiodental));
+        assert_eq!(CueClass::of("iy"), None);
     }
 }

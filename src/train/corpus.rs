@@ -6,7 +6,7 @@ use std::ops::Range;
 use std::path::{Path, PathBuf};
 
 use crate::lipsync::coarticulation::{FRAME_SECONDS, TimedTarget, frame_targets};
-use crate::lipsync::phones::{UnknownPhone, is_bilabial, phone_target};
+use crate::lipsync::phones::{CueClass, UnknownPhone, is_bilabial, phone_target};
 use crate::lipsync::visemes::FullWeights;
 use crate::speex::features::FrameFeatures;
 
@@ -270,6 +270,9 @@ pub struct UtteranceTargets {
     /// Frames where closed lips are expected or harmless: bilabials and silences, widened by
     /// [`CLOSURE_MARGIN_FRAMES`] on each side. A closure anywhere else is a false closure.
     pub closure_allowed: Vec<bool>,
+    /// Frames of each open-vowel, rounded and /f v/ segment long enough to be scored (with the
+    /// class's slack on each side), for the per-segment cue scores.
+    pub cue_segments: Vec<(CueClass, Range<usize>)>,
 }
 
 /// Frames around a bilabial or a silence in which the lips may still be closing or opening.
@@ -292,6 +295,10 @@ impl UtteranceTargets {
             seg.end = seg.end.min(frames);
         }
         self.bilabial_segments.retain(|s| !s.is_empty());
+        for (_, seg) in &mut self.cue_segments {
+            seg.end = seg.end.min(frames);
+        }
+        self.cue_segments.retain(|(_, s)| !s.is_empty());
     }
 
     /// Whether frame `n` lies in a bilabial segment.
@@ -351,10 +358,24 @@ pub fn targets_from_phones(
             closure_allowed[from..to].fill(true);
         }
     }
+    let cue_segments = phones
+        .iter()
+        .filter_map(|p| {
+            let class = CueClass::of(&p.phone)?;
+            if seconds(p.end) - seconds(p.start) < class.min_seconds() - 1e-9 {
+                return None;
+            }
+            let slack = class.slack_frames();
+            let frames = first_frame(p.start).saturating_sub(slack)
+                ..(end_frame(p.end) + slack).min(frame_count);
+            (!frames.is_empty()).then_some((class, frames))
+        })
+        .collect();
     Ok(UtteranceTargets {
         weights: frame_targets(&timed, frame_count),
         bilabial_segments,
         closure_allowed,
+        cue_segments,
     })
 }
 

@@ -5,6 +5,12 @@
 //! - Frame accuracy: the predicted argmax viseme equals the target's argmax over the 15 visemes
 //!   (a reduced set can only ever be right on the visemes it has).
 //! - Openness r: Pearson correlation of predicted and target mouth openness (jaw + aperture).
+//! - Width r, rounding r: the same for lip width (spread +, narrowed -) and rounding
+//!   (protrusion), from the design brief's viseme table ([`cues`]).
+//! - Cue segments: the share of open-vowel segments (/aa ae ah ax ay aw/, >= 60 ms) whose
+//!   openness exceeds 0.5, of rounded ones (/uw ux uh ow oy ao w/, >= 60 ms) whose rounding
+//!   exceeds 0.3, and of /f v/ (>= 40 ms, +-20 ms) whose FF weight reaches 0.3, somewhere in the
+//!   segment.
 //! - Closures: the share of /p b m/ segments with at least one frame whose lip aperture is below
 //!   [`CLOSED_APERTURE`]; false closures: the share of frames that are at least
 //!   `CLOSURE_MARGIN_FRAMES` away from any bilabial or silence and still closed.
@@ -13,8 +19,11 @@ use std::fmt;
 
 use crate::lipsync::decompose::{PointTrack, eq1_error, important_points};
 use crate::lipsync::jaw::JawBaseline;
-use crate::lipsync::mouth::{CLOSED_APERTURE, ShapeError, VisemeShapes, lip_aperture, openness};
+use crate::lipsync::mouth::{
+    CLOSED_APERTURE, CUE_COUNT, Cue, ShapeError, VisemeShapes, cues, lip_aperture, openness,
+};
 use crate::lipsync::network::Model;
+use crate::lipsync::phones::CueClass;
 use crate::lipsync::visemes::{Viseme, VisemeSet};
 use crate::lipsync::{Animator, ModelAnimator};
 use crate::train::corpus::{Corpus, CorpusError, FeatureFn, PreparedUtterance, prepare};
@@ -47,11 +56,27 @@ pub struct Scores {
     pub bilabial_segments: usize,
     pub closed_segments: usize,
     pub false_closure_rate: f64,
+    /// Pearson r of width and of rounding (openness is `openness_r`).
+    pub width_r: f64,
+    pub rounding_r: f64,
+    /// Per [`CueClass`]: segments scored, and segments in which the mouth showed the cue.
+    pub cue_segments: [usize; 3],
+    pub cue_shown: [usize; 3],
 }
+
+/// What a segment of each [`CueClass`] must reach somewhere to count as shown.
+pub const OPEN_VOWEL_OPENNESS: f32 = 0.5;
+pub const ROUNDED_ROUNDING: f32 = 0.3;
+pub const LABIODENTAL_WEIGHT: f32 = 0.3;
 
 impl Scores {
     pub fn closure_share(&self) -> f64 {
         self.closed_segments as f64 / self.bilabial_segments.max(1) as f64
+    }
+
+    /// The share of `class` segments in which the mouth showed the cue.
+    pub fn cue_share(&self, class: CueClass) -> f64 {
+        self.cue_shown[class.index()] as f64 / self.cue_segments[class.index()].max(1) as f64
     }
 }
 
@@ -83,12 +108,16 @@ pub fn score(
     let mut target_points = PointTrack::new(shapes.point_dim(), shapes.coords());
     let mut predicted_points = PointTrack::new(shapes.point_dim(), shapes.coords());
     let mut frame = vec![0.0; shapes.coords()];
-    let (mut target_open, mut predicted_open) = (Vec::new(), Vec::new());
+    let mut target_cues: [Vec<f64>; CUE_COUNT] = Default::default();
+    let mut predicted_cues: [Vec<f64>; CUE_COUNT] = Default::default();
     let (mut correct, mut segments, mut closed_segments) = (0usize, 0usize, 0usize);
     let (mut elsewhere, mut false_closed) = (0usize, 0usize);
+    let (mut cue_segments, mut cue_shown) = ([0usize; 3], [0usize; 3]);
+    let labiodental = set.position(Viseme::FF);
     for (utt, predicted) in utterances.iter().zip(predictions) {
         let targets = &utt.targets;
         let mut closed = Vec::with_capacity(targets.len());
+        let mut shown = Vec::with_capacity(targets.len());
         for (n, (target, weights)) in targets
             .weights
             .iter()
@@ -99,8 +128,16 @@ pub fn score(
             target_points.push(&frame).expect("shape length");
             shapes.blend_into(set, weights, &mut frame)?;
             predicted_points.push(&frame).expect("shape length");
-            target_open.push(openness(&full, target) as f64);
-            predicted_open.push(openness(set, weights) as f64);
+            let predicted = cues(set, weights);
+            for (i, (t, p)) in cues(&full, target).iter().zip(predicted).enumerate() {
+                target_cues[i].push(*t as f64);
+                predicted_cues[i].push(p as f64);
+            }
+            shown.push([
+                predicted[Cue::Openness as usize] > OPEN_VOWEL_OPENNESS,
+                predicted[Cue::Rounding as usize] > ROUNDED_ROUNDING,
+                labiodental.is_some_and(|i| weights[i] >= LABIODENTAL_WEIGHT),
+            ]);
             if argmax_viseme(set, weights) == argmax_viseme(&full, target) {
                 correct += 1;
             }
@@ -114,6 +151,11 @@ pub fn score(
         for seg in &targets.bilabial_segments {
             segments += 1;
             closed_segments += usize::from(closed[seg.clone()].iter().any(|&c| c));
+        }
+        for (class, seg) in &targets.cue_segments {
+            let i = class.index();
+            cue_segments[i] += 1;
+            cue_shown[i] += usize::from(shown[seg.clone()].iter().any(|s| s[i]));
         }
     }
     let frames = target_points.len();
@@ -130,10 +172,14 @@ pub fn score(
             &sigmas,
         ),
         frame_accuracy: correct as f64 / frames as f64,
-        openness_r: pearson(&target_open, &predicted_open),
+        openness_r: pearson(&target_cues[0], &predicted_cues[0]),
         bilabial_segments: segments,
         closed_segments,
         false_closure_rate: false_closed as f64 / elsewhere.max(1) as f64,
+        width_r: pearson(&target_cues[1], &predicted_cues[1]),
+        rounding_r: pearson(&target_cues[2], &predicted_cues[2]),
+        cue_segments,
+        cue_shown,
     })
 }
 
@@ -146,16 +192,32 @@ fn argmax_viseme(set: &VisemeSet, weights: &[f32]) -> Viseme {
     set.members()[best.0]
 }
 
-/// Runs an animator over every utterance (reset at each start).
+/// Runs an animator over every utterance (reset at each new speaker), frame n's weights at row n
+/// whatever its look-ahead: the last frames, whose future never comes, as the receiver's
+/// fallback gives them.
 pub fn predict(animator: &mut dyn Animator, utterances: &[PreparedUtterance]) -> Vec<Vec<f32>> {
     let k = animator.visemes().len();
+    let lookahead = animator.lookahead();
+    let mut scratch = vec![0.0; k];
+    let mut speaker: Option<&str> = None;
     utterances
         .iter()
         .map(|utt| {
-            animator.reset();
-            let mut out = vec![0.0; utt.features.len() * k];
-            for (f, w) in utt.features.iter().zip(out.chunks_exact_mut(k)) {
-                animator.animate(f, w);
+            // One speaker's utterances run as one call (the per-speaker state carries over).
+            if speaker != Some(utt.speaker.as_str()) {
+                animator.reset();
+                speaker = Some(utt.speaker.as_str());
+            }
+            let frames = utt.features.len();
+            let mut out = vec![0.0; frames * k];
+            for (m, f) in utt.features.iter().enumerate() {
+                match m.checked_sub(lookahead) {
+                    Some(n) => animator.animate(f, &mut out[n * k..(n + 1) * k]),
+                    None => animator.animate(f, &mut scratch),
+                }
+            }
+            for n in frames.saturating_sub(lookahead)..frames {
+                animator.peek(n + lookahead + 1 - frames, &mut out[n * k..(n + 1) * k]);
             }
             out
         })
@@ -230,7 +292,8 @@ pub fn evaluate_prepared(
 
 /// Frame by frame, for analysis outside: `speaker,utterance,frame,target_openness,
 /// set_target_openness,network_openness,jaw_openness,target_aperture,network_aperture,bilabial,
-/// closure_allowed,network_closed` (`set_target`: the targets decomposed onto the model's
+/// closure_allowed,network_closed,target_width,network_width,target_rounding,network_rounding`
+/// (`set_target`: the targets decomposed onto the model's
 /// reduced set, what the network is trained towards; `network_closed`: the closed viseme's
 /// weight before the closure snap).
 pub fn write_frames(
@@ -261,7 +324,8 @@ pub fn write_frames(
     writeln!(
         out,
         "speaker,utterance,frame,target_openness,set_target_openness,network_openness,\
-         jaw_openness,target_aperture,network_aperture,bilabial,closure_allowed,network_closed"
+         jaw_openness,target_aperture,network_aperture,bilabial,closure_allowed,network_closed,\
+         target_width,network_width,target_rounding,network_rounding"
     )?;
     for ((((utt, predicted), flap), set_target), raw) in utterances
         .iter()
@@ -280,9 +344,12 @@ pub fn write_frames(
             .enumerate()
         {
             let raw_closed = closed.map_or(0.0, |c| raw[n * k + c]);
+            let [_, target_width, target_rounding] = cues(&full, target);
+            let [_, width, rounding] = cues(&model.visemes, weights);
             writeln!(
                 out,
-                "{},{},{n},{},{},{},{},{},{},{},{},{raw_closed}",
+                "{},{},{n},{},{},{},{},{},{},{},{},{raw_closed},{target_width},{width},\
+                 {target_rounding},{rounding}",
                 utt.speaker,
                 utt.id,
                 openness(&full, target),
@@ -325,6 +392,31 @@ impl fmt::Display for EvalReport {
                 s.closed_segments,
                 s.bilabial_segments,
                 100.0 * s.false_closure_rate
+            )?;
+        }
+        writeln!(
+            f,
+            "{:<14} {:>8} {:>10} {:>15} {:>15} {:>15}",
+            "", "width r", "rounding r", "open vowels", "rounded", "/f v/ shown"
+        )?;
+        for (name, s) in &self.rows {
+            let cue = |class: CueClass| {
+                format!(
+                    "{:>5.1}% {:>4}/{:<4}",
+                    100.0 * s.cue_share(class),
+                    s.cue_shown[class.index()],
+                    s.cue_segments[class.index()]
+                )
+            };
+            writeln!(
+                f,
+                "{:<14} {:>8.3} {:>10.3} {:>15} {:>15} {:>15}",
+                name,
+                s.width_r,
+                s.rounding_r,
+                cue(CueClass::OpenVowel),
+                cue(CueClass::Rounded),
+                cue(CueClass::Labiodental)
             )?;
         }
         Ok(())
@@ -378,6 +470,59 @@ mod tests {
         assert!(s.eq1_error < 1e-6 && (s.openness_r - 1.0).abs() < 1e-9);
         assert_eq!((s.bilabial_segments, s.closed_segments), (1, 1));
         assert_eq!(s.false_closure_rate, 0.0);
+    }
+
+    fn cue_utterance() -> PreparedUtterance {
+        let phones: Vec<PhoneSegment> = [
+            (0, 3200, "h#"),
+            (3200, 4000, "f"),
+            (4000, 5600, "uw"),
+            (5600, 6000, "v"),
+            (6000, 8000, "ae"),
+            (8000, 9600, "h#"),
+        ]
+        .into_iter()
+        .map(|(start, end, phone)| PhoneSegment {
+            start,
+            end,
+            phone: phone.into(),
+        })
+        .collect();
+        let targets = targets_from_phones(&phones, 16000, 9600).unwrap();
+        let features = vec![crate::lipsync::network::silence_features(); targets.len()];
+        PreparedUtterance {
+            speaker: "x".into(),
+            id: "z".into(),
+            features,
+            targets,
+        }
+    }
+
+    #[test]
+    fn cue_segments_are_shown_by_the_targets_and_not_by_a_closed_mouth() {
+        let utt = cue_utterance();
+        // The 25 ms /v/ is too short to score; f, uw and ae are long enough.
+        assert_eq!(utt.targets.cue_segments.len(), 3);
+        let full = VisemeSet::full();
+        let shapes = VisemeShapes::point_model();
+        let exact: Vec<f32> = utt.targets.weights.iter().flatten().copied().collect();
+        let s = score(&full, &shapes, std::slice::from_ref(&utt), &[exact]).unwrap();
+        assert_eq!(s.cue_segments, [1, 1, 1]);
+        assert_eq!(s.cue_shown, [1, 1, 1]);
+        assert!((s.width_r - 1.0).abs() < 1e-9 && (s.rounding_r - 1.0).abs() < 1e-9);
+
+        let set = VisemeSet::parse("PP,FF,aa,I,U").unwrap();
+        let closed: Vec<f32> = (0..utt.targets.len())
+            .flat_map(|_| [1.0, 0.0, 0.0, 0.0, 0.0])
+            .collect();
+        let s = score(&set, &shapes, std::slice::from_ref(&utt), &[closed]).unwrap();
+        assert_eq!(s.cue_shown, [0, 0, 0]);
+        assert_eq!((s.width_r, s.rounding_r), (0.0, 0.0));
+        let rounded_only: Vec<f32> = (0..utt.targets.len())
+            .flat_map(|_| [0.0, 0.0, 0.0, 0.0, 1.0])
+            .collect();
+        let s = score(&set, &shapes, std::slice::from_ref(&utt), &[rounded_only]).unwrap();
+        assert_eq!(s.cue_shown, [0, 1, 0]);
     }
 
     #[test]

@@ -12,9 +12,10 @@ use std::path::PathBuf;
 use indicatif::{ProgressBar, ProgressStyle};
 
 use crate::lipsync::decompose::{DecomposeError, Decomposer, PointTrack};
-use crate::lipsync::mouth::VisemeShapes;
+use crate::lipsync::mouth::{Articulation, CUE_COUNT, VisemeShapes, cues};
 use crate::lipsync::network::{
-    Dynamics, FEATURES_PER_FRAME, InputScaling, MULTIPLY_ADD_BUDGET, Model, input_count,
+    Dynamics, FEATURES_PER_FRAME, InputScaling, MAX_LOOKAHEAD, MULTIPLY_ADD_BUDGET, Model,
+    SpeakerNorm, input_count, silence_features,
 };
 use crate::lipsync::visemes::{Viseme, VisemeSet};
 use crate::speex::LSP_COUNT;
@@ -31,8 +32,13 @@ pub struct TrainConfig {
     pub visemes: VisemeSet,
     /// Source of the feature points that reduced-set targets are decomposed on.
     pub shapes: VisemeShapes,
-    /// Past frames fed to the network besides the current one.
+    /// Frames fed to the network besides the newest one.
     pub context: usize,
+    /// How many of the fed frames lie after the frame the output describes (free look-ahead:
+    /// the receiver's buffers hide it); at most `context`.
+    pub lookahead: usize,
+    /// Causal per-speaker LSP normalisation over about this many speech frames (`None`: off).
+    pub speaker_norm_frames: Option<u32>,
     /// Energy-derived stateful inputs (`None`: the paper's raw 11 features).
     pub dynamics: Option<Dynamics>,
     /// Targets inside /p b m/ segments become a full closure (one-hot PP) instead of the
@@ -64,6 +70,9 @@ pub struct TrainConfig {
     /// Weight of a squared-error term on mouth openness (linear in the weights) beside the KL
     /// loss; 0 = off.
     pub openness_weight: f32,
+    /// The same for lip width (spread +, narrowed -) and for rounding (protrusion).
+    pub width_weight: f32,
+    pub rounding_weight: f32,
     /// Decoupled weight decay per step, as a fraction of the learning rate (AdamW); 0 = off.
     pub weight_decay: f32,
     /// Utterances per speaker (all when `None`), for quick runs.
@@ -83,6 +92,8 @@ impl Default for TrainConfig {
             visemes: VisemeSet::reduced(6).expect("6 is a reduced set size"),
             shapes: VisemeShapes::point_model(),
             context: 2,
+            lookahead: 0,
+            speaker_norm_frames: None,
             dynamics: None,
             sharp_closures: false,
             tune_closure_snap: false,
@@ -98,6 +109,8 @@ impl Default for TrainConfig {
             warp: 0.0,
             weight_decay: 0.0,
             openness_weight: 0.0,
+            width_weight: 0.0,
+            rounding_weight: 0.0,
             utterances_per_speaker: None,
             curves_csv: None,
             show_progress: true,
@@ -246,9 +259,11 @@ pub(crate) struct Dataset {
     lengths: Vec<usize>,
     /// Frame ranges of the /p b m/ segments.
     segments: Vec<std::ops::Range<usize>>,
-    /// Openness of each output viseme, and the weight of the openness error term.
-    openness: Vec<f32>,
-    openness_weight: f32,
+    /// Openness, width and rounding of each output viseme, of each frame's 15-viseme target,
+    /// and the weights of their squared errors in the loss.
+    cues: Vec<[f32; CUE_COUNT]>,
+    target_cues: Vec<[f32; CUE_COUNT]>,
+    cue_weights: [f32; CUE_COUNT],
     input_len: usize,
     outputs: usize,
 }
@@ -325,24 +340,46 @@ pub(crate) fn build_dataset(
         weights: Vec::new(),
         lengths: Vec::new(),
         segments: Vec::new(),
-        openness: model
+        cues: model
             .visemes
             .members()
             .iter()
-            .map(|v| crate::lipsync::mouth::Articulation::of(*v).openness())
+            .map(|v| Articulation::of(*v).cues())
             .collect(),
-        openness_weight: 0.0,
+        target_cues: Vec::new(),
+        cue_weights: [0.0; CUE_COUNT],
         input_len,
         outputs,
     };
     let closed = model.visemes.position(Viseme::PP);
+    let full = VisemeSet::full();
+    let silence = silence_features();
     let mut state = model.new_state();
     let mut start = 0;
+    let mut speaker: Option<&str> = None;
     for utt in utterances {
-        model.reset(&mut state);
-        for (n, features) in utt.features.iter().enumerate() {
+        // One speaker's utterances follow each other as in one call: the per-speaker state
+        // (normalisation, energy peak) carries over.
+        if speaker != Some(utt.speaker.as_str()) {
+            model.reset(&mut state);
+            speaker = Some(utt.speaker.as_str());
+        }
+        // Frame n is described once frame n + lookahead is fed; past the end, the receiver's
+        // fallback repeats the last frame.
+        let fed = utt.features.iter().chain(std::iter::repeat_n(
+            utt.features.last().unwrap_or(&silence),
+            model.lookahead,
+        ));
+        for (m, features) in fed.enumerate() {
             model.push_frame(&mut state, features);
+            let Some(n) = m.checked_sub(model.lookahead) else {
+                continue;
+            };
+            if n >= utt.features.len() {
+                break;
+            }
             data.inputs.extend_from_slice(state.input());
+            data.target_cues.push(cues(&full, &utt.targets.weights[n]));
             let in_closure = utt.targets.in_bilabial(n);
             data.weights
                 .push(if in_closure { closure_weight } else { 1.0 });
@@ -446,17 +483,29 @@ pub(crate) fn loss_and_gradient(
             .filter(|(t, _)| **t > 0.0)
             .map(|(&t, &p)| t as f64 * ((t as f64) / (p as f64).max(1e-30)).ln())
             .sum();
-        let open = |w: &[f32]| -> f32 { w.iter().zip(&data.openness).map(|(w, o)| w * o).sum() };
-        let open_error = open(&probs[..]) - open(t);
-        let beta = data.openness_weight;
-        loss += weight * (kl + (beta * open_error * open_error) as f64);
+        let mut predicted = [0.0f32; CUE_COUNT];
+        for (p, c) in probs.iter().zip(&data.cues) {
+            for (out, c) in predicted.iter_mut().zip(c) {
+                *out += p * c;
+            }
+        }
+        let mut errors = [0.0f32; CUE_COUNT];
+        let mut cue_loss = 0.0f32;
+        for (i, e) in errors.iter_mut().enumerate() {
+            *e = predicted[i] - data.target_cues[n][i];
+            cue_loss += data.cue_weights[i] * *e * *e;
+        }
+        loss += weight * (kl + cue_loss as f64);
         let Some(grad) = grad.as_deref_mut() else {
             continue;
         };
-        let predicted_open = open(&probs[..]);
-        for (((d, p), t), o) in delta_out.iter_mut().zip(&probs).zip(t).zip(&data.openness) {
-            let open_term = 2.0 * beta * open_error * p * (o - predicted_open);
-            *d = weight as f32 * (p - t + open_term);
+        // d(cue)/d(logit k) = p_k (cue_k - cue) through the softmax.
+        for (((d, p), t), c) in delta_out.iter_mut().zip(&probs).zip(t).zip(&data.cues) {
+            let mut cue_term = 0.0;
+            for i in 0..CUE_COUNT {
+                cue_term += 2.0 * data.cue_weights[i] * errors[i] * p * (c[i] - predicted[i]);
+            }
+            *d = weight as f32 * (p - t + cue_term);
         }
         backprop(model, x, &hidden, &delta_out, &mut delta_hidden, grad);
     }
@@ -703,6 +752,30 @@ fn fitted_scaling(train: &[PreparedUtterance]) -> InputScaling {
     scaling
 }
 
+/// Mean LSPs of the training speakers' speech frames (the normalisation's prior).
+fn mean_speech_lsps(train: &[PreparedUtterance]) -> [f32; LSP_COUNT] {
+    let mut sum = [0.0f64; LSP_COUNT];
+    let mut count = 0usize;
+    for f in train.iter().flat_map(|u| &u.features) {
+        if f.energy_db > SPEECH_DB && f.lsp.iter().all(|l| l.is_finite()) {
+            for (s, l) in sum.iter_mut().zip(&f.lsp) {
+                *s += *l as f64;
+            }
+            count += 1;
+        }
+    }
+    let mut mean = silence_features().lsp;
+    if count > 0 {
+        for (m, s) in mean.iter_mut().zip(&sum) {
+            *m = (*s / count as f64) as f32;
+        }
+    }
+    mean
+}
+
+/// Frames louder than this count as speech for the normalisation's prior.
+const SPEECH_DB: f32 = -45.0;
+
 fn initial_model(config: &TrainConfig, train: &[PreparedUtterance], rng: &mut Rng) -> Model {
     let mut model = Model::zeros_with(
         config.visemes.clone(),
@@ -711,6 +784,11 @@ fn initial_model(config: &TrainConfig, train: &[PreparedUtterance], rng: &mut Rn
         config.dynamics,
         config.hidden,
     );
+    model.lookahead = config.lookahead;
+    model.speaker_norm = config.speaker_norm_frames.map(|frames| SpeakerNorm {
+        frames,
+        prior: mean_speech_lsps(train),
+    });
     let (inputs, outputs) = (model.inputs() as f32, model.outputs() as f32);
     let hidden = config.hidden as f32;
     let limit1 = (6.0 / (inputs + hidden)).sqrt();
@@ -772,6 +850,12 @@ pub fn train_on(
     if cost > MULTIPLY_ADD_BUDGET && !config.allow_over_budget {
         return Err(TrainError::OverBudget { cost });
     }
+    if config.lookahead > config.context.min(MAX_LOOKAHEAD) {
+        return Err(TrainError::BadConfig(format!(
+            "look-ahead {} needs at least as many context frames and at most {MAX_LOOKAHEAD}",
+            config.lookahead
+        )));
+    }
     if config.hidden == 0 || config.batch_size == 0 || config.max_epochs == 0 {
         return Err(TrainError::BadConfig(
             "hidden units, batch size and epochs must be positive".into(),
@@ -802,8 +886,13 @@ pub fn train_on(
         config.closure_weight,
         config.sharp_closures,
     );
-    train_data.openness_weight = config.openness_weight;
-    validation_data.openness_weight = config.openness_weight;
+    let cue_weights = [
+        config.openness_weight,
+        config.width_weight,
+        config.rounding_weight,
+    ];
+    train_data.cue_weights = cue_weights;
+    validation_data.cue_weights = cue_weights;
     if train_data.frames() == 0 || validation_data.frames() == 0 {
         return Err(TrainError::NoFrames);
     }
@@ -1016,9 +1105,10 @@ mod tests {
     fn backprop_gradient_matches_finite_differences() {
         let (train, _) = tiny_data();
         let config = TrainConfig {
-            visemes: VisemeSet::reduced(3).unwrap(),
+            visemes: VisemeSet::parse("PP,FF,aa,I,U").unwrap(),
             hidden: 4,
             context: 1,
+            lookahead: 1,
             ..TrainConfig::default()
         };
         let mut rng = Rng::new(7);
@@ -1028,7 +1118,7 @@ mod tests {
         }
         let targets = set_targets(&config.visemes, &config.shapes, &train[..1]).unwrap();
         let mut data = build_dataset(&model, &train[..1], &targets, 3.0, false);
-        data.openness_weight = 5.0;
+        data.cue_weights = [5.0, 3.0, 4.0];
         let frames: Vec<usize> = (0..data.frames()).step_by(7).collect();
         let mut grad = Params::zeros_like(&model);
         loss_and_gradient(&model, &data, &frames, Some(&mut grad));
@@ -1036,6 +1126,29 @@ mod tests {
             loss_and_gradient(m, &data, &frames, None)
         });
         assert!(checked > 20);
+    }
+
+    #[test]
+    fn look_ahead_datasets_keep_every_frame_and_see_the_next_one() {
+        let (train, _) = tiny_data();
+        let config = TrainConfig {
+            visemes: VisemeSet::reduced(3).unwrap(),
+            hidden: 4,
+            context: 1,
+            ..TrainConfig::default()
+        };
+        let mut rng = Rng::new(3);
+        let causal = initial_model(&config, &train, &mut rng);
+        let mut ahead = causal.clone();
+        ahead.lookahead = 1;
+        let targets = set_targets(&config.visemes, &config.shapes, &train).unwrap();
+        let a = build_dataset(&causal, &train, &targets, 1.0, false);
+        let b = build_dataset(&ahead, &train, &targets, 1.0, false);
+        assert_eq!(a.frames(), b.frames());
+        assert_eq!(a.target_cues, b.target_cues);
+        // The look-ahead input of frame n is the causal input of frame n + 1.
+        assert_eq!(b.input(0), a.input(1));
+        assert_eq!(b.input(5), a.input(6));
     }
 
     #[test]

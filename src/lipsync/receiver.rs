@@ -1,0 +1,290 @@
+//! The one receiver pipeline, from decoded frames to the weights a head shows: the network (or
+//! the jaw baseline) with its closure bias, one frame of free look-ahead, a still mouth in
+//! digital silence, and the re-projection onto the viseme set the viewer chose. The app, `lipcall
+//! receive --weights` and `lipcall animate` all use it, so what `animate` writes is what the app
+//! shows.
+//!
+//! Look-ahead: a model with `lookahead` 1 gives the weights of frame n once frame n + 1 has been
+//! decoded. The jitter buffer and the output device hold at least 20 ms each, so frame n + 1 is
+//! normally decoded before frame n is heard and the look-ahead costs no latency. Where it is not
+//! (a loss burst, the end of a talk spurt, the jitter buffer at its floor), the caller asks for
+//! [`LipSync::flush`]: the frame is animated as if its future repeated the newest frame, and the
+//! network's own output for it is dropped when the real future arrives.
+
+use super::jaw::JawBaseline;
+use super::network::{MAX_LOOKAHEAD, Model};
+use super::reproject::{ReprojectError, Reprojector};
+use super::visemes::{Viseme, VisemeSet};
+use super::{Animator, ModelAnimator};
+use crate::lipsync::mouth::VisemeShapes;
+use crate::speex::features::FrameFeatures;
+
+/// Frames at or below this energy are digital silence: the mouth rests, whatever the network
+/// says (quiet breath and room noise through the codec stay above -75 dB).
+pub const STILL_BELOW_DB: f32 = -75.0;
+
+/// The viewer's choices for one peer.
+#[derive(Debug, Clone, PartialEq)]
+pub struct LipSyncOptions {
+    /// The jaw-from-energy baseline instead of the network.
+    pub jaw: bool,
+    /// -1 (fewer lip closures) .. 1 (more); 0 is the model's own balance.
+    pub closure_bias: f32,
+    /// The set the head is driven with; `None`: the network's own.
+    pub visemes: Option<VisemeSet>,
+}
+
+impl Default for LipSyncOptions {
+    fn default() -> Self {
+        Self {
+            jaw: false,
+            closure_bias: 0.0,
+            visemes: None,
+        }
+    }
+}
+
+/// One peer's weights, in stream order, each tagged with the caller's tag of its frame.
+pub struct LipSync<'m> {
+    animator: Box<dyn Animator + Send + 'm>,
+    reprojector: Reprojector,
+    lookahead: usize,
+    /// Frames fed whose network output has not come yet, oldest first: (tag, silent).
+    pending: [(u64, bool); MAX_LOOKAHEAD + 1],
+    pending_len: usize,
+    /// How many of the oldest pending frames [`LipSync::flush`] has already given out.
+    flushed: usize,
+    raw: Vec<f32>,
+    out: Vec<f32>,
+    rest: Vec<f32>,
+}
+
+impl<'m> LipSync<'m> {
+    pub fn new(model: &'m Model, options: &LipSyncOptions) -> Result<Self, ReprojectError> {
+        let animator: Box<dyn Animator + Send + 'm> = if options.jaw {
+            Box::new(JawBaseline::from_model(model))
+        } else {
+            Box::new(ModelAnimator::with_closure_bias(
+                model,
+                options.closure_bias,
+            ))
+        };
+        let source = animator.visemes().clone();
+        let target = options.visemes.clone().unwrap_or_else(|| source.clone());
+        let mut rest = vec![0.0; target.len()];
+        match target.position(Viseme::Sil).or(target.position(Viseme::PP)) {
+            Some(i) => rest[i] = 1.0,
+            None => {
+                // No closed shape in the set: the closest blend of what it has.
+                let mut project = Reprojector::new(
+                    VisemeSet::full(),
+                    target.clone(),
+                    VisemeShapes::point_model(),
+                )?;
+                project.project(&Viseme::Sil.one_hot(), &mut rest)?;
+            }
+        }
+        Ok(Self {
+            lookahead: animator.lookahead().min(MAX_LOOKAHEAD),
+            reprojector: Reprojector::new(source.clone(), target, VisemeShapes::point_model())?,
+            raw: vec![0.0; source.len()],
+            out: vec![0.0; rest.len()],
+            rest,
+            animator,
+            pending: [(0, false); MAX_LOOKAHEAD + 1],
+            pending_len: 0,
+            flushed: 0,
+        })
+    }
+
+    /// The set the weights are expressed over.
+    pub fn visemes(&self) -> &VisemeSet {
+        self.reprojector.target()
+    }
+
+    /// Frames of look-ahead: a frame's weights come out this many frames after it was fed.
+    pub fn lookahead(&self) -> usize {
+        self.lookahead
+    }
+
+    /// Frames fed whose weights have not been given out.
+    pub fn waiting(&self) -> usize {
+        self.pending_len - self.flushed
+    }
+
+    /// Starts a new stream: forgets the history and any frame still waiting.
+    pub fn reset(&mut self) {
+        self.animator.reset();
+        self.pending_len = 0;
+        self.flushed = 0;
+    }
+
+    /// Feeds the next decoded frame. Returns the weights of the frame fed `lookahead` frames
+    /// ago (at once for a model without look-ahead) with its tag, unless
+    /// [`LipSync::flush`] gave that frame out already. Allocates nothing.
+    pub fn push(&mut self, tag: u64, features: &FrameFeatures) -> Option<(u64, &[f32])> {
+        self.animator.animate(features, &mut self.raw);
+        let silent = !(features.energy_db > STILL_BELOW_DB);
+        self.pending[self.pending_len] = (tag, silent);
+        self.pending_len += 1;
+        if self.pending_len <= self.lookahead {
+            return None;
+        }
+        let (tag, silent) = self.pending[0];
+        self.pending.copy_within(1..self.pending_len, 0);
+        self.pending_len -= 1;
+        if self.flushed > 0 {
+            self.flushed -= 1;
+            return None;
+        }
+        Some((tag, self.finish(silent)))
+    }
+
+    /// Gives out the oldest waiting frame now, without the future it waits for (the fallback
+    /// when the next frame is late or will not come). `None` when nothing waits.
+    pub fn flush(&mut self) -> Option<(u64, &[f32])> {
+        if self.waiting() == 0 {
+            return None;
+        }
+        let i = self.flushed;
+        let missing = i + self.lookahead + 1 - self.pending_len;
+        self.animator.peek(missing, &mut self.raw);
+        self.flushed += 1;
+        let (tag, silent) = self.pending[i];
+        Some((tag, self.finish(silent)))
+    }
+
+    fn finish(&mut self, silent: bool) -> &[f32] {
+        if silent {
+            // Keep the re-projection's warm start where the mouth is.
+            self.out.copy_from_slice(&self.rest);
+        } else if self.reprojector.project(&self.raw, &mut self.out).is_err() {
+            self.out.copy_from_slice(&self.rest);
+        }
+        &self.out
+    }
+}
+
+/// Weights of every frame of a stream, in order, as the receiver gives them out (the frames
+/// still waiting at the end are flushed).
+pub fn animate_stream(lipsync: &mut LipSync, features: &[FrameFeatures]) -> Vec<Vec<f32>> {
+    let mut rows = Vec::with_capacity(features.len());
+    for (n, f) in features.iter().enumerate() {
+        if let Some((_, w)) = lipsync.push(n as u64, f) {
+            rows.push(w.to_vec());
+        }
+    }
+    while let Some((_, w)) = lipsync.flush() {
+        rows.push(w.to_vec());
+    }
+    rows
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::lipsync::network::{InputScaling, silence_features};
+
+    fn loud(value: f32) -> FrameFeatures {
+        let mut f = silence_features();
+        f.energy_db = -30.0;
+        f.lsp[0] = value;
+        f
+    }
+
+    /// A network whose first output follows the first LSP of the newest frame it was fed.
+    fn probe_model(lookahead: usize) -> Model {
+        let set = VisemeSet::parse("PP,aa").unwrap();
+        let mut scaling = InputScaling::new(-1.0, 1.0);
+        scaling.offset[0] = 0.0;
+        scaling.scale[0] = 1.0;
+        let mut model = Model::zeros(set, scaling, lookahead, 1);
+        model.lookahead = lookahead;
+        model.w1[0] = 2.0;
+        model.w2[0] = 4.0;
+        model
+    }
+
+    #[test]
+    fn look_ahead_gives_each_frame_once_in_order_with_its_own_tag() {
+        let model = probe_model(1);
+        let mut lipsync = LipSync::new(&model, &LipSyncOptions::default()).unwrap();
+        assert_eq!(lipsync.lookahead(), 1);
+        assert!(lipsync.push(10, &loud(0.1)).is_none());
+        let (tag, _) = lipsync.push(11, &loud(0.2)).unwrap();
+        assert_eq!(tag, 10);
+        // Frame 12 is late: 11 goes out without its future, and the network's output for it
+        // is dropped when 12 comes.
+        assert_eq!(lipsync.flush().map(|(t, _)| t), Some(11));
+        assert!(lipsync.flush().is_none());
+        assert!(lipsync.push(12, &loud(0.3)).is_none());
+        assert_eq!(lipsync.push(13, &loud(0.4)).map(|(t, _)| t), Some(12));
+        assert_eq!(lipsync.flush().map(|(t, _)| t), Some(13));
+        assert_eq!(lipsync.waiting(), 0);
+    }
+
+    #[test]
+    fn the_fallback_matches_a_future_that_repeats_the_last_frame() {
+        let model = probe_model(1);
+        let mut a = LipSync::new(&model, &LipSyncOptions::default()).unwrap();
+        let mut b = LipSync::new(&model, &LipSyncOptions::default()).unwrap();
+        a.push(0, &loud(0.5));
+        let flushed = a.flush().unwrap().1.to_vec();
+        b.push(0, &loud(0.5));
+        let repeated = b.push(1, &loud(0.5)).unwrap().1.to_vec();
+        assert_eq!(flushed, repeated);
+        // And the look-ahead sees the future: a different next frame changes frame 0.
+        let mut c = LipSync::new(&model, &LipSyncOptions::default()).unwrap();
+        c.push(0, &loud(0.5));
+        assert_ne!(c.push(1, &loud(-0.5)).unwrap().1.to_vec(), repeated);
+    }
+
+    #[test]
+    fn every_frame_comes_out_once_whatever_the_lookahead() {
+        for lookahead in 0..=MAX_LOOKAHEAD {
+            let model = probe_model(lookahead);
+            let mut lipsync = LipSync::new(&model, &LipSyncOptions::default()).unwrap();
+            let features: Vec<FrameFeatures> = (0..7).map(|i| loud(0.1 * i as f32)).collect();
+            let rows = animate_stream(&mut lipsync, &features);
+            assert_eq!(rows.len(), features.len());
+            for w in rows {
+                assert!((w.iter().sum::<f32>() - 1.0).abs() < 1e-5);
+            }
+        }
+    }
+
+    #[test]
+    fn digital_silence_is_a_still_closed_mouth() {
+        let model = crate::lipsync::default_model();
+        for visemes in [None, Some(VisemeSet::parse("aa,I,U").unwrap())] {
+            let options = LipSyncOptions {
+                visemes,
+                ..LipSyncOptions::default()
+            };
+            let mut lipsync = LipSync::new(&model, &options).unwrap();
+            let mut features: Vec<FrameFeatures> =
+                (0..20).map(|i| loud(0.3 + 0.05 * i as f32)).collect();
+            features.extend(std::iter::repeat_n(silence_features(), 30));
+            let rows = animate_stream(&mut lipsync, &features);
+            let still = &rows[20..];
+            assert!(
+                still.windows(2).all(|w| w[0] == w[1]),
+                "the mouth moves in silence"
+            );
+        }
+    }
+
+    #[test]
+    fn the_jaw_baseline_goes_through_the_same_pipeline() {
+        let model = crate::lipsync::default_model();
+        let options = LipSyncOptions {
+            jaw: true,
+            visemes: Some(VisemeSet::full()),
+            ..LipSyncOptions::default()
+        };
+        let mut lipsync = LipSync::new(&model, &options).unwrap();
+        assert_eq!(lipsync.lookahead(), 0);
+        let (tag, w) = lipsync.push(3, &loud(0.2)).unwrap();
+        assert_eq!((tag, w.len()), (3, 15));
+    }
+}
