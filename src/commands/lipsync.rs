@@ -56,6 +56,9 @@ pub struct TrainArgs {
     /// Loss weight of frames inside /p b m/ segments.
     #[arg(long, value_name = "W", default_value_t = recipe::CLOSURE_WEIGHT)]
     pub closure_weight: f32,
+    /// Loss weight of frames inside /f v/ segments.
+    #[arg(long, value_name = "W", default_value_t = recipe::LABIODENTAL_WEIGHT)]
+    pub labiodental_weight: f32,
     /// Weight of the segment closure loss: per /p b m/ segment, -ln P(the lips close in at
     /// least one frame); 0 = off.
     #[arg(long, value_name = "W", default_value_t = recipe::SEGMENT_CLOSURE_WEIGHT)]
@@ -253,6 +256,7 @@ fn train_config(args: &TrainArgs, split: &SpeakerSplit, snap: Option<f32>) -> Re
         batch_size: args.batch,
         seed: args.seed,
         closure_weight: args.closure_weight,
+        labiodental_weight: args.labiodental_weight,
         segment_closure_weight: args.segment_closure_weight,
         warp: args.warp,
         weight_decay: args.weight_decay,

@@ -52,6 +52,9 @@ pub const FEATURES_PER_FRAME: usize = 11;
 /// false closures (docs/model.md).
 pub const CLOSURE_BIAS_SPAN: f32 = 0.1;
 
+/// The lowest closure-snap threshold training tries or a bias reaches.
+pub const MIN_CLOSURE_SNAP: f32 = 0.3;
+
 /// Multiply-adds per frame the paper budgets for the network (Section III.D).
 pub const MULTIPLY_ADD_BUDGET: usize = 400;
 
@@ -424,7 +427,7 @@ impl Model {
             return 0.0;
         }
         let from = if own > 0.0 { own } else { 1.0 };
-        (from - CLOSURE_BIAS_SPAN * bias).clamp(0.5, 1.0)
+        (from - CLOSURE_BIAS_SPAN * bias).clamp(MIN_CLOSURE_SNAP, 1.0)
     }
 
     /// The closure rule on one frame's output weights.

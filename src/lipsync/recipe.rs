@@ -11,6 +11,7 @@ pub const SPEAKER_NORM_FRAMES: u32 = 0;
 pub const ENERGY_CONTEXT: usize = 6;
 pub const PEAK_DECAY_DB: f32 = 0.15;
 pub const CLOSURE_WEIGHT: f32 = 4.0;
+pub const LABIODENTAL_WEIGHT: f32 = 1.0;
 pub const SEGMENT_CLOSURE_WEIGHT: f32 = 0.0;
 pub const WARP: f32 = 0.0;
 pub const WEIGHT_DECAY: f32 = 0.0;

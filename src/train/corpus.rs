@@ -273,6 +273,9 @@ pub struct UtteranceTargets {
     /// Frames of each open-vowel, rounded and /f v/ segment long enough to be scored (with the
     /// class's slack on each side), for the per-segment cue scores.
     pub cue_segments: Vec<(CueClass, Range<usize>)>,
+    /// Frames within [`CLOSURE_MARGIN_FRAMES`] of an /f v/: the lower lip under the teeth
+    /// anywhere else is a false /f v/.
+    pub labiodental_allowed: Vec<bool>,
 }
 
 /// Frames around a bilabial or a silence in which the lips may still be closing or opening.
@@ -299,6 +302,7 @@ impl UtteranceTargets {
             seg.end = seg.end.min(frames);
         }
         self.cue_segments.retain(|(_, s)| !s.is_empty());
+        self.labiodental_allowed.truncate(frames);
     }
 
     /// Whether frame `n` lies in a bilabial segment.
@@ -350,6 +354,12 @@ pub fn targets_from_phones(
         }
     }
     let mut closure_allowed = vec![false; frame_count];
+    let mut labiodental_allowed = vec![false; frame_count];
+    for p in phones.iter().filter(|p| CueClass::of(&p.phone) == Some(CueClass::Labiodental)) {
+        let from = first_frame(p.start).saturating_sub(CLOSURE_MARGIN_FRAMES);
+        let to = (end_frame(p.end) + CLOSURE_MARGIN_FRAMES).min(frame_count);
+        labiodental_allowed[from..to].fill(true);
+    }
     for p in phones {
         let silent = matches!(p.phone.as_str(), "h#" | "pau" | "epi");
         if silent || is_bilabial(&p.phone) {
@@ -376,6 +386,7 @@ pub fn targets_from_phones(
         bilabial_segments,
         closure_allowed,
         cue_segments,
+        labiodental_allowed,
     })
 }
 
@@ -399,6 +410,9 @@ pub struct PreparedUtterance {
     pub id: String,
     pub features: Vec<FrameFeatures>,
     pub targets: UtteranceTargets,
+    /// Loss weight of its frames in training (per corpus: hand labels count fully,
+    /// automatic alignments less).
+    pub weight: f32,
 }
 
 pub fn prepare(
@@ -421,6 +435,7 @@ pub fn prepare(
                 id: utt.id.clone(),
                 features: frames,
                 targets,
+                weight: 1.0,
             })
         })
         .collect()

@@ -10,6 +10,7 @@
 use std::fmt;
 
 use crate::lipsync::network::Model;
+use crate::lipsync::phones::CueClass;
 use crate::train::corpus::PreparedUtterance;
 use crate::train::eval::Scores;
 use crate::train::trainer::{
@@ -17,7 +18,8 @@ use crate::train::trainer::{
 };
 
 /// The speakers held out by one fold, prepared twice: as training material (codec-augmented)
-/// and as held-out material (at the evaluation setting).
+/// and as held-out material (at the evaluation setting). A group with nothing held out (another
+/// corpus whose labels are not good enough to score on) only ever trains.
 #[derive(Debug, Clone)]
 pub struct SpeakerGroup {
     pub name: String,
@@ -55,7 +57,10 @@ pub fn cross_validate(
     groups: &[SpeakerGroup],
     snap: Option<f32>,
 ) -> Result<CrossValidation, TrainError> {
-    if groups.len() < 2 {
+    let folds: Vec<usize> = (0..groups.len())
+        .filter(|&k| !groups[k].held_out.is_empty())
+        .collect();
+    if folds.len() < 2 {
         return Err(TrainError::BadConfig(
             "cross-validation needs at least two speaker groups".into(),
         ));
@@ -77,8 +82,8 @@ pub fn cross_validate(
         train_on(&fold_config, &train, &groups[k].held_out)
     };
     let workers = std::thread::available_parallelism().map_or(1, |n| n.get());
-    let mut reports = Vec::with_capacity(groups.len());
-    for chunk in (0..groups.len()).collect::<Vec<_>>().chunks(workers) {
+    let mut reports = Vec::with_capacity(folds.len());
+    for chunk in folds.chunks(workers) {
         std::thread::scope(|scope| {
             let handles: Vec<_> = chunk
                 .iter()
@@ -94,9 +99,10 @@ pub fn cross_validate(
         });
     }
     let reports = reports.into_iter().collect::<Result<Vec<_>, _>>()?;
+    let scored: Vec<&SpeakerGroup> = folds.iter().map(|&k| &groups[k]).collect();
     let held_out: Vec<HeldOutPredictions> = reports
         .iter()
-        .zip(groups)
+        .zip(&scored)
         .map(|(r, g)| HeldOutPredictions::new(&r.model, &g.held_out))
         .collect();
     let pooled = HeldOutPredictions::pool(&held_out)?;
@@ -104,7 +110,7 @@ pub fn cross_validate(
     let closure_snap = snap.unwrap_or_else(|| best_snap(&snap_curve));
     let folds = held_out
         .iter()
-        .zip(groups)
+        .zip(&scored)
         .zip(&reports)
         .map(|((predictions, group), report)| {
             let mut model = report.model.clone();
@@ -186,6 +192,18 @@ impl fmt::Display for CrossValidation {
             )?;
         }
         row(f, "pooled", &self.epochs.to_string(), &self.pooled)?;
+        let p = &self.pooled;
+        writeln!(
+            f,
+            "pooled cues: width r {:.3}, rounding r {:.3}, open vowels {:.1}%, rounded {:.1}%, \
+             /f v/ shown {:.1}% (false {:.1}%)",
+            p.width_r,
+            p.rounding_r,
+            100.0 * p.cue_share(CueClass::OpenVowel),
+            100.0 * p.cue_share(CueClass::Rounded),
+            100.0 * p.cue_share(CueClass::Labiodental),
+            100.0 * p.false_labiodental_rate
+        )?;
         writeln!(f, "closure-snap trade-off on the pooled folds:")?;
         for (snap, s) in &self.snap_curve {
             let snap = if *snap > 0.0 {

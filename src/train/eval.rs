@@ -62,6 +62,8 @@ pub struct Scores {
     /// Per [`CueClass`]: segments scored, and segments in which the mouth showed the cue.
     pub cue_segments: [usize; 3],
     pub cue_shown: [usize; 3],
+    /// The share of frames away from any /f v/ whose FF weight reaches the /f v/ threshold.
+    pub false_labiodental_rate: f64,
 }
 
 /// What a segment of each [`CueClass`] must reach somewhere to count as shown.
@@ -114,6 +116,7 @@ pub fn score(
     let (mut elsewhere, mut false_closed) = (0usize, 0usize);
     let (mut cue_segments, mut cue_shown) = ([0usize; 3], [0usize; 3]);
     let labiodental = set.position(Viseme::FF);
+    let (mut away_from_fv, mut false_fv) = (0usize, 0usize);
     for (utt, predicted) in utterances.iter().zip(predictions) {
         let targets = &utt.targets;
         let mut closed = Vec::with_capacity(targets.len());
@@ -133,11 +136,16 @@ pub fn score(
                 target_cues[i].push(*t as f64);
                 predicted_cues[i].push(p as f64);
             }
+            let fv = labiodental.is_some_and(|i| weights[i] >= LABIODENTAL_WEIGHT);
             shown.push([
                 predicted[Cue::Openness as usize] > OPEN_VOWEL_OPENNESS,
                 predicted[Cue::Rounding as usize] > ROUNDED_ROUNDING,
-                labiodental.is_some_and(|i| weights[i] >= LABIODENTAL_WEIGHT),
+                fv,
             ]);
+            if !targets.labiodental_allowed[n] {
+                away_from_fv += 1;
+                false_fv += usize::from(fv);
+            }
             if argmax_viseme(set, weights) == argmax_viseme(&full, target) {
                 correct += 1;
             }
@@ -180,6 +188,7 @@ pub fn score(
         rounding_r: pearson(&target_cues[2], &predicted_cues[2]),
         cue_segments,
         cue_shown,
+        false_labiodental_rate: false_fv as f64 / away_from_fv.max(1) as f64,
     })
 }
 
@@ -396,8 +405,8 @@ impl fmt::Display for EvalReport {
         }
         writeln!(
             f,
-            "{:<14} {:>8} {:>10} {:>15} {:>15} {:>15}",
-            "", "width r", "rounding r", "open vowels", "rounded", "/f v/ shown"
+            "{:<14} {:>8} {:>10} {:>15} {:>15} {:>15} {:>10}",
+            "", "width r", "rounding r", "open vowels", "rounded", "/f v/ shown", "false f/v"
         )?;
         for (name, s) in &self.rows {
             let cue = |class: CueClass| {
@@ -410,13 +419,14 @@ impl fmt::Display for EvalReport {
             };
             writeln!(
                 f,
-                "{:<14} {:>8.3} {:>10.3} {:>15} {:>15} {:>15}",
+                "{:<14} {:>8.3} {:>10.3} {:>15} {:>15} {:>15} {:>9.1}%",
                 name,
                 s.width_r,
                 s.rounding_r,
                 cue(CueClass::OpenVowel),
                 cue(CueClass::Rounded),
-                cue(CueClass::Labiodental)
+                cue(CueClass::Labiodental),
+                100.0 * s.false_labiodental_rate
             )?;
         }
         Ok(())
@@ -451,6 +461,7 @@ mod tests {
             id: "y".into(),
             features,
             targets,
+            weight: 1.0,
         }
     }
 
@@ -495,6 +506,7 @@ mod tests {
             id: "z".into(),
             features,
             targets,
+            weight: 1.0,
         }
     }
 

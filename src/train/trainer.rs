@@ -14,9 +14,10 @@ use indicatif::{ProgressBar, ProgressStyle};
 use crate::lipsync::decompose::{DecomposeError, Decomposer, PointTrack};
 use crate::lipsync::mouth::{Articulation, CUE_COUNT, VisemeShapes, cues};
 use crate::lipsync::network::{
-    Dynamics, FEATURES_PER_FRAME, InputScaling, MAX_LOOKAHEAD, MULTIPLY_ADD_BUDGET, Model,
-    SpeakerNorm, input_count, silence_features,
+    Dynamics, FEATURES_PER_FRAME, InputScaling, MAX_LOOKAHEAD, MIN_CLOSURE_SNAP,
+    MULTIPLY_ADD_BUDGET, Model, SpeakerNorm, input_count, silence_features,
 };
+use crate::lipsync::phones::CueClass;
 use crate::lipsync::visemes::{Viseme, VisemeSet};
 use crate::speex::LSP_COUNT;
 use crate::train::corpus::{
@@ -58,6 +59,9 @@ pub struct TrainConfig {
     pub seed: u64,
     /// Loss weight of frames inside /p b m/ segments (1 = none).
     pub closure_weight: f32,
+    /// Loss weight of frames inside /f v/ segments (1 = none): the lower lip under the teeth
+    /// is a few frames of weak friction among hundreds.
+    pub labiodental_weight: f32,
     /// Weight of the segment closure loss (0 = off): per /p b m/ segment, minus the log of the
     /// chance that the lips close in at least one of its frames (noisy-OR of the closed
     /// viseme's weights). It asks for one closure per segment wherever the audio shows it best,
@@ -105,6 +109,7 @@ impl Default for TrainConfig {
             batch_size: 32,
             seed: 0x5EED_CAFE,
             closure_weight: 4.0,
+            labiodental_weight: 1.0,
             segment_closure_weight: 0.0,
             warp: 0.0,
             weight_decay: 0.0,
@@ -259,6 +264,8 @@ pub(crate) struct Dataset {
     lengths: Vec<usize>,
     /// Frame ranges of the /p b m/ segments.
     segments: Vec<std::ops::Range<usize>>,
+    /// Frame ranges of the /f v/ segments (with their slack).
+    labiodental: Vec<std::ops::Range<usize>>,
     /// Openness, width and rounding of each output viseme, of each frame's 15-viseme target,
     /// and the weights of their squared errors in the loss.
     cues: Vec<[f32; CUE_COUNT]>,
@@ -282,43 +289,56 @@ impl Dataset {
     }
 }
 
-/// Per utterance: its targets over `set`, frames x `set.len()` flattened. Reduced sets are
-/// decomposed from the 15-viseme targets' feature points (the paper's pipeline).
+/// Per utterance: its targets over `set`, frames x `set.len()` flattened. A viseme of the set
+/// keeps its own weight; each other viseme's weight goes to its convex decomposition onto the
+/// set's shapes (the paper's III.A.1, per viseme), so the set's shapes are taught wherever the
+/// phones call for them: a blend of the 15 decomposed frame by frame would let PP + aa stand in
+/// for FF, whose points are nearly theirs.
 pub fn set_targets(
     set: &VisemeSet,
     shapes: &VisemeShapes,
     utterances: &[PreparedUtterance],
 ) -> Result<Vec<Vec<f32>>, DecomposeError> {
     let full = VisemeSet::full();
+    let k = set.len();
+    let mut map = vec![0.0f32; full.len() * k];
     if set.len() == full.len() {
-        return Ok(utterances
-            .iter()
-            .map(|u| {
-                u.targets
-                    .weights
-                    .iter()
-                    .flat_map(|w| set.members().iter().map(|v| w[v.index()]))
-                    .collect()
-            })
-            .collect());
-    }
-    let tracks = utterances
-        .iter()
-        .map(|u| PointTrack::from_weights(shapes, &full, u.targets.weights.iter().map(|w| &w[..])))
-        .collect::<Result<Vec<_>, _>>()?;
-    let mut all = PointTrack::new(shapes.point_dim(), shapes.coords());
-    for frame in tracks.iter().flat_map(PointTrack::frames) {
-        all.push(frame)?;
-    }
-    let decomposer = Decomposer::new(shapes, set, &all.point_sigmas())?;
-    Ok(tracks
-        .iter()
-        .map(|track| {
-            let mut w = vec![1.0 / set.len() as f32; set.len()];
-            let mut out = Vec::with_capacity(track.len() * set.len());
+        for (v, row) in full.members().iter().zip(map.chunks_exact_mut(k)) {
+            row[set.position(*v).expect("the full set")] = 1.0;
+        }
+    } else {
+        let mut all = PointTrack::new(shapes.point_dim(), shapes.coords());
+        for utt in utterances {
+            let track = PointTrack::from_weights(
+                shapes,
+                &full,
+                utt.targets.weights.iter().map(|w| &w[..]),
+            )?;
             for frame in track.frames() {
-                decomposer.fit(frame, &mut w);
-                out.extend_from_slice(&w);
+                all.push(frame)?;
+            }
+        }
+        let decomposer = Decomposer::new(shapes, set, &all.point_sigmas())?;
+        for (v, row) in full.members().iter().zip(map.chunks_exact_mut(k)) {
+            match set.position(*v) {
+                Some(i) => row[i] = 1.0,
+                None => {
+                    row.fill(1.0 / k as f32);
+                    decomposer.fit(shapes.shape(*v)?, row);
+                }
+            }
+        }
+    }
+    Ok(utterances
+        .iter()
+        .map(|u| {
+            let mut out = vec![0.0f32; u.targets.weights.len() * k];
+            for (w, o) in u.targets.weights.iter().zip(out.chunks_exact_mut(k)) {
+                for (weight, row) in w.iter().zip(map.chunks_exact(k)) {
+                    for (o, m) in o.iter_mut().zip(row) {
+                        *o += weight * m;
+                    }
+                }
             }
             out
         })
@@ -340,6 +360,7 @@ pub(crate) fn build_dataset(
         weights: Vec::new(),
         lengths: Vec::new(),
         segments: Vec::new(),
+        labiodental: Vec::new(),
         cues: model
             .visemes
             .members()
@@ -382,7 +403,7 @@ pub(crate) fn build_dataset(
             data.target_cues.push(cues(&full, &utt.targets.weights[n]));
             let in_closure = utt.targets.in_bilabial(n);
             data.weights
-                .push(if in_closure { closure_weight } else { 1.0 });
+                .push(utt.weight * if in_closure { closure_weight } else { 1.0 });
             if let (true, true, Some(closed)) = (sharp_closures, in_closure, closed) {
                 let target = &mut data.targets[(start + n) * outputs..(start + n + 1) * outputs];
                 target.fill(0.0);
@@ -394,6 +415,14 @@ pub(crate) fn build_dataset(
                 .bilabial_segments
                 .iter()
                 .map(|seg| start + seg.start..start + seg.end.min(utt.features.len()))
+                .filter(|seg| !seg.is_empty()),
+        );
+        data.labiodental.extend(
+            utt.targets
+                .cue_segments
+                .iter()
+                .filter(|(class, _)| *class == CueClass::Labiodental)
+                .map(|(_, seg)| start + seg.start..start + seg.end.min(utt.features.len()))
                 .filter(|seg| !seg.is_empty()),
         );
         start += utt.features.len();
@@ -612,10 +641,10 @@ pub(crate) fn segment_loss_and_gradient(
 /// within words, /f v/) are a smaller harm than missing the /p b m/ cue.
 pub const FALSE_CLOSURE_COST: f64 = 3.0;
 
-/// Closure-snap thresholds tried: 0 (off) and 0.5 to 0.95 in steps of 0.025 (below 0.5 the
-/// closed shape is not even the largest weight of three).
+/// Closure-snap thresholds tried: 0 (off) and [`MIN_CLOSURE_SNAP`] to 0.95 in steps of 0.025
+/// (with five or more shapes the closed one can lead well below 0.5).
 pub fn snap_candidates() -> impl Iterator<Item = f32> {
-    std::iter::once(0.0).chain((0..=18).map(|step| 0.5 + 0.025 * step as f32))
+    std::iter::once(0.0).chain((0..=26).map(|step| MIN_CLOSURE_SNAP + 0.025 * step as f32))
 }
 
 /// Predictions on held-out utterances before the closure snap: the network runs once and
@@ -892,6 +921,13 @@ pub fn train_on(
         config.rounding_weight,
     ];
     train_data.cue_weights = cue_weights;
+    for data in [&mut train_data, &mut validation_data] {
+        for seg in data.labiodental.clone() {
+            for w in &mut data.weights[seg] {
+                *w *= config.labiodental_weight;
+            }
+        }
+    }
     validation_data.cue_weights = cue_weights;
     if train_data.frames() == 0 || validation_data.frames() == 0 {
         return Err(TrainError::NoFrames);
