@@ -1,5 +1,6 @@
 //! Offline training and evaluation of the lip-sync network on a TIMIT-style corpus.
 
+pub mod an4;
 pub mod codec_features;
 pub mod corpus;
 pub mod crossval;
