@@ -19,8 +19,8 @@ use crate::train::codec_features::{
 use crate::train::corpus::{Corpus, PreparedUtterance, SpeakerSplit, Utterance};
 use crate::train::crossval::{SpeakerGroup, cross_validate, train_final};
 use crate::train::eval::{EvalReport, evaluate_prepared, write_frames};
-use crate::train::plot;
 use crate::train::trainer::{EpochStats, TrainConfig, train_on};
+use crate::train::{an4, plot};
 
 const DEFAULT_CORPUS: &str = "../shared/data/timit-sample";
 
@@ -118,6 +118,22 @@ pub struct TrainArgs {
     /// held-out scores, then train the model on all of them for the folds' median best epoch.
     #[arg(long)]
     pub cross_validate: bool,
+    /// With --cross-validate: also train on CMU AN4 (84 more speakers, force-aligned labels),
+    /// never held out or scored.
+    #[arg(long)]
+    pub an4: bool,
+    /// AN4's audio (wav/an4_clstk, wav/an4test_clstk).
+    #[arg(long, value_name = "DIR", default_value_os_t = an4::default_audio_root())]
+    pub an4_audio: PathBuf,
+    /// AN4's phone alignments (<speaker>/<utt>.phn, from tools/align_an4.py).
+    #[arg(long, value_name = "DIR", default_value_os_t = an4::default_labels_root())]
+    pub an4_labels: PathBuf,
+    /// Loss weight of AN4's frames against TIMIT's hand-labelled ones.
+    #[arg(long, value_name = "W", default_value_t = recipe::AN4_WEIGHT)]
+    pub an4_weight: f32,
+    /// Codec versions of each AN4 utterance.
+    #[arg(long, value_name = "N", default_value_t = recipe::AN4_CODEC_VERSIONS)]
+    pub an4_versions: usize,
     /// No progress bars.
     #[arg(long)]
     pub quiet: bool,
@@ -403,6 +419,57 @@ fn loss_note(config: &TrainConfig) -> String {
     note
 }
 
+/// CMU AN4 as a group that only trains: every aligned utterance at `--an4-versions` codec
+/// settings, its frames weighted by `--an4-weight`. Utterances without alignments, or whose
+/// labels or audio do not read, are skipped and counted.
+fn an4_group(
+    args: &TrainArgs,
+    codec: &CodecFeatures,
+    settings: &[EncoderConfig],
+) -> Result<SpeakerGroup> {
+    if !(args.an4_weight.is_finite() && args.an4_weight > 0.0) {
+        bail!("--an4-weight must be a positive number");
+    }
+    let (corpus, stats) = an4::open_aligned(&args.an4_audio, &args.an4_labels)?;
+    let speakers: Vec<String> = corpus.speakers.iter().map(|s| s.name.clone()).collect();
+    let utts = pick(&corpus, &speakers, args.utterances)?;
+    let versions = args.an4_versions.clamp(1, settings.len());
+    let progress = bar(utts.len(), "Speex round trips (AN4)", args.quiet);
+    let mut augmented = Vec::with_capacity(utts.len() * versions);
+    let mut failed = Vec::new();
+    for (i, utt) in utts.iter().enumerate() {
+        let rotated: Vec<EncoderConfig> = (0..versions)
+            .map(|k| settings[(i * versions + k) % settings.len()])
+            .collect();
+        match codec.prepare_augmented(std::slice::from_ref(utt), &rotated, versions, &|| {}) {
+            Ok(prepared) => augmented.extend(prepared),
+            Err(e) => failed.push(format!("{}/{}: {e}", utt.speaker, utt.id)),
+        }
+        progress.inc(1);
+    }
+    progress.finish_and_clear();
+    for utt in &mut augmented {
+        utt.weight = args.an4_weight;
+    }
+    eprintln!(
+        "AN4: {} utterances of {} speakers at {versions} codec setting(s), weight {}; {} without \
+         alignments and {} unreadable, skipped",
+        utts.len() - failed.len(),
+        speakers.len(),
+        args.an4_weight,
+        stats.unlabelled.len(),
+        failed.len()
+    );
+    for f in failed.iter().take(5) {
+        eprintln!("  skipped {f}");
+    }
+    Ok(SpeakerGroup {
+        name: "an4".into(),
+        augmented,
+        held_out: Vec::new(),
+    })
+}
+
 /// The non-test speakers grouped by dialect region (`dr4-falr0` -> `dr4`).
 fn regions(split: &SpeakerSplit) -> Vec<(String, Vec<String>)> {
     let mut groups: Vec<(String, Vec<String>)> = Vec::new();
@@ -458,6 +525,9 @@ fn train_cross_validated(args: &TrainArgs) -> Result<()> {
             held_out,
         });
     }
+    if args.an4 {
+        groups.push(an4_group(args, &codec, &settings)?);
+    }
     let progress = bar(regions.len(), "folds", args.quiet);
     progress.enable_steady_tick(std::time::Duration::from_secs(1));
     let cv = cross_validate(&config, &groups, snap)?;
@@ -488,6 +558,13 @@ fn train_cross_validated(args: &TrainArgs) -> Result<()> {
         test: split.test.clone(),
     };
     report.model.notes = provenance_notes(versions, "");
+    if args.an4 {
+        report.model.notes.push(format!(
+            "and from CMU AN4 (Copyright 1991 Carnegie Mellon University, free for any use; \
+             labels by forced alignment, tools/align_an4.py), frames weighted {}",
+            args.an4_weight
+        ));
+    }
     report.model.notes.extend([
         format!("training speakers: {}", report.split.train.join(" ")),
         format!(
@@ -510,6 +587,10 @@ fn train_cross_validated(args: &TrainArgs) -> Result<()> {
         .save(&args.out)
         .with_context(|| format!("cannot save the model to {}", args.out.display()))?;
     eprintln!("wrote the model to {}", args.out.display());
+    let card = args.out.with_extension("card.md");
+    std::fs::write(&card, model_card(args, &report.model, &cv))
+        .with_context(|| format!("cannot write {}", card.display()))?;
+    eprintln!("wrote the model card to {}", card.display());
     if let Some(path) = &args.curves {
         eprintln!(
             "wrote the learning curves to {} (its validation columns are the training speakers \
@@ -518,6 +599,72 @@ fn train_cross_validated(args: &TrainArgs) -> Result<()> {
         );
     }
     plot_curves(args.plot.as_deref(), &report.curve)
+}
+
+/// What a user of the weights needs to know: shape, data and licences, how it was chosen and
+/// how it scores out of sample.
+fn model_card(
+    args: &TrainArgs,
+    model: &Model,
+    cv: &crate::train::crossval::CrossValidation,
+) -> String {
+    let mut card = String::new();
+    let mut line = |text: String| {
+        card.push_str(&text);
+        card.push('\n');
+    };
+    line(format!("# Model card: {}", args.out.display()));
+    line(String::new());
+    line("## The network".into());
+    line(format!(
+        "- visemes: {} | inputs {} (context {}, look-ahead {} frame(s) = {} ms that the receiver's \
+         buffers hide) | hidden {} tanh | {} multiply-adds per frame (budget 400)",
+        model.visemes,
+        model.inputs(),
+        model.context,
+        model.lookahead,
+        20 * model.lookahead,
+        model.hidden,
+        model.multiply_adds()
+    ));
+    line(format!(
+        "- per-speaker LSP normalisation: {}",
+        match &model.speaker_norm {
+            Some(n) => format!("running mean over about {} speech frames", n.frames),
+            None => "off".into(),
+        }
+    ));
+    line(format!(
+        "- closure snap {} (tuned on the pooled folds)",
+        model.closure_snap
+    ));
+    line(String::new());
+    line("## Data and licences".into());
+    line(format!(
+        "- TIMIT corpus sample ({}), hand-labelled phones: Copyright 1993 Linguistic Data \
+         Consortium, CC BY-NC-SA. Weights derived from it carry the non-commercial term.",
+        args.corpus.display()
+    ));
+    if args.an4 {
+        line(format!(
+            "- CMU AN4 ({}), 84 speakers, phone labels by forced alignment \
+             (tools/alignments/an4, about 76 % of boundaries within 20 ms of hand labels): \
+             Copyright 1991 Carnegie Mellon University, free for any use with its notice. \
+             Frames weighted {} against TIMIT's.",
+            args.an4_audio.display(),
+            args.an4_weight
+        ));
+    }
+    line("- TIMIT dr5 and dr6 (4 speakers) are never used for training or any choice.".into());
+    line(String::new());
+    line(
+        "## Scores (cross-validated by dialect region, Speex quality 8, held-out speakers)".into(),
+    );
+    line(String::new());
+    line("```".into());
+    line(cv.to_string());
+    line("```".into());
+    card
 }
 
 /// The model `--model` names, or the built-in one.

@@ -124,7 +124,7 @@ impl<'m> LipSync<'m> {
     /// [`LipSync::flush`] gave that frame out already. Allocates nothing.
     pub fn push(&mut self, tag: u64, features: &FrameFeatures) -> Option<(u64, &[f32])> {
         self.animator.animate(features, &mut self.raw);
-        let silent = !(features.energy_db > STILL_BELOW_DB);
+        let silent = features.energy_db.is_nan() || features.energy_db <= STILL_BELOW_DB;
         self.pending[self.pending_len] = (tag, silent);
         self.pending_len += 1;
         if self.pending_len <= self.lookahead {

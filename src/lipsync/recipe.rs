@@ -20,4 +20,7 @@ pub const WIDTH_WEIGHT: f32 = 0.0;
 pub const ROUNDING_WEIGHT: f32 = 0.0;
 /// Codec versions of each training utterance.
 pub const CODEC_VERSIONS: usize = 4;
+/// Loss weight of AN4's force-aligned frames (TIMIT's hand-labelled ones weigh 1).
+pub const AN4_WEIGHT: f32 = 0.25;
+pub const AN4_CODEC_VERSIONS: usize = 1;
 pub const SEED: u64 = 0x5EED_CAFE;
