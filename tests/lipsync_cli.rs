@@ -154,7 +154,7 @@ fn tiny_training_writes_model_curves_and_plot_then_evaluates() {
     assert!(
         std::fs::read_to_string(&model)
             .unwrap()
-            .contains("lipcall-viseme-mlp 2")
+            .contains("lipcall-viseme-mlp 3")
     );
     assert_eq!(std::fs::read_to_string(&curves).unwrap().lines().count(), 4);
     assert!(std::fs::read(&plot).unwrap().starts_with(b"\x89PNG"));
@@ -209,6 +209,8 @@ fn cross_validated_training_holds_out_each_region_and_evaluation_dumps_frames() 
         "0.1",
         "--segment-closure-weight",
         "1",
+        "--an4-weight",
+        "0",
         "--quiet",
         "--out",
         model.to_str().unwrap(),
@@ -227,6 +229,11 @@ fn cross_validated_training_holds_out_each_region_and_evaluation_dumps_frames() 
     assert!(
         !saved.contains("dr5-") && !saved.contains("dr6-"),
         "{saved}"
+    );
+    let card = std::fs::read_to_string(model.with_extension("card.md")).unwrap();
+    assert!(
+        card.contains("CC BY-NC-SA") && card.contains("pooled") && !card.contains("AN4"),
+        "{card}"
     );
 
     let out = lipcall(&[
@@ -251,7 +258,7 @@ fn cross_validated_training_holds_out_each_region_and_evaluation_dumps_frames() 
     );
     let rows: Vec<Vec<&str>> = lines.map(|l| l.split(',').collect()).collect();
     assert!(rows.len() > 8 * 50, "{} rows", rows.len());
-    assert!(rows.iter().all(|r| r.len() == 12 && r[0].starts_with("dr")));
+    assert!(rows.iter().all(|r| r.len() == 16 && r[0].starts_with("dr")));
     // sa2 has the /m/ of "me".
     let bilabial = rows.iter().filter(|r| r[9] == "1").count();
     assert!(bilabial > 0 && bilabial < rows.len() / 4, "{bilabial}");

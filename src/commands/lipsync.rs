@@ -118,17 +118,14 @@ pub struct TrainArgs {
     /// held-out scores, then train the model on all of them for the folds' median best epoch.
     #[arg(long)]
     pub cross_validate: bool,
-    /// With --cross-validate: also train on CMU AN4 (84 more speakers, force-aligned labels),
-    /// never held out or scored.
-    #[arg(long)]
-    pub an4: bool,
     /// AN4's audio (wav/an4_clstk, wav/an4test_clstk).
     #[arg(long, value_name = "DIR", default_value_os_t = an4::default_audio_root())]
     pub an4_audio: PathBuf,
     /// AN4's phone alignments (<speaker>/<utt>.phn, from tools/align_an4.py).
     #[arg(long, value_name = "DIR", default_value_os_t = an4::default_labels_root())]
     pub an4_labels: PathBuf,
-    /// Loss weight of AN4's frames against TIMIT's hand-labelled ones.
+    /// With --cross-validate: loss weight of CMU AN4's frames (84 more speakers, force-aligned
+    /// labels, never held out or scored) against TIMIT's hand-labelled ones; 0 = no AN4.
     #[arg(long, value_name = "W", default_value_t = recipe::AN4_WEIGHT)]
     pub an4_weight: f32,
     /// Codec versions of each AN4 utterance.
@@ -525,7 +522,7 @@ fn train_cross_validated(args: &TrainArgs) -> Result<()> {
             held_out,
         });
     }
-    if args.an4 {
+    if args.an4_weight > 0.0 {
         groups.push(an4_group(args, &codec, &settings)?);
     }
     let progress = bar(regions.len(), "folds", args.quiet);
@@ -558,7 +555,7 @@ fn train_cross_validated(args: &TrainArgs) -> Result<()> {
         test: split.test.clone(),
     };
     report.model.notes = provenance_notes(versions, "");
-    if args.an4 {
+    if args.an4_weight > 0.0 {
         report.model.notes.push(format!(
             "and from CMU AN4 (Copyright 1991 Carnegie Mellon University, free for any use; \
              labels by forced alignment, tools/align_an4.py), frames weighted {}",
@@ -645,7 +642,7 @@ fn model_card(
          Consortium, CC BY-NC-SA. Weights derived from it carry the non-commercial term.",
         args.corpus.display()
     ));
-    if args.an4 {
+    if args.an4_weight > 0.0 {
         line(format!(
             "- CMU AN4 ({}), 84 speakers, phone labels by forced alignment \
              (tools/alignments/an4, about 76 % of boundaries within 20 ms of hand labels): \

@@ -355,7 +355,10 @@ pub fn targets_from_phones(
     }
     let mut closure_allowed = vec![false; frame_count];
     let mut labiodental_allowed = vec![false; frame_count];
-    for p in phones.iter().filter(|p| CueClass::of(&p.phone) == Some(CueClass::Labiodental)) {
+    for p in phones
+        .iter()
+        .filter(|p| CueClass::of(&p.phone) == Some(CueClass::Labiodental))
+    {
         let from = first_frame(p.start).saturating_sub(CLOSURE_MARGIN_FRAMES);
         let to = (end_frame(p.end) + CLOSURE_MARGIN_FRAMES).min(frame_count);
         labiodental_allowed[from..to].fill(true);

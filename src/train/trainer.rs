@@ -644,7 +644,9 @@ pub const FALSE_CLOSURE_COST: f64 = 3.0;
 /// Closure-snap thresholds tried: 0 (off) and [`MIN_CLOSURE_SNAP`] to 0.95 in steps of 0.025
 /// (with five or more shapes the closed one can lead well below 0.5).
 pub fn snap_candidates() -> impl Iterator<Item = f32> {
-    std::iter::once(0.0).chain((0..=26).map(|step| MIN_CLOSURE_SNAP + 0.025 * step as f32))
+    // In 40ths, so the thresholds print as the decimals they are.
+    let first = (MIN_CLOSURE_SNAP * 40.0).round() as usize;
+    std::iter::once(0.0).chain((first..=38).map(|step| step as f32 / 40.0))
 }
 
 /// Predictions on held-out utterances before the closure snap: the network runs once and
