@@ -1,9 +1,11 @@
-//! Features -> viseme weights per frame for the built-in default network.
+//! Features -> viseme weights per frame for the built-in default network: the network step alone,
+//! and the receiver pipeline the app runs per frame (look-ahead, speaker normalisation, closure
+//! rule, still silence), with the next frame on time and with the fallback when it is late.
 
 use std::hint::black_box;
 
 use criterion::{Criterion, criterion_group, criterion_main};
-use lipcall::lipsync::default_model;
+use lipcall::lipsync::{LipSync, LipSyncOptions, default_model};
 use lipcall::speex::features::FrameFeatures;
 
 fn frames() -> Vec<FrameFeatures> {
@@ -43,6 +45,28 @@ fn bench(c: &mut Criterion) {
             })
         },
     );
+
+    let mut lipsync = LipSync::new(&model, &LipSyncOptions::default()).unwrap();
+    let mut tag = 0u64;
+    c.bench_function(
+        &format!("receiver push (look-ahead {})", lipsync.lookahead()),
+        |b| {
+            b.iter(|| {
+                let out = lipsync.push(tag, black_box(&frames[tag as usize % frames.len()]));
+                tag += 1;
+                black_box(out.map(|(t, w)| (t, w[0])));
+            })
+        },
+    );
+    c.bench_function("receiver push + fallback (next frame always late)", |b| {
+        b.iter(|| {
+            let out = lipsync.push(tag, black_box(&frames[tag as usize % frames.len()]));
+            black_box(out.map(|(t, w)| (t, w[0])));
+            let late = lipsync.flush();
+            tag += 1;
+            black_box(late.map(|(t, w)| (t, w[0])));
+        })
+    });
 }
 
 criterion_group!(benches, bench);

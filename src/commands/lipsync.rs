@@ -405,6 +405,8 @@ fn loss_note(config: &TrainConfig) -> String {
         config.closure_weight, config.sharp_closures, config.openness_weight
     );
     for (name, value) in [
+        ("width weight", config.width_weight),
+        ("rounding weight", config.rounding_weight),
         ("segment closure weight", config.segment_closure_weight),
         ("warp", config.warp),
         ("weight decay", config.weight_decay),
@@ -412,6 +414,9 @@ fn loss_note(config: &TrainConfig) -> String {
         if value != 0.0 {
             note.push_str(&format!(", {name} {value}"));
         }
+    }
+    if config.labiodental_weight != 1.0 {
+        note.push_str(&format!(", /f v/ weight {}", config.labiodental_weight));
     }
     note
 }
