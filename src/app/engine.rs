@@ -109,6 +109,29 @@ pub struct EngineCounters {
     pub network_ns: AtomicU64,
     pub frames_animated: AtomicU64,
     pub ticks: AtomicU64,
+    /// Weights scheduled; of them, those given out by the look-ahead's fallback (the next
+    /// frame was late), and those scheduled after their frame had begun to be heard (the face
+    /// lagged the voice by up to the lateness), with the summed lateness in samples.
+    pub weights_sent: AtomicU64,
+    pub weights_fallback: AtomicU64,
+    pub weights_late: AtomicU64,
+    pub late_samples: AtomicU64,
+}
+
+impl EngineCounters {
+    /// Counts one row of weights for the frame at stream position `pos`, heard up to `heard`.
+    fn weights_scheduled(&self, pos: u64, heard: Option<u64>, fallback: bool) {
+        self.weights_sent.fetch_add(1, Ordering::Relaxed);
+        if fallback {
+            self.weights_fallback.fetch_add(1, Ordering::Relaxed);
+        }
+        if let Some(heard) = heard
+            && heard > pos
+        {
+            self.weights_late.fetch_add(1, Ordering::Relaxed);
+            self.late_samples.fetch_add(heard - pos, Ordering::Relaxed);
+        }
+    }
 }
 
 pub struct Engine {
@@ -666,6 +689,8 @@ impl Worker {
                     .fetch_add(1, Ordering::Relaxed);
             }
             if let Some((pos, w)) = out {
+                let heard = s.playback.heard_position(peer.feed.id(), Instant::now());
+                self.counters.weights_scheduled(pos, heard, false);
                 peer.weights.send(pos, w);
             }
         }
@@ -674,6 +699,8 @@ impl Worker {
             if !frames.iter().any(|f| f.ssrc == *ssrc)
                 && let Some((pos, w)) = peer.animation.flush()
             {
+                let heard = s.playback.heard_position(peer.feed.id(), Instant::now());
+                self.counters.weights_scheduled(pos, heard, true);
                 peer.weights.send(pos, w);
             }
         }

@@ -201,13 +201,17 @@ impl LipcallApp {
         let c = &self.engine.counters;
         let mut text = format!(
             "time_s={:.2} ui_frames={} network_ms={:.1} frames_animated={} record_ms={:.1} \
-             tiles_drawn={}\n",
+             tiles_drawn={} weights_sent={} weights_fallback={} weights_late={} late_ms={:.1}\n",
             self.started.elapsed().as_secs_f64(),
             self.frames,
             c.network_ns.load(Ordering::Relaxed) as f64 / 1e6,
             c.frames_animated.load(Ordering::Relaxed),
             self.counters.record_ns.load(Ordering::Relaxed) as f64 / 1e6,
             self.counters.tiles_drawn.load(Ordering::Relaxed),
+            c.weights_sent.load(Ordering::Relaxed),
+            c.weights_fallback.load(Ordering::Relaxed),
+            c.weights_late.load(Ordering::Relaxed),
+            c.late_samples.load(Ordering::Relaxed) as f64 / 8.0,
         );
         for p in peers {
             text += &format!(
