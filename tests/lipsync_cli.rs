@@ -103,6 +103,29 @@ fn unknown_phones_and_too_short_audio_are_clear_errors() {
 }
 
 #[test]
+fn non_finite_training_numbers_are_refused_before_any_work() {
+    for (flag, value) in [
+        ("--learning-rate", "NaN"),
+        ("--closure-weight", "inf"),
+        ("--rounding-weight", "1e40"),
+        ("--an4-weight", "NaN"),
+        ("--warp", "2"),
+    ] {
+        let out = lipcall(&[
+            "train",
+            "--corpus",
+            corpus().to_str().unwrap(),
+            flag,
+            value,
+            "--quiet",
+            "--out",
+            "/nonexistent/never-written.lipmodel",
+        ]);
+        assert_clean_failure(&out, flag);
+    }
+}
+
+#[test]
 fn bad_usage_exits_2() {
     for args in [
         &["train", "--visemes", "PP,PP"][..],
@@ -262,6 +285,74 @@ fn cross_validated_training_holds_out_each_region_and_evaluation_dumps_frames() 
     // sa2 has the /m/ of "me".
     let bilabial = rows.iter().filter(|r| r[9] == "1").count();
     assert!(bilabial > 0 && bilabial < rows.len() / 4, "{bilabial}");
+}
+
+#[test]
+fn an4_trains_beside_timit_and_utterances_without_alignments_are_skipped() {
+    let audio = Path::new(env!("CARGO_MANIFEST_DIR")).join("../shared/data/an4");
+    if !audio.is_dir() {
+        eprintln!("skipped: no AN4 audio at {}", audio.display());
+        return;
+    }
+    let dir = tempfile::tempdir().unwrap();
+    // Labels for two speakers only: every other AN4 utterance has none.
+    let labels = dir.path().join("labels");
+    let committed = Path::new(env!("CARGO_MANIFEST_DIR")).join("tools/alignments/an4");
+    for speaker in ["fash", "mjgm"] {
+        std::fs::create_dir_all(labels.join(speaker)).unwrap();
+        for entry in std::fs::read_dir(committed.join(speaker)).unwrap() {
+            let path = entry.unwrap().path();
+            std::fs::copy(&path, labels.join(speaker).join(path.file_name().unwrap())).unwrap();
+        }
+    }
+    let model = dir.path().join("m.lipmodel");
+    let out = lipcall(&[
+        "train",
+        "--cross-validate",
+        "--corpus",
+        corpus().to_str().unwrap(),
+        "--utterances",
+        "1",
+        "--versions",
+        "1",
+        "--epochs",
+        "2",
+        "--hidden",
+        "4",
+        "--an4-weight",
+        "0.2",
+        "--an4-labels",
+        labels.to_str().unwrap(),
+        "--quiet",
+        "--out",
+        model.to_str().unwrap(),
+    ]);
+    assert!(out.status.success(), "{}", stderr(&out));
+    let err = stderr(&out);
+    assert!(
+        err.contains("AN4: 2 utterances of 2 speakers") && err.contains("without alignments"),
+        "{err}"
+    );
+    let card = std::fs::read_to_string(model.with_extension("card.md")).unwrap();
+    assert!(
+        card.contains("CMU AN4") && card.contains("weighted 0.2"),
+        "{card}"
+    );
+    // An empty labels folder is a clear error, not a silent TIMIT-only model.
+    let empty = dir.path().join("empty");
+    std::fs::create_dir_all(&empty).unwrap();
+    let out = lipcall(&[
+        "train",
+        "--cross-validate",
+        "--corpus",
+        corpus().to_str().unwrap(),
+        "--an4-labels",
+        empty.to_str().unwrap(),
+        "--quiet",
+        "--out",
+        model.to_str().unwrap(),
+    ]);
+    assert_clean_failure(&out, "without alignments");
 }
 
 #[test]

@@ -246,7 +246,42 @@ fn parse_snap(text: &str) -> Result<Option<f32>> {
     }
 }
 
+/// Every number of the recipe must be finite and in range: a NaN learning rate trains a model
+/// that no loader accepts.
+fn check_numbers(args: &TrainArgs) -> Result<()> {
+    let non_negative = [
+        ("--closure-weight", args.closure_weight),
+        ("--labiodental-weight", args.labiodental_weight),
+        ("--segment-closure-weight", args.segment_closure_weight),
+        ("--openness-weight", args.openness_weight),
+        ("--width-weight", args.width_weight),
+        ("--rounding-weight", args.rounding_weight),
+        ("--weight-decay", args.weight_decay),
+        ("--an4-weight", args.an4_weight),
+        ("--peak-decay", args.peak_decay),
+    ];
+    for (flag, value) in non_negative {
+        if !(value.is_finite() && value >= 0.0) {
+            bail!("{flag} must be a finite number of 0 or more, not {value}");
+        }
+    }
+    if !(args.learning_rate.is_finite() && args.learning_rate > 0.0 && args.learning_rate <= 1.0) {
+        bail!(
+            "--learning-rate must be in (0, 1], not {}",
+            args.learning_rate
+        );
+    }
+    if !(args.warp.is_finite() && (0.0..0.5).contains(&args.warp)) {
+        bail!("--warp must be in [0, 0.5), not {}", args.warp);
+    }
+    if args.peak_decay > 10.0 {
+        bail!("--peak-decay must be at most 10 dB per frame");
+    }
+    Ok(())
+}
+
 fn train_config(args: &TrainArgs, split: &SpeakerSplit, snap: Option<f32>) -> Result<TrainConfig> {
+    check_numbers(args)?;
     Ok(TrainConfig {
         corpus_root: args.corpus.clone(),
         split: Some(split.clone()),
@@ -426,13 +461,10 @@ fn loss_note(config: &TrainConfig) -> String {
 /// labels or audio do not read, are skipped and counted.
 fn an4_group(
     args: &TrainArgs,
+    (corpus, stats): (Corpus, an4::AlignmentStats),
     codec: &CodecFeatures,
     settings: &[EncoderConfig],
 ) -> Result<SpeakerGroup> {
-    if !(args.an4_weight.is_finite() && args.an4_weight > 0.0) {
-        bail!("--an4-weight must be a positive number");
-    }
-    let (corpus, stats) = an4::open_aligned(&args.an4_audio, &args.an4_labels)?;
     let speakers: Vec<String> = corpus.speakers.iter().map(|s| s.name.clone()).collect();
     let utts = pick(&corpus, &speakers, args.utterances)?;
     let versions = args.an4_versions.clamp(1, settings.len());
@@ -491,6 +523,12 @@ fn train_cross_validated(args: &TrainArgs) -> Result<()> {
     let split = SpeakerSplit::standard(&corpus)?;
     let config = train_config(args, &split, snap)?;
     let regions = regions(&split);
+    // AN4's folders are checked before any work starts.
+    let an4 = if args.an4_weight > 0.0 {
+        Some(an4::open_aligned(&args.an4_audio, &args.an4_labels)?)
+    } else {
+        None
+    };
     let settings = augmentation_settings();
     let versions = args.versions.clamp(1, settings.len());
     eprintln!(
@@ -527,8 +565,8 @@ fn train_cross_validated(args: &TrainArgs) -> Result<()> {
             held_out,
         });
     }
-    if args.an4_weight > 0.0 {
-        groups.push(an4_group(args, &codec, &settings)?);
+    if let Some(aligned) = an4 {
+        groups.push(an4_group(args, aligned, &codec, &settings)?);
     }
     let progress = bar(regions.len(), "folds", args.quiet);
     progress.enable_steady_tick(std::time::Duration::from_secs(1));
