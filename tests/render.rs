@@ -176,6 +176,17 @@ fn all_visemes_look_different_from_the_front() {
 /// A flat "face" grid facing +Z with morph targets of the given names: each target moves the
 /// lower half of the grid (the "jaw") down by a different amount, or does nothing for `None`.
 fn grid_glb(targets: &[(&str, f32)], with_normals: bool) -> Vec<u8> {
+    grid_glb_with(targets, with_normals, None)
+}
+
+/// A 9 x 9 vertex grid facing +z with morph targets; with `texture` (image bytes and the declared
+/// MIME type, if any) it also has UVs covering the image, stored in the GLB's binary chunk as the
+/// material's base colour texture.
+fn grid_glb_with(
+    targets: &[(&str, f32)],
+    with_normals: bool,
+    texture: Option<(&[u8], Option<&str>)>,
+) -> Vec<u8> {
     let n = 9usize;
     let mut pos = Vec::new();
     for j in 0..n {
@@ -268,6 +279,24 @@ fn grid_glb(targets: &[(&str, f32)], with_normals: bool) -> Vec<u8> {
     if with_normals {
         attributes["NORMAL"] = json!(nacc);
     }
+    let mut material = json!({"pbrMetallicRoughness": {"baseColorFactor": [0.8, 0.6, 0.5, 1.0]}});
+    let mut images = Vec::new();
+    if let Some((bytes, mime)) = texture {
+        let uv: Vec<u8> = pos
+            .iter()
+            .flat_map(|p| [(p[0] + 0.1) / 0.2, (0.1 - p[1]) / 0.2])
+            .flat_map(|f| f.to_le_bytes())
+            .collect();
+        attributes["TEXCOORD_0"] = json!(add(uv, pos.len(), "VEC2", 5126, None));
+        let view = add(bytes.to_vec(), 1, "SCALAR", 5121, None);
+        accessors.pop(); // only the buffer view is wanted
+        let mut img = json!({"bufferView": view});
+        if let Some(mime) = mime {
+            img["mimeType"] = json!(mime);
+        }
+        images.push(img);
+        material["pbrMetallicRoughness"]["baseColorTexture"] = json!({"index": 0});
+    }
     let mut primitive = json!({"attributes": attributes, "indices": i, "material": 0});
     let mut mesh = json!({"name": "face"});
     if !targets.is_empty() {
@@ -281,11 +310,16 @@ fn grid_glb(targets: &[(&str, f32)], with_normals: bool) -> Vec<u8> {
         "scenes": [{"nodes": [0]}],
         "nodes": [{"name": "root", "children": [1], "scale": [2.0, 2.0, 2.0]}, {"mesh": 0, "translation": [0.0, 0.0, 0.01]}],
         "meshes": [mesh],
-        "materials": [{"pbrMetallicRoughness": {"baseColorFactor": [0.8, 0.6, 0.5, 1.0]}}],
+        "materials": [material],
         "accessors": accessors,
         "bufferViews": views,
         "buffers": [{"byteLength": bin.len()}],
     });
+    let mut doc = doc;
+    if !images.is_empty() {
+        doc["images"] = json!(images);
+        doc["textures"] = json!([{"source": 0}]);
+    }
     glb_container(doc.to_string().as_bytes(), &bin)
 }
 
@@ -328,6 +362,111 @@ fn arkit_head_animates_through_the_recipe() {
         pixel_difference(&rest, &open) > 20,
         "ARKit jawOpen should move the grid"
     );
+}
+
+/// A small JPEG of one saturated blue, made with the `image` crate's encoder.
+fn blue_jpeg() -> Vec<u8> {
+    let img = image::RgbImage::from_pixel(16, 16, image::Rgb([20, 40, 230]));
+    let mut bytes = Vec::new();
+    image::codecs::jpeg::JpegEncoder::new_with_quality(&mut bytes, 90)
+        .encode_image(&img)
+        .expect("JPEG encodes");
+    bytes
+}
+
+/// Mean colour of the pixels that are not the (black) background, and how many there are.
+fn head_colour(img: &image::RgbaImage) -> ([f64; 3], usize) {
+    let head: Vec<_> = img
+        .pixels()
+        .filter(|p| p[0].max(p[1]).max(p[2]) > 24)
+        .collect();
+    let mut sum = [0.0; 3];
+    for p in &head {
+        for k in 0..3 {
+            sum[k] += p[k] as f64;
+        }
+    }
+    let n = head.len().max(1) as f64;
+    (sum.map(|s| s / n), head.len())
+}
+
+#[test]
+fn jpeg_base_colour_textures_are_drawn_and_broken_ones_fall_back_to_the_factor() {
+    let jpeg = blue_jpeg();
+    assert_eq!(&jpeg[..3], &[0xFF, 0xD8, 0xFF]);
+    let mut broken = jpeg.clone();
+    for b in broken.iter_mut().skip(2) {
+        *b = 0x5A;
+    }
+    let textured = [
+        grid_glb_with(
+            &[("viseme_aa", 0.05)],
+            true,
+            Some((&jpeg, Some("image/jpeg"))),
+        ),
+        // Without a MIME type the format comes from the bytes' signature.
+        grid_glb_with(&[("viseme_aa", 0.05)], true, Some((&jpeg, None))),
+    ];
+    let broken = [
+        grid_glb_with(
+            &[("viseme_aa", 0.05)],
+            true,
+            Some((&broken, Some("image/jpeg"))),
+        ),
+        grid_glb_with(
+            &[("viseme_aa", 0.05)],
+            true,
+            Some((&jpeg, Some("image/webp"))),
+        ),
+    ];
+    let textured: Vec<HeadModel> = textured
+        .iter()
+        .map(|glb| load_head_from_slice(glb).expect("textured grid loads"))
+        .collect();
+    let broken: Vec<HeadModel> = broken
+        .iter()
+        .map(|glb| load_head_from_slice(glb).expect("a bad texture does not stop loading"))
+        .collect();
+    for head in &textured {
+        let tex = head.materials[0].texture.as_ref().expect("JPEG decoded");
+        assert_eq!((tex.width, tex.height), (16, 16));
+        let [r, g, b, a] = tex.rgba[4 * (8 * 16 + 8)..][..4] else {
+            unreachable!()
+        };
+        assert!(b > 200 && r < 60 && g < 80 && a == 255, "{r} {g} {b} {a}");
+    }
+    for head in &broken {
+        assert!(head.materials[0].texture.is_none());
+        assert_eq!(head.materials[0].base_color, [0.8, 0.6, 0.5, 1.0]);
+    }
+
+    let Some(ctx) = gpu() else { return };
+    let options = FrameOptions {
+        width: 64,
+        height: 64,
+        background: [0.0; 3],
+        ..Default::default()
+    };
+    let render = |head: &HeadModel| {
+        let mut offscreen = OffscreenRenderer::new(&ctx, head, options).unwrap();
+        let img = offscreen.render(&ctx, &VisemeWeights::neutral()).unwrap();
+        head_colour(&img)
+    };
+    for head in &textured {
+        let ([r, g, b], n) = render(head);
+        println!("textured head: {n} pixels, mean colour {r:.0} {g:.0} {b:.0}");
+        assert!(n > 100, "the head covers too few pixels: {n}");
+        assert!(b > 1.5 * r && b > 1.5 * g && b > 60.0, "{r} {g} {b}");
+    }
+    for head in &broken {
+        let ([r, g, b], n) = render(head);
+        println!("broken texture: {n} pixels, mean colour {r:.0} {g:.0} {b:.0}");
+        assert!(n > 100, "the head covers too few pixels: {n}");
+        assert!(
+            r > b && g > b,
+            "factor colour (0.8, 0.6, 0.5) expected: {r} {g} {b}"
+        );
+    }
 }
 
 #[test]

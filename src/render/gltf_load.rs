@@ -1,5 +1,5 @@
 //! Loading glTF 2.0 / GLB heads: meshes and primitives under their node transforms, base colour
-//! factors and PNG base colour textures, and morph targets matched by name to the visemes
+//! factors and PNG or JPEG base colour textures, and morph targets matched by name to the visemes
 //! (`viseme_aa` or `aa`) or to ARKit blendshapes combined through [`super::arkit`].
 //!
 //! Every accessor is bounds-checked before it is read, so malformed files give errors, not panics.
@@ -21,6 +21,8 @@ use super::head::{
 /// Refuse absurd sizes before allocating for them.
 const MAX_VERTICES: usize = 4_000_000;
 const MAX_NODE_DEPTH: usize = 64;
+/// Largest base colour texture side accepted; larger ones are refused before any pixel is decoded.
+const MAX_TEXTURE_SIDE: u32 = 8192;
 
 /// Loads a head from a `.glb` or `.gltf` file (external buffers and images are read from beside it).
 pub fn load_head(path: &Path) -> Result<HeadModel, RenderError> {
@@ -87,7 +89,7 @@ fn load_head_from_slice_in(bytes: &[u8], base: Option<&Path>) -> Result<HeadMode
 
     let mut materials: Vec<Material> = doc
         .materials()
-        .map(|m| load_material(&m, &buffers, base))
+        .map(|m| load_material(doc, &m, &buffers, base))
         .collect();
     let default_material = materials.len();
     materials.push(Material::default());
@@ -349,26 +351,31 @@ fn decode_base64(s: &str) -> Result<Vec<u8>, RenderError> {
     Ok(out)
 }
 
-fn load_material(m: &gltf::Material, buffers: &[Vec<u8>], base: Option<&Path>) -> Material {
+fn load_material(
+    doc: &gltf::Document,
+    m: &gltf::Material,
+    buffers: &[Vec<u8>],
+    base: Option<&Path>,
+) -> Material {
+    let name = m.name().unwrap_or("material").to_owned();
     let pbr = m.pbr_metallic_roughness();
     let factor = pbr.base_color_factor();
+    // A texture that cannot be used is not fatal: the material keeps its base colour factor.
     let texture = pbr.base_color_texture().and_then(|info| {
-        let image = info.texture().source();
-        let bytes = match image.source() {
-            gltf::image::Source::View { view, .. } => view_slice(&view, buffers).ok()?.to_vec(),
-            gltf::image::Source::Uri { uri, .. } => read_uri(uri, base).ok()?,
-        };
-        // PNG only (the crate is built without JPEG); other images fall back to the factor.
-        let decoded = image::load_from_memory_with_format(&bytes, image::ImageFormat::Png).ok()?;
-        let rgba = decoded.to_rgba8();
-        Some(Texture {
-            width: rgba.width(),
-            height: rgba.height(),
-            rgba: rgba.into_raw(),
-        })
+        let image = info.texture().source().index();
+        match load_texture(doc, image, buffers, base) {
+            Ok(texture) => Some(texture),
+            Err(reason) => {
+                tracing::warn!(
+                    "material {name:?}: base colour texture (image {image}) not used, \
+                     drawn with its base colour factor: {reason}"
+                );
+                None
+            }
+        }
     });
     Material {
-        name: m.name().unwrap_or("material").to_owned(),
+        name,
         base_color: factor.map(|c| {
             if c.is_finite() {
                 c.clamp(0.0, 1.0)
@@ -377,6 +384,71 @@ fn load_material(m: &gltf::Material, buffers: &[Vec<u8>], base: Option<&Path>) -
             }
         }),
         texture,
+    }
+}
+
+/// Reads and decodes image `index` of the document as RGBA8, or says why it cannot.
+fn load_texture(
+    doc: &gltf::Document,
+    index: usize,
+    buffers: &[Vec<u8>],
+    base: Option<&Path>,
+) -> Result<Texture, String> {
+    // Read from the JSON: `gltf::Image::source` panics on an image with a buffer view and no
+    // MIME type, or with neither a buffer view nor a URI.
+    let json = doc.as_json().images.get(index).ok_or("no such image")?;
+    let mime = json.mime_type.as_ref().map(|m| m.0.as_str());
+    let bytes = if let Some(view) = &json.buffer_view {
+        let view = doc
+            .views()
+            .nth(view.value())
+            .ok_or("buffer view out of range")?;
+        view_slice(&view, buffers)
+            .map_err(|e| e.to_string())?
+            .to_vec()
+    } else if let Some(uri) = &json.uri {
+        read_uri(uri, base).map_err(|e| e.to_string())?
+    } else {
+        return Err("the image has neither a buffer view nor a URI".into());
+    };
+    let format = texture_format(mime, &bytes).ok_or_else(|| match mime {
+        Some(m) => format!("unsupported image type {m:?} (PNG and JPEG are)"),
+        None => "not a PNG or JPEG image".to_owned(),
+    })?;
+    decode_texture(&bytes, format)
+}
+
+/// Decodes PNG or JPEG bytes as RGBA8, refusing declared sizes over [`MAX_TEXTURE_SIDE`] before
+/// allocating for the pixels.
+fn decode_texture(bytes: &[u8], format: image::ImageFormat) -> Result<Texture, String> {
+    let mut reader = image::ImageReader::with_format(std::io::Cursor::new(bytes), format);
+    let mut limits = image::Limits::default();
+    limits.max_image_width = Some(MAX_TEXTURE_SIDE);
+    limits.max_image_height = Some(MAX_TEXTURE_SIDE);
+    reader.limits(limits);
+    let decoded = reader
+        .decode()
+        .map_err(|e| format!("{format:?} image does not decode: {e}"))?;
+    let rgba = decoded.to_rgba8();
+    Ok(Texture {
+        width: rgba.width(),
+        height: rgba.height(),
+        rgba: rgba.into_raw(),
+    })
+}
+
+/// The format to decode a texture as: its declared MIME type when it has one, else the bytes'
+/// signature. `None` for anything but PNG and JPEG.
+fn texture_format(mime: Option<&str>, bytes: &[u8]) -> Option<image::ImageFormat> {
+    match mime {
+        Some(m) => match m.trim().to_ascii_lowercase().as_str() {
+            "image/png" => Some(image::ImageFormat::Png),
+            "image/jpeg" | "image/jpg" => Some(image::ImageFormat::Jpeg),
+            _ => None,
+        },
+        None if bytes.starts_with(b"\x89PNG\r\n\x1a\n") => Some(image::ImageFormat::Png),
+        None if bytes.starts_with(&[0xFF, 0xD8, 0xFF]) => Some(image::ImageFormat::Jpeg),
+        None => None,
     }
 }
 
@@ -643,4 +715,51 @@ fn read_primitive(
         indices,
         targets: out_targets,
     })
+}
+
+#[cfg(test)]
+mod tests {
+    use super::{decode_texture, texture_format};
+    use image::ImageFormat;
+
+    const PNG: &[u8] = b"\x89PNG\r\n\x1a\n\0\0\0\rIHDR";
+    const JPEG: &[u8] = &[0xFF, 0xD8, 0xFF, 0xE0, 0, 16, b'J', b'F', b'I', b'F'];
+
+    #[test]
+    fn declared_mime_type_wins_over_the_signature() {
+        assert_eq!(
+            texture_format(Some("image/jpeg"), PNG),
+            Some(ImageFormat::Jpeg)
+        );
+        assert_eq!(
+            texture_format(Some("image/png"), JPEG),
+            Some(ImageFormat::Png)
+        );
+        assert_eq!(texture_format(Some("image/webp"), PNG), None);
+        assert_eq!(texture_format(Some("image/ktx2"), JPEG), None);
+    }
+
+    #[test]
+    fn signature_decides_without_a_mime_type() {
+        assert_eq!(texture_format(None, PNG), Some(ImageFormat::Png));
+        assert_eq!(texture_format(None, JPEG), Some(ImageFormat::Jpeg));
+        assert_eq!(texture_format(None, b"RIFF\0\0\0\0WEBPVP8 "), None);
+        assert_eq!(texture_format(None, b""), None);
+    }
+
+    #[test]
+    fn oversized_textures_are_refused_before_decoding() {
+        let img = image::RgbImage::from_pixel(8, 8, image::Rgb([0, 0, 255]));
+        let mut jpeg = Vec::new();
+        image::codecs::jpeg::JpegEncoder::new(&mut jpeg)
+            .encode_image(&img)
+            .unwrap();
+        let ok = decode_texture(&jpeg, ImageFormat::Jpeg).unwrap();
+        assert_eq!((ok.width, ok.height), (8, 8));
+        // Declare 60000 x 60000 in the frame header (SOF0: FF C0, length, precision, height, width).
+        let sof = jpeg.windows(2).position(|w| w == [0xFF, 0xC0]).unwrap();
+        jpeg[sof + 5..sof + 9].copy_from_slice(&[0xEA, 0x60, 0xEA, 0x60]);
+        let err = decode_texture(&jpeg, ImageFormat::Jpeg).unwrap_err();
+        assert!(err.to_lowercase().contains("limit"), "{err}");
+    }
 }
