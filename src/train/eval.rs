@@ -438,23 +438,17 @@ mod tests {
     use super::*;
     use crate::train::corpus::{PhoneSegment, targets_from_phones};
 
-    fn utterance() -> PreparedUtterance {
-        let phones: Vec<PhoneSegment> = [
-            (0, 3200, "h#"),
-            (3200, 6400, "aa"),
-            (6400, 8000, "m"),
-            (8000, 11200, "aa"),
-            (11200, 14400, "s"),
-            (14400, 16000, "h#"),
-        ]
-        .into_iter()
-        .map(|(start, end, phone)| PhoneSegment {
-            start,
-            end,
-            phone: phone.into(),
-        })
-        .collect();
-        let targets = targets_from_phones(&phones, 16000, 16000).unwrap();
+    /// Silent features over the targets of `phones` (16 kHz samples).
+    fn prepared(phones: &[(u64, u64, &str)], samples: u32) -> PreparedUtterance {
+        let phones: Vec<PhoneSegment> = phones
+            .iter()
+            .map(|&(start, end, phone)| PhoneSegment {
+                start,
+                end,
+                phone: phone.into(),
+            })
+            .collect();
+        let targets = targets_from_phones(&phones, 16000, samples).unwrap();
         let features = vec![crate::lipsync::network::silence_features(); targets.len()];
         PreparedUtterance {
             speaker: "x".into(),
@@ -463,6 +457,18 @@ mod tests {
             targets,
             weight: 1.0,
         }
+    }
+
+    fn utterance() -> PreparedUtterance {
+        let phones = [
+            (0, 3200, "h#"),
+            (3200, 6400, "aa"),
+            (6400, 8000, "m"),
+            (8000, 11200, "aa"),
+            (11200, 14400, "s"),
+            (14400, 16000, "h#"),
+        ];
+        prepared(&phones, 16000)
     }
 
     #[test]
@@ -484,30 +490,15 @@ mod tests {
     }
 
     fn cue_utterance() -> PreparedUtterance {
-        let phones: Vec<PhoneSegment> = [
+        let phones = [
             (0, 3200, "h#"),
             (3200, 4000, "f"),
             (4000, 5600, "uw"),
             (5600, 6000, "v"),
             (6000, 8000, "ae"),
             (8000, 9600, "h#"),
-        ]
-        .into_iter()
-        .map(|(start, end, phone)| PhoneSegment {
-            start,
-            end,
-            phone: phone.into(),
-        })
-        .collect();
-        let targets = targets_from_phones(&phones, 16000, 9600).unwrap();
-        let features = vec![crate::lipsync::network::silence_features(); targets.len()];
-        PreparedUtterance {
-            speaker: "x".into(),
-            id: "z".into(),
-            features,
-            targets,
-            weight: 1.0,
-        }
+        ];
+        prepared(&phones, 9600)
     }
 
     #[test]

@@ -1166,15 +1166,20 @@ mod tests {
         assert!(checked > 20);
     }
 
-    #[test]
-    fn look_ahead_datasets_keep_every_frame_and_see_the_next_one() {
-        let (train, _) = tiny_data();
-        let config = TrainConfig {
+    /// Three visemes, four hidden units, one context frame: quick to train and to check.
+    fn small_config() -> TrainConfig {
+        TrainConfig {
             visemes: VisemeSet::reduced(3).unwrap(),
             hidden: 4,
             context: 1,
             ..TrainConfig::default()
-        };
+        }
+    }
+
+    #[test]
+    fn look_ahead_datasets_keep_every_frame_and_see_the_next_one() {
+        let (train, _) = tiny_data();
+        let config = small_config();
         let mut rng = Rng::new(3);
         let causal = initial_model(&config, &train, &mut rng);
         let mut ahead = causal.clone();
@@ -1192,12 +1197,7 @@ mod tests {
     #[test]
     fn segment_closure_gradient_matches_finite_differences() {
         let (train, _) = tiny_data();
-        let config = TrainConfig {
-            visemes: VisemeSet::reduced(3).unwrap(),
-            hidden: 4,
-            context: 1,
-            ..TrainConfig::default()
-        };
+        let config = small_config();
         let mut rng = Rng::new(11);
         let model = initial_model(&config, &train, &mut rng);
         let targets = set_targets(&config.visemes, &config.shapes, &train).unwrap();
