@@ -14,7 +14,6 @@ use crate::audio::{
     Capture, DeviceChoice, Gate, MicControls, OutputStatus, PeerFeed, PeerId, Playback,
     PlaybackConfig, Schedule, ScheduleSender,
 };
-use crate::lipsync::network::Model;
 use crate::lipsync::visemes::{FullWeights, VisemeSet};
 use crate::lipsync::{LipSync, LipSyncOptions};
 use crate::net::peer::FrameKind;
@@ -207,12 +206,6 @@ fn describe_output(status: &OutputStatus) -> String {
     }
 }
 
-/// The shipped network, built once and shared by every peer's animator.
-fn shipped_model() -> &'static Model {
-    static MODEL: std::sync::OnceLock<Model> = std::sync::OnceLock::new();
-    MODEL.get_or_init(crate::lipsync::default_model)
-}
-
 /// The choices an animator is built from; a change rebuilds it.
 #[derive(Debug, Clone, PartialEq)]
 struct AnimationKey {
@@ -239,15 +232,13 @@ impl AnimationKey {
 /// pipeline, [`LipSync`]), or does nothing at all when the peer's animation is off.
 pub struct PeerAnimation {
     lipsync: Option<LipSync<'static>>,
-    /// The set the weights are over (the lip sync's own, kept beside it).
-    target: Option<VisemeSet>,
     key: AnimationKey,
     pub frames_animated: u64,
 }
 
 impl PeerAnimation {
     pub fn new(prefs: &PeerPrefs) -> Self {
-        let model = shipped_model();
+        let model = crate::lipsync::builtin::shipped();
         let options = LipSyncOptions {
             jaw: prefs.jaw,
             closure_bias: prefs.closures,
@@ -266,7 +257,6 @@ impl PeerAnimation {
             })
             .ok();
         Self {
-            target: lipsync.as_ref().map(|l| l.visemes().clone()),
             lipsync,
             key: AnimationKey::of(prefs),
             frames_animated: 0,
@@ -275,7 +265,7 @@ impl PeerAnimation {
 
     /// The viseme set the weights are expressed over.
     pub fn target(&self) -> Option<&VisemeSet> {
-        self.target.as_ref()
+        self.lipsync.as_ref().map(|l| l.visemes())
     }
 
     /// Feeds one decoded frame, tagged with its stream position. Returns the weights of the
@@ -297,15 +287,13 @@ impl PeerAnimation {
         }
         let lipsync = self.lipsync.as_mut()?;
         self.frames_animated += 1;
-        let (tag, w) = lipsync.push(tag, features)?;
-        Some((tag, self.target.as_ref()?.to_full(w)))
+        lipsync.push_full(tag, features)
     }
 
     /// The oldest frame still waiting for its look-ahead, now: the peer's next frame did not
     /// come in time (loss, end of a talk spurt, the jitter buffer at its floor).
     pub fn flush(&mut self) -> Option<(u64, FullWeights)> {
-        let (tag, w) = self.lipsync.as_mut()?.flush()?;
-        Some((tag, self.target.as_ref()?.to_full(w)))
+        self.lipsync.as_mut()?.flush_full()
     }
 }
 

@@ -5,15 +5,16 @@ use super::network::Model;
 
 const SHIPPED: &str = include_str!("../../assets/models/default.lipmodel");
 
-/// The shipped default network. Its viseme names are `default_model().viseme_names()`.
-pub fn default_model() -> Model {
+/// The shipped default network, parsed once. Its viseme names are `shipped().viseme_names()`.
+pub fn shipped() -> &'static Model {
     static MODEL: std::sync::OnceLock<Model> = std::sync::OnceLock::new();
-    MODEL
-        .get_or_init(|| {
-            // The file is compiled in and a unit test loads it: only a broken build gets here.
-            Model::from_text(SHIPPED).expect("the shipped model file parses")
-        })
-        .clone()
+    // The file is compiled in and a unit test loads it: only a broken build fails here.
+    MODEL.get_or_init(|| Model::from_text(SHIPPED).expect("the shipped model file parses"))
+}
+
+/// An owned copy of the shipped network, for callers that adjust it.
+pub fn default_model() -> Model {
+    shipped().clone()
 }
 
 #[cfg(test)]

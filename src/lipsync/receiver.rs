@@ -14,7 +14,7 @@
 use super::jaw::JawBaseline;
 use super::network::{MAX_LOOKAHEAD, Model};
 use super::reproject::{ReprojectError, Reprojector};
-use super::visemes::{Viseme, VisemeSet};
+use super::visemes::{FullWeights, Viseme, VisemeSet};
 use super::{Animator, ModelAnimator};
 use crate::lipsync::mouth::VisemeShapes;
 use crate::speex::features::FrameFeatures;
@@ -152,6 +152,22 @@ impl<'m> LipSync<'m> {
         self.flushed += 1;
         let (tag, silent) = self.pending[i];
         Some((tag, self.finish(silent)))
+    }
+
+    /// [`LipSync::push`] with the weights spread over all 15 visemes (what a head takes).
+    pub fn push_full(&mut self, tag: u64, features: &FrameFeatures) -> Option<(u64, FullWeights)> {
+        let (tag, _) = self.push(tag, features)?;
+        Some((tag, self.full()))
+    }
+
+    /// [`LipSync::flush`] with the weights spread over all 15 visemes.
+    pub fn flush_full(&mut self) -> Option<(u64, FullWeights)> {
+        let (tag, _) = self.flush()?;
+        Some((tag, self.full()))
+    }
+
+    fn full(&self) -> FullWeights {
+        self.reprojector.target().to_full(&self.out)
     }
 
     fn finish(&mut self, silent: bool) -> &[f32] {
