@@ -6,6 +6,7 @@
 use std::hint::black_box;
 
 use criterion::{Criterion, criterion_group, criterion_main};
+use lipcall::render::head::FacePose;
 use lipcall::render::offscreen::{FrameOptions, GpuContext, OffscreenRenderer};
 use lipcall::render::renderer::{DEPTH_FORMAT, HeadRenderer};
 use lipcall::render::{Camera, Framing, VisemeWeights};
@@ -60,7 +61,14 @@ fn bench(c: &mut Criterion) {
         c.bench_function("head_frame_cpu (weights upload + draw encoding)", |b| {
             b.iter(|| {
                 i += 1;
-                renderer.prepare(&ctx.queue, &mut instance, &camera, 1.0, &weights_at(i));
+                renderer.prepare(
+                    &ctx.queue,
+                    &mut instance,
+                    &camera,
+                    1.0,
+                    &weights_at(i),
+                    &FacePose::REST,
+                );
                 let mut encoder = device.create_command_encoder(&Default::default());
                 {
                     let mut pass = encoder.begin_render_pass(&wgpu::RenderPassDescriptor {

@@ -1,6 +1,8 @@
-// Morph-target blending of a talking head. The deltas of the 15 visemes are uploaded once as one
-// storage buffer (6 floats per vertex per viseme: position xyz, normal xyz); the weights are a
-// small uniform rewritten every frame, and the weighted sum is done here per vertex.
+// Morph-target blending of a talking head. The deltas of the 20 target slots (15 visemes, then
+// the eyes: blink, look up, down, left, right) are uploaded once as one storage buffer (6 floats
+// per vertex per slot: position xyz, normal xyz, one block of vertices per slot); the weights are
+// a small uniform rewritten every frame, and the weighted sum is done here per vertex. Head motion
+// (a rotation about the neck) is part of the model matrix.
 
 struct View {
     view_proj: mat4x4<f32>,
@@ -12,8 +14,11 @@ struct View {
     counts: vec4<u32>,
 }
 
+// Slots blended: 15 visemes + 5 expressions (TARGET_COUNT in src/render/head.rs).
+const TARGET_COUNT: u32 = 20u;
+
 struct Weights {
-    w: array<vec4<f32>, 4>,
+    w: array<vec4<f32>, 5>,
 }
 
 struct Material {
@@ -56,7 +61,7 @@ fn blend(vid: u32, position: vec3<f32>, normal: vec3<f32>) -> Blended {
     if (vid >= count) {
         return Blended(p, n);
     }
-    for (var t = 0u; t < 15u; t = t + 1u) {
+    for (var t = 0u; t < TARGET_COUNT; t = t + 1u) {
         let w = weights.w[t / 4u][t % 4u];
         if (w != 0.0) {
             let b = (t * count + vid) * 6u;
@@ -74,7 +79,8 @@ fn vs_main(in: VertexIn, @builtin(vertex_index) vid: u32) -> VertexOut {
     var out: VertexOut;
     out.clip = view.view_proj * world;
     out.world = world.xyz;
-    // The model matrix is a rotation + uniform scale, so it transforms normals too.
+    // The model matrix (placement times head motion) is a rotation + uniform scale + translation,
+    // so it transforms normals too.
     out.normal = (view.model * vec4<f32>(b.normal, 0.0)).xyz;
     out.uv = in.uv;
     out.color = in.color;

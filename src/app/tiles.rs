@@ -82,7 +82,14 @@ impl CallbackTrait for HeadTile {
             renderer.new_instance(device, head.clone(), &format!("tile {}", self.id))
         });
         let camera = Camera::framing(head.face_frame(), self.framing);
-        renderer.prepare(queue, instance, &camera, self.aspect, &self.weights);
+        renderer.prepare(
+            queue,
+            instance,
+            &camera,
+            self.aspect,
+            &self.weights,
+            &crate::render::head::FacePose::REST,
+        );
         counters
             .record_ns
             .fetch_add(t0.elapsed().as_nanos() as u64, Ordering::Relaxed);

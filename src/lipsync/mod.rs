@@ -5,6 +5,7 @@ pub mod builtin;
 pub mod coarticulation;
 pub mod decompose;
 pub mod jaw;
+pub mod life;
 pub mod markers;
 pub mod mouth;
 pub mod network;

@@ -1,9 +1,10 @@
-//! Writes a [`HeadModel`] as a binary glTF 2.0 file (GLB), with one mesh per primitive and the
-//! viseme shapes as morph targets named `viseme_<name>` (listed in `mesh.extras.targetNames`).
+//! Writes a [`HeadModel`] as a binary glTF 2.0 file (GLB), with one mesh per primitive, the
+//! viseme shapes as morph targets named `viseme_<name>` and the eye expressions a primitive has
+//! under their slot names (`eyeBlink`, `eyeLookUp`, ...; listed in `mesh.extras.targetNames`).
 
 use serde_json::{Value, json};
 
-use super::head::{HeadModel, VISEME_NAMES};
+use super::head::{HeadModel, VISEME_COUNT, VISEME_NAMES, slot_name};
 
 const ARRAY_BUFFER: u32 = 34962;
 const ELEMENT_ARRAY_BUFFER: u32 = 34963;
@@ -133,6 +134,10 @@ pub fn write_glb(model: &HeadModel) -> Vec<u8> {
             let mut targets = Vec::new();
             let mut names = Vec::new();
             for (t, deltas) in p.targets.iter().enumerate() {
+                // Every viseme is written (empty ones as zeros); expressions only where present.
+                if t >= VISEME_COUNT && deltas.is_empty() {
+                    continue;
+                }
                 let dp: Vec<[f32; 3]> = deltas.iter().map(|d| d.position).collect();
                 let dn: Vec<[f32; 3]> = deltas.iter().map(|d| d.normal).collect();
                 let (dp, dn) = if deltas.is_empty() {
@@ -144,7 +149,10 @@ pub fn write_glb(model: &HeadModel) -> Vec<u8> {
                     (dp, dn)
                 };
                 targets.push(json!({"POSITION": b.sparse_vec3(&dp), "NORMAL": b.sparse_vec3(&dn)}));
-                names.push(format!("viseme_{}", VISEME_NAMES[t]));
+                names.push(match VISEME_NAMES.get(t) {
+                    Some(v) => format!("viseme_{v}"),
+                    None => slot_name(t).unwrap_or("unused").to_owned(),
+                });
             }
             primitive["targets"] = json!(targets);
             mesh["weights"] = json!(vec![0.0; targets.len()]);

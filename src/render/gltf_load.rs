@@ -1,6 +1,7 @@
 //! Loading glTF 2.0 / GLB heads: meshes and primitives under their node transforms, base colour
 //! factors and PNG or JPEG base colour textures, and morph targets matched by name to the visemes
-//! (`viseme_aa` or `aa`) or to ARKit blendshapes combined through [`super::arkit`].
+//! (`viseme_aa` or `aa`) or to ARKit blendshapes combined through [`super::arkit`], and to the
+//! eye expressions (ARKit's `eyeBlink*` and `eyeLook*`, or lipcall's own slot names).
 //!
 //! Every accessor is bounds-checked before it is read, so malformed files give errors, not panics.
 //! Skinned meshes are taken in their bind pose (their node transform is ignored, as the glTF
@@ -14,8 +15,8 @@ use gltf::accessor::{DataType, Dimensions};
 use super::RenderError;
 use super::arkit::{self, ARKIT_NAMES};
 use super::head::{
-    HeadModel, Material, MorphDelta, Primitive, TargetSource, Texture, VISEME_COUNT, VISEME_NAMES,
-    Vertex, smooth_normals,
+    EXPRESSION_COUNT, Expression, HeadModel, Material, MorphDelta, Primitive, TargetSource,
+    Texture, VISEME_COUNT, VISEME_NAMES, Vertex, smooth_normals,
 };
 
 /// Refuse absurd sizes before allocating for them.
@@ -47,7 +48,57 @@ fn gltf_err(e: impl std::fmt::Display) -> RenderError {
 enum TargetKind {
     Viseme(usize),
     Arkit(usize),
+    /// An eye shape: `own` for lipcall's slot names (`eyeBlink`, `eyeLookLeft`, ...), which
+    /// hold both eyes; otherwise one eye's ARKit shape, added to its side's partner.
+    Expression {
+        expression: Expression,
+        own: bool,
+    },
     Unused,
+}
+
+/// ARKit's per-eye shapes and the expression slot each adds to. Looking to the head's left is
+/// the left eye looking out and the right eye looking in; to its right, the reverse.
+const ARKIT_EYES: [(&str, Expression); 10] = [
+    ("eyeBlinkLeft", Expression::Blink),
+    ("eyeBlinkRight", Expression::Blink),
+    ("eyeLookUpLeft", Expression::LookUp),
+    ("eyeLookUpRight", Expression::LookUp),
+    ("eyeLookDownLeft", Expression::LookDown),
+    ("eyeLookDownRight", Expression::LookDown),
+    ("eyeLookOutLeft", Expression::LookLeft),
+    ("eyeLookInRight", Expression::LookLeft),
+    ("eyeLookOutRight", Expression::LookRight),
+    ("eyeLookInLeft", Expression::LookRight),
+];
+
+/// The eye expression a target name drives, if any: ARKit names (also with the `_L`/`_R`
+/// suffixes some exporters write) or lipcall's own slot names, ignoring case.
+fn classify_expression(base: &str) -> Option<TargetKind> {
+    if let Some(&expression) = Expression::ALL
+        .iter()
+        .find(|e| e.name().eq_ignore_ascii_case(base))
+    {
+        return Some(TargetKind::Expression {
+            expression,
+            own: true,
+        });
+    }
+    let side = |suffix: &str, full: &str| {
+        base.strip_suffix(suffix)
+            .or_else(|| base.strip_suffix(&suffix.to_ascii_lowercase()))
+            .map(|stem| format!("{stem}{full}"))
+    };
+    let spelled = side("_L", "Left")
+        .or_else(|| side("_R", "Right"))
+        .unwrap_or_else(|| base.to_owned());
+    ARKIT_EYES
+        .iter()
+        .find(|(name, _)| name.eq_ignore_ascii_case(&spelled))
+        .map(|&(_, expression)| TargetKind::Expression {
+            expression,
+            own: false,
+        })
 }
 
 /// Resolves a target name: `viseme_aa`, `aa`, `Viseme_AA`, `mesh.viseme_aa` and ARKit names.
@@ -66,6 +117,9 @@ fn classify(name: &str) -> TargetKind {
         .position(|v| v.eq_ignore_ascii_case(stripped))
     {
         return TargetKind::Viseme(v);
+    }
+    if let Some(kind) = classify_expression(base) {
+        return kind;
     }
     match arkit::arkit_index(base) {
         Some(a) => TargetKind::Arkit(a),
@@ -170,12 +224,18 @@ fn build_model(
 ) -> Result<HeadModel, RenderError> {
     let mut has_viseme = [false; VISEME_COUNT];
     let mut has_arkit = [false; ARKIT_NAMES.len()];
+    // Per expression: whether lipcall's own both-eyes shape exists (it then wins over ARKit's).
+    let mut has_own_expression = [false; EXPRESSION_COUNT];
     for raw in &raws {
         for (kind, _) in &raw.targets {
             match *kind {
                 TargetKind::Viseme(v) => has_viseme[v] = true,
                 TargetKind::Arkit(a) => has_arkit[a] = true,
-                TargetKind::Unused => {}
+                TargetKind::Expression {
+                    expression,
+                    own: true,
+                } => has_own_expression[expression.index()] = true,
+                TargetKind::Expression { .. } | TargetKind::Unused => {}
             }
         }
     }
@@ -239,6 +299,32 @@ fn build_model(
                 prim.targets[v] = acc;
             }
         }
+        for expression in Expression::ALL {
+            let mut acc: Vec<MorphDelta> = Vec::new();
+            for (kind, deltas) in &raw.targets {
+                let TargetKind::Expression { expression: e, own } = *kind else {
+                    continue;
+                };
+                if e != expression || own != has_own_expression[e.index()] {
+                    continue;
+                }
+                if acc.is_empty() {
+                    acc = vec![MorphDelta::default(); n];
+                }
+                for (dst, src) in acc.iter_mut().zip(deltas) {
+                    for k in 0..3 {
+                        dst.position[k] += src.position[k];
+                        dst.normal[k] += src.normal[k];
+                    }
+                }
+            }
+            if acc
+                .iter()
+                .any(|d| d.position != [0.0; 3] || d.normal != [0.0; 3])
+            {
+                prim.targets[expression.slot()] = acc;
+            }
+        }
         primitives.push(prim);
     }
     let model = HeadModel {
@@ -251,6 +337,12 @@ fn build_model(
         },
         missing_visemes: missing,
     };
+    if !model.has_expression(Expression::Blink) {
+        tracing::debug!(
+            "the head has no eyeBlinkLeft/eyeBlinkRight (or eyeBlink) morph target: it will not \
+             blink"
+        );
+    }
     match model.validate() {
         Err(RenderError::NoUsableTargets { .. }) => Err(RenderError::NoUsableTargets {
             found: all_target_names,
@@ -719,8 +811,54 @@ fn read_primitive(
 
 #[cfg(test)]
 mod tests {
-    use super::{decode_texture, texture_format};
+    use super::{Expression, TargetKind, classify, decode_texture, texture_format};
     use image::ImageFormat;
+
+    #[test]
+    fn eye_targets_map_to_the_expression_slots() {
+        let arkit = |expression| TargetKind::Expression {
+            expression,
+            own: false,
+        };
+        for (name, expression) in [
+            ("eyeBlinkLeft", Expression::Blink),
+            ("eyeBlinkRight", Expression::Blink),
+            ("blendShape1.eyeBlink_L", Expression::Blink),
+            ("eyeLookUpLeft", Expression::LookUp),
+            ("EYELOOKUPRIGHT", Expression::LookUp),
+            ("eyeLookDownRight", Expression::LookDown),
+            ("eyeLookDown_L", Expression::LookDown),
+            // The head's own left: its left eye looks out, its right eye in.
+            ("eyeLookOutLeft", Expression::LookLeft),
+            ("eyeLookInRight", Expression::LookLeft),
+            ("eyeLookOutRight", Expression::LookRight),
+            ("eyeLookInLeft", Expression::LookRight),
+        ] {
+            assert_eq!(classify(name), arkit(expression), "{name}");
+        }
+        for expression in Expression::ALL {
+            assert_eq!(
+                classify(expression.name()),
+                TargetKind::Expression {
+                    expression,
+                    own: true
+                }
+            );
+        }
+        // Names it does not know stay unused, and the mouth's names keep their meaning.
+        for name in [
+            "eyeSquintLeft",
+            "eyeWideRight",
+            "eyeBlink_X",
+            "eye",
+            "",
+            "browInnerUp",
+        ] {
+            assert_eq!(classify(name), TargetKind::Unused, "{name}");
+        }
+        assert_eq!(classify("viseme_aa"), TargetKind::Viseme(10));
+        assert!(matches!(classify("jawOpen"), TargetKind::Arkit(_)));
+    }
 
     const PNG: &[u8] = b"\x89PNG\r\n\x1a\n\0\0\0\rIHDR";
     const JPEG: &[u8] = &[0xFF, 0xD8, 0xFF, 0xE0, 0, 16, b'J', b'F', b'I', b'F'];

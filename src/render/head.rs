@@ -1,7 +1,8 @@
-//! CPU-side head model: triangle meshes with per-viseme morph deltas, independent of the GPU.
+//! CPU-side head model: triangle meshes with per-viseme and per-expression morph deltas, and the
+//! pose of the living face (blink, gaze, head rotation), independent of the GPU.
 
 use bytemuck::{Pod, Zeroable};
-use glam::Vec3;
+use glam::{Mat4, Quat, Vec2, Vec3};
 
 use super::RenderError;
 
@@ -11,6 +12,68 @@ pub const VISEME_NAMES: [&str; VISEME_COUNT] = [
 ];
 /// Number of viseme shapes the renderer blends.
 pub const VISEME_COUNT: usize = 15;
+
+/// The expression shapes blended beside the visemes (the eyes), in slot order after the 15
+/// visemes. Looking "left" and "right" are the head's own sides (left is +X for a head facing +Z).
+pub const EXPRESSION_NAMES: [&str; EXPRESSION_COUNT] = [
+    "eyeBlink",
+    "eyeLookUp",
+    "eyeLookDown",
+    "eyeLookLeft",
+    "eyeLookRight",
+];
+/// Number of expression shapes.
+pub const EXPRESSION_COUNT: usize = 5;
+/// Morph target slots the renderer blends: the 15 visemes, then the expressions.
+pub const TARGET_COUNT: usize = VISEME_COUNT + EXPRESSION_COUNT;
+
+/// One expression slot.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Hash)]
+pub enum Expression {
+    /// Both eyes' lids closed.
+    Blink,
+    /// Both eyes looking up.
+    LookUp,
+    /// Both eyes looking down.
+    LookDown,
+    /// Both eyes looking to the head's own left (+X).
+    LookLeft,
+    /// Both eyes looking to the head's own right (-X).
+    LookRight,
+}
+
+impl Expression {
+    pub const ALL: [Expression; EXPRESSION_COUNT] = [
+        Expression::Blink,
+        Expression::LookUp,
+        Expression::LookDown,
+        Expression::LookLeft,
+        Expression::LookRight,
+    ];
+
+    /// Index among the expressions (0..EXPRESSION_COUNT).
+    pub fn index(self) -> usize {
+        self as usize
+    }
+
+    /// Morph target slot (after the visemes).
+    pub fn slot(self) -> usize {
+        VISEME_COUNT + self as usize
+    }
+
+    /// The slot's own target name (what [`super::glb_write`] writes).
+    pub fn name(self) -> &'static str {
+        EXPRESSION_NAMES[self as usize]
+    }
+}
+
+/// Name of a morph target slot: a viseme name, then the expression names.
+pub fn slot_name(slot: usize) -> Option<&'static str> {
+    VISEME_NAMES
+        .get(slot)
+        .or_else(|| EXPRESSION_NAMES.get(slot.wrapping_sub(VISEME_COUNT)))
+        .copied()
+}
 
 /// Index of a viseme name in [`VISEME_NAMES`] (exact spelling, as in the design brief).
 pub fn viseme_index(name: &str) -> Option<usize> {
@@ -69,6 +132,110 @@ impl VisemeWeights {
     }
 }
 
+/// What a face does besides its mouth, for one frame: eyelids, gaze and head rotation. The
+/// living face ([`crate::lipsync::life`]) makes one per 20 ms frame; [`FacePose::REST`] is a
+/// still head looking ahead with open eyes.
+#[derive(Debug, Clone, Copy, PartialEq, Default)]
+pub struct FacePose {
+    /// Eyelid closure: 0 open .. 1 shut.
+    pub blink: f32,
+    /// Gaze in head space, as a fraction of the head's full eye-look shapes (-1..1): x > 0 looks
+    /// to the head's own left (+X), y > 0 up.
+    pub gaze: Vec2,
+    /// Head rotation about the neck pivot ([`FaceFrame::neck_pivot`]), in radians: `pitch` about
+    /// +X (positive: chin down, a nod), `yaw` about +Y (positive: the face turns to the head's
+    /// left), `roll` about +Z (positive: the top of the head tilts to the head's right).
+    pub pitch: f32,
+    pub yaw: f32,
+    pub roll: f32,
+}
+
+impl FacePose {
+    /// Eyes open and ahead, head still.
+    pub const REST: FacePose = FacePose {
+        blink: 0.0,
+        gaze: Vec2::ZERO,
+        pitch: 0.0,
+        yaw: 0.0,
+        roll: 0.0,
+    };
+
+    /// The same eyes with the head still (the lipreading close-up keeps the mouth steady).
+    pub fn without_head_motion(self) -> Self {
+        Self {
+            pitch: 0.0,
+            yaw: 0.0,
+            roll: 0.0,
+            ..self
+        }
+    }
+
+    /// The weights of the expression slots, in [`EXPRESSION_NAMES`] order: blink, and the gaze
+    /// split into up/down/left/right. Non-finite values count as 0; all are clamped to 0..1.
+    pub fn expression_weights(&self) -> [f32; EXPRESSION_COUNT] {
+        let f = |v: f32| {
+            if v.is_finite() {
+                v.clamp(0.0, 1.0)
+            } else {
+                0.0
+            }
+        };
+        let (x, y) = (self.gaze.x, self.gaze.y);
+        [f(self.blink), f(y), f(-y), f(x), f(-x)]
+    }
+
+    /// True when the head is not rotated (exactly).
+    pub fn head_is_still(&self) -> bool {
+        self.pitch == 0.0 && self.yaw == 0.0 && self.roll == 0.0
+    }
+
+    /// The head's rotation as a quaternion (yaw, then pitch, then roll); identity for
+    /// non-finite angles.
+    pub fn head_rotation(&self) -> Quat {
+        let finite = |v: f32| if v.is_finite() { v } else { 0.0 };
+        Quat::from_euler(
+            glam::EulerRot::YXZ,
+            finite(self.yaw),
+            finite(self.pitch),
+            finite(self.roll),
+        )
+    }
+
+    /// The head rotation about `pivot` as a model matrix (a rigid motion, so it transforms
+    /// normals too); exactly the identity for a still head.
+    pub fn head_matrix(&self, pivot: Vec3) -> Mat4 {
+        if self.head_is_still() {
+            return Mat4::IDENTITY;
+        }
+        Mat4::from_translation(pivot)
+            * Mat4::from_quat(self.head_rotation())
+            * Mat4::from_translation(-pivot)
+    }
+
+    /// Linear interpolation of every component.
+    pub fn lerp(&self, other: &Self, t: f32) -> Self {
+        let l = |a: f32, b: f32| a + (b - a) * t;
+        Self {
+            blink: l(self.blink, other.blink),
+            gaze: self.gaze.lerp(other.gaze, t),
+            pitch: l(self.pitch, other.pitch),
+            yaw: l(self.yaw, other.yaw),
+            roll: l(self.roll, other.roll),
+        }
+    }
+}
+
+/// Weights of all [`TARGET_COUNT`] slots: the visemes as given (non-finite ones as 0), then the
+/// pose's expressions. The pose never changes a viseme weight.
+pub fn slot_weights(weights: &VisemeWeights, pose: &FacePose) -> [f32; TARGET_COUNT] {
+    let mut w = [0.0; TARGET_COUNT];
+    for (dst, &src) in w.iter_mut().zip(weights.0.iter()) {
+        *dst = if src.is_finite() { src } else { 0.0 };
+    }
+    w[VISEME_COUNT..].copy_from_slice(&pose.expression_weights());
+    w
+}
+
 /// A vertex as uploaded to the GPU.
 #[repr(C)]
 #[derive(Debug, Clone, Copy, Default, PartialEq, Pod, Zeroable)]
@@ -79,7 +246,7 @@ pub struct Vertex {
     pub color: [f32; 4],
 }
 
-/// Displacement of one vertex for one viseme at full weight.
+/// Displacement of one vertex for one target slot (viseme or expression) at full weight.
 #[repr(C)]
 #[derive(Debug, Clone, Copy, Default, PartialEq, Pod, Zeroable)]
 pub struct MorphDelta {
@@ -120,7 +287,8 @@ pub struct Primitive {
     pub material: usize,
     pub vertices: Vec<Vertex>,
     pub indices: Vec<u32>,
-    /// One entry per viseme; each is empty (no motion) or holds one delta per vertex.
+    /// One entry per target slot ([`TARGET_COUNT`]: the visemes, then the expressions); each is
+    /// empty (no motion) or holds one delta per vertex.
     pub targets: Vec<Vec<MorphDelta>>,
 }
 
@@ -132,13 +300,21 @@ impl Primitive {
             material,
             vertices,
             indices,
-            targets: vec![Vec::new(); VISEME_COUNT],
+            targets: vec![Vec::new(); TARGET_COUNT],
         }
     }
 
-    /// True when some viseme moves a vertex of this primitive.
+    /// True when some viseme or expression moves a vertex of this primitive.
     pub fn has_targets(&self) -> bool {
         self.targets.iter().any(|t| !t.is_empty())
+    }
+
+    /// True when some viseme (a mouth shape) moves a vertex of this primitive.
+    pub fn has_viseme_targets(&self) -> bool {
+        self.targets
+            .iter()
+            .take(VISEME_COUNT)
+            .any(|t| !t.is_empty())
     }
 }
 
@@ -163,6 +339,16 @@ pub struct FaceFrame {
     /// Bounding box of the primitives that carry morph targets (the head).
     pub head_min: Vec3,
     pub head_max: Vec3,
+}
+
+impl FaceFrame {
+    /// Where the head turns on the neck: a little below the mouth and two mouth widths (about
+    /// 10 cm on a human head) behind the lips, on the head's midline. Derived from the mouth
+    /// rather than the bounding box, which may or may not include a neck.
+    pub fn neck_pivot(&self) -> Vec3 {
+        let w = self.mouth_width.max(1e-4);
+        self.mouth + Vec3::new(0.0, -0.25 * w, -2.0 * w)
+    }
 }
 
 /// A complete head: what the renderer uploads once.
@@ -195,7 +381,7 @@ impl HeadModel {
                     p.name
                 )));
             }
-            if p.targets.len() != VISEME_COUNT
+            if p.targets.len() != TARGET_COUNT
                 || p.targets.iter().any(|t| !t.is_empty() && t.len() != n)
             {
                 return Err(RenderError::InvalidHead(format!(
@@ -204,10 +390,20 @@ impl HeadModel {
                 )));
             }
         }
-        if !self.primitives.iter().any(Primitive::has_targets) {
+        if !self.primitives.iter().any(Primitive::has_viseme_targets) {
             return Err(RenderError::NoUsableTargets { found: Vec::new() });
         }
         Ok(())
+    }
+
+    /// True when some primitive has a shape for the expression (a head without
+    /// [`Expression::Blink`] does not blink).
+    pub fn has_expression(&self, expression: Expression) -> bool {
+        self.primitives.iter().any(|p| {
+            p.targets
+                .get(expression.slot())
+                .is_some_and(|t| !t.is_empty())
+        })
     }
 
     pub fn vertex_count(&self) -> usize {
@@ -218,15 +414,24 @@ impl HeadModel {
         self.primitives.iter().map(|p| p.indices.len() / 3).sum()
     }
 
-    /// Reference blend on the CPU: every vertex of every primitive, in order.
+    /// Reference blend on the CPU with the eyes at rest: every vertex of every primitive, in
+    /// order.
     pub fn blend_cpu(&self, weights: &VisemeWeights) -> Vec<Vertex> {
+        self.blend_cpu_posed(weights, &FacePose::REST)
+    }
+
+    /// Reference blend on the CPU of every slot, the pose's expressions included (in head space:
+    /// the head rotation is the model matrix's, not the blend's). What the vertex shader and
+    /// its compute twin `cs_blend` compute.
+    pub fn blend_cpu_posed(&self, weights: &VisemeWeights, pose: &FacePose) -> Vec<Vertex> {
+        let slots = slot_weights(weights, pose);
         let mut out = Vec::with_capacity(self.vertex_count());
         for p in &self.primitives {
             for (i, v) in p.vertices.iter().enumerate() {
                 let mut pos = Vec3::from(v.position);
                 let mut nrm = Vec3::from(v.normal);
                 for (t, target) in p.targets.iter().enumerate() {
-                    let w = weights.0[t];
+                    let w = slots.get(t).copied().unwrap_or(0.0);
                     if w != 0.0 && !target.is_empty() {
                         pos += w * Vec3::from(target[i].position);
                         nrm += w * Vec3::from(target[i].normal);
@@ -336,9 +541,11 @@ impl HeadModel {
     }
 }
 
+/// How far vertex `k` moves over all mouth shapes (the eyes' shapes do not count).
 fn total_motion(p: &Primitive, k: usize) -> f32 {
     p.targets
         .iter()
+        .take(VISEME_COUNT)
         .filter_map(|t| t.get(k))
         .map(|d| Vec3::from(d.position).length())
         .sum()
@@ -361,4 +568,84 @@ pub fn smooth_normals(positions: &[Vec3], indices: &[u32]) -> Vec<Vec3> {
         .into_iter()
         .map(|n| n.try_normalize().unwrap_or(Vec3::Y))
         .collect()
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn the_pose_drives_only_the_eye_slots() {
+        let weights = VisemeWeights::from_named([("aa", 0.7), ("PP", 0.3)]).unwrap();
+        let pose = FacePose {
+            blink: 0.8,
+            gaze: Vec2::new(-0.2, 0.1),
+            pitch: 0.05,
+            yaw: -0.03,
+            roll: 0.02,
+        };
+        let slots = slot_weights(&weights, &pose);
+        assert_eq!(slots[..VISEME_COUNT], weights.0);
+        assert_eq!(slots[Expression::Blink.slot()], 0.8);
+        assert_eq!(slots[Expression::LookUp.slot()], 0.1);
+        assert_eq!(slots[Expression::LookDown.slot()], 0.0);
+        assert_eq!(slots[Expression::LookLeft.slot()], 0.0);
+        assert_eq!(slots[Expression::LookRight.slot()], 0.2);
+        let odd = FacePose {
+            blink: f32::NAN,
+            gaze: Vec2::new(3.0, f32::INFINITY),
+            ..FacePose::REST
+        };
+        assert_eq!(
+            odd.expression_weights(),
+            [0.0, 0.0, 0.0, 1.0, 0.0],
+            "non-finite as 0, clamped to 1"
+        );
+        assert_eq!(
+            slot_weights(&weights, &FacePose::REST)[VISEME_COUNT..],
+            [0.0; 5]
+        );
+        assert_eq!(
+            slot_name(Expression::LookRight.slot()),
+            Some("eyeLookRight")
+        );
+        assert_eq!(slot_name(10), Some("aa"));
+        assert_eq!(slot_name(TARGET_COUNT), None);
+    }
+
+    #[test]
+    fn head_motion_is_a_rotation_about_the_neck_pivot() {
+        let pivot = Vec3::new(0.0, -0.02, -0.1);
+        assert_eq!(FacePose::REST.head_matrix(pivot), Mat4::IDENTITY);
+        let nod = FacePose {
+            pitch: 0.1,
+            ..FacePose::REST
+        };
+        let m = nod.head_matrix(pivot);
+        assert!(m.transform_point3(pivot).abs_diff_eq(pivot, 1e-6));
+        // A positive pitch brings the chin (below and in front of the pivot) down and back...
+        let chin = pivot + Vec3::new(0.0, -0.05, 0.1);
+        let moved = m.transform_point3(chin);
+        assert!(moved.y < chin.y && moved.z < chin.z, "{moved}");
+        // ... and the nose tip (in front) down.
+        let nose = pivot + Vec3::new(0.0, 0.0, 0.12);
+        assert!(m.transform_point3(nose).y < nose.y);
+        // A positive yaw turns the face to the head's left (+X).
+        let turn = FacePose {
+            yaw: 0.1,
+            ..FacePose::REST
+        };
+        assert!(turn.head_matrix(pivot).transform_point3(nose).x > 0.0);
+        // Rigid: lengths and angles kept, so normals go through the same matrix.
+        let all = FacePose {
+            pitch: 0.07,
+            yaw: -0.05,
+            roll: 0.04,
+            ..FacePose::REST
+        };
+        let m3 = glam::Mat3::from_mat4(all.head_matrix(pivot));
+        assert!((m3 * m3.transpose()).abs_diff_eq(glam::Mat3::IDENTITY, 1e-6));
+        assert!((m3.determinant() - 1.0).abs() < 1e-6);
+        assert!(!all.head_is_still() && all.without_head_motion().head_is_still());
+    }
 }

@@ -6,7 +6,7 @@ use std::sync::Arc;
 
 use super::RenderError;
 use super::camera::{Camera, Framing};
-use super::head::{HeadModel, VISEME_COUNT, VisemeWeights, viseme_index};
+use super::head::{FacePose, HeadModel, VISEME_COUNT, VisemeWeights, viseme_index};
 use super::renderer::{DEPTH_FORMAT, GpuHead, HeadInstance, HeadRenderer};
 
 /// Colour format of offscreen frames (sRGB, so PNG bytes come out as they are).
@@ -253,8 +253,20 @@ impl OffscreenRenderer {
         &self.head
     }
 
-    /// Encodes and submits one frame with the same weights on every head; no readback.
+    /// Encodes and submits one frame, head `i` with `weights[i]` (the last entry for heads beyond
+    /// the slice), the eyes and head at rest; no readback.
     pub fn draw(&mut self, ctx: &GpuContext, weights: &[VisemeWeights]) -> wgpu::SubmissionIndex {
+        self.draw_posed(ctx, weights, &[])
+    }
+
+    /// [`Self::draw`] with head `i` in `poses[i]` (the last entry beyond the slice; at rest
+    /// when it is empty).
+    pub fn draw_posed(
+        &mut self,
+        ctx: &GpuContext,
+        weights: &[VisemeWeights],
+        poses: &[FacePose],
+    ) -> wgpu::SubmissionIndex {
         let n = self.instances.len();
         let cols = (n as f32).sqrt().ceil() as u32;
         let rows = (n as u32).div_ceil(cols);
@@ -263,8 +275,9 @@ impl OffscreenRenderer {
         let neutral = VisemeWeights::neutral();
         for (i, instance) in self.instances.iter_mut().enumerate() {
             let w = weights.get(i).or(weights.last()).unwrap_or(&neutral);
+            let pose = poses.get(i).or(poses.last()).unwrap_or(&FacePose::REST);
             self.renderer
-                .prepare(&ctx.queue, instance, &self.camera, aspect, w);
+                .prepare(&ctx.queue, instance, &self.camera, aspect, w, pose);
         }
         let mut encoder = ctx
             .device
@@ -312,13 +325,27 @@ impl OffscreenRenderer {
         ctx.queue.submit([encoder.finish()])
     }
 
-    /// Renders one frame and reads it back as RGBA8 (sRGB).
+    /// Renders one frame, eyes and head at rest, and reads it back as RGBA8 (sRGB).
     pub fn render(
         &mut self,
         ctx: &GpuContext,
         weights: &VisemeWeights,
     ) -> Result<image::RgbaImage, RenderError> {
-        self.draw(ctx, std::slice::from_ref(weights));
+        self.render_posed(ctx, weights, &FacePose::REST)
+    }
+
+    /// Renders one frame with the face in `pose` and reads it back as RGBA8 (sRGB).
+    pub fn render_posed(
+        &mut self,
+        ctx: &GpuContext,
+        weights: &VisemeWeights,
+        pose: &FacePose,
+    ) -> Result<image::RgbaImage, RenderError> {
+        self.draw_posed(
+            ctx,
+            std::slice::from_ref(weights),
+            std::slice::from_ref(pose),
+        );
         let mut encoder = ctx
             .device
             .create_command_encoder(&wgpu::CommandEncoderDescriptor {
@@ -354,7 +381,7 @@ impl OffscreenRenderer {
     }
 
     /// The first head's blended vertices as the vertex shader computes them, read back from the
-    /// GPU (model order), for the weights of the last frame drawn.
+    /// GPU (model order, head space), for the weights and pose of the last frame drawn.
     pub fn blend_on_gpu(
         &self,
         ctx: &GpuContext,
@@ -369,12 +396,14 @@ impl OffscreenRenderer {
     }
 }
 
-/// Viseme weights over time: one row per 20 ms frame (or any increasing times).
+/// Viseme weights and face poses over time: one row per 20 ms frame (or any increasing times).
 #[derive(Debug, Clone, Default, PartialEq)]
 pub struct WeightTrack {
     /// Start time of each row in seconds, increasing.
     pub times: Vec<f64>,
     pub weights: Vec<VisemeWeights>,
+    /// The living face's pose of each row ([`FacePose::REST`] for rows pushed without one).
+    pub poses: Vec<FacePose>,
 }
 
 impl WeightTrack {
@@ -403,8 +432,18 @@ impl WeightTrack {
         Ok(track)
     }
 
-    /// Appends a row; times must increase.
+    /// Appends a row with the face at rest; times must increase.
     pub fn push(&mut self, time_s: f64, weights: VisemeWeights) -> Result<(), RenderError> {
+        self.push_posed(time_s, weights, FacePose::REST)
+    }
+
+    /// Appends a row with its face pose; times must increase.
+    pub fn push_posed(
+        &mut self,
+        time_s: f64,
+        weights: VisemeWeights,
+        pose: FacePose,
+    ) -> Result<(), RenderError> {
         if !time_s.is_finite() || self.times.last().is_some_and(|&last| time_s <= last) {
             return Err(RenderError::Options(format!(
                 "weight row time {time_s} is not increasing"
@@ -412,6 +451,20 @@ impl WeightTrack {
         }
         self.times.push(time_s);
         self.weights.push(weights);
+        self.poses.push(pose);
+        Ok(())
+    }
+
+    /// Gives the rows their poses, one per row, in order.
+    pub fn set_poses(&mut self, poses: Vec<FacePose>) -> Result<(), RenderError> {
+        if poses.len() != self.times.len() {
+            return Err(RenderError::Options(format!(
+                "{} poses for {} weight rows",
+                poses.len(),
+                self.times.len()
+            )));
+        }
+        self.poses = poses;
         Ok(())
     }
 
@@ -422,20 +475,37 @@ impl WeightTrack {
 
     /// Weights at time `t`, linearly interpolated between rows (convex stays convex).
     pub fn sample(&self, t: f64) -> VisemeWeights {
+        match self.locate(t) {
+            None => VisemeWeights::neutral(),
+            Some((i, j, f)) => self.weights[i].lerp(&self.weights[j], f),
+        }
+    }
+
+    /// The face pose at time `t`, sampled like the weights.
+    pub fn sample_pose(&self, t: f64) -> FacePose {
+        let pose = |k: usize| self.poses.get(k).copied().unwrap_or(FacePose::REST);
+        match self.locate(t) {
+            None => FacePose::REST,
+            Some((i, j, f)) => pose(i).lerp(&pose(j), f),
+        }
+    }
+
+    /// The rows around time `t` and the fraction of the way from the first to the second.
+    fn locate(&self, t: f64) -> Option<(usize, usize, f32)> {
         let n = self.times.len();
         if n == 0 {
-            return VisemeWeights::neutral();
+            return None;
         }
         let i = self.times.partition_point(|&x| x <= t);
         if i == 0 {
-            return self.weights[0];
+            return Some((0, 0, 0.0));
         }
         if i >= n {
-            return self.weights[n - 1];
+            return Some((n - 1, n - 1, 0.0));
         }
         let (t0, t1) = (self.times[i - 1], self.times[i]);
         let f = ((t - t0) / (t1 - t0)).clamp(0.0, 1.0) as f32;
-        self.weights[i - 1].lerp(&self.weights[i], f)
+        Some((i - 1, i, f))
     }
 }
 
@@ -456,7 +526,9 @@ pub fn frame_file_name(n: usize) -> String {
 }
 
 /// Renders `track` at `options.fps` into `dir/frame_000000.png`, `frame_000001.png`, ...
-/// (creating `dir`); frame k shows the weights at time k / fps.
+/// (creating `dir`); frame k shows the weights and pose at time k / fps. The mouth close-up
+/// ([`Framing::Mouth`]) keeps the head still (the eyes still move), like the app's lipreading
+/// view.
 pub fn render_frames(
     model: &HeadModel,
     track: &WeightTrack,
@@ -491,8 +563,12 @@ pub fn render_frames_with(
     let mut offscreen = OffscreenRenderer::new(ctx, model, *options)?;
     let count = (track.duration() * options.fps as f64).round() as usize;
     for k in 0..count {
-        let weights = track.sample(k as f64 / options.fps as f64);
-        let image = offscreen.render(ctx, &weights)?;
+        let t = k as f64 / options.fps as f64;
+        let mut pose = track.sample_pose(t);
+        if options.framing == Framing::Mouth {
+            pose = pose.without_head_motion();
+        }
+        let image = offscreen.render_posed(ctx, &track.sample(t), &pose)?;
         let path = dir.join(frame_file_name(k));
         image.save(&path).map_err(|e| RenderError::Image {
             path: path.clone(),

@@ -1,4 +1,4 @@
-//! The wgpu head renderer: one pipeline, heads uploaded once, weights written per frame.
+//! The wgpu head renderer: one pipeline, heads uploaded once, weights and pose written per frame.
 
 use std::sync::Arc;
 
@@ -8,7 +8,9 @@ use wgpu::util::DeviceExt;
 
 use super::RenderError;
 use super::camera::Camera;
-use super::head::{FaceFrame, HeadModel, MorphDelta, VISEME_COUNT, Vertex, VisemeWeights};
+use super::head::{
+    FaceFrame, FacePose, HeadModel, MorphDelta, TARGET_COUNT, Vertex, VisemeWeights, slot_weights,
+};
 
 /// The WGSL source of the head shader (`shaders/head.wgsl`).
 pub const SHADER_SOURCE: &str = include_str!("../../shaders/head.wgsl");
@@ -29,7 +31,8 @@ struct ViewUniform {
 #[repr(C)]
 #[derive(Debug, Clone, Copy, PartialEq, Pod, Zeroable)]
 struct WeightsUniform {
-    w: [f32; 16],
+    /// One weight per target slot (visemes, then expressions): 5 vec4s in the shader.
+    w: [f32; TARGET_COUNT],
 }
 
 #[repr(C)]
@@ -310,7 +313,7 @@ impl HeadRenderer {
             return Err(RenderError::InvalidHead("too many vertices".into()));
         }
         let delta_bytes =
-            (VISEME_COUNT * morph_vertices * std::mem::size_of::<MorphDelta>()) as u64;
+            (TARGET_COUNT * morph_vertices * std::mem::size_of::<MorphDelta>()) as u64;
         let max_binding = device.limits().max_storage_buffer_binding_size;
         if delta_bytes > max_binding {
             return Err(RenderError::Unsupported(format!(
@@ -321,7 +324,7 @@ impl HeadRenderer {
 
         let mut vertices: Vec<Vertex> = Vec::with_capacity(vertex_count);
         let mut indices: Vec<u32> = Vec::with_capacity(index_count);
-        let mut deltas = vec![MorphDelta::default(); VISEME_COUNT * morph_vertices];
+        let mut deltas = vec![MorphDelta::default(); TARGET_COUNT * morph_vertices];
         let mut draws = Vec::new();
         let mut primitive_offsets = vec![(0u32, 0u32); model.primitives.len()];
         for &pi in &order {
@@ -477,7 +480,7 @@ impl HeadRenderer {
             mapped_at_creation: false,
         });
         let weights_buffer = device.create_buffer(&wgpu::BufferDescriptor {
-            label: Some(&format!("{label} viseme weights")),
+            label: Some(&format!("{label} target weights")),
             size: std::mem::size_of::<WeightsUniform>() as u64,
             usage: wgpu::BufferUsages::UNIFORM | wgpu::BufferUsages::COPY_DST,
             mapped_at_creation: false,
@@ -511,8 +514,11 @@ impl HeadRenderer {
         }
     }
 
-    /// Writes this frame's uniforms: the weights (at most 15 floats) and, only when the camera,
-    /// aspect or placement changed, the view. Call before the render pass is begun.
+    /// Writes this frame's uniforms: the weights of the 20 slots (the 15 visemes and the pose's
+    /// eyes) and, only when the camera, aspect, placement or head rotation changed, the view.
+    /// The pose's head rotation turns the head about its neck pivot
+    /// ([`FaceFrame::neck_pivot`]) on top of `instance.model`. Call before the render pass is
+    /// begun.
     pub fn prepare(
         &self,
         queue: &wgpu::Queue,
@@ -520,11 +526,13 @@ impl HeadRenderer {
         camera: &Camera,
         aspect: f32,
         weights: &VisemeWeights,
+        pose: &FacePose,
     ) {
         let light = Vec3::new(-0.45, -0.55, -0.7).normalize();
+        let model = instance.model * pose.head_matrix(instance.head.frame.neck_pivot());
         let view = ViewUniform {
             view_proj: camera.view_proj(aspect).to_cols_array_2d(),
-            model: instance.model.to_cols_array_2d(),
+            model: model.to_cols_array_2d(),
             eye: camera.eye.extend(1.0).into(),
             light_dir: light.extend(0.0).into(),
             counts: [
@@ -538,16 +546,11 @@ impl HeadRenderer {
             queue.write_buffer(&instance.view_buffer, 0, bytemuck::bytes_of(&view));
             instance.last_view = Some(view);
         }
-        let mut w = WeightsUniform { w: [0.0; 16] };
-        for (dst, &src) in w.w.iter_mut().zip(weights.0.iter()) {
-            *dst = if src.is_finite() { src } else { 0.0 };
-        }
+        let w = WeightsUniform {
+            w: slot_weights(weights, pose),
+        };
         if instance.last_weights != Some(w) {
-            queue.write_buffer(
-                &instance.weights_buffer,
-                0,
-                bytemuck::cast_slice(&w.w[..VISEME_COUNT]),
-            );
+            queue.write_buffer(&instance.weights_buffer, 0, bytemuck::bytes_of(&w));
             instance.last_weights = Some(w);
         }
     }
@@ -568,8 +571,9 @@ impl HeadRenderer {
     }
 
     /// Runs the vertex shader's blend function in a compute pass and reads back the blended
-    /// positions and normals, in the model's primitive/vertex order (for tests and debugging).
-    /// Uses the weights last written by [`Self::prepare`].
+    /// positions and normals (all slots, in head space: before the model matrix), in the model's
+    /// primitive/vertex order (for tests and debugging). Uses the weights and pose last written
+    /// by [`Self::prepare`]; [`HeadModel::blend_cpu_posed`] is its CPU reference.
     pub fn blend_on_gpu(
         &self,
         device: &wgpu::Device,
