@@ -94,17 +94,21 @@ fn fs_main(in: VertexOut, @builtin(front_facing) front: bool) -> @location(0) ve
     if (!front) {
         n = -n;
     }
-    let l = normalize(-view.light_dir.xyz);
     let v = normalize(view.eye.xyz - in.world);
-    let h = normalize(l + v);
-    let diffuse = max(dot(n, l), 0.0);
-    // Fill light from the camera side keeps the mouth interior readable.
-    let fill = 0.35 * max(dot(n, v), 0.0);
+    // Key light from above on one side; a weaker, cooler fill from the other side and lower, so
+    // the lips' curl and the teeth keep their shape where the key does not reach.
+    let key_dir = normalize(-view.light_dir.xyz);
+    let fill_dir = normalize(vec3<f32>(-key_dir.x, -0.15, key_dir.z));
+    let key = vec3<f32>(1.0, 0.95, 0.88) * max(dot(n, key_dir), 0.0);
+    let fill = vec3<f32>(0.30, 0.33, 0.38) * max(dot(n, fill_dir), 0.0);
     let sky = 0.5 + 0.5 * n.y;
-    let ambient = mix(vec3<f32>(0.16, 0.14, 0.13), vec3<f32>(0.28, 0.29, 0.32), sky);
-    let spec = 0.12 * pow(max(dot(n, h), 0.0), 40.0);
-    let rim = 0.12 * pow(1.0 - max(dot(n, v), 0.0), 3.0);
-    let lit = albedo.rgb * (ambient + vec3<f32>(0.85 * diffuse + fill)) + vec3<f32>(spec + rim);
+    let ambient = mix(vec3<f32>(0.07, 0.06, 0.06), vec3<f32>(0.15, 0.16, 0.18), sky);
+    let key_half = normalize(key_dir + v);
+    let fill_half = normalize(fill_dir + v);
+    let spec = 0.16 * pow(max(dot(n, key_half), 0.0), 48.0)
+        + 0.05 * pow(max(dot(n, fill_half), 0.0), 32.0);
+    let rim = 0.08 * pow(1.0 - max(dot(n, v), 0.0), 3.0);
+    let lit = albedo.rgb * (ambient + key + fill) + vec3<f32>(spec + rim);
     return vec4<f32>(lit, 1.0);
 }
 

@@ -19,10 +19,11 @@ use anyhow::Context;
 use eframe::egui;
 
 use crate::audio::{DeviceChoice, DeviceInfo};
+use crate::render::head::FacePose;
 use crate::render::{Framing, VisemeWeights};
 use engine::{CallSpec, Command, Engine, EngineConfig, PeerView};
 use settings::{PeerPrefs, Settings};
-use tiles::{HeadTile, RenderCounters};
+use tiles::{HeadTile, HeadTiles, RenderCounters};
 
 /// How the app starts (the command line's top-level flags).
 #[derive(Debug, Clone, Default)]
@@ -93,20 +94,22 @@ pub fn run(options: AppOptions) -> anyhow::Result<()> {
         native,
         Box::new(move |cc| {
             let mut notes: Vec<String> = settings_note.into_iter().collect();
-            match &cc.wgpu_render_state {
-                Some(state) => {
-                    if let Err(e) = tiles::install(state, counters.clone()) {
-                        notes.push(format!("heads cannot be drawn: {e:#}"));
-                    }
+            let heads = match &cc.wgpu_render_state {
+                Some(state) => HeadTiles::new(state, counters.clone())
+                    .map_err(|e| notes.push(format!("heads cannot be drawn: {e:#}")))
+                    .ok(),
+                None => {
+                    notes.push("heads cannot be drawn: no wgpu renderer".into());
+                    None
                 }
-                None => notes.push("heads cannot be drawn: no wgpu renderer".into()),
-            }
+            };
             Ok(Box::new(LipcallApp::new(
                 engine,
                 settings,
                 settings_path,
                 options,
                 counters,
+                heads,
                 notes,
             )))
         }),
@@ -133,6 +136,8 @@ pub struct LipcallApp {
     last_status: Instant,
     last_save: Instant,
     counters: Arc<RenderCounters>,
+    /// The head renderer and the tiles' textures (none without a wgpu renderer).
+    heads: Option<HeadTiles>,
     /// Frames each peer's tile showed with weights of the audio heard then.
     shown: std::collections::HashMap<u32, u64>,
     /// Peers whose saved choices were applied.
@@ -149,6 +154,7 @@ impl LipcallApp {
         settings_path: Option<PathBuf>,
         options: AppOptions,
         counters: Arc<RenderCounters>,
+        heads: Option<HeadTiles>,
         notes: Vec<String>,
     ) -> Self {
         let form = CallForm {
@@ -178,6 +184,7 @@ impl LipcallApp {
             last_status: Instant::now(),
             last_save: Instant::now(),
             counters,
+            heads,
             shown: Default::default(),
             applied: Default::default(),
             frames: 0,
@@ -201,13 +208,14 @@ impl LipcallApp {
         let c = &self.engine.counters;
         let mut text = format!(
             "time_s={:.2} ui_frames={} network_ms={:.1} frames_animated={} record_ms={:.1} \
-             tiles_drawn={} weights_sent={} weights_fallback={} weights_late={} late_ms={:.1}\n",
+             tiles_drawn={} tiles_shown={} weights_sent={} weights_fallback={} weights_late={} late_ms={:.1}\n",
             self.started.elapsed().as_secs_f64(),
             self.frames,
             c.network_ns.load(Ordering::Relaxed) as f64 / 1e6,
             c.frames_animated.load(Ordering::Relaxed),
             self.counters.record_ns.load(Ordering::Relaxed) as f64 / 1e6,
             self.counters.tiles_drawn.load(Ordering::Relaxed),
+            self.counters.tiles_shown.load(Ordering::Relaxed),
             c.weights_sent.load(Ordering::Relaxed),
             c.weights_fallback.load(Ordering::Relaxed),
             c.weights_late.load(Ordering::Relaxed),
@@ -324,8 +332,11 @@ impl eframe::App for LipcallApp {
             .min_size(200.0)
             .show(ui, |ui| peer_list_ui(ui, &peers));
         egui::CentralPanel::default().show(ui, |ui| {
-            tiles_ui(ui, &peers, &weights, &mut prefs);
+            tiles_ui(ui, &peers, &weights, &mut prefs, self.heads.as_mut());
         });
+        if let Some(heads) = &mut self.heads {
+            heads.end_frame();
+        }
 
         if prefs != before {
             let mut s = engine::lock(&self.engine.shared);
@@ -599,6 +610,7 @@ pub fn tiles_ui(
     peers: &[PeerView],
     weights: &[Option<[f32; 15]>],
     prefs: &mut [PeerPrefs],
+    mut heads: Option<&mut HeadTiles>,
 ) {
     if peers.is_empty() {
         ui.centered_and_justified(|ui| {
@@ -641,20 +653,19 @@ pub fn tiles_ui(
                         (true, Some(w)) => VisemeWeights(w),
                         _ => VisemeWeights::neutral(),
                     };
-                    tiles::head_ui(
-                        ui,
-                        rect,
-                        HeadTile {
+                    if let Some(heads) = heads.as_deref_mut() {
+                        let tile = HeadTile {
                             id: u64::from(p.ssrc),
                             framing: if prefs[i].lipreading {
                                 Framing::Mouth
                             } else {
                                 Framing::Face
                             },
-                            aspect: rect.width() / rect.height().max(1.0),
                             weights: w,
-                        },
-                    );
+                            pose: FacePose::REST,
+                        };
+                        heads.show(ui, rect, tile);
+                    }
                     peer_controls_ui(ui, p.ssrc, &mut prefs[i]);
                 });
             });

@@ -1,6 +1,7 @@
-//! Head tiles: the head renderer lives in egui-wgpu's callback resources; each tile is a paint
-//! callback that writes its weights in `prepare` and draws in `paint` (egui's pass has a depth
-//! buffer, see `run`).
+//! Head tiles: each peer's head is rendered into its own texture at the size the tile is shown,
+//! only when what it shows changed (weights, framing, size), and egui draws that texture like any
+//! image. The head pass is thus independent of egui's: multisampled on GPUs, sRGB-correct
+//! whatever format the window has, and free when a face is still.
 
 use std::collections::HashMap;
 use std::sync::Arc;
@@ -8,116 +9,181 @@ use std::sync::atomic::{AtomicU64, Ordering};
 use std::time::Instant;
 
 use eframe::egui;
-use eframe::egui_wgpu::{self, CallbackResources, CallbackTrait};
+use eframe::egui_wgpu;
 
+use crate::render::head::FacePose;
+use crate::render::target::{HeadTarget, TARGET_FORMAT, sample_count_for};
 use crate::render::{Camera, Framing, GpuHead, HeadInstance, HeadRenderer, VisemeWeights};
 
-/// Depth format the app asks eframe for (`NativeOptions::depth_buffer = 32`).
-pub const DEPTH_FORMAT: wgpu::TextureFormat = wgpu::TextureFormat::Depth32Float;
+/// Clear colour of a head tile (linear RGB): the grey of the tile frame.
+const BACKGROUND: [f64; 3] = [0.019, 0.019, 0.019];
 
-/// GPU time spent writing tile uniforms and recording draws, for the CPU report.
+/// Render work of the head tiles, for the status report.
 #[derive(Debug, Default)]
 pub struct RenderCounters {
+    /// CPU time spent encoding and submitting head renders.
     pub record_ns: AtomicU64,
+    /// Head renders (a tile whose face did not change is shown again without one).
     pub tiles_drawn: AtomicU64,
-}
-
-pub struct TileResources {
-    renderer: HeadRenderer,
-    head: Arc<GpuHead>,
-    instances: HashMap<u64, HeadInstance>,
-    counters: Arc<RenderCounters>,
-}
-
-/// Builds the renderer and uploads the default head into egui-wgpu's callback resources.
-pub fn install(
-    state: &egui_wgpu::RenderState,
-    counters: Arc<RenderCounters>,
-) -> anyhow::Result<()> {
-    HeadRenderer::check_adapter(&state.adapter)?;
-    let renderer = HeadRenderer::new(&state.device, state.target_format, Some(DEPTH_FORMAT));
-    let model = crate::render::default_head()?;
-    let head = renderer.upload(&state.device, &state.queue, &model, "default head")?;
-    state
-        .renderer
-        .write()
-        .callback_resources
-        .insert(TileResources {
-            renderer,
-            head,
-            instances: HashMap::new(),
-            counters,
-        });
-    Ok(())
+    /// Tiles shown, rendered or not.
+    pub tiles_shown: AtomicU64,
 }
 
 /// One head tile for one frame.
+#[derive(Debug, Clone, PartialEq)]
 pub struct HeadTile {
     pub id: u64,
     pub framing: Framing,
-    pub aspect: f32,
     pub weights: VisemeWeights,
+    pub pose: FacePose,
 }
 
-impl CallbackTrait for HeadTile {
-    fn prepare(
-        &self,
-        device: &wgpu::Device,
-        queue: &wgpu::Queue,
-        _screen: &egui_wgpu::ScreenDescriptor,
-        _encoder: &mut wgpu::CommandEncoder,
-        resources: &mut CallbackResources,
-    ) -> Vec<wgpu::CommandBuffer> {
-        let Some(res) = resources.get_mut::<TileResources>() else {
-            return Vec::new();
-        };
-        let t0 = Instant::now();
-        let TileResources {
+struct Tile {
+    instance: HeadInstance,
+    target: HeadTarget,
+    texture: egui::TextureId,
+    /// What the texture shows now.
+    shown: Option<(HeadTile, (u32, u32))>,
+    seen_this_frame: bool,
+}
+
+/// The head renderer, the uploaded head and one render target per visible tile.
+pub struct HeadTiles {
+    state: egui_wgpu::RenderState,
+    renderer: HeadRenderer,
+    head: Arc<GpuHead>,
+    samples: u32,
+    tiles: HashMap<u64, Tile>,
+    counters: Arc<RenderCounters>,
+}
+
+impl HeadTiles {
+    /// Builds the renderer and uploads the default head.
+    pub fn new(
+        state: &egui_wgpu::RenderState,
+        counters: Arc<RenderCounters>,
+    ) -> anyhow::Result<Self> {
+        HeadRenderer::check_adapter(&state.adapter)?;
+        let samples = sample_count_for(&state.adapter);
+        let renderer = HeadRenderer::with_samples(
+            &state.device,
+            TARGET_FORMAT,
+            Some(crate::render::renderer::DEPTH_FORMAT),
+            samples,
+        );
+        let model = crate::render::default_head()?;
+        let head = renderer.upload(&state.device, &state.queue, &model, "default head")?;
+        Ok(Self {
+            state: state.clone(),
             renderer,
             head,
-            instances,
+            samples,
+            tiles: HashMap::new(),
             counters,
-        } = res;
-        let instance = instances.entry(self.id).or_insert_with(|| {
-            renderer.new_instance(device, head.clone(), &format!("tile {}", self.id))
-        });
-        let camera = Camera::framing(head.face_frame(), self.framing);
-        renderer.prepare(
-            queue,
-            instance,
-            &camera,
-            self.aspect,
-            &self.weights,
-            &crate::render::head::FacePose::REST,
+        })
+    }
+
+    /// Shows `tile` in `rect`, rendering it first if its face or size changed.
+    pub fn show(&mut self, ui: &mut egui::Ui, rect: egui::Rect, tile: HeadTile) {
+        let ppp = ui.ctx().pixels_per_point();
+        let max = self.state.device.limits().max_texture_dimension_2d;
+        let px = |points: f32| ((points * ppp).round() as u32).clamp(1, max);
+        let size = (px(rect.width()), px(rect.height()));
+        self.counters.tiles_shown.fetch_add(1, Ordering::Relaxed);
+        let texture = self.render_if_changed(tile, size);
+        ui.painter().image(
+            texture,
+            rect,
+            egui::Rect::from_min_max(egui::pos2(0.0, 0.0), egui::pos2(1.0, 1.0)),
+            egui::Color32::WHITE,
         );
+    }
+
+    /// Frees the targets of tiles not shown since the last call (peers that left).
+    pub fn end_frame(&mut self) {
+        let state = &self.state;
+        self.tiles.retain(|_, t| {
+            let keep = std::mem::take(&mut t.seen_this_frame);
+            if !keep {
+                state.renderer.write().free_texture(&t.texture);
+            }
+            keep
+        });
+    }
+
+    fn render_if_changed(&mut self, tile: HeadTile, size: (u32, u32)) -> egui::TextureId {
+        let Self {
+            state,
+            renderer,
+            head,
+            samples,
+            tiles,
+            counters,
+        } = self;
+        let entry = tiles.entry(tile.id).or_insert_with(|| {
+            let target = HeadTarget::new(&state.device, size.0, size.1, *samples, "head tile");
+            let texture = state.renderer.write().register_native_texture(
+                &state.device,
+                &target.unorm_view(),
+                wgpu::FilterMode::Linear,
+            );
+            Tile {
+                instance: renderer.new_instance(
+                    &state.device,
+                    head.clone(),
+                    &format!("tile {}", tile.id),
+                ),
+                target,
+                texture,
+                shown: None,
+                seen_this_frame: false,
+            }
+        });
+        entry.seen_this_frame = true;
+        if entry.target.size() != size {
+            entry.target = HeadTarget::new(&state.device, size.0, size.1, *samples, "head tile");
+            state
+                .renderer
+                .write()
+                .update_egui_texture_from_wgpu_texture(
+                    &state.device,
+                    &entry.target.unorm_view(),
+                    wgpu::FilterMode::Linear,
+                    entry.texture,
+                );
+            entry.shown = None;
+        }
+        let wanted = Some((tile, size));
+        if entry.shown == wanted {
+            return entry.texture;
+        }
+        let t0 = Instant::now();
+        let (tile, _) = wanted.as_ref().expect("just built");
+        let camera = Camera::framing(head.face_frame(), tile.framing);
+        let aspect = size.0 as f32 / size.1 as f32;
+        renderer.prepare(
+            &state.queue,
+            &mut entry.instance,
+            &camera,
+            aspect,
+            &tile.weights,
+            &tile.pose,
+        );
+        let mut encoder = state
+            .device
+            .create_command_encoder(&wgpu::CommandEncoderDescriptor {
+                label: Some("lipcall head tile"),
+            });
+        {
+            let mut pass = entry.target.begin_pass(&mut encoder, BACKGROUND);
+            renderer.paint(&mut pass, &entry.instance);
+        }
+        state.queue.submit([encoder.finish()]);
+        entry.shown = wanted;
+        counters.tiles_drawn.fetch_add(1, Ordering::Relaxed);
         counters
             .record_ns
             .fetch_add(t0.elapsed().as_nanos() as u64, Ordering::Relaxed);
-        Vec::new()
+        entry.texture
     }
-
-    fn paint(
-        &self,
-        _info: egui::PaintCallbackInfo,
-        pass: &mut wgpu::RenderPass<'static>,
-        resources: &CallbackResources,
-    ) {
-        let Some(res) = resources.get::<TileResources>() else {
-            return;
-        };
-        let t0 = Instant::now();
-        if let Some(instance) = res.instances.get(&self.id) {
-            res.renderer.paint(pass, instance);
-            res.counters.tiles_drawn.fetch_add(1, Ordering::Relaxed);
-        }
-        res.counters
-            .record_ns
-            .fetch_add(t0.elapsed().as_nanos() as u64, Ordering::Relaxed);
-    }
-}
-
-/// Paints a head into `rect` (a no-op where there is no wgpu renderer, as in UI tests).
-pub fn head_ui(ui: &mut egui::Ui, rect: egui::Rect, tile: HeadTile) {
-    ui.painter()
-        .add(egui_wgpu::Callback::new_paint_callback(rect, tile));
 }

@@ -15,6 +15,7 @@ pub mod head;
 pub mod label;
 pub mod offscreen;
 pub mod renderer;
+pub mod target;
 
 pub use camera::{Camera, Framing};
 pub use head::{HeadModel, VISEME_COUNT, VISEME_NAMES, VisemeWeights, viseme_index};

@@ -8,9 +8,10 @@ use super::RenderError;
 use super::camera::{Camera, Framing};
 use super::head::{FacePose, HeadModel, VISEME_COUNT, VisemeWeights, viseme_index};
 use super::renderer::{DEPTH_FORMAT, GpuHead, HeadInstance, HeadRenderer};
+use super::target::{HeadTarget, sample_count_for};
 
 /// Colour format of offscreen frames (sRGB, so PNG bytes come out as they are).
-pub const COLOR_FORMAT: wgpu::TextureFormat = wgpu::TextureFormat::Rgba8UnormSrgb;
+pub const COLOR_FORMAT: wgpu::TextureFormat = super::target::TARGET_FORMAT;
 
 /// A device and queue made without a window.
 pub struct GpuContext {
@@ -148,9 +149,7 @@ pub struct OffscreenRenderer {
     renderer: HeadRenderer,
     head: Arc<GpuHead>,
     instances: Vec<HeadInstance>,
-    color: wgpu::Texture,
-    color_view: wgpu::TextureView,
-    depth_view: wgpu::TextureView,
+    target: HeadTarget,
     readback: wgpu::Buffer,
     padded_row: u32,
     options: FrameOptions,
@@ -184,38 +183,22 @@ impl OffscreenRenderer {
             )));
         }
         let device = &ctx.device;
-        let renderer = HeadRenderer::new(device, COLOR_FORMAT, Some(DEPTH_FORMAT));
+        let samples = sample_count_for(&ctx.adapter);
+        let renderer =
+            HeadRenderer::with_samples(device, COLOR_FORMAT, Some(DEPTH_FORMAT), samples);
         let head = renderer.upload(device, &ctx.queue, model, "lipcall head")?;
         let instances = (0..count.max(1))
             .map(|i| {
                 renderer.new_instance(device, head.clone(), &format!("lipcall head instance {i}"))
             })
             .collect();
-        let size = wgpu::Extent3d {
-            width: options.width,
-            height: options.height,
-            depth_or_array_layers: 1,
-        };
-        let color = device.create_texture(&wgpu::TextureDescriptor {
-            label: Some("lipcall offscreen colour"),
-            size,
-            mip_level_count: 1,
-            sample_count: 1,
-            dimension: wgpu::TextureDimension::D2,
-            format: COLOR_FORMAT,
-            usage: wgpu::TextureUsages::RENDER_ATTACHMENT | wgpu::TextureUsages::COPY_SRC,
-            view_formats: &[],
-        });
-        let depth = device.create_texture(&wgpu::TextureDescriptor {
-            label: Some("lipcall offscreen depth"),
-            size,
-            mip_level_count: 1,
-            sample_count: 1,
-            dimension: wgpu::TextureDimension::D2,
-            format: DEPTH_FORMAT,
-            usage: wgpu::TextureUsages::RENDER_ATTACHMENT,
-            view_formats: &[],
-        });
+        let target = HeadTarget::new(
+            device,
+            options.width,
+            options.height,
+            samples,
+            "lipcall offscreen",
+        );
         let padded_row = (options.width * 4).div_ceil(wgpu::COPY_BYTES_PER_ROW_ALIGNMENT)
             * wgpu::COPY_BYTES_PER_ROW_ALIGNMENT;
         let readback = device.create_buffer(&wgpu::BufferDescriptor {
@@ -226,15 +209,7 @@ impl OffscreenRenderer {
         });
         let camera = Camera::framing(head.face_frame(), options.framing);
         Ok(Self {
-            color_view: color.create_view(&wgpu::TextureViewDescriptor {
-                label: Some("lipcall offscreen colour view"),
-                ..Default::default()
-            }),
-            depth_view: depth.create_view(&wgpu::TextureViewDescriptor {
-                label: Some("lipcall offscreen depth view"),
-                ..Default::default()
-            }),
-            color,
+            target,
             renderer,
             head,
             instances,
@@ -285,30 +260,9 @@ impl OffscreenRenderer {
                 label: Some("lipcall offscreen frame encoder"),
             });
         {
-            let [r, g, b] = self.options.background;
-            let mut pass = encoder.begin_render_pass(&wgpu::RenderPassDescriptor {
-                label: Some("lipcall offscreen head pass"),
-                color_attachments: &[Some(wgpu::RenderPassColorAttachment {
-                    view: &self.color_view,
-                    depth_slice: None,
-                    resolve_target: None,
-                    ops: wgpu::Operations {
-                        load: wgpu::LoadOp::Clear(wgpu::Color { r, g, b, a: 1.0 }),
-                        store: wgpu::StoreOp::Store,
-                    },
-                })],
-                depth_stencil_attachment: Some(wgpu::RenderPassDepthStencilAttachment {
-                    view: &self.depth_view,
-                    depth_ops: Some(wgpu::Operations {
-                        load: wgpu::LoadOp::Clear(1.0),
-                        store: wgpu::StoreOp::Discard,
-                    }),
-                    stencil_ops: None,
-                }),
-                timestamp_writes: None,
-                occlusion_query_set: None,
-                multiview_mask: None,
-            });
+            let mut pass = self
+                .target
+                .begin_pass(&mut encoder, self.options.background);
             for (i, instance) in self.instances.iter().enumerate() {
                 let (c, r) = (i as u32 % cols, i as u32 / cols);
                 pass.set_viewport(
@@ -353,7 +307,7 @@ impl OffscreenRenderer {
             });
         encoder.copy_texture_to_buffer(
             wgpu::TexelCopyTextureInfo {
-                texture: &self.color,
+                texture: self.target.texture(),
                 mip_level: 0,
                 origin: wgpu::Origin3d::ZERO,
                 aspect: wgpu::TextureAspect::All,
@@ -366,7 +320,7 @@ impl OffscreenRenderer {
                     rows_per_image: Some(self.options.height),
                 },
             },
-            self.color.size(),
+            self.target.texture().size(),
         );
         ctx.queue.submit([encoder.finish()]);
         let bytes = read_buffer(&ctx.device, &self.readback)?;
