@@ -101,6 +101,13 @@ enum Command {
         #[arg(long, value_name = "B", default_value_t = 0.0, allow_hyphen_values = true,
               value_parser = lipcall::lipsync::parse_closure_bias)]
         closures: f32,
+        /// A still face in the frames: no blinks, no eye or head motion (the mouth still moves).
+        #[arg(long)]
+        no_life: bool,
+        /// Seed of the living face's blinks, glances and head motion (the same seed and audio
+        /// give the same frames).
+        #[arg(long, value_name = "N", default_value_t = lipcall::lipsync::life::DEFAULT_SEED)]
+        seed: u64,
     },
     /// List audio devices and try the default (or chosen) ones; no audio is not an error.
     Devices {
@@ -261,6 +268,8 @@ fn main() -> ExitCode {
             model,
             baseline,
             closures,
+            no_life,
+            seed,
         } => commands::animate::animate(&commands::animate::AnimateArgs {
             input,
             weights,
@@ -272,6 +281,8 @@ fn main() -> ExitCode {
             model,
             baseline_jaw: baseline.is_some(),
             closure_bias: closures,
+            life: !no_life,
+            seed,
         }),
         Command::Devices { output, input } => {
             commands::audio::devices(output.as_deref(), input.as_deref())

@@ -159,6 +159,44 @@ fn frames_are_rendered_with_weights_and_audio() {
 }
 
 #[test]
+fn the_living_face_is_seeded_and_can_be_switched_off() {
+    let dir = tempfile::tempdir().unwrap();
+    let d = dir.path();
+    let clip = d.join("clip.wav");
+    run(Command::new("sox")
+        .arg(repo_file("assets/speech/demo.wav"))
+        .args(["-D", "-r", "8000"])
+        .arg(&clip)
+        .args(["trim", "0.8", "0.6"]));
+    let render = |name: &str, extra: &[&str]| -> Vec<Vec<u8>> {
+        let frames = d.join(name);
+        run(lipcall()
+            .arg("animate")
+            .arg(&clip)
+            .arg("--frames")
+            .arg(&frames)
+            .args(extra));
+        (0..15)
+            .map(|k| std::fs::read(frames.join(format!("frame_{k:06}.png"))).unwrap())
+            .collect()
+    };
+    let first = render("a", &[]);
+    // The default seed, given or not: the same frames; another seed moves the head otherwise.
+    assert_eq!(first, render("b", &["--seed", "1"]));
+    assert_ne!(first, render("c", &["--seed", "2"]));
+    // Talking moves the head: without the living face the frames differ.
+    assert_ne!(first, render("d", &["--no-life"]));
+    let out = lipcall()
+        .arg("animate")
+        .arg(&clip)
+        .args(["--seed", "-3", "--weights"])
+        .arg(d.join("w.csv"))
+        .output()
+        .unwrap();
+    assert_eq!(out.status.code(), Some(2));
+}
+
+#[test]
 fn bad_input_gives_one_line_errors() {
     let dir = tempfile::tempdir().unwrap();
     let d = dir.path();

@@ -3,11 +3,14 @@
 
 use std::sync::OnceLock;
 
-use lipcall::render::glb_write::glb_container;
+use glam::{Vec2, Vec3};
+use lipcall::render::glb_write::{glb_container, write_glb};
 use lipcall::render::gltf_load::load_head_from_slice;
-use lipcall::render::head::TargetSource;
+use lipcall::render::head::{
+    Expression, FacePose, Material, MorphDelta, Primitive, TargetSource, VISEME_COUNT, Vertex,
+};
 use lipcall::render::offscreen::{FrameOptions, GpuContext, OffscreenRenderer, WeightTrack};
-use lipcall::render::{Framing, HeadModel, RenderError, VISEME_NAMES, VisemeWeights};
+use lipcall::render::{Camera, Framing, HeadModel, RenderError, VISEME_NAMES, VisemeWeights};
 use serde_json::json;
 
 fn default_head() -> &'static HeadModel {
@@ -80,26 +83,52 @@ fn default_head_has_all_fifteen_named_visemes() {
 #[test]
 fn gpu_blend_matches_cpu_reference() {
     let Some(ctx) = gpu() else { return };
-    let head = default_head();
-    let mut offscreen = mouth_renderer(&ctx, head);
-    // A convex mix touching several shapes, and single shapes.
-    let mut mixes =
-        vec![VisemeWeights::from_named([("aa", 0.5), ("U", 0.3), ("PP", 0.2)]).unwrap()];
-    mixes.push(VisemeWeights::single("TH").unwrap());
-    mixes.push(VisemeWeights::neutral());
-    for weights in mixes {
-        offscreen.render(&ctx, &weights).unwrap();
-        let cpu = head.blend_cpu(&weights);
-        let gpu = offscreen.blend_on_gpu(&ctx).unwrap();
-        assert_eq!(cpu.len(), gpu.len());
-        let mut worst = 0.0f32;
-        for (c, g) in cpu.iter().zip(&gpu) {
-            for k in 0..3 {
-                worst = worst.max((c.position[k] - g.position[k]).abs());
-                worst = worst.max((c.normal[k] - g.normal[k]).abs());
+    // The default head, and a head with every eye slot (all 20 slots then carry shapes).
+    let living = living_test_head();
+    for head in [default_head(), &living] {
+        let mut offscreen = mouth_renderer(&ctx, head);
+        // A convex mix touching several shapes, and single shapes; eyes at rest and posed (the
+        // head rotation is the model matrix's, so it leaves the blend alone).
+        let mix = VisemeWeights::from_named([("aa", 0.5), ("U", 0.3), ("PP", 0.2)]).unwrap();
+        let posed = FacePose {
+            blink: 0.6,
+            gaze: Vec2::new(0.3, -0.2),
+            pitch: 0.05,
+            yaw: -0.04,
+            roll: 0.03,
+        };
+        let glance = FacePose {
+            blink: 1.0,
+            gaze: Vec2::new(-0.5, 0.4),
+            ..FacePose::REST
+        };
+        let cases = [
+            (mix, FacePose::REST),
+            (VisemeWeights::single("TH").unwrap(), FacePose::REST),
+            (VisemeWeights::neutral(), FacePose::REST),
+            (mix, posed),
+            (VisemeWeights::neutral(), glance),
+        ];
+        for (weights, pose) in cases {
+            offscreen.render_posed(&ctx, &weights, &pose).unwrap();
+            let cpu = head.blend_cpu_posed(&weights, &pose);
+            let gpu = offscreen.blend_on_gpu(&ctx).unwrap();
+            assert_eq!(cpu.len(), gpu.len());
+            let mut worst = 0.0f32;
+            for (c, g) in cpu.iter().zip(&gpu) {
+                for k in 0..3 {
+                    worst = worst.max((c.position[k] - g.position[k]).abs());
+                    worst = worst.max((c.normal[k] - g.normal[k]).abs());
+                }
             }
+            assert!(worst < 1e-5, "GPU blend differs from CPU by {worst}");
         }
-        assert!(worst < 1e-5, "GPU blend differs from CPU by {worst}");
+        // The eye slots really move the living head's vertices.
+        if head.has_expression(Expression::Blink) {
+            let open = head.blend_cpu(&VisemeWeights::neutral());
+            let shut = head.blend_cpu_posed(&VisemeWeights::neutral(), &glance);
+            assert_ne!(open, shut);
+        }
     }
 }
 
@@ -615,4 +644,440 @@ fn frames_are_written_at_25_and_50_fps() {
         ..Default::default()
     };
     assert!(lipcall::render::render_frames(default_head(), &track, &dir, &bad).is_err());
+}
+
+/// Jaw opening and lip width per viseme (the design brief's table), for the test head's lips.
+const TEST_JAW: [f32; VISEME_COUNT] = [
+    0.05, 0.05, 0.15, 0.25, 0.25, 0.35, 0.2, 0.15, 0.25, 0.25, 1.0, 0.5, 0.25, 0.6, 0.3,
+];
+const TEST_WIDTH: [f32; VISEME_COUNT] = [
+    0.0, 0.0, 0.1, 0.1, 0.15, 0.1, -0.3, 0.3, 0.1, -0.3, 0.1, 0.4, 0.7, -0.5, -0.8,
+];
+
+/// An `nx` x `ny` grid over the rectangle at depth `z`, facing +Z.
+fn grid(name: &str, material: usize, [x0, x1, y0, y1]: [f32; 4], z: f32, n: usize) -> Primitive {
+    let mut vertices = Vec::new();
+    for j in 0..n {
+        for i in 0..n {
+            let x = x0 + (x1 - x0) * i as f32 / (n - 1) as f32;
+            let y = y0 + (y1 - y0) * j as f32 / (n - 1) as f32;
+            vertices.push(Vertex {
+                position: [x, y, z],
+                normal: [0.0, 0.0, 1.0],
+                uv: [0.0; 2],
+                color: [1.0; 4],
+            });
+        }
+    }
+    let mut indices = Vec::new();
+    for j in 0..n - 1 {
+        for i in 0..n - 1 {
+            let a = (j * n + i) as u32;
+            let n = n as u32;
+            indices.extend_from_slice(&[a, a + 1, a + n + 1, a, a + n + 1, a + n]);
+        }
+    }
+    Primitive::new(name, material, vertices, indices)
+}
+
+/// A disc of radius `r` around `centre`, facing +Z.
+fn disc(name: &str, material: usize, centre: Vec3, r: f32) -> Primitive {
+    let mut vertices = vec![Vertex {
+        position: centre.into(),
+        normal: [0.0, 0.0, 1.0],
+        uv: [0.0; 2],
+        color: [1.0; 4],
+    }];
+    let rim = 24;
+    for k in 0..rim {
+        let a = std::f32::consts::TAU * k as f32 / rim as f32;
+        vertices.push(Vertex {
+            position: (centre + Vec3::new(r * a.cos(), r * a.sin(), 0.0)).into(),
+            ..vertices[0]
+        });
+    }
+    let indices = (0..rim as u32)
+        .flat_map(|k| [0, 1 + k, 1 + (k + 1) % rim as u32])
+        .collect();
+    Primitive::new(name, material, vertices, indices)
+}
+
+/// Every vertex of `p` moved by `f(position)`.
+fn shape(p: &Primitive, f: impl Fn(Vec3) -> Vec3) -> Vec<MorphDelta> {
+    p.vertices
+        .iter()
+        .map(|v| MorphDelta {
+            position: f(Vec3::from(v.position)).into(),
+            normal: [0.0; 3],
+        })
+        .collect()
+}
+
+/// A small synthetic face facing +Z, built in code and sent through `glb_write` and the loader
+/// (its eye shapes under lipcall's slot names): a skin plane whose chin drops with the open
+/// visemes, lips that open, spread and round with all 15, a dark mouth behind them, two dark
+/// eyes that move with the four look shapes, and two lids, a shade darker than the skin, that
+/// slide down over the eyes with the blink.
+fn living_test_head() -> HeadModel {
+    let mut skin = grid("skin", 0, [-0.1, 0.1, -0.12, 0.12], 0.0, 11);
+    let mut upper = grid("upper lip", 1, [-0.03, 0.03, -0.045, -0.035], 0.002, 5);
+    let mut lower = grid("lower lip", 1, [-0.03, 0.03, -0.06, -0.05], 0.002, 5);
+    let mouth = grid("mouth", 2, [-0.03, 0.03, -0.06, -0.035], 0.001, 2);
+    for v in 0..VISEME_COUNT {
+        let (jaw, width) = (TEST_JAW[v], TEST_WIDTH[v]);
+        skin.targets[v] = shape(&skin, |p| {
+            Vec3::new(0.0, if p.y < -0.09 { -0.01 * jaw } else { 0.0 }, 0.0)
+        });
+        upper.targets[v] = shape(&upper, |p| {
+            Vec3::new(0.012 * width * p.x / 0.03, 0.003 * jaw, 0.0)
+        });
+        lower.targets[v] = shape(&lower, |p| {
+            Vec3::new(0.012 * width * p.x / 0.03, -0.02 * jaw, 0.0)
+        });
+    }
+    let mut primitives = vec![skin, upper, lower, mouth];
+    for x in [-0.04f32, 0.04] {
+        let mut eye = disc("eye", 2, Vec3::new(x, 0.04, 0.003), 0.014);
+        for (e, d) in [
+            (Expression::LookUp, Vec3::new(0.0, 0.006, 0.0)),
+            (Expression::LookDown, Vec3::new(0.0, -0.006, 0.0)),
+            (Expression::LookLeft, Vec3::new(0.01, 0.0, 0.0)),
+            (Expression::LookRight, Vec3::new(-0.01, 0.0, 0.0)),
+        ] {
+            eye.targets[e.slot()] = shape(&eye, |_| d);
+        }
+        let mut lid = grid("lid", 3, [x - 0.02, x + 0.02, 0.056, 0.09], 0.005, 3);
+        lid.targets[Expression::Blink.slot()] = shape(&lid, |_| Vec3::new(0.0, -0.034, 0.0));
+        primitives.push(eye);
+        primitives.push(lid);
+    }
+    let material = |name: &str, base_color: [f32; 4]| Material {
+        name: name.into(),
+        base_color,
+        texture: None,
+    };
+    let model = HeadModel {
+        primitives,
+        materials: vec![
+            material("skin", [0.8, 0.55, 0.45, 1.0]),
+            material("lips", [0.6, 0.12, 0.12, 1.0]),
+            material("dark", [0.01, 0.01, 0.015, 1.0]),
+            material("lid", [0.5, 0.3, 0.25, 1.0]),
+        ],
+        source: TargetSource::Visemes,
+        missing_visemes: Vec::new(),
+    };
+    model.validate().unwrap();
+    load_head_from_slice(&write_glb(&model)).expect("the test head loads back")
+}
+
+#[test]
+fn arkit_eye_targets_drive_the_eye_slots_of_any_head() {
+    // An ARKit mouth with ARKit eyes; an unknown eye shape beside them is ignored.
+    let amounts = [
+        ("jawOpen", 0.05),
+        ("eyeBlinkLeft", 0.01),
+        ("eyeBlinkRight", 0.02),
+        ("eyeLookOutLeft", 0.03),
+        ("eyeLookInRight", 0.04),
+        ("eyeSquintLeft", 0.05),
+    ];
+    let head = load_head_from_slice(&grid_glb(&amounts, true)).unwrap();
+    assert_eq!(head.source, TargetSource::Arkit);
+    let slot = |e: Expression| &head.primitives[0].targets[e.slot()];
+    // grid_glb's target k moves the lower half by (0.01 k, -amount, 0), under a node scale of 2.
+    let lower = head.primitives[0]
+        .vertices
+        .iter()
+        .position(|v| v.position[1] < 0.0)
+        .unwrap();
+    let moved = |e: Expression| slot(e)[lower].position;
+    let close = |a: [f32; 3], b: [f32; 3]| (0..3).all(|k| (a[k] - b[k]).abs() < 1e-6);
+    // Both blinks add up in the one blink slot; out-left and in-right make "look left".
+    assert!(
+        close(moved(Expression::Blink), [2.0 * 0.03, -2.0 * 0.03, 0.0]),
+        "{:?}",
+        moved(Expression::Blink)
+    );
+    assert!(
+        close(moved(Expression::LookLeft), [2.0 * 0.07, -2.0 * 0.07, 0.0]),
+        "{:?}",
+        moved(Expression::LookLeft)
+    );
+    for e in [
+        Expression::LookUp,
+        Expression::LookDown,
+        Expression::LookRight,
+    ] {
+        assert!(slot(e).is_empty() && !head.has_expression(e));
+    }
+    assert!(head.has_expression(Expression::Blink));
+    // A viseme head with the same eyes gets them too; a head without any does not blink.
+    let visemes = load_head_from_slice(&grid_glb(
+        &[("viseme_aa", 0.05), ("eyeBlinkLeft", 0.01)],
+        true,
+    ))
+    .unwrap();
+    assert_eq!(visemes.source, TargetSource::Visemes);
+    assert!(visemes.has_expression(Expression::Blink));
+    let plain = load_head_from_slice(&grid_glb(&[("viseme_aa", 0.05)], true)).unwrap();
+    assert!(Expression::ALL.iter().all(|&e| !plain.has_expression(e)));
+    // Eyes alone are no mouth.
+    let eyes_only = grid_glb(&[("eyeBlinkLeft", 0.01), ("eyeBlinkRight", 0.01)], true);
+    assert!(matches!(
+        load_head_from_slice(&eyes_only),
+        Err(RenderError::NoUsableTargets { .. })
+    ));
+    // The written test head keeps its eye shapes under lipcall's own names.
+    let living = living_test_head();
+    assert!(Expression::ALL.iter().all(|&e| living.has_expression(e)));
+    assert!(living.missing_visemes.is_empty());
+}
+
+#[test]
+fn head_motion_turns_the_rendered_head_and_the_rest_pose_changes_nothing() {
+    let Some(ctx) = gpu() else { return };
+    let head = living_test_head();
+    let options = FrameOptions {
+        width: 96,
+        height: 96,
+        ..Default::default()
+    };
+    let mut offscreen = OffscreenRenderer::new(&ctx, &head, options).unwrap();
+    let plain = offscreen.render(&ctx, &VisemeWeights::neutral()).unwrap();
+    let rest = offscreen
+        .render_posed(&ctx, &VisemeWeights::neutral(), &FacePose::REST)
+        .unwrap();
+    assert_eq!(plain, rest);
+    for pose in [
+        FacePose {
+            pitch: 0.05,
+            ..FacePose::REST
+        },
+        FacePose {
+            yaw: 0.05,
+            ..FacePose::REST
+        },
+        FacePose {
+            roll: 0.05,
+            ..FacePose::REST
+        },
+    ] {
+        let turned = offscreen
+            .render_posed(&ctx, &VisemeWeights::neutral(), &pose)
+            .unwrap();
+        assert!(
+            pixel_difference(&plain, &turned) > 20,
+            "{pose:?} barely moves the head"
+        );
+        // The pivot is behind the face: a nod moves the mouth (the red lips) down.
+        if pose.pitch > 0.0 {
+            let centroid_y = |img: &image::RgbaImage| {
+                let dark: Vec<u32> = img
+                    .enumerate_pixels()
+                    .filter(|(_, _, p)| p[0] as i32 > p[1] as i32 + 80)
+                    .map(|(_, y, _)| y)
+                    .collect();
+                dark.iter().sum::<u32>() as f32 / dark.len().max(1) as f32
+            };
+            assert!(
+                centroid_y(&turned) > centroid_y(&plain),
+                "the lips should go down"
+            );
+        }
+    }
+}
+
+/// Pixel rectangle (x0, y0, x1, y1), inclusive, covering where `moved` vertices of `head` can
+/// be in 480 x 480 face frames: their rest positions and each of the given slots at full weight.
+fn screen_region(head: &HeadModel, slots: std::ops::Range<usize>) -> (u32, u32, u32, u32) {
+    let (w, h) = (480.0f32, 480.0f32);
+    let camera = Camera::framing(&head.face_frame(), Framing::Face);
+    let view_proj = camera.view_proj(w / h);
+    let (mut x0, mut y0, mut x1, mut y1) = (f32::MAX, f32::MAX, f32::MIN, f32::MIN);
+    for p in &head.primitives {
+        for slot in slots.clone() {
+            let Some(target) = p.targets.get(slot).filter(|t| !t.is_empty()) else {
+                continue;
+            };
+            for (v, d) in p.vertices.iter().zip(target) {
+                let delta = Vec3::from(d.position);
+                if delta.length() < 1e-7 {
+                    continue;
+                }
+                for pos in [Vec3::from(v.position), Vec3::from(v.position) + delta] {
+                    let ndc = view_proj.project_point3(pos);
+                    let (x, y) = ((ndc.x + 1.0) * 0.5 * w, (1.0 - ndc.y) * 0.5 * h);
+                    (x0, y0, x1, y1) = (x0.min(x), y0.min(y), x1.max(x), y1.max(y));
+                }
+            }
+        }
+    }
+    assert!(x0 <= x1, "no moving vertices in slots {slots:?}");
+    let clamp = |v: f32| v.clamp(0.0, w - 1.0) as u32;
+    (
+        clamp(x0 - 2.0),
+        clamp(y0 - 2.0),
+        clamp(x1 + 2.0),
+        clamp(y1 + 2.0),
+    )
+}
+
+fn region_pixels(img: &image::RgbaImage, (x0, y0, x1, y1): (u32, u32, u32, u32)) -> Vec<[u8; 4]> {
+    (y0..=y1)
+        .flat_map(|y| (x0..=x1).map(move |x| (x, y)))
+        .map(|(x, y)| img.get_pixel(x, y).0)
+        .collect()
+}
+
+fn changed(a: &[[u8; 4]], b: &[[u8; 4]]) -> usize {
+    a.iter()
+        .zip(b)
+        .filter(|(p, q)| (0..3).any(|k| (p[k] as i32 - q[k] as i32).abs() > 24))
+        .count()
+}
+
+fn write_silence(path: &std::path::Path, seconds: u32) {
+    let spec = hound::WavSpec {
+        channels: 1,
+        sample_rate: 8000,
+        bits_per_sample: 16,
+        sample_format: hound::SampleFormat::Int,
+    };
+    let mut wav = hound::WavWriter::create(path, spec).unwrap();
+    for _ in 0..8000 * seconds {
+        wav.write_sample(0i16).unwrap();
+    }
+    wav.finalize().unwrap();
+}
+
+fn animate_frames(
+    input: &std::path::Path,
+    head: Option<&std::path::Path>,
+    dir: &std::path::Path,
+    life: bool,
+) -> Vec<image::RgbaImage> {
+    lipcall::commands::animate::animate(&lipcall::commands::animate::AnimateArgs {
+        input: input.to_owned(),
+        weights: None,
+        frames: Some(dir.to_owned()),
+        head: head.map(|h| h.to_owned()),
+        fps: 25,
+        mouth_close_up: false,
+        visemes: None,
+        model: None,
+        baseline_jaw: false,
+        closure_bias: 0.0,
+        life,
+        seed: lipcall::lipsync::life::DEFAULT_SEED,
+    })
+    .expect("animate --frames");
+    let mut frames = Vec::new();
+    while let Ok(img) = image::open(dir.join(format!("frame_{:06}.png", frames.len()))) {
+        frames.push(img.to_rgba8());
+    }
+    frames
+}
+
+/// Issue 11's done-when: 8 s of digital silence through `lipcall animate --frames` at 25 fps
+/// shows at least one blink (the eyes change in a few frames and come back) and no mouth motion
+/// (the mouth's pixels never change, so neither the lips nor the head moved). Run on the test
+/// head with eye shapes and, once it has them, on the bundled default head.
+#[test]
+fn eight_seconds_of_digital_silence_blink_and_keep_the_mouth_still() {
+    let Some(ctx) = gpu() else { return };
+    let dir = tempfile::tempdir().unwrap();
+    let wav = dir.path().join("silence.wav");
+    write_silence(&wav, 8);
+    let glb = dir.path().join("living.glb");
+    let living = living_test_head();
+    std::fs::write(&glb, write_glb(&living)).unwrap();
+    let mut heads = vec![("test head", Some(glb.as_path()), living.clone())];
+    if default_head().has_expression(Expression::Blink) {
+        heads.push(("default head", None, default_head().clone()));
+    } else {
+        println!("the default head has no blink shape yet: only the test head is checked");
+    }
+    for (name, path, head) in heads {
+        let frames = animate_frames(&wav, path, &dir.path().join(name), true);
+        assert_eq!(frames.len(), 200, "{name}: 8 s at 25 fps");
+        let mouth = screen_region(&head, 0..VISEME_COUNT);
+        let eyes = screen_region(&head, VISEME_COUNT..lipcall::render::head::TARGET_COUNT);
+        println!("{name}: mouth region {mouth:?}, eye region {eyes:?}");
+
+        // The mouth region would show lips or head moving: check that it can, then that it
+        // does not.
+        let options = FrameOptions {
+            width: 480,
+            height: 480,
+            ..Default::default()
+        };
+        let mut offscreen = OffscreenRenderer::new(&ctx, &head, options).unwrap();
+        let rest = offscreen.render(&ctx, &VisemeWeights::neutral()).unwrap();
+        let open = offscreen
+            .render(&ctx, &VisemeWeights::single("aa").unwrap())
+            .unwrap();
+        let nod = offscreen
+            .render_posed(
+                &ctx,
+                &VisemeWeights::neutral(),
+                &FacePose {
+                    pitch: 0.5f32.to_radians(),
+                    ..FacePose::REST
+                },
+            )
+            .unwrap();
+        let still = region_pixels(&frames[0], mouth);
+        assert!(changed(&region_pixels(&open, mouth), &region_pixels(&rest, mouth)) > 50);
+        assert!(
+            region_pixels(&nod, mouth) != region_pixels(&rest, mouth),
+            "a half-degree nod would show"
+        );
+        for (k, frame) in frames.iter().enumerate() {
+            assert!(
+                region_pixels(frame, mouth) == still,
+                "{name}: the mouth region moved in frame {k}"
+            );
+        }
+
+        // The eyes: how much of their region differs from the first frame (open, ahead).
+        let open_eyes = region_pixels(&frames[0], eyes);
+        let area = open_eyes.len();
+        let diff: Vec<usize> = frames
+            .iter()
+            .map(|f| changed(&region_pixels(f, eyes), &open_eyes))
+            .collect();
+        let (peak_at, &peak) = diff.iter().enumerate().max_by_key(|(_, d)| **d).unwrap();
+        println!("{name}: eye region changes per frame {diff:?}");
+        assert!(
+            peak * 20 >= area,
+            "{name}: no blink: at most {peak} of {area} eye pixels change"
+        );
+        // A blink is short: the big change lasts a few frames, and the eyes come back.
+        let shut = |d: usize| 2 * d > peak;
+        let start = (0..=peak_at)
+            .rev()
+            .take_while(|&k| shut(diff[k]))
+            .last()
+            .unwrap();
+        let len = diff[start..].iter().take_while(|&&d| shut(d)).count();
+        assert!(
+            len <= 7,
+            "{name}: the eyes stay changed for {len} frames from {start}"
+        );
+        assert!(
+            diff[start + len..].iter().any(|&d| 4 * d <= peak),
+            "{name}: the eyes do not reopen after the blink at frame {start}"
+        );
+    }
+
+    // Without the living face the same silence is one still picture.
+    let short = dir.path().join("short.wav");
+    write_silence(&short, 2);
+    let frames = animate_frames(&short, Some(&glb), &dir.path().join("still"), false);
+    assert_eq!(frames.len(), 50);
+    assert!(
+        frames.iter().all(|f| *f == frames[0]),
+        "--no-life: something moved"
+    );
 }

@@ -1,4 +1,5 @@
-//! `lipcall animate`: audio in, viseme weights per 20 ms frame out (and rendered frames).
+//! `lipcall animate`: audio in, viseme weights per 20 ms frame out (and rendered frames, with
+//! the living face the app shows: blinks, saccades, voice-driven head motion).
 
 use std::io::Write;
 use std::path::{Path, PathBuf};
@@ -6,9 +7,11 @@ use std::path::{Path, PathBuf};
 use anyhow::{Context, Result, bail};
 
 use crate::audio::wav;
+use crate::lipsync::life::life_track;
 use crate::lipsync::receiver::animate_stream;
 use crate::lipsync::visemes::VisemeSet;
 use crate::lipsync::{LipSync, LipSyncOptions};
+use crate::render::head::{Expression, FacePose};
 use crate::render::{self, FrameOptions, Framing, HeadModel};
 use crate::speex::codec::EncoderConfig;
 use crate::speex::features::FrameFeatures;
@@ -26,12 +29,19 @@ pub struct AnimateArgs {
     pub baseline_jaw: bool,
     /// [`ModelAnimator::with_closure_bias`]: -1 fewer lip closures .. 1 more.
     pub closure_bias: f32,
+    /// The living face (blinks, saccades, head motion) in rendered frames; off: eyes and head
+    /// still, as with `--no-life`.
+    pub life: bool,
+    /// Seed of the living face's random choices (the same seed, the same face).
+    pub seed: u64,
 }
 
 /// Viseme weights for every 20 ms frame of a stream, with the audio they belong to.
 pub struct Animation {
     pub visemes: VisemeSet,
     pub rows: Vec<Vec<f32>>,
+    /// The living face's pose of each row (empty when it is off).
+    pub poses: Vec<FacePose>,
     pub rate: u32,
     pub pcm: Vec<i16>,
 }
@@ -78,9 +88,16 @@ pub fn weight_track(args: &AnimateArgs) -> Result<Animation> {
     let mut lipsync = LipSync::new(&model, &options)?;
     let rows = animate_stream(&mut lipsync, &features);
     let target = lipsync.visemes().clone();
+    // Frame by frame as the app makes them, from the same features and decoded samples.
+    let poses = if args.life {
+        life_track(&features, &pcm, args.seed)
+    } else {
+        Vec::new()
+    };
     Ok(Animation {
         visemes: target,
         rows,
+        poses,
         rate,
         pcm,
     })
@@ -147,7 +164,15 @@ fn render_frames(
         .enumerate()
         .map(|(n, w)| ((n * FRAME_SIZE) as f64 / f64::from(track.rate), w.clone()))
         .collect();
-    let weights = render::offscreen::WeightTrack::from_columns(&names, &rows)?;
+    let mut weights = render::offscreen::WeightTrack::from_columns(&names, &rows)?;
+    if !track.poses.is_empty() {
+        weights.set_poses(track.poses.clone())?;
+        if !head.has_expression(Expression::Blink) {
+            eprintln!(
+                "note: the head has no eyeBlinkLeft/eyeBlinkRight morph targets: it will not blink"
+            );
+        }
+    }
     let options = FrameOptions {
         fps: args.fps,
         framing: if args.mouth_close_up {
