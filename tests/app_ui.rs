@@ -3,7 +3,7 @@
 use eframe::egui;
 use egui_kittest::Harness;
 use egui_kittest::kittest::Queryable;
-use lipcall::app::engine::PeerAnimation;
+use lipcall::app::engine::{FaceRow, PeerAnimation};
 use lipcall::app::peer_controls_ui;
 use lipcall::app::settings::PeerPrefs;
 use lipcall::speex::features::FrameFeatures;
@@ -14,16 +14,27 @@ fn voiced() -> FrameFeatures {
     f
 }
 
-/// One frame's weights now: pushed, and given out at once if the look-ahead holds it back.
+/// One frame's weights and pose now: pushed, and given out at once if the look-ahead holds it
+/// back.
+fn face_now(
+    animation: &mut PeerAnimation,
+    prefs: &PeerPrefs,
+    tag: u64,
+    f: &FrameFeatures,
+) -> Option<FaceRow> {
+    let out = animation
+        .step(prefs, tag, f, &[])
+        .or_else(|| prefs.animate.then(|| animation.flush()).flatten());
+    out.map(|(_, row)| row)
+}
+
+/// One frame's weights now.
 fn animate_now(
     animation: &mut PeerAnimation,
     prefs: &PeerPrefs,
     f: &FrameFeatures,
 ) -> Option<[f32; 15]> {
-    let out = animation
-        .step(prefs, 0, f)
-        .or_else(|| prefs.animate.then(|| animation.flush()).flatten());
-    out.map(|(_, w)| w)
+    face_now(animation, prefs, 0, f).map(|row| row.weights)
 }
 
 fn harness() -> Harness<'static, PeerPrefs> {
@@ -114,4 +125,48 @@ fn mute_and_jaw_mode_toggle() {
     h.get_by_label("Lipreading").click();
     h.run();
     assert!(h.state().lipreading);
+}
+
+#[test]
+fn the_living_face_blinks_in_silence_and_switches_off() {
+    let mut h = harness();
+    assert!(h.state().life, "on by default");
+    let silence = lipcall::lipsync::network::silence_features();
+    let mut animation = PeerAnimation::with_seed(h.state(), 99);
+    // Five seconds of digital silence: the eyes blink, the head and mouth stay still.
+    let rows: Vec<FaceRow> = (0..250)
+        .filter_map(|n| face_now(&mut animation, h.state(), n, &silence))
+        .collect();
+    assert_eq!(rows.len(), 250);
+    assert!(rows.iter().any(|r| r.pose.blink > 0.9), "no blink in 5 s");
+    assert!(
+        rows.iter()
+            .all(|r| r.pose.head_is_still() && r.weights == rows[0].weights)
+    );
+    // Each frame's pose comes out with that frame's weights, through the look-ahead.
+    let mut again = PeerAnimation::with_seed(h.state(), 99);
+    let mut tagged = Vec::new();
+    for n in 0..250u64 {
+        tagged.extend(again.step(h.state(), n, &silence, &[]));
+    }
+    tagged.extend(again.flush());
+    assert_eq!(tagged.len(), 250);
+    for (k, (tag, row)) in tagged.iter().enumerate() {
+        assert_eq!((*tag, row), (k as u64, &rows[k]));
+    }
+
+    h.get_by_label("Living face").click();
+    h.run();
+    assert!(!h.state().life);
+    for n in 250..500 {
+        let row = face_now(&mut animation, h.state(), n, &silence).unwrap();
+        assert_eq!(row.pose, lipcall::render::head::FacePose::REST);
+    }
+    // Back on, it starts from rest and lives again.
+    h.get_by_label("Living face").click();
+    h.run();
+    let rows: Vec<FaceRow> = (500..800)
+        .filter_map(|n| face_now(&mut animation, h.state(), n, &silence))
+        .collect();
+    assert!(rows.iter().any(|r| r.pose.blink > 0.9));
 }

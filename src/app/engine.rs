@@ -14,11 +14,14 @@ use crate::audio::{
     Capture, DeviceChoice, Gate, MicControls, OutputStatus, PeerFeed, PeerId, Playback,
     PlaybackConfig, Schedule, ScheduleSender,
 };
+use crate::lipsync::life::{DEFAULT_SEED, LifeGenerator};
+use crate::lipsync::network::MAX_LOOKAHEAD;
 use crate::lipsync::visemes::{FullWeights, VisemeSet};
 use crate::lipsync::{LipSync, LipSyncOptions};
 use crate::net::peer::FrameKind;
 use crate::net::session::{PeerFrame, PeerInfo, Session, SessionConfig};
 use crate::net::srtp::MasterKey;
+use crate::render::head::FacePose;
 use crate::speex::FRAME_SIZE;
 use crate::speex::codec::{Encoder, EncoderConfig, MAX_PACKET_BYTES};
 use crate::speex::features::FrameFeatures;
@@ -89,10 +92,19 @@ pub struct CallStatus {
     pub error: Option<String>,
 }
 
+/// What a head shows for one 20 ms frame of a peer's audio: the mouth's weights over all 15
+/// visemes and the living face's pose (at rest when it is off), scheduled together so both are
+/// shown with the audio they belong to.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct FaceRow {
+    pub weights: FullWeights,
+    pub pose: FacePose,
+}
+
 /// State both threads touch; the engine holds the lock only briefly each tick.
 pub struct Shared {
     pub playback: Playback,
-    pub schedules: HashMap<u32, Schedule<FullWeights>>,
+    pub schedules: HashMap<u32, Schedule<FaceRow>>,
     pub peers: Vec<PeerView>,
     /// Per-peer choices, by SSRC; the UI edits them, the engine follows them.
     pub prefs: HashMap<u32, PeerPrefs>,
@@ -228,16 +240,46 @@ impl AnimationKey {
     }
 }
 
+/// Poses kept for frames whose weights the look-ahead still holds back.
+const POSE_RING: usize = MAX_LOOKAHEAD + 4;
+
 /// Turns one peer's decoded frames into weights over a chosen viseme set (the one receiver
-/// pipeline, [`LipSync`]), or does nothing at all when the peer's animation is off.
+/// pipeline, [`LipSync`]) and, with the living face on, poses ([`LifeGenerator`]), or does
+/// nothing at all when the peer's animation is off.
 pub struct PeerAnimation {
     lipsync: Option<LipSync<'static>>,
     key: AnimationKey,
+    life: LifeGenerator,
+    /// The generator ran on the previous frame (so a face switched back on starts at rest).
+    life_running: bool,
+    /// (tag, pose) of the latest frames, to pair each frame's pose with its weights, which come
+    /// out after the look-ahead.
+    poses: [(u64, FacePose); POSE_RING],
+    next_pose: usize,
     pub frames_animated: u64,
 }
 
 impl PeerAnimation {
+    /// With the living face seeded by [`DEFAULT_SEED`].
     pub fn new(prefs: &PeerPrefs) -> Self {
+        Self::with_seed(prefs, DEFAULT_SEED)
+    }
+
+    /// With the living face seeded by `seed` (the app uses the peer's SSRC, so two peers do not
+    /// blink together).
+    pub fn with_seed(prefs: &PeerPrefs, seed: u64) -> Self {
+        Self {
+            lipsync: Self::lipsync(prefs),
+            key: AnimationKey::of(prefs),
+            life: LifeGenerator::new(seed),
+            life_running: false,
+            poses: [(u64::MAX, FacePose::REST); POSE_RING],
+            next_pose: 0,
+            frames_animated: 0,
+        }
+    }
+
+    fn lipsync(prefs: &PeerPrefs) -> Option<LipSync<'static>> {
         let model = crate::lipsync::builtin::shipped();
         let options = LipSyncOptions {
             jaw: prefs.jaw,
@@ -245,7 +287,7 @@ impl PeerAnimation {
             visemes: VisemeSet::parse(&prefs.visemes).ok(),
         };
         // A set the shapes cannot express falls back to the network's own.
-        let lipsync = LipSync::new(model, &options)
+        LipSync::new(model, &options)
             .or_else(|_| {
                 LipSync::new(
                     model,
@@ -255,12 +297,7 @@ impl PeerAnimation {
                     },
                 )
             })
-            .ok();
-        Self {
-            lipsync,
-            key: AnimationKey::of(prefs),
-            frames_animated: 0,
-        }
+            .ok()
     }
 
     /// The viseme set the weights are expressed over.
@@ -268,38 +305,63 @@ impl PeerAnimation {
         self.lipsync.as_ref().map(|l| l.visemes())
     }
 
-    /// Feeds one decoded frame, tagged with its stream position. Returns the weights of the
-    /// frame the network's look-ahead has now completed, with its tag, or `None` (and no
-    /// network run when animation is off).
+    /// Feeds one decoded frame (its features and its 160 samples), tagged with its stream
+    /// position. Returns the weights of the frame the network's look-ahead has now completed,
+    /// with that frame's pose and tag, or `None` (and neither network nor living face runs when
+    /// animation is off). Allocates nothing.
     pub fn step(
         &mut self,
         prefs: &PeerPrefs,
         tag: u64,
         features: &FrameFeatures,
-    ) -> Option<(u64, FullWeights)> {
+        pcm: &[i16],
+    ) -> Option<(u64, FaceRow)> {
         if !self.key.matches(prefs) {
-            let count = self.frames_animated;
-            *self = Self::new(prefs);
-            self.frames_animated = count;
+            // The face keeps living through a change of viseme set or mode.
+            self.lipsync = Self::lipsync(prefs);
+            self.key = AnimationKey::of(prefs);
         }
-        if !prefs.animate {
+        if !prefs.animate || self.lipsync.is_none() {
+            self.life_running = false;
             return None;
         }
-        let lipsync = self.lipsync.as_mut()?;
         self.frames_animated += 1;
-        lipsync.push_full(tag, features)
+        let pose = if prefs.life {
+            if !self.life_running {
+                self.life.settle();
+            }
+            self.life.step_frame(features, pcm)
+        } else {
+            FacePose::REST
+        };
+        self.life_running = prefs.life;
+        self.poses[self.next_pose] = (tag, pose);
+        self.next_pose = (self.next_pose + 1) % POSE_RING;
+        let (tag, weights) = self.lipsync.as_mut()?.push_full(tag, features)?;
+        Some((tag, self.row(tag, weights)))
     }
 
     /// The oldest frame still waiting for its look-ahead, now: the peer's next frame did not
     /// come in time (loss, end of a talk spurt, the jitter buffer at its floor).
-    pub fn flush(&mut self) -> Option<(u64, FullWeights)> {
-        self.lipsync.as_mut()?.flush_full()
+    pub fn flush(&mut self) -> Option<(u64, FaceRow)> {
+        let (tag, weights) = self.lipsync.as_mut()?.flush_full()?;
+        Some((tag, self.row(tag, weights)))
+    }
+
+    /// The weights of frame `tag` with the pose made for that frame.
+    fn row(&self, tag: u64, weights: FullWeights) -> FaceRow {
+        let pose = self
+            .poses
+            .iter()
+            .find(|(t, _)| *t == tag)
+            .map_or(FacePose::REST, |(_, pose)| *pose);
+        FaceRow { weights, pose }
     }
 }
 
 struct PeerState {
     feed: PeerFeed,
-    weights: ScheduleSender<FullWeights>,
+    weights: ScheduleSender<FaceRow>,
     animation: PeerAnimation,
     last_voice: Option<Instant>,
     frames_received: u64,
@@ -649,7 +711,7 @@ impl Worker {
                     e.insert(PeerState {
                         feed,
                         weights: tx,
-                        animation: PeerAnimation::new(&prefs),
+                        animation: PeerAnimation::with_seed(&prefs, u64::from(f.ssrc)),
                         last_voice: None,
                         frames_received: 0,
                     })
@@ -667,7 +729,9 @@ impl Worker {
             }
             let t0 = Instant::now();
             let animated = peer.animation.frames_animated;
-            let out = peer.animation.step(&prefs, pos, &f.frame.features);
+            let out = peer
+                .animation
+                .step(&prefs, pos, &f.frame.features, &f.frame.pcm);
             if peer.animation.frames_animated > animated {
                 self.counters
                     .network_ns

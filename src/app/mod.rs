@@ -21,7 +21,7 @@ use eframe::egui;
 use crate::audio::{DeviceChoice, DeviceInfo};
 use crate::render::head::FacePose;
 use crate::render::{Framing, VisemeWeights};
-use engine::{CallSpec, Command, Engine, EngineConfig, PeerView};
+use engine::{CallSpec, Command, Engine, EngineConfig, FaceRow, PeerView};
 use settings::{PeerPrefs, Settings};
 use tiles::{HeadTile, HeadTiles, RenderCounters};
 
@@ -565,11 +565,16 @@ fn visemes_label(choice: &str) -> String {
     }
 }
 
-/// One peer's controls: animation, mute, volume, lipreading view, jaw mode, viseme set, lip
-/// closures.
+/// One peer's controls: animation, the living face, mute, volume, lipreading view, jaw mode,
+/// viseme set, lip closures.
 pub fn peer_controls_ui(ui: &mut egui::Ui, id: u32, prefs: &mut PeerPrefs) {
     ui.horizontal_wrapped(|ui| {
         ui.checkbox(&mut prefs.animate, "Animate");
+        ui.add_enabled(
+            prefs.animate,
+            egui::Checkbox::new(&mut prefs.life, "Living face"),
+        )
+        .on_hover_text("Blinks, glances, and head nods and tilts with the voice");
         ui.checkbox(&mut prefs.muted, "Mute");
         ui.add(
             egui::Slider::new(&mut prefs.volume, 0.0..=2.0)
@@ -608,7 +613,7 @@ pub fn peer_controls_ui(ui: &mut egui::Ui, id: u32, prefs: &mut PeerPrefs) {
 pub fn tiles_ui(
     ui: &mut egui::Ui,
     peers: &[PeerView],
-    weights: &[Option<[f32; 15]>],
+    faces: &[Option<FaceRow>],
     prefs: &mut [PeerPrefs],
     mut heads: Option<&mut HeadTiles>,
 ) {
@@ -649,10 +654,17 @@ pub fn tiles_ui(
                         ui.allocate_exact_size(egui::vec2(tile_w, head_h), egui::Sense::hover());
                     ui.painter()
                         .rect_filled(rect, 6.0, egui::Color32::from_gray(38));
-                    let w = match (prefs[i].animate, weights[i]) {
-                        (true, Some(w)) => VisemeWeights(w),
-                        _ => VisemeWeights::neutral(),
+                    let (w, mut pose) = match (prefs[i].animate, faces[i]) {
+                        (true, Some(face)) if prefs[i].life => {
+                            (VisemeWeights(face.weights), face.pose)
+                        }
+                        (true, Some(face)) => (VisemeWeights(face.weights), FacePose::REST),
+                        _ => (VisemeWeights::neutral(), FacePose::REST),
                     };
+                    // The lipreading close-up keeps the mouth steady in the frame.
+                    if prefs[i].lipreading {
+                        pose = pose.without_head_motion();
+                    }
                     if let Some(heads) = heads.as_deref_mut() {
                         let tile = HeadTile {
                             id: u64::from(p.ssrc),
@@ -662,7 +674,7 @@ pub fn tiles_ui(
                                 Framing::Face
                             },
                             weights: w,
-                            pose: FacePose::REST,
+                            pose,
                         };
                         heads.show(ui, rect, tile);
                     }

@@ -24,6 +24,9 @@ pub struct PeerPrefs {
     /// Lip closures: -1 fewer (only the surest) .. 0 the model's balance .. 1 more (nearly
     /// every /p b m/, and more often where there is none); for lipreading.
     pub closures: f32,
+    /// The living face: blinks, glances and head motion with the voice (off: eyes and head
+    /// still; the mouth keeps moving).
+    pub life: bool,
 }
 
 impl Default for PeerPrefs {
@@ -36,6 +39,7 @@ impl Default for PeerPrefs {
             visemes: String::new(),
             jaw: false,
             closures: 0.0,
+            life: true,
         }
     }
 }
@@ -129,6 +133,14 @@ mod tests {
         );
         s.save(&path).unwrap();
         assert_eq!(Settings::load(&path), (s, None));
+        // Settings from before the living face: it is on.
+        std::fs::write(
+            &path,
+            r#"{"peers": {"Bob": {"animate": true, "visemes": "3"}}}"#,
+        )
+        .unwrap();
+        let (old, why) = Settings::load(&path);
+        assert!(why.is_none() && old.peers["Bob"].life && old.peers["Bob"].visemes == "3");
         std::fs::write(&path, "{not json").unwrap();
         let (d, why) = Settings::load(&path);
         assert_eq!(d, Settings::default());
