@@ -17,7 +17,10 @@ struct View {
 // Slots blended: 15 visemes + 5 expressions (TARGET_COUNT in src/render/head.rs).
 const TARGET_COUNT: u32 = 20u;
 
+// The slots with weight this frame, compacted: `used.x` of them, `slot[k]` weighted `w[k]`.
 struct Weights {
+    used: vec4<u32>,
+    slot: array<vec4<u32>, 5>,
     w: array<vec4<f32>, 5>,
 }
 
@@ -61,13 +64,13 @@ fn blend(vid: u32, position: vec3<f32>, normal: vec3<f32>) -> Blended {
     if (vid >= count) {
         return Blended(p, n);
     }
-    for (var t = 0u; t < TARGET_COUNT; t = t + 1u) {
-        let w = weights.w[t / 4u][t % 4u];
-        if (w != 0.0) {
-            let b = (t * count + vid) * 6u;
-            p = p + w * vec3<f32>(deltas[b], deltas[b + 1u], deltas[b + 2u]);
-            n = n + w * vec3<f32>(deltas[b + 3u], deltas[b + 4u], deltas[b + 5u]);
-        }
+    let used = min(weights.used.x, TARGET_COUNT);
+    for (var k = 0u; k < used; k = k + 1u) {
+        let t = weights.slot[k / 4u][k % 4u];
+        let w = weights.w[k / 4u][k % 4u];
+        let b = (t * count + vid) * 6u;
+        p = p + w * vec3<f32>(deltas[b], deltas[b + 1u], deltas[b + 2u]);
+        n = n + w * vec3<f32>(deltas[b + 3u], deltas[b + 4u], deltas[b + 5u]);
     }
     return Blended(p, n);
 }

@@ -225,16 +225,26 @@ impl FacePose {
     }
 }
 
-/// Weights of all [`TARGET_COUNT`] slots: the visemes as given (non-finite ones as 0), then the
-/// pose's expressions. The pose never changes a viseme weight.
+/// Weights of all [`TARGET_COUNT`] slots: the visemes as given, then the pose's expressions;
+/// non-finite ones and those under [`MIN_SLOT_WEIGHT`] as 0. The pose never changes a viseme
+/// weight.
 pub fn slot_weights(weights: &VisemeWeights, pose: &FacePose) -> [f32; TARGET_COUNT] {
     let mut w = [0.0; TARGET_COUNT];
     for (dst, &src) in w.iter_mut().zip(weights.0.iter()) {
-        *dst = if src.is_finite() { src } else { 0.0 };
+        *dst = src;
     }
     w[VISEME_COUNT..].copy_from_slice(&pose.expression_weights());
+    for x in &mut w {
+        if !x.is_finite() || x.abs() < MIN_SLOT_WEIGHT {
+            *x = 0.0;
+        }
+    }
     w
 }
+
+/// Slot weights below this are not blended: a shape moving a vertex 2 cm moves it 0.04 mm at
+/// this weight, and every slot skipped is a pass over the moving vertices saved.
+pub const MIN_SLOT_WEIGHT: f32 = 1.0 / 512.0;
 
 /// A vertex as uploaded to the GPU.
 #[repr(C)]

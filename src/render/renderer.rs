@@ -31,8 +31,31 @@ struct ViewUniform {
 #[repr(C)]
 #[derive(Debug, Clone, Copy, PartialEq, Pod, Zeroable)]
 struct WeightsUniform {
-    /// One weight per target slot (visemes, then expressions): 5 vec4s in the shader.
+    /// x: how many slots carry weight; the first `x` entries of `slots` and `w` are they, so the
+    /// vertex stage loops over those alone.
+    active: [u32; 4],
+    slots: [u32; TARGET_COUNT],
     w: [f32; TARGET_COUNT],
+}
+
+impl WeightsUniform {
+    fn new(weights: &VisemeWeights, pose: &FacePose) -> Self {
+        let mut u = Self {
+            active: [0; 4],
+            slots: [0; TARGET_COUNT],
+            w: [0.0; TARGET_COUNT],
+        };
+        let mut n = 0;
+        for (slot, w) in slot_weights(weights, pose).into_iter().enumerate() {
+            if w != 0.0 {
+                u.slots[n] = slot as u32;
+                u.w[n] = w;
+                n += 1;
+            }
+        }
+        u.active[0] = n as u32;
+        u
+    }
 }
 
 #[repr(C)]
@@ -75,8 +98,8 @@ pub struct GpuHead {
     draws: Vec<DrawRange>,
     morph_vertices: u32,
     vertex_count: u32,
-    /// For each model primitive, its first vertex in the GPU vertex buffer.
-    primitive_offsets: Vec<(u32, u32)>,
+    /// Where each vertex of the model (primitives in order) sits in the GPU vertex buffer.
+    model_to_gpu: Vec<u32>,
     frame: FaceFrame,
 }
 
@@ -311,20 +334,37 @@ impl HeadRenderer {
         label: &str,
     ) -> Result<Arc<GpuHead>, RenderError> {
         model.validate()?;
-        // Primitives with morph targets first, so only they need delta storage.
-        let mut order: Vec<usize> = (0..model.primitives.len()).collect();
-        order.sort_by_key(|&i| !model.primitives[i].has_targets());
-        let morph_vertices: usize = model
-            .primitives
-            .iter()
-            .filter(|p| p.has_targets())
-            .map(|p| p.vertices.len())
-            .sum();
         let vertex_count = model.vertex_count();
         let index_count: usize = model.primitives.iter().map(|p| p.indices.len()).sum();
         if vertex_count >= u32::MAX as usize / 16 || index_count >= u32::MAX as usize {
             return Err(RenderError::InvalidHead("too many vertices".into()));
         }
+        // Vertices that some target moves come first and alone get delta storage: the vertex
+        // stage then blends only them (on a software adapter, most of a frame's time).
+        let moves = |p: &super::head::Primitive, i: usize| {
+            p.targets
+                .iter()
+                .any(|t| t.get(i).is_some_and(|d| *d != MorphDelta::default()))
+        };
+        let mut model_to_gpu = Vec::with_capacity(vertex_count);
+        let (mut moving, mut still) = (0u32, 0u32);
+        for p in &model.primitives {
+            for i in 0..p.vertices.len() {
+                if moves(p, i) {
+                    model_to_gpu.push(moving);
+                    moving += 1;
+                } else {
+                    model_to_gpu.push(u32::MAX - still);
+                    still += 1;
+                }
+            }
+        }
+        for g in &mut model_to_gpu {
+            if *g > u32::MAX - still {
+                *g = moving + (u32::MAX - *g);
+            }
+        }
+        let morph_vertices = moving as usize;
         let delta_bytes =
             (TARGET_COUNT * morph_vertices * std::mem::size_of::<MorphDelta>()) as u64;
         let max_binding = device.limits().max_storage_buffer_binding_size;
@@ -335,30 +375,30 @@ impl HeadRenderer {
             )));
         }
 
-        let mut vertices: Vec<Vertex> = Vec::with_capacity(vertex_count);
+        let mut vertices = vec![Vertex::default(); vertex_count];
         let mut indices: Vec<u32> = Vec::with_capacity(index_count);
         let mut deltas = vec![MorphDelta::default(); TARGET_COUNT * morph_vertices];
         let mut draws = Vec::new();
-        let mut primitive_offsets = vec![(0u32, 0u32); model.primitives.len()];
-        for &pi in &order {
-            let p = &model.primitives[pi];
-            let base = vertices.len();
-            primitive_offsets[pi] = (base as u32, p.vertices.len() as u32);
+        let mut base = 0usize;
+        for p in &model.primitives {
+            let gpu = &model_to_gpu[base..base + p.vertices.len()];
+            for (i, v) in p.vertices.iter().enumerate() {
+                vertices[gpu[i] as usize] = *v;
+            }
+            for (t, target) in p.targets.iter().enumerate() {
+                for (i, d) in target.iter().enumerate() {
+                    if (gpu[i] as usize) < morph_vertices {
+                        deltas[t * morph_vertices + gpu[i] as usize] = *d;
+                    }
+                }
+            }
             let first = indices.len() as u32;
-            indices.extend(p.indices.iter().map(|&i| i + base as u32));
+            indices.extend(p.indices.iter().map(|&i| gpu[i as usize]));
             draws.push(DrawRange {
                 indices: first..indices.len() as u32,
                 material: p.material,
             });
-            if p.has_targets() {
-                for (t, target) in p.targets.iter().enumerate() {
-                    if !target.is_empty() {
-                        let start = t * morph_vertices + base;
-                        deltas[start..start + target.len()].copy_from_slice(target);
-                    }
-                }
-            }
-            vertices.extend_from_slice(&p.vertices);
+            base += p.vertices.len();
         }
 
         let vertex_buffer = device.create_buffer_init(&wgpu::util::BufferInitDescriptor {
@@ -395,7 +435,7 @@ impl HeadRenderer {
             draws,
             morph_vertices: morph_vertices as u32,
             vertex_count: vertex_count as u32,
-            primitive_offsets,
+            model_to_gpu,
             frame: model.face_frame(),
         }))
     }
@@ -559,9 +599,7 @@ impl HeadRenderer {
             queue.write_buffer(&instance.view_buffer, 0, bytemuck::bytes_of(&view));
             instance.last_view = Some(view);
         }
-        let w = WeightsUniform {
-            w: slot_weights(weights, pose),
-        };
+        let w = WeightsUniform::new(weights, pose);
         if instance.last_weights != Some(w) {
             queue.write_buffer(&instance.weights_buffer, 0, bytemuck::bytes_of(&w));
             instance.last_weights = Some(w);
@@ -660,11 +698,7 @@ impl HeadRenderer {
                 .get(..used)
                 .ok_or_else(|| RenderError::Readback("short blend readback".into()))?,
         );
-        let mut result = Vec::with_capacity(gpu.len());
-        for &(start, len) in &head.primitive_offsets {
-            result.extend_from_slice(&gpu[start as usize..(start + len) as usize]);
-        }
-        Ok(result)
+        Ok(head.model_to_gpu.iter().map(|&g| gpu[g as usize]).collect())
     }
 }
 
