@@ -5,7 +5,9 @@
 //!
 //! Every accessor is bounds-checked before it is read, so malformed files give errors, not panics.
 //! Skinned meshes are taken in their bind pose (their node transform is ignored, as the glTF
-//! specification says).
+//! specification says). Every mesh's own targets are combined by the same rules (teeth and tongue
+//! meshes with `jawOpen` or `viseme_aa` of their own move with the face); a mesh skinned to a
+//! joint named like a jaw that has no mouth targets follows the face's jaw ([`follow_the_jaw`]).
 
 use std::path::Path;
 
@@ -134,6 +136,8 @@ struct RawPrimitive {
     vertices: Vec<Vertex>,
     indices: Vec<u32>,
     targets: Vec<(TargetKind, Vec<MorphDelta>)>,
+    /// Per vertex, how much it is skinned to joints named like a jaw (`None`: to none).
+    jaw_weights: Option<Vec<f32>>,
 }
 
 fn load_head_from_slice_in(bytes: &[u8], base: Option<&Path>) -> Result<HeadModel, RenderError> {
@@ -188,12 +192,31 @@ fn load_head_from_slice_in(bytes: &[u8], base: Option<&Path>) -> Result<HeadMode
             }
             let names = target_names(&mesh);
             all_target_names.extend(names.iter().cloned());
+            // Which of the skin's joints are a jaw (by name: `jaw`, `Jaw`, `mixamorig:Jaw`, ...).
+            let jaw_joints: Vec<bool> = node
+                .skin()
+                .map(|skin| {
+                    skin.joints()
+                        .map(|j| {
+                            j.name()
+                                .is_some_and(|n| n.to_ascii_lowercase().contains("jaw"))
+                        })
+                        .collect()
+                })
+                .unwrap_or_default();
             for prim in mesh.primitives() {
                 if prim.mode() != gltf::mesh::Mode::Triangles {
                     continue;
                 }
-                let raw =
-                    read_primitive(&prim, &mesh, &names, transform, &buffers, default_material)?;
+                let raw = read_primitive(
+                    &prim,
+                    &mesh,
+                    &names,
+                    &jaw_joints,
+                    transform,
+                    &buffers,
+                    default_material,
+                )?;
                 total_vertices += raw.vertices.len();
                 if total_vertices > MAX_VERTICES {
                     return Err(RenderError::Unsupported(format!(
@@ -265,8 +288,16 @@ fn build_model(
         }
     }
     let mut primitives = Vec::with_capacity(raws.len());
+    let mut jaw_weights = Vec::with_capacity(raws.len());
     for raw in raws {
         let n = raw.vertices.len();
+        // A primitive without viseme targets of its own (teeth or a tongue that carry only
+        // ARKit shapes beside a viseme-named face) takes every viseme from the recipe.
+        let own_visemes = viseme_mode
+            && raw
+                .targets
+                .iter()
+                .any(|(k, _)| matches!(k, TargetKind::Viseme(_)));
         let mut prim = Primitive::new(&raw.name, raw.material, raw.vertices, raw.indices);
         for v in 0..VISEME_COUNT {
             let mut acc: Vec<MorphDelta> = Vec::new();
@@ -283,10 +314,12 @@ fn build_model(
             };
             for (kind, deltas) in &raw.targets {
                 match *kind {
-                    TargetKind::Viseme(t) if t == v && !use_arkit[v] && viseme_mode => {
+                    TargetKind::Viseme(t) if t == v && !use_arkit[v] && own_visemes => {
                         add(deltas, 1.0)
                     }
-                    TargetKind::Arkit(a) if use_arkit[v] && recipe[v][a] > 0.0 => {
+                    TargetKind::Arkit(a)
+                        if (use_arkit[v] || !own_visemes) && recipe[v][a] > 0.0 =>
+                    {
                         add(deltas, recipe[v][a])
                     }
                     _ => {}
@@ -326,7 +359,9 @@ fn build_model(
             }
         }
         primitives.push(prim);
+        jaw_weights.push(raw.jaw_weights);
     }
+    follow_the_jaw(&mut primitives, &jaw_weights);
     let model = HeadModel {
         primitives,
         materials,
@@ -348,6 +383,92 @@ fn build_model(
             found: all_target_names,
         }),
         other => other.map(|()| model),
+    }
+}
+
+/// How many of the face's moving vertices nearest to a jaw-skinned mesh stand for the jaw.
+const JAW_NEIGHBOURS: usize = 24;
+
+/// Moves meshes that the file skins to a jaw joint but gives no mouth targets (teeth, a tongue)
+/// with the jaw: the face's `aa` delta at its moving vertices nearest to the mesh (the lower lip
+/// and chin) gives the jaw's full opening as a translation, and each viseme opens it by how far
+/// its own delta there goes along that of `aa` (clamped to 0..1.5; rounding and spreading, which
+/// move the lips sideways or forward, open it little). Each vertex follows by its skin weight
+/// on jaw joints. Skinned meshes are otherwise drawn in their bind pose.
+fn follow_the_jaw(primitives: &mut [Primitive], jaw_weights: &[Option<Vec<f32>>]) {
+    const AA: usize = 10;
+    for (i, jaw) in jaw_weights.iter().enumerate() {
+        let Some(jaw) = jaw else { continue };
+        if primitives[i].has_viseme_targets() {
+            continue;
+        }
+        // The face: primitives with an `aa` delta that are not skinned to the jaw themselves.
+        let mut moving: Vec<(Vec3, usize, usize)> = Vec::new();
+        for (k, p) in primitives.iter().enumerate() {
+            if jaw_weights[k].is_some() || p.targets[AA].is_empty() {
+                continue;
+            }
+            let max = p.targets[AA]
+                .iter()
+                .map(|d| Vec3::from(d.position).length())
+                .fold(0.0f32, f32::max);
+            for (vi, d) in p.targets[AA].iter().enumerate() {
+                if max > 0.0 && Vec3::from(d.position).length() > 0.1 * max {
+                    moving.push((Vec3::from(p.vertices[vi].position), k, vi));
+                }
+            }
+        }
+        let mesh = &primitives[i];
+        let weighted: Vec<Vec3> = mesh
+            .vertices
+            .iter()
+            .zip(jaw)
+            .filter(|(_, w)| **w > 0.0)
+            .map(|(v, _)| Vec3::from(v.position))
+            .collect();
+        if moving.is_empty() || weighted.is_empty() {
+            continue;
+        }
+        let centre = weighted.iter().copied().sum::<Vec3>() / weighted.len() as f32;
+        moving.sort_by(|a, b| {
+            a.0.distance_squared(centre)
+                .total_cmp(&b.0.distance_squared(centre))
+        });
+        moving.truncate(JAW_NEIGHBOURS);
+        let delta_at = |v: usize, &(_, k, vi): &(Vec3, usize, usize)| -> Vec3 {
+            primitives[k].targets[v]
+                .get(vi)
+                .map_or(Vec3::ZERO, |d| Vec3::from(d.position))
+        };
+        let aa: Vec<Vec3> = moving.iter().map(|m| delta_at(AA, m)).collect();
+        let opening = aa.iter().copied().sum::<Vec3>() / aa.len() as f32;
+        let norm: f32 = aa.iter().map(|d| d.length_squared()).sum();
+        if norm <= 0.0 || !opening.is_finite() {
+            continue;
+        }
+        let mut targets = Vec::new();
+        for v in 1..VISEME_COUNT {
+            let along: f32 = moving
+                .iter()
+                .zip(&aa)
+                .map(|(m, a)| delta_at(v, m).dot(*a))
+                .sum::<f32>()
+                / norm;
+            let amount = along.clamp(0.0, 1.5);
+            if amount > 1e-3 {
+                let deltas: Vec<MorphDelta> = jaw
+                    .iter()
+                    .map(|w| MorphDelta {
+                        position: (opening * amount * *w).into(),
+                        normal: [0.0; 3],
+                    })
+                    .collect();
+                targets.push((v, deltas));
+            }
+        }
+        for (v, deltas) in targets {
+            primitives[i].targets[v] = deltas;
+        }
     }
 }
 
@@ -620,6 +741,7 @@ fn read_primitive(
     prim: &gltf::Primitive,
     mesh: &gltf::Mesh,
     names: &[String],
+    jaw_joints: &[bool],
     transform: Mat4,
     buffers: &[Vec<u8>],
     default_material: usize,
@@ -800,12 +922,40 @@ fn read_primitive(
             out_targets.push((kind, deltas));
         }
     }
+    let jaw_weights = if jaw_joints.iter().any(|&j| j)
+        && attr_ok(
+            gltf::Semantic::Joints(0),
+            &[(U8, Vec4), (U16, Vec4)],
+            "JOINTS_0",
+        )?
+        && attr_ok(
+            gltf::Semantic::Weights(0),
+            &[(F32, Vec4), (U8, Vec4), (U16, Vec4)],
+            "WEIGHTS_0",
+        )? {
+        let joints = reader.read_joints(0).ok_or_else(missing)?.into_u16();
+        let weights = reader.read_weights(0).ok_or_else(missing)?.into_f32();
+        let jaw: Vec<f32> = joints
+            .zip(weights)
+            .map(|(j, w)| {
+                (0..4)
+                    .filter(|&k| jaw_joints.get(j[k] as usize).copied().unwrap_or(false))
+                    .map(|k| w[k].clamp(0.0, 1.0))
+                    .sum::<f32>()
+                    .min(1.0)
+            })
+            .collect();
+        (jaw.len() == n && jaw.iter().any(|&w| w > 0.0)).then_some(jaw)
+    } else {
+        None
+    };
     Ok(RawPrimitive {
         name: mesh.name().unwrap_or("mesh").to_owned(),
         material: prim.material().index().unwrap_or(default_material),
         vertices,
         indices,
         targets: out_targets,
+        jaw_weights,
     })
 }
 
