@@ -69,12 +69,11 @@ fn material(name: &str, base_color: [f32; 4]) -> Material {
     }
 }
 
+/// Makes a target's deltas for a primitive.
+type Deltas<'a> = &'a dyn Fn(&PrimitiveOut) -> Vec<MorphDelta>;
+
 /// A mesh whose primitives carry `targets` (name, delta maker) each.
-fn mesh(
-    name: &str,
-    mut primitives: Vec<PrimitiveOut>,
-    targets: &[(&str, &dyn Fn(&PrimitiveOut) -> Vec<MorphDelta>)],
-) -> MeshOut {
+fn mesh(name: &str, mut primitives: Vec<PrimitiveOut>, targets: &[(&str, Deltas)]) -> MeshOut {
     for p in &mut primitives {
         p.targets = targets.iter().map(|(_, f)| f(p)).collect();
     }
