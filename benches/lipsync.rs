@@ -1,11 +1,15 @@
 //! Features -> viseme weights per frame for the built-in default network: the network step alone,
 //! and the receiver pipeline the app runs per frame (look-ahead, speaker normalisation, closure
-//! rule, still silence), with the next frame on time and with the fallback when it is late.
+//! rule, still silence), with the next frame on time and with the fallback when it is late; and
+//! the living face's step per frame (pitch autocorrelation, blinks, saccades, head spring) on
+//! voiced frames and in digital silence.
 
 use std::hint::black_box;
 
 use criterion::{Criterion, criterion_group, criterion_main};
+use lipcall::lipsync::life::LifeGenerator;
 use lipcall::lipsync::{LipSync, LipSyncOptions, default_model};
+use lipcall::speex::FRAME_SIZE;
 use lipcall::speex::features::FrameFeatures;
 
 fn frames() -> Vec<FrameFeatures> {
@@ -66,6 +70,35 @@ fn bench(c: &mut Criterion) {
             tag += 1;
             black_box(late.map(|(t, w)| (t, w[0])));
         })
+    });
+
+    // A voiced buzz gliding between 100 and 160 Hz, at speech level.
+    let voiced: Vec<[i16; FRAME_SIZE]> = (0..64)
+        .map(|n| {
+            let f0 = 130.0 + 30.0 * (0.2 * n as f32).sin();
+            std::array::from_fn(|i| {
+                let t = (n * FRAME_SIZE + i) as f32 / 8000.0;
+                let p = std::f32::consts::TAU * f0 * t;
+                (6000.0 * (p.sin() + 0.5 * (2.0 * p).sin())) as i16
+            })
+        })
+        .collect();
+    let energy: Vec<f32> = voiced
+        .iter()
+        .map(|f| lipcall::speex::features::energy_db(f))
+        .collect();
+    let mut life = LifeGenerator::new(1);
+    let mut n = 0;
+    c.bench_function("living face step (voiced frame)", |b| {
+        b.iter(|| {
+            let k = n % voiced.len();
+            n += 1;
+            black_box(life.step(black_box(energy[k]), black_box(&voiced[k])))
+        })
+    });
+    let silence = [0i16; FRAME_SIZE];
+    c.bench_function("living face step (digital silence)", |b| {
+        b.iter(|| black_box(life.step(black_box(-100.0), black_box(&silence))))
     });
 }
 

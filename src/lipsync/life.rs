@@ -67,13 +67,15 @@ const PITCH_TILT_RAD: f32 = 1.5 * DEG;
 /// Slow wander of each axis at full level (standard deviation, radians).
 const WANDER_RAD: [f32; 3] = [1.0 * DEG, 1.8 * DEG, 0.8 * DEG];
 const WANDER_TAU_S: f32 = 1.5;
-/// An accent's nod: the chin target drops this much at full level and comes back with a 0.15 s
-/// time constant; through the spring that is a nod of about 1.5 degrees.
-const NOD_RAD: f32 = 4.0 * DEG;
+/// An accent's nod: the chin target drops by this at full level and comes back with a 0.15 s
+/// time constant, overshooting a little upwards for longer (0.45 s), so that nods add no lasting
+/// tilt; through the spring that is a nod of about a degree.
+const NOD_RAD: f32 = 3.0 * DEG;
 const NOD_TAU_S: f32 = 0.15;
+const NOD_RECOVERY_TAU_S: f32 = 0.45;
 /// An accent: loudness this far above its slow average, while voiced, at most this often.
-const ACCENT_JUMP: f32 = 0.2;
-const ACCENT_REFRACTORY_S: f32 = 0.35;
+const ACCENT_JUMP: f32 = 0.25;
+const ACCENT_REFRACTORY_S: f32 = 0.8;
 /// Below this the head counts as at rest (radians, radians per second) once the voice is gone.
 const REST_ANGLE: f32 = 1e-4;
 const REST_SPEED: f32 = 1e-3;
@@ -133,7 +135,8 @@ const VOICED_CORRELATION: f32 = 0.5;
 
 /// The fundamental frequency of 20 ms frames by normalised autocorrelation over the frame and
 /// the 133 samples before it (lags 60-400 Hz), the shortest lag near the best one chosen against
-/// octave errors. About 18,000 multiply-adds per voiced frame; quiet frames stop after 160.
+/// octave errors. About 18,000 multiply-adds per voiced frame (vectorised); quiet frames stop
+/// after 160.
 #[derive(Debug, Clone)]
 pub struct PitchTracker {
     /// The last `MAX_LAG` samples of the previous frames, then the current frame.
@@ -163,7 +166,7 @@ impl PitchTracker {
         }
         let h = &self.history;
         let x = &h[MAX_LAG..];
-        let e0: f32 = x.iter().map(|v| v * v).sum();
+        let e0 = dot(x, x);
         // About -60 dB re full scale: nothing to find.
         if e0 < FRAME_SIZE as f32 * 32.0 * 32.0 {
             return None;
@@ -178,8 +181,7 @@ impl PitchTracker {
             if lag > MIN_LAG {
                 ey += h[s] * h[s] - h[s + FRAME_SIZE] * h[s + FRAME_SIZE];
             }
-            let y = &h[s..s + FRAME_SIZE];
-            let c: f32 = x.iter().zip(y).map(|(a, b)| a * b).sum();
+            let c = dot(x, &h[s..s + FRAME_SIZE]);
             let denom = (e0 * ey.max(0.0)).sqrt();
             *r = if denom > 0.0 { c / denom } else { 0.0 };
             best = best.max(*r);
@@ -206,6 +208,25 @@ impl PitchTracker {
         }
         Some(SAMPLE_RATE as f32 / exact)
     }
+}
+
+/// Dot product over eight running sums, which the compiler turns into vector instructions (a
+/// single running sum must keep its order and stays scalar).
+fn dot(a: &[f32], b: &[f32]) -> f32 {
+    let mut acc = [0.0f32; 8];
+    for (ca, cb) in a.chunks_exact(8).zip(b.chunks_exact(8)) {
+        for k in 0..8 {
+            acc[k] += ca[k] * cb[k];
+        }
+    }
+    let tail: f32 = a
+        .chunks_exact(8)
+        .remainder()
+        .iter()
+        .zip(b.chunks_exact(8).remainder())
+        .map(|(x, y)| x * y)
+        .sum();
+    acc.iter().sum::<f32>() + tail
 }
 
 /// Per-frame smoothing factor of a one-pole filter with time constant `tau` seconds.
@@ -257,8 +278,9 @@ pub struct LifeGenerator {
     /// Smoothed pitch above that mean, -1..1 (one unit: 5 semitones).
     pitch_rise: f32,
     since_accent: f32,
-    /// The current nod's envelope (1 at the accent, decaying).
+    /// The current nod's envelopes (set at the accent, decaying): the drop and the recovery.
     nod: f32,
+    nod_recovery: f32,
     tilt_side: f32,
     wander: [f32; 3],
     angle: [f32; 3],
@@ -289,6 +311,7 @@ impl LifeGenerator {
             pitch_rise: 0.0,
             since_accent: ACCENT_REFRACTORY_S,
             nod: 0.0,
+            nod_recovery: 0.0,
             tilt_side: 1.0,
             wander: [0.0; 3],
             angle: [0.0; 3],
@@ -308,6 +331,7 @@ impl LifeGenerator {
         self.level_slow = 0.0;
         self.pitch_rise = 0.0;
         self.nod = 0.0;
+        self.nod_recovery = 0.0;
         self.wander = [0.0; 3];
         self.angle = [0.0; 3];
         self.speed = [0.0; 3];
@@ -421,7 +445,7 @@ impl LifeGenerator {
                 if self.pitch_mean.is_nan() {
                     self.pitch_mean = semitones;
                 } else {
-                    self.pitch_mean += (semitones - self.pitch_mean) * smoothing(3.0);
+                    self.pitch_mean += (semitones - self.pitch_mean) * smoothing(1.5);
                 }
                 let rise = ((semitones - self.pitch_mean) / 5.0).clamp(-1.0, 1.0);
                 self.pitch_rise += (rise - self.pitch_rise) * smoothing(0.12);
@@ -445,17 +469,23 @@ impl LifeGenerator {
             *w += -*w * FRAME_S / WANDER_TAU_S + drift * self.rng.normal();
         }
         self.nod -= self.nod * smoothing(NOD_TAU_S);
-        if self.nod < 1e-3 {
+        self.nod_recovery -= self.nod_recovery * smoothing(NOD_RECOVERY_TAU_S);
+        if self.nod_recovery < 1e-3 {
             self.nod = 0.0;
+            self.nod_recovery = 0.0;
         }
         if accent {
-            self.nod = self.rng.range(0.6, 1.0);
+            let strength = self.rng.range(0.6, 1.0);
+            self.nod += strength;
+            self.nod_recovery += strength;
             self.tilt_side = if self.rng.unit() < 0.5 { -1.0 } else { 1.0 };
         }
+        // Drop minus recovery: equal areas, so a nod leaves no lasting tilt.
+        let nod = self.nod - (NOD_TAU_S / NOD_RECOVERY_TAU_S) * self.nod_recovery;
         let level = self.level;
         let target = [
             level
-                * (NOD_RAD * self.nod - PITCH_LIFT_RAD * self.pitch_rise
+                * (NOD_RAD * nod - PITCH_LIFT_RAD * self.pitch_rise
                     + WANDER_RAD[0] * self.wander[0]),
             level * WANDER_RAD[1] * self.wander[1],
             level
@@ -742,6 +772,36 @@ mod tests {
                 .sum::<f32>()
         };
         assert!(motion(&quiet) < 0.5 * motion(&poses));
+    }
+
+    #[test]
+    fn a_rising_pitch_lifts_the_chin_and_a_falling_one_lowers_it() {
+        // The same loudness (so the same accents and random draws), three melodies: steady
+        // for a second, then a glide up, none, or down by four semitones.
+        let melody = |glide: f32| {
+            let mut life = LifeGenerator::new(11);
+            let mut phase = 0.0f32;
+            let poses: Vec<FacePose> = (0..100)
+                .map(|n| {
+                    let rise = (n as f32 - 50.0).max(0.0) / 50.0;
+                    let f0 = 120.0 * 2f32.powf(glide * rise * 4.0 / 12.0);
+                    let pcm: [i16; FRAME_SIZE] = std::array::from_fn(|_| {
+                        phase += std::f32::consts::TAU * f0 / SAMPLE_RATE as f32;
+                        (5000.0 * (phase.sin() + 0.5 * (2.0 * phase).sin())) as i16
+                    });
+                    life.step(-25.0, &pcm)
+                })
+                .collect();
+            poses[80..].iter().map(|p| p.pitch).sum::<f32>() / 20.0
+        };
+        let (up, level, down) = (melody(1.0), melody(0.0), melody(-1.0));
+        assert!(
+            up + 0.3 * DEG < level && level + 0.3 * DEG < down,
+            "chin: {} (up), {} (level), {} (down) degrees",
+            up / DEG,
+            level / DEG,
+            down / DEG
+        );
     }
 
     #[test]
