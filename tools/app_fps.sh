@@ -26,8 +26,10 @@ for i in \$(seq 2 $peers); do
 done
 sleep 2
 head -1 "$work/status.txt" >"$work/start.txt"
+cut -d' ' -f14,15 /proc/\$app/stat >"$work/cpu_start.txt"
 sleep $seconds
 cp "$work/status.txt" "$work/end.txt"
+cut -d' ' -f14,15 /proc/\$app/stat >"$work/cpu_end.txt"
 wait \$app
 INNER
 chmod +x "$work/run.sh"
@@ -36,7 +38,12 @@ field() { sed -n "s/.*\b$1=\([0-9.]*\).*/\1/p" "$2"; }
 t0=$(field time_s "$work/start.txt"); t1=$(field time_s "$work/end.txt")
 f0=$(field ui_frames "$work/start.txt"); f1=$(field ui_frames "$work/end.txt")
 d0=$(field tiles_drawn "$work/start.txt"); d1=$(field tiles_drawn "$work/end.txt")
+# CPU time of the app (all its threads, the software rasteriser's included) per UI frame: a
+# figure that holds when other work shares the cores, unlike frames per second.
+ticks=$(getconf CLK_TCK)
+cpu_ms=$(awk -v hz="$ticks" 'NR==FNR { a = $1 + $2; next } { b = $1 + $2 } END { print (b - a) * 1000 / hz }' \
+    "$work/cpu_start.txt" "$work/cpu_end.txt")
 talking=$(grep -c "talking=true" "$work/end.txt" || true)
 shown=$(grep -c "^peer " "$work/end.txt" || true)
-awk -v p="$peers" -v t="$talking" -v s="$shown" -v t0="$t0" -v t1="$t1" -v f0="$f0" -v f1="$f1" -v d0="$d0" -v d1="$d1" \
-    'BEGIN { printf "peers=%d shown=%d talking=%d ui_fps=%.1f head_renders_per_s=%.1f\n", p, s, t, (f1-f0)/(t1-t0), (d1-d0)/(t1-t0) }'
+awk -v p="$peers" -v t="$talking" -v s="$shown" -v t0="$t0" -v t1="$t1" -v f0="$f0" -v f1="$f1" -v d0="$d0" -v d1="$d1" -v c="$cpu_ms" \
+    'BEGIN { printf "peers=%d shown=%d talking=%d ui_fps=%.1f head_renders_per_s=%.1f cpu_ms_per_ui_frame=%.1f\n", p, s, t, (f1-f0)/(t1-t0), (d1-d0)/(t1-t0), c/(f1-f0) }'

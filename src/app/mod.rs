@@ -84,7 +84,10 @@ pub fn run(options: AppOptions) -> anyhow::Result<()> {
             .with_inner_size([1280.0, 720.0])
             .with_min_inner_size([480.0, 320.0]),
         renderer: eframe::Renderer::Wgpu,
-        depth_buffer: 32,
+        // Heads are drawn in their own targets (tiles.rs), so egui's pass needs no depth buffer;
+        // dithering is noise for egui's flat panels and, on a software adapter, a cost per pixel.
+        depth_buffer: 0,
+        dithering: false,
         wgpu_options,
         ..Default::default()
     };
@@ -257,6 +260,10 @@ impl LipcallApp {
 }
 
 impl eframe::App for LipcallApp {
+    fn clear_color(&self, visuals: &egui::Visuals) -> [f32; 4] {
+        visuals.panel_fill.to_normalized_gamma_f32()
+    }
+
     fn ui(&mut self, ui: &mut egui::Ui, _frame: &mut eframe::Frame) {
         let ctx = ui.ctx().clone();
         self.frames += 1;
@@ -331,7 +338,10 @@ impl eframe::App for LipcallApp {
             .default_size(240.0)
             .min_size(200.0)
             .show(ui, |ui| peer_list_ui(ui, &peers));
-        egui::CentralPanel::default().show(ui, |ui| {
+        // The central panel is the window's clear colour (see `clear_color`) rather than a filled
+        // rectangle: on a software adapter every pixel egui fills costs, and this is the biggest.
+        let central = egui::Frame::central_panel(ui.style()).fill(egui::Color32::TRANSPARENT);
+        egui::CentralPanel::default().frame(central).show(ui, |ui| {
             tiles_ui(ui, &peers, &weights, &mut prefs, self.heads.as_mut());
         });
         if let Some(heads) = &mut self.heads {
@@ -652,8 +662,6 @@ pub fn tiles_ui(
                     let head_h = (tile_h - 100.0).max(40.0);
                     let (rect, _) =
                         ui.allocate_exact_size(egui::vec2(tile_w, head_h), egui::Sense::hover());
-                    ui.painter()
-                        .rect_filled(rect, 6.0, egui::Color32::from_gray(38));
                     let (w, mut pose) = match (prefs[i].animate, faces[i]) {
                         (true, Some(face)) if prefs[i].life => {
                             (VisemeWeights(face.weights), face.pose)
@@ -677,6 +685,9 @@ pub fn tiles_ui(
                             pose,
                         };
                         heads.show(ui, rect, tile);
+                    } else {
+                        ui.painter()
+                            .rect_filled(rect, 6.0, egui::Color32::from_gray(38));
                     }
                     peer_controls_ui(ui, p.ssrc, &mut prefs[i]);
                 });

@@ -62,6 +62,8 @@ impl WeightsUniform {
 #[derive(Debug, Clone, Copy, PartialEq, Pod, Zeroable)]
 struct MaterialUniform {
     base_color: [f32; 4],
+    /// x: 1 when the material has a base colour texture (untextured ones skip the sample).
+    flags: [u32; 4],
 }
 
 /// Pipeline, layouts and sampler shared by every head drawn into one kind of target.
@@ -451,6 +453,7 @@ impl HeadRenderer {
             label: Some(&format!("{label} uniform")),
             contents: bytemuck::bytes_of(&MaterialUniform {
                 base_color: material.base_color,
+                flags: [u32::from(material.texture.is_some()), 0, 0, 0],
             }),
             usage: wgpu::BufferUsages::UNIFORM,
         });
