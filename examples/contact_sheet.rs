@@ -1,23 +1,34 @@
 //! The default head in all 15 visemes, front view, as a labelled 5x3 grid:
-//! `cargo run --release --example contact_sheet [OUT.png] [--mouth]`
-//! (default output `docs/visemes.png`; `--mouth` uses the lipreading close-up).
+//! `cargo run --release --example contact_sheet [OUT.png] [--mouth] [--head FILE.glb] [--tile PX]`
+//! (default output `docs/visemes.png`; `--mouth` uses the lipreading close-up; `--head` draws
+//! another head than the bundled one; `--tile` sets the side of each of the 15 tiles, 256 px).
 use std::path::PathBuf;
 
+use anyhow::Context;
 use lipcall::render::{
     FrameOptions, Framing, GpuContext, OffscreenRenderer, VISEME_NAMES, VisemeWeights, label,
+    load_head_or_default,
 };
 
 fn main() -> anyhow::Result<()> {
     let args: Vec<String> = std::env::args().skip(1).collect();
-    let mouth = args.iter().any(|a| a == "--mouth");
-    let out = args
-        .iter()
-        .find(|a| !a.starts_with("--"))
-        .map(PathBuf::from)
-        .unwrap_or_else(|| PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("docs/visemes.png"));
-    let model = lipcall::render::default_head()?;
+    let mut mouth = false;
+    let mut head = None;
+    let mut tile = 256u32;
+    let mut out = None;
+    let mut it = args.iter();
+    while let Some(arg) = it.next() {
+        match arg.as_str() {
+            "--mouth" => mouth = true,
+            "--head" => head = Some(PathBuf::from(it.next().context("--head FILE.glb")?)),
+            "--tile" => tile = it.next().context("--tile PX")?.parse()?,
+            _ => out = Some(PathBuf::from(arg)),
+        }
+    }
+    let out =
+        out.unwrap_or_else(|| PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("docs/visemes.png"));
+    let model = load_head_or_default(head.as_deref())?;
     let ctx = GpuContext::new_headless()?;
-    let tile = 256u32;
     let options = FrameOptions {
         width: tile,
         height: tile,
@@ -33,7 +44,14 @@ fn main() -> anyhow::Result<()> {
         let img = offscreen.render(&ctx, &weights)?;
         let (x, y) = ((i as u32 % cols) * tile, (i as u32 / cols) * tile);
         image::imageops::overlay(&mut sheet, &img, x as i64, y as i64);
-        label::draw_text(&mut sheet, x + 8, y + 8, 3, name, [255, 255, 255, 255]);
+        label::draw_text(
+            &mut sheet,
+            x + 8,
+            y + 8,
+            (tile / 85).max(1),
+            name,
+            [255, 255, 255, 255],
+        );
     }
     if let Some(dir) = out.parent() {
         std::fs::create_dir_all(dir)?;

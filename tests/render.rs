@@ -1200,7 +1200,10 @@ fn default_head_shows_teeth_and_tongue_where_lipreaders_look_for_them() {
             tongue[at(shut)]
         );
     }
-    assert!(teeth[at("FF")] * 40 >= area, "FF: upper teeth over the lower lip");
+    assert!(
+        teeth[at("FF")] * 40 >= area,
+        "FF: upper teeth over the lower lip"
+    );
     assert!(
         tongue[at("TH")] * 100 >= area,
         "TH: the tongue between the teeth ({} pixels)",
@@ -1228,7 +1231,10 @@ fn default_head_opens_its_lips_like_a_speaker() {
     let eye_x = |name: &str| {
         let p = head.primitives.iter().find(|p| p.name == name).unwrap();
         let xs = p.vertices.iter().map(|v| v.position[0]);
-        (xs.clone().fold(f32::INFINITY, f32::min), xs.fold(f32::NEG_INFINITY, f32::max))
+        (
+            xs.clone().fold(f32::INFINITY, f32::min),
+            xs.fold(f32::NEG_INFINITY, f32::max),
+        )
     };
     let eye_width = eye_x("eyeLeft").1 - eye_x("eyeRight").0;
     assert!((0.07..0.12).contains(&eye_width), "{eye_width}");

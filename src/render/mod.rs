@@ -1,4 +1,4 @@
-//! Talking heads: a procedural default head, glTF avatars, GPU morph-target blending with wgpu
+//! Talking heads: the bundled default head, glTF avatars, GPU morph-target blending with wgpu
 //! and offscreen frame rendering.
 //!
 //! The renderer ([`renderer::HeadRenderer`]) does not depend on egui: it builds its pipeline once,
@@ -8,7 +8,6 @@
 
 pub mod arkit;
 pub mod camera;
-pub mod generate;
 pub mod glb_write;
 pub mod gltf_load;
 pub mod head;
@@ -67,7 +66,7 @@ pub enum RenderError {
 /// Path of the bundled default head, relative to the repository root.
 pub const DEFAULT_HEAD_PATH: &str = "assets/heads/default.glb";
 
-/// The bundled default head (built by `cargo run --release --example build_head`).
+/// The bundled default head (built from the MakeHuman base mesh by `tools/build_head.py`).
 pub fn default_head() -> Result<HeadModel, RenderError> {
     gltf_load::load_head_from_slice(include_bytes!("../../assets/heads/default.glb"))
 }
