@@ -44,8 +44,8 @@ pub const FIRST_BLINK_MAX_S: f32 = 5.0;
 /// Saccades come this far apart (seconds).
 pub const SACCADE_INTERVAL_S: (f32, f32) = (0.5, 3.0);
 const SACCADE_DURATION_S: f32 = 0.04;
-/// Largest gaze offset a saccade aims at, in fractions of the full eye-look shapes (ARKit's
-/// full look is roughly 30 degrees, so 0.3 is about 9 degrees; most jumps are far smaller).
+/// Largest gaze offset a saccade aims at, in fractions of the full eye-look shapes (the default
+/// head's full look is 20 degrees, so 0.3 is 6 degrees; most jumps are far smaller).
 pub const GAZE_MAX: Vec2 = Vec2::new(0.3, 0.18);
 
 /// Largest head angles (radians): pitch, yaw, roll.
