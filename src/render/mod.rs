@@ -2,9 +2,10 @@
 //! and offscreen frame rendering.
 //!
 //! The renderer ([`renderer::HeadRenderer`]) does not depend on egui: it builds its pipeline once,
-//! uploads each head's morph deltas once ([`renderer::GpuHead`]), writes at most 15 weights per head
-//! per frame in [`renderer::HeadRenderer::prepare`] and records draws into a render pass it is
-//! given ([`renderer::HeadRenderer::paint`]), which is the shape egui-wgpu paint callbacks need.
+//! uploads each head's morph deltas once ([`renderer::GpuHead`]), writes the weights of at most 20
+//! slots (15 visemes, 5 eye shapes) and the head's rotation ([`head::FacePose`]) per head per
+//! frame in [`renderer::HeadRenderer::prepare`] and records draws into a render pass it is given
+//! ([`renderer::HeadRenderer::paint`]), which is the shape egui-wgpu paint callbacks need.
 
 pub mod arkit;
 pub mod camera;
@@ -17,7 +18,7 @@ pub mod renderer;
 pub mod target;
 
 pub use camera::{Camera, Framing};
-pub use head::{HeadModel, VISEME_COUNT, VISEME_NAMES, VisemeWeights, viseme_index};
+pub use head::{FacePose, HeadModel, VISEME_COUNT, VISEME_NAMES, VisemeWeights, viseme_index};
 pub use offscreen::{FrameOptions, GpuContext, OffscreenRenderer, WeightTrack, render_frames};
 pub use renderer::{GpuHead, HeadInstance, HeadRenderer};
 
