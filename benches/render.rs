@@ -11,9 +11,13 @@ use lipcall::render::offscreen::{FrameOptions, GpuContext, OffscreenRenderer};
 use lipcall::render::renderer::{DEPTH_FORMAT, HeadRenderer};
 use lipcall::render::{Camera, Framing, VisemeWeights};
 
+/// Weights over the shipped network's five visemes (PP FF aa I U), all in use as in speech.
 fn weights_at(i: usize) -> VisemeWeights {
-    let t = (i % 50) as f32 / 50.0;
-    VisemeWeights::from_named([("aa", t), ("PP", 1.0 - t)]).unwrap_or_default()
+    let t = (i % 50) as f32 / 50.0 * std::f32::consts::TAU;
+    let raw = [0.0, 1.0, 2.0, 3.0, 4.0].map(|k: f32| (1.0 + (t + k * 1.3).sin()).powi(2) + 0.05);
+    let sum: f32 = raw.iter().sum();
+    let names = ["PP", "FF", "aa", "I", "U"];
+    VisemeWeights::from_named(names.into_iter().zip(raw.map(|r| r / sum))).unwrap_or_default()
 }
 
 fn bench(c: &mut Criterion) {
