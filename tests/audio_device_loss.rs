@@ -88,7 +88,9 @@ fn losing_the_output_goes_silent_and_keeps_time() {
         panic!("no switch to silent: {:?}, {:?}", pb.status(), pb.stats());
     };
     eprintln!("after loss: {reason}");
-    // The virtual clock takes over: the peer's audio goes on being "heard".
+    // The virtual clock takes over: the peer's audio goes on being "heard". Half a second more
+    // of it, so the clock cannot run past the end of the queue however late the switch came.
+    feed.push(&[1000; 4000]);
     std::thread::sleep(Duration::from_millis(300));
     let a = pb.heard_position(id, Instant::now());
     std::thread::sleep(Duration::from_millis(200));

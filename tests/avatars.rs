@@ -2,6 +2,8 @@
 //! loader: viseme and ARKit targets side by side, several primitives and materials per mesh,
 //! teeth meshes with targets of their own, and teeth skinned to a jaw joint without any.
 
+mod common;
+
 use glam::Vec3;
 use lipcall::render::arkit;
 use lipcall::render::glb_write::{MeshOut, PrimitiveOut, write_meshes};
@@ -15,28 +17,8 @@ fn v(name: &str) -> usize {
 }
 
 /// An `n` x `n` grid over the rectangle at depth `z`, facing +Z.
-fn grid([x0, x1, y0, y1]: [f32; 4], z: f32, n: usize, material: usize) -> PrimitiveOut {
-    let mut vertices = Vec::new();
-    for j in 0..n {
-        for i in 0..n {
-            let x = x0 + (x1 - x0) * i as f32 / (n - 1) as f32;
-            let y = y0 + (y1 - y0) * j as f32 / (n - 1) as f32;
-            vertices.push(Vertex {
-                position: [x, y, z],
-                normal: [0.0, 0.0, 1.0],
-                uv: [0.0; 2],
-                color: [1.0; 4],
-            });
-        }
-    }
-    let mut indices = Vec::new();
-    for j in 0..n - 1 {
-        for i in 0..n - 1 {
-            let a = (j * n + i) as u32;
-            let n = n as u32;
-            indices.extend_from_slice(&[a, a + 1, a + n + 1, a, a + n + 1, a + n]);
-        }
-    }
+fn grid(rect: [f32; 4], z: f32, n: usize, material: usize) -> PrimitiveOut {
+    let (vertices, indices) = common::mesh::grid(rect, z, n);
     PrimitiveOut {
         vertices,
         indices,

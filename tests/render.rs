@@ -1,6 +1,8 @@
 //! Head renderer tests. GPU tests run on whatever adapter wgpu finds (the software lavapipe /
 //! llvmpipe one on CI) and are skipped, with a printed reason, only when there is none.
 
+mod common;
+
 use std::sync::OnceLock;
 
 use glam::{Vec2, Vec3};
@@ -660,28 +662,8 @@ const TEST_WIDTH: [f32; VISEME_COUNT] = [
 ];
 
 /// An `nx` x `ny` grid over the rectangle at depth `z`, facing +Z.
-fn grid(name: &str, material: usize, [x0, x1, y0, y1]: [f32; 4], z: f32, n: usize) -> Primitive {
-    let mut vertices = Vec::new();
-    for j in 0..n {
-        for i in 0..n {
-            let x = x0 + (x1 - x0) * i as f32 / (n - 1) as f32;
-            let y = y0 + (y1 - y0) * j as f32 / (n - 1) as f32;
-            vertices.push(Vertex {
-                position: [x, y, z],
-                normal: [0.0, 0.0, 1.0],
-                uv: [0.0; 2],
-                color: [1.0; 4],
-            });
-        }
-    }
-    let mut indices = Vec::new();
-    for j in 0..n - 1 {
-        for i in 0..n - 1 {
-            let a = (j * n + i) as u32;
-            let n = n as u32;
-            indices.extend_from_slice(&[a, a + 1, a + n + 1, a, a + n + 1, a + n]);
-        }
-    }
+fn grid(name: &str, material: usize, rect: [f32; 4], z: f32, n: usize) -> Primitive {
+    let (vertices, indices) = common::mesh::grid(rect, z, n);
     Primitive::new(name, material, vertices, indices)
 }
 

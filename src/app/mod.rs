@@ -315,10 +315,13 @@ impl eframe::App for LipcallApp {
         };
         let before = prefs.clone();
 
-        egui::Panel::top("call").show(ui, |ui| {
+        // Panels are the window's clear colour (see `clear_color`) rather than filled rectangles:
+        // on a software adapter every pixel egui fills costs.
+        let side = egui::Frame::side_top_panel(ui.style()).fill(egui::Color32::TRANSPARENT);
+        egui::Panel::top("call").frame(side).show(ui, |ui| {
             call_ui(ui, &mut self.form, &mut self.settings, &call, &self.engine);
         });
-        egui::Panel::bottom("audio").show(ui, |ui| {
+        egui::Panel::bottom("audio").frame(side).show(ui, |ui| {
             audio_ui(
                 ui,
                 &mut self.settings,
@@ -334,12 +337,11 @@ impl eframe::App for LipcallApp {
             }
         });
         egui::Panel::left("peers")
+            .frame(side)
             .resizable(true)
             .default_size(240.0)
             .min_size(200.0)
             .show(ui, |ui| peer_list_ui(ui, &peers));
-        // The central panel is the window's clear colour (see `clear_color`) rather than a filled
-        // rectangle: on a software adapter every pixel egui fills costs, and this is the biggest.
         let central = egui::Frame::central_panel(ui.style()).fill(egui::Color32::TRANSPARENT);
         egui::CentralPanel::default().frame(central).show(ui, |ui| {
             tiles_ui(ui, &peers, &weights, &mut prefs, self.heads.as_mut());

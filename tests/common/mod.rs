@@ -67,6 +67,7 @@ pub fn snr_db(reference: &[i16], test: &[i16]) -> f64 {
         .sum();
     10.0 * (signal / noise.max(1e-9)).log10()
 }
+pub mod mesh;
 pub mod net;
 
 /// Whether a PulseAudio server answers (the null sink of .ci/pulse-null-sink.sh).

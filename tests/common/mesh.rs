@@ -1,0 +1,30 @@
+//! Small test meshes.
+
+use lipcall::render::head::Vertex;
+
+/// An `n` x `n` grid of white vertices over the rectangle `[x0, x1, y0, y1]` at depth `z`,
+/// facing +Z, as a triangle list.
+pub fn grid([x0, x1, y0, y1]: [f32; 4], z: f32, n: usize) -> (Vec<Vertex>, Vec<u32>) {
+    let mut vertices = Vec::new();
+    for j in 0..n {
+        for i in 0..n {
+            let x = x0 + (x1 - x0) * i as f32 / (n - 1) as f32;
+            let y = y0 + (y1 - y0) * j as f32 / (n - 1) as f32;
+            vertices.push(Vertex {
+                position: [x, y, z],
+                normal: [0.0, 0.0, 1.0],
+                uv: [0.0; 2],
+                color: [1.0; 4],
+            });
+        }
+    }
+    let mut indices = Vec::new();
+    for j in 0..n - 1 {
+        for i in 0..n - 1 {
+            let a = (j * n + i) as u32;
+            let n = n as u32;
+            indices.extend_from_slice(&[a, a + 1, a + n + 1, a, a + n + 1, a + n]);
+        }
+    }
+    (vertices, indices)
+}
