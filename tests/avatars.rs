@@ -8,7 +8,7 @@ use glam::Vec3;
 use lipcall::render::arkit;
 use lipcall::render::glb_write::{MeshOut, PrimitiveOut, write_meshes};
 use lipcall::render::gltf_load::load_head_from_slice;
-use lipcall::render::head::{Material, MorphDelta, TargetSource, Vertex};
+use lipcall::render::head::{Material, MorphDelta, TargetSource};
 use lipcall::render::offscreen::{FrameOptions, GpuContext, OffscreenRenderer};
 use lipcall::render::{HeadModel, VisemeWeights, viseme_index};
 
