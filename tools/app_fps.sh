@@ -1,5 +1,5 @@
 #!/usr/bin/env bash
-# UI frame rate of the app with N talking peers (the demo peer plus N-1 `lipcall send` callers on
+# UI frame rate of the app with N talking peers (N `lipcall send` callers on
 # loopback), read from its --status counters under Xvfb on whatever adapter wgpu finds
 # (the software one on a machine without a GPU).
 #   tools/app_fps.sh [PEERS=1] [SECONDS=20] [LIPCALL=target/release/lipcall]
@@ -21,7 +21,7 @@ cat >"$work/run.sh" <<INNER
     --status "$work/status.txt" --settings "$work/settings.json" >"$work/app.log" 2>&1 &
 app=\$!
 sleep 2
-for i in \$(seq 2 $peers); do
+for i in \$(seq 1 $peers); do
     "$lipcall" send "$work/speech.wav" --to 127.0.0.1:$port --name "caller \$i" >/dev/null 2>&1 &
 done
 sleep 2
