@@ -119,7 +119,9 @@ EYE_TARGETS = [
 # The script prints how far each opens the lips (real speakers reach 0.10 to 0.22 eye widths).
 VISEMES = {
     "sil": {},
-    "PP": {"mouthPress": 0.6, "mouthRollLower": 0.35, "mouthRollUpper": 0.3, "mouthShrugLower": 0.25},
+    # Pressed, at the neutral width: mouthPress alone widens the mouth, a little pucker holds it.
+    "PP": {"mouthPress": 0.3, "mouthRollLower": 0.35, "mouthRollUpper": 0.3, "mouthShrugLower": 0.25,
+           "mouthPucker": 0.15},
     "FF": {"jaw": 0.08, "lipTuck": 1.0, "mouthUpperUp": 0.3},
     "TH": {"jaw": 0.25, "tongueOut": 0.6, "tongueTip": 1.0, "tongueThin": 1.0,
            "mouthUpperUp": 0.25, "lipsApart": 0.3},
@@ -132,7 +134,9 @@ VISEMES = {
            "mouthLowerDown": 0.5},
     "nn": {"jaw": 0.15, "tongueTip": 0.8, "mouthUpperUp": 0.2, "lipsApart": 0.5},
     "RR": {"jaw": 0.14, "mouthFunnel": 0.4, "mouthPucker": 0.35, "tongueTip": 0.3, "lipsApart": 0.3},
-    "aa": {"jaw": 0.64, "tongueDown": 1.0, "mouthLowerDown": 0.3, "mouthUpperUp": 0.3},
+    # The jaw alone pulls the corners in; a little stretch keeps aa as wide as a speaker's.
+    "aa": {"jaw": 0.64, "tongueDown": 1.0, "mouthLowerDown": 0.3, "mouthUpperUp": 0.3,
+           "mouthStretch": 0.5, "mouthSmile": 0.1},
     "E": {"jaw": 0.27, "tongueDown": 0.5, "mouthStretch": 0.45, "mouthSmile": 0.1,
           "mouthUpperUp": 0.4, "mouthLowerDown": 0.45},
     "I": {"jaw": 0.08, "mouthStretch": 0.5, "mouthSmile": 0.35, "mouthUpperUp": 0.5,
