@@ -33,7 +33,7 @@ fn bench(c: &mut Criterion) {
 
     {
         let device = &ctx.device;
-        let format = lipcall::render::offscreen::COLOR_FORMAT;
+        let format = lipcall::render::target::TARGET_FORMAT;
         let renderer = HeadRenderer::new(device, format, Some(DEPTH_FORMAT));
         let head = renderer
             .upload(device, &ctx.queue, &model, "bench head")

@@ -121,16 +121,22 @@ fn other_viseme_sets_and_the_jaw_baseline() {
     assert_convex(&rows);
 }
 
-#[test]
-fn frames_are_rendered_with_weights_and_audio() {
-    let dir = tempfile::tempdir().unwrap();
-    let d = dir.path();
-    let clip = d.join("clip.wav");
+/// 0.6 s of the demo speech at 8 kHz, in `dir`.
+fn demo_clip(dir: &std::path::Path) -> std::path::PathBuf {
+    let clip = dir.join("clip.wav");
     run(Command::new("sox")
         .arg(repo_file("assets/speech/demo.wav"))
         .args(["-D", "-r", "8000"])
         .arg(&clip)
         .args(["trim", "0.8", "0.6"]));
+    clip
+}
+
+#[test]
+fn frames_are_rendered_with_weights_and_audio() {
+    let dir = tempfile::tempdir().unwrap();
+    let d = dir.path();
+    let clip = demo_clip(d);
     let frames = d.join("frames");
     run(lipcall()
         .arg("animate")
@@ -162,12 +168,7 @@ fn frames_are_rendered_with_weights_and_audio() {
 fn the_living_face_is_seeded_and_can_be_switched_off() {
     let dir = tempfile::tempdir().unwrap();
     let d = dir.path();
-    let clip = d.join("clip.wav");
-    run(Command::new("sox")
-        .arg(repo_file("assets/speech/demo.wav"))
-        .args(["-D", "-r", "8000"])
-        .arg(&clip)
-        .args(["trim", "0.8", "0.6"]));
+    let clip = demo_clip(d);
     let render = |name: &str, extra: &[&str]| -> Vec<Vec<u8>> {
         let frames = d.join(name);
         run(lipcall()

@@ -29,13 +29,7 @@ fn grid(rect: [f32; 4], z: f32, n: usize, material: usize) -> PrimitiveOut {
 
 /// Every vertex of `p` moved by `f(position)`.
 fn shape(p: &PrimitiveOut, f: impl Fn(Vec3) -> Vec3) -> Vec<MorphDelta> {
-    p.vertices
-        .iter()
-        .map(|v| MorphDelta {
-            position: f(Vec3::from(v.position)).into(),
-            normal: [0.0; 3],
-        })
-        .collect()
+    common::mesh::deltas(&p.vertices, f)
 }
 
 /// Moves the lower half (y < 0) by `d`.

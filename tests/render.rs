@@ -6,6 +6,8 @@ mod common;
 use std::sync::OnceLock;
 
 use glam::{Vec2, Vec3};
+use lipcall::lipsync::mouth::Articulation;
+use lipcall::lipsync::visemes::Viseme;
 use lipcall::render::glb_write::{glb_container, write_glb};
 use lipcall::render::gltf_load::load_head_from_slice;
 use lipcall::render::head::{
@@ -653,15 +655,7 @@ fn frames_are_written_at_25_and_50_fps() {
     assert!(lipcall::render::render_frames(default_head(), &track, &dir, &bad).is_err());
 }
 
-/// Jaw opening and lip width per viseme (the design brief's table), for the test head's lips.
-const TEST_JAW: [f32; VISEME_COUNT] = [
-    0.05, 0.05, 0.15, 0.25, 0.25, 0.35, 0.2, 0.15, 0.25, 0.25, 1.0, 0.5, 0.25, 0.6, 0.3,
-];
-const TEST_WIDTH: [f32; VISEME_COUNT] = [
-    0.0, 0.0, 0.1, 0.1, 0.15, 0.1, -0.3, 0.3, 0.1, -0.3, 0.1, 0.4, 0.7, -0.5, -0.8,
-];
-
-/// An `nx` x `ny` grid over the rectangle at depth `z`, facing +Z.
+/// An `n` x `n` grid over the rectangle at depth `z`, facing +Z.
 fn grid(name: &str, material: usize, rect: [f32; 4], z: f32, n: usize) -> Primitive {
     let (vertices, indices) = common::mesh::grid(rect, z, n);
     Primitive::new(name, material, vertices, indices)
@@ -691,13 +685,7 @@ fn disc(name: &str, material: usize, centre: Vec3, r: f32) -> Primitive {
 
 /// Every vertex of `p` moved by `f(position)`.
 fn shape(p: &Primitive, f: impl Fn(Vec3) -> Vec3) -> Vec<MorphDelta> {
-    p.vertices
-        .iter()
-        .map(|v| MorphDelta {
-            position: f(Vec3::from(v.position)).into(),
-            normal: [0.0; 3],
-        })
-        .collect()
+    common::mesh::deltas(&p.vertices, f)
 }
 
 /// A small synthetic face facing +Z, built in code and sent through `glb_write` and the loader
@@ -711,7 +699,9 @@ fn living_test_head() -> HeadModel {
     let mut lower = grid("lower lip", 1, [-0.03, 0.03, -0.06, -0.05], 0.002, 5);
     let mouth = grid("mouth", 2, [-0.03, 0.03, -0.06, -0.035], 0.001, 2);
     for v in 0..VISEME_COUNT {
-        let (jaw, width) = (TEST_JAW[v], TEST_WIDTH[v]);
+        // Jaw opening and lip width per viseme: the design brief's table, as lip sync uses it.
+        let a = Articulation::of(Viseme::ALL[v]);
+        let (jaw, width) = (a.jaw, a.width);
         skin.targets[v] = shape(&skin, |p| {
             Vec3::new(0.0, if p.y < -0.09 { -0.01 * jaw } else { 0.0 }, 0.0)
         });

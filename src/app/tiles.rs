@@ -153,12 +153,14 @@ impl HeadTiles {
                 );
             entry.shown = None;
         }
-        let wanted = Some((tile, size));
-        if entry.shown == wanted {
+        if entry
+            .shown
+            .as_ref()
+            .is_some_and(|(shown, at)| *shown == tile && *at == size)
+        {
             return entry.texture;
         }
         let t0 = Instant::now();
-        let (tile, _) = wanted.as_ref().expect("just built");
         let camera = Camera::framing(head.face_frame(), tile.framing);
         let aspect = size.0 as f32 / size.1 as f32;
         renderer.prepare(
@@ -179,7 +181,7 @@ impl HeadTiles {
             renderer.paint(&mut pass, &entry.instance);
         }
         state.queue.submit([encoder.finish()]);
-        entry.shown = wanted;
+        entry.shown = Some((tile, size));
         counters.tiles_drawn.fetch_add(1, Ordering::Relaxed);
         counters
             .record_ns

@@ -331,8 +331,6 @@ impl Primitive {
 /// Where a head's viseme shapes came from.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 pub enum TargetSource {
-    /// Made by lipcall's own generator.
-    Procedural,
     /// Morph targets named after the visemes (`viseme_aa` or `aa`).
     Visemes,
     /// ARKit blendshapes combined through [`crate::render::arkit`].

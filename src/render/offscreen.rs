@@ -8,10 +8,7 @@ use super::RenderError;
 use super::camera::{Camera, Framing};
 use super::head::{FacePose, HeadModel, VISEME_COUNT, VisemeWeights, viseme_index};
 use super::renderer::{DEPTH_FORMAT, GpuHead, HeadInstance, HeadRenderer};
-use super::target::{HeadTarget, sample_count_for};
-
-/// Colour format of offscreen frames (sRGB, so PNG bytes come out as they are).
-pub const COLOR_FORMAT: wgpu::TextureFormat = super::target::TARGET_FORMAT;
+use super::target::{HeadTarget, TARGET_FORMAT, sample_count_for};
 
 /// A device and queue made without a window.
 pub struct GpuContext {
@@ -185,7 +182,7 @@ impl OffscreenRenderer {
         let device = &ctx.device;
         let samples = sample_count_for(&ctx.adapter);
         let renderer =
-            HeadRenderer::with_samples(device, COLOR_FORMAT, Some(DEPTH_FORMAT), samples);
+            HeadRenderer::with_samples(device, TARGET_FORMAT, Some(DEPTH_FORMAT), samples);
         let head = renderer.upload(device, &ctx.queue, model, "lipcall head")?;
         let instances = (0..count.max(1))
             .map(|i| {

@@ -348,25 +348,21 @@ impl HeadRenderer {
                 .iter()
                 .any(|t| t.get(i).is_some_and(|d| *d != MorphDelta::default()))
         };
-        let mut model_to_gpu = Vec::with_capacity(vertex_count);
-        let (mut moving, mut still) = (0u32, 0u32);
-        for p in &model.primitives {
-            for i in 0..p.vertices.len() {
-                if moves(p, i) {
-                    model_to_gpu.push(moving);
-                    moving += 1;
-                } else {
-                    model_to_gpu.push(u32::MAX - still);
-                    still += 1;
-                }
-            }
-        }
-        for g in &mut model_to_gpu {
-            if *g > u32::MAX - still {
-                *g = moving + (u32::MAX - *g);
-            }
-        }
-        let morph_vertices = moving as usize;
+        let moving: Vec<bool> = model
+            .primitives
+            .iter()
+            .flat_map(|p| (0..p.vertices.len()).map(move |i| moves(p, i)))
+            .collect();
+        let morph_vertices = moving.iter().filter(|&&m| m).count();
+        let (mut next_moving, mut next_still) = (0u32, morph_vertices as u32);
+        let model_to_gpu: Vec<u32> = moving
+            .iter()
+            .map(|&m| {
+                let next = if m { &mut next_moving } else { &mut next_still };
+                *next += 1;
+                *next - 1
+            })
+            .collect();
         let delta_bytes =
             (TARGET_COUNT * morph_vertices * std::mem::size_of::<MorphDelta>()) as u64;
         let max_binding = device.limits().max_storage_buffer_binding_size;

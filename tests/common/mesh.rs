@@ -1,6 +1,7 @@
 //! Small test meshes.
 
-use lipcall::render::head::Vertex;
+use glam::Vec3;
+use lipcall::render::head::{MorphDelta, Vertex};
 
 /// An `n` x `n` grid of white vertices over the rectangle `[x0, x1, y0, y1]` at depth `z`,
 /// facing +Z, as a triangle list.
@@ -27,4 +28,15 @@ pub fn grid([x0, x1, y0, y1]: [f32; 4], z: f32, n: usize) -> (Vec<Vertex>, Vec<u
         }
     }
     (vertices, indices)
+}
+
+/// Morph deltas moving each of `vertices` by `f(position)` (normals unchanged).
+pub fn deltas(vertices: &[Vertex], f: impl Fn(Vec3) -> Vec3) -> Vec<MorphDelta> {
+    vertices
+        .iter()
+        .map(|v| MorphDelta {
+            position: f(Vec3::from(v.position)).into(),
+            normal: [0.0; 3],
+        })
+        .collect()
 }
