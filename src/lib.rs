@@ -1,10 +1,10 @@
-//! lipcall: voice chat with lip-synced heads driven by the Speex decoder's own LSPs.
+//! lipcall: voice chat with lip-synced heads driven by the vocal-tract shape the codec already carries.
 
 pub mod app;
 pub mod audio;
+pub mod codec;
 pub mod commands;
 pub mod lipsync;
 pub mod net;
 pub mod render;
-pub mod speex;
 pub mod train;

@@ -2,9 +2,9 @@ use std::path::PathBuf;
 use std::process::ExitCode;
 
 use clap::{Parser, Subcommand};
+use lipcall::codec::speex::codec::EncoderConfig;
 use lipcall::commands;
 use lipcall::commands::net::{KeyArgs, ReceiveArgs, SendArgs};
-use lipcall::speex::codec::EncoderConfig;
 
 /// Voice chat with lip-synced 3D heads, driven by the Speex decoder's own LSPs.
 #[derive(Parser)]

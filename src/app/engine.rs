@@ -14,6 +14,9 @@ use crate::audio::{
     Capture, DeviceChoice, Gate, MicControls, OutputStatus, PeerFeed, PeerId, Playback,
     PlaybackConfig, Schedule, ScheduleSender,
 };
+use crate::codec::speex::FRAME_SIZE;
+use crate::codec::speex::codec::{Encoder, EncoderConfig, MAX_PACKET_BYTES};
+use crate::codec::speex::features::FrameFeatures;
 use crate::lipsync::life::{DEFAULT_SEED, LifeGenerator};
 use crate::lipsync::network::MAX_LOOKAHEAD;
 use crate::lipsync::visemes::{FullWeights, VisemeSet};
@@ -22,9 +25,6 @@ use crate::net::peer::FrameKind;
 use crate::net::session::{PeerFrame, PeerInfo, Session, SessionConfig};
 use crate::net::srtp::MasterKey;
 use crate::render::head::FacePose;
-use crate::speex::FRAME_SIZE;
-use crate::speex::codec::{Encoder, EncoderConfig, MAX_PACKET_BYTES};
-use crate::speex::features::FrameFeatures;
 
 use super::settings::PeerPrefs;
 
@@ -388,7 +388,7 @@ fn demo_speech() -> anyhow::Result<Vec<i16>> {
     };
     Ok(wav::to_i16(&wav::resample(
         &audio,
-        crate::speex::SAMPLE_RATE,
+        crate::codec::speex::SAMPLE_RATE,
     )?))
 }
 

@@ -123,7 +123,7 @@ mod realtime_tests {
         let (mut feeder, mut reader) =
             capture_pipeline(44_100, 2, Duration::from_millis(100)).unwrap();
         let block = vec![1000i16; 2 * 441];
-        let mut frame = [0i16; crate::speex::FRAME_SIZE];
+        let mut frame = [0i16; crate::codec::speex::FRAME_SIZE];
         let n = allocations(|| {
             for _ in 0..40 {
                 feeder.feed(&block);

@@ -19,7 +19,7 @@ use super::clock::{OutputClock, PeerClock, Schedule, SinkMapping};
 use super::devices::{self, DeviceChoice, Direction};
 use super::error::AudioError;
 use super::mixer::{CHUNK, MAX_PEERS, Mixer, MixerPeer, PeerControls, PeerFeed, PeerId, Upsampler};
-use crate::speex::SAMPLE_RATE;
+use crate::codec::speex::SAMPLE_RATE;
 
 /// How the engine runs.
 #[derive(Debug, Clone, PartialEq, Eq)]

@@ -7,15 +7,15 @@ use std::path::{Path, PathBuf};
 use anyhow::{Context, Result, bail};
 
 use crate::audio::wav;
+use crate::codec::speex::codec::EncoderConfig;
+use crate::codec::speex::features::FrameFeatures;
+use crate::codec::speex::{FRAME_SIZE, stream};
 use crate::lipsync::life::life_track;
 use crate::lipsync::receiver::animate_stream;
 use crate::lipsync::visemes::VisemeSet;
 use crate::lipsync::{LipSync, LipSyncOptions};
 use crate::render::head::{Expression, FacePose};
 use crate::render::{self, FrameOptions, Framing, HeadModel};
-use crate::speex::codec::EncoderConfig;
-use crate::speex::features::FrameFeatures;
-use crate::speex::{FRAME_SIZE, stream};
 
 pub struct AnimateArgs {
     pub input: PathBuf,

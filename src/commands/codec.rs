@@ -6,9 +6,9 @@ use std::path::Path;
 use anyhow::{Context, Result};
 
 use crate::audio::wav;
-use crate::speex::codec::EncoderConfig;
-use crate::speex::features::FrameFeatures;
-use crate::speex::{FRAME_SIZE, SAMPLE_RATE, stream};
+use crate::codec::speex::codec::EncoderConfig;
+use crate::codec::speex::features::FrameFeatures;
+use crate::codec::speex::{FRAME_SIZE, SAMPLE_RATE, stream};
 
 pub fn encode(input: &Path, output: &Path, config: EncoderConfig) -> Result<()> {
     let pcm = wav::read_narrowband(input)?;

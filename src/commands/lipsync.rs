@@ -6,13 +6,13 @@ use std::path::{Path, PathBuf};
 use anyhow::{Context, Result, bail};
 use indicatif::{ProgressBar, ProgressStyle};
 
+use crate::codec::speex::codec::EncoderConfig;
 use crate::lipsync::decompose::{PointTrack, decompose_track, table_i, table_i_reduced};
 use crate::lipsync::markers::MarkerTrack;
 use crate::lipsync::mouth::VisemeShapes;
 use crate::lipsync::network::{Dynamics, Model};
 use crate::lipsync::visemes::VisemeSet;
 use crate::lipsync::{self, recipe};
-use crate::speex::codec::EncoderConfig;
 use crate::train::codec_features::{
     CodecFeatures, EVALUATION_QUALITY, LOW_QUALITY, augmentation_settings, quality,
 };

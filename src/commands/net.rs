@@ -8,14 +8,14 @@ use std::time::{Duration, Instant};
 use anyhow::{Context, Result, bail};
 
 use crate::audio::wav;
+use crate::codec::speex::codec::{Encoder, EncoderConfig, MAX_PACKET_BYTES};
+use crate::codec::speex::features::FrameFeatures;
+use crate::codec::speex::{FRAME_SIZE, SAMPLE_RATE, ogg_file};
 use crate::lipsync::{self, LipSync, LipSyncOptions};
 use crate::net::relay::{Relay, RelayConfig};
 use crate::net::session::{PeerFrame, PeerInfo, Session, SessionConfig};
 use crate::net::split::split_frames;
 use crate::net::srtp::MasterKey;
-use crate::speex::codec::{Encoder, EncoderConfig, MAX_PACKET_BYTES};
-use crate::speex::features::FrameFeatures;
-use crate::speex::{FRAME_SIZE, SAMPLE_RATE, ogg_file};
 
 const TICK: Duration = Duration::from_millis(20);
 

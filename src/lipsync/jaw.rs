@@ -5,7 +5,7 @@
 use super::Animator;
 use super::network::Model;
 use super::visemes::{Viseme, VisemeSet};
-use crate::speex::features::FrameFeatures;
+use crate::codec::speex::features::FrameFeatures;
 
 #[derive(Debug, Clone, PartialEq)]
 pub struct JawBaseline {

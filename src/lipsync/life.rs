@@ -23,9 +23,9 @@
 
 use glam::Vec2;
 
+use crate::codec::speex::features::FrameFeatures;
+use crate::codec::speex::{FRAME_SIZE, SAMPLE_RATE};
 use crate::render::head::FacePose;
-use crate::speex::features::FrameFeatures;
-use crate::speex::{FRAME_SIZE, SAMPLE_RATE};
 
 /// Seconds per frame.
 pub const FRAME_S: f32 = FRAME_SIZE as f32 / SAMPLE_RATE as f32;
@@ -543,7 +543,7 @@ mod tests {
     }
 
     fn energy(pcm: &[i16]) -> f32 {
-        crate::speex::features::energy_db(pcm)
+        crate::codec::speex::features::energy_db(pcm)
     }
 
     /// Talking: syllables of ~200 ms with rising and falling pitch, short pauses between words.
@@ -628,7 +628,7 @@ mod tests {
             .chunks(FRAME_SIZE)
             .map(|c| FrameFeatures {
                 mode: Some(5),
-                lsp: crate::speex::features::flat_lsp(),
+                lsp: crate::codec::speex::features::flat_lsp(),
                 energy_db: energy(c),
             })
             .collect();

@@ -18,7 +18,7 @@ pub mod visemes;
 pub use builtin::default_model;
 pub use receiver::{LipSync, LipSyncOptions};
 
-use crate::speex::features::FrameFeatures;
+use crate::codec::speex::features::FrameFeatures;
 use network::{InferenceState, Model};
 use visemes::VisemeSet;
 

@@ -41,8 +41,8 @@ use std::fmt::Write as _;
 use std::path::Path;
 
 use super::visemes::{Viseme, VisemeError, VisemeSet};
-use crate::speex::LSP_COUNT;
-use crate::speex::features::{FrameFeatures, SILENCE_DB};
+use crate::codec::speex::LSP_COUNT;
+use crate::codec::speex::features::{FrameFeatures, SILENCE_DB};
 
 /// Features per frame: 10 LSPs and the energy.
 pub const FEATURES_PER_FRAME: usize = 11;

@@ -60,7 +60,7 @@ pub enum NetError {
         source: std::io::Error,
     },
     #[error(transparent)]
-    Codec(#[from] crate::speex::codec::CodecError),
+    Codec(#[from] crate::codec::speex::codec::CodecError),
     #[error(transparent)]
     Rtp(#[from] rtp::RtpError),
     #[error(transparent)]

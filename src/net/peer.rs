@@ -11,9 +11,9 @@ use std::time::Instant;
 use super::jitter::{JitterBuffer, JitterConfig, JitterStats, Playout};
 use super::rtp::Rtp;
 use super::split;
-use crate::speex::FRAME_SIZE;
-use crate::speex::codec::{CodecError, Decoder, FrameOutcome};
-use crate::speex::features::{FrameFeatures, FrameTracker};
+use crate::codec::speex::FRAME_SIZE;
+use crate::codec::speex::codec::{CodecError, Decoder, FrameOutcome};
+use crate::codec::speex::features::{FrameFeatures, FrameTracker};
 
 /// How a played frame came about.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]

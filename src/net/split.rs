@@ -121,8 +121,10 @@ pub fn split_frames(packet: &[u8]) -> Option<Vec<Vec<u8>>> {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::speex::FRAME_SIZE;
-    use crate::speex::codec::{Decoder, Encoder, EncoderConfig, FrameOutcome, MAX_PACKET_BYTES};
+    use crate::codec::speex::FRAME_SIZE;
+    use crate::codec::speex::codec::{
+        Decoder, Encoder, EncoderConfig, FrameOutcome, MAX_PACKET_BYTES,
+    };
 
     #[test]
     fn split_frames_decode_like_the_whole_packet() {

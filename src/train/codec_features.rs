@@ -11,9 +11,9 @@ use std::path::{Path, PathBuf};
 use std::sync::{Arc, Mutex};
 
 use crate::audio::wav;
-use crate::speex::codec::EncoderConfig;
-use crate::speex::features::FrameFeatures;
-use crate::speex::stream;
+use crate::codec::speex::codec::EncoderConfig;
+use crate::codec::speex::features::FrameFeatures;
+use crate::codec::speex::stream;
 use crate::train::corpus::{BoxError, CorpusError, PreparedUtterance, Utterance, prepare};
 
 /// The quality every reported score uses unless said otherwise (speexenc's default).

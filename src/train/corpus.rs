@@ -5,10 +5,10 @@
 use std::ops::Range;
 use std::path::{Path, PathBuf};
 
+use crate::codec::speex::features::FrameFeatures;
 use crate::lipsync::coarticulation::{FRAME_SECONDS, TimedTarget, frame_targets};
 use crate::lipsync::phones::{CueClass, UnknownPhone, is_bilabial, phone_target};
 use crate::lipsync::visemes::FullWeights;
-use crate::speex::features::FrameFeatures;
 
 /// Error type a feature extractor may return.
 pub type BoxError = Box<dyn std::error::Error + Send + Sync>;

@@ -5,7 +5,7 @@
 use std::f64::consts::PI;
 use std::path::Path;
 
-use crate::speex::features::FrameFeatures;
+use crate::codec::speex::features::FrameFeatures;
 use crate::train::corpus::BoxError;
 
 const ORDER: usize = 10;

@@ -11,6 +11,7 @@ use std::path::PathBuf;
 
 use indicatif::{ProgressBar, ProgressStyle};
 
+use crate::codec::speex::LSP_COUNT;
 use crate::lipsync::decompose::{DecomposeError, Decomposer, PointTrack};
 use crate::lipsync::mouth::{Articulation, CUE_COUNT, VisemeShapes, cues};
 use crate::lipsync::network::{
@@ -19,7 +20,6 @@ use crate::lipsync::network::{
 };
 use crate::lipsync::phones::CueClass;
 use crate::lipsync::visemes::{Viseme, VisemeSet};
-use crate::speex::LSP_COUNT;
 use crate::train::corpus::{
     Corpus, CorpusError, FeatureFn, PreparedUtterance, SpeakerSplit, prepare,
 };

@@ -8,9 +8,4 @@ mod lsp_tables;
 pub mod ogg_file;
 pub mod stream;
 
-/// Samples per narrowband frame (20 ms at 8 kHz).
-pub const FRAME_SIZE: usize = 160;
-/// Narrowband sample rate.
-pub const SAMPLE_RATE: u32 = 8000;
-/// Number of line spectral pairs in a narrowband frame.
-pub const LSP_COUNT: usize = 10;
+pub use super::{FRAME_SIZE, LSP_COUNT, SAMPLE_RATE};

@@ -1,0 +1,12 @@
+//! The codec layer: each codec decodes its payloads into 8 kHz frames and hands over the
+//! features the lip-sync network eats (LSPs + energy), read from the bitstream where the codec
+//! carries them.
+
+pub mod speex;
+
+/// Samples per 20 ms frame at the 8 kHz rate the features and the network work at.
+pub const FRAME_SIZE: usize = 160;
+/// The feature and playback rate.
+pub const SAMPLE_RATE: u32 = 8000;
+/// Line spectral pairs per feature row (the narrowband LPC order).
+pub const LSP_COUNT: usize = 10;
