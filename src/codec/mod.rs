@@ -1,7 +1,11 @@
 //! The codec layer: each codec decodes its payloads into 8 kHz frames and hands over the
 //! features the lip-sync network eats (LSPs + energy), read from the bitstream where the codec
-//! carries them.
+//! carries them and from an LPC analysis of the decoded audio where it does not.
 
+pub mod g711;
+pub mod lpc;
+pub mod opus;
+pub mod silk;
 pub mod speex;
 
 /// Samples per 20 ms frame at the 8 kHz rate the features and the network work at.
