@@ -5,9 +5,9 @@ use std::path::Path;
 
 use criterion::{Criterion, Throughput, criterion_group, criterion_main};
 use lipcall::audio::wav;
-use lipcall::speex::codec::{Decoder, EncoderConfig};
-use lipcall::speex::features::FrameTracker;
-use lipcall::speex::{FRAME_SIZE, ogg_file, stream};
+use lipcall::codec::speex::codec::{Decoder, EncoderConfig};
+use lipcall::codec::speex::features::FrameTracker;
+use lipcall::codec::speex::{FRAME_SIZE, ogg_file, stream};
 
 fn demo_packets() -> Vec<Vec<u8>> {
     let path = Path::new(env!("CARGO_MANIFEST_DIR")).join("assets/speech/demo.wav");

@@ -7,10 +7,10 @@
 use std::hint::black_box;
 
 use criterion::{Criterion, criterion_group, criterion_main};
+use lipcall::codec::speex::FRAME_SIZE;
+use lipcall::codec::speex::features::FrameFeatures;
 use lipcall::lipsync::life::LifeGenerator;
 use lipcall::lipsync::{LipSync, LipSyncOptions, default_model};
-use lipcall::speex::FRAME_SIZE;
-use lipcall::speex::features::FrameFeatures;
 
 fn frames() -> Vec<FrameFeatures> {
     (0..64)
@@ -85,7 +85,7 @@ fn bench(c: &mut Criterion) {
         .collect();
     let energy: Vec<f32> = voiced
         .iter()
-        .map(|f| lipcall::speex::features::energy_db(f))
+        .map(|f| lipcall::codec::speex::features::energy_db(f))
         .collect();
     let mut life = LifeGenerator::new(1);
     let mut n = 0;

@@ -6,7 +6,7 @@ use egui_kittest::kittest::Queryable;
 use lipcall::app::engine::{FaceRow, PeerAnimation};
 use lipcall::app::peer_controls_ui;
 use lipcall::app::settings::PeerPrefs;
-use lipcall::speex::features::FrameFeatures;
+use lipcall::codec::speex::features::FrameFeatures;
 
 fn voiced() -> FrameFeatures {
     let mut f = lipcall::lipsync::network::silence_features();

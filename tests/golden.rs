@@ -2,7 +2,7 @@
 //! assets/speech/demo.wav encoded by speexenc 1.2.1 at quality 8. The LSPs were checked
 //! bit-exact against libspeex's own decoder state (tests/walker.rs does that on every frame).
 
-use lipcall::speex::stream;
+use lipcall::codec::speex::stream;
 
 const GOLDEN: [(usize, u8, [f32; 10], f32); 4] = [
     (
@@ -82,7 +82,7 @@ fn round_trip_rows_line_up_with_the_input() {
         })
         .collect();
     let decoded =
-        stream::round_trip(&pcm, lipcall::speex::codec::EncoderConfig::default()).unwrap();
+        stream::round_trip(&pcm, lipcall::codec::speex::codec::EncoderConfig::default()).unwrap();
     let loud: Vec<usize> = decoded
         .features
         .iter()

@@ -6,8 +6,8 @@ mod common;
 use std::f64::consts::PI;
 
 use common::*;
-use lipcall::speex::codec::EncoderConfig;
-use lipcall::speex::stream;
+use lipcall::codec::speex::codec::EncoderConfig;
+use lipcall::codec::speex::stream;
 
 const ORDER: usize = 10;
 

@@ -1,9 +1,9 @@
 //! Random and mutated input to every parser on the decode path: errors are fine, panics and
 //! hangs are not.
 
-use lipcall::speex::codec::{Decoder, EncoderConfig, FrameOutcome};
-use lipcall::speex::features::FrameTracker;
-use lipcall::speex::{FRAME_SIZE, ogg_file, stream};
+use lipcall::codec::speex::codec::{Decoder, EncoderConfig, FrameOutcome};
+use lipcall::codec::speex::features::FrameTracker;
+use lipcall::codec::speex::{FRAME_SIZE, ogg_file, stream};
 use proptest::prelude::*;
 
 fn speech_like(n: usize) -> Vec<i16> {

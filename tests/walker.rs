@@ -7,7 +7,7 @@ use std::path::{Path, PathBuf};
 use std::ptr;
 use std::sync::OnceLock;
 
-use lipcall::speex::bitstream::{BitstreamError, Frame, Lsp, Walker};
+use lipcall::codec::speex::bitstream::{BitstreamError, Frame, Lsp, Walker};
 use proptest::prelude::*;
 use proptest::test_runner::FileFailurePersistence;
 use speex_sys::{

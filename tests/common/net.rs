@@ -5,9 +5,9 @@ use std::path::Path;
 use std::process::{Child, Command, Stdio};
 use std::time::{Duration, Instant};
 
-use lipcall::speex::FRAME_SIZE;
-use lipcall::speex::codec::{Decoder, FrameOutcome};
-use lipcall::speex::ogg_file;
+use lipcall::codec::speex::FRAME_SIZE;
+use lipcall::codec::speex::codec::{Decoder, FrameOutcome};
+use lipcall::codec::speex::ogg_file;
 
 /// A loopback UDP port that was free a moment ago.
 pub fn free_port() -> u16 {
