@@ -2,8 +2,10 @@ use std::path::PathBuf;
 use std::process::ExitCode;
 
 use clap::{Parser, Subcommand};
+use lipcall::codec::opus::codec::EncoderConfig as OpusConfig;
 use lipcall::codec::speex::codec::EncoderConfig;
 use lipcall::commands;
+use lipcall::commands::codec::{EncodeSettings, FileCodec};
 use lipcall::commands::net::{KeyArgs, ReceiveArgs, SendArgs};
 
 /// Voice chat with lip-synced 3D heads, driven by the Speex decoder's own LSPs.
@@ -41,31 +43,45 @@ struct AppFlags {
 
 #[derive(Subcommand)]
 enum Command {
-    /// Encode a WAV file (any rate, mono or stereo) to Ogg Speex narrowband.
+    /// Encode a WAV file (any rate, mono or stereo) to Ogg Speex narrowband or Ogg Opus.
     Encode {
         input: PathBuf,
         output: PathBuf,
-        /// Speex quality, 0 (lowest) to 10 (highest).
-        #[arg(long, default_value_t = 8, value_parser = clap::value_parser!(u8).range(0..=10))]
-        quality: u8,
-        /// Variable bit rate.
+        /// The codec (default: opus for an .opus output, otherwise speex).
+        #[arg(long, value_enum)]
+        codec: Option<FileCodec>,
+        /// Speex quality, 0 (lowest) to 10 (highest); default 8.
+        #[arg(long, value_parser = clap::value_parser!(u8).range(0..=10))]
+        quality: Option<u8>,
+        /// Speex: variable bit rate.
         #[arg(long)]
         vbr: bool,
-        /// Encoder complexity, 1 to 10.
-        #[arg(long, default_value_t = 3, value_parser = clap::value_parser!(u8).range(1..=10))]
-        complexity: u8,
-        /// Frames (20 ms each) per Ogg packet.
-        #[arg(long, default_value_t = 1, value_parser = clap::value_parser!(u8).range(1..=8))]
-        frames_per_packet: u8,
+        /// Encoder complexity: Speex 1 to 10 (default 3), Opus 0 to 10 (default 10).
+        #[arg(long, value_parser = clap::value_parser!(u8).range(0..=10))]
+        complexity: Option<u8>,
+        /// Speex: frames (20 ms each) per Ogg packet; default 1.
+        #[arg(long, value_parser = clap::value_parser!(u8).range(1..=8))]
+        frames_per_packet: Option<u8>,
+        /// Opus bitrate in kb/s, 6 to 510; default 16.
+        #[arg(long, value_name = "KBPS", value_parser = parse_kbps)]
+        bitrate: Option<u32>,
+        /// Opus: expected packet loss in percent; turns on in-band FEC (which libopus codes
+        /// from 18 kb/s in narrowband).
+        #[arg(long, value_name = "PERCENT", value_parser = clap::value_parser!(u8).range(0..=100))]
+        expect_loss: Option<u8>,
+        /// Opus: discontinuous transmission (tiny packets in silence).
+        #[arg(long)]
+        dtx: bool,
     },
-    /// Decode an Ogg Speex file to WAV, optionally writing the per-frame LSP + energy features.
+    /// Decode an Ogg Speex or Ogg Opus file to WAV (Opus at 8 kHz), optionally writing the
+    /// per-frame LSP + energy features (Speex).
     Decode {
         input: PathBuf,
         output: PathBuf,
         /// Write FEATURES.csv: frame,time_s,mode,lsp1..lsp10,energy_db.
         #[arg(long, value_name = "FEATURES.csv")]
         features: Option<PathBuf>,
-        /// Turn the perceptual enhancer off (speexdec --no-enh).
+        /// Speex: turn the perceptual enhancer off (speexdec --no-enh).
         #[arg(long)]
         no_enh: bool,
     },
@@ -188,6 +204,22 @@ enum Command {
     Decompose(commands::lipsync::DecomposeArgs),
 }
 
+/// Exits with clap's usage error (status 2) for flags that do not fit the chosen codec.
+fn usage_error(message: &str) -> ! {
+    use clap::CommandFactory;
+    Cli::command()
+        .error(clap::error::ErrorKind::ArgumentConflict, message)
+        .exit()
+}
+
+/// kb/s as opusenc's --bitrate takes them, to bits per second.
+fn parse_kbps(arg: &str) -> Result<u32, String> {
+    match arg.parse::<f64>() {
+        Ok(k) if (6.0..=510.0).contains(&k) => Ok((k * 1000.0).round() as u32),
+        _ => Err("must be a number of kb/s from 6 to 510".into()),
+    }
+}
+
 fn parse_fps(arg: &str) -> Result<u32, String> {
     match arg {
         "25" => Ok(25),
@@ -237,20 +269,56 @@ fn main() -> ExitCode {
         Command::Encode {
             input,
             output,
+            codec,
             quality,
             vbr,
             complexity,
             frames_per_packet,
-        } => commands::codec::encode(
-            &input,
-            &output,
-            EncoderConfig {
-                quality,
-                vbr,
-                complexity,
-                frames_per_packet: usize::from(frames_per_packet),
-            },
-        ),
+            bitrate,
+            expect_loss,
+            dtx,
+        } => {
+            let codec = codec.unwrap_or_else(|| FileCodec::for_path(&output));
+            let settings = match codec {
+                FileCodec::Speex => {
+                    if bitrate.is_some() || expect_loss.is_some() || dtx {
+                        usage_error(
+                            "--bitrate, --expect-loss and --dtx are Opus settings \
+                             (use --codec opus or an .opus output)",
+                        );
+                    }
+                    if complexity == Some(0) {
+                        usage_error("Speex complexity is 1 to 10");
+                    }
+                    let d = EncoderConfig::default();
+                    EncodeSettings::Speex(EncoderConfig {
+                        quality: quality.unwrap_or(d.quality),
+                        vbr,
+                        complexity: complexity.unwrap_or(d.complexity),
+                        frames_per_packet: frames_per_packet
+                            .map_or(d.frames_per_packet, usize::from),
+                    })
+                }
+                FileCodec::Opus => {
+                    if quality.is_some() || vbr || frames_per_packet.is_some() {
+                        usage_error(
+                            "--quality, --vbr and --frames-per-packet are Speex settings; \
+                             Opus takes --bitrate",
+                        );
+                    }
+                    let d = OpusConfig::default();
+                    EncodeSettings::Opus(OpusConfig {
+                        bitrate: bitrate.unwrap_or(d.bitrate),
+                        complexity: complexity.unwrap_or(d.complexity),
+                        fec: expect_loss.is_some_and(|l| l > 0),
+                        loss_percent: expect_loss.unwrap_or(0),
+                        dtx,
+                        ..d
+                    })
+                }
+            };
+            commands::codec::encode(&input, &output, settings)
+        }
         Command::Decode {
             input,
             output,

@@ -58,6 +58,111 @@ fn unreadable_inputs_give_one_line_errors() {
     fails_cleanly(&[p("decode"), &truncated, &out_wav], "truncated");
 }
 
+/// An Ogg Opus file from raw packets (valid pages, so the packets themselves are what is bad):
+/// head and tags alone on their pages, then audio packets 20 ms apart.
+fn ogg_opus(head: &[u8], tags: &[u8], audio: &[Vec<u8>]) -> Vec<u8> {
+    use ogg::writing::{PacketWriteEndInfo, PacketWriter};
+    let mut w = PacketWriter::new(Vec::new());
+    w.write_packet(head.to_vec(), 1, PacketWriteEndInfo::EndPage, 0)
+        .unwrap();
+    w.write_packet(tags.to_vec(), 1, PacketWriteEndInfo::EndPage, 0)
+        .unwrap();
+    for (i, p) in audio.iter().enumerate() {
+        let end = if i + 1 == audio.len() {
+            PacketWriteEndInfo::EndStream
+        } else {
+            PacketWriteEndInfo::NormalPacket
+        };
+        w.write_packet(p.clone(), 1, end, (i as u64 + 1) * 960)
+            .unwrap();
+    }
+    w.into_inner()
+}
+
+#[test]
+fn broken_opus_files_give_one_line_errors() {
+    use lipcall::codec::opus::ogg_file;
+    let dir = tempfile::tempdir().unwrap();
+    let d = dir.path();
+    let out_wav = d.join("out.wav");
+    let wav = demo_8k(d);
+    let good = d.join("demo.opus");
+    run(lipcall().arg("encode").arg(&wav).arg(&good));
+    let bytes = std::fs::read(&good).unwrap();
+    let file = ogg_file::read(&bytes).unwrap();
+    let head = file.head.to_packet();
+    let audio: Vec<Vec<u8>> = file.pages.iter().flat_map(|p| p.packets.clone()).collect();
+    let mut tags = b"OpusTags".to_vec();
+    tags.extend_from_slice(&[1, 0, 0, 0, b'v', 0, 0, 0, 0]);
+
+    let case = |name: &str, data: &[u8], expected: &str| {
+        let path = d.join(name);
+        std::fs::write(&path, data).unwrap();
+        fails_cleanly(&[Path::new("decode"), &path, &out_wav], expected);
+    };
+    let head_with = |at: usize, value: u8| {
+        let mut h = head.clone();
+        h[at] = value;
+        ogg_opus(&h, &tags, &audio)
+    };
+    case("cut.opus", &bytes[..bytes.len() * 2 / 3], "truncated");
+    case("magic.opus", &head_with(7, b'X'), "not Opus");
+    case("version.opus", &head_with(8, 0x10), "version 16");
+    case("nochannels.opus", &head_with(9, 0), "channel count 0");
+    case("family0.opus", &head_with(9, 3), "1 or 2 channels");
+    case("family1.opus", &head_with(18, 1), "mapping table");
+    let mut surround = head.clone();
+    surround[9] = 3;
+    surround[18] = 1;
+    surround.extend_from_slice(&[2, 1, 0, 1, 2]);
+    case(
+        "surround.opus",
+        &ogg_opus(&surround, &tags, &audio),
+        "2 streams",
+    );
+    let mut vendor = tags.clone();
+    vendor[8..12].copy_from_slice(&u32::MAX.to_le_bytes());
+    case(
+        "vendor.opus",
+        &ogg_opus(&head, &vendor, &audio),
+        "vendor string",
+    );
+    let mut count = tags.clone();
+    count[13..17].copy_from_slice(&0x4000_0000u32.to_le_bytes());
+    case(
+        "comments.opus",
+        &ogg_opus(&head, &count, &audio),
+        "more comments",
+    );
+    case(
+        "notags.opus",
+        &ogg_opus(&head, b"OpusHead", &audio),
+        "OpusTags",
+    );
+    let mut flipped = bytes.clone();
+    let mid = flipped.len() / 2;
+    flipped[mid] ^= 0x55;
+    case("crc.opus", &flipped, "damaged");
+    // A Speex file named .opus is named for what it is.
+    let spx = d.join("demo.spx");
+    run(lipcall().arg("encode").arg(&wav).arg(&spx));
+    case(
+        "speex.opus",
+        &std::fs::read(&spx).unwrap(),
+        "Speex, not Opus",
+    );
+    // Speex-only output flags on an Opus encode are bad usage, and so the other way round.
+    for args in [
+        vec!["encode", "a.wav", "b.opus", "--quality", "5"],
+        vec!["encode", "a.wav", "b.spx", "--bitrate", "16"],
+        vec!["encode", "a.wav", "b.spx", "--codec", "opus", "--vbr"],
+        vec!["encode", "a.wav", "b.opus", "--bitrate", "3"],
+    ] {
+        let out = lipcall().args(&args).output().unwrap();
+        assert_eq!(out.status.code(), Some(2), "{args:?}");
+    }
+}
+
 #[test]
 fn bad_usage_exits_2() {
     for args in [

@@ -3,30 +3,85 @@
 use std::io::Write;
 use std::path::Path;
 
-use anyhow::{Context, Result};
+use anyhow::{Context, Result, bail};
 
 use crate::audio::wav;
+use crate::codec::opus;
 use crate::codec::speex::codec::EncoderConfig;
 use crate::codec::speex::features::FrameFeatures;
 use crate::codec::speex::{FRAME_SIZE, SAMPLE_RATE, stream};
 
-pub fn encode(input: &Path, output: &Path, config: EncoderConfig) -> Result<()> {
+/// The codecs lipcall writes files in.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, clap::ValueEnum)]
+pub enum FileCodec {
+    Speex,
+    Opus,
+}
+
+impl FileCodec {
+    /// Opus for a `.opus` file, Speex otherwise.
+    pub fn for_path(path: &Path) -> Self {
+        if has_opus_extension(path) {
+            FileCodec::Opus
+        } else {
+            FileCodec::Speex
+        }
+    }
+}
+
+fn has_opus_extension(path: &Path) -> bool {
+    path.extension()
+        .is_some_and(|e| e.eq_ignore_ascii_case("opus"))
+}
+
+/// What `encode` writes: the codec and its settings.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum EncodeSettings {
+    Speex(EncoderConfig),
+    Opus(opus::codec::EncoderConfig),
+}
+
+pub fn encode(input: &Path, output: &Path, settings: EncodeSettings) -> Result<()> {
     let pcm = wav::read_narrowband(input)?;
-    let bytes = stream::encode(&pcm, config)?;
+    let (bytes, described) = match settings {
+        EncodeSettings::Speex(config) => (
+            stream::encode(&pcm, config)?,
+            format!(
+                "Speex quality {}{}",
+                config.quality,
+                if config.vbr { " VBR" } else { "" }
+            ),
+        ),
+        EncodeSettings::Opus(config) => (
+            opus::stream::encode(&pcm, config)?,
+            format!(
+                "Opus {} kb/s{}{}",
+                f64::from(config.bitrate) / 1000.0,
+                if config.fec { " FEC" } else { "" },
+                if config.dtx { " DTX" } else { "" }
+            ),
+        ),
+    };
     std::fs::write(output, &bytes).with_context(|| format!("cannot write {}", output.display()))?;
     eprintln!(
-        "{}: {:.2} s of audio, quality {}{}, {} bytes",
+        "{}: {:.2} s of audio, {described}, {} bytes",
         output.display(),
         pcm.len() as f64 / f64::from(SAMPLE_RATE),
-        config.quality,
-        if config.vbr { " VBR" } else { "" },
         bytes.len()
     );
     Ok(())
 }
 
+/// Decodes an Ogg Speex or Ogg Opus file, told apart by its content (an `.opus` name that
+/// holds no Opus gets the Opus reader's account of what it holds).
 pub fn decode(input: &Path, output: &Path, features: Option<&Path>, enhancer: bool) -> Result<()> {
     let bytes = std::fs::read(input).with_context(|| format!("cannot read {}", input.display()))?;
+    if opus::ogg_file::holds_opus(&bytes) || has_opus_extension(input) {
+        if features.is_some() {
+            bail!("--features is not available for Opus files yet (only for Speex)");
+        }
+        return decode_opus(input, output, &bytes);
+    }
     let decoded =
         stream::decode(&bytes, enhancer).with_context(|| format!("{}", input.display()))?;
     wav::write_mono_i16(output, decoded.header.rate, &decoded.pcm)?;
@@ -44,6 +99,29 @@ pub fn decode(input: &Path, output: &Path, features: Option<&Path>, enhancer: bo
         output.display(),
         decoded.pcm.len() as f64 / f64::from(decoded.header.rate),
         decoded.features.len()
+    );
+    Ok(())
+}
+
+fn decode_opus(input: &Path, output: &Path, bytes: &[u8]) -> Result<()> {
+    let decoded = opus::stream::decode(bytes).with_context(|| format!("{}", input.display()))?;
+    wav::write_mono_i16(output, SAMPLE_RATE, &decoded.pcm)?;
+    if decoded.corrupt_packets > 0 {
+        eprintln!(
+            "warning: {} damaged packet(s) were concealed",
+            decoded.corrupt_packets
+        );
+    }
+    eprintln!(
+        "{}: {:.2} s of audio at 8 kHz, {} Opus packets{}",
+        output.display(),
+        decoded.pcm.len() as f64 / f64::from(SAMPLE_RATE),
+        decoded.packets.len(),
+        if decoded.head.channels > 1 {
+            " (stereo mixed to mono)"
+        } else {
+            ""
+        }
     );
     Ok(())
 }
