@@ -1,1 +1,423 @@
-//! The SILK layer of Opus read without decoding: the range decoder and the indices up to the NLSFs.
+//! The SILK layer of Opus read without decoding: the range decoder and the indices up to the
+//! NLSFs.
+//!
+//! [`SilkWalker`] follows the decoder through each packet (RFC 6716 4.2): the TOC and frame
+//! packing, the SILK header (VAD and LBRR flags), the LBRR frames that precede the regular
+//! ones, and per regular frame its type, gains, NLSF indices and interpolation weight. The
+//! pitch, LTP and excitation indices are read only to reach the next frame. The NLSFs are
+//! reconstructed and stabilised with the decoder's fixed-point arithmetic, so they are the
+//! vector libopus holds (`prevNLSF_Q15`) after the frame.
+//!
+//! State that the decoder carries across packets is carried here too: the previous NLSFs
+//! (interpolation), the gain index, the first-frame-after-reset rule, the internal rate and
+//! the mode (a CELT-only frame resets SILK). For stereo streams the mid channel is reported.
+//! Not followed: decoding the LBRR (FEC) copy of a lost packet in its place.
+
+mod channel;
+pub mod nlsf;
+pub mod packet;
+pub mod range;
+mod tables;
+
+pub use channel::SignalType;
+pub use nlsf::MAX_ORDER;
+pub use packet::{Bandwidth, Mode, Packet, PacketError, Toc};
+
+use channel::{Channel, Coding, Indices, MAX_SUBFRAMES};
+use range::RangeDecoder;
+use tables::{
+    LBRR_FLAGS_40MS_ICDF, LBRR_FLAGS_60MS_ICDF, STEREO_MID_ONLY_ICDF, STEREO_WEIGHT_JOINT_ICDF,
+    UNIFORM3_ICDF, UNIFORM5_ICDF,
+};
+
+/// Normalised line spectral frequencies of one frame, as the decoder holds them.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub struct Nlsf {
+    order: u8,
+    q15: [i16; MAX_ORDER],
+}
+
+impl Nlsf {
+    fn new(order: usize, q15: [i16; MAX_ORDER]) -> Self {
+        Self {
+            order: order.min(MAX_ORDER) as u8,
+            q15,
+        }
+    }
+
+    /// 10 for NB and MB, 16 for WB.
+    pub fn order(&self) -> usize {
+        usize::from(self.order)
+    }
+
+    /// The values in Q15: 32768 is the Nyquist frequency of the internal rate.
+    pub fn q15(&self) -> &[i16] {
+        &self.q15[..self.order()]
+    }
+
+    /// The values as angles in radians (0..pi at the internal rate).
+    pub fn radians(&self) -> impl ExactSizeIterator<Item = f32> + '_ {
+        self.q15()
+            .iter()
+            .map(|&v| f32::from(v) * (std::f32::consts::PI / 32768.0))
+    }
+}
+
+/// One SILK frame (10 or 20 ms) of a SILK-only or hybrid Opus frame.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct SilkFrame {
+    /// Which Opus frame of the packet it belongs to.
+    pub opus_frame: usize,
+    /// Its place within that Opus frame (a 40 or 60 ms Opus frame holds 2 or 3).
+    pub index: usize,
+    pub mode: Mode,
+    /// The bandwidth in the TOC byte.
+    pub bandwidth: Bandwidth,
+    /// The SILK layer's sampling rate: 8000, 12000 or 16000 (hybrid: 16000).
+    pub internal_rate_hz: u32,
+    pub duration_ms: u32,
+    pub stereo: bool,
+    pub vad: bool,
+    pub signal_type: SignalType,
+    pub high_quant_offset: bool,
+    /// Per subframe, the decoder's log-gain index (0..64, about 1.37 dB a step); the first
+    /// `subframes` entries are used.
+    pub gain_indices: [u8; MAX_SUBFRAMES],
+    pub subframes: usize,
+    /// The stage-1 NLSF codebook index and the stage-2 residual indices (first `order`).
+    pub nlsf_stage1: u8,
+    pub nlsf_residuals: [i8; MAX_ORDER],
+    /// The frame's NLSFs (those of its second half, or of all of it when not interpolated).
+    pub nlsf: Nlsf,
+    /// Weight 0..=4 (in quarters) of this frame's NLSFs against the previous ones in the
+    /// first half; 4 means no interpolation (10 ms frames, or the first after a reset).
+    pub interpolation_q2: u8,
+    /// The NLSFs the decoder uses for the first half, when they differ from `nlsf`.
+    pub first_half: Option<Nlsf>,
+    /// Range coder position after this frame, in bits from the start of the Opus frame
+    /// (`ec_tell`). It may pass `frame_bits` by the zero bytes an encoder stripped off the
+    /// end of a SILK-only frame.
+    pub bits_used: u32,
+    /// Size of the Opus frame in bits.
+    pub frame_bits: u32,
+    /// The range decoder's range after this frame: for the last SILK frame of a SILK-only
+    /// Opus frame without redundancy, libopus's `OPUS_GET_FINAL_RANGE`.
+    pub range: u32,
+}
+
+/// What the walker reports for one frame of a packet.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub enum Frame {
+    /// A SILK frame of a SILK-only or hybrid Opus frame, with its NLSFs.
+    Silk(SilkFrame),
+    /// A CELT-only Opus frame: it carries no NLSFs.
+    Celt {
+        opus_frame: usize,
+        duration_48k: u32,
+    },
+    /// An Opus frame of at most one byte, which the decoder conceals (DTX or loss).
+    Concealed {
+        opus_frame: usize,
+        duration_48k: u32,
+    },
+}
+
+impl Frame {
+    /// The NLSFs of a SILK frame.
+    pub fn nlsf(&self) -> Option<&Nlsf> {
+        match self {
+            Frame::Silk(frame) => Some(&frame.nlsf),
+            _ => None,
+        }
+    }
+
+    /// Which Opus frame of the packet it comes from.
+    pub fn opus_frame(&self) -> usize {
+        match *self {
+            Frame::Silk(SilkFrame { opus_frame, .. })
+            | Frame::Celt { opus_frame, .. }
+            | Frame::Concealed { opus_frame, .. } => opus_frame,
+        }
+    }
+
+    pub fn silk(&self) -> Option<&SilkFrame> {
+        match self {
+            Frame::Silk(frame) => Some(frame),
+            _ => None,
+        }
+    }
+}
+
+/// Why a packet could not be walked: only its framing can be invalid. Within a frame every
+/// symbol sequence is valid SILK, and reading past the end gives zeros, as in the decoder
+/// (the encoder strips trailing zero bytes off SILK-only frames, relying on that).
+#[derive(Debug, Clone, Copy, PartialEq, Eq, thiserror::Error)]
+pub enum SilkError {
+    #[error("invalid Opus packet: {0}")]
+    Packet(#[from] PacketError),
+}
+
+/// Walks the packets of one Opus stream, keeping the SILK decoder state they depend on.
+#[derive(Debug, Clone)]
+pub struct SilkWalker {
+    channels: [Channel; 2],
+    /// Channels of the previous SILK frame (0 before any).
+    channels_in_use: usize,
+    previous_mode: Option<Mode>,
+    previous_mid_only: bool,
+}
+
+impl Default for SilkWalker {
+    fn default() -> Self {
+        Self::new()
+    }
+}
+
+impl SilkWalker {
+    pub const fn new() -> Self {
+        Self {
+            channels: [Channel::new(), Channel::new()],
+            channels_in_use: 0,
+            previous_mode: None,
+            previous_mid_only: false,
+        }
+    }
+
+    /// Forgets the stream, as a freshly created (or reset) decoder would.
+    pub fn reset(&mut self) {
+        *self = Self::new();
+    }
+
+    /// Follows the decoder through a lost packet (its concealment): the NLSFs are kept for
+    /// the next frame's interpolation, the gain coding restarts.
+    pub fn packet_lost(&mut self) {
+        if matches!(self.previous_mode, Some(Mode::Silk | Mode::Hybrid)) {
+            for channel in self.channels.iter_mut().take(self.channels_in_use) {
+                channel.conceal();
+            }
+        }
+    }
+
+    /// All frames of one packet.
+    pub fn walk_packet(&mut self, packet: &[u8]) -> Result<Vec<Frame>, SilkError> {
+        let mut frames = Vec::with_capacity(3);
+        self.walk_packet_into(packet, &mut frames)?;
+        Ok(frames)
+    }
+
+    /// Appends the frames of one packet to `out`. After an error `out` holds the frames
+    /// before it; they have updated the walker, as they would the decoder.
+    pub fn walk_packet_into(
+        &mut self,
+        packet: &[u8],
+        out: &mut Vec<Frame>,
+    ) -> Result<(), SilkError> {
+        let parsed = Packet::parse(packet)?;
+        let toc = parsed.toc;
+        for (opus_frame, data) in parsed.frames().enumerate() {
+            self.walk_opus_frame(toc, opus_frame, data, out)?;
+        }
+        Ok(())
+    }
+
+    fn walk_opus_frame(
+        &mut self,
+        toc: Toc,
+        opus_frame: usize,
+        data: &[u8],
+        out: &mut Vec<Frame>,
+    ) -> Result<(), SilkError> {
+        let duration_48k = toc.frame_samples_48k();
+        if data.len() <= 1 {
+            self.packet_lost();
+            out.push(Frame::Concealed {
+                opus_frame,
+                duration_48k,
+            });
+            return Ok(());
+        }
+        let mode = toc.mode();
+        let previous_mode = self.previous_mode.replace(mode);
+        if mode == Mode::Celt {
+            out.push(Frame::Celt {
+                opus_frame,
+                duration_48k,
+            });
+            return Ok(());
+        }
+        if previous_mode == Some(Mode::Celt) {
+            self.channels = [Channel::new(), Channel::new()];
+            self.previous_mid_only = false;
+        }
+
+        let rate_khz = match (mode, toc.bandwidth()) {
+            (Mode::Silk, Bandwidth::Narrow) => 8,
+            (Mode::Silk, Bandwidth::Medium) => 12,
+            _ => 16,
+        };
+        let channel_count = if toc.stereo { 2 } else { 1 };
+        if channel_count > self.channels_in_use {
+            self.channels[1] = Channel::new();
+        }
+        self.channels_in_use = channel_count;
+        // 10 ms: one frame of 2 subframes; 20, 40, 60 ms: 1, 2, 3 frames of 4.
+        let duration_ms = toc.frame_ms();
+        let (frame_count, subframes) = match duration_ms {
+            10 => (1, 2),
+            40 => (2, 4),
+            60 => (3, 4),
+            _ => (1, 4),
+        };
+        for channel in self.channels.iter_mut().take(channel_count) {
+            channel.configure(rate_khz, subframes);
+        }
+
+        let frame_bits = 8 * data.len() as u32;
+        let mut decoder = RangeDecoder::new(data);
+        self.read_header(&mut decoder, channel_count, frame_count);
+        self.skip_lbrr_frames(&mut decoder, channel_count, frame_count);
+
+        for index in 0..frame_count {
+            let mut mid_only = false;
+            if channel_count == 2 {
+                skip_stereo_weights(&mut decoder);
+                mid_only =
+                    !self.channels[1].vad[index] && decoder.decode_icdf(&STEREO_MID_ONLY_ICDF) == 1;
+                if !mid_only && self.previous_mid_only {
+                    self.channels[1].restart();
+                }
+            }
+            let mut mid = None;
+            for n in 0..channel_count {
+                if n == 1 && mid_only {
+                    continue;
+                }
+                let coding = if index == 0 {
+                    Coding::Independent
+                } else if n == 1 && self.previous_mid_only {
+                    Coding::IndependentNoLtpScaling
+                } else {
+                    Coding::Conditional
+                };
+                let channel = &mut self.channels[n];
+                let vad = channel.vad[index];
+                let indices = channel.read_indices(&mut decoder, vad, coding);
+                channel.skip_excitation(&mut decoder, &indices);
+                let parameters = channel.apply(&indices, coding);
+                if n == 0 {
+                    mid = Some((vad, indices, parameters));
+                }
+            }
+            self.previous_mid_only = mid_only;
+
+            let bits_used = decoder.tell();
+            let Some((vad, indices, parameters)) = mid else {
+                continue;
+            };
+            let order = self.channels[0].codebook().order();
+            out.push(Frame::Silk(SilkFrame {
+                opus_frame,
+                index,
+                mode,
+                bandwidth: toc.bandwidth(),
+                internal_rate_hz: rate_khz * 1000,
+                duration_ms: 5 * subframes as u32,
+                stereo: channel_count == 2,
+                vad,
+                signal_type: indices.signal_type,
+                high_quant_offset: indices.high_quant_offset,
+                gain_indices: parameters.gain_indices,
+                subframes,
+                nlsf_stage1: indices.nlsf_stage1,
+                nlsf_residuals: indices.nlsf_residuals,
+                nlsf: Nlsf::new(order, parameters.nlsf_q15),
+                interpolation_q2: parameters.interpolation_q2,
+                first_half: parameters.first_half_q15.map(|q15| Nlsf::new(order, q15)),
+                bits_used,
+                frame_bits,
+                range: decoder.range(),
+            }));
+        }
+        Ok(())
+    }
+
+    /// VAD flags and LBRR flags of every channel (RFC 6716 4.2.3-4.2.4).
+    fn read_header(
+        &mut self,
+        decoder: &mut RangeDecoder<'_>,
+        channel_count: usize,
+        frame_count: usize,
+    ) {
+        let mut lbrr_present = [false; 2];
+        for (channel, present) in self
+            .channels
+            .iter_mut()
+            .zip(&mut lbrr_present)
+            .take(channel_count)
+        {
+            for vad in channel.vad.iter_mut().take(frame_count) {
+                *vad = decoder.decode_bit_logp(1);
+            }
+            *present = decoder.decode_bit_logp(1);
+        }
+        for (channel, present) in self
+            .channels
+            .iter_mut()
+            .zip(lbrr_present)
+            .take(channel_count)
+        {
+            channel.lbrr = [false; 3];
+            if !present {
+                continue;
+            }
+            let flags = match frame_count {
+                1 => 1,
+                2 => decoder.decode_icdf(&LBRR_FLAGS_40MS_ICDF) + 1,
+                _ => decoder.decode_icdf(&LBRR_FLAGS_60MS_ICDF) + 1,
+            };
+            for (i, lbrr) in channel.lbrr.iter_mut().enumerate().take(frame_count) {
+                *lbrr = flags >> i & 1 == 1;
+            }
+        }
+    }
+
+    /// The LBRR (in-band FEC) frames come before the regular ones; the regular decoder reads
+    /// past them. They update only the pitch-coding context, as in the decoder.
+    fn skip_lbrr_frames(
+        &mut self,
+        decoder: &mut RangeDecoder<'_>,
+        channel_count: usize,
+        frame_count: usize,
+    ) {
+        for index in 0..frame_count {
+            for n in 0..channel_count {
+                if !self.channels[n].lbrr[index] {
+                    continue;
+                }
+                if channel_count == 2 && n == 0 {
+                    skip_stereo_weights(decoder);
+                    if !self.channels[1].lbrr[index] {
+                        decoder.decode_icdf(&STEREO_MID_ONLY_ICDF);
+                    }
+                }
+                let channel = &mut self.channels[n];
+                let coding = if index > 0 && channel.lbrr[index - 1] {
+                    Coding::Conditional
+                } else {
+                    Coding::Independent
+                };
+                let indices: Indices = channel.read_indices(decoder, true, coding);
+                channel.skip_excitation(decoder, &indices);
+            }
+        }
+    }
+}
+
+/// The mid/side prediction weights (RFC 6716 4.2.7.1): read past.
+fn skip_stereo_weights(decoder: &mut RangeDecoder<'_>) {
+    decoder.decode_icdf(&STEREO_WEIGHT_JOINT_ICDF);
+    for _ in 0..2 {
+        decoder.decode_icdf(&UNIFORM3_ICDF);
+        decoder.decode_icdf(&UNIFORM5_ICDF);
+    }
+}
