@@ -68,4 +68,43 @@ fn decode_vs_features(c: &mut Criterion) {
 }
 
 criterion_group!(benches, decode_vs_features);
-criterion_main!(benches);
+/// Opus packets of the demo speech at 16 kb/s, from PCM at `rate` (8 kHz input gives
+/// narrowband SILK, 16 kHz wideband SILK).
+fn opus_demo_packets(rate: u32) -> Vec<Vec<u8>> {
+    use lipcall::codec::opus;
+    let path = Path::new(env!("CARGO_MANIFEST_DIR")).join("assets/speech/demo.wav");
+    let audio = wav::read_mono(&path).expect("demo speech");
+    let pcm = wav::to_i16(&wav::resample(&audio, rate).expect("resample"));
+    let config = opus::codec::EncoderConfig {
+        input_rate: rate,
+        ..Default::default()
+    };
+    let bytes = opus::stream::encode(&pcm, config).expect("encode");
+    let file = opus::ogg_file::read(&bytes).expect("read back");
+    file.pages.into_iter().flat_map(|p| p.packets).collect()
+}
+
+/// Opus decode alone, per 20 ms packet at 16 kb/s, decoded to 8 kHz: the baseline for
+/// "Opus decode + NLSF features".
+fn opus_decode_per_frame(c: &mut Criterion) {
+    use lipcall::codec::opus::codec::Decoder as OpusDecoder;
+    let mut group = c.benchmark_group("opus_decode");
+    for (name, rate) in [("nb 16 kb/s", 8000), ("wb 16 kb/s", 16_000)] {
+        let packets = opus_demo_packets(rate);
+        group.throughput(Throughput::Elements(packets.len() as u64));
+        group.bench_function(name, |b| {
+            let mut decoder = OpusDecoder::new().unwrap();
+            let mut out = [0i16; FRAME_SIZE];
+            b.iter(|| {
+                for p in &packets {
+                    decoder.decode_frame(black_box(p), &mut out).unwrap();
+                    black_box(&out);
+                }
+            })
+        });
+    }
+    group.finish();
+}
+
+criterion_group!(opus_benches, opus_decode_per_frame);
+criterion_main!(benches, opus_benches);
