@@ -304,6 +304,31 @@ mod tests {
     }
 
     #[test]
+    fn a_stream_cut_from_a_longer_one_keeps_its_length() {
+        // RFC 7845 4.5: the first page's granule may run ahead of its packets.
+        let pcm = speechy(8000);
+        let bytes = encode(&pcm, EncoderConfig::default()).unwrap();
+        let mut file = ogg_file::read(&bytes).unwrap();
+        for page in &mut file.pages {
+            page.granule = page.granule.map(|g| g + 48_000 * 3600);
+        }
+        assert_eq!(decode_file(file, SAMPLE_RATE).unwrap().pcm.len(), 8000);
+    }
+
+    #[test]
+    fn the_output_gain_is_applied() {
+        let pcm = speechy(8000);
+        let bytes = encode(&pcm, EncoderConfig::default()).unwrap();
+        let plain = decode(&bytes).unwrap();
+        let mut file = ogg_file::read(&bytes).unwrap();
+        file.head.output_gain = -6 * 256;
+        let quieter = decode_file(file, SAMPLE_RATE).unwrap();
+        let energy = |s: &[i16]| s.iter().map(|&x| f64::from(x).powi(2)).sum::<f64>();
+        let ratio_db = 10.0 * (energy(&quieter.pcm) / energy(&plain.pcm)).log10();
+        assert!((ratio_db + 6.0).abs() < 0.1, "{ratio_db:.2} dB");
+    }
+
+    #[test]
     fn multistream_and_bad_granules_are_refused() {
         let pcm = speechy(4000);
         let bytes = encode(&pcm, EncoderConfig::default()).unwrap();
