@@ -1,6 +1,7 @@
 //! Avatars as other tools make them, written by `glb_write::write_meshes` and read back by the
 //! loader: viseme and ARKit targets side by side, several primitives and materials per mesh,
-//! teeth meshes with targets of their own, and teeth skinned to a jaw joint without any.
+//! teeth meshes with targets of their own, teeth skinned to a jaw joint without any, and
+//! single- and double-sided materials.
 
 mod common;
 
@@ -8,7 +9,7 @@ use glam::Vec3;
 use lipcall::render::arkit;
 use lipcall::render::glb_write::{MeshOut, PrimitiveOut, write_meshes};
 use lipcall::render::gltf_load::load_head_from_slice;
-use lipcall::render::head::{Material, MorphDelta, TargetSource};
+use lipcall::render::head::{Material, MorphDelta, TargetSource, Vertex};
 use lipcall::render::offscreen::{FrameOptions, GpuContext, OffscreenRenderer};
 use lipcall::render::{HeadModel, VisemeWeights, viseme_index};
 
@@ -41,7 +42,7 @@ fn material(name: &str, base_color: [f32; 4]) -> Material {
     Material {
         name: name.into(),
         base_color,
-        texture: None,
+        ..Material::default()
     }
 }
 
@@ -272,5 +273,80 @@ fn each_primitive_of_a_mesh_is_drawn_with_its_own_material() {
         (red_left > 200 && blue_right > 200 && red_right < 20 && blue_left < 20)
             || (red_right > 200 && blue_left > 200 && red_left < 20 && blue_right < 20),
         "red {red_left}/{red_right}, blue {blue_left}/{blue_right} (left/right)"
+    );
+}
+
+#[test]
+fn back_faces_are_drawn_only_for_double_sided_materials() {
+    // A card turned away from the camera (its triangles wound the other way), once with a
+    // single-sided material and once double-sided; a card facing the camera beside it shows
+    // that the frame was drawn at all.
+    let away = |p: PrimitiveOut| PrimitiveOut {
+        indices: p
+            .indices
+            .chunks(3)
+            .flat_map(|t| [t[0], t[2], t[1]])
+            .collect(),
+        vertices: p
+            .vertices
+            .iter()
+            .map(|v| Vertex {
+                normal: [0.0, 0.0, -1.0],
+                ..*v
+            })
+            .collect(),
+        ..p
+    };
+    let ctx = match GpuContext::new_headless() {
+        Ok(ctx) => ctx,
+        Err(e) => {
+            println!("SKIPPED: no GPU adapter for the head renderer: {e}");
+            return;
+        }
+    };
+    let red_pixels = |double_sided: bool| {
+        let face = mesh(
+            "face",
+            vec![
+                grid([-0.1, 0.0, -0.1, 0.1], 0.0, 5, 0),
+                away(grid([0.0, 0.1, -0.1, 0.1], 0.0, 5, 1)),
+            ],
+            &[("jawOpen", &|p| lower_half(p, Vec3::new(0.0, -0.01, 0.0)))],
+        );
+        let materials = [
+            material("blue", [0.05, 0.05, 0.8, 1.0]),
+            Material {
+                double_sided,
+                ..material("red", [0.8, 0.05, 0.05, 1.0])
+            },
+        ];
+        let head = load_head_from_slice(&write_meshes(&[face], &materials)).unwrap();
+        assert_eq!(head.materials[1].double_sided, double_sided);
+        let options = FrameOptions {
+            width: 64,
+            height: 64,
+            ..Default::default()
+        };
+        let mut offscreen = OffscreenRenderer::new(&ctx, &head, options).unwrap();
+        let img = offscreen.render(&ctx, &VisemeWeights::neutral()).unwrap();
+        let count = |red: bool| {
+            img.pixels()
+                .filter(|p| {
+                    let (r, b) = (p[0] as i32, p[2] as i32);
+                    if red { r > b + 60 } else { b > r + 60 }
+                })
+                .count()
+        };
+        assert!(count(false) > 200, "the facing card is drawn");
+        count(true)
+    };
+    assert_eq!(
+        red_pixels(false),
+        0,
+        "a single-sided card seen from behind is culled"
+    );
+    assert!(
+        red_pixels(true) > 200,
+        "a double-sided card is drawn from behind"
     );
 }

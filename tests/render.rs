@@ -731,7 +731,7 @@ fn living_test_head() -> HeadModel {
     let material = |name: &str, base_color: [f32; 4]| Material {
         name: name.into(),
         base_color,
-        texture: None,
+        ..Material::default()
     };
     let model = HeadModel {
         primitives,

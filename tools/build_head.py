@@ -633,7 +633,9 @@ class Head:
                     phi = 2 * math.pi * s / seg
                     dirs.append(np.array([math.sin(a) * math.cos(phi), math.sin(a) * math.sin(phi), math.cos(a)]))
                     cols.append(srgb_to_linear(col))
-            faces = [[0, 1 + s, 1 + (s + 1) % seg] for s in range(seg)] + ring_grid(len(rings), seg, 1)
+            # Rings grow away from the pole, so the ring quads are reversed to face outwards.
+            rim = [quad[::-1] for quad in ring_grid(len(rings), seg, 1)]
+            faces = [[0, 1 + s, 1 + (s + 1) % seg] for s in range(seg)] + rim
             part = Part(f"eye{side}", centre + radius * np.array(dirs), triangulate(faces), np.array(cols))
             # Rings at the same angle are one surface: they share normals.
             for k in range(1, len(rings)):
@@ -1061,7 +1063,9 @@ def write_glb(path, parts, targets):
         # COLOR_0 is linear; 16 bits keep the dark colours of the mouth apart.
         col = np.clip(np.round(part.colors * 65535), 0, 65535).astype(np.uint16)
         col = np.hstack([col, np.full((len(col), 1), 65535, np.uint16)])
-        materials.append({"name": part.name, "pbrMetallicRoughness": {
+        # Every part is a closed, outward-wound surface but the lashes, thin cards seen from
+        # either side; the renderer culls the back faces of the rest.
+        materials.append({"name": part.name, "doubleSided": part.name == "lashes", "pbrMetallicRoughness": {
             "baseColorFactor": [1.0, 1.0, 1.0, 1.0], "metallicFactor": 0.0,
             "roughnessFactor": 0.35 if part.name.startswith("eye") else 0.7}})
         primitive = {

@@ -1,7 +1,8 @@
 //! Head tiles: each peer's head is rendered into its own texture at the size the tile is shown,
 //! only when what it shows changed (weights, framing, size), and egui draws that texture like any
-//! image. The head pass is thus independent of egui's: multisampled on GPUs, sRGB-correct
-//! whatever format the window has, and free when a face is still.
+//! image (sampled nearest: the texture has the tile's pixels, so filtering would only cost). The
+//! head pass is thus independent of egui's: multisampled on GPUs, sRGB-correct whatever format
+//! the window has, and free when a face is still.
 
 use std::collections::HashMap;
 use std::sync::Arc;
@@ -125,7 +126,7 @@ impl HeadTiles {
             let texture = state.renderer.write().register_native_texture(
                 &state.device,
                 &target.unorm_view(),
-                wgpu::FilterMode::Linear,
+                wgpu::FilterMode::Nearest,
             );
             Tile {
                 instance: renderer.new_instance(
@@ -148,7 +149,7 @@ impl HeadTiles {
                 .update_egui_texture_from_wgpu_texture(
                     &state.device,
                     &entry.target.unorm_view(),
-                    wgpu::FilterMode::Linear,
+                    wgpu::FilterMode::Nearest,
                     entry.texture,
                 );
             entry.shown = None;

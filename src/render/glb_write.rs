@@ -262,7 +262,7 @@ pub fn write_meshes(meshes: &[MeshOut], materials: &[Material]) -> Vec<u8> {
     let materials: Vec<Value> = materials
         .iter()
         .map(|m| {
-            json!({"name": m.name, "pbrMetallicRoughness": {
+            json!({"name": m.name, "doubleSided": m.double_sided, "pbrMetallicRoughness": {
                 "baseColorFactor": m.base_color.to_vec(), "metallicFactor": 0.0, "roughnessFactor": 0.7}})
         })
         .collect();

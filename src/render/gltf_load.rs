@@ -597,6 +597,7 @@ fn load_material(
             }
         }),
         texture,
+        double_sided: m.double_sided(),
     }
 }
 

@@ -278,6 +278,8 @@ pub struct Material {
     pub name: String,
     pub base_color: [f32; 4],
     pub texture: Option<Texture>,
+    /// Both faces drawn (glTF `doubleSided`); otherwise back faces (clockwise on screen) are culled.
+    pub double_sided: bool,
 }
 
 impl Default for Material {
@@ -286,6 +288,7 @@ impl Default for Material {
             name: "default".into(),
             base_color: [1.0; 4],
             texture: None,
+            double_sided: false,
         }
     }
 }

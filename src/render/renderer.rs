@@ -1,4 +1,4 @@
-//! The wgpu head renderer: one pipeline, heads uploaded once, weights and pose written per frame.
+//! The wgpu head renderer: one pipeline per sidedness, heads uploaded once, weights and pose written per frame.
 
 use std::sync::Arc;
 
@@ -68,7 +68,10 @@ struct MaterialUniform {
 
 /// Pipeline, layouts and sampler shared by every head drawn into one kind of target.
 pub struct HeadRenderer {
-    pipeline: wgpu::RenderPipeline,
+    /// Back faces culled, as glTF draws materials that are not `doubleSided`: half the
+    /// triangles never reach the rasteriser, which a software adapter feels.
+    one_sided: wgpu::RenderPipeline,
+    two_sided: wgpu::RenderPipeline,
     shader: wgpu::ShaderModule,
     head_layout: wgpu::BindGroupLayout,
     material_layout: wgpu::BindGroupLayout,
@@ -86,6 +89,7 @@ struct DrawRange {
 
 struct GpuMaterial {
     bind_group: wgpu::BindGroup,
+    double_sided: bool,
     _uniform: wgpu::Buffer,
     _texture: Option<wgpu::Texture>,
 }
@@ -257,49 +261,52 @@ impl HeadRenderer {
         let attributes = wgpu::vertex_attr_array![
             0 => Float32x3, 1 => Float32x3, 2 => Float32x2, 3 => Float32x4
         ];
-        let pipeline = device.create_render_pipeline(&wgpu::RenderPipelineDescriptor {
-            label: Some("lipcall head pipeline"),
-            layout: Some(&layout),
-            vertex: wgpu::VertexState {
-                module: &shader,
-                entry_point: Some("vs_main"),
-                compilation_options: Default::default(),
-                buffers: &[Some(wgpu::VertexBufferLayout {
-                    array_stride: std::mem::size_of::<Vertex>() as u64,
-                    step_mode: wgpu::VertexStepMode::Vertex,
-                    attributes: &attributes,
-                })],
-            },
-            primitive: wgpu::PrimitiveState {
-                topology: wgpu::PrimitiveTopology::TriangleList,
-                // Avatars are often double-sided and the mouth is seen from inside.
-                cull_mode: None,
-                ..Default::default()
-            },
-            depth_stencil: depth_format.map(|format| wgpu::DepthStencilState {
-                format,
-                depth_write_enabled: Some(true),
-                depth_compare: Some(wgpu::CompareFunction::Less),
-                stencil: Default::default(),
-                bias: Default::default(),
-            }),
-            multisample: wgpu::MultisampleState {
-                count: samples.max(1),
-                ..Default::default()
-            },
-            fragment: Some(wgpu::FragmentState {
-                module: &shader,
-                entry_point: Some("fs_main"),
-                compilation_options: Default::default(),
-                targets: &[Some(wgpu::ColorTargetState {
-                    format: color_format,
-                    blend: None,
-                    write_mask: wgpu::ColorWrites::ALL,
-                })],
-            }),
-            multiview_mask: None,
-            cache: None,
-        });
+        let pipeline = |label, cull_mode| {
+            device.create_render_pipeline(&wgpu::RenderPipelineDescriptor {
+                label: Some(label),
+                layout: Some(&layout),
+                vertex: wgpu::VertexState {
+                    module: &shader,
+                    entry_point: Some("vs_main"),
+                    compilation_options: Default::default(),
+                    buffers: &[Some(wgpu::VertexBufferLayout {
+                        array_stride: std::mem::size_of::<Vertex>() as u64,
+                        step_mode: wgpu::VertexStepMode::Vertex,
+                        attributes: &attributes,
+                    })],
+                },
+                primitive: wgpu::PrimitiveState {
+                    topology: wgpu::PrimitiveTopology::TriangleList,
+                    cull_mode,
+                    ..Default::default()
+                },
+                depth_stencil: depth_format.map(|format| wgpu::DepthStencilState {
+                    format,
+                    depth_write_enabled: Some(true),
+                    depth_compare: Some(wgpu::CompareFunction::Less),
+                    stencil: Default::default(),
+                    bias: Default::default(),
+                }),
+                multisample: wgpu::MultisampleState {
+                    count: samples.max(1),
+                    ..Default::default()
+                },
+                fragment: Some(wgpu::FragmentState {
+                    module: &shader,
+                    entry_point: Some("fs_main"),
+                    compilation_options: Default::default(),
+                    targets: &[Some(wgpu::ColorTargetState {
+                        format: color_format,
+                        blend: None,
+                        write_mask: wgpu::ColorWrites::ALL,
+                    })],
+                }),
+                multiview_mask: None,
+                cache: None,
+            })
+        };
+        let one_sided = pipeline("lipcall head pipeline", Some(wgpu::Face::Back));
+        let two_sided = pipeline("lipcall double-sided head pipeline", None);
         let sampler = device.create_sampler(&wgpu::SamplerDescriptor {
             label: Some("lipcall head base colour sampler"),
             address_mode_u: wgpu::AddressMode::Repeat,
@@ -309,7 +316,8 @@ impl HeadRenderer {
             ..Default::default()
         });
         Self {
-            pipeline,
+            one_sided,
+            two_sided,
             shader,
             head_layout,
             material_layout,
@@ -513,6 +521,7 @@ impl HeadRenderer {
         });
         GpuMaterial {
             bind_group,
+            double_sided: material.double_sided,
             _uniform: uniform,
             _texture: Some(texture),
         }
@@ -608,12 +617,20 @@ impl HeadRenderer {
     /// Records the head's draws into `pass` (whose viewport the caller has set).
     pub fn paint(&self, pass: &mut wgpu::RenderPass<'_>, instance: &HeadInstance) {
         let head = &instance.head;
-        pass.set_pipeline(&self.pipeline);
         pass.set_bind_group(0, &instance.bind_group, &[]);
         pass.set_vertex_buffer(0, head.vertex_buffer.slice(..));
         pass.set_index_buffer(head.index_buffer.slice(..), wgpu::IndexFormat::Uint32);
+        let mut sidedness = None;
         for draw in &head.draws {
             if let Some(material) = head.materials.get(draw.material) {
+                if sidedness != Some(material.double_sided) {
+                    sidedness = Some(material.double_sided);
+                    pass.set_pipeline(if material.double_sided {
+                        &self.two_sided
+                    } else {
+                        &self.one_sided
+                    });
+                }
                 pass.set_bind_group(1, &material.bind_group, &[]);
                 pass.draw_indexed(draw.indices.clone(), 0, 0..1);
             }
