@@ -421,3 +421,137 @@ fn skip_stereo_weights(decoder: &mut RangeDecoder<'_>) {
         decoder.decode_icdf(&UNIFORM5_ICDF);
     }
 }
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// A TOC byte: configuration, stereo flag, packing code.
+    fn toc(config: u8, stereo: bool, code: u8) -> u8 {
+        config << 3 | u8::from(stereo) << 2 | code
+    }
+
+    fn silk_frames(frames: &[Frame]) -> Vec<SilkFrame> {
+        frames.iter().filter_map(|f| f.silk().copied()).collect()
+    }
+
+    #[test]
+    fn celt_frames_carry_no_nlsfs_and_tiny_frames_are_concealed() {
+        let mut walker = SilkWalker::new();
+        let mut celt = vec![toc(31, false, 0)];
+        celt.extend([0x55; 40]);
+        let frames = walker.walk_packet(&celt).unwrap();
+        assert_eq!(
+            frames,
+            [Frame::Celt {
+                opus_frame: 0,
+                duration_48k: 960
+            }]
+        );
+        assert_eq!(frames[0].nlsf(), None);
+        // Code 1: two frames of one byte each, which the decoder conceals.
+        let frames = walker.walk_packet(&[toc(9, false, 1), 7, 7]).unwrap();
+        assert_eq!(frames.len(), 2);
+        assert!(frames.iter().all(|f| matches!(
+            f,
+            Frame::Concealed {
+                duration_48k: 960,
+                ..
+            }
+        )));
+        assert_eq!(frames[1].opus_frame(), 1);
+    }
+
+    #[test]
+    fn silk_frames_per_duration_bandwidth_and_mode() {
+        let payload = [0x3Cu8; 30];
+        // (config, mode, internal rate, SILK frames, their duration, order)
+        let cases = [
+            (1, Mode::Silk, 8000, 1, 20, 10),
+            (4, Mode::Silk, 12000, 1, 10, 10),
+            (9, Mode::Silk, 16000, 1, 20, 16),
+            (10, Mode::Silk, 16000, 2, 20, 16),
+            (3, Mode::Silk, 8000, 3, 20, 10),
+            (12, Mode::Hybrid, 16000, 1, 10, 16),
+            (15, Mode::Hybrid, 16000, 1, 20, 16),
+        ];
+        for (config, mode, rate, count, duration, order) in cases {
+            let mut packet = vec![toc(config, false, 0)];
+            packet.extend(payload);
+            let frames = SilkWalker::new().walk_packet(&packet).unwrap();
+            let silk = silk_frames(&frames);
+            assert_eq!(silk.len(), count, "config {config}");
+            for (i, frame) in silk.iter().enumerate() {
+                assert_eq!(frame.index, i);
+                assert_eq!(frame.mode, mode);
+                assert_eq!(frame.internal_rate_hz, rate);
+                assert_eq!(frame.duration_ms, duration);
+                assert_eq!(frame.nlsf.order(), order);
+                assert_eq!(frame.nlsf.radians().len(), order);
+                assert!(frame.nlsf.q15().windows(2).all(|w| w[0] < w[1]));
+            }
+        }
+    }
+
+    #[test]
+    fn interpolation_needs_a_previous_frame_of_the_same_decoder() {
+        let mut packet = vec![toc(9, false, 0)];
+        packet.extend([0u8; 40]);
+        let mut walker = SilkWalker::new();
+        // Zero bytes decode as the first symbol everywhere: interpolation weight 0.
+        let first = silk_frames(&walker.walk_packet(&packet).unwrap())[0];
+        assert_eq!((first.interpolation_q2, first.first_half), (4, None));
+        let second = silk_frames(&walker.walk_packet(&packet).unwrap())[0];
+        assert_eq!(second.interpolation_q2, 0);
+        assert_eq!(second.first_half, Some(first.nlsf));
+        // A lost packet keeps the NLSFs for interpolation.
+        walker.packet_lost();
+        let after_loss = silk_frames(&walker.walk_packet(&packet).unwrap())[0];
+        assert_eq!(after_loss.interpolation_q2, 0);
+        // A CELT frame resets the SILK decoder, and so does a new internal rate.
+        let mut celt = vec![toc(31, false, 0)];
+        celt.extend([0x55; 40]);
+        walker.walk_packet(&celt).unwrap();
+        let after_celt = silk_frames(&walker.walk_packet(&packet).unwrap())[0];
+        assert_eq!(after_celt.interpolation_q2, 4);
+        let mut narrow = packet.clone();
+        narrow[0] = toc(1, false, 0);
+        let after_switch = silk_frames(&walker.walk_packet(&narrow).unwrap())[0];
+        assert_eq!(after_switch.interpolation_q2, 4);
+        walker.reset();
+        let after_reset = silk_frames(&walker.walk_packet(&packet).unwrap())[0];
+        assert_eq!(after_reset, first);
+    }
+
+    #[test]
+    fn code_3_packets_and_stereo() {
+        // Three CBR frames of SILK NB 20 ms, stereo.
+        let mut packet = vec![toc(1, true, 3), 3];
+        packet.extend([0x81u8; 45]);
+        let frames = SilkWalker::new().walk_packet(&packet).unwrap();
+        let silk = silk_frames(&frames);
+        assert_eq!(silk.len(), 3);
+        assert_eq!(
+            silk.iter().map(|f| f.opus_frame).collect::<Vec<_>>(),
+            [0, 1, 2]
+        );
+        assert!(silk.iter().all(|f| f.stereo && f.frame_bits == 15 * 8));
+    }
+
+    #[test]
+    fn invalid_framing_is_an_error() {
+        let mut walker = SilkWalker::new();
+        assert_eq!(
+            walker.walk_packet(&[]),
+            Err(SilkError::Packet(PacketError::Empty))
+        );
+        assert!(walker.walk_packet(&[toc(9, false, 1), 1, 2, 3]).is_err());
+        let mut out = Vec::new();
+        assert!(
+            walker
+                .walk_packet_into(&[toc(9, false, 3), 0], &mut out)
+                .is_err()
+        );
+        assert!(out.is_empty());
+    }
+}
