@@ -1,10 +1,12 @@
-//! Decode alone against decode + LSP/energy features, per 20 ms frame (goal: ratio <= 1.05).
+//! Decode alone against decode + LSP/energy features, per 20 ms frame (goal: ratio <= 1.05),
+//! and the LPC analysis that gives codecs without LSPs their features (goal: < 10 us a frame).
 
 use std::hint::black_box;
 use std::path::Path;
 
 use criterion::{Criterion, Throughput, criterion_group, criterion_main};
 use lipcall::audio::wav;
+use lipcall::codec::lpc::LpcAnalyser;
 use lipcall::codec::speex::codec::{Decoder, EncoderConfig};
 use lipcall::codec::speex::features::FrameTracker;
 use lipcall::codec::speex::{FRAME_SIZE, ogg_file, stream};
@@ -67,7 +69,25 @@ fn decode_vs_features(c: &mut Criterion) {
     group.finish();
 }
 
-criterion_group!(benches, decode_vs_features);
+/// LPC analysis of one decoded 20 ms frame (the features of codecs without LSPs; goal < 10 us).
+fn lpc_analysis_per_frame(c: &mut Criterion) {
+    let path = Path::new(env!("CARGO_MANIFEST_DIR")).join("assets/speech/demo.wav");
+    let pcm = wav::read_narrowband(&path).expect("demo speech");
+    let frames: Vec<[i16; FRAME_SIZE]> = pcm
+        .chunks_exact(FRAME_SIZE)
+        .map(|f| f.try_into().unwrap())
+        .collect();
+    let mut group = c.benchmark_group("lpc");
+    group.throughput(Throughput::Elements(1));
+    group.bench_function("lpc_analysis_per_frame", |b| {
+        let mut analyser = LpcAnalyser::new();
+        let mut next = frames.iter().cycle();
+        b.iter(|| black_box(analyser.analyse(black_box(next.next().unwrap()))))
+    });
+    group.finish();
+}
+
+criterion_group!(benches, decode_vs_features, lpc_analysis_per_frame);
 /// Opus packets of the demo speech at 16 kb/s, from PCM at `rate` (8 kHz input gives
 /// narrowband SILK, 16 kHz wideband SILK).
 fn opus_demo_packets(rate: u32) -> Vec<Vec<u8>> {

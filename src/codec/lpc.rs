@@ -47,9 +47,12 @@ const LEVINSON_BIAS: f64 = 0.003;
 /// The input high-pass of the Speex narrowband encoder (a biquad with its zeros at DC).
 const HIGHPASS_B: [f32; 3] = [0.95654, -1.91309, 0.95654];
 const HIGHPASS_A: [f32; 2] = [-1.91120, 0.91498];
-/// Grid steps over (0, pi) for the sign-change search; one step is 24.5 mrad (31 Hz).
-const GRID: usize = 128;
-const BISECTIONS: usize = 12;
+/// Grid steps over (0, pi) for the sign-change search: the fine grid's step is 12 mrad (16 Hz),
+/// the coarse grid's (every fourth point) 49 mrad.
+const GRID: usize = 256;
+const COARSE: usize = 4;
+/// Bisections narrow a coarse step to 0.4 mrad; the secant step then lands within 1e-6 rad.
+const BISECTIONS: usize = 7;
 
 struct Tables {
     window: [f32; WINDOW_SIZE],
@@ -166,19 +169,15 @@ fn lsp_of_window(signal: &[f32; WINDOW_SIZE]) -> Option<[f64; ORDER]> {
 
 /// A dot product in eight independent lanes, so that it vectorises.
 fn dot(a: &[f32], b: &[f32]) -> f32 {
+    let (a8, a_tail) = a.as_chunks::<8>();
+    let (b8, b_tail) = b.as_chunks::<8>();
     let mut lanes = [0.0f32; 8];
-    let (a8, b8) = (a.chunks_exact(8), b.chunks_exact(8));
-    let tail: f32 = a8
-        .remainder()
-        .iter()
-        .zip(b8.remainder())
-        .map(|(x, y)| x * y)
-        .sum();
-    for (x, y) in a8.zip(b8) {
+    for (x, y) in a8.iter().zip(b8) {
         for i in 0..8 {
             lanes[i] += x[i] * y[i];
         }
     }
+    let tail: f32 = a_tail.iter().zip(b_tail).map(|(x, y)| x * y).sum();
     lanes.iter().sum::<f32>() + tail
 }
 
@@ -211,73 +210,79 @@ pub fn levinson(r: &[f64; ORDER + 1]) -> Option<[f64; ORDER + 1]> {
 }
 
 /// The sum and difference polynomials of A(z), with their trivial roots at z = -1 and z = 1
-/// divided out, as Chebyshev series in x = cos(w): `[c0, c1, .., c5]` for sum c_n T_n(x).
-fn chebyshev_pair(a: &[f64; ORDER + 1]) -> ([f64; 6], [f64; 6]) {
+/// divided out, as polynomials in x = cos(w): `[m0, .., m5]` for sum m_n x^n.
+fn polynomial_pair(a: &[f64; ORDER + 1]) -> ([f64; 6], [f64; 6]) {
     let half = ORDER / 2;
     let coefficient = |k: usize| if k <= ORDER { a[k] } else { 0.0 };
     let mut p = [0.0; 6];
     let mut q = [0.0; 6];
+    // Dividing by (1 + z^-1) and (1 - z^-1): running alternating and plain sums.
     let (mut p_prev, mut q_prev) = (0.0, 0.0);
     for k in 0..=half {
         p_prev = coefficient(k) + coefficient(ORDER + 1 - k) - p_prev;
-        q_prev = coefficient(k) - coefficient(ORDER + 1 - k) + q_prev;
+        q_prev += coefficient(k) - coefficient(ORDER + 1 - k);
         p[k] = p_prev;
         q[k] = q_prev;
     }
-    // e^{j5w} P'(e^{jw}) = p5 + 2 sum_{k<5} p_k cos((5-k) w): T_n's coefficient is 2 p_{5-n}.
-    let series = |c: [f64; 6]| -> [f64; 6] {
-        std::array::from_fn(|n| if n == 0 { c[half] } else { 2.0 * c[half - n] })
+    // e^{j5w} P'(e^{jw}) = p5 + 2 sum_{k<5} p_k cos((5-k) w): a Chebyshev series whose T_n
+    // coefficient is 2 p_{5-n}, rewritten with T2 = 2x^2 - 1, T3 = 4x^3 - 3x, T4 = 8x^4 - 8x^2 + 1,
+    // T5 = 16x^5 - 20x^3 + 5x, so that the grid is evaluated by Horner's rule.
+    let monomial = |c: [f64; 6]| -> [f64; 6] {
+        let t: [f64; 6] = std::array::from_fn(|n| if n == 0 { c[half] } else { 2.0 * c[half - n] });
+        [
+            t[0] - t[2] + t[4],
+            t[1] - 3.0 * t[3] + 5.0 * t[5],
+            2.0 * t[2] - 8.0 * t[4],
+            4.0 * t[3] - 20.0 * t[5],
+            8.0 * t[4],
+            16.0 * t[5],
+        ]
     };
-    (series(p), series(q))
+    (monomial(p), monomial(q))
 }
 
-/// Clenshaw's evaluation of sum c_n T_n(x).
-fn chebyshev(c: &[f64; 6], x: f64) -> f64 {
-    let (mut b1, mut b2) = (0.0, 0.0);
-    for &cn in c[1..].iter().rev() {
-        let b0 = 2.0 * x * b1 - b2 + cn;
-        b2 = b1;
-        b1 = b0;
-    }
-    x * b1 - b2 + c[0]
+fn horner(m: &[f64; 6], x: f64) -> f64 {
+    ((((m[5] * x + m[4]) * x + m[3]) * x + m[2]) * x + m[1]) * x + m[0]
 }
 
 /// The 10 LSPs of a minimum-phase predictor, in radians, increasing; `None` when the grid
 /// search does not find five interlaced roots of each polynomial.
 pub fn lsp_from_lpc(a: &[f64; ORDER + 1]) -> Option<[f64; ORDER]> {
-    let (p, q) = chebyshev_pair(a);
+    let (p, q) = polynomial_pair(a);
+    // Roots of one polynomial lie at least two LSP gaps apart, so a coarse grid almost always
+    // sees every sign change; the fine grid is there for the rare frame where it does not.
+    search_roots(&p, &q, COARSE).or_else(|| search_roots(&p, &q, 1))
+}
+
+fn search_roots(p: &[f64; 6], q: &[f64; 6], stride: usize) -> Option<[f64; ORDER]> {
     let grid = &TABLES.grid;
     let mut roots = [0.0f64; ORDER];
-    for (parity, poly) in [(0, &p), (1, &q)] {
-        let mut found = 0;
-        let mut x_left = grid[0];
-        let mut f_left = chebyshev(poly, x_left);
-        for &x_right in &grid[1..] {
-            let f_right = chebyshev(poly, x_right);
-            if (f_left < 0.0) != (f_right < 0.0) {
-                if found == ORDER / 2 {
-                    return None;
-                }
-                roots[2 * found + parity] = bisect(poly, x_left, f_left, x_right).acos();
-                found += 1;
+    let mut found = [0usize; 2];
+    let mut x_left = grid[0];
+    let mut left = [horner(p, x_left), horner(q, x_left)];
+    for &x_right in grid.iter().skip(stride).step_by(stride) {
+        let right = [horner(p, x_right), horner(q, x_right)];
+        for (parity, poly) in [(0, p), (1, q)] {
+            if (left[parity] < 0.0) != (right[parity] < 0.0) {
+                let slot = 2 * found[parity] + parity;
+                let root = roots.get_mut(slot)?;
+                *root = bisect(poly, x_left, left[parity], x_right, right[parity]).acos();
+                found[parity] += 1;
             }
-            x_left = x_right;
-            f_left = f_right;
         }
-        if found != ORDER / 2 {
-            return None;
-        }
+        x_left = x_right;
+        left = right;
     }
     let interlaced = roots.windows(2).all(|w| w[0] < w[1]);
-    (interlaced && roots[0] > 0.0 && roots[ORDER - 1] < PI).then_some(roots)
+    (found == [ORDER / 2; 2] && interlaced && roots[0] > 0.0 && roots[ORDER - 1] < PI)
+        .then_some(roots)
 }
 
 /// A root between `lo` and `hi` (a sign change), by bisection and a final secant step.
-fn bisect(poly: &[f64; 6], mut lo: f64, mut f_lo: f64, mut hi: f64) -> f64 {
-    let mut f_hi = chebyshev(poly, hi);
+fn bisect(poly: &[f64; 6], mut lo: f64, mut f_lo: f64, mut hi: f64, mut f_hi: f64) -> f64 {
     for _ in 0..BISECTIONS {
         let mid = 0.5 * (lo + hi);
-        let f_mid = chebyshev(poly, mid);
+        let f_mid = horner(poly, mid);
         if (f_mid < 0.0) == (f_lo < 0.0) {
             lo = mid;
             f_lo = f_mid;

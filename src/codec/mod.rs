@@ -3,6 +3,7 @@
 //! carries them and from an LPC analysis of the decoded audio where it does not.
 
 pub mod g711;
+pub mod g722;
 pub mod lpc;
 pub mod opus;
 pub mod silk;
