@@ -1,10 +1,12 @@
 //! The LPC analysis (features for codecs without LSPs in their bitstream) against the LSPs the
-//! Speex encoder quantised, on TIMIT speakers of dialect regions 1-4 (5 and 6 are held out).
+//! Speex encoder quantised, on TIMIT speakers of dialect regions 1-4 (5 and 6 are held out):
+//! of Speex-decoded audio, of the encoder's own input, of mu-law and of G.722's lower band.
 
 mod common;
 
 use common::*;
 use lipcall::codec::FRAME_SIZE;
+use lipcall::codec::g722::{LowBandDecoder, WIDEBAND_FRAME, WidebandEncoder};
 use lipcall::codec::lpc::LpcAnalyser;
 use lipcall::codec::speex::codec::EncoderConfig;
 use lipcall::codec::speex::features::FrameFeatures;
@@ -32,6 +34,20 @@ fn analyse_all(pcm: &[i16]) -> Vec<[f32; 10]> {
             let mut frame = [0i16; FRAME_SIZE];
             frame[..chunk.len()].copy_from_slice(chunk);
             analyser.analyse(&frame).lsp
+        })
+        .collect()
+}
+
+/// The 16 kHz input through G.722 at 64 kbit/s, decoded to its 8 kHz lower band.
+fn g722_low_band(wideband: &[i16]) -> Vec<i16> {
+    let mut encoder = WidebandEncoder::new();
+    let mut decoder = LowBandDecoder::new();
+    wideband
+        .chunks(WIDEBAND_FRAME)
+        .flat_map(|chunk| {
+            let mut frame = [0i16; WIDEBAND_FRAME];
+            frame[..chunk.len()].copy_from_slice(chunk);
+            decoder.decode_frame(&encoder.encode_frame(&frame))
         })
         .collect()
 }
@@ -109,6 +125,7 @@ fn analysed_lsps_match_the_speex_bitstream_on_timit() {
     let mut control = Score::default();
     let mut scratch = Score::default();
     let mut g711 = Score::default();
+    let mut g722 = Score::default();
     let mut sub_frame: [Score; 2] = Default::default();
     for speaker in SPEAKERS {
         for utterance in utterances(speaker) {
@@ -173,6 +190,16 @@ fn analysed_lsps_match_the_speex_bitstream_on_timit() {
                 &mut g711,
                 &mut scratch,
             );
+            let (rate, wideband) =
+                read_wav_i16(&timit_dir().join(speaker).join(format!("{utterance}.wav")));
+            assert_eq!(rate, 16000);
+            compare(
+                &analyse_all(&g722_low_band(&wideband)),
+                &round.features,
+                0,
+                &mut g722,
+                &mut scratch,
+            );
         }
     }
     let [previous, same, next] = decoded.each_ref().map(Score::mean);
@@ -181,7 +208,7 @@ fn analysed_lsps_match_the_speex_bitstream_on_timit() {
         "{rows} speech rows (of {} rows), mean |analysed - walker| per LSP in rad: \
          decoded audio {same:.4} (median {:.4}; previous row {previous:.4}, next row {next:.4}; \
          all rows {:.4}; 40 samples earlier {:.4}, later {:.4}), encoder input {:.4} \
-         (median {:.4}), mu-law input {:.4}, control 25 rows away {:.4}",
+         (median {:.4}), mu-law input {:.4}, G.722 lower band {:.4}, control 25 rows away {:.4}",
         decoded_all.all.len(),
         decoded[1].median(),
         decoded_all.mean(),
@@ -190,6 +217,7 @@ fn analysed_lsps_match_the_speex_bitstream_on_timit() {
         input.mean(),
         input.median(),
         g711.mean(),
+        g722.mean(),
         control.mean(),
     );
     assert!(rows > 3000, "only {rows} speech rows");
@@ -202,9 +230,10 @@ fn analysed_lsps_match_the_speex_bitstream_on_timit() {
     // Measured: 0.022 on decoded audio, 0.017 on the encoder's input (about the quantiser's own
     // error) and on mu-law companded input.
     assert!(same < 0.03, "decoded audio: {same:.4} rad");
-    let (input, g711) = (input.mean(), g711.mean());
+    let (input, g711, g722) = (input.mean(), g711.mean(), g722.mean());
     assert!(input < 0.025, "encoder input: {input:.4} rad");
     assert!(g711 < 0.025, "mu-law input: {g711:.4} rad");
+    assert!(g722 < 0.03, "G.722 lower band: {g722:.4} rad");
 }
 
 fn assert_valid(lsp: &[f32; 10]) {
