@@ -117,7 +117,7 @@ fn receive_path(c: &mut Criterion) {
                         })
                         .collect();
                     let epoch = Instant::now();
-                    let rx = PeerReceiver::new(JitterConfig::default(), epoch, true).unwrap();
+                    let rx = PeerReceiver::new(JitterConfig::default(), epoch, true);
                     (wire, rx, Srtp::new(&key), epoch)
                 },
                 |(wire, mut rx, mut srtp, epoch)| {

@@ -2,6 +2,7 @@ use std::path::PathBuf;
 use std::process::ExitCode;
 
 use clap::{Parser, Subcommand};
+use lipcall::codec::any::Codec;
 use lipcall::codec::opus::codec::EncoderConfig as OpusConfig;
 use lipcall::codec::speex::codec::EncoderConfig;
 use lipcall::commands;
@@ -134,9 +135,10 @@ enum Command {
         #[arg(long)]
         input: Option<String>,
     },
-    /// Send a WAV or Ogg Speex file as RTP/Speex over UDP, paced in real time.
+    /// Send a WAV, Ogg Speex or Ogg Opus file as RTP over UDP, paced in real time.
     Send {
-        /// Audio to send: .wav (any rate, encoded here) or .spx (sent as it is).
+        /// Audio to send: .wav (any rate, encoded here), or .spx or .opus (sent as they are,
+        /// unless --codec asks for another codec).
         input: PathBuf,
         /// Receiver (or relay, with --room) as HOST:PORT.
         #[arg(long, value_name = "HOST:PORT")]
@@ -149,9 +151,15 @@ enum Command {
         /// Join this room on the relay given by --to.
         #[arg(long)]
         room: Option<String>,
+        /// The codec sent: speex, opus, pcmu or pcma (default: a coded file's own; Speex for
+        /// a WAV). Opus goes at 20 kb/s with in-band FEC.
+        #[arg(long, value_parser = parse_codec)]
+        codec: Option<Codec>,
         /// Speex quality for .wav input, 0 to 10.
         #[arg(long, default_value_t = 8, value_parser = clap::value_parser!(u8).range(0..=10))]
         quality: u8,
+        #[command(flatten)]
+        payloads: PayloadOpts,
         /// Send no RTCP (for receivers that take RTP only, such as a bare GStreamer udpsrc).
         #[arg(long)]
         no_rtcp: bool,
@@ -186,6 +194,8 @@ enum Command {
         /// Display name sent to peers.
         #[arg(long)]
         name: Option<String>,
+        #[command(flatten)]
+        payloads: PayloadOpts,
     },
     /// Run a relay: forwards each room member's packets to the others, without decoding them.
     Relay {
@@ -246,6 +256,26 @@ impl From<KeyOpts> for KeyArgs {
             hex: k.key_hex,
         }
     }
+}
+
+#[derive(clap::Args)]
+struct PayloadOpts {
+    /// Carry a codec on another RTP payload type, e.g. opus=111 (repeatable). Without SDP the
+    /// defaults are GStreamer's: speex=110, opus=96; pcmu=0 and pcma=8 are static.
+    #[arg(long = "pt", value_name = "CODEC=PT", value_parser = parse_payload_type)]
+    assignments: Vec<String>,
+}
+
+fn parse_codec(s: &str) -> Result<Codec, String> {
+    s.parse()
+        .map_err(|e: lipcall::codec::any::PayloadMapError| e.to_string())
+}
+
+fn parse_payload_type(s: &str) -> Result<String, String> {
+    lipcall::codec::any::PayloadMap::default()
+        .with_assignments(&[s])
+        .map(|_| s.to_string())
+        .map_err(|e| e.to_string())
 }
 
 fn parse_hex_u32(s: &str) -> Result<u32, String> {
@@ -361,7 +391,9 @@ fn main() -> ExitCode {
             key,
             name,
             room,
+            codec,
             quality,
+            payloads,
             no_rtcp,
             ssrc,
         } => commands::net::send(&SendArgs {
@@ -373,6 +405,8 @@ fn main() -> ExitCode {
             quality,
             no_rtcp,
             ssrc,
+            codec,
+            payload_types: payloads.assignments,
         }),
         Command::Receive {
             listen,
@@ -384,6 +418,7 @@ fn main() -> ExitCode {
             relay,
             room,
             name,
+            payloads,
         } => commands::net::receive(&ReceiveArgs {
             listen,
             wav,
@@ -394,6 +429,7 @@ fn main() -> ExitCode {
             relay,
             room,
             name,
+            payload_types: payloads.assignments,
         }),
         Command::Relay { listen, seconds } => commands::net::relay(&listen, seconds),
         Command::Train(args) => commands::lipsync::train(&args),

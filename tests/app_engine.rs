@@ -44,6 +44,8 @@ fn the_engine_joins_an_encrypted_room_and_animates_a_sender() {
         quality: 8,
         no_rtcp: false,
         ssrc: None,
+        codec: None,
+        payload_types: Vec::new(),
     };
     std::thread::spawn(move || send(&args));
     let deadline = Instant::now() + Duration::from_secs(20);

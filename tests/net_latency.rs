@@ -70,7 +70,7 @@ fn mouth_to_ear_on_loopback() {
         let n = encoder
             .encode_frame(&signal(k as usize), &mut packet)
             .unwrap();
-        sender.send_speex(&packet[..n], 1).unwrap();
+        sender.send_frames(&packet[..n], 1).unwrap();
         encode_time += t.elapsed();
         let tick = captured + TICK / 2;
         if let Some(wait) = tick.checked_duration_since(Instant::now()) {

@@ -3,11 +3,12 @@
 
 use std::time::{Duration, Instant};
 
+use lipcall::codec::speex::split;
 use lipcall::net::control::Control;
 use lipcall::net::jitter::{JitterBuffer, JitterConfig};
 use lipcall::net::relay::{RelayConfig, RelayCore};
 use lipcall::net::srtp::{MasterKey, Srtp};
-use lipcall::net::{classify, rtcp, rtp, split};
+use lipcall::net::{classify, rtcp, rtp};
 use proptest::prelude::*;
 
 fn key() -> MasterKey {

@@ -80,7 +80,7 @@ fn call(talkers: &[(&Session, Vec<Vec<u8>>)], listeners: &[&Session]) -> Vec<Hea
         }
         if k < FRAMES {
             for (session, packets) in talkers {
-                session.send_speex(&packets[k as usize], 1).unwrap();
+                session.send_frames(&packets[k as usize], 1).unwrap();
             }
         }
         for (listener, h) in listeners.iter().zip(heard.iter_mut()) {

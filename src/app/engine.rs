@@ -424,7 +424,7 @@ impl Demo {
         }
         let mut packet = [0u8; MAX_PACKET_BYTES];
         if let Some(n) = self.encoder.encode_frame(&frame, &mut packet) {
-            let _ = self.session.send_speex(&packet[..n], 1);
+            let _ = self.session.send_frames(&packet[..n], 1);
         }
     }
 }
@@ -675,7 +675,7 @@ impl Worker {
             match mic.read_frame(&mut frame) {
                 Ok(Some(Gate::Open)) if in_call => {
                     if let Some(n) = self.encoder.encode_frame(&frame, &mut packet) {
-                        let _ = self.session.send_speex(&packet[..n], 1);
+                        let _ = self.session.send_frames(&packet[..n], 1);
                     }
                 }
                 Ok(Some(_)) => {

@@ -8,13 +8,13 @@ use std::time::{Duration, Instant};
 use anyhow::{Context, Result, bail};
 
 use crate::audio::wav;
-use crate::codec::speex::codec::{Encoder, EncoderConfig, MAX_PACKET_BYTES};
+use crate::codec::any::{Codec, EncoderSettings, FrameEncoder, MAX_FRAME_PAYLOAD, PayloadMap};
 use crate::codec::speex::features::FrameFeatures;
-use crate::codec::speex::{FRAME_SIZE, SAMPLE_RATE, ogg_file};
+use crate::codec::speex::split::split_frames;
+use crate::codec::{FRAME_SIZE, SAMPLE_RATE, opus, speex};
 use crate::lipsync::{self, LipSync, LipSyncOptions};
 use crate::net::relay::{Relay, RelayConfig};
 use crate::net::session::{PeerFrame, PeerInfo, Session, SessionConfig};
-use crate::net::split::split_frames;
 use crate::net::srtp::MasterKey;
 
 const TICK: Duration = Duration::from_millis(20);
@@ -64,46 +64,87 @@ fn announce_security(key: &Option<MasterKey>) {
     }
 }
 
-/// Speex packets to send, each with its frame count.
-fn load_packets(input: &Path, quality: u8) -> Result<Vec<(Vec<u8>, u32)>> {
+/// Payloads to send, each with its duration in ticks of the codec's RTP clock.
+type Packets = Vec<(Vec<u8>, u32)>;
+
+/// Encodes 8 kHz audio in 20 ms frames (the last padded with silence).
+fn encode_pcm(pcm: &[i16], codec: Codec, settings: &EncoderSettings) -> Result<Packets> {
+    let mut encoder = FrameEncoder::new(codec, settings)?;
+    let mut payload = [0u8; MAX_FRAME_PAYLOAD];
+    let mut out = Vec::with_capacity(pcm.len() / FRAME_SIZE + 1);
+    for chunk in pcm.chunks(FRAME_SIZE) {
+        let mut frame = [0i16; FRAME_SIZE];
+        frame[..chunk.len()].copy_from_slice(chunk);
+        if let Some((n, frames)) = encoder.encode(&frame, &mut payload)? {
+            out.push((payload[..n].to_vec(), frames * codec.frame_ticks()));
+        }
+    }
+    Ok(out)
+}
+
+/// What `send` sends: a coded file as it is (Ogg Speex, Ogg Opus), or audio encoded here (a
+/// WAV, or a coded file when `--codec` asks for another codec). Without `--codec`, a WAV goes
+/// as Speex, the reference path.
+fn load_packets(
+    input: &Path,
+    codec: Option<Codec>,
+    settings: &EncoderSettings,
+) -> Result<(Codec, Packets)> {
     let ext = input
         .extension()
         .and_then(|e| e.to_str())
         .map(str::to_ascii_lowercase);
+    let read = || std::fs::read(input).with_context(|| format!("cannot read {}", input.display()));
+    let what = || input.display().to_string();
     match ext.as_deref() {
-        Some("spx") | Some("ogg") => {
-            let bytes =
-                std::fs::read(input).with_context(|| format!("cannot read {}", input.display()))?;
-            let file = ogg_file::read(&bytes).with_context(|| input.display().to_string())?;
+        Some("spx" | "ogg" | "opus") => {
+            let bytes = read()?;
+            if opus::ogg_file::holds_opus(&bytes) || ext.as_deref() == Some("opus") {
+                let decoded = opus::stream::decode(&bytes).with_context(what)?;
+                if codec.is_some_and(|c| c != Codec::Opus) {
+                    let codec = codec.unwrap_or(Codec::Opus);
+                    return Ok((codec, encode_pcm(&decoded.pcm, codec, settings)?));
+                }
+                // Timestamps count 48 kHz ticks; the packets were decoded at 8 kHz.
+                let per_sample = Codec::Opus.clock_rate() / SAMPLE_RATE;
+                let packets = decoded
+                    .packets
+                    .into_iter()
+                    .map(|p| (p.data, p.samples as u32 * per_sample))
+                    .collect();
+                return Ok((Codec::Opus, packets));
+            }
+            if codec.is_some_and(|c| c != Codec::Speex) {
+                let codec = codec.unwrap_or(Codec::Speex);
+                let decoded = speex::stream::decode(&bytes, true).with_context(what)?;
+                return Ok((codec, encode_pcm(&decoded.pcm, codec, settings)?));
+            }
+            let file = speex::ogg_file::read(&bytes).with_context(what)?;
             let per_packet = file.header.frames_per_packet.max(1) as u32;
+            let step = Codec::Speex.frame_ticks();
             let mut out = Vec::new();
             for packet in file.pages.iter().flat_map(|p| &p.packets) {
                 match split_frames(packet) {
-                    Some(frames) => out.extend(frames.into_iter().map(|f| (f, 1))),
-                    None => out.push((packet.clone(), per_packet)),
+                    Some(frames) => out.extend(frames.into_iter().map(|f| (f, step))),
+                    None => out.push((packet.clone(), per_packet * step)),
                 }
             }
-            Ok(out)
+            Ok((Codec::Speex, out))
         }
         Some("wav") => {
             let pcm = wav::read_narrowband(input)?;
-            let mut encoder = Encoder::new(EncoderConfig {
-                quality,
-                ..Default::default()
-            })?;
-            let mut packet = [0u8; MAX_PACKET_BYTES];
-            let mut out = Vec::new();
-            for chunk in pcm.chunks(FRAME_SIZE) {
-                let mut frame = [0i16; FRAME_SIZE];
-                frame[..chunk.len()].copy_from_slice(chunk);
-                if let Some(n) = encoder.encode_frame(&frame, &mut packet) {
-                    out.push((packet[..n].to_vec(), 1));
-                }
-            }
-            Ok(out)
+            let codec = codec.unwrap_or(Codec::Speex);
+            Ok((codec, encode_pcm(&pcm, codec, settings)?))
         }
-        _ => bail!("{}: expected a .wav or .spx file", input.display()),
+        _ => bail!("{}: expected a .wav, .spx or .opus file", input.display()),
     }
+}
+
+/// The payload-type map from `--pt CODEC=PT` flags.
+fn payload_map(assignments: &[String]) -> Result<PayloadMap> {
+    PayloadMap::default()
+        .with_assignments(assignments)
+        .context("--pt")
 }
 
 #[derive(Debug, Clone)]
@@ -116,10 +157,17 @@ pub struct SendArgs {
     pub quality: u8,
     pub no_rtcp: bool,
     pub ssrc: Option<u32>,
+    /// The codec to send; `None`: a coded file's own, Speex for a WAV.
+    pub codec: Option<Codec>,
+    /// `CODEC=PT` assignments moving dynamic payload types (`opus=111`).
+    pub payload_types: Vec<String>,
 }
 
 pub fn send(args: &SendArgs) -> Result<()> {
-    let packets = load_packets(&args.input, args.quality)?;
+    let payloads = payload_map(&args.payload_types)?;
+    let mut settings = EncoderSettings::default();
+    settings.speex.quality = args.quality;
+    let (codec, packets) = load_packets(&args.input, args.codec, &settings)?;
     if packets.is_empty() {
         bail!("{}: no audio to send", args.input.display());
     }
@@ -133,26 +181,29 @@ pub fn send(args: &SendArgs) -> Result<()> {
     config.name = args.name.clone();
     config.send_rtcp = !args.no_rtcp;
     config.ssrc = args.ssrc;
+    config.codec = codec;
+    config.payloads = payloads;
     let session = Session::start(config)?;
     if args.room.is_some() {
         wait_for_relay(&session)?;
     }
-    let frames: u32 = packets.iter().map(|(_, f)| f).sum();
+    let clock = f64::from(codec.clock_rate());
+    let ticks: u64 = packets.iter().map(|(_, t)| u64::from(*t)).sum();
     eprintln!(
-        "lipcall: sending {:.2} s ({} packets) to {to} as SSRC {:08x}",
-        f64::from(frames) * 0.02,
+        "lipcall: sending {:.2} s ({} packets of {codec}) to {to} as SSRC {:08x}",
+        ticks as f64 / clock,
         packets.len(),
         session.ssrc()
     );
     let start = Instant::now();
-    let mut at = 0u32;
-    for (payload, count) in &packets {
-        let due = start + TICK * at;
+    let mut at = 0u64;
+    for (payload, duration) in &packets {
+        let due = start + Duration::from_secs_f64(at as f64 / clock);
         if let Some(wait) = due.checked_duration_since(Instant::now()) {
             std::thread::sleep(wait);
         }
-        session.send_speex(payload, *count)?;
-        at += count;
+        session.send_packet(payload, *duration)?;
+        at += u64::from(*duration);
     }
     // Let the last packet's slot pass before saying BYE.
     std::thread::sleep(TICK);
@@ -188,10 +239,12 @@ fn wait_for_relay(session: &Session) -> Result<()> {
 fn print_peer(peer: &PeerInfo) {
     let j = &peer.receiver.jitter;
     let opt = |v: Option<f64>| v.map_or_else(|| "-".to_string(), |v| format!("{v:.1}"));
+    let codec = peer.receiver.codec.map_or("-", Codec::name);
     eprintln!(
-        "peer ssrc={:08x} name={:?} addr={} received={} played={} lost={} late={} duplicates={} \
-         reordered={} concealed={} stretched={} dropped={} jitter_ms={:.1} target_ms={:.1} \
-         delay_ms={:.1} rtt_ms={} their_loss={} bye={}",
+        "peer ssrc={:08x} name={:?} addr={} codec={codec} received={} played={} lost={} late={} \
+         duplicates={} reordered={} concealed={} recovered={} stretched={} dropped={} \
+         unknown_pt={} decode_errors={} jitter_ms={:.1} target_ms={:.1} delay_ms={:.1} rtt_ms={} \
+         their_loss={} bye={}",
         peer.ssrc,
         peer.name.as_deref().unwrap_or(""),
         peer.addr,
@@ -202,8 +255,11 @@ fn print_peer(peer: &PeerInfo) {
         j.duplicates,
         j.reordered,
         peer.receiver.concealed,
+        peer.receiver.recovered,
         j.stretched,
         j.dropped,
+        peer.receiver.unknown_payload,
+        peer.receiver.decode_errors,
         j.jitter_ms,
         j.target_delay_ms,
         j.current_delay_ms,
@@ -224,6 +280,8 @@ pub struct ReceiveArgs {
     pub relay: Option<String>,
     pub room: Option<String>,
     pub name: Option<String>,
+    /// `CODEC=PT` assignments moving dynamic payload types (`opus=111`).
+    pub payload_types: Vec<String>,
 }
 
 /// One feature row of one peer, on the output timeline.
@@ -290,6 +348,7 @@ pub fn receive_with(
     }
     config.key = key;
     config.name = args.name.clone();
+    config.payloads = payload_map(&args.payload_types)?;
     let session = Session::start(config)?;
     eprintln!("lipcall: listening on {}", session.local_addr()?);
     if args.room.is_some() {
@@ -380,13 +439,14 @@ pub fn receive_with(
     let stats = session.stats();
     eprintln!(
         "lipcall: played {:.2} s; datagrams={} rtp={} rtcp={} malformed={} unknown={} \
-         auth_failed={} replayed={} too_many_peers={}",
+         unknown_pt={} auth_failed={} replayed={} too_many_peers={}",
         pcm.len() as f64 / f64::from(SAMPLE_RATE),
         stats.datagrams,
         stats.rtp,
         stats.rtcp,
         stats.malformed,
         stats.unknown,
+        stats.unknown_payload,
         stats.auth_failed,
         stats.replayed,
         stats.too_many_peers

@@ -1,10 +1,20 @@
 //! A per-peer adaptive jitter buffer, pulled once per 20 ms of output.
 //!
-//! Timing model. For every packet the buffer notes its relative delay `r = arrival - ts/8000`
+//! Time is kept in the ticks of the stream's RTP clock (8000 per second for Speex and G.711,
+//! 48000 for Opus, [`JitterBuffer::set_clock`]); playout runs in 20 ms frames ("slots") on a grid
+//! starting at the first timestamp seen. A packet lasts any number of ticks: several 20 ms frames
+//! (played one by one), or less than one, or a length off the grid (G.711 as GStreamer
+//! packetises it: 173.5 ms). A packet belongs to the slot its first tick falls in and is handed
+//! out with its offset into that slot; the decoder places it there. Packets of whole frames
+//! that the decoder cannot place within a frame (Speex) are put on the nearest slot instead:
+//! GStreamer's first Speex packet lasts 120 ticks by its timestamps, and the stream plays on
+//! from the grid that packet set.
+//!
+//! Timing model. For every packet the buffer notes its relative delay `r = arrival - ts/clock`
 //! (network transit plus the unknown offset between the two clocks). The smallest `r` over a
 //! sliding window is the fastest path (`base`); the spread above it is the jitter to absorb.
 //! The target delay is a high quantile of that spread plus a margin, starting at 40 ms and
-//! bounded. At each pull the buffer knows the delay it actually plays at, `(now - ts/8000) -
+//! bounded. At each pull the buffer knows the delay it actually plays at, `(now - ts/clock) -
 //! base`; when that strays from the target it inserts a concealed frame (too little delay) or
 //! skips one (too much), at most once per adaptation interval. Sender/receiver clock drift
 //! moves `base` slowly and is corrected by the same mechanism, so the buffer neither grows
@@ -17,11 +27,14 @@
 use std::collections::{BTreeMap, VecDeque};
 use std::time::{Duration, Instant};
 
-use super::{CLOCK_RATE, TIMESTAMP_STEP};
-
 /// Packets whose slack steers the delay while playing.
 const SLACK_WINDOW: usize = 100;
-const FRAME_SECONDS: f64 = TIMESTAMP_STEP as f64 / CLOCK_RATE as f64;
+/// Seconds of one playout frame.
+const FRAME_SECONDS: f64 = 0.02;
+/// The clock of a buffer until told otherwise (Speex, G.711).
+pub const DEFAULT_CLOCK: u32 = 8000;
+/// A packet lasts at most this many frames (longer claims are cut).
+const MAX_PACKET_FRAMES: u32 = 64;
 
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct JitterConfig {
@@ -55,12 +68,32 @@ impl Default for JitterConfig {
     }
 }
 
+/// A packet handed out for decoding; it reads as its payload bytes.
+#[derive(Debug, Clone, PartialEq, Eq)]
+pub struct Piece {
+    pub payload: Vec<u8>,
+    /// The payload type it arrived with (a stream may switch codecs).
+    pub payload_type: u8,
+    /// Where it starts within the frame being played, in clock ticks (0 on the grid).
+    pub offset: u32,
+}
+
+impl std::ops::Deref for Piece {
+    type Target = [u8];
+
+    fn deref(&self) -> &[u8] {
+        &self.payload
+    }
+}
+
 /// What to play for the next 20 ms.
 #[derive(Debug, Clone, PartialEq, Eq)]
 pub enum Playout {
-    /// Decode the first frame of this packet.
-    Packet(Vec<u8>),
-    /// Decode the next frame of the packet handed out before.
+    /// Decode this packet, which starts in this frame (and its first 20 ms).
+    Packet(Piece),
+    /// Several packets shorter than a frame start in this frame: decode them in order.
+    Pieces(Vec<Piece>),
+    /// Play on from the packet(s) handed out before (concealing what they do not cover).
     NextFrame,
     /// The frame is missing: conceal it.
     Lost,
@@ -68,6 +101,22 @@ pub enum Playout {
     Stretch,
     /// Nothing is playing for this peer.
     Silent,
+}
+
+/// A received packet, as the buffer files it.
+#[derive(Debug, Clone, Copy)]
+pub struct Arrival<'a> {
+    pub sequence: u16,
+    pub timestamp: u32,
+    pub marker: bool,
+    pub payload_type: u8,
+    pub payload: &'a [u8],
+    /// How long the packet lasts, in clock ticks.
+    pub duration: u32,
+    /// The payload is whole frames that play on the 20 ms grid: its timestamp is rounded to
+    /// the nearest slot, and it is handed out at offset 0.
+    pub on_grid: bool,
+    pub at: Instant,
 }
 
 #[derive(Debug, Clone, Copy, Default, PartialEq)]
@@ -85,6 +134,8 @@ pub struct JitterStats {
     pub stretched: u64,
     /// Frames skipped to shrink the delay.
     pub dropped: u64,
+    /// Packets left behind when the stream's clock rate changed (a switch of codec).
+    pub flushed: u64,
     /// Talk spurts started.
     pub spurts: u64,
     /// RFC 3550 interarrival jitter in ms.
@@ -98,7 +149,8 @@ pub struct JitterStats {
 #[derive(Debug)]
 struct Entry {
     payload: Vec<u8>,
-    frames: u32,
+    payload_type: u8,
+    duration: u32,
 }
 
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
@@ -126,26 +178,33 @@ pub struct JitterBuffer {
     config: JitterConfig,
     epoch: Instant,
     state: State,
-    /// Packets by frame index (timestamp / 160 from the first packet).
+    clock: u32,
+    /// Ticks per frame.
+    step: i64,
+    /// Timestamps this close before a slot's start belong to it (senders rounding their
+    /// timestamps); packets starting later in the slot are handed out with their offset.
+    tolerance: i64,
+    /// Packets by their first tick, counted from `origin_ts`.
     entries: BTreeMap<i64, Entry>,
     origin_ts: Option<i64>,
     last_ts: i64,
-    /// Next frame index to play.
+    /// Next slot to play.
     next: i64,
-    /// Frames of the current packet still to decode.
-    continuing: u32,
+    /// The tick up to which the packets handed out so far reach.
+    covered: i64,
     delays: VecDeque<f64>,
     sorted: Vec<f64>,
     base: f64,
     target: f64,
     since_adjust: u32,
-    /// Output time at which frame `play_index` is (or was) played.
+    /// Output time at which slot `play_ref.0` is (or was) played.
     play_ref: (i64, f64),
     /// How early each recent packet arrived before its playout slot, in seconds.
     slack: VecDeque<f64>,
     slack_sorted: Vec<f64>,
     last_arrival: f64,
     empty_since: Option<f64>,
+    /// Where the sender said its stream starts and ends, in ticks from `origin_ts`.
     start_hint: Option<i64>,
     end_hint: Option<i64>,
     // Sequence bookkeeping (RFC 3550 A.1, A.3) for duplicates and receiver reports.
@@ -160,16 +219,27 @@ pub struct JitterBuffer {
 }
 
 impl JitterBuffer {
+    /// A buffer for a stream on the 8 kHz clock.
     pub fn new(config: JitterConfig, epoch: Instant) -> Self {
+        Self::with_clock(config, epoch, DEFAULT_CLOCK)
+    }
+
+    /// A buffer for a stream whose RTP clock runs at `clock` Hz (at least 50).
+    pub fn with_clock(config: JitterConfig, epoch: Instant, clock: u32) -> Self {
+        let clock = clock.max(50);
+        let step = i64::from(clock / 50);
         Self {
             config,
             epoch,
             state: State::Idle,
+            clock,
+            step,
+            tolerance: step / 16,
             entries: BTreeMap::new(),
             origin_ts: None,
             last_ts: 0,
             next: 0,
-            continuing: 0,
+            covered: 0,
             delays: VecDeque::with_capacity(config.window),
             sorted: Vec::with_capacity(config.window),
             base: 0.0,
@@ -193,11 +263,49 @@ impl JitterBuffer {
         }
     }
 
+    pub fn clock(&self) -> u32 {
+        self.clock
+    }
+
+    /// The stream's clock rate changed (a codec switch, from Speex to Opus say). Before any
+    /// packet only the rate changes (the hints an early sender report gave stay). After, the
+    /// old timestamps say nothing on the new clock: the buffer starts over as for a new
+    /// stream, its packets flushed; sequence numbers and counters carry on.
+    pub fn set_clock(&mut self, clock: u32) {
+        let clock = clock.max(50);
+        if clock == self.clock {
+            return;
+        }
+        self.clock = clock;
+        self.step = i64::from(clock / 50);
+        self.tolerance = self.step / 16;
+        if self.stats.received == 0 {
+            return;
+        }
+        self.stats.flushed += self.entries.len() as u64;
+        self.entries.clear();
+        self.origin_ts = None;
+        self.last_ts = 0;
+        if self.state == State::Playing {
+            self.state = State::Idle;
+        }
+        self.next = 0;
+        self.covered = 0;
+        self.delays.clear();
+        self.base = 0.0;
+        self.slack.clear();
+        self.empty_since = None;
+        self.start_hint = None;
+        self.end_hint = None;
+        self.transit = None;
+    }
+
     fn seconds(&self, t: Instant) -> f64 {
         t.saturating_duration_since(self.epoch).as_secs_f64()
     }
 
-    fn index_of(&mut self, ts: u32) -> (i64, i64) {
+    /// The tick offset of `ts` from the stream's first timestamp, and `ts` extended.
+    fn offset_of(&mut self, ts: u32) -> (i64, i64) {
         let ext = match self.origin_ts {
             None => {
                 self.origin_ts = Some(i64::from(ts));
@@ -207,8 +315,23 @@ impl JitterBuffer {
         };
         self.last_ts = ext;
         let origin = self.origin_ts.unwrap_or(ext);
-        let step = i64::from(TIMESTAMP_STEP);
-        ((ext - origin + step / 2).div_euclid(step), ext)
+        (ext - origin, ext)
+    }
+
+    /// The slot a packet starting at tick offset `off` belongs to.
+    fn slot_of(&self, off: i64) -> i64 {
+        (off + self.tolerance).div_euclid(self.step)
+    }
+
+    /// The first slot at or after tick offset `off` (where a stream ending there stops).
+    fn slot_after(&self, off: i64) -> i64 {
+        (off - self.tolerance).div_euclid(self.step) + 1
+    }
+
+    /// The output time of tick offset `off`, by the playout reference.
+    fn play_time(&self, off: i64) -> f64 {
+        let (ref_index, ref_time) = self.play_ref;
+        ref_time + (off - ref_index * self.step) as f64 / f64::from(self.clock)
     }
 
     /// Records the sequence number; returns false for a duplicate.
@@ -241,7 +364,7 @@ impl JitterBuffer {
         true
     }
 
-    /// Files a received packet holding `frames` frames.
+    /// Files a received packet holding `frames` whole 20 ms frames.
     pub fn insert(
         &mut self,
         seq: u16,
@@ -251,15 +374,36 @@ impl JitterBuffer {
         frames: u32,
         arrival: Instant,
     ) {
-        if !self.note_sequence(seq) {
+        let duration = frames.clamp(1, MAX_PACKET_FRAMES) * (self.clock / 50);
+        self.file(Arrival {
+            sequence: seq,
+            timestamp: ts,
+            marker,
+            payload_type: 0,
+            payload,
+            duration,
+            on_grid: true,
+            at: arrival,
+        });
+    }
+
+    /// Files a received packet.
+    pub fn file(&mut self, packet: Arrival<'_>) {
+        if !self.note_sequence(packet.sequence) {
             self.stats.duplicates += 1;
             return;
         }
         self.stats.received += 1;
-        let (index, ext_ts) = self.index_of(ts);
-        let now = self.seconds(arrival);
+        let (off, ext_ts) = self.offset_of(packet.timestamp);
+        let off = if packet.on_grid {
+            (off + self.step / 2).div_euclid(self.step) * self.step
+        } else {
+            off
+        };
+        let index = self.slot_of(off);
+        let now = self.seconds(packet.at);
         self.last_arrival = now;
-        self.observe_delay(now - ext_ts as f64 / f64::from(CLOCK_RATE));
+        self.observe_delay(now - ext_ts as f64 / f64::from(self.clock));
         self.observe_jitter(now, ext_ts);
 
         if self.state == State::Ended {
@@ -274,44 +418,42 @@ impl JitterBuffer {
             let max_gap = (self.config.max_delay.as_secs_f64() / FRAME_SECONDS) as i64 * 4;
             if index < self.next {
                 self.stats.late += 1;
-                let (ref_index, ref_time) = self.play_ref;
                 if self.slack.len() == SLACK_WINDOW {
                     self.slack.pop_front();
                 }
-                self.slack
-                    .push_back(ref_time + (index - ref_index) as f64 * FRAME_SECONDS - now);
+                self.slack.push_back(self.play_time(off) - now);
                 return;
             }
             if index > self.next + max_gap
-                || (marker && self.entries.is_empty() && index > self.next + 1)
+                || (packet.marker && self.entries.is_empty() && index > self.next + 1)
             {
                 // A new talk spurt after a pause: start it with fresh timing.
                 self.state = State::Idle;
                 self.entries.clear();
-                self.continuing = 0;
+                self.covered = self.next * self.step;
             }
         }
-        if self.entries.contains_key(&index) {
+        if self.entries.contains_key(&off) {
             self.stats.duplicates += 1;
             return;
         }
         if self.state == State::Playing {
-            let (ref_index, ref_time) = self.play_ref;
-            let slot = ref_time + (index - ref_index) as f64 * FRAME_SECONDS;
             if self.slack.len() == SLACK_WINDOW {
                 self.slack.pop_front();
             }
-            self.slack.push_back(slot - now);
+            self.slack.push_back(self.play_time(off) - now);
         }
         if self.entries.len() >= self.config.capacity {
             self.stats.overflow += 1;
             return;
         }
+        let max = MAX_PACKET_FRAMES * (self.clock / 50);
         self.entries.insert(
-            index,
+            off,
             Entry {
-                payload: payload.to_vec(),
-                frames: frames.clamp(1, 64),
+                payload: packet.payload.to_vec(),
+                payload_type: packet.payload_type,
+                duration: packet.duration.clamp(1, max),
             },
         );
     }
@@ -338,7 +480,7 @@ impl JitterBuffer {
     }
 
     fn observe_jitter(&mut self, now: f64, ext_ts: i64) {
-        let transit = now * f64::from(CLOCK_RATE) - ext_ts as f64;
+        let transit = now * f64::from(self.clock) - ext_ts as f64;
         if let Some(prev) = self.transit {
             let d = (transit - prev).abs();
             self.jitter += (d - self.jitter) / 16.0;
@@ -349,15 +491,15 @@ impl JitterBuffer {
     /// The sender said where its stream starts (an SR sent before its first packet).
     pub fn hint_start(&mut self, ts: u32) {
         if self.stats.spurts == 0 {
-            let (index, _) = self.index_of(ts);
-            self.start_hint = Some(index);
+            let (off, _) = self.offset_of(ts);
+            self.start_hint = Some(off);
         }
     }
 
     /// The sender said where its stream ends (the SR sent with its BYE): play up to there.
     pub fn hint_end(&mut self, ts: u32) {
-        let (index, _) = self.index_of(ts);
-        self.end_hint = Some(index);
+        let (off, _) = self.offset_of(ts);
+        self.end_hint = Some(off);
     }
 
     /// True once the stream has ended (BYE played out) and nothing more will come.
@@ -371,8 +513,24 @@ impl JitterBuffer {
     }
 
     fn delay_at(&self, now: f64, index: i64) -> f64 {
-        let ts = self.origin_ts.unwrap_or(0) + index * i64::from(TIMESTAMP_STEP);
-        now - ts as f64 / f64::from(CLOCK_RATE) - self.base
+        let ts = self.origin_ts.unwrap_or(0) + index * self.step;
+        now - ts as f64 / f64::from(self.clock) - self.base
+    }
+
+    /// The packet starting the slot to be played next, if it is already here: after a `Lost`,
+    /// the packet that follows the lost frame (Opus carries FEC for it). With its payload type.
+    pub fn upcoming(&self) -> Option<(u8, &[u8])> {
+        let lo = self.next * self.step;
+        self.entries
+            .range(lo - self.tolerance..=lo + self.tolerance)
+            .next()
+            .map(|(_, e)| (e.payload_type, e.payload.as_slice()))
+    }
+
+    /// Whether a packet starts in slot `index`.
+    fn has_slot(&self, index: i64) -> bool {
+        let lo = index * self.step - self.tolerance;
+        self.entries.range(lo..lo + self.step).next().is_some()
     }
 
     /// What to play for the 20 ms of output starting at `now` (on the output clock).
@@ -384,7 +542,8 @@ impl JitterBuffer {
                 let Some((&first, _)) = self.entries.first_key_value() else {
                     return self.check_end(Playout::Silent);
                 };
-                let start = match self.start_hint {
+                let first = self.slot_of(first);
+                let start = match self.start_hint.map(|h| self.slot_of(h)) {
                     Some(h) if h <= first && first - h <= 10 => h,
                     _ => first,
                 };
@@ -395,28 +554,28 @@ impl JitterBuffer {
                 self.start_hint = None;
                 self.state = State::Playing;
                 self.next = start;
-                self.continuing = 0;
+                self.covered = start * self.step;
                 self.since_adjust = 0;
                 self.empty_since = None;
                 self.stats.spurts += 1;
             }
             State::Playing => {}
         }
+        let lo = self.next * self.step;
         if let Some(end) = self.end_hint
-            && self.next >= end
-            && self.continuing == 0
+            && self.next >= self.slot_after(end)
+            && self.covered <= lo
         {
             return self.check_end(Playout::Silent);
         }
-        if self.continuing > 0 {
-            self.continuing -= 1;
+        if self.covered >= lo + self.step {
             self.next += 1;
             self.stats.played += 1;
             return Playout::NextFrame;
         }
         // Drop entries that fell behind (a skip or a resync moved past them).
         while let Some((&k, _)) = self.entries.first_key_value() {
-            if k >= self.next {
+            if self.slot_of(k) >= self.next {
                 break;
             }
             self.entries.pop_first();
@@ -452,35 +611,55 @@ impl JitterBuffer {
             // Shrinking waits for a fuller picture: start-up bursts look like spare delay.
             if self.slack.len() >= SLACK_WINDOW / 2
                 && low > margin + 1.5 * FRAME_SECONDS
-                && self.entries.contains_key(&(self.next + 1))
+                && self.has_slot(self.next + 1)
             {
                 self.since_adjust = 0;
                 self.slack.iter_mut().for_each(|s| *s -= FRAME_SECONDS);
-                self.entries.remove(&self.next);
+                while let Some((&k, _)) = self.entries.first_key_value() {
+                    if self.slot_of(k) > self.next {
+                        break;
+                    }
+                    self.entries.pop_first();
+                }
                 self.next += 1;
                 self.play_ref = (self.next, now);
                 self.stats.dropped += 1;
             }
         }
-        match self.entries.remove(&self.next) {
-            Some(entry) => {
-                self.continuing = entry.frames - 1;
-                self.next += 1;
-                self.stats.played += 1;
-                Playout::Packet(entry.payload)
+        let lo = self.next * self.step;
+        let mut pieces = Vec::new();
+        let end = lo + self.step - self.tolerance;
+        while let Some(entry) = self.entries.first_entry() {
+            let off = *entry.key();
+            if off >= end {
+                break;
             }
-            None => {
-                self.next += 1;
-                self.stats.lost += 1;
-                Playout::Lost
-            }
+            let e = entry.remove();
+            self.covered = self.covered.max(off + i64::from(e.duration));
+            pieces.push(Piece {
+                payload: e.payload,
+                payload_type: e.payload_type,
+                offset: u32::try_from(off - lo).unwrap_or(0),
+            });
+        }
+        let partly_covered = self.covered > lo;
+        self.next += 1;
+        if pieces.is_empty() && !partly_covered {
+            self.stats.lost += 1;
+            return Playout::Lost;
+        }
+        self.stats.played += 1;
+        match pieces.len() {
+            0 => Playout::NextFrame,
+            1 => Playout::Packet(pieces.remove(0)),
+            _ => Playout::Pieces(pieces),
         }
     }
 
     fn check_end(&mut self, otherwise: Playout) -> Playout {
         if let Some(end) = self.end_hint
             && (self.state == State::Playing || self.entries.is_empty())
-            && (self.next >= end || self.stats.spurts == 0)
+            && (self.next >= self.slot_after(end) || self.stats.spurts == 0)
         {
             self.state = State::Ended;
             self.entries.clear();
@@ -491,10 +670,15 @@ impl JitterBuffer {
     }
 
     pub fn stats(&self) -> JitterStats {
+        let step = self.step as u64;
         JitterStats {
-            jitter_ms: self.jitter / f64::from(CLOCK_RATE) * 1000.0,
+            jitter_ms: self.jitter / f64::from(self.clock) * 1000.0,
             target_delay_ms: self.target * 1000.0,
-            buffered_frames: self.entries.values().map(|e| e.frames as usize).sum(),
+            buffered_frames: self
+                .entries
+                .values()
+                .map(|e| u64::from(e.duration).div_ceil(step) as usize)
+                .sum(),
             ..self.stats
         }
     }
@@ -726,6 +910,314 @@ mod tests {
             })
             .collect();
         assert_eq!(kinds, vec![1, 0, 0, 2, 0, 0]);
+    }
+
+    /// The same as `simulate` on an RTP clock of `clock` Hz, with each packet's payload type
+    /// and duration, so that streams of any codec can be compared.
+    fn simulate_at(
+        clock: u32,
+        n: usize,
+        send_period: Duration,
+        delay: impl Fn(usize) -> Option<Duration>,
+        pulls: usize,
+    ) -> (Vec<Playout>, JitterStats) {
+        let t0 = Instant::now();
+        let mut jb = JitterBuffer::with_clock(JitterConfig::default(), t0, clock);
+        let step = clock / 50;
+        let mut arrivals: Vec<(Instant, usize)> = (0..n)
+            .filter_map(|i| delay(i).map(|d| (t0 + send_period * i as u32 + d, i)))
+            .collect();
+        arrivals.sort();
+        let mut out = Vec::new();
+        let mut a = 0;
+        for k in 0..pulls {
+            let now = t0 + FRAME * k as u32;
+            while a < arrivals.len() && arrivals[a].0 <= now {
+                let i = arrivals[a].1;
+                jb.file(Arrival {
+                    sequence: 1000u16.wrapping_add(i as u16),
+                    timestamp: (i as u32)
+                        .wrapping_mul(step)
+                        .wrapping_add(u32::MAX - 30 * step),
+                    marker: i == 0,
+                    payload_type: 96,
+                    payload: &[i as u8],
+                    duration: step,
+                    on_grid: false,
+                    at: arrivals[a].0,
+                });
+                a += 1;
+            }
+            out.push(jb.pop(now));
+        }
+        (out, jb.stats())
+    }
+
+    /// Playout decisions without the payload type, which differs between the clocks.
+    fn decisions(out: &[Playout]) -> Vec<(char, u8)> {
+        out.iter()
+            .map(|p| match p {
+                Playout::Packet(piece) => ('P', piece[0]),
+                Playout::Pieces(_) => ('M', 0),
+                Playout::NextFrame => ('N', 0),
+                Playout::Lost => ('L', 0),
+                Playout::Stretch => ('S', 0),
+                Playout::Silent => ('-', 0),
+            })
+            .collect()
+    }
+
+    #[test]
+    fn a_48k_clock_plays_exactly_as_8k() {
+        // Steady, lossy with a late packet, jittery, and drifting both ways: Opus's 960 ticks
+        // per frame give the same decisions as Speex's 160.
+        let lossy = |i: usize| match i {
+            _ if i % 10 == 5 => None,
+            50 => Some(Duration::from_millis(300)),
+            _ => Some(Duration::from_millis(2)),
+        };
+        let jittery = |i: usize| Some(Duration::from_millis(((i * 37) % 61) as u64));
+        type Delay<'a> = &'a dyn Fn(usize) -> Option<Duration>;
+        let cases: [(usize, Duration, Delay, usize); 5] = [
+            (100, FRAME, &|_| Some(Duration::from_millis(5)), 200),
+            (200, FRAME, &lossy, 260),
+            (500, FRAME, &jittery, 560),
+            (
+                1500,
+                Duration::from_micros(19_800),
+                &|_| Some(FRAME / 4),
+                1500,
+            ),
+            (
+                1500,
+                Duration::from_micros(20_200),
+                &|_| Some(FRAME / 4),
+                1550,
+            ),
+        ];
+        for (n, period, delay, pulls) in cases {
+            let (a, sa) = simulate_at(8000, n, period, delay, pulls);
+            let (b, sb) = simulate_at(48_000, n, period, delay, pulls);
+            assert_eq!(decisions(&a), decisions(&b));
+            assert_eq!(
+                (sa.played, sa.lost, sa.late, sa.stretched, sa.dropped),
+                (sb.played, sb.lost, sb.late, sb.stretched, sb.dropped)
+            );
+            assert!((sa.jitter_ms - sb.jitter_ms).abs() < 0.01, "{sa:?} {sb:?}");
+            assert!((sa.target_delay_ms - sb.target_delay_ms).abs() < 1e-6);
+        }
+        // And at 48 kHz on its own, the steady stream is played whole, after the initial delay.
+        let (out, stats) = simulate_at(48_000, 100, FRAME, |_| Some(Duration::from_millis(5)), 200);
+        assert_eq!(played(&out), (0..100).map(|i| i as u8).collect::<Vec<_>>());
+        assert_eq!(stats.stretched + stats.dropped, 0);
+        let mut jb = JitterBuffer::with_clock(JitterConfig::default(), Instant::now(), 48_000);
+        assert_eq!(jb.report(), None);
+        assert_eq!(jb.clock(), 48_000);
+    }
+
+    /// Files packets of `sizes` ticks back to back (sent in real time), pulls every 20 ms, and
+    /// returns what was played.
+    fn play_sizes(clock: u32, sizes: &[u32], pulls: u32) -> (Vec<Playout>, JitterStats) {
+        let t0 = Instant::now();
+        let mut jb = JitterBuffer::with_clock(JitterConfig::default(), t0, clock);
+        let mut at = 0u32;
+        let mut sent = Vec::new();
+        for (i, &size) in sizes.iter().enumerate() {
+            let when = t0 + Duration::from_secs_f64(f64::from(at) / f64::from(clock));
+            sent.push((when, i as u16, at, size));
+            at += size;
+        }
+        let mut out = Vec::new();
+        let mut s = 0;
+        for k in 0..pulls {
+            let now = t0 + FRAME * k;
+            while s < sent.len() && sent[s].0 <= now {
+                let (when, seq, ts, size) = sent[s];
+                jb.file(Arrival {
+                    sequence: seq,
+                    timestamp: ts,
+                    marker: seq == 0,
+                    payload_type: 0,
+                    payload: &[seq as u8],
+                    duration: size,
+                    on_grid: false,
+                    at: when,
+                });
+                s += 1;
+            }
+            out.push(jb.pop(now));
+        }
+        (out, jb.stats())
+    }
+
+    #[test]
+    fn packets_shorter_than_a_frame_come_together() {
+        // Opus at 10 ms: two packets per frame, the second half a frame in.
+        let (out, stats) = play_sizes(48_000, &[480; 40], 40);
+        let pieces: Vec<&Vec<Piece>> = out
+            .iter()
+            .filter_map(|p| match p {
+                Playout::Pieces(v) => Some(v),
+                _ => None,
+            })
+            .collect();
+        assert_eq!(pieces.len(), 20, "{out:?}");
+        for (k, v) in pieces.iter().enumerate() {
+            assert_eq!(v.len(), 2);
+            assert_eq!((v[0].offset, v[1].offset), (0, 480));
+            assert_eq!((v[0][0], v[1][0]), (2 * k as u8, 2 * k as u8 + 1));
+        }
+        assert_eq!(stats.played, 20);
+        // Only the tail after the stream is concealed.
+        let last = out
+            .iter()
+            .rposition(|p| matches!(p, Playout::Pieces(_)))
+            .unwrap();
+        assert!(out[..last].iter().all(|p| *p != Playout::Lost));
+    }
+
+    #[test]
+    fn packets_off_the_grid_carry_their_offset() {
+        // GStreamer's default PCMU packetisation: 1388 and 660 samples, taking turns.
+        let sizes: Vec<u32> = (0..21)
+            .map(|i| if i % 2 == 0 { 1388 } else { 660 })
+            .collect();
+        let total: u32 = sizes.iter().sum();
+        let (out, stats) = play_sizes(8000, &sizes, total / 160 + 40);
+        let mut start = 0u32;
+        let mut starts = Vec::new();
+        for &s in &sizes {
+            starts.push(start);
+            start += s;
+        }
+        // Every packet is handed out once, in the slot its start falls in, at its offset.
+        let first = out.iter().position(|p| *p != Playout::Silent).unwrap();
+        let mut seen = 0;
+        for (k, p) in out.iter().enumerate() {
+            if let Playout::Packet(piece) = p {
+                let slot = (k - first) as u32;
+                let at = starts[usize::from(piece[0])];
+                assert_eq!(slot, at / 160, "{out:?}");
+                assert_eq!(piece.offset, at % 160);
+                seen += 1;
+            }
+        }
+        assert_eq!(seen, sizes.len());
+        // Played without a gap, every frame of the stream (the packets' later frames as
+        // NextFrame), then only the concealed tail after it.
+        let last = out
+            .iter()
+            .rposition(|p| matches!(p, Playout::Packet(_) | Playout::NextFrame))
+            .unwrap();
+        assert!(
+            out[first..=last]
+                .iter()
+                .all(|p| matches!(p, Playout::Packet(_) | Playout::NextFrame))
+        );
+        assert_eq!((last + 1 - first) as u32, total.div_ceil(160));
+        assert_eq!(stats.played as u32, total.div_ceil(160));
+    }
+
+    #[test]
+    fn whole_frames_off_the_grid_are_rounded_onto_it() {
+        // GStreamer's Speex: the first packet's timestamp says it lasts 120 ticks, the rest
+        // follow every 160 from there.
+        let t0 = Instant::now();
+        let mut jb = JitterBuffer::new(JitterConfig::default(), t0);
+        for i in 0..30u32 {
+            let ts = if i == 0 { 0 } else { 120 + (i - 1) * 160 };
+            jb.insert(i as u16, ts, i == 0, &[i as u8], 1, t0 + FRAME * i);
+        }
+        let mut out = Vec::new();
+        for k in 0..40 {
+            out.push(jb.pop(t0 + FRAME * k));
+        }
+        assert_eq!(played(&out), (0..30).collect::<Vec<u8>>());
+        let first = out.iter().position(|p| *p != Playout::Silent).unwrap();
+        assert!(
+            out[first..first + 30]
+                .iter()
+                .all(|p| matches!(p, Playout::Packet(piece) if piece.offset == 0))
+        );
+    }
+
+    #[test]
+    fn the_packet_after_a_loss_is_offered_for_fec() {
+        let t0 = Instant::now();
+        let mut jb = JitterBuffer::with_clock(JitterConfig::default(), t0, 48_000);
+        for i in [0u32, 1, 3, 4] {
+            jb.file(Arrival {
+                sequence: i as u16,
+                timestamp: i * 960,
+                marker: i == 0,
+                payload_type: 96,
+                payload: &[i as u8],
+                duration: 960,
+                on_grid: false,
+                at: t0,
+            });
+        }
+        let mut seen = Vec::new();
+        for k in 0..6 {
+            match jb.pop(t0 + FRAME * (2 + k)) {
+                Playout::Lost => seen.push(jb.upcoming().map(|(pt, p)| (pt, p[0]))),
+                Playout::Packet(p) => assert_eq!(p.payload_type, 96),
+                _ => {}
+            }
+        }
+        assert_eq!(seen[0], Some((96, 3)));
+    }
+
+    #[test]
+    fn a_clock_change_restarts_the_stream_and_keeps_an_early_start_hint() {
+        let t0 = Instant::now();
+        // The sender's first report comes before its first packet, on the buffer's old clock.
+        let mut jb = JitterBuffer::new(JitterConfig::default(), t0);
+        jb.hint_start(5000);
+        jb.set_clock(48_000);
+        for i in 1..10u32 {
+            jb.file(Arrival {
+                sequence: i as u16,
+                timestamp: 5000 + i * 960,
+                marker: false,
+                payload_type: 96,
+                payload: &[i as u8],
+                duration: 960,
+                on_grid: false,
+                at: t0 + FRAME * i,
+            });
+        }
+        let mut out = Vec::new();
+        for k in 0..8 {
+            out.push(jb.pop(t0 + FRAME * k));
+        }
+        // The first packet was lost; the hint makes its frame concealed rather than skipped.
+        let audible: Vec<_> = out.iter().filter(|p| **p != Playout::Silent).collect();
+        assert_eq!(*audible[0], Playout::Lost);
+        // Mid-stream the codec switches to one on the 8 kHz clock: buffered packets are flushed
+        // and the new stream plays from its own start.
+        jb.set_clock(8000);
+        assert!(jb.stats().flushed > 0);
+        let t1 = t0 + FRAME * 8;
+        for i in 0..20u32 {
+            jb.file(Arrival {
+                sequence: 20 + i as u16,
+                timestamp: 777 + i * 160,
+                marker: i == 0,
+                payload_type: 0,
+                payload: &[100 + i as u8],
+                duration: 160,
+                on_grid: true,
+                at: t1 + FRAME * i,
+            });
+        }
+        let mut got = Vec::new();
+        for k in 0..40 {
+            if let Playout::Packet(p) = jb.pop(t1 + FRAME * k) {
+                got.push(p[0]);
+            }
+        }
+        assert_eq!(got, (100..120).collect::<Vec<u8>>());
     }
 
     #[test]

@@ -1,6 +1,10 @@
-//! Real-time transport: RTP/RTCP (RFC 3550) carrying Speex (RFC 5574) over UDP, an adaptive
-//! jitter buffer with loss concealment, SRTP (RFC 3711) keyed from a room passphrase, sessions
-//! with several peers on one socket thread, and a relay that forwards rooms it cannot read.
+//! Real-time transport: RTP/RTCP (RFC 3550) over UDP, an adaptive jitter buffer, SRTP
+//! (RFC 3711) keyed from a room passphrase, sessions with several peers on one socket thread,
+//! and a relay that forwards rooms it cannot read.
+//!
+//! The transport is codec-agnostic: it carries payloads and decides when each is played. Which
+//! codec a payload type carries, how long a payload lasts and how it decodes are asked of the
+//! codec layer ([`crate::codec::any`], [`crate::codec::decoder`]).
 //!
 //! One UDP port carries everything, told apart by the first bytes of each datagram: RTP and
 //! RTCP share it as in RFC 5761 (RTCP packet types 200..=204 sit where RTP's marker bit and
@@ -14,16 +18,9 @@ pub mod relay;
 pub mod rtcp;
 pub mod rtp;
 pub mod session;
-pub mod split;
 pub mod srtp;
 
-/// The dynamic payload type used for Speex, as GStreamer's rtpspeexpay does.
-pub const PAYLOAD_TYPE: u8 = 110;
-/// RTP clock rate of narrowband Speex.
-pub const CLOCK_RATE: u32 = 8000;
-/// RTP timestamp units per 20 ms frame.
-pub const TIMESTAMP_STEP: u32 = 160;
-/// Largest datagram we read or forward; Speex packets are far smaller.
+/// Largest datagram we read or forward.
 pub const MAX_DATAGRAM: usize = 1500;
 
 /// What a datagram on a lipcall port is, from its first two bytes.
@@ -59,8 +56,8 @@ pub enum NetError {
         context: String,
         source: std::io::Error,
     },
-    #[error(transparent)]
-    Codec(#[from] crate::codec::speex::codec::CodecError),
+    #[error("no RTP payload type is mapped to {0}")]
+    NoPayloadType(crate::codec::any::Codec),
     #[error(transparent)]
     Rtp(#[from] rtp::RtpError),
     #[error(transparent)]

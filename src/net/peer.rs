@@ -1,19 +1,26 @@
-//! One remote speaker's receive pipeline: jitter buffer, Speex decoder with concealment and
-//! the per-frame features the lip-sync network eats.
+//! One remote speaker's receive pipeline: the jitter buffer decides what to play when, the
+//! codec layer decodes it ([`StreamDecoder`]) with concealment and the per-frame features the
+//! lip-sync network eats.
 //!
-//! What the mouth does during loss: a concealed frame keeps the last LSPs the decoder held
-//! (the vocal-tract shape freezes) while libspeex fades the concealed signal out over a few
-//! frames, so `energy_db` falls and a network driven by these features closes the mouth
-//! towards `sil`. A long gap ends the talk spurt and the peer falls silent (no rows at all).
+//! Payload types come through the session's [`PayloadMap`]: a type it does not know is counted
+//! and dropped, never decoded as another codec. The buffer runs on the RTP clock of the
+//! stream's codec; a stream that switches payload type switches decoder at the first packet of
+//! the new type (and, if the clock rate changes, restarts its timing).
+//!
+//! What the mouth does during loss: a concealed frame keeps the last LSPs (the vocal-tract
+//! shape freezes) while the codec's concealment fades the signal out over a few frames, so
+//! `energy_db` falls and a network driven by these features closes the mouth towards `sil`. A
+//! long gap (a loss, or Opus DTX sending nothing in silence) ends the talk spurt and the peer
+//! falls silent (no rows at all).
 
 use std::time::Instant;
 
-use super::jitter::{JitterBuffer, JitterConfig, JitterStats, Playout};
+use super::jitter::{Arrival, JitterBuffer, JitterConfig, JitterStats, Piece, Playout};
 use super::rtp::Rtp;
-use super::split;
-use crate::codec::speex::FRAME_SIZE;
-use crate::codec::speex::codec::{CodecError, Decoder, FrameOutcome};
-use crate::codec::speex::features::{FrameFeatures, FrameTracker};
+use crate::codec::FRAME_SIZE;
+use crate::codec::any::{Codec, PayloadMap};
+use crate::codec::decoder::{DecodedFrame, FrameOrigin, StreamDecoder};
+use crate::codec::speex::features::{FrameFeatures, SILENCE_DB, flat_lsp};
 
 /// How a played frame came about.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
@@ -21,6 +28,8 @@ pub enum FrameKind {
     Decoded,
     /// Its packet was lost or late: the decoder concealed it.
     Concealed,
+    /// Its packet was lost and the next packet's FEC rebuilt it (Opus).
+    Recovered,
     /// Inserted to grow the jitter buffer's delay (also concealment).
     Stretched,
 }
@@ -31,14 +40,24 @@ pub struct PlayedFrame {
     pub pcm: [i16; FRAME_SIZE],
     pub features: FrameFeatures,
     pub kind: FrameKind,
+    pub codec: Codec,
 }
 
 pub struct PeerReceiver {
     jitter: JitterBuffer,
-    decoder: Decoder,
-    tracker: FrameTracker,
+    payloads: PayloadMap,
+    enhancer: bool,
+    decoder: Option<StreamDecoder>,
+    /// The codec of the last packet filed.
+    codec: Option<Codec>,
     concealed: u64,
-    decode_errors: u64,
+    recovered: u64,
+    /// Errors of decoders replaced at a codec switch.
+    past_errors: u64,
+    /// A decoder could not be created (the frame was played as silence).
+    decoder_failures: u64,
+    unknown_payload: u64,
+    last_unknown_type: Option<u8>,
 }
 
 impl std::fmt::Debug for PeerReceiver {
@@ -50,85 +69,175 @@ impl std::fmt::Debug for PeerReceiver {
 }
 
 impl PeerReceiver {
-    pub fn new(config: JitterConfig, epoch: Instant, enhancer: bool) -> Result<Self, CodecError> {
-        Ok(Self {
-            jitter: JitterBuffer::new(config, epoch),
-            decoder: Decoder::new(enhancer)?,
-            tracker: FrameTracker::new(),
-            concealed: 0,
-            decode_errors: 0,
-        })
+    /// A receiver with the default payload types (GStreamer's and RFC 3551's).
+    pub fn new(config: JitterConfig, epoch: Instant, enhancer: bool) -> Self {
+        Self::with_payloads(config, epoch, enhancer, PayloadMap::default())
     }
 
-    pub fn insert(&mut self, packet: &Rtp<'_>, arrival: Instant) {
-        let frames = split::frame_count(packet.payload).unwrap_or(1) as u32;
+    pub fn with_payloads(
+        config: JitterConfig,
+        epoch: Instant,
+        enhancer: bool,
+        payloads: PayloadMap,
+    ) -> Self {
+        Self {
+            jitter: JitterBuffer::new(config, epoch),
+            payloads,
+            enhancer,
+            decoder: None,
+            codec: None,
+            concealed: 0,
+            recovered: 0,
+            past_errors: 0,
+            decoder_failures: 0,
+            unknown_payload: 0,
+            last_unknown_type: None,
+        }
+    }
+
+    /// Files a packet for playout; false (and counted) if its payload type carries no codec
+    /// we know.
+    pub fn insert(&mut self, packet: &Rtp<'_>, arrival: Instant) -> bool {
         let h = packet.header;
-        self.jitter.insert(
-            h.sequence,
-            h.timestamp,
-            h.marker,
-            packet.payload,
-            frames,
-            arrival,
-        );
+        let Some(codec) = self.payloads.codec(h.payload_type) else {
+            self.unknown_payload += 1;
+            self.last_unknown_type = Some(h.payload_type);
+            return false;
+        };
+        self.jitter.set_clock(codec.clock_rate());
+        self.codec = Some(codec);
+        // A payload whose length cannot be read still takes its place: it lasts a frame.
+        let duration = codec
+            .payload_duration(packet.payload)
+            .unwrap_or(codec.frame_ticks());
+        self.jitter.file(Arrival {
+            sequence: h.sequence,
+            timestamp: h.timestamp,
+            marker: h.marker,
+            payload_type: h.payload_type,
+            payload: packet.payload,
+            duration,
+            on_grid: codec.whole_frames(),
+            at: arrival,
+        });
+        true
     }
 
     pub fn jitter(&mut self) -> &mut JitterBuffer {
         &mut self.jitter
     }
 
+    /// The codec of the last packet received.
+    pub fn codec(&self) -> Option<Codec> {
+        self.codec
+    }
+
+    /// The decoder for `codec`, a new one after a switch.
+    fn decoder(&mut self, codec: Codec) -> Option<&mut StreamDecoder> {
+        if self.decoder.as_ref().is_none_or(|d| d.codec() != codec) {
+            self.past_errors += self.decoder.as_ref().map_or(0, StreamDecoder::errors);
+            self.decoder = StreamDecoder::new(codec, self.enhancer).ok();
+            self.decoder_failures += u64::from(self.decoder.is_none());
+        }
+        self.decoder.as_mut()
+    }
+
+    /// The decoder playing now (or for the stream's codec if none yet).
+    fn current(&mut self) -> Option<&mut StreamDecoder> {
+        match self
+            .decoder
+            .as_ref()
+            .map(StreamDecoder::codec)
+            .or(self.codec)
+        {
+            Some(codec) => self.decoder(codec),
+            None => None,
+        }
+    }
+
+    fn start(&mut self, piece: &Piece) -> Option<&mut StreamDecoder> {
+        let codec = self.payloads.codec(piece.payload_type)?;
+        let decoder = self.decoder(codec)?;
+        decoder.packet(piece, piece.offset);
+        Some(decoder)
+    }
+
     /// The next 20 ms of this peer, or `None` while it is silent.
     pub fn pull(&mut self, now: Instant) -> Option<PlayedFrame> {
-        let mut pcm = [0i16; FRAME_SIZE];
-        let kind = match self.jitter.pop(now) {
+        let (frame, stretched) = match self.jitter.pop(now) {
             Playout::Silent => return None,
-            Playout::Packet(payload) => {
-                let loaded = self.decoder.load(&payload).is_ok();
-                // A packet the walker cannot read still decodes; its row keeps held LSPs.
-                let _ = self.tracker.start_packet(&payload);
-                if loaded {
-                    self.decode(&mut pcm)
-                } else {
-                    self.decode_errors += 1;
-                    self.conceal(&mut pcm, FrameKind::Concealed)
+            Playout::Packet(piece) => (self.start(&piece).map(StreamDecoder::frame), false),
+            Playout::Pieces(pieces) => {
+                for piece in &pieces {
+                    self.start(piece);
                 }
+                (self.current().map(StreamDecoder::frame), false)
             }
-            Playout::NextFrame => self.decode(&mut pcm),
-            Playout::Lost => self.conceal(&mut pcm, FrameKind::Concealed),
-            Playout::Stretch => self.conceal(&mut pcm, FrameKind::Stretched),
+            Playout::NextFrame => (self.current().map(StreamDecoder::frame), false),
+            Playout::Lost => {
+                let codec = self
+                    .decoder
+                    .as_ref()
+                    .map(StreamDecoder::codec)
+                    .or(self.codec);
+                let next = self
+                    .jitter
+                    .upcoming()
+                    .filter(|&(pt, _)| self.payloads.codec(pt) == codec)
+                    .map(|(_, p)| p.to_vec());
+                (self.current().map(|d| d.lost(next.as_deref())), false)
+            }
+            Playout::Stretch => (self.current().map(|d| d.lost(None)), true),
         };
-        let features = match kind {
-            FrameKind::Decoded => self.tracker.decoded(&pcm),
-            _ => self.tracker.concealed(&pcm),
+        let codec = self
+            .decoder
+            .as_ref()
+            .map(StreamDecoder::codec)
+            .or(self.codec)
+            .unwrap_or(Codec::Speex);
+        let DecodedFrame {
+            pcm,
+            features,
+            origin,
+        } = frame.unwrap_or_else(|| DecodedFrame {
+            pcm: [0; FRAME_SIZE],
+            features: FrameFeatures {
+                mode: None,
+                lsp: flat_lsp(),
+                energy_db: SILENCE_DB,
+            },
+            origin: FrameOrigin::Concealed,
+        });
+        let kind = match (origin, stretched) {
+            (_, true) => FrameKind::Stretched,
+            (FrameOrigin::Decoded, _) => FrameKind::Decoded,
+            (FrameOrigin::Concealed, _) => FrameKind::Concealed,
+            (FrameOrigin::Recovered, _) => FrameKind::Recovered,
         };
+        match kind {
+            FrameKind::Concealed | FrameKind::Stretched => self.concealed += 1,
+            FrameKind::Recovered => self.recovered += 1,
+            FrameKind::Decoded => {}
+        }
         Some(PlayedFrame {
             pcm,
             features,
             kind,
+            codec,
         })
-    }
-
-    fn decode(&mut self, pcm: &mut [i16; FRAME_SIZE]) -> FrameKind {
-        match self.decoder.decode_next(pcm) {
-            Ok(FrameOutcome::Decoded) => FrameKind::Decoded,
-            Ok(FrameOutcome::EndOfPacket) | Err(_) => {
-                self.decode_errors += 1;
-                self.conceal(pcm, FrameKind::Concealed)
-            }
-        }
-    }
-
-    fn conceal(&mut self, pcm: &mut [i16; FRAME_SIZE], kind: FrameKind) -> FrameKind {
-        self.decoder.conceal(pcm);
-        self.concealed += 1;
-        kind
     }
 
     pub fn stats(&self) -> ReceiverStats {
         ReceiverStats {
             jitter: self.jitter.stats(),
             concealed: self.concealed,
-            decode_errors: self.decode_errors,
+            recovered: self.recovered,
+            decode_errors: self.past_errors
+                + self.decoder_failures
+                + self.decoder.as_ref().map_or(0, StreamDecoder::errors),
+            unknown_payload: self.unknown_payload,
+            last_unknown_type: self.last_unknown_type,
+            codec: self.codec,
         }
     }
 }
@@ -138,5 +247,199 @@ pub struct ReceiverStats {
     pub jitter: JitterStats,
     /// Frames concealed by the decoder (lost, late, stretched or undecodable).
     pub concealed: u64,
+    /// Lost frames rebuilt from the next packet's FEC.
+    pub recovered: u64,
     pub decode_errors: u64,
+    /// Packets of a payload type no codec is mapped to, dropped.
+    pub unknown_payload: u64,
+    pub last_unknown_type: Option<u8>,
+    /// The codec of the last packet received.
+    pub codec: Option<Codec>,
+}
+
+#[cfg(test)]
+mod tests {
+    use std::time::Duration;
+
+    use super::*;
+    use crate::codec::any::{EncoderSettings, FrameEncoder, MAX_FRAME_PAYLOAD};
+    use crate::net::rtp::{self, RtpStream};
+
+    const FRAME: Duration = Duration::from_millis(20);
+
+    fn voice(frame: usize) -> [i16; FRAME_SIZE] {
+        std::array::from_fn(|i| {
+            let t = (frame * FRAME_SIZE + i) as f32 / 8000.0;
+            let mut s = 0.0;
+            for h in 1..15 {
+                let f = 130.0 * h as f32;
+                s += (2.0 * std::f32::consts::PI * f * t).sin()
+                    / (1.0 + ((f - 650.0) / 250.0).powi(2));
+            }
+            (6000.0 * s * (1.0 + (t * 7.0).sin()) / 2.0) as i16
+        })
+    }
+
+    /// One sender: encodes frame `k` of `voice` with `codec` and packetises it.
+    struct Sender {
+        stream: RtpStream,
+        encoder: FrameEncoder,
+        map: PayloadMap,
+        buf: Vec<u8>,
+    }
+
+    impl Sender {
+        fn new(codec: Codec) -> Self {
+            let mut s = Self {
+                stream: RtpStream::new(42, 100, 5000),
+                encoder: FrameEncoder::new(codec, &EncoderSettings::default()).unwrap(),
+                map: PayloadMap::default(),
+                buf: Vec::new(),
+            };
+            s.switch(codec);
+            s
+        }
+
+        fn switch(&mut self, codec: Codec) {
+            self.encoder = FrameEncoder::new(codec, &EncoderSettings::default()).unwrap();
+            let pt = self.map.payload_type(codec).unwrap();
+            self.stream.set_payload(pt, codec.frame_ticks());
+        }
+
+        fn packet(&mut self, k: usize) -> Vec<u8> {
+            let mut out = [0u8; MAX_FRAME_PAYLOAD];
+            let (n, frames) = self.encoder.encode(&voice(k), &mut out).unwrap().unwrap();
+            self.stream
+                .packetize(&out[..n], frames, &mut self.buf)
+                .unwrap();
+            self.buf.clone()
+        }
+    }
+
+    /// Sends `frames` frames in real time (`send(k)` gives frame k's datagram, or `None` to
+    /// send nothing) and pulls every 20 ms.
+    fn call(
+        rx: &mut PeerReceiver,
+        frames: usize,
+        mut send: impl FnMut(usize) -> Option<Vec<u8>>,
+    ) -> Vec<Option<PlayedFrame>> {
+        let t0 = Instant::now();
+        let mut out = Vec::new();
+        for k in 0..frames + 30 {
+            let now = t0 + FRAME * k as u32;
+            if k < frames
+                && let Some(datagram) = send(k)
+            {
+                let packet = rtp::parse(&datagram, None).unwrap();
+                rx.insert(&packet, now);
+            }
+            out.push(rx.pull(now));
+        }
+        out
+    }
+
+    #[test]
+    fn unknown_payload_types_are_counted_and_never_played() {
+        let mut rx = PeerReceiver::new(JitterConfig::default(), Instant::now(), true);
+        let mut sender = Sender::new(Codec::Speex);
+        // Speex inside, but on payload type 100, which nobody mapped.
+        sender.stream.set_payload(100, 160);
+        let out = call(&mut rx, 50, |k| Some(sender.packet(k)));
+        assert!(out.iter().all(Option::is_none));
+        let stats = rx.stats();
+        assert_eq!(stats.unknown_payload, 50);
+        assert_eq!(stats.last_unknown_type, Some(100));
+        assert_eq!((stats.jitter.received, stats.codec), (0, None));
+    }
+
+    #[test]
+    fn a_stream_switching_codecs_switches_decoder() {
+        for (first, second) in [
+            (Codec::Speex, Codec::Pcmu),
+            (Codec::Speex, Codec::Opus),
+            (Codec::Opus, Codec::Pcma),
+        ] {
+            let mut rx = PeerReceiver::new(JitterConfig::default(), Instant::now(), true);
+            let mut sender = Sender::new(first);
+            let out = call(&mut rx, 100, |k| {
+                if k == 50 {
+                    sender.switch(second);
+                }
+                Some(sender.packet(k))
+            });
+            let played: Vec<&PlayedFrame> = out.iter().flatten().collect();
+            let codecs: Vec<Codec> = played.iter().map(|f| f.codec).collect();
+            let switch = codecs.iter().position(|&c| c == second).unwrap();
+            assert!(codecs[..switch].iter().all(|&c| c == first));
+            assert!(codecs[switch..].iter().all(|&c| c == second));
+            // The new codec's frames decode: a restart of the timing at a new clock costs
+            // at most the buffered frames, never garbage.
+            let decoded = played[switch..]
+                .iter()
+                .filter(|f| f.kind == FrameKind::Decoded)
+                .count();
+            assert!(decoded >= 45, "{first}->{second}: {decoded}");
+            let stats = rx.stats();
+            assert_eq!(stats.decode_errors, 0, "{first}->{second}: {stats:?}");
+            assert_eq!(stats.codec, Some(second));
+        }
+    }
+
+    #[test]
+    fn opus_dtx_gap_fades_to_silence_and_the_next_spurt_plays() {
+        let mut rx = PeerReceiver::new(JitterConfig::default(), Instant::now(), true);
+        let mut sender = Sender::new(Codec::Opus);
+        // 1 s of speech, 1 s of DTX (nothing sent; the timestamps move on), 1 s of speech.
+        let out = call(&mut rx, 150, |k| {
+            if (50..100).contains(&k) {
+                sender.stream.skip(1);
+                None
+            } else {
+                Some(sender.packet(k))
+            }
+        });
+        let first = out.iter().position(Option::is_some).unwrap();
+        // The first spurt's 50 frames, then concealment while the gap is young, then nothing.
+        let spurt: Vec<&PlayedFrame> = out[first..first + 50].iter().flatten().collect();
+        assert!(spurt.iter().all(|f| f.kind == FrameKind::Decoded));
+        let held = spurt.last().unwrap().features.lsp;
+        // (The second spurt may start a frame early: the buffer's delay has shrunk to 20 ms.)
+        let gap: Vec<&Option<PlayedFrame>> = out[first + 50..first + 95].iter().collect();
+        let concealed: Vec<&PlayedFrame> = gap.iter().filter_map(|f| f.as_ref()).collect();
+        assert!((10..=16).contains(&concealed.len()), "{}", concealed.len());
+        assert!(concealed.iter().all(|f| f.kind == FrameKind::Concealed));
+        assert!(concealed.iter().all(|f| f.features.lsp == held));
+        assert!(concealed.iter().all(|f| f.features.mode.is_none()));
+        let e = |f: &PlayedFrame| f.features.energy_db;
+        assert!(e(concealed.last().unwrap()) < e(spurt.last().unwrap()) - 20.0);
+        assert!(gap[30..].iter().all(|f| f.is_none()));
+        // The second spurt starts afresh.
+        let resumed: Vec<&PlayedFrame> = out[first + 95..].iter().flatten().collect();
+        assert!(
+            resumed
+                .iter()
+                .filter(|f| f.kind == FrameKind::Decoded)
+                .count()
+                >= 48
+        );
+    }
+
+    #[test]
+    fn a_lost_opus_packet_is_rebuilt_from_the_next_ones_fec() {
+        let mut rx = PeerReceiver::new(JitterConfig::default(), Instant::now(), true);
+        let mut sender = Sender::new(Codec::Opus);
+        let out = call(&mut rx, 100, |k| {
+            let p = sender.packet(k);
+            (k % 10 != 5).then_some(p)
+        });
+        let stats = rx.stats();
+        assert_eq!(
+            stats.jitter.lost,
+            10 + (out.iter().flatten().count() as u64 - 100)
+        );
+        // All ten losses have their next packet in the buffer; those whose next packet carries
+        // FEC (speech that is active) are rebuilt, the others concealed.
+        assert!(stats.recovered >= 8, "{stats:?}");
+        assert_eq!(stats.recovered + stats.concealed, stats.jitter.lost);
+    }
 }

@@ -1,15 +1,16 @@
-//! RTP packets (RFC 3550) with a Speex payload (RFC 5574): parsing through `rtp-types`, and the
-//! sender's sequence/timestamp/marker state.
+//! RTP packets (RFC 3550) with any payload: parsing through `rtp-types`, and the sender's
+//! sequence/timestamp/marker state. What a payload type carries is the codec layer's business
+//! ([`crate::codec::any::PayloadMap`]).
 
 use rtp_types::{RtpPacket, RtpPacketBuilder};
 
-use super::{PAYLOAD_TYPE, TIMESTAMP_STEP};
+use crate::codec::any::Codec;
 
 #[derive(Debug, thiserror::Error, PartialEq, Eq)]
 pub enum RtpError {
     #[error("malformed RTP packet: {0}")]
     Malformed(String),
-    #[error("RTP payload type {0} is not Speex")]
+    #[error("unexpected RTP payload type {0}")]
     PayloadType(u8),
     #[error("empty RTP payload")]
     Empty,
@@ -76,6 +77,9 @@ pub fn write(header: &RtpHeader, payload: &[u8], out: &mut Vec<u8>) -> Result<()
 #[derive(Debug, Clone)]
 pub struct RtpStream {
     pub ssrc: u32,
+    payload_type: u8,
+    /// Timestamp ticks per 20 ms frame.
+    frame_ticks: u32,
     sequence: u16,
     timestamp: u32,
     first_timestamp: u32,
@@ -95,9 +99,12 @@ impl RtpStream {
         Ok(Self::new(ssrc, sequence, timestamp))
     }
 
+    /// A stream of Speex (payload type 110, 8 kHz clock) until [`RtpStream::set_payload`].
     pub fn new(ssrc: u32, sequence: u16, timestamp: u32) -> Self {
         Self {
             ssrc,
+            payload_type: Codec::Speex.default_payload_type(),
+            frame_ticks: Codec::Speex.frame_ticks(),
             sequence,
             timestamp,
             first_timestamp: timestamp,
@@ -105,6 +112,16 @@ impl RtpStream {
             packets_sent: 0,
             octets_sent: 0,
         }
+    }
+
+    /// Sends `payload_type` from now on, on a clock of `frame_ticks` per 20 ms.
+    pub fn set_payload(&mut self, payload_type: u8, frame_ticks: u32) {
+        self.payload_type = payload_type;
+        self.frame_ticks = frame_ticks;
+    }
+
+    pub fn payload_type(&self) -> u8 {
+        self.payload_type
     }
 
     /// The timestamp the next packet will carry.
@@ -124,9 +141,20 @@ impl RtpStream {
         frames: u32,
         out: &mut Vec<u8>,
     ) -> Result<RtpHeader, RtpError> {
+        let ticks = self.frame_ticks.wrapping_mul(frames.max(1));
+        self.packetize_ticks(payload, ticks, out)
+    }
+
+    /// Builds the next packet, lasting `ticks` of the RTP clock.
+    pub fn packetize_ticks(
+        &mut self,
+        payload: &[u8],
+        ticks: u32,
+        out: &mut Vec<u8>,
+    ) -> Result<RtpHeader, RtpError> {
         let header = RtpHeader {
             marker: !self.talking,
-            payload_type: PAYLOAD_TYPE,
+            payload_type: self.payload_type,
             sequence: self.sequence,
             timestamp: self.timestamp,
             ssrc: self.ssrc,
@@ -134,9 +162,7 @@ impl RtpStream {
         write(&header, payload, out)?;
         self.talking = true;
         self.sequence = self.sequence.wrapping_add(1);
-        self.timestamp = self
-            .timestamp
-            .wrapping_add(TIMESTAMP_STEP.wrapping_mul(frames.max(1)));
+        self.timestamp = self.timestamp.wrapping_add(ticks);
         self.packets_sent = self.packets_sent.wrapping_add(1);
         self.octets_sent = self.octets_sent.wrapping_add(payload.len() as u32);
         Ok(header)
@@ -147,7 +173,7 @@ impl RtpStream {
     pub fn skip(&mut self, frames: u32) {
         self.timestamp = self
             .timestamp
-            .wrapping_add(TIMESTAMP_STEP.wrapping_mul(frames));
+            .wrapping_add(self.frame_ticks.wrapping_mul(frames));
         self.talking = false;
     }
 }
@@ -162,7 +188,7 @@ mod tests {
         let mut out = Vec::new();
         let h1 = s.packetize(&[1, 2, 3], 1, &mut out).unwrap();
         assert!(h1.marker);
-        let p = parse(&out, Some(PAYLOAD_TYPE)).unwrap();
+        let p = parse(&out, Some(110)).unwrap();
         assert_eq!(p.header, h1);
         assert_eq!(p.payload, &[1, 2, 3]);
         let h2 = s.packetize(&[4], 2, &mut out).unwrap();
@@ -172,6 +198,13 @@ mod tests {
         assert_eq!(s.next_timestamp(), h2.timestamp.wrapping_add(320));
         s.skip(3);
         assert!(s.packetize(&[5], 1, &mut out).unwrap().marker);
+        // Opus: 960 ticks per frame, any duration.
+        s.set_payload(96, 960);
+        let before = s.next_timestamp();
+        let h = s.packetize(&[6], 2, &mut out).unwrap();
+        assert_eq!((h.payload_type, h.timestamp), (96, before));
+        s.packetize_ticks(&[7], 480, &mut out).unwrap();
+        assert_eq!(s.next_timestamp(), before.wrapping_add(1920 + 480));
     }
 
     #[test]

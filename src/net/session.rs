@@ -2,9 +2,10 @@
 //! remote peers (each identified by SSRC, its address noted), RTCP reports, optional SRTP and
 //! an optional relay room.
 //!
-//! The owner sends with [`Session::send_speex`] and pulls the mixed-down timeline with
-//! [`Session::pull`] once per 20 ms of its output clock (a playback thread, or a timer in the
-//! headless receiver); decoding happens in `pull`, on the caller's thread.
+//! The owner sends payloads of its codec with [`Session::send_frames`] (or
+//! [`Session::send_packet`]) and pulls the mixed-down timeline with [`Session::pull`] once per
+//! 20 ms of its output clock (a playback thread, or a timer in the headless receiver); decoding
+//! happens in `pull`, on the caller's thread. Each peer may send another codec.
 
 use std::collections::HashMap;
 use std::net::{SocketAddr, UdpSocket};
@@ -20,6 +21,7 @@ use super::rtcp::{self, Outgoing, ReportBlock, RtcpItem, SenderInfo};
 use super::rtp::{self, RtpStream};
 use super::srtp::{MasterKey, Srtp, SrtpError};
 use super::{DatagramKind, MAX_DATAGRAM, NetError, classify};
+use crate::codec::any::{Codec, PayloadMap};
 
 #[derive(Debug, Clone)]
 pub struct SessionConfig {
@@ -44,6 +46,10 @@ pub struct SessionConfig {
     pub enhancer: bool,
     /// Fixed SSRC (for interop set-ups that need it in advance); random when `None`.
     pub ssrc: Option<u32>,
+    /// The codec this session sends.
+    pub codec: Codec,
+    /// Which codec each payload type carries, received and sent.
+    pub payloads: PayloadMap,
 }
 
 impl SessionConfig {
@@ -62,6 +68,8 @@ impl SessionConfig {
             send_rtcp: true,
             enhancer: true,
             ssrc: None,
+            codec: Codec::Speex,
+            payloads: PayloadMap::default(),
         }
     }
 }
@@ -76,8 +84,10 @@ pub struct SessionStats {
     pub control: u64,
     /// Unparseable RTP/RTCP/control datagrams.
     pub malformed: u64,
-    /// Datagrams of no known kind, or RTP of a non-dynamic payload type.
+    /// Datagrams of no known kind.
     pub unknown: u64,
+    /// RTP packets of a payload type no codec is mapped to (dropped, never decoded).
+    pub unknown_payload: u64,
     /// SRTP/SRTCP packets that failed authentication.
     pub auth_failed: u64,
     pub replayed: u64,
@@ -195,6 +205,11 @@ impl Session {
         if let Some(ssrc) = config.ssrc {
             stream.ssrc = ssrc;
         }
+        let payload_type = config
+            .payloads
+            .payload_type(config.codec)
+            .ok_or(NetError::NoPayloadType(config.codec))?;
+        stream.set_payload(payload_type, config.codec.frame_ticks());
         let ssrc = stream.ssrc;
         let local = socket
             .local_addr()
@@ -254,8 +269,21 @@ impl Session {
         self.shared.config.key.is_some()
     }
 
-    /// Sends one Speex packet holding `frames` 20 ms frames to every destination.
-    pub fn send_speex(&self, payload: &[u8], frames: u32) -> Result<(), NetError> {
+    /// The codec this session sends.
+    pub fn codec(&self) -> Codec {
+        self.shared.config.codec
+    }
+
+    /// Sends one payload of the session's codec holding `frames` 20 ms frames to every
+    /// destination.
+    pub fn send_frames(&self, payload: &[u8], frames: u32) -> Result<(), NetError> {
+        let ticks = self.shared.config.codec.frame_ticks() * frames.max(1);
+        self.send_packet(payload, ticks)
+    }
+
+    /// Sends one payload of the session's codec lasting `ticks` of its RTP clock (an Opus
+    /// packet of 60 ms: 2880) to every destination.
+    pub fn send_packet(&self, payload: &[u8], ticks: u32) -> Result<(), NetError> {
         let first = !lock(&self.shared.tx).started;
         if first && self.shared.config.send_rtcp {
             // Tells receivers where the stream starts, in case its first packet is lost.
@@ -266,7 +294,7 @@ impl Session {
         let Tx {
             stream, srtp, buf, ..
         } = &mut *tx;
-        stream.packetize(payload, frames, buf)?;
+        stream.packetize_ticks(payload, ticks, buf)?;
         if let Some(srtp) = srtp {
             srtp.protect_rtp(buf)?;
         }
@@ -524,8 +552,12 @@ impl Shared {
                 rx.stats.too_many_peers += 1;
                 return None;
             }
-            let receiver =
-                PeerReceiver::new(self.config.jitter, self.epoch, self.config.enhancer).ok()?;
+            let receiver = PeerReceiver::with_payloads(
+                self.config.jitter,
+                self.epoch,
+                self.config.enhancer,
+                self.config.payloads.clone(),
+            );
             rx.peers.insert(
                 ssrc,
                 Peer {
@@ -557,10 +589,6 @@ impl Shared {
                 return;
             }
         };
-        if !(96..=127).contains(&packet.header.payload_type) {
-            rx.stats.unknown += 1;
-            return;
-        }
         if packet.header.ssrc == self.ssrc {
             rx.stats.own += 1;
             return;
@@ -568,7 +596,9 @@ impl Shared {
         rx.stats.rtp += 1;
         if let Some(peer) = self.peer(rx, packet.header.ssrc, from) {
             peer.last_heard = arrival;
-            peer.receiver.insert(&packet, arrival);
+            if !peer.receiver.insert(&packet, arrival) {
+                rx.stats.unknown_payload += 1;
+            }
         }
     }
 

@@ -1,6 +1,7 @@
 //! Opus through libopus: decoding, encoding and Ogg Opus files (RFC 7845).
 
 pub mod codec;
+pub mod fec;
 pub mod ogg_file;
 pub mod stream;
 

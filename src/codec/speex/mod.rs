@@ -6,6 +6,7 @@ pub mod codec;
 pub mod features;
 mod lsp_tables;
 pub mod ogg_file;
+pub mod split;
 pub mod stream;
 
 pub use super::{FRAME_SIZE, LSP_COUNT, SAMPLE_RATE};

@@ -1,5 +1,6 @@
 //! Splitting a multi-frame Speex packet into one packet per frame without decoding it, so that
-//! receivers that decode only a packet's first frame (GStreamer's speexdec) hear everything.
+//! receivers that decode only a packet's first frame (GStreamer's speexdec) hear everything,
+//! and counting a packet's frames, so that a receiver knows how long it lasts.
 //!
 //! Narrowband frames are packed back to back; each opens with a wideband flag and a 4-bit mode
 //! whose frame length is fixed. Packets with wideband layers or in-band messages are left whole.

@@ -1,0 +1,626 @@
+//! One remote stream's decoder, whatever its codec: payloads in, 20 ms frames of 8 kHz audio
+//! out, each with the features the lip-sync network eats, and concealment for what is missing.
+//!
+//! Speex decodes frame by frame as before: its packets hold whole 20 ms frames, and the LSPs
+//! come from its bitstream walker ([`FrameTracker`]). Opus and G.711 payloads may last any
+//! whole number of 2.5 ms (Opus) or samples (G.711: GStreamer's `rtppcmupay` sends 173.5 ms),
+//! so they are decoded whole into a queue of samples, placed where their timestamps say within
+//! the frame being played; a frame the queue cannot fill is completed by concealment. Their
+//! features come from [`FeatureSource`].
+//!
+//! Loss: Speex and Opus conceal with their decoders (Opus recovers a lost 20 ms from the next
+//! packet's in-band FEC where that packet carries it); G.711 repeats the last pitch period and
+//! fades out over 60 ms, in the manner of G.711 Appendix I. A concealed frame keeps the last
+//! frame's LSPs while its energy falls, so the mouth closes.
+
+use super::any::Codec;
+use super::g711::Law;
+use super::lpc::LpcAnalyser;
+use super::speex::features::{FrameFeatures, FrameTracker, energy_db, flat_lsp};
+use super::{FRAME_SIZE, LSP_COUNT, opus, speex};
+
+/// Decoded samples a stream may hold ahead: the longest payload (a 1500-byte datagram of G.711,
+/// or 120 ms of Opus) behind a frame's worth of leftovers.
+const QUEUE_CAPACITY: usize = 2048;
+/// G.711 concealment fades to silence over this many samples (60 ms).
+const G711_FADE: usize = 480;
+/// Pitch periods the G.711 concealment looks for: 57 to 400 Hz.
+const PITCH_RANGE: std::ops::RangeInclusive<usize> = 20..=140;
+/// History the G.711 concealment repeats from.
+const HISTORY: usize = 2 * FRAME_SIZE;
+
+/// How a frame came about.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum FrameOrigin {
+    /// Decoded from received payloads (partly concealed where they left a gap).
+    Decoded,
+    /// Nothing was received for it: the codec's concealment.
+    Concealed,
+    /// Lost, and rebuilt from the FEC copy the next Opus packet carried.
+    Recovered,
+}
+
+/// 20 ms of decoded audio with its features.
+#[derive(Debug, Clone, PartialEq)]
+pub struct DecodedFrame {
+    pub pcm: [i16; FRAME_SIZE],
+    pub features: FrameFeatures,
+    pub origin: FrameOrigin,
+}
+
+#[derive(Debug, thiserror::Error, PartialEq, Eq)]
+pub enum DecoderError {
+    #[error(transparent)]
+    Speex(#[from] speex::codec::CodecError),
+    #[error(transparent)]
+    Opus(#[from] opus::codec::CodecError),
+}
+
+/// A stream's decoder: [`StreamDecoder::packet`] for each payload that starts in the frame about
+/// to be played, then [`StreamDecoder::frame`]; [`StreamDecoder::lost`] for a frame with nothing.
+pub struct StreamDecoder {
+    codec: Codec,
+    inner: Inner,
+    errors: u64,
+}
+
+impl std::fmt::Debug for StreamDecoder {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.debug_struct("StreamDecoder")
+            .field("codec", &self.codec)
+            .field("errors", &self.errors)
+            .finish_non_exhaustive()
+    }
+}
+
+enum Inner {
+    Speex(Box<SpeexStream>),
+    Queued(Box<QueuedStream>),
+}
+
+struct SpeexStream {
+    decoder: speex::codec::Decoder,
+    tracker: FrameTracker,
+    /// The packet just given could not be loaded: its first frame is concealed.
+    failed: bool,
+}
+
+/// Where the feature rows of a queued codec come from.
+enum FeatureSource {
+    /// LPC analysis of the decoded audio, as the Speex encoder would analyse it (G.711, whose
+    /// bitstream is the waveform; and Opus for now). Opus SILK and hybrid frames carry NLSFs
+    /// in their bitstream: the SILK walker (`codec::silk`) will give them here, as a variant
+    /// beside this one, with this analysis left for CELT-only frames.
+    Analysis {
+        analyser: LpcAnalyser,
+        /// LSPs of the last frame with received audio, kept through concealment.
+        held: [f32; LSP_COUNT],
+    },
+}
+
+impl FeatureSource {
+    fn analysis() -> Self {
+        FeatureSource::Analysis {
+            analyser: LpcAnalyser::new(),
+            held: flat_lsp(),
+        }
+    }
+
+    fn features(
+        &mut self,
+        pcm: &[i16; FRAME_SIZE],
+        mode: Option<u8>,
+        origin: FrameOrigin,
+    ) -> FrameFeatures {
+        match self {
+            FeatureSource::Analysis { analyser, held } => {
+                // The analyser hears concealed audio too, so that its history stays continuous.
+                let analysis = analyser.analyse(pcm);
+                match origin {
+                    FrameOrigin::Decoded | FrameOrigin::Recovered => {
+                        *held = analysis.lsp;
+                        analysis.features(mode)
+                    }
+                    FrameOrigin::Concealed => FrameFeatures {
+                        mode: None,
+                        lsp: *held,
+                        energy_db: energy_db(pcm),
+                    },
+                }
+            }
+        }
+    }
+}
+
+enum QueuedCodec {
+    Opus(opus::codec::Decoder),
+    G711 { law: Law, plc: Box<Plc> },
+}
+
+struct QueuedStream {
+    codec: QueuedCodec,
+    queue: Vec<i16>,
+    /// Mode of the last payload decoded: Opus's TOC configuration, G.711's payload type.
+    mode: Option<u8>,
+    features: FeatureSource,
+    scratch: [i16; opus::codec::MAX_PACKET_SAMPLES],
+}
+
+impl StreamDecoder {
+    /// A decoder for `codec`; `enhancer` is Speex's perceptual enhancer (speexdec's default).
+    pub fn new(codec: Codec, enhancer: bool) -> Result<Self, DecoderError> {
+        let queued = |codec| {
+            Inner::Queued(Box::new(QueuedStream {
+                codec,
+                queue: Vec::with_capacity(QUEUE_CAPACITY),
+                mode: None,
+                features: FeatureSource::analysis(),
+                scratch: [0; opus::codec::MAX_PACKET_SAMPLES],
+            }))
+        };
+        let inner = match codec {
+            Codec::Speex => Inner::Speex(Box::new(SpeexStream {
+                decoder: speex::codec::Decoder::new(enhancer)?,
+                tracker: FrameTracker::new(),
+                failed: false,
+            })),
+            Codec::Opus => queued(QueuedCodec::Opus(opus::codec::Decoder::new()?)),
+            Codec::Pcmu | Codec::Pcma => {
+                let law = codec.law().unwrap_or(Law::Mu);
+                queued(QueuedCodec::G711 {
+                    law,
+                    plc: Box::new(Plc::new()),
+                })
+            }
+        };
+        Ok(Self {
+            codec,
+            inner,
+            errors: 0,
+        })
+    }
+
+    pub fn codec(&self) -> Codec {
+        self.codec
+    }
+
+    /// Payloads the codec refused (each concealed instead).
+    pub fn errors(&self) -> u64 {
+        self.errors
+    }
+
+    /// A payload that starts `offset` ticks of the codec's RTP clock into the frame about to be
+    /// played (0 on the 20 ms grid). Speex payloads always start a frame.
+    pub fn packet(&mut self, payload: &[u8], offset: u32) {
+        match &mut self.inner {
+            Inner::Speex(s) => {
+                s.failed = s.decoder.load(payload).is_err();
+                // A packet the walker cannot read still decodes; its rows keep held LSPs.
+                let _ = s.tracker.start_packet(payload);
+                self.errors += u64::from(s.failed);
+            }
+            Inner::Queued(q) => {
+                let offset = self.codec.ticks_to_samples(offset).min(FRAME_SIZE);
+                if !q.decode(payload, offset) {
+                    self.errors += 1;
+                }
+            }
+        }
+    }
+
+    /// The next 20 ms: the current payload's next frame, completed by concealment where the
+    /// payloads fall short.
+    pub fn frame(&mut self) -> DecodedFrame {
+        match &mut self.inner {
+            Inner::Speex(s) => {
+                if std::mem::take(&mut s.failed) {
+                    return s.conceal();
+                }
+                let mut pcm = [0i16; FRAME_SIZE];
+                let decoded = matches!(
+                    s.decoder.decode_next(&mut pcm),
+                    Ok(speex::codec::FrameOutcome::Decoded)
+                );
+                if decoded {
+                    let features = s.tracker.decoded(&pcm);
+                    return DecodedFrame {
+                        pcm,
+                        features,
+                        origin: FrameOrigin::Decoded,
+                    };
+                }
+                self.errors += 1;
+                s.conceal()
+            }
+            Inner::Queued(q) => q.frame(),
+        }
+    }
+
+    /// A frame nothing was received for. `next` is the payload that follows it, if it is
+    /// already here: Opus rebuilds the frame from the FEC copy that payload may carry.
+    pub fn lost(&mut self, next: Option<&[u8]>) -> DecodedFrame {
+        match &mut self.inner {
+            Inner::Speex(s) => s.conceal(),
+            Inner::Queued(q) => {
+                if q.queue.is_empty()
+                    && let (QueuedCodec::Opus(dec), Some(next)) = (&mut q.codec, next)
+                    && opus::fec::carries_fec(next)
+                {
+                    let mut pcm = [0i16; FRAME_SIZE];
+                    if dec.decode_fec(next, &mut pcm).is_ok() {
+                        let mode = next.first().map(|toc| toc >> 3);
+                        let features = q.features.features(&pcm, mode, FrameOrigin::Recovered);
+                        return DecodedFrame {
+                            pcm,
+                            features,
+                            origin: FrameOrigin::Recovered,
+                        };
+                    }
+                }
+                q.frame()
+            }
+        }
+    }
+}
+
+impl SpeexStream {
+    fn conceal(&mut self) -> DecodedFrame {
+        let mut pcm = [0i16; FRAME_SIZE];
+        self.decoder.conceal(&mut pcm);
+        let features = self.tracker.concealed(&pcm);
+        DecodedFrame {
+            pcm,
+            features,
+            origin: FrameOrigin::Concealed,
+        }
+    }
+}
+
+impl QueuedStream {
+    /// Queues a payload's samples `offset` samples into the frame about to be played: what the
+    /// queue holds beyond that is overwritten (the newer payload wins an overlap), a gap before
+    /// it is concealed. False if the payload could not be decoded.
+    fn decode(&mut self, payload: &[u8], offset: usize) -> bool {
+        if self.queue.len() > offset {
+            self.queue.truncate(offset);
+        } else if self.queue.len() < offset {
+            self.conceal_into_queue(offset - self.queue.len());
+        }
+        let start = self.queue.len();
+        match &mut self.codec {
+            QueuedCodec::Opus(dec) => {
+                let Ok(n) = dec.decode(payload, &mut self.scratch) else {
+                    return false;
+                };
+                if start + n > QUEUE_CAPACITY {
+                    return false;
+                }
+                self.queue.extend_from_slice(&self.scratch[..n]);
+                self.mode = payload.first().map(|toc| toc >> 3);
+            }
+            QueuedCodec::G711 { law, plc } => {
+                let n = payload.len().min(QUEUE_CAPACITY - start);
+                if n == 0 {
+                    return false;
+                }
+                self.queue.resize(start + n, 0);
+                law.decode_into(&payload[..n], &mut self.queue[start..]);
+                plc.heard(&self.queue[start..]);
+                self.mode = Some(law.payload_type());
+            }
+        }
+        true
+    }
+
+    /// Appends `n` concealed samples.
+    fn conceal_into_queue(&mut self, n: usize) {
+        let start = self.queue.len();
+        let n = n.min(QUEUE_CAPACITY - start);
+        self.queue.resize(start + n, 0);
+        let out = &mut self.queue[start..];
+        match &mut self.codec {
+            QueuedCodec::Opus(dec) => {
+                // libopus conceals whole 2.5 ms steps (20 samples at 8 kHz).
+                let steps = n.div_ceil(20) * 20;
+                let scratch = &mut self.scratch[..steps.min(opus::codec::MAX_PACKET_SAMPLES)];
+                if dec.conceal(scratch).is_ok() {
+                    let m = out.len().min(scratch.len());
+                    out[..m].copy_from_slice(&scratch[..m]);
+                }
+            }
+            QueuedCodec::G711 { plc, .. } => plc.conceal(out),
+        }
+    }
+
+    fn frame(&mut self) -> DecodedFrame {
+        let had = self.queue.len().min(FRAME_SIZE);
+        if had < FRAME_SIZE {
+            self.conceal_into_queue(FRAME_SIZE - had);
+        }
+        let mut pcm = [0i16; FRAME_SIZE];
+        let n = self.queue.len().min(FRAME_SIZE);
+        pcm[..n].copy_from_slice(&self.queue[..n]);
+        self.queue.drain(..n);
+        let origin = if had > 0 {
+            FrameOrigin::Decoded
+        } else {
+            FrameOrigin::Concealed
+        };
+        let features = self.features.features(&pcm, self.mode, origin);
+        DecodedFrame {
+            pcm,
+            features,
+            origin,
+        }
+    }
+}
+
+/// G.711 has no concealment of its own: repeat the last pitch period of what was heard, fading
+/// to silence over 60 ms.
+struct Plc {
+    history: [i16; HISTORY],
+    period: usize,
+    /// Samples concealed since the last heard ones.
+    concealed: usize,
+}
+
+impl Plc {
+    fn new() -> Self {
+        Self {
+            history: [0; HISTORY],
+            period: FRAME_SIZE,
+            concealed: 0,
+        }
+    }
+
+    fn heard(&mut self, samples: &[i16]) {
+        let n = samples.len().min(HISTORY);
+        self.history.copy_within(n.., 0);
+        self.history[HISTORY - n..].copy_from_slice(&samples[samples.len() - n..]);
+        self.concealed = 0;
+    }
+
+    /// The lag of the strongest normalised autocorrelation over the last frame.
+    fn pitch(&self) -> usize {
+        let recent = &self.history[HISTORY - FRAME_SIZE..];
+        let mut best = (0.0f64, FRAME_SIZE);
+        for lag in PITCH_RANGE {
+            let earlier = &self.history[HISTORY - FRAME_SIZE - lag..HISTORY - lag];
+            let (mut xy, mut yy) = (0.0f64, 0.0f64);
+            for (&x, &y) in recent.iter().zip(earlier) {
+                xy += f64::from(x) * f64::from(y);
+                yy += f64::from(y) * f64::from(y);
+            }
+            if yy > 0.0 {
+                let score = xy / yy.sqrt();
+                if score > best.0 {
+                    best = (score, lag);
+                }
+            }
+        }
+        best.1
+    }
+
+    fn conceal(&mut self, out: &mut [i16]) {
+        if self.concealed == 0 {
+            self.period = self.pitch();
+        }
+        let base = HISTORY - self.period;
+        for o in out.iter_mut() {
+            let gain = 1.0 - self.concealed as f32 / G711_FADE as f32;
+            *o = if gain > 0.0 {
+                let s = self.history[base + self.concealed % self.period];
+                (f32::from(s) * gain) as i16
+            } else {
+                0
+            };
+            self.concealed += 1;
+        }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::super::any::{EncoderSettings, FrameEncoder, MAX_FRAME_PAYLOAD};
+    use super::*;
+
+    fn speech_like(frames: usize) -> Vec<[i16; FRAME_SIZE]> {
+        (0..frames)
+            .map(|f| {
+                std::array::from_fn(|i| {
+                    let t = (f * FRAME_SIZE + i) as f32 / 8000.0;
+                    let env = (std::f32::consts::PI * t * 2.0).sin().abs();
+                    let mut s = 0.0;
+                    for h in 1..20 {
+                        let fr = 140.0 * h as f32;
+                        let amp = 1.0 / (1.0 + ((fr - 700.0) / 250.0).powi(2))
+                            + 0.6 / (1.0 + ((fr - 1500.0) / 300.0).powi(2));
+                        s += amp * (2.0 * std::f32::consts::PI * fr * t).sin();
+                    }
+                    (5000.0 * env * s) as i16
+                })
+            })
+            .collect()
+    }
+
+    fn encode(codec: Codec, frames: &[[i16; FRAME_SIZE]]) -> Vec<Vec<u8>> {
+        let mut enc = FrameEncoder::new(codec, &EncoderSettings::default()).unwrap();
+        let mut out = [0u8; MAX_FRAME_PAYLOAD];
+        frames
+            .iter()
+            .filter_map(|f| {
+                enc.encode(f, &mut out)
+                    .unwrap()
+                    .map(|(n, _)| out[..n].to_vec())
+            })
+            .collect()
+    }
+
+    fn energy(pcm: &[i16]) -> f64 {
+        pcm.iter().map(|&s| f64::from(s).powi(2)).sum()
+    }
+
+    #[test]
+    fn every_codec_decodes_frame_by_frame_with_features() {
+        let input = speech_like(100);
+        for codec in Codec::ALL {
+            let packets = encode(codec, &input);
+            assert_eq!(packets.len(), 100, "{codec}");
+            let mut dec = StreamDecoder::new(codec, true).unwrap();
+            let mut out = Vec::new();
+            for p in &packets {
+                dec.packet(p, 0);
+                let f = dec.frame();
+                assert_eq!(f.origin, FrameOrigin::Decoded, "{codec}");
+                assert!(f.features.mode.is_some(), "{codec}");
+                assert!(f.features.lsp.windows(2).all(|w| w[0] < w[1]), "{codec}");
+                out.extend_from_slice(&f.pcm);
+            }
+            assert_eq!(dec.errors(), 0);
+            // Sound came out, about as loud as went in.
+            let ratio = energy(&out) / energy(input.as_flattened());
+            assert!((0.3..3.0).contains(&ratio), "{codec}: {ratio}");
+        }
+    }
+
+    #[test]
+    fn concealment_keeps_the_lsps_and_fades() {
+        let input = speech_like(60);
+        for codec in Codec::ALL {
+            let packets = encode(codec, &input);
+            let mut dec = StreamDecoder::new(codec, true).unwrap();
+            let mut last = None;
+            for p in &packets[..25] {
+                dec.packet(p, 0);
+                last = Some(dec.frame());
+            }
+            let last = last.unwrap();
+            let mut energies = Vec::new();
+            for _ in 0..10 {
+                let f = dec.lost(None);
+                assert_eq!(f.origin, FrameOrigin::Concealed, "{codec}");
+                assert_eq!(f.features.mode, None);
+                assert_eq!(f.features.lsp, last.features.lsp, "{codec}");
+                energies.push(f.features.energy_db);
+            }
+            assert!(
+                energies[9] < last.features.energy_db - 20.0,
+                "{codec}: {energies:?} after {}",
+                last.features.energy_db
+            );
+            // Decoding resumes.
+            dec.packet(&packets[35], 0);
+            assert_eq!(dec.frame().origin, FrameOrigin::Decoded);
+        }
+    }
+
+    #[test]
+    fn opus_rebuilds_a_lost_frame_from_the_next_packets_fec() {
+        let input = speech_like(50);
+        let packets = encode(Codec::Opus, &input);
+        let lost = (20..49)
+            .find(|&i| opus::fec::carries_fec(&packets[i + 1]))
+            .expect("FEC at 20 kb/s");
+        let run = |use_fec: bool| {
+            let mut dec = StreamDecoder::new(Codec::Opus, true).unwrap();
+            let mut frames = Vec::new();
+            for (i, p) in packets.iter().enumerate() {
+                if i == lost {
+                    let f = dec.lost(use_fec.then_some(&packets[lost + 1][..]));
+                    frames.push(f);
+                    continue;
+                }
+                dec.packet(p, 0);
+                frames.push(dec.frame());
+            }
+            frames
+        };
+        let clean: Vec<_> = {
+            let mut dec = StreamDecoder::new(Codec::Opus, true).unwrap();
+            packets
+                .iter()
+                .map(|p| {
+                    dec.packet(p, 0);
+                    dec.frame()
+                })
+                .collect()
+        };
+        let fec = run(true);
+        let plc = run(false);
+        assert_eq!(fec[lost].origin, FrameOrigin::Recovered);
+        assert!(fec[lost].features.mode.is_some());
+        assert_eq!(plc[lost].origin, FrameOrigin::Concealed);
+        let err = |f: &DecodedFrame| {
+            f.pcm
+                .iter()
+                .zip(&clean[lost].pcm)
+                .map(|(&a, &b)| (f64::from(a) - f64::from(b)).powi(2))
+                .sum::<f64>()
+        };
+        assert!(err(&fec[lost]) < err(&plc[lost]), "FEC no better than PLC");
+    }
+
+    #[test]
+    fn g711_payloads_of_any_length_play_on_the_grid() {
+        let input = speech_like(40);
+        let flat: Vec<i16> = input.as_flattened().to_vec();
+        let law = Law::Mu;
+        let reference: Vec<i16> = flat
+            .iter()
+            .map(|&s| law.decode_sample(law.encode_sample(s)))
+            .collect();
+        // GStreamer's default PCMU packets: 1388 and 660 samples, taking turns.
+        let mut dec = StreamDecoder::new(Codec::Pcmu, true).unwrap();
+        let mut at = 0usize;
+        let mut sizes = [1388usize, 660].into_iter().cycle();
+        let mut played = Vec::new();
+        let mut pending: Vec<(usize, Vec<u8>)> = Vec::new();
+        while at < flat.len() {
+            let n = sizes.next().unwrap().min(flat.len() - at);
+            pending.push((
+                at,
+                flat[at..at + n]
+                    .iter()
+                    .map(|&s| law.encode_sample(s))
+                    .collect(),
+            ));
+            at += n;
+        }
+        // Each 20 ms slot: the payloads starting in it, at their offsets.
+        for slot in 0..flat.len() / FRAME_SIZE {
+            let lo = slot * FRAME_SIZE;
+            for (start, p) in pending
+                .iter()
+                .filter(|(s, _)| (lo..lo + FRAME_SIZE).contains(s))
+            {
+                dec.packet(p, (start - lo) as u32);
+            }
+            played.extend_from_slice(&dec.frame().pcm);
+        }
+        assert_eq!(played, reference[..played.len()]);
+        assert_eq!(dec.errors(), 0);
+        // A payload arriving 10 ms into a frame after a loss is placed there, the gap concealed.
+        let mut dec = StreamDecoder::new(Codec::Pcma, true).unwrap();
+        dec.packet(&[0xd5; 160], 0);
+        dec.frame();
+        dec.packet(&[0x55; 240], 80);
+        let f = dec.frame();
+        assert_eq!(f.origin, FrameOrigin::Decoded);
+        assert_eq!(f.pcm[80..], [Law::A.decode_sample(0x55); 80]);
+        assert_eq!(dec.frame().pcm[..160], [Law::A.decode_sample(0x55); 160]);
+        assert_eq!(dec.lost(None).origin, FrameOrigin::Concealed);
+    }
+
+    #[test]
+    fn garbage_is_an_error_then_concealed_never_a_panic() {
+        for codec in Codec::ALL {
+            let mut dec = StreamDecoder::new(codec, true).unwrap();
+            for junk in [&[][..], &[0xff; 3], &[0x0b, 48], &[0u8; 1500]] {
+                dec.packet(junk, 0);
+                let _ = dec.frame();
+                dec.packet(junk, u32::MAX);
+                let _ = dec.lost(Some(junk));
+            }
+        }
+    }
+}
