@@ -6,8 +6,13 @@
 //! asymmetric window over 40 samples of history and the current frame (its peak late, so the
 //! LSPs describe the frame's end, as the encoder's do), the same noise floor and Gaussian lag
 //! window on the autocorrelation, and the same regularised Levinson-Durbin recursion. Only
-//! the root search is our own: a fine grid in frequency instead of Speex's coarse steps, so
-//! closely spaced pairs are not missed.
+//! the root search is our own: a grid in frequency instead of Speex's coarse steps in cos(w),
+//! so closely spaced pairs are not missed.
+//!
+//! On TIMIT (dialect regions 1-4, tests/lpc_analysis.rs) the analysed LSPs of Speex-decoded
+//! audio lie 0.022 rad per LSP from those in the bitstream, and those of the encoder's own
+//! input (or of mu-law companded input) 0.017 rad, about the quantiser's own error. The
+//! Levinson bias matters most: without it the distance doubles.
 //!
 //! Cost: the autocorrelation (11 lags over 200 samples) is the only part linear in the frame
 //! and runs in f32, vectorised; Levinson-Durbin and the root search are O(order^2) and
@@ -44,7 +49,8 @@ const ABSOLUTE_FLOOR_LAGGED: f32 = 1.0;
 /// Speex divides each reflection coefficient by the error plus this share of the energy,
 /// which keeps near-singular frames (pure tones, clipping) well inside the unit circle.
 const LEVINSON_BIAS: f64 = 0.003;
-/// The input high-pass of the Speex narrowband encoder (a biquad with its zeros at DC).
+/// The input high-pass of the Speex narrowband encoder: a biquad with its zeros at DC, -3 dB
+/// at 80 Hz.
 const HIGHPASS_B: [f32; 3] = [0.95654, -1.91309, 0.95654];
 const HIGHPASS_A: [f32; 2] = [-1.91120, 0.91498];
 /// Grid steps over (0, pi) for the sign-change search: the fine grid's step is 12 mrad (16 Hz),
@@ -377,6 +383,18 @@ mod tests {
             .sum::<f64>()
             / ORDER as f64;
         assert!(error < 0.03, "{lsp_found:?}");
+    }
+
+    #[test]
+    fn ill_conditioned_input_is_refused() {
+        // Not an autocorrelation (|r1| > r0), and a predictor with zeros outside the circle.
+        assert!(levinson(&[1.0, 2.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0]).is_none());
+        assert!(levinson(&[f64::NAN; ORDER + 1]).is_none());
+        let mut unstable = [0.0; ORDER + 1];
+        unstable[0] = 1.0;
+        unstable[1] = -3.0;
+        unstable[2] = 2.5;
+        assert!(lsp_from_lpc(&unstable).is_none());
     }
 
     #[test]
