@@ -1,8 +1,8 @@
 // Morph-target blending of a talking head. The deltas of the 20 target slots (15 visemes, then
 // the eyes: blink, look up, down, left, right) are uploaded once as one storage buffer (6 floats
 // per vertex per slot: position xyz, normal xyz, one block of vertices per slot); the weights are
-// a small uniform rewritten every frame, and the weighted sum is done here per vertex. Head motion
-// (a rotation about the neck) is part of the model matrix.
+// a small storage buffer rewritten every frame, and the weighted sum is done here per vertex.
+// Head motion (a rotation about the neck) is part of the model matrix.
 
 struct View {
     view_proj: mat4x4<f32>,
@@ -26,12 +26,15 @@ struct Weights {
 
 struct Material {
     base_color: vec4<f32>,
-    // x: 1 when there is a base colour texture.
-    flags: vec4<u32>,
 }
 
+// Whether the material has a base colour texture. A pipeline constant rather than a uniform:
+// untextured materials skip the sample (a good part of a fragment's cost on a software adapter)
+// and lavapipe does not recompile the shader at every draw, as it does for uniform branches.
+override TEXTURED: bool = true;
+
 @group(0) @binding(0) var<uniform> view: View;
-@group(0) @binding(1) var<uniform> weights: Weights;
+@group(0) @binding(1) var<storage, read> weights: Weights;
 @group(0) @binding(2) var<storage, read> deltas: array<f32>;
 
 @group(1) @binding(0) var<uniform> material: Material;
@@ -62,11 +65,10 @@ fn blend(vid: u32, position: vec3<f32>, normal: vec3<f32>) -> Blended {
     var p = position;
     var n = normal;
     let count = view.counts.x;
-    // Vertices past `count` belong to meshes without morph targets and have no deltas.
-    if (vid >= count) {
-        return Blended(p, n);
-    }
-    let used = min(weights.used.x, TARGET_COUNT);
+    // Vertices past `count` belong to meshes without morph targets and have no deltas. A select,
+    // not a branch: lavapipe specialises shaders on uniforms that steer branches and loops, and
+    // recompiles at every draw that binds them.
+    let used = select(min(weights.used.x, TARGET_COUNT), 0u, vid >= count);
     for (var k = 0u; k < used; k = k + 1u) {
         let t = weights.slot[k / 4u][k % 4u];
         let w = weights.w[k / 4u][k % 4u];
@@ -94,10 +96,8 @@ fn vs_main(in: VertexIn, @builtin(vertex_index) vid: u32) -> VertexOut {
 
 @fragment
 fn fs_main(in: VertexOut, @builtin(front_facing) front: bool) -> @location(0) vec4<f32> {
-    // Untextured materials skip the sample: on a software adapter it is a good part of the
-    // fragment's cost. The branch is uniform per draw.
     var texel = vec4<f32>(1.0);
-    if (material.flags.x != 0u) {
+    if (TEXTURED) {
         texel = textureSample(base_tex, base_sampler, in.uv);
     }
     let albedo = material.base_color * in.color * texel;

@@ -1,4 +1,4 @@
-//! The wgpu head renderer: one pipeline per sidedness, heads uploaded once, weights and pose written per frame.
+//! The wgpu head renderer: one pipeline per kind of material, heads uploaded once, weights and pose written per frame.
 
 use std::sync::Arc;
 
@@ -62,16 +62,24 @@ impl WeightsUniform {
 #[derive(Debug, Clone, Copy, PartialEq, Pod, Zeroable)]
 struct MaterialUniform {
     base_color: [f32; 4],
-    /// x: 1 when the material has a base colour texture (untextured ones skip the sample).
-    flags: [u32; 4],
+}
+
+/// Which of [`HeadRenderer`]'s pipelines draws a material.
+fn pipeline_index(double_sided: bool, textured: bool) -> usize {
+    usize::from(double_sided) * 2 + usize::from(textured)
+}
+
+/// The inverse of [`pipeline_index`]: (double-sided, textured).
+fn pipeline_kind(index: usize) -> (bool, bool) {
+    (index & 2 != 0, index & 1 != 0)
 }
 
 /// Pipeline, layouts and sampler shared by every head drawn into one kind of target.
 pub struct HeadRenderer {
-    /// Back faces culled, as glTF draws materials that are not `doubleSided`: half the
-    /// triangles never reach the rasteriser, which a software adapter feels.
-    one_sided: wgpu::RenderPipeline,
-    two_sided: wgpu::RenderPipeline,
+    /// One per kind of material (see [`pipeline_index`]): back faces culled unless the material
+    /// is `doubleSided`, as glTF says (half the triangles never reach a software rasteriser), and
+    /// the texture sampled only where there is one.
+    pipelines: [wgpu::RenderPipeline; 4],
     shader: wgpu::ShaderModule,
     head_layout: wgpu::BindGroupLayout,
     material_layout: wgpu::BindGroupLayout,
@@ -89,7 +97,7 @@ struct DrawRange {
 
 struct GpuMaterial {
     bind_group: wgpu::BindGroup,
-    double_sided: bool,
+    pipeline: usize,
     _uniform: wgpu::Buffer,
     _texture: Option<wgpu::Texture>,
 }
@@ -213,22 +221,26 @@ impl HeadRenderer {
             },
             count: None,
         };
+        let storage_entry = |binding| wgpu::BindGroupLayoutEntry {
+            binding,
+            visibility: wgpu::ShaderStages::VERTEX | wgpu::ShaderStages::COMPUTE,
+            ty: wgpu::BindingType::Buffer {
+                ty: wgpu::BufferBindingType::Storage { read_only: true },
+                has_dynamic_offset: false,
+                min_binding_size: None,
+            },
+            count: None,
+        };
         let stages = wgpu::ShaderStages::VERTEX_FRAGMENT | wgpu::ShaderStages::COMPUTE;
         let head_layout = device.create_bind_group_layout(&wgpu::BindGroupLayoutDescriptor {
             label: Some("lipcall head bind group layout"),
             entries: &[
                 uniform_entry(0, stages),
-                uniform_entry(1, wgpu::ShaderStages::VERTEX | wgpu::ShaderStages::COMPUTE),
-                wgpu::BindGroupLayoutEntry {
-                    binding: 2,
-                    visibility: wgpu::ShaderStages::VERTEX | wgpu::ShaderStages::COMPUTE,
-                    ty: wgpu::BindingType::Buffer {
-                        ty: wgpu::BufferBindingType::Storage { read_only: true },
-                        has_dynamic_offset: false,
-                        min_binding_size: None,
-                    },
-                    count: None,
-                },
+                // The weights are a storage buffer, not a uniform: lavapipe specialises a shader
+                // on uniform values that steer its loops, and the number of slots in use changes
+                // from frame to frame (a shader compile per draw).
+                storage_entry(1),
+                storage_entry(2),
             ],
         });
         let material_layout = device.create_bind_group_layout(&wgpu::BindGroupLayoutDescriptor {
@@ -261,9 +273,19 @@ impl HeadRenderer {
         let attributes = wgpu::vertex_attr_array![
             0 => Float32x3, 1 => Float32x3, 2 => Float32x2, 3 => Float32x4
         ];
-        let pipeline = |label, cull_mode| {
+        let pipeline = |index: usize| {
+            let (double_sided, textured) = pipeline_kind(index);
+            let constants = [("TEXTURED", f64::from(u8::from(textured)))];
             device.create_render_pipeline(&wgpu::RenderPipelineDescriptor {
-                label: Some(label),
+                label: Some(&format!(
+                    "lipcall head pipeline ({}, {})",
+                    if double_sided {
+                        "double-sided"
+                    } else {
+                        "one-sided"
+                    },
+                    if textured { "textured" } else { "untextured" }
+                )),
                 layout: Some(&layout),
                 vertex: wgpu::VertexState {
                     module: &shader,
@@ -277,7 +299,11 @@ impl HeadRenderer {
                 },
                 primitive: wgpu::PrimitiveState {
                     topology: wgpu::PrimitiveTopology::TriangleList,
-                    cull_mode,
+                    cull_mode: if double_sided {
+                        None
+                    } else {
+                        Some(wgpu::Face::Back)
+                    },
                     ..Default::default()
                 },
                 depth_stencil: depth_format.map(|format| wgpu::DepthStencilState {
@@ -294,7 +320,10 @@ impl HeadRenderer {
                 fragment: Some(wgpu::FragmentState {
                     module: &shader,
                     entry_point: Some("fs_main"),
-                    compilation_options: Default::default(),
+                    compilation_options: wgpu::PipelineCompilationOptions {
+                        constants: &constants,
+                        ..Default::default()
+                    },
                     targets: &[Some(wgpu::ColorTargetState {
                         format: color_format,
                         blend: None,
@@ -305,8 +334,7 @@ impl HeadRenderer {
                 cache: None,
             })
         };
-        let one_sided = pipeline("lipcall head pipeline", Some(wgpu::Face::Back));
-        let two_sided = pipeline("lipcall double-sided head pipeline", None);
+        let pipelines = std::array::from_fn(pipeline);
         let sampler = device.create_sampler(&wgpu::SamplerDescriptor {
             label: Some("lipcall head base colour sampler"),
             address_mode_u: wgpu::AddressMode::Repeat,
@@ -316,8 +344,7 @@ impl HeadRenderer {
             ..Default::default()
         });
         Self {
-            one_sided,
-            two_sided,
+            pipelines,
             shader,
             head_layout,
             material_layout,
@@ -457,7 +484,6 @@ impl HeadRenderer {
             label: Some(&format!("{label} uniform")),
             contents: bytemuck::bytes_of(&MaterialUniform {
                 base_color: material.base_color,
-                flags: [u32::from(material.texture.is_some()), 0, 0, 0],
             }),
             usage: wgpu::BufferUsages::UNIFORM,
         });
@@ -521,7 +547,7 @@ impl HeadRenderer {
         });
         GpuMaterial {
             bind_group,
-            double_sided: material.double_sided,
+            pipeline: pipeline_index(material.double_sided, material.texture.is_some()),
             _uniform: uniform,
             _texture: Some(texture),
         }
@@ -543,7 +569,7 @@ impl HeadRenderer {
         let weights_buffer = device.create_buffer(&wgpu::BufferDescriptor {
             label: Some(&format!("{label} target weights")),
             size: std::mem::size_of::<WeightsUniform>() as u64,
-            usage: wgpu::BufferUsages::UNIFORM | wgpu::BufferUsages::COPY_DST,
+            usage: wgpu::BufferUsages::STORAGE | wgpu::BufferUsages::COPY_DST,
             mapped_at_creation: false,
         });
         let bind_group = device.create_bind_group(&wgpu::BindGroupDescriptor {
@@ -620,16 +646,12 @@ impl HeadRenderer {
         pass.set_bind_group(0, &instance.bind_group, &[]);
         pass.set_vertex_buffer(0, head.vertex_buffer.slice(..));
         pass.set_index_buffer(head.index_buffer.slice(..), wgpu::IndexFormat::Uint32);
-        let mut sidedness = None;
+        let mut bound = None;
         for draw in &head.draws {
             if let Some(material) = head.materials.get(draw.material) {
-                if sidedness != Some(material.double_sided) {
-                    sidedness = Some(material.double_sided);
-                    pass.set_pipeline(if material.double_sided {
-                        &self.two_sided
-                    } else {
-                        &self.one_sided
-                    });
+                if bound != Some(material.pipeline) {
+                    bound = Some(material.pipeline);
+                    pass.set_pipeline(&self.pipelines[material.pipeline]);
                 }
                 pass.set_bind_group(1, &material.bind_group, &[]);
                 pass.draw_indexed(draw.indices.clone(), 0, 0..1);
