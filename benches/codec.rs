@@ -127,4 +127,47 @@ fn opus_decode_per_frame(c: &mut Criterion) {
 }
 
 criterion_group!(opus_benches, opus_decode_per_frame);
-criterion_main!(benches, opus_benches);
+
+/// The SILK walker alone (NLSFs from the bitstream), per 20 ms packet at 16 kb/s, as used
+/// (stopping at the NLSFs) and reading every symbol, and with the decode beside it: against
+/// "opus_decode" this is the cost of the NLSF features.
+fn silk_walker_per_packet(c: &mut Criterion) {
+    use lipcall::codec::opus::codec::Decoder as OpusDecoder;
+    use lipcall::codec::silk::SilkWalker;
+    let mut group = c.benchmark_group("opus_nlsf");
+    for (name, rate) in [("nb 16 kb/s", 8000), ("wb 16 kb/s", 16_000)] {
+        let packets = opus_demo_packets(rate);
+        group.throughput(Throughput::Elements(packets.len() as u64));
+        for (walk, read_to_end) in [("walker", false), ("walker read to end", true)] {
+            group.bench_function(format!("{walk} {name}"), |b| {
+                let mut walker = SilkWalker::new().read_to_end(read_to_end);
+                let mut frames = Vec::with_capacity(4);
+                b.iter(|| {
+                    for p in &packets {
+                        frames.clear();
+                        walker.walk_packet_into(black_box(p), &mut frames).unwrap();
+                        black_box(&frames);
+                    }
+                })
+            });
+        }
+        group.bench_function(format!("decode + walker {name}"), |b| {
+            let mut decoder = OpusDecoder::new().unwrap();
+            let mut walker = SilkWalker::new();
+            let mut frames = Vec::with_capacity(4);
+            let mut out = [0i16; FRAME_SIZE];
+            b.iter(|| {
+                for p in &packets {
+                    frames.clear();
+                    walker.walk_packet_into(black_box(p), &mut frames).unwrap();
+                    decoder.decode_frame(black_box(p), &mut out).unwrap();
+                    black_box((&frames, &out));
+                }
+            })
+        });
+    }
+    group.finish();
+}
+
+criterion_group!(silk_benches, silk_walker_per_packet);
+criterion_main!(benches, opus_benches, silk_benches);

@@ -183,9 +183,9 @@ fn switching_streams(dir: &Path, program: &Path) -> Vec<Stream> {
     streams
 }
 
-/// Walks a whole stream; every packet must walk.
+/// Walks a whole stream, reading every frame to its end; every packet must walk.
 fn walk(name: &str, packets: &[Vec<u8>]) -> Vec<Vec<Frame>> {
-    let mut walker = SilkWalker::new();
+    let mut walker = SilkWalker::new().read_to_end(true);
     packets
         .iter()
         .enumerate()
@@ -408,6 +408,18 @@ struct NlsfCase {
 fn check_stream(stream: &Stream, count: &mut Counts) -> Vec<NlsfCase> {
     let walked = walk(&stream.name, &stream.packets);
     assert_eq!(stream.final_ranges.len(), walked.len(), "{}", stream.name);
+    // The default walker, which stops at the last NLSFs of each Opus frame, finds the same.
+    let mut fast = SilkWalker::new();
+    for (packet, full) in stream.packets.iter().zip(&walked) {
+        let mut frames = fast.walk_packet(packet).unwrap();
+        for (frame, full) in frames.iter_mut().zip(full) {
+            if let (Frame::Silk(frame), Frame::Silk(full)) = (frame, full) {
+                assert!(frame.end.is_none() || frame.end == full.end);
+                frame.end = full.end;
+            }
+        }
+        assert_eq!(&frames, full, "{}", stream.name);
+    }
     let mut nlsfs = Vec::new();
     for ((packet, frames), &final_range) in
         stream.packets.iter().zip(&walked).zip(&stream.final_ranges)
@@ -461,14 +473,15 @@ fn check_stream(stream: &Stream, count: &mut Counts) -> Vec<NlsfCase> {
             // the range decoder's state after the walker's last symbol: equal ranges mean
             // the walker read exactly the symbols the decoder read.
             let last = silk[silk.len() - 1];
+            let end = last.end.unwrap();
             if mode == Mode::Hybrid {
                 assert!(
-                    last.bits_used <= last.frame_bits,
+                    end.bits_used <= last.frame_bits,
                     "{}: {last:?}",
                     stream.name
                 );
-            } else if last.bits_used + 17 > last.frame_bits {
-                let stripped = i64::from(last.bits_used.div_ceil(8)) - data.len() as i64;
+            } else if end.bits_used + 17 > last.frame_bits {
+                let stripped = i64::from(end.bits_used.div_ceil(8)) - data.len() as i64;
                 assert!(stripped >= 0, "{}: {last:?}", stream.name);
                 assert!(
                     stripped == 0 || data.last() != Some(&0),
@@ -477,7 +490,7 @@ fn check_stream(stream: &Stream, count: &mut Counts) -> Vec<NlsfCase> {
                 );
                 count.max_stripped = count.max_stripped.max(stripped);
                 if is_last {
-                    assert_eq!(last.range, final_range, "{}: {last:?}", stream.name);
+                    assert_eq!(end.range, final_range, "{}: {last:?}", stream.name);
                     count.range_checked += 1;
                     count.lbrr_checked += usize::from(lbrr_present(data, last));
                 }
@@ -929,15 +942,17 @@ proptest! {
     ) {
         // Half the time a SILK or hybrid TOC byte (configs 0-15), so that the bytes reach
         // the SILK layer rather than failing the packet framing.
-        let mut walker = SilkWalker::new();
-        let _ = walker.walk_packet(&packet);
         let mut silk = packet.clone();
         if let Some(first) = silk.first_mut() {
             *first = toc;
         }
-        let _ = walker.walk_packet(&silk);
-        walker.packet_lost();
-        let _ = walker.walk_packet(&silk);
+        for read_to_end in [false, true] {
+            let mut walker = SilkWalker::new().read_to_end(read_to_end);
+            let _ = walker.walk_packet(&packet);
+            let _ = walker.walk_packet(&silk);
+            walker.packet_lost();
+            let _ = walker.walk_packet(&silk);
+        }
     }
 
     #[test]
@@ -953,18 +968,20 @@ proptest! {
             let i = at.index(packet.len());
             packet[i] ^= byte;
         }
-        let mut walker = SilkWalker::new();
-        // A real packet first, so that the mutated one meets a walker with state.
-        let _ = walker.walk_packet(previous.get::<Vec<u8>>(corpus));
-        if let Ok(frames) = walker.walk_packet(&packet) {
-            for frame in frames.iter().filter_map(Frame::silk) {
-                let order = frame.nlsf.order();
-                prop_assert!(order == 10 || order == 16);
-                prop_assert!(frame.nlsf.q15().windows(2).all(|w| w[0] < w[1]));
-                prop_assert!(frame.nlsf.radians().all(|r| r > 0.0 && r < std::f32::consts::PI));
-            }
-        }
         let shortened = &packet[..cut.index(packet.len() + 1)];
-        let _ = walker.walk_packet(shortened);
+        for read_to_end in [false, true] {
+            let mut walker = SilkWalker::new().read_to_end(read_to_end);
+            // A real packet first, so that the mutated one meets a walker with state.
+            let _ = walker.walk_packet(previous.get::<Vec<u8>>(corpus));
+            if let Ok(frames) = walker.walk_packet(&packet) {
+                for frame in frames.iter().filter_map(Frame::silk) {
+                    let order = frame.nlsf.order();
+                    prop_assert!(order == 10 || order == 16);
+                    prop_assert!(frame.nlsf.q15().windows(2).all(|w| w[0] < w[1]));
+                    prop_assert!(frame.nlsf.radians().all(|r| r > 0.0 && r < std::f32::consts::PI));
+                }
+            }
+            let _ = walker.walk_packet(shortened);
+        }
     }
 }

@@ -155,7 +155,8 @@ impl Channel {
         self.last_gain_index = GAIN_INDEX_AFTER_RESET;
     }
 
-    /// Reads a frame's side information (4.2.7.3-4.2.7.7). `lbrr` frames count as active.
+    /// Reads a frame's side information up to the NLSF interpolation weight (4.2.7.3-
+    /// 4.2.7.5); LBRR frames count as `active`. [`Channel::skip_rest`] reads the rest.
     pub fn read_indices(
         &mut self,
         decoder: &mut RangeDecoder<'_>,
@@ -189,13 +190,12 @@ impl Channel {
         let voiced = signal_type == SignalType::Voiced;
         let nlsf_stage1 = decoder.decode_icdf(self.codebook.stage1_icdf(voiced));
         let mut nlsf_residuals = [0i8; MAX_ORDER];
-        // The stage-1 index comes from a 32-entry table, so unpacking cannot fail; an
+        // The stage-1 index comes from a 32-entry table, so it always has fields; an
         // impossible index would leave the residuals unread and zero.
-        if let Some((distributions, _)) = self.codebook.unpack(nlsf_stage1) {
+        if let Some(fields) = self.codebook.fields(nlsf_stage1) {
             let order = self.codebook.order();
-            for (residual, distribution) in nlsf_residuals.iter_mut().zip(distributions).take(order)
-            {
-                let mut level = decoder.decode_icdf(distribution) as i32;
+            for (residual, field) in nlsf_residuals.iter_mut().zip(fields).take(order) {
+                let mut level = decoder.decode_icdf(self.codebook.residual_icdf(field)) as i32;
                 if level == 0 {
                     level -= decoder.decode_icdf(&NLSF_EXTENSION_ICDF) as i32;
                 } else if level == 2 * RESIDUAL_MAX {
@@ -210,13 +210,6 @@ impl Channel {
             4
         };
 
-        if voiced {
-            self.skip_pitch_and_ltp(decoder, coding);
-        }
-        self.previous_signal_type = signal_type;
-        // The excitation's LCG seed.
-        decoder.decode_icdf(&UNIFORM4_ICDF);
-
         Indices {
             signal_type,
             high_quant_offset,
@@ -225,6 +218,24 @@ impl Channel {
             nlsf_residuals,
             interpolation_q2,
         }
+    }
+
+    /// Reads past the rest of the frame after [`Channel::read_indices`]: pitch and LTP
+    /// parameters, seed and excitation (4.2.7.6-4.2.7.8).
+    pub fn skip_rest(&mut self, decoder: &mut RangeDecoder<'_>, indices: &Indices, coding: Coding) {
+        if indices.signal_type == SignalType::Voiced {
+            self.skip_pitch_and_ltp(decoder, coding);
+        }
+        self.previous_signal_type = indices.signal_type;
+        // The excitation's LCG seed.
+        decoder.decode_icdf(&UNIFORM4_ICDF);
+        self.skip_excitation(decoder, indices);
+    }
+
+    /// Leaves the frame after its indices: what follows is not read, but the frame's type
+    /// still sets the context of the next frame's pitch coding.
+    pub fn stop_after_indices(&mut self, indices: &Indices) {
+        self.previous_signal_type = indices.signal_type;
     }
 
     /// Pitch lags, contour, LTP filters and scaling (4.2.7.6): read past.
@@ -264,7 +275,7 @@ impl Channel {
 
     /// Reads past the frame's excitation (4.2.7.8): rate level, pulse counts, shell-coded
     /// pulse positions, LSBs and signs. Work is bounded by the frame length.
-    pub fn skip_excitation(&self, decoder: &mut RangeDecoder<'_>, indices: &Indices) {
+    fn skip_excitation(&self, decoder: &mut RangeDecoder<'_>, indices: &Indices) {
         let voiced = indices.signal_type == SignalType::Voiced;
         let rate_level = decoder.decode_icdf(row(&RATE_LEVEL_ICDF, usize::from(voiced)));
         let blocks = self

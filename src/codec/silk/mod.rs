@@ -94,14 +94,21 @@ pub struct SilkFrame {
     pub interpolation_q2: u8,
     /// The NLSFs the decoder uses for the first half, when they differ from `nlsf`.
     pub first_half: Option<Nlsf>,
-    /// Range coder position after this frame, in bits from the start of the Opus frame
-    /// (`ec_tell`). It may pass `frame_bits` by the zero bytes an encoder stripped off the
-    /// end of a SILK-only frame.
-    pub bits_used: u32,
     /// Size of the Opus frame in bits.
     pub frame_bits: u32,
-    /// The range decoder's range after this frame: for the last SILK frame of a SILK-only
-    /// Opus frame without redundancy, libopus's `OPUS_GET_FINAL_RANGE`.
+    /// Where the range decoder stands after the frame's last symbol; `None` where the walker
+    /// stopped after the NLSFs (see [`SilkWalker::read_to_end`]).
+    pub end: Option<SilkEnd>,
+}
+
+/// The range decoder's state at the end of a SILK frame.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub struct SilkEnd {
+    /// Bits used from the start of the Opus frame (`ec_tell`). It may pass the frame's size
+    /// by the zero bytes an encoder stripped off the end of a SILK-only frame.
+    pub bits_used: u32,
+    /// The range: after the last SILK frame of a SILK-only Opus frame without redundancy,
+    /// the value libopus reports as its final range (`OPUS_GET_FINAL_RANGE`).
     pub range: u32,
 }
 
@@ -158,8 +165,14 @@ pub enum SilkError {
 }
 
 /// Walks the packets of one Opus stream, keeping the SILK decoder state they depend on.
+///
+/// By default it stops each Opus frame at the NLSFs of its last SILK frame: what follows
+/// (pitch, excitation, a stereo side channel) is needed by nothing after it, and skipping it
+/// makes the walk several times cheaper. [`SilkWalker::read_to_end`] reads it all, to report
+/// where the SILK data ends.
 #[derive(Debug, Clone)]
 pub struct SilkWalker {
+    read_to_end: bool,
     channels: [Channel; 2],
     /// Channels of the previous SILK frame (0 before any).
     channels_in_use: usize,
@@ -176,6 +189,7 @@ impl Default for SilkWalker {
 impl SilkWalker {
     pub const fn new() -> Self {
         Self {
+            read_to_end: false,
             channels: [Channel::new(), Channel::new()],
             channels_in_use: 0,
             previous_mode: None,
@@ -183,9 +197,15 @@ impl SilkWalker {
         }
     }
 
+    /// Whether to read every frame to its end, which fills [`SilkFrame::end`].
+    pub const fn read_to_end(mut self, read_to_end: bool) -> Self {
+        self.read_to_end = read_to_end;
+        self
+    }
+
     /// Forgets the stream, as a freshly created (or reset) decoder would.
     pub fn reset(&mut self) {
-        *self = Self::new();
+        *self = Self::new().read_to_end(self.read_to_end);
     }
 
     /// Follows the decoder through a lost packet (its concealment): the NLSFs are kept for
@@ -287,9 +307,11 @@ impl SilkWalker {
                     self.channels[1].restart();
                 }
             }
+            // The side channel of a stereo stream is never reported: it is only read past.
+            let stop_early = index + 1 == frame_count && !self.read_to_end;
             let mut mid = None;
             for n in 0..channel_count {
-                if n == 1 && mid_only {
+                if n == 1 && (mid_only || stop_early) {
                     continue;
                 }
                 let coding = if index == 0 {
@@ -302,7 +324,11 @@ impl SilkWalker {
                 let channel = &mut self.channels[n];
                 let vad = channel.vad[index];
                 let indices = channel.read_indices(&mut decoder, vad, coding);
-                channel.skip_excitation(&mut decoder, &indices);
+                if stop_early {
+                    channel.stop_after_indices(&indices);
+                } else {
+                    channel.skip_rest(&mut decoder, &indices, coding);
+                }
                 let parameters = channel.apply(&indices, coding);
                 if n == 0 {
                     mid = Some((vad, indices, parameters));
@@ -310,7 +336,10 @@ impl SilkWalker {
             }
             self.previous_mid_only = mid_only;
 
-            let bits_used = decoder.tell();
+            let end = (!stop_early).then(|| SilkEnd {
+                bits_used: decoder.tell(),
+                range: decoder.range(),
+            });
             let Some((vad, indices, parameters)) = mid else {
                 continue;
             };
@@ -333,9 +362,8 @@ impl SilkWalker {
                 nlsf: Nlsf::new(order, parameters.nlsf_q15),
                 interpolation_q2: parameters.interpolation_q2,
                 first_half: parameters.first_half_q15.map(|q15| Nlsf::new(order, q15)),
-                bits_used,
                 frame_bits,
-                range: decoder.range(),
+                end,
             }));
         }
         Ok(())
@@ -407,7 +435,7 @@ impl SilkWalker {
                     Coding::Independent
                 };
                 let indices: Indices = channel.read_indices(decoder, true, coding);
-                channel.skip_excitation(decoder, &indices);
+                channel.skip_rest(decoder, &indices, coding);
             }
         }
     }
@@ -536,6 +564,29 @@ mod tests {
             [0, 1, 2]
         );
         assert!(silk.iter().all(|f| f.stereo && f.frame_bits == 15 * 8));
+    }
+
+    #[test]
+    fn stopping_after_the_last_nlsfs_finds_the_same_frames() {
+        let mut fast = SilkWalker::new();
+        let mut full = SilkWalker::new().read_to_end(true);
+        let mut state = 0x2545_F491u32;
+        for n in 0..300 {
+            let config = [1, 3, 5, 9, 10, 11, 13, 15][n % 8];
+            let mut packet = vec![toc(config, n % 3 == 0, 0)];
+            for _ in 0..50 {
+                state = state.wrapping_mul(1_664_525).wrapping_add(1_013_904_223);
+                packet.push((state >> 24) as u8);
+            }
+            let quick = silk_frames(&fast.walk_packet(&packet).unwrap());
+            let thorough = silk_frames(&full.walk_packet(&packet).unwrap());
+            assert_eq!(quick.len(), thorough.len());
+            for (q, t) in quick.iter().zip(&thorough) {
+                assert_eq!(q.end.is_none(), q.index + 1 == quick.len());
+                assert!(t.end.is_some());
+                assert_eq!(SilkFrame { end: t.end, ..*q }, *t);
+            }
+        }
     }
 
     #[test]

@@ -90,30 +90,25 @@ impl Codebook {
         }
     }
 
-    /// For stage-1 vector `vector`, each coefficient's residual distribution and its
-    /// backward prediction weight (Q8) from the next coefficient (4.2.7.5.2-3). The last
-    /// coefficient has no next one: its weight is 0.
-    pub(super) fn unpack(
-        self,
-        vector: usize,
-    ) -> Option<([&'static [u8]; MAX_ORDER], [i32; MAX_ORDER])> {
-        let order = self.order();
+    /// For stage-1 vector `vector`, one 4-bit field per coefficient (4.2.7.5.2-3): bits 1-3
+    /// pick the residual distribution, bit 0 the set of backward prediction weights.
+    pub(super) fn fields(self, vector: usize) -> Option<impl Iterator<Item = u8>> {
         let select = self.select(vector)?;
-        let icdfs = self.residual_icdfs();
-        let mut distributions: [&'static [u8]; MAX_ORDER] = [&[]; MAX_ORDER];
-        let mut predictions = [0i32; MAX_ORDER];
-        for k in 0..order {
-            let byte = *select.get(k / 2)?;
-            // Each byte holds two coefficients' fields: bit 0 (4 for the odd one) picks the
-            // prediction set, bits 1-3 (5-7) the residual distribution.
-            let field = if k % 2 == 0 { byte & 0x0F } else { byte >> 4 };
-            distributions[k] = icdfs.get(usize::from(field >> 1))?;
-            if k + 1 < order {
-                let set = self.predictions_q8(usize::from(field & 1))?;
-                predictions[k] = i32::from(*set.get(k)?);
-            }
-        }
-        Some((distributions, predictions))
+        Some(select.iter().flat_map(|&byte| [byte & 0x0F, byte >> 4]))
+    }
+
+    /// The residual distribution a coefficient's field picks.
+    pub(super) fn residual_icdf(self, field: u8) -> &'static [u8] {
+        // Three bits index the eight distributions.
+        &self.residual_icdfs()[usize::from((field >> 1) & 7)]
+    }
+
+    /// Coefficient k's backward prediction weight (Q8) from coefficient k + 1. The last
+    /// coefficient has no next one: 0.
+    fn prediction_q8(self, k: usize, field: u8) -> i32 {
+        self.predictions_q8(usize::from(field & 1))
+            .and_then(|set| set.get(k))
+            .map_or(0, |&p| i32::from(p))
     }
 }
 
@@ -147,9 +142,17 @@ pub fn reconstruct(
         return Err(NlsfIndexError::Residual(bad));
     }
     let stage1_error = NlsfIndexError::Stage1(stage1);
-    let (_, predictions) = codebook.unpack(stage1).ok_or(stage1_error)?;
     let base = codebook.stage1_q8(stage1).ok_or(stage1_error)?;
     let weights = codebook.weights_q9(stage1).ok_or(stage1_error)?;
+    let mut predictions = [0i32; MAX_ORDER];
+    for (k, (prediction, field)) in predictions
+        .iter_mut()
+        .zip(codebook.fields(stage1).ok_or(stage1_error)?)
+        .enumerate()
+        .take(order - 1)
+    {
+        *prediction = codebook.prediction_q8(k, field);
+    }
 
     // Stage 2: residuals in Q10, predicted backwards from the coefficient above.
     let mut residual_q10 = [0i32; MAX_ORDER];
