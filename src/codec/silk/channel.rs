@@ -82,6 +82,7 @@ pub struct Parameters {
     pub gain_indices: [u8; MAX_SUBFRAMES],
 }
 
+/// One channel's decoder state, as far as the bitstream and the NLSFs depend on it.
 #[derive(Debug, Clone)]
 pub struct Channel {
     /// Internal rate in kHz (8, 12, 16), 0 before the first frame.

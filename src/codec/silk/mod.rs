@@ -4,14 +4,19 @@
 //! [`SilkWalker`] follows the decoder through each packet (RFC 6716 4.2): the TOC and frame
 //! packing, the SILK header (VAD and LBRR flags), the LBRR frames that precede the regular
 //! ones, and per regular frame its type, gains, NLSF indices and interpolation weight. The
-//! pitch, LTP and excitation indices are read only to reach the next frame. The NLSFs are
-//! reconstructed and stabilised with the decoder's fixed-point arithmetic, so they are the
-//! vector libopus holds (`prevNLSF_Q15`) after the frame.
+//! pitch, LTP and excitation indices are read only to reach the next frame (a 40 or 60 ms
+//! Opus frame holds two or three); after the last NLSFs of an Opus frame the walker stops
+//! unless asked to read to the end. The NLSFs are reconstructed and stabilised with the
+//! decoder's fixed-point arithmetic, so they are the vector libopus holds (`prevNLSF_Q15`)
+//! after the frame.
 //!
 //! State that the decoder carries across packets is carried here too: the previous NLSFs
 //! (interpolation), the gain index, the first-frame-after-reset rule, the internal rate and
 //! the mode (a CELT-only frame resets SILK). For stereo streams the mid channel is reported.
 //! Not followed: decoding the LBRR (FEC) copy of a lost packet in its place.
+//!
+//! Checked against libopus 1.3.1 in `tests/opus_nlsf.rs`: the final range after every
+//! SILK-only packet, and the NLSF vectors of its own `silk_NLSF_decode`.
 
 mod channel;
 pub mod nlsf;
