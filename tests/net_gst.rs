@@ -1,4 +1,5 @@
-//! Interop with GStreamer's RTP Speex elements, both ways, plain and with SRTP.
+//! Interop with GStreamer's RTP elements, both ways: Speex plain and with SRTP, Opus and PCMU;
+//! payload types nobody mapped; several codecs in one call.
 
 mod common;
 
@@ -7,10 +8,20 @@ use std::process::Command;
 use std::time::Duration;
 
 use common::net::{
-    align, decode_frames, fields, finish, free_port, interrupt, num, ogg_packets, spawn,
+    align, decode_frames, fields, finish, free_port, interrupt, num, ogg_packets, snr_at_best_lag,
+    spawn,
 };
 use common::{lipcall, read_wav_i16, run};
+use lipcall::codec::any::{Codec, EncoderSettings, FrameEncoder, MAX_FRAME_PAYLOAD};
+use lipcall::codec::decoder::StreamDecoder;
 use lipcall::net::srtp::MasterKey;
+
+/// One test at a time: each runs real-time GStreamer pipelines and lipcall processes, and on a
+/// loaded machine running them all at once starves the receivers' 20 ms pacing.
+fn serial() -> std::sync::MutexGuard<'static, ()> {
+    static LOCK: std::sync::Mutex<()> = std::sync::Mutex::new(());
+    LOCK.lock().unwrap_or_else(|e| e.into_inner())
+}
 
 fn clip(dir: &Path, seconds: &str) -> std::path::PathBuf {
     let demo = common::demo_8k(dir);
@@ -103,12 +114,14 @@ fn gst_to_lipcall(srtp: bool) {
 /// of the very packets GStreamer encoded (captured with a tee into an Ogg file).
 #[test]
 fn gstreamer_rtpspeexpay_into_lipcall_receive() {
+    let _serial = serial();
     gst_to_lipcall(false);
 }
 
 /// The same through GStreamer's srtpenc (libsrtp) into `lipcall receive --key-hex`.
 #[test]
 fn gstreamer_srtpenc_into_lipcall_receive() {
+    let _serial = serial();
     gst_to_lipcall(true);
 }
 
@@ -181,11 +194,459 @@ fn lipcall_to_gst(srtp: bool) {
 /// `lipcall send` into udpsrc ! rtpspeexdepay ! speexdec: right audio, right duration.
 #[test]
 fn lipcall_send_into_gstreamer_rtpspeexdepay() {
+    let _serial = serial();
     lipcall_to_gst(false);
 }
 
 /// `lipcall send --key-hex` into GStreamer's srtpdec (libsrtp).
 #[test]
 fn lipcall_send_into_gstreamer_srtpdec() {
+    let _serial = serial();
     lipcall_to_gst(true);
+}
+
+// ---------------------------------------------------------------------------------------------
+// Other codecs: Opus (RFC 7587) and G.711, and payload types nobody mapped.
+
+/// What `lipcall receive` made of a stream GStreamer sent, beside GStreamer's own decode of the
+/// very RTP packets it sent (a tee after the payloader).
+struct Received {
+    source: Vec<i16>,
+    reference: Vec<i16>,
+    played: Vec<i16>,
+    stderr: String,
+    /// Frames played after the last one with a mode: the concealed tail after a stream that
+    /// ends without BYE.
+    tail: usize,
+    feature_rows: usize,
+    weight_rows: usize,
+}
+
+/// Rows of a FEATURES.csv, and how many at its end are concealed (no mode).
+fn feature_rows(path: &Path) -> (usize, usize) {
+    let text = std::fs::read_to_string(path).unwrap();
+    let modes: Vec<bool> = text
+        .lines()
+        .skip(1)
+        .map(|l| !l.split(',').nth(2).unwrap_or("").is_empty())
+        .collect();
+    let tail = modes.iter().rev().take_while(|&&m| !m).count();
+    (modes.len(), tail)
+}
+
+fn csv_rows(path: &Path) -> usize {
+    std::fs::read_to_string(path).unwrap().lines().count() - 1
+}
+
+/// The GStreamer elements reading an 8 kHz mono WAV.
+fn gst_wav_source(cmd: &mut Command, clip: &Path) {
+    cmd.arg("filesrc")
+        .arg(format!("location={}", clip.display()))
+        .args(["!", "wavparse", "!", "audioconvert", "!", "audioresample"])
+        .args(["!", "audio/x-raw,rate=8000,channels=1"]);
+}
+
+fn chain(cmd: &mut Command, elements: &[&str]) {
+    for e in elements {
+        cmd.arg("!").args(e.split(' '));
+    }
+}
+
+/// `source ! ENCODER ! PAYLOADER ! tee` into `lipcall receive` (with `receive_args`) and into
+/// `DEPAYLOADER ! DECODER ! wavenc` for GStreamer's own decode.
+fn gst_into_receive(
+    encoder: &[&str],
+    payloader: &str,
+    decoder: &[&str],
+    receive_args: &[&str],
+) -> Received {
+    let dir = tempfile::tempdir().unwrap();
+    let clip = clip(dir.path(), "3");
+    let port = free_port();
+    let out = dir.path().join("received.wav");
+    let features = dir.path().join("features.csv");
+    let weights = dir.path().join("weights.csv");
+    let reference = dir.path().join("gst.wav");
+    let receiver = spawn(
+        lipcall()
+            .args(["receive", "--listen", &format!("127.0.0.1:{port}")])
+            .arg("--wav")
+            .arg(&out)
+            .arg("--features")
+            .arg(&features)
+            .arg("--weights")
+            .arg(&weights)
+            .args(["--seconds", "6"])
+            .args(receive_args),
+    );
+    std::thread::sleep(Duration::from_millis(300));
+    let mut gst = Command::new("gst-launch-1.0");
+    gst.arg("-q");
+    gst_wav_source(&mut gst, &clip);
+    chain(&mut gst, encoder);
+    chain(&mut gst, &[payloader, "tee name=t"]);
+    gst.args(["t.", "!", "queue", "!", "udpsink", "host=127.0.0.1"])
+        .arg(format!("port={port}"))
+        .args(["t.", "!", "queue"]);
+    chain(&mut gst, decoder);
+    chain(
+        &mut gst,
+        &["audio/x-raw,rate=8000,channels=1", "wavenc", "filesink"],
+    );
+    gst.arg(format!("location={}", reference.display()));
+    run(&mut gst);
+    let (_, stderr) = finish(receiver, Duration::from_secs(60), "lipcall receive");
+    let (rows, tail) = feature_rows(&features);
+    Received {
+        source: read_wav_i16(&clip).1,
+        reference: read_wav_i16(&reference).1,
+        played: read_wav_i16(&out).1,
+        stderr,
+        tail,
+        feature_rows: rows,
+        weight_rows: csv_rows(&weights),
+    }
+}
+
+/// The played stream against GStreamer's decode of it: duration, and coding quality against
+/// the source. Returns (SNR of GStreamer's decode, SNR of lipcall's) against the source.
+fn check_against_gstreamer(r: &Received, codec: &str) -> (f64, f64) {
+    let peer = fields(&r.stderr, "peer ");
+    assert_eq!(peer["codec"], codec, "{}", r.stderr);
+    assert!(num(&peer, "received") >= 20.0, "{}", r.stderr);
+    assert_eq!(num(&peer, "decode_errors"), 0.0, "{}", r.stderr);
+    assert_eq!(r.played.len() % 160, 0);
+    let frames = r.played.len() / 160;
+    assert_eq!(r.feature_rows, frames);
+    assert_eq!(r.weight_rows, frames);
+    // The stream as played, without the concealed tail, lasts as GStreamer's decode: +-1 frame.
+    let stream = (frames - r.tail) as i64;
+    let theirs = r.reference.len().div_ceil(160) as i64;
+    assert!(
+        (stream - theirs).abs() <= 1,
+        "{codec}: played {stream} frames (+{} concealed), GStreamer decoded {theirs}",
+        r.tail
+    );
+    // Against the source, 200 ms at a time, each chunk at its best whole-frame shift: the
+    // jitter buffer may have skipped or inserted a frame to follow the delay.
+    let gst = align(&r.source, &r.reference, 2000);
+    let ours = align(&r.source, &r.played, 2000);
+    let same = align(&r.reference, &r.played, 2000);
+    let (whole, lag) = snr_at_best_lag(&r.source, &r.reference, 2000);
+    let peer = fields(&r.stderr, "peer ");
+    eprintln!(
+        "{codec}: against the source GStreamer {:.2} dB, lipcall {:.2} dB (GStreamer's whole \
+         clip at lag {lag}: {whole:.2} dB); lipcall against GStreamer median {:.1} dB; {stream} \
+         frames vs {theirs}; stretched {} dropped {}",
+        gst.overall(),
+        ours.overall(),
+        same.median(),
+        peer["stretched"],
+        peer["dropped"],
+    );
+    assert!(
+        (ours.overall() - gst.overall()).abs() <= 1.0,
+        "{codec}: lipcall {:.2} dB vs GStreamer {:.2} dB against the source",
+        ours.overall(),
+        gst.overall()
+    );
+    let (gst, ours) = (gst.overall(), ours.overall());
+    (gst, ours)
+}
+
+/// GStreamer `opusenc ! rtpopuspay` (payload type 96, 48 kHz clock) into `lipcall receive
+/// --wav --weights`: the played audio is as good as GStreamer's own decode of the same RTP.
+#[test]
+fn gstreamer_rtpopuspay_into_lipcall_receive() {
+    let _serial = serial();
+    let r = gst_into_receive(
+        &["opusenc bitrate=16000"],
+        "rtpopuspay",
+        &["rtpopusdepay", "opusdec"],
+        &[],
+    );
+    check_against_gstreamer(&r, "opus");
+    assert!(num(&fields(&r.stderr, "peer "), "received") >= 140.0);
+}
+
+/// GStreamer `mulawenc ! rtppcmupay` (static payload type 0, packets of 173.5 and 82.5 ms)
+/// into `lipcall receive`: the same samples as GStreamer's mulawdec.
+#[test]
+fn gstreamer_rtppcmupay_into_lipcall_receive() {
+    let _serial = serial();
+    let r = gst_into_receive(
+        &["mulawenc"],
+        "rtppcmupay",
+        &["rtppcmudepay", "mulawdec"],
+        &[],
+    );
+    check_against_gstreamer(&r, "pcmu");
+    let same = align(&r.reference, &r.played, 2000);
+    assert!(same.median() > 60.0, "{same:?}");
+    assert!(same.share_above(60.0) >= 0.95, "{same:?}");
+}
+
+/// Speex on payload type 100, which nobody mapped: counted and dropped, never decoded as any
+/// codec; told that 100 is Speex (`--pt speex=100`), the receiver plays it.
+#[test]
+fn a_payload_type_nobody_mapped_is_counted_and_dropped() {
+    let _serial = serial();
+    let r = gst_into_receive(
+        &["speexenc"],
+        "rtpspeexpay pt=100",
+        &["rtpspeexdepay", "speexdec"],
+        &[],
+    );
+    let peer = fields(&r.stderr, "peer ");
+    let session = fields(&r.stderr, "lipcall: played");
+    assert!(num(&peer, "unknown_pt") >= 140.0, "{}", r.stderr);
+    assert_eq!(num(&session, "unknown_pt"), num(&peer, "unknown_pt"));
+    assert_eq!(num(&peer, "received"), 0.0);
+    assert_eq!(peer["codec"], "-");
+    assert!(r.played.is_empty());
+
+    let r = gst_into_receive(
+        &["speexenc"],
+        "rtpspeexpay pt=100",
+        &["rtpspeexdepay", "speexdec"],
+        &["--pt", "speex=100"],
+    );
+    let peer = fields(&r.stderr, "peer ");
+    assert_eq!(peer["codec"], "speex");
+    assert!(num(&peer, "received") >= 140.0, "{}", r.stderr);
+    assert_eq!(num(&peer, "unknown_pt"), 0.0);
+    let same = align(&r.reference, &r.played, 2000);
+    assert!(same.median() > 60.0, "{same:?}");
+}
+
+/// `lipcall send` into `udpsrc caps=... ! DEPAYLOADER ! DECODER ! wavenc`; GStreamer's decode.
+fn lipcall_send_into_gst(
+    input: &Path,
+    send_args: &[&str],
+    caps: &str,
+    decoder: &[&str],
+) -> Vec<i16> {
+    let dir = tempfile::tempdir().unwrap();
+    let port = free_port();
+    let out = dir.path().join("gst.wav");
+    let mut gst = Command::new("gst-launch-1.0");
+    gst.args(["-q", "-e", "udpsrc"])
+        .arg(format!("port={port}"))
+        .arg(format!("caps={caps}"));
+    chain(&mut gst, decoder);
+    chain(
+        &mut gst,
+        &["audio/x-raw,rate=8000,channels=1", "wavenc", "filesink"],
+    );
+    gst.arg(format!("location={}", out.display()));
+    let gst = spawn(&mut gst);
+    std::thread::sleep(Duration::from_millis(800));
+    run(lipcall()
+        .arg("send")
+        .arg(input)
+        .args(["--to", &format!("127.0.0.1:{port}"), "--no-rtcp"])
+        .args(send_args));
+    std::thread::sleep(Duration::from_millis(500));
+    interrupt(&gst);
+    finish(gst, Duration::from_secs(30), "gst-launch udpsrc");
+    let (rate, pcm) = read_wav_i16(&out);
+    assert_eq!(rate, 8000);
+    pcm
+}
+
+/// Payloads lipcall sends for `clip` with `codec` (its encoder, its settings), and their decode
+/// at 8 kHz, frame after frame as a receiver hears them.
+fn encode_and_decode(clip: &Path, codec: Codec) -> (usize, Vec<i16>) {
+    let pcm = lipcall::audio::wav::read_narrowband(clip).unwrap();
+    let mut encoder = FrameEncoder::new(codec, &EncoderSettings::default()).unwrap();
+    let mut decoder = StreamDecoder::new(codec, true).unwrap();
+    let mut payload = [0u8; MAX_FRAME_PAYLOAD];
+    let mut out = Vec::new();
+    let mut packets = 0;
+    for chunk in pcm.chunks(160) {
+        let mut frame = [0i16; 160];
+        frame[..chunk.len()].copy_from_slice(chunk);
+        let (n, _) = encoder.encode(&frame, &mut payload).unwrap().unwrap();
+        decoder.packet(&payload[..n], 0);
+        out.extend_from_slice(&decoder.frame().pcm);
+        packets += 1;
+    }
+    (packets, out)
+}
+
+fn check_sent(codec: Codec, packets: usize, expected: &[i16], got: &[i16], source: &[i16]) {
+    let frames = got.len() as i64 / 160;
+    assert!(
+        (frames - packets as i64).abs() <= 1,
+        "{codec}: GStreamer decoded {frames} frames of {packets}"
+    );
+    let a = align(expected, got, 400);
+    let quality = align(source, got, 800);
+    eprintln!(
+        "{codec}: GStreamer's decode against lipcall's median {:.1} dB; against the source \
+         {:.2} dB; {frames} frames of {packets}",
+        a.median(),
+        quality.overall()
+    );
+    assert!(a.median() > 60.0, "{codec}: {a:?}");
+    assert!(a.share_above(40.0) >= 0.95, "{codec}: {a:?}");
+}
+
+/// `lipcall send --codec opus` into `udpsrc ! rtpopusdepay ! opusdec`: the audio lipcall's own
+/// encoder made, for as long as it lasts.
+#[test]
+fn lipcall_send_opus_into_gstreamer_rtpopusdepay() {
+    let _serial = serial();
+    let dir = tempfile::tempdir().unwrap();
+    let clip = clip(dir.path(), "3");
+    let got = lipcall_send_into_gst(
+        &clip,
+        &["--codec", "opus"],
+        "application/x-rtp,media=audio,clock-rate=48000,encoding-name=OPUS,payload=96",
+        &["rtpopusdepay", "opusdec"],
+    );
+    let (packets, expected) = encode_and_decode(&clip, Codec::Opus);
+    check_sent(
+        Codec::Opus,
+        packets,
+        &expected,
+        &got,
+        &read_wav_i16(&clip).1,
+    );
+}
+
+/// An Ogg Opus file goes as it is: its packets, timestamped by their durations.
+#[test]
+fn lipcall_send_of_an_opus_file_into_gstreamer() {
+    let _serial = serial();
+    let dir = tempfile::tempdir().unwrap();
+    let clip = clip(dir.path(), "3");
+    let file = dir.path().join("clip.opus");
+    run(lipcall()
+        .args(["encode", "--codec", "opus", "--bitrate", "24"])
+        .arg(&clip)
+        .arg(&file));
+    let got = lipcall_send_into_gst(
+        &file,
+        &[],
+        "application/x-rtp,media=audio,clock-rate=48000,encoding-name=OPUS,payload=96",
+        &["rtpopusdepay", "opusdec"],
+    );
+    let decoded = lipcall::codec::opus::stream::decode(&std::fs::read(&file).unwrap()).unwrap();
+    let mut decoder = StreamDecoder::new(Codec::Opus, true).unwrap();
+    let mut expected = Vec::new();
+    for p in &decoded.packets {
+        decoder.packet(&p.data, 0);
+        for _ in 0..p.samples / 160 {
+            expected.extend_from_slice(&decoder.frame().pcm);
+        }
+    }
+    check_sent(
+        Codec::Opus,
+        decoded.packets.len(),
+        &expected,
+        &got,
+        &read_wav_i16(&clip).1,
+    );
+}
+
+/// `lipcall send --codec pcmu` into `udpsrc ! rtppcmudepay ! mulawdec`.
+#[test]
+fn lipcall_send_pcmu_into_gstreamer_rtppcmudepay() {
+    let _serial = serial();
+    let dir = tempfile::tempdir().unwrap();
+    let clip = clip(dir.path(), "3");
+    let got = lipcall_send_into_gst(
+        &clip,
+        &["--codec", "pcmu"],
+        "application/x-rtp,media=audio,clock-rate=8000,encoding-name=PCMU,payload=0",
+        &["rtppcmudepay", "mulawdec"],
+    );
+    let (packets, expected) = encode_and_decode(&clip, Codec::Pcmu);
+    check_sent(
+        Codec::Pcmu,
+        packets,
+        &expected,
+        &got,
+        &read_wav_i16(&clip).1,
+    );
+}
+
+/// Three peers, three codecs, one session: GStreamer's Opus, lipcall's PCMA and lipcall's Speex
+/// are each decoded with their own codec and mixed.
+#[test]
+fn peers_with_different_codecs_in_one_call() {
+    let _serial = serial();
+    let dir = tempfile::tempdir().unwrap();
+    let clip = clip(dir.path(), "3");
+    let port = free_port();
+    let out = dir.path().join("mix.wav");
+    let features = dir.path().join("features.csv");
+    let receiver = spawn(
+        lipcall()
+            .args(["receive", "--listen", &format!("127.0.0.1:{port}")])
+            .arg("--wav")
+            .arg(&out)
+            .arg("--features")
+            .arg(&features)
+            .args(["--seconds", "6"]),
+    );
+    std::thread::sleep(Duration::from_millis(300));
+    let to = format!("127.0.0.1:{port}");
+    let mut gst = Command::new("gst-launch-1.0");
+    gst.arg("-q");
+    gst_wav_source(&mut gst, &clip);
+    chain(
+        &mut gst,
+        &["opusenc", "rtpopuspay", "udpsink host=127.0.0.1"],
+    );
+    gst.arg(format!("port={port}"));
+    let senders = [
+        spawn(&mut gst),
+        spawn(
+            lipcall()
+                .arg("send")
+                .arg(&clip)
+                .args(["--to", &to, "--codec", "pcma", "--name", "A"]),
+        ),
+        spawn(
+            lipcall()
+                .arg("send")
+                .arg(&clip)
+                .args(["--to", &to, "--name", "S"]),
+        ),
+    ];
+    for s in senders {
+        finish(s, Duration::from_secs(30), "sender");
+    }
+    let (_, stderr) = finish(receiver, Duration::from_secs(60), "lipcall receive");
+    let peers: Vec<_> = stderr
+        .lines()
+        .filter(|l| l.starts_with("peer "))
+        .map(|l| fields(l, "peer "))
+        .collect();
+    let mut codecs: Vec<&str> = peers.iter().map(|p| p["codec"].as_str()).collect();
+    codecs.sort();
+    assert_eq!(codecs, ["opus", "pcma", "speex"], "{stderr}");
+    for p in &peers {
+        assert!(num(p, "received") >= 140.0, "{stderr}");
+        assert_eq!(num(p, "decode_errors"), 0.0, "{stderr}");
+    }
+    // One feature file per peer, each as long as the mixed audio.
+    let frames = read_wav_i16(&out).1.len() / 160;
+    let files: Vec<_> = std::fs::read_dir(dir.path())
+        .unwrap()
+        .filter_map(|e| {
+            let name = e.unwrap().file_name().into_string().unwrap();
+            name.starts_with("features").then_some(name)
+        })
+        .collect();
+    assert_eq!(files.len(), 3, "{files:?}");
+    for f in files {
+        let rows = csv_rows(&dir.path().join(&f));
+        assert!(
+            rows + 20 >= frames && rows <= frames,
+            "{f}: {rows} of {frames}"
+        );
+    }
 }

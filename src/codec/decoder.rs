@@ -20,7 +20,7 @@ use super::speex::features::{FrameFeatures, FrameTracker, energy_db, flat_lsp};
 use super::{FRAME_SIZE, LSP_COUNT, opus, speex};
 
 /// Decoded samples a stream may hold ahead: the longest payload (a 1500-byte datagram of G.711,
-/// or 120 ms of Opus) behind a frame's worth of leftovers.
+/// or 120 ms of Opus) behind at most two frames of leftovers.
 const QUEUE_CAPACITY: usize = 2048;
 /// G.711 concealment fades to silence over this many samples (60 ms).
 const G711_FADE: usize = 480;
@@ -277,11 +277,13 @@ impl SpeexStream {
 }
 
 impl QueuedStream {
-    /// Queues a payload's samples `offset` samples into the frame about to be played: what the
-    /// queue holds beyond that is overwritten (the newer payload wins an overlap), a gap before
-    /// it is concealed. False if the payload could not be decoded.
+    /// Queues a payload's samples `offset` samples into the frame about to be played. A gap
+    /// before it is concealed. An overlap of up to a frame is played rather than cut (GStreamer
+    /// stamps its first Opus packet 6.5 ms shorter than it is, the encoder's look-ahead; cutting
+    /// would splice the audio): the stream then runs that much later. Beyond a frame the
+    /// newer payload wins. False if the payload could not be decoded.
     fn decode(&mut self, payload: &[u8], offset: usize) -> bool {
-        if self.queue.len() > offset {
+        if self.queue.len() > offset + FRAME_SIZE {
             self.queue.truncate(offset);
         } else if self.queue.len() < offset {
             self.conceal_into_queue(offset - self.queue.len());

@@ -328,10 +328,11 @@ impl JitterBuffer {
         (off - self.tolerance).div_euclid(self.step) + 1
     }
 
-    /// The output time of tick offset `off`, by the playout reference.
-    fn play_time(&self, off: i64) -> f64 {
+    /// The output time at which slot `index` is played, by the playout reference: the
+    /// deadline of every packet starting in it, wherever in it the packet starts.
+    fn slot_time(&self, index: i64) -> f64 {
         let (ref_index, ref_time) = self.play_ref;
-        ref_time + (off - ref_index * self.step) as f64 / f64::from(self.clock)
+        ref_time + (index - ref_index) as f64 * FRAME_SECONDS
     }
 
     /// Records the sequence number; returns false for a duplicate.
@@ -421,7 +422,7 @@ impl JitterBuffer {
                 if self.slack.len() == SLACK_WINDOW {
                     self.slack.pop_front();
                 }
-                self.slack.push_back(self.play_time(off) - now);
+                self.slack.push_back(self.slot_time(index) - now);
                 return;
             }
             if index > self.next + max_gap
@@ -441,7 +442,7 @@ impl JitterBuffer {
             if self.slack.len() == SLACK_WINDOW {
                 self.slack.pop_front();
             }
-            self.slack.push_back(self.play_time(off) - now);
+            self.slack.push_back(self.slot_time(index) - now);
         }
         if self.entries.len() >= self.config.capacity {
             self.stats.overflow += 1;
@@ -1138,6 +1139,57 @@ mod tests {
             out[first..first + 30]
                 .iter()
                 .all(|p| matches!(p, Playout::Packet(piece) if piece.offset == 0))
+        );
+    }
+
+    #[test]
+    fn a_stream_off_the_grid_keeps_its_delay() {
+        // GStreamer's Opus: the first packet stamped 648 ticks long, the rest 960 apart, so
+        // every later packet starts 13.5 ms into its slot. Its deadline is still the slot's
+        // start: the buffer must not take the 13.5 ms for spare delay and skip frames.
+        let t0 = Instant::now();
+        let mut jb = JitterBuffer::with_clock(JitterConfig::default(), t0, 48_000);
+        let n = 500u32;
+        let mut out = Vec::new();
+        let mut sent = 0u32;
+        for k in 0..n + 20 {
+            // The output clock ticks 9 ms after the packets: playout starts at 49 ms of delay.
+            let now = t0 + FRAME * k + Duration::from_millis(9);
+            while sent < n {
+                let ts = if sent == 0 { 0 } else { 648 + (sent - 1) * 960 };
+                // Sent at its timestamp, as GStreamer does from a file, 0..6 ms of network
+                // jitter on top.
+                let at = t0
+                    + Duration::from_secs_f64(f64::from(ts) / 48_000.0)
+                    + Duration::from_millis(u64::from(sent * 37 % 7));
+                if at > now {
+                    break;
+                }
+                jb.file(Arrival {
+                    sequence: sent as u16,
+                    timestamp: ts,
+                    marker: sent == 0,
+                    payload_type: 96,
+                    payload: &[sent as u8],
+                    duration: 960,
+                    on_grid: false,
+                    at,
+                });
+                sent += 1;
+            }
+            out.push(jb.pop(now));
+        }
+        let s = jb.stats();
+        assert_eq!((s.dropped, s.stretched, s.late), (0, 0, 0), "{s:?}");
+        let last = out
+            .iter()
+            .rposition(|p| matches!(p, Playout::Packet(_)))
+            .unwrap();
+        let first = out.iter().position(|p| *p != Playout::Silent).unwrap();
+        assert!(
+            out[first..=last]
+                .iter()
+                .all(|p| matches!(p, Playout::Packet(_) | Playout::Pieces(_)))
         );
     }
 

@@ -96,6 +96,8 @@ pub struct Alignment {
     pub offset: i64,
     /// SNR of each 200 ms chunk of `test` that carries speech, at its best frame shift.
     pub chunk_snr: Vec<f64>,
+    /// Reference and error energy of those chunks, at their best shifts.
+    pub energy: (f64, f64),
 }
 
 impl Alignment {
@@ -103,6 +105,11 @@ impl Alignment {
         let mut v = self.chunk_snr.clone();
         v.sort_by(f64::total_cmp);
         v.get(v.len() / 2).copied().unwrap_or(f64::NEG_INFINITY)
+    }
+
+    /// The SNR of all the chunks together (each at its best frame shift).
+    pub fn overall(&self) -> f64 {
+        10.0 * (self.energy.0 / self.energy.1.max(1e-9)).log10()
     }
 
     pub fn share_above(&self, db: f64) -> f64 {
@@ -135,13 +142,18 @@ pub fn align(reference: &[i16], test: &[i16], max_offset: usize) -> Alignment {
     let offset = best.1;
     let chunk = 10 * FRAME_SIZE;
     let mut chunk_snr = Vec::new();
+    let mut energies = (0.0, 0.0);
     for (i, t) in test.chunks_exact(chunk).enumerate() {
-        // Only where the reference runs (not the concealed tail after the stream).
+        // Only where the reference runs (not the concealed tail after the stream), and not
+        // before it starts.
         let end = ((i + 1) * chunk) as i64 - offset;
-        if energy(t) < 1e6 * chunk as f64 || end + 4 * FRAME_SIZE as i64 > reference.len() as i64 {
+        if energy(t) < 1e6 * chunk as f64
+            || end + 4 * FRAME_SIZE as i64 > reference.len() as i64
+            || end < chunk as i64
+        {
             continue;
         }
-        let mut best_chunk = f64::NEG_INFINITY;
+        let mut best_chunk = (f64::NEG_INFINITY, (0.0, 0.0));
         for shift in -4i64..=4 {
             let r0 = (i * chunk) as i64 - offset + shift * FRAME_SIZE as i64;
             if r0 < 0 {
@@ -150,11 +162,39 @@ pub fn align(reference: &[i16], test: &[i16], max_offset: usize) -> Alignment {
             let Some(r) = reference.get(r0 as usize..r0 as usize + chunk) else {
                 continue;
             };
-            best_chunk = best_chunk.max(snr(r, t));
+            let s = snr(r, t);
+            if s > best_chunk.0 {
+                let noise: f64 = r
+                    .iter()
+                    .zip(t)
+                    .map(|(&a, &b)| (f64::from(a) - f64::from(b)).powi(2))
+                    .sum();
+                best_chunk = (s, (energy(r), noise));
+            }
         }
-        chunk_snr.push(best_chunk);
+        chunk_snr.push(best_chunk.0);
+        energies.0 += (best_chunk.1).0;
+        energies.1 += (best_chunk.1).1;
     }
-    Alignment { offset, chunk_snr }
+    Alignment {
+        offset,
+        chunk_snr,
+        energy: energies,
+    }
+}
+
+/// SNR of `test` against `reference` at the lag (`test` later by 0..=`max_lag` samples) that
+/// fits the first second best, over all of `reference` that `test` covers; with that lag.
+pub fn snr_at_best_lag(reference: &[i16], test: &[i16], max_lag: usize) -> (f64, usize) {
+    let probe = &reference[..reference.len().min(8000)];
+    let lag = (0..=max_lag)
+        .filter(|&lag| test.len() >= lag + probe.len())
+        .max_by(|&a, &b| {
+            snr(probe, &test[a..a + probe.len()]).total_cmp(&snr(probe, &test[b..b + probe.len()]))
+        })
+        .unwrap_or(0);
+    let covered = test.len().saturating_sub(lag).min(reference.len());
+    (snr(&reference[..covered], &test[lag..lag + covered]), lag)
 }
 
 /// `key=value` fields of the first stderr line starting with `prefix`.
