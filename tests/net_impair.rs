@@ -1,6 +1,7 @@
 //! `lipcall send` -> impairment proxy -> `lipcall receive`: loss, jitter, reordering and
-//! duplicates with seeded randomness. The played audio must stay continuous, of the right
-//! duration, with concealment counted and a feature row for every frame.
+//! duplicates with seeded randomness, for Speex and for Opus. The played audio must stay
+//! continuous, of the right duration, with concealment (and Opus's FEC recovery) counted and a
+//! feature row for every frame.
 
 mod common;
 
@@ -121,7 +122,7 @@ fn proxy(
     counts
 }
 
-fn impaired_call(imp: Impairment) {
+fn impaired_call(imp: Impairment, codec: &str) {
     let dir = tempfile::tempdir().unwrap();
     let demo = common::demo_8k(dir.path());
     let clip = dir.path().join("clip.wav");
@@ -162,6 +163,8 @@ fn impaired_call(imp: Impairment) {
         "impaired",
         "--name",
         "Imp",
+        "--codec",
+        codec,
     ]));
     // The receiver stops by itself once the sender's BYE has been played out.
     let (_, stderr) = finish(receiver, Duration::from_secs(40), "lipcall receive");
@@ -179,6 +182,7 @@ fn impaired_call(imp: Impairment) {
 
     let peer = fields(&stderr, "peer ");
     assert_eq!(peer["name"], "Imp");
+    assert_eq!(peer["codec"], codec);
     let (received, played, lost, late) = (
         num(&peer, "received"),
         num(&peer, "played"),
@@ -187,6 +191,7 @@ fn impaired_call(imp: Impairment) {
     );
     let (stretched, dropped) = (num(&peer, "stretched"), num(&peer, "dropped"));
     let concealed = num(&peer, "concealed");
+    let recovered = num(&peer, "recovered");
     assert_eq!(received as u64, counts.media - counts.dropped);
     // With SRTP the replay window catches duplicates before the jitter buffer sees them.
     let session = fields(&stderr, "lipcall: played");
@@ -195,8 +200,15 @@ fn impaired_call(imp: Impairment) {
         counts.duplicated as f64
     );
     assert_eq!(num(&session, "auth_failed"), 0.0);
-    // Every missing frame was concealed, and only those (plus inserted frames).
-    assert_eq!(concealed, lost + stretched);
+    // Every missing frame was concealed or (Opus) rebuilt from the next packet's FEC, and only
+    // those (plus inserted frames).
+    assert_eq!(concealed + recovered, lost + stretched);
+    if codec == "opus" {
+        // The losses whose next packet came in time and carried FEC (speech, not silence).
+        assert!(recovered >= 0.3 * counts.dropped as f64, "{peer:?}");
+    } else {
+        assert_eq!(recovered, 0.0);
+    }
     assert!(lost >= counts.dropped as f64, "{peer:?}");
     assert!(
         lost <= counts.dropped as f64 + late + dropped + 2.0,
@@ -217,7 +229,7 @@ fn impaired_call(imp: Impairment) {
     assert!(stretched + dropped <= 6.0, "{peer:?}");
 
     // Continuous: one feature row per played frame, no gap in the timeline; concealed rows
-    // carry no mode and their energy falls (the mouth closes).
+    // carry no mode (recovered ones do: they are decoded audio).
     let csv = std::fs::read_to_string(&features).unwrap();
     let rows: Vec<Vec<&str>> = csv
         .lines()
@@ -262,24 +274,38 @@ fn impaired_call(imp: Impairment) {
     assert!(zero_run < 3, "{zero_run} silent frames in a row");
 }
 
+const FIVE_PERCENT: Impairment = Impairment {
+    loss: 0.05,
+    base: Duration::from_millis(30),
+    jitter: Duration::from_millis(30),
+    duplicate: 0.03,
+    seed: 5,
+};
+
+const FIFTEEN_PERCENT: Impairment = Impairment {
+    loss: 0.15,
+    base: Duration::from_millis(30),
+    jitter: Duration::from_millis(30),
+    duplicate: 0.03,
+    seed: 15,
+};
+
 #[test]
 fn five_percent_loss_with_jitter_reordering_and_duplicates() {
-    impaired_call(Impairment {
-        loss: 0.05,
-        base: Duration::from_millis(30),
-        jitter: Duration::from_millis(30),
-        duplicate: 0.03,
-        seed: 5,
-    });
+    impaired_call(FIVE_PERCENT, "speex");
 }
 
 #[test]
 fn fifteen_percent_loss_with_jitter_reordering_and_duplicates() {
-    impaired_call(Impairment {
-        loss: 0.15,
-        base: Duration::from_millis(30),
-        jitter: Duration::from_millis(30),
-        duplicate: 0.03,
-        seed: 15,
-    });
+    impaired_call(FIFTEEN_PERCENT, "speex");
+}
+
+#[test]
+fn opus_five_percent_loss_with_jitter_reordering_and_duplicates() {
+    impaired_call(FIVE_PERCENT, "opus");
+}
+
+#[test]
+fn opus_fifteen_percent_loss_with_jitter_reordering_and_duplicates() {
+    impaired_call(FIFTEEN_PERCENT, "opus");
 }

@@ -1,11 +1,16 @@
-//! Random and mutated bytes into every packet parser of the transport: errors are fine,
-//! panics are not.
+//! Random and mutated bytes into every packet parser of the transport, and random payloads of
+//! every payload type into the receive path and every codec's decoder: errors are fine, panics
+//! are not.
 
 use std::time::{Duration, Instant};
 
+use lipcall::codec::any::{Codec, PayloadMap};
+use lipcall::codec::decoder::StreamDecoder;
+use lipcall::codec::opus::fec::carries_fec;
 use lipcall::codec::speex::split;
 use lipcall::net::control::Control;
 use lipcall::net::jitter::{JitterBuffer, JitterConfig};
+use lipcall::net::peer::PeerReceiver;
 use lipcall::net::relay::{RelayConfig, RelayCore};
 use lipcall::net::srtp::{MasterKey, Srtp};
 use lipcall::net::{classify, rtcp, rtp};
@@ -126,5 +131,74 @@ proptest! {
         }
         core.expire(now + Duration::from_secs(3600));
         prop_assert_eq!(core.stats().members, 0);
+    }
+
+    #[test]
+    fn random_payloads_of_every_payload_type_never_panic(
+        packets in proptest::collection::vec(
+            (
+                0u8..128,
+                any::<u16>(),
+                0u32..20_000,
+                any::<bool>(),
+                proptest::collection::vec(any::<u8>(), 1..400),
+            ),
+            0..60,
+        ),
+        remap in any::<bool>(),
+    ) {
+        let t0 = Instant::now();
+        let payloads = if remap {
+            PayloadMap::default().with_assignments(&["opus=100", "speex=127"]).unwrap()
+        } else {
+            PayloadMap::default()
+        };
+        let mut rx = PeerReceiver::with_payloads(JitterConfig::default(), t0, true, payloads.clone());
+        let mut buf = Vec::new();
+        let mut unknown = 0;
+        for (k, (pt, seq, ts, marker, payload)) in packets.iter().enumerate() {
+            rtp::write(
+                &rtp::RtpHeader { marker: *marker, payload_type: *pt, sequence: *seq, timestamp: *ts, ssrc: 9 },
+                payload,
+                &mut buf,
+            ).unwrap();
+            let parsed = rtp::parse(&buf, None).unwrap();
+            let at = t0 + Duration::from_millis(20 * k as u64);
+            let known = rx.insert(&parsed, at);
+            prop_assert_eq!(known, payloads.codec(*pt).is_some());
+            unknown += u64::from(!known);
+            for p in 0..2 {
+                if let Some(f) = rx.pull(at + Duration::from_millis(10 * p)) {
+                    prop_assert!(f.features.lsp.windows(2).all(|w| w[0] < w[1]));
+                    prop_assert!(f.features.energy_db.is_finite());
+                }
+            }
+        }
+        prop_assert_eq!(rx.stats().unknown_payload, unknown);
+    }
+
+    #[test]
+    fn every_decoder_takes_any_payload(
+        payloads in proptest::collection::vec(
+            (proptest::collection::vec(any::<u8>(), 0..1600), 0u32..2000, 0u8..3),
+            1..12,
+        ),
+    ) {
+        for codec in Codec::ALL {
+            let mut dec = StreamDecoder::new(codec, true).unwrap();
+            for (payload, offset, action) in &payloads {
+                let _ = codec.payload_duration(payload);
+                let _ = carries_fec(payload);
+                let frame = match action {
+                    0 => {
+                        dec.packet(payload, *offset);
+                        dec.frame()
+                    }
+                    1 => dec.lost(Some(payload)),
+                    _ => dec.lost(None),
+                };
+                prop_assert!(frame.features.lsp.windows(2).all(|w| w[0] < w[1]));
+            }
+        }
     }
 }
