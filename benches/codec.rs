@@ -165,6 +165,29 @@ fn silk_walker_per_packet(c: &mut Criterion) {
                 }
             })
         });
+        // What the receiver does per frame: decode, walk, map the NLSFs onto the network's
+        // narrowband LSPs, and the energy of the decoded samples.
+        group.bench_function(format!("decode + NLSF features {name}"), |b| {
+            use lipcall::codec::opus::features::narrowband_lsp;
+            use lipcall::codec::speex::features::energy_db;
+            let mut decoder = OpusDecoder::new().unwrap();
+            let mut walker = SilkWalker::new();
+            let mut frames = Vec::with_capacity(4);
+            let mut out = [0i16; FRAME_SIZE];
+            b.iter(|| {
+                for p in &packets {
+                    frames.clear();
+                    walker.walk_packet_into(black_box(p), &mut frames).unwrap();
+                    decoder.decode_frame(black_box(p), &mut out).unwrap();
+                    let lsp = frames
+                        .iter()
+                        .filter_map(|f| f.silk())
+                        .filter_map(|f| narrowband_lsp(&f.nlsf, f.internal_rate_hz))
+                        .last();
+                    black_box((lsp, energy_db(&out)));
+                }
+            })
+        });
     }
     group.finish();
 }

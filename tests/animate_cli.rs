@@ -1,4 +1,4 @@
-//! `lipcall animate`: WEIGHTS.csv from WAV and Speex input, other viseme sets, the jaw
+//! `lipcall animate`: WEIGHTS.csv from WAV, Speex and Opus input, other viseme sets, the jaw
 //! baseline, rendered frames, and bad input.
 
 mod common;
@@ -62,6 +62,41 @@ fn weights_from_wav_and_from_its_speex_file_agree() {
         std::fs::read_to_string(&from_wav).unwrap(),
         std::fs::read_to_string(&from_spx).unwrap()
     );
+}
+
+#[test]
+fn weights_from_an_opusenc_file_follow_the_speech() {
+    // opusenc codes 16 kHz speech as wideband SILK: the features are its NLSFs, mapped.
+    let dir = tempfile::tempdir().unwrap();
+    let d = dir.path();
+    let wav = d.join("demo16.wav");
+    run(Command::new("sox")
+        .arg(repo_file("assets/speech/demo.wav"))
+        .args(["-D", "-r", "16000"])
+        .arg(&wav));
+    let opus = d.join("demo.opus");
+    run(Command::new("opusenc")
+        .args(["--quiet", "--bitrate", "16"])
+        .arg(&wav)
+        .arg(&opus));
+    let csv = d.join("opus.csv");
+    run(lipcall()
+        .arg("animate")
+        .arg(&opus)
+        .arg("--weights")
+        .arg(&csv));
+    let (header, rows) = read_weights(&csv);
+    let (_, samples) = read_wav_i16(&wav);
+    assert!(
+        rows.len().abs_diff(samples.len() / 320) <= 1,
+        "{} rows for {} samples at 16 kHz",
+        rows.len(),
+        samples.len()
+    );
+    assert_convex(&rows);
+    let aa = header.iter().position(|h| h == "aa").unwrap() - 2;
+    let pp = header.iter().position(|h| h == "PP").unwrap() - 2;
+    assert!(rows.iter().any(|r| r[aa] > 0.5) && rows.iter().any(|r| r[pp] > 0.9));
 }
 
 #[test]

@@ -7,6 +7,7 @@ use std::path::{Path, PathBuf};
 use anyhow::{Context, Result, bail};
 
 use crate::audio::wav;
+use crate::codec::opus;
 use crate::codec::speex::codec::EncoderConfig;
 use crate::codec::speex::features::FrameFeatures;
 use crate::codec::speex::{FRAME_SIZE, stream};
@@ -46,15 +47,27 @@ pub struct Animation {
     pub pcm: Vec<i16>,
 }
 
-/// Features as a receiver would see them: a .spx is decoded; anything else is read as WAV,
-/// resampled to 8 kHz and sent through the codec at the default quality.
+/// Features as a receiver would see them: an Ogg Speex or Ogg Opus file (.spx, .opus, .ogg) is
+/// decoded, its features read from its bitstream (Speex LSPs, SILK NLSFs); anything else is read
+/// as WAV, resampled to 8 kHz and sent through Speex at the default quality.
 pub fn receiver_features(input: &Path) -> Result<(u32, Vec<i16>, Vec<FrameFeatures>)> {
-    let is_spx = input
-        .extension()
-        .is_some_and(|e| e.eq_ignore_ascii_case("spx") || e.eq_ignore_ascii_case("ogg"));
-    let decoded = if is_spx {
+    let is_ogg = input.extension().is_some_and(|e| {
+        ["spx", "opus", "ogg"]
+            .iter()
+            .any(|ext| e.eq_ignore_ascii_case(ext))
+    });
+    let decoded = if is_ogg {
         let bytes =
             std::fs::read(input).with_context(|| format!("cannot read {}", input.display()))?;
+        if opus::ogg_file::holds_opus(&bytes) {
+            let decoded =
+                opus::stream::decode(&bytes).with_context(|| input.display().to_string())?;
+            let features = opus::features::stream_features(&decoded);
+            if features.is_empty() {
+                bail!("{}: holds no audio frame", input.display());
+            }
+            return Ok((decoded.rate, decoded.pcm, features));
+        }
         stream::decode(&bytes, true).with_context(|| input.display().to_string())?
     } else {
         let pcm = wav::read_narrowband(input)?;

@@ -6,6 +6,7 @@ use std::path::{Path, PathBuf};
 use anyhow::{Context, Result, bail};
 use indicatif::{ProgressBar, ProgressStyle};
 
+use crate::codec::g711::Law;
 use crate::codec::speex::codec::EncoderConfig;
 use crate::lipsync::decompose::{PointTrack, decompose_track, table_i, table_i_reduced};
 use crate::lipsync::markers::MarkerTrack;
@@ -14,7 +15,7 @@ use crate::lipsync::network::{Dynamics, Model};
 use crate::lipsync::visemes::VisemeSet;
 use crate::lipsync::{self, recipe};
 use crate::train::codec_features::{
-    CodecFeatures, EVALUATION_QUALITY, LOW_QUALITY, augmentation_settings, quality,
+    CodecFeatures, CodecPath, EVALUATION_QUALITY, LOW_QUALITY, augmentation_settings, quality,
 };
 use crate::train::corpus::{Corpus, PreparedUtterance, SpeakerSplit, Utterance};
 use crate::train::crossval::{SpeakerGroup, cross_validate, train_final};
@@ -85,7 +86,8 @@ pub struct TrainArgs {
     /// Closure snap: `auto` (tuned on the validation speakers), `off`, or a threshold in (0, 1].
     #[arg(long, value_name = "auto|off|T", default_value = "auto")]
     pub snap: String,
-    /// Codec versions of each training utterance (settings rotate over qualities 3..10 and VBR).
+    /// Codec versions of each training utterance (settings rotate over Speex qualities 3..10
+    /// and VBR interleaved with Opus, G.711 and G.722).
     #[arg(long, value_name = "N", default_value_t = recipe::CODEC_VERSIONS)]
     pub versions: usize,
     #[arg(long, default_value_t = 400)]
@@ -143,12 +145,21 @@ pub struct EvaluateArgs {
     pub model: Option<PathBuf>,
     #[arg(long, value_name = "DIR", default_value = DEFAULT_CORPUS)]
     pub corpus: PathBuf,
+    /// The codec path the features come through: Speex (the walker's LSPs), Opus from the
+    /// corpus's 16 kHz audio as opusenc codes it (wideband SILK NLSFs) or from 8 kHz as lipcall
+    /// sends it (narrowband SILK), PCMU/PCMA or G.722 (LPC analysis of the decoded audio).
+    #[arg(long, value_enum, default_value = "speex")]
+    pub codec: EvalCodec,
     /// Speex quality of the round trip.
     #[arg(long, value_name = "Q", default_value_t = EVALUATION_QUALITY,
           value_parser = clap::value_parser!(u8).range(0..=10))]
     pub quality: u8,
     #[arg(long)]
     pub vbr: bool,
+    /// Opus bitrate in kb/s.
+    #[arg(long, value_name = "KBPS", default_value_t = 16,
+          value_parser = clap::value_parser!(u32).range(6..=510))]
+    pub bitrate: u32,
     /// Which speakers: test (dr5, dr6), validation (dr4), train (dr1-dr3), or a comma list of
     /// speaker names or their prefixes (e.g. dr2 for a cross-validation fold).
     #[arg(long, value_name = "SET", default_value = "test")]
@@ -164,6 +175,17 @@ pub struct EvaluateArgs {
     /// Also write the per-frame openness and aperture of targets, network and jaw baseline.
     #[arg(long, value_name = "CSV")]
     pub per_frame: Option<PathBuf>,
+}
+
+/// Codec paths `evaluate` can score.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, clap::ValueEnum)]
+pub enum EvalCodec {
+    Speex,
+    Opus,
+    OpusNb,
+    Pcmu,
+    Pcma,
+    G722,
 }
 
 #[derive(Debug, clap::Args)]
@@ -229,6 +251,22 @@ fn prepare_at(
     let mut out = Vec::with_capacity(utts.len());
     for utt in utts {
         out.extend(codec.prepare(std::slice::from_ref(utt), config)?);
+        progress.inc(1);
+    }
+    progress.finish_and_clear();
+    Ok(out)
+}
+
+fn prepare_through(
+    codec: &CodecFeatures,
+    utts: &[&Utterance],
+    path: CodecPath,
+    quiet: bool,
+) -> Result<Vec<PreparedUtterance>> {
+    let progress = bar(utts.len(), &format!("{path} round trips"), quiet);
+    let mut out = Vec::with_capacity(utts.len());
+    for utt in utts {
+        out.extend(codec.prepare_through(std::slice::from_ref(utt), path)?);
         progress.inc(1);
     }
     progress.finish_and_clear();
@@ -413,8 +451,9 @@ fn provenance_notes(versions: usize, features_tail: &str) -> Vec<String> {
          CC BY-NC-SA); see assets/models/README.md."
             .into(),
         format!(
-            "features: Speex NB round trip, training at {versions} rotating settings of \
-             qualities 3..10 and VBR 4/8{features_tail}"
+            "features: codec round trips, training at {versions} rotating settings of Speex \
+             qualities 3..10 and VBR 4/8, Opus (SILK NLSFs, 8 and 16 kHz input, 12-32 kb/s), \
+             G.711 and G.722 (LPC analysis){features_tail}"
         ),
     ]
 }
@@ -463,7 +502,7 @@ fn an4_group(
     args: &TrainArgs,
     (corpus, stats): (Corpus, an4::AlignmentStats),
     codec: &CodecFeatures,
-    settings: &[EncoderConfig],
+    settings: &[CodecPath],
 ) -> Result<SpeakerGroup> {
     let speakers: Vec<String> = corpus.speakers.iter().map(|s| s.name.clone()).collect();
     let utts = pick(&corpus, &speakers, args.utterances)?;
@@ -472,7 +511,7 @@ fn an4_group(
     let mut augmented = Vec::with_capacity(utts.len() * versions);
     let mut failed = Vec::new();
     for (i, utt) in utts.iter().enumerate() {
-        let rotated: Vec<EncoderConfig> = (0..versions)
+        let rotated: Vec<CodecPath> = (0..versions)
             .map(|k| settings[(i * versions + k) % settings.len()])
             .collect();
         match codec.prepare_augmented(std::slice::from_ref(utt), &rotated, versions, &|| {}) {
@@ -752,17 +791,21 @@ pub fn evaluate(args: &EvaluateArgs) -> Result<()> {
         ..EncoderConfig::default()
     };
     let utts = pick(&corpus, speakers, args.utterances)?;
-    let prepared = prepare_at(
-        &CodecFeatures::new(),
-        &utts,
-        config,
-        "Speex round trips",
-        false,
-    )?;
+    let path = match args.codec {
+        EvalCodec::Speex => CodecPath::Speex(config),
+        EvalCodec::Opus | EvalCodec::OpusNb => CodecPath::Opus {
+            bitrate: args.bitrate * 1000,
+            wideband: args.codec == EvalCodec::Opus,
+        },
+        EvalCodec::Pcmu => CodecPath::G711(Law::Mu),
+        EvalCodec::Pcma => CodecPath::G711(Law::A),
+        EvalCodec::G722 => CodecPath::G722,
+    };
+    let prepared = prepare_through(&CodecFeatures::new(), &utts, path, false)?;
     let report: EvalReport =
         evaluate_prepared(&model, &prepared, speakers, &VisemeShapes::point_model())?;
     println!(
-        "model: {} ({} visemes: {}; {} multiply-adds/frame; closure snap {}), Speex quality {}{}",
+        "model: {} ({} visemes: {}; {} multiply-adds/frame; closure snap {}), {}",
         args.model
             .as_deref()
             .map_or_else(|| "built-in".to_string(), |p| p.display().to_string()),
@@ -770,8 +813,7 @@ pub fn evaluate(args: &EvaluateArgs) -> Result<()> {
         model.viseme_names().join(" "),
         model.multiply_adds(),
         model.closure_snap,
-        args.quality,
-        if args.vbr { " VBR" } else { "" }
+        path
     );
     print!("{report}");
     if let Some(path) = &args.per_frame {

@@ -19,7 +19,7 @@ pub const OPENNESS_WEIGHT: f32 = 20.0;
 pub const WIDTH_WEIGHT: f32 = 20.0;
 pub const ROUNDING_WEIGHT: f32 = 20.0;
 /// Codec versions of each training utterance.
-pub const CODEC_VERSIONS: usize = 4;
+pub const CODEC_VERSIONS: usize = 6;
 /// Loss weight of AN4's force-aligned frames (TIMIT's hand-labelled ones weigh 1).
 pub const AN4_WEIGHT: f32 = 0.1;
 pub const AN4_CODEC_VERSIONS: usize = 1;

@@ -11,28 +11,143 @@ use std::path::{Path, PathBuf};
 use std::sync::{Arc, Mutex};
 
 use crate::audio::wav;
+use crate::codec::FRAME_SIZE;
+use crate::codec::g711::Law;
+use crate::codec::g722;
+use crate::codec::lpc::LpcAnalyser;
+use crate::codec::opus;
 use crate::codec::speex::codec::EncoderConfig;
 use crate::codec::speex::features::FrameFeatures;
 use crate::codec::speex::stream;
 use crate::train::corpus::{BoxError, CorpusError, PreparedUtterance, Utterance, prepare};
+
+/// The way a receiver gets its features: which codec, at what setting, from which input rate.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub enum CodecPath {
+    /// Speex narrowband: the walker's LSPs.
+    Speex(EncoderConfig),
+    /// Opus at `bitrate` b/s, fed at 16 kHz as opusenc feeds it speech of that rate (wideband
+    /// SILK) or at 8 kHz as lipcall's own sender does (narrowband SILK): the SILK NLSFs mapped
+    /// onto narrowband LSPs, CELT-only frames analysed.
+    Opus { bitrate: u32, wideband: bool },
+    /// G.711 at 8 kHz: LPC analysis of the decoded audio.
+    G711(Law),
+    /// G.722 from 16 kHz: LPC analysis of its lower band.
+    G722,
+}
+
+impl CodecPath {
+    /// The rate the codec's input is taken at.
+    fn input_rate(&self) -> u32 {
+        match self {
+            CodecPath::Opus { wideband: true, .. } | CodecPath::G722 => 16_000,
+            _ => crate::codec::SAMPLE_RATE,
+        }
+    }
+}
+
+impl std::fmt::Display for CodecPath {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        match self {
+            CodecPath::Speex(c) => {
+                write!(
+                    f,
+                    "Speex quality {}{}",
+                    c.quality,
+                    if c.vbr { " VBR" } else { "" }
+                )
+            }
+            CodecPath::Opus { bitrate, wideband } => write!(
+                f,
+                "Opus {} kb/s from {} kHz (SILK NLSFs)",
+                f64::from(*bitrate) / 1000.0,
+                if *wideband { 16 } else { 8 }
+            ),
+            CodecPath::G711(Law::Mu) => write!(f, "PCMU (LPC analysis)"),
+            CodecPath::G711(Law::A) => write!(f, "PCMA (LPC analysis)"),
+            CodecPath::G722 => write!(f, "G.722 lower band (LPC analysis)"),
+        }
+    }
+}
+
+/// The features a receiver of `pcm` (at `path`'s input rate) sent through `path` sees.
+fn features_through(pcm: &[i16], path: CodecPath) -> Result<Vec<FrameFeatures>, BoxError> {
+    Ok(match path {
+        CodecPath::Speex(config) => features_of_pcm(pcm, config)?,
+        CodecPath::Opus { bitrate, .. } => {
+            let config = opus::codec::EncoderConfig {
+                bitrate,
+                input_rate: path.input_rate(),
+                ..Default::default()
+            };
+            let decoded = opus::stream::decode(&opus::stream::encode(pcm, config)?)?;
+            opus::features::stream_features(&decoded)
+        }
+        CodecPath::G711(law) => {
+            let decoded: Vec<i16> = pcm
+                .iter()
+                .map(|&x| law.decode_sample(law.encode_sample(x)))
+                .collect();
+            analysed(&decoded)
+        }
+        CodecPath::G722 => {
+            let mut encoder = g722::WidebandEncoder::new();
+            let mut decoder = g722::LowBandDecoder::new();
+            let mut low = Vec::with_capacity(pcm.len() / 2);
+            for frame in pcm.chunks_exact(g722::WIDEBAND_FRAME) {
+                let frame: &[i16; g722::WIDEBAND_FRAME] = frame.try_into()?;
+                low.extend_from_slice(&decoder.decode_frame(&encoder.encode_frame(frame)));
+            }
+            analysed(&low)
+        }
+    })
+}
+
+/// Rows of LPC-analysed features of 8 kHz audio.
+fn analysed(pcm: &[i16]) -> Vec<FrameFeatures> {
+    let mut analyser = LpcAnalyser::new();
+    pcm.chunks_exact(FRAME_SIZE)
+        .filter_map(|row| <&[i16; FRAME_SIZE]>::try_from(row).ok())
+        .map(|row| analyser.analyse(row).features(None))
+        .collect()
+}
 
 /// The quality every reported score uses unless said otherwise (speexenc's default).
 pub const EVALUATION_QUALITY: u8 = 8;
 /// The low quality reported beside it (mode 3, 8 kbit/s).
 pub const LOW_QUALITY: u8 = 3;
 
-/// Codec settings the training utterances are augmented with: CBR qualities 3 to 10 and VBR.
-pub fn augmentation_settings() -> Vec<EncoderConfig> {
-    let cbr = (3..=10).map(|quality| EncoderConfig {
-        quality,
-        ..EncoderConfig::default()
-    });
-    let vbr = [4, 8].map(|quality| EncoderConfig {
-        quality,
-        vbr: true,
-        ..EncoderConfig::default()
-    });
-    cbr.chain(vbr).collect()
+/// Codec paths the training utterances are augmented with, interleaved so that any run of
+/// consecutive settings mixes codecs: Speex CBR qualities 3 to 10 and VBR, and as many other
+/// paths: Opus (SILK NLSFs from 8 and 16 kHz input, 12 to 32 kb/s), and the LPC analysis of
+/// G.711 and G.722 audio. The network thus learns each path's features, not one codec's.
+pub fn augmentation_settings() -> Vec<CodecPath> {
+    let speex = (3..=10)
+        .map(|q| CodecPath::Speex(quality(q)))
+        .chain([4, 8].map(|q| {
+            CodecPath::Speex(EncoderConfig {
+                quality: q,
+                vbr: true,
+                ..EncoderConfig::default()
+            })
+        }));
+    let opus = |kbps: u32, wideband| CodecPath::Opus {
+        bitrate: kbps * 1000,
+        wideband,
+    };
+    let others = [
+        opus(16, false),
+        opus(16, true),
+        CodecPath::G711(Law::Mu),
+        opus(12, false),
+        opus(24, true),
+        CodecPath::G722,
+        opus(24, false),
+        opus(12, true),
+        CodecPath::G711(Law::A),
+        opus(32, true),
+    ];
+    speex.zip(others).flat_map(|(a, b)| [a, b]).collect()
 }
 
 /// A CBR setting at `quality` with speexenc's other defaults.
@@ -56,7 +171,7 @@ fn features_of_pcm(pcm: &[i16], config: EncoderConfig) -> Result<Vec<FrameFeatur
 /// Codec features with the 8 kHz audio of every file read once and kept.
 #[derive(Debug, Default)]
 pub struct CodecFeatures {
-    audio: Mutex<HashMap<PathBuf, Arc<Vec<i16>>>>,
+    audio: Mutex<HashMap<(PathBuf, u32), Arc<Vec<i16>>>>,
 }
 
 impl CodecFeatures {
@@ -64,14 +179,35 @@ impl CodecFeatures {
         Self::default()
     }
 
-    fn pcm(&self, path: &Path) -> Result<Arc<Vec<i16>>, BoxError> {
+    fn pcm(&self, path: &Path, rate: u32) -> Result<Arc<Vec<i16>>, BoxError> {
         let mut audio = self.audio.lock().map_err(|_| "audio cache poisoned")?;
-        if let Some(pcm) = audio.get(path) {
+        let key = (path.to_path_buf(), rate);
+        if let Some(pcm) = audio.get(&key) {
             return Ok(Arc::clone(pcm));
         }
-        let pcm = Arc::new(wav::read_narrowband(path)?);
-        audio.insert(path.to_path_buf(), Arc::clone(&pcm));
+        let pcm = Arc::new(wav::to_i16(&wav::resample(&wav::read_mono(path)?, rate)?));
+        audio.insert(key, Arc::clone(&pcm));
         Ok(pcm)
+    }
+
+    /// The features of `path` through `codec`.
+    pub fn features_through(
+        &self,
+        path: &Path,
+        codec: CodecPath,
+    ) -> Result<Vec<FrameFeatures>, BoxError> {
+        features_through(&self.pcm(path, codec.input_rate())?, codec)
+    }
+
+    /// Prepares `utterances` through `codec`.
+    pub fn prepare_through(
+        &self,
+        utterances: &[&Utterance],
+        codec: CodecPath,
+    ) -> Result<Vec<PreparedUtterance>, CorpusError> {
+        prepare(utterances, &|path: &Path| {
+            self.features_through(path, codec)
+        })
     }
 
     /// The features of `path` at `config`.
@@ -80,7 +216,7 @@ impl CodecFeatures {
         path: &Path,
         config: EncoderConfig,
     ) -> Result<Vec<FrameFeatures>, BoxError> {
-        features_of_pcm(&self.pcm(path)?, config)
+        features_of_pcm(&self.pcm(path, crate::codec::SAMPLE_RATE)?, config)
     }
 
     /// Prepares `utterances` at one setting.
@@ -97,7 +233,7 @@ impl CodecFeatures {
     pub fn prepare_augmented(
         &self,
         utterances: &[&Utterance],
-        settings: &[EncoderConfig],
+        settings: &[CodecPath],
         versions: usize,
         on_done: &dyn Fn(),
     ) -> Result<Vec<PreparedUtterance>, CorpusError> {
@@ -105,11 +241,11 @@ impl CodecFeatures {
         let mut out = Vec::with_capacity(utterances.len() * versions);
         for (i, utt) in utterances.iter().enumerate() {
             for k in 0..versions {
-                let config = settings
+                let path = settings
                     .get((i * versions + k) % settings.len().max(1))
                     .copied()
-                    .unwrap_or_default();
-                out.extend(self.prepare(std::slice::from_ref(utt), config)?);
+                    .unwrap_or(CodecPath::Speex(EncoderConfig::default()));
+                out.extend(self.prepare_through(std::slice::from_ref(utt), path)?);
                 on_done();
             }
         }

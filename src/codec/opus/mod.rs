@@ -2,6 +2,7 @@
 
 pub mod codec;
 pub mod fec;
+pub mod features;
 pub mod ogg_file;
 pub mod stream;
 

@@ -1,0 +1,267 @@
+//! Feature rows of Opus streams. SILK and hybrid frames carry the vocal-tract shape in their
+//! bitstream as NLSFs (read by [`crate::codec::silk::SilkWalker`]); they are mapped onto the
+//! network's inputs, the 10 LSPs of a narrowband (8 kHz) predictor, as Speex would code them.
+//! CELT-only frames carry none: their rows come from an LPC analysis of the decoded audio.
+//!
+//! The mapping: SILK codes an order-10 (narrow- and mediumband, at 8 or 12 kHz) or order-16
+//! (wideband, 16 kHz) predictor. Its power spectrum below 4 kHz, read straight off the NLSFs,
+//! becomes an autocorrelation at 8 kHz, smoothed with the Speex encoder's lag window and noise
+//! floor and refitted at order 10 with the analysis's Levinson-Durbin and root search
+//! ([`crate::codec::lpc`]). Narrowband frames go the same way: the network was trained on Speex's
+//! envelopes, whose formants the lag window widens; SILK's are sharper.
+
+use std::f64::consts::PI;
+
+use super::stream::Decoded;
+use crate::codec::lpc::{LpcAnalyser, levinson, lsp_from_lpc};
+use crate::codec::silk::{Nlsf, SilkWalker};
+use crate::codec::speex::features::{FrameFeatures, energy_db, ordered_lsp};
+use crate::codec::{FRAME_SIZE, LSP_COUNT, SAMPLE_RATE};
+
+/// Points of the 0-4 kHz spectrum the refit reads: enough for the few formants below 4 kHz of an
+/// order-16 envelope, few enough to stay a small part of decoding a frame.
+const SPECTRUM_POINTS: usize = 64;
+/// The Speex encoder's Gaussian lag window (96 Hz) and white-noise floor, as the analysis
+/// applies them ([`crate::codec::lpc`]): SILK's envelope then has Speex's formant bandwidths.
+const LAG_SIGMA: f64 = 2.0 * PI * 96.0 / 8000.0;
+const NOISE_FLOOR: f64 = 1.0002;
+
+/// The 10 narrowband LSPs (radians at 8 kHz) of a SILK frame's NLSFs at `internal_rate_hz`;
+/// `None` when the refit is ill-conditioned (never for narrowband frames).
+pub fn narrowband_lsp(nlsf: &Nlsf, internal_rate_hz: u32) -> Option<[f32; LSP_COUNT]> {
+    let mut angles = [0.0f64; crate::codec::silk::MAX_ORDER];
+    for (angle, radians) in angles.iter_mut().zip(nlsf.radians()) {
+        *angle = f64::from(radians);
+    }
+    let angles = &angles[..nlsf.order()];
+    refit(
+        angles,
+        f64::from(SAMPLE_RATE) / f64::from(internal_rate_hz.max(1)),
+    )
+}
+
+/// The order-10 LSPs at 8 kHz of the predictor whose LSFs (radians at its own rate, increasing,
+/// an even number of them) are `angles`, keeping the part of its spectrum below `band` times its
+/// Nyquist frequency.
+fn refit(angles: &[f64], band: f64) -> Option<[f32; LSP_COUNT]> {
+    if angles.is_empty() || angles.len() % 2 != 0 || !(band > 0.0 && band <= 1.0) {
+        return None;
+    }
+    let mut r = [0.0f64; LSP_COUNT + 1];
+    for k in 0..SPECTRUM_POINTS {
+        let narrow = (k as f64 + 0.5) * PI / SPECTRUM_POINTS as f64;
+        let w = narrow * band;
+        let x = w.cos();
+        // |A|^2 up to a constant: cos^2(w/2) prod_odd (x - x_i)^2 + sin^2(w/2) prod_even (x - x_i)^2,
+        // where the odd-numbered LSFs (1st, 3rd, ...) are the roots of the sum polynomial.
+        let (mut sum, mut difference) = (1.0f64, 1.0f64);
+        for (i, &angle) in angles.iter().enumerate() {
+            let d = x - angle.cos();
+            if i % 2 == 0 {
+                sum *= d * d;
+            } else {
+                difference *= d * d;
+            }
+        }
+        let half = 0.5 * w;
+        let inverse_power = half.cos().powi(2) * sum + half.sin().powi(2) * difference;
+        if !(inverse_power > 0.0) {
+            return None;
+        }
+        let power = 1.0 / inverse_power;
+        for (lag, r) in r.iter_mut().enumerate() {
+            *r += power * (lag as f64 * narrow).cos();
+        }
+    }
+    for (k, r) in r.iter_mut().enumerate() {
+        let s = LAG_SIGMA * k as f64;
+        *r *= (-0.5 * s * s).exp();
+    }
+    r[0] *= NOISE_FLOOR;
+    let a = levinson(&r)?;
+    let lsp = lsp_from_lpc(&a)?;
+    let mut out = [0.0f32; LSP_COUNT];
+    for (o, l) in out.iter_mut().zip(lsp) {
+        *o = l as f32;
+    }
+    Some(ordered_lsp(out))
+}
+
+/// The feature rows of a decoded Ogg Opus stream, one per 160 samples of `decoded.pcm` (8 kHz):
+/// each row takes the LSPs of the SILK frame whose decoded samples overlap it most, or an LPC
+/// analysis of its own audio where that frame was CELT-only; the energy is the row's.
+pub fn stream_features(decoded: &Decoded) -> Vec<FrameFeatures> {
+    let rows = decoded.pcm.len() / FRAME_SIZE;
+    // Per row: the LSPs of the most overlapping SILK frame so far, and that overlap.
+    let mut coded: Vec<Option<([f32; LSP_COUNT], u8, i64)>> = vec![None; rows];
+    let scale = i64::from(decoded.rate.max(1));
+    let mut walker = SilkWalker::new();
+    for packet in &decoded.packets {
+        let Ok(frames) = walker.walk_packet(&packet.data) else {
+            walker.packet_lost();
+            continue;
+        };
+        let mut start = packet.pcm_offset;
+        for frame in frames {
+            let (length, lsp, mode) = match frame {
+                crate::codec::silk::Frame::Silk(silk) => (
+                    i64::from(silk.duration_ms) * scale / 1000,
+                    narrowband_lsp(&silk.nlsf, silk.internal_rate_hz),
+                    silk.bandwidth as u8,
+                ),
+                crate::codec::silk::Frame::Celt { duration_48k, .. }
+                | crate::codec::silk::Frame::Concealed { duration_48k, .. } => {
+                    (i64::from(duration_48k) * scale / 48_000, None, 0)
+                }
+            };
+            if let Some(lsp) = lsp {
+                let end = start + length;
+                let first = start.max(0) / FRAME_SIZE as i64;
+                let last = (end - 1).max(0) / FRAME_SIZE as i64;
+                for row in first..=last.min(rows as i64 - 1) {
+                    let (lo, hi) = (row * FRAME_SIZE as i64, (row + 1) * FRAME_SIZE as i64);
+                    let overlap = hi.min(end) - lo.max(start);
+                    if let Some(slot) = coded.get_mut(row as usize)
+                        && overlap > 0
+                        && slot.is_none_or(|(_, _, best)| overlap > best)
+                    {
+                        *slot = Some((lsp, mode, overlap));
+                    }
+                }
+            }
+            start += length;
+        }
+    }
+    let mut analyser = LpcAnalyser::new();
+    decoded
+        .pcm
+        .chunks_exact(FRAME_SIZE)
+        .zip(coded)
+        .map(|(samples, coded)| {
+            let pcm: &[i16; FRAME_SIZE] = samples.try_into().expect("chunks of FRAME_SIZE");
+            // The analyser hears every row, so its history stays continuous.
+            let analysis = analyser.analyse(pcm);
+            match coded {
+                Some((lsp, mode, _)) => FrameFeatures {
+                    mode: Some(mode),
+                    lsp,
+                    energy_db: energy_db(pcm),
+                },
+                None => analysis.features(None),
+            }
+        })
+        .collect()
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::codec::lpc::levinson as fit;
+
+    /// An order-10 predictor with formants at 500, 1500 and 2500 Hz and its LSPs.
+    fn formant_lsp() -> [f64; LSP_COUNT] {
+        let mut r = [0.0f64; LSP_COUNT + 1];
+        for (lag, r) in r.iter_mut().enumerate() {
+            for (f, bw) in [(500.0, 80.0), (1500.0, 120.0), (2500.0, 200.0)] {
+                let w = 2.0 * PI * f / 8000.0;
+                let decay = (-PI * bw / 8000.0 * lag as f64).exp();
+                *r += decay * (w * lag as f64).cos();
+            }
+        }
+        r[0] *= 1.001;
+        lsp_from_lpc(&fit(&r).unwrap()).unwrap()
+    }
+
+    #[test]
+    fn the_refit_of_a_narrowband_envelope_gives_back_its_lsps() {
+        // The lag window widens the formants, which moves each LSP pair apart a little.
+        let lsp = formant_lsp();
+        let refitted = refit(&lsp, 1.0).unwrap();
+        for (a, b) in lsp.iter().zip(refitted) {
+            assert!((a - f64::from(b)).abs() < 0.06, "{lsp:?} vs {refitted:?}");
+        }
+    }
+
+    #[test]
+    fn a_wideband_envelope_keeps_its_formants_below_4_khz() {
+        // The same formants described at 16 kHz by an order-16 predictor: its spectrum below
+        // 4 kHz, refitted at 8 kHz, puts LSP pairs around 500, 1500 and 2500 Hz again.
+        let mut r = [0.0f64; 17];
+        for (lag, r) in r.iter_mut().enumerate() {
+            for (f, bw) in [
+                (500.0, 80.0),
+                (1500.0, 120.0),
+                (2500.0, 200.0),
+                (5000.0, 300.0),
+            ] {
+                let w = 2.0 * PI * f / 16000.0;
+                let decay = (-PI * bw / 16000.0 * lag as f64).exp();
+                *r += decay * (w * lag as f64).cos();
+            }
+        }
+        r[0] *= 1.001;
+        let angles = wideband_lsf(&r);
+        let lsp = refit(&angles, 0.5).unwrap();
+        for formant in [500.0, 1500.0, 2500.0] {
+            let w = (2.0 * PI * formant / 8000.0) as f32;
+            let nearest = lsp.iter().map(|l| (l - w).abs()).fold(f32::MAX, f32::min);
+            assert!(nearest < 0.12, "no LSP near {formant} Hz: {lsp:?}");
+        }
+        assert!(lsp.windows(2).all(|p| p[0] < p[1]));
+    }
+
+    /// LSFs of an order-16 predictor (Levinson without bias, roots by a fine grid search).
+    fn wideband_lsf(r: &[f64; 17]) -> Vec<f64> {
+        let n = 16;
+        let mut a = vec![0.0; n + 1];
+        a[0] = 1.0;
+        let mut error = r[0];
+        for i in 1..=n {
+            let acc: f64 = r[i] + (1..i).map(|j| a[j] * r[i - j]).sum::<f64>();
+            let k = -acc / error;
+            let previous = a.clone();
+            for j in 1..i {
+                a[j] = previous[j] + k * previous[i - j];
+            }
+            a[i] = k;
+            error *= 1.0 - k * k;
+        }
+        // Sum and difference polynomials evaluated as real functions of w.
+        let c = |k: usize| if k <= n { a[k] } else { 0.0 };
+        let half = (n + 1) as f64 / 2.0;
+        let p = |w: f64| -> f64 {
+            (0..=n + 1)
+                .map(|k| (c(k) + c(n + 1 - k)) * ((half - k as f64) * w).cos())
+                .sum()
+        };
+        let q = |w: f64| -> f64 {
+            (0..=n + 1)
+                .map(|k| (c(k) - c(n + 1 - k)) * ((half - k as f64) * w).sin())
+                .sum()
+        };
+        let steps = 20_000;
+        let mut roots = Vec::new();
+        for f in [&p as &dyn Fn(f64) -> f64, &q] {
+            for s in 1..steps {
+                let (w0, w1) = (
+                    PI * (s - 1) as f64 / steps as f64,
+                    PI * s as f64 / steps as f64,
+                );
+                if (f(w0) < 0.0) != (f(w1) < 0.0) && w0 > 0.0 {
+                    roots.push(0.5 * (w0 + w1));
+                }
+            }
+        }
+        roots.sort_by(f64::total_cmp);
+        assert_eq!(roots.len(), n, "{roots:?}");
+        roots
+    }
+
+    #[test]
+    fn malformed_angle_sets_are_refused() {
+        assert!(refit(&[], 0.5).is_none());
+        assert!(refit(&[0.1, 0.2, 0.3], 0.5).is_none());
+        assert!(refit(&[0.1, 0.2], 0.0).is_none());
+        assert!(refit(&[0.1, 0.2], f64::NAN).is_none());
+    }
+}
