@@ -1,10 +1,11 @@
-//! The app's engine without a window: it joins an encrypted room on a relay, and a sender in
-//! the same room is heard and animated.
+//! The app's engine without a window: it joins an encrypted room on a relay (sending Opus), and
+//! an Opus sender in the same room is heard and animated, its codec shown.
 
 use std::time::{Duration, Instant};
 
 use lipcall::app::engine::{CallSpec, Command, Engine, EngineConfig, lock};
 use lipcall::audio::DeviceChoice;
+use lipcall::codec::any::Codec;
 use lipcall::commands::net::{KeyArgs, SendArgs, send};
 use lipcall::net::relay::{Relay, RelayConfig};
 
@@ -26,6 +27,7 @@ fn the_engine_joins_an_encrypted_room_and_animates_a_sender() {
         room: Some("lab".into()),
         passphrase: Some("open sesame".into()),
         name: "Eve".into(),
+        codec: Codec::Opus,
     }));
     let deadline = Instant::now() + Duration::from_secs(10);
     while !lock(&engine.shared).call.in_call {
@@ -44,7 +46,7 @@ fn the_engine_joins_an_encrypted_room_and_animates_a_sender() {
         quality: 8,
         no_rtcp: false,
         ssrc: None,
-        codec: None,
+        codec: Some(Codec::Opus),
         payload_types: Vec::new(),
     };
     std::thread::spawn(move || send(&args));
@@ -54,10 +56,12 @@ fn the_engine_joins_an_encrypted_room_and_animates_a_sender() {
             let s = lock(&engine.shared);
             assert!(s.call.encrypted, "the call is not encrypted");
             assert!(s.call.error.is_none(), "{:?}", s.call.error);
+            assert_eq!(s.call.codec, Some(Codec::Opus));
             if let Some(p) = s.peers.iter().find(|p| p.name == "Mallory")
                 && p.frames_animated > 50
             {
                 assert!(!p.is_demo);
+                assert_eq!(p.codec, Some(Codec::Opus));
                 break;
             }
         }

@@ -14,6 +14,7 @@ use crate::audio::{
     Capture, DeviceChoice, Gate, MicControls, OutputStatus, PeerFeed, PeerId, Playback,
     PlaybackConfig, Schedule, ScheduleSender,
 };
+use crate::codec::any::{Codec, EncoderSettings, FrameEncoder, MAX_FRAME_PAYLOAD};
 use crate::codec::speex::FRAME_SIZE;
 use crate::codec::speex::codec::{Encoder, EncoderConfig, MAX_PACKET_BYTES};
 use crate::codec::speex::features::FrameFeatures;
@@ -26,7 +27,7 @@ use crate::net::session::{PeerFrame, PeerInfo, Session, SessionConfig};
 use crate::net::srtp::MasterKey;
 use crate::render::head::FacePose;
 
-use super::settings::PeerPrefs;
+use super::settings::{DEFAULT_CODEC, PeerPrefs};
 
 const TICK: Duration = Duration::from_millis(20);
 /// Name the demo peer announces (SDES), so the UI can tell it apart.
@@ -42,13 +43,27 @@ pub enum Command {
     SetOutput(DeviceChoice),
 }
 
-/// A call: a peer's (or relay's) address, with a room for a relay.
-#[derive(Debug, Clone, Default)]
+/// A call: a peer's (or relay's) address, with a room for a relay, and the codec we send in
+/// it (each peer may send another; all four are received).
+#[derive(Debug, Clone)]
 pub struct CallSpec {
     pub address: String,
     pub room: Option<String>,
     pub passphrase: Option<String>,
     pub name: String,
+    pub codec: Codec,
+}
+
+impl Default for CallSpec {
+    fn default() -> Self {
+        Self {
+            address: String::new(),
+            room: None,
+            passphrase: None,
+            name: String::new(),
+            codec: DEFAULT_CODEC,
+        }
+    }
 }
 
 /// How the engine starts.
@@ -72,6 +87,8 @@ pub struct PeerView {
     pub addr: SocketAddr,
     pub feed: PeerId,
     pub is_demo: bool,
+    /// The codec of its last packet.
+    pub codec: Option<Codec>,
     pub talking: bool,
     pub loss_percent: f64,
     pub jitter_ms: f64,
@@ -79,6 +96,10 @@ pub struct PeerView {
     /// Frames the network (or jaw baseline) turned into weights.
     pub frames_animated: u64,
     pub frames_received: u64,
+    /// Its lost frames rebuilt from the next packet's FEC (Opus).
+    pub frames_recovered: u64,
+    /// Its packets of a payload type no codec is mapped to (dropped).
+    pub unknown_payload: u64,
 }
 
 /// The call as the UI shows it.
@@ -88,8 +109,12 @@ pub struct CallStatus {
     pub state: String,
     pub in_call: bool,
     pub encrypted: bool,
+    /// The codec we send in the call.
+    pub codec: Option<Codec>,
     pub local_addr: Option<SocketAddr>,
     pub error: Option<String>,
+    /// RTP packets of payload types no codec is mapped to, dropped (from anyone).
+    pub unknown_payload: u64,
 }
 
 /// What a head shows for one 20 ms frame of a peer's audio: the mouth's weights over all 15
@@ -392,7 +417,8 @@ fn demo_speech() -> anyhow::Result<Vec<i16>> {
     )?))
 }
 
-/// The looped demo speech, encoded frame by frame and sent to our own session.
+/// The looped demo speech, encoded frame by frame and sent to our own session, in Speex (the
+/// reference path; calls send the codec of the settings).
 struct Demo {
     session: Session,
     encoder: Encoder,
@@ -437,7 +463,8 @@ struct Worker {
     session: Session,
     demo: Option<Demo>,
     mic: Option<Capture>,
-    encoder: Encoder,
+    /// The microphone's encoder, for the codec of the current call.
+    encoder: FrameEncoder,
     peers: HashMap<u32, PeerState>,
     /// The session has destinations: the microphone is sent.
     in_call: bool,
@@ -470,7 +497,7 @@ impl Worker {
     ) -> anyhow::Result<Self> {
         let session = idle_session(&config)?;
         let mut worker = Self {
-            encoder: Encoder::new(EncoderConfig::default())?,
+            encoder: FrameEncoder::new(DEFAULT_CODEC, &EncoderSettings::default())?,
             session,
             demo: None,
             mic: None,
@@ -535,8 +562,10 @@ impl Worker {
             },
             in_call: false,
             encrypted: false,
+            codec: None,
             local_addr: addr,
             error: s.call.error.take(),
+            unknown_payload: 0,
         };
     }
 
@@ -556,10 +585,12 @@ impl Worker {
         } else {
             SocketAddr::from((std::net::Ipv6Addr::UNSPECIFIED, 0))
         };
+        let encoder = FrameEncoder::new(spec.codec, &EncoderSettings::default())?;
         let mut sc = SessionConfig::new(bind);
         sc.destinations = vec![to];
         sc.room = room.clone();
         sc.key = key;
+        sc.codec = spec.codec;
         sc.name = Some(if spec.name.trim().is_empty() {
             self.config.name.clone()
         } else {
@@ -569,19 +600,22 @@ impl Worker {
         self.session.leave();
         self.demo = None;
         self.session = session;
+        self.encoder = encoder;
         self.in_call = true;
         self.drop_peers();
         let encrypted = self.session.encrypted();
         let mut s = lock(&self.shared);
         s.call = CallStatus {
             state: match &room {
-                Some(r) => format!("in room {r:?} on relay {to}"),
-                None => format!("calling {to}"),
+                Some(r) => format!("in room {r:?} on relay {to}, sending {}", spec.codec),
+                None => format!("calling {to}, sending {}", spec.codec),
             },
             in_call: true,
             encrypted,
+            codec: Some(spec.codec),
             local_addr: self.session.local_addr().ok(),
             error: None,
+            unknown_payload: 0,
         };
         Ok(())
     }
@@ -656,8 +690,11 @@ impl Worker {
             let refresh = tick.is_multiple_of(10);
             if refresh {
                 infos = self.session.peers();
-                if self.in_call && self.session.stats().relay_refused {
-                    lock(&self.shared).call.error =
+                let stats = self.session.stats();
+                let mut s = lock(&self.shared);
+                s.call.unknown_payload = stats.unknown_payload;
+                if self.in_call && stats.relay_refused {
+                    s.call.error =
                         Some("the relay refused to join the room (full, or too many rooms)".into());
                 }
             }
@@ -670,12 +707,12 @@ impl Worker {
         let Some(mic) = &mut self.mic else { return };
         let in_call = self.in_call;
         let mut frame = [0i16; FRAME_SIZE];
-        let mut packet = [0u8; MAX_PACKET_BYTES];
+        let mut payload = [0u8; MAX_FRAME_PAYLOAD];
         loop {
             match mic.read_frame(&mut frame) {
                 Ok(Some(Gate::Open)) if in_call => {
-                    if let Some(n) = self.encoder.encode_frame(&frame, &mut packet) {
-                        let _ = self.session.send_frames(&packet[..n], 1);
+                    if let Ok(Some((n, frames))) = self.encoder.encode(&frame, &mut payload) {
+                        let _ = self.session.send_frames(&payload[..n], frames);
                     }
                 }
                 Ok(Some(_)) => {
@@ -791,6 +828,7 @@ impl Worker {
                     addr: i.addr,
                     feed: p.feed.id(),
                     is_demo: i.name.as_deref() == Some(DEMO_NAME),
+                    codec: i.receiver.codec,
                     talking: p
                         .last_voice
                         .is_some_and(|t| now.duration_since(t) < Duration::from_millis(300)),
@@ -803,6 +841,8 @@ impl Worker {
                     delay_ms: j.current_delay_ms,
                     frames_animated: p.animation.frames_animated,
                     frames_received: p.frames_received,
+                    frames_recovered: i.receiver.recovered,
+                    unknown_payload: i.receiver.unknown_payload,
                 })
             })
             .collect();

@@ -19,6 +19,7 @@ use anyhow::Context;
 use eframe::egui;
 
 use crate::audio::{DeviceChoice, DeviceInfo};
+use crate::codec::any::Codec;
 use crate::render::head::FacePose;
 use crate::render::{Framing, VisemeWeights};
 use engine::{CallSpec, Command, Engine, EngineConfig, FaceRow, PeerView};
@@ -226,7 +227,8 @@ impl LipcallApp {
         );
         for p in peers {
             text += &format!(
-                "peer ssrc={:08x} name={:?} demo={} talking={} animated={} shown={} received={}\n",
+                "peer ssrc={:08x} name={:?} demo={} talking={} animated={} shown={} received={} \
+                 codec={} recovered={} unknown_pt={}\n",
                 p.ssrc,
                 p.name,
                 p.is_demo,
@@ -234,6 +236,9 @@ impl LipcallApp {
                 p.frames_animated,
                 self.shown.get(&p.ssrc).copied().unwrap_or(0),
                 p.frames_received,
+                p.codec.map_or("-", Codec::name),
+                p.frames_recovered,
+                p.unknown_payload,
             );
         }
         let tmp = path.with_extension("tmp");
@@ -417,6 +422,7 @@ fn call_ui(
                 .password(true)
                 .desired_width(90.0),
         );
+        codec_picker_ui(ui, &mut settings.codec);
         let label = if form.room.trim().is_empty() {
             "Call"
         } else {
@@ -433,6 +439,7 @@ fn call_ui(
                 room: Some(form.room.clone()),
                 passphrase: Some(form.passphrase.clone()),
                 name: settings.name.clone(),
+                codec: settings.codec,
             }));
         }
         if ui
@@ -448,10 +455,46 @@ fn call_ui(
             ui.colored_label(egui::Color32::from_rgb(230, 160, 60), "NOT encrypted");
         }
         ui.label(&call.state);
+        if call.unknown_payload > 0 {
+            ui.colored_label(
+                egui::Color32::from_rgb(230, 160, 60),
+                format!(
+                    "{} packets of unknown payload types dropped",
+                    call.unknown_payload
+                ),
+            );
+        }
         if let Some(e) = &call.error {
             ui.colored_label(egui::Color32::LIGHT_RED, e);
         }
     });
+}
+
+/// The codec we send in the next call (a call in progress keeps its own).
+fn codec_picker_ui(ui: &mut egui::Ui, codec: &mut Codec) {
+    // One widget (its label inside), so that the row never wraps between label and box.
+    egui::ComboBox::from_id_salt("codec")
+        .selected_text(format!("Send {}", codec_label(*codec)))
+        .width(90.0)
+        .show_ui(ui, |ui| {
+            for c in Codec::ALL {
+                ui.selectable_value(codec, c, codec_label(c));
+            }
+        })
+        .response
+        .on_hover_text(
+            "The codec we send in new calls. Opus is what most VoIP speaks; every peer may \
+             send any of Opus, Speex, PCMU and PCMA, and all are received.",
+        );
+}
+
+fn codec_label(codec: Codec) -> &'static str {
+    match codec {
+        Codec::Speex => "Speex",
+        Codec::Opus => "Opus",
+        Codec::Pcmu => "PCMU",
+        Codec::Pcma => "PCMA",
+    }
 }
 
 /// Device pickers, the mic level meter, mute and push-to-talk.
@@ -554,6 +597,9 @@ pub fn peer_list_ui(ui: &mut egui::Ui, peers: &[PeerView]) {
             let (dot, _) = ui.allocate_exact_size(egui::vec2(12.0, 12.0), egui::Sense::hover());
             ui.painter().circle_filled(dot.center(), 5.0, colour);
             ui.strong(&p.name);
+            if let Some(codec) = p.codec {
+                ui.label(codec_label(codec));
+            }
             if p.is_demo {
                 ui.weak("(demo)");
             }
@@ -562,6 +608,21 @@ pub fn peer_list_ui(ui: &mut egui::Ui, peers: &[PeerView]) {
             "{}  loss {:.1}%  jitter {:.1} ms  delay {:.0} ms",
             p.addr, p.loss_percent, p.jitter_ms, p.delay_ms
         ));
+        if p.frames_recovered > 0 {
+            ui.weak(format!(
+                "{} lost frames rebuilt from FEC",
+                p.frames_recovered
+            ));
+        }
+        if p.unknown_payload > 0 {
+            ui.colored_label(
+                egui::Color32::from_rgb(230, 160, 60),
+                format!(
+                    "{} packets of an unknown payload type dropped",
+                    p.unknown_payload
+                ),
+            );
+        }
         ui.separator();
     }
 }

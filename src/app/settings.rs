@@ -5,6 +5,14 @@ use std::path::{Path, PathBuf};
 
 use serde::{Deserialize, Serialize};
 
+use crate::codec::any::Codec;
+
+/// The codec new calls send unless the settings say otherwise: Opus. It is what the VoIP world
+/// speaks today (WebRTC, SIP phones, Mumble, Discord), and it carries in-band FEC, so a lost
+/// packet is rebuilt from the next one. Speex stays fully supported (and is the reference
+/// path: its LSPs come straight from the bitstream); every peer may send any of the four.
+pub const DEFAULT_CODEC: Codec = Codec::Opus;
+
 /// What the receiver does with one peer (all local choices; nothing crosses the network).
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 #[serde(default)]
@@ -54,6 +62,8 @@ pub struct Settings {
     pub input_device: String,
     pub output_device: String,
     pub push_to_talk: bool,
+    /// The codec we send in new calls.
+    pub codec: Codec,
     /// Per-peer choices by display name (SSRCs change every call).
     pub peers: BTreeMap<String, PeerPrefs>,
 }
@@ -67,6 +77,7 @@ impl Default for Settings {
             input_device: String::new(),
             output_device: String::new(),
             push_to_talk: false,
+            codec: DEFAULT_CODEC,
             peers: BTreeMap::new(),
         }
     }
@@ -141,6 +152,10 @@ mod tests {
         .unwrap();
         let (old, why) = Settings::load(&path);
         assert!(why.is_none() && old.peers["Bob"].life && old.peers["Bob"].visemes == "3");
+        // Settings from before the codec choice: new calls send Opus; a choice is kept.
+        assert_eq!(old.codec, Codec::Opus);
+        std::fs::write(&path, r#"{"codec": "speex"}"#).unwrap();
+        assert_eq!(Settings::load(&path).0.codec, Codec::Speex);
         std::fs::write(&path, "{not json").unwrap();
         let (d, why) = Settings::load(&path);
         assert_eq!(d, Settings::default());
