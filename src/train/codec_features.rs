@@ -168,10 +168,13 @@ fn features_of_pcm(pcm: &[i16], config: EncoderConfig) -> Result<Vec<FrameFeatur
     Ok(stream::round_trip(pcm, config)?.features)
 }
 
-/// Codec features with the 8 kHz audio of every file read once and kept.
+/// A file's audio at one rate, read once.
+type SharedPcm = Arc<Vec<i16>>;
+
+/// Codec features with the audio of every file read once (per rate) and kept.
 #[derive(Debug, Default)]
 pub struct CodecFeatures {
-    audio: Mutex<HashMap<(PathBuf, u32), Arc<Vec<i16>>>>,
+    audio: Mutex<HashMap<(PathBuf, u32), SharedPcm>>,
 }
 
 impl CodecFeatures {

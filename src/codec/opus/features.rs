@@ -44,7 +44,7 @@ pub fn narrowband_lsp(nlsf: &Nlsf, internal_rate_hz: u32) -> Option<[f32; LSP_CO
 /// an even number of them) are `angles`, keeping the part of its spectrum below `band` times its
 /// Nyquist frequency.
 fn refit(angles: &[f64], band: f64) -> Option<[f32; LSP_COUNT]> {
-    if angles.is_empty() || angles.len() % 2 != 0 || !(band > 0.0 && band <= 1.0) {
+    if angles.is_empty() || !angles.len().is_multiple_of(2) || !(band > 0.0 && band <= 1.0) {
         return None;
     }
     let mut r = [0.0f64; LSP_COUNT + 1];
@@ -65,7 +65,7 @@ fn refit(angles: &[f64], band: f64) -> Option<[f32; LSP_COUNT]> {
         }
         let half = 0.5 * w;
         let inverse_power = half.cos().powi(2) * sum + half.sin().powi(2) * difference;
-        if !(inverse_power > 0.0) {
+        if inverse_power.is_nan() || inverse_power <= 0.0 {
             return None;
         }
         let power = 1.0 / inverse_power;

@@ -1,8 +1,8 @@
 //! Opus through libopus: decoding, encoding and Ogg Opus files (RFC 7845).
 
 pub mod codec;
-pub mod fec;
 pub mod features;
+pub mod fec;
 pub mod ogg_file;
 pub mod stream;
 
