@@ -15,7 +15,8 @@ use super::{FRAME_SIZE, LSP_COUNT};
 /// What the receiver knows about one 20 ms frame once it has decoded it.
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct FrameFeatures {
-    /// Narrowband mode of the frame (0..=8), or `None` for a concealed (lost) frame.
+    /// What the codec says of the frame: Speex's narrowband mode (0..=8), Opus's TOC
+    /// configuration (0..=31), G.711's payload type (0 or 8); `None` for a concealed frame.
     pub mode: Option<u8>,
     /// Quantised LSPs in radians, strictly increasing in (0, pi).
     pub lsp: [f32; LSP_COUNT],
