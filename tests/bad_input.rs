@@ -56,6 +56,28 @@ fn unreadable_inputs_give_one_line_errors() {
     let truncated = d.join("truncated.spx");
     std::fs::write(&truncated, &bytes[..bytes.len() * 2 / 3]).unwrap();
     fails_cleanly(&[p("decode"), &truncated, &out_wav], "truncated");
+
+    // What send cannot send; a payload type taken from the codec being sent.
+    let to = p("127.0.0.1:9");
+    fails_cleanly(&[p("send"), &text, p("--to"), to], "not a readable WAV");
+    fails_cleanly(
+        &[p("send"), &d.join("a.flac"), p("--to"), to],
+        "expected a .wav, .spx or .opus",
+    );
+    fails_cleanly(&[p("send"), &empty, p("--to"), to], "empty");
+    fails_cleanly(
+        &[
+            p("send"),
+            &wav,
+            p("--to"),
+            to,
+            p("--codec"),
+            p("opus"),
+            p("--pt"),
+            p("speex=96"),
+        ],
+        "no RTP payload type is mapped to opus",
+    );
 }
 
 /// An Ogg Opus file from raw packets (valid pages, so the packets themselves are what is bad):
@@ -169,6 +191,10 @@ fn bad_usage_exits_2() {
         vec!["encode"],
         vec!["encode", "a.wav", "b.spx", "--quality", "11"],
         vec!["frobnicate"],
+        vec!["send", "a.wav", "--to", "127.0.0.1:9", "--codec", "g722"],
+        vec!["send", "a.wav", "--to", "127.0.0.1:9", "--pt", "opus=5"],
+        vec!["send", "a.wav", "--to", "127.0.0.1:9", "--pt", "opus"],
+        vec!["receive", "--listen", "127.0.0.1:0", "--pt", "vorbis=100"],
     ] {
         let out = lipcall().args(&args).output().unwrap();
         assert_eq!(out.status.code(), Some(2), "{args:?}");

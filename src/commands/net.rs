@@ -171,6 +171,9 @@ pub fn send(args: &SendArgs) -> Result<()> {
     if packets.is_empty() {
         bail!("{}: no audio to send", args.input.display());
     }
+    if payloads.payload_type(codec).is_none() {
+        bail!("no RTP payload type is mapped to {codec} (--pt took it)");
+    }
     let to = resolve(&args.to)?;
     let key = args.key.master_key(args.room.as_deref())?;
     announce_security(&key);
