@@ -6,16 +6,21 @@
 //! whole number of 2.5 ms (Opus) or samples (G.711: GStreamer's `rtppcmupay` sends 173.5 ms),
 //! so they are decoded whole into a queue of samples, placed where their timestamps say within
 //! the frame being played; a frame the queue cannot fill is completed by concealment. Their
-//! features come from [`FeatureSource`].
+//! features come from [`FeatureSource`]: Opus SILK frames' NLSFs, read by the walker and mapped
+//! onto narrowband LSPs, or an LPC analysis of the decoded audio (G.711, CELT-only Opus).
 //!
 //! Loss: Speex and Opus conceal with their decoders (Opus recovers a lost 20 ms from the next
 //! packet's in-band FEC where that packet carries it); G.711 repeats the last pitch period and
 //! fades out over 60 ms, in the manner of G.711 Appendix I. A concealed frame keeps the last
 //! frame's LSPs while its energy falls, so the mouth closes.
 
+use std::collections::VecDeque;
+
 use super::any::Codec;
 use super::g711::Law;
 use super::lpc::LpcAnalyser;
+use super::opus::features::narrowband_lsp;
+use super::silk::{self, SilkWalker};
 use super::speex::features::{FrameFeatures, FrameTracker, energy_db, flat_lsp};
 use super::{FRAME_SIZE, LSP_COUNT, opus, speex};
 
@@ -85,50 +90,171 @@ struct SpeexStream {
     failed: bool,
 }
 
-/// Where the feature rows of a queued codec come from.
-enum FeatureSource {
-    /// LPC analysis of the decoded audio, as the Speex encoder would analyse it (G.711, whose
-    /// bitstream is the waveform; and Opus for now). Opus SILK and hybrid frames carry NLSFs
-    /// in their bitstream: the SILK walker (`codec::silk`) will give them here, as a variant
-    /// beside this one, with this analysis left for CELT-only frames.
-    Analysis {
-        analyser: LpcAnalyser,
-        /// LSPs of the last frame with received audio, kept through concealment.
-        held: [f32; LSP_COUNT],
-    },
+/// Where the feature rows of a queued codec come from: Opus SILK and hybrid frames carry NLSFs
+/// in their bitstream ([`SilkTrack`]); G.711 audio and CELT-only Opus frames are analysed as the
+/// Speex encoder would analyse them.
+struct FeatureSource {
+    analyser: LpcAnalyser,
+    /// LSPs of the last frame with received audio, kept through concealment.
+    held: [f32; LSP_COUNT],
+    silk: Option<Box<SilkTrack>>,
 }
 
 impl FeatureSource {
     fn analysis() -> Self {
-        FeatureSource::Analysis {
+        FeatureSource {
             analyser: LpcAnalyser::new(),
             held: flat_lsp(),
+            silk: None,
         }
     }
 
+    fn opus() -> Self {
+        FeatureSource {
+            silk: Some(Box::new(SilkTrack::new())),
+            ..Self::analysis()
+        }
+    }
+
+    /// The row of a frame; `coded` is what its payload's SILK layer said, if anything.
     fn features(
         &mut self,
         pcm: &[i16; FRAME_SIZE],
         mode: Option<u8>,
         origin: FrameOrigin,
+        coded: Option<[f32; LSP_COUNT]>,
     ) -> FrameFeatures {
-        match self {
-            FeatureSource::Analysis { analyser, held } => {
+        match (origin, coded) {
+            (FrameOrigin::Decoded, Some(lsp)) => {
+                self.held = lsp;
+                FrameFeatures {
+                    mode,
+                    lsp,
+                    energy_db: energy_db(pcm),
+                }
+            }
+            (FrameOrigin::Decoded | FrameOrigin::Recovered, _) => {
+                let analysis = self.analyser.analyse(pcm);
+                self.held = analysis.lsp;
+                analysis.features(mode)
+            }
+            (FrameOrigin::Concealed, _) => {
                 // The analyser hears concealed audio too, so that its history stays continuous.
-                let analysis = analyser.analyse(pcm);
-                match origin {
-                    FrameOrigin::Decoded | FrameOrigin::Recovered => {
-                        *held = analysis.lsp;
-                        analysis.features(mode)
-                    }
-                    FrameOrigin::Concealed => FrameFeatures {
-                        mode: None,
-                        lsp: *held,
-                        energy_db: energy_db(pcm),
-                    },
+                let _ = self.analyser.analyse(pcm);
+                FrameFeatures {
+                    mode: None,
+                    lsp: self.held,
+                    energy_db: energy_db(pcm),
                 }
             }
         }
+    }
+}
+
+/// Runs of queued samples at most; more (2.5 ms CELT frames in a long payload) merge.
+const MAX_RUNS: usize = 96;
+
+/// What the SILK layer of each queued Opus payload coded, sample for sample beside the queue:
+/// runs of samples with the narrowband LSPs of their SILK frame (none for CELT-only frames and
+/// concealment).
+struct SilkTrack {
+    walker: SilkWalker,
+    frames: Vec<silk::Frame>,
+    runs: VecDeque<(Option<[f32; LSP_COUNT]>, usize)>,
+}
+
+impl SilkTrack {
+    fn new() -> Self {
+        Self {
+            walker: SilkWalker::new(),
+            frames: Vec::with_capacity(8),
+            runs: VecDeque::with_capacity(MAX_RUNS),
+        }
+    }
+
+    fn push(&mut self, lsp: Option<[f32; LSP_COUNT]>, samples: usize) {
+        if samples == 0 {
+            return;
+        }
+        let full = self.runs.len() >= MAX_RUNS;
+        match self.runs.back_mut() {
+            Some(last) if full || last.0 == lsp => last.1 += samples,
+            _ => self.runs.push_back((lsp, samples)),
+        }
+    }
+
+    /// A payload decoded to `samples` samples at 8 kHz.
+    fn payload(&mut self, payload: &[u8], samples: usize) {
+        self.frames.clear();
+        if self
+            .walker
+            .walk_packet_into(payload, &mut self.frames)
+            .is_err()
+        {
+            self.walker.reset();
+            self.push(None, samples);
+            return;
+        }
+        let mut left = samples;
+        for k in 0..self.frames.len() {
+            let (lsp, length) = match self.frames[k] {
+                silk::Frame::Silk(frame) => (
+                    narrowband_lsp(&frame.nlsf, frame.internal_rate_hz),
+                    frame.duration_ms as usize * FRAME_SIZE / 20,
+                ),
+                silk::Frame::Celt { duration_48k, .. }
+                | silk::Frame::Concealed { duration_48k, .. } => {
+                    (None, duration_48k as usize * FRAME_SIZE / 960)
+                }
+            };
+            let length = length.min(left);
+            self.push(lsp, length);
+            left -= length;
+        }
+        self.push(None, left);
+    }
+
+    /// Concealed samples.
+    fn gap(&mut self, samples: usize) {
+        self.walker.packet_lost();
+        self.push(None, samples);
+    }
+
+    /// Keeps the first `len` samples.
+    fn truncate(&mut self, len: usize) {
+        let mut kept = 0;
+        let mut runs = 0;
+        for run in self.runs.iter_mut() {
+            if kept >= len {
+                break;
+            }
+            run.1 = run.1.min(len - kept);
+            kept += run.1;
+            runs += 1;
+        }
+        self.runs.truncate(runs);
+    }
+
+    /// Takes `samples` samples off the front: the LSPs of the coded run that covers most of them.
+    fn take(&mut self, mut samples: usize) -> Option<[f32; LSP_COUNT]> {
+        let mut best: Option<([f32; LSP_COUNT], usize)> = None;
+        while samples > 0 {
+            let Some(front) = self.runs.front_mut() else {
+                break;
+            };
+            let n = front.1.min(samples);
+            if let Some(lsp) = front.0
+                && best.is_none_or(|(_, most)| n > most)
+            {
+                best = Some((lsp, n));
+            }
+            front.1 -= n;
+            samples -= n;
+            if front.1 == 0 {
+                self.runs.pop_front();
+            }
+        }
+        best.map(|(lsp, _)| lsp)
     }
 }
 
@@ -149,12 +275,12 @@ struct QueuedStream {
 impl StreamDecoder {
     /// A decoder for `codec`; `enhancer` is Speex's perceptual enhancer (speexdec's default).
     pub fn new(codec: Codec, enhancer: bool) -> Result<Self, DecoderError> {
-        let queued = |codec| {
+        let queued = |codec, features| {
             Inner::Queued(Box::new(QueuedStream {
                 codec,
                 queue: Vec::with_capacity(QUEUE_CAPACITY),
                 mode: None,
-                features: FeatureSource::analysis(),
+                features,
                 scratch: [0; opus::codec::MAX_PACKET_SAMPLES],
             }))
         };
@@ -164,13 +290,19 @@ impl StreamDecoder {
                 tracker: FrameTracker::new(),
                 failed: false,
             })),
-            Codec::Opus => queued(QueuedCodec::Opus(opus::codec::Decoder::new()?)),
+            Codec::Opus => queued(
+                QueuedCodec::Opus(opus::codec::Decoder::new()?),
+                FeatureSource::opus(),
+            ),
             Codec::Pcmu | Codec::Pcma => {
                 let law = codec.law().unwrap_or(Law::Mu);
-                queued(QueuedCodec::G711 {
-                    law,
-                    plc: Box::new(Plc::new()),
-                })
+                queued(
+                    QueuedCodec::G711 {
+                        law,
+                        plc: Box::new(Plc::new()),
+                    },
+                    FeatureSource::analysis(),
+                )
             }
         };
         Ok(Self {
@@ -249,7 +381,9 @@ impl StreamDecoder {
                     let mut pcm = [0i16; FRAME_SIZE];
                     if dec.decode_fec(next, &mut pcm).is_ok() {
                         let mode = next.first().map(|toc| toc >> 3);
-                        let features = q.features.features(&pcm, mode, FrameOrigin::Recovered);
+                        let features =
+                            q.features
+                                .features(&pcm, mode, FrameOrigin::Recovered, None);
                         return DecodedFrame {
                             pcm,
                             features,
@@ -285,6 +419,9 @@ impl QueuedStream {
     fn decode(&mut self, payload: &[u8], offset: usize) -> bool {
         if self.queue.len() > offset + FRAME_SIZE {
             self.queue.truncate(offset);
+            if let Some(track) = &mut self.features.silk {
+                track.truncate(offset);
+            }
         } else if self.queue.len() < offset {
             self.conceal_into_queue(offset - self.queue.len());
         }
@@ -298,6 +435,9 @@ impl QueuedStream {
                     return false;
                 }
                 self.queue.extend_from_slice(&self.scratch[..n]);
+                if let Some(track) = &mut self.features.silk {
+                    track.payload(payload, n);
+                }
                 self.mode = payload.first().map(|toc| toc >> 3);
             }
             QueuedCodec::G711 { law, plc } => {
@@ -319,6 +459,9 @@ impl QueuedStream {
         let start = self.queue.len();
         let n = n.min(QUEUE_CAPACITY - start);
         self.queue.resize(start + n, 0);
+        if let Some(track) = &mut self.features.silk {
+            track.gap(n);
+        }
         let out = &mut self.queue[start..];
         match &mut self.codec {
             QueuedCodec::Opus(dec) => {
@@ -343,12 +486,13 @@ impl QueuedStream {
         let n = self.queue.len().min(FRAME_SIZE);
         pcm[..n].copy_from_slice(&self.queue[..n]);
         self.queue.drain(..n);
+        let coded = self.features.silk.as_mut().and_then(|t| t.take(n));
         let origin = if had > 0 {
             FrameOrigin::Decoded
         } else {
             FrameOrigin::Concealed
         };
-        let features = self.features.features(&pcm, self.mode, origin);
+        let features = self.features.features(&pcm, self.mode, origin, coded);
         DecodedFrame {
             pcm,
             features,
@@ -483,6 +627,42 @@ mod tests {
             let ratio = energy(&out) / energy(input.as_flattened());
             assert!((0.3..3.0).contains(&ratio), "{codec}: {ratio}");
         }
+    }
+
+    #[test]
+    fn opus_rows_carry_the_lsps_its_silk_layer_coded() {
+        // Each 20 ms packet is one SILK frame: its row holds exactly that frame's NLSFs mapped,
+        // whether the packets arrive on the 20 ms grid or one 40 ms payload at a time.
+        let input = speech_like(40);
+        let packets = encode(Codec::Opus, &input);
+        let mut walker = SilkWalker::new();
+        let expected: Vec<[f32; LSP_COUNT]> = packets
+            .iter()
+            .map(|p| {
+                let frames = walker.walk_packet(p).unwrap();
+                let silk = frames[0].silk().expect("a SILK frame");
+                narrowband_lsp(&silk.nlsf, silk.internal_rate_hz).unwrap()
+            })
+            .collect();
+        let mut dec = StreamDecoder::new(Codec::Opus, true).unwrap();
+        for (p, lsp) in packets.iter().zip(&expected) {
+            dec.packet(p, 0);
+            let row = dec.frame();
+            assert_eq!(row.origin, FrameOrigin::Decoded);
+            assert_eq!(row.features.lsp, *lsp);
+        }
+        // Two packets queued before either is played: rows still pair with their packets.
+        let mut dec = StreamDecoder::new(Codec::Opus, true).unwrap();
+        for pair in packets.chunks_exact(2).zip(expected.chunks_exact(2)) {
+            let (p, lsp) = pair;
+            dec.packet(&p[0], 0);
+            dec.packet(&p[1], FRAME_SIZE as u32 * 6);
+            assert_eq!(dec.frame().features.lsp, lsp[0]);
+            assert_eq!(dec.frame().features.lsp, lsp[1]);
+        }
+        // A lost frame keeps the last coded LSPs.
+        let lost = dec.lost(None);
+        assert_eq!(lost.features.lsp, *expected.last().unwrap());
     }
 
     #[test]
