@@ -11,6 +11,7 @@
 //! envelopes, whose formants the lag window widens; SILK's are sharper.
 
 use std::f64::consts::PI;
+use std::sync::LazyLock;
 
 use super::stream::Decoded;
 use crate::codec::lpc::{LpcAnalyser, levinson, lsp_from_lpc};
@@ -26,6 +27,31 @@ const SPECTRUM_POINTS: usize = 64;
 const LAG_SIGMA: f64 = 2.0 * PI * 96.0 / 8000.0;
 const NOISE_FLOOR: f64 = 1.0002;
 
+/// SILK's internal rates.
+const SILK_RATES: [u32; 3] = [8000, 12_000, 16_000];
+
+/// The share of a rate's band below 4 kHz.
+fn narrowband(rate: u32) -> f64 {
+    f64::from(SAMPLE_RATE) / f64::from(rate.max(1))
+}
+
+/// cos(w) of the spectrum's points, at a rate whose band below 4 kHz is `band` of its own.
+fn spectrum_points(band: f64) -> [f64; SPECTRUM_POINTS] {
+    std::array::from_fn(|k| ((k as f64 + 0.5) * PI / SPECTRUM_POINTS as f64 * band).cos())
+}
+
+/// [`spectrum_points`] of each of [`SILK_RATES`].
+static POINT_COS: LazyLock<[[f64; SPECTRUM_POINTS]; 3]> =
+    LazyLock::new(|| SILK_RATES.map(|rate| spectrum_points(narrowband(rate))));
+
+/// cos(lag * w) at the spectrum's points, for the autocorrelation.
+static LAG_COS: LazyLock<[[f64; LSP_COUNT + 1]; SPECTRUM_POINTS]> = LazyLock::new(|| {
+    std::array::from_fn(|k| {
+        let w = (k as f64 + 0.5) * PI / SPECTRUM_POINTS as f64;
+        std::array::from_fn(|lag| (lag as f64 * w).cos())
+    })
+});
+
 /// The 10 narrowband LSPs (radians at 8 kHz) of a SILK frame's NLSFs at `internal_rate_hz`;
 /// `None` when the refit is ill-conditioned (never for narrowband frames).
 pub fn narrowband_lsp(nlsf: &Nlsf, internal_rate_hz: u32) -> Option<[f32; LSP_COUNT]> {
@@ -34,10 +60,7 @@ pub fn narrowband_lsp(nlsf: &Nlsf, internal_rate_hz: u32) -> Option<[f32; LSP_CO
         *angle = f64::from(radians);
     }
     let angles = &angles[..nlsf.order()];
-    refit(
-        angles,
-        f64::from(SAMPLE_RATE) / f64::from(internal_rate_hz.max(1)),
-    )
+    refit(angles, narrowband(internal_rate_hz))
 }
 
 /// The order-10 LSPs at 8 kHz of the predictor whose LSFs (radians at its own rate, increasing,
@@ -47,30 +70,30 @@ fn refit(angles: &[f64], band: f64) -> Option<[f32; LSP_COUNT]> {
     if angles.is_empty() || !angles.len().is_multiple_of(2) || !(band > 0.0 && band <= 1.0) {
         return None;
     }
+    let cos_angles: [f64; crate::codec::silk::MAX_ORDER] =
+        std::array::from_fn(|i| angles.get(i).map_or(0.0, |a| a.cos()));
+    let cos_angles = &cos_angles[..angles.len()];
     let mut r = [0.0f64; LSP_COUNT + 1];
-    for k in 0..SPECTRUM_POINTS {
-        let narrow = (k as f64 + 0.5) * PI / SPECTRUM_POINTS as f64;
-        let w = narrow * band;
-        let x = w.cos();
+    let points = match SILK_RATES.iter().position(|&rate| band == narrowband(rate)) {
+        Some(i) => POINT_COS[i],
+        None => spectrum_points(band),
+    };
+    for (&x, lag_cos) in points.iter().zip(LAG_COS.iter()) {
         // |A|^2 up to a constant: cos^2(w/2) prod_odd (x - x_i)^2 + sin^2(w/2) prod_even (x - x_i)^2,
         // where the odd-numbered LSFs (1st, 3rd, ...) are the roots of the sum polynomial.
         let (mut sum, mut difference) = (1.0f64, 1.0f64);
-        for (i, &angle) in angles.iter().enumerate() {
-            let d = x - angle.cos();
-            if i % 2 == 0 {
-                sum *= d * d;
-            } else {
-                difference *= d * d;
-            }
+        for pair in cos_angles.chunks_exact(2) {
+            let (d_sum, d_difference) = (x - pair[0], x - pair[1]);
+            sum *= d_sum * d_sum;
+            difference *= d_difference * d_difference;
         }
-        let half = 0.5 * w;
-        let inverse_power = half.cos().powi(2) * sum + half.sin().powi(2) * difference;
+        let inverse_power = 0.5 * (1.0 + x) * sum + 0.5 * (1.0 - x) * difference;
         if inverse_power.is_nan() || inverse_power <= 0.0 {
             return None;
         }
         let power = 1.0 / inverse_power;
-        for (lag, r) in r.iter_mut().enumerate() {
-            *r += power * (lag as f64 * narrow).cos();
+        for (r, c) in r.iter_mut().zip(lag_cos) {
+            *r += power * c;
         }
     }
     for (k, r) in r.iter_mut().enumerate() {
