@@ -7,6 +7,7 @@ pub mod decoder;
 pub mod g711;
 pub mod g722;
 pub mod lpc;
+pub mod ogg;
 pub mod opus;
 pub mod silk;
 pub mod speex;

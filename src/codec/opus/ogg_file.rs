@@ -7,6 +7,8 @@ use std::io::Cursor;
 use ogg::reading::{OggReadError, PacketReader};
 use ogg::writing::{PacketWriteEndInfo, PacketWriter};
 
+use crate::codec::ogg::{self as ogg_shared, ReadFault};
+
 const HEAD_MAGIC: &[u8; 8] = b"OpusHead";
 const TAGS_MAGIC: &[u8; 8] = b"OpusTags";
 /// OpusHead with channel mapping family 0 (no mapping table).
@@ -213,27 +215,14 @@ pub fn holds_opus(bytes: &[u8]) -> bool {
 }
 
 fn classify_foreign(first: &[u8]) -> OggOpusError {
-    let starts = |s: &[u8]| first.starts_with(s);
-    if starts(b"\x01vorbis") {
-        OggOpusError::OtherCodec("Vorbis")
-    } else if starts(b"Speex   ") {
-        OggOpusError::OtherCodec("Speex")
-    } else if starts(b"\x7fFLAC") {
-        OggOpusError::OtherCodec("FLAC")
-    } else if starts(b"\x80theora") {
-        OggOpusError::OtherCodec("Theora")
-    } else {
-        OggOpusError::OtherCodec("an unknown stream")
-    }
+    OggOpusError::OtherCodec(ogg_shared::stream_codec(first))
 }
 
 fn map_ogg_error(e: OggReadError) -> OggOpusError {
-    match e {
-        OggReadError::NoCapturePatternFound => OggOpusError::NotOgg,
-        OggReadError::ReadError(io) if io.kind() == std::io::ErrorKind::UnexpectedEof => {
-            OggOpusError::Truncated
-        }
-        other => OggOpusError::Damaged(other.to_string()),
+    match ReadFault::from(e) {
+        ReadFault::NotOgg => OggOpusError::NotOgg,
+        ReadFault::Truncated => OggOpusError::Truncated,
+        ReadFault::Damaged(why) => OggOpusError::Damaged(why),
     }
 }
 
@@ -281,16 +270,7 @@ fn parse_tags(p: &[u8]) -> Result<(String, Vec<String>), OggOpusError> {
 }
 
 fn tags_packet(vendor: &str, comments: &[String]) -> Vec<u8> {
-    let mut p = Vec::new();
-    p.extend_from_slice(TAGS_MAGIC);
-    p.extend_from_slice(&(vendor.len() as u32).to_le_bytes());
-    p.extend_from_slice(vendor.as_bytes());
-    p.extend_from_slice(&(comments.len() as u32).to_le_bytes());
-    for c in comments {
-        p.extend_from_slice(&(c.len() as u32).to_le_bytes());
-        p.extend_from_slice(c.as_bytes());
-    }
-    p
+    ogg_shared::comment_packet(TAGS_MAGIC, vendor, comments)
 }
 
 /// Reads the first Ogg Opus stream of a file. Other logical streams (and chained links after

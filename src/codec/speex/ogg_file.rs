@@ -7,6 +7,7 @@ use ogg::reading::{OggReadError, PacketReader};
 use ogg::writing::{PacketWriteEndInfo, PacketWriter};
 
 use super::{FRAME_SIZE, SAMPLE_RATE};
+use crate::codec::ogg::{self as ogg_shared, ReadFault};
 
 const MAGIC: &[u8; 8] = b"Speex   ";
 const HEADER_SIZE: usize = 80;
@@ -164,27 +165,14 @@ impl SpeexFile {
 }
 
 fn classify_foreign(first: &[u8]) -> OggSpeexError {
-    let starts = |s: &[u8]| first.len() >= s.len() && &first[..s.len()] == s;
-    if starts(b"\x01vorbis") {
-        OggSpeexError::OtherCodec("Vorbis")
-    } else if starts(b"OpusHead") {
-        OggSpeexError::OtherCodec("Opus")
-    } else if starts(b"\x7fFLAC") {
-        OggSpeexError::OtherCodec("FLAC")
-    } else if starts(b"\x80theora") {
-        OggSpeexError::OtherCodec("Theora")
-    } else {
-        OggSpeexError::OtherCodec("an unknown stream")
-    }
+    OggSpeexError::OtherCodec(ogg_shared::stream_codec(first))
 }
 
 fn map_ogg_error(e: OggReadError) -> OggSpeexError {
-    match e {
-        OggReadError::NoCapturePatternFound => OggSpeexError::NotOgg,
-        OggReadError::ReadError(io) if io.kind() == std::io::ErrorKind::UnexpectedEof => {
-            OggSpeexError::Truncated
-        }
-        other => OggSpeexError::Damaged(other.to_string()),
+    match ReadFault::from(e) {
+        ReadFault::NotOgg => OggSpeexError::NotOgg,
+        ReadFault::Truncated => OggSpeexError::Truncated,
+        ReadFault::Damaged(why) => OggSpeexError::Damaged(why),
     }
 }
 
@@ -214,18 +202,6 @@ fn parse_comments(p: &[u8]) -> (String, Vec<String>) {
         }
     }
     (vendor, comments)
-}
-
-fn comment_packet(vendor: &str, comments: &[String]) -> Vec<u8> {
-    let mut p = Vec::new();
-    p.extend_from_slice(&(vendor.len() as u32).to_le_bytes());
-    p.extend_from_slice(vendor.as_bytes());
-    p.extend_from_slice(&(comments.len() as u32).to_le_bytes());
-    for c in comments {
-        p.extend_from_slice(&(c.len() as u32).to_le_bytes());
-        p.extend_from_slice(c.as_bytes());
-    }
-    p
 }
 
 /// Reads an Ogg Speex stream. Other logical streams in the file are ignored.
@@ -312,7 +288,12 @@ pub fn write(
     } else {
         PacketWriteEndInfo::EndPage
     };
-    writer.write_packet(comment_packet(&vendor, comments), serial, end, 0)?;
+    writer.write_packet(
+        ogg_shared::comment_packet(b"", &vendor, comments),
+        serial,
+        end,
+        0,
+    )?;
     for (i, p) in packets.iter().enumerate() {
         let info = if i + 1 == packets.len() {
             PacketWriteEndInfo::EndStream
