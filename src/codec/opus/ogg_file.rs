@@ -5,17 +5,14 @@
 use std::io::Cursor;
 
 use ogg::reading::{OggReadError, PacketReader};
-use ogg::writing::{PacketWriteEndInfo, PacketWriter};
 
+pub use crate::codec::ogg::Page;
 use crate::codec::ogg::{self as ogg_shared, ReadFault};
 
 const HEAD_MAGIC: &[u8; 8] = b"OpusHead";
 const TAGS_MAGIC: &[u8; 8] = b"OpusTags";
 /// OpusHead with channel mapping family 0 (no mapping table).
 const HEAD_SIZE: usize = 19;
-/// Audio packets per page when writing: one second of 20 ms packets (opusenc's default page
-/// delay is one second too).
-const PACKETS_PER_PAGE: usize = 50;
 /// More comments than this is no real file; the rest are ignored.
 const MAX_COMMENTS: usize = 1024;
 
@@ -166,16 +163,6 @@ impl OpusHead {
     }
 }
 
-/// One Ogg page of the Opus stream, with the audio packets that end on it.
-#[derive(Debug, Clone, PartialEq, Eq)]
-pub struct Page {
-    /// The page's granule position (48 kHz samples including the pre-skip, at the end of its
-    /// last packet); `None` where it is -1.
-    pub granule: Option<u64>,
-    pub end_of_stream: bool,
-    pub packets: Vec<Vec<u8>>,
-}
-
 /// A whole Ogg Opus stream as read from a file.
 #[derive(Debug, Clone, PartialEq, Eq)]
 pub struct OpusFile {
@@ -311,17 +298,7 @@ pub fn read(bytes: &[u8]) -> Result<OpusFile, OggOpusError> {
         } else if tags.is_none() {
             tags = Some(parse_tags(&packet.data)?);
         } else {
-            if packet.first_in_page() || pages.is_empty() {
-                pages.push(Page {
-                    granule: (packet.absgp_page() != u64::MAX).then_some(packet.absgp_page()),
-                    end_of_stream: false,
-                    packets: Vec::new(),
-                });
-            }
-            if let Some(page) = pages.last_mut() {
-                page.end_of_stream |= ended;
-                page.packets.push(packet.data);
-            }
+            ogg_shared::push_audio_packet(&mut pages, packet);
         }
     }
     let Some(head) = head else {
@@ -356,25 +333,13 @@ pub fn write(
     granule_of: impl Fn(usize) -> u64,
     serial: u32,
 ) -> Result<Vec<u8>, OggOpusError> {
-    let mut writer = PacketWriter::new(Vec::new());
-    writer.write_packet(head.to_packet(), serial, PacketWriteEndInfo::EndPage, 0)?;
-    let end = if packets.is_empty() {
-        PacketWriteEndInfo::EndStream
-    } else {
-        PacketWriteEndInfo::EndPage
-    };
-    writer.write_packet(tags_packet(vendor, comments), serial, end, 0)?;
-    for (i, p) in packets.iter().enumerate() {
-        let info = if i + 1 == packets.len() {
-            PacketWriteEndInfo::EndStream
-        } else if (i + 1) % PACKETS_PER_PAGE == 0 {
-            PacketWriteEndInfo::EndPage
-        } else {
-            PacketWriteEndInfo::NormalPacket
-        };
-        writer.write_packet(p.clone(), serial, info, granule_of(i))?;
-    }
-    Ok(writer.into_inner())
+    Ok(ogg_shared::write_stream(
+        head.to_packet(),
+        tags_packet(vendor, comments),
+        packets,
+        granule_of,
+        serial,
+    )?)
 }
 
 #[cfg(test)]

@@ -4,9 +4,9 @@
 use std::io::Cursor;
 
 use ogg::reading::{OggReadError, PacketReader};
-use ogg::writing::{PacketWriteEndInfo, PacketWriter};
 
 use super::{FRAME_SIZE, SAMPLE_RATE};
+pub use crate::codec::ogg::Page;
 use crate::codec::ogg::{self as ogg_shared, ReadFault};
 
 const MAGIC: &[u8; 8] = b"Speex   ";
@@ -139,15 +139,6 @@ impl SpeexHeader {
     }
 }
 
-/// One Ogg page of the Speex stream, with the audio packets that end on it.
-#[derive(Debug, Clone, PartialEq, Eq)]
-pub struct Page {
-    /// The page's granule position; `None` where it is -1 (no packet ends here).
-    pub granule: Option<u64>,
-    pub end_of_stream: bool,
-    pub packets: Vec<Vec<u8>>,
-}
-
 /// A whole Ogg Speex stream as read from a file.
 #[derive(Debug, Clone, PartialEq, Eq)]
 pub struct SpeexFile {
@@ -240,18 +231,8 @@ pub fn read(bytes: &[u8]) -> Result<SpeexFile, OggSpeexError> {
             1 => (vendor, comments) = parse_comments(&packet.data),
             n if n <= 1 + header.as_ref().map_or(0, |h| h.extra_headers) => {}
             _ => {
-                if packet.first_in_page() || pages.is_empty() {
-                    pages.push(Page {
-                        granule: (packet.absgp_page() != u64::MAX).then_some(packet.absgp_page()),
-                        end_of_stream: false,
-                        packets: Vec::new(),
-                    });
-                }
                 ended = packet.last_in_stream();
-                if let Some(page) = pages.last_mut() {
-                    page.end_of_stream |= ended;
-                    page.packets.push(packet.data);
-                }
+                ogg_shared::push_audio_packet(&mut pages, packet);
             }
         }
         headers_seen += 1;
@@ -271,7 +252,7 @@ pub fn read(bytes: &[u8]) -> Result<SpeexFile, OggSpeexError> {
 }
 
 /// Builds an Ogg Speex file from audio packets. `granule_of(i)` is the granule position after
-/// packet `i`; pages end every `packets_per_page` packets, as speexenc's libogg pages roughly do.
+/// packet `i`; pages of about one second, as speexenc's libogg pages roughly are.
 pub fn write(
     header: &SpeexHeader,
     comments: &[String],
@@ -279,32 +260,14 @@ pub fn write(
     granule_of: impl Fn(usize) -> u64,
     serial: u32,
 ) -> Result<Vec<u8>, OggSpeexError> {
-    const PACKETS_PER_PAGE: usize = 50;
-    let mut writer = PacketWriter::new(Vec::new());
-    writer.write_packet(header.to_packet(), serial, PacketWriteEndInfo::EndPage, 0)?;
     let vendor = format!("lipcall {}", env!("CARGO_PKG_VERSION"));
-    let end = if packets.is_empty() {
-        PacketWriteEndInfo::EndStream
-    } else {
-        PacketWriteEndInfo::EndPage
-    };
-    writer.write_packet(
+    Ok(ogg_shared::write_stream(
+        header.to_packet(),
         ogg_shared::comment_packet(b"", &vendor, comments),
+        packets,
+        granule_of,
         serial,
-        end,
-        0,
-    )?;
-    for (i, p) in packets.iter().enumerate() {
-        let info = if i + 1 == packets.len() {
-            PacketWriteEndInfo::EndStream
-        } else if (i + 1) % PACKETS_PER_PAGE == 0 {
-            PacketWriteEndInfo::EndPage
-        } else {
-            PacketWriteEndInfo::NormalPacket
-        };
-        writer.write_packet(p.clone(), serial, info, granule_of(i))?;
-    }
-    Ok(writer.into_inner())
+    )?)
 }
 
 #[cfg(test)]
