@@ -67,6 +67,7 @@ pub fn snr_db(reference: &[i16], test: &[i16]) -> f64 {
         .sum();
     10.0 * (signal / noise.max(1e-9)).log10()
 }
+pub mod lpc;
 pub mod mesh;
 pub mod net;
 
