@@ -125,6 +125,7 @@ impl FeatureSource {
         coded: Option<[f32; LSP_COUNT]>,
     ) -> FrameFeatures {
         match (origin, coded) {
+            // Frames with NLSFs skip the analysis: it would double their cost.
             (FrameOrigin::Decoded, Some(lsp)) => {
                 self.held = lsp;
                 FrameFeatures {

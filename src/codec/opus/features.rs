@@ -162,15 +162,14 @@ pub fn stream_features(decoded: &Decoded) -> Vec<FrameFeatures> {
         .zip(coded)
         .map(|(samples, coded)| {
             let pcm: &[i16; FRAME_SIZE] = samples.try_into().expect("chunks of FRAME_SIZE");
-            // The analyser hears every row, so its history stays continuous.
-            let analysis = analyser.analyse(pcm);
+            // Only rows without NLSFs are analysed, as the receiver does (codec::decoder).
             match coded {
                 Some((lsp, mode, _)) => FrameFeatures {
                     mode: Some(mode),
                     lsp,
                     energy_db: energy_db(pcm),
                 },
-                None => analysis.features(None),
+                None => analyser.analyse(pcm).features(None),
             }
         })
         .collect()
