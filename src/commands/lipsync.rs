@@ -243,27 +243,11 @@ fn pick<'c>(
 fn prepare_at(
     codec: &CodecFeatures,
     utts: &[&Utterance],
-    config: EncoderConfig,
+    path: CodecPath,
     what: &str,
     quiet: bool,
 ) -> Result<Vec<PreparedUtterance>> {
     let progress = bar(utts.len(), what, quiet);
-    let mut out = Vec::with_capacity(utts.len());
-    for utt in utts {
-        out.extend(codec.prepare(std::slice::from_ref(utt), config)?);
-        progress.inc(1);
-    }
-    progress.finish_and_clear();
-    Ok(out)
-}
-
-fn prepare_through(
-    codec: &CodecFeatures,
-    utts: &[&Utterance],
-    path: CodecPath,
-    quiet: bool,
-) -> Result<Vec<PreparedUtterance>> {
-    let progress = bar(utts.len(), &format!("{path} round trips"), quiet);
     let mut out = Vec::with_capacity(utts.len());
     for utt in utts {
         out.extend(codec.prepare_through(std::slice::from_ref(utt), path)?);
@@ -390,7 +374,7 @@ pub fn train(args: &TrainArgs) -> Result<()> {
     let validation = prepare_at(
         &codec,
         &validation_utts,
-        quality(EVALUATION_QUALITY),
+        CodecPath::Speex(quality(EVALUATION_QUALITY)),
         "Speex round trips (validation)",
         args.quiet,
     )?;
@@ -421,7 +405,7 @@ pub fn train(args: &TrainArgs) -> Result<()> {
     let low = prepare_at(
         &codec,
         &validation_utts,
-        quality(LOW_QUALITY),
+        CodecPath::Speex(quality(LOW_QUALITY)),
         "Speex round trips (validation, low quality)",
         args.quiet,
     )?;
@@ -594,7 +578,10 @@ fn train_cross_validated(args: &TrainArgs) -> Result<()> {
         let augmented = codec.prepare_augmented(&utts, &settings, versions, &|| progress.inc(1))?;
         let mut held_out = Vec::with_capacity(utts.len());
         for utt in &utts {
-            held_out.extend(codec.prepare(std::slice::from_ref(utt), quality(EVALUATION_QUALITY))?);
+            held_out.extend(codec.prepare_through(
+                std::slice::from_ref(utt),
+                CodecPath::Speex(quality(EVALUATION_QUALITY)),
+            )?);
             progress.inc(1);
         }
         progress.finish_and_clear();
@@ -801,7 +788,13 @@ pub fn evaluate(args: &EvaluateArgs) -> Result<()> {
         EvalCodec::Pcma => CodecPath::G711(Law::A),
         EvalCodec::G722 => CodecPath::G722,
     };
-    let prepared = prepare_through(&CodecFeatures::new(), &utts, path, false)?;
+    let prepared = prepare_at(
+        &CodecFeatures::new(),
+        &utts,
+        path,
+        &format!("{path} round trips"),
+        false,
+    )?;
     let report: EvalReport =
         evaluate_prepared(&model, &prepared, speakers, &VisemeShapes::point_model())?;
     println!(

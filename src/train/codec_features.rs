@@ -158,12 +158,6 @@ pub fn quality(quality: u8) -> EncoderConfig {
     }
 }
 
-/// Features of one WAV file as a receiver sees them after a Speex round trip at `config`.
-pub fn codec_features(path: &Path, config: EncoderConfig) -> Result<Vec<FrameFeatures>, BoxError> {
-    let pcm = wav::read_narrowband(path)?;
-    features_of_pcm(&pcm, config)
-}
-
 fn features_of_pcm(pcm: &[i16], config: EncoderConfig) -> Result<Vec<FrameFeatures>, BoxError> {
     Ok(stream::round_trip(pcm, config)?.features)
 }
@@ -213,24 +207,6 @@ impl CodecFeatures {
         })
     }
 
-    /// The features of `path` at `config`.
-    pub fn features(
-        &self,
-        path: &Path,
-        config: EncoderConfig,
-    ) -> Result<Vec<FrameFeatures>, BoxError> {
-        features_of_pcm(&self.pcm(path, crate::codec::SAMPLE_RATE)?, config)
-    }
-
-    /// Prepares `utterances` at one setting.
-    pub fn prepare(
-        &self,
-        utterances: &[&Utterance],
-        config: EncoderConfig,
-    ) -> Result<Vec<PreparedUtterance>, CorpusError> {
-        prepare(utterances, &|path: &Path| self.features(path, config))
-    }
-
     /// Prepares each utterance at `versions` of `settings` (rotating through them, so every
     /// setting is used about equally often): `versions` times as many training utterances.
     pub fn prepare_augmented(
@@ -267,18 +243,26 @@ mod tests {
         let corpus = Corpus::open(&timit_root()).unwrap();
         let utt = &corpus.speaker("dr4-maeb0").unwrap().utterances[0];
         let codec = CodecFeatures::new();
-        let prepared = codec.prepare(&[utt], quality(8)).unwrap();
+        let prepared = codec
+            .prepare_through(&[utt], CodecPath::Speex(quality(8)))
+            .unwrap();
         let (_, samples) = crate::train::corpus::wav_length(&utt.wav).unwrap();
         let frames = samples as usize / 320;
         assert!(prepared[0].features.len().abs_diff(frames) <= 1);
         assert!(prepared[0].features.iter().all(|f| f.mode.is_some()));
-        let low = codec.prepare(&[utt], quality(3)).unwrap();
+        let low = codec
+            .prepare_through(&[utt], CodecPath::Speex(quality(3)))
+            .unwrap();
         assert_eq!(low[0].features.len(), prepared[0].features.len());
         assert_ne!(low[0].features, prepared[0].features);
         let augmented = codec
             .prepare_augmented(&[utt, utt], &augmentation_settings(), 3, &|| {})
             .unwrap();
         assert_eq!(augmented.len(), 6);
-        assert!(codec_features(Path::new("/nonexistent.wav"), quality(8)).is_err());
+        assert!(
+            codec
+                .features_through(Path::new("/nonexistent.wav"), CodecPath::Speex(quality(8)))
+                .is_err()
+        );
     }
 }
