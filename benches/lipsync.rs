@@ -21,6 +21,7 @@ fn frames() -> Vec<FrameFeatures> {
                 *l = 0.28 * (i + 1) as f32 + 0.03 * (0.3 * x + i as f32).sin();
             }
             FrameFeatures {
+                family: lipcall::codec::FeatureFamily::Bitstream,
                 mode: Some(5),
                 lsp,
                 energy_db: -40.0 + 20.0 * (0.4 * x).sin(),

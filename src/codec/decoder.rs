@@ -22,7 +22,7 @@ use super::lpc::LpcAnalyser;
 use super::opus::features::narrowband_lsp;
 use super::silk::{self, SilkWalker};
 use super::speex::features::{FrameFeatures, FrameTracker, energy_db, flat_lsp};
-use super::{FRAME_SIZE, LSP_COUNT, opus, speex};
+use super::{FRAME_SIZE, FeatureFamily, LSP_COUNT, opus, speex};
 
 /// Decoded samples a stream may hold ahead: the longest payload (a 1500-byte datagram of G.711,
 /// or 120 ms of Opus) behind at most two frames of leftovers.
@@ -96,7 +96,7 @@ struct SpeexStream {
 struct FeatureSource {
     analyser: LpcAnalyser,
     /// LSPs of the last frame with received audio, kept through concealment.
-    held: [f32; LSP_COUNT],
+    held: ([f32; LSP_COUNT], FeatureFamily),
     silk: Option<Box<SilkTrack>>,
 }
 
@@ -104,7 +104,7 @@ impl FeatureSource {
     fn analysis() -> Self {
         FeatureSource {
             analyser: LpcAnalyser::new(),
-            held: flat_lsp(),
+            held: (flat_lsp(), FeatureFamily::Analysis),
             silk: None,
         }
     }
@@ -127,16 +127,17 @@ impl FeatureSource {
         match (origin, coded) {
             // Frames with NLSFs skip the analysis: it would double their cost.
             (FrameOrigin::Decoded, Some(lsp)) => {
-                self.held = lsp;
+                self.held = (lsp, FeatureFamily::Nlsf);
                 FrameFeatures {
                     mode,
                     lsp,
                     energy_db: energy_db(pcm),
+                    family: FeatureFamily::Nlsf,
                 }
             }
             (FrameOrigin::Decoded | FrameOrigin::Recovered, _) => {
                 let analysis = self.analyser.analyse(pcm);
-                self.held = analysis.lsp;
+                self.held = (analysis.lsp, FeatureFamily::Analysis);
                 analysis.features(mode)
             }
             (FrameOrigin::Concealed, _) => {
@@ -144,8 +145,9 @@ impl FeatureSource {
                 let _ = self.analyser.analyse(pcm);
                 FrameFeatures {
                     mode: None,
-                    lsp: self.held,
+                    lsp: self.held.0,
                     energy_db: energy_db(pcm),
+                    family: self.held.1,
                 }
             }
         }

@@ -95,6 +95,7 @@ impl Analysis {
             mode,
             lsp: self.lsp,
             energy_db: self.energy_db,
+            family: crate::codec::FeatureFamily::Analysis,
         }
     }
 }

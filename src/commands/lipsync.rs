@@ -6,6 +6,7 @@ use std::path::{Path, PathBuf};
 use anyhow::{Context, Result, bail};
 use indicatif::{ProgressBar, ProgressStyle};
 
+use crate::codec::FeatureFamily;
 use crate::codec::g711::Law;
 use crate::codec::speex::codec::EncoderConfig;
 use crate::lipsync::decompose::{PointTrack, decompose_track, table_i, table_i_reduced};
@@ -18,7 +19,9 @@ use crate::train::codec_features::{
     CodecFeatures, CodecPath, EVALUATION_QUALITY, LOW_QUALITY, augmentation_settings, quality,
 };
 use crate::train::corpus::{Corpus, PreparedUtterance, SpeakerSplit, Utterance};
-use crate::train::crossval::{SpeakerGroup, cross_validate, train_final};
+use crate::train::crossval::{
+    CrossValidation, SpeakerGroup, cross_validate, matching_snap, train_final,
+};
 use crate::train::eval::{EvalReport, evaluate_prepared, write_frames};
 use crate::train::trainer::{EpochStats, TrainConfig, train_on};
 use crate::train::{an4, plot};
@@ -183,6 +186,8 @@ pub enum EvalCodec {
     Speex,
     Opus,
     OpusNb,
+    /// opus-tools' `opusenc --bitrate` on the 16 kHz files, read as `animate` reads .opus.
+    Opusenc,
     Pcmu,
     Pcma,
     G722,
@@ -527,6 +532,50 @@ fn an4_group(
     })
 }
 
+/// The closure snaps of SILK NLSF rows and of LPC-analysis rows, matched on the folds to the
+/// closures of Speex's LSPs (`crossval::matching_snap`): Opus at 16 kb/s from 16 and 8 kHz for
+/// the first, PCMU and G.722 for the second.
+fn family_snaps(
+    codec: &CodecFeatures,
+    cv: &CrossValidation,
+    region_utts: &[Vec<&Utterance>],
+    config: &TrainConfig,
+) -> Result<[Option<f32>; 2]> {
+    let opus = |wideband| CodecPath::Opus {
+        bitrate: 16_000,
+        wideband,
+    };
+    let families = [
+        ("SILK NLSFs", [opus(true), opus(false)]),
+        ("LPC analysis", [CodecPath::G711(Law::Mu), CodecPath::G722]),
+    ];
+    let mut snaps = [None, None];
+    for (slot, (name, paths)) in snaps.iter_mut().zip(families) {
+        let mut held_out = Vec::with_capacity(region_utts.len());
+        for utts in region_utts {
+            let mut prepared = Vec::new();
+            for path in paths {
+                prepared.extend(codec.prepare_through(utts, path)?);
+            }
+            held_out.push(prepared);
+        }
+        let (snap, scores) = matching_snap(cv, &held_out, &config.shapes)?;
+        println!(
+            "closure snap for {name} ({} and {}): {snap}, /p b m/ closed {:.1}% \
+             ({}/{}), false closures {:.1}%, openness r {:.3}",
+            paths[0],
+            paths[1],
+            100.0 * scores.closure_share(),
+            scores.closed_segments,
+            scores.bilabial_segments,
+            100.0 * scores.false_closure_rate,
+            scores.openness_r
+        );
+        *slot = Some(snap);
+    }
+    Ok(snaps)
+}
+
 /// The non-test speakers grouped by dialect region (`dr4-falr0` -> `dr4`).
 fn regions(split: &SpeakerSplit) -> Vec<(String, Vec<String>)> {
     let mut groups: Vec<(String, Vec<String>)> = Vec::new();
@@ -568,8 +617,10 @@ fn train_cross_validated(args: &TrainArgs) -> Result<()> {
     );
     let codec = CodecFeatures::new();
     let mut groups = Vec::new();
+    let mut region_utts = Vec::new();
     for (name, speakers) in &regions {
         let utts = pick(&corpus, speakers, args.utterances)?;
+        region_utts.push(utts.clone());
         let progress = bar(
             utts.len() * (versions + 1),
             &format!("Speex round trips ({name})"),
@@ -596,10 +647,18 @@ fn train_cross_validated(args: &TrainArgs) -> Result<()> {
     }
     let progress = bar(regions.len(), "folds", args.quiet);
     progress.enable_steady_tick(std::time::Duration::from_secs(1));
-    let cv = cross_validate(&config, &groups, snap)?;
+    let mut cv = cross_validate(&config, &groups, snap)?;
     progress.finish_and_clear();
     println!("cross-validation, Speex quality {EVALUATION_QUALITY}:");
     println!("{cv}");
+    let family_snaps = if snap.is_none() {
+        family_snaps(&codec, &cv, &region_utts, &config)?
+    } else {
+        [None, None]
+    };
+    for fold in &mut cv.folds {
+        [fold.model.nlsf_snap, fold.model.analysis_snap] = family_snaps;
+    }
     for fold in &cv.folds {
         let path = args
             .out
@@ -618,6 +677,7 @@ fn train_cross_validated(args: &TrainArgs) -> Result<()> {
         cv.epochs
     );
     let mut report = train_final(&config, &groups, &cv)?;
+    [report.model.nlsf_snap, report.model.analysis_snap] = family_snaps;
     report.split = SpeakerSplit {
         train: regions.iter().flat_map(|(_, s)| s.clone()).collect(),
         validation: Vec::new(),
@@ -701,8 +761,11 @@ fn model_card(
         }
     ));
     line(format!(
-        "- closure snap {} (tuned on the pooled folds)",
-        model.closure_snap
+        "- closure snap {} (tuned on the pooled folds); {} for SILK NLSFs and {} for LPC \
+         analysis (each matched on the folds to the closures of Speex's LSPs)",
+        model.closure_snap,
+        model.closure_snap_of(FeatureFamily::Nlsf),
+        model.closure_snap_of(FeatureFamily::Analysis)
     ));
     line(String::new());
     line("## Data and licences".into());
@@ -743,7 +806,14 @@ pub fn load_model(path: Option<&Path>) -> Result<Model> {
 
 pub fn evaluate(args: &EvaluateArgs) -> Result<()> {
     let mut model = load_model(args.model.as_deref())?;
-    model.closure_snap = model.closure_snap_with_bias(args.closures);
+    let [bitstream, nlsf, analysis] = [
+        FeatureFamily::Bitstream,
+        FeatureFamily::Nlsf,
+        FeatureFamily::Analysis,
+    ]
+    .map(|family| model.closure_snap_with_bias(family, args.closures));
+    (model.closure_snap, model.nlsf_snap, model.analysis_snap) =
+        (bitstream, Some(nlsf), Some(analysis));
     let corpus = Corpus::open(&args.corpus)?;
     let split = SpeakerSplit::standard(&corpus)?;
     let chosen: Vec<String>;
@@ -784,6 +854,9 @@ pub fn evaluate(args: &EvaluateArgs) -> Result<()> {
             bitrate: args.bitrate * 1000,
             wideband: args.codec == EvalCodec::Opus,
         },
+        EvalCodec::Opusenc => CodecPath::Opusenc {
+            bitrate: args.bitrate * 1000,
+        },
         EvalCodec::Pcmu => CodecPath::G711(Law::Mu),
         EvalCodec::Pcma => CodecPath::G711(Law::A),
         EvalCodec::G722 => CodecPath::G722,
@@ -805,7 +878,7 @@ pub fn evaluate(args: &EvaluateArgs) -> Result<()> {
         model.outputs(),
         model.viseme_names().join(" "),
         model.multiply_adds(),
-        model.closure_snap,
+        model.closure_snap_of(path.family()),
         path
     );
     print!("{report}");

@@ -630,6 +630,7 @@ mod tests {
                 mode: Some(5),
                 lsp: crate::codec::speex::features::flat_lsp(),
                 energy_db: energy(c),
+                family: crate::codec::FeatureFamily::Bitstream,
             })
             .collect();
         assert_eq!(life_track(&features, &pcm, 3), poses(3)[..300].to_vec());

@@ -18,6 +18,7 @@ pub mod visemes;
 pub use builtin::default_model;
 pub use receiver::{LipSync, LipSyncOptions};
 
+use crate::codec::FeatureFamily;
 use crate::codec::speex::features::FrameFeatures;
 use network::{InferenceState, Model};
 use visemes::VisemeSet;
@@ -50,33 +51,56 @@ pub struct ModelAnimator<'a> {
     /// Scratch for [`Animator::peek`], so the fallback allocates nothing.
     scratch: InferenceState,
     last: FrameFeatures,
-    closure_snap: f32,
+    /// The closure snap per [`FeatureFamily`] of the newest row.
+    closure_snaps: [f32; 3],
+}
+
+const FAMILIES: [FeatureFamily; 3] = [
+    FeatureFamily::Bitstream,
+    FeatureFamily::Nlsf,
+    FeatureFamily::Analysis,
+];
+
+fn family_index(family: FeatureFamily) -> usize {
+    match family {
+        FeatureFamily::Bitstream => 0,
+        FeatureFamily::Nlsf => 1,
+        FeatureFamily::Analysis => 2,
+    }
 }
 
 impl<'a> ModelAnimator<'a> {
     pub fn new(model: &'a Model) -> Self {
-        Self::with_closure_snap(model, model.closure_snap)
+        Self::with_closure_bias(model, 0.0)
     }
 
-    /// With another closure-snap threshold than the model's (0 = no snapping).
+    /// With one closure-snap threshold for every family instead of the model's (0 = none).
     pub fn with_closure_snap(model: &'a Model, closure_snap: f32) -> Self {
+        Self::with_snaps(model, [closure_snap; 3])
+    }
+
+    fn with_snaps(model: &'a Model, closure_snaps: [f32; 3]) -> Self {
         let state = model.new_state();
         Self {
             model,
             scratch: state.clone(),
             state,
             last: network::silence_features(),
-            closure_snap,
+            closure_snaps,
         }
     }
 
-    /// With the model's closure snap moved by `bias` ([`Model::closure_snap_with_bias`]).
+    /// With the model's closure snaps moved by `bias` ([`Model::closure_snap_with_bias`]).
     pub fn with_closure_bias(model: &'a Model, bias: f32) -> Self {
-        Self::with_closure_snap(model, model.closure_snap_with_bias(bias))
+        Self::with_snaps(
+            model,
+            FAMILIES.map(|family| model.closure_snap_with_bias(family, bias)),
+        )
     }
 
-    pub fn closure_snap(&self) -> f32 {
-        self.closure_snap
+    /// The closure snap for rows of `family`.
+    pub fn closure_snap(&self, family: FeatureFamily) -> f32 {
+        self.closure_snaps[family_index(family)]
     }
 }
 
@@ -100,8 +124,9 @@ impl Animator for ModelAnimator<'_> {
 
     fn animate(&mut self, features: &FrameFeatures, weights: &mut [f32]) {
         self.last = *features;
+        let snap = self.closure_snap(features.family);
         self.model
-            .step_with_snap(&mut self.state, features, weights, self.closure_snap);
+            .step_with_snap(&mut self.state, features, weights, snap);
     }
 
     fn lookahead(&self) -> usize {
@@ -113,8 +138,8 @@ impl Animator for ModelAnimator<'_> {
         for _ in 0..extra {
             self.model.push_frame(&mut self.scratch, &self.last);
         }
-        self.model
-            .infer(&mut self.scratch, weights, self.closure_snap);
+        let snap = self.closure_snap(self.last.family);
+        self.model.infer(&mut self.scratch, weights, snap);
     }
 }
 
@@ -127,7 +152,9 @@ mod tests {
         let mut model = default_model();
         let own = model.closure_snap;
         assert!(own > 0.5 && own < 1.0);
-        let snap = |m: &Model, b: f32| ModelAnimator::with_closure_bias(m, b).closure_snap();
+        let snap = |m: &Model, b: f32| {
+            ModelAnimator::with_closure_bias(m, b).closure_snap(FeatureFamily::Bitstream)
+        };
         assert_eq!(snap(&model, 0.0), own);
         assert!(snap(&model, 1.0) < own && snap(&model, -1.0) > own);
         assert_eq!(snap(&model, f32::NAN), own);
@@ -137,5 +164,36 @@ mod tests {
         assert_eq!(snap(&model, -1.0), 0.0);
         assert!((snap(&model, 1.0) - (1.0 - network::CLOSURE_BIAS_SPAN)).abs() < 1e-6);
         assert!(parse_closure_bias("-0.5").is_ok() && parse_closure_bias("1.5").is_err());
+    }
+
+    #[test]
+    fn each_feature_family_snaps_at_its_own_threshold() {
+        let mut model = default_model();
+        let closed = model.closed_index().unwrap();
+        let mut features = network::silence_features();
+        features.energy_db = -30.0;
+        let mut raw = vec![0.0; model.outputs()];
+        ModelAnimator::with_closure_snap(&model, 0.0).animate(&features, &mut raw);
+        let p = raw[closed];
+        assert!(p > 0.0 && p < 1.0, "{raw:?}");
+        // Speex LSPs snap above this row's closed weight, NLSFs below it.
+        model.closure_snap = p + 0.5 * (1.0 - p);
+        model.nlsf_snap = Some(0.5 * p);
+        model.analysis_snap = None;
+        let mut weights = vec![0.0; model.outputs()];
+        for (family, snapped) in [
+            (FeatureFamily::Bitstream, false),
+            (FeatureFamily::Analysis, false),
+            (FeatureFamily::Nlsf, true),
+        ] {
+            features.family = family;
+            ModelAnimator::new(&model).animate(&features, &mut weights);
+            assert_eq!(weights[closed] == 1.0, snapped, "{family:?}: {weights:?}");
+        }
+        model.closure_snap = 0.9;
+        model.nlsf_snap = Some(0.5);
+        let biased = ModelAnimator::with_closure_bias(&model, 1.0);
+        assert!((biased.closure_snap(FeatureFamily::Nlsf) - 0.4).abs() < 1e-6);
+        assert!((biased.closure_snap(FeatureFamily::Analysis) - 0.8).abs() < 1e-6);
     }
 }

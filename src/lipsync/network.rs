@@ -17,7 +17,8 @@
 //! dynamics 0.15 6               (version 2) peak decay dB/frame, extra energy-only past frames;
 //!                               `dynamics off` for the 11 raw features only
 //! closure_snap 0.55             (version 2) closed-viseme weight that snaps to a full closure;
-//!                               0 = off
+//!                               0 = off; optionally followed by `nlsf 0.6 analysis 0.5`, the
+//!                               thresholds for rows of those feature families (else the same)
 //! hidden 10                     hidden units
 //! input_offset <11 numbers>     scaled input = clamp((x - offset) * scale, -1, 1)
 //! input_scale <11 numbers>      in the order lsp1..lsp10, energy_db
@@ -41,6 +42,7 @@ use std::fmt::Write as _;
 use std::path::Path;
 
 use super::visemes::{Viseme, VisemeError, VisemeSet};
+use crate::codec::FeatureFamily;
 use crate::codec::speex::LSP_COUNT;
 use crate::codec::speex::features::{FrameFeatures, SILENCE_DB};
 
@@ -120,6 +122,7 @@ pub fn silence_features() -> FrameFeatures {
         mode: None,
         lsp,
         energy_db: -100.0,
+        family: crate::codec::FeatureFamily::Bitstream,
     }
 }
 
@@ -164,6 +167,10 @@ pub struct Model {
     /// When the closed viseme's weight reaches this, the output snaps to a full closure
     /// (0 = never). A cheap causal rule: an average of closed and open is never closed.
     pub closure_snap: f32,
+    /// The closure snap for rows of SILK NLSFs and of LPC analysis, where it differs from
+    /// `closure_snap` (which Speex's bitstream LSPs use): each family leans its own way.
+    pub nlsf_snap: Option<f32>,
+    pub analysis_snap: Option<f32>,
     pub hidden: usize,
     /// `hidden x inputs`, row-major.
     pub w1: Vec<f32>,
@@ -273,6 +280,8 @@ impl Model {
             speaker_norm: None,
             dynamics,
             closure_snap: 0.0,
+            nlsf_snap: None,
+            analysis_snap: None,
             hidden,
             w1: vec![0.0; hidden * inputs],
             b1: vec![0.0; hidden],
@@ -416,18 +425,27 @@ impl Model {
     /// The closure snap moved by `bias` in [-1, 1]: positive closes the lips more readily
     /// (every /p b m/, and more often elsewhere), negative less; 0 is the model's own balance,
     /// chosen in training. A model without the rule keeps it off at 0 and below.
-    pub fn closure_snap_with_bias(&self, bias: f32) -> f32 {
+    pub fn closure_snap_with_bias(&self, family: FeatureFamily, bias: f32) -> f32 {
         let bias = if bias.is_finite() {
             bias.clamp(-1.0, 1.0)
         } else {
             0.0
         };
-        let own = self.closure_snap;
+        let own = self.closure_snap_of(family);
         if own <= 0.0 && bias <= 0.0 {
             return 0.0;
         }
         let from = if own > 0.0 { own } else { 1.0 };
         (from - CLOSURE_BIAS_SPAN * bias).clamp(MIN_CLOSURE_SNAP, 1.0)
+    }
+
+    /// The closure snap for rows of `family`.
+    pub fn closure_snap_of(&self, family: FeatureFamily) -> f32 {
+        match family {
+            FeatureFamily::Bitstream => self.closure_snap,
+            FeatureFamily::Nlsf => self.nlsf_snap.unwrap_or(self.closure_snap),
+            FeatureFamily::Analysis => self.analysis_snap.unwrap_or(self.closure_snap),
+        }
     }
 
     /// The closure rule on one frame's output weights.
@@ -494,7 +512,13 @@ impl Model {
             }
             None => text.push_str("dynamics off\n"),
         }
-        let _ = writeln!(text, "closure_snap {}", self.closure_snap);
+        let _ = write!(text, "closure_snap {}", self.closure_snap);
+        for (name, snap) in [("nlsf", self.nlsf_snap), ("analysis", self.analysis_snap)] {
+            if let Some(snap) = snap {
+                let _ = write!(text, " {name} {snap}");
+            }
+        }
+        text.push('\n');
         let _ = writeln!(text, "hidden {}", self.hidden);
         for (key, values) in [
             ("input_offset", &self.scaling.offset[..]),
@@ -614,7 +638,7 @@ impl Model {
         } else {
             None
         };
-        let (dynamics, closure_snap) = if version_two {
+        let (dynamics, closure_snaps) = if version_two {
             let (line, words) = next("dynamics")?;
             let dynamics = match words[..] {
                 ["off"] => None,
@@ -647,18 +671,12 @@ impl Model {
                 }
             };
             let (line, words) = next("closure_snap")?;
-            let snap = parse_floats((line, words), "closure_snap", 1)?[0];
-            if !(0.0..=1.0).contains(&snap) {
-                return Err(ModelError::BadNumber {
-                    line,
-                    key: "closure_snap",
-                    text: snap.to_string(),
-                });
-            }
-            (dynamics, snap)
+            (dynamics, parse_closure_snaps(line, &words)?)
         } else {
-            (None, 0.0)
+            (None, [Some(0.0), None, None])
         };
+        let [closure_snap, nlsf_snap, analysis_snap] = closure_snaps;
+        let closure_snap = closure_snap.unwrap_or(0.0);
         let hidden = parse_size(next("hidden")?, "hidden", MAX_HIDDEN)?;
         let inputs = input_count(context, dynamics);
         let outputs = visemes.len();
@@ -686,6 +704,8 @@ impl Model {
             speaker_norm,
             dynamics,
             closure_snap,
+            nlsf_snap,
+            analysis_snap,
             hidden,
             w1,
             b1,
@@ -865,6 +885,43 @@ pub enum ModelError {
     },
 }
 
+/// `closure_snap S [nlsf S] [analysis S]`: the default threshold and those of two families.
+fn parse_closure_snaps(line: usize, words: &[&str]) -> Result<[Option<f32>; 3], ModelError> {
+    let bad = |text: &str| ModelError::BadNumber {
+        line,
+        key: "closure_snap",
+        text: text.to_string(),
+    };
+    let value = |text: &str| match text.parse::<f32>() {
+        Ok(snap) if (0.0..=1.0).contains(&snap) => Ok(snap),
+        _ => Err(bad(text)),
+    };
+    let Some((first, rest)) = words.split_first() else {
+        return Err(ModelError::WrongCount {
+            line,
+            key: "closure_snap",
+            expected: 1,
+            found: 0,
+        });
+    };
+    let mut snaps = [Some(value(first)?), None, None];
+    if rest.len() % 2 != 0 {
+        return Err(bad(&rest.join(" ")));
+    }
+    for pair in rest.chunks_exact(2) {
+        let slot = match pair[0] {
+            "nlsf" => 1,
+            "analysis" => 2,
+            other => return Err(bad(other)),
+        };
+        if snaps[slot].is_some() {
+            return Err(bad(pair[0]));
+        }
+        snaps[slot] = Some(value(pair[1])?);
+    }
+    Ok(snaps)
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -928,6 +985,22 @@ mod tests {
             prior: silence_features().lsp,
         });
         assert_eq!(Model::from_text(&ahead.to_text()).unwrap(), ahead);
+        let mut families = model.clone();
+        families.closure_snap = 0.6;
+        families.nlsf_snap = Some(0.75);
+        assert!(
+            families
+                .to_text()
+                .contains("\nclosure_snap 0.6 nlsf 0.75\n")
+        );
+        assert_eq!(Model::from_text(&families.to_text()).unwrap(), families);
+        families.analysis_snap = Some(0.5);
+        assert_eq!(Model::from_text(&families.to_text()).unwrap(), families);
+        assert_eq!(families.closure_snap_of(FeatureFamily::Bitstream), 0.6);
+        assert_eq!(families.closure_snap_of(FeatureFamily::Nlsf), 0.75);
+        assert_eq!(families.closure_snap_of(FeatureFamily::Analysis), 0.5);
+        families.analysis_snap = None;
+        assert_eq!(families.closure_snap_of(FeatureFamily::Analysis), 0.6);
     }
 
     #[test]
@@ -957,6 +1030,11 @@ mod tests {
             ("normalise off", "normalise"),
             ("dynamics off", "dynamics 1"),
             ("closure_snap 0", "closure_snap 2"),
+            ("closure_snap 0", "closure_snap 0.5 nlsf"),
+            ("closure_snap 0", "closure_snap 0.5 nlsf 1.5"),
+            ("closure_snap 0", "closure_snap 0.5 speex 0.5"),
+            ("closure_snap 0", "closure_snap 0.5 nlsf 0.4 nlsf 0.6"),
+            ("closure_snap 0", "closure_snap"),
             ("visemes PP aa I", "visemes PP xx I"),
             ("hidden 4", "hidden 99999999"),
             ("hidden 4", "hidden 0"),

@@ -205,6 +205,7 @@ impl PeerReceiver {
                 mode: None,
                 lsp: flat_lsp(),
                 energy_db: SILENCE_DB,
+                family: crate::codec::FeatureFamily::Bitstream,
             },
             origin: FrameOrigin::Concealed,
         });

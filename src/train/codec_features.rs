@@ -11,7 +11,6 @@ use std::path::{Path, PathBuf};
 use std::sync::{Arc, Mutex};
 
 use crate::audio::wav;
-use crate::codec::FRAME_SIZE;
 use crate::codec::g711::Law;
 use crate::codec::g722;
 use crate::codec::lpc::LpcAnalyser;
@@ -19,6 +18,7 @@ use crate::codec::opus;
 use crate::codec::speex::codec::EncoderConfig;
 use crate::codec::speex::features::FrameFeatures;
 use crate::codec::speex::stream;
+use crate::codec::{FRAME_SIZE, FeatureFamily};
 use crate::train::corpus::{BoxError, CorpusError, PreparedUtterance, Utterance, prepare};
 
 /// The way a receiver gets its features: which codec, at what setting, from which input rate.
@@ -30,6 +30,9 @@ pub enum CodecPath {
     /// SILK) or at 8 kHz as lipcall's own sender does (narrowband SILK): the SILK NLSFs mapped
     /// onto narrowband LSPs, CELT-only frames analysed.
     Opus { bitrate: u32, wideband: bool },
+    /// Opus as the `opusenc` command of opus-tools writes it (`--bitrate`, its other defaults)
+    /// from 16 kHz audio, read as `animate` reads a .opus file. Needs opusenc on the PATH.
+    Opusenc { bitrate: u32 },
     /// G.711 at 8 kHz: LPC analysis of the decoded audio.
     G711(Law),
     /// G.722 from 16 kHz: LPC analysis of its lower band.
@@ -37,10 +40,21 @@ pub enum CodecPath {
 }
 
 impl CodecPath {
+    /// Where most of its rows' LSPs come from.
+    pub fn family(&self) -> FeatureFamily {
+        match self {
+            CodecPath::Speex(_) => FeatureFamily::Bitstream,
+            CodecPath::Opus { .. } | CodecPath::Opusenc { .. } => FeatureFamily::Nlsf,
+            CodecPath::G711(_) | CodecPath::G722 => FeatureFamily::Analysis,
+        }
+    }
+
     /// The rate the codec's input is taken at.
     fn input_rate(&self) -> u32 {
         match self {
-            CodecPath::Opus { wideband: true, .. } | CodecPath::G722 => 16_000,
+            CodecPath::Opus { wideband: true, .. }
+            | CodecPath::Opusenc { .. }
+            | CodecPath::G722 => 16_000,
             _ => crate::codec::SAMPLE_RATE,
         }
     }
@@ -63,6 +77,11 @@ impl std::fmt::Display for CodecPath {
                 f64::from(*bitrate) / 1000.0,
                 if *wideband { 16 } else { 8 }
             ),
+            CodecPath::Opusenc { bitrate } => write!(
+                f,
+                "opusenc --bitrate {} from 16 kHz (SILK NLSFs)",
+                f64::from(*bitrate) / 1000.0
+            ),
             CodecPath::G711(Law::Mu) => write!(f, "PCMU (LPC analysis)"),
             CodecPath::G711(Law::A) => write!(f, "PCMA (LPC analysis)"),
             CodecPath::G722 => write!(f, "G.722 lower band (LPC analysis)"),
@@ -83,6 +102,9 @@ fn features_through(pcm: &[i16], path: CodecPath) -> Result<Vec<FrameFeatures>, 
             let decoded = opus::stream::decode(&opus::stream::encode(pcm, config)?)?;
             opus::features::stream_features(&decoded)
         }
+        CodecPath::Opusenc { bitrate } => {
+            opus::features::stream_features(&opus::stream::decode(&opusenc(pcm, bitrate)?)?)
+        }
         CodecPath::G711(law) => {
             let decoded: Vec<i16> = pcm
                 .iter()
@@ -101,6 +123,31 @@ fn features_through(pcm: &[i16], path: CodecPath) -> Result<Vec<FrameFeatures>, 
             analysed(&low)
         }
     })
+}
+
+/// The Ogg Opus file `opusenc --bitrate` makes of 16 kHz `pcm`.
+fn opusenc(pcm: &[i16], bitrate: u32) -> Result<Vec<u8>, BoxError> {
+    static FILES: std::sync::atomic::AtomicUsize = std::sync::atomic::AtomicUsize::new(0);
+    let n = FILES.fetch_add(1, std::sync::atomic::Ordering::Relaxed);
+    let stem = std::env::temp_dir().join(format!("lipcall-opusenc-{}-{n}", std::process::id()));
+    let (input, output) = (stem.with_extension("wav"), stem.with_extension("opus"));
+    let result = (|| -> Result<Vec<u8>, BoxError> {
+        wav::write_mono_i16(&input, 16_000, pcm)?;
+        let status = std::process::Command::new("opusenc")
+            .args(["--quiet", "--bitrate"])
+            .arg(format!("{}", f64::from(bitrate) / 1000.0))
+            .arg(&input)
+            .arg(&output)
+            .status()
+            .map_err(|e| format!("cannot run opusenc (opus-tools): {e}"))?;
+        if !status.success() {
+            return Err(format!("opusenc failed ({status})").into());
+        }
+        Ok(std::fs::read(&output)?)
+    })();
+    let _ = std::fs::remove_file(&input);
+    let _ = std::fs::remove_file(&output);
+    result
 }
 
 /// Rows of LPC-analysed features of 8 kHz audio.

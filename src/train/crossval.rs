@@ -136,6 +136,56 @@ pub fn cross_validate(
 
 /// The final model: all groups' augmented utterances, trained for the cross-validated number of
 /// epochs, with the cross-validated closure snap (the held-out sets only draw the curves).
+/// How far a family's closure share may stay from the reference's (2 points): closer than the
+/// folds can tell apart (142 segments).
+pub const SHARE_TOLERANCE: f64 = 0.02;
+
+/// The closure snap for rows of another feature family than the one `cv` was scored on:
+/// `held_out[i]` holds fold i's held-out utterances through that family's codec paths, and the
+/// snap is the one at which the fold models close about the share of /p b m/ segments they
+/// close on `cv`'s own features (within [`SHARE_TOLERANCE`], the one with the fewest false
+/// closures; else the closest). A lipreader thus
+/// sees the same closures whichever codec a peer speaks. Returns the snap and its scores.
+pub fn matching_snap(
+    cv: &CrossValidation,
+    held_out: &[Vec<PreparedUtterance>],
+    shapes: &crate::lipsync::mouth::VisemeShapes,
+) -> Result<(f32, Scores), TrainError> {
+    if held_out.len() != cv.folds.len() {
+        return Err(TrainError::BadConfig(format!(
+            "{} held-out sets for {} folds",
+            held_out.len(),
+            cv.folds.len()
+        )));
+    }
+    let parts: Vec<HeldOutPredictions> = cv
+        .folds
+        .iter()
+        .zip(held_out)
+        .map(|(fold, utts)| HeldOutPredictions::new(&fold.model, utts))
+        .collect();
+    let pooled = HeldOutPredictions::pool(&parts)?;
+    let target = cv.pooled.closure_share();
+    let curve: Vec<(f32, Scores)> = pooled
+        .snap_curve(shapes)?
+        .into_iter()
+        .filter(|(snap, _)| *snap > 0.0)
+        .collect();
+    let distance = |s: &Scores| (s.closure_share() - target).abs();
+    let close_enough = curve
+        .iter()
+        .filter(|(_, s)| distance(s) <= SHARE_TOLERANCE)
+        .min_by(|a, b| a.1.false_closure_rate.total_cmp(&b.1.false_closure_rate));
+    close_enough
+        .or_else(|| {
+            curve
+                .iter()
+                .min_by(|a, b| distance(&a.1).total_cmp(&distance(&b.1)))
+        })
+        .cloned()
+        .ok_or(TrainError::NoFrames)
+}
+
 pub fn train_final(
     config: &TrainConfig,
     groups: &[SpeakerGroup],

@@ -160,6 +160,7 @@ pub fn features_for_utterance(path: &Path) -> Result<Vec<FrameFeatures>, BoxErro
             mode: Some(5),
             lsp: previous,
             energy_db: (10.0 * (power + 1e-10).log10()) as f32,
+            family: crate::codec::FeatureFamily::Analysis,
         });
     }
     Ok(frames)

@@ -1,14 +1,17 @@
 //! Feature rows of Opus streams. SILK and hybrid frames carry the vocal-tract shape in their
-//! bitstream as NLSFs (read by [`crate::codec::silk::SilkWalker`]); they are mapped onto the
-//! network's inputs, the 10 LSPs of a narrowband (8 kHz) predictor, as Speex would code them.
+//! bitstream as NLSFs (read by [`crate::codec::silk::SilkWalker`]); they become the network's
+//! inputs, the 10 LSPs of a narrowband (8 kHz) predictor as Speex would code them.
 //! CELT-only frames carry none: their rows come from an LPC analysis of the decoded audio.
 //!
-//! The mapping: SILK codes an order-10 (narrow- and mediumband, at 8 or 12 kHz) or order-16
-//! (wideband, 16 kHz) predictor. Its power spectrum below 4 kHz, read straight off the NLSFs,
-//! becomes an autocorrelation at 8 kHz, smoothed with the Speex encoder's lag window and noise
-//! floor and refitted at order 10 with the analysis's Levinson-Durbin and root search
-//! ([`crate::codec::lpc`]). Narrowband frames go the same way: the network was trained on Speex's
-//! envelopes, whose formants the lag window widens; SILK's are sharper.
+//! Narrowband SILK codes an order-10 predictor at 8 kHz: its NLSFs are the LSPs, taken as
+//! they are. Mediumband (order 10 at 12 kHz) and wideband (order 16 at 16 kHz) frames describe a
+//! wider band. [`refitted_lsp`] is the reference mapping: the predictor's power spectrum below
+//! 4 kHz, read straight off the NLSFs, becomes an autocorrelation at 8 kHz, smoothed with the
+//! Speex encoder's lag window and noise floor and refitted at order 10 with the analysis's
+//! Levinson-Durbin and root search ([`crate::codec::lpc`]). The receiver uses affine maps fitted
+//! to it on training speakers ([`super::nlsf_map`], `examples/fit_nlsf_map.rs`): 170
+//! multiply-adds instead of a spectrum and a root search, so that the features cost a few
+//! percent of decoding (`cargo bench --bench codec`).
 
 use std::f64::consts::PI;
 use std::sync::LazyLock;
@@ -52,9 +55,37 @@ static LAG_COS: LazyLock<[[f64; LSP_COUNT + 1]; SPECTRUM_POINTS]> = LazyLock::ne
     })
 });
 
-/// The 10 narrowband LSPs (radians at 8 kHz) of a SILK frame's NLSFs at `internal_rate_hz`;
-/// `None` when the refit is ill-conditioned (never for narrowband frames).
+/// The 10 narrowband LSPs (radians at 8 kHz) of a SILK frame's NLSFs at `internal_rate_hz`,
+/// as the receiver computes them: narrowband NLSFs as they are, mediumband and wideband ones
+/// through [`super::nlsf_map`]. `None` for an order that does not match the rate.
 pub fn narrowband_lsp(nlsf: &Nlsf, internal_rate_hz: u32) -> Option<[f32; LSP_COUNT]> {
+    let mut x = [0.0f32; crate::codec::silk::MAX_ORDER];
+    for (x, radians) in x.iter_mut().zip(nlsf.radians()) {
+        *x = radians;
+    }
+    let lsp = match (internal_rate_hz, nlsf.order()) {
+        (8000, LSP_COUNT) => std::array::from_fn(|k| x[k]),
+        (12_000, LSP_COUNT) => affine(&super::nlsf_map::MEDIUMBAND, &x),
+        (16_000, 16) => affine(&super::nlsf_map::WIDEBAND, &x),
+        _ => return None,
+    };
+    Some(ordered_lsp(lsp))
+}
+
+/// Row k of `map` holds LSP k's weights on the first N - 1 inputs and its bias.
+fn affine<const N: usize>(map: &[[f32; N]; LSP_COUNT], x: &[f32]) -> [f32; LSP_COUNT] {
+    std::array::from_fn(|k| {
+        let row = &map[k];
+        row[..N - 1]
+            .iter()
+            .zip(x)
+            .fold(row[N - 1], |sum, (w, x)| sum + w * x)
+    })
+}
+
+/// The reference mapping (see the module's documentation): the 10 narrowband LSPs of the part
+/// of the NLSFs' spectrum below 4 kHz, refitted; `None` when the refit is ill-conditioned.
+pub fn refitted_lsp(nlsf: &Nlsf, internal_rate_hz: u32) -> Option<[f32; LSP_COUNT]> {
     let mut angles = [0.0f64; crate::codec::silk::MAX_ORDER];
     for (angle, radians) in angles.iter_mut().zip(nlsf.radians()) {
         *angle = f64::from(radians);
@@ -168,6 +199,7 @@ pub fn stream_features(decoded: &Decoded) -> Vec<FrameFeatures> {
                     mode: Some(mode),
                     lsp,
                     energy_db: energy_db(pcm),
+                    family: crate::codec::FeatureFamily::Nlsf,
                 },
                 None => analyser.analyse(pcm).features(None),
             }
@@ -277,6 +309,81 @@ mod tests {
         roots.sort_by(f64::total_cmp);
         assert_eq!(roots.len(), n, "{roots:?}");
         roots
+    }
+
+    /// The SILK frames of the demo speech through Opus at 16 kb/s from `rate`.
+    fn demo_silk_frames(rate: u32) -> Vec<crate::codec::silk::SilkFrame> {
+        let path = std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("assets/speech/demo.wav");
+        let audio = crate::audio::wav::read_mono(&path).unwrap();
+        let pcm = crate::audio::wav::to_i16(&crate::audio::wav::resample(&audio, rate).unwrap());
+        let config = super::super::codec::EncoderConfig {
+            input_rate: rate,
+            ..Default::default()
+        };
+        let file = super::super::stream::encode(&pcm, config).unwrap();
+        let file = super::super::ogg_file::read(&file).unwrap();
+        let mut walker = SilkWalker::new();
+        file.pages
+            .iter()
+            .flat_map(|p| &p.packets)
+            .flat_map(|p| walker.walk_packet(p).unwrap())
+            .filter_map(|f| f.silk().copied())
+            .collect()
+    }
+
+    #[test]
+    fn narrowband_nlsfs_are_the_lsps_and_wider_bands_land_near_the_refit() {
+        let narrow = demo_silk_frames(8000);
+        assert!(narrow.len() > 300);
+        for frame in &narrow {
+            assert_eq!(frame.internal_rate_hz, 8000);
+            let lsp = narrowband_lsp(&frame.nlsf, 8000).unwrap();
+            for (l, r) in lsp.iter().zip(frame.nlsf.radians()) {
+                assert!((l - r).abs() < 0.02, "{lsp:?} vs {:?}", frame.nlsf);
+            }
+        }
+        // The demo speech is no training speaker: the fitted map stays within about 100 Hz
+        // (rms) of the refit it was fitted to, where a mean vector would be 300 Hz away.
+        let wide = demo_silk_frames(16_000);
+        let (mut squared, mut spread, mut count) = (0.0f64, 0.0f64, 0usize);
+        let refits: Vec<[f32; LSP_COUNT]> = wide
+            .iter()
+            .filter_map(|f| refitted_lsp(&f.nlsf, f.internal_rate_hz))
+            .collect();
+        let mut mean = [0.0f64; LSP_COUNT];
+        for refit in &refits {
+            for (m, r) in mean.iter_mut().zip(refit) {
+                *m += f64::from(*r) / refits.len() as f64;
+            }
+        }
+        for frame in &wide {
+            assert_eq!(frame.internal_rate_hz, 16_000);
+            let (Some(mapped), Some(refit)) = (
+                narrowband_lsp(&frame.nlsf, 16_000),
+                refitted_lsp(&frame.nlsf, 16_000),
+            ) else {
+                continue;
+            };
+            assert!(mapped.windows(2).all(|p| p[0] < p[1]));
+            for ((m, r), mean) in mapped.iter().zip(refit).zip(mean) {
+                squared += f64::from(m - r).powi(2);
+                spread += (f64::from(r) - mean).powi(2);
+                count += 1;
+            }
+        }
+        let hz = |sum: f64| (sum / count as f64).sqrt() * 4000.0 / PI;
+        assert!(count > 3000);
+        assert!(
+            hz(squared) < 100.0,
+            "map {:.0} Hz from the refit",
+            hz(squared)
+        );
+        assert!(
+            hz(spread) > 2.0 * hz(squared),
+            "spread {:.0} Hz",
+            hz(spread)
+        );
+        assert!(narrowband_lsp(&wide[0].nlsf, 8000).is_none());
     }
 
     #[test]

@@ -3,6 +3,7 @@
 pub mod codec;
 pub mod features;
 pub mod fec;
+mod nlsf_map;
 pub mod ogg_file;
 pub mod stream;
 

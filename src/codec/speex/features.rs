@@ -11,6 +11,7 @@
 
 use super::bitstream::{BitstreamError, Frame, Walker};
 use super::{FRAME_SIZE, LSP_COUNT};
+use crate::codec::FeatureFamily;
 
 /// What the receiver knows about one 20 ms frame once it has decoded it.
 #[derive(Debug, Clone, Copy, PartialEq)]
@@ -22,6 +23,8 @@ pub struct FrameFeatures {
     pub lsp: [f32; LSP_COUNT],
     /// Energy of the decoded samples of the row, in dB relative to a full-scale square wave.
     pub energy_db: f32,
+    /// Where `lsp` comes from.
+    pub family: FeatureFamily,
 }
 
 /// The energy floor: digital silence reads as this, not as minus infinity.
@@ -55,8 +58,12 @@ pub fn energy_db(samples: &[i16]) -> f32 {
     if samples.is_empty() {
         return SILENCE_DB;
     }
-    let sum: f64 = samples.iter().map(|&s| f64::from(s) * f64::from(s)).sum();
-    let mean = sum / samples.len() as f64 / (32768.0 * 32768.0);
+    // Exact in integers (and so the same sum in any order, which lets it vectorise).
+    let sum: i64 = samples
+        .iter()
+        .map(|&s| i64::from(i32::from(s) * i32::from(s)))
+        .sum();
+    let mean = sum as f64 / samples.len() as f64 / (32768.0 * 32768.0);
     if mean <= 0.0 {
         return SILENCE_DB;
     }
@@ -131,6 +138,7 @@ impl FrameTracker {
             mode,
             lsp,
             energy_db: energy_db(pcm),
+            family: FeatureFamily::Bitstream,
         }
     }
 
@@ -141,6 +149,7 @@ impl FrameTracker {
             mode: None,
             lsp: self.held_lsp(),
             energy_db: energy_db(pcm),
+            family: FeatureFamily::Bitstream,
         }
     }
 
@@ -200,6 +209,7 @@ impl FeatureExtractor {
                     mode,
                     lsp,
                     energy_db: energy_db(samples),
+                    family: FeatureFamily::Bitstream,
                 }
             })
             .collect();
