@@ -1,6 +1,8 @@
 //! The pure-Rust bitstream walker against the reference libspeex (speex-sys): same frames,
 //! same modes, and LSPs bit-identical to the decoder's own `old_qlsp` after every frame.
 
+#![allow(unsafe_code)]
+
 use std::ffi::{c_char, c_int, c_void};
 use std::mem::offset_of;
 use std::path::{Path, PathBuf};

@@ -14,6 +14,7 @@ pub mod gltf_load;
 pub mod head;
 pub mod label;
 pub mod offscreen;
+mod readback;
 pub mod renderer;
 pub mod target;
 

@@ -7,6 +7,7 @@ use std::sync::Arc;
 use super::RenderError;
 use super::camera::{Camera, Framing};
 use super::head::{FacePose, HeadModel, VISEME_COUNT, VisemeWeights, viseme_index};
+use super::readback::read_buffer;
 use super::renderer::{DEPTH_FORMAT, GpuHead, HeadInstance, HeadRenderer};
 use super::target::{HeadTarget, TARGET_FORMAT, sample_count_for};
 
@@ -92,29 +93,6 @@ impl GpuContext {
         let info = self.adapter.get_info();
         format!("{} on {:?}", info.name, info.backend)
     }
-}
-
-/// Maps a buffer, waits for the GPU and copies its bytes out.
-pub(crate) fn read_buffer(
-    device: &wgpu::Device,
-    buffer: &wgpu::Buffer,
-) -> Result<Vec<u8>, RenderError> {
-    let (tx, rx) = std::sync::mpsc::channel();
-    buffer.map_async(wgpu::MapMode::Read, .., move |r| {
-        let _ = tx.send(r);
-    });
-    device
-        .poll(wgpu::PollType::wait_indefinitely())
-        .map_err(|e| RenderError::Readback(e.to_string()))?;
-    rx.recv()
-        .map_err(|e| RenderError::Readback(e.to_string()))?
-        .map_err(|e| RenderError::Readback(e.to_string()))?;
-    let bytes = buffer
-        .get_mapped_range(..)
-        .map_err(|e| RenderError::Readback(format!("{e:?}")))?
-        .to_vec();
-    buffer.unmap();
-    Ok(bytes)
 }
 
 /// Size and view of offscreen frames.

@@ -729,7 +729,7 @@ impl HeadRenderer {
         }
         encoder.copy_buffer_to_buffer(&out, 0, &staging, 0, out_size);
         queue.submit([encoder.finish()]);
-        let bytes = super::offscreen::read_buffer(device, &staging)?;
+        let bytes = super::readback::read_buffer(device, &staging)?;
         let used = head.vertex_count as usize * std::mem::size_of::<MorphDelta>();
         let gpu: Vec<MorphDelta> = bytemuck::pod_collect_to_vec(
             bytes

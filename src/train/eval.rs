@@ -312,7 +312,7 @@ pub fn write_frames(
     utterances: &[PreparedUtterance],
 ) -> Result<(), FramesError> {
     let full = VisemeSet::full();
-    let set_targets = crate::train::trainer::set_targets(&model.visemes, shapes, utterances)?;
+    let set_targets = crate::train::targets::set_targets(&model.visemes, shapes, utterances)?;
     let raw = predict(
         &mut ModelAnimator::with_closure_snap(model, 0.0),
         utterances,

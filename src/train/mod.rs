@@ -6,6 +6,7 @@ pub mod corpus;
 pub mod crossval;
 pub mod eval;
 pub mod plot;
+pub mod targets;
 pub mod trainer;
 
 pub use trainer::{TrainConfig, TrainReport, run};

@@ -12,7 +12,7 @@ use std::path::PathBuf;
 use indicatif::{ProgressBar, ProgressStyle};
 
 use crate::codec::speex::LSP_COUNT;
-use crate::lipsync::decompose::{DecomposeError, Decomposer, PointTrack};
+use crate::lipsync::decompose::DecomposeError;
 use crate::lipsync::mouth::{Articulation, CUE_COUNT, VisemeShapes, cues};
 use crate::lipsync::network::{
     Dynamics, FEATURES_PER_FRAME, InputScaling, MAX_LOOKAHEAD, MIN_CLOSURE_SNAP,
@@ -24,6 +24,7 @@ use crate::train::corpus::{
     Corpus, CorpusError, FeatureFn, PreparedUtterance, SpeakerSplit, prepare,
 };
 use crate::train::eval::{EvalError, Scores, score};
+pub use crate::train::targets::set_targets;
 
 #[derive(Debug, Clone)]
 pub struct TrainConfig {
@@ -287,62 +288,6 @@ impl Dataset {
     fn target(&self, n: usize) -> &[f32] {
         &self.targets[n * self.outputs..(n + 1) * self.outputs]
     }
-}
-
-/// Per utterance: its targets over `set`, frames x `set.len()` flattened. A viseme of the set
-/// keeps its own weight; each other viseme's weight goes to its convex decomposition onto the
-/// set's shapes (the paper's III.A.1, per viseme), so the set's shapes are taught wherever the
-/// phones call for them: a blend of the 15 decomposed frame by frame would let PP + aa stand in
-/// for FF, whose points are nearly theirs.
-pub fn set_targets(
-    set: &VisemeSet,
-    shapes: &VisemeShapes,
-    utterances: &[PreparedUtterance],
-) -> Result<Vec<Vec<f32>>, DecomposeError> {
-    let full = VisemeSet::full();
-    let k = set.len();
-    let mut map = vec![0.0f32; full.len() * k];
-    if set.len() == full.len() {
-        for (v, row) in full.members().iter().zip(map.chunks_exact_mut(k)) {
-            row[set.position(*v).expect("the full set")] = 1.0;
-        }
-    } else {
-        let mut all = PointTrack::new(shapes.point_dim(), shapes.coords());
-        for utt in utterances {
-            let track = PointTrack::from_weights(
-                shapes,
-                &full,
-                utt.targets.weights.iter().map(|w| &w[..]),
-            )?;
-            for frame in track.frames() {
-                all.push(frame)?;
-            }
-        }
-        let decomposer = Decomposer::new(shapes, set, &all.point_sigmas())?;
-        for (v, row) in full.members().iter().zip(map.chunks_exact_mut(k)) {
-            match set.position(*v) {
-                Some(i) => row[i] = 1.0,
-                None => {
-                    row.fill(1.0 / k as f32);
-                    decomposer.fit(shapes.shape(*v)?, row);
-                }
-            }
-        }
-    }
-    Ok(utterances
-        .iter()
-        .map(|u| {
-            let mut out = vec![0.0f32; u.targets.weights.len() * k];
-            for (w, o) in u.targets.weights.iter().zip(out.chunks_exact_mut(k)) {
-                for (weight, row) in w.iter().zip(map.chunks_exact(k)) {
-                    for (o, m) in o.iter_mut().zip(row) {
-                        *o += weight * m;
-                    }
-                }
-            }
-            out
-        })
-        .collect())
 }
 
 pub(crate) fn build_dataset(
@@ -1311,6 +1256,7 @@ mod tests {
 #[cfg(test)]
 mod experiments {
     use super::*;
+    use crate::lipsync::decompose::PointTrack;
     use crate::train::corpus::tests::timit_root;
     use crate::train::eval::evaluate_prepared;
     use crate::train::stand_in;

@@ -3,6 +3,8 @@
 //! libspeex is built statically by `speex-sys` from its bundled C source (float build). Every
 //! unsafe call lives in this file; each state is owned by exactly one Rust value and freed on drop.
 
+#![allow(unsafe_code)]
+
 use std::ffi::{c_int, c_void};
 use std::ptr::NonNull;
 
