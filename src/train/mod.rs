@@ -1,10 +1,14 @@
 //! Offline training and evaluation of the lip-sync network on a TIMIT-style corpus.
 
 pub mod an4;
+mod backprop;
+mod closure_snap;
 pub mod codec_features;
 pub mod corpus;
 pub mod crossval;
+mod dataset;
 pub mod eval;
+mod init;
 pub mod plot;
 pub mod targets;
 pub mod trainer;

@@ -1,0 +1,188 @@
+//! The training frames in the network's layout: scaled inputs, targets over the model's set and
+//! loss weights, and the seeded generator behind shuffling, initialisation and augmentation.
+
+use crate::codec::speex::LSP_COUNT;
+use crate::lipsync::mouth::{Articulation, CUE_COUNT, cues};
+use crate::lipsync::network::{Model, silence_features};
+use crate::lipsync::phones::CueClass;
+use crate::lipsync::visemes::{Viseme, VisemeSet};
+use crate::train::corpus::PreparedUtterance;
+
+/// xorshift64*: small, fast and reproducible.
+#[derive(Debug, Clone)]
+pub struct Rng(u64);
+
+impl Rng {
+    pub fn new(seed: u64) -> Self {
+        // One splitmix64 step: a bijection, so different seeds start from different states.
+        let mut z = seed.wrapping_add(0x9E37_79B9_7F4A_7C15);
+        z = (z ^ (z >> 30)).wrapping_mul(0xBF58_476D_1CE4_E5B9);
+        z = (z ^ (z >> 27)).wrapping_mul(0x94D0_49BB_1331_11EB);
+        z ^= z >> 31;
+        Self(z.max(1))
+    }
+
+    pub fn next_u64(&mut self) -> u64 {
+        self.0 ^= self.0 >> 12;
+        self.0 ^= self.0 << 25;
+        self.0 ^= self.0 >> 27;
+        self.0.wrapping_mul(0x2545_F491_4F6C_DD1D)
+    }
+
+    /// Uniform in [0, 1).
+    pub fn next_f32(&mut self) -> f32 {
+        (self.next_u64() >> 40) as f32 / (1u64 << 24) as f32
+    }
+
+    pub fn shuffle<T>(&mut self, items: &mut [T]) {
+        for i in (1..items.len()).rev() {
+            let j = (self.next_u64() % (i as u64 + 1)) as usize;
+            items.swap(i, j);
+        }
+    }
+}
+
+/// Scaled network inputs, targets over the model's set and loss weights, frame by frame.
+#[derive(Debug, Clone)]
+pub(crate) struct Dataset {
+    pub(super) inputs: Vec<f32>,
+    pub(super) targets: Vec<f32>,
+    pub(super) weights: Vec<f32>,
+    /// Frames per utterance, in order.
+    pub(super) lengths: Vec<usize>,
+    /// Frame ranges of the /p b m/ segments.
+    pub(super) segments: Vec<std::ops::Range<usize>>,
+    /// Frame ranges of the /f v/ segments (with their slack).
+    pub(super) labiodental: Vec<std::ops::Range<usize>>,
+    /// Openness, width and rounding of each output viseme, of each frame's 15-viseme target,
+    /// and the weights of their squared errors in the loss.
+    pub(super) cues: Vec<[f32; CUE_COUNT]>,
+    pub(super) target_cues: Vec<[f32; CUE_COUNT]>,
+    pub(super) cue_weights: [f32; CUE_COUNT],
+    pub(super) input_len: usize,
+    pub(super) outputs: usize,
+}
+
+impl Dataset {
+    pub(super) fn frames(&self) -> usize {
+        self.weights.len()
+    }
+
+    pub(super) fn input(&self, n: usize) -> &[f32] {
+        &self.inputs[n * self.input_len..(n + 1) * self.input_len]
+    }
+
+    pub(super) fn target(&self, n: usize) -> &[f32] {
+        &self.targets[n * self.outputs..(n + 1) * self.outputs]
+    }
+}
+
+pub(crate) fn build_dataset(
+    model: &Model,
+    utterances: &[PreparedUtterance],
+    targets: &[Vec<f32>],
+    closure_weight: f32,
+    sharp_closures: bool,
+) -> Dataset {
+    let input_len = model.inputs();
+    let outputs = model.outputs();
+    let mut data = Dataset {
+        inputs: Vec::new(),
+        targets: targets.concat(),
+        weights: Vec::new(),
+        lengths: Vec::new(),
+        segments: Vec::new(),
+        labiodental: Vec::new(),
+        cues: model
+            .visemes
+            .members()
+            .iter()
+            .map(|v| Articulation::of(*v).cues())
+            .collect(),
+        target_cues: Vec::new(),
+        cue_weights: [0.0; CUE_COUNT],
+        input_len,
+        outputs,
+    };
+    let closed = model.visemes.position(Viseme::PP);
+    let full = VisemeSet::full();
+    let silence = silence_features();
+    let mut state = model.new_state();
+    let mut start = 0;
+    let mut speaker: Option<&str> = None;
+    for utt in utterances {
+        // One speaker's utterances follow each other as in one call: the per-speaker state
+        // (normalisation, energy peak) carries over.
+        if speaker != Some(utt.speaker.as_str()) {
+            model.reset(&mut state);
+            speaker = Some(utt.speaker.as_str());
+        }
+        // Frame n is described once frame n + lookahead is fed; past the end, the receiver's
+        // fallback repeats the last frame.
+        let fed = utt.features.iter().chain(std::iter::repeat_n(
+            utt.features.last().unwrap_or(&silence),
+            model.lookahead,
+        ));
+        for (m, features) in fed.enumerate() {
+            model.push_frame(&mut state, features);
+            let Some(n) = m.checked_sub(model.lookahead) else {
+                continue;
+            };
+            if n >= utt.features.len() {
+                break;
+            }
+            data.inputs.extend_from_slice(state.input());
+            data.target_cues.push(cues(&full, &utt.targets.weights[n]));
+            let in_closure = utt.targets.in_bilabial(n);
+            data.weights
+                .push(utt.weight * if in_closure { closure_weight } else { 1.0 });
+            if let (true, true, Some(closed)) = (sharp_closures, in_closure, closed) {
+                let target = &mut data.targets[(start + n) * outputs..(start + n + 1) * outputs];
+                target.fill(0.0);
+                target[closed] = 1.0;
+            }
+        }
+        data.segments.extend(
+            utt.targets
+                .bilabial_segments
+                .iter()
+                .map(|seg| start + seg.start..start + seg.end.min(utt.features.len()))
+                .filter(|seg| !seg.is_empty()),
+        );
+        data.labiodental.extend(
+            utt.targets
+                .cue_segments
+                .iter()
+                .filter(|(class, _)| *class == CueClass::Labiodental)
+                .map(|(_, seg)| start + seg.start..start + seg.end.min(utt.features.len()))
+                .filter(|seg| !seg.is_empty()),
+        );
+        start += utt.features.len();
+        data.lengths.push(utt.features.len());
+    }
+    data
+}
+
+/// Copies of `utterances` whose LSPs are scaled by a random factor in `[1 - warp, 1 + warp]`
+/// per utterance, kept increasing and inside (0, pi).
+pub(super) fn warp_lsps(
+    utterances: &[PreparedUtterance],
+    warp: f32,
+    rng: &mut Rng,
+) -> Vec<PreparedUtterance> {
+    const TOP: f32 = std::f32::consts::PI - 0.01;
+    utterances
+        .iter()
+        .map(|utt| {
+            let factor = 1.0 + warp * (2.0 * rng.next_f32() - 1.0);
+            let mut utt = utt.clone();
+            for frame in &mut utt.features {
+                for (i, lsp) in frame.lsp.iter_mut().enumerate() {
+                    let ceiling = TOP - 0.01 * (LSP_COUNT - 1 - i) as f32;
+                    *lsp = (*lsp * factor).min(ceiling);
+                }
+            }
+            utt
+        })
+        .collect()
+}
