@@ -5,9 +5,9 @@
 
 mod common;
 
+use common::glb_write::{MeshOut, PrimitiveOut, write_meshes};
 use glam::Vec3;
 use lipcall::render::arkit;
-use lipcall::render::glb_write::{MeshOut, PrimitiveOut, write_meshes};
 use lipcall::render::gltf_load::load_head_from_slice;
 use lipcall::render::head::{Material, MorphDelta, TargetSource, Vertex};
 use lipcall::render::offscreen::{FrameOptions, GpuContext, OffscreenRenderer};

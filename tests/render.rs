@@ -5,10 +5,10 @@ mod common;
 
 use std::sync::OnceLock;
 
+use common::glb_write::{glb_container, write_glb};
 use glam::{Vec2, Vec3};
 use lipcall::lipsync::mouth::Articulation;
 use lipcall::lipsync::visemes::Viseme;
-use lipcall::render::glb_write::{glb_container, write_glb};
 use lipcall::render::gltf_load::load_head_from_slice;
 use lipcall::render::head::{
     Expression, FacePose, Material, MorphDelta, Primitive, TargetSource, VISEME_COUNT, Vertex,

@@ -61,7 +61,7 @@ impl Expression {
         VISEME_COUNT + self as usize
     }
 
-    /// The slot's own target name (what [`super::glb_write`] writes).
+    /// The slot's own target name (what the tests' GLB writer writes).
     pub fn name(self) -> &'static str {
         EXPRESSION_NAMES[self as usize]
     }

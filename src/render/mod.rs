@@ -9,10 +9,8 @@
 
 pub mod arkit;
 pub mod camera;
-pub mod glb_write;
 pub mod gltf_load;
 pub mod head;
-pub mod label;
 pub mod offscreen;
 mod readback;
 pub mod renderer;

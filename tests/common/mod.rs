@@ -1,6 +1,8 @@
 //! Helpers shared by the integration tests: running the reference tools and reading WAVs.
 #![allow(dead_code)]
 
+pub mod glb_write;
+
 use std::path::{Path, PathBuf};
 use std::process::{Command, Output};
 

@@ -2,11 +2,13 @@
 //! `cargo run --release --example contact_sheet [OUT.png] [--mouth] [--head FILE.glb] [--tile PX]`
 //! (default output `docs/visemes.png`; `--mouth` uses the lipreading close-up; `--head` draws
 //! another head than the bundled one; `--tile` sets the side of each of the 15 tiles, 256 px).
+mod label;
+
 use std::path::PathBuf;
 
 use anyhow::Context;
 use lipcall::render::{
-    FrameOptions, Framing, GpuContext, OffscreenRenderer, VISEME_NAMES, VisemeWeights, label,
+    FrameOptions, Framing, GpuContext, OffscreenRenderer, VISEME_NAMES, VisemeWeights,
     load_head_or_default,
 };
 

@@ -6,7 +6,9 @@
 
 use serde_json::{Value, json};
 
-use super::head::{HeadModel, Material, MorphDelta, VISEME_COUNT, VISEME_NAMES, Vertex, slot_name};
+use lipcall::render::head::{
+    HeadModel, Material, MorphDelta, VISEME_COUNT, VISEME_NAMES, Vertex, slot_name,
+};
 
 const ARRAY_BUFFER: u32 = 34962;
 const ELEMENT_ARRAY_BUFFER: u32 = 34963;
