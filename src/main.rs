@@ -443,7 +443,7 @@ fn finish(result: anyhow::Result<()>) -> ExitCode {
     match result {
         Ok(()) => ExitCode::SUCCESS,
         Err(e) => {
-            eprintln!("lipcall: {e:#}");
+            eprintln!("lipcall: {}", commands::error_line(&e));
             ExitCode::FAILURE
         }
     }

@@ -75,7 +75,7 @@ pub fn encode(input: &Path, output: &Path, settings: EncodeSettings) -> Result<(
 /// Decodes an Ogg Speex or Ogg Opus file, told apart by its content (an `.opus` name that
 /// holds no Opus gets the Opus reader's account of what it holds).
 pub fn decode(input: &Path, output: &Path, features: Option<&Path>, enhancer: bool) -> Result<()> {
-    let bytes = std::fs::read(input).with_context(|| format!("cannot read {}", input.display()))?;
+    let bytes = crate::input::read(input, crate::input::MAX_INPUT_BYTES)?;
     if opus::ogg_file::holds_opus(&bytes) || has_opus_extension(input) {
         if features.is_some() {
             bail!("--features is not available for Opus files yet (only for Speex)");

@@ -94,7 +94,7 @@ fn load_packets(
         .extension()
         .and_then(|e| e.to_str())
         .map(str::to_ascii_lowercase);
-    let read = || std::fs::read(input).with_context(|| format!("cannot read {}", input.display()));
+    let read = || crate::input::read(input, crate::input::MAX_INPUT_BYTES);
     let what = || input.display().to_string();
     match ext.as_deref() {
         Some("spx" | "ogg" | "opus") => {

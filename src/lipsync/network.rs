@@ -700,10 +700,7 @@ impl Model {
             path: path.display().to_string(),
             error: Box::new(error),
         };
-        let bytes = std::fs::read(path).map_err(|error| ModelError::Io {
-            path: path.display().to_string(),
-            error,
-        })?;
+        let bytes = crate::input::read(path, crate::input::MAX_INPUT_BYTES)?;
         let text = String::from_utf8(bytes).map_err(|_| in_file(ModelError::NotAModel))?;
         Self::from_text(&text).map_err(in_file)
     }
@@ -858,6 +855,8 @@ pub enum ModelError {
     TrailingData { line: usize },
     #[error("{path}: {error}")]
     Io { path: String, error: std::io::Error },
+    #[error(transparent)]
+    Input(#[from] crate::input::InputError),
     #[error("{path}: {error}")]
     InFile {
         path: String,

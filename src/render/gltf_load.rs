@@ -24,15 +24,16 @@ use super::head::{
 /// Refuse absurd sizes before allocating for them.
 const MAX_VERTICES: usize = 4_000_000;
 const MAX_NODE_DEPTH: usize = 64;
+/// Vertices, indices and morph deltas read may reach this many plus one per 4 bytes of buffer
+/// data: a file reads about one per 4 to 12 buffer bytes, and without this budget one accessor
+/// referenced by many meshes or targets would be expanded for each of them.
+const ELEMENT_BUDGET_FLOOR: usize = 1 << 20;
 /// Largest base colour texture side accepted; larger ones are refused before any pixel is decoded.
 const MAX_TEXTURE_SIDE: u32 = 8192;
 
 /// Loads a head from a `.glb` or `.gltf` file (external buffers and images are read from beside it).
 pub fn load_head(path: &Path) -> Result<HeadModel, RenderError> {
-    let bytes = std::fs::read(path).map_err(|source| RenderError::Io {
-        path: path.to_owned(),
-        source,
-    })?;
+    let bytes = crate::input::read(path, crate::input::MAX_INPUT_BYTES)?;
     load_head_from_slice_in(&bytes, path.parent())
 }
 
@@ -132,7 +133,8 @@ fn classify(name: &str) -> TargetKind {
 /// A primitive read from the file, with its raw morph targets.
 struct RawPrimitive {
     name: String,
-    material: usize,
+    /// `None`: the default material, the last of the list.
+    material: Option<usize>,
     vertices: Vec<Vertex>,
     indices: Vec<u32>,
     targets: Vec<(TargetKind, Vec<MorphDelta>)>,
@@ -144,12 +146,13 @@ fn load_head_from_slice_in(bytes: &[u8], base: Option<&Path>) -> Result<HeadMode
     let gltf = gltf::Gltf::from_slice(bytes).map_err(gltf_err)?;
     let doc = &gltf.document;
     let buffers = load_buffers(doc, gltf.blob.as_deref(), base)?;
+    let buffer_bytes: usize = buffers.iter().map(Vec::len).sum();
+    let mut budget = ELEMENT_BUDGET_FLOOR.saturating_add(buffer_bytes / 4);
 
     let mut materials: Vec<Material> = doc
         .materials()
         .map(|m| load_material(doc, &m, &buffers, base))
         .collect();
-    let default_material = materials.len();
     materials.push(Material::default());
 
     let mut raws = Vec::new();
@@ -172,9 +175,21 @@ fn load_head_from_slice_in(bytes: &[u8], base: Option<&Path>) -> Result<HeadMode
     };
     let mut stack: Vec<(gltf::Node, Mat4, usize)> =
         roots.into_iter().map(|n| (n, Mat4::IDENTITY, 0)).collect();
+    // glTF node hierarchies are trees: a node reached twice (shared children, a cycle) would
+    // multiply the walk, exponentially with depth.
+    let mut visited = vec![false; doc.nodes().len()];
     while let Some((node, parent, depth)) = stack.pop() {
         if depth > MAX_NODE_DEPTH {
             return Err(RenderError::Gltf("node hierarchy too deep (cycle?)".into()));
+        }
+        match visited.get_mut(node.index()) {
+            Some(seen) if !*seen => *seen = true,
+            _ => {
+                return Err(RenderError::Gltf(format!(
+                    "node {} has more than one parent (node hierarchies must be trees)",
+                    node.index()
+                )));
+            }
         }
         let local = Mat4::from_cols_array_2d(&node.transform().matrix());
         let world = parent * local;
@@ -215,7 +230,7 @@ fn load_head_from_slice_in(bytes: &[u8], base: Option<&Path>) -> Result<HeadMode
                     &jaw_joints,
                     transform,
                     &buffers,
-                    default_material,
+                    &mut budget,
                 )?;
                 total_vertices += raw.vertices.len();
                 if total_vertices > MAX_VERTICES {
@@ -298,7 +313,8 @@ fn build_model(
                 .targets
                 .iter()
                 .any(|(k, _)| matches!(k, TargetKind::Viseme(_)));
-        let mut prim = Primitive::new(&raw.name, raw.material, raw.vertices, raw.indices);
+        let material = raw.material.unwrap_or(materials.len() - 1);
+        let mut prim = Primitive::new(&raw.name, material, raw.vertices, raw.indices);
         for v in 0..VISEME_COUNT {
             let mut acc: Vec<MorphDelta> = Vec::new();
             let mut add = |deltas: &[MorphDelta], w: f32| {
@@ -531,7 +547,7 @@ fn read_uri(uri: &str, base: Option<&Path>) -> Result<Vec<u8>, RenderError> {
         return Err(RenderError::Unsupported(format!("resource path {uri:?}")));
     }
     let path = base.join(uri.replace("%20", " "));
-    std::fs::read(&path).map_err(|source| RenderError::Io { path, source })
+    Ok(crate::input::read(&path, crate::input::MAX_INPUT_BYTES)?)
 }
 
 fn decode_base64(s: &str) -> Result<Vec<u8>, RenderError> {
@@ -745,7 +761,7 @@ fn read_primitive(
     jaw_joints: &[bool],
     transform: Mat4,
     buffers: &[Vec<u8>],
-    default_material: usize,
+    budget: &mut usize,
 ) -> Result<RawPrimitive, RenderError> {
     use DataType::{F32, U8, U16, U32};
     use Dimensions::{Scalar, Vec2, Vec4};
@@ -794,6 +810,44 @@ fn read_primitive(
         "COLOR_0",
     )?;
 
+    let mut targets = Vec::new();
+    for (t, target) in prim.morph_targets().enumerate() {
+        let name = names.get(t).map(String::as_str).unwrap_or("");
+        let kind = classify(name);
+        if kind == TargetKind::Unused {
+            continue;
+        }
+        if let Some(acc) = target.positions() {
+            check_accessor(&acc, buffers, &vec3, "morph POSITION")?;
+            if acc.count() != n {
+                return Err(RenderError::Gltf(
+                    "morph target count differs from POSITION".into(),
+                ));
+            }
+        }
+        if let Some(acc) = target.normals() {
+            check_accessor(&acc, buffers, &vec3, "morph NORMAL")?;
+            if acc.count() != n {
+                return Err(RenderError::Gltf(
+                    "morph target count differs from POSITION".into(),
+                ));
+            }
+        }
+        targets.push((kind, t));
+    }
+    // Checked before any vertex or delta is made: the accessors fit their buffers, but one
+    // accessor may stand behind many targets and many nodes' meshes.
+    let index_count = prim.indices().map_or(0, |a| a.count());
+    let elements = n
+        .saturating_mul(targets.len() + 1)
+        .saturating_add(index_count);
+    *budget = budget.checked_sub(elements).ok_or_else(|| {
+        RenderError::Unsupported(
+            "the meshes and morph targets expand to far more data than the file holds \
+             (accessors shared by many meshes or targets?)"
+                .into(),
+        )
+    })?;
     let missing = || RenderError::Gltf("accessor data missing".into());
     let linear = Mat3::from_mat4(transform);
     let normal_matrix = if linear.determinant().abs() > 1e-12 {
@@ -871,31 +925,6 @@ fn read_primitive(
         })
         .collect();
 
-    let mut targets = Vec::new();
-    for (t, target) in prim.morph_targets().enumerate() {
-        let name = names.get(t).map(String::as_str).unwrap_or("");
-        let kind = classify(name);
-        if kind == TargetKind::Unused {
-            continue;
-        }
-        if let Some(acc) = target.positions() {
-            check_accessor(&acc, buffers, &vec3, "morph POSITION")?;
-            if acc.count() != n {
-                return Err(RenderError::Gltf(
-                    "morph target count differs from POSITION".into(),
-                ));
-            }
-        }
-        if let Some(acc) = target.normals() {
-            check_accessor(&acc, buffers, &vec3, "morph NORMAL")?;
-            if acc.count() != n {
-                return Err(RenderError::Gltf(
-                    "morph target count differs from POSITION".into(),
-                ));
-            }
-        }
-        targets.push((kind, t));
-    }
     let mut out_targets = Vec::new();
     if !targets.is_empty() {
         let read: Vec<_> = reader.read_morph_targets().collect();
@@ -952,7 +981,7 @@ fn read_primitive(
     };
     Ok(RawPrimitive {
         name: mesh.name().unwrap_or("mesh").to_owned(),
-        material: prim.material().index().unwrap_or(default_material),
+        material: prim.material().index(),
         vertices,
         indices,
         targets: out_targets,

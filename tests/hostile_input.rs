@@ -1,0 +1,310 @@
+//! Small hostile or careless inputs (issue 15): each gets a one-line error and exit 1, quickly
+//! and in bounded memory; none hangs, aborts on allocation or panics.
+//!
+//! Every run is under an address-space limit and a deadline, so a regression fails the test
+//! instead of taking the machine down. `LIPCALL_BIN` runs the checks against another build.
+
+use std::ffi::OsStr;
+use std::path::{Path, PathBuf};
+use std::process::{Command, Stdio};
+use std::time::{Duration, Instant};
+
+/// Address space a run may take (the binary itself maps a few hundred MB).
+const MEMORY_KB: u64 = 2_000_000;
+/// A run is killed after this; an answer must come well before.
+const DEADLINE: Duration = Duration::from_secs(15);
+const FAST: Duration = Duration::from_secs(5);
+
+fn lipcall_bin() -> PathBuf {
+    std::env::var_os("LIPCALL_BIN")
+        .map(PathBuf::from)
+        .unwrap_or_else(|| PathBuf::from(env!("CARGO_BIN_EXE_lipcall")))
+}
+
+struct Outcome {
+    code: Option<i32>,
+    stderr: String,
+    elapsed: Duration,
+}
+
+fn run_bounded<S: AsRef<OsStr>>(args: &[S], dir: &Path) -> Outcome {
+    let mut child = Command::new("sh")
+        .arg("-c")
+        .arg(format!("ulimit -v {MEMORY_KB}; exec \"$0\" \"$@\""))
+        .arg(lipcall_bin())
+        .args(args)
+        .current_dir(dir)
+        .stdin(Stdio::null())
+        .stdout(Stdio::null())
+        .stderr(Stdio::piped())
+        .spawn()
+        .unwrap();
+    let start = Instant::now();
+    let status = loop {
+        if let Some(status) = child.try_wait().unwrap() {
+            break Some(status);
+        }
+        if start.elapsed() > DEADLINE {
+            child.kill().unwrap();
+            child.wait().unwrap();
+            break None;
+        }
+        std::thread::sleep(Duration::from_millis(10));
+    };
+    let elapsed = start.elapsed();
+    let mut stderr = String::new();
+    use std::io::Read;
+    child
+        .stderr
+        .take()
+        .unwrap()
+        .read_to_string(&mut stderr)
+        .unwrap();
+    Outcome {
+        code: status.and_then(|s| s.code()),
+        stderr,
+        elapsed,
+    }
+}
+
+/// `args` fail with exit 1, one line naming `expected`, within [`FAST`].
+#[track_caller]
+fn refused<S: AsRef<OsStr> + std::fmt::Debug>(dir: &Path, args: &[S], expected: &str) {
+    let out = run_bounded(args, dir);
+    let stderr = out.stderr.trim_end();
+    assert!(
+        out.elapsed < FAST,
+        "{args:?}: took {:?} (exit {:?}): {stderr}",
+        out.elapsed,
+        out.code
+    );
+    assert_eq!(out.code, Some(1), "{args:?}: {stderr}");
+    assert!(!stderr.contains("panicked"), "{args:?}: {stderr}");
+    assert_eq!(stderr.lines().count(), 1, "{args:?}: one line: {stderr}");
+    assert!(
+        stderr.to_lowercase().contains(&expected.to_lowercase()),
+        "{args:?}: expected {expected:?} in {stderr}"
+    );
+}
+
+fn base64(bytes: &[u8]) -> String {
+    const ABC: &[u8; 64] = b"ABCDEFGHIJKLMNOPQRSTUVWXYZabcdefghijklmnopqrstuvwxyz0123456789+/";
+    let mut out = String::new();
+    for chunk in bytes.chunks(3) {
+        let b = [
+            chunk[0],
+            *chunk.get(1).unwrap_or(&0),
+            *chunk.get(2).unwrap_or(&0),
+        ];
+        let n = (u32::from(b[0]) << 16) | (u32::from(b[1]) << 8) | u32::from(b[2]);
+        for k in 0..4 {
+            if k <= chunk.len() {
+                out.push(ABC[(n >> (18 - 6 * k) & 63) as usize] as char);
+            } else {
+                out.push('=');
+            }
+        }
+    }
+    out
+}
+
+/// A glTF head: one mesh of `vertices` positions (in a data URI, or in `uri`) with `targets`
+/// morph targets named `aa`, all on the positions' own accessor, placed by `nodes` (JSON) and
+/// a scene of `roots`.
+fn gltf(vertices: usize, targets: usize, nodes: &str, roots: &str, uri: Option<&str>) -> String {
+    let bytes = vertices * 12;
+    let uri = match uri {
+        Some(uri) => uri.to_owned(),
+        None => {
+            let mut data = Vec::with_capacity(bytes);
+            for i in 0..vertices {
+                for c in [i % 7, i % 5, i % 3] {
+                    data.extend_from_slice(&(c as f32).to_le_bytes());
+                }
+            }
+            format!("data:application/octet-stream;base64,{}", base64(&data))
+        }
+    };
+    let target_list = vec![r#"{"POSITION":0}"#; targets].join(",");
+    let names = vec![r#""aa""#; targets].join(",");
+    format!(
+        r#"{{"asset":{{"version":"2.0"}},"scene":0,"scenes":[{{"nodes":{roots}}}],
+"nodes":{nodes},
+"meshes":[{{"extras":{{"targetNames":[{names}]}},
+  "primitives":[{{"attributes":{{"POSITION":0}},"targets":[{target_list}]}}]}}],
+"accessors":[{{"bufferView":0,"componentType":5126,"count":{vertices},"type":"VEC3",
+  "min":[0,0,0],"max":[6,4,2]}}],
+"bufferViews":[{{"buffer":0,"byteLength":{bytes}}}],
+"buffers":[{{"byteLength":{bytes},"uri":"{uri}"}}]}}"#
+    )
+}
+
+fn animate_with_head(head: &Path) -> Vec<PathBuf> {
+    vec![
+        "animate".into(),
+        "missing.wav".into(),
+        "--frames".into(),
+        "frames".into(),
+        "--head".into(),
+        head.to_owned(),
+    ]
+}
+
+#[test]
+fn gltf_nodes_sharing_children_are_refused_not_walked() {
+    let dir = tempfile::tempdir().unwrap();
+    let d = dir.path();
+    // Node i has children [i+1, i+1]: 2^40 paths to the last node, which holds the mesh.
+    let depth = 40;
+    let nodes: Vec<String> = (0..depth)
+        .map(|i| format!(r#"{{"children":[{0},{0}]}}"#, i + 1))
+        .chain([r#"{"mesh":0}"#.to_owned()])
+        .collect();
+    let path = d.join("shared.gltf");
+    std::fs::write(
+        &path,
+        gltf(3, 1, &format!("[{}]", nodes.join(",")), "[0]", None),
+    )
+    .unwrap();
+    assert!(std::fs::metadata(&path).unwrap().len() < 4096);
+    refused(d, &animate_with_head(&path), "more than one parent");
+}
+
+#[test]
+fn one_accessor_behind_many_meshes_and_targets_is_refused() {
+    let dir = tempfile::tempdir().unwrap();
+    let d = dir.path();
+    // 240 KB of positions, read as 500 targets by each of 100 nodes: 50,000 copies.
+    let nodes: Vec<&str> = vec![r#"{"mesh":0}"#; 100];
+    let roots: Vec<String> = (0..100).map(|i| i.to_string()).collect();
+    let path = d.join("shared-accessor.gltf");
+    std::fs::write(
+        &path,
+        gltf(
+            20_000,
+            500,
+            &format!("[{}]", nodes.join(",")),
+            &format!("[{}]", roots.join(",")),
+            None,
+        ),
+    )
+    .unwrap();
+    refused(
+        d,
+        &animate_with_head(&path),
+        "far more data than the file holds",
+    );
+}
+
+/// A 16-bit PCM WAV whose header claims `claimed` bytes of audio at `rate`, holding `real`.
+fn wav_header_lying(path: &Path, rate: u32, claimed: u32, real: usize) {
+    let mut b = b"RIFF".to_vec();
+    b.extend_from_slice(&claimed.saturating_add(36).to_le_bytes());
+    b.extend_from_slice(b"WAVEfmt ");
+    b.extend_from_slice(&16u32.to_le_bytes());
+    b.extend_from_slice(&1u16.to_le_bytes());
+    b.extend_from_slice(&1u16.to_le_bytes());
+    b.extend_from_slice(&rate.to_le_bytes());
+    b.extend_from_slice(&(rate * 2).to_le_bytes());
+    b.extend_from_slice(&2u16.to_le_bytes());
+    b.extend_from_slice(&16u16.to_le_bytes());
+    b.extend_from_slice(b"data");
+    b.extend_from_slice(&claimed.to_le_bytes());
+    b.resize(b.len() + real, 0);
+    std::fs::write(path, b).unwrap();
+}
+
+#[test]
+fn wav_headers_claiming_absurd_rates_or_sizes_are_refused() {
+    let dir = tempfile::tempdir().unwrap();
+    let d = dir.path();
+    // 16 KB at 1 Hz: 8000 s of audio once resampled to 8 kHz.
+    wav_header_lying(&d.join("1hz.wav"), 1, 16_000, 16_000);
+    refused(d, &["encode", "1hz.wav", "out.spx"], "sample rate 1 Hz");
+    wav_header_lying(&d.join("1mhz.wav"), 1_000_000, 16_000, 16_000);
+    refused(
+        d,
+        &["encode", "1mhz.wav", "out.spx"],
+        "sample rate 1000000 Hz",
+    );
+    // 20 KB claiming 2 GB.
+    wav_header_lying(&d.join("2gb.wav"), 44_100, 0x7fff_fff0, 20_000);
+    refused(
+        d,
+        &["encode", "2gb.wav", "out.spx"],
+        "the file has 20044 bytes",
+    );
+    refused(d, &["animate", "2gb.wav", "--weights", "w.csv"], "claims");
+    // The same in a corpus: the phone targets were sized by the header's length at 1 Hz.
+    let speaker = d.join("corpus/dr1-test0");
+    std::fs::create_dir_all(&speaker).unwrap();
+    wav_header_lying(&speaker.join("sa1.wav"), 1, 0x7fff_fff0, 20_000);
+    std::fs::write(speaker.join("sa1.phn"), "0 100 h#\n").unwrap();
+    refused(d, &["decompose", "--corpus", "corpus"], "sample rate 1 Hz");
+}
+
+#[test]
+fn devices_and_fifos_are_refused_as_input_files() {
+    let dir = tempfile::tempdir().unwrap();
+    let d = dir.path();
+    let wav = d.join("tone.wav");
+    let spec = hound::WavSpec {
+        channels: 1,
+        sample_rate: 8000,
+        bits_per_sample: 16,
+        sample_format: hound::SampleFormat::Int,
+    };
+    let mut w = hound::WavWriter::create(&wav, spec).unwrap();
+    for i in 0..8000 {
+        w.write_sample(((i as f32 * 0.3).sin() * 8000.0) as i16)
+            .unwrap();
+    }
+    w.finalize().unwrap();
+    let zero = "/dev/zero";
+    refused(d, &["decode", zero, "out.wav"], "not a regular file");
+    refused(d, &["encode", zero, "out.spx"], "not a regular file");
+    refused(
+        d,
+        &["animate", zero, "--weights", "w.csv"],
+        "not a regular file",
+    );
+    refused(
+        d,
+        &["animate", "tone.wav", "--model", zero, "--weights", "w.csv"],
+        "not a regular file",
+    );
+    refused(
+        d,
+        &["animate", "tone.wav", "--head", zero, "--frames", "f"],
+        "not a regular file",
+    );
+    refused(
+        d,
+        &["decompose", "--markers", zero, "--key-frames", zero],
+        "not a regular file",
+    );
+    // Links to it, named as the file types they stand for.
+    for name in ["zero.bin", "zero.spx"] {
+        std::os::unix::fs::symlink(zero, d.join(name)).unwrap();
+    }
+    refused(
+        d,
+        &["send", "zero.spx", "--to", "127.0.0.1:9"],
+        "not a regular file",
+    );
+    // A glTF whose external buffer is one.
+    let path = d.join("linked.gltf");
+    std::fs::write(
+        &path,
+        gltf(3, 1, r#"[{"mesh":0}]"#, "[0]", Some("zero.bin")),
+    )
+    .unwrap();
+    refused(d, &animate_with_head(&path), "not a regular file");
+    // A FIFO nobody writes to would block the open itself.
+    let fifo = d.join("pipe.spx");
+    let made = Command::new("mkfifo").arg(&fifo).status().unwrap();
+    assert!(made.success());
+    refused(d, &["decode", "pipe.spx", "out.wav"], "not a regular file");
+    // A directory.
+    refused(d, &["decode", ".", "out.wav"], "not a regular file");
+}
