@@ -308,3 +308,37 @@ fn devices_and_fifos_are_refused_as_input_files() {
     // A directory.
     refused(d, &["decode", ".", "out.wav"], "not a regular file");
 }
+
+#[test]
+fn a_missing_file_names_its_os_error_once() {
+    let dir = tempfile::tempdir().unwrap();
+    let d = dir.path();
+    for args in [
+        vec!["encode", "missing.wav", "out.spx"],
+        vec![
+            "animate",
+            "missing.wav",
+            "--frames",
+            "f",
+            "--head",
+            "none.glb",
+        ],
+        vec![
+            "decompose",
+            "--markers",
+            "none.csv",
+            "--key-frames",
+            "k.csv",
+        ],
+        vec!["train", "--corpus", "no-corpus", "--out", "m.lipmodel"],
+    ] {
+        refused(d, &args, "No such file");
+        let out = run_bounded(&args, d);
+        assert_eq!(
+            out.stderr.matches("os error 2").count(),
+            1,
+            "{args:?}: {}",
+            out.stderr
+        );
+    }
+}
