@@ -29,7 +29,7 @@ struct AppFlags {
     #[arg(long)]
     no_demo: bool,
     /// App: close the window after this many seconds.
-    #[arg(long, value_name = "SECONDS")]
+    #[arg(long, value_name = "SECONDS", allow_hyphen_values = true, value_parser = commands::parse_seconds)]
     quit_after: Option<f64>,
     /// App: write per-peer status lines (animation frames, ...) to FILE twice a second.
     #[arg(long, value_name = "FILE")]
@@ -184,7 +184,7 @@ enum Command {
         #[command(flatten)]
         key: KeyOpts,
         /// Stop after this many seconds (otherwise when every peer has said BYE).
-        #[arg(long)]
+        #[arg(long, allow_hyphen_values = true, value_parser = commands::parse_seconds)]
         seconds: Option<f64>,
         /// Join a room on this relay (with --room).
         #[arg(long, value_name = "HOST:PORT")]
@@ -202,7 +202,7 @@ enum Command {
         #[arg(long, value_name = "HOST:PORT")]
         listen: String,
         /// Stop after this many seconds (otherwise run until killed).
-        #[arg(long)]
+        #[arg(long, allow_hyphen_values = true, value_parser = commands::parse_seconds)]
         seconds: Option<f64>,
     },
     /// Train the viseme network on a TIMIT-style corpus through the real Speex codec.

@@ -342,3 +342,27 @@ fn a_missing_file_names_its_os_error_once() {
         );
     }
 }
+
+#[test]
+fn run_lengths_that_are_not_a_number_of_seconds_are_usage_errors() {
+    let dir = tempfile::tempdir().unwrap();
+    let d = dir.path();
+    for bad in ["NaN", "inf", "-1", "0", "1e300"] {
+        for command in ["receive", "relay"] {
+            let args = [command, "--listen", "127.0.0.1:0", "--seconds", bad];
+            let out = run_bounded(&args, d);
+            assert_eq!(out.code, Some(2), "{args:?}: {}", out.stderr);
+            assert!(out.elapsed < FAST, "{args:?}: {:?}", out.elapsed);
+            assert!(
+                out.stderr.contains("must be a number of seconds above 0"),
+                "{args:?}: {}",
+                out.stderr
+            );
+        }
+        let out = run_bounded(&["--quit-after", bad, "--no-audio"], d);
+        assert_eq!(out.code, Some(2), "--quit-after {bad}: {}", out.stderr);
+    }
+    // A good one still runs, and stops.
+    let out = run_bounded(&["relay", "--listen", "127.0.0.1:0", "--seconds", "0.2"], d);
+    assert_eq!(out.code, Some(0), "{}", out.stderr);
+}

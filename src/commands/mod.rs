@@ -25,9 +25,31 @@ pub fn error_line(error: &anyhow::Error) -> String {
     line
 }
 
+/// Longest run a `--seconds` limit may ask for (about four months).
+pub const MAX_SECONDS: f64 = 1e7;
+
+/// Parses a run's duration in seconds (clap value parser): a finite number above 0 and at most
+/// [`MAX_SECONDS`]; NaN, infinities, negative numbers and 0 are usage errors, not a run that
+/// never stops, stops at once or panics converting to a `Duration`.
+pub fn parse_seconds(arg: &str) -> Result<f64, String> {
+    match arg.trim().parse::<f64>() {
+        Ok(s) if s > 0.0 && s <= MAX_SECONDS => Ok(s),
+        _ => Err(format!("must be a number of seconds above 0, at most {MAX_SECONDS:e}")),
+    }
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn seconds_are_finite_positive_and_bounded() {
+        assert_eq!(parse_seconds("2.5"), Ok(2.5));
+        assert_eq!(parse_seconds("1e7"), Ok(1e7));
+        for bad in ["NaN", "nan", "inf", "-inf", "-1", "0", "-0", "1e300", "", "ten"] {
+            assert!(parse_seconds(bad).is_err(), "{bad}");
+        }
+    }
 
     #[test]
     fn an_os_error_named_by_its_wrapper_is_printed_once() {
