@@ -366,3 +366,88 @@ fn run_lengths_that_are_not_a_number_of_seconds_are_usage_errors() {
     let out = run_bounded(&["relay", "--listen", "127.0.0.1:0", "--seconds", "0.2"], d);
     assert_eq!(out.code, Some(0), "{}", out.stderr);
 }
+
+/// The built-in model with every value of the lines named in `keys` replaced by `value`, the
+/// signs alternating.
+fn model_with(keys: &[&str], value: &str) -> String {
+    let text = std::fs::read_to_string(
+        Path::new(env!("CARGO_MANIFEST_DIR")).join("assets/models/default.lipmodel"),
+    )
+    .unwrap();
+    let mut out = String::new();
+    for line in text.lines() {
+        let mut words = line.split(' ');
+        let key = words.next().unwrap_or_default();
+        if keys.contains(&key) {
+            out.push_str(key);
+            for (i, _) in words.enumerate() {
+                out.push_str(if i % 2 == 0 { " " } else { " -" });
+                out.push_str(value);
+            }
+        } else {
+            out.push_str(line);
+        }
+        out.push('\n');
+    }
+    out
+}
+
+#[test]
+fn models_with_huge_weights_are_refused_and_the_largest_allowed_give_numbers() {
+    let dir = tempfile::tempdir().unwrap();
+    let d = dir.path();
+    let wav = d.join("tone.wav");
+    let spec = hound::WavSpec {
+        channels: 1,
+        sample_rate: 8000,
+        bits_per_sample: 16,
+        sample_format: hound::SampleFormat::Int,
+    };
+    let mut w = hound::WavWriter::create(&wav, spec).unwrap();
+    for i in 0..16_000 {
+        let t = i as f32 / 8000.0;
+        let s = (t * 2.0 * std::f32::consts::PI * 180.0).sin() * (t * 7.0).sin().abs();
+        w.write_sample((s * 12_000.0) as i16).unwrap();
+    }
+    w.finalize().unwrap();
+    let all = ["input_scale", "w1", "b1", "w2", "b2"];
+    std::fs::write(d.join("huge.lipmodel"), model_with(&all, "3e38")).unwrap();
+    for visemes in ["6", "15"] {
+        refused(
+            d,
+            &[
+                "animate",
+                "tone.wav",
+                "--model",
+                "huge.lipmodel",
+                "--visemes",
+                visemes,
+                "--weights",
+                "w.csv",
+            ],
+            "bad number",
+        );
+    }
+    // At the limit the logits stay finite: every row is convex weights.
+    std::fs::write(d.join("limit.lipmodel"), model_with(&all, "10000")).unwrap();
+    for visemes in [None, Some("6")] {
+        let mut args = vec!["animate", "tone.wav", "--model", "limit.lipmodel"];
+        args.extend(["--weights", "w.csv"]);
+        if let Some(v) = visemes {
+            args.extend(["--visemes", v]);
+        }
+        let out = run_bounded(&args, d);
+        assert_eq!(out.code, Some(0), "{args:?}: {}", out.stderr);
+        let csv = std::fs::read_to_string(d.join("w.csv")).unwrap();
+        let rows: Vec<&str> = csv.lines().skip(1).collect();
+        assert!(rows.len() > 90, "{}", rows.len());
+        for row in rows {
+            let weights: Vec<f32> = row.split(',').skip(2).map(|x| x.parse().unwrap()).collect();
+            let sum: f32 = weights.iter().sum();
+            assert!(
+                weights.iter().all(|w| w.is_finite() && *w >= 0.0) && (sum - 1.0).abs() < 1e-2,
+                "{args:?}: {row}"
+            );
+        }
+    }
+}
