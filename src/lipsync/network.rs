@@ -705,8 +705,12 @@ impl Model {
         Self::from_text(&text).map_err(in_file)
     }
 
+    /// Writes the model file; a model its own loader would refuse (the NaN or huge weights of
+    /// a training that diverged) is not written.
     pub fn save(&self, path: &Path) -> Result<(), ModelError> {
-        std::fs::write(path, self.to_text()).map_err(|error| ModelError::Io {
+        let text = self.to_text();
+        Self::from_text(&text).map_err(|error| ModelError::WouldNotLoad(Box::new(error)))?;
+        std::fs::write(path, text).map_err(|error| ModelError::Io {
             path: path.display().to_string(),
             error,
         })
@@ -857,6 +861,8 @@ pub enum ModelError {
     Io { path: String, error: std::io::Error },
     #[error(transparent)]
     Input(#[from] crate::input::InputError),
+    #[error("the model would not load back (did training diverge?): {0}")]
+    WouldNotLoad(Box<ModelError>),
     #[error("{path}: {error}")]
     InFile {
         path: String,
@@ -888,6 +894,23 @@ mod tests {
         }
         model.notes.push("test weights".into());
         model
+    }
+
+    #[test]
+    fn a_model_the_loader_would_refuse_is_not_saved() {
+        let dir = tempfile::tempdir().unwrap();
+        let path = dir.path().join("diverged.lipmodel");
+        let mut model = sample_model();
+        model.w2[3] = f32::NAN;
+        let e = model.save(&path).unwrap_err();
+        assert!(matches!(e, ModelError::WouldNotLoad(_)), "{e}");
+        assert!(e.to_string().contains("w2"), "{e}");
+        assert!(!path.exists());
+        model.w2[3] = 2.0 * MAX_PARAMETER;
+        assert!(model.save(&path).is_err());
+        model.w2[3] = 0.5;
+        model.save(&path).unwrap();
+        assert_eq!(Model::load(&path).unwrap().w2, model.w2);
     }
 
     fn frame(energy_db: f32) -> FrameFeatures {
