@@ -242,7 +242,7 @@ fn parse_fps(arg: &str) -> Result<u32, String> {
 struct KeyOpts {
     /// Room passphrase: encrypts and authenticates media with SRTP. Without it (or
     /// --key-hex) the call is plain RTP.
-    #[arg(long, value_name = "PASSPHRASE")]
+    #[arg(long, value_name = "PASSPHRASE", value_parser = commands::parse_passphrase)]
     key: Option<String>,
     /// Raw SRTP master key + salt (60 hex digits), e.g. to talk to GStreamer's srtpenc.
     #[arg(long, value_name = "HEX")]

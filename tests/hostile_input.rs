@@ -552,3 +552,31 @@ fn training_hyper_parameters_must_be_finite_and_in_range() {
     }
     assert!(!d.join("m.lipmodel").exists());
 }
+
+#[test]
+fn an_empty_passphrase_is_refused_not_called_encrypted() {
+    let dir = tempfile::tempdir().unwrap();
+    let d = dir.path();
+    for key in ["", "   "] {
+        for args in [
+            vec![
+                "receive",
+                "--listen",
+                "127.0.0.1:0",
+                "--seconds",
+                "0.3",
+                "--key",
+                key,
+            ],
+            vec!["send", "missing.wav", "--to", "127.0.0.1:9", "--key", key],
+        ] {
+            let out = run_bounded(&args, d);
+            assert_eq!(out.code, Some(2), "{args:?}: {}", out.stderr);
+            assert!(
+                out.stderr.contains("passphrase is empty"),
+                "{args:?}: {}",
+                out.stderr
+            );
+        }
+    }
+}

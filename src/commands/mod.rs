@@ -34,8 +34,21 @@ pub const MAX_SECONDS: f64 = 1e7;
 pub fn parse_seconds(arg: &str) -> Result<f64, String> {
     match arg.trim().parse::<f64>() {
         Ok(s) if s > 0.0 && s <= MAX_SECONDS => Ok(s),
-        _ => Err(format!("must be a number of seconds above 0, at most {MAX_SECONDS:e}")),
+        _ => Err(format!(
+            "must be a number of seconds above 0, at most {MAX_SECONDS:e}"
+        )),
     }
+}
+
+/// A room passphrase (clap value parser): an empty one keys nothing a listener could not
+/// guess, and a call keyed by it must not be called encrypted.
+pub fn parse_passphrase(arg: &str) -> Result<String, String> {
+    if arg.trim().is_empty() {
+        return Err(
+            "the passphrase is empty (leave --key out for a plain, unencrypted call)".into(),
+        );
+    }
+    Ok(arg.to_owned())
 }
 
 #[cfg(test)]
@@ -46,7 +59,9 @@ mod tests {
     fn seconds_are_finite_positive_and_bounded() {
         assert_eq!(parse_seconds("2.5"), Ok(2.5));
         assert_eq!(parse_seconds("1e7"), Ok(1e7));
-        for bad in ["NaN", "nan", "inf", "-inf", "-1", "0", "-0", "1e300", "", "ten"] {
+        for bad in [
+            "NaN", "nan", "inf", "-inf", "-1", "0", "-0", "1e300", "", "ten",
+        ] {
             assert!(parse_seconds(bad).is_err(), "{bad}");
         }
     }
