@@ -580,3 +580,37 @@ fn an_empty_passphrase_is_refused_not_called_encrypted() {
         }
     }
 }
+
+#[test]
+fn send_fails_when_no_packet_could_be_sent() {
+    let dir = tempfile::tempdir().unwrap();
+    let d = dir.path();
+    let spec = hound::WavSpec {
+        channels: 1,
+        sample_rate: 8000,
+        bits_per_sample: 16,
+        sample_format: hound::SampleFormat::Int,
+    };
+    let mut w = hound::WavWriter::create(d.join("short.wav"), spec).unwrap();
+    for i in 0..2400 {
+        w.write_sample(((i as f32 * 0.2).sin() * 6000.0) as i16)
+            .unwrap();
+    }
+    w.finalize().unwrap();
+    // Broadcast without SO_BROADCAST: every send fails (EACCES).
+    let args = [
+        "send",
+        "short.wav",
+        "--to",
+        "255.255.255.255:9",
+        "--no-rtcp",
+    ];
+    let out = run_bounded(&args, d);
+    assert_eq!(out.code, Some(1), "{}", out.stderr);
+    let last = out.stderr.trim_end().lines().last().unwrap_or_default();
+    assert!(
+        last.contains("no packet could be sent to 255.255.255.255:9"),
+        "{}",
+        out.stderr
+    );
+}

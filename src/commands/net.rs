@@ -221,6 +221,12 @@ pub fn send(args: &SendArgs) -> Result<()> {
     for peer in session.peers() {
         print_peer(&peer);
     }
+    if stats.sent_rtp == 0 {
+        bail!(
+            "no packet could be sent to {to} ({} send errors)",
+            stats.send_errors
+        );
+    }
     Ok(())
 }
 
