@@ -614,3 +614,93 @@ fn send_fails_when_no_packet_could_be_sent() {
         out.stderr
     );
 }
+
+/// The header and comment packets of an Ogg stream, without a single audio packet.
+fn headers_only(good: &[u8]) -> Vec<u8> {
+    use ogg::writing::{PacketWriteEndInfo, PacketWriter};
+    let mut reader = ogg::reading::PacketReader::new(std::io::Cursor::new(good));
+    let mut writer = PacketWriter::new(Vec::new());
+    for end in [PacketWriteEndInfo::EndPage, PacketWriteEndInfo::EndStream] {
+        let packet = reader.read_packet().unwrap().unwrap();
+        let serial = packet.stream_serial();
+        writer
+            .write_packet(packet.data, serial, end, 0)
+            .unwrap();
+    }
+    writer.into_inner()
+}
+
+#[test]
+fn decode_refuses_a_stream_without_audio_as_animate_does() {
+    let dir = tempfile::tempdir().unwrap();
+    let d = dir.path();
+    let spec = hound::WavSpec {
+        channels: 1,
+        sample_rate: 8000,
+        bits_per_sample: 16,
+        sample_format: hound::SampleFormat::Int,
+    };
+    let mut w = hound::WavWriter::create(d.join("tone.wav"), spec).unwrap();
+    for i in 0..4000 {
+        w.write_sample(((i as f32 * 0.2).sin() * 6000.0) as i16)
+            .unwrap();
+    }
+    w.finalize().unwrap();
+    for ext in ["spx", "opus"] {
+        let good = format!("good.{ext}");
+        let out = run_bounded(&["encode", "tone.wav", &good], d);
+        assert_eq!(out.code, Some(0), "{}", out.stderr);
+        let empty = format!("empty.{ext}");
+        std::fs::write(
+            d.join(&empty),
+            headers_only(&std::fs::read(d.join(&good)).unwrap()),
+        )
+        .unwrap();
+        refused(d, &["decode", &empty, "out.wav"], "holds no audio frame");
+        refused(
+            d,
+            &["animate", &empty, "--weights", "w.csv"],
+            "holds no audio frame",
+        );
+        assert!(!d.join("out.wav").exists());
+    }
+}
+
+#[test]
+fn a_stereo_speex_file_is_said_to_be_mixed_to_mono() {
+    let dir = tempfile::tempdir().unwrap();
+    let d = dir.path();
+    let spec = hound::WavSpec {
+        channels: 2,
+        sample_rate: 8000,
+        bits_per_sample: 16,
+        sample_format: hound::SampleFormat::Int,
+    };
+    let mut w = hound::WavWriter::create(d.join("stereo.wav"), spec).unwrap();
+    for i in 0..8000 {
+        let s = (i as f32 * 0.15).sin() * 8000.0;
+        w.write_sample(s as i16).unwrap();
+        w.write_sample((s * 0.25) as i16).unwrap();
+    }
+    w.finalize().unwrap();
+    let made = Command::new("speexenc")
+        .args(["--stereo", "-n", "stereo.wav", "stereo.spx"])
+        .current_dir(d)
+        .output()
+        .expect("speexenc (install it: see README)");
+    assert!(made.status.success(), "{made:?}");
+    let out = run_bounded(&["decode", "stereo.spx", "out.wav"], d);
+    assert_eq!(out.code, Some(0), "{}", out.stderr);
+    assert!(
+        out.stderr.contains("(stereo mixed to mono)"),
+        "{}",
+        out.stderr
+    );
+    let reader = hound::WavReader::open(d.join("out.wav")).unwrap();
+    assert_eq!(reader.spec().channels, 1);
+    assert!(
+        reader.duration().abs_diff(8000) < 400,
+        "{}",
+        reader.duration()
+    );
+}
