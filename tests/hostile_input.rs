@@ -623,9 +623,7 @@ fn headers_only(good: &[u8]) -> Vec<u8> {
     for end in [PacketWriteEndInfo::EndPage, PacketWriteEndInfo::EndStream] {
         let packet = reader.read_packet().unwrap().unwrap();
         let serial = packet.stream_serial();
-        writer
-            .write_packet(packet.data, serial, end, 0)
-            .unwrap();
+        writer.write_packet(packet.data, serial, end, 0).unwrap();
     }
     writer.into_inner()
 }
@@ -703,4 +701,113 @@ fn a_stereo_speex_file_is_said_to_be_mixed_to_mono() {
         "{}",
         reader.duration()
     );
+}
+
+/// Starts `args` (which print `marker ADDR` on stderr once listening) and returns the child,
+/// the address and a reader over the rest of its stderr.
+fn spawn_listening(
+    args: &[&str],
+    marker: &str,
+) -> (
+    std::process::Child,
+    std::net::SocketAddr,
+    std::io::BufReader<std::process::ChildStderr>,
+) {
+    use std::io::BufRead;
+    let mut child = Command::new(lipcall_bin())
+        .args(args)
+        .stdin(Stdio::null())
+        .stdout(Stdio::null())
+        .stderr(Stdio::piped())
+        .spawn()
+        .unwrap();
+    let mut stderr = std::io::BufReader::new(child.stderr.take().unwrap());
+    let mut line = String::new();
+    loop {
+        line.clear();
+        assert!(
+            stderr.read_line(&mut line).unwrap() > 0,
+            "no {marker:?} line"
+        );
+        if let Some(rest) = line.split(marker).nth(1) {
+            return (child, rest.trim().parse().unwrap(), stderr);
+        }
+    }
+}
+
+fn rtp_packet(seq: u16, payload_len: usize) -> Vec<u8> {
+    let mut p = vec![0x80, 110];
+    p.extend_from_slice(&seq.to_be_bytes());
+    p.extend_from_slice(&(u32::from(seq) * 160).to_be_bytes());
+    p.extend_from_slice(&0x1234_5678u32.to_be_bytes());
+    p.resize(12 + payload_len, 0);
+    p
+}
+
+#[test]
+fn oversized_datagrams_are_dropped_and_counted_not_parsed_truncated() {
+    use std::io::Read;
+    let (mut child, addr, mut stderr) = spawn_listening(
+        &["receive", "--listen", "127.0.0.1:0", "--seconds", "1"],
+        "listening on ",
+    );
+    let socket = std::net::UdpSocket::bind("127.0.0.1:0").unwrap();
+    // Too large for any buffer the receiver takes: the kernel would cut it short.
+    socket.send_to(&rtp_packet(1, 4000), addr).unwrap();
+    socket.send_to(&rtp_packet(2, 38), addr).unwrap();
+    let status = child.wait().unwrap();
+    let mut rest = String::new();
+    stderr.read_to_string(&mut rest).unwrap();
+    assert!(status.success(), "{rest}");
+    let summary = rest
+        .lines()
+        .find(|l| l.contains("datagrams="))
+        .unwrap_or_else(|| panic!("{rest}"));
+    assert!(
+        summary.contains("datagrams=2 rtp=1 ") && summary.contains("malformed=1 "),
+        "{summary}"
+    );
+}
+
+#[test]
+fn the_relay_drops_oversized_datagrams_instead_of_forwarding_them_cut() {
+    use lipcall::net::control::{Control, ControlKind, RoomId};
+    use std::io::Read;
+    let (mut child, relay, mut stderr) = spawn_listening(
+        &["relay", "--listen", "127.0.0.1:0", "--seconds", "1.5"],
+        "relay listening on ",
+    );
+    let join = Control {
+        kind: ControlKind::Join,
+        room: RoomId::from_name("hostile"),
+    }
+    .encode();
+    let members: Vec<std::net::UdpSocket> = (0..2)
+        .map(|_| {
+            let s = std::net::UdpSocket::bind("127.0.0.1:0").unwrap();
+            s.set_read_timeout(Some(Duration::from_millis(500)))
+                .unwrap();
+            s.send_to(&join, relay).unwrap();
+            let mut buf = [0u8; 64];
+            let (n, _) = s.recv_from(&mut buf).expect("the relay answers a join");
+            assert_eq!(
+                Control::decode(&buf[..n]).map(|c| c.kind),
+                Ok(ControlKind::Joined)
+            );
+            s
+        })
+        .collect();
+    members[0].send_to(&rtp_packet(1, 4000), relay).unwrap();
+    members[0].send_to(&rtp_packet(2, 38), relay).unwrap();
+    let mut sizes = Vec::new();
+    let mut buf = vec![0u8; 8192];
+    while let Ok((n, _)) = members[1].recv_from(&mut buf) {
+        sizes.push(n);
+    }
+    assert_eq!(sizes, [50], "what the other member received");
+    let status = child.wait().unwrap();
+    let mut rest = String::new();
+    stderr.read_to_string(&mut rest).unwrap();
+    assert!(status.success(), "{rest}");
+    assert!(rest.contains(" malformed=1 "), "{rest}");
 }

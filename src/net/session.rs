@@ -90,7 +90,8 @@ pub struct SessionStats {
     pub rtp: u64,
     pub rtcp: u64,
     pub control: u64,
-    /// Unparseable RTP/RTCP/control datagrams.
+    /// Unparseable RTP/RTCP/control datagrams, and oversized ones (cut short by the socket,
+    /// dropped unparsed).
     pub malformed: u64,
     /// Datagrams of no known kind.
     pub unknown: u64,
@@ -863,13 +864,19 @@ fn jittered(interval: Duration) -> Duration {
 }
 
 fn net_loop(shared: &Shared, socket: &UdpSocket) {
-    let mut buf = vec![0u8; MAX_DATAGRAM + 64];
+    // One byte over the largest datagram taken: one that fills the buffer was cut short.
+    let mut buf = vec![0u8; MAX_DATAGRAM + 64 + 1];
     let mut datagram = Vec::with_capacity(MAX_DATAGRAM + 64);
     let mut next_report = Instant::now() + jittered(shared.config.rtcp_interval);
     let mut next_keepalive = Instant::now() + shared.config.keepalive_interval;
     let mut next_expiry = Instant::now() + Duration::from_secs(1);
     while !shared.stop.load(Ordering::Relaxed) {
         match socket.recv_from(&mut buf) {
+            Ok((n, _)) if n >= buf.len() => {
+                let mut rx = lock(&shared.rx);
+                rx.stats.datagrams += 1;
+                rx.stats.malformed += 1;
+            }
             Ok((n, from)) => {
                 datagram.clear();
                 datagram.extend_from_slice(&buf[..n.min(buf.len())]);
