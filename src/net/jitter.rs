@@ -595,18 +595,12 @@ impl JitterBuffer {
                 raw
             }
         };
-        let mut off = on_grid(raw, self.step);
-        let mut index = self.slot_of(off);
+        let off = on_grid(raw, self.step);
+        let index = self.slot_of(off);
         if self.state == State::Idle && self.stream_played && index < self.next {
-            if !newest {
-                // A straggler of a talk spurt already over.
-                self.stats.late += 1;
-                return;
-            }
-            // In sequence, yet stamped before what was played: the timestamps went back.
-            raw = self.rebase(ext_ts, now);
-            off = on_grid(raw, self.step);
-            index = self.slot_of(off);
+            // A straggler of a talk spurt already over (or held up longer than it lasts).
+            self.stats.late += 1;
+            return;
         }
         if newest {
             self.last_ts = ext_ts;
@@ -866,7 +860,7 @@ impl JitterBuffer {
         let partly_covered = self.covered > lo;
         self.next += 1;
         if pieces.is_empty() && !partly_covered {
-            return self.missing();
+            return self.missing(self.next - 1);
         }
         self.holes = 0;
         self.stats.played += 1;
@@ -881,21 +875,32 @@ impl JitterBuffer {
         self.last_out_seq = Some(self.last_out_seq.map_or(seq, |l| l.max(seq)));
     }
 
-    /// A frame no packet covers: lost (conceal it) or a pause of the sender (play nothing).
-    fn missing(&mut self) -> Playout {
+    /// A frame no packet covers (slot `index`): lost (conceal it) or a pause of the sender
+    /// (play nothing).
+    fn missing(&mut self, index: i64) -> Playout {
         let lost = match (self.entries.first_key_value(), self.last_out_seq) {
             // The next packet follows the last one in sequence: nothing is missing.
-            (Some((_, e)), Some(last)) => e.seq != last + 1,
-            (Some(_), None) => true,
-            // Nothing here yet: a packet still in flight, or the sender stopped. Conceal for
-            // as long as the buffer's delay would wait for a late one, then rest.
-            (None, _) => {
+            (Some((_, e)), Some(last)) => {
+                self.holes = 0;
+                e.seq != last + 1
+            }
+            (Some(_), None) => {
+                self.holes = 0;
+                true
+            }
+            // Nothing here yet: a packet still in flight, or the sender stopped. Packets are
+            // still due before the end the sender announced, and a sender whose newer packets
+            // came too late has not stopped; otherwise conceal for as long as the buffer's
+            // delay would wait for a late packet, then rest.
+            (None, last) => {
                 let hold = (self.target / FRAME_SECONDS).ceil().max(1.0) as u32;
-                self.holes < hold
+                self.holes += 1;
+                self.holes <= hold
+                    || self.end_hint.is_some_and(|e| index < self.slot_after(e))
+                    || last.is_some_and(|l| self.seq_base.is_some() && self.seq_max > l)
             }
         };
         if lost {
-            self.holes += 1;
             self.stats.missing += 1;
             Playout::Lost
         } else {
@@ -1755,6 +1760,59 @@ mod tests {
         assert_eq!(stats.lost, 52, "{stats:?}");
         assert_eq!(indices(&out).len(), lossy.len());
         assert!(stats.missing >= 52 && stats.missing <= 52 + spurts.len() as u64);
+    }
+
+    #[test]
+    fn holes_are_concealed_while_packets_are_still_due() {
+        // The last two packets are lost but the sender's BYE said where the stream ends: both
+        // frames are concealed (with nothing buffered, a frame past the hold used to pause).
+        let mut packets = stream(150, 7, 0, 160, 0.0);
+        packets.truncate(148);
+        let (out, stats) = link(
+            &packets,
+            Duration::from_millis(1),
+            Duration::from_millis(5),
+            200,
+            |k, jb| {
+                if k == 140 {
+                    jb.hint_end(150 * 160);
+                }
+            },
+        );
+        let first = out.iter().position(|p| *p != Playout::Silent).unwrap();
+        assert!(
+            out[first..first + 148]
+                .iter()
+                .all(|p| matches!(p, Playout::Packet(_)))
+        );
+        assert_eq!(
+            out[first + 148..first + 150],
+            [Playout::Lost, Playout::Lost],
+            "{stats:?}"
+        );
+        assert!(out[first + 150..].iter().all(|p| *p == Playout::Silent));
+        // A stall: the packets sent from 2 s on are held and come all at once at 2.42 s, with
+        // the one sent then. Before they come, the hole looks like a pause; once late ones
+        // have come the sender has clearly not paused: the frames are concealed, not silent.
+        let mut stalled = stream(200, 7, 0, 160, 0.0);
+        for p in &mut stalled[100..=121] {
+            p.at = 2.42;
+        }
+        let (out, stats) = link(
+            &stalled,
+            Duration::from_millis(1),
+            Duration::from_millis(5),
+            260,
+            |_, _| {},
+        );
+        // Pulls from tick 122 on see the burst.
+        assert!(
+            out[122..195]
+                .iter()
+                .all(|p| !matches!(p, Playout::Pause | Playout::Silent)),
+            "{stats:?}"
+        );
+        assert!(stats.late > 0);
     }
 
     #[test]
