@@ -233,11 +233,12 @@ impl Decomposer {
     pub fn fit(&self, target: &[f32], weights: &mut [f32]) {
         // A start that is not convex (NaN from upstream) would make the step's bound NaN, and
         // `clamp` panics on it: restart from the even mix. A non-finite target has no fit.
-        let total: f32 = weights.iter().sum();
         if weights.is_empty() {
             return;
         }
-        if !weights.iter().all(|w| *w >= 0.0) || !(total > 0.0 && total.is_finite()) {
+        let total: f32 = weights.iter().sum();
+        let convex = weights.iter().all(|w| *w >= 0.0) && total > 0.0 && total.is_finite();
+        if !convex {
             weights.fill(1.0 / weights.len() as f32);
         }
         if !target.iter().all(|x| x.is_finite()) {
