@@ -467,7 +467,7 @@ fn scrambled_speex(good: &[u8]) -> Vec<u8> {
                 state ^= state << 13;
                 state ^= state >> 7;
                 state ^= state << 17;
-                if state % 3 == 0 {
+                if state.is_multiple_of(3) {
                     *byte = (state >> 40) as u8;
                 }
             }
@@ -723,14 +723,22 @@ fn spawn_listening(
         .unwrap();
     let mut stderr = std::io::BufReader::new(child.stderr.take().unwrap());
     let mut line = String::new();
-    loop {
+    let found = loop {
         line.clear();
-        assert!(
-            stderr.read_line(&mut line).unwrap() > 0,
-            "no {marker:?} line"
-        );
+        match stderr.read_line(&mut line) {
+            Ok(n) if n > 0 => {}
+            _ => break None,
+        }
         if let Some(rest) = line.split(marker).nth(1) {
-            return (child, rest.trim().parse().unwrap(), stderr);
+            break rest.trim().parse().ok();
+        }
+    };
+    match found {
+        Some(addr) => (child, addr, stderr),
+        None => {
+            let _ = child.kill();
+            let _ = child.wait();
+            panic!("{args:?}: no {marker:?} line with an address");
         }
     }
 }
