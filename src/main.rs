@@ -7,6 +7,7 @@ use lipcall::codec::opus::codec::EncoderConfig as OpusConfig;
 use lipcall::codec::speex::codec::EncoderConfig;
 use lipcall::commands;
 use lipcall::commands::codec::{EncodeSettings, FileCodec};
+use lipcall::commands::janus::{JanusArgs, JanusReceiveArgs};
 use lipcall::commands::net::{KeyArgs, ReceiveArgs, SendArgs};
 
 /// Voice chat with lip-synced 3D heads, driven by the Speex decoder's own LSPs.
@@ -141,8 +142,12 @@ enum Command {
         /// unless --codec asks for another codec).
         input: PathBuf,
         /// Receiver (or relay, with --room) as HOST:PORT.
-        #[arg(long, value_name = "HOST:PORT")]
-        to: String,
+        #[arg(long, value_name = "HOST:PORT", required_unless_present = "janus")]
+        to: Option<String>,
+        /// Publish in a room (--room) of this Janus server instead, http://HOST:PORT/janus;
+        /// --key is the room's pin. Sent as Opus over WebRTC.
+        #[arg(long, value_name = "URL", conflicts_with_all = ["to", "key_hex", "codec", "ssrc"], requires = "room")]
+        janus: Option<String>,
         #[command(flatten)]
         key: KeyOpts,
         /// Display name sent to peers (RTCP SDES NAME).
@@ -170,8 +175,12 @@ enum Command {
     /// Receive a call: jitter buffer, decode, features; write the audio as played.
     Receive {
         /// Address to listen on, HOST:PORT (port 0 picks one).
-        #[arg(long, value_name = "HOST:PORT")]
-        listen: String,
+        #[arg(long, value_name = "HOST:PORT", required_unless_present = "janus")]
+        listen: Option<String>,
+        /// Join a room (--room) of this Janus server instead, http://HOST:PORT/janus, and
+        /// receive every publisher there; --key is the room's pin.
+        #[arg(long, value_name = "URL", conflicts_with_all = ["listen", "relay", "key_hex"], requires = "room")]
+        janus: Option<String>,
         /// Write the audio as played (all peers mixed).
         #[arg(long, value_name = "OUT.wav")]
         wav: Option<PathBuf>,
@@ -386,6 +395,23 @@ fn main() -> ExitCode {
             commands::audio::devices(output.as_deref(), input.as_deref())
         }
         Command::Send {
+            janus: Some(url),
+            input,
+            key,
+            name,
+            room,
+            ..
+        } => commands::janus::send(
+            &input,
+            &JanusArgs {
+                url,
+                room: room.unwrap_or_default(),
+                name,
+                pin: key.key,
+            },
+        ),
+        Command::Send {
+            janus: None,
             input,
             to,
             key,
@@ -398,7 +424,7 @@ fn main() -> ExitCode {
             ssrc,
         } => commands::net::send(&SendArgs {
             input,
-            to,
+            to: to.unwrap_or_default(),
             key: key.into(),
             name,
             room,
@@ -409,6 +435,29 @@ fn main() -> ExitCode {
             payload_types: payloads.assignments,
         }),
         Command::Receive {
+            janus: Some(url),
+            wav,
+            weights,
+            features,
+            key,
+            seconds,
+            room,
+            name,
+            ..
+        } => commands::janus::receive(&JanusReceiveArgs {
+            janus: JanusArgs {
+                url,
+                room: room.unwrap_or_default(),
+                name,
+                pin: key.key,
+            },
+            wav,
+            weights,
+            features,
+            seconds,
+        }),
+        Command::Receive {
+            janus: None,
             listen,
             wav,
             weights,
@@ -420,7 +469,7 @@ fn main() -> ExitCode {
             name,
             payloads,
         } => commands::net::receive(&ReceiveArgs {
-            listen,
+            listen: listen.unwrap_or_default(),
             wav,
             weights,
             features,

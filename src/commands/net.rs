@@ -12,6 +12,7 @@ use crate::codec::any::{Codec, EncoderSettings, FrameEncoder, MAX_FRAME_PAYLOAD,
 use crate::codec::speex::features::FrameFeatures;
 use crate::codec::speex::split::split_frames;
 use crate::codec::{FRAME_SIZE, SAMPLE_RATE, opus, speex};
+use crate::lipsync::network::Model;
 use crate::lipsync::{self, LipSync, LipSyncOptions};
 use crate::net::relay::{Relay, RelayConfig};
 use crate::net::session::{PeerFrame, PeerInfo, Session, SessionConfig};
@@ -85,7 +86,7 @@ fn encode_pcm(pcm: &[i16], codec: Codec, settings: &EncoderSettings) -> Result<P
 /// What `send` sends: a coded file as it is (Ogg Speex, Ogg Opus), or audio encoded here (a
 /// WAV, or a coded file when `--codec` asks for another codec). Without `--codec`, a WAV goes
 /// as Speex, the reference path.
-fn load_packets(
+pub(crate) fn load_packets(
     input: &Path,
     codec: Option<Codec>,
     settings: &EncoderSettings,
@@ -245,7 +246,7 @@ fn wait_for_relay(session: &Session) -> Result<()> {
     bail!("the relay did not answer the join within 3 s")
 }
 
-fn print_peer(peer: &PeerInfo) {
+pub(crate) fn print_peer(peer: &PeerInfo) {
     let j = &peer.receiver.jitter;
     let opt = |v: Option<f64>| v.map_or_else(|| "-".to_string(), |v| format!("{v:.1}"));
     let codec = peer.receiver.codec.map_or("-", Codec::name);
@@ -363,8 +364,71 @@ pub fn receive_with(
     if args.room.is_some() {
         wait_for_relay(&session)?;
     }
+    let played = play(&mut &session, args.seconds, model.as_ref(), on_frame)?;
+    session.leave();
 
-    let limit = args.seconds.map(Duration::from_secs_f64);
+    let stats = session.stats();
+    eprintln!(
+        "lipcall: played {:.2} s; datagrams={} rtp={} rtcp={} malformed={} unknown={} \
+         unknown_pt={} auth_failed={} replayed={} too_many_peers={}",
+        played.pcm.len() as f64 / f64::from(SAMPLE_RATE),
+        stats.datagrams,
+        stats.rtp,
+        stats.rtcp,
+        stats.malformed,
+        stats.unknown,
+        stats.unknown_payload,
+        stats.auth_failed,
+        stats.replayed,
+        stats.too_many_peers
+    );
+    for peer in session.peers() {
+        print_peer(&peer);
+    }
+    write_outputs(
+        &played,
+        args.wav.as_deref(),
+        args.features.as_deref(),
+        args.weights.as_deref(),
+        model.as_ref(),
+    )
+}
+
+/// Where a receiver's played frames come from: a [`Session`], or a Janus room.
+pub(crate) trait FrameSource {
+    /// The next 20 ms (starting at `now` on the output clock) of every peer that is playing.
+    fn pull(&mut self, now: Instant, out: &mut Vec<PeerFrame>) -> Result<()>;
+    /// Every peer that came has left (the receive ends there without `--seconds`).
+    fn all_left(&mut self) -> bool;
+}
+
+impl FrameSource for &Session {
+    fn pull(&mut self, now: Instant, out: &mut Vec<PeerFrame>) -> Result<()> {
+        Session::pull(self, now, out);
+        Ok(())
+    }
+
+    fn all_left(&mut self) -> bool {
+        let peers = self.peers();
+        !peers.is_empty() && peers.iter().all(|p| p.said_bye)
+    }
+}
+
+/// What a receive played: the mix and each peer's rows.
+pub(crate) struct Played<'m> {
+    pub pcm: Vec<i16>,
+    tracks: Vec<PeerTrack<'m>>,
+}
+
+/// The receive loop: pulls every 20 ms, mixes, and runs each peer's lip sync when a model is
+/// given.
+pub(crate) fn play<'m>(
+    source: &mut dyn FrameSource,
+    seconds: Option<f64>,
+    model: Option<&'m Model>,
+    on_frame: &mut dyn FnMut(u32, f64, &FrameFeatures),
+) -> Result<Played<'m>> {
+    let limit = seconds.map(Duration::from_secs_f64);
     let start = Instant::now();
     let mut pcm: Vec<i16> = Vec::new();
     let mut tracks: Vec<PeerTrack> = Vec::new();
@@ -383,12 +447,9 @@ pub fn receive_with(
             break;
         }
         frames.clear();
-        session.pull(due, &mut frames);
-        if frames.is_empty() && timeline.is_some() {
-            let peers = session.peers();
-            if !peers.is_empty() && peers.iter().all(|p| p.said_bye) && limit.is_none() {
-                break;
-            }
+        source.pull(due, &mut frames)?;
+        if frames.is_empty() && timeline.is_some() && limit.is_none() && source.all_left() {
+            break;
         }
         if frames.is_empty() && timeline.is_none() {
             continue;
@@ -406,7 +467,7 @@ pub fn receive_with(
             let slot = match tracks.iter().position(|t| t.ssrc == f.ssrc) {
                 Some(i) => i,
                 None => {
-                    let lipsync = match &model {
+                    let lipsync = match model {
                         Some(model) => Some(LipSync::new(model, &LipSyncOptions::default())?),
                         None => None,
                     };
@@ -440,36 +501,28 @@ pub fn receive_with(
         pcm.extend(mix.iter().map(|&m| m.clamp(-32768, 32767) as i16));
     }
     pcm.truncate(last_audible * FRAME_SIZE);
-    session.leave();
     for track in &mut tracks {
         track.flush(true);
     }
+    Ok(Played { pcm, tracks })
+}
 
-    let stats = session.stats();
-    eprintln!(
-        "lipcall: played {:.2} s; datagrams={} rtp={} rtcp={} malformed={} unknown={} \
-         unknown_pt={} auth_failed={} replayed={} too_many_peers={}",
-        pcm.len() as f64 / f64::from(SAMPLE_RATE),
-        stats.datagrams,
-        stats.rtp,
-        stats.rtcp,
-        stats.malformed,
-        stats.unknown,
-        stats.unknown_payload,
-        stats.auth_failed,
-        stats.replayed,
-        stats.too_many_peers
-    );
-    for peer in session.peers() {
-        print_peer(&peer);
+/// OUT.wav, FEATURES.csv and WEIGHTS.csv of a receive (one CSV per peer).
+pub(crate) fn write_outputs(
+    played: &Played,
+    wav_path: Option<&Path>,
+    features: Option<&Path>,
+    weights: Option<&Path>,
+    model: Option<&Model>,
+) -> Result<()> {
+    let Played { pcm, tracks } = played;
+    if let Some(path) = wav_path {
+        wav::write_mono_i16(path, SAMPLE_RATE, pcm)?;
     }
-    if let Some(path) = &args.wav {
-        wav::write_mono_i16(path, SAMPLE_RATE, &pcm)?;
-    }
-    if let Some(path) = &args.features {
+    if let Some(path) = features {
         for (i, track) in tracks.iter().enumerate() {
             let target = if i == 0 {
-                path.clone()
+                path.to_path_buf()
             } else {
                 peer_path(path, track.ssrc)
             };
@@ -479,7 +532,7 @@ pub fn receive_with(
             write_rows(path, &[])?;
         }
     }
-    if let (Some(path), Some(model)) = (&args.weights, &model) {
+    if let (Some(path), Some(model)) = (weights, model) {
         let names: Vec<&str> = tracks
             .first()
             .and_then(|t| t.lipsync.as_ref())
@@ -487,7 +540,7 @@ pub fn receive_with(
             .unwrap_or_else(|| model.viseme_names());
         for (i, track) in tracks.iter().enumerate() {
             let target = if i == 0 {
-                path.clone()
+                path.to_path_buf()
             } else {
                 peer_path(path, track.ssrc)
             };
