@@ -595,8 +595,15 @@ impl JitterBuffer {
                 raw
             }
         };
-        let off = on_grid(raw, self.step);
-        let index = self.slot_of(off);
+        let mut off = on_grid(raw, self.step);
+        let mut index = self.slot_of(off);
+        if newest && packet.marker && self.stream_played && index < self.next {
+            // A new talk spurt stamped before what was played: the sender's timestamps did not
+            // move on over its pause.
+            raw = self.rebase(ext_ts, now);
+            off = on_grid(raw, self.step);
+            index = self.slot_of(off);
+        }
         if self.state == State::Idle && self.stream_played && index < self.next {
             // A straggler of a talk spurt already over (or held up longer than it lasts).
             self.stats.late += 1;
@@ -1912,6 +1919,27 @@ mod tests {
         assert_eq!(played.len(), 200, "{stats:?}");
         assert!(!played.contains(&150));
         assert_eq!(stats.duplicates + stats.late, 1, "{stats:?}");
+    }
+
+    #[test]
+    fn a_talk_spurt_whose_timestamps_did_not_move_on_plays() {
+        // A sender that pauses 1 s without advancing its timestamps: the next spurt (marker
+        // bit) continues the old timestamps and looks 1 s late. It starts a new talk spurt.
+        let mut packets = stream(100, 100, 1_000_000, 160, 0.0);
+        packets.extend(stream(100, 200, 1_000_000 + 100 * 160, 160, 3.0));
+        let (out, stats) = link(
+            &packets,
+            Duration::from_millis(1),
+            Duration::from_millis(3),
+            300,
+            |_, _| {},
+        );
+        assert_eq!(indices(&out), (0..200).collect::<Vec<_>>(), "{stats:?}");
+        assert_eq!(
+            (stats.late, stats.lost, stats.rebased),
+            (0, 0, 1),
+            "{stats:?}"
+        );
     }
 
     #[test]
