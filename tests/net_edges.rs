@@ -1,6 +1,6 @@
 //! A call's edges on real sockets (127.0.0.1), into `lipcall receive`: a sender with talk
-//! spurts reports no loss, junk RTCP keeps no caller out, and another port can neither end a
-//! caller with a spoofed BYE nor take over its SSRC.
+//! spurts reports no loss, a redial on the same SSRC after BYE plays, junk RTCP keeps no caller
+//! out, and another port can neither end a caller with a spoofed BYE nor take over its SSRC.
 
 mod common;
 
@@ -28,7 +28,15 @@ struct Receiver {
 
 impl Receiver {
     fn start() -> Self {
-        let mut child = spawn(lipcall().args(["receive", "--listen", "127.0.0.1:0"]));
+        Self::start_with(&[])
+    }
+
+    fn start_with(args: &[&str]) -> Self {
+        let mut child = spawn(
+            lipcall()
+                .args(["receive", "--listen", "127.0.0.1:0"])
+                .args(args),
+        );
         let stderr = child.stderr.take().expect("stderr");
         let (tx, rx) = mpsc::channel();
         std::thread::spawn(move || {
@@ -55,8 +63,8 @@ impl Receiver {
         }
     }
 
-    /// Waits for it to stop by itself (every peer said BYE); everything it printed after
-    /// its address.
+    /// Waits for it to stop by itself (every peer said BYE, or its `--seconds` are over);
+    /// everything it printed after its address.
     fn finish(self) -> String {
         finish(self.child, Duration::from_secs(60), "lipcall receive");
         self.stderr.try_iter().collect::<Vec<_>>().join("\n")
@@ -152,6 +160,27 @@ fn a_sender_with_talk_spurts_reports_no_loss() {
         num(&peer, "concealed") <= 2.0 * spurts.len() as f64,
         "{stderr}"
     );
+}
+
+#[test]
+fn a_redial_on_the_same_ssrc_after_bye_plays() {
+    // Two calls one after the other with the same SSRC (`send --ssrc`), each from its own port
+    // with its own sequence numbers and timestamps, the first ending with BYE: the second used
+    // to be ignored (received=704 played=351).
+    let receiver = Receiver::start_with(&["--seconds", "5.5"]);
+    let first = send(receiver.addr, 0x0005_5ec0, 100, |_| true, |_| {});
+    let second = send(receiver.addr, 0x0005_5ec0, 100, |_| true, |_| {});
+    let stderr = receiver.finish();
+    assert_eq!(stderr.matches("peer ssrc=").count(), 1, "{stderr}");
+    let peer = fields(&stderr, "peer ");
+    assert_eq!(
+        num(&peer, "received"),
+        f64::from(first + second),
+        "{stderr}"
+    );
+    assert_eq!(num(&peer, "played"), f64::from(first + second), "{stderr}");
+    assert_eq!(num(&peer, "lost"), 0.0, "{stderr}");
+    assert_eq!(num(&peer, "late"), 0.0, "{stderr}");
 }
 
 #[test]

@@ -30,7 +30,8 @@
 //! numbers are `duplicates`.
 //!
 //! New streams on the same SSRC. After BYE, a packet that is not a straggler of the old stream
-//! starts a new one (a redial with the same SSRC): timing and sequence state start over. Without
+//! starts a new one (a redial with the same SSRC): sequence state starts over and the packet is
+//! placed where it arrives, after what of the old stream is still to play. Without
 //! BYE, a sequence number far from the last (RFC 3550 A.1: two in a row confirm it) starts a new
 //! stream too, and a timestamp that jumps against the sequence (backwards, or ahead of the time
 //! that passed by more than the largest delay) re-anchors the timeline where the packet's
@@ -250,8 +251,8 @@ pub struct JitterBuffer {
     /// Where the sender said its stream starts and ends, in ticks from `origin_ts`.
     start_hint: Option<i64>,
     end_hint: Option<i64>,
-    /// A start announced (raw timestamp) while the last stream was ending: for the next one.
-    pending_start: Option<u32>,
+    /// The next packet starts a new stream: place it where it arrives.
+    anchor_next: bool,
     /// The current stream has started playing.
     stream_played: bool,
     /// The newest packet by sequence: its tick offset and arrival.
@@ -312,7 +313,7 @@ impl JitterBuffer {
             empty_since: None,
             start_hint: None,
             end_hint: None,
-            pending_start: None,
+            anchor_next: false,
             stream_played: false,
             newest: None,
             last_out_seq: None,
@@ -378,10 +379,10 @@ impl JitterBuffer {
         self.stream_played = false;
     }
 
-    /// A new stream on this SSRC (a redial): timing and sequence state start over, counters go
-    /// on.
+    /// A new stream on this SSRC (a redial): sequence state starts over, counters go on, and its
+    /// first packet is placed where it arrives, after whatever of the old stream is still to
+    /// play.
     fn restart(&mut self) {
-        self.reset_timing();
         self.lost_prior += self.stream_lost();
         self.seq_base = None;
         self.seq_seen = 0;
@@ -390,11 +391,14 @@ impl JitterBuffer {
         self.stream_received = 0;
         self.expected_prior = 0;
         self.received_prior = 0;
-        self.last_out_seq = None;
-        self.stats.restarts += 1;
-        if let Some(ts) = self.pending_start.take() {
-            self.hint_start(ts);
+        self.start_hint = None;
+        self.end_hint = None;
+        if self.state == State::Ended {
+            self.state = State::Idle;
         }
+        self.newest = None;
+        self.anchor_next = self.origin_ts.is_some();
+        self.stats.restarts += 1;
     }
 
     /// Packets missing from the current sequence.
@@ -577,7 +581,10 @@ impl JitterBuffer {
         let clock = f64::from(self.clock);
         let max_delay = self.config.max_delay.as_secs_f64();
         let mut raw = ext_ts - self.origin_ts.unwrap_or(ext_ts);
-        if let Some((last_off, last_at)) = self.newest {
+        if self.anchor_next {
+            self.anchor_next = false;
+            raw = self.rebase(ext_ts, now);
+        } else if let Some((last_off, last_at)) = self.newest {
             let ahead = (raw - last_off) as f64 / clock - (now - last_at);
             if newest && (raw < last_off || ahead > max_delay) {
                 raw = self.rebase(ext_ts, now);
@@ -694,9 +701,8 @@ impl JitterBuffer {
 
     /// The sender said where its stream starts (an SR sent before its first packet).
     pub fn hint_start(&mut self, ts: u32) {
-        if self.ending || self.state == State::Ended {
-            self.pending_start = Some(ts);
-        } else if !self.stream_played {
+        // (One announced while the last stream is ending says nothing on its timeline.)
+        if !self.ending && self.state != State::Ended && !self.stream_played {
             let (off, _) = self.offset_of(ts);
             self.start_hint = Some(off);
         }
@@ -879,7 +885,7 @@ impl JitterBuffer {
     }
 
     fn handed_out(&mut self, seq: i64) {
-        self.last_out_seq = Some(self.last_out_seq.map_or(seq, |l| l.max(seq)));
+        self.last_out_seq = Some(seq);
     }
 
     /// A frame no packet covers (slot `index`): lost (conceal it) or a pause of the sender
@@ -1824,18 +1830,20 @@ mod tests {
 
     #[test]
     fn a_stream_after_bye_on_the_same_ssrc_plays() {
-        // A call ends with BYE (its end marked by the last SR), and the same SSRC calls again:
-        // new sequence numbers and timestamps. Both play whole; the second is a new stream.
-        for with_end in [true, false] {
+        // A call ends with BYE (its end marked by the last SR, or not), and the same SSRC calls
+        // again: new sequence numbers and timestamps, a second later or right away (its first
+        // packet comes while the old stream's last frame is still to play). Both play whole;
+        // the second is a new stream.
+        for (with_end, again) in [(true, 3.0), (false, 3.0), (true, 2.0), (false, 2.0)] {
             let mut packets = stream(100, 500, 90_000, 160, 0.0);
-            packets.extend(stream(100, 41_000, 7_000_000, 160, 3.0));
+            packets.extend(stream(100, 41_000, 7_000_000, 160, again));
             let (out, stats) = link(
                 &packets,
                 Duration::from_millis(1),
                 Duration::ZERO,
                 260,
                 |k, jb| {
-                    if k == 110 {
+                    if k == 100 {
                         if with_end {
                             jb.hint_end(90_000 + 100 * 160);
                         } else {
@@ -1843,22 +1851,20 @@ mod tests {
                         }
                     }
                     if k == 140 {
-                        // The redial's first SR comes before its first packet.
+                        // The redial's first SR, before its first packet: no use on the old
+                        // stream's timeline.
                         jb.hint_start(7_000_000);
                     }
                 },
             );
-            assert_eq!(
-                indices(&out),
-                (0..200).collect::<Vec<_>>(),
-                "end {with_end}: {stats:?}"
-            );
+            let what = format!("end {with_end}, again at {again} s: {stats:?}");
+            assert_eq!(indices(&out), (0..200).collect::<Vec<_>>(), "{what}");
             assert_eq!(
                 (stats.restarts, stats.lost, stats.late),
                 (1, 0, 0),
-                "{stats:?}"
+                "{what}"
             );
-            assert_eq!(stats.received, 200);
+            assert_eq!((stats.received, stats.flushed), (200, 0), "{what}");
         }
     }
 

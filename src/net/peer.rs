@@ -111,6 +111,7 @@ impl PeerReceiver {
             .payload_duration(packet.payload)
             .unwrap_or(codec.frame_ticks());
         let streams = self.jitter.restarts();
+        let was_idle = self.jitter.idle();
         self.jitter.file(Arrival {
             sequence: h.sequence,
             timestamp: h.timestamp,
@@ -121,9 +122,9 @@ impl PeerReceiver {
             on_grid: codec.whole_frames(),
             at: arrival,
         });
-        if self.jitter.restarts() != streams {
-            // A new stream (a redial on this SSRC): its encoder started afresh, and nothing of
-            // the old one is left to play.
+        if self.jitter.restarts() != streams && was_idle {
+            // A new stream (a redial on this SSRC) after the old one played out: its encoder
+            // started afresh. (Right behind the old one's tail, the decoder plays on.)
             self.past_errors += self.decoder.as_ref().map_or(0, StreamDecoder::errors);
             self.decoder = None;
         }
