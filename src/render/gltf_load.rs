@@ -30,6 +30,9 @@ const MAX_NODE_DEPTH: usize = 64;
 const ELEMENT_BUDGET_FLOOR: usize = 1 << 20;
 /// Largest base colour texture side accepted; larger ones are refused before any pixel is decoded.
 const MAX_TEXTURE_SIDE: u32 = 8192;
+/// Pixels of all textures decoded together: each material decodes its own, so one small,
+/// highly compressed image behind many materials would otherwise be decoded for each.
+const MAX_TEXTURE_PIXELS: u64 = 8192 * 8192;
 
 /// Loads a head from a `.glb` or `.gltf` file (external buffers and images are read from beside it).
 pub fn load_head(path: &Path) -> Result<HeadModel, RenderError> {
@@ -149,10 +152,7 @@ fn load_head_from_slice_in(bytes: &[u8], base: Option<&Path>) -> Result<HeadMode
     let buffer_bytes: usize = buffers.iter().map(Vec::len).sum();
     let mut budget = ELEMENT_BUDGET_FLOOR.saturating_add(buffer_bytes / 4);
 
-    let mut materials: Vec<Material> = doc
-        .materials()
-        .map(|m| load_material(doc, &m, &buffers, base))
-        .collect();
+    let mut materials = load_materials(doc, &buffers, base, MAX_TEXTURE_PIXELS);
     materials.push(Material::default());
 
     let mut raws = Vec::new();
@@ -580,11 +580,25 @@ fn decode_base64(s: &str) -> Result<Vec<u8>, RenderError> {
     Ok(out)
 }
 
+/// The document's materials, decoding textures until `texture_pixels` are spent (later ones
+/// keep their base colour factor).
+fn load_materials(
+    doc: &gltf::Document,
+    buffers: &[Vec<u8>],
+    base: Option<&Path>,
+    mut texture_pixels: u64,
+) -> Vec<Material> {
+    doc.materials()
+        .map(|m| load_material(doc, &m, buffers, base, &mut texture_pixels))
+        .collect()
+}
+
 fn load_material(
     doc: &gltf::Document,
     m: &gltf::Material,
     buffers: &[Vec<u8>],
     base: Option<&Path>,
+    texture_pixels: &mut u64,
 ) -> Material {
     let name = m.name().unwrap_or("material").to_owned();
     let pbr = m.pbr_metallic_roughness();
@@ -592,7 +606,7 @@ fn load_material(
     // A texture that cannot be used is not fatal: the material keeps its base colour factor.
     let texture = pbr.base_color_texture().and_then(|info| {
         let image = info.texture().source().index();
-        match load_texture(doc, image, buffers, base) {
+        match load_texture(doc, image, buffers, base, texture_pixels) {
             Ok(texture) => Some(texture),
             Err(reason) => {
                 tracing::warn!(
@@ -623,6 +637,7 @@ fn load_texture(
     index: usize,
     buffers: &[Vec<u8>],
     base: Option<&Path>,
+    texture_pixels: &mut u64,
 ) -> Result<Texture, String> {
     // Read from the JSON: `gltf::Image::source` panics on an image with a buffer view and no
     // MIME type, or with neither a buffer view nor a URI.
@@ -645,6 +660,14 @@ fn load_texture(
         Some(m) => format!("unsupported image type {m:?} (PNG and JPEG are)"),
         None => "not a PNG or JPEG image".to_owned(),
     })?;
+    let (width, height) = image::ImageReader::with_format(std::io::Cursor::new(&bytes), format)
+        .into_dimensions()
+        .map_err(|e| format!("{format:?} image does not decode: {e}"))?;
+    *texture_pixels = texture_pixels
+        .checked_sub(u64::from(width) * u64::from(height))
+        .ok_or_else(|| {
+            format!("the head's textures together would exceed {MAX_TEXTURE_PIXELS} pixels")
+        })?;
     decode_texture(&bytes, format)
 }
 
@@ -991,7 +1014,10 @@ fn read_primitive(
 
 #[cfg(test)]
 mod tests {
-    use super::{Expression, TargetKind, classify, decode_texture, texture_format};
+    use super::{
+        Expression, TargetKind, classify, decode_texture, load_buffers, load_materials,
+        texture_format,
+    };
     use image::ImageFormat;
 
     #[test]
@@ -1079,5 +1105,48 @@ mod tests {
         jpeg[sof + 5..sof + 9].copy_from_slice(&[0xEA, 0x60, 0xEA, 0x60]);
         let err = decode_texture(&jpeg, ImageFormat::Jpeg).unwrap_err();
         assert!(err.to_lowercase().contains("limit"), "{err}");
+    }
+
+    #[test]
+    fn one_image_behind_many_materials_is_decoded_within_the_pixel_budget() {
+        let img = image::RgbaImage::from_pixel(16, 16, image::Rgba([200, 100, 50, 255]));
+        let mut png = Vec::new();
+        img.write_to(&mut std::io::Cursor::new(&mut png), ImageFormat::Png)
+            .unwrap();
+        // A data URI in base64, as exporters write it.
+        const ABC: &[u8] = b"ABCDEFGHIJKLMNOPQRSTUVWXYZabcdefghijklmnopqrstuvwxyz0123456789+/";
+        let mut b64 = String::new();
+        for chunk in png.chunks(3) {
+            let n = chunk
+                .iter()
+                .enumerate()
+                .fold(0u32, |n, (i, &b)| n | u32::from(b) << (16 - 8 * i));
+            for k in 0..4 {
+                b64.push(if k <= chunk.len() {
+                    ABC[(n >> (18 - 6 * k) & 63) as usize] as char
+                } else {
+                    '='
+                });
+            }
+        }
+        let materials = vec![r#"{"pbrMetallicRoughness":{"baseColorTexture":{"index":0}}}"#; 5];
+        let json = format!(
+            r#"{{"asset":{{"version":"2.0"}},
+            "buffers":[{{"byteLength":{},"uri":"data:application/octet-stream;base64,{b64}"}}],
+            "bufferViews":[{{"buffer":0,"byteLength":{}}}],
+            "images":[{{"bufferView":0,"mimeType":"image/png"}}],
+            "textures":[{{"source":0}}],
+            "materials":[{}]}}"#,
+            png.len(),
+            png.len(),
+            materials.join(",")
+        );
+        let gltf = gltf::Gltf::from_slice(json.as_bytes()).unwrap();
+        let buffers = load_buffers(&gltf.document, None, None).unwrap();
+        let loaded = load_materials(&gltf.document, &buffers, None, 2 * 16 * 16);
+        let textured: Vec<bool> = loaded.iter().map(|m| m.texture.is_some()).collect();
+        assert_eq!(textured, [true, true, false, false, false]);
+        let all = load_materials(&gltf.document, &buffers, None, 5 * 16 * 16);
+        assert!(all.iter().all(|m| m.texture.is_some()));
     }
 }
