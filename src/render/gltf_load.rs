@@ -1129,7 +1129,7 @@ mod tests {
                 });
             }
         }
-        let materials = vec![r#"{"pbrMetallicRoughness":{"baseColorTexture":{"index":0}}}"#; 5];
+        let materials = [r#"{"pbrMetallicRoughness":{"baseColorTexture":{"index":0}}}"#; 5];
         let json = format!(
             r#"{{"asset":{{"version":"2.0"}},
             "buffers":[{{"byteLength":{},"uri":"data:application/octet-stream;base64,{b64}"}}],
