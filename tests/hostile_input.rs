@@ -236,11 +236,21 @@ fn wav_headers_claiming_absurd_rates_or_sizes_are_refused() {
     );
     refused(d, &["animate", "2gb.wav", "--weights", "w.csv"], "claims");
     // The same in a corpus: the phone targets were sized by the header's length at 1 Hz.
-    let speaker = d.join("corpus/dr1-test0");
-    std::fs::create_dir_all(&speaker).unwrap();
-    wav_header_lying(&speaker.join("sa1.wav"), 1, 0x7fff_fff0, 20_000);
-    std::fs::write(speaker.join("sa1.phn"), "0 100 h#\n").unwrap();
+    for region in 1..=6 {
+        let speaker = d.join(format!("corpus/dr{region}-test0"));
+        std::fs::create_dir_all(&speaker).unwrap();
+        wav_header_lying(&speaker.join("sa1.wav"), 1, 0x7fff_fff0, 20_000);
+        std::fs::write(speaker.join("sa1.phn"), "0 100 h#\n").unwrap();
+    }
     refused(d, &["decompose", "--corpus", "corpus"], "sample rate 1 Hz");
+    refused(d, &["evaluate", "--corpus", "corpus"], "sample rate 1 Hz");
+    // train says what it is about to do first; the error is its last line.
+    let args = ["train", "--corpus", "corpus", "--out", "m.lipmodel"];
+    let out = run_bounded(&args, d);
+    assert_eq!(out.code, Some(1), "{}", out.stderr);
+    assert!(out.elapsed < FAST, "{:?}", out.elapsed);
+    let last = out.stderr.trim_end().lines().last().unwrap_or_default();
+    assert!(last.contains("sample rate 1 Hz"), "{}", out.stderr);
 }
 
 #[test]
