@@ -113,7 +113,13 @@ fn gst_to_lipcall(srtp: bool) {
     // Aligned throughout: at the one lag that fits the first second, the whole stream is
     // speexdec's decode of the same frames (no frame skipped or inserted on loopback).
     let (whole, lag) = snr_at_best_lag(&expected, &got, 2000);
-    eprintln!("whole stream against speexdec: {whole:.1} dB at lag {lag}");
+    let line = stderr
+        .lines()
+        .find(|l| l.starts_with("peer "))
+        .unwrap_or("");
+    eprintln!(
+        "whole stream against speexdec: {whole:.1} dB at lag {lag}; {frames} frames for {sent}; {line}"
+    );
     assert!(whole > 60.0, "{whole:.1} dB at lag {lag}: {a:?}");
     assert_eq!(lag % 160, 0);
     let rows = std::fs::read_to_string(&features).unwrap().lines().count() - 1;
