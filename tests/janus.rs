@@ -134,7 +134,9 @@ fn two_lipcalls_in_a_janus_room_hear_each_other_and_the_receiver_animates() {
     let weights = dir.path().join("janus-weights.csv");
     let receiver = spawn(
         lipcall()
-            .args(["receive", "--janus", &janus.url, "--room", room, "--key", pin])
+            .args([
+                "receive", "--janus", &janus.url, "--room", room, "--key", pin,
+            ])
             .args(["--name", "Bob", "--seconds", "13"])
             .arg("--wav")
             .arg(&wav)
@@ -156,7 +158,10 @@ fn two_lipcalls_in_a_janus_room_hear_each_other_and_the_receiver_animates() {
         received.contains("\"Ann\"") && received.contains("is publishing"),
         "{received}"
     );
-    assert!(received.contains("left"), "the sender's leaving is seen: {received}");
+    assert!(
+        received.contains("left"),
+        "the sender's leaving is seen: {received}"
+    );
     let got = read_wav_i16(&wav).1;
 
     // The same audio sent directly: lipcall's own Opus round trip over RTP.
@@ -170,13 +175,17 @@ fn two_lipcalls_in_a_janus_room_hear_each_other_and_the_receiver_animates() {
             .arg(&direct_wav),
     );
     std::thread::sleep(Duration::from_millis(300));
-    let direct_tx = spawn(
-        lipcall()
-            .arg("send")
-            .arg(&speech)
-            .args(["--to", &format!("127.0.0.1:{port}"), "--codec", "opus"]),
+    let direct_tx = spawn(lipcall().arg("send").arg(&speech).args([
+        "--to",
+        &format!("127.0.0.1:{port}"),
+        "--codec",
+        "opus",
+    ]));
+    finish(
+        direct_tx,
+        Duration::from_secs(30),
+        "lipcall send --codec opus",
     );
-    finish(direct_tx, Duration::from_secs(30), "lipcall send --codec opus");
     finish(direct_rx, Duration::from_secs(30), "lipcall receive");
     let direct = read_wav_i16(&direct_wav).1;
 
@@ -192,8 +201,15 @@ fn two_lipcalls_in_a_janus_room_hear_each_other_and_the_receiver_animates() {
         (snr_janus - snr_direct).abs() <= 1.0,
         "Janus {snr_janus:.2} dB vs direct {snr_direct:.2} dB\nsender: {sent}\nreceiver: {received}"
     );
-    assert!(snr_direct > 5.0, "the reference itself is sound: {snr_direct:.2} dB");
-    assert!(got.len() as f64 >= source.len() as f64 * 0.97, "{} samples", got.len());
+    assert!(
+        snr_direct > 5.0,
+        "the reference itself is sound: {snr_direct:.2} dB"
+    );
+    assert!(
+        got.len() as f64 >= source.len() as f64 * 0.97,
+        "{} samples",
+        got.len()
+    );
 
     let csv = std::fs::read_to_string(&weights).unwrap();
     let mut lines = csv.lines();
@@ -201,7 +217,11 @@ fn two_lipcalls_in_a_janus_room_hear_each_other_and_the_receiver_animates() {
     assert!(header.starts_with("frame,time_s,"), "{header}");
     let columns = header.split(',').count();
     let rows: Vec<&str> = lines.collect();
-    assert!(rows.len() * 160 >= got.len() * 95 / 100, "{} rows", rows.len());
+    assert!(
+        rows.len() * 160 >= got.len() * 95 / 100,
+        "{} rows",
+        rows.len()
+    );
     assert!(rows.iter().all(|r| r.split(',').count() == columns));
     // The mouth moves: viseme weights vary over the utterance.
     let first: Vec<f64> = rows

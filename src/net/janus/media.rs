@@ -614,12 +614,8 @@ impl Engine {
         let payloads = PayloadMap::default()
             .with_assignments(&[format!("opus={pt}")])
             .map_err(|e| JanusError::Media(format!("Opus payload type {pt}: {e}")))?;
-        let receiver = PeerReceiver::with_payloads(
-            self.shared.jitter.clone(),
-            self.shared.epoch,
-            true,
-            payloads,
-        );
+        let receiver =
+            PeerReceiver::with_payloads(self.shared.jitter, self.shared.epoch, true, payloads);
         lock(&self.shared.feeds).insert(
             feed.clone(),
             Feed {

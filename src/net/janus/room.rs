@@ -107,7 +107,7 @@ impl Room {
             .ok_or_else(|| JanusError::Protocol(format!("no publisher id in {data}")))?;
         let private_id = (!data["private_id"].is_null()).then(|| data["private_id"].clone());
         let news = messages::room_news(data);
-        let media = Media::start(&host_ips(janus_ip)?, config.jitter.clone())?;
+        let media = Media::start(&host_ips(janus_ip)?, config.jitter)?;
         let mut room = Self {
             client,
             media,
