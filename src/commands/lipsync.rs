@@ -49,45 +49,36 @@ pub struct TrainArgs {
     #[arg(long, value_name = "E", default_value_t = recipe::ENERGY_CONTEXT)]
     pub energy_context: usize,
     /// Fall of the running energy peak, dB per frame.
-    #[arg(long, value_name = "DB", default_value_t = recipe::PEAK_DECAY_DB,
-          allow_hyphen_values = true, value_parser = parse_weight)]
+    #[arg(long, value_name = "DB", default_value_t = recipe::PEAK_DECAY_DB)]
     pub peak_decay: f32,
     /// Only the paper's 11 raw features per frame (no energy dynamics).
     #[arg(long)]
     pub no_dynamics: bool,
     /// Loss weight of frames inside /p b m/ segments.
-    #[arg(long, value_name = "W", default_value_t = recipe::CLOSURE_WEIGHT,
-          allow_hyphen_values = true, value_parser = parse_weight)]
+    #[arg(long, value_name = "W", default_value_t = recipe::CLOSURE_WEIGHT)]
     pub closure_weight: f32,
     /// Loss weight of frames inside /f v/ segments.
-    #[arg(long, value_name = "W", default_value_t = recipe::LABIODENTAL_WEIGHT,
-          allow_hyphen_values = true, value_parser = parse_weight)]
+    #[arg(long, value_name = "W", default_value_t = recipe::LABIODENTAL_WEIGHT)]
     pub labiodental_weight: f32,
     /// Weight of the segment closure loss: per /p b m/ segment, -ln P(the lips close in at
     /// least one frame); 0 = off.
-    #[arg(long, value_name = "W", default_value_t = recipe::SEGMENT_CLOSURE_WEIGHT,
-          allow_hyphen_values = true, value_parser = parse_weight)]
+    #[arg(long, value_name = "W", default_value_t = recipe::SEGMENT_CLOSURE_WEIGHT)]
     pub segment_closure_weight: f32,
     /// Vocal-tract-length augmentation: LSPs of each training utterance scaled by a factor in
     /// [1 - W, 1 + W]; 0 = off.
-    #[arg(long, value_name = "W", default_value_t = recipe::WARP,
-          allow_hyphen_values = true, value_parser = parse_warp)]
+    #[arg(long, value_name = "W", default_value_t = recipe::WARP)]
     pub warp: f32,
     /// Weight of a squared-error term on mouth openness beside the KL loss; 0 = off.
-    #[arg(long, value_name = "W", default_value_t = recipe::OPENNESS_WEIGHT,
-          allow_hyphen_values = true, value_parser = parse_weight)]
+    #[arg(long, value_name = "W", default_value_t = recipe::OPENNESS_WEIGHT)]
     pub openness_weight: f32,
     /// The same for lip width (spread vs narrowed).
-    #[arg(long, value_name = "W", default_value_t = recipe::WIDTH_WEIGHT,
-          allow_hyphen_values = true, value_parser = parse_weight)]
+    #[arg(long, value_name = "W", default_value_t = recipe::WIDTH_WEIGHT)]
     pub width_weight: f32,
     /// The same for lip rounding (protrusion).
-    #[arg(long, value_name = "W", default_value_t = recipe::ROUNDING_WEIGHT,
-          allow_hyphen_values = true, value_parser = parse_weight)]
+    #[arg(long, value_name = "W", default_value_t = recipe::ROUNDING_WEIGHT)]
     pub rounding_weight: f32,
     /// Decoupled weight decay (AdamW), per step as a fraction of the learning rate; 0 = off.
-    #[arg(long, value_name = "D", default_value_t = recipe::WEIGHT_DECAY,
-          allow_hyphen_values = true, value_parser = parse_weight)]
+    #[arg(long, value_name = "D", default_value_t = recipe::WEIGHT_DECAY)]
     pub weight_decay: f32,
     /// Keep the coarticulated targets inside /p b m/ (default: a full closure there).
     #[arg(long)]
@@ -104,8 +95,7 @@ pub struct TrainArgs {
     /// Epochs without a better validation loss before stopping.
     #[arg(long, default_value_t = 40)]
     pub patience: usize,
-    #[arg(long, default_value_t = 0.003,
-          allow_hyphen_values = true, value_parser = parse_learning_rate)]
+    #[arg(long, default_value_t = 0.003)]
     pub learning_rate: f32,
     #[arg(long, default_value_t = 32)]
     pub batch: usize,
@@ -138,8 +128,7 @@ pub struct TrainArgs {
     pub an4_labels: PathBuf,
     /// With --cross-validate: loss weight of CMU AN4's frames (84 more speakers, force-aligned
     /// labels, never held out or scored) against TIMIT's hand-labelled ones; 0 = no AN4.
-    #[arg(long, value_name = "W", default_value_t = recipe::AN4_WEIGHT,
-          allow_hyphen_values = true, value_parser = parse_weight)]
+    #[arg(long, value_name = "W", default_value_t = recipe::AN4_WEIGHT)]
     pub an4_weight: f32,
     /// Codec versions of each AN4 utterance.
     #[arg(long, value_name = "N", default_value_t = recipe::AN4_CODEC_VERSIONS)]
@@ -266,30 +255,6 @@ fn prepare_at(
     }
     progress.finish_and_clear();
     Ok(out)
-}
-
-/// A loss weight, decay or dB step: finite and not negative (NaN or infinity would train a
-/// network of NaNs, which the model loader refuses).
-fn parse_weight(text: &str) -> Result<f32, String> {
-    match text.parse::<f32>() {
-        Ok(w) if (0.0..=1e6).contains(&w) => Ok(w),
-        _ => Err("must be a number from 0 to 1e6".into()),
-    }
-}
-
-/// The warp W scales LSPs by 1 - W to 1 + W: below 1, or frequencies fold through zero.
-fn parse_warp(text: &str) -> Result<f32, String> {
-    match text.parse::<f32>() {
-        Ok(w) if (0.0..=0.5).contains(&w) => Ok(w),
-        _ => Err("must be a number from 0 to 0.5".into()),
-    }
-}
-
-fn parse_learning_rate(text: &str) -> Result<f32, String> {
-    match text.parse::<f32>() {
-        Ok(r) if r > 0.0 && r <= 1.0 => Ok(r),
-        _ => Err("must be a number above 0, at most 1".into()),
-    }
 }
 
 fn parse_snap(text: &str) -> Result<Option<f32>> {
