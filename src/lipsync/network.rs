@@ -68,6 +68,9 @@ const MAX_PARAMETER: f32 = 1.0e4;
 pub const MAX_LOOKAHEAD: usize = 2;
 const MAX_CONTEXT: usize = 32;
 const MAX_HIDDEN: usize = 1024;
+/// Largest model file read: the largest network allowed (1024 hidden units over 32 frames of
+/// context) writes about 7 MB of text.
+const MAX_MODEL_BYTES: u64 = 32 << 20;
 
 /// Per input: `scaled = clamp((x - offset) * scale, -1, 1)`.
 #[derive(Debug, Clone, PartialEq)]
@@ -700,7 +703,7 @@ impl Model {
             path: path.display().to_string(),
             error: Box::new(error),
         };
-        let bytes = crate::input::read(path, crate::input::MAX_INPUT_BYTES)?;
+        let bytes = crate::input::read(path, MAX_MODEL_BYTES)?;
         let text = String::from_utf8(bytes).map_err(|_| in_file(ModelError::NotAModel))?;
         Self::from_text(&text).map_err(in_file)
     }
@@ -894,6 +897,22 @@ mod tests {
         }
         model.notes.push("test weights".into());
         model
+    }
+
+    #[test]
+    fn a_model_file_larger_than_any_model_is_not_read() {
+        let dir = tempfile::tempdir().unwrap();
+        let path = dir.path().join("huge.lipmodel");
+        let file = std::fs::File::create(&path).unwrap();
+        file.set_len(MAX_MODEL_BYTES + 1).unwrap();
+        let e = Model::load(&path).unwrap_err();
+        assert!(
+            matches!(
+                e,
+                ModelError::Input(crate::input::InputError::TooLarge { .. })
+            ),
+            "{e}"
+        );
     }
 
     #[test]
