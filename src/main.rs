@@ -181,10 +181,10 @@ enum Command {
         /// receive every publisher there; --key is the room's pin.
         #[arg(long, value_name = "URL", conflicts_with_all = ["listen", "relay", "key_hex"], requires = "room")]
         janus: Option<String>,
-        /// Write the audio as played (all peers mixed).
+        /// Write the audio as played (all peers mixed), streamed to disk as it plays.
         #[arg(long, value_name = "OUT.wav")]
         wav: Option<PathBuf>,
-        /// Write viseme weights (needs the lip-sync network; not in this build yet).
+        /// Write viseme weights from the built-in lip-sync network (one file per peer).
         #[arg(long, value_name = "WEIGHTS.csv")]
         weights: Option<PathBuf>,
         /// Write per-frame LSP + energy features aligned to OUT.wav (one file per peer).
@@ -192,9 +192,16 @@ enum Command {
         features: Option<PathBuf>,
         #[command(flatten)]
         key: KeyOpts,
-        /// Stop after this many seconds (otherwise when every peer has said BYE).
+        /// Stop after this many seconds. Without it, the receive ends once everyone who called
+        /// has left: said BYE, or sent nothing for --peer-timeout. Before anyone calls it
+        /// waits. Ctrl-C (SIGINT) or SIGTERM ends it at any time; the files written so far are
+        /// finished and whole either way.
         #[arg(long, allow_hyphen_values = true, value_parser = commands::parse_seconds)]
         seconds: Option<f64>,
+        /// A peer that sent nothing (no RTP, no RTCP) for this many seconds has left (in a
+        /// Janus room, Janus says when a publisher leaves).
+        #[arg(long, value_name = "SECONDS", default_value_t = 30.0, value_parser = commands::parse_seconds)]
+        peer_timeout: f64,
         /// Join a room on this relay (with --room).
         #[arg(long, value_name = "HOST:PORT")]
         relay: Option<String>,
@@ -464,6 +471,7 @@ fn main() -> ExitCode {
             features,
             key,
             seconds,
+            peer_timeout,
             relay,
             room,
             name,
@@ -475,6 +483,7 @@ fn main() -> ExitCode {
             features,
             key: key.into(),
             seconds,
+            peer_timeout: Some(peer_timeout),
             relay,
             room,
             name,

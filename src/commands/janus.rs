@@ -8,8 +8,8 @@ use std::time::{Duration, Instant};
 
 use anyhow::{Context, Result, bail};
 
-use super::net::{FrameSource, load_packets, play, write_outputs};
-use crate::codec::SAMPLE_RATE;
+use super::net::{FrameSource, load_packets, play, viseme_names};
+use super::recording::{Recorder, stop_flag};
 use crate::codec::any::{Codec, EncoderSettings};
 use crate::codec::speex::features::FrameFeatures;
 use crate::lipsync;
@@ -146,6 +146,13 @@ pub fn receive_with(
     on_frame: &mut dyn FnMut(u32, f64, &FrameFeatures),
 ) -> Result<()> {
     let model = args.weights.as_ref().map(|_| lipsync::default_model());
+    let stop = stop_flag()?;
+    let mut recorder = Recorder::create(
+        args.wav.as_deref(),
+        args.features.as_deref(),
+        args.weights.as_deref(),
+        viseme_names(model.as_ref())?,
+    )?;
     let (room, notices) = Room::join(args.janus.config(true, "lipcall-receiver"))
         .with_context(|| format!("joining room {:?} on {}", args.janus.room, args.janus.url))?;
     announce_security();
@@ -157,12 +164,19 @@ pub fn receive_with(
     );
     print_notices(&notices);
     let mut source = RoomSource { room, heard: false };
-    let played = play(&mut source, args.seconds, model.as_ref(), on_frame)?;
+    let played = play(
+        &mut source,
+        args.seconds,
+        model.as_ref(),
+        on_frame,
+        &mut recorder,
+        &stop,
+    );
     let RoomSource { room, .. } = source;
     let stats = room.media_stats();
     eprintln!(
         "lipcall: played {:.2} s; datagrams={} unmatched={} sent={}",
-        played.pcm.len() as f64 / f64::from(SAMPLE_RATE),
+        recorder.seconds(),
         stats.datagrams,
         stats.unmatched,
         stats.sent
@@ -191,11 +205,6 @@ pub fn receive_with(
     if let Err(e) = room.leave() {
         eprintln!("lipcall: leaving the room: {e}");
     }
-    write_outputs(
-        &played,
-        args.wav.as_deref(),
-        args.features.as_deref(),
-        args.weights.as_deref(),
-        model.as_ref(),
-    )
+    let finished = recorder.finish();
+    played.and(finished)
 }
