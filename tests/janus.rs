@@ -15,13 +15,14 @@ use common::{demo_8k, lipcall, read_wav_i16, repo_file};
 struct Janus {
     child: Child,
     url: String,
+    port: u16,
+    config: PathBuf,
     log: PathBuf,
 }
 
 impl Drop for Janus {
     fn drop(&mut self) {
-        let _ = self.child.kill();
-        let _ = self.child.wait();
+        self.stop();
     }
 }
 
@@ -53,31 +54,54 @@ fn start_janus(dir: &Path) -> Janus {
         std::fs::write(config.join(path.file_name().unwrap()), text).unwrap();
     }
     let log = dir.join("janus.log");
-    let child = Command::new("janus")
+    let mut janus = Janus {
+        child: run_janus(&config, &log),
+        url: format!("http://127.0.0.1:{port}/janus"),
+        port,
+        config,
+        log,
+    };
+    janus.wait_ready();
+    janus
+}
+
+fn run_janus(config: &Path, log: &Path) -> Child {
+    Command::new("janus")
         .arg("-F")
-        .arg(&config)
-        .args(["-L"])
-        .arg(&log)
+        .arg(config)
+        .arg("-L")
+        .arg(log)
         .arg("-N")
         .stdout(Stdio::null())
         .stderr(Stdio::null())
         .spawn()
-        .expect("janus starts");
-    let janus = Janus {
-        child,
-        url: format!("http://127.0.0.1:{port}/janus"),
-        log,
-    };
-    let deadline = Instant::now() + Duration::from_secs(15);
-    while std::net::TcpStream::connect(("127.0.0.1", port)).is_err() {
-        assert!(
-            Instant::now() < deadline,
-            "Janus did not open its HTTP port: {}",
-            std::fs::read_to_string(&janus.log).unwrap_or_default()
-        );
-        std::thread::sleep(Duration::from_millis(50));
+        .expect("janus starts")
+}
+
+impl Janus {
+    fn wait_ready(&mut self) {
+        let deadline = Instant::now() + Duration::from_secs(15);
+        while std::net::TcpStream::connect(("127.0.0.1", self.port)).is_err() {
+            assert!(
+                Instant::now() < deadline,
+                "Janus did not open its HTTP port: {}",
+                std::fs::read_to_string(&self.log).unwrap_or_default()
+            );
+            std::thread::sleep(Duration::from_millis(50));
+        }
     }
-    janus
+
+    fn stop(&mut self) {
+        let _ = self.child.kill();
+        let _ = self.child.wait();
+    }
+
+    /// A fresh Janus on the same port and config, knowing nothing of the old sessions.
+    fn restart(&mut self) {
+        self.stop();
+        self.child = run_janus(&self.config, &self.log);
+        self.wait_ready();
+    }
 }
 
 /// The lag of `test` against `reference` (positive: `test` later) within +-`max` samples that
@@ -232,4 +256,95 @@ fn two_lipcalls_in_a_janus_room_hear_each_other_and_the_receiver_animates() {
         .iter()
         .fold((f64::MAX, f64::MIN), |(l, h), &v| (l.min(v), h.max(v)));
     assert!(hi - lo > 0.2, "weights barely move: {lo}..{hi}");
+}
+
+#[test]
+fn a_wrong_pin_and_an_unreachable_janus_fail_at_once_with_janus_s_reason() {
+    // Nothing listens on a port that was free a moment ago.
+    let port = free_tcp_port();
+    let started = Instant::now();
+    let out = lipcall()
+        .args([
+            "receive",
+            "--janus",
+            &format!("http://127.0.0.1:{port}/janus"),
+        ])
+        .args(["--room", "r", "--seconds", "2"])
+        .output()
+        .unwrap();
+    let stderr = String::from_utf8_lossy(&out.stderr);
+    assert!(!out.status.success());
+    assert!(stderr.contains("cannot reach Janus at"), "{stderr}");
+    assert!(started.elapsed() < Duration::from_secs(5));
+
+    if !janus_installed() {
+        eprintln!("skipped the pin check: no `janus` binary (Debian package janus)");
+        return;
+    }
+    let dir = tempfile::tempdir().unwrap();
+    let janus = start_janus(dir.path());
+    let owner = spawn(
+        lipcall()
+            .args(["receive", "--janus", &janus.url, "--room", "pinned"])
+            .args(["--key", "right", "--seconds", "3"]),
+    );
+    std::thread::sleep(Duration::from_millis(1000));
+    for key in [Some("wrong"), None] {
+        let started = Instant::now();
+        let mut cmd = lipcall();
+        cmd.args(["receive", "--janus", &janus.url, "--room", "pinned"])
+            .args(["--seconds", "2"]);
+        if let Some(key) = key {
+            cmd.args(["--key", key]);
+        }
+        let out = cmd.output().unwrap();
+        let stderr = String::from_utf8_lossy(&out.stderr);
+        assert!(!out.status.success(), "{stderr}");
+        assert!(stderr.contains("Janus VideoRoom error 4"), "{stderr}");
+        assert!(stderr.contains("pin"), "{stderr}");
+        assert!(started.elapsed() < Duration::from_secs(5));
+    }
+    finish(owner, Duration::from_secs(20), "the room's first member");
+}
+
+#[test]
+fn a_restarted_janus_is_said_and_rejoined_and_the_call_goes_on() {
+    if !janus_installed() {
+        eprintln!("skipped: no `janus` binary (Debian package janus; .ci/run installs it)");
+        return;
+    }
+    let dir = tempfile::tempdir().unwrap();
+    let mut janus = start_janus(dir.path());
+    let room = "restarts";
+    let receiver = spawn(
+        lipcall()
+            .args(["receive", "--janus", &janus.url, "--room", room])
+            .args(["--seconds", "15"]),
+    );
+    std::thread::sleep(Duration::from_millis(1500));
+    let sender = spawn(
+        lipcall()
+            .arg("send")
+            .arg(repo_file("assets/speech/demo.wav"))
+            .args(["--janus", &janus.url, "--room", room, "--name", "Ann"]),
+    );
+    std::thread::sleep(Duration::from_secs(4));
+    janus.restart();
+    let (_, sent) = finish(sender, Duration::from_secs(30), "lipcall send --janus");
+    let (_, received) = finish(receiver, Duration::from_secs(30), "lipcall receive --janus");
+    for (who, stderr) in [("sender", &sent), ("receiver", &received)] {
+        assert!(stderr.contains("lost the Janus room"), "{who}: {stderr}");
+        assert!(stderr.contains("back in the Janus room"), "{who}: {stderr}");
+    }
+    // The receiver hears the sender again in the new session: about the last 3 s of 8.8.
+    let peer = received
+        .lines()
+        .find(|l| l.starts_with("peer "))
+        .unwrap_or_else(|| panic!("no peer line: {received}"));
+    let count: u32 = peer
+        .split_whitespace()
+        .find_map(|kv| kv.strip_prefix("received="))
+        .and_then(|v| v.parse().ok())
+        .unwrap();
+    assert!(count >= 75, "{count} packets after the restart: {received}");
 }

@@ -13,7 +13,7 @@ use super::recording::{Recorder, stop_flag};
 use crate::codec::any::{Codec, EncoderSettings};
 use crate::codec::speex::features::FrameFeatures;
 use crate::lipsync;
-use crate::net::janus::room::{Notice, Room, RoomConfig};
+use crate::net::janus::room::{Member, Notice, RoomConfig};
 use crate::net::jitter::JitterConfig;
 use crate::net::session::PeerFrame;
 
@@ -56,6 +56,13 @@ fn print_notices(notices: &[Notice]) {
                 eprintln!("lipcall: {name:?} ({feed}) is publishing; subscribed")
             }
             Notice::Left { feed, name } => eprintln!("lipcall: {name:?} ({feed}) left"),
+            Notice::Lost { reason } => {
+                eprintln!("lipcall: lost the Janus room ({reason}); rejoining")
+            }
+            Notice::RejoinFailed { reason } => {
+                eprintln!("lipcall: cannot rejoin yet ({reason}); trying every second")
+            }
+            Notice::Rejoined { id } => eprintln!("lipcall: back in the Janus room as {id}"),
         }
     }
 }
@@ -66,11 +73,9 @@ pub fn send(input: &std::path::Path, janus: &JanusArgs) -> Result<()> {
     if packets.is_empty() {
         bail!("{}: no audio to send", input.display());
     }
-    let (mut room, _) = Room::join(janus.config(false, "lipcall"))
-        .with_context(|| format!("joining room {:?} on {}", janus.room, janus.url))?;
+    let (mut room, _) = Member::join(janus.config(false, "lipcall"), true)
+        .with_context(|| format!("publishing in room {:?} on {}", janus.room, janus.url))?;
     announce_security();
-    room.publish().context("publishing in the Janus room")?;
-    room.wait_published(Duration::from_secs(10))?;
     let clock = f64::from(codec.clock_rate());
     let ticks: u64 = packets.iter().map(|(_, t)| u64::from(*t)).sum();
     eprintln!(
@@ -78,7 +83,7 @@ pub fn send(input: &std::path::Path, janus: &JanusArgs) -> Result<()> {
         ticks as f64 / clock,
         packets.len(),
         janus.room,
-        room.id()
+        room.id().unwrap_or("-")
     );
     let start = Instant::now();
     let mut at = 0u64;
@@ -89,8 +94,8 @@ pub fn send(input: &std::path::Path, janus: &JanusArgs) -> Result<()> {
         }
         room.send(payload, *duration)?;
         at += u64::from(*duration);
-        // Janus's events are read (and the long poll kept flowing) while sending.
-        room.poll()?;
+        // Janus's events are read while sending; a restarted Janus is rejoined.
+        print_notices(&room.poll());
     }
     // The last packets leave str0m's pacer, then Janus forwards them before we hang up.
     std::thread::sleep(Duration::from_millis(200));
@@ -117,15 +122,14 @@ pub struct JanusReceiveArgs {
 
 /// The room as a source of played frames; Janus's events are followed between pulls.
 struct RoomSource {
-    room: Room,
+    room: Member,
     /// Someone published at some point.
     heard: bool,
 }
 
 impl FrameSource for RoomSource {
     fn pull(&mut self, now: Instant, out: &mut Vec<PeerFrame>) -> Result<()> {
-        let notices = self.room.poll()?;
-        print_notices(&notices);
+        print_notices(&self.room.poll());
         self.room.pull(now, out);
         self.heard |= !out.is_empty();
         Ok(())
@@ -133,7 +137,7 @@ impl FrameSource for RoomSource {
 
     fn all_left(&mut self) -> bool {
         let feeds = self.room.feeds();
-        self.heard && feeds.iter().all(|f| f.left)
+        self.heard && self.room.in_room() && feeds.iter().all(|f| f.left)
     }
 }
 
@@ -153,14 +157,14 @@ pub fn receive_with(
         args.weights.as_deref(),
         viseme_names(model.as_ref())?,
     )?;
-    let (room, notices) = Room::join(args.janus.config(true, "lipcall-receiver"))
+    let (room, notices) = Member::join(args.janus.config(true, "lipcall-receiver"), false)
         .with_context(|| format!("joining room {:?} on {}", args.janus.room, args.janus.url))?;
     announce_security();
     eprintln!(
         "lipcall: in room {:?} on {} as {}",
         args.janus.room,
         args.janus.url,
-        room.id()
+        room.id().unwrap_or("-")
     );
     print_notices(&notices);
     let mut source = RoomSource { room, heard: false };

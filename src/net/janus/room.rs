@@ -33,8 +33,26 @@ pub struct RoomConfig {
 /// Something that happened in the room, for the user.
 #[derive(Debug, Clone, PartialEq, Eq)]
 pub enum Notice {
-    Joined { feed: String, name: String },
-    Left { feed: String, name: String },
+    Joined {
+        feed: String,
+        name: String,
+    },
+    Left {
+        feed: String,
+        name: String,
+    },
+    /// The Janus session is gone (Janus restarted or unreachable); rejoining.
+    Lost {
+        reason: String,
+    },
+    /// A rejoin attempt failed (said once per distinct reason).
+    RejoinFailed {
+        reason: String,
+    },
+    /// In the room again, with this publisher id.
+    Rejoined {
+        id: String,
+    },
 }
 
 pub struct Room {
@@ -252,6 +270,147 @@ impl Room {
     pub fn leave(mut self) -> Result<(), JanusError> {
         self.media.close();
         self.client.destroy()
+    }
+}
+
+/// A room membership that outlives its Janus session: when the session is lost (Janus
+/// restarted, or unreachable for longer than its session timeout) it says so and rejoins every
+/// second until Janus answers, publishing again if it published. Audio sent while away is
+/// dropped; the subscriptions are made afresh (new peers, as after a real departure).
+pub struct Member {
+    config: RoomConfig,
+    publish: bool,
+    room: Option<Room>,
+    retry_at: Instant,
+    last_failure: Option<String>,
+    /// Packets published in rooms lost since.
+    published_before: u64,
+}
+
+impl std::fmt::Debug for Member {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.debug_struct("Member")
+            .field("room", &self.room)
+            .finish_non_exhaustive()
+    }
+}
+
+const REJOIN_EVERY: Duration = Duration::from_secs(1);
+const PUBLISH_TIMEOUT: Duration = Duration::from_secs(10);
+
+impl Member {
+    /// Joins (and publishes, when `publish`); a first join that fails is an error.
+    pub fn join(config: RoomConfig, publish: bool) -> Result<(Self, Vec<Notice>), JanusError> {
+        let (room, notices) = Self::enter(&config, publish)?;
+        Ok((
+            Self {
+                config,
+                publish,
+                room: Some(room),
+                retry_at: Instant::now(),
+                last_failure: None,
+                published_before: 0,
+            },
+            notices,
+        ))
+    }
+
+    fn enter(config: &RoomConfig, publish: bool) -> Result<(Room, Vec<Notice>), JanusError> {
+        let (mut room, notices) = Room::join(config.clone())?;
+        if publish {
+            room.publish()?;
+            room.wait_published(PUBLISH_TIMEOUT)?;
+        }
+        Ok((room, notices))
+    }
+
+    /// Our publisher id, while in the room.
+    pub fn id(&self) -> Option<&str> {
+        self.room.as_ref().map(Room::id)
+    }
+
+    /// Follows the room; on a lost session, leaves it and rejoins when Janus answers.
+    pub fn poll(&mut self) -> Vec<Notice> {
+        let mut notices = Vec::new();
+        if let Some(room) = &mut self.room {
+            match room.poll() {
+                Ok(n) => notices = n,
+                Err(e) => {
+                    notices.push(Notice::Lost {
+                        reason: e.to_string(),
+                    });
+                    if let Some(room) = self.room.take() {
+                        self.published_before += room.media_stats().published;
+                        let _ = room.leave();
+                    }
+                    self.retry_at = Instant::now();
+                }
+            }
+        }
+        if self.room.is_none() && Instant::now() >= self.retry_at {
+            self.retry_at = Instant::now() + REJOIN_EVERY;
+            match Self::enter(&self.config, self.publish) {
+                Ok((room, n)) => {
+                    notices.push(Notice::Rejoined {
+                        id: room.id().to_string(),
+                    });
+                    notices.extend(n);
+                    self.room = Some(room);
+                    self.last_failure = None;
+                }
+                Err(e) => {
+                    let reason = e.to_string();
+                    if self.last_failure.as_ref() != Some(&reason) {
+                        notices.push(Notice::RejoinFailed {
+                            reason: reason.clone(),
+                        });
+                        self.last_failure = Some(reason);
+                    }
+                }
+            }
+        }
+        notices
+    }
+
+    /// Sends one Opus payload; dropped while out of the room.
+    pub fn send(&self, payload: &[u8], ticks: u32) -> Result<(), JanusError> {
+        match &self.room {
+            Some(room) => room.send(payload, ticks),
+            None => Ok(()),
+        }
+    }
+
+    pub fn pull(&self, now: Instant, out: &mut Vec<PeerFrame>) {
+        if let Some(room) = &self.room {
+            room.pull(now, out);
+        }
+    }
+
+    /// The publishers of the current session (none while out of the room).
+    pub fn feeds(&self) -> Vec<FeedInfo> {
+        self.room.as_ref().map(Room::feeds).unwrap_or_default()
+    }
+
+    pub fn in_room(&self) -> bool {
+        self.room.is_some()
+    }
+
+    /// The current session's media counters, `published` counting every session's.
+    pub fn media_stats(&self) -> MediaStats {
+        let mut stats = self
+            .room
+            .as_ref()
+            .map(Room::media_stats)
+            .unwrap_or_default();
+        stats.published += self.published_before;
+        stats
+    }
+
+    pub fn leave(self) -> Result<(), JanusError> {
+        match self.room {
+            Some(room) => room.leave(),
+            None => Ok(()),
+        }
     }
 }
 
