@@ -212,6 +212,13 @@ impl Client {
         }
     }
 
+    /// Detaches a plugin handle (hanging up its peer connection).
+    pub fn detach(&mut self, handle: u64) -> Result<(), JanusError> {
+        let t = transaction(&self.next_transaction);
+        let url = format!("{}/{}/{handle}", self.base, self.session);
+        post(&self.agent, &url, &messages::detach(&t)).map(|_| ())
+    }
+
     /// Destroys the session: Janus hangs up its peer connections and tells the room.
     pub fn destroy(&mut self) -> Result<(), JanusError> {
         self.stop.store(true, Ordering::Relaxed);

@@ -28,6 +28,10 @@ pub fn keepalive(transaction: &str) -> Value {
     json!({ "janus": "keepalive", "transaction": transaction })
 }
 
+pub fn detach(transaction: &str) -> Value {
+    json!({ "janus": "detach", "transaction": transaction })
+}
+
 pub fn destroy(transaction: &str) -> Value {
     json!({ "janus": "destroy", "transaction": transaction })
 }

@@ -211,8 +211,8 @@ impl Room {
         for gone in news.gone {
             if let Some((handle, name)) = self.subscriptions.remove(&gone) {
                 self.media.feed_left(&gone);
-                // Janus may have detached it already; nothing to do if so.
-                let _ = handle;
+                // Janus may have hung it up already; the handle goes either way.
+                let _ = self.client.detach(handle);
                 notices.push(Notice::Left { feed: gone, name });
             }
         }
