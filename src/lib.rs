@@ -4,6 +4,7 @@ pub mod app;
 pub mod audio;
 pub mod codec;
 pub mod commands;
+pub mod input;
 pub mod lipsync;
 pub mod net;
 pub mod render;

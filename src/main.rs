@@ -7,6 +7,7 @@ use lipcall::codec::opus::codec::EncoderConfig as OpusConfig;
 use lipcall::codec::speex::codec::EncoderConfig;
 use lipcall::commands;
 use lipcall::commands::codec::{EncodeSettings, FileCodec};
+use lipcall::commands::janus::{JanusArgs, JanusReceiveArgs};
 use lipcall::commands::net::{KeyArgs, ReceiveArgs, SendArgs};
 
 /// Voice chat with lip-synced 3D heads, driven by the Speex decoder's own LSPs.
@@ -29,7 +30,7 @@ struct AppFlags {
     #[arg(long)]
     no_demo: bool,
     /// App: close the window after this many seconds.
-    #[arg(long, value_name = "SECONDS")]
+    #[arg(long, value_name = "SECONDS", allow_hyphen_values = true, value_parser = commands::parse_seconds)]
     quit_after: Option<f64>,
     /// App: write per-peer status lines (animation frames, ...) to FILE twice a second.
     #[arg(long, value_name = "FILE")]
@@ -141,8 +142,12 @@ enum Command {
         /// unless --codec asks for another codec).
         input: PathBuf,
         /// Receiver (or relay, with --room) as HOST:PORT.
-        #[arg(long, value_name = "HOST:PORT")]
-        to: String,
+        #[arg(long, value_name = "HOST:PORT", required_unless_present = "janus")]
+        to: Option<String>,
+        /// Publish in a room (--room) of this Janus server instead, http://HOST:PORT/janus;
+        /// --key is the room's pin. Sent as Opus over WebRTC.
+        #[arg(long, value_name = "URL", conflicts_with_all = ["to", "key_hex", "codec", "ssrc"], requires = "room")]
+        janus: Option<String>,
         #[command(flatten)]
         key: KeyOpts,
         /// Display name sent to peers (RTCP SDES NAME).
@@ -170,12 +175,16 @@ enum Command {
     /// Receive a call: jitter buffer, decode, features; write the audio as played.
     Receive {
         /// Address to listen on, HOST:PORT (port 0 picks one).
-        #[arg(long, value_name = "HOST:PORT")]
-        listen: String,
-        /// Write the audio as played (all peers mixed).
+        #[arg(long, value_name = "HOST:PORT", required_unless_present = "janus")]
+        listen: Option<String>,
+        /// Join a room (--room) of this Janus server instead, http://HOST:PORT/janus, and
+        /// receive every publisher there; --key is the room's pin.
+        #[arg(long, value_name = "URL", conflicts_with_all = ["listen", "relay", "key_hex"], requires = "room")]
+        janus: Option<String>,
+        /// Write the audio as played (all peers mixed), streamed to disk as it plays.
         #[arg(long, value_name = "OUT.wav")]
         wav: Option<PathBuf>,
-        /// Write viseme weights (needs the lip-sync network; not in this build yet).
+        /// Write viseme weights from the built-in lip-sync network (one file per peer).
         #[arg(long, value_name = "WEIGHTS.csv")]
         weights: Option<PathBuf>,
         /// Write per-frame LSP + energy features aligned to OUT.wav (one file per peer).
@@ -183,9 +192,16 @@ enum Command {
         features: Option<PathBuf>,
         #[command(flatten)]
         key: KeyOpts,
-        /// Stop after this many seconds (otherwise when every peer has said BYE).
-        #[arg(long)]
+        /// Stop after this many seconds. Without it, the receive ends once everyone who called
+        /// has left: said BYE, or sent nothing for --peer-timeout. Before anyone calls it
+        /// waits. Ctrl-C (SIGINT) or SIGTERM ends it at any time; the files written so far are
+        /// finished and whole either way.
+        #[arg(long, allow_hyphen_values = true, value_parser = commands::parse_seconds)]
         seconds: Option<f64>,
+        /// A peer that sent nothing (no RTP, no RTCP) for this many seconds has left (in a
+        /// Janus room, Janus says when a publisher leaves).
+        #[arg(long, value_name = "SECONDS", default_value_t = 30.0, value_parser = commands::parse_seconds)]
+        peer_timeout: f64,
         /// Join a room on this relay (with --room).
         #[arg(long, value_name = "HOST:PORT")]
         relay: Option<String>,
@@ -202,7 +218,7 @@ enum Command {
         #[arg(long, value_name = "HOST:PORT")]
         listen: String,
         /// Stop after this many seconds (otherwise run until killed).
-        #[arg(long)]
+        #[arg(long, allow_hyphen_values = true, value_parser = commands::parse_seconds)]
         seconds: Option<f64>,
     },
     /// Train the viseme network on a TIMIT-style corpus through the real Speex codec.
@@ -242,7 +258,7 @@ fn parse_fps(arg: &str) -> Result<u32, String> {
 struct KeyOpts {
     /// Room passphrase: encrypts and authenticates media with SRTP. Without it (or
     /// --key-hex) the call is plain RTP.
-    #[arg(long, value_name = "PASSPHRASE")]
+    #[arg(long, value_name = "PASSPHRASE", value_parser = commands::parse_passphrase)]
     key: Option<String>,
     /// Raw SRTP master key + salt (60 hex digits), e.g. to talk to GStreamer's srtpenc.
     #[arg(long, value_name = "HEX")]
@@ -386,6 +402,23 @@ fn main() -> ExitCode {
             commands::audio::devices(output.as_deref(), input.as_deref())
         }
         Command::Send {
+            janus: Some(url),
+            input,
+            key,
+            name,
+            room,
+            ..
+        } => commands::janus::send(
+            &input,
+            &JanusArgs {
+                url,
+                room: room.unwrap_or_default(),
+                name,
+                pin: key.key,
+            },
+        ),
+        Command::Send {
+            janus: None,
             input,
             to,
             key,
@@ -398,7 +431,7 @@ fn main() -> ExitCode {
             ssrc,
         } => commands::net::send(&SendArgs {
             input,
-            to,
+            to: to.unwrap_or_default(),
             key: key.into(),
             name,
             room,
@@ -409,23 +442,48 @@ fn main() -> ExitCode {
             payload_types: payloads.assignments,
         }),
         Command::Receive {
+            janus: Some(url),
+            wav,
+            weights,
+            features,
+            key,
+            seconds,
+            room,
+            name,
+            ..
+        } => commands::janus::receive(&JanusReceiveArgs {
+            janus: JanusArgs {
+                url,
+                room: room.unwrap_or_default(),
+                name,
+                pin: key.key,
+            },
+            wav,
+            weights,
+            features,
+            seconds,
+        }),
+        Command::Receive {
+            janus: None,
             listen,
             wav,
             weights,
             features,
             key,
             seconds,
+            peer_timeout,
             relay,
             room,
             name,
             payloads,
         } => commands::net::receive(&ReceiveArgs {
-            listen,
+            listen: listen.unwrap_or_default(),
             wav,
             weights,
             features,
             key: key.into(),
             seconds,
+            peer_timeout: Some(peer_timeout),
             relay,
             room,
             name,
@@ -443,7 +501,7 @@ fn finish(result: anyhow::Result<()>) -> ExitCode {
     match result {
         Ok(()) => ExitCode::SUCCESS,
         Err(e) => {
-            eprintln!("lipcall: {e:#}");
+            eprintln!("lipcall: {}", commands::error_line(&e));
             ExitCode::FAILURE
         }
     }

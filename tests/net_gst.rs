@@ -90,22 +90,38 @@ fn gst_to_lipcall(srtp: bool) {
         assert_eq!(num(&fields(&stderr, "lipcall: played"), "auth_failed"), 0.0);
     }
 
+    // Nothing was lost on loopback, and nothing is claimed lost: rtpspeexpay stamps its first
+    // packet 120 ticks long, which is no gap in the sequence.
+    assert_eq!(num(&peer, "lost"), 0.0, "{stderr}");
+    assert_eq!(num(&peer, "dropped"), 0.0, "{stderr}");
+
     let expected = decode_frames(&ogg_packets(&reference));
     let (rate, got) = read_wav_i16(&out);
     assert_eq!(rate, 8000);
-    // Played = the stream, plus at most the concealed tail before the talk spurt times out.
+    // Played = the stream, plus what is concealed after it while a late packet might still
+    // come (it ends without BYE): the buffer's delay, one frame unless the machine is loaded.
     let frames = got.len() as i64 / 160;
     let sent = expected.len() as i64 / 160;
+    let hold = (num(&peer, "target_ms") / 20.0).ceil().max(1.0) as i64;
     assert!(
-        frames >= sent - 1 && frames <= sent + 17,
-        "{frames} vs {sent}"
+        frames >= sent && frames <= sent + hold,
+        "{frames} vs {sent}: {stderr}"
     );
     let a = align(&expected, &got, 2000);
     assert!(a.chunk_snr.len() >= 8, "{a:?}");
     assert!(a.median() > 60.0, "median SNR {:.1} dB: {a:?}", a.median());
-    // A delay adjustment of the jitter buffer (a skipped or inserted frame) puts the decoder
-    // off the reference for a moment; everything else is bit-exact.
-    assert!(a.share_above(25.0) >= 0.85, "{a:?}");
+    // Aligned throughout: at the one lag that fits the first second, the whole stream is
+    // speexdec's decode of the same frames (no frame skipped or inserted on loopback).
+    let (whole, lag) = snr_at_best_lag(&expected, &got, 2000);
+    let line = stderr
+        .lines()
+        .find(|l| l.starts_with("peer "))
+        .unwrap_or("");
+    eprintln!(
+        "whole stream against speexdec: {whole:.1} dB at lag {lag}; {frames} frames for {sent}; {line}"
+    );
+    assert!(whole > 60.0, "{whole:.1} dB at lag {lag}: {a:?}");
+    assert_eq!(lag % 160, 0);
     let rows = std::fs::read_to_string(&features).unwrap().lines().count() - 1;
     assert_eq!(rows as i64, frames);
 }
@@ -396,7 +412,8 @@ fn gstreamer_rtppcmupay_into_lipcall_receive() {
 }
 
 /// Speex on payload type 100, which nobody mapped: counted and dropped, never decoded as any
-/// codec; told that 100 is Speex (`--pt speex=100`), the receiver plays it.
+/// codec (and no peer made of it); told that 100 is Speex (`--pt speex=100`), the receiver
+/// plays it.
 #[test]
 fn a_payload_type_nobody_mapped_is_counted_and_dropped() {
     let _serial = serial();
@@ -406,12 +423,10 @@ fn a_payload_type_nobody_mapped_is_counted_and_dropped() {
         &["rtpspeexdepay", "speexdec"],
         &[],
     );
-    let peer = fields(&r.stderr, "peer ");
+    // Media no codec can read makes no peer (junk must not fill the peer table).
     let session = fields(&r.stderr, "lipcall: played");
-    assert!(num(&peer, "unknown_pt") >= 140.0, "{}", r.stderr);
-    assert_eq!(num(&session, "unknown_pt"), num(&peer, "unknown_pt"));
-    assert_eq!(num(&peer, "received"), 0.0);
-    assert_eq!(peer["codec"], "-");
+    assert!(num(&session, "unknown_pt") >= 140.0, "{}", r.stderr);
+    assert!(!r.stderr.contains("peer ssrc="), "{}", r.stderr);
     assert!(r.played.is_empty());
 
     let r = gst_into_receive(

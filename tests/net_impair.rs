@@ -200,27 +200,26 @@ fn impaired_call(imp: Impairment, codec: &str) {
         counts.duplicated as f64
     );
     assert_eq!(num(&session, "auth_failed"), 0.0);
-    // Every missing frame was concealed or (Opus) rebuilt from the next packet's FEC, and only
-    // those (plus inserted frames).
-    assert_eq!(concealed + recovered, lost + stretched);
     if codec == "opus" {
         // The losses whose next packet came in time and carried FEC (speech, not silence).
         assert!(recovered >= 0.3 * counts.dropped as f64, "{peer:?}");
     } else {
         assert_eq!(recovered, 0.0);
     }
-    assert!(lost >= counts.dropped as f64, "{peer:?}");
-    assert!(
-        lost <= counts.dropped as f64 + late + dropped + 2.0,
-        "{peer:?}"
-    );
+    // Loss is what the sequence numbers show missing: every packet the proxy dropped, but for
+    // any after the last one that came (no later sequence number reveals those).
+    assert!(lost <= counts.dropped as f64, "{peer:?}");
+    assert!(lost + 3.0 >= counts.dropped as f64, "{peer:?}");
+    assert!(late <= 20.0, "{peer:?}");
 
-    // Duration: every frame of the stream was played or concealed exactly once; frames the
-    // buffer inserted or skipped to follow the jitter are accounted for explicitly.
+    // Duration: every frame of the stream was played, concealed or (Opus) rebuilt from the
+    // next packet's FEC exactly once; frames the buffer inserted or skipped to follow the
+    // jitter are accounted for explicitly.
     let (_, pcm) = read_wav_i16(&out);
     assert_eq!(pcm.len() % 160, 0);
     let frames = (pcm.len() / 160) as f64;
-    assert_eq!(frames, played + lost + stretched, "{peer:?}");
+    assert_eq!(frames, played + concealed + recovered, "{peer:?}");
+    assert!(concealed + recovered >= lost + stretched, "{peer:?}");
     let net = frames - stretched + dropped;
     assert!(
         (net - sent_frames as f64).abs() <= 1.0,

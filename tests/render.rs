@@ -590,7 +590,10 @@ fn malformed_glb_files_give_errors_not_panics() {
 fn missing_head_file_is_an_io_error() {
     let err = lipcall::render::gltf_load::load_head(std::path::Path::new("/nonexistent/head.glb"))
         .unwrap_err();
-    assert!(matches!(err, RenderError::Io { .. }));
+    assert!(matches!(
+        err,
+        RenderError::Input(lipcall::input::InputError::Io { .. })
+    ));
 }
 
 #[test]

@@ -95,7 +95,9 @@ pub fn default_path() -> Option<PathBuf> {
 impl Settings {
     /// Loads the settings; a missing or unreadable file gives the defaults (and says why).
     pub fn load(path: &Path) -> (Self, Option<String>) {
-        match std::fs::read_to_string(path) {
+        use crate::input::InputError;
+        // Settings are a few hundred bytes; a device or a huge file there is not read.
+        match crate::input::read_to_string(path, 1 << 20) {
             Ok(text) => match serde_json::from_str(&text) {
                 Ok(s) => (s, None),
                 Err(e) => (
@@ -103,11 +105,10 @@ impl Settings {
                     Some(format!("{}: ignored ({e})", path.display())),
                 ),
             },
-            Err(e) if e.kind() == std::io::ErrorKind::NotFound => (Self::default(), None),
-            Err(e) => (
-                Self::default(),
-                Some(format!("{}: ignored ({e})", path.display())),
-            ),
+            Err(InputError::Io { source, .. }) if source.kind() == std::io::ErrorKind::NotFound => {
+                (Self::default(), None)
+            }
+            Err(e) => (Self::default(), Some(format!("settings ignored: {e}"))),
         }
     }
 
@@ -160,5 +161,14 @@ mod tests {
         let (d, why) = Settings::load(&path);
         assert_eq!(d, Settings::default());
         assert!(why.is_some());
+        assert_eq!(Settings::load(&dir.path().join("none.json")), (d, None));
+    }
+
+    #[test]
+    fn a_device_as_the_settings_file_is_not_read() {
+        let (s, why) = Settings::load(Path::new("/dev/zero"));
+        assert_eq!(s, Settings::default());
+        let why = why.unwrap();
+        assert!(why.contains("not a regular file"), "{why}");
     }
 }

@@ -9,11 +9,8 @@ use crate::codec::speex::SAMPLE_RATE;
 
 #[derive(Debug, thiserror::Error)]
 pub enum WavError {
-    #[error("{path}: {source}")]
-    Open {
-        path: String,
-        source: std::io::Error,
-    },
+    #[error(transparent)]
+    Input(#[from] crate::input::InputError),
     #[error("{path}: not a readable WAV file ({reason})")]
     Format { path: String, reason: String },
     #[error("{path}: the WAV file holds no audio")]
@@ -38,20 +35,48 @@ fn format_error(path: &Path, e: impl std::fmt::Display) -> WavError {
     }
 }
 
-/// Reads a WAV file and mixes its channels down to mono.
-pub fn read_mono(path: &Path) -> Result<MonoAudio, WavError> {
-    let name = || path.display().to_string();
-    let file = std::fs::File::open(path).map_err(|source| WavError::Open {
-        path: name(),
-        source,
-    })?;
+/// Sample rates accepted from files: below 4 kHz there is no narrowband speech to code, and a
+/// header's absurd rate would otherwise make resampling invent hours of audio.
+pub const RATES: std::ops::RangeInclusive<u32> = 4000..=384_000;
+
+/// Opens a WAV file and checks its header against what the file really holds: a sample rate in
+/// [`RATES`], and no more audio claimed than the file's bytes (the sample iterator's length, and
+/// so every allocation sized by it, comes from the header). Returns the reader and its format.
+pub fn open(path: &Path) -> Result<hound::WavReader<std::io::BufReader<std::fs::File>>, WavError> {
+    let (file, size) = crate::input::open(path, crate::input::MAX_INPUT_BYTES)?;
     let reader =
         hound::WavReader::new(std::io::BufReader::new(file)).map_err(|e| format_error(path, e))?;
     let spec = reader.spec();
-    let channels = usize::from(spec.channels);
-    if channels == 0 || spec.sample_rate == 0 {
-        return Err(format_error(path, "zero channels or zero sample rate"));
+    if spec.channels == 0 {
+        return Err(format_error(path, "zero channels"));
     }
+    if !RATES.contains(&spec.sample_rate) {
+        return Err(format_error(
+            path,
+            format!(
+                "sample rate {} Hz, expected {} to {} Hz",
+                spec.sample_rate,
+                RATES.start(),
+                RATES.end()
+            ),
+        ));
+    }
+    let claimed = u64::from(reader.len()) * u64::from(spec.bits_per_sample.div_ceil(8));
+    if claimed > size {
+        return Err(format_error(
+            path,
+            format!("the header claims {claimed} bytes of audio, the file has {size} bytes"),
+        ));
+    }
+    Ok(reader)
+}
+
+/// Reads a WAV file and mixes its channels down to mono.
+pub fn read_mono(path: &Path) -> Result<MonoAudio, WavError> {
+    let name = || path.display().to_string();
+    let reader = open(path)?;
+    let spec = reader.spec();
+    let channels = usize::from(spec.channels);
     let interleaved: Vec<f32> = match spec.sample_format {
         hound::SampleFormat::Float => reader
             .into_samples::<f32>()

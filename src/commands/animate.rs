@@ -57,8 +57,7 @@ pub fn receiver_features(input: &Path) -> Result<(u32, Vec<i16>, Vec<FrameFeatur
             .any(|ext| e.eq_ignore_ascii_case(ext))
     });
     let decoded = if is_ogg {
-        let bytes =
-            std::fs::read(input).with_context(|| format!("cannot read {}", input.display()))?;
+        let bytes = crate::input::read(input, crate::input::MAX_INPUT_BYTES)?;
         if opus::ogg_file::holds_opus(&bytes) {
             let decoded =
                 opus::stream::decode(&bytes).with_context(|| input.display().to_string())?;

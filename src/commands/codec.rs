@@ -75,7 +75,7 @@ pub fn encode(input: &Path, output: &Path, settings: EncodeSettings) -> Result<(
 /// Decodes an Ogg Speex or Ogg Opus file, told apart by its content (an `.opus` name that
 /// holds no Opus gets the Opus reader's account of what it holds).
 pub fn decode(input: &Path, output: &Path, features: Option<&Path>, enhancer: bool) -> Result<()> {
-    let bytes = std::fs::read(input).with_context(|| format!("cannot read {}", input.display()))?;
+    let bytes = crate::input::read(input, crate::input::MAX_INPUT_BYTES)?;
     if opus::ogg_file::holds_opus(&bytes) || has_opus_extension(input) {
         if features.is_some() {
             bail!("--features is not available for Opus files yet (only for Speex)");
@@ -84,6 +84,10 @@ pub fn decode(input: &Path, output: &Path, features: Option<&Path>, enhancer: bo
     }
     let decoded =
         stream::decode(&bytes, enhancer).with_context(|| format!("{}", input.display()))?;
+    // As animate: a stream without a frame of audio is an error, not an empty WAV.
+    if decoded.pcm.is_empty() {
+        bail!("{}: holds no audio frame", input.display());
+    }
     wav::write_mono_i16(output, decoded.header.rate, &decoded.pcm)?;
     if decoded.corrupt_packets > 0 {
         eprintln!(
@@ -94,17 +98,27 @@ pub fn decode(input: &Path, output: &Path, features: Option<&Path>, enhancer: bo
     if let Some(path) = features {
         write_features_csv(path, decoded.header.rate, &decoded.features)?;
     }
+    // Speex stereo is intensity stereo: a mono stream plus in-band balance, so the mono
+    // decode is the downmix. Said, as for Opus.
     eprintln!(
-        "{}: {:.2} s of audio, {} frames",
+        "{}: {:.2} s of audio, {} frames{}",
         output.display(),
         decoded.pcm.len() as f64 / f64::from(decoded.header.rate),
-        decoded.features.len()
+        decoded.features.len(),
+        if decoded.header.channels > 1 {
+            " (stereo mixed to mono)"
+        } else {
+            ""
+        }
     );
     Ok(())
 }
 
 fn decode_opus(input: &Path, output: &Path, bytes: &[u8]) -> Result<()> {
     let decoded = opus::stream::decode(bytes).with_context(|| format!("{}", input.display()))?;
+    if decoded.pcm.is_empty() {
+        bail!("{}: holds no audio frame", input.display());
+    }
     wav::write_mono_i16(output, SAMPLE_RATE, &decoded.pcm)?;
     if decoded.corrupt_packets > 0 {
         eprintln!(

@@ -4,5 +4,80 @@
 pub mod animate;
 pub mod audio;
 pub mod codec;
+pub mod janus;
 pub mod lipsync;
 pub mod net;
+mod recording;
+
+/// The one line a user sees for an error: its chain joined by ": ", leaving out a cause whose
+/// text is already in the line (library errors name their `io::Error` in their own message and
+/// also give it as their source, which would print the OS error twice).
+pub fn error_line(error: &anyhow::Error) -> String {
+    let mut line = String::new();
+    for cause in error.chain() {
+        let text = cause.to_string();
+        if text.is_empty() || line.contains(&text) {
+            continue;
+        }
+        if !line.is_empty() {
+            line.push_str(": ");
+        }
+        line.push_str(&text);
+    }
+    line
+}
+
+/// Longest run a `--seconds` limit may ask for (about four months).
+pub const MAX_SECONDS: f64 = 1e7;
+
+/// Parses a run's duration in seconds (clap value parser): a finite number above 0 and at most
+/// [`MAX_SECONDS`]; NaN, infinities, negative numbers and 0 are usage errors, not a run that
+/// never stops, stops at once or panics converting to a `Duration`.
+pub fn parse_seconds(arg: &str) -> Result<f64, String> {
+    match arg.trim().parse::<f64>() {
+        Ok(s) if s > 0.0 && s <= MAX_SECONDS => Ok(s),
+        _ => Err(format!(
+            "must be a number of seconds above 0, at most {MAX_SECONDS:e}"
+        )),
+    }
+}
+
+/// A room passphrase (clap value parser): an empty one keys nothing a listener could not
+/// guess, and a call keyed by it must not be called encrypted.
+pub fn parse_passphrase(arg: &str) -> Result<String, String> {
+    if arg.trim().is_empty() {
+        return Err(
+            "the passphrase is empty (leave --key out for a plain, unencrypted call)".into(),
+        );
+    }
+    Ok(arg.to_owned())
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn seconds_are_finite_positive_and_bounded() {
+        assert_eq!(parse_seconds("2.5"), Ok(2.5));
+        assert_eq!(parse_seconds("1e7"), Ok(1e7));
+        for bad in [
+            "NaN", "nan", "inf", "-inf", "-1", "0", "-0", "1e300", "", "ten",
+        ] {
+            assert!(parse_seconds(bad).is_err(), "{bad}");
+        }
+    }
+
+    #[test]
+    fn an_os_error_named_by_its_wrapper_is_printed_once() {
+        let e = crate::input::read(
+            std::path::Path::new("/nonexistent/lipcall.wav"),
+            crate::input::MAX_INPUT_BYTES,
+        )
+        .unwrap_err();
+        let e = anyhow::Error::new(e).context("loading the head");
+        let line = error_line(&e);
+        assert_eq!(line.matches("os error 2").count(), 1, "{line}");
+        assert!(line.starts_with("loading the head: cannot read"), "{line}");
+    }
+}

@@ -1,23 +1,24 @@
 //! `lipcall send`, `lipcall receive` and `lipcall relay`: the headless real-time transport.
 
-use std::io::Write;
+use std::collections::VecDeque;
 use std::net::{SocketAddr, ToSocketAddrs};
 use std::path::{Path, PathBuf};
+use std::sync::atomic::AtomicBool;
 use std::time::{Duration, Instant};
 
 use anyhow::{Context, Result, bail};
 
+use super::recording::{Recorder, TICK, stop_flag, stopped};
 use crate::audio::wav;
 use crate::codec::any::{Codec, EncoderSettings, FrameEncoder, MAX_FRAME_PAYLOAD, PayloadMap};
 use crate::codec::speex::features::FrameFeatures;
 use crate::codec::speex::split::split_frames;
 use crate::codec::{FRAME_SIZE, SAMPLE_RATE, opus, speex};
+use crate::lipsync::network::Model;
 use crate::lipsync::{self, LipSync, LipSyncOptions};
 use crate::net::relay::{Relay, RelayConfig};
 use crate::net::session::{PeerFrame, PeerInfo, Session, SessionConfig};
 use crate::net::srtp::MasterKey;
-
-const TICK: Duration = Duration::from_millis(20);
 
 /// How the call is keyed.
 #[derive(Debug, Clone, Default)]
@@ -85,7 +86,7 @@ fn encode_pcm(pcm: &[i16], codec: Codec, settings: &EncoderSettings) -> Result<P
 /// What `send` sends: a coded file as it is (Ogg Speex, Ogg Opus), or audio encoded here (a
 /// WAV, or a coded file when `--codec` asks for another codec). Without `--codec`, a WAV goes
 /// as Speex, the reference path.
-fn load_packets(
+pub(crate) fn load_packets(
     input: &Path,
     codec: Option<Codec>,
     settings: &EncoderSettings,
@@ -94,7 +95,7 @@ fn load_packets(
         .extension()
         .and_then(|e| e.to_str())
         .map(str::to_ascii_lowercase);
-    let read = || std::fs::read(input).with_context(|| format!("cannot read {}", input.display()));
+    let read = || crate::input::read(input, crate::input::MAX_INPUT_BYTES);
     let what = || input.display().to_string();
     match ext.as_deref() {
         Some("spx" | "ogg" | "opus") => {
@@ -221,6 +222,12 @@ pub fn send(args: &SendArgs) -> Result<()> {
     for peer in session.peers() {
         print_peer(&peer);
     }
+    if stats.sent_rtp == 0 {
+        bail!(
+            "no packet could be sent to {to} ({} send errors)",
+            stats.send_errors
+        );
+    }
     Ok(())
 }
 
@@ -239,7 +246,7 @@ fn wait_for_relay(session: &Session) -> Result<()> {
     bail!("the relay did not answer the join within 3 s")
 }
 
-fn print_peer(peer: &PeerInfo) {
+pub(crate) fn print_peer(peer: &PeerInfo) {
     let j = &peer.receiver.jitter;
     let opt = |v: Option<f64>| v.map_or_else(|| "-".to_string(), |v| format!("{v:.1}"));
     let codec = peer.receiver.codec.map_or("-", Codec::name);
@@ -280,6 +287,8 @@ pub struct ReceiveArgs {
     pub features: Option<PathBuf>,
     pub key: KeyArgs,
     pub seconds: Option<f64>,
+    /// A peer silent (no RTP, no RTCP) this long has left; `None`: the session's default, 30 s.
+    pub peer_timeout: Option<f64>,
     pub relay: Option<String>,
     pub room: Option<String>,
     pub name: Option<String>,
@@ -287,44 +296,70 @@ pub struct ReceiveArgs {
     pub payload_types: Vec<String>,
 }
 
-/// One feature row of one peer, on the output timeline.
-struct Row {
-    frame: usize,
-    features: FrameFeatures,
-    /// Viseme weights from the peer's network, when `--weights` asked for them.
-    weights: Vec<f32>,
-}
-
-/// What the receiver keeps per remote speaker: its rows and, with `--weights`, its lip sync.
+/// What the receiver keeps per remote speaker: with `--weights`, its lip sync and the output
+/// ticks of the frames whose weights have not come out yet.
 struct PeerTrack<'m> {
     ssrc: u32,
-    rows: Vec<Row>,
     lipsync: Option<LipSync<'m>>,
+    /// The next frame's tag (frames fed to the lip sync, counted).
+    next_tag: u64,
+    /// (tag, output tick) of frames waiting for their weights, oldest first.
+    waiting: VecDeque<(u64, usize)>,
 }
 
 impl PeerTrack<'_> {
-    /// Weights the lip sync gave out (frame `tag` of this track) go into their row.
-    fn store(rows: &mut [Row], out: Option<(u64, &[f32])>) {
-        if let Some((tag, w)) = out
-            && let Some(row) = rows.get_mut(tag as usize)
-        {
-            row.weights.clear();
-            row.weights.extend_from_slice(w);
+    /// Weights the lip sync gave out (for the frame tagged `tag`) go to WEIGHTS.csv.
+    fn store(
+        waiting: &mut VecDeque<(u64, usize)>,
+        ssrc: u32,
+        out: Option<(u64, &[f32])>,
+        recorder: &mut Recorder,
+    ) -> Result<()> {
+        let Some((tag, w)) = out else {
+            return Ok(());
+        };
+        while let Some(&(t, frame)) = waiting.front() {
+            if t > tag {
+                break;
+            }
+            waiting.pop_front();
+            recorder.weights(ssrc, frame, if t == tag { w } else { &[] })?;
         }
+        Ok(())
     }
 
     /// The frames still waiting for their look-ahead, given out now (the peer's next frame
     /// did not come in time, or the call ended).
-    fn flush(&mut self, all: bool) {
+    fn flush(&mut self, all: bool, recorder: &mut Recorder) -> Result<()> {
         if let Some(lipsync) = &mut self.lipsync {
             while let Some(out) = lipsync.flush() {
-                Self::store(&mut self.rows, Some(out));
+                Self::store(&mut self.waiting, self.ssrc, Some(out), recorder)?;
                 if !all {
                     break;
                 }
             }
         }
+        if all {
+            for (_, frame) in self.waiting.drain(..) {
+                recorder.weights(self.ssrc, frame, &[])?;
+            }
+        }
+        Ok(())
     }
+}
+
+/// WEIGHTS.csv's viseme columns for a model (what its lip sync gives out).
+pub(crate) fn viseme_names(model: Option<&Model>) -> Result<Vec<String>> {
+    let Some(model) = model else {
+        return Ok(Vec::new());
+    };
+    let lipsync = LipSync::new(model, &LipSyncOptions::default())?;
+    Ok(lipsync
+        .visemes()
+        .members()
+        .iter()
+        .map(|v| v.name().to_string())
+        .collect())
 }
 
 pub fn receive(args: &ReceiveArgs) -> Result<()> {
@@ -343,7 +378,6 @@ pub fn receive_with(
     }
     let listen = resolve(&args.listen)?;
     let key = args.key.master_key(args.room.as_deref())?;
-    announce_security(&key);
     let mut config = SessionConfig::new(listen);
     if let Some(relay) = &args.relay {
         config.destinations = vec![resolve(relay)?];
@@ -352,98 +386,38 @@ pub fn receive_with(
     config.key = key;
     config.name = args.name.clone();
     config.payloads = payload_map(&args.payload_types)?;
+    if let Some(timeout) = args.peer_timeout {
+        config.peer_timeout = Duration::from_secs_f64(timeout);
+    }
+    let stop = stop_flag()?;
+    // Before the call: a path that cannot be written fails now.
+    let mut recorder = Recorder::create(
+        args.wav.as_deref(),
+        args.features.as_deref(),
+        args.weights.as_deref(),
+        viseme_names(model.as_ref())?,
+    )?;
+    announce_security(&config.key);
     let session = Session::start(config)?;
     eprintln!("lipcall: listening on {}", session.local_addr()?);
     if args.room.is_some() {
         wait_for_relay(&session)?;
     }
-
-    let limit = args.seconds.map(Duration::from_secs_f64);
-    let start = Instant::now();
-    let mut pcm: Vec<i16> = Vec::new();
-    let mut tracks: Vec<PeerTrack> = Vec::new();
-    let mut frames: Vec<PeerFrame> = Vec::new();
-    // Output ticks since the first audible one, and the last tick that had audio.
-    let mut timeline: Option<usize> = None;
-    let mut last_audible = 0usize;
-    let mut tick = 0u32;
-    loop {
-        let due = start + TICK * tick;
-        tick += 1;
-        if let Some(wait) = due.checked_duration_since(Instant::now()) {
-            std::thread::sleep(wait);
-        }
-        if limit.is_some_and(|l| due.duration_since(start) >= l) {
-            break;
-        }
-        frames.clear();
-        session.pull(due, &mut frames);
-        if frames.is_empty() && timeline.is_some() {
-            let peers = session.peers();
-            if !peers.is_empty() && peers.iter().all(|p| p.said_bye) && limit.is_none() {
-                break;
-            }
-        }
-        if frames.is_empty() && timeline.is_none() {
-            continue;
-        }
-        let row = timeline.get_or_insert(0);
-        let index = *row;
-        *row += 1;
-        let mut mix = [0i32; FRAME_SIZE];
-        for f in &frames {
-            for (m, &s) in mix.iter_mut().zip(&f.frame.pcm) {
-                *m += i32::from(s);
-            }
-            let time = index as f64 * TICK.as_secs_f64();
-            on_frame(f.ssrc, time, &f.frame.features);
-            let slot = match tracks.iter().position(|t| t.ssrc == f.ssrc) {
-                Some(i) => i,
-                None => {
-                    let lipsync = match &model {
-                        Some(model) => Some(LipSync::new(model, &LipSyncOptions::default())?),
-                        None => None,
-                    };
-                    tracks.push(PeerTrack {
-                        ssrc: f.ssrc,
-                        rows: Vec::new(),
-                        lipsync,
-                    });
-                    tracks.len() - 1
-                }
-            };
-            let track = &mut tracks[slot];
-            let tag = track.rows.len() as u64;
-            track.rows.push(Row {
-                frame: index,
-                features: f.frame.features,
-                weights: Vec::new(),
-            });
-            if let Some(lipsync) = &mut track.lipsync {
-                PeerTrack::store(&mut track.rows, lipsync.push(tag, &f.frame.features));
-            }
-        }
-        for track in &mut tracks {
-            if !frames.iter().any(|f| f.ssrc == track.ssrc) {
-                track.flush(false);
-            }
-        }
-        if !frames.is_empty() {
-            last_audible = index + 1;
-        }
-        pcm.extend(mix.iter().map(|&m| m.clamp(-32768, 32767) as i16));
-    }
-    pcm.truncate(last_audible * FRAME_SIZE);
+    let played = play(
+        &mut &session,
+        args.seconds,
+        model.as_ref(),
+        on_frame,
+        &mut recorder,
+        &stop,
+    );
     session.leave();
-    for track in &mut tracks {
-        track.flush(true);
-    }
 
     let stats = session.stats();
     eprintln!(
         "lipcall: played {:.2} s; datagrams={} rtp={} rtcp={} malformed={} unknown={} \
          unknown_pt={} auth_failed={} replayed={} too_many_peers={}",
-        pcm.len() as f64 / f64::from(SAMPLE_RATE),
+        recorder.seconds(),
         stats.datagrams,
         stats.rtp,
         stats.rtcp,
@@ -457,92 +431,137 @@ pub fn receive_with(
     for peer in session.peers() {
         print_peer(&peer);
     }
-    if let Some(path) = &args.wav {
-        wav::write_mono_i16(path, SAMPLE_RATE, &pcm)?;
-    }
-    if let Some(path) = &args.features {
-        for (i, track) in tracks.iter().enumerate() {
-            let target = if i == 0 {
-                path.clone()
-            } else {
-                peer_path(path, track.ssrc)
-            };
-            write_rows(&target, &track.rows)?;
-        }
-        if tracks.is_empty() {
-            write_rows(path, &[])?;
-        }
-    }
-    if let (Some(path), Some(model)) = (&args.weights, &model) {
-        let names: Vec<&str> = tracks
-            .first()
-            .and_then(|t| t.lipsync.as_ref())
-            .map(|l| l.visemes().members().iter().map(|v| v.name()).collect())
-            .unwrap_or_else(|| model.viseme_names());
-        for (i, track) in tracks.iter().enumerate() {
-            let target = if i == 0 {
-                path.clone()
-            } else {
-                peer_path(path, track.ssrc)
-            };
-            write_weight_rows(&target, &names, &track.rows)?;
-        }
-        if tracks.is_empty() {
-            write_weight_rows(path, &names, &[])?;
-        }
-    }
-    Ok(())
+    let finished = recorder.finish();
+    played.and(finished)
 }
 
-/// FEATURES.csv of a second or later peer: `NAME-<ssrc>.csv` beside the first.
-fn peer_path(path: &Path, ssrc: u32) -> PathBuf {
-    let stem = path
-        .file_stem()
-        .map(|s| s.to_string_lossy().into_owned())
-        .unwrap_or_default();
-    path.with_file_name(format!("{stem}-{ssrc:08x}.csv"))
+/// Where a receiver's played frames come from: a [`Session`], or a Janus room.
+pub(crate) trait FrameSource {
+    /// The next 20 ms (starting at `now` on the output clock) of every peer that is playing.
+    fn pull(&mut self, now: Instant, out: &mut Vec<PeerFrame>) -> Result<()>;
+    /// Every peer that came has left (the receive ends there without `--seconds`).
+    fn all_left(&mut self) -> bool;
 }
 
-/// FEATURES.csv rows on the output timeline: `frame` counts 20 ms ticks of OUT.wav.
-fn write_rows(path: &Path, rows: &[Row]) -> Result<()> {
-    let file =
-        std::fs::File::create(path).with_context(|| format!("cannot write {}", path.display()))?;
-    let mut out = std::io::BufWriter::new(file);
-    let lsp_names: Vec<String> = (1..=10).map(|i| format!("lsp{i}")).collect();
-    writeln!(out, "frame,time_s,mode,{},energy_db", lsp_names.join(","))?;
-    for row in rows {
-        let time = row.frame as f64 * TICK.as_secs_f64();
-        let mode = row.features.mode.map(|m| m.to_string()).unwrap_or_default();
-        write!(out, "{},{time:.3},{mode}", row.frame)?;
-        for l in row.features.lsp {
-            write!(out, ",{l:.6}")?;
-        }
-        writeln!(out, ",{:.2}", row.features.energy_db)?;
+impl FrameSource for &Session {
+    fn pull(&mut self, now: Instant, out: &mut Vec<PeerFrame>) -> Result<()> {
+        Session::pull(self, now, out);
+        Ok(())
     }
-    out.flush()
-        .with_context(|| format!("cannot write {}", path.display()))
+
+    /// Asked only once someone played: peers that said BYE are left, and so are peers the
+    /// session forgot (silent for its peer timeout).
+    fn all_left(&mut self) -> bool {
+        self.peers().iter().all(|p| p.said_bye)
+    }
 }
 
-/// WEIGHTS.csv rows on the output timeline, like FEATURES.csv.
-fn write_weight_rows(path: &Path, names: &[&str], rows: &[Row]) -> Result<()> {
-    let file =
-        std::fs::File::create(path).with_context(|| format!("cannot write {}", path.display()))?;
-    let mut out = std::io::BufWriter::new(file);
-    writeln!(out, "frame,time_s,{}", names.join(","))?;
-    for row in rows {
-        write!(
-            out,
-            "{},{:.3}",
-            row.frame,
-            row.frame as f64 * TICK.as_secs_f64()
-        )?;
-        for w in &row.weights {
-            write!(out, ",{w:.4}")?;
+/// The receive loop: pulls every 20 ms, mixes, runs each peer's lip sync when a model is
+/// given, and streams what it plays to `recorder`. Ends after `seconds`, when every peer has
+/// left (without `seconds`), or when `stop` is set (SIGINT, SIGTERM).
+pub(crate) fn play<'m>(
+    source: &mut dyn FrameSource,
+    seconds: Option<f64>,
+    model: Option<&'m Model>,
+    on_frame: &mut dyn FnMut(u32, f64, &FrameFeatures),
+    recorder: &mut Recorder,
+    stop: &AtomicBool,
+) -> Result<()> {
+    let limit = seconds.map(Duration::from_secs_f64);
+    let start = Instant::now();
+    let mut tracks: Vec<PeerTrack> = Vec::new();
+    let mut frames: Vec<PeerFrame> = Vec::new();
+    // Output ticks since the first audible one.
+    let mut timeline: Option<usize> = None;
+    let mut tick = 0u32;
+    let result = loop {
+        let due = start + TICK * tick;
+        tick += 1;
+        if let Some(wait) = due.checked_duration_since(Instant::now()) {
+            std::thread::sleep(wait);
         }
-        writeln!(out)?;
+        if stopped(stop) {
+            eprintln!("lipcall: stopped by a signal; finishing the outputs");
+            break Ok(());
+        }
+        if limit.is_some_and(|l| due.duration_since(start) >= l) {
+            break Ok(());
+        }
+        frames.clear();
+        if let Err(e) = source.pull(due, &mut frames) {
+            break Err(e);
+        }
+        if frames.is_empty() && timeline.is_some() && limit.is_none() && source.all_left() {
+            break Ok(());
+        }
+        if frames.is_empty() && timeline.is_none() {
+            continue;
+        }
+        let row = timeline.get_or_insert(0);
+        let index = *row;
+        *row += 1;
+        if let Err(e) = play_tick(&frames, index, model, &mut tracks, on_frame, recorder) {
+            break Err(e);
+        }
+    };
+    for track in &mut tracks {
+        track.flush(true, recorder)?;
     }
-    out.flush()
-        .with_context(|| format!("cannot write {}", path.display()))
+    result
+}
+
+/// One output tick: every peer's frame mixed, its features and weights recorded.
+fn play_tick<'m>(
+    frames: &[PeerFrame],
+    index: usize,
+    model: Option<&'m Model>,
+    tracks: &mut Vec<PeerTrack<'m>>,
+    on_frame: &mut dyn FnMut(u32, f64, &FrameFeatures),
+    recorder: &mut Recorder,
+) -> Result<()> {
+    let mut mix = [0i32; FRAME_SIZE];
+    for f in frames {
+        for (m, &s) in mix.iter_mut().zip(&f.frame.pcm) {
+            *m += i32::from(s);
+        }
+        let time = index as f64 * TICK.as_secs_f64();
+        on_frame(f.ssrc, time, &f.frame.features);
+        let slot = match tracks.iter().position(|t| t.ssrc == f.ssrc) {
+            Some(i) => i,
+            None => {
+                let lipsync = match model {
+                    Some(model) => Some(LipSync::new(model, &LipSyncOptions::default())?),
+                    None => None,
+                };
+                tracks.push(PeerTrack {
+                    ssrc: f.ssrc,
+                    lipsync,
+                    next_tag: 0,
+                    waiting: VecDeque::new(),
+                });
+                tracks.len() - 1
+            }
+        };
+        let track = &mut tracks[slot];
+        recorder.features(f.ssrc, index, &f.frame.features)?;
+        if let Some(lipsync) = &mut track.lipsync {
+            let tag = track.next_tag;
+            track.next_tag += 1;
+            track.waiting.push_back((tag, index));
+            let out = lipsync.push(tag, &f.frame.features);
+            PeerTrack::store(&mut track.waiting, f.ssrc, out, recorder)?;
+        }
+    }
+    for track in tracks.iter_mut() {
+        if !frames.iter().any(|f| f.ssrc == track.ssrc) {
+            track.flush(false, recorder)?;
+        }
+    }
+    let mut pcm = [0i16; FRAME_SIZE];
+    for (p, &m) in pcm.iter_mut().zip(&mix) {
+        *p = m.clamp(-32768, 32767) as i16;
+    }
+    recorder.audio(&pcm, !frames.is_empty())
 }
 
 pub fn relay(listen: &str, seconds: Option<f64>) -> Result<()> {

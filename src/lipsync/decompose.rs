@@ -231,6 +231,19 @@ impl Decomposer {
 
     /// Improves `weights` (convex, the previous frame's result) until they fit `target`.
     pub fn fit(&self, target: &[f32], weights: &mut [f32]) {
+        // A start that is not convex (NaN from upstream) would make the step's bound NaN, and
+        // `clamp` panics on it: restart from the even mix. A non-finite target has no fit.
+        if weights.is_empty() {
+            return;
+        }
+        let total: f32 = weights.iter().sum();
+        let convex = weights.iter().all(|w| *w >= 0.0) && total > 0.0 && total.is_finite();
+        if !convex {
+            weights.fill(1.0 / weights.len() as f32);
+        }
+        if !target.iter().all(|x| x.is_finite()) {
+            return;
+        }
         let target: Vec<f64> = target.iter().map(|&x| x as f64).collect();
         let toward: Vec<f64> = self
             .shapes
@@ -426,6 +439,23 @@ mod tests {
                 assert!(*a >= 0.0 && (a - b).abs() < 2e-3, "{f:?} vs {t:?}");
             }
         }
+    }
+
+    #[test]
+    fn non_finite_starts_and_targets_give_convex_weights_not_a_panic() {
+        let shapes = VisemeShapes::point_model();
+        let set = VisemeSet::reduced(6).unwrap();
+        let decomposer = Decomposer::new(&shapes, &set, &[1.0; 15]).unwrap();
+        let target: Vec<f32> = shapes.shape(Viseme::Aa).unwrap().to_vec();
+        let mut w = vec![f32::NAN; 6];
+        decomposer.fit(&target, &mut w);
+        assert!((w.iter().sum::<f32>() - 1.0).abs() < 1e-5, "{w:?}");
+        assert!(w.iter().all(|x| x.is_finite() && *x >= 0.0), "{w:?}");
+        let mut bad_target = target.clone();
+        bad_target[0] = f32::INFINITY;
+        let mut w = vec![0.0, 0.0, 1.0, 0.0, 0.0, 0.0];
+        decomposer.fit(&bad_target, &mut w);
+        assert!(w.iter().all(|x| x.is_finite() && *x >= 0.0), "{w:?}");
     }
 
     #[test]

@@ -16,11 +16,8 @@ use super::visemes::{Viseme, VisemeError};
 
 #[derive(Debug, thiserror::Error)]
 pub enum MarkerError {
-    #[error("{path}: {source}")]
-    Io {
-        path: String,
-        source: std::io::Error,
-    },
+    #[error(transparent)]
+    Input(#[from] crate::input::InputError),
     #[error("empty file: no header line")]
     Empty,
     #[error("bad header: {0}")]
@@ -46,10 +43,10 @@ pub struct MarkerTrack {
 }
 
 fn read(path: &Path) -> Result<String, MarkerError> {
-    std::fs::read_to_string(path).map_err(|source| MarkerError::Io {
-        path: path.display().to_string(),
-        source,
-    })
+    Ok(crate::input::read_to_string(
+        path,
+        crate::input::MAX_INPUT_BYTES,
+    )?)
 }
 
 fn data_lines(text: &str) -> impl Iterator<Item = (usize, &str)> {

@@ -70,6 +70,9 @@ const MAX_PARAMETER: f32 = 1.0e4;
 pub const MAX_LOOKAHEAD: usize = 2;
 const MAX_CONTEXT: usize = 32;
 const MAX_HIDDEN: usize = 1024;
+/// Largest model file read: the largest network allowed (1024 hidden units over 32 frames of
+/// context) writes about 7 MB of text.
+const MAX_MODEL_BYTES: u64 = 32 << 20;
 
 /// Per input: `scaled = clamp((x - offset) * scale, -1, 1)`.
 #[derive(Debug, Clone, PartialEq)]
@@ -720,16 +723,17 @@ impl Model {
             path: path.display().to_string(),
             error: Box::new(error),
         };
-        let bytes = std::fs::read(path).map_err(|error| ModelError::Io {
-            path: path.display().to_string(),
-            error,
-        })?;
+        let bytes = crate::input::read(path, MAX_MODEL_BYTES)?;
         let text = String::from_utf8(bytes).map_err(|_| in_file(ModelError::NotAModel))?;
         Self::from_text(&text).map_err(in_file)
     }
 
+    /// Writes the model file; a model its own loader would refuse (the NaN or huge weights of
+    /// a training that diverged) is not written.
     pub fn save(&self, path: &Path) -> Result<(), ModelError> {
-        std::fs::write(path, self.to_text()).map_err(|error| ModelError::Io {
+        let text = self.to_text();
+        Self::from_text(&text).map_err(|error| ModelError::WouldNotLoad(Box::new(error)))?;
+        std::fs::write(path, text).map_err(|error| ModelError::Io {
             path: path.display().to_string(),
             error,
         })
@@ -878,6 +882,10 @@ pub enum ModelError {
     TrailingData { line: usize },
     #[error("{path}: {error}")]
     Io { path: String, error: std::io::Error },
+    #[error(transparent)]
+    Input(#[from] crate::input::InputError),
+    #[error("the model would not load back (did training diverge?): {0}")]
+    WouldNotLoad(Box<ModelError>),
     #[error("{path}: {error}")]
     InFile {
         path: String,
@@ -946,6 +954,39 @@ mod tests {
         }
         model.notes.push("test weights".into());
         model
+    }
+
+    #[test]
+    fn a_model_file_larger_than_any_model_is_not_read() {
+        let dir = tempfile::tempdir().unwrap();
+        let path = dir.path().join("huge.lipmodel");
+        let file = std::fs::File::create(&path).unwrap();
+        file.set_len(MAX_MODEL_BYTES + 1).unwrap();
+        let e = Model::load(&path).unwrap_err();
+        assert!(
+            matches!(
+                e,
+                ModelError::Input(crate::input::InputError::TooLarge { .. })
+            ),
+            "{e}"
+        );
+    }
+
+    #[test]
+    fn a_model_the_loader_would_refuse_is_not_saved() {
+        let dir = tempfile::tempdir().unwrap();
+        let path = dir.path().join("diverged.lipmodel");
+        let mut model = sample_model();
+        model.w2[3] = f32::NAN;
+        let e = model.save(&path).unwrap_err();
+        assert!(matches!(e, ModelError::WouldNotLoad(_)), "{e}");
+        assert!(e.to_string().contains("w2"), "{e}");
+        assert!(!path.exists());
+        model.w2[3] = 2.0 * MAX_PARAMETER;
+        assert!(model.save(&path).is_err());
+        model.w2[3] = 0.5;
+        model.save(&path).unwrap();
+        assert_eq!(Model::load(&path).unwrap().w2, model.w2);
     }
 
     fn frame(energy_db: f32) -> FrameFeatures {

@@ -332,14 +332,21 @@ fn relay_loop(
     stop: &AtomicBool,
 ) {
     let mut core = RelayCore::new(config, Instant::now());
-    let mut buf = vec![0u8; MAX_DATAGRAM];
+    // One byte over the largest datagram forwarded: one that fills the buffer was cut short
+    // by the socket and is dropped, not forwarded or parsed truncated.
+    let mut buf = vec![0u8; MAX_DATAGRAM + 1];
     let mut next_expiry = Instant::now() + Duration::from_secs(1);
     let mut next_publish = Instant::now();
     while !stop.load(Ordering::Relaxed) {
-        if let Ok((n, from)) = socket.recv_from(&mut buf) {
-            core.handle(&buf[..n], from, Instant::now(), |data, to| {
+        match socket.recv_from(&mut buf) {
+            Ok((n, _)) if n > MAX_DATAGRAM => {
+                core.stats.datagrams += 1;
+                core.stats.malformed += 1;
+            }
+            Ok((n, from)) => core.handle(&buf[..n], from, Instant::now(), |data, to| {
                 socket.send_to(data, to).is_ok()
-            });
+            }),
+            Err(_) => {}
         }
         let now = Instant::now();
         if now >= next_expiry {

@@ -6,6 +6,14 @@
 //! [`Session::send_packet`]) and pulls the mixed-down timeline with [`Session::pull`] once per
 //! 20 ms of its output clock (a playback thread, or a timer in the headless receiver); decoding
 //! happens in `pull`, on the caller's thread. Each peer may send another codec.
+//!
+//! Who may disturb a call (plain RTP has no authentication; SRTP is the real answer): a peer is
+//! created only from media that a mapped codec can read, never from RTCP, and stays unconfirmed
+//! (aged out within seconds, the first to make room) until it has sent a few packets. A peer
+//! that is talking is never evicted for a newcomer. A peer is pinned to the address its media
+//! came from: RTCP (BYE included) and RTP from elsewhere are ignored, unless the pinned address
+//! has gone quiet and the other one continues its sequence (a NAT rebinding, a roaming
+//! device), or the peer said BYE and a new stream comes (a redial).
 
 use std::collections::HashMap;
 use std::net::{SocketAddr, UdpSocket};
@@ -18,7 +26,7 @@ use super::control::{Control, ControlKind, RoomId};
 use super::jitter::JitterConfig;
 use super::peer::{PeerReceiver, PlayedFrame, ReceiverStats};
 use super::rtcp::{self, Outgoing, ReportBlock, RtcpItem, SenderInfo};
-use super::rtp::{self, RtpStream};
+use super::rtp::{self, Rtp, RtpStream};
 use super::srtp::{MasterKey, Srtp, SrtpError};
 use super::{DatagramKind, MAX_DATAGRAM, NetError, classify};
 use crate::codec::any::{Codec, PayloadMap};
@@ -82,7 +90,8 @@ pub struct SessionStats {
     pub rtp: u64,
     pub rtcp: u64,
     pub control: u64,
-    /// Unparseable RTP/RTCP/control datagrams.
+    /// Unparseable RTP/RTCP/control datagrams, and oversized ones (cut short by the socket,
+    /// dropped unparsed).
     pub malformed: u64,
     /// Datagrams of no known kind.
     pub unknown: u64,
@@ -93,6 +102,12 @@ pub struct SessionStats {
     pub replayed: u64,
     /// Packets from new SSRCs beyond `max_peers`.
     pub too_many_peers: u64,
+    /// Unconfirmed or idle peers removed to make room for a new one.
+    pub evicted: u64,
+    /// RTP or RTCP about a known peer from an address other than its own (ignored).
+    pub foreign: u64,
+    /// Peers that moved to a new address (their stream continued from it).
+    pub moved: u64,
     /// Our own packets coming back (a relay or multicast echo).
     pub own: u64,
     pub sent_rtp: u64,
@@ -125,16 +140,62 @@ pub struct PeerFrame {
     pub frame: PlayedFrame,
 }
 
+/// Packets a peer's media must have brought before it is confirmed.
+const CONFIRM_PACKETS: u64 = 5;
+/// An unconfirmed peer without media for this long is forgotten.
+const UNCONFIRMED_TIMEOUT: Duration = Duration::from_secs(2);
+/// A confirmed peer without media for this long may make room for a new one.
+const IDLE_EVICT: Duration = Duration::from_secs(5);
+/// Packets in sequence from a new address before a quiet peer moves there.
+const MOVE_PACKETS: u32 = 3;
+/// Start hints (SRs sent before a stream's first packet) kept for peers not yet created.
+const PENDING_STARTS: usize = 8;
+
 struct Peer {
     receiver: PeerReceiver,
+    /// Where its media comes from: RTCP and RTP from elsewhere are ignored.
     addr: SocketAddr,
     cname: Option<String>,
     name: Option<String>,
     last_heard: Instant,
+    /// The last media packet from `addr`.
+    last_media: Instant,
+    /// Media packets filed.
+    media: u64,
+    /// Another address continuing this peer's sequence: (address, its next sequence number,
+    /// packets so far).
+    candidate: Option<(SocketAddr, u16, u32)>,
     last_sr: Option<(u32, Instant)>,
     rtt_ms: Option<f64>,
     their_loss: Option<f64>,
     said_bye: bool,
+}
+
+impl Peer {
+    fn confirmed(&self) -> bool {
+        self.media >= CONFIRM_PACKETS
+    }
+
+    /// Whether a packet from `from`, not the pinned address, shows the peer has moved there:
+    /// its pinned address is quiet and `from` sent `MOVE_PACKETS` in a row continuing the
+    /// peer's sequence. Packets from the pinned address cancel a candidate.
+    fn moved_to(&mut self, from: SocketAddr, seq: u16) -> bool {
+        let count = match self.candidate {
+            Some((addr, next, count)) if addr == from && next == seq => count + 1,
+            _ => {
+                let continues = self
+                    .receiver
+                    .highest_sequence()
+                    .is_some_and(|h| (1..=16).contains(&seq.wrapping_sub(h)));
+                if !continues {
+                    return false;
+                }
+                1
+            }
+        };
+        self.candidate = Some((from, seq.wrapping_add(1), count));
+        count >= MOVE_PACKETS
+    }
 }
 
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
@@ -159,6 +220,9 @@ struct Rx {
     peers: HashMap<u32, Peer>,
     srtp: Option<Srtp>,
     stats: SessionStats,
+    /// SRs with no packets sent yet (where a stream will start), by SSRC, from senders not yet
+    /// peers: (ssrc, RTP timestamp, from, arrival).
+    pending_starts: Vec<(u32, u32, SocketAddr, Instant)>,
 }
 
 struct Shared {
@@ -193,48 +257,8 @@ impl std::fmt::Debug for Session {
 
 impl Session {
     pub fn start(config: SessionConfig) -> Result<Self, NetError> {
-        let socket = UdpSocket::bind(config.bind)
-            .map_err(|e| NetError::io(format!("cannot listen on {}", config.bind), e))?;
-        socket
-            .set_read_timeout(Some(Duration::from_millis(10)))
-            .map_err(|e| NetError::io("socket timeout", e))?;
-        let reader = socket
-            .try_clone()
-            .map_err(|e| NetError::io("socket clone", e))?;
-        let mut stream = RtpStream::new_random()?;
-        if let Some(ssrc) = config.ssrc {
-            stream.ssrc = ssrc;
-        }
-        let payload_type = config
-            .payloads
-            .payload_type(config.codec)
-            .ok_or(NetError::NoPayloadType(config.codec))?;
-        stream.set_payload(payload_type, config.codec.frame_ticks());
-        let ssrc = stream.ssrc;
-        let local = socket
-            .local_addr()
-            .map_err(|e| NetError::io("local address", e))?;
-        let shared = Arc::new(Shared {
-            cname: format!("lipcall-{ssrc:08x}@{local}"),
-            ssrc,
-            epoch: Instant::now(),
-            tx: Mutex::new(Tx {
-                stream,
-                srtp: config.key.as_ref().map(Srtp::new),
-                buf: Vec::with_capacity(MAX_DATAGRAM),
-                sent_since_report: false,
-                started: false,
-                left: false,
-            }),
-            rx: Mutex::new(Rx {
-                peers: HashMap::new(),
-                srtp: config.key.as_ref().map(Srtp::new),
-                stats: SessionStats::default(),
-            }),
-            stop: AtomicBool::new(false),
-            socket,
-            config,
-        });
+        let (shared, reader) = Shared::new(config)?;
+        let shared = Arc::new(shared);
         if shared.config.room.is_some() {
             shared.send_control(ControlKind::Join);
         }
@@ -384,6 +408,59 @@ impl Drop for Session {
 }
 
 impl Shared {
+    #[cfg(test)]
+    fn stats_now(&self) -> SessionStats {
+        lock(&self.rx).stats
+    }
+
+    /// The session's state and socket, and a second handle on the socket to read it with.
+    fn new(config: SessionConfig) -> Result<(Self, UdpSocket), NetError> {
+        let socket = UdpSocket::bind(config.bind)
+            .map_err(|e| NetError::io(format!("cannot listen on {}", config.bind), e))?;
+        socket
+            .set_read_timeout(Some(Duration::from_millis(10)))
+            .map_err(|e| NetError::io("socket timeout", e))?;
+        let reader = socket
+            .try_clone()
+            .map_err(|e| NetError::io("socket clone", e))?;
+        let mut stream = RtpStream::new_random()?;
+        if let Some(ssrc) = config.ssrc {
+            stream.ssrc = ssrc;
+        }
+        let payload_type = config
+            .payloads
+            .payload_type(config.codec)
+            .ok_or(NetError::NoPayloadType(config.codec))?;
+        stream.set_payload(payload_type, config.codec.frame_ticks());
+        let ssrc = stream.ssrc;
+        let local = socket
+            .local_addr()
+            .map_err(|e| NetError::io("local address", e))?;
+        let shared = Shared {
+            cname: format!("lipcall-{ssrc:08x}@{local}"),
+            ssrc,
+            epoch: Instant::now(),
+            tx: Mutex::new(Tx {
+                stream,
+                srtp: config.key.as_ref().map(Srtp::new),
+                buf: Vec::with_capacity(MAX_DATAGRAM),
+                sent_since_report: false,
+                started: false,
+                left: false,
+            }),
+            rx: Mutex::new(Rx {
+                peers: HashMap::new(),
+                srtp: config.key.as_ref().map(Srtp::new),
+                stats: SessionStats::default(),
+                pending_starts: Vec::with_capacity(PENDING_STARTS),
+            }),
+            stop: AtomicBool::new(false),
+            socket,
+            config,
+        };
+        Ok((shared, reader))
+    }
+
     /// Sends to every destination; returns (sent, failed).
     fn send_all(&self, datagram: &[u8]) -> (u64, u64) {
         let mut counts = (0, 0);
@@ -546,36 +623,79 @@ impl Shared {
         }
     }
 
-    fn peer<'a>(&self, rx: &'a mut Rx, ssrc: u32, from: SocketAddr) -> Option<&'a mut Peer> {
-        if !rx.peers.contains_key(&ssrc) {
-            if rx.peers.len() >= self.config.max_peers {
-                rx.stats.too_many_peers += 1;
-                return None;
-            }
-            let receiver = PeerReceiver::with_payloads(
-                self.config.jitter,
-                self.epoch,
-                self.config.enhancer,
-                self.config.payloads.clone(),
-            );
-            rx.peers.insert(
-                ssrc,
-                Peer {
-                    receiver,
-                    addr: from,
-                    cname: None,
-                    name: None,
-                    last_heard: Instant::now(),
-                    last_sr: None,
-                    rtt_ms: None,
-                    their_loss: None,
-                    said_bye: false,
-                },
-            );
+    /// Makes room for a new peer: the oldest unconfirmed one goes, else one that has sent no
+    /// media for `IDLE_EVICT`; a talking peer never does. False if there is no room.
+    fn make_room(&self, rx: &mut Rx, now: Instant) -> bool {
+        if rx.peers.len() < self.config.max_peers {
+            return true;
         }
-        let peer = rx.peers.get_mut(&ssrc)?;
-        peer.addr = from;
-        Some(peer)
+        let victim = rx
+            .peers
+            .iter()
+            .filter(|(_, p)| {
+                !p.confirmed() || now.saturating_duration_since(p.last_media) >= IDLE_EVICT
+            })
+            .min_by_key(|(_, p)| (p.confirmed(), p.last_media))
+            .map(|(&ssrc, _)| ssrc);
+        let Some(ssrc) = victim else {
+            rx.stats.too_many_peers += 1;
+            return false;
+        };
+        rx.peers.remove(&ssrc);
+        if let Some(srtp) = rx.srtp.as_mut() {
+            srtp.forget(ssrc);
+        }
+        rx.stats.evicted += 1;
+        true
+    }
+
+    /// A new peer from its first media packet, if it is media a mapped codec can read.
+    fn new_peer(&self, rx: &mut Rx, packet: &Rtp<'_>, from: SocketAddr, arrival: Instant) -> bool {
+        let readable = self
+            .config
+            .payloads
+            .codec(packet.header.payload_type)
+            .is_some_and(|c| c.payload_duration(packet.payload).is_some());
+        if !readable {
+            rx.stats.unknown_payload += 1;
+            return false;
+        }
+        if !self.make_room(rx, arrival) {
+            return false;
+        }
+        let ssrc = packet.header.ssrc;
+        let mut receiver = PeerReceiver::with_payloads(
+            self.config.jitter,
+            self.epoch,
+            self.config.enhancer,
+            self.config.payloads.clone(),
+        );
+        if let Some(i) = rx
+            .pending_starts
+            .iter()
+            .position(|&(s, _, addr, _)| s == ssrc && addr == from)
+        {
+            let (_, ts, _, _) = rx.pending_starts.swap_remove(i);
+            receiver.jitter().hint_start(ts);
+        }
+        rx.peers.insert(
+            ssrc,
+            Peer {
+                receiver,
+                addr: from,
+                cname: None,
+                name: None,
+                last_heard: arrival,
+                last_media: arrival,
+                media: 0,
+                candidate: None,
+                last_sr: None,
+                rtt_ms: None,
+                their_loss: None,
+                said_bye: false,
+            },
+        );
+        true
     }
 
     fn handle_rtp(&self, rx: &mut Rx, data: &mut Vec<u8>, from: SocketAddr, arrival: Instant) {
@@ -589,16 +709,41 @@ impl Shared {
                 return;
             }
         };
-        if packet.header.ssrc == self.ssrc {
+        let ssrc = packet.header.ssrc;
+        if ssrc == self.ssrc {
             rx.stats.own += 1;
             return;
         }
         rx.stats.rtp += 1;
-        if let Some(peer) = self.peer(rx, packet.header.ssrc, from) {
-            peer.last_heard = arrival;
-            if !peer.receiver.insert(&packet, arrival) {
-                rx.stats.unknown_payload += 1;
-            }
+        if !rx.peers.contains_key(&ssrc) && !self.new_peer(rx, &packet, from, arrival) {
+            return;
+        }
+        let Some(peer) = rx.peers.get_mut(&ssrc) else {
+            return;
+        };
+        if peer.addr == from {
+            peer.candidate = None;
+        } else if peer.said_bye {
+            // A redial may come from anywhere; a straggler of the old stream changes nothing.
+            peer.addr = from;
+            peer.candidate = None;
+        } else if peer.moved_to(from, packet.header.sequence) {
+            peer.addr = from;
+            peer.candidate = None;
+            rx.stats.moved += 1;
+        } else {
+            rx.stats.foreign += 1;
+            return;
+        }
+        peer.last_heard = arrival;
+        peer.last_media = arrival;
+        peer.media += 1;
+        let restarts = peer.receiver.restarts();
+        if !peer.receiver.insert(&packet, arrival) {
+            rx.stats.unknown_payload += 1;
+        }
+        if peer.receiver.restarts() != restarts {
+            peer.said_bye = false;
         }
     }
 
@@ -626,9 +771,22 @@ impl Shared {
                         rx.stats.own += 1;
                         continue;
                     }
-                    let Some(peer) = self.peer(rx, reporter, from) else {
+                    let Some(peer) = rx.peers.get_mut(&reporter) else {
+                        // Not a peer (until its media comes): only where its stream will start
+                        // is worth keeping, a few at most.
+                        if let Some(info) = sender.filter(|i| i.packets == 0) {
+                            if rx.pending_starts.len() == PENDING_STARTS {
+                                rx.pending_starts.remove(0);
+                            }
+                            rx.pending_starts
+                                .push((reporter, info.rtp_timestamp, from, arrival));
+                        }
                         continue;
                     };
+                    if peer.addr != from {
+                        rx.stats.foreign += 1;
+                        continue;
+                    }
                     peer.last_heard = arrival;
                     if let Some(info) = sender {
                         peer.last_sr = Some((rtcp::ntp_middle(info.ntp), arrival));
@@ -646,7 +804,7 @@ impl Shared {
                     if ssrc == self.ssrc {
                         continue;
                     }
-                    if let Some(peer) = self.peer(rx, ssrc, from) {
+                    if let Some(peer) = rx.peers.get_mut(&ssrc).filter(|p| p.addr == from) {
                         if cname.is_some() {
                             peer.cname = cname;
                         }
@@ -657,11 +815,17 @@ impl Shared {
                 }
                 RtcpItem::Bye { ssrcs } => {
                     for ssrc in ssrcs {
-                        if let Some(peer) = rx.peers.get_mut(&ssrc) {
-                            peer.said_bye = true;
-                            if let Some(&ts) = end_ts.get(&ssrc) {
-                                peer.receiver.jitter().hint_end(ts);
-                            }
+                        let Some(peer) = rx.peers.get_mut(&ssrc) else {
+                            continue;
+                        };
+                        if peer.addr != from {
+                            rx.stats.foreign += 1;
+                            continue;
+                        }
+                        peer.said_bye = true;
+                        match end_ts.get(&ssrc) {
+                            Some(&ts) => peer.receiver.jitter().hint_end(ts),
+                            None => peer.receiver.jitter().bye(),
                         }
                     }
                 }
@@ -673,8 +837,14 @@ impl Shared {
         let mut rx = lock(&self.rx);
         let timeout = self.config.peer_timeout;
         let mut gone = Vec::new();
+        rx.pending_starts
+            .retain(|&(_, _, _, at)| now.saturating_duration_since(at) < UNCONFIRMED_TIMEOUT);
         rx.peers.retain(|&ssrc, p| {
-            let keep = now.saturating_duration_since(p.last_heard) < timeout;
+            let keep = if p.confirmed() {
+                now.saturating_duration_since(p.last_heard) < timeout
+            } else {
+                now.saturating_duration_since(p.last_media) < UNCONFIRMED_TIMEOUT
+            };
             if !keep {
                 gone.push(ssrc);
             }
@@ -694,13 +864,19 @@ fn jittered(interval: Duration) -> Duration {
 }
 
 fn net_loop(shared: &Shared, socket: &UdpSocket) {
-    let mut buf = vec![0u8; MAX_DATAGRAM + 64];
+    // One byte over the largest datagram taken: one that fills the buffer was cut short.
+    let mut buf = vec![0u8; MAX_DATAGRAM + 64 + 1];
     let mut datagram = Vec::with_capacity(MAX_DATAGRAM + 64);
     let mut next_report = Instant::now() + jittered(shared.config.rtcp_interval);
     let mut next_keepalive = Instant::now() + shared.config.keepalive_interval;
     let mut next_expiry = Instant::now() + Duration::from_secs(1);
     while !shared.stop.load(Ordering::Relaxed) {
         match socket.recv_from(&mut buf) {
+            Ok((n, _)) if n >= buf.len() => {
+                let mut rx = lock(&shared.rx);
+                rx.stats.datagrams += 1;
+                rx.stats.malformed += 1;
+            }
             Ok((n, from)) => {
                 datagram.clear();
                 datagram.extend_from_slice(&buf[..n.min(buf.len())]);
@@ -729,5 +905,331 @@ fn net_loop(shared: &Shared, socket: &UdpSocket) {
             shared.expire(now);
             next_expiry = now + Duration::from_secs(1);
         }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::codec::FRAME_SIZE;
+    use crate::codec::any::{EncoderSettings, FrameEncoder, MAX_FRAME_PAYLOAD};
+    use crate::net::peer::FrameKind;
+
+    const FRAME: Duration = Duration::from_millis(20);
+
+    fn session(max_peers: usize) -> Shared {
+        let mut config = SessionConfig::new("127.0.0.1:0".parse().unwrap());
+        config.max_peers = max_peers;
+        config.ssrc = Some(1);
+        Shared::new(config).unwrap().0
+    }
+
+    fn addr(port: u16) -> SocketAddr {
+        SocketAddr::from(([127, 0, 0, 1], port))
+    }
+
+    fn voice(frame: u32) -> [i16; FRAME_SIZE] {
+        std::array::from_fn(|i| {
+            let t = (frame as usize * FRAME_SIZE + i) as f32 / 8000.0;
+            let s: f32 = (1..12)
+                .map(|h| (2.0 * std::f32::consts::PI * 140.0 * h as f32 * t).sin() / h as f32)
+                .sum();
+            (5000.0 * s) as i16
+        })
+    }
+
+    /// One sender of Speex frames.
+    struct Caller {
+        stream: RtpStream,
+        encoder: FrameEncoder,
+        frame: u32,
+    }
+
+    impl Caller {
+        fn new(ssrc: u32, seq: u16, ts: u32) -> Self {
+            Self {
+                stream: RtpStream::new(ssrc, seq, ts),
+                encoder: FrameEncoder::new(Codec::Speex, &EncoderSettings::default()).unwrap(),
+                frame: 0,
+            }
+        }
+
+        fn packet(&mut self) -> Vec<u8> {
+            let mut out = [0u8; MAX_FRAME_PAYLOAD];
+            let (n, frames) = self
+                .encoder
+                .encode(&voice(self.frame), &mut out)
+                .unwrap()
+                .unwrap();
+            self.frame += 1;
+            let mut buf = Vec::new();
+            self.stream.packetize(&out[..n], frames, &mut buf).unwrap();
+            buf
+        }
+
+        /// RTCP from this sender: an SR (where its stream is now), with BYE if `bye`.
+        fn report(&self, bye: bool) -> Vec<u8> {
+            let sender = SenderInfo {
+                ntp: 0,
+                rtp_timestamp: self.stream.next_timestamp(),
+                packets: self.frame,
+                octets: 0,
+            };
+            rtcp_from(self.stream.ssrc, Some(sender), bye)
+        }
+    }
+
+    fn rtcp_from(ssrc: u32, sender: Option<SenderInfo>, bye: bool) -> Vec<u8> {
+        let mut buf = Vec::new();
+        rtcp::build(
+            &Outgoing {
+                ssrc,
+                sender,
+                blocks: &[],
+                cname: "spoof",
+                name: None,
+                bye,
+            },
+            &mut buf,
+        )
+        .unwrap();
+        buf
+    }
+
+    /// Drives the session in simulated time: before each 20 ms tick `send(k)` gives the
+    /// datagrams arriving in it, then every peer is pulled. Returns what each SSRC played.
+    fn drive(
+        shared: &Shared,
+        ticks: std::ops::Range<u32>,
+        mut send: impl FnMut(u32) -> Vec<(SocketAddr, Vec<u8>)>,
+        played: &mut HashMap<u32, Vec<FrameKind>>,
+    ) {
+        for k in ticks {
+            let now = shared.epoch + FRAME * k;
+            for (from, mut data) in send(k) {
+                shared.handle(&mut data, from, now);
+            }
+            let mut rx = lock(&shared.rx);
+            for (&ssrc, peer) in rx.peers.iter_mut() {
+                if let Some(f) = peer.receiver.pull(now) {
+                    played.entry(ssrc).or_default().push(f.kind);
+                }
+            }
+            drop(rx);
+            if k % 50 == 0 {
+                shared.expire(now);
+            }
+        }
+    }
+
+    fn decoded(played: &HashMap<u32, Vec<FrameKind>>, ssrc: u32) -> usize {
+        played.get(&ssrc).map_or(0, |v| {
+            v.iter().filter(|&&k| k == FrameKind::Decoded).count()
+        })
+    }
+
+    fn peer_addr(shared: &Shared, ssrc: u32) -> Option<SocketAddr> {
+        lock(&shared.rx).peers.get(&ssrc).map(|p| p.addr)
+    }
+
+    #[test]
+    fn junk_rtcp_makes_no_peer_and_keeps_no_caller_out() {
+        // 32 receiver reports of 8 bytes from 32 SSRCs used to fill the peer table for 30 s.
+        let shared = session(32);
+        let mut played = HashMap::new();
+        drive(
+            &shared,
+            0..1,
+            |_| {
+                (0..32u32)
+                    .map(|i| {
+                        let mut rr = vec![0x80, 201, 0, 1];
+                        rr.extend_from_slice(&(1000 + i).to_be_bytes());
+                        (addr(40_000 + i as u16), rr)
+                    })
+                    .collect()
+            },
+            &mut played,
+        );
+        assert!(lock(&shared.rx).peers.is_empty());
+        let mut caller = Caller::new(7, 100, 5000);
+        drive(
+            &shared,
+            1..121,
+            |k| {
+                if k <= 100 {
+                    vec![(addr(5000), caller.packet())]
+                } else {
+                    Vec::new()
+                }
+            },
+            &mut played,
+        );
+        assert_eq!(decoded(&played, 7), 100);
+        assert_eq!(shared.stats_now().too_many_peers, 0);
+    }
+
+    #[test]
+    fn junk_media_never_evicts_a_talking_caller_nor_blocks_a_new_one() {
+        let shared = session(4);
+        let mut played = HashMap::new();
+        let mut a = Caller::new(7, 100, 5000);
+        let mut b = Caller::new(8, 9000, 77);
+        let mut junk = RtpStream::new(0, 0, 0);
+        junk.set_payload(0, 160);
+        drive(
+            &shared,
+            0..260,
+            |k| {
+                let mut out = Vec::new();
+                if k < 200 {
+                    out.push((addr(5000), a.packet()));
+                }
+                if (20..120).contains(&k) {
+                    // A PCMU packet (any bytes decode) from a new SSRC every 20 ms.
+                    junk.ssrc = 50_000 + k;
+                    let mut buf = Vec::new();
+                    junk.packetize(&[0x55; 160], 1, &mut buf).unwrap();
+                    out.push((addr(6000 + k as u16), buf));
+                }
+                if (130..230).contains(&k) {
+                    out.push((addr(5001), b.packet()));
+                }
+                out
+            },
+            &mut played,
+        );
+        assert_eq!(decoded(&played, 7), 200);
+        assert_eq!(decoded(&played, 8), 100);
+        let stats = shared.stats_now();
+        assert!(stats.evicted >= 90, "{stats:?}");
+        assert_eq!(stats.too_many_peers, 0, "{stats:?}");
+        // The junk ages out within seconds, the callers stay.
+        let mut peers: Vec<u32> = lock(&shared.rx).peers.keys().copied().collect();
+        peers.sort_unstable();
+        assert_eq!(peers, [7, 8]);
+    }
+
+    #[test]
+    fn a_spoofed_bye_from_another_address_is_ignored() {
+        let shared = session(32);
+        let mut played = HashMap::new();
+        let mut caller = Caller::new(7, 100, 5000);
+        drive(
+            &shared,
+            0..130,
+            |k| {
+                let mut out = Vec::new();
+                if k < 100 {
+                    out.push((addr(5000), caller.packet()));
+                }
+                if k == 50 {
+                    // 8 bytes: BYE for the caller's SSRC, from elsewhere; and a whole compound.
+                    let mut bye = vec![0x81, 203, 0, 1];
+                    bye.extend_from_slice(&7u32.to_be_bytes());
+                    out.push((addr(6666), bye));
+                    out.push((addr(6667), rtcp_from(7, None, true)));
+                }
+                out
+            },
+            &mut played,
+        );
+        assert_eq!(decoded(&played, 7), 100);
+        let peers = lock(&shared.rx).peers.get(&7).map(|p| p.said_bye).unwrap();
+        assert!(!peers);
+        // The lone BYE, and the compound's report and BYE.
+        assert_eq!(shared.stats_now().foreign, 3);
+        // From the caller's own address it counts.
+        drive(
+            &shared,
+            130..131,
+            |_| vec![(addr(5000), caller.report(true))],
+            &mut played,
+        );
+        assert!(lock(&shared.rx).peers[&7].said_bye);
+    }
+
+    #[test]
+    fn packets_from_another_port_do_not_hijack_a_caller() {
+        let shared = session(32);
+        let mut played = HashMap::new();
+        let mut caller = Caller::new(7, 100, 5000);
+        // Another port sends 60 packets with the caller's SSRC: first with its own sequence,
+        // then copying the caller's next sequence number and timestamp.
+        let mut spoof = Caller::new(7, 31_000, 1_000_000);
+        drive(
+            &shared,
+            0..170,
+            |k| {
+                let mut out = Vec::new();
+                if (30..90).contains(&k) {
+                    if k >= 60 {
+                        spoof.stream =
+                            RtpStream::new(7, 100u16.wrapping_add(k as u16), 5000 + k * 160);
+                    }
+                    out.push((addr(5999), spoof.packet()));
+                }
+                if k < 150 {
+                    out.push((addr(5000), caller.packet()));
+                }
+                out
+            },
+            &mut played,
+        );
+        assert_eq!(peer_addr(&shared, 7), Some(addr(5000)));
+        assert_eq!(decoded(&played, 7), 150);
+        let stats = shared.stats_now();
+        assert_eq!((stats.foreign, stats.moved), (60, 0), "{stats:?}");
+        let j = lock(&shared.rx).peers[&7].receiver.stats().jitter;
+        assert_eq!((j.received, j.duplicates, j.lost), (150, 0, 0), "{j:?}");
+    }
+
+    #[test]
+    fn a_caller_whose_address_changes_is_followed() {
+        // A NAT rebinding: the stream goes on from a new port, the old one falls quiet.
+        let shared = session(32);
+        let mut played = HashMap::new();
+        let mut caller = Caller::new(7, 65_500, 5000);
+        drive(
+            &shared,
+            0..140,
+            |k| match k {
+                0..60 => vec![(addr(5000), caller.packet())],
+                60..120 => vec![(addr(5002), caller.packet())],
+                _ => Vec::new(),
+            },
+            &mut played,
+        );
+        assert_eq!(peer_addr(&shared, 7), Some(addr(5002)));
+        assert_eq!(shared.stats_now().moved, 1);
+        // The packets that showed the move are not played: two frames concealed.
+        assert_eq!(decoded(&played, 7), 120 - 2);
+    }
+
+    #[test]
+    fn a_redial_on_the_same_ssrc_after_bye_plays() {
+        let shared = session(32);
+        let mut played = HashMap::new();
+        let mut first = Caller::new(7, 100, 5000);
+        let mut second = Caller::new(7, 40_000, 3_000_000);
+        drive(
+            &shared,
+            0..260,
+            |k| match k {
+                0..100 => vec![(addr(5000), first.packet())],
+                100 => vec![(addr(5000), first.report(true))],
+                130 => vec![(addr(5004), second.report(false))],
+                131..231 => vec![(addr(5004), second.packet())],
+                _ => Vec::new(),
+            },
+            &mut played,
+        );
+        assert_eq!(decoded(&played, 7), 200);
+        let rx = lock(&shared.rx);
+        let peer = &rx.peers[&7];
+        assert!(!peer.said_bye);
+        assert_eq!(peer.addr, addr(5004));
+        let j = peer.receiver.stats().jitter;
+        assert_eq!((j.restarts, j.lost, j.late), (1, 0, 0), "{j:?}");
     }
 }

@@ -24,15 +24,19 @@ use super::head::{
 /// Refuse absurd sizes before allocating for them.
 const MAX_VERTICES: usize = 4_000_000;
 const MAX_NODE_DEPTH: usize = 64;
+/// Vertices, indices and morph deltas read may reach this many plus one per 4 bytes of buffer
+/// data: a file reads about one per 4 to 12 buffer bytes, and without this budget one accessor
+/// referenced by many meshes or targets would be expanded for each of them.
+const ELEMENT_BUDGET_FLOOR: usize = 1 << 20;
 /// Largest base colour texture side accepted; larger ones are refused before any pixel is decoded.
 const MAX_TEXTURE_SIDE: u32 = 8192;
+/// Pixels of all textures decoded together: each material decodes its own, so one small,
+/// highly compressed image behind many materials would otherwise be decoded for each.
+const MAX_TEXTURE_PIXELS: u64 = 8192 * 8192;
 
 /// Loads a head from a `.glb` or `.gltf` file (external buffers and images are read from beside it).
 pub fn load_head(path: &Path) -> Result<HeadModel, RenderError> {
-    let bytes = std::fs::read(path).map_err(|source| RenderError::Io {
-        path: path.to_owned(),
-        source,
-    })?;
+    let bytes = crate::input::read(path, crate::input::MAX_INPUT_BYTES)?;
     load_head_from_slice_in(&bytes, path.parent())
 }
 
@@ -132,7 +136,8 @@ fn classify(name: &str) -> TargetKind {
 /// A primitive read from the file, with its raw morph targets.
 struct RawPrimitive {
     name: String,
-    material: usize,
+    /// `None`: the default material, the last of the list.
+    material: Option<usize>,
     vertices: Vec<Vertex>,
     indices: Vec<u32>,
     targets: Vec<(TargetKind, Vec<MorphDelta>)>,
@@ -144,12 +149,10 @@ fn load_head_from_slice_in(bytes: &[u8], base: Option<&Path>) -> Result<HeadMode
     let gltf = gltf::Gltf::from_slice(bytes).map_err(gltf_err)?;
     let doc = &gltf.document;
     let buffers = load_buffers(doc, gltf.blob.as_deref(), base)?;
+    let buffer_bytes: usize = buffers.iter().map(Vec::len).sum();
+    let mut budget = ELEMENT_BUDGET_FLOOR.saturating_add(buffer_bytes / 4);
 
-    let mut materials: Vec<Material> = doc
-        .materials()
-        .map(|m| load_material(doc, &m, &buffers, base))
-        .collect();
-    let default_material = materials.len();
+    let mut materials = load_materials(doc, &buffers, base, MAX_TEXTURE_PIXELS);
     materials.push(Material::default());
 
     let mut raws = Vec::new();
@@ -172,9 +175,21 @@ fn load_head_from_slice_in(bytes: &[u8], base: Option<&Path>) -> Result<HeadMode
     };
     let mut stack: Vec<(gltf::Node, Mat4, usize)> =
         roots.into_iter().map(|n| (n, Mat4::IDENTITY, 0)).collect();
+    // glTF node hierarchies are trees: a node reached twice (shared children, a cycle) would
+    // multiply the walk, exponentially with depth.
+    let mut visited = vec![false; doc.nodes().len()];
     while let Some((node, parent, depth)) = stack.pop() {
         if depth > MAX_NODE_DEPTH {
             return Err(RenderError::Gltf("node hierarchy too deep (cycle?)".into()));
+        }
+        match visited.get_mut(node.index()) {
+            Some(seen) if !*seen => *seen = true,
+            _ => {
+                return Err(RenderError::Gltf(format!(
+                    "node {} has more than one parent (node hierarchies must be trees)",
+                    node.index()
+                )));
+            }
         }
         let local = Mat4::from_cols_array_2d(&node.transform().matrix());
         let world = parent * local;
@@ -215,7 +230,7 @@ fn load_head_from_slice_in(bytes: &[u8], base: Option<&Path>) -> Result<HeadMode
                     &jaw_joints,
                     transform,
                     &buffers,
-                    default_material,
+                    &mut budget,
                 )?;
                 total_vertices += raw.vertices.len();
                 if total_vertices > MAX_VERTICES {
@@ -298,7 +313,8 @@ fn build_model(
                 .targets
                 .iter()
                 .any(|(k, _)| matches!(k, TargetKind::Viseme(_)));
-        let mut prim = Primitive::new(&raw.name, raw.material, raw.vertices, raw.indices);
+        let material = raw.material.unwrap_or(materials.len() - 1);
+        let mut prim = Primitive::new(&raw.name, material, raw.vertices, raw.indices);
         for v in 0..VISEME_COUNT {
             let mut acc: Vec<MorphDelta> = Vec::new();
             let mut add = |deltas: &[MorphDelta], w: f32| {
@@ -531,7 +547,7 @@ fn read_uri(uri: &str, base: Option<&Path>) -> Result<Vec<u8>, RenderError> {
         return Err(RenderError::Unsupported(format!("resource path {uri:?}")));
     }
     let path = base.join(uri.replace("%20", " "));
-    std::fs::read(&path).map_err(|source| RenderError::Io { path, source })
+    Ok(crate::input::read(&path, crate::input::MAX_INPUT_BYTES)?)
 }
 
 fn decode_base64(s: &str) -> Result<Vec<u8>, RenderError> {
@@ -564,11 +580,25 @@ fn decode_base64(s: &str) -> Result<Vec<u8>, RenderError> {
     Ok(out)
 }
 
+/// The document's materials, decoding textures until `texture_pixels` are spent (later ones
+/// keep their base colour factor).
+fn load_materials(
+    doc: &gltf::Document,
+    buffers: &[Vec<u8>],
+    base: Option<&Path>,
+    mut texture_pixels: u64,
+) -> Vec<Material> {
+    doc.materials()
+        .map(|m| load_material(doc, &m, buffers, base, &mut texture_pixels))
+        .collect()
+}
+
 fn load_material(
     doc: &gltf::Document,
     m: &gltf::Material,
     buffers: &[Vec<u8>],
     base: Option<&Path>,
+    texture_pixels: &mut u64,
 ) -> Material {
     let name = m.name().unwrap_or("material").to_owned();
     let pbr = m.pbr_metallic_roughness();
@@ -576,7 +606,7 @@ fn load_material(
     // A texture that cannot be used is not fatal: the material keeps its base colour factor.
     let texture = pbr.base_color_texture().and_then(|info| {
         let image = info.texture().source().index();
-        match load_texture(doc, image, buffers, base) {
+        match load_texture(doc, image, buffers, base, texture_pixels) {
             Ok(texture) => Some(texture),
             Err(reason) => {
                 tracing::warn!(
@@ -607,6 +637,7 @@ fn load_texture(
     index: usize,
     buffers: &[Vec<u8>],
     base: Option<&Path>,
+    texture_pixels: &mut u64,
 ) -> Result<Texture, String> {
     // Read from the JSON: `gltf::Image::source` panics on an image with a buffer view and no
     // MIME type, or with neither a buffer view nor a URI.
@@ -629,6 +660,14 @@ fn load_texture(
         Some(m) => format!("unsupported image type {m:?} (PNG and JPEG are)"),
         None => "not a PNG or JPEG image".to_owned(),
     })?;
+    let (width, height) = image::ImageReader::with_format(std::io::Cursor::new(&bytes), format)
+        .into_dimensions()
+        .map_err(|e| format!("{format:?} image does not decode: {e}"))?;
+    *texture_pixels = texture_pixels
+        .checked_sub(u64::from(width) * u64::from(height))
+        .ok_or_else(|| {
+            format!("the head's textures together would exceed {MAX_TEXTURE_PIXELS} pixels")
+        })?;
     decode_texture(&bytes, format)
 }
 
@@ -745,7 +784,7 @@ fn read_primitive(
     jaw_joints: &[bool],
     transform: Mat4,
     buffers: &[Vec<u8>],
-    default_material: usize,
+    budget: &mut usize,
 ) -> Result<RawPrimitive, RenderError> {
     use DataType::{F32, U8, U16, U32};
     use Dimensions::{Scalar, Vec2, Vec4};
@@ -794,6 +833,44 @@ fn read_primitive(
         "COLOR_0",
     )?;
 
+    let mut targets = Vec::new();
+    for (t, target) in prim.morph_targets().enumerate() {
+        let name = names.get(t).map(String::as_str).unwrap_or("");
+        let kind = classify(name);
+        if kind == TargetKind::Unused {
+            continue;
+        }
+        if let Some(acc) = target.positions() {
+            check_accessor(&acc, buffers, &vec3, "morph POSITION")?;
+            if acc.count() != n {
+                return Err(RenderError::Gltf(
+                    "morph target count differs from POSITION".into(),
+                ));
+            }
+        }
+        if let Some(acc) = target.normals() {
+            check_accessor(&acc, buffers, &vec3, "morph NORMAL")?;
+            if acc.count() != n {
+                return Err(RenderError::Gltf(
+                    "morph target count differs from POSITION".into(),
+                ));
+            }
+        }
+        targets.push((kind, t));
+    }
+    // Checked before any vertex or delta is made: the accessors fit their buffers, but one
+    // accessor may stand behind many targets and many nodes' meshes.
+    let index_count = prim.indices().map_or(0, |a| a.count());
+    let elements = n
+        .saturating_mul(targets.len() + 1)
+        .saturating_add(index_count);
+    *budget = budget.checked_sub(elements).ok_or_else(|| {
+        RenderError::Unsupported(
+            "the meshes and morph targets expand to far more data than the file holds \
+             (accessors shared by many meshes or targets?)"
+                .into(),
+        )
+    })?;
     let missing = || RenderError::Gltf("accessor data missing".into());
     let linear = Mat3::from_mat4(transform);
     let normal_matrix = if linear.determinant().abs() > 1e-12 {
@@ -871,31 +948,6 @@ fn read_primitive(
         })
         .collect();
 
-    let mut targets = Vec::new();
-    for (t, target) in prim.morph_targets().enumerate() {
-        let name = names.get(t).map(String::as_str).unwrap_or("");
-        let kind = classify(name);
-        if kind == TargetKind::Unused {
-            continue;
-        }
-        if let Some(acc) = target.positions() {
-            check_accessor(&acc, buffers, &vec3, "morph POSITION")?;
-            if acc.count() != n {
-                return Err(RenderError::Gltf(
-                    "morph target count differs from POSITION".into(),
-                ));
-            }
-        }
-        if let Some(acc) = target.normals() {
-            check_accessor(&acc, buffers, &vec3, "morph NORMAL")?;
-            if acc.count() != n {
-                return Err(RenderError::Gltf(
-                    "morph target count differs from POSITION".into(),
-                ));
-            }
-        }
-        targets.push((kind, t));
-    }
     let mut out_targets = Vec::new();
     if !targets.is_empty() {
         let read: Vec<_> = reader.read_morph_targets().collect();
@@ -952,7 +1004,7 @@ fn read_primitive(
     };
     Ok(RawPrimitive {
         name: mesh.name().unwrap_or("mesh").to_owned(),
-        material: prim.material().index().unwrap_or(default_material),
+        material: prim.material().index(),
         vertices,
         indices,
         targets: out_targets,
@@ -962,7 +1014,10 @@ fn read_primitive(
 
 #[cfg(test)]
 mod tests {
-    use super::{Expression, TargetKind, classify, decode_texture, texture_format};
+    use super::{
+        Expression, TargetKind, classify, decode_texture, load_buffers, load_materials,
+        texture_format,
+    };
     use image::ImageFormat;
 
     #[test]
@@ -1050,5 +1105,48 @@ mod tests {
         jpeg[sof + 5..sof + 9].copy_from_slice(&[0xEA, 0x60, 0xEA, 0x60]);
         let err = decode_texture(&jpeg, ImageFormat::Jpeg).unwrap_err();
         assert!(err.to_lowercase().contains("limit"), "{err}");
+    }
+
+    #[test]
+    fn one_image_behind_many_materials_is_decoded_within_the_pixel_budget() {
+        let img = image::RgbaImage::from_pixel(16, 16, image::Rgba([200, 100, 50, 255]));
+        let mut png = Vec::new();
+        img.write_to(&mut std::io::Cursor::new(&mut png), ImageFormat::Png)
+            .unwrap();
+        // A data URI in base64, as exporters write it.
+        const ABC: &[u8] = b"ABCDEFGHIJKLMNOPQRSTUVWXYZabcdefghijklmnopqrstuvwxyz0123456789+/";
+        let mut b64 = String::new();
+        for chunk in png.chunks(3) {
+            let n = chunk
+                .iter()
+                .enumerate()
+                .fold(0u32, |n, (i, &b)| n | u32::from(b) << (16 - 8 * i));
+            for k in 0..4 {
+                b64.push(if k <= chunk.len() {
+                    ABC[(n >> (18 - 6 * k) & 63) as usize] as char
+                } else {
+                    '='
+                });
+            }
+        }
+        let materials = [r#"{"pbrMetallicRoughness":{"baseColorTexture":{"index":0}}}"#; 5];
+        let json = format!(
+            r#"{{"asset":{{"version":"2.0"}},
+            "buffers":[{{"byteLength":{},"uri":"data:application/octet-stream;base64,{b64}"}}],
+            "bufferViews":[{{"buffer":0,"byteLength":{}}}],
+            "images":[{{"bufferView":0,"mimeType":"image/png"}}],
+            "textures":[{{"source":0}}],
+            "materials":[{}]}}"#,
+            png.len(),
+            png.len(),
+            materials.join(",")
+        );
+        let gltf = gltf::Gltf::from_slice(json.as_bytes()).unwrap();
+        let buffers = load_buffers(&gltf.document, None, None).unwrap();
+        let loaded = load_materials(&gltf.document, &buffers, None, 2 * 16 * 16);
+        let textured: Vec<bool> = loaded.iter().map(|m| m.texture.is_some()).collect();
+        assert_eq!(textured, [true, true, false, false, false]);
+        let all = load_materials(&gltf.document, &buffers, None, 5 * 16 * 16);
+        assert!(all.iter().all(|m| m.texture.is_some()));
     }
 }

@@ -29,6 +29,8 @@ pub enum RenderError {
         path: std::path::PathBuf,
         source: std::io::Error,
     },
+    #[error(transparent)]
+    Input(#[from] crate::input::InputError),
     #[error("not a valid glTF/GLB file: {0}")]
     Gltf(String),
     #[error("unsupported glTF content: {0}")]

@@ -24,8 +24,10 @@ pub enum CorpusError {
         path: PathBuf,
         source: std::io::Error,
     },
-    #[error("{path}: {source}")]
-    Wav { path: PathBuf, source: hound::Error },
+    #[error(transparent)]
+    WavFile(#[from] crate::audio::wav::WavError),
+    #[error(transparent)]
+    Input(#[from] crate::input::InputError),
     #[error("{path}: {samples} samples at {rate} Hz is shorter than one 20 ms frame")]
     AudioTooShort {
         path: PathBuf,
@@ -204,7 +206,7 @@ pub struct PhoneSegment {
 
 /// Reads a TIMIT `.phn` file.
 pub fn read_phones(path: &Path) -> Result<Vec<PhoneSegment>, CorpusError> {
-    let text = std::fs::read_to_string(path).map_err(io(path))?;
+    let text = crate::input::read_to_string(path, crate::input::MAX_INPUT_BYTES)?;
     parse_phones(&text).map_err(|(line, message)| CorpusError::BadPhoneLine {
         path: path.to_path_buf(),
         line,
@@ -244,10 +246,7 @@ fn parse_phones(text: &str) -> Result<Vec<PhoneSegment>, (usize, String)> {
 
 /// Sample rate and length of a WAV file, from its header.
 pub fn wav_length(path: &Path) -> Result<(u32, u32), CorpusError> {
-    let reader = hound::WavReader::open(path).map_err(|source| CorpusError::Wav {
-        path: path.to_path_buf(),
-        source,
-    })?;
+    let reader = crate::audio::wav::open(path)?;
     let rate = reader.spec().sample_rate;
     let samples = reader.duration();
     if rate == 0 || (samples as f64) < rate as f64 * FRAME_SECONDS {
@@ -558,7 +557,7 @@ pub(crate) mod tests {
         ));
         assert!(matches!(
             wav_length(&dir.join("none.wav")),
-            Err(CorpusError::Wav { .. })
+            Err(CorpusError::WavFile(_))
         ));
         assert!(matches!(Corpus::open(&dir), Err(CorpusError::Empty { .. })));
         std::fs::remove_dir_all(&dir).unwrap();

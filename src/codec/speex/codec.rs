@@ -223,6 +223,13 @@ impl Drop for Encoder {
 pub struct Decoder {
     state: NonNull<c_void>,
     bits: Bits,
+    /// Frames of the loaded packet decoded so far.
+    frame: usize,
+    /// The frame at which libspeex would report the packet corrupt, found by the walker
+    /// beforehand: the decoder is not asked for it, because libspeex prints a notification
+    /// on stderr for each (hundreds of thousands of lines for a damaged file) and can be told
+    /// not to only at build time.
+    corrupt_at: Option<usize>,
 }
 
 // SAFETY: as for Encoder.
@@ -246,6 +253,8 @@ impl Decoder {
         let mut decoder = Self {
             state,
             bits: Bits::new(),
+            frame: 0,
+            corrupt_at: None,
         };
         let mut enh: c_int = i32::from(enhancer);
         // SAFETY: SPEEX_SET_ENH reads one int.
@@ -265,6 +274,13 @@ impl Decoder {
         if packet.len() > MAX_PACKET_BYTES * 4 {
             return Err(CodecError::PacketTooLarge(packet.len()));
         }
+        use super::bitstream::{BitstreamError, Walker};
+        self.frame = 0;
+        self.corrupt_at = match Walker::new().frames(packet).find_map(Result::err) {
+            // Truncation is not corrupt to libspeex: it decodes the missing bits as zeros.
+            None | Some(BitstreamError::Truncated { .. }) => None,
+            Some(error) => Some(error.frame()),
+        };
         // SAFETY: libspeex copies `len` bytes from the slice (growing its own buffer if needed).
         unsafe {
             sys::speex_bits_read_from(
@@ -278,6 +294,10 @@ impl Decoder {
 
     /// Decodes the next frame of the loaded packet.
     pub fn decode_next(&mut self, out: &mut [i16; FRAME_SIZE]) -> Result<FrameOutcome, CodecError> {
+        if self.corrupt_at == Some(self.frame) {
+            return Err(CodecError::Corrupted);
+        }
+        self.frame += 1;
         // SAFETY: out holds one frame, state and bits are valid.
         let ret = unsafe {
             sys::speex_decode_int(self.state.as_ptr(), self.bits.ptr(), out.as_mut_ptr())

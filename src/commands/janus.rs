@@ -1,0 +1,214 @@
+//! `lipcall send --janus` and `lipcall receive --janus`: the headless transport through a
+//! Janus VideoRoom instead of lipcall's own relay. Audio goes as Opus (what WebRTC speaks);
+//! received audio takes the same path as a direct call's (jitter buffer, decoder, features,
+//! lip sync) and the same outputs.
+
+use std::path::PathBuf;
+use std::time::{Duration, Instant};
+
+use anyhow::{Context, Result, bail};
+
+use super::net::{FrameSource, load_packets, play, viseme_names};
+use super::recording::{Recorder, stop_flag};
+use crate::codec::any::{Codec, EncoderSettings};
+use crate::codec::speex::features::FrameFeatures;
+use crate::lipsync;
+use crate::net::janus::room::{Member, Notice, RoomConfig};
+use crate::net::jitter::JitterConfig;
+use crate::net::session::PeerFrame;
+
+#[derive(Debug, Clone)]
+pub struct JanusArgs {
+    /// Janus's HTTP API, `http://host:8088/janus`.
+    pub url: String,
+    pub room: String,
+    pub name: Option<String>,
+    /// The room's pin.
+    pub pin: Option<String>,
+}
+
+impl JanusArgs {
+    fn config(&self, subscribe: bool, default_name: &str) -> RoomConfig {
+        RoomConfig {
+            url: self.url.clone(),
+            room: self.room.clone(),
+            name: self
+                .name
+                .clone()
+                .unwrap_or_else(|| default_name.to_string()),
+            pin: self.pin.clone(),
+            subscribe,
+            jitter: JitterConfig::default(),
+        }
+    }
+}
+
+fn announce_security() {
+    eprintln!(
+        "lipcall: media encrypted hop by hop (WebRTC DTLS-SRTP): the Janus server can hear it"
+    );
+}
+
+fn print_notices(notices: &[Notice]) {
+    for n in notices {
+        match n {
+            Notice::Joined { feed, name } => {
+                eprintln!("lipcall: {name:?} ({feed}) is publishing; subscribed")
+            }
+            Notice::Left { feed, name } => eprintln!("lipcall: {name:?} ({feed}) left"),
+            Notice::Lost { reason } => {
+                eprintln!("lipcall: lost the Janus room ({reason}); rejoining")
+            }
+            Notice::RejoinFailed { reason } => {
+                eprintln!("lipcall: cannot rejoin yet ({reason}); trying every second")
+            }
+            Notice::Rejoined { id } => eprintln!("lipcall: back in the Janus room as {id}"),
+        }
+    }
+}
+
+/// Publishes a file's audio in the room, paced in real time.
+pub fn send(input: &std::path::Path, janus: &JanusArgs) -> Result<()> {
+    let (codec, packets) = load_packets(input, Some(Codec::Opus), &EncoderSettings::default())?;
+    if packets.is_empty() {
+        bail!("{}: no audio to send", input.display());
+    }
+    let (mut room, _) = Member::join(janus.config(false, "lipcall"), true)
+        .with_context(|| format!("publishing in room {:?} on {}", janus.room, janus.url))?;
+    announce_security();
+    let clock = f64::from(codec.clock_rate());
+    let ticks: u64 = packets.iter().map(|(_, t)| u64::from(*t)).sum();
+    eprintln!(
+        "lipcall: sending {:.2} s ({} packets of {codec}) to room {:?} as {}",
+        ticks as f64 / clock,
+        packets.len(),
+        janus.room,
+        room.id().unwrap_or("-")
+    );
+    let start = Instant::now();
+    let mut at = 0u64;
+    for (payload, duration) in &packets {
+        let due = start + Duration::from_secs_f64(at as f64 / clock);
+        if let Some(wait) = due.checked_duration_since(Instant::now()) {
+            std::thread::sleep(wait);
+        }
+        room.send(payload, *duration)?;
+        at += u64::from(*duration);
+        // Janus's events are read while sending; a restarted Janus is rejoined.
+        print_notices(&room.poll());
+    }
+    // The last packets leave str0m's pacer, then Janus forwards them before we hang up.
+    std::thread::sleep(Duration::from_millis(200));
+    let stats = room.media_stats();
+    eprintln!(
+        "lipcall: sent {} packets in {:.2} s; datagrams_sent={} send_errors={}",
+        stats.published,
+        start.elapsed().as_secs_f64(),
+        stats.sent,
+        stats.send_errors
+    );
+    room.leave()?;
+    Ok(())
+}
+
+#[derive(Debug, Clone)]
+pub struct JanusReceiveArgs {
+    pub janus: JanusArgs,
+    pub wav: Option<PathBuf>,
+    pub weights: Option<PathBuf>,
+    pub features: Option<PathBuf>,
+    pub seconds: Option<f64>,
+}
+
+/// The room as a source of played frames; Janus's events are followed between pulls.
+struct RoomSource {
+    room: Member,
+    /// Someone published at some point.
+    heard: bool,
+}
+
+impl FrameSource for RoomSource {
+    fn pull(&mut self, now: Instant, out: &mut Vec<PeerFrame>) -> Result<()> {
+        print_notices(&self.room.poll());
+        self.room.pull(now, out);
+        self.heard |= !out.is_empty();
+        Ok(())
+    }
+
+    fn all_left(&mut self) -> bool {
+        let feeds = self.room.feeds();
+        self.heard && self.room.in_room() && feeds.iter().all(|f| f.left)
+    }
+}
+
+pub fn receive(args: &JanusReceiveArgs) -> Result<()> {
+    receive_with(args, &mut |_, _, _| {})
+}
+
+pub fn receive_with(
+    args: &JanusReceiveArgs,
+    on_frame: &mut dyn FnMut(u32, f64, &FrameFeatures),
+) -> Result<()> {
+    let model = args.weights.as_ref().map(|_| lipsync::default_model());
+    let stop = stop_flag()?;
+    let mut recorder = Recorder::create(
+        args.wav.as_deref(),
+        args.features.as_deref(),
+        args.weights.as_deref(),
+        viseme_names(model.as_ref())?,
+    )?;
+    let (room, notices) = Member::join(args.janus.config(true, "lipcall-receiver"), false)
+        .with_context(|| format!("joining room {:?} on {}", args.janus.room, args.janus.url))?;
+    announce_security();
+    eprintln!(
+        "lipcall: in room {:?} on {} as {}",
+        args.janus.room,
+        args.janus.url,
+        room.id().unwrap_or("-")
+    );
+    print_notices(&notices);
+    let mut source = RoomSource { room, heard: false };
+    let played = play(
+        &mut source,
+        args.seconds,
+        model.as_ref(),
+        on_frame,
+        &mut recorder,
+        &stop,
+    );
+    let RoomSource { room, .. } = source;
+    let stats = room.media_stats();
+    eprintln!(
+        "lipcall: played {:.2} s; datagrams={} unmatched={} sent={}",
+        recorder.seconds(),
+        stats.datagrams,
+        stats.unmatched,
+        stats.sent
+    );
+    for feed in room.feeds() {
+        let j = &feed.receiver.jitter;
+        eprintln!(
+            "peer feed={} name={:?} ssrc={} received={} played={} lost={} late={} concealed={} \
+             recovered={} unknown_pt={} decode_errors={} jitter_ms={:.1} delay_ms={:.1} left={}",
+            feed.feed,
+            feed.name,
+            feed.ssrc.map_or_else(|| "-".into(), |s| format!("{s:08x}")),
+            j.received,
+            j.played,
+            j.lost,
+            j.late,
+            feed.receiver.concealed,
+            feed.receiver.recovered,
+            feed.receiver.unknown_payload,
+            feed.receiver.decode_errors,
+            j.jitter_ms,
+            j.current_delay_ms,
+            feed.left
+        );
+    }
+    if let Err(e) = room.leave() {
+        eprintln!("lipcall: leaving the room: {e}");
+    }
+    let finished = recorder.finish();
+    played.and(finished)
+}

@@ -1,0 +1,314 @@
+//! Janus's HTTP API: requests are POSTs answered at once (`success`, `ack` or `error`); what
+//! comes later (a plugin's answer to an asynchronous request, room events) is fetched by a long
+//! poll, a GET on the session that Janus holds up to 30 s. One thread runs the long poll and
+//! the keepalive and hands events over a channel; requests are made on the caller's thread.
+
+use std::collections::VecDeque;
+use std::sync::Arc;
+use std::sync::atomic::{AtomicBool, AtomicU64, Ordering};
+use std::sync::mpsc::{Receiver, RecvTimeoutError, Sender, TryRecvError, channel};
+use std::time::{Duration, Instant};
+
+use serde_json::Value;
+
+use super::JanusError;
+use super::messages;
+
+/// How long an asynchronous request may take before its event comes.
+const EVENT_TIMEOUT: Duration = Duration::from_secs(10);
+/// Janus destroys a session after 60 s of silence (its default `session_timeout`).
+const KEEPALIVE: Duration = Duration::from_secs(15);
+
+/// What the long-poll thread hands over.
+enum Polled {
+    Event(Value),
+    /// The session is gone or Janus unreachable; the thread has stopped.
+    Lost(JanusError),
+}
+
+/// A Janus session over HTTP.
+pub struct Client {
+    base: String,
+    agent: ureq::Agent,
+    session: u64,
+    events: Receiver<Polled>,
+    /// Events read while waiting for another one.
+    queued: VecDeque<Value>,
+    next_transaction: Arc<AtomicU64>,
+    stop: Arc<AtomicBool>,
+    lost: Option<String>,
+}
+
+impl std::fmt::Debug for Client {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.debug_struct("Client")
+            .field("base", &self.base)
+            .field("session", &self.session)
+            .finish_non_exhaustive()
+    }
+}
+
+fn new_agent(timeout: Duration) -> ureq::Agent {
+    ureq::Agent::config_builder()
+        .timeout_global(Some(timeout))
+        // Janus answers errors in JSON with status 200; anything else is reported with its status.
+        .http_status_as_error(false)
+        .build()
+        .into()
+}
+
+fn transaction(counter: &AtomicU64) -> String {
+    format!("lipcall-{}", counter.fetch_add(1, Ordering::Relaxed))
+}
+
+fn post(agent: &ureq::Agent, url: &str, body: &Value) -> Result<Value, JanusError> {
+    let http = |e: ureq::Error| JanusError::Http {
+        url: url.to_string(),
+        reason: e.to_string(),
+    };
+    let mut response = agent.post(url).send_json(body).map_err(http)?;
+    if !response.status().is_success() {
+        return Err(JanusError::Http {
+            url: url.to_string(),
+            reason: format!("HTTP status {}", response.status()),
+        });
+    }
+    let reply: Value = response.body_mut().read_json().map_err(http)?;
+    messages::check(reply)
+}
+
+impl Client {
+    /// Creates a session on the Janus at `base` (`http://host:8088/janus`).
+    pub fn connect(base: &str) -> Result<Self, JanusError> {
+        let base = base.trim_end_matches('/').to_string();
+        let agent = new_agent(Duration::from_secs(5));
+        let counter = Arc::new(AtomicU64::new(1));
+        let reply = post(
+            &agent,
+            &base,
+            &messages::create_session(&transaction(&counter)),
+        )?;
+        let session = messages::success_id(&reply)?;
+        let (tx, events) = channel();
+        let stop = Arc::new(AtomicBool::new(false));
+        let poller = Poller {
+            url: format!("{base}/{session}"),
+            agent: new_agent(Duration::from_secs(45)),
+            keepalive_agent: agent.clone(),
+            counter: Arc::clone(&counter),
+            stop: Arc::clone(&stop),
+            tx,
+        };
+        std::thread::Builder::new()
+            .name("lipcall-janus-poll".into())
+            .spawn(move || poller.run())
+            .map_err(|e| JanusError::Protocol(format!("cannot start the long-poll thread: {e}")))?;
+        Ok(Self {
+            base,
+            agent,
+            session,
+            events,
+            queued: VecDeque::new(),
+            next_transaction: counter,
+            stop,
+            lost: None,
+        })
+    }
+
+    pub fn session(&self) -> u64 {
+        self.session
+    }
+
+    /// Attaches a plugin; returns the handle id.
+    pub fn attach(&mut self, plugin: &str) -> Result<u64, JanusError> {
+        let t = transaction(&self.next_transaction);
+        let reply = self.post_session(&messages::attach(&t, plugin))?;
+        messages::success_id(&reply)
+    }
+
+    fn post_session(&mut self, body: &Value) -> Result<Value, JanusError> {
+        let url = format!("{}/{}", self.base, self.session);
+        post(&self.agent, &url, body)
+    }
+
+    /// A plugin request answered at once (`create`, `exists`, ...): the plugin's data.
+    pub fn request(&mut self, handle: u64, body: Value) -> Result<Value, JanusError> {
+        let t = transaction(&self.next_transaction);
+        let url = format!("{}/{}/{handle}", self.base, self.session);
+        let reply = post(&self.agent, &url, &messages::message(&t, body, None))?;
+        messages::plugin_data(&reply).cloned()
+    }
+
+    /// A plugin request answered by a later event (`join`, `publish`, `start`): the whole
+    /// event (plugin data and any `jsep`), the plugin's error as an error.
+    pub fn call(
+        &mut self,
+        handle: u64,
+        body: Value,
+        jsep: Option<(&str, &str)>,
+    ) -> Result<Value, JanusError> {
+        let t = transaction(&self.next_transaction);
+        let url = format!("{}/{}/{handle}", self.base, self.session);
+        let reply = post(&self.agent, &url, &messages::message(&t, body, jsep))?;
+        if reply["janus"] != "ack" {
+            // Some requests are answered at once even when they could have been later.
+            messages::plugin_data(&reply)?;
+            return Ok(reply);
+        }
+        let event = self.wait_for(&t)?;
+        messages::plugin_data(&event)?;
+        Ok(event)
+    }
+
+    /// Tells Janus our candidates are all in the SDP already sent on `handle`.
+    pub fn trickle_completed(&mut self, handle: u64) -> Result<(), JanusError> {
+        let t = transaction(&self.next_transaction);
+        let url = format!("{}/{}/{handle}", self.base, self.session);
+        post(&self.agent, &url, &messages::trickle_completed(&t)).map(|_| ())
+    }
+
+    fn wait_for(&mut self, transaction: &str) -> Result<Value, JanusError> {
+        let deadline = Instant::now() + EVENT_TIMEOUT;
+        loop {
+            let left = deadline.saturating_duration_since(Instant::now());
+            match self.events.recv_timeout(left) {
+                Ok(Polled::Event(e)) if e["transaction"] == transaction => return Ok(e),
+                Ok(Polled::Event(e)) => self.queued.push_back(e),
+                Ok(Polled::Lost(e)) => {
+                    self.lost = Some(e.to_string());
+                    return Err(e);
+                }
+                Err(RecvTimeoutError::Timeout) => {
+                    return Err(JanusError::Timeout(format!(
+                        "no answer from Janus within {} s",
+                        EVENT_TIMEOUT.as_secs()
+                    )));
+                }
+                Err(RecvTimeoutError::Disconnected) => {
+                    return Err(JanusError::Protocol("the long-poll thread ended".into()));
+                }
+            }
+        }
+    }
+
+    /// The next event not asked for (room news, hangups), if one has come.
+    pub fn next_event(&mut self) -> Result<Option<Value>, JanusError> {
+        if let Some(e) = self.queued.pop_front() {
+            return Ok(Some(e));
+        }
+        if let Some(reason) = &self.lost {
+            return Err(JanusError::Lost(reason.clone()));
+        }
+        match self.events.try_recv() {
+            Ok(Polled::Event(e)) => Ok(Some(e)),
+            Ok(Polled::Lost(e)) => {
+                self.lost = Some(e.to_string());
+                Err(e)
+            }
+            Err(TryRecvError::Empty) => Ok(None),
+            Err(TryRecvError::Disconnected) => {
+                Err(JanusError::Protocol("the long-poll thread ended".into()))
+            }
+        }
+    }
+
+    /// Detaches a plugin handle (hanging up its peer connection).
+    pub fn detach(&mut self, handle: u64) -> Result<(), JanusError> {
+        let t = transaction(&self.next_transaction);
+        let url = format!("{}/{}/{handle}", self.base, self.session);
+        post(&self.agent, &url, &messages::detach(&t)).map(|_| ())
+    }
+
+    /// Destroys the session: Janus hangs up its peer connections and tells the room.
+    pub fn destroy(&mut self) -> Result<(), JanusError> {
+        self.stop.store(true, Ordering::Relaxed);
+        if self.lost.is_some() {
+            return Ok(());
+        }
+        let t = transaction(&self.next_transaction);
+        self.post_session(&messages::destroy(&t)).map(|_| ())
+    }
+}
+
+impl Drop for Client {
+    fn drop(&mut self) {
+        if !self.stop.load(Ordering::Relaxed) {
+            let _ = self.destroy();
+        }
+    }
+}
+
+struct Poller {
+    url: String,
+    agent: ureq::Agent,
+    keepalive_agent: ureq::Agent,
+    counter: Arc<AtomicU64>,
+    stop: Arc<AtomicBool>,
+    tx: Sender<Polled>,
+}
+
+impl Poller {
+    fn run(self) {
+        let mut last_keepalive = Instant::now();
+        while !self.stop.load(Ordering::Relaxed) {
+            if last_keepalive.elapsed() >= KEEPALIVE {
+                last_keepalive = Instant::now();
+                let t = transaction(&self.counter);
+                if let Err(e) = post(&self.keepalive_agent, &self.url, &messages::keepalive(&t)) {
+                    let _ = self.tx.send(Polled::Lost(e));
+                    return;
+                }
+            }
+            match self.poll() {
+                Ok(events) => {
+                    for e in events {
+                        if self.tx.send(Polled::Event(e)).is_err() {
+                            return;
+                        }
+                    }
+                }
+                Err(_) if self.stop.load(Ordering::Relaxed) => return,
+                Err(e) => {
+                    let _ = self.tx.send(Polled::Lost(e));
+                    return;
+                }
+            }
+        }
+    }
+
+    fn poll(&self) -> Result<Vec<Value>, JanusError> {
+        let http = |e: ureq::Error| JanusError::Http {
+            url: self.url.clone(),
+            reason: e.to_string(),
+        };
+        let mut response = self
+            .agent
+            .get(&format!("{}?maxev=10", self.url))
+            .call()
+            .map_err(http)?;
+        if !response.status().is_success() {
+            return Err(JanusError::Http {
+                url: self.url.clone(),
+                reason: format!("HTTP status {}", response.status()),
+            });
+        }
+        let reply: Value = response.body_mut().read_json().map_err(http)?;
+        let events = match reply {
+            Value::Array(events) => events,
+            one => vec![one],
+        };
+        let mut out = Vec::with_capacity(events.len());
+        for e in events {
+            match e["janus"].as_str() {
+                Some("keepalive") => {}
+                Some("error") => {
+                    return Err(messages::check(e).err().unwrap_or_else(|| {
+                        JanusError::Protocol("an error without an error".into())
+                    }));
+                }
+                _ => out.push(e),
+            }
+        }
+        Ok(out)
+    }
+}

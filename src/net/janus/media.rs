@@ -1,0 +1,667 @@
+//! The WebRTC media of a Janus room: one UDP socket read by its own thread (as
+//! [`crate::net::session`] does), carrying any number of str0m peer connections: at most one
+//! that publishes our Opus stream and one per subscribed publisher. Datagrams are handed to
+//! the connection that accepts them (ICE credentials, then the remote address).
+//!
+//! str0m does ICE, DTLS-SRTP and RTCP. Received RTP packets (str0m's RTP mode: no
+//! depacketising, no reordering) go into a [`PeerReceiver`] per publisher, the same jitter
+//! buffer, decoder and features as a direct call; the owner pulls frames every 20 ms.
+
+use std::collections::HashMap;
+use std::net::{IpAddr, SocketAddr, UdpSocket};
+use std::sync::atomic::{AtomicBool, Ordering};
+use std::sync::mpsc::{Receiver, Sender, channel};
+use std::sync::{Arc, Mutex, MutexGuard};
+use std::thread::JoinHandle;
+use std::time::{Duration, Instant};
+
+use str0m::change::{SdpAnswer, SdpOffer, SdpPendingOffer};
+use str0m::media::{Direction, Frequency, MediaKind, MediaTime, Mid, Pt};
+use str0m::net::{Protocol, Receive};
+use str0m::{Candidate, Event, IceConnectionState, Input, Output, Rtc};
+
+use super::JanusError;
+use crate::codec::any::PayloadMap;
+use crate::net::jitter::JitterConfig;
+use crate::net::peer::{PeerReceiver, ReceiverStats};
+use crate::net::rtp::{Rtp, RtpHeader};
+use crate::net::session::PeerFrame;
+
+/// What the owner knows of one subscribed publisher.
+#[derive(Debug, Clone, PartialEq)]
+pub struct FeedInfo {
+    pub feed: String,
+    pub name: String,
+    /// The SSRC its packets arrive with (Janus's, for this subscription).
+    pub ssrc: Option<u32>,
+    pub connected: bool,
+    /// It left the room (or stopped publishing).
+    pub left: bool,
+    pub receiver: ReceiverStats,
+}
+
+#[derive(Debug, Clone, Copy, Default, PartialEq, Eq)]
+pub struct MediaStats {
+    pub datagrams: u64,
+    /// Datagrams no connection accepted.
+    pub unmatched: u64,
+    pub sent: u64,
+    /// Datagrams the socket refused, and Opus packets str0m refused.
+    pub send_errors: u64,
+    /// Opus packets handed to str0m for sending.
+    pub published: u64,
+    pub publisher_connected: bool,
+    /// A connection failed (ICE or DTLS): its reason.
+    pub failed: Option<&'static str>,
+}
+
+struct Feed {
+    name: String,
+    receiver: PeerReceiver,
+    ssrc: Option<u32>,
+    connected: bool,
+    left: bool,
+}
+
+struct Shared {
+    feeds: Mutex<HashMap<String, Feed>>,
+    stats: Mutex<MediaStats>,
+    stop: AtomicBool,
+    epoch: Instant,
+    jitter: JitterConfig,
+}
+
+fn lock<T>(m: &Mutex<T>) -> MutexGuard<'_, T> {
+    m.lock().unwrap_or_else(|poisoned| poisoned.into_inner())
+}
+
+type Reply<T> = Sender<Result<T, JanusError>>;
+
+enum Command {
+    Offer(Reply<String>),
+    Answer(String, Reply<()>),
+    Subscribe {
+        feed: String,
+        name: String,
+        offer: String,
+        reply: Reply<String>,
+    },
+    Unsubscribe(String),
+    Send {
+        payload: Vec<u8>,
+        ticks: u32,
+    },
+    Close,
+}
+
+/// The media side of a room.
+pub struct Media {
+    shared: Arc<Shared>,
+    commands: Sender<Command>,
+    thread: Option<JoinHandle<()>>,
+}
+
+impl std::fmt::Debug for Media {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.debug_struct("Media").finish_non_exhaustive()
+    }
+}
+
+/// The addresses we offer as host candidates for a Janus at `janus`: the one the kernel would
+/// reach it from and, when that is loopback, the one towards the rest of the network. Janus
+/// (libnice) never gathers loopback candidates, so even a Janus on 127.0.0.1 offers only the
+/// machine's own interface addresses; the media still never leaves the machine.
+pub fn host_ips(janus: IpAddr) -> Result<Vec<IpAddr>, JanusError> {
+    let first = local_ip_towards(janus)?;
+    let mut ips = vec![first];
+    if first.is_loopback() {
+        // A documentation address (RFC 5737, RFC 3849): only the route to it is looked up.
+        let outside: IpAddr = if first.is_ipv4() {
+            [203, 0, 113, 1].into()
+        } else {
+            "2001:db8::1".parse().unwrap_or(first)
+        };
+        if let Ok(ip) = local_ip_towards(outside)
+            && !ip.is_loopback()
+        {
+            ips.push(ip);
+        }
+    }
+    Ok(ips)
+}
+
+/// The local address to reach `remote` from.
+pub fn local_ip_towards(remote: IpAddr) -> Result<IpAddr, JanusError> {
+    let bind: SocketAddr = if remote.is_ipv4() {
+        ([0, 0, 0, 0], 0).into()
+    } else {
+        (std::net::Ipv6Addr::UNSPECIFIED, 0).into()
+    };
+    let probe = UdpSocket::bind(bind).map_err(|e| JanusError::Media(format!("UDP: {e}")))?;
+    probe
+        .connect((remote, 9))
+        .map_err(|e| JanusError::Media(format!("no route to {remote}: {e}")))?;
+    probe
+        .local_addr()
+        .map(|a| a.ip())
+        .map_err(|e| JanusError::Media(format!("UDP: {e}")))
+}
+
+impl Media {
+    /// Starts the media thread on one UDP port, offered as a host candidate on each of `ips`
+    /// (all of one family).
+    pub fn start(ips: &[IpAddr], jitter: JitterConfig) -> Result<Self, JanusError> {
+        let any: IpAddr = match ips.first() {
+            Some(IpAddr::V6(_)) => std::net::Ipv6Addr::UNSPECIFIED.into(),
+            _ => std::net::Ipv4Addr::UNSPECIFIED.into(),
+        };
+        let socket = UdpSocket::bind((any, 0))
+            .map_err(|e| JanusError::Media(format!("cannot bind UDP: {e}")))?;
+        let port = socket
+            .local_addr()
+            .map_err(|e| JanusError::Media(format!("UDP: {e}")))?
+            .port();
+        let local: Vec<SocketAddr> = ips.iter().map(|&ip| SocketAddr::new(ip, port)).collect();
+        let shared = Arc::new(Shared {
+            feeds: Mutex::new(HashMap::new()),
+            stats: Mutex::new(MediaStats::default()),
+            stop: AtomicBool::new(false),
+            epoch: Instant::now(),
+            jitter,
+        });
+        let (commands, rx) = channel();
+        let thread_shared = Arc::clone(&shared);
+        let thread = std::thread::Builder::new()
+            .name("lipcall-webrtc".into())
+            .spawn(move || {
+                let mut engine = Engine::new(socket, local, thread_shared);
+                engine.run(&rx);
+            })
+            .map_err(|e| JanusError::Media(format!("cannot start the media thread: {e}")))?;
+        Ok(Self {
+            shared,
+            commands,
+            thread: Some(thread),
+        })
+    }
+
+    fn ask<T>(&self, make: impl FnOnce(Reply<T>) -> Command) -> Result<T, JanusError> {
+        let (tx, rx) = channel();
+        self.commands
+            .send(make(tx))
+            .map_err(|_| JanusError::Media("the media thread has stopped".into()))?;
+        rx.recv_timeout(Duration::from_secs(5))
+            .map_err(|_| JanusError::Media("the media thread did not answer".into()))?
+    }
+
+    /// The SDP offer of our publishing connection (audio only, Opus, send only).
+    pub fn publish_offer(&self) -> Result<String, JanusError> {
+        self.ask(Command::Offer)
+    }
+
+    pub fn publish_answer(&self, sdp: &str) -> Result<(), JanusError> {
+        let sdp = sdp.to_string();
+        self.ask(|r| Command::Answer(sdp, r))
+    }
+
+    /// Answers Janus's offer for one publisher's stream; its frames come out of [`Self::pull`].
+    pub fn subscribe(&self, feed: &str, name: &str, offer: &str) -> Result<String, JanusError> {
+        let (feed, name, offer) = (feed.to_string(), name.to_string(), offer.to_string());
+        self.ask(|reply| Command::Subscribe {
+            feed,
+            name,
+            offer,
+            reply,
+        })
+    }
+
+    /// The publisher left: its buffered audio still plays out, then it falls silent.
+    pub fn feed_left(&self, feed: &str) {
+        if let Some(f) = lock(&self.shared.feeds).get_mut(feed) {
+            f.left = true;
+        }
+        let _ = self.commands.send(Command::Unsubscribe(feed.to_string()));
+    }
+
+    /// Sends one Opus payload lasting `ticks` of the 48 kHz RTP clock.
+    pub fn send(&self, payload: &[u8], ticks: u32) -> Result<(), JanusError> {
+        self.commands
+            .send(Command::Send {
+                payload: payload.to_vec(),
+                ticks,
+            })
+            .map_err(|_| JanusError::Media("the media thread has stopped".into()))
+    }
+
+    /// The next 20 ms of every subscribed publisher that is playing.
+    pub fn pull(&self, now: Instant, out: &mut Vec<PeerFrame>) {
+        let mut feeds = lock(&self.shared.feeds);
+        for feed in feeds.values_mut() {
+            let Some(ssrc) = feed.ssrc else { continue };
+            if let Some(frame) = feed.receiver.pull(now) {
+                out.push(PeerFrame { ssrc, frame });
+            }
+        }
+    }
+
+    pub fn feeds(&self) -> Vec<FeedInfo> {
+        let feeds = lock(&self.shared.feeds);
+        let mut out: Vec<FeedInfo> = feeds
+            .iter()
+            .map(|(id, f)| FeedInfo {
+                feed: id.clone(),
+                name: f.name.clone(),
+                ssrc: f.ssrc,
+                connected: f.connected,
+                left: f.left,
+                receiver: f.receiver.stats(),
+            })
+            .collect();
+        out.sort_by(|a, b| a.feed.cmp(&b.feed));
+        out
+    }
+
+    pub fn stats(&self) -> MediaStats {
+        *lock(&self.shared.stats)
+    }
+
+    /// Closes every connection (DTLS close and RTCP BYE go out) and stops the thread.
+    pub fn close(&mut self) {
+        let _ = self.commands.send(Command::Close);
+        if let Some(t) = self.thread.take() {
+            let _ = t.join();
+        }
+    }
+}
+
+impl Drop for Media {
+    fn drop(&mut self) {
+        self.shared.stop.store(true, Ordering::Relaxed);
+        self.close();
+    }
+}
+
+enum Role {
+    Publisher {
+        pending: Option<SdpPendingOffer>,
+        mid: Option<Mid>,
+        pt: Option<Pt>,
+        /// RTP time of the next packet, in 48 kHz ticks.
+        time: u64,
+    },
+    Subscriber {
+        feed: String,
+    },
+}
+
+struct Conn {
+    rtc: Rtc,
+    role: Role,
+    timeout: Instant,
+    alive: bool,
+}
+
+struct Engine {
+    socket: UdpSocket,
+    /// Our host candidates: one port, several addresses.
+    local: Vec<SocketAddr>,
+    shared: Arc<Shared>,
+    conns: Vec<Conn>,
+}
+
+impl Engine {
+    fn new(socket: UdpSocket, local: Vec<SocketAddr>, shared: Arc<Shared>) -> Self {
+        Self {
+            socket,
+            local,
+            shared,
+            conns: Vec::new(),
+        }
+    }
+
+    fn new_rtc(&self, rtp_mode: bool) -> Result<Rtc, JanusError> {
+        let mut rtc = Rtc::builder()
+            .clear_codecs()
+            .enable_opus(true, false)
+            .set_rtp_mode(rtp_mode)
+            .build(Instant::now());
+        for &addr in &self.local {
+            let candidate = Candidate::host(addr, "udp")
+                .map_err(|e| JanusError::Media(format!("host candidate {addr}: {e}")))?;
+            rtc.add_local_candidate(candidate);
+        }
+        Ok(rtc)
+    }
+
+    fn run(&mut self, commands: &Receiver<Command>) {
+        let mut buf = vec![0u8; 2000];
+        // Every connection is drained after each mutation, as str0m requires.
+        loop {
+            while let Ok(command) = commands.try_recv() {
+                if !self.command(command) {
+                    return;
+                }
+            }
+            if self.shared.stop.load(Ordering::Relaxed) {
+                self.close_all();
+                return;
+            }
+            let now = Instant::now();
+            let next = self
+                .conns
+                .iter()
+                .map(|c| c.timeout)
+                .min()
+                .unwrap_or(now + Duration::from_millis(5));
+            // Commands (media to send) are checked at least every 2 ms.
+            let wait = next
+                .saturating_duration_since(now)
+                .clamp(Duration::from_millis(1), Duration::from_millis(2));
+            let _ = self.socket.set_read_timeout(Some(wait));
+            match self.socket.recv_from(&mut buf) {
+                Ok((n, source)) => self.datagram(&buf[..n], source),
+                Err(e)
+                    if matches!(
+                        e.kind(),
+                        std::io::ErrorKind::WouldBlock | std::io::ErrorKind::TimedOut
+                    ) => {}
+                Err(_) => {
+                    // An ICMP port unreachable from a peer that went away: nothing to read.
+                }
+            }
+            let now = Instant::now();
+            for i in 0..self.conns.len() {
+                if self.conns[i].timeout <= now {
+                    let result = self.conns[i].rtc.handle_input(Input::Timeout(now));
+                    self.after(i, result.map_err(|e| e.to_string()));
+                }
+            }
+            self.conns.retain(|c| c.alive);
+        }
+    }
+
+    fn datagram(&mut self, data: &[u8], source: SocketAddr) {
+        lock(&self.shared.stats).datagrams += 1;
+        let Ok(contents) = data.try_into() else {
+            lock(&self.shared.stats).unmatched += 1;
+            return;
+        };
+        // The socket listens on every address; which one a datagram came to is taken to be
+        // the one on the same side of loopback as its source.
+        let destination = self
+            .local
+            .iter()
+            .find(|a| a.ip().is_loopback() == source.ip().is_loopback())
+            .or(self.local.first())
+            .copied()
+            .unwrap_or(source);
+        let input = Input::Receive(
+            Instant::now(),
+            Receive {
+                proto: Protocol::Udp,
+                source,
+                destination,
+                contents,
+            },
+        );
+        match self.conns.iter().position(|c| c.rtc.accepts(&input)) {
+            Some(i) => {
+                let result = self.conns[i].rtc.handle_input(input);
+                self.after(i, result.map_err(|e| e.to_string()));
+            }
+            None => lock(&self.shared.stats).unmatched += 1,
+        }
+    }
+
+    /// Drains connection `i` after a mutation; a failure closes it.
+    fn after(&mut self, i: usize, result: Result<(), String>) {
+        if result.is_err() {
+            self.fail(i, "WebRTC input rejected");
+            return;
+        }
+        loop {
+            let output = match self.conns[i].rtc.poll_output() {
+                Ok(o) => o,
+                Err(_) => {
+                    self.fail(i, "WebRTC connection error");
+                    return;
+                }
+            };
+            match output {
+                Output::Timeout(t) => {
+                    self.conns[i].timeout = t;
+                    if !self.conns[i].rtc.is_alive() {
+                        self.conns[i].alive = false;
+                    }
+                    return;
+                }
+                Output::Transmit(t) => {
+                    let sent = self.socket.send_to(&t.contents, t.destination).is_ok();
+                    let mut stats = lock(&self.shared.stats);
+                    if sent {
+                        stats.sent += 1;
+                    } else {
+                        stats.send_errors += 1;
+                    }
+                }
+                Output::Event(e) => self.event(i, e),
+            }
+        }
+    }
+
+    fn fail(&mut self, i: usize, reason: &'static str) {
+        self.conns[i].alive = false;
+        lock(&self.shared.stats).failed = Some(reason);
+        if let Role::Subscriber { feed } = &self.conns[i].role
+            && let Some(f) = lock(&self.shared.feeds).get_mut(feed)
+        {
+            f.connected = false;
+        }
+    }
+
+    fn event(&mut self, i: usize, event: Event) {
+        match (&mut self.conns[i].role, event) {
+            (Role::Subscriber { feed }, Event::RtpPacket(p)) => {
+                let header = RtpHeader {
+                    marker: p.header.marker,
+                    payload_type: *p.header.payload_type,
+                    sequence: *p.seq_no as u16,
+                    timestamp: p.header.timestamp,
+                    ssrc: *p.header.ssrc,
+                };
+                let mut feeds = lock(&self.shared.feeds);
+                if let Some(f) = feeds.get_mut(feed.as_str()) {
+                    f.ssrc.get_or_insert(header.ssrc);
+                    f.receiver.insert(
+                        &Rtp {
+                            header,
+                            payload: &p.payload,
+                        },
+                        p.timestamp,
+                    );
+                }
+            }
+            (Role::Subscriber { feed }, Event::Connected) => {
+                if let Some(f) = lock(&self.shared.feeds).get_mut(feed.as_str()) {
+                    f.connected = true;
+                }
+            }
+            (Role::Publisher { mid, .. }, Event::MediaAdded(m)) => *mid = Some(m.mid),
+            (Role::Publisher { .. }, Event::Connected) => {
+                lock(&self.shared.stats).publisher_connected = true;
+            }
+            (_, Event::IceConnectionStateChange(IceConnectionState::Disconnected)) => {
+                self.fail(i, "ICE disconnected");
+            }
+            (_, Event::Closed) => self.conns[i].alive = false,
+            _ => {}
+        }
+    }
+
+    fn publisher(&mut self) -> Option<usize> {
+        self.conns
+            .iter()
+            .position(|c| matches!(c.role, Role::Publisher { .. }))
+    }
+
+    /// Handles one command; false to stop the thread.
+    fn command(&mut self, command: Command) -> bool {
+        match command {
+            Command::Offer(reply) => {
+                let _ = reply.send(self.offer());
+            }
+            Command::Answer(sdp, reply) => {
+                let _ = reply.send(self.answer(&sdp));
+            }
+            Command::Subscribe {
+                feed,
+                name,
+                offer,
+                reply,
+            } => {
+                let _ = reply.send(self.subscribe(feed, name, &offer));
+            }
+            Command::Unsubscribe(feed) => {
+                if let Some(i) = self
+                    .conns
+                    .iter()
+                    .position(|c| matches!(&c.role, Role::Subscriber { feed: f } if *f == feed))
+                {
+                    self.conns[i].rtc.disconnect();
+                    self.after(i, Ok(()));
+                    self.conns[i].alive = false;
+                }
+            }
+            Command::Send { payload, ticks } => self.send(payload, ticks),
+            Command::Close => {
+                self.close_all();
+                return false;
+            }
+        }
+        true
+    }
+
+    fn close_all(&mut self) {
+        for i in 0..self.conns.len() {
+            let result = self.conns[i].rtc.close().map_err(|e| e.to_string());
+            self.after(i, result);
+        }
+        self.conns.clear();
+    }
+
+    fn offer(&mut self) -> Result<String, JanusError> {
+        if self.publisher().is_some() {
+            return Err(JanusError::Media("already publishing".into()));
+        }
+        let mut rtc = self.new_rtc(false)?;
+        let mut change = rtc.sdp_api();
+        let mid = change.add_media(MediaKind::Audio, Direction::SendOnly, None, None, None);
+        let (offer, pending) = change
+            .apply()
+            .ok_or_else(|| JanusError::Media("str0m made no offer".into()))?;
+        let pt = rtc
+            .codec_config()
+            .params()
+            .iter()
+            .find_map(|p| (p.spec().codec == str0m::format::Codec::Opus).then(|| p.pt()));
+        self.conns.push(Conn {
+            rtc,
+            role: Role::Publisher {
+                pending: Some(pending),
+                mid: Some(mid),
+                pt,
+                time: 0,
+            },
+            timeout: Instant::now(),
+            alive: true,
+        });
+        let i = self.conns.len() - 1;
+        self.after(i, Ok(()));
+        Ok(offer.to_sdp_string())
+    }
+
+    fn answer(&mut self, sdp: &str) -> Result<(), JanusError> {
+        let i = self
+            .publisher()
+            .ok_or_else(|| JanusError::Media("an answer without an offer".into()))?;
+        let answer = SdpAnswer::from_sdp_string(sdp)
+            .map_err(|e| JanusError::Media(format!("Janus's SDP answer: {e}")))?;
+        let conn = &mut self.conns[i];
+        let Role::Publisher { pending, .. } = &mut conn.role else {
+            unreachable!("publisher() finds publishers");
+        };
+        let pending = pending
+            .take()
+            .ok_or_else(|| JanusError::Media("the offer was already answered".into()))?;
+        let result = conn.rtc.sdp_api().accept_answer(pending, answer);
+        let err = result.as_ref().err().map(|e| e.to_string());
+        self.after(i, Ok(()));
+        match err {
+            Some(e) => Err(JanusError::Media(format!("Janus's SDP answer: {e}"))),
+            None => Ok(()),
+        }
+    }
+
+    fn subscribe(&mut self, feed: String, name: String, offer: &str) -> Result<String, JanusError> {
+        let pt = super::messages::opus_payload_type(offer)
+            .ok_or_else(|| JanusError::Media(format!("Janus offers no Opus for {name}")))?;
+        let sdp = SdpOffer::from_sdp_string(offer)
+            .map_err(|e| JanusError::Media(format!("Janus's SDP offer: {e}")))?;
+        let mut rtc = self.new_rtc(true)?;
+        let answer = rtc
+            .sdp_api()
+            .accept_offer(sdp)
+            .map_err(|e| JanusError::Media(format!("Janus's SDP offer: {e}")))?;
+        let payloads = PayloadMap::default()
+            .with_assignments(&[format!("opus={pt}")])
+            .map_err(|e| JanusError::Media(format!("Opus payload type {pt}: {e}")))?;
+        let receiver =
+            PeerReceiver::with_payloads(self.shared.jitter, self.shared.epoch, true, payloads);
+        lock(&self.shared.feeds).insert(
+            feed.clone(),
+            Feed {
+                name,
+                receiver,
+                ssrc: None,
+                connected: false,
+                left: false,
+            },
+        );
+        self.conns.push(Conn {
+            rtc,
+            role: Role::Subscriber { feed },
+            timeout: Instant::now(),
+            alive: true,
+        });
+        let i = self.conns.len() - 1;
+        self.after(i, Ok(()));
+        Ok(answer.to_sdp_string())
+    }
+
+    fn send(&mut self, payload: Vec<u8>, ticks: u32) {
+        let Some(i) = self.publisher() else { return };
+        let conn = &mut self.conns[i];
+        let Role::Publisher { mid, pt, time, .. } = &mut conn.role else {
+            return;
+        };
+        let (Some(mid), Some(pt)) = (*mid, *pt) else {
+            return;
+        };
+        let at = MediaTime::new(*time, Frequency::FORTY_EIGHT_KHZ);
+        *time += u64::from(ticks);
+        let Some(writer) = conn.rtc.writer(mid) else {
+            return;
+        };
+        // A packet str0m refuses is counted, not a reason to hang up.
+        let written = writer.write(pt, Instant::now(), at, payload).is_ok();
+        {
+            let mut stats = lock(&self.shared.stats);
+            if written {
+                stats.published += 1;
+            } else {
+                stats.send_errors += 1;
+            }
+        }
+        self.after(i, Ok(()));
+    }
+}

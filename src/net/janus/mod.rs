@@ -1,0 +1,34 @@
+//! Rooms on a Janus WebRTC server (its VideoRoom plugin), beside lipcall's own relay.
+//!
+//! Janus forwards each publisher's Opus stream to every subscriber unmixed, so each remote
+//! speaker stays a peer of its own with its own lip sync. The media is WebRTC: ICE, DTLS-SRTP
+//! and RTCP through str0m, which is sans-I/O and driven by our own UDP thread
+//! ([`media`]). Signalling is Janus's HTTP API ([`http`]) carrying the VideoRoom requests
+//! ([`messages`]); [`room`] puts the two together.
+//!
+//! DTLS-SRTP is hop by hop: Janus decrypts every stream it forwards and could read it, unlike
+//! lipcall's end-to-end SRTP rooms, whose relay cannot.
+
+pub mod http;
+pub mod media;
+pub mod messages;
+pub mod room;
+
+/// Everything a Janus room can fail with.
+#[derive(Debug, thiserror::Error)]
+pub enum JanusError {
+    #[error("cannot reach Janus at {url}: {reason}")]
+    Http { url: String, reason: String },
+    #[error("Janus error {code}: {reason}")]
+    Janus { code: i64, reason: String },
+    #[error("Janus VideoRoom error {code}: {reason}")]
+    Plugin { code: i64, reason: String },
+    #[error("unexpected answer from Janus: {0}")]
+    Protocol(String),
+    #[error("{0}")]
+    Timeout(String),
+    #[error("lost the Janus session: {0}")]
+    Lost(String),
+    #[error("WebRTC: {0}")]
+    Media(String),
+}

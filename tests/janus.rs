@@ -1,0 +1,350 @@
+//! Rooms on a real Janus (Debian's `janus`, started here with the repository's config folder,
+//! assets/janus, on a free loopback port): two lipcall processes in one VideoRoom.
+
+mod common;
+
+use std::net::TcpListener;
+use std::path::{Path, PathBuf};
+use std::process::{Child, Command, Stdio};
+use std::time::{Duration, Instant};
+
+use common::net::{finish, spawn};
+use common::{demo_8k, lipcall, read_wav_i16, repo_file};
+
+/// A Janus process with the repository's config, its HTTP API on a free loopback port.
+struct Janus {
+    child: Child,
+    url: String,
+    port: u16,
+    config: PathBuf,
+    log: PathBuf,
+}
+
+impl Drop for Janus {
+    fn drop(&mut self) {
+        self.stop();
+    }
+}
+
+fn janus_installed() -> bool {
+    Command::new("janus")
+        .arg("--help")
+        .stdout(Stdio::null())
+        .stderr(Stdio::null())
+        .status()
+        .is_ok_and(|s| s.success())
+}
+
+fn free_tcp_port() -> u16 {
+    TcpListener::bind("127.0.0.1:0")
+        .and_then(|l| l.local_addr())
+        .map(|a| a.port())
+        .expect("a free loopback port")
+}
+
+fn start_janus(dir: &Path) -> Janus {
+    let config = dir.join("janus-config");
+    std::fs::create_dir_all(&config).unwrap();
+    let port = free_tcp_port();
+    for entry in std::fs::read_dir(repo_file("assets/janus")).unwrap() {
+        let path = entry.unwrap().path();
+        let text = std::fs::read_to_string(&path).unwrap();
+        // The one change to the repository's config: the port.
+        let text = text.replace("port = 8088", &format!("port = {port}"));
+        std::fs::write(config.join(path.file_name().unwrap()), text).unwrap();
+    }
+    let log = dir.join("janus.log");
+    let mut janus = Janus {
+        child: run_janus(&config, &log),
+        url: format!("http://127.0.0.1:{port}/janus"),
+        port,
+        config,
+        log,
+    };
+    janus.wait_ready();
+    janus
+}
+
+fn run_janus(config: &Path, log: &Path) -> Child {
+    Command::new("janus")
+        .arg("-F")
+        .arg(config)
+        .arg("-L")
+        .arg(log)
+        .arg("-N")
+        .stdout(Stdio::null())
+        .stderr(Stdio::null())
+        .spawn()
+        .expect("janus starts")
+}
+
+impl Janus {
+    fn wait_ready(&mut self) {
+        let deadline = Instant::now() + Duration::from_secs(15);
+        while std::net::TcpStream::connect(("127.0.0.1", self.port)).is_err() {
+            assert!(
+                Instant::now() < deadline,
+                "Janus did not open its HTTP port: {}",
+                std::fs::read_to_string(&self.log).unwrap_or_default()
+            );
+            std::thread::sleep(Duration::from_millis(50));
+        }
+    }
+
+    fn stop(&mut self) {
+        let _ = self.child.kill();
+        let _ = self.child.wait();
+    }
+
+    /// A fresh Janus on the same port and config, knowing nothing of the old sessions.
+    fn restart(&mut self) {
+        self.stop();
+        self.child = run_janus(&self.config, &self.log);
+        self.wait_ready();
+    }
+}
+
+/// The lag of `test` against `reference` (positive: `test` later) within +-`max` samples that
+/// correlates best over the first seconds of speech, and the SNR over the overlap there.
+fn snr_at_best_shift(reference: &[i16], test: &[i16], max: usize) -> (f64, isize) {
+    let pair = |lag: isize| -> (&[i16], &[i16]) {
+        if lag >= 0 {
+            let t = &test[(lag as usize).min(test.len())..];
+            let n = t.len().min(reference.len());
+            (&reference[..n], &t[..n])
+        } else {
+            let r = &reference[((-lag) as usize).min(reference.len())..];
+            let n = r.len().min(test.len());
+            (&r[..n], &test[..n])
+        }
+    };
+    let snr = |r: &[i16], t: &[i16]| {
+        let s: f64 = r.iter().map(|&x| f64::from(x).powi(2)).sum();
+        let e: f64 = r
+            .iter()
+            .zip(t)
+            .map(|(&a, &b)| (f64::from(a) - f64::from(b)).powi(2))
+            .sum();
+        10.0 * (s / e.max(1e-9)).log10()
+    };
+    let max = max as isize;
+    let lag = (-max..=max)
+        .max_by(|&a, &b| {
+            let (ra, ta) = pair(a);
+            let (rb, tb) = pair(b);
+            let n = 16000;
+            snr(&ra[..ra.len().min(n)], &ta[..ta.len().min(n)])
+                .total_cmp(&snr(&rb[..rb.len().min(n)], &tb[..tb.len().min(n)]))
+        })
+        .unwrap_or(0);
+    let (r, t) = pair(lag);
+    (snr(r, t), lag)
+}
+
+#[test]
+fn two_lipcalls_in_a_janus_room_hear_each_other_and_the_receiver_animates() {
+    if !janus_installed() {
+        eprintln!("skipped: no `janus` binary (Debian package janus; .ci/run installs it)");
+        return;
+    }
+    let dir = tempfile::tempdir().unwrap();
+    let janus = start_janus(dir.path());
+    let speech = repo_file("assets/speech/demo.wav");
+    let source = read_wav_i16(&demo_8k(dir.path())).1;
+    let room = "lipcall-test";
+    let pin = "correct horse";
+
+    let wav = dir.path().join("janus.wav");
+    let weights = dir.path().join("janus-weights.csv");
+    let receiver = spawn(
+        lipcall()
+            .args([
+                "receive", "--janus", &janus.url, "--room", room, "--key", pin,
+            ])
+            .args(["--name", "Bob", "--seconds", "13"])
+            .arg("--wav")
+            .arg(&wav)
+            .arg("--weights")
+            .arg(&weights),
+    );
+    // The receiver creates the room and joins before the sender comes.
+    std::thread::sleep(Duration::from_millis(1500));
+    let sender = spawn(
+        lipcall()
+            .arg("send")
+            .arg(&speech)
+            .args(["--janus", &janus.url, "--room", room, "--key", pin])
+            .args(["--name", "Ann"]),
+    );
+    let (_, sent) = finish(sender, Duration::from_secs(30), "lipcall send --janus");
+    let (_, received) = finish(receiver, Duration::from_secs(30), "lipcall receive --janus");
+    assert!(
+        received.contains("\"Ann\"") && received.contains("is publishing"),
+        "{received}"
+    );
+    assert!(
+        received.contains("left"),
+        "the sender's leaving is seen: {received}"
+    );
+    let got = read_wav_i16(&wav).1;
+
+    // The same audio sent directly: lipcall's own Opus round trip over RTP.
+    let port = common::net::free_port();
+    let direct_wav = dir.path().join("direct.wav");
+    let direct_rx = spawn(
+        lipcall()
+            .args(["receive", "--listen", &format!("127.0.0.1:{port}")])
+            .args(["--seconds", "11"])
+            .arg("--wav")
+            .arg(&direct_wav),
+    );
+    std::thread::sleep(Duration::from_millis(300));
+    let direct_tx = spawn(lipcall().arg("send").arg(&speech).args([
+        "--to",
+        &format!("127.0.0.1:{port}"),
+        "--codec",
+        "opus",
+    ]));
+    finish(
+        direct_tx,
+        Duration::from_secs(30),
+        "lipcall send --codec opus",
+    );
+    finish(direct_rx, Duration::from_secs(30), "lipcall receive");
+    let direct = read_wav_i16(&direct_wav).1;
+
+    let (snr_janus, lag_janus) = snr_at_best_shift(&source, &got, 2000);
+    let (snr_direct, lag_direct) = snr_at_best_shift(&source, &direct, 2000);
+    eprintln!(
+        "SNR through Janus {snr_janus:.2} dB (lag {lag_janus}), direct Opus round trip \
+         {snr_direct:.2} dB (lag {lag_direct}); received {:.2} s of {:.2} s",
+        got.len() as f64 / 8000.0,
+        source.len() as f64 / 8000.0
+    );
+    assert!(
+        (snr_janus - snr_direct).abs() <= 1.0,
+        "Janus {snr_janus:.2} dB vs direct {snr_direct:.2} dB\nsender: {sent}\nreceiver: {received}"
+    );
+    assert!(
+        snr_direct > 5.0,
+        "the reference itself is sound: {snr_direct:.2} dB"
+    );
+    assert!(
+        got.len() as f64 >= source.len() as f64 * 0.97,
+        "{} samples",
+        got.len()
+    );
+
+    let csv = std::fs::read_to_string(&weights).unwrap();
+    let mut lines = csv.lines();
+    let header = lines.next().unwrap();
+    assert!(header.starts_with("frame,time_s,"), "{header}");
+    let columns = header.split(',').count();
+    let rows: Vec<&str> = lines.collect();
+    assert!(
+        rows.len() * 160 >= got.len() * 95 / 100,
+        "{} rows",
+        rows.len()
+    );
+    assert!(rows.iter().all(|r| r.split(',').count() == columns));
+    // The mouth moves: viseme weights vary over the utterance.
+    let first: Vec<f64> = rows
+        .iter()
+        .map(|r| r.split(',').nth(2).unwrap().parse().unwrap())
+        .collect();
+    let (lo, hi) = first
+        .iter()
+        .fold((f64::MAX, f64::MIN), |(l, h), &v| (l.min(v), h.max(v)));
+    assert!(hi - lo > 0.2, "weights barely move: {lo}..{hi}");
+}
+
+#[test]
+fn a_wrong_pin_and_an_unreachable_janus_fail_at_once_with_janus_s_reason() {
+    // Nothing listens on a port that was free a moment ago.
+    let port = free_tcp_port();
+    let started = Instant::now();
+    let out = lipcall()
+        .args([
+            "receive",
+            "--janus",
+            &format!("http://127.0.0.1:{port}/janus"),
+        ])
+        .args(["--room", "r", "--seconds", "2"])
+        .output()
+        .unwrap();
+    let stderr = String::from_utf8_lossy(&out.stderr);
+    assert!(!out.status.success());
+    assert!(stderr.contains("cannot reach Janus at"), "{stderr}");
+    assert!(started.elapsed() < Duration::from_secs(5));
+
+    if !janus_installed() {
+        eprintln!("skipped the pin check: no `janus` binary (Debian package janus)");
+        return;
+    }
+    let dir = tempfile::tempdir().unwrap();
+    let janus = start_janus(dir.path());
+    let owner = spawn(
+        lipcall()
+            .args(["receive", "--janus", &janus.url, "--room", "pinned"])
+            .args(["--key", "right", "--seconds", "3"]),
+    );
+    std::thread::sleep(Duration::from_millis(1000));
+    for key in [Some("wrong"), None] {
+        let started = Instant::now();
+        let mut cmd = lipcall();
+        cmd.args(["receive", "--janus", &janus.url, "--room", "pinned"])
+            .args(["--seconds", "2"]);
+        if let Some(key) = key {
+            cmd.args(["--key", key]);
+        }
+        let out = cmd.output().unwrap();
+        let stderr = String::from_utf8_lossy(&out.stderr);
+        assert!(!out.status.success(), "{stderr}");
+        assert!(stderr.contains("Janus VideoRoom error 4"), "{stderr}");
+        assert!(stderr.contains("pin"), "{stderr}");
+        assert!(started.elapsed() < Duration::from_secs(5));
+    }
+    finish(owner, Duration::from_secs(20), "the room's first member");
+}
+
+#[test]
+fn a_restarted_janus_is_said_and_rejoined_and_the_call_goes_on() {
+    if !janus_installed() {
+        eprintln!("skipped: no `janus` binary (Debian package janus; .ci/run installs it)");
+        return;
+    }
+    let dir = tempfile::tempdir().unwrap();
+    let mut janus = start_janus(dir.path());
+    let room = "restarts";
+    let receiver = spawn(
+        lipcall()
+            .args(["receive", "--janus", &janus.url, "--room", room])
+            .args(["--seconds", "15"]),
+    );
+    std::thread::sleep(Duration::from_millis(1500));
+    let sender = spawn(
+        lipcall()
+            .arg("send")
+            .arg(repo_file("assets/speech/demo.wav"))
+            .args(["--janus", &janus.url, "--room", room, "--name", "Ann"]),
+    );
+    std::thread::sleep(Duration::from_secs(4));
+    janus.restart();
+    let (_, sent) = finish(sender, Duration::from_secs(30), "lipcall send --janus");
+    let (_, received) = finish(receiver, Duration::from_secs(30), "lipcall receive --janus");
+    for (who, stderr) in [("sender", &sent), ("receiver", &received)] {
+        assert!(stderr.contains("lost the Janus room"), "{who}: {stderr}");
+        assert!(stderr.contains("back in the Janus room"), "{who}: {stderr}");
+    }
+    // The receiver hears the sender again in the new session: about the last 3 s of 8.8.
+    let peer = received
+        .lines()
+        .find(|l| l.starts_with("peer "))
+        .unwrap_or_else(|| panic!("no peer line: {received}"));
+    let count: u32 = peer
+        .split_whitespace()
+        .find_map(|kv| kv.strip_prefix("received="))
+        .and_then(|v| v.parse().ok())
+        .unwrap();
+    assert!(count >= 75, "{count} packets after the restart: {received}");
+}

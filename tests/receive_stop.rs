@@ -1,0 +1,206 @@
+//! How `lipcall receive` ends and what it leaves: stopped with SIGINT or SIGTERM mid-call it
+//! still writes a whole WAV of what it played and its CSVs (it used to keep everything in
+//! memory and write nothing); a caller that goes silent without BYE has left after
+//! `--peer-timeout`; an output it cannot write fails before the call starts.
+
+mod common;
+
+use std::io::{BufRead, BufReader};
+use std::net::SocketAddr;
+use std::path::Path;
+use std::process::{Child, Command};
+use std::sync::mpsc;
+use std::time::{Duration, Instant};
+
+use common::net::{finish, spawn};
+use common::{lipcall, repo_file};
+use lipcall::codec::FRAME_SIZE;
+use lipcall::codec::any::{Codec, EncoderSettings, FrameEncoder, MAX_FRAME_PAYLOAD};
+use lipcall::net::session::{Session, SessionConfig};
+
+/// `lipcall receive` on a port of its own choosing, its address read from what it prints.
+fn start_receiver(args: &[&str]) -> (Child, SocketAddr, mpsc::Receiver<String>) {
+    let mut child = spawn(
+        lipcall()
+            .args(["receive", "--listen", "127.0.0.1:0"])
+            .args(args),
+    );
+    let stderr = child.stderr.take().expect("stderr");
+    let (tx, rx) = mpsc::channel();
+    std::thread::spawn(move || {
+        for line in BufReader::new(stderr).lines() {
+            let Ok(line) = line else { break };
+            if tx.send(line).is_err() {
+                break;
+            }
+        }
+    });
+    let mut addr = None;
+    while addr.is_none() {
+        let Ok(line) = rx.recv_timeout(Duration::from_secs(20)) else {
+            let _ = child.kill();
+            let _ = child.wait();
+            panic!("receive did not say where it listens");
+        };
+        addr = line
+            .strip_prefix("lipcall: listening on ")
+            .map(|a| a.parse().expect("an address"));
+    }
+    (child, addr.unwrap(), rx)
+}
+
+fn signal(child: &Child, name: &str) {
+    let status = Command::new("kill")
+        .args([&format!("-{name}"), &child.id().to_string()])
+        .status()
+        .expect("kill");
+    assert!(status.success());
+}
+
+fn csv_rows(path: &Path) -> (String, Vec<Vec<String>>) {
+    let text = std::fs::read_to_string(path).expect("the CSV was written");
+    let mut lines = text.lines();
+    let header = lines.next().expect("a header").to_string();
+    let rows = lines
+        .map(|l| l.split(',').map(str::to_string).collect())
+        .collect();
+    (header, rows)
+}
+
+fn stopped_mid_call_leaves_whole_files(signal_name: &str) {
+    let dir = tempfile::tempdir().unwrap();
+    let wav = dir.path().join("out.wav");
+    let features = dir.path().join("features.csv");
+    let weights = dir.path().join("weights.csv");
+    let (receiver, addr, stderr) = start_receiver(&[
+        "--wav",
+        wav.to_str().unwrap(),
+        "--features",
+        features.to_str().unwrap(),
+        "--weights",
+        weights.to_str().unwrap(),
+    ]);
+    let demo = repo_file("assets/speech/demo.wav");
+    let mut sender = spawn(
+        lipcall()
+            .arg("send")
+            .arg(&demo)
+            .args(["--to", &addr.to_string()]),
+    );
+    // Mid-sentence: the demo lasts longer than this.
+    std::thread::sleep(Duration::from_millis(2500));
+    signal(&receiver, signal_name);
+    finish(receiver, Duration::from_secs(10), "lipcall receive");
+    let _ = sender.kill();
+    let _ = sender.wait();
+    let said: Vec<String> = stderr.try_iter().collect();
+    assert!(
+        said.iter().any(|l| l.contains("stopped by a signal")),
+        "{said:?}"
+    );
+    assert!(said.iter().any(|l| l.starts_with("peer ssrc=")), "{said:?}");
+
+    let mut reader = hound::WavReader::open(&wav).expect("a valid WAV");
+    let spec = reader.spec();
+    assert_eq!(
+        (spec.sample_rate, spec.channels, spec.bits_per_sample),
+        (8000, 1, 16)
+    );
+    let samples: Vec<i16> = reader
+        .samples::<i16>()
+        .map(|s| s.expect("every sample the header counts is there"))
+        .collect();
+    assert_eq!(samples.len() % FRAME_SIZE, 0);
+    let frames = samples.len() / FRAME_SIZE;
+    assert!(
+        (50..=125).contains(&frames),
+        "{frames} frames played in 2.5 s"
+    );
+    assert!(samples.iter().any(|&s| s.abs() > 1000), "speech was played");
+
+    // One peer, playing through to the end: its last row is the WAV's last frame.
+    let (header, rows) = csv_rows(&features);
+    assert!(header.starts_with("frame,time_s,mode,lsp1"), "{header}");
+    assert!(
+        rows.len() + 5 >= frames && rows.len() <= frames,
+        "{} rows",
+        rows.len()
+    );
+    assert_eq!(rows.last().unwrap()[0], (frames - 1).to_string());
+    assert!(rows.iter().all(|r| r.len() == 14));
+    let (header, rows) = csv_rows(&weights);
+    let columns = header.split(',').count();
+    assert!(columns > 3, "{header}");
+    assert_eq!(rows.last().unwrap()[0], (frames - 1).to_string());
+    assert!(
+        rows.iter().all(|r| r.len() == columns),
+        "every row has its weights"
+    );
+}
+
+#[test]
+fn sigint_mid_call_leaves_a_whole_wav_and_csvs() {
+    stopped_mid_call_leaves_whole_files("INT");
+}
+
+#[test]
+fn sigterm_mid_call_leaves_a_whole_wav_and_csvs() {
+    stopped_mid_call_leaves_whole_files("TERM");
+}
+
+#[test]
+fn a_caller_silent_without_bye_has_left_after_the_peer_timeout() {
+    let dir = tempfile::tempdir().unwrap();
+    let wav = dir.path().join("out.wav");
+    let (receiver, addr, _stderr) =
+        start_receiver(&["--peer-timeout", "1", "--wav", wav.to_str().unwrap()]);
+    let mut config = SessionConfig::new("127.0.0.1:0".parse().unwrap());
+    config.destinations = vec![addr];
+    // No RTCP: no BYE when it goes.
+    config.send_rtcp = false;
+    let session = Session::start(config).unwrap();
+    let mut encoder = FrameEncoder::new(Codec::Speex, &EncoderSettings::default()).unwrap();
+    let mut payload = [0u8; MAX_FRAME_PAYLOAD];
+    let start = Instant::now();
+    for k in 0..50u32 {
+        let due = start + Duration::from_millis(20) * k;
+        if let Some(wait) = due.checked_duration_since(Instant::now()) {
+            std::thread::sleep(wait);
+        }
+        let frame: [i16; FRAME_SIZE] =
+            std::array::from_fn(|i| ((i as f32 * 0.3).sin() * 8000.0) as i16);
+        let (n, count) = encoder.encode(&frame, &mut payload).unwrap().unwrap();
+        session.send_frames(&payload[..n], count).unwrap();
+    }
+    drop(session);
+    let gone = Instant::now();
+    // Without the timeout it waited for a BYE that never comes.
+    finish(receiver, Duration::from_secs(15), "lipcall receive");
+    assert!(gone.elapsed() >= Duration::from_millis(900));
+    let (rate, samples) = common::read_wav_i16(&wav);
+    assert_eq!(rate, 8000);
+    assert!(
+        samples.len() >= 45 * FRAME_SIZE,
+        "{} samples",
+        samples.len()
+    );
+}
+
+#[test]
+fn an_output_that_cannot_be_written_fails_before_the_call() {
+    let dir = tempfile::tempdir().unwrap();
+    for flag in ["--wav", "--features", "--weights"] {
+        let path = dir.path().join("no/such/dir/out");
+        let started = Instant::now();
+        let out = lipcall()
+            .args(["receive", "--listen", "127.0.0.1:0", flag])
+            .arg(&path)
+            .output()
+            .unwrap();
+        let stderr = String::from_utf8_lossy(&out.stderr);
+        assert!(!out.status.success(), "{flag}: {stderr}");
+        assert!(stderr.contains("cannot write"), "{flag}: {stderr}");
+        assert!(!stderr.contains("listening on"), "{flag}: {stderr}");
+        assert!(started.elapsed() < Duration::from_secs(10));
+    }
+}
