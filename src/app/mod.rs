@@ -281,7 +281,10 @@ impl eframe::App for LipcallApp {
             let s = &mut *guard;
             s.playback.poll();
             let peers = s.peers.clone();
-            // A peer's saved choices apply once its name (SDES) is known.
+            // A peer's saved choices apply once its name (SDES) is known; peers that left are
+            // forgotten (the engine frees their state), so one that comes back gets them again.
+            self.applied
+                .retain(|ssrc| peers.iter().any(|p| p.ssrc == *ssrc));
             for p in &peers {
                 if let Some(saved) = self.settings.peers.get(&p.name)
                     && self.applied.insert(p.ssrc)
@@ -359,7 +362,7 @@ impl eframe::App for LipcallApp {
             let mut s = engine::lock(&self.engine.shared);
             for (p, pr) in peers.iter().zip(&prefs) {
                 s.prefs.insert(p.ssrc, pr.clone());
-                if !p.is_demo {
+                if !p.is_demo && p.named {
                     self.settings.peers.insert(p.name.clone(), pr.clone());
                 }
             }

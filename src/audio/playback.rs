@@ -474,20 +474,58 @@ impl Playback {
 
     /// Switches to another output device; on failure the current one stays.
     pub fn set_output(&mut self, choice: DeviceChoice) -> Result<(), AudioError> {
-        let (sink, ring, target, status) = device_sink(&choice, self.config.buffer)?;
-        self.attach(sink, ring, target)?;
+        let opened = Self::open_output(&choice, self.buffer())?;
+        self.use_output(choice, opened).map(drop)
+    }
+
+    /// The output buffer a device is opened with.
+    pub fn buffer(&self) -> Duration {
+        self.config.buffer
+    }
+
+    /// Opens an output device without touching the playback. Opening can take seconds
+    /// (PulseAudio), so a playback shared behind a lock is switched in two steps: open
+    /// without the lock, then [`Playback::use_output`] under it.
+    pub fn open_output(
+        choice: &DeviceChoice,
+        buffer: Duration,
+    ) -> Result<OpenedOutput, AudioError> {
+        let (sink, ring, target, status) = device_sink(choice, buffer)?;
+        Ok(OpenedOutput {
+            sink,
+            ring,
+            target,
+            status,
+        })
+    }
+
+    /// Plays the mix on an output opened by [`Playback::open_output`]. Returns the output it
+    /// replaces, to be dropped (closing a device can take time too) outside any lock.
+    pub fn use_output(
+        &mut self,
+        choice: DeviceChoice,
+        opened: OpenedOutput,
+    ) -> Result<RetiredOutput, AudioError> {
+        let OpenedOutput {
+            sink,
+            ring,
+            target,
+            status,
+        } = opened;
+        let old = self.attach(sink, ring, target)?;
         self.config.device = choice;
         self.status = status;
         self.progress = (0, 0, Instant::now());
-        Ok(())
+        Ok(RetiredOutput { _sink: old })
     }
 
+    /// Returns the sink replaced.
     fn attach(
         &mut self,
         sink: Sink,
         ring: rtrb::Producer<f32>,
         target_frames: usize,
-    ) -> Result<(), AudioError> {
+    ) -> Result<Sink, AudioError> {
         self.commands
             .send(Command::Attach {
                 ring,
@@ -495,8 +533,7 @@ impl Playback {
                 target_frames,
             })
             .map_err(|_| AudioError::MixerStopped)?;
-        self.sink = sink;
-        Ok(())
+        Ok(std::mem::replace(&mut self.sink, sink))
     }
 
     /// Adds a remote peer; hand the returned feed to its decoder thread.
@@ -517,8 +554,8 @@ impl Playback {
     }
 
     pub fn remove_peer(&mut self, id: PeerId) {
-        if self.peers.remove(&id).is_some() {
-            let _ = self.commands.send(Command::Remove(id));
+        if self.peers.remove(&id).is_some() && self.commands.send(Command::Remove(id)).is_err() {
+            tracing::error!("the mixer thread has stopped: peer {id:?} not removed");
         }
     }
 
@@ -576,11 +613,27 @@ impl Playback {
 
 impl Drop for Playback {
     fn drop(&mut self) {
+        // A mixer that is gone already has nothing to stop; its panic is reported below.
         let _ = self.commands.send(Command::Stop);
-        if let Some(t) = self.mixer.take() {
-            let _ = t.join();
+        if let Some(t) = self.mixer.take()
+            && t.join().is_err()
+        {
+            tracing::error!("the mixer thread panicked");
         }
     }
+}
+
+/// An output device opened by [`Playback::open_output`], not yet playing.
+pub struct OpenedOutput {
+    sink: Sink,
+    ring: rtrb::Producer<f32>,
+    target: usize,
+    status: OutputStatus,
+}
+
+/// The output a [`Playback::use_output`] replaced; dropping it closes the device.
+pub struct RetiredOutput {
+    _sink: Sink,
 }
 
 /// An output callback over a fresh ring, for tests that drive it by hand.
