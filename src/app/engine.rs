@@ -261,7 +261,8 @@ impl Drop for Engine {
     }
 }
 
-fn describe_output(status: &OutputStatus) -> String {
+/// The output line the UI shows for a playback status.
+pub fn describe_output(status: &OutputStatus) -> String {
     match status {
         OutputStatus::Silent { reason } => format!("no audio output ({reason}): playing silently"),
         other => format!("{other:?}"),

@@ -279,7 +279,9 @@ impl eframe::App for LipcallApp {
         let (peers, call, output_status, input_status, mic, weights) = {
             let mut guard = engine::lock(&self.engine.shared);
             let s = &mut *guard;
-            s.playback.poll();
+            if let Some(status) = s.playback.poll() {
+                s.output_status = engine::describe_output(status);
+            }
             let peers = s.peers.clone();
             // A peer's saved choices apply once its name (SDES) is known; peers that left are
             // forgotten (the engine frees their state), so one that comes back gets them again.

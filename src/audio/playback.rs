@@ -8,7 +8,7 @@
 
 use std::collections::HashMap;
 use std::sync::atomic::{AtomicBool, AtomicU64, Ordering};
-use std::sync::{Arc, mpsc};
+use std::sync::{Arc, Mutex, PoisonError, mpsc};
 use std::thread::JoinHandle;
 use std::time::{Duration, Instant};
 
@@ -135,6 +135,8 @@ pub struct Playback {
     next_id: u32,
     /// Frames played and device errors at the last poll that saw playback advance, and when.
     progress: (u64, u64, Instant),
+    /// Why the mixer thread stopped feeding the sink, for [`Playback::poll`] to report.
+    detached: Arc<Mutex<Option<String>>>,
 }
 
 /// A device that has played nothing for this long while reporting errors is taken as gone:
@@ -332,7 +334,11 @@ fn virtual_sink(buffer: Duration) -> (Sink, rtrb::Producer<f32>, usize) {
 }
 
 /// The mixer thread: keeps the current sink's ring filled to its target.
-fn mixer_thread(commands: mpsc::Receiver<Command>) {
+fn mixer_thread(commands: mpsc::Receiver<Command>, detached: &Mutex<Option<String>>) {
+    let detach = |why: String| {
+        tracing::warn!("{why}");
+        *detached.lock().unwrap_or_else(PoisonError::into_inner) = Some(why);
+    };
     let mut mixer = Mixer::new();
     let mut chunk = [0.0f32; CHUNK];
     let mut sink: Option<(rtrb::Producer<f32>, Upsampler, usize)> = None;
@@ -354,7 +360,7 @@ fn mixer_thread(commands: mpsc::Receiver<Command>) {
                         sink = Some((ring, up, target_frames));
                     }
                     Err(e) => {
-                        tracing::warn!("output sink not attached: {e}");
+                        detach(format!("output not attached: {e}"));
                         sink = None;
                     }
                 },
@@ -380,7 +386,7 @@ fn mixer_thread(commands: mpsc::Receiver<Command>) {
                         let _ = ring.push_partial_slice(out);
                     }
                     Err(e) => {
-                        tracing::warn!("resampling failed, output detached: {e}");
+                        detach(format!("resampling failed, output detached: {e}"));
                         sink = None;
                         break;
                     }
@@ -419,9 +425,11 @@ impl Playback {
         status: OutputStatus,
     ) -> Result<Self, AudioError> {
         let (tx, rx) = mpsc::channel();
+        let detached = Arc::new(Mutex::new(None));
+        let detached2 = detached.clone();
         let mixer = std::thread::Builder::new()
             .name("lipcall-mixer".into())
-            .spawn(move || mixer_thread(rx))
+            .spawn(move || mixer_thread(rx, &detached2))
             .map_err(|_| AudioError::MixerStopped)?;
         tx.send(Command::Attach {
             ring,
@@ -438,6 +446,7 @@ impl Playback {
             peers: HashMap::new(),
             next_id: 1,
             progress: (0, 0, Instant::now()),
+            detached,
         })
     }
 
@@ -450,6 +459,33 @@ impl Playback {
     pub fn poll(&mut self) -> Option<&OutputStatus> {
         for p in self.peers.values_mut() {
             p.clock.drain();
+        }
+        if let Some(mixer) = self.mixer.take_if(|t| t.is_finished()) {
+            if mixer.join().is_err() {
+                tracing::error!("the mixer thread panicked");
+            }
+            self.status = OutputStatus::Silent {
+                reason: "the mixer stopped after an internal error (see the log): playing nothing"
+                    .into(),
+            };
+            return Some(&self.status);
+        }
+        let detached = self
+            .detached
+            .lock()
+            .unwrap_or_else(PoisonError::into_inner)
+            .take();
+        if let Some(why) = detached {
+            // Not "Playing" while nothing is fed: a virtual sink keeps the clocks going.
+            if matches!(self.sink, Sink::Device { .. }) {
+                let (sink, ring, target) = virtual_sink(self.config.buffer);
+                self.attach(sink, ring, target).ok()?;
+                self.progress = (0, 0, Instant::now());
+            }
+            self.status = OutputStatus::Silent {
+                reason: format!("{why}: playing nothing"),
+            };
+            return Some(&self.status);
         }
         let played = self.sink.clock().frames_played();
         let errors = self.stats().device_errors;
@@ -711,6 +747,19 @@ mod tests {
         assert!(pb.stats().frames_played > 0);
         pb.remove_peer(id);
         assert!(pb.heard_position(id, now).is_none());
+    }
+
+    #[test]
+    fn an_output_the_mixer_detached_shows_in_the_status() {
+        // It used to be a warning nobody saw while the status still said what played before.
+        let mut pb = Playback::start_silent(PlaybackConfig::default()).unwrap();
+        assert!(pb.poll().is_none());
+        *pb.detached.lock().unwrap() = Some("resampling failed, output detached: test".into());
+        let Some(OutputStatus::Silent { reason }) = pb.poll() else {
+            panic!("the status did not change");
+        };
+        assert!(reason.contains("output detached"), "{reason}");
+        assert!(pb.poll().is_none(), "said once");
     }
 
     #[test]
