@@ -298,8 +298,36 @@ fn parse_hex_u32(s: &str) -> Result<u32, String> {
     u32::from_str_radix(s.trim_start_matches("0x"), 16).map_err(|e| e.to_string())
 }
 
+/// Diagnostics (`tracing` events, and the `log` records of wgpu and eframe) go to stderr:
+/// warnings and errors, or what RUST_LOG asks for (`debug`, `lipcall=debug,wgpu=warn`).
+fn install_logging() {
+    use std::io::IsTerminal;
+    use tracing_subscriber::filter::{LevelFilter, Targets};
+    use tracing_subscriber::prelude::*;
+    let warnings = || Targets::new().with_default(LevelFilter::WARN);
+    let mut unreadable = None;
+    let filter = match std::env::var("RUST_LOG") {
+        Ok(spec) if !spec.trim().is_empty() => spec.parse::<Targets>().unwrap_or_else(|e| {
+            unreadable = Some(format!("RUST_LOG={spec:?} ignored ({e}): warnings only"));
+            warnings()
+        }),
+        _ => warnings(),
+    };
+    let layer = tracing_subscriber::fmt::layer()
+        .with_writer(std::io::stderr)
+        .with_ansi(std::io::stderr().is_terminal());
+    let installed = tracing_subscriber::registry()
+        .with(layer)
+        .with(filter)
+        .try_init();
+    if let (Ok(()), Some(why)) = (installed, unreadable) {
+        tracing::warn!("{why}");
+    }
+}
+
 fn main() -> ExitCode {
     let cli = Cli::parse();
+    install_logging();
     let Some(command) = cli.command else {
         let a = cli.app;
         return finish(lipcall::app::run(lipcall::app::AppOptions {

@@ -348,3 +348,64 @@ fn a_restarted_janus_is_said_and_rejoined_and_the_call_goes_on() {
         .unwrap();
     assert!(count >= 75, "{count} packets after the restart: {received}");
 }
+
+#[test]
+fn each_publisher_is_a_peer_and_the_receive_ends_when_all_have_left() {
+    if !janus_installed() {
+        eprintln!("skipped: no `janus` binary (Debian package janus; .ci/run installs it)");
+        return;
+    }
+    let dir = tempfile::tempdir().unwrap();
+    let janus = start_janus(dir.path());
+    let room = "two-voices";
+    let weights = dir.path().join("w.csv");
+    // No --seconds: the receive ends once both publishers have left.
+    let receiver = spawn(
+        lipcall()
+            .args(["receive", "--janus", &janus.url, "--room", room])
+            .arg("--weights")
+            .arg(&weights),
+    );
+    std::thread::sleep(Duration::from_millis(1500));
+    let send = |name: &str| {
+        spawn(
+            lipcall()
+                .arg("send")
+                .arg(repo_file("assets/speech/demo.wav"))
+                .args(["--janus", &janus.url, "--room", room, "--name", name]),
+        )
+    };
+    let ann = send("Ann");
+    std::thread::sleep(Duration::from_millis(700));
+    let cy = send("Cy");
+    finish(ann, Duration::from_secs(30), "Ann's send");
+    finish(cy, Duration::from_secs(30), "Cy's send");
+    let (_, received) = finish(receiver, Duration::from_secs(20), "lipcall receive --janus");
+    for name in ["Ann", "Cy"] {
+        assert!(
+            received.contains(&format!("\"{name}\" (")) && received.contains("is publishing"),
+            "{name}: {received}"
+        );
+    }
+    assert_eq!(received.matches(") left").count(), 2, "{received}");
+    let peers: Vec<&str> = received
+        .lines()
+        .filter(|l| l.starts_with("peer "))
+        .collect();
+    assert_eq!(peers.len(), 2, "{received}");
+    // One weights file per publisher: the first as asked, the other beside it by SSRC.
+    let files: Vec<PathBuf> = std::fs::read_dir(dir.path())
+        .unwrap()
+        .map(|e| e.unwrap().path())
+        .filter(|p| {
+            p.file_name()
+                .and_then(|n| n.to_str())
+                .is_some_and(|n| n.starts_with('w') && n.ends_with(".csv"))
+        })
+        .collect();
+    assert_eq!(files.len(), 2, "{files:?}");
+    for file in files {
+        let rows = std::fs::read_to_string(&file).unwrap().lines().count() - 1;
+        assert!(rows >= 400, "{}: {rows} rows", file.display());
+    }
+}

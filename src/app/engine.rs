@@ -84,6 +84,9 @@ pub struct EngineConfig {
 pub struct PeerView {
     pub ssrc: u32,
     pub name: String,
+    /// `name` is the peer's own (SDES NAME), not its CNAME or SSRC, which change with every
+    /// run: only a named peer's choices are saved.
+    pub named: bool,
     pub addr: SocketAddr,
     pub feed: PeerId,
     pub is_demo: bool,
@@ -210,9 +213,18 @@ impl Engine {
         let (tx, rx) = std::sync::mpsc::channel();
         let worker = Worker::new(config, shared.clone(), counters.clone(), rx)?;
         let stop2 = stop.clone();
+        let shared2 = shared.clone();
         let thread = std::thread::Builder::new()
             .name("lipcall-engine".into())
-            .spawn(move || worker.run(&stop2))?;
+            .spawn(move || {
+                let run = std::panic::catch_unwind(std::panic::AssertUnwindSafe(|| {
+                    worker.run(&stop2);
+                }));
+                if run.is_err() {
+                    tracing::error!("the engine thread panicked: calls and animation stopped");
+                    lock(&shared2).call.error = Some(ENGINE_STOPPED.into());
+                }
+            })?;
         Ok(Self {
             shared,
             counters,
@@ -222,21 +234,35 @@ impl Engine {
         })
     }
 
+    /// Hands a command to the engine thread; if that thread is gone, says so in the call
+    /// status (and the log) instead of dropping the command silently.
     pub fn send(&self, command: Command) {
-        let _ = self.commands.send(command);
-    }
-}
-
-impl Drop for Engine {
-    fn drop(&mut self) {
-        self.stop.store(true, Ordering::Relaxed);
-        if let Some(t) = self.thread.take() {
-            let _ = t.join();
+        if self.commands.send(command).is_err() {
+            tracing::error!("the engine thread has stopped: a command was dropped");
+            lock(&self.shared)
+                .call
+                .error
+                .get_or_insert_with(|| ENGINE_STOPPED.into());
         }
     }
 }
 
-fn describe_output(status: &OutputStatus) -> String {
+/// The call status when the engine thread died.
+const ENGINE_STOPPED: &str = "the engine stopped after an internal error (see the log)";
+
+impl Drop for Engine {
+    fn drop(&mut self) {
+        self.stop.store(true, Ordering::Relaxed);
+        if let Some(t) = self.thread.take()
+            && t.join().is_err()
+        {
+            tracing::error!("the engine thread panicked");
+        }
+    }
+}
+
+/// The output line the UI shows for a playback status.
+pub fn describe_output(status: &OutputStatus) -> String {
     match status {
         OutputStatus::Silent { reason } => format!("no audio output ({reason}): playing silently"),
         other => format!("{other:?}"),
@@ -635,6 +661,7 @@ impl Worker {
             s.playback.remove_peer(p.feed.id());
             s.schedules.remove(&ssrc);
         }
+        s.prefs.clear();
         s.peers.clear();
     }
 
@@ -647,11 +674,17 @@ impl Worker {
                 Ok(())
             }
             Command::SetOutput(choice) => {
+                // Opening a device can take 2 s (PulseAudio): not under the lock the UI takes
+                // every frame.
+                let buffer = lock(&self.shared).playback.buffer();
+                let opened = Playback::open_output(&choice, buffer);
                 let mut s = lock(&self.shared);
-                let r = s.playback.set_output(choice);
+                let r = opened.and_then(|o| s.playback.use_output(choice, o));
                 let status = describe_output(s.playback.status());
                 s.output_status = status;
-                r.map_err(Into::into)
+                drop(s);
+                // The device replaced closes here, outside the lock too.
+                r.map(drop).map_err(Into::into)
             }
         };
         if let Err(e) = result {
@@ -808,6 +841,7 @@ impl Worker {
                 s.playback.remove_peer(p.feed.id());
                 s.schedules.remove(&ssrc);
             }
+            s.prefs.remove(&ssrc);
         }
         let real_peer = infos
             .iter()
@@ -825,6 +859,7 @@ impl Worker {
                         .clone()
                         .or_else(|| i.cname.clone())
                         .unwrap_or_else(|| format!("{:08x}", i.ssrc)),
+                    named: i.name.is_some(),
                     addr: i.addr,
                     feed: p.feed.id(),
                     is_demo: i.name.as_deref() == Some(DEMO_NAME),

@@ -279,9 +279,14 @@ impl eframe::App for LipcallApp {
         let (peers, call, output_status, input_status, mic, weights) = {
             let mut guard = engine::lock(&self.engine.shared);
             let s = &mut *guard;
-            s.playback.poll();
+            if let Some(status) = s.playback.poll() {
+                s.output_status = engine::describe_output(status);
+            }
             let peers = s.peers.clone();
-            // A peer's saved choices apply once its name (SDES) is known.
+            // A peer's saved choices apply once its name (SDES) is known; peers that left are
+            // forgotten (the engine frees their state), so one that comes back gets them again.
+            self.applied
+                .retain(|ssrc| peers.iter().any(|p| p.ssrc == *ssrc));
             for p in &peers {
                 if let Some(saved) = self.settings.peers.get(&p.name)
                     && self.applied.insert(p.ssrc)
@@ -359,7 +364,7 @@ impl eframe::App for LipcallApp {
             let mut s = engine::lock(&self.engine.shared);
             for (p, pr) in peers.iter().zip(&prefs) {
                 s.prefs.insert(p.ssrc, pr.clone());
-                if !p.is_demo {
+                if !p.is_demo && p.named {
                     self.settings.peers.insert(p.name.clone(), pr.clone());
                 }
             }

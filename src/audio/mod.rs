@@ -49,7 +49,9 @@ pub use clock::{OutputClock, PeerClock, Schedule, ScheduleSender};
 pub use devices::{DeviceChoice, DeviceInfo, input_devices, output_devices};
 pub use error::AudioError;
 pub use mixer::{PeerControls, PeerFeed, PeerId};
-pub use playback::{OutputStatus, Playback, PlaybackConfig, PlaybackStats};
+pub use playback::{
+    OpenedOutput, OutputStatus, Playback, PlaybackConfig, PlaybackStats, RetiredOutput,
+};
 
 /// The real-time paths allocate nothing once running: checked with a counting allocator.
 // A counting global allocator proves the real-time paths allocate nothing; it needs unsafe.

@@ -8,7 +8,7 @@
 
 use std::collections::HashMap;
 use std::sync::atomic::{AtomicBool, AtomicU64, Ordering};
-use std::sync::{Arc, mpsc};
+use std::sync::{Arc, Mutex, PoisonError, mpsc};
 use std::thread::JoinHandle;
 use std::time::{Duration, Instant};
 
@@ -135,6 +135,8 @@ pub struct Playback {
     next_id: u32,
     /// Frames played and device errors at the last poll that saw playback advance, and when.
     progress: (u64, u64, Instant),
+    /// Why the mixer thread stopped feeding the sink, for [`Playback::poll`] to report.
+    detached: Arc<Mutex<Option<String>>>,
 }
 
 /// A device that has played nothing for this long while reporting errors is taken as gone:
@@ -332,7 +334,11 @@ fn virtual_sink(buffer: Duration) -> (Sink, rtrb::Producer<f32>, usize) {
 }
 
 /// The mixer thread: keeps the current sink's ring filled to its target.
-fn mixer_thread(commands: mpsc::Receiver<Command>) {
+fn mixer_thread(commands: mpsc::Receiver<Command>, detached: &Mutex<Option<String>>) {
+    let detach = |why: String| {
+        tracing::warn!("{why}");
+        *detached.lock().unwrap_or_else(PoisonError::into_inner) = Some(why);
+    };
     let mut mixer = Mixer::new();
     let mut chunk = [0.0f32; CHUNK];
     let mut sink: Option<(rtrb::Producer<f32>, Upsampler, usize)> = None;
@@ -354,7 +360,7 @@ fn mixer_thread(commands: mpsc::Receiver<Command>) {
                         sink = Some((ring, up, target_frames));
                     }
                     Err(e) => {
-                        tracing::warn!("output sink not attached: {e}");
+                        detach(format!("output not attached: {e}"));
                         sink = None;
                     }
                 },
@@ -380,7 +386,7 @@ fn mixer_thread(commands: mpsc::Receiver<Command>) {
                         let _ = ring.push_partial_slice(out);
                     }
                     Err(e) => {
-                        tracing::warn!("resampling failed, output detached: {e}");
+                        detach(format!("resampling failed, output detached: {e}"));
                         sink = None;
                         break;
                     }
@@ -419,9 +425,11 @@ impl Playback {
         status: OutputStatus,
     ) -> Result<Self, AudioError> {
         let (tx, rx) = mpsc::channel();
+        let detached = Arc::new(Mutex::new(None));
+        let detached2 = detached.clone();
         let mixer = std::thread::Builder::new()
             .name("lipcall-mixer".into())
-            .spawn(move || mixer_thread(rx))
+            .spawn(move || mixer_thread(rx, &detached2))
             .map_err(|_| AudioError::MixerStopped)?;
         tx.send(Command::Attach {
             ring,
@@ -438,6 +446,7 @@ impl Playback {
             peers: HashMap::new(),
             next_id: 1,
             progress: (0, 0, Instant::now()),
+            detached,
         })
     }
 
@@ -450,6 +459,33 @@ impl Playback {
     pub fn poll(&mut self) -> Option<&OutputStatus> {
         for p in self.peers.values_mut() {
             p.clock.drain();
+        }
+        if let Some(mixer) = self.mixer.take_if(|t| t.is_finished()) {
+            if mixer.join().is_err() {
+                tracing::error!("the mixer thread panicked");
+            }
+            self.status = OutputStatus::Silent {
+                reason: "the mixer stopped after an internal error (see the log): playing nothing"
+                    .into(),
+            };
+            return Some(&self.status);
+        }
+        let detached = self
+            .detached
+            .lock()
+            .unwrap_or_else(PoisonError::into_inner)
+            .take();
+        if let Some(why) = detached {
+            // Not "Playing" while nothing is fed: a virtual sink keeps the clocks going.
+            if matches!(self.sink, Sink::Device { .. }) {
+                let (sink, ring, target) = virtual_sink(self.config.buffer);
+                self.attach(sink, ring, target).ok()?;
+                self.progress = (0, 0, Instant::now());
+            }
+            self.status = OutputStatus::Silent {
+                reason: format!("{why}: playing nothing"),
+            };
+            return Some(&self.status);
         }
         let played = self.sink.clock().frames_played();
         let errors = self.stats().device_errors;
@@ -474,20 +510,58 @@ impl Playback {
 
     /// Switches to another output device; on failure the current one stays.
     pub fn set_output(&mut self, choice: DeviceChoice) -> Result<(), AudioError> {
-        let (sink, ring, target, status) = device_sink(&choice, self.config.buffer)?;
-        self.attach(sink, ring, target)?;
+        let opened = Self::open_output(&choice, self.buffer())?;
+        self.use_output(choice, opened).map(drop)
+    }
+
+    /// The output buffer a device is opened with.
+    pub fn buffer(&self) -> Duration {
+        self.config.buffer
+    }
+
+    /// Opens an output device without touching the playback. Opening can take seconds
+    /// (PulseAudio), so a playback shared behind a lock is switched in two steps: open
+    /// without the lock, then [`Playback::use_output`] under it.
+    pub fn open_output(
+        choice: &DeviceChoice,
+        buffer: Duration,
+    ) -> Result<OpenedOutput, AudioError> {
+        let (sink, ring, target, status) = device_sink(choice, buffer)?;
+        Ok(OpenedOutput {
+            sink,
+            ring,
+            target,
+            status,
+        })
+    }
+
+    /// Plays the mix on an output opened by [`Playback::open_output`]. Returns the output it
+    /// replaces, to be dropped (closing a device can take time too) outside any lock.
+    pub fn use_output(
+        &mut self,
+        choice: DeviceChoice,
+        opened: OpenedOutput,
+    ) -> Result<RetiredOutput, AudioError> {
+        let OpenedOutput {
+            sink,
+            ring,
+            target,
+            status,
+        } = opened;
+        let old = self.attach(sink, ring, target)?;
         self.config.device = choice;
         self.status = status;
         self.progress = (0, 0, Instant::now());
-        Ok(())
+        Ok(RetiredOutput { _sink: old })
     }
 
+    /// Returns the sink replaced.
     fn attach(
         &mut self,
         sink: Sink,
         ring: rtrb::Producer<f32>,
         target_frames: usize,
-    ) -> Result<(), AudioError> {
+    ) -> Result<Sink, AudioError> {
         self.commands
             .send(Command::Attach {
                 ring,
@@ -495,8 +569,7 @@ impl Playback {
                 target_frames,
             })
             .map_err(|_| AudioError::MixerStopped)?;
-        self.sink = sink;
-        Ok(())
+        Ok(std::mem::replace(&mut self.sink, sink))
     }
 
     /// Adds a remote peer; hand the returned feed to its decoder thread.
@@ -517,8 +590,8 @@ impl Playback {
     }
 
     pub fn remove_peer(&mut self, id: PeerId) {
-        if self.peers.remove(&id).is_some() {
-            let _ = self.commands.send(Command::Remove(id));
+        if self.peers.remove(&id).is_some() && self.commands.send(Command::Remove(id)).is_err() {
+            tracing::error!("the mixer thread has stopped: peer {id:?} not removed");
         }
     }
 
@@ -576,11 +649,27 @@ impl Playback {
 
 impl Drop for Playback {
     fn drop(&mut self) {
+        // A mixer that is gone already has nothing to stop; its panic is reported below.
         let _ = self.commands.send(Command::Stop);
-        if let Some(t) = self.mixer.take() {
-            let _ = t.join();
+        if let Some(t) = self.mixer.take()
+            && t.join().is_err()
+        {
+            tracing::error!("the mixer thread panicked");
         }
     }
+}
+
+/// An output device opened by [`Playback::open_output`], not yet playing.
+pub struct OpenedOutput {
+    sink: Sink,
+    ring: rtrb::Producer<f32>,
+    target: usize,
+    status: OutputStatus,
+}
+
+/// The output a [`Playback::use_output`] replaced; dropping it closes the device.
+pub struct RetiredOutput {
+    _sink: Sink,
 }
 
 /// An output callback over a fresh ring, for tests that drive it by hand.
@@ -658,6 +747,19 @@ mod tests {
         assert!(pb.stats().frames_played > 0);
         pb.remove_peer(id);
         assert!(pb.heard_position(id, now).is_none());
+    }
+
+    #[test]
+    fn an_output_the_mixer_detached_shows_in_the_status() {
+        // It used to be a warning nobody saw while the status still said what played before.
+        let mut pb = Playback::start_silent(PlaybackConfig::default()).unwrap();
+        assert!(pb.poll().is_none());
+        *pb.detached.lock().unwrap() = Some("resampling failed, output detached: test".into());
+        let Some(OutputStatus::Silent { reason }) = pb.poll() else {
+            panic!("the status did not change");
+        };
+        assert!(reason.contains("output detached"), "{reason}");
+        assert!(pb.poll().is_none(), "said once");
     }
 
     #[test]

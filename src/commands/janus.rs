@@ -13,6 +13,7 @@ use super::recording::{Recorder, stop_flag};
 use crate::codec::any::{Codec, EncoderSettings};
 use crate::codec::speex::features::FrameFeatures;
 use crate::lipsync;
+use crate::net::janus::JanusError;
 use crate::net::janus::room::{Member, Notice, RoomConfig};
 use crate::net::jitter::JitterConfig;
 use crate::net::session::PeerFrame;
@@ -67,6 +68,16 @@ fn print_notices(notices: &[Notice]) {
     }
 }
 
+/// Janus's refusal of a room's pin, with what to do about it.
+fn pin_hint(e: JanusError) -> anyhow::Error {
+    match &e {
+        JanusError::Plugin { code, reason } if *code == 433 || reason.contains("pin") => {
+            anyhow::Error::new(e).context("the room has a pin: give it with --key")
+        }
+        _ => e.into(),
+    }
+}
+
 /// Publishes a file's audio in the room, paced in real time.
 pub fn send(input: &std::path::Path, janus: &JanusArgs) -> Result<()> {
     let (codec, packets) = load_packets(input, Some(Codec::Opus), &EncoderSettings::default())?;
@@ -74,6 +85,7 @@ pub fn send(input: &std::path::Path, janus: &JanusArgs) -> Result<()> {
         bail!("{}: no audio to send", input.display());
     }
     let (mut room, _) = Member::join(janus.config(false, "lipcall"), true)
+        .map_err(pin_hint)
         .with_context(|| format!("publishing in room {:?} on {}", janus.room, janus.url))?;
     announce_security();
     let clock = f64::from(codec.clock_rate());
@@ -158,6 +170,7 @@ pub fn receive_with(
         viseme_names(model.as_ref())?,
     )?;
     let (room, notices) = Member::join(args.janus.config(true, "lipcall-receiver"), false)
+        .map_err(pin_hint)
         .with_context(|| format!("joining room {:?} on {}", args.janus.room, args.janus.url))?;
     announce_security();
     eprintln!(

@@ -1,0 +1,86 @@
+//! The app's engine frees a peer's state when it leaves: its choices (`prefs`, keyed by SSRC)
+//! and weight schedule went on growing with every caller, and a named peer is told apart from
+//! one known only by its CNAME (which changes with every run, so its choices are not saved).
+
+use std::time::{Duration, Instant};
+
+use lipcall::app::engine::{Engine, EngineConfig, lock};
+use lipcall::audio::DeviceChoice;
+use lipcall::codec::FRAME_SIZE;
+use lipcall::codec::any::{Codec, EncoderSettings, FrameEncoder, MAX_FRAME_PAYLOAD};
+use lipcall::net::session::{Session, SessionConfig};
+
+fn wait_for(what: &str, engine: &Engine, mut done: impl FnMut(&Engine) -> bool) {
+    let deadline = Instant::now() + Duration::from_secs(15);
+    while !done(engine) {
+        assert!(Instant::now() < deadline, "{what}");
+        std::thread::sleep(Duration::from_millis(20));
+    }
+}
+
+/// Talks for a second from its own session, then says BYE.
+fn caller(to: std::net::SocketAddr, name: Option<&str>) -> std::thread::JoinHandle<u32> {
+    let name = name.map(str::to_string);
+    std::thread::spawn(move || {
+        let mut config = SessionConfig::new("127.0.0.1:0".parse().unwrap());
+        config.destinations = vec![to];
+        config.name = name;
+        config.rtcp_interval = Duration::from_millis(200);
+        let session = Session::start(config).unwrap();
+        let mut encoder = FrameEncoder::new(Codec::Speex, &EncoderSettings::default()).unwrap();
+        let mut payload = [0u8; MAX_FRAME_PAYLOAD];
+        let start = Instant::now();
+        for k in 0..50u32 {
+            let due = start + Duration::from_millis(20) * k;
+            if let Some(wait) = due.checked_duration_since(Instant::now()) {
+                std::thread::sleep(wait);
+            }
+            let frame: [i16; FRAME_SIZE] =
+                std::array::from_fn(|i| ((i as f32 * 0.2).sin() * 6000.0) as i16);
+            let (n, count) = encoder.encode(&frame, &mut payload).unwrap().unwrap();
+            session.send_frames(&payload[..n], count).unwrap();
+        }
+        session.leave();
+        session.ssrc()
+    })
+}
+
+#[test]
+fn a_peer_that_leaves_leaves_no_state_behind() {
+    let engine = Engine::start(EngineConfig {
+        listen: Some("127.0.0.1:0".parse().unwrap()),
+        demo: false,
+        name: "Eve".into(),
+        input: DeviceChoice::Default,
+        output: DeviceChoice::Default,
+        no_audio: true,
+    })
+    .unwrap();
+    let to = lock(&engine.shared)
+        .call
+        .local_addr
+        .expect("the idle session listens");
+    for (round, name) in [Some("Alice"), None, Some("Bob")].into_iter().enumerate() {
+        let call = caller(to, name);
+        // A name comes with the caller's first report (until then the peer goes by its SSRC).
+        wait_for("the caller is shown", &engine, |e| {
+            let s = lock(&e.shared);
+            s.peers.len() == 1 && (name.is_none() || s.peers[0].named)
+        });
+        {
+            let s = lock(&engine.shared);
+            let p = &s.peers[0];
+            assert_eq!(p.named, name.is_some(), "{p:?}");
+            assert!(s.prefs.contains_key(&p.ssrc));
+        }
+        let ssrc = call.join().unwrap();
+        wait_for("the caller is forgotten", &engine, |e| {
+            lock(&e.shared).peers.is_empty()
+        });
+        let s = lock(&engine.shared);
+        assert!(s.prefs.is_empty(), "round {round}: {:?}", s.prefs.keys());
+        assert!(s.schedules.is_empty(), "round {round}");
+        assert!(!s.prefs.contains_key(&ssrc));
+        assert!(s.call.error.is_none(), "{:?}", s.call.error);
+    }
+}
