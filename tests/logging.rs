@@ -3,8 +3,8 @@
 
 mod common;
 
+use common::glb_write::write_glb;
 use common::lipcall;
-use lipcall::render::glb_write::write_glb;
 use lipcall::render::head::Expression;
 
 /// `animate` with a head that cannot blink: loading it logs a debug event, then the missing
