@@ -8,8 +8,8 @@ use std::process::Command;
 use std::time::Duration;
 
 use common::net::{
-    align, decode_frames, fields, finish, free_port, interrupt, num, ogg_packets, snr_at_best_lag,
-    spawn,
+    Announce, align, decode_frames, fields, finish, num, ogg_packets, snr_at_best_lag, spawn,
+    spawn_listening,
 };
 use common::{lipcall, read_wav_i16, run};
 use lipcall::codec::any::{Codec, EncoderSettings, FrameEncoder, MAX_FRAME_PAYLOAD};
@@ -59,14 +59,13 @@ fn gst_send(clip: &Path, port: u16, srtp: Option<&str>, reference: &Path) -> Com
 fn gst_to_lipcall(srtp: bool) {
     let dir = tempfile::tempdir().unwrap();
     let clip = clip(dir.path(), "3");
-    let port = free_port();
     let out = dir.path().join("received.wav");
     let features = dir.path().join("features.csv");
     let reference = dir.path().join("reference.spx");
     let key = MasterKey::from_passphrase("interop", "").to_hex();
     let mut receive = lipcall();
     receive
-        .args(["receive", "--listen", &format!("127.0.0.1:{port}")])
+        .args(["receive", "--listen", "127.0.0.1:0"])
         .arg("--wav")
         .arg(&out)
         .arg("--features")
@@ -75,15 +74,14 @@ fn gst_to_lipcall(srtp: bool) {
     if srtp {
         receive.args(["--key-hex", &key]);
     }
-    let receiver = spawn(&mut receive);
-    std::thread::sleep(Duration::from_millis(300));
+    let receiver = spawn_listening(&mut receive, Announce::Lipcall);
     run(&mut gst_send(
         &clip,
-        port,
+        receiver.port,
         srtp.then_some(key.as_str()),
         &reference,
     ));
-    let (_, stderr) = finish(receiver, Duration::from_secs(60), "lipcall receive");
+    let (_, stderr) = receiver.finish(Duration::from_secs(60), "lipcall receive");
     let peer = fields(&stderr, "peer ");
     assert!(num(&peer, "received") >= 140.0, "{stderr}");
     if srtp {
@@ -146,7 +144,6 @@ fn lipcall_to_gst(srtp: bool) {
     let clip = clip(dir.path(), "3");
     let spx = dir.path().join("clip.spx");
     run(lipcall().arg("encode").arg(&clip).arg(&spx));
-    let port = free_port();
     let out = dir.path().join("gst.wav");
     let key = MasterKey::from_passphrase("interop", "").to_hex();
     let ssrc = 0x1234_abcd_u32;
@@ -159,10 +156,7 @@ fn lipcall_to_gst(srtp: bool) {
     } else {
         "application/x-rtp,media=audio,clock-rate=8000,encoding-name=SPEEX,payload=110".into()
     };
-    let mut gst = Command::new("gst-launch-1.0");
-    gst.args(["-q", "-e", "udpsrc"])
-        .arg(format!("port={port}"))
-        .arg(format!("caps={caps}"));
+    let mut gst = gst_udpsrc(&caps);
     if srtp {
         gst.args(["!", "srtpdec"]);
     }
@@ -177,20 +171,17 @@ fn lipcall_to_gst(srtp: bool) {
         "filesink",
     ])
     .arg(format!("location={}", out.display()));
-    let gst = spawn(&mut gst);
-    std::thread::sleep(Duration::from_millis(800));
+    let gst = spawn_listening(&mut gst, Announce::GstUdpsrc);
     let mut send = lipcall();
     send.arg("send")
         .arg(&spx)
-        .args(["--to", &format!("127.0.0.1:{port}"), "--no-rtcp"])
+        .args(["--to", &gst.addr(), "--no-rtcp"])
         .args(["--ssrc", &format!("{ssrc:x}")]);
     if srtp {
         send.args(["--key-hex", &key]);
     }
     run(&mut send);
-    std::thread::sleep(Duration::from_millis(500));
-    interrupt(&gst);
-    finish(gst, Duration::from_secs(30), "gst-launch udpsrc");
+    stop_udpsrc(gst);
 
     let packets = ogg_packets(&spx);
     let expected = decode_frames(&packets);
@@ -268,6 +259,24 @@ fn chain(cmd: &mut Command, elements: &[&str]) {
     }
 }
 
+/// `gst-launch-1.0 -v -e udpsrc port=0 caps=CAPS`: udpsrc binds a port of its own and `-v`
+/// prints it once bound (read by `spawn_listening`); `-e` finishes the files on SIGINT.
+fn gst_udpsrc(caps: &str) -> Command {
+    let mut gst = Command::new("gst-launch-1.0");
+    gst.args(["-v", "-e", "udpsrc", "port=0"])
+        .arg(format!("caps={caps}"));
+    gst
+}
+
+/// Ends a `gst_udpsrc` pipeline once the sender is done. The sender's last packet left when
+/// `lipcall send` exited; the pause lets udpsrc and the decoder take what is still in the
+/// socket before the EOS that SIGINT sends (udpsrc does not read its socket after that).
+fn stop_udpsrc(gst: common::net::Listening) {
+    std::thread::sleep(Duration::from_millis(500));
+    gst.interrupt();
+    gst.finish(Duration::from_secs(30), "gst-launch udpsrc");
+}
+
 /// `source ! ENCODER ! PAYLOADER ! tee` into `lipcall receive` (with `receive_args`) and into
 /// `DEPAYLOADER ! DECODER ! wavenc` for GStreamer's own decode.
 fn gst_into_receive(
@@ -278,14 +287,13 @@ fn gst_into_receive(
 ) -> Received {
     let dir = tempfile::tempdir().unwrap();
     let clip = clip(dir.path(), "3");
-    let port = free_port();
     let out = dir.path().join("received.wav");
     let features = dir.path().join("features.csv");
     let weights = dir.path().join("weights.csv");
     let reference = dir.path().join("gst.wav");
-    let receiver = spawn(
+    let receiver = spawn_listening(
         lipcall()
-            .args(["receive", "--listen", &format!("127.0.0.1:{port}")])
+            .args(["receive", "--listen", "127.0.0.1:0"])
             .arg("--wav")
             .arg(&out)
             .arg("--features")
@@ -294,15 +302,15 @@ fn gst_into_receive(
             .arg(&weights)
             .args(["--seconds", "6"])
             .args(receive_args),
+        Announce::Lipcall,
     );
-    std::thread::sleep(Duration::from_millis(300));
     let mut gst = Command::new("gst-launch-1.0");
     gst.arg("-q");
     gst_wav_source(&mut gst, &clip);
     chain(&mut gst, encoder);
     chain(&mut gst, &[payloader, "tee name=t"]);
     gst.args(["t.", "!", "queue", "!", "udpsink", "host=127.0.0.1"])
-        .arg(format!("port={port}"))
+        .arg(format!("port={}", receiver.port))
         .args(["t.", "!", "queue"]);
     chain(&mut gst, decoder);
     chain(
@@ -311,7 +319,7 @@ fn gst_into_receive(
     );
     gst.arg(format!("location={}", reference.display()));
     run(&mut gst);
-    let (_, stderr) = finish(receiver, Duration::from_secs(60), "lipcall receive");
+    let (_, stderr) = receiver.finish(Duration::from_secs(60), "lipcall receive");
     let (rows, tail) = feature_rows(&features);
     Received {
         source: read_wav_i16(&clip).1,
@@ -451,28 +459,21 @@ fn lipcall_send_into_gst(
     decoder: &[&str],
 ) -> Vec<i16> {
     let dir = tempfile::tempdir().unwrap();
-    let port = free_port();
     let out = dir.path().join("gst.wav");
-    let mut gst = Command::new("gst-launch-1.0");
-    gst.args(["-q", "-e", "udpsrc"])
-        .arg(format!("port={port}"))
-        .arg(format!("caps={caps}"));
+    let mut gst = gst_udpsrc(caps);
     chain(&mut gst, decoder);
     chain(
         &mut gst,
         &["audio/x-raw,rate=8000,channels=1", "wavenc", "filesink"],
     );
     gst.arg(format!("location={}", out.display()));
-    let gst = spawn(&mut gst);
-    std::thread::sleep(Duration::from_millis(800));
+    let gst = spawn_listening(&mut gst, Announce::GstUdpsrc);
     run(lipcall()
         .arg("send")
         .arg(input)
-        .args(["--to", &format!("127.0.0.1:{port}"), "--no-rtcp"])
+        .args(["--to", &gst.addr(), "--no-rtcp"])
         .args(send_args));
-    std::thread::sleep(Duration::from_millis(500));
-    interrupt(&gst);
-    finish(gst, Duration::from_secs(30), "gst-launch udpsrc");
+    stop_udpsrc(gst);
     let (rate, pcm) = read_wav_i16(&out);
     assert_eq!(rate, 8000);
     pcm
@@ -603,20 +604,19 @@ fn peers_with_different_codecs_in_one_call() {
     let _serial = serial();
     let dir = tempfile::tempdir().unwrap();
     let clip = clip(dir.path(), "3");
-    let port = free_port();
     let out = dir.path().join("mix.wav");
     let features = dir.path().join("features.csv");
-    let receiver = spawn(
+    let receiver = spawn_listening(
         lipcall()
-            .args(["receive", "--listen", &format!("127.0.0.1:{port}")])
+            .args(["receive", "--listen", "127.0.0.1:0"])
             .arg("--wav")
             .arg(&out)
             .arg("--features")
             .arg(&features)
             .args(["--seconds", "6"]),
+        Announce::Lipcall,
     );
-    std::thread::sleep(Duration::from_millis(300));
-    let to = format!("127.0.0.1:{port}");
+    let (port, to) = (receiver.port, receiver.addr());
     let mut gst = Command::new("gst-launch-1.0");
     gst.arg("-q");
     gst_wav_source(&mut gst, &clip);
@@ -643,7 +643,7 @@ fn peers_with_different_codecs_in_one_call() {
     for s in senders {
         finish(s, Duration::from_secs(30), "sender");
     }
-    let (_, stderr) = finish(receiver, Duration::from_secs(60), "lipcall receive");
+    let (_, stderr) = receiver.finish(Duration::from_secs(60), "lipcall receive");
     let peers: Vec<_> = stderr
         .lines()
         .filter(|l| l.starts_with("peer "))

@@ -13,7 +13,7 @@ use std::sync::Arc;
 use std::sync::atomic::{AtomicBool, Ordering};
 use std::time::{Duration, Instant};
 
-use common::net::{fields, finish, free_port, num, spawn};
+use common::net::{Announce, fields, num, spawn_listening};
 use common::{lipcall, read_wav_i16, run};
 
 /// splitmix64: small, seeded, good enough to pick losses and delays.
@@ -134,8 +134,20 @@ fn impaired_call(imp: Impairment, codec: &str) {
     let features = dir.path().join("features.csv");
     let weights = dir.path().join("weights.csv");
 
-    let rx_port = free_port();
-    let receiver_addr: SocketAddr = format!("127.0.0.1:{rx_port}").parse().unwrap();
+    // The receiver binds a port of its own and says which once it listens.
+    let receiver = spawn_listening(
+        lipcall()
+            .args(["receive", "--listen", "127.0.0.1:0"])
+            .arg("--wav")
+            .arg(&out)
+            .arg("--features")
+            .arg(&features)
+            .arg("--weights")
+            .arg(&weights)
+            .args(["--key", "impaired", "--seconds", "15"]),
+        Announce::Lipcall,
+    );
+    let receiver_addr: SocketAddr = receiver.addr().parse().unwrap();
     let proxy_socket = UdpSocket::bind("127.0.0.1:0").unwrap();
     let proxy_addr = proxy_socket.local_addr().unwrap();
     let stop = Arc::new(AtomicBool::new(false));
@@ -144,18 +156,6 @@ fn impaired_call(imp: Impairment, codec: &str) {
         std::thread::spawn(move || proxy(proxy_socket, receiver_addr, imp, stop))
     };
 
-    let receiver = spawn(
-        lipcall()
-            .args(["receive", "--listen", &receiver_addr.to_string()])
-            .arg("--wav")
-            .arg(&out)
-            .arg("--features")
-            .arg(&features)
-            .arg("--weights")
-            .arg(&weights)
-            .args(["--key", "impaired", "--seconds", "15"]),
-    );
-    std::thread::sleep(Duration::from_millis(300));
     run(lipcall().arg("send").arg(&clip).args([
         "--to",
         &proxy_addr.to_string(),
@@ -167,7 +167,7 @@ fn impaired_call(imp: Impairment, codec: &str) {
         codec,
     ]));
     // The receiver stops by itself once the sender's BYE has been played out.
-    let (_, stderr) = finish(receiver, Duration::from_secs(40), "lipcall receive");
+    let (_, stderr) = receiver.finish(Duration::from_secs(40), "lipcall receive");
     stop.store(true, Ordering::Relaxed);
     let counts = proxy_thread.join().unwrap();
     eprintln!("{imp:?}\n{counts:?}\n{stderr}");

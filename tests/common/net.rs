@@ -1,20 +1,155 @@
 //! Helpers for the transport tests: ports, child processes, reference decodes, alignment.
 
-use std::net::UdpSocket;
+use std::io::{BufRead, BufReader, Read};
+use std::net::SocketAddr;
 use std::path::Path;
 use std::process::{Child, Command, Stdio};
+use std::sync::mpsc;
 use std::time::{Duration, Instant};
 
 use lipcall::codec::speex::FRAME_SIZE;
 use lipcall::codec::speex::codec::{Decoder, FrameOutcome};
 use lipcall::codec::speex::ogg_file;
 
-/// A loopback UDP port that was free a moment ago.
+/// A loopback UDP port that was free a moment ago: racy (another process may take it before
+/// the test's child binds it); [`spawn_listening`] replaces it. Kept until tests/janus.rs moves.
 pub fn free_port() -> u16 {
-    UdpSocket::bind("127.0.0.1:0")
+    std::net::UdpSocket::bind("127.0.0.1:0")
         .and_then(|s| s.local_addr())
         .map(|a| a.port())
         .expect("a free loopback port")
+}
+
+/// A child process that binds its own port (port 0) and says which, read from its output
+/// before anything is sent to it: no port is picked by the test and raced for, and no sleep
+/// stands in for "it is listening now".
+pub struct Listening {
+    child: Child,
+    /// The port it bound, on 127.0.0.1.
+    pub port: u16,
+    /// Every line of the announcing stream (before and after the announcement), until it
+    /// closes.
+    lines: mpsc::Receiver<String>,
+    seen: Vec<String>,
+    from_stdout: bool,
+}
+
+/// Where a child announces its port, and how the announcement reads.
+pub enum Announce {
+    /// `lipcall receive`: `lipcall: listening on IP:PORT` on stderr (see `receive --help`).
+    Lipcall,
+    /// `gst-launch-1.0 -v` with a `udpsrc port=0`: `/GstPipeline:...GstUDPSrc:NAME: port = N`
+    /// on stdout, notified once the socket is bound (`-q` would hide it).
+    GstUdpsrc,
+}
+
+impl Announce {
+    fn port(&self, line: &str) -> Option<u16> {
+        match self {
+            Announce::Lipcall => line
+                .strip_prefix("lipcall: listening on ")
+                .map(|a| a.parse::<SocketAddr>().expect("an address").port()),
+            Announce::GstUdpsrc => line
+                .contains("GstUDPSrc:")
+                .then(|| line.rsplit_once(": port = "))
+                .flatten()
+                .map(|(_, p)| p.trim().parse().expect("a port")),
+        }
+    }
+}
+
+/// Starts `cmd` and waits (up to 20 s) until it says which port it bound.
+pub fn spawn_listening(cmd: &mut Command, announce: Announce) -> Listening {
+    let mut child = spawn(cmd);
+    let from_stdout = matches!(announce, Announce::GstUdpsrc);
+    let (tx, lines) = mpsc::channel();
+    let stream: Box<dyn Read + Send> = if from_stdout {
+        Box::new(child.stdout.take().expect("stdout"))
+    } else {
+        Box::new(child.stderr.take().expect("stderr"))
+    };
+    std::thread::spawn(move || {
+        for line in BufReader::new(stream).lines() {
+            let Ok(line) = line else { break };
+            if tx.send(line).is_err() {
+                break;
+            }
+        }
+    });
+    let deadline = Instant::now() + Duration::from_secs(20);
+    let mut seen = Vec::new();
+    loop {
+        let left = deadline.saturating_duration_since(Instant::now());
+        match lines.recv_timeout(left) {
+            Ok(line) => {
+                let port = announce.port(&line);
+                seen.push(line);
+                if let Some(port) = port {
+                    return Listening {
+                        child,
+                        port,
+                        lines,
+                        seen,
+                        from_stdout,
+                    };
+                }
+            }
+            Err(_) => {
+                let _ = child.kill();
+                let out = child.wait_with_output().expect("output");
+                panic!(
+                    "{cmd:?} did not say which port it bound:\n{}\n{}{}",
+                    seen.join("\n"),
+                    String::from_utf8_lossy(&out.stdout),
+                    String::from_utf8_lossy(&out.stderr)
+                );
+            }
+        }
+    }
+}
+
+impl Listening {
+    /// `127.0.0.1:PORT`.
+    pub fn addr(&self) -> String {
+        format!("127.0.0.1:{}", self.port)
+    }
+
+    /// Sends SIGINT (see [`interrupt`]).
+    pub fn interrupt(&self) {
+        interrupt(&self.child);
+    }
+
+    /// [`finish`], with the announcing stream whole: (stdout, stderr).
+    pub fn finish(mut self, limit: Duration, what: &str) -> (String, String) {
+        let deadline = Instant::now() + limit;
+        let overran = loop {
+            match self.child.try_wait().expect("wait") {
+                Some(_) => break false,
+                None if Instant::now() > deadline => {
+                    let _ = self.child.kill();
+                    break true;
+                }
+                None => std::thread::sleep(Duration::from_millis(20)),
+            }
+        };
+        let out = self.child.wait_with_output().expect("output");
+        let mut lines = self.seen;
+        // The reader ends when the stream closes, which the child's exit did.
+        lines.extend(self.lines.iter());
+        let mut announced = lines.join("\n");
+        announced.push('\n');
+        let (stdout, stderr) = if self.from_stdout {
+            (announced, String::from_utf8_lossy(&out.stderr).into_owned())
+        } else {
+            (String::from_utf8_lossy(&out.stdout).into_owned(), announced)
+        };
+        assert!(
+            !overran,
+            "{what} did not finish within {limit:?}: {stdout}{stderr}"
+        );
+        assert!(out.status.success(), "{what} failed: {stdout}{stderr}");
+        (stdout, stderr)
+    }
 }
 
 pub fn spawn(cmd: &mut Command) -> Child {
