@@ -148,8 +148,12 @@ fn av_offset_on_the_null_sink() {
     }
     let rec = Arc::new(Mutex::new(Recording::default()));
     let mut parec = start_parec(rec.clone());
-    // Let parec settle before anything is played.
-    std::thread::sleep(Duration::from_millis(300));
+    // Recording before anything is played: until parec delivers its first samples.
+    let deadline = Instant::now() + Duration::from_secs(10);
+    while rec.lock().unwrap().samples.is_empty() {
+        assert!(Instant::now() < deadline, "parec recorded nothing");
+        std::thread::sleep(Duration::from_millis(5));
+    }
 
     let mut pb = Playback::start(PlaybackConfig {
         peer_queue: Duration::from_secs(6),
@@ -188,8 +192,11 @@ fn av_offset_on_the_null_sink() {
         }
         std::thread::sleep(Duration::from_millis(1));
     }
-    // Let parec deliver the end.
-    std::thread::sleep(Duration::from_millis(300));
+    // Until parec has delivered every burst's onset (what is compared below), or gave up.
+    let deadline = Instant::now() + Duration::from_secs(5);
+    while Instant::now() < deadline && onsets(&rec.lock().unwrap().samples).len() < BURSTS {
+        std::thread::sleep(Duration::from_millis(10));
+    }
     let stats = pb.stats();
     drop(pb);
     std::thread::sleep(Duration::from_millis(100));

@@ -169,7 +169,15 @@ fn three_peers_hear_each_other_and_nobody_else_does_under_a_flood() {
     for s in [&alice, &bob, &carol] {
         s.send_report();
     }
-    std::thread::sleep(Duration::from_millis(300));
+    // Until the reports (with the SDES names checked below) have reached every member.
+    let deadline = Instant::now() + Duration::from_secs(5);
+    while Instant::now() < deadline
+        && [&alice, &bob, &carol]
+            .iter()
+            .any(|s| s.peers().into_iter().filter(|p| p.name.is_some()).count() < 2)
+    {
+        std::thread::sleep(Duration::from_millis(10));
+    }
 
     let members = [(&alice, 300.0), (&bob, 500.0), (&carol, 700.0)];
     for (i, (listener, _)) in members.iter().enumerate() {
