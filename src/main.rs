@@ -174,7 +174,8 @@ enum Command {
     },
     /// Receive a call: jitter buffer, decode, features; write the audio as played.
     Receive {
-        /// Address to listen on, HOST:PORT (port 0 picks one).
+        /// Address to listen on, HOST:PORT (port 0 picks one). Once bound, one stderr line
+        /// says the address: `lipcall: listening on IP:PORT` (a stable format, for scripts).
         #[arg(long, value_name = "HOST:PORT", required_unless_present = "janus")]
         listen: Option<String>,
         /// Join a room (--room) of this Janus server instead, http://HOST:PORT/janus, and
@@ -215,6 +216,8 @@ enum Command {
     },
     /// Run a relay: forwards each room member's packets to the others, without decoding them.
     Relay {
+        /// Address to listen on, HOST:PORT (port 0 picks one). Once bound, one stderr line
+        /// says the address: `lipcall: relay listening on IP:PORT` (a stable format).
         #[arg(long, value_name = "HOST:PORT")]
         listen: String,
         /// Stop after this many seconds (otherwise run until killed).
