@@ -41,6 +41,9 @@ pub enum Announce {
     /// `gst-launch-1.0 -v` with a `udpsrc port=0`: `/GstPipeline:...GstUDPSrc:NAME: port = N`
     /// on stdout, notified once the socket is bound (`-q` would hide it).
     GstUdpsrc,
+    /// Ready, with no port: the first stderr line starting with this (e.g. `receive --janus`'s
+    /// `lipcall: in room `). `Listening::port` is then 0.
+    StderrLine(&'static str),
 }
 
 impl Announce {
@@ -54,11 +57,13 @@ impl Announce {
                 .then(|| line.rsplit_once(": port = "))
                 .flatten()
                 .map(|(_, p)| p.trim().parse().expect("a port")),
+            Announce::StderrLine(prefix) => line.starts_with(prefix).then_some(0),
         }
     }
 }
 
-/// Starts `cmd` and waits (up to 20 s) until it says which port it bound.
+/// Starts `cmd` and waits (up to 20 s) until it says which port it bound (or that it is
+/// ready, for [`Announce::StderrLine`]).
 pub fn spawn_listening(cmd: &mut Command, announce: Announce) -> Listening {
     let mut child = spawn(cmd);
     let from_stdout = matches!(announce, Announce::GstUdpsrc);
