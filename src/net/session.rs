@@ -150,6 +150,12 @@ const IDLE_EVICT: Duration = Duration::from_secs(5);
 const MOVE_PACKETS: u32 = 3;
 /// Start hints (SRs sent before a stream's first packet) kept for peers not yet created.
 const PENDING_STARTS: usize = 8;
+/// Names (SDES sent before a stream's first packet, as every sender's first RTCP is) kept for
+/// peers not yet created: without them a caller stays nameless until its next report.
+const PENDING_NAMES: usize = 8;
+
+/// SDES of a source that is not a peer yet: (SSRC, where from, CNAME, NAME, when).
+type PendingNames = (u32, SocketAddr, Option<String>, Option<String>, Instant);
 
 struct Peer {
     receiver: PeerReceiver,
@@ -223,6 +229,7 @@ struct Rx {
     /// SRs with no packets sent yet (where a stream will start), by SSRC, from senders not yet
     /// peers: (ssrc, RTP timestamp, from, arrival).
     pending_starts: Vec<(u32, u32, SocketAddr, Instant)>,
+    pending_names: Vec<PendingNames>,
 }
 
 struct Shared {
@@ -453,6 +460,7 @@ impl Shared {
                 srtp: config.key.as_ref().map(Srtp::new),
                 stats: SessionStats::default(),
                 pending_starts: Vec::with_capacity(PENDING_STARTS),
+                pending_names: Vec::with_capacity(PENDING_NAMES),
             }),
             stop: AtomicBool::new(false),
             socket,
@@ -678,13 +686,24 @@ impl Shared {
             let (_, ts, _, _) = rx.pending_starts.swap_remove(i);
             receiver.jitter().hint_start(ts);
         }
+        let (cname, name) = match rx
+            .pending_names
+            .iter()
+            .position(|(s, addr, ..)| *s == ssrc && *addr == from)
+        {
+            Some(i) => {
+                let (_, _, cname, name, _) = rx.pending_names.swap_remove(i);
+                (cname, name)
+            }
+            None => (None, None),
+        };
         rx.peers.insert(
             ssrc,
             Peer {
                 receiver,
                 addr: from,
-                cname: None,
-                name: None,
+                cname,
+                name,
                 last_heard: arrival,
                 last_media: arrival,
                 media: 0,
@@ -804,12 +823,25 @@ impl Shared {
                     if ssrc == self.ssrc {
                         continue;
                     }
-                    if let Some(peer) = rx.peers.get_mut(&ssrc).filter(|p| p.addr == from) {
-                        if cname.is_some() {
-                            peer.cname = cname;
+                    match rx.peers.get_mut(&ssrc) {
+                        Some(peer) if peer.addr == from => {
+                            if cname.is_some() {
+                                peer.cname = cname;
+                            }
+                            if name.is_some() {
+                                peer.name = name;
+                            }
                         }
-                        if name.is_some() {
-                            peer.name = name;
+                        Some(_) => {}
+                        None => {
+                            // Kept until its media comes, a few at most; junk only displaces
+                            // other pending names.
+                            rx.pending_names
+                                .retain(|(s, addr, ..)| (*s, *addr) != (ssrc, from));
+                            if rx.pending_names.len() == PENDING_NAMES {
+                                rx.pending_names.remove(0);
+                            }
+                            rx.pending_names.push((ssrc, from, cname, name, arrival));
                         }
                     }
                 }
@@ -839,6 +871,8 @@ impl Shared {
         let mut gone = Vec::new();
         rx.pending_starts
             .retain(|&(_, _, _, at)| now.saturating_duration_since(at) < UNCONFIRMED_TIMEOUT);
+        rx.pending_names
+            .retain(|(.., at)| now.saturating_duration_since(*at) < UNCONFIRMED_TIMEOUT);
         rx.peers.retain(|&ssrc, p| {
             let keep = if p.confirmed() {
                 now.saturating_duration_since(p.last_heard) < timeout
@@ -1030,6 +1064,66 @@ mod tests {
 
     fn peer_addr(shared: &Shared, ssrc: u32) -> Option<SocketAddr> {
         lock(&shared.rx).peers.get(&ssrc).map(|p| p.addr)
+    }
+
+    fn names_from(ssrc: u32, name: &str) -> Vec<u8> {
+        let mut buf = Vec::new();
+        rtcp::build(
+            &Outgoing {
+                ssrc,
+                sender: None,
+                blocks: &[],
+                cname: "caller@host",
+                name: Some(name),
+                bye: false,
+            },
+            &mut buf,
+        )
+        .unwrap();
+        buf
+    }
+
+    #[test]
+    fn a_name_sent_before_the_first_packet_names_the_peer_from_its_address_only() {
+        // Every sender's first RTCP (SDES) precedes its media: the caller used to stay
+        // nameless until its next report, and the app took its demo peer for a real caller.
+        let shared = session(8);
+        let mut played = HashMap::new();
+        let mut ann = Caller::new(7, 100, 5000);
+        let mut bob = Caller::new(8, 200, 6000);
+        drive(
+            &shared,
+            0..1,
+            |_| {
+                let mut junk: Vec<(SocketAddr, Vec<u8>)> = (0..PENDING_NAMES as u32)
+                    .map(|i| (addr(41_000 + i as u16), names_from(500 + i, "junk")))
+                    .collect();
+                // Bob's name comes from another port than his media: not his.
+                junk.insert(0, (addr(5000), names_from(7, "Ann")));
+                junk.push((addr(6001), names_from(8, "Mallory")));
+                junk
+            },
+            &mut played,
+        );
+        assert!(lock(&shared.rx).peers.is_empty());
+        assert_eq!(lock(&shared.rx).pending_names.len(), PENDING_NAMES);
+        // The pending names were full of junk after Ann's: hers was displaced; send it again.
+        drive(
+            &shared,
+            1..2,
+            |_| vec![(addr(5000), names_from(7, "Ann"))],
+            &mut played,
+        );
+        drive(
+            &shared,
+            2..12,
+            |_| vec![(addr(5000), ann.packet()), (addr(6000), bob.packet())],
+            &mut played,
+        );
+        let rx = lock(&shared.rx);
+        assert_eq!(rx.peers[&7].name.as_deref(), Some("Ann"));
+        assert_eq!(rx.peers[&7].cname.as_deref(), Some("caller@host"));
+        assert_eq!(rx.peers[&8].name, None);
     }
 
     #[test]
