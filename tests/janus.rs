@@ -8,8 +8,11 @@ use std::path::{Path, PathBuf};
 use std::process::{Child, Command, Stdio};
 use std::time::{Duration, Instant};
 
-use common::net::{finish, spawn};
+use common::net::{Announce, finish, spawn, spawn_listening};
 use common::{demo_8k, lipcall, read_wav_i16, repo_file};
+
+/// `receive --janus` has joined its room (`lipcall: in room ...` on stderr).
+const IN_ROOM: Announce = Announce::StderrLine("lipcall: in room ");
 
 /// A Janus process with the repository's config, its HTTP API on a free loopback port.
 struct Janus {
@@ -156,7 +159,8 @@ fn two_lipcalls_in_a_janus_room_hear_each_other_and_the_receiver_animates() {
 
     let wav = dir.path().join("janus.wav");
     let weights = dir.path().join("janus-weights.csv");
-    let receiver = spawn(
+    // The receiver creates the room and joins before the sender comes.
+    let receiver = spawn_listening(
         lipcall()
             .args([
                 "receive", "--janus", &janus.url, "--room", room, "--key", pin,
@@ -166,9 +170,8 @@ fn two_lipcalls_in_a_janus_room_hear_each_other_and_the_receiver_animates() {
             .arg(&wav)
             .arg("--weights")
             .arg(&weights),
+        IN_ROOM,
     );
-    // The receiver creates the room and joins before the sender comes.
-    std::thread::sleep(Duration::from_millis(1500));
     let sender = spawn(
         lipcall()
             .arg("send")
@@ -177,7 +180,7 @@ fn two_lipcalls_in_a_janus_room_hear_each_other_and_the_receiver_animates() {
             .args(["--name", "Ann"]),
     );
     let (_, sent) = finish(sender, Duration::from_secs(30), "lipcall send --janus");
-    let (_, received) = finish(receiver, Duration::from_secs(30), "lipcall receive --janus");
+    let (_, received) = receiver.finish(Duration::from_secs(30), "lipcall receive --janus");
     assert!(
         received.contains("\"Ann\"") && received.contains("is publishing"),
         "{received}"
@@ -189,19 +192,18 @@ fn two_lipcalls_in_a_janus_room_hear_each_other_and_the_receiver_animates() {
     let got = read_wav_i16(&wav).1;
 
     // The same audio sent directly: lipcall's own Opus round trip over RTP.
-    let port = common::net::free_port();
     let direct_wav = dir.path().join("direct.wav");
-    let direct_rx = spawn(
+    let direct_rx = spawn_listening(
         lipcall()
-            .args(["receive", "--listen", &format!("127.0.0.1:{port}")])
+            .args(["receive", "--listen", "127.0.0.1:0"])
             .args(["--seconds", "11"])
             .arg("--wav")
             .arg(&direct_wav),
+        Announce::Lipcall,
     );
-    std::thread::sleep(Duration::from_millis(300));
     let direct_tx = spawn(lipcall().arg("send").arg(&speech).args([
         "--to",
-        &format!("127.0.0.1:{port}"),
+        &direct_rx.addr(),
         "--codec",
         "opus",
     ]));
@@ -210,7 +212,7 @@ fn two_lipcalls_in_a_janus_room_hear_each_other_and_the_receiver_animates() {
         Duration::from_secs(30),
         "lipcall send --codec opus",
     );
-    finish(direct_rx, Duration::from_secs(30), "lipcall receive");
+    direct_rx.finish(Duration::from_secs(30), "lipcall receive");
     let direct = read_wav_i16(&direct_wav).1;
 
     let (snr_janus, lag_janus) = snr_at_best_shift(&source, &got, 2000);
@@ -283,12 +285,12 @@ fn a_wrong_pin_and_an_unreachable_janus_fail_at_once_with_janus_s_reason() {
     }
     let dir = tempfile::tempdir().unwrap();
     let janus = start_janus(dir.path());
-    let owner = spawn(
+    let owner = spawn_listening(
         lipcall()
             .args(["receive", "--janus", &janus.url, "--room", "pinned"])
             .args(["--key", "right", "--seconds", "3"]),
+        IN_ROOM,
     );
-    std::thread::sleep(Duration::from_millis(1000));
     for key in [Some("wrong"), None] {
         let started = Instant::now();
         let mut cmd = lipcall();
@@ -304,7 +306,7 @@ fn a_wrong_pin_and_an_unreachable_janus_fail_at_once_with_janus_s_reason() {
         assert!(stderr.contains("pin"), "{stderr}");
         assert!(started.elapsed() < Duration::from_secs(5));
     }
-    finish(owner, Duration::from_secs(20), "the room's first member");
+    owner.finish(Duration::from_secs(20), "the room's first member");
 }
 
 #[test]
@@ -316,12 +318,12 @@ fn a_restarted_janus_is_said_and_rejoined_and_the_call_goes_on() {
     let dir = tempfile::tempdir().unwrap();
     let mut janus = start_janus(dir.path());
     let room = "restarts";
-    let receiver = spawn(
+    let receiver = spawn_listening(
         lipcall()
             .args(["receive", "--janus", &janus.url, "--room", room])
             .args(["--seconds", "15"]),
+        IN_ROOM,
     );
-    std::thread::sleep(Duration::from_millis(1500));
     let sender = spawn(
         lipcall()
             .arg("send")
@@ -331,7 +333,7 @@ fn a_restarted_janus_is_said_and_rejoined_and_the_call_goes_on() {
     std::thread::sleep(Duration::from_secs(4));
     janus.restart();
     let (_, sent) = finish(sender, Duration::from_secs(30), "lipcall send --janus");
-    let (_, received) = finish(receiver, Duration::from_secs(30), "lipcall receive --janus");
+    let (_, received) = receiver.finish(Duration::from_secs(30), "lipcall receive --janus");
     for (who, stderr) in [("sender", &sent), ("receiver", &received)] {
         assert!(stderr.contains("lost the Janus room"), "{who}: {stderr}");
         assert!(stderr.contains("back in the Janus room"), "{who}: {stderr}");
@@ -360,13 +362,13 @@ fn each_publisher_is_a_peer_and_the_receive_ends_when_all_have_left() {
     let room = "two-voices";
     let weights = dir.path().join("w.csv");
     // No --seconds: the receive ends once both publishers have left.
-    let receiver = spawn(
+    let receiver = spawn_listening(
         lipcall()
             .args(["receive", "--janus", &janus.url, "--room", room])
             .arg("--weights")
             .arg(&weights),
+        IN_ROOM,
     );
-    std::thread::sleep(Duration::from_millis(1500));
     let send = |name: &str| {
         spawn(
             lipcall()
@@ -380,7 +382,7 @@ fn each_publisher_is_a_peer_and_the_receive_ends_when_all_have_left() {
     let cy = send("Cy");
     finish(ann, Duration::from_secs(30), "Ann's send");
     finish(cy, Duration::from_secs(30), "Cy's send");
-    let (_, received) = finish(receiver, Duration::from_secs(20), "lipcall receive --janus");
+    let (_, received) = receiver.finish(Duration::from_secs(20), "lipcall receive --janus");
     for name in ["Ann", "Cy"] {
         assert!(
             received.contains(&format!("\"{name}\" (")) && received.contains("is publishing"),

@@ -11,15 +11,6 @@ use lipcall::codec::speex::FRAME_SIZE;
 use lipcall::codec::speex::codec::{Decoder, FrameOutcome};
 use lipcall::codec::speex::ogg_file;
 
-/// A loopback UDP port that was free a moment ago: racy (another process may take it before
-/// the test's child binds it); [`spawn_listening`] replaces it. Kept until tests/janus.rs moves.
-pub fn free_port() -> u16 {
-    std::net::UdpSocket::bind("127.0.0.1:0")
-        .and_then(|s| s.local_addr())
-        .map(|a| a.port())
-        .expect("a free loopback port")
-}
-
 /// A child process that binds its own port (port 0) and says which, read from its output
 /// before anything is sent to it: no port is picked by the test and raced for, and no sleep
 /// stands in for "it is listening now".
