@@ -4,14 +4,11 @@
 
 mod common;
 
-use std::io::{BufRead, BufReader};
 use std::net::{SocketAddr, UdpSocket};
-use std::process::Child;
-use std::sync::mpsc;
 use std::time::{Duration, Instant};
 
 use common::lipcall;
-use common::net::{fields, finish, num, spawn};
+use common::net::{Announce, Listening, fields, num, spawn_listening};
 use lipcall::codec::FRAME_SIZE;
 use lipcall::codec::any::{Codec, EncoderSettings, FrameEncoder, MAX_FRAME_PAYLOAD};
 use lipcall::net::rtp::RtpStream;
@@ -20,55 +17,21 @@ use lipcall::net::session::{Session, SessionConfig};
 const TICK: Duration = Duration::from_millis(20);
 
 /// `lipcall receive` on a port of its own choosing; its address read back from what it prints.
-struct Receiver {
-    child: Child,
-    addr: SocketAddr,
-    stderr: mpsc::Receiver<String>,
+fn start_receiver(args: &[&str]) -> Listening {
+    spawn_listening(
+        lipcall()
+            .args(["receive", "--listen", "127.0.0.1:0"])
+            .args(args),
+        Announce::Lipcall,
+    )
 }
 
-impl Receiver {
-    fn start() -> Self {
-        Self::start_with(&[])
-    }
-
-    fn start_with(args: &[&str]) -> Self {
-        let mut child = spawn(
-            lipcall()
-                .args(["receive", "--listen", "127.0.0.1:0"])
-                .args(args),
-        );
-        let stderr = child.stderr.take().expect("stderr");
-        let (tx, rx) = mpsc::channel();
-        std::thread::spawn(move || {
-            for line in BufReader::new(stderr).lines() {
-                let Ok(line) = line else { break };
-                if tx.send(line).is_err() {
-                    break;
-                }
-            }
-        });
-        let mut addr = None;
-        while addr.is_none() {
-            let line = rx
-                .recv_timeout(Duration::from_secs(20))
-                .expect("receive says where it listens");
-            addr = line
-                .strip_prefix("lipcall: listening on ")
-                .map(|a| a.parse().expect("an address"));
-        }
-        Self {
-            child,
-            addr: addr.unwrap(),
-            stderr: rx,
-        }
-    }
-
-    /// Waits for it to stop by itself (every peer said BYE, or its `--seconds` are over);
-    /// everything it printed after its address.
-    fn finish(self) -> String {
-        finish(self.child, Duration::from_secs(60), "lipcall receive");
-        self.stderr.try_iter().collect::<Vec<_>>().join("\n")
-    }
+/// Waits for it to stop by itself (every peer said BYE, or its `--seconds` are over); what it
+/// printed on stderr.
+fn stopped(receiver: Listening) -> String {
+    receiver
+        .finish(Duration::from_secs(60), "lipcall receive")
+        .1
 }
 
 fn voice(frame: u32) -> [i16; FRAME_SIZE] {
@@ -146,9 +109,9 @@ fn a_sender_with_talk_spurts_reports_no_loss() {
         false
     };
     let frames: u32 = spurts.iter().map(|s| s.0 + s.1).sum();
-    let receiver = Receiver::start();
-    let sent = send(receiver.addr, 0x5107, frames, talking, |_| {});
-    let stderr = receiver.finish();
+    let receiver = start_receiver(&[]);
+    let sent = send(receiver.socket_addr(), 0x5107, frames, talking, |_| {});
+    let stderr = stopped(receiver);
     let peer = fields(&stderr, "peer ");
     assert_eq!(num(&peer, "received"), f64::from(sent), "{stderr}");
     assert_eq!(num(&peer, "lost"), 0.0, "{stderr}");
@@ -167,10 +130,10 @@ fn a_redial_on_the_same_ssrc_after_bye_plays() {
     // Two calls one after the other with the same SSRC (`send --ssrc`), each from its own port
     // with its own sequence numbers and timestamps, the first ending with BYE: the second used
     // to be ignored (received=704 played=351).
-    let receiver = Receiver::start_with(&["--seconds", "5.5"]);
-    let first = send(receiver.addr, 0x0005_5ec0, 100, |_| true, |_| {});
-    let second = send(receiver.addr, 0x0005_5ec0, 100, |_| true, |_| {});
-    let stderr = receiver.finish();
+    let receiver = start_receiver(&["--seconds", "5.5"]);
+    let first = send(receiver.socket_addr(), 0x0005_5ec0, 100, |_| true, |_| {});
+    let second = send(receiver.socket_addr(), 0x0005_5ec0, 100, |_| true, |_| {});
+    let stderr = stopped(receiver);
     assert_eq!(stderr.matches("peer ssrc=").count(), 1, "{stderr}");
     let peer = fields(&stderr, "peer ");
     assert_eq!(
@@ -185,17 +148,17 @@ fn a_redial_on_the_same_ssrc_after_bye_plays() {
 
 #[test]
 fn junk_rtcp_does_not_keep_a_caller_out() {
-    let receiver = Receiver::start();
+    let receiver = start_receiver(&[]);
     // 32 receiver reports of 8 bytes from 32 SSRCs: they used to fill the peer table, refusing
     // every new caller for 30 s.
     let junk = UdpSocket::bind("127.0.0.1:0").unwrap();
     for i in 0..32u32 {
         let mut rr = vec![0x80, 201, 0, 1];
         rr.extend_from_slice(&(0x0bad_0000 + i).to_be_bytes());
-        junk.send_to(&rr, receiver.addr).unwrap();
+        junk.send_to(&rr, receiver.socket_addr()).unwrap();
     }
-    let sent = send(receiver.addr, 0xca11, 100, |_| true, |_| {});
-    let stderr = receiver.finish();
+    let sent = send(receiver.socket_addr(), 0xca11, 100, |_| true, |_| {});
+    let stderr = stopped(receiver);
     let session = fields(&stderr, "lipcall: played");
     assert_eq!(num(&session, "too_many_peers"), 0.0, "{stderr}");
     assert_eq!(stderr.matches("peer ssrc=").count(), 1, "{stderr}");
@@ -206,13 +169,13 @@ fn junk_rtcp_does_not_keep_a_caller_out() {
 
 #[test]
 fn another_port_can_neither_end_nor_hijack_a_caller() {
-    let receiver = Receiver::start();
+    let receiver = start_receiver(&[]);
     let ssrc = 0x00c0_ffee_u32;
     let attacker = UdpSocket::bind("127.0.0.1:0").unwrap();
     let mut spoof = RtpStream::new(ssrc, 12_345, 999_999);
     spoof.set_payload(0, 160);
     let mut buf = Vec::new();
-    let to = receiver.addr;
+    let to = receiver.socket_addr();
     let sent = send(
         to,
         ssrc,
@@ -232,7 +195,7 @@ fn another_port_can_neither_end_nor_hijack_a_caller() {
             }
         },
     );
-    let stderr = receiver.finish();
+    let stderr = stopped(receiver);
     let peer = fields(&stderr, "peer ");
     let attacker_port = attacker.local_addr().unwrap().port().to_string();
     assert!(

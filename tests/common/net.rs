@@ -110,6 +110,10 @@ impl Listening {
         format!("127.0.0.1:{}", self.port)
     }
 
+    pub fn socket_addr(&self) -> SocketAddr {
+        SocketAddr::from(([127, 0, 0, 1], self.port))
+    }
+
     /// Sends SIGINT (see [`interrupt`]).
     pub fn interrupt(&self) {
         interrupt(&self.child);
