@@ -8,7 +8,7 @@ use std::time::{Duration, Instant};
 
 use anyhow::{Context, Result, bail};
 
-use super::net::{FrameSource, load_packets, play, viseme_names};
+use super::net::{FrameSource, load_packets, play, send_paced, viseme_names};
 use super::recording::{Recorder, stop_flag};
 use crate::codec::any::{Codec, EncoderSettings};
 use crate::codec::speex::features::FrameFeatures;
@@ -98,17 +98,12 @@ pub fn send(input: &std::path::Path, janus: &JanusArgs) -> Result<()> {
         room.id().unwrap_or("-")
     );
     let start = Instant::now();
-    let mut at = 0u64;
-    for (payload, duration) in &packets {
-        let due = start + Duration::from_secs_f64(at as f64 / clock);
-        if let Some(wait) = due.checked_duration_since(Instant::now()) {
-            std::thread::sleep(wait);
-        }
-        room.send(payload, *duration)?;
-        at += u64::from(*duration);
+    send_paced(&packets, codec, |payload, duration| {
+        room.send(payload, duration)?;
         // Janus's events are read while sending; a restarted Janus is rejoined.
         print_notices(&room.poll());
-    }
+        Ok(())
+    })?;
     // The last packets leave str0m's pacer, then Janus forwards them before we hang up.
     std::thread::sleep(Duration::from_millis(200));
     let stats = room.media_stats();

@@ -83,6 +83,27 @@ fn encode_pcm(pcm: &[i16], codec: Codec, settings: &EncoderSettings) -> Result<P
     Ok(out)
 }
 
+/// Sends `packets` (payload, duration in RTP ticks of `codec`) each at its time from now, as a
+/// live source would.
+pub(crate) fn send_paced(
+    packets: &[(Vec<u8>, u32)],
+    codec: Codec,
+    mut send: impl FnMut(&[u8], u32) -> Result<()>,
+) -> Result<()> {
+    let clock = f64::from(codec.clock_rate());
+    let start = Instant::now();
+    let mut at = 0u64;
+    for (payload, duration) in packets {
+        let due = start + Duration::from_secs_f64(at as f64 / clock);
+        if let Some(wait) = due.checked_duration_since(Instant::now()) {
+            std::thread::sleep(wait);
+        }
+        send(payload, *duration)?;
+        at += u64::from(*duration);
+    }
+    Ok(())
+}
+
 /// What `send` sends: a coded file as it is (Ogg Speex, Ogg Opus), or audio encoded here (a
 /// WAV, or a coded file when `--codec` asks for another codec). Without `--codec`, a WAV goes
 /// as Speex, the reference path.
@@ -200,15 +221,9 @@ pub fn send(args: &SendArgs) -> Result<()> {
         session.ssrc()
     );
     let start = Instant::now();
-    let mut at = 0u64;
-    for (payload, duration) in &packets {
-        let due = start + Duration::from_secs_f64(at as f64 / clock);
-        if let Some(wait) = due.checked_duration_since(Instant::now()) {
-            std::thread::sleep(wait);
-        }
-        session.send_packet(payload, *duration)?;
-        at += u64::from(*duration);
-    }
+    send_paced(&packets, codec, |payload, duration| {
+        Ok(session.send_packet(payload, duration)?)
+    })?;
     // Let the last packet's slot pass before saying BYE.
     std::thread::sleep(TICK);
     session.leave();
