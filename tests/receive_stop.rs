@@ -5,56 +5,23 @@
 
 mod common;
 
-use std::io::{BufRead, BufReader};
-use std::net::SocketAddr;
 use std::path::Path;
-use std::process::{Child, Command};
-use std::sync::mpsc;
 use std::time::{Duration, Instant};
 
-use common::net::{finish, spawn};
+use common::net::{Announce, Listening, spawn, spawn_listening};
 use common::{lipcall, repo_file};
 use lipcall::codec::FRAME_SIZE;
 use lipcall::codec::any::{Codec, EncoderSettings, FrameEncoder, MAX_FRAME_PAYLOAD};
 use lipcall::net::session::{Session, SessionConfig};
 
 /// `lipcall receive` on a port of its own choosing, its address read from what it prints.
-fn start_receiver(args: &[&str]) -> (Child, SocketAddr, mpsc::Receiver<String>) {
-    let mut child = spawn(
+fn start_receiver(args: &[&str]) -> Listening {
+    spawn_listening(
         lipcall()
             .args(["receive", "--listen", "127.0.0.1:0"])
             .args(args),
-    );
-    let stderr = child.stderr.take().expect("stderr");
-    let (tx, rx) = mpsc::channel();
-    std::thread::spawn(move || {
-        for line in BufReader::new(stderr).lines() {
-            let Ok(line) = line else { break };
-            if tx.send(line).is_err() {
-                break;
-            }
-        }
-    });
-    let mut addr = None;
-    while addr.is_none() {
-        let Ok(line) = rx.recv_timeout(Duration::from_secs(20)) else {
-            let _ = child.kill();
-            let _ = child.wait();
-            panic!("receive did not say where it listens");
-        };
-        addr = line
-            .strip_prefix("lipcall: listening on ")
-            .map(|a| a.parse().expect("an address"));
-    }
-    (child, addr.unwrap(), rx)
-}
-
-fn signal(child: &Child, name: &str) {
-    let status = Command::new("kill")
-        .args([&format!("-{name}"), &child.id().to_string()])
-        .status()
-        .expect("kill");
-    assert!(status.success());
+        Announce::Lipcall,
+    )
 }
 
 fn csv_rows(path: &Path) -> (String, Vec<Vec<String>>) {
@@ -72,7 +39,7 @@ fn stopped_mid_call_leaves_whole_files(signal_name: &str) {
     let wav = dir.path().join("out.wav");
     let features = dir.path().join("features.csv");
     let weights = dir.path().join("weights.csv");
-    let (receiver, addr, stderr) = start_receiver(&[
+    let receiver = start_receiver(&[
         "--wav",
         wav.to_str().unwrap(),
         "--features",
@@ -85,15 +52,15 @@ fn stopped_mid_call_leaves_whole_files(signal_name: &str) {
         lipcall()
             .arg("send")
             .arg(&demo)
-            .args(["--to", &addr.to_string()]),
+            .args(["--to", &receiver.addr()]),
     );
     // Mid-sentence: the demo lasts longer than this.
     std::thread::sleep(Duration::from_millis(2500));
-    signal(&receiver, signal_name);
-    finish(receiver, Duration::from_secs(10), "lipcall receive");
+    receiver.signal(signal_name);
+    let (_, stderr) = receiver.finish(Duration::from_secs(10), "lipcall receive");
     let _ = sender.kill();
     let _ = sender.wait();
-    let said: Vec<String> = stderr.try_iter().collect();
+    let said: Vec<&str> = stderr.lines().collect();
     assert!(
         said.iter().any(|l| l.contains("stopped by a signal")),
         "{said:?}"
@@ -152,10 +119,9 @@ fn sigterm_mid_call_leaves_a_whole_wav_and_csvs() {
 fn a_caller_silent_without_bye_has_left_after_the_peer_timeout() {
     let dir = tempfile::tempdir().unwrap();
     let wav = dir.path().join("out.wav");
-    let (receiver, addr, _stderr) =
-        start_receiver(&["--peer-timeout", "1", "--wav", wav.to_str().unwrap()]);
+    let receiver = start_receiver(&["--peer-timeout", "1", "--wav", wav.to_str().unwrap()]);
     let mut config = SessionConfig::new("127.0.0.1:0".parse().unwrap());
-    config.destinations = vec![addr];
+    config.destinations = vec![receiver.socket_addr()];
     // No RTCP: no BYE when it goes.
     config.send_rtcp = false;
     let session = Session::start(config).unwrap();
@@ -175,7 +141,7 @@ fn a_caller_silent_without_bye_has_left_after_the_peer_timeout() {
     drop(session);
     let gone = Instant::now();
     // Without the timeout it waited for a BYE that never comes.
-    finish(receiver, Duration::from_secs(15), "lipcall receive");
+    receiver.finish(Duration::from_secs(15), "lipcall receive");
     assert!(gone.elapsed() >= Duration::from_millis(900));
     let (rate, samples) = common::read_wav_i16(&wav);
     assert_eq!(rate, 8000);

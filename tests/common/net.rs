@@ -119,6 +119,15 @@ impl Listening {
         interrupt(&self.child);
     }
 
+    /// Sends the signal `name` (`INT`, `TERM`, ...) with kill(1).
+    pub fn signal(&self, name: &str) {
+        let status = Command::new("kill")
+            .args([&format!("-{name}"), &self.child.id().to_string()])
+            .status()
+            .expect("kill");
+        assert!(status.success());
+    }
+
     /// [`finish`], with the announcing stream whole: (stdout, stderr).
     pub fn finish(mut self, limit: Duration, what: &str) -> (String, String) {
         let deadline = Instant::now() + limit;
