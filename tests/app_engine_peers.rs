@@ -2,12 +2,12 @@
 //! and weight schedule went on growing with every caller, and a named peer is told apart from
 //! one known only by its CNAME (which changes with every run, so its choices are not saved).
 
+mod common;
+
 use std::time::{Duration, Instant};
 
 use lipcall::app::engine::{Engine, EngineConfig, lock};
 use lipcall::audio::DeviceChoice;
-use lipcall::codec::FRAME_SIZE;
-use lipcall::codec::any::{Codec, EncoderSettings, FrameEncoder, MAX_FRAME_PAYLOAD};
 use lipcall::net::session::{Session, SessionConfig};
 
 fn wait_for(what: &str, engine: &Engine, mut done: impl FnMut(&Engine) -> bool) {
@@ -27,19 +27,7 @@ fn caller(to: std::net::SocketAddr, name: Option<&str>) -> std::thread::JoinHand
         config.name = name;
         config.rtcp_interval = Duration::from_millis(200);
         let session = Session::start(config).unwrap();
-        let mut encoder = FrameEncoder::new(Codec::Speex, &EncoderSettings::default()).unwrap();
-        let mut payload = [0u8; MAX_FRAME_PAYLOAD];
-        let start = Instant::now();
-        for k in 0..50u32 {
-            let due = start + Duration::from_millis(20) * k;
-            if let Some(wait) = due.checked_duration_since(Instant::now()) {
-                std::thread::sleep(wait);
-            }
-            let frame: [i16; FRAME_SIZE] =
-                std::array::from_fn(|i| ((i as f32 * 0.2).sin() * 6000.0) as i16);
-            let (n, count) = encoder.encode(&frame, &mut payload).unwrap().unwrap();
-            session.send_frames(&payload[..n], count).unwrap();
-        }
+        common::net::talk(&session, 50);
         session.leave();
         session.ssrc()
     })

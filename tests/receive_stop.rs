@@ -11,7 +11,6 @@ use std::time::{Duration, Instant};
 use common::net::{Announce, Listening, spawn, spawn_listening};
 use common::{lipcall, repo_file};
 use lipcall::codec::FRAME_SIZE;
-use lipcall::codec::any::{Codec, EncoderSettings, FrameEncoder, MAX_FRAME_PAYLOAD};
 use lipcall::net::session::{Session, SessionConfig};
 
 /// `lipcall receive` on a port of its own choosing, its address read from what it prints.
@@ -125,19 +124,7 @@ fn a_caller_silent_without_bye_has_left_after_the_peer_timeout() {
     // No RTCP: no BYE when it goes.
     config.send_rtcp = false;
     let session = Session::start(config).unwrap();
-    let mut encoder = FrameEncoder::new(Codec::Speex, &EncoderSettings::default()).unwrap();
-    let mut payload = [0u8; MAX_FRAME_PAYLOAD];
-    let start = Instant::now();
-    for k in 0..50u32 {
-        let due = start + Duration::from_millis(20) * k;
-        if let Some(wait) = due.checked_duration_since(Instant::now()) {
-            std::thread::sleep(wait);
-        }
-        let frame: [i16; FRAME_SIZE] =
-            std::array::from_fn(|i| ((i as f32 * 0.3).sin() * 8000.0) as i16);
-        let (n, count) = encoder.encode(&frame, &mut payload).unwrap().unwrap();
-        session.send_frames(&payload[..n], count).unwrap();
-    }
+    common::net::talk(&session, 50);
     drop(session);
     let gone = Instant::now();
     // Without the timeout it waited for a BYE that never comes.

@@ -359,3 +359,21 @@ pub fn num(fields: &std::collections::HashMap<String, String>, key: &str) -> f64
         .and_then(|v| v.parse().ok())
         .unwrap_or_else(|| panic!("no numeric {key} in {fields:?}"))
 }
+
+/// Sends `frames` 20 ms Speex frames of a steady tone from `session`, each at its time.
+pub fn talk(session: &lipcall::net::session::Session, frames: u32) {
+    use lipcall::codec::any::{Codec, EncoderSettings, FrameEncoder, MAX_FRAME_PAYLOAD};
+    let mut encoder = FrameEncoder::new(Codec::Speex, &EncoderSettings::default()).unwrap();
+    let mut payload = [0u8; MAX_FRAME_PAYLOAD];
+    let start = Instant::now();
+    for k in 0..frames {
+        let due = start + Duration::from_millis(20) * k;
+        if let Some(wait) = due.checked_duration_since(Instant::now()) {
+            std::thread::sleep(wait);
+        }
+        let frame: [i16; FRAME_SIZE] =
+            std::array::from_fn(|i| ((i as f32 * 0.3).sin() * 8000.0) as i16);
+        let (n, count) = encoder.encode(&frame, &mut payload).unwrap().unwrap();
+        session.send_frames(&payload[..n], count).unwrap();
+    }
+}
