@@ -123,8 +123,10 @@ pub struct Packet<'a> {
     pub toc: Toc,
     data: &'a [u8],
     count: usize,
-    offsets: [usize; MAX_FRAMES],
-    sizes: [usize; MAX_FRAMES],
+    /// Where the first frame starts; the others follow it back to back.
+    start: usize,
+    /// Frame sizes, each at most `MAX_FRAME_BYTES` (small, as the packet is copied per call).
+    sizes: [u16; MAX_FRAMES],
     /// Padding bytes of a code 3 packet (not part of any frame).
     pub padding: usize,
 }
@@ -138,24 +140,24 @@ impl<'a> Packet<'a> {
             toc,
             data,
             count: 0,
-            offsets: [0; MAX_FRAMES],
+            start: 0,
             sizes: [0; MAX_FRAMES],
             padding: 0,
         };
-        let mut sizes = [0usize; MAX_FRAMES];
+        let sizes = &mut packet.sizes;
         let count;
         match toc.code {
             0 => {
                 count = 1;
-                sizes[0] = rest.len();
+                sizes[0] = frame_size(rest.len())?;
             }
             1 => {
                 if rest.len() % 2 != 0 {
                     return Err(PacketError::OddCbrPayload { bytes: rest.len() });
                 }
                 count = 2;
-                sizes[0] = rest.len() / 2;
-                sizes[1] = rest.len() / 2;
+                sizes[0] = frame_size(rest.len() / 2)?;
+                sizes[1] = sizes[0];
             }
             2 => {
                 count = 2;
@@ -167,8 +169,8 @@ impl<'a> Packet<'a> {
                         bytes: first,
                     });
                 }
-                sizes[0] = first;
-                sizes[1] = rest.len() - first;
+                sizes[0] = frame_size(first)?;
+                sizes[1] = frame_size(rest.len() - first)?;
             }
             _ => {
                 let (&frame_count, after) =
@@ -212,9 +214,9 @@ impl<'a> Packet<'a> {
                                 bytes: length,
                             });
                         }
-                        *size = length;
+                        *size = frame_size(length)?;
                     }
-                    sizes[count - 1] = rest.len() - total;
+                    sizes[count - 1] = frame_size(rest.len() - total)?;
                 } else {
                     if rest.len() % count != 0 {
                         return Err(PacketError::UnevenCbrPayload {
@@ -222,21 +224,12 @@ impl<'a> Packet<'a> {
                             count,
                         });
                     }
-                    for size in sizes.iter_mut().take(count) {
-                        *size = rest.len() / count;
-                    }
+                    let size = frame_size(rest.len() / count)?;
+                    sizes[..count].fill(size);
                 }
             }
         }
-        let mut offset = data.len() - packet.padding - rest.len();
-        for (i, &size) in sizes.iter().enumerate().take(count) {
-            if size > MAX_FRAME_BYTES {
-                return Err(PacketError::FrameTooLong { bytes: size });
-            }
-            packet.offsets[i] = offset;
-            packet.sizes[i] = size;
-            offset += size;
-        }
+        packet.start = data.len() - packet.padding - rest.len();
         packet.count = count;
         Ok(packet)
     }
@@ -250,9 +243,9 @@ impl<'a> Packet<'a> {
         if index >= self.count {
             return None;
         }
-        let start = *self.offsets.get(index)?;
-        let size = *self.sizes.get(index)?;
-        self.data.get(start..start + size)
+        let before: usize = self.sizes[..index].iter().map(|&s| usize::from(s)).sum();
+        let start = self.start + before;
+        self.data.get(start..start + usize::from(self.sizes[index]))
     }
 
     pub fn frames(&self) -> impl ExactSizeIterator<Item = &'a [u8]> + '_ {
@@ -262,6 +255,14 @@ impl<'a> Packet<'a> {
     /// Total duration in 48 kHz samples.
     pub fn samples_48k(&self) -> u32 {
         self.count as u32 * self.toc.frame_samples_48k()
+    }
+}
+
+/// A frame's size, refused past the largest a frame may be (3.4, R2).
+fn frame_size(bytes: usize) -> Result<u16, PacketError> {
+    match u16::try_from(bytes) {
+        Ok(size) if bytes <= MAX_FRAME_BYTES => Ok(size),
+        _ => Err(PacketError::FrameTooLong { bytes }),
     }
 }
 
