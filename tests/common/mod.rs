@@ -2,6 +2,7 @@
 #![allow(dead_code)]
 
 pub mod glb_write;
+pub mod janus;
 
 use std::path::{Path, PathBuf};
 use std::process::{Command, Output};
