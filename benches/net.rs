@@ -9,7 +9,7 @@ use criterion::{Criterion, Throughput, criterion_group, criterion_main};
 use lipcall::audio::wav;
 use lipcall::codec::speex::FRAME_SIZE;
 use lipcall::codec::speex::codec::{Encoder, EncoderConfig, MAX_PACKET_BYTES};
-use lipcall::net::control::{Control, ControlKind, RoomId};
+use lipcall::net::control::{Control, ControlKind, Cookie, RoomId};
 use lipcall::net::jitter::JitterConfig;
 use lipcall::net::peer::PeerReceiver;
 use lipcall::net::relay::{RelayConfig, RelayCore};
@@ -33,6 +33,21 @@ fn one_second_of_speech() -> Vec<Vec<u8>> {
         .collect()
 }
 
+/// Members joined as a client joins: a join, then the relay's cookie echoed.
+fn join(core: &mut RelayCore, room: RoomId, members: &[SocketAddr], now: Instant) {
+    for &m in members {
+        let mut cookie = Cookie::NONE;
+        let request = Control::new(ControlKind::Join, room, Cookie::NONE).encode();
+        core.handle(&request, m, now, |d, _| {
+            cookie = Control::decode(d).map_or(Cookie::NONE, |c| c.cookie);
+            true
+        });
+        let confirm = Control::new(ControlKind::Confirm, room, cookie).encode();
+        core.handle(&confirm, m, now, |_, _| true);
+    }
+    assert_eq!(core.stats().members, members.len());
+}
+
 fn relay_forwarding(c: &mut Criterion) {
     let now = Instant::now();
     let config = RelayConfig {
@@ -41,11 +56,6 @@ fn relay_forwarding(c: &mut Criterion) {
         ..Default::default()
     };
     let room = RoomId::from_name("bench");
-    let join = Control {
-        kind: ControlKind::Join,
-        room,
-    }
-    .encode();
     let members: Vec<SocketAddr> = (0..3)
         .map(|i| SocketAddr::from(([127, 0, 0, 1], 40000 + i)))
         .collect();
@@ -58,9 +68,7 @@ fn relay_forwarding(c: &mut Criterion) {
     group.throughput(Throughput::Elements(1));
     group.bench_function("forward to 2 members (core, no I/O)", |b| {
         let mut core = RelayCore::new(config, now);
-        for &m in &members {
-            core.handle(&join, m, now, |_, _| true);
-        }
+        join(&mut core, room, &members, now);
         b.iter(|| {
             core.handle(black_box(&packet), members[0], now, |d, to| {
                 black_box((d, to));
@@ -75,9 +83,7 @@ fn relay_forwarding(c: &mut Criterion) {
     let out = UdpSocket::bind("127.0.0.1:0").unwrap();
     group.bench_function("forward to 2 members (with sendto)", |b| {
         let mut core = RelayCore::new(config, now);
-        for &m in &members {
-            core.handle(&join, m, now, |_, _| true);
-        }
+        join(&mut core, room, &members, now);
         b.iter(|| {
             core.handle(black_box(&packet), members[0], now, |d, _| {
                 out.send_to(d, sink_addr).is_ok()

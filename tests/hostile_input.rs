@@ -758,29 +758,28 @@ fn oversized_datagrams_are_dropped_and_counted_not_parsed_truncated() {
 
 #[test]
 fn the_relay_drops_oversized_datagrams_instead_of_forwarding_them_cut() {
-    use lipcall::net::control::{Control, ControlKind, RoomId};
+    use lipcall::net::control::{Control, ControlKind, Cookie, RoomId};
     use std::io::Read;
     let (mut child, relay, mut stderr) = spawn_listening(
         &["relay", "--listen", "127.0.0.1:0", "--seconds", "1.5"],
         "relay listening on ",
     );
-    let join = Control {
-        kind: ControlKind::Join,
-        room: RoomId::from_name("hostile"),
-    }
-    .encode();
+    let room = RoomId::from_name("hostile");
     let members: Vec<std::net::UdpSocket> = (0..2)
         .map(|_| {
             let s = std::net::UdpSocket::bind("127.0.0.1:0").unwrap();
             s.set_read_timeout(Some(Duration::from_millis(500)))
                 .unwrap();
-            s.send_to(&join, relay).unwrap();
             let mut buf = [0u8; 64];
-            let (n, _) = s.recv_from(&mut buf).expect("the relay answers a join");
-            assert_eq!(
-                Control::decode(&buf[..n]).map(|c| c.kind),
-                Ok(ControlKind::Joined)
-            );
+            // Join, then echo the relay's cookie.
+            let mut request = Control::new(ControlKind::Join, room, Cookie::NONE);
+            for answer in [ControlKind::Challenge, ControlKind::Joined] {
+                s.send_to(&request.encode(), relay).unwrap();
+                let (n, _) = s.recv_from(&mut buf).expect("the relay answers a join");
+                let got = Control::decode(&buf[..n]).unwrap();
+                assert_eq!(got.kind, answer);
+                request = Control::new(ControlKind::Confirm, room, got.cookie);
+            }
             s
         })
         .collect();

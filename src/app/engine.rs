@@ -30,6 +30,8 @@ use crate::render::head::FacePose;
 use super::settings::{DEFAULT_CODEC, PeerPrefs};
 
 const TICK: Duration = Duration::from_millis(20);
+/// How long a relay may take to confirm our place in its room before the call says so.
+const RELAY_CONFIRM_WAIT: Duration = Duration::from_secs(3);
 /// Name the demo peer announces (SDES), so the UI can tell it apart.
 pub const DEMO_NAME: &str = "Demo speaker";
 const DEMO_WAV: &[u8] = include_bytes!("../../assets/speech/demo.wav");
@@ -494,6 +496,8 @@ struct Worker {
     peers: HashMap<u32, PeerState>,
     /// The session has destinations: the microphone is sent.
     in_call: bool,
+    /// While the relay has not confirmed our place in its room: when to say so.
+    relay_deadline: Option<Instant>,
 }
 
 fn resolve(addr: &str) -> anyhow::Result<SocketAddr> {
@@ -529,6 +533,7 @@ impl Worker {
             mic: None,
             peers: HashMap::new(),
             in_call: false,
+            relay_deadline: None,
             config,
             shared,
             counters,
@@ -628,6 +633,7 @@ impl Worker {
         self.session = session;
         self.encoder = encoder;
         self.in_call = true;
+        self.relay_deadline = room.as_ref().map(|_| Instant::now() + RELAY_CONFIRM_WAIT);
         self.drop_peers();
         let encrypted = self.session.encrypted();
         let mut s = lock(&self.shared);
@@ -726,9 +732,21 @@ impl Worker {
                 let stats = self.session.stats();
                 let mut s = lock(&self.shared);
                 s.call.unknown_payload = stats.unknown_payload;
-                if self.in_call && stats.relay_refused {
-                    s.call.error =
-                        Some("the relay refused to join the room (full, or too many rooms)".into());
+                if self.in_call
+                    && let Some(why) = stats.relay_refusal
+                {
+                    s.call.error = Some(format!("the relay refused to join the room: {why}"));
+                    self.relay_deadline = None;
+                }
+                if stats.relay_joined || !self.in_call {
+                    self.relay_deadline = None;
+                } else if self.relay_deadline.is_some_and(|d| Instant::now() >= d) {
+                    s.call.error = Some(
+                        "the relay has not confirmed the join (no relay there, or one of an \
+                         older lipcall version)"
+                            .into(),
+                    );
+                    self.relay_deadline = None;
                 }
             }
             self.process(&frames, &infos, refresh);

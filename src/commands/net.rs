@@ -246,19 +246,33 @@ pub fn send(args: &SendArgs) -> Result<()> {
     Ok(())
 }
 
+/// Until the relay confirms our place in the room (its join handshake runs in the session).
 fn wait_for_relay(session: &Session) -> Result<()> {
     let deadline = Instant::now() + Duration::from_secs(3);
     while Instant::now() < deadline {
         let stats = session.stats();
-        if stats.relay_refused {
-            bail!("the relay refused to join the room (full, or too many rooms)");
+        if let Some(why) = stats.relay_refusal {
+            bail!("the relay refused to join the room: {why}");
         }
         if stats.relay_joined {
             return Ok(());
         }
         std::thread::sleep(Duration::from_millis(10));
     }
-    bail!("the relay did not answer the join within 3 s")
+    let stats = session.stats();
+    if stats.relay_outdated {
+        bail!("the relay speaks another protocol version: update lipcall on both sides");
+    }
+    if stats.relay_challenges > 0 {
+        bail!(
+            "the relay sent a cookie but never confirmed the join within 3 s (are replies from \
+             this address reaching it?)"
+        );
+    }
+    bail!(
+        "the relay did not answer the join within 3 s (no relay there, or one of an older \
+         lipcall version)"
+    )
 }
 
 pub(crate) fn print_peer(peer: &PeerInfo) {
@@ -601,16 +615,22 @@ pub fn relay(listen: &str, seconds: Option<f64>) -> Result<()> {
 fn print_relay(relay: &Relay) {
     let s = relay.stats();
     eprintln!(
-        "relay rooms={} members={} datagrams={} forwarded={} copies={} joins={} refused={} \
-         expired={} unknown_source={} malformed={} rate_limited={}",
+        "relay rooms={} members={} datagrams={} forwarded={} copies={} challenges={} joins={} \
+         refused={} source_limited={} leaves={} expired={} bad_cookie={} outdated={} \
+         unknown_source={} malformed={} rate_limited={}",
         s.rooms,
         s.members,
         s.datagrams,
         s.forwarded,
         s.copies,
+        s.challenges,
         s.joins,
         s.refused,
+        s.source_limited,
+        s.leaves,
         s.expired,
+        s.bad_cookie,
+        s.outdated,
         s.unknown_source,
         s.malformed,
         s.rate_limited

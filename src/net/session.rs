@@ -22,7 +22,7 @@ use std::sync::{Arc, Mutex, MutexGuard};
 use std::thread::JoinHandle;
 use std::time::{Duration, Instant};
 
-use super::control::{Control, ControlKind, RoomId};
+use super::control::{Control, ControlError, ControlKind, Cookie, Refusal, RoomId};
 use super::jitter::JitterConfig;
 use super::peer::{PeerReceiver, PlayedFrame, ReceiverStats};
 use super::rtcp::{self, Outgoing, ReportBlock, RtcpItem, SenderInfo};
@@ -113,8 +113,14 @@ pub struct SessionStats {
     pub sent_rtp: u64,
     pub sent_rtcp: u64,
     pub send_errors: u64,
+    /// The relay confirmed our place in the room.
     pub relay_joined: bool,
-    pub relay_refused: bool,
+    /// Why the relay last turned our join down (cleared when it confirms one).
+    pub relay_refusal: Option<Refusal>,
+    /// Cookies the relay sent us to confirm our address with.
+    pub relay_challenges: u64,
+    /// The relay speaks another protocol version (an outdated lipcall on one side).
+    pub relay_outdated: bool,
 }
 
 /// What the session knows about one remote peer.
@@ -150,6 +156,8 @@ const IDLE_EVICT: Duration = Duration::from_secs(5);
 const MOVE_PACKETS: u32 = 3;
 /// Start hints (SRs sent before a stream's first packet) kept for peers not yet created.
 const PENDING_STARTS: usize = 8;
+/// How soon an unanswered relay join is sent again.
+const JOIN_RETRY: Duration = Duration::from_millis(500);
 /// Names (SDES sent before a stream's first packet, as every sender's first RTCP is) kept for
 /// peers not yet created: without them a caller stays nameless until its next report.
 const PENDING_NAMES: usize = 8;
@@ -230,10 +238,23 @@ struct Rx {
     /// peers: (ssrc, RTP timestamp, from, arrival).
     pending_starts: Vec<(u32, u32, SocketAddr, Instant)>,
     pending_names: Vec<PendingNames>,
+    relay: RelayLink,
+}
+
+/// Our side of the relay's join handshake (see [`super::control`]).
+#[derive(Default)]
+struct RelayLink {
+    /// The relay's cookie for our address: echoed to join, in keepalives and in the leave.
+    cookie: Option<Cookie>,
+    /// A join or keepalive is unanswered: a challenge now is the relay's answer to it, not
+    /// one provoked by someone else's forged join in our name.
+    awaiting: bool,
 }
 
 struct Shared {
     config: SessionConfig,
+    /// The relay room's id, when the session joins one.
+    room: Option<RoomId>,
     socket: UdpSocket,
     epoch: Instant,
     ssrc: u32,
@@ -267,7 +288,7 @@ impl Session {
         let (shared, reader) = Shared::new(config)?;
         let shared = Arc::new(shared);
         if shared.config.room.is_some() {
-            shared.send_control(ControlKind::Join);
+            shared.request_place();
         }
         let thread_shared = Arc::clone(&shared);
         let thread = std::thread::Builder::new()
@@ -399,7 +420,7 @@ impl Session {
             self.shared.send_report(ReportKind::Bye);
         }
         if self.shared.config.room.is_some() {
-            self.shared.send_control(ControlKind::Leave);
+            self.shared.leave_room();
         }
     }
 }
@@ -461,7 +482,9 @@ impl Shared {
                 stats: SessionStats::default(),
                 pending_starts: Vec::with_capacity(PENDING_STARTS),
                 pending_names: Vec::with_capacity(PENDING_NAMES),
+                relay: RelayLink::default(),
             }),
+            room: config.room.as_deref().map(RoomId::from_name),
             stop: AtomicBool::new(false),
             socket,
             config,
@@ -481,17 +504,75 @@ impl Shared {
         counts
     }
 
-    fn send_control(&self, kind: ControlKind) {
-        let Some(room) = &self.config.room else {
-            return;
-        };
-        let msg = Control {
-            kind,
-            room: RoomId::from_name(room),
-        }
-        .encode();
+    fn send_to_relay(&self, control: Control) {
         if let Some(relay) = self.config.destinations.first() {
-            let _ = self.socket.send_to(&msg, relay);
+            let _ = self.socket.send_to(&control.encode(), relay);
+        }
+    }
+
+    /// Asks the relay for our place in the room: a join, or (with its cookie) the confirm that
+    /// is also the keepalive.
+    fn request_place(&self) {
+        let Some(room) = self.room else { return };
+        let mut rx = lock(&self.rx);
+        rx.relay.awaiting = true;
+        let request = match rx.relay.cookie {
+            Some(cookie) => Control::new(ControlKind::Confirm, room, cookie),
+            None => Control::new(ControlKind::Join, room, Cookie::NONE),
+        };
+        drop(rx);
+        self.send_to_relay(request);
+    }
+
+    fn leave_room(&self) {
+        let Some(room) = self.room else { return };
+        let cookie = lock(&self.rx).relay.cookie;
+        if let Some(cookie) = cookie {
+            self.send_to_relay(Control::new(ControlKind::Leave, room, cookie));
+        }
+    }
+
+    /// The relay's answers; anything else (not from the relay, another room, a cookie that is
+    /// not ours) is ignored.
+    fn handle_control(&self, rx: &mut Rx, data: &[u8], from: SocketAddr) {
+        let from_relay = self.room.is_some() && self.config.destinations.first() == Some(&from);
+        let control = match Control::decode(data) {
+            Ok(control) if from_relay && Some(control.room) == self.room => control,
+            Ok(_) => {
+                rx.stats.unknown += 1;
+                return;
+            }
+            Err(ControlError::Version(_)) if from_relay => {
+                rx.stats.relay_outdated = true;
+                rx.stats.malformed += 1;
+                return;
+            }
+            Err(_) => {
+                rx.stats.malformed += 1;
+                return;
+            }
+        };
+        let ours = rx.relay.cookie.is_some_and(|c| c.matches(&control.cookie));
+        match control.kind {
+            ControlKind::Challenge if rx.relay.awaiting => {
+                rx.stats.relay_challenges += 1;
+                rx.relay.cookie = Some(control.cookie);
+                self.send_to_relay(Control::new(
+                    ControlKind::Confirm,
+                    control.room,
+                    control.cookie,
+                ));
+            }
+            ControlKind::Joined if ours => {
+                rx.relay.awaiting = false;
+                rx.stats.relay_joined = true;
+                rx.stats.relay_refusal = None;
+            }
+            ControlKind::Refused(why) if ours => {
+                rx.relay.awaiting = false;
+                rx.stats.relay_refusal = Some(why);
+            }
+            _ => rx.stats.unknown += 1,
         }
     }
 
@@ -587,15 +668,7 @@ impl Shared {
         match classify(data) {
             DatagramKind::Control => {
                 rx.stats.control += 1;
-                match Control::decode(data) {
-                    Ok(c) if self.config.destinations.first() == Some(&from) => match c.kind {
-                        ControlKind::Joined => rx.stats.relay_joined = true,
-                        ControlKind::Refused => rx.stats.relay_refused = true,
-                        _ => rx.stats.unknown += 1,
-                    },
-                    Ok(_) => rx.stats.unknown += 1,
-                    Err(_) => rx.stats.malformed += 1,
-                }
+                self.handle_control(&mut rx, data, from);
             }
             DatagramKind::Rtcp => {
                 rx.stats.rtcp += 1;
@@ -902,7 +975,7 @@ fn net_loop(shared: &Shared, socket: &UdpSocket) {
     let mut buf = vec![0u8; MAX_DATAGRAM + 64 + 1];
     let mut datagram = Vec::with_capacity(MAX_DATAGRAM + 64);
     let mut next_report = Instant::now() + jittered(shared.config.rtcp_interval);
-    let mut next_keepalive = Instant::now() + shared.config.keepalive_interval;
+    let mut next_keepalive = Instant::now() + shared.config.keepalive_interval.min(JOIN_RETRY);
     let mut next_expiry = Instant::now() + Duration::from_secs(1);
     while !shared.stop.load(Ordering::Relaxed) {
         match socket.recv_from(&mut buf) {
@@ -931,9 +1004,19 @@ fn net_loop(shared: &Shared, socket: &UdpSocket) {
         }
         if now >= next_keepalive {
             if !lock(&shared.tx).left {
-                shared.send_control(ControlKind::Join);
+                shared.request_place();
             }
-            next_keepalive = now + shared.config.keepalive_interval;
+            // Until the relay confirms a place, the join is retried sooner (a lost datagram).
+            let joining = {
+                let rx = lock(&shared.rx);
+                !rx.stats.relay_joined && rx.stats.relay_refusal.is_none()
+            };
+            let interval = if joining {
+                shared.config.keepalive_interval.min(JOIN_RETRY)
+            } else {
+                shared.config.keepalive_interval
+            };
+            next_keepalive = now + interval;
         }
         if now >= next_expiry {
             shared.expire(now);
