@@ -54,7 +54,11 @@ fn the_engine_joins_an_encrypted_room_and_animates_a_sender() {
     loop {
         {
             let s = lock(&engine.shared);
-            assert!(s.call.encrypted, "the call is not encrypted");
+            assert_eq!(
+                s.call.encryption,
+                lipcall::app::engine::Encryption::EndToEnd,
+                "the call is not encrypted"
+            );
             assert!(s.call.error.is_none(), "{:?}", s.call.error);
             assert_eq!(s.call.codec, Some(Codec::Opus));
             if let Some(p) = s.peers.iter().find(|p| p.name == "Mallory")

@@ -22,8 +22,12 @@ use crate::lipsync::life::{DEFAULT_SEED, LifeGenerator};
 use crate::lipsync::network::MAX_LOOKAHEAD;
 use crate::lipsync::visemes::{FullWeights, VisemeSet};
 use crate::lipsync::{LipSync, LipSyncOptions};
+use crate::net::janus::room::{Notice, RoomConfig};
+use crate::net::jitter::JitterConfig;
 use crate::net::peer::FrameKind;
 use crate::net::session::{PeerFrame, PeerInfo, Session, SessionConfig};
+
+use super::link::{JanusLink, Link, RoomNews, is_janus_url};
 use crate::net::srtp::MasterKey;
 use crate::render::head::FacePose;
 
@@ -107,13 +111,25 @@ pub struct PeerView {
     pub unknown_payload: u64,
 }
 
+/// Who can hear the call besides its members.
+#[derive(Debug, Clone, Copy, Default, PartialEq, Eq)]
+pub enum Encryption {
+    /// Plain RTP: anyone on the path.
+    #[default]
+    None,
+    /// lipcall's SRTP with the room passphrase: only those who know it (a relay cannot).
+    EndToEnd,
+    /// WebRTC's DTLS-SRTP through a Janus server: the server decrypts and can hear it.
+    HopByHop,
+}
+
 /// The call as the UI shows it.
 #[derive(Debug, Clone, Default)]
 pub struct CallStatus {
     /// Human-readable state ("idle, listening on ..", "in call with ..").
     pub state: String,
     pub in_call: bool,
-    pub encrypted: bool,
+    pub encryption: Encryption,
     /// The codec we send in the call.
     pub codec: Option<Codec>,
     pub local_addr: Option<SocketAddr>,
@@ -488,7 +504,7 @@ struct Worker {
     shared: Arc<Mutex<Shared>>,
     counters: Arc<EngineCounters>,
     commands: Receiver<Command>,
-    session: Session,
+    link: Link,
     demo: Option<Demo>,
     mic: Option<Capture>,
     /// The microphone's encoder, for the codec of the current call.
@@ -525,10 +541,10 @@ impl Worker {
         counters: Arc<EngineCounters>,
         commands: Receiver<Command>,
     ) -> anyhow::Result<Self> {
-        let session = idle_session(&config)?;
+        let link = Link::Session(idle_session(&config)?);
         let mut worker = Self {
             encoder: FrameEncoder::new(DEFAULT_CODEC, &EncoderSettings::default())?,
-            session,
+            link,
             demo: None,
             mic: None,
             peers: HashMap::new(),
@@ -549,10 +565,10 @@ impl Worker {
     }
 
     fn start_demo(&mut self) {
-        let addr = match self.session.local_addr() {
-            Ok(a) if a.ip().is_unspecified() => SocketAddr::from(([127, 0, 0, 1], a.port())),
-            Ok(a) => a,
-            Err(_) => return,
+        let addr = match self.link.local_addr() {
+            Some(a) if a.ip().is_unspecified() => SocketAddr::from(([127, 0, 0, 1], a.port())),
+            Some(a) => a,
+            None => return,
         };
         match Demo::start(addr) {
             Ok(d) => self.demo = Some(d),
@@ -584,7 +600,7 @@ impl Worker {
     }
 
     fn set_idle_status(&self) {
-        let addr = self.session.local_addr().ok();
+        let addr = self.link.local_addr();
         let mut s = lock(&self.shared);
         s.call = CallStatus {
             state: match addr {
@@ -592,7 +608,7 @@ impl Worker {
                 None => "not in a call".into(),
             },
             in_call: false,
-            encrypted: false,
+            encryption: Encryption::None,
             codec: None,
             local_addr: addr,
             error: s.call.error.take(),
@@ -601,6 +617,9 @@ impl Worker {
     }
 
     fn call(&mut self, spec: &CallSpec) -> anyhow::Result<()> {
+        if is_janus_url(&spec.address) {
+            return self.join_janus(spec);
+        }
         let to = resolve(&spec.address)?;
         let room = spec.room.clone().filter(|r| !r.trim().is_empty());
         let key = spec
@@ -622,20 +641,16 @@ impl Worker {
         sc.room = room.clone();
         sc.key = key;
         sc.codec = spec.codec;
-        sc.name = Some(if spec.name.trim().is_empty() {
-            self.config.name.clone()
-        } else {
-            spec.name.clone()
-        });
+        sc.name = Some(self.call_name(spec));
         let session = Session::start(sc)?;
-        self.session.leave();
-        self.demo = None;
-        self.session = session;
-        self.encoder = encoder;
-        self.in_call = true;
+        let encryption = if session.encrypted() {
+            Encryption::EndToEnd
+        } else {
+            Encryption::None
+        };
+        let local_addr = session.local_addr().ok();
+        self.switch_link(Link::Session(session), encoder);
         self.relay_deadline = room.as_ref().map(|_| Instant::now() + RELAY_CONFIRM_WAIT);
-        self.drop_peers();
-        let encrypted = self.session.encrypted();
         let mut s = lock(&self.shared);
         s.call = CallStatus {
             state: match &room {
@@ -643,20 +658,102 @@ impl Worker {
                 None => format!("calling {to}, sending {}", spec.codec),
             },
             in_call: true,
-            encrypted,
+            encryption,
             codec: Some(spec.codec),
-            local_addr: self.session.local_addr().ok(),
+            local_addr,
             error: None,
             unknown_payload: 0,
         };
         Ok(())
     }
 
+    /// A room on a Janus server: WebRTC speaks Opus, whatever the settings' codec.
+    fn join_janus(&mut self, spec: &CallSpec) -> anyhow::Result<()> {
+        let url = spec.address.trim().to_owned();
+        let room = spec
+            .room
+            .clone()
+            .filter(|r| !r.trim().is_empty())
+            .ok_or_else(|| anyhow::anyhow!("a Janus server needs a room name"))?;
+        let config = RoomConfig {
+            url: url.clone(),
+            room: room.clone(),
+            name: self.call_name(spec),
+            pin: spec.passphrase.clone().filter(|p| !p.is_empty()),
+            subscribe: true,
+            jitter: JitterConfig::default(),
+        };
+        let link = Link::Janus(Box::new(JanusLink::join(config)?));
+        let encoder = FrameEncoder::new(Codec::Opus, &EncoderSettings::default())?;
+        self.switch_link(link, encoder);
+        self.relay_deadline = None;
+        let mut s = lock(&self.shared);
+        s.call = CallStatus {
+            state: format!("joining Janus room {room:?} on {url}…"),
+            in_call: true,
+            encryption: Encryption::HopByHop,
+            codec: Some(Codec::Opus),
+            local_addr: None,
+            error: None,
+            unknown_payload: 0,
+        };
+        Ok(())
+    }
+
+    fn call_name(&self, spec: &CallSpec) -> String {
+        if spec.name.trim().is_empty() {
+            self.config.name.clone()
+        } else {
+            spec.name.clone()
+        }
+    }
+
+    /// Hangs up the current link (and the demo) for a call's.
+    fn switch_link(&mut self, link: Link, encoder: FrameEncoder) {
+        self.link.leave();
+        self.demo = None;
+        self.link = link;
+        self.encoder = encoder;
+        self.in_call = true;
+        self.drop_peers();
+    }
+
+    /// What a Janus room did: joined, failed to, publishers and lost sessions.
+    fn follow_room(&mut self) {
+        for news in self.link.poll() {
+            let mut s = lock(&self.shared);
+            match news {
+                RoomNews::Joined { id } => {
+                    if let Some(state) = s.call.state.strip_prefix("joining ") {
+                        s.call.state = format!("in {}", state.trim_end_matches('…'));
+                    }
+                    s.call.state.push_str(&format!(" as {id}, sending opus"));
+                }
+                RoomNews::Failed(reason) => {
+                    drop(s);
+                    if let Err(e) = self.leave() {
+                        tracing::warn!("back to listening: {e:#}");
+                    }
+                    lock(&self.shared).call.error = Some(format!("Janus room: {reason}"));
+                    return;
+                }
+                RoomNews::Notice(Notice::Lost { reason }) => {
+                    s.call.error = Some(format!("lost the Janus room ({reason}); rejoining"));
+                }
+                RoomNews::Notice(Notice::RejoinFailed { reason }) => {
+                    s.call.error = Some(format!("cannot rejoin the Janus room yet: {reason}"));
+                }
+                RoomNews::Notice(Notice::Rejoined { .. }) => s.call.error = None,
+                RoomNews::Notice(Notice::Joined { .. } | Notice::Left { .. }) => {}
+            }
+        }
+    }
+
     fn leave(&mut self) -> anyhow::Result<()> {
-        self.session.leave();
+        self.link.leave();
         self.in_call = false;
         self.drop_peers();
-        self.session = idle_session(&self.config)?;
+        self.link = Link::Session(idle_session(&self.config)?);
         self.set_idle_status();
         Ok(())
     }
@@ -723,22 +820,23 @@ impl Worker {
                 demo.tick();
             }
             self.send_mic();
+            self.follow_room();
             frames.clear();
-            self.session.pull(Instant::now(), &mut frames);
+            self.link.pull(Instant::now(), &mut frames);
             self.counters.ticks.fetch_add(1, Ordering::Relaxed);
             let refresh = tick.is_multiple_of(10);
             if refresh {
-                infos = self.session.peers();
-                let stats = self.session.stats();
+                infos = self.link.peers();
+                let stats = self.link.session().map(Session::stats).unwrap_or_default();
                 let mut s = lock(&self.shared);
-                s.call.unknown_payload = stats.unknown_payload;
+                s.call.unknown_payload = self.link.unknown_payload();
                 if self.in_call
                     && let Some(why) = stats.relay_refusal
                 {
                     s.call.error = Some(format!("the relay refused to join the room: {why}"));
                     self.relay_deadline = None;
                 }
-                if stats.relay_joined || !self.in_call {
+                if stats.relay_joined || !self.in_call || self.link.session().is_none() {
                     self.relay_deadline = None;
                 } else if self.relay_deadline.is_some_and(|d| Instant::now() >= d) {
                     s.call.error = Some(
@@ -751,7 +849,7 @@ impl Worker {
             }
             self.process(&frames, &infos, refresh);
         }
-        self.session.leave();
+        self.link.leave();
     }
 
     fn send_mic(&mut self) {
@@ -763,12 +861,12 @@ impl Worker {
             match mic.read_frame(&mut frame) {
                 Ok(Some(Gate::Open)) if in_call => {
                     if let Ok(Some((n, frames))) = self.encoder.encode(&frame, &mut payload) {
-                        let _ = self.session.send_frames(&payload[..n], frames);
+                        self.link.send_frames(&payload[..n], frames);
                     }
                 }
                 Ok(Some(_)) => {
                     if in_call {
-                        self.session.skip_frames(1);
+                        self.link.skip_frames(1);
                     }
                 }
                 Ok(None) => break,

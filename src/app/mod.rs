@@ -5,6 +5,7 @@
 //! the sessions, the microphone and the per-peer animation at 20 ms.
 
 pub mod engine;
+mod link;
 pub mod settings;
 pub mod tiles;
 
@@ -412,7 +413,7 @@ fn call_ui(
         ui.label("Address");
         ui.add(
             egui::TextEdit::singleline(&mut form.address)
-                .hint_text("host:port")
+                .hint_text("host:port or Janus URL")
                 .desired_width(150.0),
         );
         ui.label("Room");
@@ -454,11 +455,22 @@ fn call_ui(
             engine.send(Command::Leave);
         }
         ui.separator();
-        if call.encrypted {
-            ui.colored_label(egui::Color32::LIGHT_GREEN, "encrypted (SRTP)");
-        } else {
-            ui.colored_label(egui::Color32::from_rgb(230, 160, 60), "NOT encrypted");
-        }
+        let warn = egui::Color32::from_rgb(230, 160, 60);
+        match call.encryption {
+            engine::Encryption::EndToEnd => {
+                ui.colored_label(egui::Color32::LIGHT_GREEN, "encrypted end to end (SRTP)")
+            }
+            engine::Encryption::HopByHop => ui
+                .colored_label(
+                    warn,
+                    "encrypted hop by hop: the Janus server can hear the call",
+                )
+                .on_hover_text(
+                    "WebRTC encrypts each link (DTLS-SRTP). Janus decrypts every stream it \
+                     forwards; only lipcall's own rooms with a passphrase are end to end.",
+                ),
+            engine::Encryption::None => ui.colored_label(warn, "NOT encrypted"),
+        };
         ui.label(&call.state);
         if call.unknown_payload > 0 {
             ui.colored_label(

@@ -91,6 +91,7 @@ enum Command {
         payload: Vec<u8>,
         ticks: u32,
     },
+    Skip(u32),
     Close,
 }
 
@@ -231,6 +232,13 @@ impl Media {
                 ticks,
             })
             .map_err(|_| JanusError::Media("the media thread has stopped".into()))
+    }
+
+    /// Moves the published stream's RTP clock on by `ticks` (48 kHz) without sending: a
+    /// silent gap that the subscribers play as silence, not loss.
+    pub fn skip(&self, ticks: u32) {
+        // A stopped media thread has nothing to skip.
+        let _ = self.commands.send(Command::Skip(ticks));
     }
 
     /// The next 20 ms of every subscribed publisher that is playing.
@@ -533,6 +541,7 @@ impl Engine {
                 }
             }
             Command::Send { payload, ticks } => self.send(payload, ticks),
+            Command::Skip(ticks) => self.skip(ticks),
             Command::Close => {
                 self.close_all();
                 return false;
@@ -636,6 +645,13 @@ impl Engine {
         let i = self.conns.len() - 1;
         self.after(i, Ok(()));
         Ok(answer.to_sdp_string())
+    }
+
+    fn skip(&mut self, ticks: u32) {
+        let Some(i) = self.publisher() else { return };
+        if let Role::Publisher { time, .. } = &mut self.conns[i].role {
+            *time += u64::from(ticks);
+        }
     }
 
     fn send(&mut self, payload: Vec<u8>, ticks: u32) {

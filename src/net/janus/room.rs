@@ -187,6 +187,11 @@ impl Room {
         self.media.send(payload, ticks)
     }
 
+    /// Moves our stream's clock on by `ticks` without sending (a silent gap).
+    pub fn skip(&self, ticks: u32) {
+        self.media.skip(ticks);
+    }
+
     /// Follows the room: subscribes to new publishers, lets those who left play out.
     pub fn poll(&mut self) -> Result<Vec<Notice>, JanusError> {
         let mut notices = Vec::new();
@@ -377,6 +382,13 @@ impl Member {
         match &self.room {
             Some(room) => room.send(payload, ticks),
             None => Ok(()),
+        }
+    }
+
+    /// Moves our stream's clock on by `ticks` without sending (a silent gap).
+    pub fn skip(&self, ticks: u32) {
+        if let Some(room) = &self.room {
+            room.skip(ticks);
         }
     }
 

@@ -1,0 +1,148 @@
+//! The app joins a room on a real Janus (Debian's, with the repository's config) when the call
+//! address is a Janus URL: each publisher becomes a peer with its name and an animated head,
+//! the call says that Janus can hear it, and a publisher leaving leaves no peer behind.
+
+mod common;
+
+use std::process::{Command as Process, Stdio};
+use std::time::{Duration, Instant};
+
+use lipcall::app::engine::{CallSpec, Command, Encryption, Engine, EngineConfig, lock};
+use lipcall::audio::DeviceChoice;
+use lipcall::codec::any::Codec;
+
+use common::janus::{janus_installed, start_janus};
+
+fn wait_for(what: &str, engine: &Engine, mut done: impl FnMut(&Engine) -> bool) {
+    let deadline = Instant::now() + Duration::from_secs(20);
+    while !done(engine) {
+        let s = lock(&engine.shared);
+        assert!(
+            Instant::now() < deadline,
+            "{what}: state {:?}, error {:?}, peers {:?}",
+            s.call.state,
+            s.call.error,
+            s.peers
+        );
+        drop(s);
+        std::thread::sleep(Duration::from_millis(20));
+    }
+}
+
+fn engine(name: &str) -> Engine {
+    Engine::start(EngineConfig {
+        listen: None,
+        demo: false,
+        name: name.into(),
+        input: DeviceChoice::Default,
+        output: DeviceChoice::Default,
+        no_audio: true,
+    })
+    .unwrap()
+}
+
+fn join(engine: &Engine, url: &str, room: &str, pin: Option<&str>) {
+    engine.send(Command::Call(CallSpec {
+        address: url.into(),
+        room: Some(room.into()),
+        passphrase: pin.map(Into::into),
+        name: "Carol".into(),
+        codec: Codec::Opus,
+    }));
+}
+
+#[test]
+fn the_app_joins_a_janus_room_and_animates_each_publisher() {
+    if !janus_installed() {
+        eprintln!("skipped: Debian's janus is not installed");
+        return;
+    }
+    let dir = tempfile::tempdir().unwrap();
+    let janus = start_janus(dir.path());
+    let app = engine("Carol");
+    join(&app, &janus.url, "app-room", None);
+    wait_for("the app is in the room", &app, |e| {
+        lock(&e.shared).call.state.contains("in Janus room")
+    });
+    {
+        let s = lock(&app.shared);
+        assert_eq!(s.call.encryption, Encryption::HopByHop);
+        assert!(s.call.in_call);
+        assert!(s.call.error.is_none(), "{:?}", s.call.error);
+    }
+
+    let alice = Process::new(env!("CARGO_BIN_EXE_lipcall"))
+        .arg("send")
+        .arg(common::repo_file("assets/speech/demo.wav"))
+        .args([
+            "--janus", &janus.url, "--room", "app-room", "--name", "Alice",
+        ])
+        .stdout(Stdio::null())
+        .stderr(Stdio::piped())
+        .spawn()
+        .unwrap();
+    wait_for("Alice's speech animates her head", &app, |e| {
+        let s = lock(&e.shared);
+        s.peers
+            .iter()
+            .any(|p| p.name == "Alice" && p.named && p.frames_animated > 50 && p.talking)
+    });
+    {
+        let s = lock(&app.shared);
+        let alice = s.peers.iter().find(|p| p.name == "Alice").unwrap();
+        assert_eq!(alice.codec, Some(Codec::Opus));
+        assert!(s.schedules.contains_key(&alice.ssrc));
+    }
+    let out = alice.wait_with_output().unwrap();
+    assert!(
+        out.status.success(),
+        "{}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+    wait_for("Alice is gone once she left", &app, |e| {
+        lock(&e.shared).peers.is_empty()
+    });
+
+    app.send(Command::Leave);
+    wait_for("the app left the room", &app, |e| {
+        !lock(&e.shared).call.in_call
+    });
+}
+
+#[test]
+fn a_wrong_pin_or_an_unreachable_janus_is_a_clear_error() {
+    if !janus_installed() {
+        eprintln!("skipped: Debian's janus is not installed");
+        return;
+    }
+    let dir = tempfile::tempdir().unwrap();
+    let janus = start_janus(dir.path());
+    // The first member creates the room with its pin.
+    let owner = engine("Dave");
+    join(&owner, &janus.url, "pinned", Some("right"));
+    wait_for("the owner is in the room", &owner, |e| {
+        lock(&e.shared).call.state.contains("in Janus room")
+    });
+
+    let app = engine("Carol");
+    join(&app, &janus.url, "pinned", Some("wrong"));
+    wait_for("a wrong pin is said", &app, |e| {
+        lock(&e.shared)
+            .call
+            .error
+            .as_deref()
+            .is_some_and(|e| e.contains("pin"))
+    });
+    assert!(!lock(&app.shared).call.in_call);
+
+    // Nothing listens on port 9: refused at once.
+    join(&app, "http://127.0.0.1:9/janus", "any", None);
+    wait_for("an unreachable Janus is said", &app, |e| {
+        let s = lock(&e.shared);
+        !s.call.in_call
+            && s.call
+                .error
+                .as_deref()
+                .is_some_and(|e| e.contains("cannot reach Janus at http://127.0.0.1:9/janus"))
+    });
+}
