@@ -12,10 +12,16 @@
 //! `energy_db` falls and a network driven by these features closes the mouth towards `sil`. A
 //! long gap (a loss, or Opus DTX sending nothing in silence) ends the talk spurt and the peer
 //! falls silent (no rows at all).
+//!
+//! The buffer corrects its delay (clock drift, a change of jitter) inside pauses, and only this
+//! side hears the audio: each frame played is told to it as quiet or audible ([`QuietGate`]),
+//! and a quiet frame it asks to drop is replaced by the next one.
 
 use std::time::Instant;
 
-use super::jitter::{Arrival, JitterBuffer, JitterConfig, JitterStats, Piece, Playout};
+use super::jitter::{
+    Arrival, Correction, JitterBuffer, JitterConfig, JitterStats, Loudness, Piece, Playout,
+};
 use super::rtp::Rtp;
 use crate::codec::FRAME_SIZE;
 use crate::codec::any::{Codec, PayloadMap};
@@ -43,8 +49,53 @@ pub struct PlayedFrame {
     pub codec: Codec,
 }
 
+/// Below this a frame is quiet whatever the speaker's level (dBFS; speech sits at -35 to -10).
+const QUIET_DB: f32 = -50.0;
+/// A frame this close to the background's level, and this far below the speech, is quiet too
+/// (a microphone whose noise floor is above [`QUIET_DB`]).
+const NEAR_FLOOR_DB: f32 = 6.0;
+const BELOW_SPEECH_DB: f32 = 20.0;
+/// How fast the trackers forget, per frame: the floor rises 2.5 dB a second, the speech level
+/// falls 1 dB a second.
+const FLOOR_RISE_DB: f32 = 0.05;
+const SPEECH_FALL_DB: f32 = 0.02;
+
+/// Tells quiet frames (silence, background noise) from audible ones by their energy, against
+/// an absolute floor and the stream's own levels: its background (the quietest frames lately)
+/// and its speech (the loudest).
+#[derive(Debug, Clone, Copy)]
+pub struct QuietGate {
+    floor_db: f32,
+    speech_db: f32,
+}
+
+impl Default for QuietGate {
+    fn default() -> Self {
+        Self {
+            floor_db: 0.0,
+            speech_db: SILENCE_DB,
+        }
+    }
+}
+
+impl QuietGate {
+    /// The loudness of a frame of `energy_db`, and the levels updated with it.
+    pub fn judge(&mut self, energy_db: f32) -> Loudness {
+        self.floor_db = energy_db.min(self.floor_db + FLOOR_RISE_DB);
+        self.speech_db = energy_db.max(self.speech_db - SPEECH_FALL_DB);
+        let near_floor = energy_db < self.floor_db + NEAR_FLOOR_DB
+            && energy_db < self.speech_db - BELOW_SPEECH_DB;
+        if energy_db < QUIET_DB || near_floor {
+            Loudness::Quiet
+        } else {
+            Loudness::Audible
+        }
+    }
+}
+
 pub struct PeerReceiver {
     jitter: JitterBuffer,
+    gate: QuietGate,
     payloads: PayloadMap,
     enhancer: bool,
     decoder: Option<StreamDecoder>,
@@ -82,6 +133,7 @@ impl PeerReceiver {
     ) -> Self {
         Self {
             jitter: JitterBuffer::new(config, epoch),
+            gate: QuietGate::default(),
             payloads,
             enhancer,
             decoder: None,
@@ -180,8 +232,23 @@ impl PeerReceiver {
         Some(decoder)
     }
 
-    /// The next 20 ms of this peer, or `None` while it is silent.
+    /// The next 20 ms of this peer, or `None` while it is silent. A quiet frame the buffer
+    /// drops (its delay is more than needed) is decoded, so the decoder stays in step, and
+    /// replaced by the frame after it.
     pub fn pull(&mut self, now: Instant) -> Option<PlayedFrame> {
+        let frame = self.next_frame(now)?;
+        let loudness = self.gate.judge(frame.features.energy_db);
+        if self.jitter.played(loudness) != Correction::Drop {
+            return Some(frame);
+        }
+        // (Right after a correction the buffer asks for none: one per pull at most.)
+        let next = self.next_frame(now)?;
+        let loudness = self.gate.judge(next.features.energy_db);
+        self.jitter.played(loudness);
+        Some(next)
+    }
+
+    fn next_frame(&mut self, now: Instant) -> Option<PlayedFrame> {
         let (frame, stretched) = match self.jitter.pop(now) {
             Playout::Silent | Playout::Pause => return None,
             Playout::Packet(piece) => (self.start(&piece).map(StreamDecoder::frame), false),
@@ -355,6 +422,94 @@ mod tests {
             out.push(rx.pull(now));
         }
         out
+    }
+
+    /// Speech with pauses: 1.6 s of voiced sound (harmonics of a gliding pitch, no fades),
+    /// then 0.4 s of faint noise (-66 dBFS).
+    fn talk_with_pauses(frame: usize) -> Option<[i16; FRAME_SIZE]> {
+        (frame % 100 < 80).then(|| {
+            std::array::from_fn(|i| {
+                let t = (frame * FRAME_SIZE + i) as f32 / 8000.0;
+                let pitch = 120.0 + 20.0 * (t * 2.0).sin();
+                let s: f32 = (1..12)
+                    .map(|h| {
+                        let f = pitch * h as f32;
+                        (2.0 * std::f32::consts::PI * f * t).sin()
+                            / (1.0 + ((f - 650.0) / 300.0).powi(2))
+                    })
+                    .sum();
+                (4000.0 * s) as i16
+            })
+        })
+    }
+
+    fn faint_noise(frame: usize) -> [i16; FRAME_SIZE] {
+        std::array::from_fn(|i| (((frame * FRAME_SIZE + i) * 7919 % 31) as i16 - 15) * 2)
+    }
+
+    /// 40 s of [`talk_with_pauses`] from a Speex sender sending a packet every `period_us`,
+    /// pulled every 20 ms: the frames played, and the receiver's counts.
+    fn drifting_call(period_us: u64) -> (Vec<PlayedFrame>, ReceiverStats) {
+        let mut rx = PeerReceiver::new(JitterConfig::default(), Instant::now(), true);
+        let mut sender = Sender::new(Codec::Speex);
+        let frames = 2000;
+        let t0 = Instant::now();
+        let send_at = |k: usize| t0 + Duration::from_micros(period_us * k as u64 + 3000);
+        let mut played = Vec::new();
+        let mut next = 0;
+        for k in 0..frames + 60 {
+            let now = t0 + FRAME * k as u32;
+            while next < frames && send_at(next) <= now {
+                let pcm = talk_with_pauses(next).unwrap_or_else(|| faint_noise(next));
+                let mut out = [0u8; MAX_FRAME_PAYLOAD];
+                let (n, count) = sender.encoder.encode(&pcm, &mut out).unwrap().unwrap();
+                sender
+                    .stream
+                    .packetize(&out[..n], count, &mut sender.buf)
+                    .unwrap();
+                let packet = rtp::parse(&sender.buf, None).unwrap();
+                rx.insert(&packet, send_at(next));
+                next += 1;
+            }
+            played.extend(rx.pull(now));
+        }
+        (played, rx.stats())
+    }
+
+    fn loud(played: &[PlayedFrame]) -> usize {
+        played
+            .iter()
+            .filter(|f| f.kind == FrameKind::Decoded && f.features.energy_db > -35.0)
+            .count()
+    }
+
+    #[test]
+    fn a_drifting_sender_loses_no_speech() {
+        // A sender whose clock is 1 % fast (a packet every 19.8 ms) or 1 % slow (20.2 ms)
+        // against one in step. The receiver hears which frames are quiet and the buffer
+        // corrects its delay in those only: every loud frame is played, as in step.
+        let (steady, stats) = drifting_call(20_000);
+        assert_eq!(
+            stats.jitter.stretched + stats.jitter.dropped,
+            0,
+            "{stats:?}"
+        );
+        for (period_us, fast) in [(19_800u64, true), (20_200, false)] {
+            let (played, stats) = drifting_call(period_us);
+            let what = format!("fast {fast}: {stats:?}");
+            assert_eq!(loud(&played), loud(&steady), "{what}");
+            let j = stats.jitter;
+            assert_eq!((j.forced, j.late, j.lost), (0, 0, 0), "{what}");
+            assert!(if fast { j.dropped } else { j.stretched } >= 15, "{what}");
+            // The frames inserted were quiet: no loud frame is concealed.
+            assert!(
+                played
+                    .iter()
+                    .filter(|f| f.kind != FrameKind::Decoded)
+                    .all(|f| f.features.energy_db < -45.0),
+                "{what}"
+            );
+        }
     }
 
     #[test]
