@@ -197,12 +197,18 @@ fn a_browser_and_lipcall_hear_each_other_in_a_janus_room() {
     let speech = repo_file("assets/speech/demo.wav");
 
     // The browser comes first: the page creates the room, with the pin, as lipcall would.
-    let url = format!(
-        "http://127.0.0.1:{page_port}/room.html?room={room}&pin={}&name=Browser&janus={}",
-        pin.replace(' ', "%20"),
-        janus.url
+    let page_url = |pin: &str| {
+        format!(
+            "http://127.0.0.1:{page_port}/room.html?room={room}&pin={}&name=Browser&janus={}",
+            pin.replace(' ', "%20"),
+            janus.url
+        )
+    };
+    let mut browser = open_in_chromium(
+        &page_url(pin),
+        &speech,
+        &dir.path().join("chromium-profile"),
     );
-    let mut browser = open_in_chromium(&url, &speech, &dir.path().join("chromium-profile"));
     let limit = Duration::from_secs(30);
     browser.wait_for(limit, |l| match page_line(l) {
         Some(m) if m.starts_with("error ") => panic!("the page failed: {m}"),
@@ -307,4 +313,18 @@ fn a_browser_and_lipcall_hear_each_other_in_a_janus_room() {
     );
     // totalAudioEnergy: the sum of level^2 x seconds of what was played; speech, not silence.
     assert!(energy > 0.1, "{last}");
+    drop(browser);
+
+    // A wrong pin: the page says Janus's reason.
+    let mut intruder = open_in_chromium(
+        &page_url("wrong"),
+        &speech,
+        &dir.path().join("chromium-wrong-pin"),
+    );
+    let error = intruder.wait_for(limit, |l| {
+        page_line(l)
+            .and_then(|m| m.strip_prefix("error "))
+            .map(str::to_string)
+    });
+    assert!(error.contains("433") && error.contains("pin"), "{error}");
 }
