@@ -109,7 +109,7 @@ fn receive_path(c: &mut Criterion) {
         group.bench_function(name, |b| {
             b.iter_batched(
                 || {
-                    let mut tx = Srtp::new(&key);
+                    let mut tx = Srtp::new(&key).unwrap();
                     let mut stream = RtpStream::new(7, 100, 1000);
                     let wire: Vec<Vec<u8>> = packets
                         .iter()
@@ -124,7 +124,7 @@ fn receive_path(c: &mut Criterion) {
                         .collect();
                     let epoch = Instant::now();
                     let rx = PeerReceiver::new(JitterConfig::default(), epoch, true);
-                    (wire, rx, Srtp::new(&key), epoch)
+                    (wire, rx, Srtp::new(&key).unwrap(), epoch)
                 },
                 |(wire, mut rx, mut srtp, epoch)| {
                     let frame = Duration::from_millis(20);

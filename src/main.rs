@@ -203,6 +203,11 @@ enum Command {
         /// Janus room, Janus says when a publisher leaves).
         #[arg(long, value_name = "SECONDS", default_value_t = 30.0, value_parser = commands::parse_seconds)]
         peer_timeout: f64,
+        /// With --key: how far (either way) a caller's clock may be from ours. A new encrypted
+        /// stream stamped further off is refused as a replay of an earlier call (counted as
+        /// stale).
+        #[arg(long, value_name = "SECONDS", default_value_t = lipcall::net::srtp::DEFAULT_CLOCK_TOLERANCE, value_parser = clap::value_parser!(u32).range(1..=86_400))]
+        clock_tolerance: u32,
         /// Join a room on this relay (with --room).
         #[arg(long, value_name = "HOST:PORT")]
         relay: Option<String>,
@@ -503,6 +508,7 @@ fn main() -> ExitCode {
             key,
             seconds,
             peer_timeout,
+            clock_tolerance,
             relay,
             room,
             name,
@@ -515,6 +521,7 @@ fn main() -> ExitCode {
             key: key.into(),
             seconds,
             peer_timeout: Some(peer_timeout),
+            clock_tolerance: Some(clock_tolerance),
             relay,
             room,
             name,

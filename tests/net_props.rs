@@ -49,7 +49,7 @@ proptest! {
         let _ = Control::decode(&data);
         let _ = split::split_frames(&data);
         let _ = split::frame_count(&data);
-        let mut srtp = Srtp::new(&key());
+        let mut srtp = Srtp::new(&key()).unwrap();
         let _ = srtp.unprotect_rtp(&mut data.clone());
         let _ = srtp.unprotect_rtcp(&mut data.clone());
         let _ = srtp.protect_rtp(&mut data.clone());
@@ -75,8 +75,8 @@ proptest! {
         flip in any::<usize>(),
         bit in 0u8..8,
     ) {
-        let mut tx = Srtp::new(&key());
-        let mut rx = Srtp::new(&key());
+        let mut tx = Srtp::new(&key()).unwrap();
+        let mut rx = Srtp::new(&key()).unwrap();
         let mut packet = Vec::new();
         rtp::write(
             &rtp::RtpHeader { marker: true, payload_type: 110, sequence: 7, timestamp: 9, ssrc: 3 },

@@ -318,6 +318,9 @@ pub struct ReceiveArgs {
     pub seconds: Option<f64>,
     /// A peer silent (no RTP, no RTCP) this long has left; `None`: the session's default, 30 s.
     pub peer_timeout: Option<f64>,
+    /// How far a new SRTP stream's sender clock may be from ours (seconds); `None`: the
+    /// session's default.
+    pub clock_tolerance: Option<u32>,
     pub relay: Option<String>,
     pub room: Option<String>,
     pub name: Option<String>,
@@ -418,6 +421,9 @@ pub fn receive_with(
     if let Some(timeout) = args.peer_timeout {
         config.peer_timeout = Duration::from_secs_f64(timeout);
     }
+    if let Some(seconds) = args.clock_tolerance {
+        config.clock_tolerance = Duration::from_secs(u64::from(seconds));
+    }
     let stop = stop_flag()?;
     // Before the call: a path that cannot be written fails now.
     let mut recorder = Recorder::create(
@@ -445,7 +451,7 @@ pub fn receive_with(
     let stats = session.stats();
     eprintln!(
         "lipcall: played {:.2} s; datagrams={} rtp={} rtcp={} malformed={} unknown={} \
-         unknown_pt={} auth_failed={} replayed={} too_many_peers={}",
+         unknown_pt={} auth_failed={} replayed={} stale={} too_many_peers={}",
         recorder.seconds(),
         stats.datagrams,
         stats.rtp,
@@ -455,6 +461,7 @@ pub fn receive_with(
         stats.unknown_payload,
         stats.auth_failed,
         stats.replayed,
+        stats.stale,
         stats.too_many_peers
     );
     for peer in session.peers() {

@@ -27,7 +27,7 @@ use super::jitter::JitterConfig;
 use super::peer::{PeerReceiver, PlayedFrame, ReceiverStats};
 use super::rtcp::{self, Outgoing, ReportBlock, RtcpItem, SenderInfo};
 use super::rtp::{self, Rtp, RtpStream};
-use super::srtp::{MasterKey, Srtp, SrtpError};
+use super::srtp::{DEFAULT_CLOCK_TOLERANCE, MasterKey, Srtp, SrtpError};
 use super::{DatagramKind, MAX_DATAGRAM, NetError, classify};
 use crate::codec::any::{Codec, PayloadMap};
 
@@ -40,6 +40,9 @@ pub struct SessionConfig {
     pub room: Option<String>,
     /// SRTP master key; `None` sends plain RTP.
     pub key: Option<MasterKey>,
+    /// How far a new SRTP stream's sender clock may be from ours (per-session keys: a stream
+    /// stamped further off is a replay of an earlier call, or a clock that is wrong).
+    pub clock_tolerance: Duration,
     /// Display name sent as SDES NAME.
     pub name: Option<String>,
     pub jitter: JitterConfig,
@@ -67,6 +70,7 @@ impl SessionConfig {
             destinations: Vec::new(),
             room: None,
             key: None,
+            clock_tolerance: Duration::from_secs(u64::from(DEFAULT_CLOCK_TOLERANCE)),
             name: None,
             jitter: JitterConfig::default(),
             max_peers: 32,
@@ -100,6 +104,9 @@ pub struct SessionStats {
     /// SRTP/SRTCP packets that failed authentication.
     pub auth_failed: u64,
     pub replayed: u64,
+    /// SRTP streams new to us stamped further from our clock than `clock_tolerance`: a replay
+    /// of an earlier call, or a sender whose clock is off.
+    pub stale: u64,
     /// Packets from new SSRCs beyond `max_peers`.
     pub too_many_peers: u64,
     /// Unconfirmed or idle peers removed to make room for a new one.
@@ -470,7 +477,7 @@ impl Shared {
             epoch: Instant::now(),
             tx: Mutex::new(Tx {
                 stream,
-                srtp: config.key.as_ref().map(Srtp::new),
+                srtp: srtp(config.key.as_ref(), config.clock_tolerance)?,
                 buf: Vec::with_capacity(MAX_DATAGRAM),
                 sent_since_report: false,
                 started: false,
@@ -478,7 +485,7 @@ impl Shared {
             }),
             rx: Mutex::new(Rx {
                 peers: HashMap::new(),
-                srtp: config.key.as_ref().map(Srtp::new),
+                srtp: srtp(config.key.as_ref(), config.clock_tolerance)?,
                 stats: SessionStats::default(),
                 pending_starts: Vec::with_capacity(PENDING_STARTS),
                 pending_names: Vec::with_capacity(PENDING_NAMES),
@@ -693,7 +700,11 @@ impl Shared {
                 rx.stats.replayed += 1;
                 false
             }
-            Err(SrtpError::AuthFailed | SrtpError::TooManyStreams) => {
+            Err(SrtpError::Stale) => {
+                rx.stats.stale += 1;
+                false
+            }
+            Err(SrtpError::AuthFailed) => {
                 rx.stats.auth_failed += 1;
                 false
             }
@@ -723,9 +734,6 @@ impl Shared {
             return false;
         };
         rx.peers.remove(&ssrc);
-        if let Some(srtp) = rx.srtp.as_mut() {
-            srtp.forget(ssrc);
-        }
         rx.stats.evicted += 1;
         true
     }
@@ -941,28 +949,27 @@ impl Shared {
     fn expire(&self, now: Instant) {
         let mut rx = lock(&self.rx);
         let timeout = self.config.peer_timeout;
-        let mut gone = Vec::new();
         rx.pending_starts
             .retain(|&(_, _, _, at)| now.saturating_duration_since(at) < UNCONFIRMED_TIMEOUT);
         rx.pending_names
             .retain(|(.., at)| now.saturating_duration_since(*at) < UNCONFIRMED_TIMEOUT);
-        rx.peers.retain(|&ssrc, p| {
-            let keep = if p.confirmed() {
+        // A forgotten peer's SRTP replay state stays: replayed, its packets are still refused.
+        rx.peers.retain(|_, p| {
+            if p.confirmed() {
                 now.saturating_duration_since(p.last_heard) < timeout
             } else {
                 now.saturating_duration_since(p.last_media) < UNCONFIRMED_TIMEOUT
-            };
-            if !keep {
-                gone.push(ssrc);
             }
-            keep
         });
-        if let Some(srtp) = rx.srtp.as_mut() {
-            for ssrc in gone {
-                srtp.forget(ssrc);
-            }
-        }
     }
+}
+
+/// The session's SRTP end, when it has a key.
+fn srtp(key: Option<&MasterKey>, clock_tolerance: Duration) -> Result<Option<Srtp>, NetError> {
+    let Some(key) = key else { return Ok(None) };
+    let mut srtp = Srtp::new(key)?;
+    srtp.set_clock_tolerance(u32::try_from(clock_tolerance.as_secs()).unwrap_or(u32::MAX));
+    Ok(Some(srtp))
 }
 
 fn jittered(interval: Duration) -> Duration {
