@@ -1,5 +1,6 @@
 //! Rooms on a real Janus (Debian's `janus`, started here with the repository's config folder,
-//! assets/janus, on a free loopback port): two lipcall processes in one VideoRoom.
+//! assets/janus, on a free loopback port): two lipcall processes in one VideoRoom. Each test
+//! runs in a network namespace of its own (tests/common/netns.rs), the media on its address.
 
 mod common;
 
@@ -49,6 +50,11 @@ fn snr_at_best_shift(reference: &[i16], test: &[i16], max: usize) -> (f64, isize
 
 #[test]
 fn two_lipcalls_in_a_janus_room_hear_each_other_and_the_receiver_animates() {
+    if common::netns::ran_in_own_namespace(
+        "two_lipcalls_in_a_janus_room_hear_each_other_and_the_receiver_animates",
+    ) {
+        return;
+    }
     if !janus_installed() {
         eprintln!("skipped: no `janus` binary (Debian package janus; .ci/run installs it)");
         return;
@@ -165,6 +171,11 @@ fn two_lipcalls_in_a_janus_room_hear_each_other_and_the_receiver_animates() {
 
 #[test]
 fn a_wrong_pin_and_an_unreachable_janus_fail_at_once_with_janus_s_reason() {
+    if common::netns::ran_in_own_namespace(
+        "a_wrong_pin_and_an_unreachable_janus_fail_at_once_with_janus_s_reason",
+    ) {
+        return;
+    }
     // Nothing listens on a port that was free a moment ago.
     let port = free_tcp_port();
     let started = Instant::now();
@@ -214,6 +225,11 @@ fn a_wrong_pin_and_an_unreachable_janus_fail_at_once_with_janus_s_reason() {
 
 #[test]
 fn a_restarted_janus_is_said_and_rejoined_and_the_call_goes_on() {
+    if common::netns::ran_in_own_namespace(
+        "a_restarted_janus_is_said_and_rejoined_and_the_call_goes_on",
+    ) {
+        return;
+    }
     if !janus_installed() {
         eprintln!("skipped: no `janus` binary (Debian package janus; .ci/run installs it)");
         return;
@@ -256,6 +272,11 @@ fn a_restarted_janus_is_said_and_rejoined_and_the_call_goes_on() {
 
 #[test]
 fn each_publisher_is_a_peer_and_the_receive_ends_when_all_have_left() {
+    if common::netns::ran_in_own_namespace(
+        "each_publisher_is_a_peer_and_the_receive_ends_when_all_have_left",
+    ) {
+        return;
+    }
     if !janus_installed() {
         eprintln!("skipped: no `janus` binary (Debian package janus; .ci/run installs it)");
         return;

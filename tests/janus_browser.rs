@@ -4,9 +4,9 @@
 //! `lipcall receive --janus` hears and animates it, and the page hears `lipcall send --janus`.
 //!
 //! ICE: Janus's libnice gathers no loopback candidates (not even with `ice_enforce_list =
-//! "lo"`), so Chromium and Janus meet on this machine's interface address, as lipcall and
-//! Janus do in tests/janus.rs; the kernel delivers that traffic locally. Signalling and the
-//! page are on 127.0.0.1.
+//! "lo"`), so the test runs in a network namespace of its own (tests/common/netns.rs), where
+//! Chromium, Janus and lipcall meet on the namespace's one interface address; signalling and
+//! the page are on 127.0.0.1 there.
 
 mod common;
 
@@ -181,6 +181,10 @@ fn frame_levels_db(samples: &[i16]) -> Vec<f64> {
 
 #[test]
 fn a_browser_and_lipcall_hear_each_other_in_a_janus_room() {
+    if common::netns::ran_in_own_namespace("a_browser_and_lipcall_hear_each_other_in_a_janus_room")
+    {
+        return;
+    }
     if !chromium_installed() {
         eprintln!("skipped: no `chromium` binary (Debian package chromium; .ci/run installs it)");
         return;

@@ -73,6 +73,7 @@ pub fn snr_db(reference: &[i16], test: &[i16]) -> f64 {
 pub mod lpc;
 pub mod mesh;
 pub mod net;
+pub mod netns;
 
 /// Whether a PulseAudio server answers (the null sink of .ci/pulse-null-sink.sh).
 pub fn pulse_running() -> bool {
