@@ -1,6 +1,7 @@
 //! The call engine: a worker thread that owns the sessions, the microphone and the per-peer
-//! decoders' animators, paced at 20 ms. The UI sees it through [`Shared`] (one short lock per
-//! UI frame) and steers it with [`Command`]s.
+//! decoders' animators. It pulls decoded audio on the mixer's demand (the output device's
+//! clock, [`FramePacer`]), and runs the demo sender and the status on the system clock. The UI
+//! sees it through [`Shared`] (one short lock per UI frame) and steers it with [`Command`]s.
 
 use std::collections::HashMap;
 use std::net::{SocketAddr, ToSocketAddrs};
@@ -10,8 +11,9 @@ use std::sync::{Arc, Mutex, MutexGuard};
 use std::thread::JoinHandle;
 use std::time::{Duration, Instant};
 
+use crate::audio::pacer::DEFAULT_LEAD;
 use crate::audio::{
-    Capture, DeviceChoice, Gate, MicControls, OutputStatus, PeerFeed, PeerId, Playback,
+    Capture, DeviceChoice, FramePacer, Gate, MicControls, OutputStatus, PeerFeed, PeerId, Playback,
     PlaybackConfig, Schedule, ScheduleSender,
 };
 use crate::codec::any::{Codec, EncoderSettings, FrameEncoder, MAX_FRAME_PAYLOAD};
@@ -23,7 +25,7 @@ use crate::lipsync::network::MAX_LOOKAHEAD;
 use crate::lipsync::visemes::{FullWeights, VisemeSet};
 use crate::lipsync::{LipSync, LipSyncOptions};
 use crate::net::janus::room::{Notice, RoomConfig};
-use crate::net::jitter::JitterConfig;
+use crate::net::jitter::{JitterConfig, JitterStats};
 use crate::net::peer::FrameKind;
 use crate::net::session::{PeerFrame, PeerInfo, Session, SessionConfig};
 
@@ -34,6 +36,9 @@ use crate::render::head::FacePose;
 use super::settings::{DEFAULT_CODEC, PeerPrefs};
 
 const TICK: Duration = Duration::from_millis(20);
+/// How often the worker looks at the mixer's demand: well within a frame, so that the few
+/// frames pulled ahead of the mixer are topped up before it needs them.
+const POLL: Duration = Duration::from_millis(5);
 /// How long a relay may take to confirm our place in its room before the call says so.
 const RELAY_CONFIRM_WAIT: Duration = Duration::from_secs(3);
 /// Name the demo peer announces (SDES), so the UI can tell it apart.
@@ -109,6 +114,10 @@ pub struct PeerView {
     pub frames_recovered: u64,
     /// Its packets of a payload type no codec is mapped to (dropped).
     pub unknown_payload: u64,
+    /// Its decoded audio waiting for the mixer, in ms.
+    pub queued_ms: f64,
+    /// Its jitter buffer's counts (delay, drift, frames inserted and dropped).
+    pub buffer: JitterStats,
 }
 
 /// Who can hear the call besides its members.
@@ -434,6 +443,8 @@ struct PeerState {
     animation: PeerAnimation,
     last_voice: Option<Instant>,
     frames_received: u64,
+    /// It had a frame in the last pull (its audio runs on in its queue).
+    playing: bool,
 }
 
 /// The bundled speech sample at 8 kHz.
@@ -795,19 +806,19 @@ impl Worker {
         }
     }
 
+    /// The worker's loop. Decoded audio is pulled on the mixer's demand (the output device's
+    /// clock, [`FramePacer`]); the demo sender and the status follow the system clock's 20 ms
+    /// ticks, as a remote sender would.
     fn run(mut self, stop: &AtomicBool) {
         let start = Instant::now();
+        let mixed = lock(&self.shared).playback.mixed();
+        let mut pacer = FramePacer::new(DEFAULT_LEAD);
         let mut frames: Vec<PeerFrame> = Vec::new();
         let mut tick = 0u32;
-        let mut infos: Vec<PeerInfo> = Vec::new();
         while !stop.load(Ordering::Relaxed) {
             let due = start + TICK * tick;
-            tick = tick.wrapping_add(1);
             if let Some(wait) = due.checked_duration_since(Instant::now()) {
-                std::thread::sleep(wait);
-            } else if Instant::now().duration_since(due) > TICK * 10 {
-                // Far behind (suspended?): rebase instead of bursting.
-                tick = ((Instant::now() - start).as_millis() / TICK.as_millis()) as u32;
+                std::thread::sleep(wait.min(POLL));
             }
             loop {
                 match self.commands.try_recv() {
@@ -816,40 +827,55 @@ impl Worker {
                     Err(TryRecvError::Disconnected) => return,
                 }
             }
-            if let Some(demo) = &mut self.demo {
-                demo.tick();
-            }
             self.send_mic();
             self.follow_room();
-            frames.clear();
-            self.link.pull(Instant::now(), &mut frames);
-            self.counters.ticks.fetch_add(1, Ordering::Relaxed);
-            let refresh = tick.is_multiple_of(10);
-            if refresh {
-                infos = self.link.peers();
-                let stats = self.link.session().map(Session::stats).unwrap_or_default();
-                let mut s = lock(&self.shared);
-                s.call.unknown_payload = self.link.unknown_payload();
-                if self.in_call
-                    && let Some(why) = stats.relay_refusal
-                {
-                    s.call.error = Some(format!("the relay refused to join the room: {why}"));
-                    self.relay_deadline = None;
+            let now = Instant::now();
+            if now >= due {
+                tick = tick.wrapping_add(1);
+                if now.duration_since(due) > TICK * 10 {
+                    // Far behind (suspended?): rebase instead of bursting.
+                    tick = ((now - start).as_millis() / TICK.as_millis()) as u32;
                 }
-                if stats.relay_joined || !self.in_call || self.link.session().is_none() {
-                    self.relay_deadline = None;
-                } else if self.relay_deadline.is_some_and(|d| Instant::now() >= d) {
-                    s.call.error = Some(
-                        "the relay has not confirmed the join (no relay there, or one of an \
-                         older lipcall version)"
-                            .into(),
-                    );
-                    self.relay_deadline = None;
+                if let Some(demo) = &mut self.demo {
+                    demo.tick();
+                }
+                if tick.is_multiple_of(10) {
+                    let infos = self.link.peers();
+                    self.check_relay();
+                    self.refresh_peers(&infos);
                 }
             }
-            self.process(&frames, &infos, refresh);
+            for _ in 0..pacer.poll(mixed.chunks(), Instant::now()) {
+                frames.clear();
+                self.link.pull(Instant::now(), &mut frames);
+                self.counters.ticks.fetch_add(1, Ordering::Relaxed);
+                self.play(&frames, !pacer.stalled());
+            }
         }
         self.link.leave();
+    }
+
+    /// Says when the relay refused the call's room or never confirmed it.
+    fn check_relay(&mut self) {
+        let stats = self.link.session().map(Session::stats).unwrap_or_default();
+        let mut s = lock(&self.shared);
+        s.call.unknown_payload = self.link.unknown_payload();
+        if self.in_call
+            && let Some(why) = stats.relay_refusal
+        {
+            s.call.error = Some(format!("the relay refused to join the room: {why}"));
+            self.relay_deadline = None;
+        }
+        if stats.relay_joined || !self.in_call || self.link.session().is_none() {
+            self.relay_deadline = None;
+        } else if self.relay_deadline.is_some_and(|d| Instant::now() >= d) {
+            s.call.error = Some(
+                "the relay has not confirmed the join (no relay there, or one of an \
+                 older lipcall version)"
+                    .into(),
+            );
+            self.relay_deadline = None;
+        }
     }
 
     fn send_mic(&mut self) {
@@ -881,7 +907,9 @@ impl Worker {
         }
     }
 
-    fn process(&mut self, frames: &[PeerFrame], infos: &[PeerInfo], refresh: bool) {
+    /// One pull's frames: into each peer's queue for the mixer, and through its animation.
+    /// `heard`: false while the output takes nothing (the frames are not queued).
+    fn play(&mut self, frames: &[PeerFrame], heard: bool) {
         let now = Instant::now();
         let mut s = lock(&self.shared);
         for f in frames {
@@ -900,6 +928,7 @@ impl Worker {
                         animation: PeerAnimation::with_seed(&prefs, u64::from(f.ssrc)),
                         last_voice: None,
                         frames_received: 0,
+                        playing: false,
                     })
                 }
             };
@@ -908,8 +937,19 @@ impl Worker {
                 c.set_muted(prefs.muted);
                 c.set_volume(prefs.volume);
             }
-            let (pos, _) = peer.feed.push(&f.frame.pcm);
             peer.frames_received += 1;
+            let resuming = !std::mem::replace(&mut peer.playing, heard);
+            // (Not queued while the output takes nothing: a device that has not started or
+            // stalls, a stopped mixer; the pulls follow the system clock meanwhile.)
+            let queued = heard
+                .then(|| {
+                    peer.feed
+                        .push_paced(&f.frame.pcm, DEFAULT_LEAD as usize, resuming)
+                })
+                .flatten();
+            let Some(pos) = queued else {
+                continue;
+            };
             if f.frame.kind == FrameKind::Decoded && f.frame.features.energy_db > -45.0 {
                 peer.last_voice = Some(now);
             }
@@ -934,17 +974,22 @@ impl Worker {
         }
         // A peer without a frame this tick: its waiting frame goes out without its future.
         for (ssrc, peer) in &mut self.peers {
-            if !frames.iter().any(|f| f.ssrc == *ssrc)
-                && let Some((pos, w)) = peer.animation.flush()
-            {
+            if frames.iter().any(|f| f.ssrc == *ssrc) {
+                continue;
+            }
+            peer.playing = false;
+            if let Some((pos, w)) = peer.animation.flush() {
                 let heard = s.playback.heard_position(peer.feed.id(), Instant::now());
                 self.counters.weights_scheduled(pos, heard, true);
                 peer.weights.send(pos, w);
             }
         }
-        if !refresh {
-            return;
-        }
+    }
+
+    /// The peers as the UI shows them; forgets those that have left.
+    fn refresh_peers(&mut self, infos: &[PeerInfo]) {
+        let now = Instant::now();
+        let mut s = lock(&self.shared);
         // Forget peers the session no longer knows or that said goodbye and went quiet.
         let gone: Vec<u32> = self
             .peers
@@ -994,6 +1039,9 @@ impl Worker {
                     frames_received: p.frames_received,
                     frames_recovered: i.receiver.recovered,
                     unknown_payload: i.receiver.unknown_payload,
+                    queued_ms: p.feed.queued() as f64 * 1000.0
+                        / f64::from(crate::codec::speex::SAMPLE_RATE),
+                    buffer: *j,
                 })
             })
             .collect();

@@ -112,6 +112,29 @@ impl PeerFeed {
         (start, n)
     }
 
+    /// Queues a frame pulled on the mixer's demand, `lead` frames ahead of it
+    /// ([`super::FramePacer`]). The first frame of a peer that starts, or speaks again after
+    /// a silence (`resuming`), comes after enough silence to put it `lead` frames ahead of the
+    /// mixer too; a queue already `lead + 2` frames long (an output that takes nothing) takes
+    /// nothing more. The stream position of the frame's first sample, or `None` if it was not
+    /// queued.
+    pub fn push_paced(&mut self, pcm: &[i16], lead: usize, resuming: bool) -> Option<u64> {
+        const SILENCE: [i16; CHUNK] = [0; CHUNK];
+        let queued = self.queued();
+        if queued >= (lead + 2) * CHUNK {
+            return None;
+        }
+        if resuming {
+            let mut pad = (lead.saturating_sub(1) * CHUNK).saturating_sub(queued);
+            while pad > 0 {
+                let n = pad.min(CHUNK);
+                self.push(&SILENCE[..n]);
+                pad -= n;
+            }
+        }
+        Some(self.push(pcm).0)
+    }
+
     /// Stream position of the next sample to be queued.
     pub fn position(&self) -> u64 {
         self.written
@@ -172,11 +195,23 @@ pub fn peer_channel(
     )
 }
 
+/// The chunks a mixer has mixed so far, for the thread that feeds its peers: the output's
+/// demand (see [`super::pacer::FramePacer`]). A clone reads the same count.
+#[derive(Debug, Clone, Default)]
+pub struct MixProgress(Arc<AtomicU64>);
+
+impl MixProgress {
+    pub fn chunks(&self) -> u64 {
+        self.0.load(Ordering::Acquire)
+    }
+}
+
 /// Sums the peers' 8 kHz streams into one mix, chunk by chunk.
 #[derive(Debug)]
 pub struct Mixer {
     peers: Vec<MixerPeer>,
     position: u64,
+    progress: MixProgress,
 }
 
 impl Default for Mixer {
@@ -190,7 +225,13 @@ impl Mixer {
         Self {
             peers: Vec::with_capacity(MAX_PEERS),
             position: 0,
+            progress: MixProgress::default(),
         }
+    }
+
+    /// Its count of chunks mixed, readable from other threads.
+    pub fn progress(&self) -> MixProgress {
+        self.progress.clone()
     }
 
     /// Adds a peer; gives it back when the table is full.
@@ -256,6 +297,9 @@ impl Mixer {
             *o = o.clamp(-1.0, 1.0);
         }
         self.position += CHUNK as u64;
+        self.progress
+            .0
+            .store(self.position / CHUNK as u64, Ordering::Release);
     }
 }
 
@@ -395,6 +439,42 @@ mod tests {
         assert_eq!(clock.stream_position(3 * CHUNK as u64 + 100), None);
         drop(mixer);
         assert!(!feed.is_connected());
+    }
+
+    #[test]
+    fn a_paced_queue_keeps_its_lead_and_stops_growing() {
+        let c = Arc::new(PeerControls::default());
+        let (mut feed, mp, _clock) = peer_channel(PeerId(8), 8000, c);
+        let mut mixer = Mixer::new();
+        mixer.add(mp).unwrap();
+        let mut out = [0.0; CHUNK];
+        // The first frame comes after a frame of silence: two ahead of the mixer.
+        assert_eq!(feed.push_paced(&[100; CHUNK], 2, true), Some(CHUNK as u64));
+        assert_eq!(feed.queued(), 2 * CHUNK);
+        mixer.mix(&mut out);
+        assert!(out.iter().all(|&s| s == 0.0));
+        assert_eq!(
+            feed.push_paced(&[100; CHUNK], 2, false),
+            Some(2 * CHUNK as u64)
+        );
+        assert_eq!(feed.queued(), 2 * CHUNK);
+        // The mixer takes two at once: two more, no silence between.
+        mixer.mix(&mut out);
+        mixer.mix(&mut out);
+        feed.push_paced(&[100; CHUNK], 2, false);
+        feed.push_paced(&[100; CHUNK], 2, false);
+        assert_eq!(feed.queued(), 2 * CHUNK);
+        // Speaking again with a frame still queued: silence up to one frame only.
+        mixer.mix(&mut out);
+        assert_eq!(
+            feed.push_paced(&[100; CHUNK], 2, true),
+            Some(5 * CHUNK as u64)
+        );
+        // Nothing taken: it stops at four frames.
+        for _ in 0..5 {
+            feed.push_paced(&[100; CHUNK], 2, false);
+        }
+        assert_eq!(feed.queued(), 4 * CHUNK);
     }
 
     #[test]

@@ -40,6 +40,7 @@ pub mod clock;
 pub mod devices;
 pub mod error;
 pub mod mixer;
+pub mod pacer;
 pub mod playback;
 mod resample;
 pub mod wav;
@@ -48,7 +49,8 @@ pub use capture::{Capture, FrameReader, Gate, InputFeeder, Level, MicControls};
 pub use clock::{OutputClock, PeerClock, Schedule, ScheduleSender};
 pub use devices::{DeviceChoice, DeviceInfo, input_devices, output_devices};
 pub use error::AudioError;
-pub use mixer::{PeerControls, PeerFeed, PeerId};
+pub use mixer::{MixProgress, PeerControls, PeerFeed, PeerId};
+pub use pacer::FramePacer;
 pub use playback::{
     OpenedOutput, OutputStatus, Playback, PlaybackConfig, PlaybackStats, RetiredOutput,
 };

@@ -18,7 +18,9 @@ use cpal::{FromSample, Sample, SizedSample};
 use super::clock::{OutputClock, PeerClock, Schedule, SinkMapping};
 use super::devices::{self, DeviceChoice, Direction};
 use super::error::AudioError;
-use super::mixer::{CHUNK, MAX_PEERS, Mixer, MixerPeer, PeerControls, PeerFeed, PeerId, Upsampler};
+use super::mixer::{
+    CHUNK, MAX_PEERS, MixProgress, Mixer, MixerPeer, PeerControls, PeerFeed, PeerId, Upsampler,
+};
 use crate::codec::speex::SAMPLE_RATE;
 
 /// How the engine runs.
@@ -137,6 +139,7 @@ pub struct Playback {
     progress: (u64, u64, Instant),
     /// Why the mixer thread stopped feeding the sink, for [`Playback::poll`] to report.
     detached: Arc<Mutex<Option<String>>>,
+    mixed: MixProgress,
 }
 
 /// A device that has played nothing for this long while reporting errors is taken as gone:
@@ -334,12 +337,15 @@ fn virtual_sink(buffer: Duration) -> (Sink, rtrb::Producer<f32>, usize) {
 }
 
 /// The mixer thread: keeps the current sink's ring filled to its target.
-fn mixer_thread(commands: mpsc::Receiver<Command>, detached: &Mutex<Option<String>>) {
+fn mixer_thread(
+    mut mixer: Mixer,
+    commands: mpsc::Receiver<Command>,
+    detached: &Mutex<Option<String>>,
+) {
     let detach = |why: String| {
         tracing::warn!("{why}");
         *detached.lock().unwrap_or_else(PoisonError::into_inner) = Some(why);
     };
-    let mut mixer = Mixer::new();
     let mut chunk = [0.0f32; CHUNK];
     let mut sink: Option<(rtrb::Producer<f32>, Upsampler, usize)> = None;
     loop {
@@ -427,9 +433,11 @@ impl Playback {
         let (tx, rx) = mpsc::channel();
         let detached = Arc::new(Mutex::new(None));
         let detached2 = detached.clone();
+        let mix = Mixer::new();
+        let mixed = mix.progress();
         let mixer = std::thread::Builder::new()
             .name("lipcall-mixer".into())
-            .spawn(move || mixer_thread(rx, &detached2))
+            .spawn(move || mixer_thread(mix, rx, &detached2))
             .map_err(|_| AudioError::MixerStopped)?;
         tx.send(Command::Attach {
             ring,
@@ -447,7 +455,14 @@ impl Playback {
             next_id: 1,
             progress: (0, 0, Instant::now()),
             detached,
+            mixed,
         })
+    }
+
+    /// The mixer's count of 20 ms chunks mixed: what the output has asked of the peers' queues
+    /// so far. Pull decoded frames by it ([`super::FramePacer`]), not by the system clock.
+    pub fn mixed(&self) -> MixProgress {
+        self.mixed.clone()
     }
 
     pub fn status(&self) -> &OutputStatus {

@@ -281,9 +281,9 @@ pub(crate) fn print_peer(peer: &PeerInfo) {
     let codec = peer.receiver.codec.map_or("-", Codec::name);
     eprintln!(
         "peer ssrc={:08x} name={:?} addr={} codec={codec} received={} played={} lost={} late={} \
-         duplicates={} reordered={} concealed={} recovered={} stretched={} dropped={} \
-         unknown_pt={} decode_errors={} jitter_ms={:.1} target_ms={:.1} delay_ms={:.1} rtt_ms={} \
-         their_loss={} bye={}",
+         duplicates={} reordered={} concealed={} recovered={} stretched={} dropped={} forced={} \
+         drift_ppm={:.0} unknown_pt={} decode_errors={} jitter_ms={:.1} target_ms={:.1} \
+         delay_ms={:.1} rtt_ms={} their_loss={} bye={}",
         peer.ssrc,
         peer.name.as_deref().unwrap_or(""),
         peer.addr,
@@ -297,6 +297,8 @@ pub(crate) fn print_peer(peer: &PeerInfo) {
         peer.receiver.recovered,
         j.stretched,
         j.dropped,
+        j.forced,
+        j.drift_ppm,
         peer.receiver.unknown_payload,
         peer.receiver.decode_errors,
         j.jitter_ms,

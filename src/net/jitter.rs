@@ -24,7 +24,7 @@
 //! a quiet frame to be dropped, or inserts a concealed frame after one. Only at the limits (a
 //! packet about to be late, or 200 ms more delay than needed) does it correct whatever the
 //! audio. Clock drift (a sender whose clock runs faster or slower than the playout's) shows as
-//! a steady trend in the slack, measured over the last seconds ([`SlackTrend`]): against a
+//! a steady trend in the slack, measured over the last seconds (`Trend`): against a
 //! slow sender the buffer keeps the delay the drift would eat before the next pause is likely
 //! (3 s), so that it never has to stretch in speech; against a fast one it sheds the surplus
 //! at each pause. The buffer neither grows without bound nor starves.
@@ -51,6 +51,8 @@ use std::time::{Duration, Instant};
 
 /// Packets whose slack steers the delay while playing.
 const SLACK_WINDOW: usize = 100;
+/// Pulls whose timing gives the pull clock's jitter.
+const PULL_WINDOW: usize = 50;
 /// Seconds of one playout frame.
 const FRAME_SECONDS: f64 = 0.02;
 /// The clock of a buffer until told otherwise (Speex, G.711).
@@ -240,18 +242,19 @@ const TREND_BLOCK: f64 = 0.25;
 const TREND_BLOCKS: usize = 48;
 const TREND_MIN_BLOCKS: usize = 4;
 
-/// The trend of the packets' slack over the last seconds: its slope is the drift between the
-/// sender's clock and the playout clock. Per block of arrivals the smallest slack (jitter only
-/// adds to it), corrected for the frames the buffer inserted and dropped; a least-squares line
-/// through the blocks.
+/// The trend of a per-packet time over the last seconds: per block of arrivals its smallest
+/// value (jitter only adds to it), a least-squares line through the blocks. Of the packets'
+/// slack (corrected for the frames the buffer inserted and dropped), the slope is the drift
+/// between the sender's clock and the playout clock; of their transit, between the sender's
+/// and the system clock the arrivals are timed by.
 #[derive(Debug)]
-struct SlackTrend {
+struct Trend {
     block_start: f64,
     block_min: f64,
     blocks: VecDeque<(f64, f64)>,
 }
 
-impl SlackTrend {
+impl Trend {
     fn new() -> Self {
         Self {
             block_start: f64::NAN,
@@ -266,8 +269,8 @@ impl SlackTrend {
         self.blocks.clear();
     }
 
-    /// A packet arriving at `now` with `slack` (seconds), less the corrections made so far.
-    fn note(&mut self, now: f64, slack: f64) {
+    /// A packet arriving at `now` (seconds) with `value`.
+    fn note(&mut self, now: f64, value: f64) {
         if self.block_start.is_nan() {
             self.block_start = now;
         }
@@ -279,10 +282,10 @@ impl SlackTrend {
             self.block_start = now;
             self.block_min = f64::INFINITY;
         }
-        self.block_min = self.block_min.min(slack);
+        self.block_min = self.block_min.min(value);
     }
 
-    /// Seconds of slack gained per second, and its standard error: negative when the
+    /// Seconds gained per second, and its standard error. Of the slack: negative when the
     /// sender's clock is slower than the playout clock (packets come later and later),
     /// positive when it is faster.
     fn fit(&self) -> Option<(f64, f64)> {
@@ -388,20 +391,32 @@ pub struct JitterBuffer {
     next: i64,
     /// The tick up to which the packets handed out so far reach.
     covered: i64,
-    delays: VecDeque<f64>,
+    /// The 97th percentile of the packets' delays above the fastest (seconds), once known.
+    spread: Option<f64>,
+    /// How early recent pulls came (see `note_pull`), and the 90th percentile of it.
+    pulls_early: VecDeque<f64>,
+    pulls_sorted: Vec<f64>,
+    pull_jitter: f64,
+    last_pull: Option<f64>,
+    /// The next pull replaces a dropped frame (it comes at the same time, and is no jitter).
+    replacing: bool,
+    /// Recent packets' arrival and relative delay (arrival less RTP time), seconds.
+    delays: VecDeque<(f64, f64)>,
+    /// The relative delays' trend: a sender's clock drifting against ours.
+    transit_trend: Trend,
     sorted: Vec<f64>,
     base: f64,
     target: f64,
     since_adjust: u32,
     /// Output time at which slot `play_ref.0` is (or was) played.
     play_ref: (i64, f64),
-    /// How early each recent packet arrived before its playout slot, in seconds.
-    slack: VecDeque<f64>,
+    /// How early each recent packet arrived before its playout slot, and when, in seconds.
+    slack: VecDeque<(f64, f64)>,
     slack_sorted: Vec<f64>,
     /// The delay the corrections added since playout started (seconds): the slack trend
     /// measures without it.
     shifted: f64,
-    trend: SlackTrend,
+    trend: Trend,
     /// A correction to make inside a pause, asked for by the last pop.
     want: Want,
     /// Quiet frames played in a row.
@@ -466,6 +481,13 @@ impl JitterBuffer {
             next: 0,
             covered: 0,
             delays: VecDeque::with_capacity(config.window),
+            transit_trend: Trend::new(),
+            spread: None,
+            pulls_early: VecDeque::with_capacity(PULL_WINDOW),
+            pulls_sorted: Vec::with_capacity(PULL_WINDOW),
+            pull_jitter: 0.0,
+            last_pull: None,
+            replacing: false,
             sorted: Vec::with_capacity(config.window),
             base: 0.0,
             target: config.initial_delay.as_secs_f64(),
@@ -474,7 +496,7 @@ impl JitterBuffer {
             slack: VecDeque::with_capacity(SLACK_WINDOW),
             slack_sorted: Vec::with_capacity(SLACK_WINDOW),
             shifted: 0.0,
-            trend: SlackTrend::new(),
+            trend: Trend::new(),
             want: Want::Nothing,
             quiet_run: 0,
             insert_next: false,
@@ -537,6 +559,8 @@ impl JitterBuffer {
         self.next = 0;
         self.covered = 0;
         self.delays.clear();
+        self.transit_trend.clear();
+        self.spread = None;
         self.base = 0.0;
         self.target = self.config.initial_delay.as_secs_f64();
         self.slack.clear();
@@ -688,6 +712,7 @@ impl JitterBuffer {
         self.start_hint = None;
         self.end_hint = None;
         self.trend.clear();
+        self.transit_trend.clear();
         self.stats.rebased += 1;
         off
     }
@@ -793,7 +818,7 @@ impl JitterBuffer {
             self.newest = Some((raw, now));
         }
         self.last_arrival = now;
-        self.observe_delay(now - raw as f64 / clock);
+        self.observe_delay(now, now - raw as f64 / clock);
         self.observe_jitter(now, raw);
 
         if self.state == State::Playing {
@@ -841,29 +866,63 @@ impl JitterBuffer {
         if self.slack.len() == SLACK_WINDOW {
             self.slack.pop_front();
         }
-        self.slack.push_back(slack);
+        self.slack.push_back((now, slack));
         self.trend.note(now, slack - self.shifted);
     }
 
-    fn observe_delay(&mut self, r: f64) {
+    /// A packet arriving at `now` with relative delay `r`. A sender's clock drifting against
+    /// ours moves every packet's delay steadily, which is no jitter: the delays are compared
+    /// as projected to now along their trend.
+    fn observe_delay(&mut self, now: f64, r: f64) {
         if self.delays.len() == self.config.window {
             self.delays.pop_front();
         }
-        self.delays.push_back(r);
-        self.base = self.delays.iter().copied().fold(f64::INFINITY, f64::min);
+        self.delays.push_back((now, r));
+        self.transit_trend.note(now, r);
+        let drift = self.transit_trend.drift();
+        let at_now = |&(t, r): &(f64, f64)| r + drift * (now - t);
+        self.base = self.delays.iter().map(at_now).fold(f64::INFINITY, f64::min);
         if self.delays.len() < 10 {
             return;
         }
+        let base = self.base;
         self.sorted.clear();
         self.sorted
-            .extend(self.delays.iter().map(|d| d - self.base));
+            .extend(self.delays.iter().map(|d| at_now(d) - base));
         self.sorted.sort_by(f64::total_cmp);
-        let q = self.sorted[(self.sorted.len() - 1) * 97 / 100];
-        let target = q + self.config.margin.as_secs_f64();
+        self.spread = Some(self.sorted[(self.sorted.len() - 1) * 97 / 100]);
+        self.update_target();
+    }
+
+    /// The target delay: the packets' spread and the pull clock's own jitter, plus the margin.
+    fn update_target(&mut self) {
+        let Some(spread) = self.spread else { return };
+        let target = spread + self.pull_jitter + self.config.margin.as_secs_f64();
         self.target = target.clamp(
             self.config.min_delay.as_secs_f64(),
             self.config.max_delay.as_secs_f64(),
         );
+    }
+
+    /// A pull at `now`: how much earlier than 20 ms after the last one it came. An output that
+    /// takes 40 ms at a time has its frames pulled in pairs, the second 20 ms early: its packet
+    /// needs that much more delay.
+    fn note_pull(&mut self, now: f64) {
+        if let Some(last) = self.last_pull
+            && !std::mem::take(&mut self.replacing)
+        {
+            if self.pulls_early.len() == PULL_WINDOW {
+                self.pulls_early.pop_front();
+            }
+            self.pulls_early
+                .push_back((last + FRAME_SECONDS - now).max(0.0));
+            self.pulls_sorted.clear();
+            self.pulls_sorted.extend(self.pulls_early.iter().copied());
+            self.pulls_sorted.sort_by(f64::total_cmp);
+            self.pull_jitter = self.pulls_sorted[(self.pulls_sorted.len() - 1) * 9 / 10];
+            self.update_target();
+        }
+        self.last_pull = Some(now);
     }
 
     fn observe_jitter(&mut self, now: f64, off: i64) {
@@ -930,6 +989,7 @@ impl JitterBuffer {
     /// What to play for the 20 ms of output starting at `now` (on the output clock).
     pub fn pop(&mut self, now: Instant) -> Playout {
         let now = self.seconds(now);
+        self.note_pull(now);
         self.want = Want::Nothing;
         self.handed_audio = false;
         match self.state {
@@ -1004,8 +1064,12 @@ impl JitterBuffer {
             return self.stretch(now);
         }
         if self.since_adjust >= QUIET_INTERVAL && self.slack.len() >= 10 {
+            // The worst slack, each packet's projected to now along the drift: against a
+            // drifting sender the oldest packets' slack is no longer what the buffer keeps.
+            let drift = self.trend.drift();
             self.slack_sorted.clear();
-            self.slack_sorted.extend(self.slack.iter().copied());
+            self.slack_sorted
+                .extend(self.slack.iter().map(|&(t, s)| s + drift * (now - t)));
             self.slack_sorted.sort_by(f64::total_cmp);
             let low = self.slack_sorted[self.slack_sorted.len() / 50];
             let limits = self.limits();
@@ -1087,7 +1151,7 @@ impl JitterBuffer {
     fn stretch(&mut self, now: f64) -> Playout {
         self.since_adjust = 0;
         self.stats.stretched += 1;
-        self.slack.iter_mut().for_each(|s| *s += FRAME_SECONDS);
+        self.slack.iter_mut().for_each(|(_, s)| *s += FRAME_SECONDS);
         self.shifted += FRAME_SECONDS;
         self.play_ref = (self.next, now + FRAME_SECONDS);
         Playout::Stretch
@@ -1096,7 +1160,7 @@ impl JitterBuffer {
     /// Skips the next slot's packets without playing them: 20 ms less delay.
     fn skip(&mut self, now: f64) {
         self.since_adjust = 0;
-        self.slack.iter_mut().for_each(|s| *s -= FRAME_SECONDS);
+        self.slack.iter_mut().for_each(|(_, s)| *s -= FRAME_SECONDS);
         self.shifted -= FRAME_SECONDS;
         while let Some((&k, _)) = self.entries.first_key_value() {
             if self.slot_of(k) > self.next {
@@ -1132,11 +1196,12 @@ impl JitterBuffer {
             }
             Want::Shrink if self.handed_audio && next_here => {
                 self.since_adjust = 0;
-                self.slack.iter_mut().for_each(|s| *s -= FRAME_SECONDS);
+                self.slack.iter_mut().for_each(|(_, s)| *s -= FRAME_SECONDS);
                 self.shifted -= FRAME_SECONDS;
                 self.stats.played -= 1;
                 self.stats.dropped += 1;
                 self.handed_audio = false;
+                self.replacing = true;
                 Correction::Drop
             }
             _ => Correction::Keep,

@@ -429,12 +429,15 @@ mod tests {
     fn talk_with_pauses(frame: usize) -> Option<[i16; FRAME_SIZE]> {
         (frame % 100 < 80).then(|| {
             std::array::from_fn(|i| {
-                let t = (frame * FRAME_SIZE + i) as f32 / 8000.0;
-                let pitch = 120.0 + 20.0 * (t * 2.0).sin();
-                let s: f32 = (1..12)
+                // A pitch gliding between 100 and 140 Hz (its phase, the pitch's integral, in
+                // cycles) and 11 harmonics under one formant.
+                let t = (frame * FRAME_SIZE + i) as f64 / 8000.0;
+                let pitch = 120.0 + 20.0 * (2.0 * t).sin();
+                let cycles = 120.0 * t - 10.0 * (2.0 * t).cos();
+                let s: f64 = (1..12)
                     .map(|h| {
-                        let f = pitch * h as f32;
-                        (2.0 * std::f32::consts::PI * f * t).sin()
+                        let f = pitch * f64::from(h);
+                        (std::f64::consts::TAU * cycles * f64::from(h)).sin()
                             / (1.0 + ((f - 650.0) / 300.0).powi(2))
                     })
                     .sum();

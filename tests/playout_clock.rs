@@ -1,0 +1,201 @@
+//! The app's receive path against an output device whose clock is not the system's, in
+//! simulated time: a Speex sender paced by the system clock, the peer's receiver (jitter buffer
+//! and decoder), pulls paced by the mixer's demand ([`FramePacer`]), the peer's queue and the
+//! mixer, and a device that takes 20 ms at a time, 1 % faster or slower than the system clock.
+//! The queue holds the same few frames however long the call, every loud frame is heard, and
+//! the drift is corrected inside the sender's pauses. Pulled on the system clock instead (the
+//! app's loop before), the same queue runs dry or overflows within two minutes.
+
+use std::sync::Arc;
+use std::time::{Duration, Instant};
+
+use lipcall::audio::mixer::{CHUNK, Mixer, PeerControls, PeerId, peer_channel};
+use lipcall::audio::pacer::DEFAULT_LEAD;
+use lipcall::audio::{FramePacer, PeerFeed};
+use lipcall::codec::FRAME_SIZE;
+use lipcall::codec::any::{Codec, EncoderSettings, FrameEncoder, MAX_FRAME_PAYLOAD};
+use lipcall::net::jitter::JitterConfig;
+use lipcall::net::peer::{FrameKind, PeerReceiver};
+use lipcall::net::rtp::{self, RtpStream};
+
+const FRAME_MS: u64 = 20;
+/// Two minutes.
+const FRAMES: usize = 6000;
+/// The peer's queue, as the app makes it: one second.
+const QUEUE: usize = 8000;
+
+/// Frame `k` of a talker: 1.6 s of a voiced sound, then 0.4 s of faint noise.
+fn talker(k: usize) -> ([i16; FRAME_SIZE], bool) {
+    let loud = k % 100 < 80;
+    let pcm = std::array::from_fn(|i| {
+        let n = k * FRAME_SIZE + i;
+        if !loud {
+            return ((n * 7919 % 31) as i16 - 15) * 2;
+        }
+        // A pitch gliding between 100 and 140 Hz (its phase, the pitch's integral, in
+        // cycles) and 11 harmonics under one formant.
+        let t = n as f64 / 8000.0;
+        let pitch = 120.0 + 20.0 * (2.0 * t).sin();
+        let cycles = 120.0 * t - 10.0 * (2.0 * t).cos();
+        let s: f64 = (1..12)
+            .map(|h| {
+                let f = pitch * f64::from(h);
+                (std::f64::consts::TAU * cycles * f64::from(h)).sin()
+                    / (1.0 + ((f - 650.0) / 300.0).powi(2))
+            })
+            .sum();
+        (4000.0 * s) as i16
+    });
+    (pcm, loud)
+}
+
+/// What a run saw, from its second second on.
+#[derive(Debug, Default)]
+struct Run {
+    /// Fewest and most samples queued for the mixer.
+    queued: (usize, usize),
+    /// Samples the mixer found missing (the device played silence for this peer), and those
+    /// that did not fit in the queue.
+    starved: u64,
+    overflow: u64,
+    /// Loud frames sent and heard.
+    loud_sent: usize,
+    loud_heard: usize,
+    /// The jitter buffer's delay, fewest and most ms, after 20 s.
+    delay_ms: (f64, f64),
+    dropped: u64,
+    stretched: u64,
+    forced: u64,
+    drift_ppm: f64,
+}
+
+/// Two minutes of the talker into a receiver whose output device runs at `rate` times the
+/// system clock; `paced` pulls on the mixer's demand, otherwise every 20 ms of system time.
+fn call(rate: f64, paced: bool) -> Run {
+    let mut encoder = FrameEncoder::new(Codec::Speex, &EncoderSettings::default()).unwrap();
+    let payloads: Vec<(Vec<u8>, u32)> = (0..100)
+        .map(|k| {
+            let mut out = [0u8; MAX_FRAME_PAYLOAD];
+            let (n, frames) = encoder.encode(&talker(k).0, &mut out).unwrap().unwrap();
+            (out[..n].to_vec(), frames)
+        })
+        .collect();
+    let mut stream = RtpStream::new(0x5eed, 1, 1000);
+    stream.set_payload(110, 160);
+    let t0 = Instant::now();
+    let mut rx = PeerReceiver::new(JitterConfig::default(), t0, true);
+    let controls = Arc::new(PeerControls::default());
+    let (mut feed, mixer_peer, _clock) = peer_channel(PeerId(1), QUEUE, controls.clone());
+    let mut mixer = Mixer::new();
+    mixer.add(mixer_peer).unwrap();
+    let progress = mixer.progress();
+    let mut pacer = FramePacer::new(DEFAULT_LEAD);
+    let mut chunk = [0.0f32; CHUNK];
+    let mut datagram = Vec::new();
+    let mut run = Run {
+        queued: (usize::MAX, 0),
+        delay_ms: (f64::INFINITY, 0.0),
+        ..Run::default()
+    };
+    let mut sent = 0;
+    let mut next_tick = 0;
+    let mut playing = false;
+    let mut pull = |rx: &mut PeerReceiver, at: Instant, feed: &mut PeerFeed, run: &mut Run| {
+        let frame = rx.pull(at);
+        let resuming = !std::mem::replace(&mut playing, frame.is_some());
+        if let Some(frame) = frame {
+            if paced {
+                feed.push_paced(&frame.pcm, DEFAULT_LEAD as usize, resuming);
+            } else {
+                feed.push(&frame.pcm);
+            }
+            if frame.kind == FrameKind::Decoded && frame.features.energy_db > -35.0 {
+                run.loud_heard += 1;
+            }
+        }
+        if at > t0 + Duration::from_secs(20) {
+            let d = rx.stats().jitter.current_delay_ms;
+            run.delay_ms = (run.delay_ms.0.min(d), run.delay_ms.1.max(d));
+        }
+    };
+    let end = FRAMES as u64 * FRAME_MS + 1000;
+    for ms in 0..end {
+        let now = t0 + Duration::from_millis(ms);
+        // The sender, on the system clock; 3 ms to arrive.
+        while sent < FRAMES && (sent as u64 * FRAME_MS + 3) <= ms {
+            let (payload, frames) = &payloads[sent % 100];
+            stream.packetize(payload, *frames, &mut datagram).unwrap();
+            rx.insert(&rtp::parse(&datagram, None).unwrap(), now);
+            run.loud_sent += usize::from(talker(sent).1);
+            sent += 1;
+        }
+        // The device takes 20 ms at a time, at its own rate (as PulseAudio's null sink does;
+        // the pacer's own tests have a device that takes 40 ms).
+        let wanted = (ms as f64 * rate / 20.0).floor() as u64;
+        while mixer.position() / (CHUNK as u64) < wanted {
+            mixer.mix(&mut chunk);
+        }
+        if ms % 5 == 0 {
+            if paced {
+                for _ in 0..pacer.poll(progress.chunks(), now) {
+                    pull(&mut rx, now, &mut feed, &mut run);
+                }
+            } else if ms >= next_tick {
+                next_tick += FRAME_MS;
+                pull(&mut rx, now, &mut feed, &mut run);
+            }
+        }
+        // Counted while the talker talks (after it, the mixer rightly finds nothing).
+        if ms == 1000 || ms == end - 1000 {
+            run.starved = controls.starved() - run.starved;
+            run.overflow = controls.overflow() - run.overflow;
+        }
+        if ms > 1000 && ms < end - 1000 {
+            let q = feed.queued();
+            run.queued = (run.queued.0.min(q), run.queued.1.max(q));
+        }
+    }
+    let j = rx.stats().jitter;
+    (run.dropped, run.stretched, run.forced, run.drift_ppm) =
+        (j.dropped, j.stretched, j.forced, j.drift_ppm);
+    run
+}
+
+#[test]
+fn pulled_on_the_mixers_demand_the_queue_stays_flat_whatever_the_device_clock() {
+    // (A loud frame's last 5 ms come out of the decoder with the next: each pause's first
+    // frame is loud too. A device in step is the reference.)
+    let steady = call(1.0, true);
+    assert!(steady.loud_heard >= steady.loud_sent, "{steady:?}");
+    assert_eq!(steady.dropped + steady.stretched, 0, "{steady:?}");
+    for rate in [1.01, 0.99] {
+        let run = call(rate, true);
+        eprintln!("device x{rate}, paced by the mixer: {run:?}");
+        // The queue holds the pacer's lead (a frame less just after the mixer took one), never
+        // runs dry while the talker talks, and never overflows.
+        let lead = DEFAULT_LEAD as usize * CHUNK;
+        assert_eq!(run.queued, (lead - CHUNK, lead), "{run:?}");
+        assert_eq!((run.starved, run.overflow), (0, 0), "{run:?}");
+        // The drift now shows between the sender and the device: measured, and corrected in
+        // the pauses, so every loud frame is heard and the delay stays within a few frames.
+        assert!((run.drift_ppm.abs() - 10_000.0).abs() < 1000.0, "{run:?}");
+        assert_eq!(run.forced, 0, "{run:?}");
+        assert!(run.dropped + run.stretched >= 50, "{run:?}");
+        assert_eq!(run.loud_heard, steady.loud_heard, "{run:?}");
+        assert!(run.delay_ms.1 - run.delay_ms.0 < 60.0, "{run:?}");
+    }
+}
+
+#[test]
+fn pulled_on_the_system_clock_the_queue_drifts_away() {
+    // What the app did before: a device 1 % fast drains the queue (the mixer plays silence
+    // for the peer, about 1.2 s of it in two minutes), a slow one fills it until it
+    // overflows (a second of latency, then lost audio).
+    let fast = call(1.01, false);
+    eprintln!("device x1.01, paced by the system clock: {fast:?}");
+    assert!(fast.starved > 8000, "{fast:?}");
+    let slow = call(0.99, false);
+    eprintln!("device x0.99, paced by the system clock: {slow:?}");
+    assert!(slow.queued.1 >= QUEUE - CHUNK, "{slow:?}");
+    assert!(slow.overflow > 0, "{slow:?}");
+}
