@@ -61,8 +61,9 @@ struct Run {
     /// Loud frames sent and heard.
     loud_sent: usize,
     loud_heard: usize,
-    /// The jitter buffer's delay, fewest and most ms, after 20 s.
+    /// The jitter buffer's delay, fewest and most ms, after 20 s, and over the last 30 s.
     delay_ms: (f64, f64),
+    late_delay_ms: (f64, f64),
     dropped: u64,
     stretched: u64,
     forced: u64,
@@ -72,6 +73,11 @@ struct Run {
 /// Two minutes of the talker into a receiver whose output device runs at `rate` times the
 /// system clock; `paced` pulls on the mixer's demand, otherwise every 20 ms of system time.
 fn call(rate: f64, paced: bool) -> Run {
+    call_with_stall(rate, paced, None)
+}
+
+/// As [`call`], the device taking nothing for `stall` (ms from, ms long).
+fn call_with_stall(rate: f64, paced: bool, stall: Option<(u64, u64)>) -> Run {
     let mut encoder = FrameEncoder::new(Codec::Speex, &EncoderSettings::default()).unwrap();
     let payloads: Vec<(Vec<u8>, u32)> = (0..100)
         .map(|k| {
@@ -95,27 +101,39 @@ fn call(rate: f64, paced: bool) -> Run {
     let mut run = Run {
         queued: (usize::MAX, 0),
         delay_ms: (f64::INFINITY, 0.0),
+        late_delay_ms: (f64::INFINITY, 0.0),
         ..Run::default()
     };
     let mut sent = 0;
     let mut next_tick = 0;
     let mut playing = false;
-    let mut pull = |rx: &mut PeerReceiver, at: Instant, feed: &mut PeerFeed, run: &mut Run| {
+    let mut pull = |rx: &mut PeerReceiver,
+                    at: Instant,
+                    ahead: Option<usize>,
+                    feed: &mut PeerFeed,
+                    run: &mut Run| {
         let frame = rx.pull(at);
         let resuming = !std::mem::replace(&mut playing, frame.is_some());
         if let Some(frame) = frame {
-            if paced {
-                feed.push_paced(&frame.pcm, DEFAULT_LEAD as usize, resuming);
-            } else {
-                feed.push(&frame.pcm);
+            match (paced, ahead) {
+                (true, Some(ahead)) => {
+                    feed.push_paced(&frame.pcm, ahead, resuming);
+                }
+                (true, None) => {}
+                (false, _) => {
+                    feed.push(&frame.pcm);
+                }
             }
             if frame.kind == FrameKind::Decoded && frame.features.energy_db > -35.0 {
                 run.loud_heard += 1;
             }
         }
+        let d = rx.stats().jitter.current_delay_ms;
         if at > t0 + Duration::from_secs(20) {
-            let d = rx.stats().jitter.current_delay_ms;
             run.delay_ms = (run.delay_ms.0.min(d), run.delay_ms.1.max(d));
+        }
+        if at > t0 + Duration::from_secs(90) {
+            run.late_delay_ms = (run.late_delay_ms.0.min(d), run.late_delay_ms.1.max(d));
         }
     };
     let end = FRAMES as u64 * FRAME_MS + 1000;
@@ -131,18 +149,27 @@ fn call(rate: f64, paced: bool) -> Run {
         }
         // The device takes 20 ms at a time, at its own rate (as PulseAudio's null sink does;
         // the pacer's own tests have a device that takes 40 ms).
-        let wanted = (ms as f64 * rate / 20.0).floor() as u64;
+        let device_ms = match stall {
+            Some((from, _)) if ms < from => ms,
+            Some((from, long)) => from.max(ms.saturating_sub(long)),
+            None => ms,
+        };
+        let wanted = (device_ms as f64 * rate / 20.0).floor() as u64;
         while mixer.position() / (CHUNK as u64) < wanted {
             mixer.mix(&mut chunk);
         }
         if ms % 5 == 0 {
             if paced {
-                for _ in 0..pacer.poll(progress.chunks(), now) {
-                    pull(&mut rx, now, &mut feed, &mut run);
+                let due = pacer.poll(progress.chunks(), now);
+                for left in (0..due).rev() {
+                    // As the app does: nothing queued while the mixer stands still.
+                    let ahead = (!pacer.stalled())
+                        .then(|| DEFAULT_LEAD.saturating_sub(left).max(1) as usize);
+                    pull(&mut rx, now, ahead, &mut feed, &mut run);
                 }
             } else if ms >= next_tick {
                 next_tick += FRAME_MS;
-                pull(&mut rx, now, &mut feed, &mut run);
+                pull(&mut rx, now, None, &mut feed, &mut run);
             }
         }
         // Counted while the talker talks (after it, the mixer rightly finds nothing).
@@ -184,6 +211,25 @@ fn pulled_on_the_mixers_demand_the_queue_stays_flat_whatever_the_device_clock() 
         assert_eq!(run.loud_heard, steady.loud_heard, "{run:?}");
         assert!(run.delay_ms.1 - run.delay_ms.0 < 60.0, "{run:?}");
     }
+}
+
+#[test]
+fn a_device_that_stalls_for_a_second_comes_back_where_it_was() {
+    // The device takes nothing for a second a minute into the call (a busy sound server). The
+    // pulls go on by the system clock meanwhile, what they decode is not queued, and
+    // afterwards the queue holds its lead again and the delay is what it was: the stall cost
+    // its second of audio, not a second of latency for the rest of the call.
+    let steady = call(1.0, true);
+    let run = call_with_stall(1.0, true, Some((60_000, 1000)));
+    eprintln!("a second's stall: {run:?}");
+    let lead = DEFAULT_LEAD as usize * CHUNK;
+    assert!(
+        run.queued.0 >= lead - CHUNK && run.queued.1 <= lead,
+        "{run:?}"
+    );
+    assert_eq!((run.starved, run.overflow), (0, 0), "{run:?}");
+    assert_eq!(run.late_delay_ms, steady.late_delay_ms, "{run:?}");
+    assert_eq!(run.dropped + run.stretched, 0, "{run:?}");
 }
 
 #[test]

@@ -845,11 +845,14 @@ impl Worker {
                     self.refresh_peers(&infos);
                 }
             }
-            for _ in 0..pacer.poll(mixed.chunks(), Instant::now()) {
+            let due = pacer.poll(mixed.chunks(), Instant::now());
+            for left in (0..due).rev() {
                 frames.clear();
                 self.link.pull(Instant::now(), &mut frames);
                 self.counters.ticks.fetch_add(1, Ordering::Relaxed);
-                self.play(&frames, !pacer.stalled());
+                // How many frames ahead of the mixer this one is; none while it stands still.
+                let ahead = (!pacer.stalled()).then(|| DEFAULT_LEAD.saturating_sub(left).max(1));
+                self.play(&frames, ahead);
             }
         }
         self.link.leave();
@@ -908,8 +911,9 @@ impl Worker {
     }
 
     /// One pull's frames: into each peer's queue for the mixer, and through its animation.
-    /// `heard`: false while the output takes nothing (the frames are not queued).
-    fn play(&mut self, frames: &[PeerFrame], heard: bool) {
+    /// `ahead`: how many frames ahead of the mixer these are ([`PeerFeed::push_paced`]);
+    /// `None` while the output takes nothing (they are not queued).
+    fn play(&mut self, frames: &[PeerFrame], ahead: Option<u64>) {
         let now = Instant::now();
         let mut s = lock(&self.shared);
         for f in frames {
@@ -938,15 +942,11 @@ impl Worker {
                 c.set_volume(prefs.volume);
             }
             peer.frames_received += 1;
-            let resuming = !std::mem::replace(&mut peer.playing, heard);
+            let resuming = !std::mem::replace(&mut peer.playing, ahead.is_some());
             // (Not queued while the output takes nothing: a device that has not started or
             // stalls, a stopped mixer; the pulls follow the system clock meanwhile.)
-            let queued = heard
-                .then(|| {
-                    peer.feed
-                        .push_paced(&f.frame.pcm, DEFAULT_LEAD as usize, resuming)
-                })
-                .flatten();
+            let queued = ahead
+                .and_then(|ahead| peer.feed.push_paced(&f.frame.pcm, ahead as usize, resuming));
             let Some(pos) = queued else {
                 continue;
             };

@@ -112,20 +112,19 @@ impl PeerFeed {
         (start, n)
     }
 
-    /// Queues a frame pulled on the mixer's demand, `lead` frames ahead of it
-    /// ([`super::FramePacer`]). The first frame of a peer that starts, or speaks again after
-    /// a silence (`resuming`), comes after enough silence to put it `lead` frames ahead of the
-    /// mixer too; a queue already `lead + 2` frames long (an output that takes nothing) takes
-    /// nothing more. The stream position of the frame's first sample, or `None` if it was not
-    /// queued.
-    pub fn push_paced(&mut self, pcm: &[i16], lead: usize, resuming: bool) -> Option<u64> {
+    /// Queues a frame pulled on the mixer's demand ([`super::FramePacer`]), which puts it
+    /// `ahead` frames ahead of the mixer. The first frame of a peer that starts, or speaks again
+    /// after a silence (`resuming`), comes after enough silence to put it there too; a queue
+    /// already `ahead + 2` frames long (an output that takes nothing) takes nothing more. The
+    /// stream position of the frame's first sample, or `None` if it was not queued.
+    pub fn push_paced(&mut self, pcm: &[i16], ahead: usize, resuming: bool) -> Option<u64> {
         const SILENCE: [i16; CHUNK] = [0; CHUNK];
         let queued = self.queued();
-        if queued >= (lead + 2) * CHUNK {
+        if queued >= (ahead + 2) * CHUNK {
             return None;
         }
         if resuming {
-            let mut pad = (lead.saturating_sub(1) * CHUNK).saturating_sub(queued);
+            let mut pad = (ahead.saturating_sub(1) * CHUNK).saturating_sub(queued);
             while pad > 0 {
                 let n = pad.min(CHUNK);
                 self.push(&SILENCE[..n]);

@@ -38,6 +38,8 @@ pub struct FramePacer {
     seen: Option<(u64, Instant)>,
     skipped: u64,
     stalled: bool,
+    /// While stalled: the frames pulled (and queued) before the stall.
+    queued_upto: u64,
 }
 
 impl FramePacer {
@@ -49,6 +51,7 @@ impl FramePacer {
             seen: None,
             skipped: 0,
             stalled: false,
+            queued_upto: 0,
         }
     }
 
@@ -69,11 +72,12 @@ impl FramePacer {
     }
 
     /// The frames to pull now, given the chunks the mixer has mixed so far (`mixed`); they
-    /// count as pulled.
+    /// count as pulled. Queue the `i`th of `n` with [`super::PeerFeed::push_paced`] and an
+    /// `ahead` of `lead - (n - 1 - i)`: it is that many frames ahead of the mixer.
     pub fn poll(&mut self, mixed: u64, now: Instant) -> u64 {
         let demand = self.demand(mixed, now);
         let mut pulled = *self.pulled.get_or_insert(demand);
-        if pulled + MAX_BEHIND < demand {
+        if !self.stalled && pulled + MAX_BEHIND < demand {
             self.skipped += demand - pulled;
             pulled = demand;
         }
@@ -82,30 +86,28 @@ impl FramePacer {
         target.saturating_sub(pulled)
     }
 
-    /// The mixer's count, or, while it stands still, where it would be on the system clock.
+    /// The mixer's count, or, while it stands still, where it would be on the system clock
+    /// (so that the jitter buffers go on at the pace their packets come).
     fn demand(&mut self, mixed: u64, now: Instant) -> u64 {
         match self.seen {
             Some((count, since)) if count == mixed => {
                 let still = now.saturating_duration_since(since);
-                self.stalled = still > STALL;
-                if self.stalled {
-                    mixed + ((still - STALL).as_secs_f64() / FRAME.as_secs_f64()) as u64
-                } else {
-                    mixed
+                if still <= STALL {
+                    return mixed;
                 }
+                if !self.stalled {
+                    // What is queued stays queued: the mixer takes it first when it comes back.
+                    self.stalled = true;
+                    self.queued_upto = self.pulled.unwrap_or(mixed);
+                }
+                mixed + (still.as_secs_f64() / FRAME.as_secs_f64()) as u64
             }
             _ => {
-                if let (Some((_, since)), Some(pulled)) = (self.seen, self.pulled) {
-                    // The mixer came back after the system clock paced the pulls: start again
-                    // from its count instead of waiting for it to catch up.
-                    if now.saturating_duration_since(since) > STALL
-                        && pulled > mixed + self.lead + MAX_BEHIND
-                    {
-                        self.pulled = Some(mixed);
-                    }
+                if std::mem::take(&mut self.stalled) {
+                    // Back after the system clock paced the pulls (which were not queued).
+                    self.pulled = Some(self.queued_upto);
                 }
                 self.seen = Some((mixed, now));
-                self.stalled = false;
                 mixed
             }
         }
@@ -145,16 +147,19 @@ mod tests {
         let t0 = Instant::now();
         let mut pacer = FramePacer::new(2);
         assert_eq!(pacer.poll(100, t0), 2);
-        // The mixer stops at 101: after 250 ms the system clock takes over, 20 ms a frame.
+        assert_eq!(pacer.poll(101, t0 + Duration::from_millis(20)), 1);
+        // The mixer stops at 101. After 250 ms the system clock takes over: the pulls catch up
+        // at once (frames that will not be heard), then go on every 20 ms.
         let mut pulls = 0;
-        for ms in (20..=20 + 250 + 1000).step_by(5) {
+        for ms in (25..=20 + 1000).step_by(5) {
             pulls += pacer.poll(101, t0 + Duration::from_millis(ms));
         }
-        assert_eq!(pacer.pulled(), 101 + 50 + 2);
-        assert_eq!((pulls, pacer.skipped()), (51, 0));
         assert!(pacer.stalled());
-        // It comes back at 102 two seconds later: pulls start again from its count.
-        assert_eq!(pacer.poll(102, t0 + Duration::from_secs(3)), 2);
+        assert_eq!(pacer.pulled(), 101 + 50 + 2);
+        assert_eq!((pulls, pacer.skipped()), (50, 0));
+        // It comes back at 102: what was queued before the stall is still there (up to 103),
+        // so one frame is due.
+        assert_eq!(pacer.poll(102, t0 + Duration::from_secs(3)), 1);
         assert_eq!(pacer.pulled(), 104);
         assert!(!pacer.stalled());
         // A puller that stalled while the mixer ran on skips what was mixed meanwhile.
