@@ -23,6 +23,10 @@ use super::head::{
 
 /// Refuse absurd sizes before allocating for them.
 const MAX_VERTICES: usize = 4_000_000;
+/// Largest coordinate of a vertex or of a morph target's displacement: a head is at most a few
+/// metres across in any unit a tool exports (300 in millimetres), and far beyond that the f32
+/// sums that frame and blend it overflow (a finite 1e36 displacement gave an infinite mouth).
+const MAX_COORDINATE: f32 = 1.0e6;
 const MAX_NODE_DEPTH: usize = 64;
 /// Vertices, indices and morph deltas read may reach this many plus one per 4 bytes of buffer
 /// data: a file reads about one per 4 to 12 buffer bytes, and without this budget one accessor
@@ -43,6 +47,10 @@ pub fn load_head(path: &Path) -> Result<HeadModel, RenderError> {
 /// Loads a head from GLB bytes (or glTF JSON with embedded `data:` buffers).
 pub fn load_head_from_slice(bytes: &[u8]) -> Result<HeadModel, RenderError> {
     load_head_from_slice_in(bytes, None)
+}
+
+fn coordinate_ok(v: Vec3) -> bool {
+    v.is_finite() && v.abs().max_element() <= MAX_COORDINATE
 }
 
 fn gltf_err(e: impl std::fmt::Display) -> RenderError {
@@ -883,8 +891,10 @@ fn read_primitive(
         .ok_or_else(missing)?
         .map(|p| transform.transform_point3(Vec3::from(p)))
         .collect();
-    if positions.len() != n || positions.iter().any(|p| !p.is_finite()) {
-        return Err(RenderError::Gltf("POSITION has non-finite values".into()));
+    if positions.len() != n || positions.iter().any(|&p| !coordinate_ok(p)) {
+        return Err(RenderError::Gltf(format!(
+            "POSITION has values that are not finite or beyond {MAX_COORDINATE:e}"
+        )));
     }
 
     let indices: Vec<u32> = match prim.indices() {
@@ -964,13 +974,12 @@ fn read_primitive(
                     d.normal = (normal_matrix * Vec3::from(v)).into();
                 }
             }
-            if deltas
-                .iter()
-                .any(|d| !Vec3::from(d.position).is_finite() || !Vec3::from(d.normal).is_finite())
-            {
-                return Err(RenderError::Gltf(
-                    "morph target has non-finite values".into(),
-                ));
+            if deltas.iter().any(|d| {
+                !coordinate_ok(Vec3::from(d.position)) || !coordinate_ok(Vec3::from(d.normal))
+            }) {
+                return Err(RenderError::Gltf(format!(
+                    "a morph target has values that are not finite or beyond {MAX_COORDINATE:e}"
+                )));
             }
             out_targets.push((kind, deltas));
         }

@@ -1,0 +1,77 @@
+//! What the fuzz targets in tools/fuzz found (docs/fuzzing.md), each kept as the smallest input
+//! that shows it: the parser now gives a clear error (or a sound result) where it panicked,
+//! hung or returned something its callers could not use.
+
+use lipcall::render::gltf_load::load_head_from_slice;
+
+fn base64(bytes: &[u8]) -> String {
+    const ABC: &[u8; 64] = b"ABCDEFGHIJKLMNOPQRSTUVWXYZabcdefghijklmnopqrstuvwxyz0123456789+/";
+    let mut out = String::new();
+    for chunk in bytes.chunks(3) {
+        let b = [
+            chunk[0],
+            *chunk.get(1).unwrap_or(&0),
+            *chunk.get(2).unwrap_or(&0),
+        ];
+        let n = (u32::from(b[0]) << 16) | (u32::from(b[1]) << 8) | u32::from(b[2]);
+        for k in 0..4 {
+            if k <= chunk.len() {
+                out.push(ABC[(n >> (18 - 6 * k) & 63) as usize] as char);
+            } else {
+                out.push('=');
+            }
+        }
+    }
+    out
+}
+
+/// A one-triangle glTF head with a `viseme_aa` target moving each vertex by `delta` in y.
+fn head_with_target(positions: [[f32; 3]; 3], delta: f32) -> Vec<u8> {
+    let mut data = Vec::new();
+    for p in positions {
+        data.extend(p.iter().flat_map(|c| c.to_le_bytes()));
+    }
+    for _ in 0..3 {
+        data.extend([0.0, delta, 0.0f32].iter().flat_map(|c| c.to_le_bytes()));
+    }
+    let accessor = |view: usize, bounds: &str| {
+        format!(r#"{{"bufferView":{view},"componentType":5126,"count":3,"type":"VEC3"{bounds}}}"#)
+    };
+    let (mut min, mut max) = ([f32::MAX; 3], [f32::MIN; 3]);
+    for p in positions {
+        for k in 0..3 {
+            min[k] = min[k].min(p[k]);
+            max[k] = max[k].max(p[k]);
+        }
+    }
+    let bounds = format!(r#","min":{min:?},"max":{max:?}"#);
+    format!(
+        r#"{{"asset":{{"version":"2.0"}},"scene":0,"scenes":[{{"nodes":[0]}}],"nodes":[{{"mesh":0}}],
+"meshes":[{{"extras":{{"targetNames":["viseme_aa"]}},
+  "primitives":[{{"attributes":{{"POSITION":0}},"targets":[{{"POSITION":1}}]}}]}}],
+"accessors":[{},{}],
+"bufferViews":[{{"buffer":0,"byteLength":36}},{{"buffer":0,"byteOffset":36,"byteLength":36}}],
+"buffers":[{{"byteLength":72,"uri":"data:application/octet-stream;base64,{}"}}]}}"#,
+        accessor(0, &bounds),
+        accessor(1, ""),
+        base64(&data)
+    )
+    .into_bytes()
+}
+
+const TRIANGLE: [[f32; 3]; 3] = [[0.0, 0.0, 0.0], [0.1, 0.0, 0.0], [0.0, 0.1, 0.0]];
+
+/// gltf target: a head whose morph target moves vertices by a finite 1e36 loaded, and framing
+/// it summed the motion into an infinite mouth position (a camera of NaNs).
+#[test]
+fn a_head_with_absurd_coordinates_is_refused() {
+    let head = load_head_from_slice(&head_with_target(TRIANGLE, 0.02)).unwrap();
+    let frame = head.face_frame();
+    assert!(frame.mouth.is_finite() && frame.head_max.is_finite());
+
+    let e = load_head_from_slice(&head_with_target(TRIANGLE, 1e36)).unwrap_err();
+    assert!(e.to_string().contains("morph target"), "{e}");
+    let far = TRIANGLE.map(|[x, y, z]| [x + 3e37, y, z]);
+    let e = load_head_from_slice(&head_with_target(far, 0.02)).unwrap_err();
+    assert!(e.to_string().contains("POSITION"), "{e}");
+}
