@@ -2,6 +2,7 @@
 //! that shows it: the parser now gives a clear error (or a sound result) where it panicked,
 //! hung or returned something its callers could not use.
 
+use lipcall::lipsync::markers::MarkerTrack;
 use lipcall::render::gltf_load::load_head_from_slice;
 
 fn base64(bytes: &[u8]) -> String {
@@ -74,4 +75,18 @@ fn a_head_with_absurd_coordinates_is_refused() {
     let far = TRIANGLE.map(|[x, y, z]| [x + 3e37, y, z]);
     let e = load_head_from_slice(&head_with_target(far, 0.02)).unwrap_err();
     assert!(e.to_string().contains("POSITION"), "{e}");
+}
+
+/// markers target: two finite coordinates 6e38 apart made an infinite point once the origin
+/// marker was subtracted, which the decomposition then fitted.
+#[test]
+fn a_marker_too_far_from_the_origin_is_refused() {
+    let track = "frame,nose_x,nose_y,lip_x,lip_y\n1,-3e38,0,3e38,0\n2,0,0,1,1\n";
+    let absolute = MarkerTrack::parse(track, None).unwrap();
+    assert!(absolute.points.frames().flatten().all(|v| v.is_finite()));
+    let e = MarkerTrack::parse(track, Some("nose")).unwrap_err();
+    assert_eq!(
+        e.to_string(),
+        "line 2: marker lip is too far from the origin marker"
+    );
 }

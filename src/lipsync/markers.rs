@@ -138,7 +138,18 @@ impl MarkerTrack {
             for (slot, &i) in kept.iter().enumerate() {
                 for d in 0..point_dim {
                     let base = origin_index.map_or(0.0, |o| row[o * point_dim + d]);
-                    frame[slot * point_dim + d] = row[i * point_dim + d] - base;
+                    let relative = row[i * point_dim + d] - base;
+                    // Two finite coordinates far apart can differ by more than an f32 holds.
+                    if !relative.is_finite() {
+                        return Err(MarkerError::Row {
+                            line,
+                            message: format!(
+                                "marker {} is too far from the origin marker",
+                                names[i]
+                            ),
+                        });
+                    }
+                    frame[slot * point_dim + d] = relative;
                 }
             }
             points.push(&frame).map_err(|e| MarkerError::Row {
