@@ -73,11 +73,17 @@ struct Run {
 /// Two minutes of the talker into a receiver whose output device runs at `rate` times the
 /// system clock; `paced` pulls on the mixer's demand, otherwise every 20 ms of system time.
 fn call(rate: f64, paced: bool) -> Run {
-    call_with_stall(rate, paced, None)
+    call_with_stall(rate, paced, None, None)
 }
 
-/// As [`call`], the device taking nothing for `stall` (ms from, ms long).
-fn call_with_stall(rate: f64, paced: bool, stall: Option<(u64, u64)>) -> Run {
+/// As [`call`], the device taking nothing for `stall` (ms from, ms long), and the puller (the
+/// app's engine thread) held up for `held` (ms from, ms long).
+fn call_with_stall(
+    rate: f64,
+    paced: bool,
+    stall: Option<(u64, u64)>,
+    held: Option<(u64, u64)>,
+) -> Run {
     let mut encoder = FrameEncoder::new(Codec::Speex, &EncoderSettings::default()).unwrap();
     let payloads: Vec<(Vec<u8>, u32)> = (0..100)
         .map(|k| {
@@ -158,14 +164,12 @@ fn call_with_stall(rate: f64, paced: bool, stall: Option<(u64, u64)>) -> Run {
         while mixer.position() / (CHUNK as u64) < wanted {
             mixer.mix(&mut chunk);
         }
-        if ms % 5 == 0 {
+        let held_up = held.is_some_and(|(from, long)| (from..from + long).contains(&ms));
+        if ms % 5 == 0 && !held_up {
             if paced {
-                let due = pacer.poll(progress.chunks(), now);
-                for left in (0..due).rev() {
-                    // As the app does: nothing queued while the mixer stands still.
-                    let ahead = (!pacer.stalled())
-                        .then(|| DEFAULT_LEAD.saturating_sub(left).max(1) as usize);
-                    pull(&mut rx, now, ahead, &mut feed, &mut run);
+                let pulls = pacer.poll(progress.chunks(), now);
+                for i in 0..pulls.total() {
+                    pull(&mut rx, now, pulls.ahead(i), &mut feed, &mut run);
                 }
             } else if ms >= next_tick {
                 next_tick += FRAME_MS;
@@ -220,7 +224,7 @@ fn a_device_that_stalls_for_a_second_comes_back_where_it_was() {
     // afterwards the queue holds its lead again and the delay is what it was: the stall cost
     // its second of audio, not a second of latency for the rest of the call.
     let steady = call(1.0, true);
-    let run = call_with_stall(1.0, true, Some((60_000, 1000)));
+    let run = call_with_stall(1.0, true, Some((60_000, 1000)), None);
     eprintln!("a second's stall: {run:?}");
     let lead = DEFAULT_LEAD as usize * CHUNK;
     assert!(
@@ -228,6 +232,22 @@ fn a_device_that_stalls_for_a_second_comes_back_where_it_was() {
         "{run:?}"
     );
     assert_eq!((run.starved, run.overflow), (0, 0), "{run:?}");
+    assert_eq!(run.late_delay_ms, steady.late_delay_ms, "{run:?}");
+    assert_eq!(run.dropped + run.stretched, 0, "{run:?}");
+}
+
+#[test]
+fn a_puller_held_up_drops_what_was_mixed_meanwhile() {
+    // The engine thread gets no CPU for 150 ms a minute into the call: the mixer plays
+    // silence for the peer meanwhile (what a late puller cannot help), then the frames it
+    // played silence for are pulled and dropped, and the queue is back at its lead at once
+    // (rather than late audio queued on top of it, for the rest of the call).
+    let steady = call(1.0, true);
+    let run = call_with_stall(1.0, true, None, Some((60_000, 150)));
+    eprintln!("the puller held up for 150 ms: {run:?}");
+    let lead = DEFAULT_LEAD as usize * CHUNK;
+    assert!(run.queued.1 <= lead, "{run:?}");
+    assert!(run.starved <= 8 * CHUNK as u64, "{run:?}");
     assert_eq!(run.late_delay_ms, steady.late_delay_ms, "{run:?}");
     assert_eq!(run.dropped + run.stretched, 0, "{run:?}");
 }

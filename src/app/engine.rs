@@ -845,14 +845,12 @@ impl Worker {
                     self.refresh_peers(&infos);
                 }
             }
-            let due = pacer.poll(mixed.chunks(), Instant::now());
-            for left in (0..due).rev() {
+            let pulls = pacer.poll(mixed.chunks(), Instant::now());
+            for i in 0..pulls.total() {
                 frames.clear();
                 self.link.pull(Instant::now(), &mut frames);
                 self.counters.ticks.fetch_add(1, Ordering::Relaxed);
-                // How many frames ahead of the mixer this one is; none while it stands still.
-                let ahead = (!pacer.stalled()).then(|| DEFAULT_LEAD.saturating_sub(left).max(1));
-                self.play(&frames, ahead);
+                self.play(&frames, pulls.ahead(i));
             }
         }
         self.link.leave();
@@ -913,7 +911,7 @@ impl Worker {
     /// One pull's frames: into each peer's queue for the mixer, and through its animation.
     /// `ahead`: how many frames ahead of the mixer these are ([`PeerFeed::push_paced`]);
     /// `None` while the output takes nothing (they are not queued).
-    fn play(&mut self, frames: &[PeerFrame], ahead: Option<u64>) {
+    fn play(&mut self, frames: &[PeerFrame], ahead: Option<usize>) {
         let now = Instant::now();
         let mut s = lock(&self.shared);
         for f in frames {
@@ -943,10 +941,10 @@ impl Worker {
             }
             peer.frames_received += 1;
             let resuming = !std::mem::replace(&mut peer.playing, ahead.is_some());
-            // (Not queued while the output takes nothing: a device that has not started or
-            // stalls, a stopped mixer; the pulls follow the system clock meanwhile.)
-            let queued = ahead
-                .and_then(|ahead| peer.feed.push_paced(&f.frame.pcm, ahead as usize, resuming));
+            // (Not queued when the mixer has mixed silence in its place already, or while the
+            // output takes nothing: a device that has not started or stalls, a stopped mixer.)
+            let queued =
+                ahead.and_then(|ahead| peer.feed.push_paced(&f.frame.pcm, ahead, resuming));
             let Some(pos) = queued else {
                 continue;
             };

@@ -50,7 +50,7 @@ pub use clock::{OutputClock, PeerClock, Schedule, ScheduleSender};
 pub use devices::{DeviceChoice, DeviceInfo, input_devices, output_devices};
 pub use error::AudioError;
 pub use mixer::{MixProgress, PeerControls, PeerFeed, PeerId};
-pub use pacer::FramePacer;
+pub use pacer::{FramePacer, Pulls};
 pub use playback::{
     OpenedOutput, OutputStatus, Playback, PlaybackConfig, PlaybackStats, RetiredOutput,
 };

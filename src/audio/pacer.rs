@@ -25,8 +25,34 @@ pub const FRAME: Duration = Duration::from_millis(20);
 pub const DEFAULT_LEAD: u64 = 2;
 /// The mixer's count standing still this long means it stopped.
 const STALL: Duration = Duration::from_millis(250);
-/// Frames so far behind the mixer are skipped: they were mixed as silence already.
-const MAX_BEHIND: u64 = 5;
+/// Frames the mixer has already mixed (as silence, the puller being late) are pulled and
+/// dropped, so that the jitter buffers stay in step; this many and more are skipped (a
+/// suspended process).
+const MAX_BEHIND: u64 = 25;
+
+/// What a poll asks for: `late` frames to pull and drop (the mixer has mixed silence in
+/// their place, or stands still), then `queued` frames to pull and queue, the last of them
+/// `lead` frames ahead of the mixer.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub struct Pulls {
+    pub late: u64,
+    pub queued: u64,
+    lead: u64,
+}
+
+impl Pulls {
+    pub fn total(&self) -> u64 {
+        self.late + self.queued
+    }
+
+    /// For the `i`th pull of the poll: `None` to drop its frames, or how many frames ahead of
+    /// the mixer they are ([`super::PeerFeed::push_paced`]).
+    pub fn ahead(&self, i: u64) -> Option<usize> {
+        let q = i.checked_sub(self.late)?;
+        let left = self.queued.checked_sub(q + 1)?;
+        Some(self.lead.saturating_sub(left).max(1) as usize)
+    }
+}
 
 /// Says how many frames to pull (see the module documentation).
 #[derive(Debug, Clone)]
@@ -60,30 +86,44 @@ impl FramePacer {
         self.pulled.unwrap_or(0)
     }
 
-    /// Frames skipped because the mixer got ahead (the puller stalled).
+    /// Frames skipped because the mixer got far ahead (the puller stood still).
     pub fn skipped(&self) -> u64 {
         self.skipped
     }
 
-    /// The mixer has stood still since the last poll's STALL ago: the frames pulled meanwhile
-    /// (on the system clock) will not be heard; do not queue them.
+    /// The mixer stands still (over 250 ms): the pulls follow the system clock meanwhile.
     pub fn stalled(&self) -> bool {
         self.stalled
     }
 
-    /// The frames to pull now, given the chunks the mixer has mixed so far (`mixed`); they
-    /// count as pulled. Queue the `i`th of `n` with [`super::PeerFeed::push_paced`] and an
-    /// `ahead` of `lead - (n - 1 - i)`: it is that many frames ahead of the mixer.
-    pub fn poll(&mut self, mixed: u64, now: Instant) -> u64 {
+    /// What to pull now, given the chunks the mixer has mixed so far (`mixed`); it counts as
+    /// pulled.
+    pub fn poll(&mut self, mixed: u64, now: Instant) -> Pulls {
         let demand = self.demand(mixed, now);
-        let mut pulled = *self.pulled.get_or_insert(demand);
-        if !self.stalled && pulled + MAX_BEHIND < demand {
-            self.skipped += demand - pulled;
-            pulled = demand;
-        }
+        let pulled = *self.pulled.get_or_insert(demand);
         let target = demand + self.lead;
-        self.pulled = Some(pulled.max(target));
-        target.saturating_sub(pulled)
+        if self.stalled {
+            self.pulled = Some(pulled.max(target));
+            return Pulls {
+                late: target.saturating_sub(pulled),
+                queued: 0,
+                lead: self.lead,
+            };
+        }
+        let behind = demand.saturating_sub(pulled);
+        let late = if behind > MAX_BEHIND {
+            self.skipped += behind;
+            0
+        } else {
+            behind
+        };
+        let start = pulled.max(demand);
+        self.pulled = Some(start.max(target));
+        Pulls {
+            late,
+            queued: target.saturating_sub(start),
+            lead: self.lead,
+        }
     }
 
     /// The mixer's count, or, while it stands still, where it would be on the system clock
@@ -134,7 +174,9 @@ mod tests {
                 if ms > 0 {
                     starved += mixed.saturating_sub(pacer.pulled());
                 }
-                pulls += pacer.poll(mixed, t0 + Duration::from_millis(ms));
+                let due = pacer.poll(mixed, t0 + Duration::from_millis(ms));
+                assert_eq!(due.late, 0);
+                pulls += due.queued;
                 most = most.max(pacer.pulled() - mixed);
             }
             assert_eq!(pulls, mixed + DEFAULT_LEAD, "{rate}");
@@ -143,27 +185,39 @@ mod tests {
     }
 
     #[test]
-    fn a_stalled_mixer_hands_over_to_the_system_clock_and_back() {
+    fn late_pulls_are_dropped_and_a_stalled_mixer_hands_over_to_the_system_clock() {
         let t0 = Instant::now();
+        let at = |ms: u64| t0 + Duration::from_millis(ms);
         let mut pacer = FramePacer::new(2);
-        assert_eq!(pacer.poll(100, t0), 2);
-        assert_eq!(pacer.poll(101, t0 + Duration::from_millis(20)), 1);
-        // The mixer stops at 101. After 250 ms the system clock takes over: the pulls catch up
-        // at once (frames that will not be heard), then go on every 20 ms.
-        let mut pulls = 0;
-        for ms in (25..=20 + 1000).step_by(5) {
-            pulls += pacer.poll(101, t0 + Duration::from_millis(ms));
+        let due = pacer.poll(100, t0);
+        assert_eq!((due.late, due.queued), (0, 2));
+        assert_eq!((due.ahead(0), due.ahead(1)), (Some(1), Some(2)));
+        assert_eq!(pacer.poll(101, at(20)).queued, 1);
+        // The puller was held up while the mixer mixed four chunks (silence for this peer):
+        // those frames are pulled and dropped, the next two queued.
+        let due = pacer.poll(105, at(100));
+        assert_eq!((due.late, due.queued), (2, 2));
+        assert_eq!(
+            (0..4).map(|i| due.ahead(i)).collect::<Vec<_>>(),
+            [None, None, Some(1), Some(2)]
+        );
+        // The mixer stops at 105. After 250 ms the system clock takes over: the pulls catch up
+        // at once, then go on every 20 ms, all dropped.
+        let (mut late, mut queued) = (0, 0);
+        for ms in (105..=100 + 1000).step_by(5) {
+            let due = pacer.poll(105, at(ms));
+            (late, queued) = (late + due.late, queued + due.queued);
         }
         assert!(pacer.stalled());
-        assert_eq!(pacer.pulled(), 101 + 50 + 2);
-        assert_eq!((pulls, pacer.skipped()), (50, 0));
-        // It comes back at 102: what was queued before the stall is still there (up to 103),
+        assert_eq!((late, queued), (50, 0));
+        assert_eq!(pacer.pulled(), 105 + 50 + 2);
+        // It comes back at 106: what was queued before the stall is still there (up to 107),
         // so one frame is due.
-        assert_eq!(pacer.poll(102, t0 + Duration::from_secs(3)), 1);
-        assert_eq!(pacer.pulled(), 104);
+        let due = pacer.poll(106, at(3000));
+        assert_eq!((due.late, due.queued), (0, 1));
         assert!(!pacer.stalled());
-        // A puller that stalled while the mixer ran on skips what was mixed meanwhile.
-        assert_eq!(pacer.poll(130, t0 + Duration::from_millis(3020)), 2);
-        assert_eq!(pacer.skipped(), 130 - 104);
+        // Far behind (a suspended process): skipped.
+        let due = pacer.poll(200, at(3020));
+        assert_eq!((due.late, due.queued, pacer.skipped()), (0, 2, 200 - 108));
     }
 }
