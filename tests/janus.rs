@@ -11,41 +11,46 @@ use common::janus::{IN_ROOM, free_tcp_port, janus_installed, start_janus};
 use common::net::{Announce, finish, spawn, spawn_listening};
 use common::{demo_8k, lipcall, read_wav_i16, repo_file};
 
-/// The lag of `test` against `reference` (positive: `test` later) within +-`max` samples that
-/// correlates best over the first seconds of speech, and the SNR over the overlap there.
-fn snr_at_best_shift(reference: &[i16], test: &[i16], max: usize) -> (f64, isize) {
-    let pair = |lag: isize| -> (&[i16], &[i16]) {
-        if lag >= 0 {
-            let t = &test[(lag as usize).min(test.len())..];
-            let n = t.len().min(reference.len());
-            (&reference[..n], &t[..n])
-        } else {
-            let r = &reference[((-lag) as usize).min(reference.len())..];
-            let n = r.len().min(test.len());
-            (&r[..n], &test[..n])
+/// SNR of `test` against `reference`, each 100 ms segment of the reference aligned on its own
+/// (within 4 frames of the best lag within `max` samples over 2-6 s), the energies summed over
+/// all segments. A playout may move in time
+/// where nothing is lost (a late first packet, a frame shed in a pause): what is compared is
+/// the speech heard, not its position.
+fn segmental_snr(reference: &[i16], test: &[i16], max: usize) -> (f64, isize) {
+    const SEGMENT: usize = 800;
+    const FOLLOW: isize = 4 * 160;
+    let energies_over = |at: usize, len: usize, lag: isize| -> Option<(f64, f64)> {
+        let from = at as isize + lag;
+        if from < 0 || from as usize + len > test.len() || at + len > reference.len() {
+            return None;
         }
-    };
-    let snr = |r: &[i16], t: &[i16]| {
-        let s: f64 = r.iter().map(|&x| f64::from(x).powi(2)).sum();
-        let e: f64 = r
+        let t = &test[from as usize..from as usize + len];
+        let r = &reference[at..at + len];
+        let signal: f64 = r.iter().map(|&x| f64::from(x).powi(2)).sum();
+        let error: f64 = r
             .iter()
             .zip(t)
             .map(|(&a, &b)| (f64::from(a) - f64::from(b)).powi(2))
             .sum();
-        10.0 * (s / e.max(1e-9)).log10()
+        Some((signal, error))
     };
-    let max = max as isize;
-    let lag = (-max..=max)
-        .max_by(|&a, &b| {
-            let (ra, ta) = pair(a);
-            let (rb, tb) = pair(b);
-            let n = 16000;
-            snr(&ra[..ra.len().min(n)], &ta[..ta.len().min(n)])
-                .total_cmp(&snr(&rb[..rb.len().min(n)], &tb[..tb.len().min(n)]))
-        })
-        .unwrap_or(0);
-    let (r, t) = pair(lag);
-    (snr(r, t), lag)
+    let best = |at: usize, len: usize, around: isize, reach: isize| {
+        (around - reach..=around + reach)
+            .filter_map(|lag| energies_over(at, len, lag).map(|(s, e)| (lag, s, e)))
+            .min_by(|a, b| a.2.total_cmp(&b.2))
+    };
+    // The lag of the steady state (2-6 s in): the first second may hold the start-up's moves.
+    let steady = (16_000.min(reference.len()), 32_000.min(reference.len() / 2));
+    let first_lag = best(steady.0, steady.1, 0, max as isize).map_or(0, |(lag, ..)| lag);
+    let (mut signal, mut error) = (0.0, 0.0);
+    for at in (0..reference.len().saturating_sub(SEGMENT)).step_by(SEGMENT) {
+        let Some((_, s, e)) = best(at, SEGMENT, first_lag, FOLLOW) else {
+            continue;
+        };
+        signal += s;
+        error += e;
+    }
+    (10.0 * (signal / error.max(1e-9)).log10(), first_lag)
 }
 
 #[test]
@@ -124,8 +129,8 @@ fn two_lipcalls_in_a_janus_room_hear_each_other_and_the_receiver_animates() {
     direct_rx.finish(Duration::from_secs(30), "lipcall receive");
     let direct = read_wav_i16(&direct_wav).1;
 
-    let (snr_janus, lag_janus) = snr_at_best_shift(&source, &got, 2000);
-    let (snr_direct, lag_direct) = snr_at_best_shift(&source, &direct, 2000);
+    let (snr_janus, lag_janus) = segmental_snr(&source, &got, 2000);
+    let (snr_direct, lag_direct) = segmental_snr(&source, &direct, 2000);
     eprintln!(
         "SNR through Janus {snr_janus:.2} dB (lag {lag_janus}), direct Opus round trip \
          {snr_direct:.2} dB (lag {lag_direct}); received {:.2} s of {:.2} s",
