@@ -2,6 +2,7 @@
 //! that shows it: the parser now gives a clear error (or a sound result) where it panicked,
 //! hung or returned something its callers could not use.
 
+use lipcall::codec::speex::features::ordered_lsp;
 use lipcall::lipsync::markers::MarkerTrack;
 use lipcall::render::gltf_load::load_head_from_slice;
 
@@ -89,4 +90,19 @@ fn a_marker_too_far_from_the_origin_is_refused() {
         e.to_string(),
         "line 2: marker lip is too far from the origin marker"
     );
+}
+
+/// silk_walker target: a SILK frame whose wideband NLSFs map to two or more narrowband LSPs
+/// near pi made `ordered_lsp` panic (`clamp` with its lower bound rounded a hair above its
+/// upper one), in the receiver, for any peer's packet.
+#[test]
+fn lsps_at_the_top_of_the_band_are_spaced_not_a_panic() {
+    let pi = std::f32::consts::PI;
+    for top in [pi - 0.01, pi, 3.2, 100.0, f32::INFINITY] {
+        let mut lsp = [top; 10];
+        lsp[0] = 0.3;
+        let ordered = ordered_lsp(lsp);
+        assert!(ordered.windows(2).all(|w| w[0] < w[1]), "{ordered:?}");
+        assert!(ordered[0] > 0.0 && ordered[9] < pi, "{ordered:?}");
+    }
 }

@@ -47,7 +47,9 @@ pub fn ordered_lsp(mut lsp: [f32; LSP_COUNT]) -> [f32; LSP_COUNT] {
     let mut floor = LSP_MARGIN;
     for (i, l) in lsp.iter_mut().enumerate() {
         let ceiling = top - LSP_MARGIN * (LSP_COUNT - 1 - i) as f32;
-        *l = l.clamp(floor, ceiling);
+        // Not `clamp`: after a value held at its ceiling, `floor` (that ceiling plus the margin)
+        // can round a hair above this ceiling, and `clamp` panics on that.
+        *l = l.max(floor).min(ceiling);
         floor = *l + LSP_MARGIN;
     }
     lsp
