@@ -2,6 +2,7 @@
 //! that shows it: the parser now gives a clear error (or a sound result) where it panicked,
 //! hung or returned something its callers could not use.
 
+use lipcall::audio::wav;
 use lipcall::codec::speex::features::ordered_lsp;
 use lipcall::lipsync::markers::MarkerTrack;
 use lipcall::render::gltf_load::load_head_from_slice;
@@ -105,4 +106,41 @@ fn lsps_at_the_top_of_the_band_are_spaced_not_a_panic() {
         assert!(ordered.windows(2).all(|w| w[0] < w[1]), "{ordered:?}");
         assert!(ordered[0] > 0.0 && ordered[9] < pi, "{ordered:?}");
     }
+}
+
+fn float_wav(dir: &std::path::Path, samples: &[f32]) -> std::path::PathBuf {
+    let path = dir.join("float.wav");
+    let spec = hound::WavSpec {
+        channels: 1,
+        sample_rate: 22_050,
+        bits_per_sample: 32,
+        sample_format: hound::SampleFormat::Float,
+    };
+    let mut writer = hound::WavWriter::create(&path, spec).unwrap();
+    for &s in samples {
+        writer.write_sample(s).unwrap();
+    }
+    writer.finalize().unwrap();
+    path
+}
+
+/// wav target: float samples that are not numbers, or finite ones near f32's limit, overflowed
+/// the resampler's FFT into NaN and rubato panicked (`encode`, `animate`, training).
+#[test]
+fn float_wavs_out_of_range_are_clipped_and_nan_is_refused() {
+    let dir = tempfile::tempdir().unwrap();
+    let loud: Vec<f32> = (0..4000)
+        .map(|i| if (i / 100) % 2 == 0 { 3e38 } else { -6e37 })
+        .collect();
+    let pcm = wav::read_narrowband(&float_wav(dir.path(), &loud)).unwrap();
+    assert!(pcm.len() > 1000);
+    assert!(
+        pcm.iter().any(|&s| s.unsigned_abs() > 30_000),
+        "clipped to full scale"
+    );
+
+    let mut broken = vec![0.25f32; 4000];
+    broken[1234] = f32::NAN;
+    let e = wav::read_narrowband(&float_wav(dir.path(), &broken)).unwrap_err();
+    assert!(e.to_string().contains("sample 1234 is not a number"), "{e}");
 }

@@ -78,10 +78,21 @@ pub fn read_mono(path: &Path) -> Result<MonoAudio, WavError> {
     let spec = reader.spec();
     let channels = usize::from(spec.channels);
     let interleaved: Vec<f32> = match spec.sample_format {
-        hound::SampleFormat::Float => reader
-            .into_samples::<f32>()
-            .collect::<Result<_, _>>()
-            .map_err(|e| format_error(path, e))?,
+        hound::SampleFormat::Float => {
+            let samples: Vec<f32> = reader
+                .into_samples::<f32>()
+                .collect::<Result<_, _>>()
+                .map_err(|e| format_error(path, e))?;
+            if let Some(n) = samples.iter().position(|s| !s.is_finite()) {
+                return Err(format_error(
+                    path,
+                    format!("sample {} is not a number", n / channels),
+                ));
+            }
+            // Beyond full scale a float sample clips, as it would on output; unclipped, values
+            // near f32's limit overflow the resampler's FFT into NaN, on which rubato panics.
+            samples.into_iter().map(|s| s.clamp(-1.0, 1.0)).collect()
+        }
         hound::SampleFormat::Int => {
             let scale = 1.0 / (1u64 << (spec.bits_per_sample.clamp(1, 32) - 1)) as f32;
             reader
