@@ -79,6 +79,20 @@ fn a_head_with_absurd_coordinates_is_refused() {
     assert!(e.to_string().contains("POSITION"), "{e}");
 }
 
+/// gltf target: a GLB header whose length is under its own 12 bytes made the gltf crate
+/// subtract with overflow (a panic in debug builds, which tests and `cargo run` are).
+#[test]
+fn a_glb_shorter_than_its_header_is_refused() {
+    for length in [0u32, 11] {
+        let mut glb = b"glTF".to_vec();
+        glb.extend(2u32.to_le_bytes());
+        glb.extend(length.to_le_bytes());
+        glb.extend(b"\x02\0\0\0JSON{}\0\0");
+        let e = load_head_from_slice(&glb).unwrap_err();
+        assert!(e.to_string().contains("less than the header"), "{e}");
+    }
+}
+
 /// markers target: two finite coordinates 6e38 apart made an infinite point once the origin
 /// marker was subtracted, which the decomposition then fitted.
 #[test]

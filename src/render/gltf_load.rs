@@ -153,7 +153,24 @@ struct RawPrimitive {
     jaw_weights: Option<Vec<f32>>,
 }
 
+/// The GLB header's total length, when `bytes` start like a GLB.
+fn glb_declared_length(bytes: &[u8]) -> Option<u32> {
+    match bytes {
+        [b'g', b'l', b'T', b'F', _, _, _, _, a, b, c, d, ..] => {
+            Some(u32::from_le_bytes([*a, *b, *c, *d]))
+        }
+        _ => None,
+    }
+}
+
 fn load_head_from_slice_in(bytes: &[u8], base: Option<&Path>) -> Result<HeadModel, RenderError> {
+    // The gltf crate subtracts the header's 12 bytes from this length unchecked: an overflow
+    // panic in debug builds.
+    if let Some(length) = glb_declared_length(bytes).filter(|&length| length < 12) {
+        return Err(RenderError::Gltf(format!(
+            "the GLB header gives a length of {length} bytes, less than the header itself"
+        )));
+    }
     let gltf = gltf::Gltf::from_slice(bytes).map_err(gltf_err)?;
     let doc = &gltf.document;
     let buffers = load_buffers(doc, gltf.blob.as_deref(), base)?;
