@@ -93,6 +93,20 @@ fn a_glb_shorter_than_its_header_is_refused() {
     }
 }
 
+/// gltf target: a primitive whose POSITION names an accessor that does not exist panicked
+/// (index out of bounds) inside the gltf crate's own validation, in release builds too.
+#[test]
+fn a_position_naming_a_missing_accessor_is_refused() {
+    let good = String::from_utf8(head_with_target(TRIANGLE, 0.02)).unwrap();
+    let bad = good.replace(
+        r#""attributes":{"POSITION":0}"#,
+        r#""attributes":{"POSITION":7}"#,
+    );
+    assert_ne!(good, bad);
+    let e = load_head_from_slice(bad.as_bytes()).unwrap_err();
+    assert!(e.to_string().contains("POSITION names accessor 7"), "{e}");
+}
+
 /// markers target: two finite coordinates 6e38 apart made an infinite point once the origin
 /// marker was subtracted, which the decomposition then fitted.
 #[test]

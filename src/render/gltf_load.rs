@@ -163,15 +163,39 @@ fn glb_declared_length(bytes: &[u8]) -> Option<u32> {
     }
 }
 
-fn load_head_from_slice_in(bytes: &[u8], base: Option<&Path>) -> Result<HeadModel, RenderError> {
-    // The gltf crate subtracts the header's 12 bytes from this length unchecked: an overflow
-    // panic in debug builds.
+/// `gltf::Gltf::from_slice`, less its panics: the gltf crate (1.4.1) subtracts the GLB header's
+/// 12 bytes from the length it gives unchecked (an overflow panic in debug builds), and its
+/// validation indexes the accessor a primitive's POSITION names unchecked.
+fn parse_validated(bytes: &[u8]) -> Result<gltf::Gltf, RenderError> {
     if let Some(length) = glb_declared_length(bytes).filter(|&length| length < 12) {
         return Err(RenderError::Gltf(format!(
             "the GLB header gives a length of {length} bytes, less than the header itself"
         )));
     }
-    let gltf = gltf::Gltf::from_slice(bytes).map_err(gltf_err)?;
+    let unchecked = gltf::Gltf::from_slice_without_validation(bytes).map_err(gltf_err)?;
+    let json = unchecked.document.into_json();
+    let positions = gltf::json::validation::Checked::Valid(gltf::json::mesh::Semantic::Positions);
+    for (m, mesh) in json.meshes.iter().enumerate() {
+        for primitive in &mesh.primitives {
+            if let Some(index) = primitive.attributes.get(&positions)
+                && index.value() >= json.accessors.len()
+            {
+                return Err(RenderError::Gltf(format!(
+                    "mesh {m}: POSITION names accessor {}, and there are {}",
+                    index.value(),
+                    json.accessors.len()
+                )));
+            }
+        }
+    }
+    Ok(gltf::Gltf {
+        document: gltf::Document::from_json(json).map_err(gltf_err)?,
+        blob: unchecked.blob,
+    })
+}
+
+fn load_head_from_slice_in(bytes: &[u8], base: Option<&Path>) -> Result<HeadModel, RenderError> {
+    let gltf = parse_validated(bytes)?;
     let doc = &gltf.document;
     let buffers = load_buffers(doc, gltf.blob.as_deref(), base)?;
     let buffer_bytes: usize = buffers.iter().map(Vec::len).sum();
