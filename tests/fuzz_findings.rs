@@ -107,6 +107,27 @@ fn a_position_naming_a_missing_accessor_is_refused() {
     assert!(e.to_string().contains("POSITION names accessor 7"), "{e}");
 }
 
+/// gltf target: a morph target lipcall does not use, whose accessor is not VEC3, tripped the gltf
+/// crate's assertion on element size (debug builds): its reader opened every target's accessors,
+/// unchecked. Unused targets are now never read; the head loads.
+#[test]
+fn an_unused_morph_target_of_another_type_is_not_read() {
+    let good = String::from_utf8(head_with_target(TRIANGLE, 0.02)).unwrap();
+    let odd = good
+        .replace(r#"["viseme_aa"]"#, r#"["viseme_aa","notAShape"]"#)
+        .replace(
+            r#""targets":[{"POSITION":1}]"#,
+            r#""targets":[{"POSITION":1},{"POSITION":2}]"#,
+        )
+        .replace(
+            "],\n\"bufferViews\"",
+            r#",{"bufferView":1,"componentType":5126,"count":3,"type":"VEC2"}],"bufferViews""#,
+        );
+    assert_eq!(odd.matches("VEC2").count(), 1, "{odd}");
+    let head = load_head_from_slice(odd.as_bytes()).unwrap();
+    assert_eq!(head.primitives.len(), 1);
+}
+
 /// markers target: two finite coordinates 6e38 apart made an infinite point once the origin
 /// marker was subtracted, which the decomposition then fitted.
 #[test]

@@ -1001,16 +1001,22 @@ fn read_primitive(
 
     let mut out_targets = Vec::new();
     if !targets.is_empty() {
-        let read: Vec<_> = reader.read_morph_targets().collect();
+        // Only the checked accessors of the targets used are read: the reader's
+        // `read_morph_targets` opens every target's, unused ones and tangents too, unchecked
+        // (a debug assertion in the gltf crate on their element size).
+        let morph_targets: Vec<gltf::mesh::MorphTarget> = prim.morph_targets().collect();
+        let read = |a: Option<gltf::Accessor>| {
+            a.and_then(|a| gltf::accessor::Iter::<[f32; 3]>::new(a, get))
+        };
         for (kind, t) in targets {
-            let (p, nrm, _) = read.get(t).ok_or_else(missing)?;
+            let target = morph_targets.get(t).ok_or_else(missing)?;
             let mut deltas = vec![MorphDelta::default(); n];
-            if let Some(p) = p.clone() {
+            if let Some(p) = read(target.positions()) {
                 for (d, v) in deltas.iter_mut().zip(p) {
                     d.position = (linear * Vec3::from(v)).into();
                 }
             }
-            if let Some(nrm) = nrm.clone() {
+            if let Some(nrm) = read(target.normals()) {
                 for (d, v) in deltas.iter_mut().zip(nrm) {
                     d.normal = (normal_matrix * Vec3::from(v)).into();
                 }
