@@ -12,29 +12,9 @@ use lipcall::codec::any::{Codec, EncoderSettings, FrameEncoder, MAX_FRAME_PAYLOA
 use lipcall::codec::speex::features::energy_db;
 use lipcall::net::session::{Session, SessionConfig};
 
-/// Frame `k` of a talker: 1.2 s of a voiced sound, then 0.4 s of faint noise (-66 dBFS).
+/// Frame `k` of a talker: 1.2 s of a voiced sound, then 0.4 s of faint noise.
 fn talker(k: usize) -> ([i16; FRAME_SIZE], bool) {
-    let loud = k % 80 < 60;
-    let pcm = std::array::from_fn(|i| {
-        let n = k * FRAME_SIZE + i;
-        if !loud {
-            return ((n * 7919 % 31) as i16 - 15) * 2;
-        }
-        // A pitch gliding between 100 and 140 Hz (its phase, the pitch's integral, in
-        // cycles) and 11 harmonics under one formant.
-        let t = n as f64 / 8000.0;
-        let pitch = 120.0 + 20.0 * (2.0 * t).sin();
-        let cycles = 120.0 * t - 10.0 * (2.0 * t).cos();
-        let s: f64 = (1..12)
-            .map(|h| {
-                let f = pitch * f64::from(h);
-                (std::f64::consts::TAU * cycles * f64::from(h)).sin()
-                    / (1.0 + ((f - 650.0) / 300.0).powi(2))
-            })
-            .sum();
-        (4000.0 * s) as i16
-    });
-    (pcm, loud)
+    common::talker::talker(k, 60, 80)
 }
 
 #[test]

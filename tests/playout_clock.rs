@@ -6,6 +6,8 @@
 //! the drift is corrected inside the sender's pauses. Pulled on the system clock instead (the
 //! app's loop before), the same queue runs dry or overflows within two minutes.
 
+mod common;
+
 use std::sync::Arc;
 use std::time::{Duration, Instant};
 
@@ -26,27 +28,7 @@ const QUEUE: usize = 8000;
 
 /// Frame `k` of a talker: 1.6 s of a voiced sound, then 0.4 s of faint noise.
 fn talker(k: usize) -> ([i16; FRAME_SIZE], bool) {
-    let loud = k % 100 < 80;
-    let pcm = std::array::from_fn(|i| {
-        let n = k * FRAME_SIZE + i;
-        if !loud {
-            return ((n * 7919 % 31) as i16 - 15) * 2;
-        }
-        // A pitch gliding between 100 and 140 Hz (its phase, the pitch's integral, in
-        // cycles) and 11 harmonics under one formant.
-        let t = n as f64 / 8000.0;
-        let pitch = 120.0 + 20.0 * (2.0 * t).sin();
-        let cycles = 120.0 * t - 10.0 * (2.0 * t).cos();
-        let s: f64 = (1..12)
-            .map(|h| {
-                let f = pitch * f64::from(h);
-                (std::f64::consts::TAU * cycles * f64::from(h)).sin()
-                    / (1.0 + ((f - 650.0) / 300.0).powi(2))
-            })
-            .sum();
-        (4000.0 * s) as i16
-    });
-    (pcm, loud)
+    common::talker::talker(k, 80, 100)
 }
 
 /// What a run saw, from its second second on.
