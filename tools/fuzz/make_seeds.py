@@ -430,6 +430,8 @@ def marker_seeds():
           "frame,a_x,a_y,a_z,b_x,b_y,b_z\n1,0,0,0,1,1,1\n2,0.5,0,0,1,2,1.5\n3,0,0.25,0,1,1.5,1\n"
           "\0viseme, frame\nsil,1\nO,2\nE,3\n")
     write("markers", "no-keys", "frame,p_x,p_y\n0,1e3,-2.5e-2\n1,3,4\n")
+    # A finding: points this far apart overflowed once the origin (the first marker) was subtracted.
+    write("markers", "origin-far", "frame,nose_x,nose_y,lip_x,lip_y\n1,-3e38,0,3e38,0\n2,0,0,1,1\n")
 
 
 def main():
