@@ -11,7 +11,7 @@ use lipcall::app::engine::{CallSpec, Command, Encryption, Engine, EngineConfig, 
 use lipcall::audio::DeviceChoice;
 use lipcall::codec::any::Codec;
 
-use common::janus::{janus_installed, start_janus};
+use common::janus::start_janus;
 
 fn wait_for(what: &str, engine: &Engine, mut done: impl FnMut(&Engine) -> bool) {
     let deadline = Instant::now() + Duration::from_secs(20);
@@ -53,12 +53,7 @@ fn join(engine: &Engine, url: &str, room: &str, pin: Option<&str>) {
 
 #[test]
 fn the_app_joins_a_janus_room_and_animates_each_publisher() {
-    if common::netns::ran_in_own_namespace("the_app_joins_a_janus_room_and_animates_each_publisher")
-    {
-        return;
-    }
-    if !janus_installed() {
-        eprintln!("skipped: Debian's janus is not installed");
+    if !common::janus::runs_here("the_app_joins_a_janus_room_and_animates_each_publisher") {
         return;
     }
     let dir = tempfile::tempdir().unwrap();
@@ -115,11 +110,7 @@ fn the_app_joins_a_janus_room_and_animates_each_publisher() {
 
 #[test]
 fn a_wrong_pin_or_an_unreachable_janus_is_a_clear_error() {
-    if common::netns::ran_in_own_namespace("a_wrong_pin_or_an_unreachable_janus_is_a_clear_error") {
-        return;
-    }
-    if !janus_installed() {
-        eprintln!("skipped: Debian's janus is not installed");
+    if !common::janus::runs_here("a_wrong_pin_or_an_unreachable_janus_is_a_clear_error") {
         return;
     }
     let dir = tempfile::tempdir().unwrap();

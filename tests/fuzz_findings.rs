@@ -2,31 +2,12 @@
 //! that shows it: the parser now gives a clear error (or a sound result) where it panicked,
 //! hung or returned something its callers could not use.
 
+mod common;
+
 use lipcall::audio::wav;
 use lipcall::codec::speex::features::ordered_lsp;
 use lipcall::lipsync::markers::MarkerTrack;
 use lipcall::render::gltf_load::load_head_from_slice;
-
-fn base64(bytes: &[u8]) -> String {
-    const ABC: &[u8; 64] = b"ABCDEFGHIJKLMNOPQRSTUVWXYZabcdefghijklmnopqrstuvwxyz0123456789+/";
-    let mut out = String::new();
-    for chunk in bytes.chunks(3) {
-        let b = [
-            chunk[0],
-            *chunk.get(1).unwrap_or(&0),
-            *chunk.get(2).unwrap_or(&0),
-        ];
-        let n = (u32::from(b[0]) << 16) | (u32::from(b[1]) << 8) | u32::from(b[2]);
-        for k in 0..4 {
-            if k <= chunk.len() {
-                out.push(ABC[(n >> (18 - 6 * k) & 63) as usize] as char);
-            } else {
-                out.push('=');
-            }
-        }
-    }
-    out
-}
 
 /// A one-triangle glTF head with a `viseme_aa` target moving each vertex by `delta` in y.
 fn head_with_target(positions: [[f32; 3]; 3], delta: f32) -> Vec<u8> {
@@ -57,7 +38,7 @@ fn head_with_target(positions: [[f32; 3]; 3], delta: f32) -> Vec<u8> {
 "buffers":[{{"byteLength":72,"uri":"data:application/octet-stream;base64,{}"}}]}}"#,
         accessor(0, &bounds),
         accessor(1, ""),
-        base64(&data)
+        common::base64(&data)
     )
     .into_bytes()
 }

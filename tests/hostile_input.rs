@@ -4,6 +4,8 @@
 //! Every run is under an address-space limit and a deadline, so a regression fails the test
 //! instead of taking the machine down. `LIPCALL_BIN` runs the checks against another build.
 
+mod common;
+
 use std::ffi::OsStr;
 use std::path::{Path, PathBuf};
 use std::process::{Command, Stdio};
@@ -87,27 +89,6 @@ fn refused<S: AsRef<OsStr> + std::fmt::Debug>(dir: &Path, args: &[S], expected: 
     );
 }
 
-fn base64(bytes: &[u8]) -> String {
-    const ABC: &[u8; 64] = b"ABCDEFGHIJKLMNOPQRSTUVWXYZabcdefghijklmnopqrstuvwxyz0123456789+/";
-    let mut out = String::new();
-    for chunk in bytes.chunks(3) {
-        let b = [
-            chunk[0],
-            *chunk.get(1).unwrap_or(&0),
-            *chunk.get(2).unwrap_or(&0),
-        ];
-        let n = (u32::from(b[0]) << 16) | (u32::from(b[1]) << 8) | u32::from(b[2]);
-        for k in 0..4 {
-            if k <= chunk.len() {
-                out.push(ABC[(n >> (18 - 6 * k) & 63) as usize] as char);
-            } else {
-                out.push('=');
-            }
-        }
-    }
-    out
-}
-
 /// A glTF head: one mesh of `vertices` positions (in a data URI, or in `uri`) with `targets`
 /// morph targets named `aa`, all on the positions' own accessor, placed by `nodes` (JSON) and
 /// a scene of `roots`.
@@ -122,7 +103,10 @@ fn gltf(vertices: usize, targets: usize, nodes: &str, roots: &str, uri: Option<&
                     data.extend_from_slice(&(c as f32).to_le_bytes());
                 }
             }
-            format!("data:application/octet-stream;base64,{}", base64(&data))
+            format!(
+                "data:application/octet-stream;base64,{}",
+                common::base64(&data)
+            )
         }
     };
     let target_list = vec![r#"{"POSITION":0}"#; targets].join(",");

@@ -7,7 +7,7 @@ mod common;
 use std::path::PathBuf;
 use std::time::{Duration, Instant};
 
-use common::janus::{IN_ROOM, free_tcp_port, janus_installed, start_janus};
+use common::janus::{IN_ROOM, free_tcp_port, janus_installed, receive_in_room, start_janus};
 use common::net::{Announce, finish, spawn, spawn_listening};
 use common::{demo_8k, lipcall, read_wav_i16, repo_file};
 
@@ -55,13 +55,9 @@ fn segmental_snr(reference: &[i16], test: &[i16], max: usize) -> (f64, isize) {
 
 #[test]
 fn two_lipcalls_in_a_janus_room_hear_each_other_and_the_receiver_animates() {
-    if common::netns::ran_in_own_namespace(
+    if !common::janus::runs_here(
         "two_lipcalls_in_a_janus_room_hear_each_other_and_the_receiver_animates",
     ) {
-        return;
-    }
-    if !janus_installed() {
-        eprintln!("skipped: no `janus` binary (Debian package janus; .ci/run installs it)");
         return;
     }
     let dir = tempfile::tempdir().unwrap();
@@ -74,18 +70,7 @@ fn two_lipcalls_in_a_janus_room_hear_each_other_and_the_receiver_animates() {
     let wav = dir.path().join("janus.wav");
     let weights = dir.path().join("janus-weights.csv");
     // The receiver creates the room and joins before the sender comes.
-    let receiver = spawn_listening(
-        lipcall()
-            .args([
-                "receive", "--janus", &janus.url, "--room", room, "--key", pin,
-            ])
-            .args(["--name", "Bob", "--seconds", "13"])
-            .arg("--wav")
-            .arg(&wav)
-            .arg("--weights")
-            .arg(&weights),
-        IN_ROOM,
-    );
+    let receiver = receive_in_room(&janus, room, pin, "13", &wav, &weights);
     let sender = spawn(
         lipcall()
             .arg("send")
@@ -230,13 +215,7 @@ fn a_wrong_pin_and_an_unreachable_janus_fail_at_once_with_janus_s_reason() {
 
 #[test]
 fn a_restarted_janus_is_said_and_rejoined_and_the_call_goes_on() {
-    if common::netns::ran_in_own_namespace(
-        "a_restarted_janus_is_said_and_rejoined_and_the_call_goes_on",
-    ) {
-        return;
-    }
-    if !janus_installed() {
-        eprintln!("skipped: no `janus` binary (Debian package janus; .ci/run installs it)");
+    if !common::janus::runs_here("a_restarted_janus_is_said_and_rejoined_and_the_call_goes_on") {
         return;
     }
     let dir = tempfile::tempdir().unwrap();
@@ -277,13 +256,8 @@ fn a_restarted_janus_is_said_and_rejoined_and_the_call_goes_on() {
 
 #[test]
 fn each_publisher_is_a_peer_and_the_receive_ends_when_all_have_left() {
-    if common::netns::ran_in_own_namespace(
-        "each_publisher_is_a_peer_and_the_receive_ends_when_all_have_left",
-    ) {
-        return;
-    }
-    if !janus_installed() {
-        eprintln!("skipped: no `janus` binary (Debian package janus; .ci/run installs it)");
+    if !common::janus::runs_here("each_publisher_is_a_peer_and_the_receive_ends_when_all_have_left")
+    {
         return;
     }
     let dir = tempfile::tempdir().unwrap();

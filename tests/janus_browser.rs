@@ -17,8 +17,8 @@ use std::process::{Child, Command, Stdio};
 use std::sync::mpsc;
 use std::time::{Duration, Instant};
 
-use common::janus::{IN_ROOM, janus_installed, start_janus};
-use common::net::{finish, spawn, spawn_listening};
+use common::janus::{receive_in_room, start_janus};
+use common::net::{finish, spawn};
 use common::{lipcall, read_wav_i16, repo_file};
 
 /// What the room page logs to the console (chromium's stderr): `lipcall-room: ...`.
@@ -181,16 +181,11 @@ fn frame_levels_db(samples: &[i16]) -> Vec<f64> {
 
 #[test]
 fn a_browser_and_lipcall_hear_each_other_in_a_janus_room() {
-    if common::netns::ran_in_own_namespace("a_browser_and_lipcall_hear_each_other_in_a_janus_room")
-    {
+    if !common::janus::runs_here("a_browser_and_lipcall_hear_each_other_in_a_janus_room") {
         return;
     }
     if !chromium_installed() {
         eprintln!("skipped: no `chromium` binary (Debian package chromium; .ci/run installs it)");
-        return;
-    }
-    if !janus_installed() {
-        eprintln!("skipped: no `janus` binary (Debian package janus; .ci/run installs it)");
         return;
     }
     let dir = tempfile::tempdir().unwrap();
@@ -223,18 +218,7 @@ fn a_browser_and_lipcall_hear_each_other_in_a_janus_room() {
     // lipcall hears the browser's microphone and animates it.
     let wav = dir.path().join("heard.wav");
     let weights = dir.path().join("weights.csv");
-    let receiver = spawn_listening(
-        lipcall()
-            .args([
-                "receive", "--janus", &janus.url, "--room", room, "--key", pin,
-            ])
-            .args(["--name", "Bob", "--seconds", "6"])
-            .arg("--wav")
-            .arg(&wav)
-            .arg("--weights")
-            .arg(&weights),
-        IN_ROOM,
-    );
+    let receiver = receive_in_room(&janus, room, pin, "6", &wav, &weights);
     let (_, received) = receiver.finish(Duration::from_secs(30), "lipcall receive --janus");
     assert!(
         received.contains("\"Browser\" (") && received.contains("is publishing"),

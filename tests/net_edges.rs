@@ -7,24 +7,13 @@ mod common;
 use std::net::{SocketAddr, UdpSocket};
 use std::time::{Duration, Instant};
 
-use common::lipcall;
-use common::net::{Announce, Listening, fields, num, spawn_listening};
+use common::net::{Listening, fields, num, start_receiver};
 use lipcall::codec::FRAME_SIZE;
 use lipcall::codec::any::{Codec, EncoderSettings, FrameEncoder, MAX_FRAME_PAYLOAD};
 use lipcall::net::rtp::RtpStream;
 use lipcall::net::session::{Session, SessionConfig};
 
 const TICK: Duration = Duration::from_millis(20);
-
-/// `lipcall receive` on a port of its own choosing; its address read back from what it prints.
-fn start_receiver(args: &[&str]) -> Listening {
-    spawn_listening(
-        lipcall()
-            .args(["receive", "--listen", "127.0.0.1:0"])
-            .args(args),
-        Announce::Lipcall,
-    )
-}
 
 /// Waits for it to stop by itself (every peer said BYE, or its `--seconds` are over); what it
 /// printed on stderr.

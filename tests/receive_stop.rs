@@ -8,20 +8,10 @@ mod common;
 use std::path::Path;
 use std::time::{Duration, Instant};
 
-use common::net::{Announce, Listening, spawn, spawn_listening};
+use common::net::{spawn, start_receiver};
 use common::{lipcall, repo_file};
 use lipcall::codec::FRAME_SIZE;
 use lipcall::net::session::{Session, SessionConfig};
-
-/// `lipcall receive` on a port of its own choosing, its address read from what it prints.
-fn start_receiver(args: &[&str]) -> Listening {
-    spawn_listening(
-        lipcall()
-            .args(["receive", "--listen", "127.0.0.1:0"])
-            .args(args),
-        Announce::Lipcall,
-    )
-}
 
 fn csv_rows(path: &Path) -> (String, Vec<Vec<String>>) {
     let text = std::fs::read_to_string(path).expect("the CSV was written");

@@ -6,11 +6,35 @@ use std::path::{Path, PathBuf};
 use std::process::{Child, Command, Stdio};
 use std::time::{Duration, Instant};
 
-use super::net::Announce;
+use super::net::{Announce, Listening, spawn_listening};
 use super::repo_file;
 
 /// `receive --janus` has joined its room (`lipcall: in room ...` on stderr).
 pub const IN_ROOM: Announce = Announce::StderrLine("lipcall: in room ");
+
+/// `lipcall receive --janus` as "Bob" in `room` with `pin`, for `seconds`, writing `wav` and
+/// `weights`; returned once it is in the room.
+pub fn receive_in_room(
+    janus: &Janus,
+    room: &str,
+    pin: &str,
+    seconds: &str,
+    wav: &Path,
+    weights: &Path,
+) -> Listening {
+    spawn_listening(
+        super::lipcall()
+            .args([
+                "receive", "--janus", &janus.url, "--room", room, "--key", pin,
+            ])
+            .args(["--name", "Bob", "--seconds", seconds])
+            .arg("--wav")
+            .arg(wav)
+            .arg("--weights")
+            .arg(weights),
+        IN_ROOM,
+    )
+}
 
 /// A Janus process with the repository's config, its HTTP API on a free loopback port.
 pub struct Janus {
@@ -34,6 +58,19 @@ pub fn janus_installed() -> bool {
         .stderr(Stdio::null())
         .status()
         .is_ok_and(|s| s.success())
+}
+
+/// Whether this process runs a Janus test's body: not when the test ran in a network namespace
+/// of its own (that run reports the outcome), nor when Janus is missing (said, skipped).
+pub fn runs_here(test: &str) -> bool {
+    if super::netns::ran_in_own_namespace(test) {
+        return false;
+    }
+    if !janus_installed() {
+        eprintln!("skipped: no `janus` binary (Debian package janus; .ci/run installs it)");
+        return false;
+    }
+    true
 }
 
 pub fn free_tcp_port() -> u16 {

@@ -53,6 +53,17 @@ impl Announce {
     }
 }
 
+/// `lipcall receive` on a loopback port of its own choosing, with `args`; its address read back
+/// from what it prints.
+pub fn start_receiver(args: &[&str]) -> Listening {
+    spawn_listening(
+        super::lipcall()
+            .args(["receive", "--listen", "127.0.0.1:0"])
+            .args(args),
+        Announce::Lipcall,
+    )
+}
+
 /// Starts `cmd` and waits (up to 20 s) until it says which port it bound (or that it is
 /// ready, for [`Announce::StderrLine`]).
 pub fn spawn_listening(cmd: &mut Command, announce: Announce) -> Listening {
