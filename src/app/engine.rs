@@ -680,27 +680,27 @@ impl Worker {
 
     /// A room on a Janus server: WebRTC speaks Opus, whatever the settings' codec.
     fn join_janus(&mut self, spec: &CallSpec) -> anyhow::Result<()> {
-        let url = spec.address.trim().to_owned();
         let room = spec
             .room
             .clone()
             .filter(|r| !r.trim().is_empty())
             .ok_or_else(|| anyhow::anyhow!("a Janus server needs a room name"))?;
         let config = RoomConfig {
-            url: url.clone(),
-            room: room.clone(),
+            url: spec.address.trim().to_owned(),
+            room,
             name: self.call_name(spec),
             pin: spec.passphrase.clone().filter(|p| !p.is_empty()),
             subscribe: true,
             jitter: JitterConfig::default(),
         };
-        let link = Link::Janus(Box::new(JanusLink::join(config)?));
+        let janus = JanusLink::join(config)?;
+        let state = format!("joining {}…", janus.place());
         let encoder = FrameEncoder::new(Codec::Opus, &EncoderSettings::default())?;
-        self.switch_link(link, encoder);
+        self.switch_link(Link::Janus(Box::new(janus)), encoder);
         self.relay_deadline = None;
         let mut s = lock(&self.shared);
         s.call = CallStatus {
-            state: format!("joining Janus room {room:?} on {url}…"),
+            state,
             in_call: true,
             encryption: Encryption::HopByHop,
             codec: Some(Codec::Opus),
@@ -734,11 +734,8 @@ impl Worker {
         for news in self.link.poll() {
             let mut s = lock(&self.shared);
             match news {
-                RoomNews::Joined { id } => {
-                    if let Some(state) = s.call.state.strip_prefix("joining ") {
-                        s.call.state = format!("in {}", state.trim_end_matches('…'));
-                    }
-                    s.call.state.push_str(&format!(" as {id}, sending opus"));
+                RoomNews::Joined { place, id } => {
+                    s.call.state = format!("in {place} as {id}, sending opus");
                 }
                 RoomNews::Failed(reason) => {
                     drop(s);

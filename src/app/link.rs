@@ -3,12 +3,12 @@
 //! DTLS) takes a second or more, so it runs on its own thread and the 20 ms tick never waits
 //! for it.
 
-use std::net::{SocketAddr, ToSocketAddrs};
+use std::net::SocketAddr;
 use std::thread::JoinHandle;
 use std::time::Instant;
 
 use crate::net::janus::JanusError;
-use crate::net::janus::room::{Member, Notice, RoomConfig};
+use crate::net::janus::room::{Member, Notice, RoomConfig, server_addr};
 use crate::net::session::{PeerFrame, PeerInfo, Session};
 
 /// RTP ticks of one 20 ms frame on WebRTC's 48 kHz Opus clock.
@@ -24,7 +24,9 @@ pub fn is_janus_url(address: &str) -> bool {
 /// What a Janus room did since the last poll.
 #[derive(Debug, Clone, PartialEq)]
 pub enum RoomNews {
+    /// In the room (`place`, as [`JanusLink::place`] says it) as publisher `id`.
     Joined {
+        place: String,
         id: String,
     },
     /// The first join failed: the call is over.
@@ -45,19 +47,27 @@ pub struct JanusLink {
     state: RoomState,
     /// Where the server is, shown as every publisher's address.
     server: SocketAddr,
+    place: String,
 }
 
 impl JanusLink {
     /// Starts joining (publishing our microphone, subscribing to everyone else).
     pub fn join(config: RoomConfig) -> anyhow::Result<Self> {
-        let server = server_addr(&config.url)?;
+        let server = server_addr(config.url.trim())?;
+        let place = format!("Janus room {:?} on {}", config.room, config.url);
         let handle = std::thread::Builder::new()
             .name("janus-join".into())
             .spawn(move || Member::join(config, true))?;
         Ok(Self {
             state: RoomState::Joining(Some(handle)),
             server,
+            place,
         })
+    }
+
+    /// The room and server, for the call's status.
+    pub fn place(&self) -> &str {
+        &self.place
     }
 
     /// Follows the join, then the room (publishers coming and going, a lost and rejoined
@@ -72,6 +82,7 @@ impl JanusLink {
                 match joined {
                     Some(Ok(Ok((member, notices)))) => {
                         let mut news = vec![RoomNews::Joined {
+                            place: self.place.clone(),
                             id: member.id().unwrap_or("-").to_owned(),
                         }];
                         news.extend(notices.into_iter().map(RoomNews::Notice));
@@ -134,27 +145,6 @@ impl JanusLink {
             })
             .collect()
     }
-}
-
-fn server_addr(url: &str) -> anyhow::Result<SocketAddr> {
-    use anyhow::Context;
-    let rest = url
-        .trim()
-        .strip_prefix("http://")
-        .with_context(|| format!("{url:?}: only http:// Janus URLs are supported (no TLS)"))?;
-    let authority = rest.split('/').next().unwrap_or_default();
-    let with_port = if authority.rsplit_once(':').is_some_and(|(h, p)| {
-        !h.ends_with(':') && p.chars().all(|c| c.is_ascii_digit()) && !p.is_empty()
-    }) {
-        authority.to_owned()
-    } else {
-        format!("{authority}:80")
-    };
-    with_port
-        .to_socket_addrs()
-        .with_context(|| format!("cannot resolve the Janus server in {url:?}"))?
-        .next()
-        .with_context(|| format!("{url:?} resolves to no address"))
 }
 
 fn describe_janus_error(e: &JanusError) -> String {
@@ -274,23 +264,5 @@ mod tests {
         assert!(is_janus_url(" https://janus.example/janus"));
         assert!(!is_janus_url("127.0.0.1:5004"));
         assert!(!is_janus_url("relay.example:5004"));
-    }
-
-    #[test]
-    fn the_server_address_comes_from_the_url() {
-        assert_eq!(
-            server_addr("http://127.0.0.1:8088/janus").unwrap(),
-            SocketAddr::from(([127, 0, 0, 1], 8088))
-        );
-        assert_eq!(
-            server_addr("http://127.0.0.1/janus").unwrap(),
-            SocketAddr::from(([127, 0, 0, 1], 80))
-        );
-        assert_eq!(
-            server_addr("http://[::1]:8088/janus").unwrap(),
-            "[::1]:8088".parse().unwrap()
-        );
-        let e = server_addr("https://127.0.0.1:8089/janus").unwrap_err();
-        assert!(e.to_string().contains("only http://"), "{e}");
     }
 }

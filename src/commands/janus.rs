@@ -8,11 +8,10 @@ use std::time::{Duration, Instant};
 
 use anyhow::{Context, Result, bail};
 
-use super::net::{FrameSource, load_packets, play, send_paced, viseme_names};
-use super::recording::{Recorder, stop_flag};
+use super::net::{FrameSource, load_packets, open_outputs, play, send_paced};
+use super::recording::stop_flag;
 use crate::codec::any::{Codec, EncoderSettings};
 use crate::codec::speex::features::FrameFeatures;
-use crate::lipsync;
 use crate::net::janus::JanusError;
 use crate::net::janus::room::{Member, Notice, RoomConfig};
 use crate::net::jitter::JitterConfig;
@@ -156,13 +155,11 @@ pub fn receive_with(
     args: &JanusReceiveArgs,
     on_frame: &mut dyn FnMut(u32, f64, &FrameFeatures),
 ) -> Result<()> {
-    let model = args.weights.as_ref().map(|_| lipsync::default_model());
     let stop = stop_flag()?;
-    let mut recorder = Recorder::create(
+    let (model, mut recorder) = open_outputs(
         args.wav.as_deref(),
         args.features.as_deref(),
         args.weights.as_deref(),
-        viseme_names(model.as_ref())?,
     )?;
     let (room, notices) = Member::join(args.janus.config(true, "lipcall-receiver"), false)
         .map_err(pin_hint)

@@ -383,7 +383,7 @@ impl PeerTrack<'_> {
 }
 
 /// WEIGHTS.csv's viseme columns for a model (what its lip sync gives out).
-pub(crate) fn viseme_names(model: Option<&Model>) -> Result<Vec<String>> {
+fn viseme_names(model: Option<&Model>) -> Result<Vec<String>> {
     let Some(model) = model else {
         return Ok(Vec::new());
     };
@@ -396,6 +396,18 @@ pub(crate) fn viseme_names(model: Option<&Model>) -> Result<Vec<String>> {
         .collect())
 }
 
+/// What a receive writes (each path checked before the call: one that cannot be written fails
+/// now) and the lip-sync model that `--weights` needs.
+pub(crate) fn open_outputs(
+    wav: Option<&Path>,
+    features: Option<&Path>,
+    weights: Option<&Path>,
+) -> Result<(Option<Model>, Recorder)> {
+    let model = weights.map(|_| lipsync::default_model());
+    let recorder = Recorder::create(wav, features, weights, viseme_names(model.as_ref())?)?;
+    Ok((model, recorder))
+}
+
 pub fn receive(args: &ReceiveArgs) -> Result<()> {
     receive_with(args, &mut |_, _, _| {})
 }
@@ -406,7 +418,6 @@ pub fn receive_with(
     args: &ReceiveArgs,
     on_frame: &mut dyn FnMut(u32, f64, &FrameFeatures),
 ) -> Result<()> {
-    let model = args.weights.as_ref().map(|_| lipsync::default_model());
     if args.room.is_some() != args.relay.is_some() {
         bail!("--relay and --room go together");
     }
@@ -427,12 +438,10 @@ pub fn receive_with(
         config.clock_tolerance = Duration::from_secs(u64::from(seconds));
     }
     let stop = stop_flag()?;
-    // Before the call: a path that cannot be written fails now.
-    let mut recorder = Recorder::create(
+    let (model, mut recorder) = open_outputs(
         args.wav.as_deref(),
         args.features.as_deref(),
         args.weights.as_deref(),
-        viseme_names(model.as_ref())?,
     )?;
     announce_security(&config.key);
     let session = Session::start(config)?;

@@ -4,7 +4,7 @@
 //! publisher joining or leaving renegotiates nothing else).
 
 use std::collections::HashMap;
-use std::net::ToSocketAddrs;
+use std::net::{SocketAddr, ToSocketAddrs};
 use std::time::{Duration, Instant};
 
 use serde_json::Value;
@@ -88,22 +88,26 @@ fn url_host(url: &str) -> Option<(String, u16)> {
     }
 }
 
+/// Where the Janus server of an `http://HOST:PORT/janus` URL is.
+pub fn server_addr(url: &str) -> Result<SocketAddr, JanusError> {
+    let (host, port) = url_host(url).ok_or_else(|| JanusError::Http {
+        url: url.to_string(),
+        reason: "expected an http://HOST:PORT/janus URL".into(),
+    })?;
+    (host.as_str(), port)
+        .to_socket_addrs()
+        .ok()
+        .and_then(|mut a| a.next())
+        .ok_or_else(|| JanusError::Http {
+            url: url.to_string(),
+            reason: format!("cannot resolve {host}"),
+        })
+}
+
 impl Room {
     /// Connects to Janus and joins the room, creating it if it does not exist.
     pub fn join(config: RoomConfig) -> Result<(Self, Vec<Notice>), JanusError> {
-        let (host, port) = url_host(&config.url).ok_or_else(|| JanusError::Http {
-            url: config.url.clone(),
-            reason: "expected an http://HOST:PORT/janus URL".into(),
-        })?;
-        let janus_ip = (host.as_str(), port)
-            .to_socket_addrs()
-            .ok()
-            .and_then(|mut a| a.next())
-            .ok_or_else(|| JanusError::Http {
-                url: config.url.clone(),
-                reason: format!("cannot resolve {host}"),
-            })?
-            .ip();
+        let janus_ip = server_addr(&config.url)?.ip();
         let mut client = Client::connect(&config.url)?;
         let handle = client.attach(VIDEOROOM)?;
         let pin = config.pin.as_deref();
@@ -445,5 +449,23 @@ mod tests {
             Some(("::1".into(), 8088))
         );
         assert_eq!(url_host("https://x/janus"), None);
+    }
+
+    #[test]
+    fn the_server_address_comes_from_the_url() {
+        assert_eq!(
+            server_addr("http://127.0.0.1:8088/janus").unwrap(),
+            SocketAddr::from(([127, 0, 0, 1], 8088))
+        );
+        assert_eq!(
+            server_addr("http://127.0.0.1/janus").unwrap(),
+            SocketAddr::from(([127, 0, 0, 1], 80))
+        );
+        assert_eq!(
+            server_addr("http://[::1]:8088/janus").unwrap(),
+            "[::1]:8088".parse().unwrap()
+        );
+        let e = server_addr("https://127.0.0.1:8089/janus").unwrap_err();
+        assert!(e.to_string().contains("expected an http://"), "{e}");
     }
 }
