@@ -109,7 +109,7 @@ fn main() -> anyhow::Result<()> {
             (frames / ((t - played.1) * f64::from(rate)) - 1.0) * 1e6
         });
         played = (stats.frames_played, t);
-        let Some(peer) = s.peers.first().cloned() else {
+        let Some(peer) = s.peers.views().into_iter().next() else {
             println!("{t:>6.0} (no peer yet)");
             continue;
         };

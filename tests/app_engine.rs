@@ -61,7 +61,7 @@ fn the_engine_joins_an_encrypted_room_and_animates_a_sender() {
             );
             assert!(s.call.error.is_none(), "{:?}", s.call.error);
             assert_eq!(s.call.codec, Some(Codec::Opus));
-            if let Some(p) = s.peers.iter().find(|p| p.name == "Mallory")
+            if let Some(p) = s.peers.views().into_iter().find(|p| p.name == "Mallory")
                 && p.frames_animated > 50
             {
                 assert!(!p.is_demo);
@@ -72,7 +72,7 @@ fn the_engine_joins_an_encrypted_room_and_animates_a_sender() {
         assert!(
             Instant::now() < deadline,
             "no animated peer: {:?}",
-            lock(&engine.shared).peers
+            lock(&engine.shared).peers.views()
         );
         std::thread::sleep(Duration::from_millis(50));
     }

@@ -1,6 +1,7 @@
-//! The app's engine frees a peer's state when it leaves: its choices (`prefs`, keyed by SSRC)
-//! and weight schedule went on growing with every caller, and a named peer is told apart from
-//! one known only by its CNAME (which changes with every run, so its choices are not saved).
+//! The app's engine frees a peer's state when it leaves (its choices and weight schedule once
+//! went on growing with every caller; now the peer is one struct, dropped with its mixer slot),
+//! and a named peer is told apart from one known only by its CNAME (which changes with every
+//! run, so its choices are not saved).
 
 mod common;
 
@@ -53,22 +54,30 @@ fn a_peer_that_leaves_leaves_no_state_behind() {
         // A name comes with the caller's first report (until then the peer goes by its SSRC).
         wait_for("the caller is shown", &engine, |e| {
             let s = lock(&e.shared);
-            s.peers.len() == 1 && (name.is_none() || s.peers[0].named)
+            let views = s.peers.views();
+            views.len() == 1 && (name.is_none() || views[0].named)
         });
-        {
+        let feed = {
             let s = lock(&engine.shared);
-            let p = &s.peers[0];
+            let p = &s.peers.views()[0];
             assert_eq!(p.named, name.is_some(), "{p:?}");
-            assert!(s.prefs.contains_key(&p.ssrc));
-        }
+            assert!(s.playback.peer_controls(p.feed).is_some());
+            p.feed
+        };
         let ssrc = call.join().unwrap();
         wait_for("the caller is forgotten", &engine, |e| {
-            lock(&e.shared).peers.is_empty()
+            lock(&e.shared).peers.views().is_empty()
         });
         let s = lock(&engine.shared);
-        assert!(s.prefs.is_empty(), "round {round}: {:?}", s.prefs.keys());
-        assert!(s.schedules.is_empty(), "round {round}");
-        assert!(!s.prefs.contains_key(&ssrc));
+        assert!(
+            s.peers.is_empty(),
+            "round {round}: the peer's state is kept"
+        );
+        assert!(s.peers.get(ssrc).is_none());
+        assert!(
+            s.playback.peer_controls(feed).is_none(),
+            "round {round}: its mixer slot is kept"
+        );
         assert!(s.call.error.is_none(), "{:?}", s.call.error);
     }
 }

@@ -22,7 +22,7 @@ fn wait_for(what: &str, engine: &Engine, mut done: impl FnMut(&Engine) -> bool) 
             "{what}: state {:?}, error {:?}, peers {:?}",
             s.call.state,
             s.call.error,
-            s.peers
+            s.peers.views()
         );
         drop(s);
         std::thread::sleep(Duration::from_millis(20));
@@ -83,14 +83,16 @@ fn the_app_joins_a_janus_room_and_animates_each_publisher() {
     wait_for("Alice's speech animates her head", &app, |e| {
         let s = lock(&e.shared);
         s.peers
+            .views()
             .iter()
             .any(|p| p.name == "Alice" && p.named && p.frames_animated > 50 && p.talking)
     });
     {
         let s = lock(&app.shared);
-        let alice = s.peers.iter().find(|p| p.name == "Alice").unwrap();
+        let views = s.peers.views();
+        let alice = views.iter().find(|p| p.name == "Alice").unwrap();
         assert_eq!(alice.codec, Some(Codec::Opus));
-        assert!(s.schedules.contains_key(&alice.ssrc));
+        assert!(s.playback.peer_controls(alice.feed).is_some());
     }
     let out = alice.wait_with_output().unwrap();
     assert!(
@@ -99,7 +101,7 @@ fn the_app_joins_a_janus_room_and_animates_each_publisher() {
         String::from_utf8_lossy(&out.stderr)
     );
     wait_for("Alice is gone once she left", &app, |e| {
-        lock(&e.shared).peers.is_empty()
+        lock(&e.shared).peers.views().is_empty()
     });
 
     app.send(Command::Leave);

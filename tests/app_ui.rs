@@ -3,7 +3,7 @@
 use eframe::egui;
 use egui_kittest::Harness;
 use egui_kittest::kittest::Queryable;
-use lipcall::app::engine::{FaceRow, PeerAnimation};
+use lipcall::app::peer::{FaceRow, PeerAnimation};
 use lipcall::app::peer_controls_ui;
 use lipcall::app::settings::PeerPrefs;
 use lipcall::codec::speex::features::FrameFeatures;

@@ -3,7 +3,6 @@
 //! clock, [`FramePacer`]), and runs the demo sender and the status on the system clock. The UI
 //! sees it through [`Shared`] (one short lock per UI frame) and steers it with [`Command`]s.
 
-use std::collections::HashMap;
 use std::net::{SocketAddr, ToSocketAddrs};
 use std::sync::atomic::{AtomicBool, AtomicU64, Ordering};
 use std::sync::mpsc::{Receiver, Sender, TryRecvError};
@@ -13,27 +12,19 @@ use std::time::{Duration, Instant};
 
 use crate::audio::pacer::DEFAULT_LEAD;
 use crate::audio::{
-    Capture, DeviceChoice, FramePacer, Gate, MicControls, OutputStatus, PeerFeed, PeerId, Playback,
-    PlaybackConfig, Schedule, ScheduleSender,
+    Capture, DeviceChoice, FramePacer, Gate, MicControls, OutputStatus, Playback, PlaybackConfig,
 };
 use crate::codec::any::{Codec, EncoderSettings, FrameEncoder, MAX_FRAME_PAYLOAD};
 use crate::codec::speex::FRAME_SIZE;
 use crate::codec::speex::codec::{Encoder, EncoderConfig, MAX_PACKET_BYTES};
-use crate::codec::speex::features::FrameFeatures;
-use crate::lipsync::life::{DEFAULT_SEED, LifeGenerator};
-use crate::lipsync::network::MAX_LOOKAHEAD;
-use crate::lipsync::visemes::{FullWeights, VisemeSet};
-use crate::lipsync::{LipSync, LipSyncOptions};
 use crate::net::janus::room::{Notice, RoomConfig};
-use crate::net::jitter::{JitterConfig, JitterStats};
-use crate::net::peer::FrameKind;
-use crate::net::session::{PeerFrame, PeerInfo, Session, SessionConfig};
+use crate::net::jitter::JitterConfig;
+use crate::net::session::{PeerFrame, PeerInfo, Session, SessionConfig, SessionStats};
+use crate::net::srtp::MasterKey;
 
 use super::link::{JanusLink, Link, RoomNews, is_janus_url};
-use crate::net::srtp::MasterKey;
-use crate::render::head::FacePose;
-
-use super::settings::{DEFAULT_CODEC, PeerPrefs};
+use super::roster::Roster;
+use super::settings::DEFAULT_CODEC;
 
 const TICK: Duration = Duration::from_millis(20);
 /// How often the worker looks at the mixer's demand: well within a frame, so that the few
@@ -90,36 +81,6 @@ pub struct EngineConfig {
     pub no_audio: bool,
 }
 
-/// One remote peer as the UI shows it.
-#[derive(Debug, Clone)]
-pub struct PeerView {
-    pub ssrc: u32,
-    pub name: String,
-    /// `name` is the peer's own (SDES NAME), not its CNAME or SSRC, which change with every
-    /// run: only a named peer's choices are saved.
-    pub named: bool,
-    pub addr: SocketAddr,
-    pub feed: PeerId,
-    pub is_demo: bool,
-    /// The codec of its last packet.
-    pub codec: Option<Codec>,
-    pub talking: bool,
-    pub loss_percent: f64,
-    pub jitter_ms: f64,
-    pub delay_ms: f64,
-    /// Frames the network (or jaw baseline) turned into weights.
-    pub frames_animated: u64,
-    pub frames_received: u64,
-    /// Its lost frames rebuilt from the next packet's FEC (Opus).
-    pub frames_recovered: u64,
-    /// Its packets of a payload type no codec is mapped to (dropped).
-    pub unknown_payload: u64,
-    /// Its decoded audio waiting for the mixer, in ms.
-    pub queued_ms: f64,
-    /// Its jitter buffer's counts (delay, drift, frames inserted and dropped).
-    pub buffer: JitterStats,
-}
-
 /// Who can hear the call besides its members.
 #[derive(Debug, Clone, Copy, Default, PartialEq, Eq)]
 pub enum Encryption {
@@ -147,22 +108,12 @@ pub struct CallStatus {
     pub unknown_payload: u64,
 }
 
-/// What a head shows for one 20 ms frame of a peer's audio: the mouth's weights over all 15
-/// visemes and the living face's pose (at rest when it is off), scheduled together so both are
-/// shown with the audio they belong to.
-#[derive(Debug, Clone, Copy, PartialEq)]
-pub struct FaceRow {
-    pub weights: FullWeights,
-    pub pose: FacePose,
-}
-
 /// State both threads touch; the engine holds the lock only briefly each tick.
 pub struct Shared {
     pub playback: Playback,
-    pub schedules: HashMap<u32, Schedule<FaceRow>>,
-    pub peers: Vec<PeerView>,
-    /// Per-peer choices, by SSRC; the UI edits them, the engine follows them.
-    pub prefs: HashMap<u32, PeerPrefs>,
+    /// The call's remote peers, each whole: what the UI shows and chooses, and what the engine
+    /// plays and animates for it.
+    pub peers: Roster,
     pub call: CallStatus,
     pub output_status: String,
     pub input_status: String,
@@ -186,7 +137,7 @@ pub struct EngineCounters {
 
 impl EngineCounters {
     /// Counts one row of weights for the frame at stream position `pos`, heard up to `heard`.
-    fn weights_scheduled(&self, pos: u64, heard: Option<u64>, fallback: bool) {
+    pub(super) fn weights_scheduled(&self, pos: u64, heard: Option<u64>, fallback: bool) {
         self.weights_sent.fetch_add(1, Ordering::Relaxed);
         if fallback {
             self.weights_fallback.fetch_add(1, Ordering::Relaxed);
@@ -227,9 +178,7 @@ impl Engine {
         let output_status = describe_output(playback.status());
         let shared = Arc::new(Mutex::new(Shared {
             playback,
-            schedules: HashMap::new(),
-            peers: Vec::new(),
-            prefs: HashMap::new(),
+            peers: Roster::default(),
             call: CallStatus::default(),
             output_status,
             input_status: String::new(),
@@ -296,157 +245,6 @@ pub fn describe_output(status: &OutputStatus) -> String {
     }
 }
 
-/// The choices an animator is built from; a change rebuilds it.
-#[derive(Debug, Clone, PartialEq)]
-struct AnimationKey {
-    visemes: String,
-    jaw: bool,
-    closures: f32,
-}
-
-impl AnimationKey {
-    fn of(prefs: &PeerPrefs) -> Self {
-        Self {
-            visemes: prefs.visemes.clone(),
-            jaw: prefs.jaw,
-            closures: prefs.closures,
-        }
-    }
-
-    fn matches(&self, prefs: &PeerPrefs) -> bool {
-        self.visemes == prefs.visemes && self.jaw == prefs.jaw && self.closures == prefs.closures
-    }
-}
-
-/// Poses kept for frames whose weights the look-ahead still holds back.
-const POSE_RING: usize = MAX_LOOKAHEAD + 4;
-
-/// Turns one peer's decoded frames into weights over a chosen viseme set (the one receiver
-/// pipeline, [`LipSync`]) and, with the living face on, poses ([`LifeGenerator`]), or does
-/// nothing at all when the peer's animation is off.
-pub struct PeerAnimation {
-    lipsync: Option<LipSync<'static>>,
-    key: AnimationKey,
-    life: LifeGenerator,
-    /// The generator ran on the previous frame (so a face switched back on starts at rest).
-    life_running: bool,
-    /// (tag, pose) of the latest frames, to pair each frame's pose with its weights, which come
-    /// out after the look-ahead.
-    poses: [(u64, FacePose); POSE_RING],
-    next_pose: usize,
-    pub frames_animated: u64,
-}
-
-impl PeerAnimation {
-    /// With the living face seeded by [`DEFAULT_SEED`].
-    pub fn new(prefs: &PeerPrefs) -> Self {
-        Self::with_seed(prefs, DEFAULT_SEED)
-    }
-
-    /// With the living face seeded by `seed` (the app uses the peer's SSRC, so two peers do not
-    /// blink together).
-    pub fn with_seed(prefs: &PeerPrefs, seed: u64) -> Self {
-        Self {
-            lipsync: Self::lipsync(prefs),
-            key: AnimationKey::of(prefs),
-            life: LifeGenerator::new(seed),
-            life_running: false,
-            poses: [(u64::MAX, FacePose::REST); POSE_RING],
-            next_pose: 0,
-            frames_animated: 0,
-        }
-    }
-
-    fn lipsync(prefs: &PeerPrefs) -> Option<LipSync<'static>> {
-        let model = crate::lipsync::builtin::shipped();
-        let options = LipSyncOptions {
-            jaw: prefs.jaw,
-            closure_bias: prefs.closures,
-            visemes: VisemeSet::parse(&prefs.visemes).ok(),
-        };
-        // A set the shapes cannot express falls back to the network's own.
-        LipSync::new(model, &options)
-            .or_else(|_| {
-                LipSync::new(
-                    model,
-                    &LipSyncOptions {
-                        visemes: None,
-                        ..options
-                    },
-                )
-            })
-            .ok()
-    }
-
-    /// The viseme set the weights are expressed over.
-    pub fn target(&self) -> Option<&VisemeSet> {
-        self.lipsync.as_ref().map(|l| l.visemes())
-    }
-
-    /// Feeds one decoded frame (its features and its 160 samples), tagged with its stream
-    /// position. Returns the weights of the frame the network's look-ahead has now completed,
-    /// with that frame's pose and tag, or `None` (and neither network nor living face runs when
-    /// animation is off). Allocates nothing.
-    pub fn step(
-        &mut self,
-        prefs: &PeerPrefs,
-        tag: u64,
-        features: &FrameFeatures,
-        pcm: &[i16],
-    ) -> Option<(u64, FaceRow)> {
-        if !self.key.matches(prefs) {
-            // The face keeps living through a change of viseme set or mode.
-            self.lipsync = Self::lipsync(prefs);
-            self.key = AnimationKey::of(prefs);
-        }
-        if !prefs.animate || self.lipsync.is_none() {
-            self.life_running = false;
-            return None;
-        }
-        self.frames_animated += 1;
-        let pose = if prefs.life {
-            if !self.life_running {
-                self.life.settle();
-            }
-            self.life.step_frame(features, pcm)
-        } else {
-            FacePose::REST
-        };
-        self.life_running = prefs.life;
-        self.poses[self.next_pose] = (tag, pose);
-        self.next_pose = (self.next_pose + 1) % POSE_RING;
-        let (tag, weights) = self.lipsync.as_mut()?.push_full(tag, features)?;
-        Some((tag, self.row(tag, weights)))
-    }
-
-    /// The oldest frame still waiting for its look-ahead, now: the peer's next frame did not
-    /// come in time (loss, end of a talk spurt, the jitter buffer at its floor).
-    pub fn flush(&mut self) -> Option<(u64, FaceRow)> {
-        let (tag, weights) = self.lipsync.as_mut()?.flush_full()?;
-        Some((tag, self.row(tag, weights)))
-    }
-
-    /// The weights of frame `tag` with the pose made for that frame.
-    fn row(&self, tag: u64, weights: FullWeights) -> FaceRow {
-        let pose = self
-            .poses
-            .iter()
-            .find(|(t, _)| *t == tag)
-            .map_or(FacePose::REST, |(_, pose)| *pose);
-        FaceRow { weights, pose }
-    }
-}
-
-struct PeerState {
-    feed: PeerFeed,
-    weights: ScheduleSender<FaceRow>,
-    animation: PeerAnimation,
-    last_voice: Option<Instant>,
-    frames_received: u64,
-    /// It had a frame in the last pull (its audio runs on in its queue).
-    playing: bool,
-}
-
 /// The bundled speech sample at 8 kHz.
 fn demo_speech() -> anyhow::Result<Vec<i16>> {
     use crate::audio::wav;
@@ -510,6 +308,41 @@ impl Demo {
     }
 }
 
+/// A relay call's join: says when the relay refused the room, or has not confirmed it in time.
+#[derive(Debug, Default)]
+struct RelayWatch {
+    /// When to say the relay has not confirmed (none: confirmed, said, or not a relay call).
+    deadline: Option<Instant>,
+}
+
+impl RelayWatch {
+    fn joining(now: Instant) -> Self {
+        Self {
+            deadline: Some(now + RELAY_CONFIRM_WAIT),
+        }
+    }
+
+    /// The call's error to show, from the session's account of the relay at `now`.
+    fn check(&mut self, stats: &SessionStats, now: Instant) -> Option<String> {
+        if let Some(why) = stats.relay_refusal {
+            self.deadline = None;
+            return Some(format!("the relay refused to join the room: {why}"));
+        }
+        if stats.relay_joined {
+            self.deadline = None;
+        }
+        if self.deadline.is_some_and(|d| now >= d) {
+            self.deadline = None;
+            return Some(
+                "the relay has not confirmed the join (no relay there, or one of an older \
+                 lipcall version)"
+                    .into(),
+            );
+        }
+        None
+    }
+}
+
 struct Worker {
     config: EngineConfig,
     shared: Arc<Mutex<Shared>>,
@@ -520,11 +353,10 @@ struct Worker {
     mic: Option<Capture>,
     /// The microphone's encoder, for the codec of the current call.
     encoder: FrameEncoder,
-    peers: HashMap<u32, PeerState>,
     /// The session has destinations: the microphone is sent.
     in_call: bool,
-    /// While the relay has not confirmed our place in its room: when to say so.
-    relay_deadline: Option<Instant>,
+    /// A relay call's join, until the relay confirms it.
+    relay: RelayWatch,
 }
 
 fn resolve(addr: &str) -> anyhow::Result<SocketAddr> {
@@ -558,9 +390,8 @@ impl Worker {
             link,
             demo: None,
             mic: None,
-            peers: HashMap::new(),
             in_call: false,
-            relay_deadline: None,
+            relay: RelayWatch::default(),
             config,
             shared,
             counters,
@@ -661,7 +492,10 @@ impl Worker {
         };
         let local_addr = session.local_addr().ok();
         self.switch_link(Link::Session(session), encoder);
-        self.relay_deadline = room.as_ref().map(|_| Instant::now() + RELAY_CONFIRM_WAIT);
+        self.relay = match room {
+            Some(_) => RelayWatch::joining(Instant::now()),
+            None => RelayWatch::default(),
+        };
         let mut s = lock(&self.shared);
         s.call = CallStatus {
             state: match &room {
@@ -697,7 +531,7 @@ impl Worker {
         let state = format!("joining {}…", janus.place());
         let encoder = FrameEncoder::new(Codec::Opus, &EncoderSettings::default())?;
         self.switch_link(Link::Janus(Box::new(janus)), encoder);
-        self.relay_deadline = None;
+        self.relay = RelayWatch::default();
         let mut s = lock(&self.shared);
         s.call = CallStatus {
             state,
@@ -767,13 +601,8 @@ impl Worker {
     }
 
     fn drop_peers(&mut self) {
-        let mut s = lock(&self.shared);
-        for (ssrc, p) in self.peers.drain() {
-            s.playback.remove_peer(p.feed.id());
-            s.schedules.remove(&ssrc);
-        }
-        s.prefs.clear();
-        s.peers.clear();
+        let s = &mut *lock(&self.shared);
+        s.peers.clear(&mut s.playback);
     }
 
     fn handle(&mut self, command: Command) {
@@ -855,24 +684,14 @@ impl Worker {
 
     /// Says when the relay refused the call's room or never confirmed it.
     fn check_relay(&mut self) {
-        let stats = self.link.session().map(Session::stats).unwrap_or_default();
         let mut s = lock(&self.shared);
         s.call.unknown_payload = self.link.unknown_payload();
-        if self.in_call
-            && let Some(why) = stats.relay_refusal
-        {
-            s.call.error = Some(format!("the relay refused to join the room: {why}"));
-            self.relay_deadline = None;
-        }
-        if stats.relay_joined || !self.in_call || self.link.session().is_none() {
-            self.relay_deadline = None;
-        } else if self.relay_deadline.is_some_and(|d| Instant::now() >= d) {
-            s.call.error = Some(
-                "the relay has not confirmed the join (no relay there, or one of an \
-                 older lipcall version)"
-                    .into(),
-            );
-            self.relay_deadline = None;
+        let Some(session) = self.link.session().filter(|_| self.in_call) else {
+            self.relay = RelayWatch::default();
+            return;
+        };
+        if let Some(error) = self.relay.check(&session.stats(), Instant::now()) {
+            s.call.error = Some(error);
         }
     }
 
@@ -905,145 +724,90 @@ impl Worker {
         }
     }
 
-    /// One pull's frames: into each peer's queue for the mixer, and through its animation.
-    /// `ahead`: how many frames ahead of the mixer these are ([`PeerFeed::push_paced`]);
-    /// `None` while the output takes nothing (they are not queued).
+    /// One pull's frames, to the mixer and through each peer's animation ([`Roster::play`]).
     fn play(&mut self, frames: &[PeerFrame], ahead: Option<usize>) {
-        let now = Instant::now();
-        let mut s = lock(&self.shared);
-        for f in frames {
-            let peer = match self.peers.entry(f.ssrc) {
-                std::collections::hash_map::Entry::Occupied(e) => e.into_mut(),
-                std::collections::hash_map::Entry::Vacant(e) => {
-                    let Ok(feed) = s.playback.add_peer() else {
-                        continue;
-                    };
-                    let (tx, rx) = Schedule::channel(256);
-                    s.schedules.insert(f.ssrc, rx);
-                    let prefs = s.prefs.entry(f.ssrc).or_default().clone();
-                    e.insert(PeerState {
-                        feed,
-                        weights: tx,
-                        animation: PeerAnimation::with_seed(&prefs, u64::from(f.ssrc)),
-                        last_voice: None,
-                        frames_received: 0,
-                        playing: false,
-                    })
-                }
-            };
-            let prefs = s.prefs.get(&f.ssrc).cloned().unwrap_or_default();
-            if let Some(c) = s.playback.peer_controls(peer.feed.id()) {
-                c.set_muted(prefs.muted);
-                c.set_volume(prefs.volume);
-            }
-            peer.frames_received += 1;
-            let resuming = !std::mem::replace(&mut peer.playing, ahead.is_some());
-            // (Not queued when the mixer has mixed silence in its place already, or while the
-            // output takes nothing: a device that has not started or stalls, a stopped mixer.)
-            let queued =
-                ahead.and_then(|ahead| peer.feed.push_paced(&f.frame.pcm, ahead, resuming));
-            let Some(pos) = queued else {
-                continue;
-            };
-            if f.frame.kind == FrameKind::Decoded && f.frame.features.energy_db > -45.0 {
-                peer.last_voice = Some(now);
-            }
-            let t0 = Instant::now();
-            let animated = peer.animation.frames_animated;
-            let out = peer
-                .animation
-                .step(&prefs, pos, &f.frame.features, &f.frame.pcm);
-            if peer.animation.frames_animated > animated {
-                self.counters
-                    .network_ns
-                    .fetch_add(t0.elapsed().as_nanos() as u64, Ordering::Relaxed);
-                self.counters
-                    .frames_animated
-                    .fetch_add(1, Ordering::Relaxed);
-            }
-            if let Some((pos, w)) = out {
-                let heard = s.playback.heard_position(peer.feed.id(), Instant::now());
-                self.counters.weights_scheduled(pos, heard, false);
-                peer.weights.send(pos, w);
-            }
-        }
-        // A peer without a frame this tick: its waiting frame goes out without its future.
-        for (ssrc, peer) in &mut self.peers {
-            if frames.iter().any(|f| f.ssrc == *ssrc) {
-                continue;
-            }
-            peer.playing = false;
-            if let Some((pos, w)) = peer.animation.flush() {
-                let heard = s.playback.heard_position(peer.feed.id(), Instant::now());
-                self.counters.weights_scheduled(pos, heard, true);
-                peer.weights.send(pos, w);
-            }
-        }
+        let s = &mut *lock(&self.shared);
+        s.peers.play(
+            &mut s.playback,
+            frames,
+            ahead,
+            Instant::now(),
+            &self.counters,
+        );
     }
 
-    /// The peers as the UI shows them; forgets those that have left.
+    /// The peers as the UI shows them; forgets those that have left. A real peer takes the
+    /// demo's place.
     fn refresh_peers(&mut self, infos: &[PeerInfo]) {
-        let now = Instant::now();
-        let mut s = lock(&self.shared);
-        // Forget peers the session no longer knows or that said goodbye and went quiet.
-        let gone: Vec<u32> = self
-            .peers
-            .keys()
-            .copied()
-            .filter(|ssrc| !infos.iter().any(|i| i.ssrc == *ssrc && !i.ended))
-            .collect();
-        for ssrc in gone {
-            if let Some(p) = self.peers.remove(&ssrc) {
-                s.playback.remove_peer(p.feed.id());
-                s.schedules.remove(&ssrc);
-            }
-            s.prefs.remove(&ssrc);
+        {
+            let s = &mut *lock(&self.shared);
+            s.peers.describe(&mut s.playback, infos, Instant::now());
         }
         let real_peer = infos
             .iter()
             .any(|i| i.name.as_deref() != Some(DEMO_NAME) && !i.ended);
-        s.peers = infos
-            .iter()
-            .filter_map(|i| {
-                let p = self.peers.get(&i.ssrc)?;
-                let j = &i.receiver.jitter;
-                let expected = j.played + j.lost;
-                Some(PeerView {
-                    ssrc: i.ssrc,
-                    name: i
-                        .name
-                        .clone()
-                        .or_else(|| i.cname.clone())
-                        .unwrap_or_else(|| format!("{:08x}", i.ssrc)),
-                    named: i.name.is_some(),
-                    addr: i.addr,
-                    feed: p.feed.id(),
-                    is_demo: i.name.as_deref() == Some(DEMO_NAME),
-                    codec: i.receiver.codec,
-                    talking: p
-                        .last_voice
-                        .is_some_and(|t| now.duration_since(t) < Duration::from_millis(300)),
-                    loss_percent: if expected == 0 {
-                        0.0
-                    } else {
-                        100.0 * j.lost as f64 / expected as f64
-                    },
-                    jitter_ms: j.jitter_ms,
-                    delay_ms: j.current_delay_ms,
-                    frames_animated: p.animation.frames_animated,
-                    frames_received: p.frames_received,
-                    frames_recovered: i.receiver.recovered,
-                    unknown_payload: i.receiver.unknown_payload,
-                    queued_ms: p.feed.queued() as f64 * 1000.0
-                        / f64::from(crate::codec::speex::SAMPLE_RATE),
-                    buffer: *j,
-                })
-            })
-            .collect();
-        drop(s);
-        // A real peer takes the demo's place.
         if real_peer && let Some(d) = self.demo.take() {
             d.session.leave();
         }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::net::control::Refusal;
+
+    fn stats(joined: bool, refusal: Option<Refusal>) -> SessionStats {
+        SessionStats {
+            relay_joined: joined,
+            relay_refusal: refusal,
+            ..Default::default()
+        }
+    }
+
+    #[test]
+    fn an_unconfirmed_join_is_said_once_after_the_wait() {
+        let t0 = Instant::now();
+        let mut watch = RelayWatch::joining(t0);
+        let waiting = stats(false, None);
+        assert_eq!(watch.check(&waiting, t0), None);
+        let just_before = t0 + RELAY_CONFIRM_WAIT - Duration::from_millis(1);
+        assert_eq!(watch.check(&waiting, just_before), None);
+        let said = watch.check(&waiting, t0 + RELAY_CONFIRM_WAIT).unwrap();
+        assert!(said.contains("has not confirmed"), "{said}");
+        assert_eq!(
+            watch.check(&waiting, t0 + RELAY_CONFIRM_WAIT * 2),
+            None,
+            "said once, not every check"
+        );
+    }
+
+    #[test]
+    fn a_confirmed_join_is_never_called_unconfirmed() {
+        let t0 = Instant::now();
+        let mut watch = RelayWatch::joining(t0);
+        assert_eq!(watch.check(&stats(true, None), t0), None);
+        assert_eq!(
+            watch.check(&stats(false, None), t0 + RELAY_CONFIRM_WAIT * 2),
+            None
+        );
+    }
+
+    #[test]
+    fn a_refusal_is_said_at_once_and_ends_the_wait() {
+        let t0 = Instant::now();
+        let mut watch = RelayWatch::joining(t0);
+        let refused = stats(false, Some(Refusal::RoomFull));
+        let said = watch.check(&refused, t0).unwrap();
+        assert!(said.contains("refused") && said.contains("full"), "{said}");
+        let after = watch.check(&stats(false, None), t0 + RELAY_CONFIRM_WAIT);
+        assert_eq!(after, None, "no second complaint once refused");
+    }
+
+    #[test]
+    fn a_direct_call_is_not_watched() {
+        let mut watch = RelayWatch::default();
+        let later = Instant::now() + RELAY_CONFIRM_WAIT * 10;
+        assert_eq!(watch.check(&stats(false, None), later), None);
     }
 }

@@ -6,6 +6,8 @@
 
 pub mod engine;
 mod link;
+pub mod peer;
+pub mod roster;
 pub mod settings;
 pub mod tiles;
 
@@ -23,7 +25,8 @@ use crate::audio::{DeviceChoice, DeviceInfo};
 use crate::codec::any::Codec;
 use crate::render::head::FacePose;
 use crate::render::{Framing, VisemeWeights};
-use engine::{CallSpec, Command, Engine, EngineConfig, FaceRow, PeerView};
+use engine::{CallSpec, Command, Engine, EngineConfig};
+use peer::{FaceRow, PeerView};
 use settings::{PeerPrefs, Settings};
 use tiles::{HeadTile, HeadTiles, RenderCounters};
 
@@ -143,10 +146,7 @@ pub struct LipcallApp {
     counters: Arc<RenderCounters>,
     /// The head renderer and the tiles' textures (none without a wgpu renderer).
     heads: Option<HeadTiles>,
-    /// Frames each peer's tile showed with weights of the audio heard then.
-    shown: std::collections::HashMap<u32, u64>,
-    /// Peers whose saved choices were applied.
-    applied: std::collections::HashSet<u32>,
+    /// UI frames drawn.
     frames: u64,
     inputs: Vec<DeviceInfo>,
     outputs: Vec<DeviceInfo>,
@@ -190,8 +190,6 @@ impl LipcallApp {
             last_save: Instant::now(),
             counters,
             heads,
-            shown: Default::default(),
-            applied: Default::default(),
             frames: 0,
             inputs,
             outputs,
@@ -206,7 +204,8 @@ impl LipcallApp {
         }
     }
 
-    fn write_status(&self, peers: &[PeerView]) {
+    /// `shown[i]`: the UI frames that showed weights for `peers[i]`.
+    fn write_status(&self, peers: &[PeerView], shown: &[u64]) {
         let Some(path) = &self.options.status else {
             return;
         };
@@ -226,7 +225,7 @@ impl LipcallApp {
             c.weights_late.load(Ordering::Relaxed),
             c.late_samples.load(Ordering::Relaxed) as f64 / 8.0,
         );
-        for p in peers {
+        for (p, shown) in peers.iter().zip(shown) {
             text += &format!(
                 "peer ssrc={:08x} name={:?} demo={} talking={} animated={} shown={} received={} \
                  codec={} recovered={} unknown_pt={}\n",
@@ -235,7 +234,7 @@ impl LipcallApp {
                 p.is_demo,
                 p.talking,
                 p.frames_animated,
-                self.shown.get(&p.ssrc).copied().unwrap_or(0),
+                shown,
                 p.frames_received,
                 p.codec.map_or("-", Codec::name),
                 p.frames_recovered,
@@ -276,32 +275,37 @@ impl eframe::App for LipcallApp {
         self.shortcuts(&ctx);
         let now = Instant::now();
 
-        // One lock: the snapshot, and each peer's weights for the audio heard now.
-        let (peers, call, output_status, input_status, mic, weights) = {
+        // One lock: the snapshot, each peer's choices, and its weights for the audio heard now.
+        let (peers, call, output_status, input_status, mic, weights, mut prefs, shown) = {
             let mut guard = engine::lock(&self.engine.shared);
             let s = &mut *guard;
             if let Some(status) = s.playback.poll() {
                 s.output_status = engine::describe_output(status);
             }
-            let peers = s.peers.clone();
-            // A peer's saved choices apply once its name (SDES) is known; peers that left are
-            // forgotten (the engine frees their state), so one that comes back gets them again.
-            self.applied
-                .retain(|ssrc| peers.iter().any(|p| p.ssrc == *ssrc));
-            for p in &peers {
-                if let Some(saved) = self.settings.peers.get(&p.name)
-                    && self.applied.insert(p.ssrc)
+            let (mut peers, mut weights, mut prefs, mut shown) =
+                (Vec::new(), Vec::new(), Vec::new(), Vec::new());
+            for peer in s.peers.iter_mut() {
+                let Some(view) = peer.view.clone() else {
+                    continue;
+                };
+                // A peer's saved choices apply once its name (SDES) is known.
+                if !peer.saved_prefs_applied
+                    && let Some(saved) = self.settings.peers.get(&view.name)
                 {
-                    s.prefs.insert(p.ssrc, saved.clone());
+                    peer.prefs = saved.clone();
+                    peer.saved_prefs_applied = true;
                 }
-            }
-            let mut weights = Vec::with_capacity(peers.len());
-            for p in &peers {
                 let w = s
-                    .schedules
-                    .get_mut(&p.ssrc)
-                    .and_then(|sch| s.playback.weights_now(sch, p.feed, now).copied());
+                    .playback
+                    .weights_now(&mut peer.schedule, view.feed, now)
+                    .copied();
+                if w.is_some() {
+                    peer.frames_shown += 1;
+                }
+                peers.push(view);
                 weights.push(w);
+                prefs.push(peer.prefs.clone());
+                shown.push(peer.frames_shown);
             }
             (
                 peers,
@@ -310,19 +314,9 @@ impl eframe::App for LipcallApp {
                 s.input_status.clone(),
                 s.mic.clone(),
                 weights,
+                prefs,
+                shown,
             )
-        };
-        for (p, w) in peers.iter().zip(&weights) {
-            if w.is_some() {
-                *self.shown.entry(p.ssrc).or_default() += 1;
-            }
-        }
-        let mut prefs: Vec<PeerPrefs> = {
-            let s = engine::lock(&self.engine.shared);
-            peers
-                .iter()
-                .map(|p| s.prefs.get(&p.ssrc).cloned().unwrap_or_default())
-                .collect()
         };
         let before = prefs.clone();
 
@@ -364,7 +358,9 @@ impl eframe::App for LipcallApp {
         if prefs != before {
             let mut s = engine::lock(&self.engine.shared);
             for (p, pr) in peers.iter().zip(&prefs) {
-                s.prefs.insert(p.ssrc, pr.clone());
+                if let Some(peer) = s.peers.get_mut(p.ssrc) {
+                    peer.prefs = pr.clone();
+                }
                 if !p.is_demo && p.named {
                     self.settings.peers.insert(p.name.clone(), pr.clone());
                 }
@@ -373,7 +369,7 @@ impl eframe::App for LipcallApp {
 
         if self.last_status.elapsed() >= Duration::from_millis(500) {
             self.last_status = Instant::now();
-            self.write_status(&peers);
+            self.write_status(&peers, &shown);
         }
         if self.last_save.elapsed() >= Duration::from_secs(5) {
             self.last_save = Instant::now();
@@ -384,7 +380,7 @@ impl eframe::App for LipcallApp {
             .quit_after
             .is_some_and(|s| self.started.elapsed().as_secs_f64() >= s)
         {
-            self.write_status(&peers);
+            self.write_status(&peers, &shown);
             ctx.send_viewport_cmd(egui::ViewportCommand::Close);
         }
         ctx.request_repaint_after(Duration::from_millis(20));

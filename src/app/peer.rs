@@ -1,0 +1,250 @@
+//! One remote peer of a call, whole: what the UI shows of it and chooses for it, its slot in
+//! the mixer, its weights on the playback clock, and its animation. The call's peers are a
+//! [`super::roster::Roster`] of these.
+
+use std::net::SocketAddr;
+use std::time::Instant;
+
+use crate::audio::{PeerFeed, PeerId, Schedule, ScheduleSender};
+use crate::codec::any::Codec;
+use crate::codec::speex::features::FrameFeatures;
+use crate::lipsync::life::{DEFAULT_SEED, LifeGenerator};
+use crate::lipsync::network::MAX_LOOKAHEAD;
+use crate::lipsync::visemes::{FullWeights, VisemeSet};
+use crate::lipsync::{LipSync, LipSyncOptions};
+use crate::net::jitter::JitterStats;
+use crate::render::head::FacePose;
+
+use super::settings::PeerPrefs;
+
+/// Weights scheduled ahead of the heard position, per peer.
+const SCHEDULE_ROWS: usize = 256;
+
+/// Everything the app keeps for one remote peer, from its first frame until it leaves; the
+/// engine thread and the UI reach it under [`super::engine::Shared`]'s lock.
+pub struct RemotePeer {
+    /// What the UI shows; `None` until the link has described the peer (within 200 ms).
+    pub view: Option<PeerView>,
+    /// Its choices: the UI edits them, the engine follows them.
+    pub prefs: PeerPrefs,
+    /// The choices saved under its name were applied (once the name was known).
+    pub saved_prefs_applied: bool,
+    /// UI frames that showed weights for it.
+    pub frames_shown: u64,
+    /// Its weights, tagged with stream positions, for the UI to pick by the position heard.
+    pub schedule: Schedule<FaceRow>,
+    pub(super) feed: PeerFeed,
+    pub(super) weights: ScheduleSender<FaceRow>,
+    pub(super) animation: PeerAnimation,
+    pub(super) last_voice: Option<Instant>,
+    pub(super) frames_received: u64,
+    /// It had a frame in the last pull (its audio runs on in its queue).
+    pub(super) playing: bool,
+}
+
+impl RemotePeer {
+    /// A peer heard for the first time, with its mixer slot; its living face is seeded by its
+    /// SSRC, so two peers do not blink together.
+    pub(super) fn new(ssrc: u32, feed: PeerFeed) -> Self {
+        let prefs = PeerPrefs::default();
+        let (weights, schedule) = Schedule::channel(SCHEDULE_ROWS);
+        Self {
+            view: None,
+            animation: PeerAnimation::with_seed(&prefs, u64::from(ssrc)),
+            prefs,
+            saved_prefs_applied: false,
+            frames_shown: 0,
+            schedule,
+            feed,
+            weights,
+            last_voice: None,
+            frames_received: 0,
+            playing: false,
+        }
+    }
+
+    /// Its slot in the mixer.
+    pub fn feed(&self) -> PeerId {
+        self.feed.id()
+    }
+}
+
+/// One remote peer as the UI shows it.
+#[derive(Debug, Clone)]
+pub struct PeerView {
+    pub ssrc: u32,
+    pub name: String,
+    /// `name` is the peer's own (SDES NAME), not its CNAME or SSRC, which change with every
+    /// run: only a named peer's choices are saved.
+    pub named: bool,
+    pub addr: SocketAddr,
+    pub feed: PeerId,
+    pub is_demo: bool,
+    /// The codec of its last packet.
+    pub codec: Option<Codec>,
+    pub talking: bool,
+    pub loss_percent: f64,
+    pub jitter_ms: f64,
+    pub delay_ms: f64,
+    /// Frames the network (or jaw baseline) turned into weights.
+    pub frames_animated: u64,
+    pub frames_received: u64,
+    /// Its lost frames rebuilt from the next packet's FEC (Opus).
+    pub frames_recovered: u64,
+    /// Its packets of a payload type no codec is mapped to (dropped).
+    pub unknown_payload: u64,
+    /// Its decoded audio waiting for the mixer, in ms.
+    pub queued_ms: f64,
+    /// Its jitter buffer's counts (delay, drift, frames inserted and dropped).
+    pub buffer: JitterStats,
+}
+
+/// What a head shows for one 20 ms frame of a peer's audio: the mouth's weights over all 15
+/// visemes and the living face's pose (at rest when it is off), scheduled together so both are
+/// shown with the audio they belong to.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct FaceRow {
+    pub weights: FullWeights,
+    pub pose: FacePose,
+}
+
+/// The choices an animator is built from; a change rebuilds it.
+#[derive(Debug, Clone, PartialEq)]
+struct AnimationKey {
+    visemes: String,
+    jaw: bool,
+    closures: f32,
+}
+
+impl AnimationKey {
+    fn of(prefs: &PeerPrefs) -> Self {
+        Self {
+            visemes: prefs.visemes.clone(),
+            jaw: prefs.jaw,
+            closures: prefs.closures,
+        }
+    }
+
+    fn matches(&self, prefs: &PeerPrefs) -> bool {
+        self.visemes == prefs.visemes && self.jaw == prefs.jaw && self.closures == prefs.closures
+    }
+}
+
+/// Poses kept for frames whose weights the look-ahead still holds back.
+const POSE_RING: usize = MAX_LOOKAHEAD + 4;
+
+/// Turns one peer's decoded frames into weights over a chosen viseme set (the one receiver
+/// pipeline, [`LipSync`]) and, with the living face on, poses ([`LifeGenerator`]), or does
+/// nothing at all when the peer's animation is off.
+pub struct PeerAnimation {
+    lipsync: Option<LipSync<'static>>,
+    key: AnimationKey,
+    life: LifeGenerator,
+    /// The generator ran on the previous frame (so a face switched back on starts at rest).
+    life_running: bool,
+    /// (tag, pose) of the latest frames, to pair each frame's pose with its weights, which come
+    /// out after the look-ahead.
+    poses: [(u64, FacePose); POSE_RING],
+    next_pose: usize,
+    pub frames_animated: u64,
+}
+
+impl PeerAnimation {
+    /// With the living face seeded by [`DEFAULT_SEED`].
+    pub fn new(prefs: &PeerPrefs) -> Self {
+        Self::with_seed(prefs, DEFAULT_SEED)
+    }
+
+    /// With the living face seeded by `seed` (the app uses the peer's SSRC, so two peers do not
+    /// blink together).
+    pub fn with_seed(prefs: &PeerPrefs, seed: u64) -> Self {
+        Self {
+            lipsync: Self::lipsync(prefs),
+            key: AnimationKey::of(prefs),
+            life: LifeGenerator::new(seed),
+            life_running: false,
+            poses: [(u64::MAX, FacePose::REST); POSE_RING],
+            next_pose: 0,
+            frames_animated: 0,
+        }
+    }
+
+    fn lipsync(prefs: &PeerPrefs) -> Option<LipSync<'static>> {
+        let model = crate::lipsync::builtin::shipped();
+        let options = LipSyncOptions {
+            jaw: prefs.jaw,
+            closure_bias: prefs.closures,
+            visemes: VisemeSet::parse(&prefs.visemes).ok(),
+        };
+        // A set the shapes cannot express falls back to the network's own.
+        LipSync::new(model, &options)
+            .or_else(|_| {
+                LipSync::new(
+                    model,
+                    &LipSyncOptions {
+                        visemes: None,
+                        ..options
+                    },
+                )
+            })
+            .ok()
+    }
+
+    /// The viseme set the weights are expressed over.
+    pub fn target(&self) -> Option<&VisemeSet> {
+        self.lipsync.as_ref().map(|l| l.visemes())
+    }
+
+    /// Feeds one decoded frame (its features and its 160 samples), tagged with its stream
+    /// position. Returns the weights of the frame the network's look-ahead has now completed,
+    /// with that frame's pose and tag, or `None` (and neither network nor living face runs when
+    /// animation is off). Allocates nothing.
+    pub fn step(
+        &mut self,
+        prefs: &PeerPrefs,
+        tag: u64,
+        features: &FrameFeatures,
+        pcm: &[i16],
+    ) -> Option<(u64, FaceRow)> {
+        if !self.key.matches(prefs) {
+            // The face keeps living through a change of viseme set or mode.
+            self.lipsync = Self::lipsync(prefs);
+            self.key = AnimationKey::of(prefs);
+        }
+        if !prefs.animate || self.lipsync.is_none() {
+            self.life_running = false;
+            return None;
+        }
+        self.frames_animated += 1;
+        let pose = if prefs.life {
+            if !self.life_running {
+                self.life.settle();
+            }
+            self.life.step_frame(features, pcm)
+        } else {
+            FacePose::REST
+        };
+        self.life_running = prefs.life;
+        self.poses[self.next_pose] = (tag, pose);
+        self.next_pose = (self.next_pose + 1) % POSE_RING;
+        let (tag, weights) = self.lipsync.as_mut()?.push_full(tag, features)?;
+        Some((tag, self.row(tag, weights)))
+    }
+
+    /// The oldest frame still waiting for its look-ahead, now: the peer's next frame did not
+    /// come in time (loss, end of a talk spurt, the jitter buffer at its floor).
+    pub fn flush(&mut self) -> Option<(u64, FaceRow)> {
+        let (tag, weights) = self.lipsync.as_mut()?.flush_full()?;
+        Some((tag, self.row(tag, weights)))
+    }
+
+    /// The weights of frame `tag` with the pose made for that frame.
+    fn row(&self, tag: u64, weights: FullWeights) -> FaceRow {
+        let pose = self
+            .poses
+            .iter()
+            .find(|(t, _)| *t == tag)
+            .map_or(FacePose::REST, |(_, pose)| *pose);
+        FaceRow { weights, pose }
+    }
+}

@@ -1,0 +1,433 @@
+//! The call's remote peers by SSRC: each admitted on its first frame, animated frame by frame,
+//! described for the UI from what the link reports, and forgotten in one place, with its mixer
+//! slot, when it leaves or the call ends.
+
+use std::collections::BTreeMap;
+use std::sync::atomic::Ordering;
+use std::time::{Duration, Instant};
+
+use crate::audio::Playback;
+use crate::net::peer::FrameKind;
+use crate::net::session::{PeerFrame, PeerInfo};
+
+use super::engine::{DEMO_NAME, EngineCounters};
+use super::peer::{PeerView, RemotePeer};
+
+/// A peer whose last voiced frame is this recent is talking.
+const TALKING_HOLD: Duration = Duration::from_millis(300);
+/// Decoded frames above this energy are voice, for the talking indicator (dBFS).
+const VOICE_DB: f32 = -45.0;
+
+#[derive(Default)]
+pub struct Roster {
+    peers: BTreeMap<u32, RemotePeer>,
+}
+
+impl Roster {
+    pub fn get(&self, ssrc: u32) -> Option<&RemotePeer> {
+        self.peers.get(&ssrc)
+    }
+
+    pub fn get_mut(&mut self, ssrc: u32) -> Option<&mut RemotePeer> {
+        self.peers.get_mut(&ssrc)
+    }
+
+    pub fn iter_mut(&mut self) -> impl Iterator<Item = &mut RemotePeer> {
+        self.peers.values_mut()
+    }
+
+    pub fn len(&self) -> usize {
+        self.peers.len()
+    }
+
+    pub fn is_empty(&self) -> bool {
+        self.peers.is_empty()
+    }
+
+    /// The peers as the UI shows them (those the link has described), in SSRC order.
+    pub fn views(&self) -> Vec<PeerView> {
+        self.peers.values().filter_map(|p| p.view.clone()).collect()
+    }
+
+    /// One pull's frames: into each peer's queue for the mixer, and through its animation.
+    /// `ahead`: how many frames ahead of the mixer these are ([`crate::audio::PeerFeed::push_paced`]);
+    /// `None` while the output takes nothing (they are not queued). A peer without a frame in
+    /// this pull has its held-back frame's weights sent without their look-ahead.
+    pub(super) fn play(
+        &mut self,
+        playback: &mut Playback,
+        frames: &[PeerFrame],
+        ahead: Option<usize>,
+        now: Instant,
+        counters: &EngineCounters,
+    ) {
+        for f in frames {
+            let peer = match self.peers.entry(f.ssrc) {
+                std::collections::btree_map::Entry::Occupied(e) => e.into_mut(),
+                std::collections::btree_map::Entry::Vacant(e) => match playback.add_peer() {
+                    Ok(feed) => e.insert(RemotePeer::new(f.ssrc, feed)),
+                    Err(err) => {
+                        tracing::debug!("peer {:08x} not played: {err}", f.ssrc);
+                        continue;
+                    }
+                },
+            };
+            if let Some(c) = playback.peer_controls(peer.feed.id()) {
+                c.set_muted(peer.prefs.muted);
+                c.set_volume(peer.prefs.volume);
+            }
+            peer.frames_received += 1;
+            let resuming = !std::mem::replace(&mut peer.playing, ahead.is_some());
+            // (Not queued when the mixer has mixed silence in its place already, or while the
+            // output takes nothing: a device that has not started or stalls, a stopped mixer.)
+            let queued =
+                ahead.and_then(|ahead| peer.feed.push_paced(&f.frame.pcm, ahead, resuming));
+            let Some(pos) = queued else {
+                continue;
+            };
+            if f.frame.kind == FrameKind::Decoded && f.frame.features.energy_db > VOICE_DB {
+                peer.last_voice = Some(now);
+            }
+            let t0 = Instant::now();
+            let animated = peer.animation.frames_animated;
+            let out = peer
+                .animation
+                .step(&peer.prefs, pos, &f.frame.features, &f.frame.pcm);
+            if peer.animation.frames_animated > animated {
+                counters
+                    .network_ns
+                    .fetch_add(t0.elapsed().as_nanos() as u64, Ordering::Relaxed);
+                counters.frames_animated.fetch_add(1, Ordering::Relaxed);
+            }
+            if let Some((pos, row)) = out {
+                let heard = playback.heard_position(peer.feed.id(), now);
+                counters.weights_scheduled(pos, heard, false);
+                peer.weights.send(pos, row);
+            }
+        }
+        for (ssrc, peer) in &mut self.peers {
+            if frames.iter().any(|f| f.ssrc == *ssrc) {
+                continue;
+            }
+            peer.playing = false;
+            if let Some((pos, row)) = peer.animation.flush() {
+                let heard = playback.heard_position(peer.feed.id(), now);
+                counters.weights_scheduled(pos, heard, true);
+                peer.weights.send(pos, row);
+            }
+        }
+    }
+
+    /// Takes the link's account of its peers: describes those it knows for the UI and forgets
+    /// those it no longer knows or that said goodbye and went quiet.
+    pub(super) fn describe(&mut self, playback: &mut Playback, infos: &[PeerInfo], now: Instant) {
+        let gone: Vec<u32> = self
+            .peers
+            .keys()
+            .copied()
+            .filter(|ssrc| !infos.iter().any(|i| i.ssrc == *ssrc && !i.ended))
+            .collect();
+        for ssrc in gone {
+            self.forget(playback, ssrc);
+        }
+        for info in infos {
+            let Some(peer) = self.peers.get_mut(&info.ssrc) else {
+                continue;
+            };
+            peer.view = Some(view_of(peer, info, now));
+        }
+    }
+
+    /// Forgets every peer (the call ended or changed).
+    pub(super) fn clear(&mut self, playback: &mut Playback) {
+        for (_, peer) in std::mem::take(&mut self.peers) {
+            playback.remove_peer(peer.feed.id());
+        }
+    }
+
+    fn forget(&mut self, playback: &mut Playback, ssrc: u32) {
+        if let Some(peer) = self.peers.remove(&ssrc) {
+            playback.remove_peer(peer.feed.id());
+        }
+    }
+}
+
+fn view_of(peer: &RemotePeer, info: &PeerInfo, now: Instant) -> PeerView {
+    let jitter = &info.receiver.jitter;
+    let expected = jitter.played + jitter.lost;
+    PeerView {
+        ssrc: info.ssrc,
+        name: info
+            .name
+            .clone()
+            .or_else(|| info.cname.clone())
+            .unwrap_or_else(|| format!("{:08x}", info.ssrc)),
+        named: info.name.is_some(),
+        addr: info.addr,
+        feed: peer.feed.id(),
+        is_demo: info.name.as_deref() == Some(DEMO_NAME),
+        codec: info.receiver.codec,
+        talking: peer
+            .last_voice
+            .is_some_and(|t| now.saturating_duration_since(t) < TALKING_HOLD),
+        loss_percent: if expected == 0 {
+            0.0
+        } else {
+            100.0 * jitter.lost as f64 / expected as f64
+        },
+        jitter_ms: jitter.jitter_ms,
+        delay_ms: jitter.current_delay_ms,
+        frames_animated: peer.animation.frames_animated,
+        frames_received: peer.frames_received,
+        frames_recovered: info.receiver.recovered,
+        unknown_payload: info.receiver.unknown_payload,
+        queued_ms: peer.feed.queued() as f64 * 1000.0 / f64::from(crate::codec::speex::SAMPLE_RATE),
+        buffer: *jitter,
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    //! The roster's decisions in simulated time: each test hands it pulls and link reports at
+    //! instants it chooses; the mixer behind it is a real one on a silent output.
+
+    use std::net::SocketAddr;
+
+    use super::*;
+    use crate::audio::PlaybackConfig;
+    use crate::codec::any::Codec;
+    use crate::codec::speex::FRAME_SIZE;
+    use crate::codec::speex::features::FrameFeatures;
+    use crate::lipsync::network::silence_features;
+    use crate::net::peer::PlayedFrame;
+
+    struct Call {
+        roster: Roster,
+        playback: Playback,
+        counters: EngineCounters,
+        t0: Instant,
+        /// Pulls so far: the mixer (on a real-time silent output) takes next to nothing while a
+        /// test runs, so each pull's frames sit one frame further ahead of it, as a burst of
+        /// pulls from the pacer would.
+        pulls: usize,
+    }
+
+    impl Call {
+        fn new() -> Self {
+            Self {
+                roster: Roster::default(),
+                playback: Playback::start_silent(PlaybackConfig::default()).unwrap(),
+                counters: EngineCounters::default(),
+                t0: Instant::now(),
+                pulls: 0,
+            }
+        }
+
+        fn at(&self, ms: u64) -> Instant {
+            self.t0 + Duration::from_millis(ms)
+        }
+
+        /// One pull at `ms` with these peers' frames.
+        fn pull(&mut self, ms: u64, frames: &[PeerFrame]) {
+            let now = self.at(ms);
+            self.pulls += 1;
+            let ahead = Some(self.pulls);
+            self.roster
+                .play(&mut self.playback, frames, ahead, now, &self.counters);
+        }
+
+        fn report(&mut self, ms: u64, infos: &[PeerInfo]) {
+            let now = self.at(ms);
+            self.roster.describe(&mut self.playback, infos, now);
+        }
+
+        fn count(&self, counter: &std::sync::atomic::AtomicU64) -> u64 {
+            counter.load(Ordering::Relaxed)
+        }
+    }
+
+    fn frame(ssrc: u32, energy_db: f32) -> PeerFrame {
+        let amplitude = if energy_db > -90.0 { 3000.0 } else { 0.0 };
+        PeerFrame {
+            ssrc,
+            frame: PlayedFrame {
+                pcm: std::array::from_fn(|i| (amplitude * (i as f32 * 0.3).sin()) as i16),
+                features: FrameFeatures {
+                    mode: Some(5),
+                    energy_db,
+                    ..silence_features()
+                },
+                kind: FrameKind::Decoded,
+                codec: Codec::Speex,
+            },
+        }
+    }
+
+    fn voiced(ssrc: u32) -> PeerFrame {
+        frame(ssrc, -20.0)
+    }
+
+    fn info(ssrc: u32, name: &str) -> PeerInfo {
+        PeerInfo {
+            ssrc,
+            addr: SocketAddr::from(([127, 0, 0, 1], 5004)),
+            cname: Some(format!("{name}@127.0.0.1")),
+            name: Some(name.to_owned()),
+            receiver: Default::default(),
+            rtt_ms: None,
+            their_loss: None,
+            said_bye: false,
+            ended: false,
+        }
+    }
+
+    #[test]
+    fn a_peer_is_admitted_on_its_first_frame_and_shown_once_the_link_describes_it() {
+        let mut call = Call::new();
+        call.pull(0, &[voiced(7)]);
+        assert_eq!(call.roster.len(), 1);
+        assert!(call.roster.views().is_empty(), "not described yet");
+        let feed = call.roster.get(7).unwrap().feed();
+        assert!(call.playback.peer_controls(feed).is_some(), "a mixer slot");
+
+        call.report(200, &[info(7, "Ann"), info(9, "Bob")]);
+        let views = call.roster.views();
+        assert_eq!(views.len(), 1, "Bob has sent no frame: nothing to show");
+        assert_eq!((views[0].ssrc, views[0].name.as_str()), (7, "Ann"));
+        assert!(views[0].named);
+        assert_eq!(views[0].feed, feed);
+        assert_eq!(views[0].frames_received, 1);
+    }
+
+    #[test]
+    fn a_peer_that_leaves_is_forgotten_with_its_mixer_slot_and_choices() {
+        let mut call = Call::new();
+        call.pull(0, &[voiced(7), voiced(8)]);
+        call.roster.get_mut(7).unwrap().prefs.muted = true;
+        let (feed7, feed8) = (
+            call.roster.get(7).unwrap().feed(),
+            call.roster.get(8).unwrap().feed(),
+        );
+        let mut ended = info(8, "Bob");
+        ended.ended = true;
+        call.report(200, &[info(7, "Ann"), ended]);
+        assert!(call.roster.get(8).is_none(), "said goodbye and went quiet");
+        assert!(call.playback.peer_controls(feed8).is_none());
+        assert!(
+            call.roster.get(7).unwrap().prefs.muted,
+            "Ann's choice stays"
+        );
+
+        call.report(400, &[]);
+        assert!(call.roster.is_empty(), "the link no longer knows Ann");
+        assert!(call.playback.peer_controls(feed7).is_none());
+
+        call.pull(420, &[voiced(7)]);
+        assert!(
+            !call.roster.get(7).unwrap().prefs.muted,
+            "back after leaving: a new peer with default choices"
+        );
+    }
+
+    #[test]
+    fn talking_holds_for_300_ms_after_the_last_voiced_frame() {
+        let mut call = Call::new();
+        call.pull(0, &[voiced(7)]);
+        call.pull(20, &[frame(7, -60.0)]);
+        let talking = |call: &mut Call, ms| {
+            call.report(ms, &[info(7, "Ann")]);
+            call.roster.views()[0].talking
+        };
+        assert!(talking(&mut call, 290));
+        assert!(!talking(&mut call, 310), "a quiet frame is not voice");
+
+        let mut call = Call::new();
+        call.pull(0, &[frame(7, -60.0)]);
+        assert!(!talking(&mut call, 10), "quiet from the start");
+    }
+
+    #[test]
+    fn the_mixer_follows_a_peers_mute_and_volume() {
+        let mut call = Call::new();
+        call.pull(0, &[voiced(7)]);
+        let peer = call.roster.get_mut(7).unwrap();
+        peer.prefs.muted = true;
+        peer.prefs.volume = 0.5;
+        let feed = peer.feed();
+        call.pull(20, &[voiced(7)]);
+        let controls = call.playback.peer_controls(feed).unwrap();
+        assert!(controls.muted());
+        assert_eq!(controls.volume(), 0.5);
+    }
+
+    #[test]
+    fn weights_follow_one_frame_behind_and_a_missing_frame_flushes_the_held_one() {
+        let mut call = Call::new();
+        for i in 0..10 {
+            call.pull(20 * i, &[voiced(7)]);
+        }
+        assert_eq!(call.count(&call.counters.frames_animated), 10);
+        assert_eq!(
+            call.count(&call.counters.weights_sent),
+            9,
+            "the last frame waits for its look-ahead"
+        );
+        assert_eq!(call.count(&call.counters.weights_fallback), 0);
+
+        call.pull(200, &[]);
+        assert_eq!(call.count(&call.counters.weights_sent), 10);
+        assert_eq!(call.count(&call.counters.weights_fallback), 1);
+        // The UI finds a row for every sample of the ten frames, and none elsewhere.
+        let schedule = &mut call.roster.get_mut(7).unwrap().schedule;
+        let covered = (0..40 * FRAME_SIZE as u64)
+            .filter(|&pos| schedule.at(pos).is_some())
+            .count();
+        assert_eq!(covered, 10 * FRAME_SIZE);
+    }
+
+    #[test]
+    fn a_peer_with_animation_off_runs_no_network_and_schedules_nothing() {
+        let mut call = Call::new();
+        call.pull(0, &[voiced(7)]);
+        call.pull(20, &[]);
+        assert_eq!(call.count(&call.counters.frames_animated), 1);
+        assert_eq!(call.count(&call.counters.weights_sent), 1);
+        call.roster.get_mut(7).unwrap().prefs.animate = false;
+        for i in 2..11 {
+            call.pull(20 * i, &[voiced(7)]);
+        }
+        call.pull(220, &[]);
+        assert_eq!(call.count(&call.counters.frames_animated), 1);
+        assert_eq!(call.count(&call.counters.weights_sent), 1);
+        call.report(240, &[info(7, "Ann")]);
+        assert_eq!(call.roster.views()[0].frames_received, 10, "still played");
+    }
+
+    #[test]
+    fn frames_the_output_does_not_take_are_counted_but_not_animated() {
+        let mut call = Call::new();
+        let now = call.at(0);
+        call.roster
+            .play(&mut call.playback, &[voiced(7)], None, now, &call.counters);
+        assert_eq!(call.count(&call.counters.frames_animated), 0);
+        call.report(20, &[info(7, "Ann")]);
+        assert_eq!(call.roster.views()[0].frames_received, 1);
+    }
+
+    #[test]
+    fn clearing_forgets_every_peer_and_frees_the_mixer() {
+        let mut call = Call::new();
+        let ssrcs = [1, 2, 3];
+        let frames: Vec<PeerFrame> = ssrcs.iter().map(|&s| voiced(s)).collect();
+        call.pull(0, &frames);
+        let feeds: Vec<_> = ssrcs
+            .iter()
+            .map(|&s| call.roster.get(s).unwrap().feed())
+            .collect();
+        call.roster.clear(&mut call.playback);
+        assert!(call.roster.is_empty());
+        for feed in feeds {
+            assert!(call.playback.peer_controls(feed).is_none());
+        }
+    }
+}
