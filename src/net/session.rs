@@ -31,6 +31,10 @@ use super::srtp::{DEFAULT_CLOCK_TOLERANCE, MasterKey, Srtp, SrtpError};
 use super::{DatagramKind, MAX_DATAGRAM, NetError, classify};
 use crate::codec::any::{Codec, PayloadMap};
 
+mod timers;
+
+use timers::{Due, Timers, system_draw};
+
 #[derive(Debug, Clone)]
 pub struct SessionConfig {
     pub bind: SocketAddr,
@@ -946,6 +950,27 @@ impl Shared {
         }
     }
 
+    /// Whether the relay has yet to confirm or refuse our place in its room.
+    fn joining(&self) -> bool {
+        let rx = lock(&self.rx);
+        !rx.stats.relay_joined && rx.stats.relay_refusal.is_none()
+    }
+
+    /// Does what the loop's timers say is due at `now`, and says what that was.
+    fn run_timers(&self, timers: &mut Timers, now: Instant) -> Due {
+        let due = timers.due(now, || self.joining());
+        if due.report {
+            self.send_report(ReportKind::Periodic);
+        }
+        if due.keepalive && !lock(&self.tx).left {
+            self.request_place();
+        }
+        if due.expiry {
+            self.expire(now);
+        }
+        due
+    }
+
     fn expire(&self, now: Instant) {
         let mut rx = lock(&self.rx);
         let timeout = self.config.peer_timeout;
@@ -972,18 +997,11 @@ fn srtp(key: Option<&MasterKey>, clock_tolerance: Duration) -> Result<Option<Srt
     Ok(Some(srtp))
 }
 
-fn jittered(interval: Duration) -> Duration {
-    let r = getrandom::u32().unwrap_or(0x8000_0000);
-    interval.mul_f64(0.5 + f64::from(r) / f64::from(u32::MAX))
-}
-
 fn net_loop(shared: &Shared, socket: &UdpSocket) {
     // One byte over the largest datagram taken: one that fills the buffer was cut short.
     let mut buf = vec![0u8; MAX_DATAGRAM + 64 + 1];
     let mut datagram = Vec::with_capacity(MAX_DATAGRAM + 64);
-    let mut next_report = Instant::now() + jittered(shared.config.rtcp_interval);
-    let mut next_keepalive = Instant::now() + shared.config.keepalive_interval.min(JOIN_RETRY);
-    let mut next_expiry = Instant::now() + Duration::from_secs(1);
+    let mut timers = Timers::new(&shared.config, Instant::now(), system_draw);
     while !shared.stop.load(Ordering::Relaxed) {
         match socket.recv_from(&mut buf) {
             Ok((n, _)) if n >= buf.len() => {
@@ -1005,415 +1023,11 @@ fn net_loop(shared: &Shared, socket: &UdpSocket) {
             Err(_) => {}
         }
         let now = Instant::now();
-        if shared.config.send_rtcp && now >= next_report {
-            shared.send_report(ReportKind::Periodic);
-            next_report = now + jittered(shared.config.rtcp_interval);
-        }
-        if now >= next_keepalive {
-            if !lock(&shared.tx).left {
-                shared.request_place();
-            }
-            // Until the relay confirms a place, the join is retried sooner (a lost datagram).
-            let joining = {
-                let rx = lock(&shared.rx);
-                !rx.stats.relay_joined && rx.stats.relay_refusal.is_none()
-            };
-            let interval = if joining {
-                shared.config.keepalive_interval.min(JOIN_RETRY)
-            } else {
-                shared.config.keepalive_interval
-            };
-            next_keepalive = now + interval;
-        }
-        if now >= next_expiry {
-            shared.expire(now);
-            next_expiry = now + Duration::from_secs(1);
+        if now >= timers.next_deadline() {
+            shared.run_timers(&mut timers, now);
         }
     }
 }
 
 #[cfg(test)]
-mod tests {
-    use super::*;
-    use crate::codec::FRAME_SIZE;
-    use crate::codec::any::{EncoderSettings, FrameEncoder, MAX_FRAME_PAYLOAD};
-    use crate::net::peer::FrameKind;
-
-    const FRAME: Duration = Duration::from_millis(20);
-
-    fn session(max_peers: usize) -> Shared {
-        let mut config = SessionConfig::new("127.0.0.1:0".parse().unwrap());
-        config.max_peers = max_peers;
-        config.ssrc = Some(1);
-        Shared::new(config).unwrap().0
-    }
-
-    fn addr(port: u16) -> SocketAddr {
-        SocketAddr::from(([127, 0, 0, 1], port))
-    }
-
-    fn voice(frame: u32) -> [i16; FRAME_SIZE] {
-        std::array::from_fn(|i| {
-            let t = (frame as usize * FRAME_SIZE + i) as f32 / 8000.0;
-            let s: f32 = (1..12)
-                .map(|h| (2.0 * std::f32::consts::PI * 140.0 * h as f32 * t).sin() / h as f32)
-                .sum();
-            (5000.0 * s) as i16
-        })
-    }
-
-    /// One sender of Speex frames.
-    struct Caller {
-        stream: RtpStream,
-        encoder: FrameEncoder,
-        frame: u32,
-    }
-
-    impl Caller {
-        fn new(ssrc: u32, seq: u16, ts: u32) -> Self {
-            Self {
-                stream: RtpStream::new(ssrc, seq, ts),
-                encoder: FrameEncoder::new(Codec::Speex, &EncoderSettings::default()).unwrap(),
-                frame: 0,
-            }
-        }
-
-        fn packet(&mut self) -> Vec<u8> {
-            let mut out = [0u8; MAX_FRAME_PAYLOAD];
-            let (n, frames) = self
-                .encoder
-                .encode(&voice(self.frame), &mut out)
-                .unwrap()
-                .unwrap();
-            self.frame += 1;
-            let mut buf = Vec::new();
-            self.stream.packetize(&out[..n], frames, &mut buf).unwrap();
-            buf
-        }
-
-        /// RTCP from this sender: an SR (where its stream is now), with BYE if `bye`.
-        fn report(&self, bye: bool) -> Vec<u8> {
-            let sender = SenderInfo {
-                ntp: 0,
-                rtp_timestamp: self.stream.next_timestamp(),
-                packets: self.frame,
-                octets: 0,
-            };
-            rtcp_from(self.stream.ssrc, Some(sender), bye)
-        }
-    }
-
-    fn rtcp_from(ssrc: u32, sender: Option<SenderInfo>, bye: bool) -> Vec<u8> {
-        let mut buf = Vec::new();
-        rtcp::build(
-            &Outgoing {
-                ssrc,
-                sender,
-                blocks: &[],
-                cname: "spoof",
-                name: None,
-                bye,
-            },
-            &mut buf,
-        )
-        .unwrap();
-        buf
-    }
-
-    /// Drives the session in simulated time: before each 20 ms tick `send(k)` gives the
-    /// datagrams arriving in it, then every peer is pulled. Returns what each SSRC played.
-    fn drive(
-        shared: &Shared,
-        ticks: std::ops::Range<u32>,
-        mut send: impl FnMut(u32) -> Vec<(SocketAddr, Vec<u8>)>,
-        played: &mut HashMap<u32, Vec<FrameKind>>,
-    ) {
-        for k in ticks {
-            let now = shared.epoch + FRAME * k;
-            for (from, mut data) in send(k) {
-                shared.handle(&mut data, from, now);
-            }
-            let mut rx = lock(&shared.rx);
-            for (&ssrc, peer) in rx.peers.iter_mut() {
-                if let Some(f) = peer.receiver.pull(now) {
-                    played.entry(ssrc).or_default().push(f.kind);
-                }
-            }
-            drop(rx);
-            if k % 50 == 0 {
-                shared.expire(now);
-            }
-        }
-    }
-
-    fn decoded(played: &HashMap<u32, Vec<FrameKind>>, ssrc: u32) -> usize {
-        played.get(&ssrc).map_or(0, |v| {
-            v.iter().filter(|&&k| k == FrameKind::Decoded).count()
-        })
-    }
-
-    fn peer_addr(shared: &Shared, ssrc: u32) -> Option<SocketAddr> {
-        lock(&shared.rx).peers.get(&ssrc).map(|p| p.addr)
-    }
-
-    fn names_from(ssrc: u32, name: &str) -> Vec<u8> {
-        let mut buf = Vec::new();
-        rtcp::build(
-            &Outgoing {
-                ssrc,
-                sender: None,
-                blocks: &[],
-                cname: "caller@host",
-                name: Some(name),
-                bye: false,
-            },
-            &mut buf,
-        )
-        .unwrap();
-        buf
-    }
-
-    #[test]
-    fn a_name_sent_before_the_first_packet_names_the_peer_from_its_address_only() {
-        // Every sender's first RTCP (SDES) precedes its media: the caller used to stay
-        // nameless until its next report, and the app took its demo peer for a real caller.
-        let shared = session(8);
-        let mut played = HashMap::new();
-        let mut ann = Caller::new(7, 100, 5000);
-        let mut bob = Caller::new(8, 200, 6000);
-        drive(
-            &shared,
-            0..1,
-            |_| {
-                let mut junk: Vec<(SocketAddr, Vec<u8>)> = (0..PENDING_NAMES as u32)
-                    .map(|i| (addr(41_000 + i as u16), names_from(500 + i, "junk")))
-                    .collect();
-                // Bob's name comes from another port than his media: not his.
-                junk.insert(0, (addr(5000), names_from(7, "Ann")));
-                junk.push((addr(6001), names_from(8, "Mallory")));
-                junk
-            },
-            &mut played,
-        );
-        assert!(lock(&shared.rx).peers.is_empty());
-        assert_eq!(lock(&shared.rx).pending_names.len(), PENDING_NAMES);
-        // The pending names were full of junk after Ann's: hers was displaced; send it again.
-        drive(
-            &shared,
-            1..2,
-            |_| vec![(addr(5000), names_from(7, "Ann"))],
-            &mut played,
-        );
-        drive(
-            &shared,
-            2..12,
-            |_| vec![(addr(5000), ann.packet()), (addr(6000), bob.packet())],
-            &mut played,
-        );
-        let rx = lock(&shared.rx);
-        assert_eq!(rx.peers[&7].name.as_deref(), Some("Ann"));
-        assert_eq!(rx.peers[&7].cname.as_deref(), Some("caller@host"));
-        assert_eq!(rx.peers[&8].name, None);
-    }
-
-    #[test]
-    fn junk_rtcp_makes_no_peer_and_keeps_no_caller_out() {
-        // 32 receiver reports of 8 bytes from 32 SSRCs used to fill the peer table for 30 s.
-        let shared = session(32);
-        let mut played = HashMap::new();
-        drive(
-            &shared,
-            0..1,
-            |_| {
-                (0..32u32)
-                    .map(|i| {
-                        let mut rr = vec![0x80, 201, 0, 1];
-                        rr.extend_from_slice(&(1000 + i).to_be_bytes());
-                        (addr(40_000 + i as u16), rr)
-                    })
-                    .collect()
-            },
-            &mut played,
-        );
-        assert!(lock(&shared.rx).peers.is_empty());
-        let mut caller = Caller::new(7, 100, 5000);
-        drive(
-            &shared,
-            1..121,
-            |k| {
-                if k <= 100 {
-                    vec![(addr(5000), caller.packet())]
-                } else {
-                    Vec::new()
-                }
-            },
-            &mut played,
-        );
-        assert_eq!(decoded(&played, 7), 100);
-        assert_eq!(shared.stats_now().too_many_peers, 0);
-    }
-
-    #[test]
-    fn junk_media_never_evicts_a_talking_caller_nor_blocks_a_new_one() {
-        let shared = session(4);
-        let mut played = HashMap::new();
-        let mut a = Caller::new(7, 100, 5000);
-        let mut b = Caller::new(8, 9000, 77);
-        let mut junk = RtpStream::new(0, 0, 0);
-        junk.set_payload(0, 160);
-        drive(
-            &shared,
-            0..260,
-            |k| {
-                let mut out = Vec::new();
-                if k < 200 {
-                    out.push((addr(5000), a.packet()));
-                }
-                if (20..120).contains(&k) {
-                    // A PCMU packet (any bytes decode) from a new SSRC every 20 ms.
-                    junk.ssrc = 50_000 + k;
-                    let mut buf = Vec::new();
-                    junk.packetize(&[0x55; 160], 1, &mut buf).unwrap();
-                    out.push((addr(6000 + k as u16), buf));
-                }
-                if (130..230).contains(&k) {
-                    out.push((addr(5001), b.packet()));
-                }
-                out
-            },
-            &mut played,
-        );
-        assert_eq!(decoded(&played, 7), 200);
-        assert_eq!(decoded(&played, 8), 100);
-        let stats = shared.stats_now();
-        assert!(stats.evicted >= 90, "{stats:?}");
-        assert_eq!(stats.too_many_peers, 0, "{stats:?}");
-        // The junk ages out within seconds, the callers stay.
-        let mut peers: Vec<u32> = lock(&shared.rx).peers.keys().copied().collect();
-        peers.sort_unstable();
-        assert_eq!(peers, [7, 8]);
-    }
-
-    #[test]
-    fn a_spoofed_bye_from_another_address_is_ignored() {
-        let shared = session(32);
-        let mut played = HashMap::new();
-        let mut caller = Caller::new(7, 100, 5000);
-        drive(
-            &shared,
-            0..130,
-            |k| {
-                let mut out = Vec::new();
-                if k < 100 {
-                    out.push((addr(5000), caller.packet()));
-                }
-                if k == 50 {
-                    // 8 bytes: BYE for the caller's SSRC, from elsewhere; and a whole compound.
-                    let mut bye = vec![0x81, 203, 0, 1];
-                    bye.extend_from_slice(&7u32.to_be_bytes());
-                    out.push((addr(6666), bye));
-                    out.push((addr(6667), rtcp_from(7, None, true)));
-                }
-                out
-            },
-            &mut played,
-        );
-        assert_eq!(decoded(&played, 7), 100);
-        let peers = lock(&shared.rx).peers.get(&7).map(|p| p.said_bye).unwrap();
-        assert!(!peers);
-        // The lone BYE, and the compound's report and BYE.
-        assert_eq!(shared.stats_now().foreign, 3);
-        // From the caller's own address it counts.
-        drive(
-            &shared,
-            130..131,
-            |_| vec![(addr(5000), caller.report(true))],
-            &mut played,
-        );
-        assert!(lock(&shared.rx).peers[&7].said_bye);
-    }
-
-    #[test]
-    fn packets_from_another_port_do_not_hijack_a_caller() {
-        let shared = session(32);
-        let mut played = HashMap::new();
-        let mut caller = Caller::new(7, 100, 5000);
-        // Another port sends 60 packets with the caller's SSRC: first with its own sequence,
-        // then copying the caller's next sequence number and timestamp.
-        let mut spoof = Caller::new(7, 31_000, 1_000_000);
-        drive(
-            &shared,
-            0..170,
-            |k| {
-                let mut out = Vec::new();
-                if (30..90).contains(&k) {
-                    if k >= 60 {
-                        spoof.stream =
-                            RtpStream::new(7, 100u16.wrapping_add(k as u16), 5000 + k * 160);
-                    }
-                    out.push((addr(5999), spoof.packet()));
-                }
-                if k < 150 {
-                    out.push((addr(5000), caller.packet()));
-                }
-                out
-            },
-            &mut played,
-        );
-        assert_eq!(peer_addr(&shared, 7), Some(addr(5000)));
-        assert_eq!(decoded(&played, 7), 150);
-        let stats = shared.stats_now();
-        assert_eq!((stats.foreign, stats.moved), (60, 0), "{stats:?}");
-        let j = lock(&shared.rx).peers[&7].receiver.stats().jitter;
-        assert_eq!((j.received, j.duplicates, j.lost), (150, 0, 0), "{j:?}");
-    }
-
-    #[test]
-    fn a_caller_whose_address_changes_is_followed() {
-        // A NAT rebinding: the stream goes on from a new port, the old one falls quiet.
-        let shared = session(32);
-        let mut played = HashMap::new();
-        let mut caller = Caller::new(7, 65_500, 5000);
-        drive(
-            &shared,
-            0..140,
-            |k| match k {
-                0..60 => vec![(addr(5000), caller.packet())],
-                60..120 => vec![(addr(5002), caller.packet())],
-                _ => Vec::new(),
-            },
-            &mut played,
-        );
-        assert_eq!(peer_addr(&shared, 7), Some(addr(5002)));
-        assert_eq!(shared.stats_now().moved, 1);
-        // The packets that showed the move are not played: two frames concealed.
-        assert_eq!(decoded(&played, 7), 120 - 2);
-    }
-
-    #[test]
-    fn a_redial_on_the_same_ssrc_after_bye_plays() {
-        let shared = session(32);
-        let mut played = HashMap::new();
-        let mut first = Caller::new(7, 100, 5000);
-        let mut second = Caller::new(7, 40_000, 3_000_000);
-        drive(
-            &shared,
-            0..260,
-            |k| match k {
-                0..100 => vec![(addr(5000), first.packet())],
-                100 => vec![(addr(5000), first.report(true))],
-                130 => vec![(addr(5004), second.report(false))],
-                131..231 => vec![(addr(5004), second.packet())],
-                _ => Vec::new(),
-            },
-            &mut played,
-        );
-        assert_eq!(decoded(&played, 7), 200);
-        let rx = lock(&shared.rx);
-        let peer = &rx.peers[&7];
-        assert!(!peer.said_bye);
-        assert_eq!(peer.addr, addr(5004));
-        let j = peer.receiver.stats().jitter;
-        assert_eq!((j.restarts, j.lost, j.late), (1, 0, 0), "{j:?}");
-    }
-}
+mod tests;
