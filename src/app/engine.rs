@@ -27,6 +27,8 @@ use super::roster::Roster;
 use super::settings::DEFAULT_CODEC;
 
 const TICK: Duration = Duration::from_millis(20);
+/// The peers' status and the relay's are refreshed every this many ticks (200 ms).
+const STATUS_TICKS: u32 = 10;
 /// How often the worker looks at the mixer's demand: well within a frame, so that the few
 /// frames pulled ahead of the mixer are topped up before it needs them.
 const POLL: Duration = Duration::from_millis(5);
@@ -305,6 +307,42 @@ impl Demo {
         if let Some(n) = self.encoder.encode_frame(&frame, &mut packet) {
             let _ = self.session.send_frames(&packet[..n], 1);
         }
+    }
+}
+
+/// The system clock's 20 ms ticks, for the demo sender and the status. Ticks missed by a
+/// little are caught up at once, as a remote sender's late packets would come; after a longer
+/// stall (a suspended machine) the count is rebased instead of bursting.
+#[derive(Debug)]
+struct Ticker {
+    start: Instant,
+    count: u32,
+}
+
+/// Ticks missed beyond which the ticker rebases.
+const CATCH_UP_TICKS: u32 = 10;
+
+impl Ticker {
+    fn new(start: Instant) -> Self {
+        Self { start, count: 0 }
+    }
+
+    /// When the next tick is due.
+    fn due(&self) -> Instant {
+        self.start + TICK * self.count
+    }
+
+    /// The tick's number if one is due at `now`.
+    fn poll(&mut self, now: Instant) -> Option<u32> {
+        let due = self.due();
+        if now < due {
+            return None;
+        }
+        self.count = self.count.wrapping_add(1);
+        if now.duration_since(due) > TICK * CATCH_UP_TICKS {
+            self.count = (now.duration_since(self.start).as_millis() / TICK.as_millis()) as u32;
+        }
+        Some(self.count)
     }
 }
 
@@ -636,14 +674,12 @@ impl Worker {
     /// clock, [`FramePacer`]); the demo sender and the status follow the system clock's 20 ms
     /// ticks, as a remote sender would.
     fn run(mut self, stop: &AtomicBool) {
-        let start = Instant::now();
         let mixed = lock(&self.shared).playback.mixed();
         let mut pacer = FramePacer::new(DEFAULT_LEAD);
+        let mut ticker = Ticker::new(Instant::now());
         let mut frames: Vec<PeerFrame> = Vec::new();
-        let mut tick = 0u32;
         while !stop.load(Ordering::Relaxed) {
-            let due = start + TICK * tick;
-            if let Some(wait) = due.checked_duration_since(Instant::now()) {
+            if let Some(wait) = ticker.due().checked_duration_since(Instant::now()) {
                 std::thread::sleep(wait.min(POLL));
             }
             loop {
@@ -655,17 +691,11 @@ impl Worker {
             }
             self.send_mic();
             self.follow_room();
-            let now = Instant::now();
-            if now >= due {
-                tick = tick.wrapping_add(1);
-                if now.duration_since(due) > TICK * 10 {
-                    // Far behind (suspended?): rebase instead of bursting.
-                    tick = ((now - start).as_millis() / TICK.as_millis()) as u32;
-                }
+            if let Some(tick) = ticker.poll(Instant::now()) {
                 if let Some(demo) = &mut self.demo {
                     demo.tick();
                 }
-                if tick.is_multiple_of(10) {
+                if tick.is_multiple_of(STATUS_TICKS) {
                     let infos = self.link.peers();
                     self.check_relay();
                     self.refresh_peers(&infos);
@@ -763,6 +793,40 @@ mod tests {
             relay_refusal: refusal,
             ..Default::default()
         }
+    }
+
+    /// The ticks due at `now`, polled as the worker's loop does.
+    fn ticks_at(ticker: &mut Ticker, now: Instant) -> Vec<u32> {
+        std::iter::from_fn(|| ticker.poll(now)).collect()
+    }
+
+    #[test]
+    fn ticks_come_every_20_ms_and_a_short_stall_is_caught_up() {
+        let t0 = Instant::now();
+        let ms = |n| t0 + Duration::from_millis(n);
+        let mut ticker = Ticker::new(t0);
+        assert_eq!(ticks_at(&mut ticker, ms(0)), [1]);
+        assert_eq!(ticks_at(&mut ticker, ms(19)), [] as [u32; 0]);
+        assert_eq!(ticks_at(&mut ticker, ms(20)), [2]);
+        assert_eq!(ticker.due(), ms(40));
+        assert_eq!(ticks_at(&mut ticker, ms(120)), [3, 4, 5, 6, 7]);
+        assert_eq!(ticker.due(), ms(140));
+    }
+
+    #[test]
+    fn a_long_stall_is_not_made_up_in_a_burst() {
+        let t0 = Instant::now();
+        let mut ticker = Ticker::new(t0);
+        ticker.poll(t0);
+        let after = t0 + Duration::from_secs(5);
+        let ticks = ticks_at(&mut ticker, after);
+        assert!(ticks.len() <= 2, "{ticks:?}");
+        assert_eq!(
+            *ticks.last().unwrap(),
+            251,
+            "counted from the start: 5 s of ticks"
+        );
+        assert!(ticker.due() > after);
     }
 
     #[test]
