@@ -143,23 +143,29 @@ fn a_sender_into_the_app_is_shown_and_animated() {
         return;
     }
     let dir = tempfile::tempdir().unwrap();
-    let port = std::net::UdpSocket::bind("127.0.0.1:0")
-        .unwrap()
-        .local_addr()
-        .unwrap()
-        .port();
     let wav = Path::new(env!("CARGO_MANIFEST_DIR")).join("assets/speech/demo.wav");
+    // The app listens on a port of its own choosing and says which in its status file; each
+    // step waits (up to 30 s) for what it needs rather than for a fixed time.
     let script = format!(
         r#"
-        "$LIPCALL" --no-audio --no-demo --listen 127.0.0.1:{port} --quit-after 60 \
+        "$LIPCALL" --no-audio --no-demo --listen 127.0.0.1:0 --quit-after 60 \
             --status status.txt --settings s.json 2>app.log &
         pid=$!
-        i=0
-        while [ $i -lt 300 ] && [ ! -s status.txt ]; do sleep 0.1; i=$((i+1)); done
-        "$LIPCALL" send '{wav}' --to 127.0.0.1:{port} --name Alice 2>send.log &
+        field() {{ sed -n "$1" status.txt 2>/dev/null | head -1; }}
+        listening() {{ field 's/.* listening=\(127[^ ]*\).*/\1/p'; }}
+        alice() {{ field 's/.*name="Alice".* '"$1"'=\([0-9]*\).*/\1/p'; }}
+        wait_until() {{
+            i=0
+            while [ $i -lt 300 ] && ! eval "$1"; do sleep 0.1; i=$((i+1)); done
+        }}
+        wait_until '[ -n "$(listening)" ]'
+        "$LIPCALL" send '{wav}' --to "$(listening)" --name Alice 2>send.log &
         spid=$!
-        sleep 2.5; cp status.txt early.txt
-        sleep 1.5; cp status.txt late.txt
+        wait_until '[ "$(alice animated)" -gt 0 ] 2>/dev/null'
+        cp status.txt early.txt
+        first=$(alice animated)
+        wait_until '[ "$(alice animated)" -gt $((first + 25)) ] && [ "$(alice shown)" -gt 0 ] 2>/dev/null'
+        cp status.txt late.txt
         kill $spid 2>/dev/null; kill $pid; wait $pid
         true
         "#,

@@ -204,15 +204,17 @@ impl LipcallApp {
         }
     }
 
-    /// `shown[i]`: the UI frames that showed weights for `peers[i]`.
-    fn write_status(&self, peers: &[PeerView], shown: &[u64]) {
+    /// `shown[i]`: the UI frames that showed weights for `peers[i]`; `listening`: the call's
+    /// local address (so a script can call an app started on port 0).
+    fn write_status(&self, peers: &[PeerView], shown: &[u64], listening: Option<SocketAddr>) {
         let Some(path) = &self.options.status else {
             return;
         };
         let c = &self.engine.counters;
         let mut text = format!(
             "time_s={:.2} ui_frames={} network_ms={:.1} frames_animated={} record_ms={:.1} \
-             tiles_drawn={} tiles_shown={} weights_sent={} weights_fallback={} weights_late={} late_ms={:.1}\n",
+             tiles_drawn={} tiles_shown={} weights_sent={} weights_fallback={} weights_late={} late_ms={:.1} \
+             listening={}\n",
             self.started.elapsed().as_secs_f64(),
             self.frames,
             c.network_ns.load(Ordering::Relaxed) as f64 / 1e6,
@@ -224,6 +226,7 @@ impl LipcallApp {
             c.weights_fallback.load(Ordering::Relaxed),
             c.weights_late.load(Ordering::Relaxed),
             c.late_samples.load(Ordering::Relaxed) as f64 / 8.0,
+            listening.map_or("-".to_owned(), |a| a.to_string()),
         );
         for (p, shown) in peers.iter().zip(shown) {
             text += &format!(
@@ -369,7 +372,7 @@ impl eframe::App for LipcallApp {
 
         if self.last_status.elapsed() >= Duration::from_millis(500) {
             self.last_status = Instant::now();
-            self.write_status(&peers, &shown);
+            self.write_status(&peers, &shown, call.local_addr);
         }
         if self.last_save.elapsed() >= Duration::from_secs(5) {
             self.last_save = Instant::now();
@@ -380,7 +383,7 @@ impl eframe::App for LipcallApp {
             .quit_after
             .is_some_and(|s| self.started.elapsed().as_secs_f64() >= s)
         {
-            self.write_status(&peers, &shown);
+            self.write_status(&peers, &shown, call.local_addr);
             ctx.send_viewport_cmd(egui::ViewportCommand::Close);
         }
         ctx.request_repaint_after(Duration::from_millis(20));
