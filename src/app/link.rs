@@ -129,20 +129,8 @@ impl JanusLink {
         };
         member
             .feeds()
-            .into_iter()
-            .filter_map(|feed| {
-                Some(PeerInfo {
-                    ssrc: feed.ssrc?,
-                    addr: self.server,
-                    cname: None,
-                    name: Some(feed.name),
-                    receiver: feed.receiver,
-                    rtt_ms: None,
-                    their_loss: None,
-                    said_bye: feed.left,
-                    ended: feed.left,
-                })
-            })
+            .iter()
+            .filter_map(|feed| feed.peer_info(self.server))
             .collect()
     }
 }

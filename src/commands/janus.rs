@@ -8,12 +8,12 @@ use std::time::{Duration, Instant};
 
 use anyhow::{Context, Result, bail};
 
-use super::net::{FrameSource, load_packets, open_outputs, play, send_paced};
+use super::net::{FrameSource, load_packets, open_outputs, play, print_peer, send_paced};
 use super::recording::stop_flag;
 use crate::codec::any::{Codec, EncoderSettings};
 use crate::codec::speex::features::FrameFeatures;
 use crate::net::janus::JanusError;
-use crate::net::janus::room::{Member, Notice, RoomConfig};
+use crate::net::janus::room::{Member, Notice, RoomConfig, server_addr};
 use crate::net::jitter::JitterConfig;
 use crate::net::session::PeerFrame;
 
@@ -161,6 +161,7 @@ pub fn receive_with(
         args.features.as_deref(),
         args.weights.as_deref(),
     )?;
+    let server = server_addr(&args.janus.url)?;
     let (room, notices) = Member::join(args.janus.config(true, "lipcall-receiver"), false)
         .map_err(pin_hint)
         .with_context(|| format!("joining room {:?} on {}", args.janus.room, args.janus.url))?;
@@ -190,26 +191,12 @@ pub fn receive_with(
         stats.unmatched,
         stats.sent
     );
+    // The same line per peer as a direct `receive`, the feed's media coming from Janus.
     for feed in room.feeds() {
-        let j = &feed.receiver.jitter;
-        eprintln!(
-            "peer feed={} name={:?} ssrc={} received={} played={} lost={} late={} concealed={} \
-             recovered={} unknown_pt={} decode_errors={} jitter_ms={:.1} delay_ms={:.1} left={}",
-            feed.feed,
-            feed.name,
-            feed.ssrc.map_or_else(|| "-".into(), |s| format!("{s:08x}")),
-            j.received,
-            j.played,
-            j.lost,
-            j.late,
-            feed.receiver.concealed,
-            feed.receiver.recovered,
-            feed.receiver.unknown_payload,
-            feed.receiver.decode_errors,
-            j.jitter_ms,
-            j.current_delay_ms,
-            feed.left
-        );
+        match feed.peer_info(server) {
+            Some(peer) => print_peer(&peer),
+            None => eprintln!("peer feed={} name={:?} no media", feed.feed, feed.name),
+        }
     }
     if let Err(e) = room.leave() {
         eprintln!("lipcall: leaving the room: {e}");

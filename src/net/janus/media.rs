@@ -25,7 +25,7 @@ use crate::codec::any::PayloadMap;
 use crate::net::jitter::JitterConfig;
 use crate::net::peer::{PeerReceiver, ReceiverStats};
 use crate::net::rtp::{Rtp, RtpHeader};
-use crate::net::session::PeerFrame;
+use crate::net::session::{PeerFrame, PeerInfo};
 
 /// What the owner knows of one subscribed publisher.
 #[derive(Debug, Clone, PartialEq)]
@@ -38,6 +38,24 @@ pub struct FeedInfo {
     /// It left the room (or stopped publishing).
     pub left: bool,
     pub receiver: ReceiverStats,
+}
+
+impl FeedInfo {
+    /// The feed as a peer of the call, as a lipcall session describes its peers (its media
+    /// comes from the Janus `server`); `None` before its first packet.
+    pub fn peer_info(&self, server: SocketAddr) -> Option<PeerInfo> {
+        Some(PeerInfo {
+            ssrc: self.ssrc?,
+            addr: server,
+            cname: None,
+            name: Some(self.name.clone()),
+            receiver: self.receiver,
+            rtt_ms: None,
+            their_loss: None,
+            said_bye: self.left,
+            ended: self.left,
+        })
+    }
 }
 
 #[derive(Debug, Clone, Copy, Default, PartialEq, Eq)]
