@@ -89,6 +89,11 @@ pub struct TrainArgs {
     /// Closure snap: `auto` (tuned on the validation speakers), `off`, or a threshold in (0, 1].
     #[arg(long, value_name = "auto|off|T", default_value = "auto")]
     pub snap: String,
+    /// Output sharpness (the logits times this before the softmax): `auto` (with
+    /// --cross-validate, tuned with the closure snap on the pooled folds; else 1) or a number
+    /// from 0.25 to 4 (1 = the network as trained).
+    #[arg(long, value_name = "auto|G", default_value = "auto")]
+    pub sharpness: String,
     /// Codec versions of each training utterance (settings rotate over Speex qualities 3..10
     /// and VBR interleaved with Opus, G.711 and G.722).
     #[arg(long, value_name = "N", default_value_t = recipe::CODEC_VERSIONS)]
@@ -273,6 +278,20 @@ fn parse_snap(text: &str) -> Result<Option<f32>> {
     }
 }
 
+fn parse_sharpness(text: &str) -> Result<Option<f32>> {
+    use crate::lipsync::network::{MAX_SHARPNESS, MIN_SHARPNESS};
+    match text {
+        "auto" => Ok(None),
+        _ => match text.parse::<f32>() {
+            Ok(g) if (MIN_SHARPNESS..=MAX_SHARPNESS).contains(&g) => Ok(Some(g)),
+            _ => bail!(
+                "--sharpness takes auto or a number from {MIN_SHARPNESS} to {MAX_SHARPNESS}, \
+                 not {text:?}"
+            ),
+        },
+    }
+}
+
 /// Every number of the recipe must be finite and in range: a NaN learning rate trains a model
 /// that no loader accepts.
 fn check_numbers(args: &TrainArgs) -> Result<()> {
@@ -350,6 +369,7 @@ pub fn train(args: &TrainArgs) -> Result<()> {
         return train_cross_validated(args);
     }
     let snap = parse_snap(&args.snap)?;
+    let sharpness = parse_sharpness(&args.sharpness)?;
     let corpus = Corpus::open(&args.corpus)?;
     let split = SpeakerSplit::standard(&corpus)?;
     let config = train_config(args, &split, snap)?;
@@ -388,6 +408,7 @@ pub fn train(args: &TrainArgs) -> Result<()> {
     if let Some(threshold) = snap {
         report.model.closure_snap = threshold;
     }
+    report.model.sharpness = sharpness.unwrap_or(1.0);
     report.split = split.clone();
     report.model.notes = provenance_notes(
         versions,
@@ -591,6 +612,7 @@ fn regions(split: &SpeakerSplit) -> Vec<(String, Vec<String>)> {
 
 fn train_cross_validated(args: &TrainArgs) -> Result<()> {
     let snap = parse_snap(&args.snap)?;
+    let sharpness = parse_sharpness(&args.sharpness)?;
     let corpus = Corpus::open(&args.corpus)?;
     let split = SpeakerSplit::standard(&corpus)?;
     let config = train_config(args, &split, snap)?;
@@ -647,7 +669,7 @@ fn train_cross_validated(args: &TrainArgs) -> Result<()> {
     }
     let progress = bar(regions.len(), "folds", args.quiet);
     progress.enable_steady_tick(std::time::Duration::from_secs(1));
-    let mut cv = cross_validate(&config, &groups, snap)?;
+    let mut cv = cross_validate(&config, &groups, snap, sharpness)?;
     progress.finish_and_clear();
     println!("cross-validation, Speex quality {EVALUATION_QUALITY}:");
     println!("{cv}");
@@ -701,11 +723,17 @@ fn train_cross_validated(args: &TrainArgs) -> Result<()> {
             100.0 * cv.pooled.false_closure_rate
         ),
         format!(
-            "seed {}, {}, epochs {}, closure snap {}",
+            "seed {}, {}, epochs {}, closure snap {}, sharpness {}{}",
             args.seed,
             loss_note(&config),
             cv.epochs,
-            cv.closure_snap
+            cv.closure_snap,
+            report.model.sharpness,
+            if report.model.sharpen_open_shapes_only {
+                " (open shapes)"
+            } else {
+                ""
+            }
         ),
     ]);
     report
@@ -758,6 +786,16 @@ fn model_card(
         match &model.speaker_norm {
             Some(n) => format!("running mean over about {} speech frames", n.frames),
             None => "off".into(),
+        }
+    ));
+    line(format!(
+        "- output sharpness {}{} (the logits times this before the softmax; tuned with the \
+         closure snap on the pooled folds)",
+        model.sharpness,
+        if model.sharpen_open_shapes_only {
+            ", the open shapes only"
+        } else {
+            ""
         }
     ));
     line(format!(
@@ -871,13 +909,14 @@ pub fn evaluate(args: &EvaluateArgs) -> Result<()> {
     let report: EvalReport =
         evaluate_prepared(&model, &prepared, speakers, &VisemeShapes::point_model())?;
     println!(
-        "model: {} ({} visemes: {}; {} multiply-adds/frame; closure snap {}), {}",
+        "model: {} ({} visemes: {}; {} multiply-adds/frame; sharpness {}; closure snap {}), {}",
         args.model
             .as_deref()
             .map_or_else(|| "built-in".to_string(), |p| p.display().to_string()),
         model.outputs(),
         model.viseme_names().join(" "),
         model.multiply_adds(),
+        model.sharpness,
         model.closure_snap_of(path.family()),
         path
     );

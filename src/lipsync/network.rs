@@ -19,6 +19,12 @@
 //! closure_snap 0.55             (version 2) closed-viseme weight that snaps to a full closure;
 //!                               0 = off; optionally followed by `nlsf 0.6 analysis 0.5`, the
 //!                               thresholds for rows of those feature families (else the same)
+//! sharpness 1.6                 (optional; absent = 1) the logits are multiplied by this
+//!                               before the softmax (the convex weights raised to this power
+//!                               and renormalised), so the dominant shape leads more decisively;
+//!                               from 0.25 to 4; `sharpness 1.6 open-shapes`: the closed
+//!                               shape keeps its weight and only the others are sharpened
+//!                               among themselves (the closures stay the closure snap's)
 //! hidden 10                     hidden units
 //! input_offset <11 numbers>     scaled input = clamp((x - offset) * scale, -1, 1)
 //! input_scale <11 numbers>      in the order lsp1..lsp10, energy_db
@@ -56,6 +62,11 @@ pub const CLOSURE_BIAS_SPAN: f32 = 0.1;
 
 /// The lowest closure-snap threshold training tries or a bias reaches.
 pub const MIN_CLOSURE_SNAP: f32 = 0.3;
+
+/// The range of the output sharpness a model file may hold: beyond it the weights are all but
+/// one-hot (or all but uniform) and no calibration would choose it.
+pub const MIN_SHARPNESS: f32 = 0.25;
+pub const MAX_SHARPNESS: f32 = 4.0;
 
 /// Multiply-adds per frame the paper budgets for the network (Section III.D).
 pub const MULTIPLY_ADD_BUDGET: usize = 400;
@@ -174,6 +185,13 @@ pub struct Model {
     /// `closure_snap` (which Speex's bitstream LSPs use): each family leans its own way.
     pub nlsf_snap: Option<f32>,
     pub analysis_snap: Option<f32>,
+    /// The logits are multiplied by this before the softmax: above 1 the leading shape takes
+    /// more of the weight (a network trained on blended targets hedges between shapes), 1 is
+    /// the network as trained. Applied before the closure snap.
+    pub sharpness: f32,
+    /// The sharpness leaves the closed shape's weight alone and sharpens the others among
+    /// themselves (`open-shapes` in the file).
+    pub sharpen_open_shapes_only: bool,
     pub hidden: usize,
     /// `hidden x inputs`, row-major.
     pub w1: Vec<f32>,
@@ -285,6 +303,8 @@ impl Model {
             closure_snap: 0.0,
             nlsf_snap: None,
             analysis_snap: None,
+            sharpness: 1.0,
+            sharpen_open_shapes_only: false,
             hidden,
             w1: vec![0.0; hidden * inputs],
             b1: vec![0.0; hidden],
@@ -421,8 +441,37 @@ impl Model {
 
     /// The weights for the frames already pushed (no new frame).
     pub fn infer(&self, state: &mut InferenceState, weights: &mut [f32], closure_snap: f32) {
-        self.forward(&state.input, &mut state.hidden, weights);
+        self.output(&state.input, &mut state.hidden, weights);
         self.snap_with(weights, closure_snap);
+    }
+
+    /// The weights the receiver uses before the closure snap: [`Model::forward`] with the
+    /// model's sharpness.
+    pub fn output(&self, input: &[f32], hidden: &mut [f32], weights: &mut [f32]) {
+        self.logits(input, hidden, weights);
+        if self.sharpness == 1.0 {
+            softmax_in_place(weights);
+            return;
+        }
+        let spared = self.spared_shape();
+        // The spared shape's weight as the plain softmax gives it.
+        let kept = spared.map(|c| {
+            let own = weights[c];
+            1.0 / weights.iter().map(|z| (z - own).exp()).sum::<f32>()
+        });
+        for w in weights.iter_mut() {
+            *w *= self.sharpness;
+        }
+        spread_around(weights, spared.zip(kept));
+    }
+
+    /// The shape [`Model::sharpness`] leaves alone, if any.
+    pub fn spared_shape(&self) -> Option<usize> {
+        if self.sharpen_open_shapes_only {
+            self.closed_index()
+        } else {
+            None
+        }
     }
 
     /// The closure snap moved by `bias` in [-1, 1]: positive closes the lips more readily
@@ -469,8 +518,14 @@ impl Model {
         }
     }
 
-    /// Both layers on an already scaled input vector (no closure rule).
+    /// Both layers on an already scaled input vector, as trained (no sharpness, no closure
+    /// rule).
     pub fn forward(&self, input: &[f32], hidden: &mut [f32], weights: &mut [f32]) {
+        self.logits(input, hidden, weights);
+        softmax_in_place(weights);
+    }
+
+    fn logits(&self, input: &[f32], hidden: &mut [f32], weights: &mut [f32]) {
         let inputs = input.len();
         for ((h, row), b) in hidden
             .iter_mut()
@@ -486,7 +541,6 @@ impl Model {
         {
             *o = b + dot(row, hidden);
         }
-        softmax_in_place(weights);
     }
 
     /// The model in its text file format (version 2).
@@ -522,6 +576,13 @@ impl Model {
             }
         }
         text.push('\n');
+        if self.sharpness != 1.0 || self.sharpen_open_shapes_only {
+            let _ = write!(text, "sharpness {}", self.sharpness);
+            if self.sharpen_open_shapes_only {
+                text.push_str(" open-shapes");
+            }
+            text.push('\n');
+        }
         let _ = writeln!(text, "hidden {}", self.hidden);
         for (key, values) in [
             ("input_offset", &self.scaling.offset[..]),
@@ -541,33 +602,10 @@ impl Model {
         text
     }
 
-    /// Parses the text file format (versions 1 and 2).
+    /// Parses the text file format (versions 1 to 3).
     pub fn from_text(text: &str) -> Result<Self, ModelError> {
-        let mut notes = Vec::new();
-        let mut lines = text.lines().enumerate().filter_map(|(i, line)| {
-            let line = line.trim();
-            if let Some(note) = line.strip_prefix('#') {
-                notes.push(note.trim().to_string());
-                None
-            } else if line.is_empty() {
-                None
-            } else {
-                Some((i + 1, line))
-            }
-        });
-        let mut next = |key: &'static str| -> Result<(usize, Vec<&str>), ModelError> {
-            let (line, text) = lines.next().ok_or(ModelError::Truncated(key))?;
-            let mut words = text.split_whitespace();
-            let found = words.next().unwrap_or_default();
-            if found != key {
-                return Err(ModelError::UnexpectedKey {
-                    line,
-                    expected: key,
-                    found: found.to_string(),
-                });
-            }
-            Ok((line, words.collect()))
-        };
+        let mut lines = KeyedLines::new(text);
+        let mut next = |key| lines.next(key);
 
         let (line, version) = next(MAGIC).map_err(|e| match e {
             ModelError::UnexpectedKey { .. } | ModelError::Truncated(_) => ModelError::NotAModel,
@@ -680,6 +718,18 @@ impl Model {
         };
         let [closure_snap, nlsf_snap, analysis_snap] = closure_snaps;
         let closure_snap = closure_snap.unwrap_or(0.0);
+        let (sharpness, sharpen_open_shapes_only) = match lines.optional("sharpness") {
+            Some(found) if version_three => parse_sharpness(found)?,
+            Some((line, _)) => {
+                return Err(ModelError::UnexpectedKey {
+                    line,
+                    expected: "hidden",
+                    found: "sharpness".into(),
+                });
+            }
+            None => (1.0, false),
+        };
+        let mut next = |key| lines.next(key);
         let hidden = parse_size(next("hidden")?, "hidden", MAX_HIDDEN)?;
         let inputs = input_count(context, dynamics);
         let outputs = visemes.len();
@@ -693,7 +743,7 @@ impl Model {
         if !rest.is_empty() {
             return Err(ModelError::TrailingData { line });
         }
-        if let Some((line, _)) = lines.next() {
+        if let Some((line, _)) = lines.rest() {
             return Err(ModelError::TrailingData { line });
         }
         let mut scaling = InputScaling::new(-1.0, 1.0);
@@ -709,12 +759,14 @@ impl Model {
             closure_snap,
             nlsf_snap,
             analysis_snap,
+            sharpness,
+            sharpen_open_shapes_only,
             hidden,
             w1,
             b1,
             w2,
             b2,
-            notes,
+            notes: lines.notes,
         })
     }
 
@@ -738,6 +790,132 @@ impl Model {
             error,
         })
     }
+}
+
+/// A model file's lines, each read as `key value...`; comment lines are kept as notes and
+/// blank lines skipped.
+struct KeyedLines<'t> {
+    lines: std::iter::Peekable<std::iter::Enumerate<std::str::Lines<'t>>>,
+    notes: Vec<String>,
+}
+
+impl<'t> KeyedLines<'t> {
+    fn new(text: &'t str) -> Self {
+        Self {
+            lines: text.lines().enumerate().peekable(),
+            notes: Vec::new(),
+        }
+    }
+
+    /// The next line that is neither a comment nor blank, left unread: (line number, text).
+    fn peek(&mut self) -> Option<(usize, &'t str)> {
+        while let Some(&(i, line)) = self.lines.peek() {
+            let line = line.trim();
+            if let Some(note) = line.strip_prefix('#') {
+                self.notes.push(note.trim().to_string());
+            } else if !line.is_empty() {
+                return Some((i + 1, line));
+            }
+            self.lines.next();
+        }
+        None
+    }
+
+    /// The next line, which must start with `key`: its number and the words after the key.
+    fn next(&mut self, key: &'static str) -> Result<(usize, Vec<&'t str>), ModelError> {
+        let (line, text) = self.peek().ok_or(ModelError::Truncated(key))?;
+        let mut words = text.split_whitespace();
+        let found = words.next().unwrap_or_default();
+        if found != key {
+            return Err(ModelError::UnexpectedKey {
+                line,
+                expected: key,
+                found: found.to_string(),
+            });
+        }
+        self.lines.next();
+        Ok((line, words.collect()))
+    }
+
+    /// The next line if it starts with `key`, else nothing read.
+    fn optional(&mut self, key: &'static str) -> Option<(usize, Vec<&'t str>)> {
+        let (_, text) = self.peek()?;
+        if text.split_whitespace().next() != Some(key) {
+            return None;
+        }
+        self.next(key).ok()
+    }
+
+    /// Whatever is left.
+    fn rest(&mut self) -> Option<(usize, &'t str)> {
+        self.peek()
+    }
+}
+
+const OPEN_SHAPES_ONLY: &str = "open-shapes";
+
+/// `sharpness G [open-shapes]`: a finite number from [`MIN_SHARPNESS`] to [`MAX_SHARPNESS`].
+fn parse_sharpness((line, words): (usize, Vec<&str>)) -> Result<(f32, bool), ModelError> {
+    let (word, open_shapes_only) = match words[..] {
+        [word] => (word, false),
+        [word, OPEN_SHAPES_ONLY] => (word, true),
+        [_, other] => {
+            return Err(ModelError::UnexpectedKey {
+                line,
+                expected: OPEN_SHAPES_ONLY,
+                found: other.to_string(),
+            });
+        }
+        _ => {
+            return Err(ModelError::WrongCount {
+                line,
+                key: "sharpness",
+                expected: 1,
+                found: words.len(),
+            });
+        }
+    };
+    match word.parse::<f32>() {
+        Ok(g) if (MIN_SHARPNESS..=MAX_SHARPNESS).contains(&g) => Ok((g, open_shapes_only)),
+        _ => Err(ModelError::Sharpness {
+            line,
+            text: word.to_string(),
+        }),
+    }
+}
+
+/// Convex weights sharpened as [`Model::output`] does it on the logits, for outputs already
+/// computed: each raised to `sharpness` and the whole renormalised (the same as the logits
+/// multiplied by it, since the softmax's own normalisation cancels); with `spared`, that
+/// shape keeps its weight and the others share the rest so.
+pub fn sharpen(weights: &mut [f32], sharpness: f32, spared: Option<usize>) {
+    if sharpness == 1.0 {
+        return;
+    }
+    let kept = spared.map(|c| weights[c]);
+    for w in weights.iter_mut() {
+        *w = sharpness * w.max(f32::MIN_POSITIVE).ln();
+    }
+    spread_around(weights, spared.zip(kept));
+}
+
+/// The softmax of `logits`, or with `spared` = (c, w): shape c gets w and the softmax of the
+/// others shares 1 - w.
+fn spread_around(logits: &mut [f32], spared: Option<(usize, f32)>) {
+    let Some((c, kept)) = spared else {
+        softmax_in_place(logits);
+        return;
+    };
+    if logits.len() < 2 {
+        logits.fill(1.0);
+        return;
+    }
+    logits[c] = f32::NEG_INFINITY;
+    softmax_in_place(logits);
+    for w in logits.iter_mut() {
+        *w *= 1.0 - kept;
+    }
+    logits[c] = kept;
 }
 
 fn scale_relative(relative_db: f32) -> f32 {
@@ -878,6 +1056,10 @@ pub enum ModelError {
     },
     #[error("line {line}: {error}")]
     Visemes { line: usize, error: VisemeError },
+    #[error(
+        "line {line}: sharpness {text:?} is not a number from {MIN_SHARPNESS} to {MAX_SHARPNESS}"
+    )]
+    Sharpness { line: usize, text: String },
     #[error("line {line}: data after `end`")]
     TrailingData { line: usize },
     #[error("{path}: {error}")]
@@ -1042,6 +1224,161 @@ mod tests {
         assert_eq!(families.closure_snap_of(FeatureFamily::Analysis), 0.5);
         families.analysis_snap = None;
         assert_eq!(families.closure_snap_of(FeatureFamily::Analysis), 0.6);
+    }
+
+    #[test]
+    fn sharpness_round_trips_and_one_writes_nothing() {
+        let model = sample_model();
+        assert_eq!(model.sharpness, 1.0);
+        assert!(!model.to_text().contains("sharpness"));
+        let mut sharp = model.clone();
+        sharp.sharpness = 1.6;
+        let text = sharp.to_text();
+        assert!(
+            text.contains("\nclosure_snap 0\nsharpness 1.6\nhidden 4\n"),
+            "{text}"
+        );
+        assert_eq!(Model::from_text(&text).unwrap(), sharp);
+        let dir = tempfile::tempdir().unwrap();
+        let path = dir.path().join("sharp.lipmodel");
+        sharp.save(&path).unwrap();
+        assert_eq!(Model::load(&path).unwrap().sharpness, 1.6);
+        // The shipped file has no sharpness line and reads back byte for byte.
+        let shipped = crate::lipsync::builtin::shipped();
+        let file = include_str!("../../assets/models/default.lipmodel");
+        assert_eq!(shipped.to_text(), file);
+    }
+
+    #[test]
+    fn a_bad_sharpness_is_refused_with_its_line() {
+        let text = sample_model().to_text();
+        let with = |line: &str| text.replacen("hidden 4\n", &format!("{line}\nhidden 4\n"), 1);
+        for bad in ["0", "-1", "0.2", "4.5", "NaN", "inf", "1e39", "x"] {
+            let message = Model::from_text(&with(&format!("sharpness {bad}")))
+                .unwrap_err()
+                .to_string();
+            assert!(
+                message.contains(&format!(
+                    "sharpness \"{bad}\" is not a number from 0.25 to 4"
+                )),
+                "{message}"
+            );
+        }
+        assert!(matches!(
+            Model::from_text(&with("sharpness 1 2")),
+            Err(ModelError::UnexpectedKey {
+                expected: "open-shapes",
+                ..
+            })
+        ));
+        for wrong in ["sharpness", "sharpness 1 open-shapes 2"] {
+            assert!(
+                matches!(
+                    Model::from_text(&with(wrong)),
+                    Err(ModelError::WrongCount {
+                        key: "sharpness",
+                        ..
+                    })
+                ),
+                "accepted {wrong:?}"
+            );
+        }
+        // Only where the format puts it, and not twice.
+        assert!(Model::from_text(&with("sharpness 2\nsharpness 2")).is_err());
+        let misplaced = text.replacen("context 2\n", "context 2\nsharpness 2\n", 1);
+        assert!(Model::from_text(&misplaced).is_err());
+        let v2 = with("sharpness 2")
+            .replace("lipcall-viseme-mlp 3", "lipcall-viseme-mlp 2")
+            .replace("lookahead 0\n", "")
+            .replace("normalise off\n", "");
+        assert!(Model::from_text(&v2).is_err());
+        // The loader names the file.
+        let dir = tempfile::tempdir().unwrap();
+        let path = dir.path().join("bad.lipmodel");
+        std::fs::write(&path, with("sharpness 9")).unwrap();
+        let message = Model::load(&path).unwrap_err().to_string();
+        assert!(
+            message.contains("bad.lipmodel") && message.contains("sharpness \"9\""),
+            "{message}"
+        );
+        // Nor is such a model written.
+        let mut model = sample_model();
+        model.sharpness = f32::NAN;
+        assert!(model.save(&dir.path().join("nan.lipmodel")).is_err());
+    }
+
+    #[test]
+    fn sharpness_one_is_the_network_as_trained_bit_for_bit() {
+        let model = sample_model();
+        let mut state = model.new_state();
+        let (mut stepped, mut plain) = ([0.0; 3], [0.0; 3]);
+        let mut hidden = vec![0.0; model.hidden];
+        for energy in [-20.0, -35.0, -12.0] {
+            model.step(&mut state, &frame(energy), &mut stepped);
+            model.forward(state.input(), &mut hidden, &mut plain);
+            assert_eq!(stepped.map(f32::to_bits), plain.map(f32::to_bits));
+        }
+        let mut same = plain;
+        sharpen(&mut same, 1.0, None);
+        assert_eq!(same, plain);
+    }
+
+    #[test]
+    fn sharpening_raises_the_dominant_weight() {
+        let mut model = sample_model();
+        model.b2 = vec![0.8, 0.1, -0.4];
+        let mut state = model.new_state();
+        let mut plain = [0.0; 3];
+        model.step(&mut state, &frame(-20.0), &mut plain);
+        model.sharpness = 2.0;
+        let mut state = model.new_state();
+        let mut sharp = [0.0; 3];
+        model.step(&mut state, &frame(-20.0), &mut sharp);
+        let lead = |w: &[f32; 3]| (0..3).max_by(|&a, &b| w[a].total_cmp(&w[b])).unwrap();
+        assert_eq!(lead(&sharp), lead(&plain));
+        assert!(
+            sharp[lead(&plain)] > plain[lead(&plain)] + 0.05,
+            "{plain:?} {sharp:?}"
+        );
+        assert!((sharp.iter().sum::<f32>() - 1.0).abs() < 1e-6);
+        // The power of the weights is the scaled logits: the tuning and the receiver agree.
+        let mut powered = plain;
+        sharpen(&mut powered, 2.0, None);
+        for (p, s) in powered.iter().zip(&sharp) {
+            assert!((p - s).abs() < 1e-6, "{powered:?} {sharp:?}");
+        }
+        // Below 1 it softens.
+        let mut soft = plain;
+        sharpen(&mut soft, 0.5, None);
+        assert!(soft[lead(&plain)] < plain[lead(&plain)]);
+    }
+
+    #[test]
+    fn open_shapes_sharpening_leaves_the_closed_weight_alone() {
+        let mut model = sample_model();
+        model.b2 = vec![0.3, 0.6, -0.2];
+        let mut state = model.new_state();
+        let mut plain = [0.0; 3];
+        model.step(&mut state, &frame(-20.0), &mut plain);
+        model.sharpness = 2.0;
+        model.sharpen_open_shapes_only = true;
+        let text = model.to_text();
+        assert!(text.contains("\nsharpness 2 open-shapes\n"), "{text}");
+        assert_eq!(Model::from_text(&text).unwrap(), model);
+        let mut state = model.new_state();
+        let mut sharp = [0.0; 3];
+        model.step(&mut state, &frame(-20.0), &mut sharp);
+        assert!((sharp[0] - plain[0]).abs() < 1e-6, "{plain:?} {sharp:?}");
+        let open = |w: &[f32; 3]| w[1] / (w[1] + w[2]);
+        assert!(open(&sharp) > open(&plain) + 0.05, "{plain:?} {sharp:?}");
+        assert!((sharp.iter().sum::<f32>() - 1.0).abs() < 1e-6);
+        let mut powered = plain;
+        sharpen(&mut powered, 2.0, model.spared_shape());
+        for (p, s) in powered.iter().zip(&sharp) {
+            assert!((p - s).abs() < 1e-6, "{powered:?} {sharp:?}");
+        }
+        let other = text.replace("open-shapes", "closed");
+        assert!(Model::from_text(&other).is_err());
     }
 
     #[test]

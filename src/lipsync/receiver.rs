@@ -270,6 +270,25 @@ mod tests {
     }
 
     #[test]
+    fn the_models_sharpness_reaches_the_weights_shown() {
+        let mut model = probe_model(1);
+        let features: Vec<FrameFeatures> = (0..6).map(|i| loud(0.1 + 0.1 * i as f32)).collect();
+        let plain = animate_stream(
+            &mut LipSync::new(&model, &LipSyncOptions::default()).unwrap(),
+            &features,
+        );
+        model.sharpness = 2.0;
+        let sharp = animate_stream(
+            &mut LipSync::new(&model, &LipSyncOptions::default()).unwrap(),
+            &features,
+        );
+        for (p, s) in plain.iter().zip(&sharp) {
+            let lead = p.iter().copied().fold(0.0, f32::max);
+            assert!(s.iter().copied().fold(0.0, f32::max) > lead, "{p:?} {s:?}");
+        }
+    }
+
+    #[test]
     fn digital_silence_is_a_still_closed_mouth() {
         let model = crate::lipsync::default_model();
         for visemes in [None, Some(VisemeSet::parse("aa,I,U").unwrap())] {

@@ -114,7 +114,7 @@ pub(super) fn predictions(model: &Model, data: &Dataset) -> Vec<Vec<f32>> {
         .map(|&len| {
             let mut utt = Vec::with_capacity(len * out.len());
             for n in start..start + len {
-                model.forward(data.input(n), &mut hidden, &mut out);
+                model.output(data.input(n), &mut hidden, &mut out);
                 model.snap(&mut out);
                 utt.extend_from_slice(&out);
             }

@@ -13,9 +13,8 @@ use crate::lipsync::network::Model;
 use crate::lipsync::phones::CueClass;
 use crate::train::corpus::PreparedUtterance;
 use crate::train::eval::Scores;
-use crate::train::trainer::{
-    HeldOutPredictions, TrainConfig, TrainError, TrainReport, best_snap, train_on,
-};
+use crate::train::sharpness::{Calibration, calibrate};
+use crate::train::trainer::{HeldOutPredictions, TrainConfig, TrainError, TrainReport, train_on};
 
 /// The speakers held out by one fold, prepared twice: as training material (codec-augmented)
 /// and as held-out material (at the evaluation setting). A group with nothing held out (another
@@ -31,9 +30,9 @@ pub struct SpeakerGroup {
 pub struct FoldResult {
     pub held_out: String,
     pub best_epoch: usize,
-    /// Scores on the held-out group at the pooled closure-snap threshold.
+    /// Scores on the held-out group at the pooled sharpness and closure-snap threshold.
     pub scores: Scores,
-    /// The fold's model (with the pooled closure snap).
+    /// The fold's model (with the pooled sharpness and closure snap).
     pub model: Model,
 }
 
@@ -43,19 +42,22 @@ pub struct CrossValidation {
     /// All held-out predictions scored as one set.
     pub pooled: Scores,
     pub closure_snap: f32,
-    /// Pooled scores at every candidate closure-snap threshold.
+    /// Pooled scores at every candidate closure-snap threshold (at the chosen sharpness).
     pub snap_curve: Vec<(f32, Scores)>,
+    /// The output sharpness and the closure snap, tuned together on the pooled predictions.
+    pub calibration: Calibration,
     /// Median of the folds' best epochs: how long the final model trains.
     pub epochs: usize,
 }
 
 /// Trains one model per group with that group held out (early stopping on it), in parallel on
-/// the machine's cores; the closure snap is `snap`, or tuned on the pooled held-out predictions
-/// when `None`.
+/// the machine's cores; the closure snap is `snap` and the output sharpness `sharpness`, each
+/// tuned on the pooled held-out predictions when `None` (`train::sharpness::calibrate`).
 pub fn cross_validate(
     config: &TrainConfig,
     groups: &[SpeakerGroup],
     snap: Option<f32>,
+    sharpness: Option<f32>,
 ) -> Result<CrossValidation, TrainError> {
     let folds: Vec<usize> = (0..groups.len())
         .filter(|&k| !groups[k].held_out.is_empty())
@@ -106,8 +108,8 @@ pub fn cross_validate(
         .map(|(r, g)| HeldOutPredictions::new(&r.model, &g.held_out))
         .collect();
     let pooled = HeldOutPredictions::pool(&held_out)?;
-    let snap_curve = pooled.snap_curve(&config.shapes)?;
-    let closure_snap = snap.unwrap_or_else(|| best_snap(&snap_curve));
+    let calibration = calibrate(&pooled, snap, sharpness, &config.shapes)?;
+    let closure_snap = calibration.closure_snap;
     let folds = held_out
         .iter()
         .zip(&scored)
@@ -115,10 +117,13 @@ pub fn cross_validate(
         .map(|((predictions, group), report)| {
             let mut model = report.model.clone();
             model.closure_snap = closure_snap;
+            calibration.apply(&mut model);
             Ok(FoldResult {
                 held_out: group.name.clone(),
                 best_epoch: report.best_epoch,
-                scores: predictions.scores(closure_snap, &config.shapes)?,
+                scores: predictions
+                    .sharpened(calibration.sharpness, calibration.form)
+                    .scores(closure_snap, &config.shapes)?,
                 model,
             })
         })
@@ -127,9 +132,10 @@ pub fn cross_validate(
     epochs.sort_unstable();
     Ok(CrossValidation {
         folds,
-        pooled: pooled.scores(closure_snap, &config.shapes)?,
+        pooled: calibration.scores.clone(),
         closure_snap,
-        snap_curve,
+        snap_curve: calibration.snap_curve.clone(),
+        calibration,
         epochs: epochs[epochs.len() / 2].max(1),
     })
 }
@@ -207,6 +213,7 @@ pub fn train_final(
     };
     let mut report = train_on(&final_config, &train, &curves_on)?;
     report.model.closure_snap = cv.closure_snap;
+    cv.calibration.apply(&mut report.model);
     Ok(report)
 }
 
@@ -269,6 +276,7 @@ impl fmt::Display for CrossValidation {
                 s.openness_r
             )?;
         }
+        writeln!(f, "{}", self.calibration)?;
         write!(
             f,
             "closure snap (tuned on the pooled folds): {}",
@@ -318,7 +326,7 @@ mod tests {
             show_progress: false,
             ..TrainConfig::default()
         };
-        let cv = cross_validate(&config, &groups, None).unwrap();
+        let cv = cross_validate(&config, &groups, None, None).unwrap();
         let names: Vec<&str> = cv.folds.iter().map(|f| f.held_out.as_str()).collect();
         assert_eq!(names, ["dr1-fvmh0", "dr2-marc0", "dr4-maeb0"]);
         let frames: usize = groups
@@ -337,6 +345,12 @@ mod tests {
         assert_eq!(last.curve.len(), cv.epochs);
         assert_eq!(last.best_epoch, cv.epochs);
         assert_eq!(last.model.closure_snap, cv.closure_snap);
-        assert!(cross_validate(&config, &groups[..1], None).is_err());
+        assert_eq!(last.model.sharpness, cv.calibration.sharpness);
+        assert!(
+            cv.folds
+                .iter()
+                .all(|f| f.model.sharpness == last.model.sharpness)
+        );
+        assert!(cross_validate(&config, &groups[..1], None, None).is_err());
     }
 }

@@ -10,6 +10,7 @@ mod dataset;
 pub mod eval;
 mod init;
 pub mod plot;
+pub mod sharpness;
 pub mod targets;
 pub mod trainer;
 
