@@ -1243,7 +1243,7 @@ mod tests {
         let path = dir.path().join("sharp.lipmodel");
         sharp.save(&path).unwrap();
         assert_eq!(Model::load(&path).unwrap().sharpness, 1.6);
-        // The shipped file has no sharpness line and reads back byte for byte.
+        // The shipped file reads back byte for byte.
         let shipped = crate::lipsync::builtin::shipped();
         let file = include_str!("../../assets/models/default.lipmodel");
         assert_eq!(shipped.to_text(), file);
