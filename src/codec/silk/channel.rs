@@ -2,7 +2,7 @@
 //! interpolation depend on, and the reading of one frame's indices (RFC 6716 4.2.7) and
 //! excitation (4.2.7.8, read only to reach what follows it).
 
-use super::nlsf::{self, Codebook, MAX_ORDER, RESIDUAL_MAX};
+use super::nlsf::{self, Codebook, CodebookTables, MAX_ORDER, RESIDUAL_MAX};
 use super::range::RangeDecoder;
 use super::tables::{
     EXCITATION_LSB_ICDF, EXCITATION_SIGN_ICDF, FRAME_TYPE_ACTIVE_ICDF, FRAME_TYPE_INACTIVE_ICDF,
@@ -190,21 +190,10 @@ impl Channel {
 
         let voiced = signal_type == SignalType::Voiced;
         let nlsf_stage1 = decoder.decode_icdf(self.codebook.stage1_icdf(voiced));
-        let mut nlsf_residuals = [0i8; MAX_ORDER];
-        // The stage-1 index comes from a 32-entry table, so it always has fields; an
-        // impossible index would leave the residuals unread and zero.
-        if let Some(fields) = self.codebook.fields(nlsf_stage1) {
-            let order = self.codebook.order();
-            for (residual, field) in nlsf_residuals.iter_mut().zip(fields).take(order) {
-                let mut level = decoder.decode_icdf(self.codebook.residual_icdf(field)) as i32;
-                if level == 0 {
-                    level -= decoder.decode_icdf(&NLSF_EXTENSION_ICDF) as i32;
-                } else if level == 2 * RESIDUAL_MAX {
-                    level += decoder.decode_icdf(&NLSF_EXTENSION_ICDF) as i32;
-                }
-                *residual = (level - RESIDUAL_MAX) as i8;
-            }
-        }
+        let nlsf_residuals = match self.codebook {
+            Codebook::NarrowMedium => read_residuals(decoder, &nlsf::NB_MB, nlsf_stage1),
+            Codebook::Wide => read_residuals(decoder, &nlsf::WB, nlsf_stage1),
+        };
         let interpolation_q2 = if self.subframes == MAX_SUBFRAMES {
             decoder.decode_icdf(&NLSF_INTERPOLATION_ICDF) as u8
         } else {
@@ -362,14 +351,11 @@ impl Channel {
         }
 
         let order = self.codebook.order();
-        // Indices read by `read_indices` are always in range; a failure would mean a
-        // walker bug, and the previous vector is the safest answer then.
-        let nlsf_q15 = nlsf::reconstruct(
+        let nlsf_q15 = nlsf::reconstruct_padded(
             self.codebook,
             usize::from(indices.nlsf_stage1),
-            &indices.nlsf_residuals[..order],
-        )
-        .unwrap_or(self.previous_nlsf);
+            &indices.nlsf_residuals,
+        );
         let interpolation_q2 = if self.first_frame_after_reset {
             4
         } else {
@@ -391,6 +377,26 @@ impl Channel {
             gain_indices,
         }
     }
+}
+
+/// The stage-2 residual indices (-10..=10) of stage-1 vector `vector` (4.2.7.5.2); the
+/// entries past the codebook's order stay 0.
+fn read_residuals<const ORDER: usize>(
+    decoder: &mut RangeDecoder<'_>,
+    codebook: &CodebookTables<ORDER>,
+    vector: usize,
+) -> [i8; MAX_ORDER] {
+    let mut residuals = [0i8; MAX_ORDER];
+    for (k, residual) in residuals.iter_mut().enumerate().take(ORDER) {
+        let mut level = decoder.decode_icdf(codebook.residual_icdf(vector, k)) as i32;
+        if level == 0 {
+            level -= decoder.decode_icdf(&NLSF_EXTENSION_ICDF) as i32;
+        } else if level == 2 * RESIDUAL_MAX {
+            level += decoder.decode_icdf(&NLSF_EXTENSION_ICDF) as i32;
+        }
+        *residual = (level - RESIDUAL_MAX) as i8;
+    }
+    residuals
 }
 
 /// Row `index` of a table of distributions, or its last row (never reached: every index

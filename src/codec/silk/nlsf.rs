@@ -5,7 +5,8 @@ use super::tables::{
     NLSF_NB_MB_MIN_SPACING_Q15, NLSF_NB_MB_PREDICTION_Q8, NLSF_NB_MB_RESIDUAL_ICDF,
     NLSF_NB_MB_SELECT, NLSF_NB_MB_STAGE1_ICDF, NLSF_NB_MB_STAGE1_Q8, NLSF_NB_MB_WEIGHTS_Q9,
     NLSF_WB_MIN_SPACING_Q15, NLSF_WB_PREDICTION_Q8, NLSF_WB_RESIDUAL_ICDF, NLSF_WB_SELECT,
-    NLSF_WB_STAGE1_ICDF, NLSF_WB_STAGE1_Q8, NLSF_WB_WEIGHTS_Q9,
+    NLSF_WB_STAGE1_ICDF, NLSF_WB_STAGE1_Q8, NLSF_WB_WEIGHTS_Q9, unpack_predictions,
+    unpack_residual_rows,
 };
 
 /// Highest LPC order (WB).
@@ -16,6 +17,8 @@ pub(super) const RESIDUAL_MAX: i32 = 4;
 const STABILIZE_PASSES: usize = 20;
 /// Residual reconstruction pulls non-zero levels towards zero by 0.1 (Q10).
 const LEVEL_ADJUST_Q10: i32 = 102;
+/// Stage-1 vectors per codebook.
+const VECTORS: usize = 32;
 
 /// The two NLSF codebooks: NB/MB (order 10) and WB (order 16).
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Hash)]
@@ -27,88 +30,125 @@ pub enum Codebook {
 impl Codebook {
     pub fn order(self) -> usize {
         match self {
-            Codebook::NarrowMedium => 10,
-            Codebook::Wide => MAX_ORDER,
+            Codebook::NarrowMedium => NB_MB.order(),
+            Codebook::Wide => WB.order(),
         }
     }
 
-    fn step_q16(self) -> i32 {
-        match self {
-            // 0.18 and 0.15 in Q16, rounded
-            Codebook::NarrowMedium => 11796,
-            Codebook::Wide => 9830,
-        }
-    }
-
-    pub(super) fn stage1_icdf(self, voiced: bool) -> &'static [u8] {
+    pub(super) fn stage1_icdf(self, voiced: bool) -> &'static [u8; VECTORS] {
         let row = usize::from(voiced);
         match self {
-            Codebook::NarrowMedium => &NLSF_NB_MB_STAGE1_ICDF[row],
-            Codebook::Wide => &NLSF_WB_STAGE1_ICDF[row],
+            Codebook::NarrowMedium => &NB_MB.stage1_icdf[row],
+            Codebook::Wide => &WB.stage1_icdf[row],
         }
     }
 
+    #[cfg(test)]
     fn stage1_q8(self, vector: usize) -> Option<&'static [u8]> {
         match self {
-            Codebook::NarrowMedium => NLSF_NB_MB_STAGE1_Q8.get(vector).map(|v| &v[..]),
-            Codebook::Wide => NLSF_WB_STAGE1_Q8.get(vector).map(|v| &v[..]),
+            Codebook::NarrowMedium => NB_MB.stage1_q8.get(vector).map(|v| &v[..]),
+            Codebook::Wide => WB.stage1_q8.get(vector).map(|v| &v[..]),
         }
     }
 
-    fn weights_q9(self, vector: usize) -> Option<&'static [i16]> {
-        match self {
-            Codebook::NarrowMedium => NLSF_NB_MB_WEIGHTS_Q9.get(vector).map(|v| &v[..]),
-            Codebook::Wide => NLSF_WB_WEIGHTS_Q9.get(vector).map(|v| &v[..]),
-        }
-    }
-
-    fn select(self, vector: usize) -> Option<&'static [u8]> {
-        match self {
-            Codebook::NarrowMedium => NLSF_NB_MB_SELECT.get(vector).map(|v| &v[..]),
-            Codebook::Wide => NLSF_WB_SELECT.get(vector).map(|v| &v[..]),
-        }
-    }
-
-    fn residual_icdfs(self) -> &'static [[u8; 9]; 8] {
-        match self {
-            Codebook::NarrowMedium => &NLSF_NB_MB_RESIDUAL_ICDF,
-            Codebook::Wide => &NLSF_WB_RESIDUAL_ICDF,
-        }
-    }
-
-    fn predictions_q8(self, set: usize) -> Option<&'static [u8]> {
-        match self {
-            Codebook::NarrowMedium => NLSF_NB_MB_PREDICTION_Q8.get(set).map(|v| &v[..]),
-            Codebook::Wide => NLSF_WB_PREDICTION_Q8.get(set).map(|v| &v[..]),
-        }
-    }
-
+    #[cfg(test)]
     fn min_spacing_q15(self) -> &'static [i16] {
         match self {
-            Codebook::NarrowMedium => &NLSF_NB_MB_MIN_SPACING_Q15,
-            Codebook::Wide => &NLSF_WB_MIN_SPACING_Q15,
+            Codebook::NarrowMedium => NB_MB.min_spacing_q15,
+            Codebook::Wide => WB.min_spacing_q15,
         }
     }
+}
 
-    /// For stage-1 vector `vector`, one 4-bit field per coefficient (4.2.7.5.2-3): bits 1-3
-    /// pick the residual distribution, bit 0 the set of backward prediction weights.
-    pub(super) fn fields(self, vector: usize) -> Option<impl Iterator<Item = u8>> {
-        let select = self.select(vector)?;
-        Some(select.iter().flat_map(|&byte| [byte & 0x0F, byte >> 4]))
+/// One codebook's tables, with the 4-bit fields of its selection table unpacked per
+/// coefficient (4.2.7.5.2-3) so that the per-frame work only indexes.
+pub(super) struct CodebookTables<const ORDER: usize> {
+    stage1_icdf: &'static [[u8; VECTORS]; 2],
+    stage1_q8: &'static [[u8; ORDER]; VECTORS],
+    weights_q9: &'static [[i16; ORDER]; VECTORS],
+    /// Per vector and coefficient: which of `residual_icdf` codes its residual.
+    residual_rows: [[u8; ORDER]; VECTORS],
+    /// Per vector and coefficient: the backward prediction weight (Q8) from the coefficient
+    /// above; 0 for the last.
+    predictions_q8: [[u8; ORDER]; VECTORS],
+    residual_icdf: &'static [[u8; 9]; 8],
+    /// Quantisation step of the residuals, Q16.
+    step_q16: i32,
+    /// `ORDER + 1` spacings: below each coefficient, and above the last (4.2.7.5.4).
+    min_spacing_q15: &'static [i16],
+}
+
+pub(super) static NB_MB: CodebookTables<10> = CodebookTables {
+    stage1_icdf: &NLSF_NB_MB_STAGE1_ICDF,
+    stage1_q8: &NLSF_NB_MB_STAGE1_Q8,
+    weights_q9: &NLSF_NB_MB_WEIGHTS_Q9,
+    residual_rows: unpack_residual_rows(&NLSF_NB_MB_SELECT),
+    predictions_q8: unpack_predictions(&NLSF_NB_MB_SELECT, &NLSF_NB_MB_PREDICTION_Q8),
+    residual_icdf: &NLSF_NB_MB_RESIDUAL_ICDF,
+    // 0.18 in Q16, rounded
+    step_q16: 11796,
+    min_spacing_q15: &NLSF_NB_MB_MIN_SPACING_Q15,
+};
+
+pub(super) static WB: CodebookTables<16> = CodebookTables {
+    stage1_icdf: &NLSF_WB_STAGE1_ICDF,
+    stage1_q8: &NLSF_WB_STAGE1_Q8,
+    weights_q9: &NLSF_WB_WEIGHTS_Q9,
+    residual_rows: unpack_residual_rows(&NLSF_WB_SELECT),
+    predictions_q8: unpack_predictions(&NLSF_WB_SELECT, &NLSF_WB_PREDICTION_Q8),
+    residual_icdf: &NLSF_WB_RESIDUAL_ICDF,
+    // 0.15 in Q16, rounded
+    step_q16: 9830,
+    min_spacing_q15: &NLSF_WB_MIN_SPACING_Q15,
+};
+
+impl<const ORDER: usize> CodebookTables<ORDER> {
+    pub(super) const fn order(&self) -> usize {
+        ORDER
     }
 
-    /// The residual distribution a coefficient's field picks.
-    pub(super) fn residual_icdf(self, field: u8) -> &'static [u8] {
-        // Three bits index the eight distributions.
-        &self.residual_icdfs()[usize::from((field >> 1) & 7)]
+    /// The distribution of coefficient `k`'s residual in stage-1 vector `vector` (0..32).
+    pub(super) fn residual_icdf(&self, vector: usize, k: usize) -> &'static [u8; 9] {
+        let row = self.residual_rows[vector % VECTORS][k % ORDER];
+        let icdf: &'static [[u8; 9]; 8] = self.residual_icdf;
+        &icdf[usize::from(row & 7)]
     }
 
-    /// Coefficient k's backward prediction weight (Q8) from coefficient k + 1. The last
-    /// coefficient has no next one: 0.
-    fn prediction_q8(self, k: usize, field: u8) -> i32 {
-        self.predictions_q8(usize::from(field & 1))
-            .and_then(|set| set.get(k))
-            .map_or(0, |&p| i32::from(p))
+    /// The stabilised NLSFs (Q15) of stage-1 vector `vector` (0..32) and stage-2 residual
+    /// indices in -10..=10, as the decoder computes them (4.2.7.5.3-4).
+    pub(super) fn reconstruct(&self, vector: usize, residuals: &[i8; ORDER]) -> [i16; ORDER] {
+        let vector = vector % VECTORS;
+        let base = &self.stage1_q8[vector];
+        let weights = &self.weights_q9[vector];
+        let predictions = &self.predictions_q8[vector];
+        let mut nlsf = [0i16; ORDER];
+        // Stage 2: residuals in Q10, predicted backwards from the coefficient above, then
+        // weighted onto the stage-1 vector.
+        let mut above = 0i32;
+        for k in (0..ORDER).rev() {
+            let predicted = (above * i32::from(predictions[k])) >> 8;
+            let index = i32::from(residuals[k]);
+            let level = (index << 10) - index.signum() * LEVEL_ADJUST_Q10;
+            // |level| <= 10 * 1024, so the product fits 32 bits.
+            above = predicted + ((level * self.step_q16) >> 16);
+            let weighted = (above << 14) / i32::from(weights[k]).max(1);
+            nlsf[k] = (weighted + (i32::from(base[k]) << 7)).clamp(0, 32767) as i16;
+        }
+        if !self.spaced(&nlsf) {
+            stabilize(&mut nlsf, self.min_spacing_q15);
+        }
+        nlsf
+    }
+
+    /// Whether the vector already keeps the minimum spacings, which leaves [`stabilize`]
+    /// nothing to do.
+    fn spaced(&self, nlsf: &[i16; ORDER]) -> bool {
+        let spacing = |k: usize| self.min_spacing_q15.get(k).map_or(0, |&s| i32::from(s));
+        let mut ok = i32::from(nlsf[0]) >= spacing(0);
+        for k in 1..ORDER {
+            ok &= i32::from(nlsf[k]) - i32::from(nlsf[k - 1]) >= spacing(k);
+        }
+        ok & (32768 - i32::from(nlsf[ORDER - 1]) >= spacing(ORDER))
     }
 }
 
@@ -141,38 +181,36 @@ pub fn reconstruct(
     if let Some(&bad) = residuals.iter().find(|r| !(-10..=10).contains(*r)) {
         return Err(NlsfIndexError::Residual(bad));
     }
-    let stage1_error = NlsfIndexError::Stage1(stage1);
-    let base = codebook.stage1_q8(stage1).ok_or(stage1_error)?;
-    let weights = codebook.weights_q9(stage1).ok_or(stage1_error)?;
-    let mut predictions = [0i32; MAX_ORDER];
-    for (k, (prediction, field)) in predictions
-        .iter_mut()
-        .zip(codebook.fields(stage1).ok_or(stage1_error)?)
-        .enumerate()
-        .take(order - 1)
-    {
-        *prediction = codebook.prediction_q8(k, field);
+    if stage1 >= VECTORS {
+        return Err(NlsfIndexError::Stage1(stage1));
     }
+    let mut padded = [0i8; MAX_ORDER];
+    padded[..order].copy_from_slice(residuals);
+    Ok(reconstruct_padded(codebook, stage1, &padded))
+}
 
-    // Stage 2: residuals in Q10, predicted backwards from the coefficient above.
-    let mut residual_q10 = [0i32; MAX_ORDER];
-    let mut above = 0i32;
-    for k in (0..order).rev() {
-        let predicted = (above * predictions[k]) >> 8;
-        let mut level = i32::from(residuals[k]) << 10;
-        level -= level.signum() * LEVEL_ADJUST_Q10;
-        above = predicted + ((i64::from(level) * i64::from(codebook.step_q16())) >> 16) as i32;
-        residual_q10[k] = above;
+/// [`reconstruct`] of indices known to be valid, as the walker reads them: the first
+/// `codebook.order()` residuals are used.
+pub(super) fn reconstruct_padded(
+    codebook: Codebook,
+    stage1: usize,
+    residuals: &[i8; MAX_ORDER],
+) -> [i16; MAX_ORDER] {
+    fn widen<const ORDER: usize>(nlsf: [i16; ORDER]) -> [i16; MAX_ORDER] {
+        let mut out = [0i16; MAX_ORDER];
+        out[..ORDER].copy_from_slice(&nlsf);
+        out
     }
+    match codebook {
+        Codebook::NarrowMedium => widen(NB_MB.reconstruct(stage1, first(residuals))),
+        Codebook::Wide => widen(WB.reconstruct(stage1, first(residuals))),
+    }
+}
 
-    let mut nlsf = [0i16; MAX_ORDER];
-    for k in 0..order {
-        let weighted = (residual_q10[k] << 14) / i32::from(weights[k]);
-        let value = weighted + (i32::from(base[k]) << 7);
-        nlsf[k] = value.clamp(0, 32767) as i16;
-    }
-    stabilize(&mut nlsf[..order], codebook.min_spacing_q15());
-    Ok(nlsf)
+/// The first `N` entries of a `MAX_ORDER` array.
+pub(super) fn first<const N: usize, T>(values: &[T; MAX_ORDER]) -> &[T; N] {
+    const { assert!(N <= MAX_ORDER) };
+    values.first_chunk().expect("orders are at most MAX_ORDER")
 }
 
 /// Enforces the minimum spacings (RFC 6716 4.2.7.5.4): `min_spacing[k]` below coefficient k

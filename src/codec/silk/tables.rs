@@ -36,6 +36,53 @@ const fn stage2_weights<const ORDER: usize>(stage1: &[[u8; ORDER]; 32]) -> [[i16
     weights
 }
 
+/// Coefficient k's 4-bit field in a selection table (two per byte, low nibble first).
+const fn field<const BYTES: usize>(select: &[u8; BYTES], k: usize) -> u8 {
+    let byte = select[k / 2];
+    if k & 1 == 0 { byte & 0x0F } else { byte >> 4 }
+}
+
+/// Per stage-1 vector and coefficient, the residual distribution its field picks (bits 1-3).
+pub(super) const fn unpack_residual_rows<const ORDER: usize, const BYTES: usize>(
+    select: &[[u8; BYTES]; 32],
+) -> [[u8; ORDER]; 32] {
+    let mut rows = [[0u8; ORDER]; 32];
+    let mut vector = 0;
+    while vector < 32 {
+        let mut k = 0;
+        while k < ORDER {
+            rows[vector][k] = (field(&select[vector], k) >> 1) & 7;
+            k += 1;
+        }
+        vector += 1;
+    }
+    rows
+}
+
+/// Per stage-1 vector and coefficient, the backward prediction weight (Q8) from the
+/// coefficient above, from the set its field picks (bit 0); the last coefficient has none: 0.
+pub(super) const fn unpack_predictions<
+    const ORDER: usize,
+    const BYTES: usize,
+    const PREDICTED: usize,
+>(
+    select: &[[u8; BYTES]; 32],
+    sets: &[[u8; PREDICTED]; 2],
+) -> [[u8; ORDER]; 32] {
+    let mut predictions = [[0u8; ORDER]; 32];
+    let mut vector = 0;
+    while vector < 32 {
+        let mut k = 0;
+        while k < PREDICTED && k < ORDER {
+            let set = (field(&select[vector], k) & 1) as usize;
+            predictions[vector][k] = sets[set][k];
+            k += 1;
+        }
+        vector += 1;
+    }
+    predictions
+}
+
 /// Stage-2 weights of the NB/MB codebook, Q9.
 pub(super) const NLSF_NB_MB_WEIGHTS_Q9: [[i16; 10]; 32] = stage2_weights(&NLSF_NB_MB_STAGE1_Q8);
 /// Stage-2 weights of the WB codebook, Q9.
