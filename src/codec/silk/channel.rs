@@ -164,10 +164,25 @@ impl Channel {
         active: bool,
         coding: Coding,
     ) -> Indices {
+        // A copy that lives in registers: each symbol depends on the state the previous one
+        // left, and a round trip through memory per symbol would lengthen that chain.
+        let mut local = decoder.clone();
+        let indices = self.read_indices_from(&mut local, active, coding);
+        *decoder = local;
+        indices
+    }
+
+    #[inline(always)]
+    fn read_indices_from(
+        &mut self,
+        decoder: &mut RangeDecoder<'_>,
+        active: bool,
+        coding: Coding,
+    ) -> Indices {
         let type_symbol = if active {
-            decoder.decode_icdf(&FRAME_TYPE_ACTIVE_ICDF) + 2
+            decoder.decode_icdf_counted(&FRAME_TYPE_ACTIVE_ICDF) + 2
         } else {
-            decoder.decode_icdf(&FRAME_TYPE_INACTIVE_ICDF)
+            decoder.decode_icdf_counted(&FRAME_TYPE_INACTIVE_ICDF)
         };
         let signal_type = match type_symbol >> 1 {
             0 => SignalType::Inactive,
@@ -180,8 +195,8 @@ impl Channel {
         gains[0] = if coding == Coding::Conditional {
             decoder.decode_icdf(&GAIN_DELTA_ICDF) as u8
         } else {
-            let msb = decoder.decode_icdf(row(&GAIN_MSB_ICDF, signal_type.index()));
-            let lsb = decoder.decode_icdf(&UNIFORM8_ICDF);
+            let msb = decoder.decode_icdf_counted(&GAIN_MSB_ICDF[signal_type.index()]);
+            let lsb = decoder.decode_icdf_counted(&UNIFORM8_ICDF);
             (msb * 8 + lsb) as u8
         };
         for gain in gains.iter_mut().take(self.subframes).skip(1) {
@@ -189,13 +204,12 @@ impl Channel {
         }
 
         let voiced = signal_type == SignalType::Voiced;
-        let nlsf_stage1 = decoder.decode_icdf(self.codebook.stage1_icdf(voiced));
-        let nlsf_residuals = match self.codebook {
-            Codebook::NarrowMedium => read_residuals(decoder, &nlsf::NB_MB, nlsf_stage1),
-            Codebook::Wide => read_residuals(decoder, &nlsf::WB, nlsf_stage1),
+        let (nlsf_stage1, nlsf_residuals) = match self.codebook {
+            Codebook::NarrowMedium => read_nlsf_indices(decoder, &nlsf::NB_MB, voiced),
+            Codebook::Wide => read_nlsf_indices(decoder, &nlsf::WB, voiced),
         };
         let interpolation_q2 = if self.subframes == MAX_SUBFRAMES {
-            decoder.decode_icdf(&NLSF_INTERPOLATION_ICDF) as u8
+            decoder.decode_icdf_counted(&NLSF_INTERPOLATION_ICDF) as u8
         } else {
             4
         };
@@ -379,16 +393,23 @@ impl Channel {
     }
 }
 
-/// The stage-2 residual indices (-10..=10) of stage-1 vector `vector` (4.2.7.5.2); the
-/// entries past the codebook's order stay 0.
-fn read_residuals<const ORDER: usize>(
+/// The stage-1 index and the stage-2 residual indices (-10..=10) of a frame's NLSFs
+/// (4.2.7.5.1-2); the residuals past the codebook's order stay 0.
+#[inline(always)]
+fn read_nlsf_indices<const ORDER: usize>(
     decoder: &mut RangeDecoder<'_>,
     codebook: &CodebookTables<ORDER>,
-    vector: usize,
-) -> [i8; MAX_ORDER] {
+    voiced: bool,
+) -> (usize, [i8; MAX_ORDER]) {
+    // Each table spelled out, so that its search is unrolled with the table's constants.
+    let vector = if voiced {
+        decoder.decode_icdf(codebook.stage1_icdf(true))
+    } else {
+        decoder.decode_icdf(codebook.stage1_icdf(false))
+    };
     let mut residuals = [0i8; MAX_ORDER];
     for (k, residual) in residuals.iter_mut().enumerate().take(ORDER) {
-        let mut level = decoder.decode_icdf(codebook.residual_icdf(vector, k)) as i32;
+        let mut level = decoder.decode_icdf_counted(codebook.residual_icdf(vector, k)) as i32;
         if level == 0 {
             level -= decoder.decode_icdf(&NLSF_EXTENSION_ICDF) as i32;
         } else if level == 2 * RESIDUAL_MAX {
@@ -396,7 +417,7 @@ fn read_residuals<const ORDER: usize>(
         }
         *residual = (level - RESIDUAL_MAX) as i8;
     }
-    residuals
+    (vector, residuals)
 }
 
 /// Row `index` of a table of distributions, or its last row (never reached: every index

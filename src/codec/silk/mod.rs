@@ -300,18 +300,15 @@ impl SilkWalker {
         let frame_bits = 8 * data.len() as u32;
         let mut decoder = RangeDecoder::new(data);
         self.read_header(&mut decoder, channel_count, frame_count);
-        self.skip_lbrr_frames(&mut decoder, channel_count, frame_count);
+        let lbrr = self.channels[..channel_count]
+            .iter()
+            .any(|channel| channel.lbrr.contains(&true));
+        if lbrr {
+            self.skip_lbrr_frames(&mut decoder, channel_count, frame_count);
+        }
 
         for index in 0..frame_count {
-            let mut mid_only = false;
-            if channel_count == 2 {
-                skip_stereo_weights(&mut decoder);
-                mid_only =
-                    !self.channels[1].vad[index] && decoder.decode_icdf(&STEREO_MID_ONLY_ICDF) == 1;
-                if !mid_only && self.previous_mid_only {
-                    self.channels[1].restart();
-                }
-            }
+            let mid_only = channel_count == 2 && self.read_stereo_prediction(&mut decoder, index);
             // The side channel of a stereo stream is never reported: it is only read past.
             let stop_early = index + 1 == frame_count && !self.read_to_end;
             let mut mid = None;
@@ -414,8 +411,24 @@ impl SilkWalker {
         }
     }
 
+    /// A stereo frame's prediction weights (read past) and mid-only flag: whether the side
+    /// channel is left out of frame `index`.
+    #[cold]
+    #[inline(never)]
+    fn read_stereo_prediction(&mut self, decoder: &mut RangeDecoder<'_>, index: usize) -> bool {
+        skip_stereo_weights(decoder);
+        let mid_only =
+            !self.channels[1].vad[index] && decoder.decode_icdf(&STEREO_MID_ONLY_ICDF) == 1;
+        if !mid_only && self.previous_mid_only {
+            self.channels[1].restart();
+        }
+        mid_only
+    }
+
     /// The LBRR (in-band FEC) frames come before the regular ones; the regular decoder reads
     /// past them. They update only the pitch-coding context, as in the decoder.
+    #[cold]
+    #[inline(never)]
     fn skip_lbrr_frames(
         &mut self,
         decoder: &mut RangeDecoder<'_>,

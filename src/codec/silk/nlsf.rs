@@ -35,14 +35,6 @@ impl Codebook {
         }
     }
 
-    pub(super) fn stage1_icdf(self, voiced: bool) -> &'static [u8; VECTORS] {
-        let row = usize::from(voiced);
-        match self {
-            Codebook::NarrowMedium => &NB_MB.stage1_icdf[row],
-            Codebook::Wide => &WB.stage1_icdf[row],
-        }
-    }
-
     #[cfg(test)]
     fn stage1_q8(self, vector: usize) -> Option<&'static [u8]> {
         match self {
@@ -105,6 +97,13 @@ pub(super) static WB: CodebookTables<16> = CodebookTables {
 impl<const ORDER: usize> CodebookTables<ORDER> {
     pub(super) const fn order(&self) -> usize {
         ORDER
+    }
+
+    /// The stage-1 index's distribution for inactive and unvoiced frames, or voiced ones.
+    #[inline(always)]
+    pub(super) fn stage1_icdf(&self, voiced: bool) -> &'static [u8; VECTORS] {
+        let icdf: &'static [[u8; VECTORS]; 2] = self.stage1_icdf;
+        &icdf[usize::from(voiced)]
     }
 
     /// The distribution of coefficient `k`'s residual in stage-1 vector `vector` (0..32).
