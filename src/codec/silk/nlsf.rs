@@ -64,8 +64,8 @@ pub(super) struct CodebookTables<const ORDER: usize> {
     /// above; 0 for the last.
     predictions_q8: [[u8; ORDER]; VECTORS],
     residual_icdf: &'static [[u8; 9]; 8],
-    /// Quantisation step of the residuals, Q16.
-    step_q16: i32,
+    /// Per residual index -10..=10 (from 0), the dequantised residual, Q10 (4.2.7.5.3).
+    residuals_q10: [i32; 21],
     /// `ORDER + 1` spacings: below each coefficient, and above the last (4.2.7.5.4).
     min_spacing_q15: &'static [i16],
 }
@@ -78,7 +78,7 @@ pub(super) static NB_MB: CodebookTables<10> = CodebookTables {
     predictions_q8: unpack_predictions(&NLSF_NB_MB_SELECT, &NLSF_NB_MB_PREDICTION_Q8),
     residual_icdf: &NLSF_NB_MB_RESIDUAL_ICDF,
     // 0.18 in Q16, rounded
-    step_q16: 11796,
+    residuals_q10: dequantised_residuals(11796),
     min_spacing_q15: &NLSF_NB_MB_MIN_SPACING_Q15,
 };
 
@@ -90,9 +90,23 @@ pub(super) static WB: CodebookTables<16> = CodebookTables {
     predictions_q8: unpack_predictions(&NLSF_WB_SELECT, &NLSF_WB_PREDICTION_Q8),
     residual_icdf: &NLSF_WB_RESIDUAL_ICDF,
     // 0.15 in Q16, rounded
-    step_q16: 9830,
+    residuals_q10: dequantised_residuals(9830),
     min_spacing_q15: &NLSF_WB_MIN_SPACING_Q15,
 };
+
+/// The residual indices -10..=10 dequantised (Q10) with the codebook's step (Q16): pulled
+/// towards zero by 0.1, then scaled.
+const fn dequantised_residuals(step_q16: i32) -> [i32; 21] {
+    let mut residuals = [0; 21];
+    let mut index: i32 = -10;
+    while index <= 10 {
+        let level = (index << 10) - index.signum() * LEVEL_ADJUST_Q10;
+        // |level| <= 10 * 1024, so the product fits 32 bits.
+        residuals[(index + 10) as usize] = (level * step_q16) >> 16;
+        index += 1;
+    }
+    residuals
+}
 
 impl<const ORDER: usize> CodebookTables<ORDER> {
     pub(super) const fn order(&self) -> usize {
@@ -126,10 +140,8 @@ impl<const ORDER: usize> CodebookTables<ORDER> {
         let mut above = 0i32;
         for k in (0..ORDER).rev() {
             let predicted = (above * i32::from(predictions[k])) >> 8;
-            let index = i32::from(residuals[k]);
-            let level = (index << 10) - index.signum() * LEVEL_ADJUST_Q10;
-            // |level| <= 10 * 1024, so the product fits 32 bits.
-            above = predicted + ((level * self.step_q16) >> 16);
+            let index = (i32::from(residuals[k]) + 10).clamp(0, 20) as usize;
+            above = predicted + self.residuals_q10[index];
             let weighted = (above << 14) / i32::from(weights[k]).max(1);
             nlsf[k] = (weighted + (i32::from(base[k]) << 7)).clamp(0, 32767) as i16;
         }
