@@ -96,9 +96,8 @@ impl<'a> RangeDecoder<'a> {
     /// [`RangeDecoder::decode_icdf`] for a decreasing table that ends with 0, without a
     /// branch on the data: the symbol is the number of entries whose interval lies above
     /// the value. Beside a decoder that keeps the branch predictor busy with its own work,
-    /// this beats the search, whose exit is mispredicted most of the time. Tables of more
-    /// than 16 entries are counted in chunks of 8: the chunks wholly above, then the entries
-    /// of the next.
+    /// this beats the search, whose exit is mispredicted most of the time. It pays for short
+    /// tables only: every entry is compared.
     #[inline(always)]
     pub fn decode_icdf_counted<const N: usize>(&mut self, icdf: &[u8; N]) -> usize {
         let scale = self.range >> 8;
