@@ -19,7 +19,7 @@ use std::sync::LazyLock;
 use super::stream::Decoded;
 use crate::codec::lpc::{LpcAnalyser, levinson, lsp_from_lpc};
 use crate::codec::silk::{Nlsf, SilkWalker};
-use crate::codec::speex::features::{FrameFeatures, LSP_MARGIN, energy_db, ordered_lsp};
+use crate::codec::speex::features::{FrameFeatures, energy_db, ordered_lsp};
 use crate::codec::{FRAME_SIZE, LSP_COUNT, SAMPLE_RATE};
 
 /// Points of the 0-4 kHz spectrum the refit reads: enough for the few formants below 4 kHz of an
@@ -69,26 +69,7 @@ pub fn narrowband_lsp(nlsf: &Nlsf, internal_rate_hz: u32) -> Option<[f32; LSP_CO
         (16_000, 16) => affine(&super::nlsf_map::WIDEBAND, &x),
         _ => return None,
     };
-    Some(if already_ordered(&lsp) {
-        lsp
-    } else {
-        ordered_lsp(lsp)
-    })
-}
-
-/// Whether [`ordered_lsp`] would return `lsp` unchanged: increasing, each at least
-/// [`LSP_MARGIN`] above the one below (and 0) and below its ceiling, in the same f32
-/// arithmetic. Most frames' LSPs are, and this check costs a fraction of the sort.
-fn already_ordered(lsp: &[f32; LSP_COUNT]) -> bool {
-    let top = std::f32::consts::PI - LSP_MARGIN;
-    let mut floor = LSP_MARGIN;
-    let mut ordered = true;
-    for (i, &l) in lsp.iter().enumerate() {
-        let ceiling = top - LSP_MARGIN * (LSP_COUNT - 1 - i) as f32;
-        ordered &= l >= floor && l <= ceiling;
-        floor = l + LSP_MARGIN;
-    }
-    ordered
+    Some(ordered_lsp(lsp))
 }
 
 /// Row k of `map` holds LSP k's weights on the first N - 1 inputs and its bias.
@@ -406,31 +387,7 @@ mod tests {
     }
 
     #[test]
-    fn lsps_already_ordered_are_those_ordered_lsp_keeps() {
-        let mut state = 0x9E37_79B9u32;
-        let mut next = || {
-            state = state.wrapping_mul(1_664_525).wrapping_add(1_013_904_223);
-            (state >> 8) as f32 / (1u32 << 24) as f32
-        };
-        let (mut kept, mut total) = (0, 0);
-        for round in 0..20_000 {
-            // Sorted random angles, some crowded (gaps near the margin) or out of range.
-            let spread = [3.2f32, 0.05, 0.02][round % 3];
-            let mut lsp: [f32; LSP_COUNT] = std::array::from_fn(|_| next() * spread);
-            if round % 2 == 0 {
-                lsp.sort_by(f32::total_cmp);
-                let offset = next() * (3.2 - spread);
-                lsp.iter_mut().for_each(|l| *l += offset);
-            }
-            total += 1;
-            if already_ordered(&lsp) {
-                kept += 1;
-                assert_eq!(ordered_lsp(lsp), lsp, "{lsp:?}");
-            } else {
-                assert_ne!(ordered_lsp(lsp), lsp, "{lsp:?}");
-            }
-        }
-        assert!(kept > total / 10 && kept < total, "{kept} of {total}");
+    fn narrowband_nlsfs_are_taken_as_the_lsps_they_are() {
         for frame in demo_silk_frames(8000) {
             let raw: [f32; LSP_COUNT] =
                 std::array::from_fn(|k| frame.nlsf.radians().nth(k).unwrap());

@@ -41,7 +41,30 @@ pub const LSP_MARGIN: f32 = 0.002;
 /// The decoder stores LSPs exactly as dequantised, and a few quantiser codes give overlapping
 /// or non-positive values (the decoder only spaces the interpolated copies it filters with).
 /// Features promise `0 < lsp1 < ... < lsp10 < pi`, so sort and space them here.
-pub fn ordered_lsp(mut lsp: [f32; LSP_COUNT]) -> [f32; LSP_COUNT] {
+pub fn ordered_lsp(lsp: [f32; LSP_COUNT]) -> [f32; LSP_COUNT] {
+    if already_ordered(&lsp) {
+        lsp
+    } else {
+        sorted_and_spaced(lsp)
+    }
+}
+
+/// Whether [`sorted_and_spaced`] would return `lsp` unchanged: increasing, each at least
+/// [`LSP_MARGIN`] above the one below (and 0) and below its ceiling, in the same f32
+/// arithmetic. Most frames' LSPs are, and this check costs a fraction of the sort.
+fn already_ordered(lsp: &[f32; LSP_COUNT]) -> bool {
+    let top = std::f32::consts::PI - LSP_MARGIN;
+    let mut floor = LSP_MARGIN;
+    let mut ordered = true;
+    for (i, &l) in lsp.iter().enumerate() {
+        let ceiling = top - LSP_MARGIN * (LSP_COUNT - 1 - i) as f32;
+        ordered &= l >= floor && l <= ceiling;
+        floor = l + LSP_MARGIN;
+    }
+    ordered
+}
+
+fn sorted_and_spaced(mut lsp: [f32; LSP_COUNT]) -> [f32; LSP_COUNT] {
     lsp.sort_by(f32::total_cmp);
     let top = std::f32::consts::PI - LSP_MARGIN;
     let mut floor = LSP_MARGIN;
@@ -240,6 +263,35 @@ mod tests {
         assert!(l.windows(2).all(|w| w[1] - w[0] >= LSP_MARGIN * 0.999));
         let fine = flat_lsp();
         assert_eq!(ordered_lsp(fine), fine);
+    }
+
+    #[test]
+    fn lsps_already_ordered_are_those_sorting_and_spacing_keeps() {
+        let mut state = 0x9E37_79B9u32;
+        let mut next = || {
+            state = state.wrapping_mul(1_664_525).wrapping_add(1_013_904_223);
+            (state >> 8) as f32 / (1u32 << 24) as f32
+        };
+        let (mut kept, mut total) = (0, 0);
+        for round in 0..20_000 {
+            // Sorted random angles, some crowded (gaps near the margin) or out of range.
+            let spread = [3.2f32, 0.05, 0.02][round % 3];
+            let mut lsp: [f32; LSP_COUNT] = std::array::from_fn(|_| next() * spread);
+            if round % 2 == 0 {
+                lsp.sort_by(f32::total_cmp);
+                let offset = next() * (3.2 - spread);
+                lsp.iter_mut().for_each(|l| *l += offset);
+            }
+            total += 1;
+            if already_ordered(&lsp) {
+                kept += 1;
+                assert_eq!(sorted_and_spaced(lsp), lsp, "{lsp:?}");
+            } else {
+                assert_ne!(sorted_and_spaced(lsp), lsp, "{lsp:?}");
+            }
+            assert_eq!(ordered_lsp(lsp), sorted_and_spaced(lsp), "{lsp:?}");
+        }
+        assert!(kept > total / 10 && kept < total, "{kept} of {total}");
     }
 
     #[test]
