@@ -13,6 +13,10 @@ use super::tables::{
 pub const MAX_ORDER: usize = 16;
 /// Largest magnitude of a stage-2 residual index before the extension (4.2.7.5.2).
 pub(super) const RESIDUAL_MAX: i32 = 4;
+/// Largest magnitude of a stage-2 residual index with the extension.
+const EXTENDED_RESIDUAL_MAX: i32 = 10;
+/// Residual indices -10..=10.
+const RESIDUAL_LEVELS: usize = 2 * EXTENDED_RESIDUAL_MAX as usize + 1;
 /// The stabiliser's gentle passes before its fallback (4.2.7.5.4).
 const STABILIZE_PASSES: usize = 20;
 /// Residual reconstruction pulls non-zero levels towards zero by 0.1 (Q10).
@@ -65,7 +69,7 @@ pub(super) struct CodebookTables<const ORDER: usize> {
     predictions_q8: [[u8; ORDER]; VECTORS],
     residual_icdf: &'static [[u8; 9]; 8],
     /// Per residual index -10..=10 (from 0), the dequantised residual, Q10 (4.2.7.5.3).
-    residuals_q10: [i32; 21],
+    residuals_q10: [i32; RESIDUAL_LEVELS],
     /// `ORDER + 1` spacings: below each coefficient, and above the last (4.2.7.5.4).
     min_spacing_q15: &'static [i16],
 }
@@ -96,13 +100,13 @@ pub(super) static WB: CodebookTables<16> = CodebookTables {
 
 /// The residual indices -10..=10 dequantised (Q10) with the codebook's step (Q16): pulled
 /// towards zero by 0.1, then scaled.
-const fn dequantised_residuals(step_q16: i32) -> [i32; 21] {
-    let mut residuals = [0; 21];
-    let mut index: i32 = -10;
-    while index <= 10 {
+const fn dequantised_residuals(step_q16: i32) -> [i32; RESIDUAL_LEVELS] {
+    let mut residuals = [0; RESIDUAL_LEVELS];
+    let mut index = -EXTENDED_RESIDUAL_MAX;
+    while index <= EXTENDED_RESIDUAL_MAX {
         let level = (index << 10) - index.signum() * LEVEL_ADJUST_Q10;
         // |level| <= 10 * 1024, so the product fits 32 bits.
-        residuals[(index + 10) as usize] = (level * step_q16) >> 16;
+        residuals[(index + EXTENDED_RESIDUAL_MAX) as usize] = (level * step_q16) >> 16;
         index += 1;
     }
     residuals
@@ -140,7 +144,8 @@ impl<const ORDER: usize> CodebookTables<ORDER> {
         let mut above = 0i32;
         for k in (0..ORDER).rev() {
             let predicted = (above * i32::from(predictions[k])) >> 8;
-            let index = (i32::from(residuals[k]) + 10).clamp(0, 20) as usize;
+            let index = (i32::from(residuals[k]) + EXTENDED_RESIDUAL_MAX)
+                .clamp(0, 2 * EXTENDED_RESIDUAL_MAX) as usize;
             above = predicted + self.residuals_q10[index];
             let weighted = (above << 14) / i32::from(weights[k]).max(1);
             nlsf[k] = (weighted + (i32::from(base[k]) << 7)).clamp(0, 32767) as i16;
@@ -189,7 +194,10 @@ pub fn reconstruct(
             order,
         });
     }
-    if let Some(&bad) = residuals.iter().find(|r| !(-10..=10).contains(*r)) {
+    if let Some(&bad) = residuals
+        .iter()
+        .find(|&&r| !(-EXTENDED_RESIDUAL_MAX..=EXTENDED_RESIDUAL_MAX).contains(&i32::from(r)))
+    {
         return Err(NlsfIndexError::Residual(bad));
     }
     if stage1 >= VECTORS {

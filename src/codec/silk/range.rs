@@ -188,7 +188,6 @@ mod tests {
             self.carry_byte = Some(c & SYMBOL_MAX);
         }
 
-        #[inline(always)]
         fn normalize(&mut self) {
             let shift = CODE_BITS - SYMBOL_BITS - 1;
             while self.range <= CODE_BOTTOM {
