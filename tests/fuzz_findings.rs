@@ -6,7 +6,9 @@ mod common;
 
 use lipcall::audio::wav;
 use lipcall::codec::speex::features::ordered_lsp;
+use lipcall::lipsync::decompose::decompose_track;
 use lipcall::lipsync::markers::MarkerTrack;
+use lipcall::lipsync::visemes::VisemeSet;
 use lipcall::render::gltf_load::load_head_from_slice;
 
 /// A one-triangle glTF head with a `viseme_aa` target moving each vertex by `delta` in y.
@@ -121,6 +123,36 @@ fn a_marker_too_far_from_the_origin_is_refused() {
         e.to_string(),
         "line 2: marker lip is too far from the origin marker"
     );
+}
+
+/// markers target (by its "weights convex" property): a frame fitted from the previous frame's
+/// weights, whose f32 sum misses 1 by rounding, came out NaN for every viseme. The start's
+/// deficit left the weight of the shape it sat on just under 1, with a curvature of rounding
+/// noise, and a step of noise over noise zeroed every weight: `decompose --weights` wrote NaN
+/// rows and an Eq. 1 error of NaN.
+#[test]
+fn a_frame_fitted_from_rounded_weights_stays_convex() {
+    let track = "frame,nose_x,nose_y,lip_x,lip_y,chin_x,chin_y\n\
+        11,100,50,101,0,101,140\n12,10,50,100,85,100,130\n11,100,56,100,85,100,130\n\
+        0,15,0,100,80,100,-120\n12,0,05,010100,80,100,120\n10,100,50,10,0,101,10\n\
+        11,1,0,101,90,0,1\n12,0,05,010,85,0,1\n";
+    let track = MarkerTrack::parse(track, None).unwrap();
+    let shapes = track
+        .key_frame_shapes("viseme,frame\nPP,11\naa,12\n")
+        .unwrap();
+    let set = VisemeSet::new(shapes.visemes()).unwrap();
+    let weights =
+        decompose_track(&track.points, &shapes, &set, &track.points.point_sigmas()).unwrap();
+    assert_eq!(weights.len(), 8);
+    for row in &weights {
+        let sum: f32 = row.iter().sum();
+        assert!(
+            row.iter().all(|w| w.is_finite() && *w >= 0.0) && (sum - 1.0).abs() < 1e-3,
+            "{weights:?}"
+        );
+    }
+    // The frame that broke lies nearer the open key frame's lips than the closed one's.
+    assert!(weights[3][1] > 0.9, "{weights:?}");
 }
 
 /// silk_walker target: a SILK frame whose wideband NLSFs map to two or more narrowband LSPs

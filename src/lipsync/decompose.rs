@@ -250,7 +250,11 @@ impl Decomposer {
             .iter()
             .map(|shape| weighted_dot(&self.coordinate_weight, shape, &target))
             .collect();
+        // Each step moves along `e_k - w`, which keeps the sum at 1 only if it starts there, and
+        // a start handed back in f32 misses 1 by rounding.
         let mut w: Vec<f64> = weights.iter().map(|&x| x as f64).collect();
+        let start_total: f64 = w.iter().sum();
+        w.iter_mut().for_each(|x| *x /= start_total);
         // gram_w = H w, kept up to date through every step.
         let mut gram_w: Vec<f64> = self
             .gram
@@ -267,7 +271,10 @@ impl Decomposer {
                 let w_gram_w: f64 = w.iter().zip(&gram_w).map(|(a, b)| a * b).sum();
                 let w_toward: f64 = w.iter().zip(&toward).map(|(a, b)| a * b).sum();
                 let curvature = self.gram[k][k] - 2.0 * gram_w[k] + w_gram_w;
-                if curvature <= 1e-18 {
+                // Below this the curvature is rounding noise (w is at shape k already), and a
+                // step of noise over noise runs to the bound and zeroes every weight.
+                let noise = 1e-12 * (self.gram[k][k] + w_gram_w);
+                if curvature <= noise.max(1e-18) {
                     continue;
                 }
                 let slope = (toward[k] - w_toward) - (gram_w[k] - w_gram_w);
@@ -286,6 +293,9 @@ impl Decomposer {
             }
         }
         let total: f64 = w.iter().map(|x| x.max(0.0)).sum();
+        if !(total > 0.0 && total.is_finite()) {
+            return;
+        }
         for (out, x) in weights.iter_mut().zip(&w) {
             *out = (x.max(0.0) / total) as f32;
         }
