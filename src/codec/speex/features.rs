@@ -53,12 +53,10 @@ pub fn ordered_lsp(lsp: [f32; LSP_COUNT]) -> [f32; LSP_COUNT] {
 /// [`LSP_MARGIN`] above the one below (and 0) and below its ceiling, in the same f32
 /// arithmetic. Most frames' LSPs are, and this check costs a fraction of the sort.
 fn already_ordered(lsp: &[f32; LSP_COUNT]) -> bool {
-    let top = std::f32::consts::PI - LSP_MARGIN;
     let mut floor = LSP_MARGIN;
     let mut ordered = true;
     for (i, &l) in lsp.iter().enumerate() {
-        let ceiling = top - LSP_MARGIN * (LSP_COUNT - 1 - i) as f32;
-        ordered &= l >= floor && l <= ceiling;
+        ordered &= l >= floor && l <= lsp_ceiling(i);
         floor = l + LSP_MARGIN;
     }
     ordered
@@ -66,16 +64,20 @@ fn already_ordered(lsp: &[f32; LSP_COUNT]) -> bool {
 
 fn sorted_and_spaced(mut lsp: [f32; LSP_COUNT]) -> [f32; LSP_COUNT] {
     lsp.sort_by(f32::total_cmp);
-    let top = std::f32::consts::PI - LSP_MARGIN;
     let mut floor = LSP_MARGIN;
     for (i, l) in lsp.iter_mut().enumerate() {
-        let ceiling = top - LSP_MARGIN * (LSP_COUNT - 1 - i) as f32;
+        let ceiling = lsp_ceiling(i);
         // Not `clamp`: after a value held at its ceiling, `floor` (that ceiling plus the margin)
         // can round a hair above this ceiling, and `clamp` panics on that.
         *l = l.max(floor).min(ceiling);
         floor = *l + LSP_MARGIN;
     }
     lsp
+}
+
+/// The highest LSP `i` may take: room for a margin above each LSP after it, and below pi.
+fn lsp_ceiling(i: usize) -> f32 {
+    (std::f32::consts::PI - LSP_MARGIN) - LSP_MARGIN * (LSP_COUNT - 1 - i) as f32
 }
 
 /// Mean-square energy of 16-bit samples in dB re full scale, floored at [`SILENCE_DB`].
