@@ -1,6 +1,7 @@
 //! Features -> viseme weights per frame for the built-in default network: the network step alone,
 //! and the receiver pipeline the app runs per frame (look-ahead, speaker normalisation, closure
-//! rule, still silence), with the next frame on time and with the fallback when it is late; and
+//! rule, still silence), with the next frame on time and with the fallback when it is late, and
+//! re-projected onto a head's other viseme set; and
 //! the living face's step per frame (pitch autocorrelation, blinks, saccades, head spring) on
 //! voiced frames and in digital silence.
 
@@ -10,6 +11,7 @@ use criterion::{Criterion, criterion_group, criterion_main};
 use lipcall::codec::speex::FRAME_SIZE;
 use lipcall::codec::speex::features::FrameFeatures;
 use lipcall::lipsync::life::LifeGenerator;
+use lipcall::lipsync::visemes::VisemeSet;
 use lipcall::lipsync::{LipSync, LipSyncOptions, default_model};
 
 fn frames() -> Vec<FrameFeatures> {
@@ -72,6 +74,27 @@ fn bench(c: &mut Criterion) {
             black_box(late.map(|(t, w)| (t, w[0])));
         })
     });
+
+    // A head with another viseme set: every frame is re-projected (a warm-started fit onto
+    // that set's shapes), the receiver's largest per-frame cost beside the network.
+    for size in [15, 6, 3] {
+        let set = VisemeSet::reduced(size).expect("a reduced size");
+        let options = LipSyncOptions {
+            visemes: Some(set.clone()),
+            ..LipSyncOptions::default()
+        };
+        let mut lipsync = LipSync::new(&model, &options).unwrap();
+        c.bench_function(
+            &format!("receiver push re-projected onto {} visemes", set.len()),
+            |b| {
+                b.iter(|| {
+                    let out = lipsync.push(tag, black_box(&frames[tag as usize % frames.len()]));
+                    tag += 1;
+                    black_box(out.map(|(t, w)| (t, w[0])));
+                })
+            },
+        );
+    }
 
     // A voiced buzz gliding between 100 and 160 Hz, at speech level.
     let voiced: Vec<[i16; FRAME_SIZE]> = (0..64)

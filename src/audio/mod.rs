@@ -170,4 +170,40 @@ mod realtime_tests {
         });
         assert_eq!(n, 0, "mixer or output path allocated");
     }
+
+    /// The app runs the receiver pipeline per peer and frame on its engine thread, beside the
+    /// audio; it allocates only when a peer's settings change.
+    #[test]
+    fn the_receiver_pipeline_does_not_allocate_per_frame() {
+        use crate::codec::FeatureFamily;
+        use crate::codec::speex::features::FrameFeatures;
+        use crate::lipsync::visemes::VisemeSet;
+        use crate::lipsync::{LipSync, LipSyncOptions, default_model};
+
+        let model = default_model();
+        let frames: Vec<FrameFeatures> = (0..50)
+            .map(|n| FrameFeatures {
+                family: FeatureFamily::Bitstream,
+                mode: Some(5),
+                lsp: std::array::from_fn(|i| 0.28 * (i + 1) as f32 + 0.05 * (n as f32).sin()),
+                energy_db: if n % 10 == 0 { -100.0 } else { -30.0 },
+            })
+            .collect();
+        for visemes in [None, Some(VisemeSet::full()), VisemeSet::reduced(3).ok()] {
+            let options = LipSyncOptions {
+                visemes,
+                ..LipSyncOptions::default()
+            };
+            let mut lipsync = LipSync::new(&model, &options).unwrap();
+            let n = allocations(|| {
+                for (tag, features) in frames.iter().enumerate() {
+                    std::hint::black_box(lipsync.push_full(tag as u64, features));
+                    if tag % 7 == 0 {
+                        std::hint::black_box(lipsync.flush_full());
+                    }
+                }
+            });
+            assert_eq!(n, 0, "{:?}: the receiver allocated", options.visemes);
+        }
+    }
 }

@@ -76,12 +76,12 @@ impl<'m> LipSync<'m> {
             Some(i) => rest[i] = 1.0,
             None => {
                 // No closed shape in the set: the closest blend of what it has.
-                let mut project = Reprojector::new(
+                let project = Reprojector::new(
                     VisemeSet::full(),
                     target.clone(),
                     VisemeShapes::point_model(),
                 )?;
-                project.project(&Viseme::Sil.one_hot(), &mut rest)?;
+                project.project(&Viseme::Sil.one_hot(), &mut rest);
             }
         }
         Ok(Self {
@@ -172,10 +172,9 @@ impl<'m> LipSync<'m> {
 
     fn finish(&mut self, silent: bool) -> &[f32] {
         if silent {
-            // Keep the re-projection's warm start where the mouth is.
             self.out.copy_from_slice(&self.rest);
-        } else if self.reprojector.project(&self.raw, &mut self.out).is_err() {
-            self.out.copy_from_slice(&self.rest);
+        } else {
+            self.reprojector.project(&self.raw, &mut self.out);
         }
         &self.out
     }

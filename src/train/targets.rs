@@ -1,16 +1,16 @@
 //! The network's training targets over its viseme set, from the phone-derived weights over all
 //! 15 visemes. Shared by training and evaluation.
 
-use crate::lipsync::decompose::{DecomposeError, Decomposer, PointTrack};
+use crate::lipsync::decompose::{DecomposeError, PointTrack};
 use crate::lipsync::mouth::VisemeShapes;
+use crate::lipsync::reproject::decomposition_map;
 use crate::lipsync::visemes::VisemeSet;
 use crate::train::corpus::PreparedUtterance;
 
-/// Per utterance: its targets over `set`, frames x `set.len()` flattened. A viseme of the set
-/// keeps its own weight; each other viseme's weight goes to its convex decomposition onto the
-/// set's shapes (the paper's III.A.1, per viseme), so the set's shapes are taught wherever the
-/// phones call for them: a blend of the 15 decomposed frame by frame would let PP + aa stand in
-/// for FF, whose points are nearly theirs.
+/// Per utterance: its targets over `set`, frames x `set.len()` flattened: the 15-viseme weights
+/// through the receiver's re-projection map (`lipsync::reproject`), so the set's shapes are
+/// taught wherever the phones call for them. The shape points are weighed by their spread over
+/// the corpus.
 pub fn set_targets(
     set: &VisemeSet,
     shapes: &VisemeShapes,
@@ -18,11 +18,10 @@ pub fn set_targets(
 ) -> Result<Vec<Vec<f32>>, DecomposeError> {
     let full = VisemeSet::full();
     let k = set.len();
-    let mut map = vec![0.0f32; full.len() * k];
-    if set.len() == full.len() {
-        for (v, row) in full.members().iter().zip(map.chunks_exact_mut(k)) {
-            row[set.position(*v).expect("the full set")] = 1.0;
-        }
+    let points = shapes.coords() / shapes.point_dim();
+    let point_weights = if full.members().iter().all(|v| set.position(*v).is_some()) {
+        // Nothing is decomposed onto a set that holds all 15.
+        vec![1.0; points]
     } else {
         let mut all = PointTrack::new(shapes.point_dim(), shapes.coords());
         for utt in utterances {
@@ -35,17 +34,9 @@ pub fn set_targets(
                 all.push(frame)?;
             }
         }
-        let decomposer = Decomposer::new(shapes, set, &all.point_sigmas())?;
-        for (v, row) in full.members().iter().zip(map.chunks_exact_mut(k)) {
-            match set.position(*v) {
-                Some(i) => row[i] = 1.0,
-                None => {
-                    row.fill(1.0 / k as f32);
-                    decomposer.fit(shapes.shape(*v)?, row);
-                }
-            }
-        }
-    }
+        all.point_sigmas()
+    };
+    let map = decomposition_map(shapes, &full, set, &point_weights)?;
     Ok(utterances
         .iter()
         .map(|u| {
