@@ -54,17 +54,9 @@ fn bench(c: &mut Criterion) {
     );
 
     let mut lipsync = LipSync::new(&model, &LipSyncOptions::default()).unwrap();
+    let name = format!("receiver push (look-ahead {})", lipsync.lookahead());
+    bench_pushes(c, &name, &mut lipsync, &frames);
     let mut tag = 0u64;
-    c.bench_function(
-        &format!("receiver push (look-ahead {})", lipsync.lookahead()),
-        |b| {
-            b.iter(|| {
-                let out = lipsync.push(tag, black_box(&frames[tag as usize % frames.len()]));
-                tag += 1;
-                black_box(out.map(|(t, w)| (t, w[0])));
-            })
-        },
-    );
     c.bench_function("receiver push + fallback (next frame always late)", |b| {
         b.iter(|| {
             let out = lipsync.push(tag, black_box(&frames[tag as usize % frames.len()]));
@@ -75,25 +67,15 @@ fn bench(c: &mut Criterion) {
         })
     });
 
-    // A head with another viseme set: every frame is re-projected (a warm-started fit onto
-    // that set's shapes), the receiver's largest per-frame cost beside the network.
+    // A head with another viseme set: every frame goes through the re-projection map.
     for size in [15, 6, 3] {
-        let set = VisemeSet::reduced(size).expect("a reduced size");
         let options = LipSyncOptions {
-            visemes: Some(set.clone()),
+            visemes: Some(VisemeSet::reduced(size).expect("a reduced size")),
             ..LipSyncOptions::default()
         };
         let mut lipsync = LipSync::new(&model, &options).unwrap();
-        c.bench_function(
-            &format!("receiver push re-projected onto {} visemes", set.len()),
-            |b| {
-                b.iter(|| {
-                    let out = lipsync.push(tag, black_box(&frames[tag as usize % frames.len()]));
-                    tag += 1;
-                    black_box(out.map(|(t, w)| (t, w[0])));
-                })
-            },
-        );
+        let name = format!("receiver push re-projected onto {size} visemes");
+        bench_pushes(c, &name, &mut lipsync, &frames);
     }
 
     // A voiced buzz gliding between 100 and 160 Hz, at speech level.
@@ -123,6 +105,18 @@ fn bench(c: &mut Criterion) {
     let silence = [0i16; FRAME_SIZE];
     c.bench_function("living face step (digital silence)", |b| {
         b.iter(|| black_box(life.step(black_box(-100.0), black_box(&silence))))
+    });
+}
+
+/// One receiver push per iteration, the next frame always on time.
+fn bench_pushes(c: &mut Criterion, name: &str, lipsync: &mut LipSync, frames: &[FrameFeatures]) {
+    let mut tag = 0u64;
+    c.bench_function(name, |b| {
+        b.iter(|| {
+            let out = lipsync.push(tag, black_box(&frames[tag as usize % frames.len()]));
+            tag += 1;
+            black_box(out.map(|(t, w)| (t, w[0])));
+        })
     });
 }
 

@@ -5,7 +5,7 @@
 //!
 //! Per viseme rather than per frame: a frame's blend decomposed anew would let PP + aa stand in
 //! for FF, whose points are nearly theirs, and onto a set that holds the source's shapes (all
-//! 15) the per-frame fit has many exact answers and wanders among them. The map costs
+//! 15) the per-frame fit has many exact answers to search among. The map costs
 //! `source x target` multiply-adds a frame and keeps no state.
 
 use super::decompose::{DecomposeError, Decomposer};
@@ -48,7 +48,6 @@ pub fn decomposition_map(
 }
 
 pub struct Reprojector {
-    from_len: usize,
     to: VisemeSet,
     /// `None` when the two sets are the same and weights pass through.
     map: Option<Vec<f32>>,
@@ -67,11 +66,7 @@ impl Reprojector {
             let points = shapes.coords() / shapes.point_dim();
             Some(decomposition_map(&shapes, &from, &to, &vec![1.0; points])?)
         };
-        Ok(Self {
-            from_len: from.len(),
-            to,
-            map,
-        })
+        Ok(Self { to, map })
     }
 
     pub fn target(&self) -> &VisemeSet {
@@ -88,11 +83,8 @@ impl Reprojector {
             return;
         };
         out.fill(0.0);
-        for (w, row) in weights
-            .iter()
-            .take(self.from_len)
-            .zip(map.chunks_exact(self.to.len()))
-        {
+        // The map has a row per source viseme: weights beyond them have none.
+        for (w, row) in weights.iter().zip(map.chunks_exact(self.to.len())) {
             for (o, m) in out.iter_mut().zip(row) {
                 *o += w * m;
             }
