@@ -6,67 +6,8 @@
 //! them to the features as decoded audio, asks here first.
 
 use super::codec::MAX_INPUT_PACKET_BYTES;
-
-/// The first configurations of the TOC byte that are CELT-only (RFC 6716 3.1): no SILK layer.
-const FIRST_CELT_CONFIG: u8 = 16;
-/// Hybrid configurations: SILK (in 10 or 20 ms frames) under CELT.
-const FIRST_HYBRID_CONFIG: u8 = 12;
-
-/// Just enough of the range decoder (RFC 6716 4.1) to read the header's one-bit flags.
-struct Flags<'a> {
-    data: &'a [u8],
-    pos: usize,
-    rem: u32,
-    rng: u32,
-    val: u32,
-}
-
-impl<'a> Flags<'a> {
-    fn new(data: &'a [u8]) -> Self {
-        let mut d = Self {
-            data,
-            pos: 0,
-            rem: 0,
-            rng: 128,
-            val: 0,
-        };
-        d.rem = d.byte();
-        d.val = d.rng - 1 - (d.rem >> 1);
-        d.normalize();
-        d
-    }
-
-    /// Bytes past the end read as zeros, as in libopus.
-    fn byte(&mut self) -> u32 {
-        let b = self.data.get(self.pos).copied().unwrap_or(0);
-        self.pos += 1;
-        u32::from(b)
-    }
-
-    fn normalize(&mut self) {
-        while self.rng <= 1 << 23 {
-            self.rng <<= 8;
-            let sym = self.rem;
-            self.rem = self.byte();
-            let sym = ((sym << 8) | self.rem) >> 1;
-            self.val = ((self.val << 8) + (255 & !sym)) & 0x7FFF_FFFF;
-        }
-    }
-
-    /// A bit coded with probability one half (`ec_dec_bit_logp(_, 1)`).
-    fn bit(&mut self) -> bool {
-        let s = self.rng >> 1;
-        let one = self.val < s;
-        if one {
-            self.rng = s;
-        } else {
-            self.val -= s;
-            self.rng -= s;
-        }
-        self.normalize();
-        one
-    }
-}
+use crate::codec::silk::range::RangeDecoder;
+use crate::codec::silk::{Mode, Packet};
 
 /// True when the packet's first frame carries an LBRR (FEC) copy of the previous frame for its
 /// first (mid) channel. Anything that is no valid SILK or hybrid packet carries none.
@@ -74,35 +15,24 @@ pub fn carries_fec(packet: &[u8]) -> bool {
     if packet.len() > MAX_INPUT_PACKET_BYTES {
         return false;
     }
-    let Ok(parsed) = opus::packet::parse(packet) else {
+    let Ok(parsed) = Packet::parse(packet) else {
         return false;
     };
-    let config = parsed.toc >> 3;
-    if config >= FIRST_CELT_CONFIG {
-        return false;
-    }
-    let Some(&frame) = parsed.frames.first() else {
-        return false;
-    };
-    if frame.is_empty() {
-        return false;
-    }
     // One SILK frame per 10 or 20 ms Opus frame, two for 40 ms, three for 60 ms.
-    let silk_frames = if config >= FIRST_HYBRID_CONFIG {
-        1
-    } else {
-        match config & 3 {
-            0 | 1 => 1,
-            2 => 2,
-            _ => 3,
-        }
+    let silk_frames = match parsed.toc.mode() {
+        Mode::Celt => return false,
+        Mode::Hybrid => 1,
+        Mode::Silk => (parsed.toc.frame_ms() / 20).max(1),
     };
-    let mut flags = Flags::new(frame);
+    let Some(frame) = parsed.frame(0).filter(|f| !f.is_empty()) else {
+        return false;
+    };
+    let mut flags = RangeDecoder::new(frame);
     // The mid channel's VAD flags, then its LBRR flag.
     for _ in 0..silk_frames {
-        flags.bit();
+        flags.decode_bit_logp(1);
     }
-    flags.bit()
+    flags.decode_bit_logp(1)
 }
 
 #[cfg(test)]
