@@ -128,6 +128,11 @@ pub struct TrainArgs {
     /// held-out scores, then train the model on all of them for the folds' median best epoch.
     #[arg(long)]
     pub cross_validate: bool,
+    /// With --cross-validate: each fold takes its epochs from an inner cross-validation over
+    /// the other regions instead of early stopping on the region it holds out, so that the
+    /// pooled scores are out of sample in every choice (about twice the time).
+    #[arg(long, requires = "cross_validate")]
+    pub nested_epochs: bool,
     /// AN4's audio (wav/an4_clstk, wav/an4test_clstk).
     #[arg(long, value_name = "DIR", default_value_os_t = an4::default_audio_root())]
     pub an4_audio: PathBuf,
@@ -361,6 +366,7 @@ fn train_config(args: &TrainArgs, split: &SpeakerSplit, snap: Option<f32>) -> Re
         curves_csv: args.curves.clone(),
         show_progress: !args.quiet,
         allow_over_budget: args.allow_over_budget,
+        nested_fold_epochs: args.nested_epochs,
     })
 }
 

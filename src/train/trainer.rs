@@ -87,6 +87,9 @@ pub struct TrainConfig {
     pub show_progress: bool,
     /// Accept a network costing more than [`MULTIPLY_ADD_BUDGET`] per frame.
     pub allow_over_budget: bool,
+    /// Cross-validation: each fold takes its epochs from an inner cross-validation over the
+    /// other groups instead of early stopping on its own held-out group.
+    pub nested_fold_epochs: bool,
 }
 
 impl Default for TrainConfig {
@@ -121,6 +124,7 @@ impl Default for TrainConfig {
             curves_csv: None,
             show_progress: true,
             allow_over_budget: false,
+            nested_fold_epochs: false,
         }
     }
 }
