@@ -19,7 +19,9 @@ use crate::lipsync::phones::CueClass;
 use crate::train::corpus::PreparedUtterance;
 use crate::train::eval::Scores;
 use crate::train::sharpness::{Calibration, calibrate};
-use crate::train::trainer::{HeldOutPredictions, TrainConfig, TrainError, TrainReport, train_on};
+use crate::train::trainer::{
+    HeldOutPredictions, TrainConfig, TrainError, TrainReport, best_epochs, train_on,
+};
 
 /// The speakers held out by one fold, prepared twice: as training material (codec-augmented)
 /// and as held-out material (at the evaluation setting). A group with nothing held out (another
@@ -88,46 +90,57 @@ pub fn cross_validate(
             .flat_map(|(_, g)| g.augmented.iter().cloned())
             .collect()
     };
+    let workers = std::thread::available_parallelism().map_or(1, |n| n.get());
     // Nested: a fold's epochs come from early stopping on the other groups in turn (an inner
-    // cross-validation), so that its held-out group chooses nothing of its model.
-    let train_fold = |k: usize| -> Result<TrainReport, TrainError> {
+    // cross-validation), so that its held-out group chooses nothing of its model. Folds k and
+    // j share the inner training without both groups; one run stops on each of them.
+    let pairs: Vec<(usize, usize)> = if config.nested_fold_epochs {
+        folds
+            .iter()
+            .flat_map(|&k| folds.iter().filter(move |&&j| j > k).map(move |&j| (k, j)))
+            .collect()
+    } else {
+        Vec::new()
+    };
+    let pair_epochs = in_parallel(&pairs, workers, |&(k, j)| {
+        best_epochs(
+            &fold_config,
+            &training(&[k, j]),
+            &[&groups[j].held_out, &groups[k].held_out],
+        )
+    })?;
+    let train_fold = |&k: &usize| -> Result<TrainReport, TrainError> {
         if !config.nested_fold_epochs {
             return train_on(&fold_config, &training(&[k]), &groups[k].held_out);
         }
-        let mut inner_epochs = folds
+        // Each pair's first epoch stopped on its second group and serves its first fold.
+        let mut inner_epochs: Vec<usize> = pairs
             .iter()
-            .filter(|&&j| j != k)
-            .map(|&j| {
-                train_on(&fold_config, &training(&[k, j]), &groups[j].held_out)
-                    .map(|r| r.best_epoch)
+            .zip(&pair_epochs)
+            .filter_map(|(&(a, b), epochs)| {
+                if k == a {
+                    epochs.first()
+                } else if k == b {
+                    epochs.get(1)
+                } else {
+                    None
+                }
             })
-            .collect::<Result<Vec<_>, _>>()?;
+            .copied()
+            .collect();
         inner_epochs.sort_unstable();
         let fixed = TrainConfig {
-            max_epochs: inner_epochs[inner_epochs.len() / 2].max(1),
+            max_epochs: inner_epochs
+                .get(inner_epochs.len() / 2)
+                .copied()
+                .unwrap_or(1)
+                .max(1),
             keep_last: true,
             ..fold_config.clone()
         };
         train_on(&fixed, &training(&[k]), &groups[k].held_out)
     };
-    let workers = std::thread::available_parallelism().map_or(1, |n| n.get());
-    let mut reports = Vec::with_capacity(folds.len());
-    for chunk in folds.chunks(workers) {
-        std::thread::scope(|scope| {
-            let handles: Vec<_> = chunk
-                .iter()
-                .map(|&k| (k, scope.spawn(move || train_fold(k))))
-                .collect();
-            for (k, handle) in handles {
-                reports.push(
-                    handle.join().unwrap_or_else(|_| {
-                        Err(TrainError::BadConfig(format!("fold {k} panicked")))
-                    }),
-                );
-            }
-        });
-    }
-    let reports = reports.into_iter().collect::<Result<Vec<_>, _>>()?;
+    let reports = in_parallel(&folds, workers, train_fold)?;
     let scored: Vec<&SpeakerGroup> = folds.iter().map(|&k| &groups[k]).collect();
     let held_out: Vec<HeldOutPredictions> = reports
         .iter()
@@ -165,6 +178,29 @@ pub fn cross_validate(
         calibration,
         epochs: epochs[epochs.len() / 2].max(1),
     })
+}
+
+/// `work` on every item, `workers` at a time on scoped threads, results in the items' order.
+fn in_parallel<T: Sync, R: Send>(
+    items: &[T],
+    workers: usize,
+    work: impl Fn(&T) -> Result<R, TrainError> + Sync,
+) -> Result<Vec<R>, TrainError> {
+    let mut results = Vec::with_capacity(items.len());
+    for chunk in items.chunks(workers.max(1)) {
+        std::thread::scope(|scope| {
+            let handles: Vec<_> = chunk
+                .iter()
+                .map(|item| scope.spawn(|| work(item)))
+                .collect();
+            for handle in handles {
+                results.push(handle.join().unwrap_or_else(|_| {
+                    Err(TrainError::BadConfig("a training thread panicked".into()))
+                }));
+            }
+        });
+    }
+    results.into_iter().collect()
 }
 
 /// The final model: all groups' augmented utterances, trained for the cross-validated number of

@@ -268,74 +268,11 @@ pub fn train_on(
     train: &[PreparedUtterance],
     validation: &[PreparedUtterance],
 ) -> Result<TrainReport, TrainError> {
-    let inputs = input_count(config.context, config.dynamics);
-    let cost = inputs * config.hidden + config.hidden * config.visemes.len();
-    if cost > MULTIPLY_ADD_BUDGET && !config.allow_over_budget {
-        return Err(TrainError::OverBudget { cost });
-    }
-    if config.lookahead > config.context.min(MAX_LOOKAHEAD) {
-        return Err(TrainError::BadConfig(format!(
-            "look-ahead {} needs at least as many context frames and at most {MAX_LOOKAHEAD}",
-            config.lookahead
-        )));
-    }
-    if config.hidden == 0 || config.batch_size == 0 || config.max_epochs == 0 {
-        return Err(TrainError::BadConfig(
-            "hidden units, batch size and epochs must be positive".into(),
-        ));
-    }
-    let mut rng = Rng::new(config.seed);
-    let warped;
-    let train = if config.warp > 0.0 {
-        warped = warp_lsps(train, config.warp, &mut rng);
-        &warped[..]
-    } else {
-        train
-    };
-    let mut model = initial_model(config, train, &mut rng);
-    let train_targets = set_targets(&config.visemes, &config.shapes, train)?;
-    let validation_targets = set_targets(&config.visemes, &config.shapes, validation)?;
-    let mut train_data = build_dataset(
-        &model,
-        train,
-        &train_targets,
-        config.closure_weight,
-        config.sharp_closures,
-    );
-    let mut validation_data = build_dataset(
-        &model,
-        validation,
-        &validation_targets,
-        config.closure_weight,
-        config.sharp_closures,
-    );
-    let cue_weights = [
-        config.openness_weight,
-        config.width_weight,
-        config.rounding_weight,
-    ];
-    train_data.cue_weights = cue_weights;
-    for data in [&mut train_data, &mut validation_data] {
-        for seg in data.labiodental.clone() {
-            for w in &mut data.weights[seg] {
-                *w *= config.labiodental_weight;
-            }
-        }
-    }
-    validation_data.cue_weights = cue_weights;
-    if train_data.frames() == 0 || validation_data.frames() == 0 {
+    let mut run = Run::new(config, train)?;
+    let validation_data = run.dataset(config, validation)?;
+    if validation_data.frames() == 0 {
         return Err(TrainError::NoFrames);
     }
-    let all_train: Vec<usize> = (0..train_data.frames()).collect();
-    let all_validation: Vec<usize> = (0..validation_data.frames()).collect();
-    let train_segments: Vec<usize> = (0..train_data.segments.len()).collect();
-    let validation_segments: Vec<usize> = (0..validation_data.segments.len()).collect();
-    let segment_weight = config.segment_closure_weight;
-    let total_loss = |model: &Model, data: &Dataset, frames: &[usize], segments: &[usize]| {
-        loss_and_gradient(model, data, frames, None)
-            + segment_loss_and_gradient(model, data, segments, segment_weight, None)
-    };
-
     let progress = if config.show_progress {
         ProgressBar::new(config.max_epochs as u64)
     } else {
@@ -346,63 +283,17 @@ pub fn train_on(
             .unwrap_or_else(|_| ProgressStyle::default_bar()),
     );
 
-    let mut grad = Params::zeros_like(&model);
-    let mut first_moment = Params::zeros_like(&model);
-    let mut second_moment = Params::zeros_like(&model);
-    let (beta1, beta2, epsilon) = (0.9f32, 0.999f32, 1e-8f32);
-    let mut step = 0i32;
-    let mut order = all_train.clone();
     let mut curve = Vec::new();
-    let mut best = (f64::INFINITY, 0usize, model.clone());
+    let mut best = (f64::INFINITY, 0usize, run.model.clone());
     for epoch in 1..=config.max_epochs {
-        rng.shuffle(&mut order);
-        for batch in order.chunks(config.batch_size) {
-            grad.clear();
-            loss_and_gradient(&model, &train_data, batch, Some(&mut grad));
-            if segment_weight > 0.0 && !train_segments.is_empty() {
-                let pick = (rng.next_u64() % train_segments.len() as u64) as usize;
-                segment_loss_and_gradient(
-                    &model,
-                    &train_data,
-                    &[pick],
-                    segment_weight,
-                    Some(&mut grad),
-                );
-            }
-            step += 1;
-            let correction1 = 1.0 - beta1.powi(step);
-            let correction2 = 1.0 - beta2.powi(step);
-            let params = model_params_mut(&mut model);
-            let grads = grad.slices_mut();
-            let m1 = first_moment.slices_mut();
-            let m2 = second_moment.slices_mut();
-            for (((p, g), m), v) in params.into_iter().zip(grads).zip(m1).zip(m2) {
-                for (((p, g), m), v) in p
-                    .iter_mut()
-                    .zip(g.iter())
-                    .zip(m.iter_mut())
-                    .zip(v.iter_mut())
-                {
-                    *m = beta1 * *m + (1.0 - beta1) * g;
-                    *v = beta2 * *v + (1.0 - beta2) * g * g;
-                    *p -= config.learning_rate
-                        * ((*m / correction1) / ((*v / correction2).sqrt() + epsilon)
-                            + config.weight_decay * *p);
-                }
-            }
-        }
-        let train_loss = total_loss(&model, &train_data, &all_train, &train_segments);
-        let validation_loss = total_loss(
-            &model,
-            &validation_data,
-            &all_validation,
-            &validation_segments,
-        );
+        run.epoch(config);
+        let train_loss = run.loss(&run.train_data);
+        let validation_loss = run.loss(&validation_data);
         let scores = score(
-            &model.visemes,
+            &run.model.visemes,
             &config.shapes,
             validation,
-            &predictions(&model, &validation_data),
+            &predictions(&run.model, &validation_data),
         )?;
         curve.push(EpochStats {
             epoch,
@@ -412,7 +303,7 @@ pub fn train_on(
             validation_openness_r: scores.openness_r,
         });
         if validation_loss < best.0 || config.keep_last {
-            best = (validation_loss, epoch, model.clone());
+            best = (validation_loss, epoch, run.model.clone());
         }
         progress.inc(1);
         progress.set_message(format!(
@@ -448,10 +339,193 @@ pub fn train_on(
         },
         best_epoch,
         curve,
-        train_frames: train_data.frames(),
+        train_frames: run.train_data.frames(),
         validation_frames: validation_data.frames(),
         validation: validation_scores,
     })
+}
+
+/// The epoch [`train_on`] would stop early at with each of `validations` as its validation
+/// set, from one training: the trajectory depends on the training utterances only, so one run
+/// serves every set (an inner cross-validation pairs each set with the same training data
+/// twice). It trains until every set has gone `patience` epochs without a better loss.
+pub fn best_epochs(
+    config: &TrainConfig,
+    train: &[PreparedUtterance],
+    validations: &[&[PreparedUtterance]],
+) -> Result<Vec<usize>, TrainError> {
+    let mut run = Run::new(config, train)?;
+    let data = validations
+        .iter()
+        .map(|v| run.dataset(config, v))
+        .collect::<Result<Vec<_>, _>>()?;
+    if data.iter().any(|d| d.frames() == 0) {
+        return Err(TrainError::NoFrames);
+    }
+    // Per set: the lowest loss, its epoch, and whether the set has stopped.
+    let mut best = vec![(f64::INFINITY, 0usize, false); data.len()];
+    for epoch in 1..=config.max_epochs {
+        run.epoch(config);
+        for (best, data) in best.iter_mut().zip(&data) {
+            if best.2 {
+                continue;
+            }
+            let loss = run.loss(data);
+            if loss < best.0 {
+                (best.0, best.1) = (loss, epoch);
+            }
+            best.2 = epoch - best.1 >= config.patience;
+        }
+        if best.iter().all(|b| b.2) {
+            break;
+        }
+    }
+    Ok(best.into_iter().map(|(_, epoch, _)| epoch).collect())
+}
+
+/// A network and its training frames, trained one epoch at a time (Adam on shuffled
+/// mini-batches).
+struct Run {
+    model: Model,
+    train_data: Dataset,
+    rng: Rng,
+    order: Vec<usize>,
+    segments: Vec<usize>,
+    segment_weight: f32,
+    grad: Params,
+    first_moment: Params,
+    second_moment: Params,
+    step: i32,
+}
+
+impl Run {
+    fn new(config: &TrainConfig, train: &[PreparedUtterance]) -> Result<Self, TrainError> {
+        let inputs = input_count(config.context, config.dynamics);
+        let cost = inputs * config.hidden + config.hidden * config.visemes.len();
+        if cost > MULTIPLY_ADD_BUDGET && !config.allow_over_budget {
+            return Err(TrainError::OverBudget { cost });
+        }
+        if config.lookahead > config.context.min(MAX_LOOKAHEAD) {
+            return Err(TrainError::BadConfig(format!(
+                "look-ahead {} needs at least as many context frames and at most {MAX_LOOKAHEAD}",
+                config.lookahead
+            )));
+        }
+        if config.hidden == 0 || config.batch_size == 0 || config.max_epochs == 0 {
+            return Err(TrainError::BadConfig(
+                "hidden units, batch size and epochs must be positive".into(),
+            ));
+        }
+        let mut rng = Rng::new(config.seed);
+        let warped;
+        let train = if config.warp > 0.0 {
+            warped = warp_lsps(train, config.warp, &mut rng);
+            &warped[..]
+        } else {
+            train
+        };
+        let model = initial_model(config, train, &mut rng);
+        let train_data = prepare_frames(&model, config, train)?;
+        if train_data.frames() == 0 {
+            return Err(TrainError::NoFrames);
+        }
+        Ok(Self {
+            grad: Params::zeros_like(&model),
+            first_moment: Params::zeros_like(&model),
+            second_moment: Params::zeros_like(&model),
+            order: (0..train_data.frames()).collect(),
+            segments: (0..train_data.segments.len()).collect(),
+            segment_weight: config.segment_closure_weight,
+            model,
+            train_data,
+            rng,
+            step: 0,
+        })
+    }
+
+    fn dataset(
+        &self,
+        config: &TrainConfig,
+        utterances: &[PreparedUtterance],
+    ) -> Result<Dataset, TrainError> {
+        prepare_frames(&self.model, config, utterances)
+    }
+
+    /// The loss on `data` (frames and /p b m/ segments).
+    fn loss(&self, data: &Dataset) -> f64 {
+        let frames: Vec<usize> = (0..data.frames()).collect();
+        let segments: Vec<usize> = (0..data.segments.len()).collect();
+        loss_and_gradient(&self.model, data, &frames, None)
+            + segment_loss_and_gradient(&self.model, data, &segments, self.segment_weight, None)
+    }
+
+    fn epoch(&mut self, config: &TrainConfig) {
+        let (beta1, beta2, epsilon) = (0.9f32, 0.999f32, 1e-8f32);
+        let segment_weight = config.segment_closure_weight;
+        self.rng.shuffle(&mut self.order);
+        for batch in self.order.chunks(config.batch_size) {
+            self.grad.clear();
+            loss_and_gradient(&self.model, &self.train_data, batch, Some(&mut self.grad));
+            if segment_weight > 0.0 && !self.segments.is_empty() {
+                let pick = (self.rng.next_u64() % self.segments.len() as u64) as usize;
+                segment_loss_and_gradient(
+                    &self.model,
+                    &self.train_data,
+                    &[pick],
+                    segment_weight,
+                    Some(&mut self.grad),
+                );
+            }
+            self.step += 1;
+            let correction1 = 1.0 - beta1.powi(self.step);
+            let correction2 = 1.0 - beta2.powi(self.step);
+            let params = model_params_mut(&mut self.model);
+            let grads = self.grad.slices_mut();
+            let m1 = self.first_moment.slices_mut();
+            let m2 = self.second_moment.slices_mut();
+            for (((p, g), m), v) in params.into_iter().zip(grads).zip(m1).zip(m2) {
+                for (((p, g), m), v) in p
+                    .iter_mut()
+                    .zip(g.iter())
+                    .zip(m.iter_mut())
+                    .zip(v.iter_mut())
+                {
+                    *m = beta1 * *m + (1.0 - beta1) * g;
+                    *v = beta2 * *v + (1.0 - beta2) * g * g;
+                    *p -= config.learning_rate
+                        * ((*m / correction1) / ((*v / correction2).sqrt() + epsilon)
+                            + config.weight_decay * *p);
+                }
+            }
+        }
+    }
+}
+
+/// The frames of `utterances` as `model` sees them, with their targets and the loss's weights.
+fn prepare_frames(
+    model: &Model,
+    config: &TrainConfig,
+    utterances: &[PreparedUtterance],
+) -> Result<Dataset, TrainError> {
+    let targets = set_targets(&config.visemes, &config.shapes, utterances)?;
+    let mut data = build_dataset(
+        model,
+        utterances,
+        &targets,
+        config.closure_weight,
+        config.sharp_closures,
+    );
+    data.cue_weights = [
+        config.openness_weight,
+        config.width_weight,
+        config.rounding_weight,
+    ];
+    for seg in data.labiodental.clone() {
+        for w in &mut data.weights[seg] {
+            *w *= config.labiodental_weight;
+        }
+    }
+    Ok(data)
 }
 
 /// Learning curves as CSV: `epoch,train_loss,validation_loss,validation_closure_share,validation_openness_r`.
@@ -642,6 +716,33 @@ mod tests {
             factors.iter().any(|f| (f - 1.0).abs() > 0.01),
             "{factors:?}"
         );
+    }
+
+    #[test]
+    fn one_run_finds_the_epoch_each_validation_set_stops_at() {
+        let (train, validation) = tiny_data();
+        let config = TrainConfig {
+            visemes: VisemeSet::reduced(2).unwrap(),
+            hidden: 6,
+            context: 1,
+            max_epochs: 60,
+            patience: 5,
+            learning_rate: 0.01,
+            show_progress: false,
+            ..TrainConfig::default()
+        };
+        let (fit, held) = train.split_at(2);
+        let sets = [&validation[..], held];
+        let epochs = best_epochs(&config, fit, &sets).unwrap();
+        for (set, epoch) in sets.iter().zip(&epochs) {
+            assert_eq!(train_on(&config, fit, set).unwrap().best_epoch, *epoch);
+        }
+        // The two sets stop apart, so each is followed on its own.
+        assert_ne!(epochs[0], epochs[1], "{epochs:?}");
+        assert!(matches!(
+            best_epochs(&config, fit, &[&validation[..], &[]]),
+            Err(TrainError::NoFrames)
+        ));
     }
 
     #[test]
