@@ -718,10 +718,9 @@ mod tests {
         );
     }
 
-    #[test]
-    fn one_run_finds_the_epoch_each_validation_set_stops_at() {
-        let (train, validation) = tiny_data();
-        let config = TrainConfig {
+    /// A small network on `tiny_data` that learns and stops within a few dozen epochs.
+    fn tiny_config() -> TrainConfig {
+        TrainConfig {
             visemes: VisemeSet::reduced(2).unwrap(),
             hidden: 6,
             context: 1,
@@ -730,7 +729,13 @@ mod tests {
             learning_rate: 0.01,
             show_progress: false,
             ..TrainConfig::default()
-        };
+        }
+    }
+
+    #[test]
+    fn one_run_finds_the_epoch_each_validation_set_stops_at() {
+        let (train, validation) = tiny_data();
+        let config = tiny_config();
         let (fit, held) = train.split_at(2);
         let sets = [&validation[..], held];
         let epochs = best_epochs(&config, fit, &sets).unwrap();
@@ -751,15 +756,8 @@ mod tests {
         let curves =
             std::env::temp_dir().join(format!("lipcall-curves-{}.csv", std::process::id()));
         let config = TrainConfig {
-            visemes: VisemeSet::reduced(2).unwrap(),
-            hidden: 6,
-            context: 1,
-            max_epochs: 60,
-            patience: 5,
-            learning_rate: 0.01,
-            show_progress: false,
             curves_csv: Some(curves.clone()),
-            ..TrainConfig::default()
+            ..tiny_config()
         };
         let report = train_on(&config, &train, &validation).unwrap();
         let first = &report.curve[0];
