@@ -130,7 +130,8 @@ pub struct TrainArgs {
     pub cross_validate: bool,
     /// With --cross-validate: each fold takes its epochs from an inner cross-validation over
     /// the other regions instead of early stopping on the region it holds out, so that the
-    /// pooled scores are out of sample in every choice (about twice the time).
+    /// pooled scores are out of sample in every choice (about 1.2 times as long: one inner
+    /// training per pair of regions serves both).
     #[arg(long, requires = "cross_validate")]
     pub nested_epochs: bool,
     /// AN4's audio (wav/an4_clstk, wav/an4test_clstk).
