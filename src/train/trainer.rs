@@ -461,7 +461,7 @@ impl Run {
 
     fn epoch(&mut self, config: &TrainConfig) {
         let (beta1, beta2, epsilon) = (0.9f32, 0.999f32, 1e-8f32);
-        let segment_weight = config.segment_closure_weight;
+        let segment_weight = self.segment_weight;
         self.rng.shuffle(&mut self.order);
         for batch in self.order.chunks(config.batch_size) {
             self.grad.clear();
