@@ -57,8 +57,8 @@ pub struct CrossValidation {
     pub epochs: usize,
 }
 
-/// Trains one model per group with that group held out (early stopping on it), in parallel on
-/// the machine's cores; the closure snap is `snap` and the output sharpness `sharpness`, each
+/// Trains one model per group with that group held out (early stopping on it, or for the inner
+/// cross-validation's epochs when nested), in parallel on the machine's cores; the closure snap is `snap` and the output sharpness `sharpness`, each
 /// tuned on the pooled held-out predictions when `None` (`train::sharpness::calibrate`).
 pub fn cross_validate(
     config: &TrainConfig,
