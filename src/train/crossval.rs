@@ -58,8 +58,9 @@ pub struct CrossValidation {
 }
 
 /// Trains one model per group with that group held out (early stopping on it, or for the inner
-/// cross-validation's epochs when nested), in parallel on the machine's cores; the closure snap is `snap` and the output sharpness `sharpness`, each
-/// tuned on the pooled held-out predictions when `None` (`train::sharpness::calibrate`).
+/// cross-validation's epochs when nested), in parallel on the machine's cores; the closure snap
+/// is `snap` and the output sharpness `sharpness`, each tuned on the pooled held-out
+/// predictions when `None` (`train::sharpness::calibrate`).
 pub fn cross_validate(
     config: &TrainConfig,
     groups: &[SpeakerGroup],
@@ -109,32 +110,23 @@ pub fn cross_validate(
             &[&groups[j].held_out, &groups[k].held_out],
         )
     })?;
+    // A pair's first epoch stopped on its second group, so it is one of its first fold's
+    // inner epochs, and the other way round.
+    let mut inner_epochs = vec![Vec::new(); groups.len()];
+    for (&(k, j), epochs) in pairs.iter().zip(&pair_epochs) {
+        inner_epochs[k].push(epochs[0]);
+        inner_epochs[j].push(epochs[1]);
+    }
+    for epochs in &mut inner_epochs {
+        epochs.sort_unstable();
+    }
     let train_fold = |&k: &usize| -> Result<TrainReport, TrainError> {
         if !config.nested_fold_epochs {
             return train_on(&fold_config, &training(&[k]), &groups[k].held_out);
         }
-        // Each pair's first epoch stopped on its second group and serves its first fold.
-        let mut inner_epochs: Vec<usize> = pairs
-            .iter()
-            .zip(&pair_epochs)
-            .filter_map(|(&(a, b), epochs)| {
-                if k == a {
-                    epochs.first()
-                } else if k == b {
-                    epochs.get(1)
-                } else {
-                    None
-                }
-            })
-            .copied()
-            .collect();
-        inner_epochs.sort_unstable();
+        let inner = &inner_epochs[k];
         let fixed = TrainConfig {
-            max_epochs: inner_epochs
-                .get(inner_epochs.len() / 2)
-                .copied()
-                .unwrap_or(1)
-                .max(1),
+            max_epochs: inner.get(inner.len() / 2).copied().unwrap_or(1).max(1),
             keep_last: true,
             ..fold_config.clone()
         };
