@@ -287,8 +287,8 @@ pub fn train_on(
     let mut best = (f64::INFINITY, 0usize, run.model.clone());
     for epoch in 1..=config.max_epochs {
         run.epoch(config);
-        let train_loss = run.loss(&run.train_data);
-        let validation_loss = run.loss(&validation_data);
+        let train_loss = run.loss(config, &run.train_data);
+        let validation_loss = run.loss(config, &validation_data);
         let scores = score(
             &run.model.visemes,
             &config.shapes,
@@ -370,7 +370,7 @@ pub fn best_epochs(
             if best.2 {
                 continue;
             }
-            let loss = run.loss(data);
+            let loss = run.loss(config, data);
             if loss < best.0 {
                 (best.0, best.1) = (loss, epoch);
             }
@@ -391,7 +391,6 @@ struct Run {
     rng: Rng,
     order: Vec<usize>,
     segments: Vec<usize>,
-    segment_weight: f32,
     grad: Params,
     first_moment: Params,
     second_moment: Params,
@@ -435,7 +434,6 @@ impl Run {
             second_moment: Params::zeros_like(&model),
             order: (0..train_data.frames()).collect(),
             segments: (0..train_data.segments.len()).collect(),
-            segment_weight: config.segment_closure_weight,
             model,
             train_data,
             rng,
@@ -452,16 +450,22 @@ impl Run {
     }
 
     /// The loss on `data` (frames and /p b m/ segments).
-    fn loss(&self, data: &Dataset) -> f64 {
+    fn loss(&self, config: &TrainConfig, data: &Dataset) -> f64 {
         let frames: Vec<usize> = (0..data.frames()).collect();
         let segments: Vec<usize> = (0..data.segments.len()).collect();
         loss_and_gradient(&self.model, data, &frames, None)
-            + segment_loss_and_gradient(&self.model, data, &segments, self.segment_weight, None)
+            + segment_loss_and_gradient(
+                &self.model,
+                data,
+                &segments,
+                config.segment_closure_weight,
+                None,
+            )
     }
 
     fn epoch(&mut self, config: &TrainConfig) {
         let (beta1, beta2, epsilon) = (0.9f32, 0.999f32, 1e-8f32);
-        let segment_weight = self.segment_weight;
+        let segment_weight = config.segment_closure_weight;
         self.rng.shuffle(&mut self.order);
         for batch in self.order.chunks(config.batch_size) {
             self.grad.clear();
