@@ -10,7 +10,7 @@ use criterion::{BenchmarkId, Criterion, criterion_group, criterion_main};
 use lipcall::audio::mixer::{
     CHUNK, Mixer, PeerControls, PeerFeed, PeerId, Upsampler, peer_channel,
 };
-use lipcall::codec::speex::SAMPLE_RATE;
+use lipcall::vocab::SAMPLE_RATE;
 
 const CHUNKS_PER_SECOND: usize = SAMPLE_RATE as usize / CHUNK;
 

@@ -9,7 +9,8 @@ use lipcall::audio::wav;
 use lipcall::codec::lpc::LpcAnalyser;
 use lipcall::codec::speex::codec::{Decoder, EncoderConfig};
 use lipcall::codec::speex::features::FrameTracker;
-use lipcall::codec::speex::{FRAME_SIZE, ogg_file, stream};
+use lipcall::codec::speex::{ogg_file, stream};
+use lipcall::vocab::FRAME_SIZE;
 
 fn demo_packets() -> Vec<Vec<u8>> {
     let path = Path::new(env!("CARGO_MANIFEST_DIR")).join("assets/speech/demo.wav");
@@ -169,7 +170,7 @@ fn silk_walker_per_packet(c: &mut Criterion) {
         // narrowband LSPs, and the energy of the decoded samples.
         group.bench_function(format!("decode + NLSF features {name}"), |b| {
             use lipcall::codec::opus::features::narrowband_lsp;
-            use lipcall::codec::speex::features::energy_db;
+            use lipcall::vocab::energy_db;
             let mut decoder = OpusDecoder::new().unwrap();
             let mut walker = SilkWalker::new();
             let mut frames = Vec::with_capacity(4);

@@ -8,11 +8,11 @@
 use std::hint::black_box;
 
 use criterion::{Criterion, criterion_group, criterion_main};
-use lipcall::codec::speex::FRAME_SIZE;
-use lipcall::codec::speex::features::FrameFeatures;
 use lipcall::lipsync::life::LifeGenerator;
-use lipcall::lipsync::visemes::VisemeSet;
 use lipcall::lipsync::{LipSync, LipSyncOptions, default_model};
+use lipcall::vocab::FRAME_SIZE;
+use lipcall::vocab::FrameFeatures;
+use lipcall::vocab::VisemeSet;
 
 fn frames() -> Vec<FrameFeatures> {
     (0..64)
@@ -23,7 +23,7 @@ fn frames() -> Vec<FrameFeatures> {
                 *l = 0.28 * (i + 1) as f32 + 0.03 * (0.3 * x + i as f32).sin();
             }
             FrameFeatures {
-                family: lipcall::codec::FeatureFamily::Bitstream,
+                family: lipcall::vocab::FeatureFamily::Bitstream,
                 mode: Some(5),
                 lsp,
                 energy_db: -40.0 + 20.0 * (0.4 * x).sin(),
@@ -91,7 +91,7 @@ fn bench(c: &mut Criterion) {
         .collect();
     let energy: Vec<f32> = voiced
         .iter()
-        .map(|f| lipcall::codec::speex::features::energy_db(f))
+        .map(|f| lipcall::vocab::energy_db(f))
         .collect();
     let mut life = LifeGenerator::new(1);
     let mut n = 0;

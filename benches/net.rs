@@ -7,7 +7,6 @@ use std::time::{Duration, Instant};
 
 use criterion::{Criterion, Throughput, criterion_group, criterion_main};
 use lipcall::audio::wav;
-use lipcall::codec::speex::FRAME_SIZE;
 use lipcall::codec::speex::codec::{Encoder, EncoderConfig, MAX_PACKET_BYTES};
 use lipcall::net::control::{Control, ControlKind, Cookie, RoomId};
 use lipcall::net::jitter::JitterConfig;
@@ -15,6 +14,7 @@ use lipcall::net::peer::PeerReceiver;
 use lipcall::net::relay::{RelayConfig, RelayCore};
 use lipcall::net::rtp::{self, RtpStream};
 use lipcall::net::srtp::{MasterKey, Srtp};
+use lipcall::vocab::FRAME_SIZE;
 
 fn one_second_of_speech() -> Vec<Vec<u8>> {
     let path = Path::new(env!("CARGO_MANIFEST_DIR")).join("assets/speech/demo.wav");

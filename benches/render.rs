@@ -6,10 +6,11 @@
 use std::hint::black_box;
 
 use criterion::{Criterion, criterion_group, criterion_main};
-use lipcall::render::head::FacePose;
 use lipcall::render::offscreen::{FrameOptions, GpuContext, OffscreenRenderer};
 use lipcall::render::renderer::{DEPTH_FORMAT, HeadRenderer};
-use lipcall::render::{Camera, Framing, VisemeWeights};
+use lipcall::render::{Camera, Framing};
+use lipcall::vocab::FacePose;
+use lipcall::vocab::VisemeWeights;
 
 /// Weights over the shipped network's five visemes (PP FF aa I U), all in use as in speech.
 fn weights_at(i: usize) -> VisemeWeights {

@@ -8,9 +8,9 @@ use std::path::PathBuf;
 
 use anyhow::Context;
 use lipcall::render::{
-    Camera, FrameOptions, Framing, GpuContext, OffscreenRenderer, VisemeWeights,
-    load_head_or_default,
+    Camera, FrameOptions, Framing, GpuContext, OffscreenRenderer, load_head_or_default,
 };
+use lipcall::vocab::VisemeWeights;
 
 fn parse_mix(spec: &str) -> anyhow::Result<VisemeWeights> {
     let mut pairs = Vec::new();

@@ -5,8 +5,8 @@ use std::path::PathBuf;
 
 use anyhow::Context;
 use lipcall::lipsync::mouth;
-use lipcall::lipsync::visemes::VisemeSet;
 use lipcall::train::corpus::{read_phones, targets_from_phones, wav_length};
+use lipcall::vocab::VisemeSet;
 
 fn main() -> anyhow::Result<()> {
     let args: Vec<PathBuf> = std::env::args().skip(1).map(PathBuf::from).collect();

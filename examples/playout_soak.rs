@@ -20,9 +20,9 @@ use std::time::{Duration, Instant};
 use anyhow::Context;
 use lipcall::app::engine::{Engine, EngineConfig, lock};
 use lipcall::audio::{DeviceChoice, OutputStatus, wav};
-use lipcall::codec::FRAME_SIZE;
 use lipcall::codec::any::{Codec, EncoderSettings, FrameEncoder, MAX_FRAME_PAYLOAD};
 use lipcall::net::session::{Session, SessionConfig};
+use lipcall::vocab::FRAME_SIZE;
 
 const REPORT: Duration = Duration::from_secs(10);
 

@@ -9,3 +9,4 @@ pub mod lipsync;
 pub mod net;
 pub mod render;
 pub mod train;
+pub mod vocab;

@@ -6,10 +6,10 @@ use egui_kittest::kittest::Queryable;
 use lipcall::app::peer::{FaceRow, PeerAnimation};
 use lipcall::app::peer_controls_ui;
 use lipcall::app::settings::PeerPrefs;
-use lipcall::codec::speex::features::FrameFeatures;
+use lipcall::vocab::FrameFeatures;
 
 fn voiced() -> FrameFeatures {
-    let mut f = lipcall::lipsync::network::silence_features();
+    let mut f = lipcall::vocab::FrameFeatures::silent();
     f.energy_db = -25.0;
     f
 }
@@ -99,7 +99,7 @@ fn the_closures_slider_changes_how_readily_the_lips_shut() {
         features
             .iter()
             .filter_map(|f| animate_now(&mut animation, &prefs, f))
-            .filter(|w| w[lipcall::lipsync::visemes::Viseme::PP.index()] > 0.999)
+            .filter(|w| w[lipcall::vocab::Viseme::PP.index()] > 0.999)
             .count()
     };
     assert!(
@@ -131,7 +131,7 @@ fn mute_and_jaw_mode_toggle() {
 fn the_living_face_blinks_in_silence_and_switches_off() {
     let mut h = harness();
     assert!(h.state().life, "on by default");
-    let silence = lipcall::lipsync::network::silence_features();
+    let silence = lipcall::vocab::FrameFeatures::silent();
     let mut animation = PeerAnimation::with_seed(h.state(), 99);
     // Five seconds of digital silence: the eyes blink, the head and mouth stay still.
     let rows: Vec<FaceRow> = (0..250)
@@ -160,7 +160,7 @@ fn the_living_face_blinks_in_silence_and_switches_off() {
     assert!(!h.state().life);
     for n in 250..500 {
         let row = face_now(&mut animation, h.state(), n, &silence).unwrap();
-        assert_eq!(row.pose, lipcall::render::head::FacePose::REST);
+        assert_eq!(row.pose, lipcall::vocab::FacePose::REST);
     }
     // Back on, it starts from rest and lives again.
     h.get_by_label("Living face").click();

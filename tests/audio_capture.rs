@@ -8,7 +8,7 @@ use common::pulse_running;
 use std::time::{Duration, Instant};
 
 use lipcall::audio::{Capture, DeviceChoice, Gate, OutputStatus, Playback, PlaybackConfig};
-use lipcall::codec::speex::FRAME_SIZE;
+use lipcall::vocab::FRAME_SIZE;
 
 #[test]
 fn loopback_through_the_monitor_gives_8k_frames_meter_and_gates() {

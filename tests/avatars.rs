@@ -7,14 +7,15 @@ mod common;
 
 use common::glb_write::{MeshOut, PrimitiveOut, write_meshes};
 use glam::Vec3;
+use lipcall::render::HeadModel;
 use lipcall::render::arkit;
 use lipcall::render::gltf_load::load_head_from_slice;
 use lipcall::render::head::{Material, MorphDelta, TargetSource, Vertex};
 use lipcall::render::offscreen::{FrameOptions, GpuContext, OffscreenRenderer};
-use lipcall::render::{HeadModel, VisemeWeights, viseme_index};
+use lipcall::vocab::VisemeWeights;
 
 fn v(name: &str) -> usize {
-    viseme_index(name).unwrap()
+    lipcall::vocab::Viseme::from_name(name).unwrap().index()
 }
 
 /// An `n` x `n` grid over the rectangle at depth `z`, facing +Z.

@@ -5,11 +5,11 @@
 mod common;
 
 use lipcall::audio::wav;
-use lipcall::codec::speex::features::ordered_lsp;
 use lipcall::lipsync::decompose::decompose_track;
 use lipcall::lipsync::markers::MarkerTrack;
-use lipcall::lipsync::visemes::VisemeSet;
 use lipcall::render::gltf_load::load_head_from_slice;
+use lipcall::vocab::VisemeSet;
+use lipcall::vocab::ordered_lsp;
 
 /// A one-triangle glTF head with a `viseme_aa` target moving each vertex by `delta` in y.
 fn head_with_target(positions: [[f32; 3]; 3], delta: f32) -> Vec<u8> {

@@ -215,7 +215,7 @@ fn speech_round_trips_like_sox_frame_by_frame() {
         let decoded_by_sox = sox_decode(dir.path(), law, &theirs);
         let mut ours = Vec::new();
         let mut decoded = Vec::new();
-        for chunk in pcm.chunks_exact(lipcall::codec::FRAME_SIZE) {
+        for chunk in pcm.chunks_exact(lipcall::vocab::FRAME_SIZE) {
             let frame = law.encode_frame(chunk.try_into().unwrap());
             decoded.extend_from_slice(&law.decode_frame(&frame));
             ours.extend_from_slice(&frame);

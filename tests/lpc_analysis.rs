@@ -5,12 +5,12 @@
 mod common;
 
 use common::*;
-use lipcall::codec::FRAME_SIZE;
 use lipcall::codec::g722::{LowBandDecoder, WIDEBAND_FRAME, WidebandEncoder};
 use lipcall::codec::lpc::LpcAnalyser;
 use lipcall::codec::speex::codec::EncoderConfig;
-use lipcall::codec::speex::features::FrameFeatures;
 use lipcall::codec::speex::stream;
+use lipcall::vocab::FRAME_SIZE;
+use lipcall::vocab::FrameFeatures;
 use proptest::prelude::*;
 
 const SPEAKERS: [&str; 8] = [

@@ -7,10 +7,10 @@ use std::time::{Duration, Instant};
 
 use common::net::{Announce, fields, num, spawn_listening};
 use common::{lipcall, read_wav_i16};
-use lipcall::codec::FRAME_SIZE;
 use lipcall::codec::any::{Codec, EncoderSettings, FrameEncoder, MAX_FRAME_PAYLOAD};
-use lipcall::codec::speex::features::energy_db;
 use lipcall::net::session::{Session, SessionConfig};
+use lipcall::vocab::FRAME_SIZE;
+use lipcall::vocab::energy_db;
 
 /// Frame `k` of a talker: 1.2 s of a voiced sound, then 0.4 s of faint noise.
 fn talker(k: usize) -> ([i16; FRAME_SIZE], bool) {

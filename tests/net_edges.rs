@@ -8,10 +8,10 @@ use std::net::{SocketAddr, UdpSocket};
 use std::time::{Duration, Instant};
 
 use common::net::{Listening, fields, num, start_receiver};
-use lipcall::codec::FRAME_SIZE;
 use lipcall::codec::any::{Codec, EncoderSettings, FrameEncoder, MAX_FRAME_PAYLOAD};
 use lipcall::net::rtp::RtpStream;
 use lipcall::net::session::{Session, SessionConfig};
+use lipcall::vocab::FRAME_SIZE;
 
 const TICK: Duration = Duration::from_millis(20);
 

@@ -3,11 +3,11 @@
 
 use std::time::{Duration, Instant};
 
-use lipcall::codec::speex::FRAME_SIZE;
 use lipcall::codec::speex::codec::{
     Decoder, Encoder, EncoderConfig, FrameOutcome, MAX_PACKET_BYTES,
 };
 use lipcall::net::session::{PeerFrame, Session, SessionConfig};
+use lipcall::vocab::FRAME_SIZE;
 
 const ONSET_FRAME: usize = 60;
 const TICK: Duration = Duration::from_millis(20);

@@ -14,11 +14,11 @@ use std::time::{Duration, Instant};
 use lipcall::audio::mixer::{CHUNK, Mixer, PeerControls, PeerId, peer_channel};
 use lipcall::audio::pacer::DEFAULT_LEAD;
 use lipcall::audio::{FramePacer, PeerFeed};
-use lipcall::codec::FRAME_SIZE;
 use lipcall::codec::any::{Codec, EncoderSettings, FrameEncoder, MAX_FRAME_PAYLOAD};
 use lipcall::net::jitter::JitterConfig;
 use lipcall::net::peer::{FrameKind, PeerReceiver};
 use lipcall::net::rtp::{self, RtpStream};
+use lipcall::vocab::FRAME_SIZE;
 
 const FRAME_MS: u64 = 20;
 /// Two minutes.

@@ -3,7 +3,8 @@
 
 use lipcall::codec::speex::codec::{Decoder, EncoderConfig, FrameOutcome};
 use lipcall::codec::speex::features::FrameTracker;
-use lipcall::codec::speex::{FRAME_SIZE, ogg_file, stream};
+use lipcall::codec::speex::{ogg_file, stream};
+use lipcall::vocab::FRAME_SIZE;
 use proptest::prelude::*;
 
 fn speech_like(n: usize) -> Vec<i16> {

@@ -10,8 +10,8 @@ use std::time::{Duration, Instant};
 
 use common::net::{spawn, start_receiver};
 use common::{lipcall, repo_file};
-use lipcall::codec::FRAME_SIZE;
 use lipcall::net::session::{Session, SessionConfig};
+use lipcall::vocab::FRAME_SIZE;
 
 fn csv_rows(path: &Path) -> (String, Vec<Vec<String>>) {
     let text = std::fs::read_to_string(path).expect("the CSV was written");

@@ -8,13 +8,13 @@ use std::sync::OnceLock;
 use common::glb_write::{glb_container, write_glb};
 use glam::{Vec2, Vec3};
 use lipcall::lipsync::mouth::Articulation;
-use lipcall::lipsync::visemes::Viseme;
 use lipcall::render::gltf_load::load_head_from_slice;
-use lipcall::render::head::{
-    Expression, FacePose, Material, MorphDelta, Primitive, TargetSource, VISEME_COUNT, Vertex,
-};
+use lipcall::render::head::{Expression, Material, MorphDelta, Primitive, TargetSource, Vertex};
 use lipcall::render::offscreen::{FrameOptions, GpuContext, OffscreenRenderer, WeightTrack};
-use lipcall::render::{Camera, Framing, HeadModel, RenderError, VISEME_NAMES, VisemeWeights};
+use lipcall::render::{Camera, Framing, HeadModel, RenderError};
+use lipcall::vocab::Viseme;
+use lipcall::vocab::{FacePose, VISEME_COUNT};
+use lipcall::vocab::{VISEME_NAMES, VisemeWeights};
 use serde_json::json;
 
 fn default_head() -> &'static HeadModel {
@@ -369,7 +369,7 @@ fn arkit_head_animates_through_the_recipe() {
     let head = load_head_from_slice(&glb).expect("ARKit grid loads");
     assert_eq!(head.source, TargetSource::Arkit);
     // jawOpen is in the recipe of aa; every viseme but sil has jawOpen or mouthPucker in its.
-    let aa = lipcall::render::viseme_index("aa").unwrap();
+    let aa = lipcall::vocab::Viseme::from_name("aa").unwrap().index();
     assert!(!head.primitives[0].targets[aa].is_empty());
     assert!(
         head.missing_visemes.is_empty(),
@@ -516,7 +516,7 @@ fn viseme_names_with_and_without_prefix_are_matched() {
     let head = load_head_from_slice(&glb).unwrap();
     assert_eq!(head.source, TargetSource::Visemes);
     for name in ["aa", "U"] {
-        let v = lipcall::render::viseme_index(name).unwrap();
+        let v = lipcall::vocab::Viseme::from_name(name).unwrap().index();
         assert!(!head.primitives[0].targets[v].is_empty(), "{name}");
     }
     assert!(head.missing_visemes.contains(&"E".to_owned()));
@@ -1166,7 +1166,7 @@ fn default_head_shows_teeth_and_tongue_where_lipreaders_look_for_them() {
             VISEME_NAMES[v], teeth[v], tongue[v]
         );
     }
-    let at = |name| lipcall::render::viseme_index(name).unwrap();
+    let at = |name| lipcall::vocab::Viseme::from_name(name).unwrap().index();
     for shut in ["sil", "PP"] {
         assert!(
             teeth[at(shut)] * 400 < area && tongue[at(shut)] == 0,

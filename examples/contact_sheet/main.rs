@@ -7,10 +7,8 @@ mod label;
 use std::path::PathBuf;
 
 use anyhow::Context;
-use lipcall::render::{
-    FrameOptions, Framing, GpuContext, OffscreenRenderer, VISEME_NAMES, VisemeWeights,
-    load_head_or_default,
-};
+use lipcall::render::{FrameOptions, Framing, GpuContext, OffscreenRenderer, load_head_or_default};
+use lipcall::vocab::{VISEME_NAMES, VisemeWeights};
 
 fn main() -> anyhow::Result<()> {
     let args: Vec<String> = std::env::args().skip(1).collect();

@@ -15,12 +15,12 @@ use crate::audio::{
     Capture, DeviceChoice, FramePacer, Gate, MicControls, OutputStatus, Playback, PlaybackConfig,
 };
 use crate::codec::any::{Codec, EncoderSettings, FrameEncoder, MAX_FRAME_PAYLOAD};
-use crate::codec::speex::FRAME_SIZE;
 use crate::codec::speex::codec::{Encoder, EncoderConfig, MAX_PACKET_BYTES};
 use crate::net::janus::room::{Notice, RoomConfig};
 use crate::net::jitter::JitterConfig;
 use crate::net::session::{PeerFrame, PeerInfo, Session, SessionConfig, SessionStats};
 use crate::net::srtp::MasterKey;
+use crate::vocab::FRAME_SIZE;
 
 use super::link::{JanusLink, Link, RoomNews, is_janus_url};
 use super::roster::Roster;

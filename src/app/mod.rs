@@ -23,8 +23,9 @@ use eframe::egui;
 
 use crate::audio::{DeviceChoice, DeviceInfo};
 use crate::codec::any::Codec;
-use crate::render::head::FacePose;
-use crate::render::{Framing, VisemeWeights};
+use crate::render::Framing;
+use crate::vocab::FacePose;
+use crate::vocab::VisemeWeights;
 use engine::{CallSpec, Command, Engine, EngineConfig};
 use peer::{FaceRow, PeerView};
 use settings::{PeerPrefs, Settings};

@@ -7,13 +7,13 @@ use std::time::Instant;
 
 use crate::audio::{PeerFeed, PeerId, Schedule, ScheduleSender};
 use crate::codec::any::Codec;
-use crate::codec::speex::features::FrameFeatures;
 use crate::lipsync::life::{DEFAULT_SEED, LifeGenerator};
 use crate::lipsync::network::MAX_LOOKAHEAD;
-use crate::lipsync::visemes::{FullWeights, VisemeSet};
 use crate::lipsync::{LipSync, LipSyncOptions};
 use crate::net::jitter::JitterStats;
-use crate::render::head::FacePose;
+use crate::vocab::FacePose;
+use crate::vocab::FrameFeatures;
+use crate::vocab::{FullWeights, VisemeSet};
 
 use super::settings::PeerPrefs;
 

@@ -196,10 +196,10 @@ mod tests {
     use super::*;
     use crate::audio::PlaybackConfig;
     use crate::codec::any::Codec;
-    use crate::codec::speex::FRAME_SIZE;
-    use crate::codec::speex::features::FrameFeatures;
     use crate::lipsync::network::silence_features;
     use crate::net::peer::PlayedFrame;
+    use crate::vocab::FRAME_SIZE;
+    use crate::vocab::FrameFeatures;
 
     struct Call {
         roster: Roster,

@@ -12,9 +12,10 @@ use std::time::Instant;
 use eframe::egui;
 use eframe::egui_wgpu;
 
-use crate::render::head::FacePose;
 use crate::render::target::{HeadTarget, TARGET_FORMAT, sample_count_for};
-use crate::render::{Camera, Framing, GpuHead, HeadInstance, HeadRenderer, VisemeWeights};
+use crate::render::{Camera, Framing, GpuHead, HeadInstance, HeadRenderer};
+use crate::vocab::FacePose;
+use crate::vocab::VisemeWeights;
 
 /// Clear colour of a head tile (linear RGB): the grey of the tile frame.
 const BACKGROUND: [f64; 3] = [0.019, 0.019, 0.019];

@@ -17,7 +17,7 @@ use rubato::{Fft, FixedSync, Resampler};
 use super::devices::{self, DeviceChoice, Direction};
 use super::error::AudioError;
 use super::resample::fft_resampler;
-use crate::codec::speex::{FRAME_SIZE, SAMPLE_RATE};
+use crate::vocab::{FRAME_SIZE, SAMPLE_RATE};
 
 /// Level floor: what silence reads as.
 pub const LEVEL_FLOOR_DBFS: f32 = -100.0;

@@ -17,7 +17,7 @@ use std::sync::OnceLock;
 use std::sync::atomic::{AtomicBool, AtomicU64, Ordering, fence};
 use std::time::{Duration, Instant};
 
-use crate::codec::speex::{FRAME_SIZE, SAMPLE_RATE};
+use crate::vocab::{FRAME_SIZE, SAMPLE_RATE};
 
 /// Nanoseconds since a process-wide origin: lets atomics carry instants.
 pub fn instant_to_nanos(t: Instant) -> u64 {

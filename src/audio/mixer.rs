@@ -13,7 +13,7 @@ use rubato::{Fft, FixedSync, Resampler};
 use super::clock::{PeerClock, Segment};
 use super::error::AudioError;
 use super::resample::fft_resampler;
-use crate::codec::speex::{FRAME_SIZE, SAMPLE_RATE};
+use crate::vocab::{FRAME_SIZE, SAMPLE_RATE};
 
 /// Samples of the 8 kHz mix produced per step (one Speex frame, 20 ms).
 pub const CHUNK: usize = FRAME_SIZE;

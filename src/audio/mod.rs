@@ -175,10 +175,10 @@ mod realtime_tests {
     /// audio; it allocates only when a peer's settings change.
     #[test]
     fn the_receiver_pipeline_does_not_allocate_per_frame() {
-        use crate::codec::FeatureFamily;
-        use crate::codec::speex::features::FrameFeatures;
-        use crate::lipsync::visemes::VisemeSet;
         use crate::lipsync::{LipSync, LipSyncOptions, default_model};
+        use crate::vocab::FeatureFamily;
+        use crate::vocab::FrameFeatures;
+        use crate::vocab::VisemeSet;
 
         let model = default_model();
         let frames: Vec<FrameFeatures> = (0..50)

@@ -21,7 +21,7 @@ use super::error::AudioError;
 use super::mixer::{
     CHUNK, MAX_PEERS, MixProgress, Mixer, MixerPeer, PeerControls, PeerFeed, PeerId, Upsampler,
 };
-use crate::codec::speex::SAMPLE_RATE;
+use crate::vocab::SAMPLE_RATE;
 
 /// How the engine runs.
 #[derive(Debug, Clone, PartialEq, Eq)]

@@ -5,7 +5,7 @@ use std::path::Path;
 use rubato::audioadapter_buffers::direct::InterleavedSlice;
 use rubato::{Fft, FixedSync, Resampler};
 
-use crate::codec::speex::SAMPLE_RATE;
+use crate::vocab::SAMPLE_RATE;
 
 #[derive(Debug, thiserror::Error)]
 pub enum WavError {

@@ -13,7 +13,8 @@ use std::str::FromStr;
 use serde::{Deserialize, Serialize};
 
 use super::g711::Law;
-use super::{FRAME_SIZE, SAMPLE_RATE, opus, speex};
+use super::{opus, speex};
+use crate::vocab::{FRAME_SIZE, SAMPLE_RATE};
 
 /// The codecs of a call.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Hash, Serialize, Deserialize)]

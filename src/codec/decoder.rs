@@ -21,8 +21,10 @@ use super::g711::Law;
 use super::lpc::LpcAnalyser;
 use super::opus::features::narrowband_lsp;
 use super::silk::{self, SilkWalker};
-use super::speex::features::{FrameFeatures, FrameTracker, energy_db, flat_lsp};
-use super::{FRAME_SIZE, FeatureFamily, LSP_COUNT, opus, speex};
+use super::speex::features::FrameTracker;
+use super::{opus, speex};
+use crate::vocab::{FRAME_SIZE, FeatureFamily, LSP_COUNT};
+use crate::vocab::{FrameFeatures, energy_db, flat_lsp};
 
 /// Decoded samples a stream may hold ahead: the longest payload (a 1500-byte datagram of G.711,
 /// or 120 ms of Opus) behind at most two frames of leftovers.

@@ -10,7 +10,7 @@
 //! neighbouring code for 383 of the 65536 inputs (mu-law) and 1147 (A-law); every decoder
 //! agrees.
 
-use super::FRAME_SIZE;
+use crate::vocab::FRAME_SIZE;
 
 /// Mu-law bias (33 in 14-bit units): makes the segments start at powers of two.
 const ULAW_BIAS: i32 = 0x21;

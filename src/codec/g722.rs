@@ -14,7 +14,7 @@
 use audio_codec::Encoder as _;
 use audio_codec::g722::{Bitrate, G722Decoder, G722Encoder};
 
-use super::FRAME_SIZE;
+use crate::vocab::FRAME_SIZE;
 
 /// The static RTP payload type (RFC 3551; its RTP clock is 8000 though it samples at 16 kHz).
 pub const PAYLOAD_TYPE: u8 = 9;

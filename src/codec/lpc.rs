@@ -21,8 +21,8 @@
 use std::f64::consts::PI;
 use std::sync::LazyLock;
 
-use super::speex::features::{FrameFeatures, energy_db, flat_lsp, ordered_lsp};
-use super::{FRAME_SIZE, LSP_COUNT};
+use crate::vocab::{FRAME_SIZE, LSP_COUNT};
+use crate::vocab::{FrameFeatures, energy_db, flat_lsp, ordered_lsp};
 
 const ORDER: usize = LSP_COUNT;
 /// Analysis window: the current frame plus one 5 ms sub-frame of history.
@@ -95,7 +95,7 @@ impl Analysis {
             mode,
             lsp: self.lsp,
             energy_db: self.energy_db,
-            family: crate::codec::FeatureFamily::Analysis,
+            family: crate::vocab::FeatureFamily::Analysis,
         }
     }
 }
@@ -406,7 +406,7 @@ mod tests {
         for (x, y) in a.lsp.iter().zip(flat_lsp()) {
             assert!((x - y).abs() < 1e-4, "{:?}", a.lsp);
         }
-        assert_eq!(a.energy_db, super::super::speex::features::SILENCE_DB);
+        assert_eq!(a.energy_db, crate::vocab::SILENCE_DB);
     }
 
     #[test]

@@ -9,14 +9,16 @@ use anyhow::{Context, Result, bail};
 use crate::audio::wav;
 use crate::codec::opus;
 use crate::codec::speex::codec::EncoderConfig;
-use crate::codec::speex::features::FrameFeatures;
-use crate::codec::speex::{FRAME_SIZE, stream};
+use crate::codec::speex::stream;
 use crate::lipsync::life::life_track;
 use crate::lipsync::receiver::animate_stream;
-use crate::lipsync::visemes::VisemeSet;
 use crate::lipsync::{LipSync, LipSyncOptions};
-use crate::render::head::{Expression, FacePose};
+use crate::render::head::Expression;
 use crate::render::{self, FrameOptions, Framing, HeadModel};
+use crate::vocab::FRAME_SIZE;
+use crate::vocab::FacePose;
+use crate::vocab::FrameFeatures;
+use crate::vocab::VisemeSet;
 
 pub struct AnimateArgs {
     pub input: PathBuf,

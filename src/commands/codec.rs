@@ -8,8 +8,9 @@ use anyhow::{Context, Result, bail};
 use crate::audio::wav;
 use crate::codec::opus;
 use crate::codec::speex::codec::EncoderConfig;
-use crate::codec::speex::features::FrameFeatures;
-use crate::codec::speex::{FRAME_SIZE, SAMPLE_RATE, stream};
+use crate::codec::speex::stream;
+use crate::vocab::FrameFeatures;
+use crate::vocab::{FRAME_SIZE, SAMPLE_RATE};
 
 /// The codecs lipcall writes files in.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, clap::ValueEnum)]

@@ -11,11 +11,11 @@ use anyhow::{Context, Result, bail};
 use super::net::{FrameSource, load_packets, open_outputs, play, print_peer, send_paced};
 use super::recording::stop_flag;
 use crate::codec::any::{Codec, EncoderSettings};
-use crate::codec::speex::features::FrameFeatures;
 use crate::net::janus::JanusError;
 use crate::net::janus::room::{Member, Notice, RoomConfig, server_addr};
 use crate::net::jitter::JitterConfig;
 use crate::net::session::PeerFrame;
+use crate::vocab::FrameFeatures;
 
 #[derive(Debug, Clone)]
 pub struct JanusArgs {

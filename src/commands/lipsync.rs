@@ -6,14 +6,12 @@ use std::path::{Path, PathBuf};
 use anyhow::{Context, Result, bail};
 use indicatif::{ProgressBar, ProgressStyle};
 
-use crate::codec::FeatureFamily;
 use crate::codec::g711::Law;
 use crate::codec::speex::codec::EncoderConfig;
 use crate::lipsync::decompose::{PointTrack, decompose_track, table_i, table_i_reduced};
 use crate::lipsync::markers::MarkerTrack;
 use crate::lipsync::mouth::VisemeShapes;
 use crate::lipsync::network::{Dynamics, Model};
-use crate::lipsync::visemes::VisemeSet;
 use crate::lipsync::{self, recipe};
 use crate::train::codec_features::{
     CodecFeatures, CodecPath, EVALUATION_QUALITY, LOW_QUALITY, augmentation_settings, quality,
@@ -25,6 +23,8 @@ use crate::train::crossval::{
 use crate::train::eval::{EvalReport, evaluate_prepared, write_frames};
 use crate::train::trainer::{EpochStats, TrainConfig, train_on};
 use crate::train::{an4, plot};
+use crate::vocab::FeatureFamily;
+use crate::vocab::VisemeSet;
 
 const DEFAULT_CORPUS: &str = "../shared/data/timit-sample";
 

@@ -11,14 +11,15 @@ use anyhow::{Context, Result, bail};
 use super::recording::{Recorder, TICK, stop_flag, stopped};
 use crate::audio::wav;
 use crate::codec::any::{Codec, EncoderSettings, FrameEncoder, MAX_FRAME_PAYLOAD, PayloadMap};
-use crate::codec::speex::features::FrameFeatures;
 use crate::codec::speex::split::split_frames;
-use crate::codec::{FRAME_SIZE, SAMPLE_RATE, opus, speex};
+use crate::codec::{opus, speex};
 use crate::lipsync::network::Model;
 use crate::lipsync::{self, LipSync, LipSyncOptions};
 use crate::net::relay::{Relay, RelayConfig};
 use crate::net::session::{PeerFrame, PeerInfo, Session, SessionConfig};
 use crate::net::srtp::MasterKey;
+use crate::vocab::FrameFeatures;
+use crate::vocab::{FRAME_SIZE, SAMPLE_RATE};
 
 /// How the call is keyed.
 #[derive(Debug, Clone, Default)]

@@ -16,8 +16,8 @@ use std::time::Duration;
 
 use anyhow::{Context, Result};
 
-use crate::codec::speex::features::FrameFeatures;
-use crate::codec::{FRAME_SIZE, SAMPLE_RATE};
+use crate::vocab::FrameFeatures;
+use crate::vocab::{FRAME_SIZE, SAMPLE_RATE};
 
 /// One 20 ms tick of the output timeline.
 pub(crate) const TICK: Duration = Duration::from_millis(20);
@@ -329,7 +329,7 @@ mod tests {
             mode: None,
             lsp: [0.5; 10],
             energy_db: 40.0,
-            family: crate::codec::FeatureFamily::Bitstream,
+            family: crate::vocab::FeatureFamily::Bitstream,
         };
         rec.features(7, 0, &row).unwrap();
         rec.weights(7, 0, &[0.25, 0.75]).unwrap();

@@ -11,7 +11,7 @@
 //! symmetric blend would average every closure with its open neighbours and never close.
 
 use super::phones::PhoneTarget;
-use super::visemes::{FullWeights, VISEME_COUNT, Viseme};
+use crate::vocab::{FullWeights, VISEME_COUNT, Viseme};
 
 /// Length of a frame, in seconds (one Speex narrowband frame).
 pub const FRAME_SECONDS: f64 = 0.02;

@@ -5,7 +5,7 @@
 use std::fmt;
 
 use super::mouth::{ShapeError, VisemeShapes};
-use super::visemes::{VisemeError, VisemeSet};
+use crate::vocab::{VisemeError, VisemeSet};
 
 /// Frames of feature points, each frame flattened (`points * point_dim` coordinates).
 #[derive(Debug, Clone, PartialEq)]
@@ -425,7 +425,7 @@ impl fmt::Display for TableI {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::lipsync::visemes::Viseme;
+    use crate::vocab::Viseme;
 
     #[test]
     fn decomposition_recovers_known_convex_weights() {

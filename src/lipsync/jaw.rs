@@ -4,8 +4,8 @@
 
 use super::Animator;
 use super::network::Model;
-use super::visemes::{Viseme, VisemeSet};
-use crate::codec::speex::features::FrameFeatures;
+use crate::vocab::FrameFeatures;
+use crate::vocab::{Viseme, VisemeSet};
 
 #[derive(Debug, Clone, PartialEq)]
 pub struct JawBaseline {

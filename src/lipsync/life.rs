@@ -23,9 +23,9 @@
 
 use glam::Vec2;
 
-use crate::codec::speex::features::FrameFeatures;
-use crate::codec::speex::{FRAME_SIZE, SAMPLE_RATE};
-use crate::render::head::FacePose;
+use crate::vocab::FacePose;
+use crate::vocab::FrameFeatures;
+use crate::vocab::{FRAME_SIZE, SAMPLE_RATE};
 
 /// Seconds per frame.
 pub const FRAME_S: f32 = FRAME_SIZE as f32 / SAMPLE_RATE as f32;
@@ -543,7 +543,7 @@ mod tests {
     }
 
     fn energy(pcm: &[i16]) -> f32 {
-        crate::codec::speex::features::energy_db(pcm)
+        crate::vocab::energy_db(pcm)
     }
 
     /// Talking: syllables of ~200 ms with rising and falling pitch, short pauses between words.
@@ -628,9 +628,9 @@ mod tests {
             .chunks(FRAME_SIZE)
             .map(|c| FrameFeatures {
                 mode: Some(5),
-                lsp: crate::codec::speex::features::flat_lsp(),
+                lsp: crate::vocab::flat_lsp(),
                 energy_db: energy(c),
-                family: crate::codec::FeatureFamily::Bitstream,
+                family: crate::vocab::FeatureFamily::Bitstream,
             })
             .collect();
         assert_eq!(life_track(&features, &pcm, 3), poses(3)[..300].to_vec());

@@ -12,7 +12,7 @@ use std::path::Path;
 
 use super::decompose::PointTrack;
 use super::mouth::{ShapeError, VisemeShapes};
-use super::visemes::{Viseme, VisemeError};
+use crate::vocab::{Viseme, VisemeError};
 
 #[derive(Debug, thiserror::Error)]
 pub enum MarkerError {
@@ -215,7 +215,7 @@ impl MarkerTrack {
 mod tests {
     use super::*;
     use crate::lipsync::decompose::table_i;
-    use crate::lipsync::visemes::VisemeSet;
+    use crate::vocab::VisemeSet;
 
     const TRACK: &str = "frame,nose_x,nose_y,lip_x,lip_y,chin_x,chin_y\n\
         10,100,50,100,80,100,120\n\

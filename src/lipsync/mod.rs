@@ -13,15 +13,14 @@ pub mod phones;
 pub mod receiver;
 pub mod recipe;
 pub mod reproject;
-pub mod visemes;
 
 pub use builtin::default_model;
 pub use receiver::{LipSync, LipSyncOptions};
 
-use crate::codec::FeatureFamily;
-use crate::codec::speex::features::FrameFeatures;
+use crate::vocab::FeatureFamily;
+use crate::vocab::FrameFeatures;
+use crate::vocab::VisemeSet;
 use network::{InferenceState, Model};
-use visemes::VisemeSet;
 
 /// Anything that turns a stream of decoded frames into convex viseme weights.
 pub trait Animator {
@@ -85,7 +84,7 @@ impl<'a> ModelAnimator<'a> {
             model,
             scratch: state.clone(),
             state,
-            last: network::silence_features(),
+            last: FrameFeatures::silent(),
             closure_snaps,
         }
     }
@@ -119,7 +118,7 @@ impl Animator for ModelAnimator<'_> {
 
     fn reset(&mut self) {
         self.model.reset(&mut self.state);
-        self.last = network::silence_features();
+        self.last = FrameFeatures::silent();
     }
 
     fn animate(&mut self, features: &FrameFeatures, weights: &mut [f32]) {
@@ -170,7 +169,7 @@ mod tests {
     fn each_feature_family_snaps_at_its_own_threshold() {
         let mut model = default_model();
         let closed = model.closed_index().unwrap();
-        let mut features = network::silence_features();
+        let mut features = FrameFeatures::silent();
         features.energy_db = -30.0;
         let mut raw = vec![0.0; model.outputs()];
         ModelAnimator::with_closure_snap(&model, 0.0).animate(&features, &mut raw);

@@ -5,7 +5,7 @@
 //! viseme, whether it comes from [`VisemeShapes::point_model`], from marker key frames
 //! (`markers`), or later from the 3D head's own viseme shapes ([`VisemeShapes::new`]).
 
-use super::visemes::{Viseme, VisemeSet};
+use crate::vocab::{Viseme, VisemeSet};
 
 /// Articulation relative to the neutral face (0 none, 1 full range).
 #[derive(Debug, Clone, Copy, PartialEq)]

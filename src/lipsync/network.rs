@@ -47,10 +47,10 @@
 use std::fmt::Write as _;
 use std::path::Path;
 
-use super::visemes::{Viseme, VisemeError, VisemeSet};
-use crate::codec::FeatureFamily;
-use crate::codec::speex::LSP_COUNT;
-use crate::codec::speex::features::{FrameFeatures, SILENCE_DB};
+use crate::vocab::FeatureFamily;
+use crate::vocab::LSP_COUNT;
+use crate::vocab::{FrameFeatures, SILENCE_DB};
+use crate::vocab::{Viseme, VisemeError, VisemeSet};
 
 /// Features per frame: 10 LSPs and the energy.
 pub const FEATURES_PER_FRAME: usize = 11;
@@ -136,7 +136,7 @@ pub fn silence_features() -> FrameFeatures {
         mode: None,
         lsp,
         energy_db: -100.0,
-        family: crate::codec::FeatureFamily::Bitstream,
+        family: crate::vocab::FeatureFamily::Bitstream,
     }
 }
 

@@ -22,7 +22,7 @@
 //!
 //! TIMIT's stress digits (lexicon only) are not accepted; phone files never carry them.
 
-use super::visemes::Viseme;
+use crate::vocab::Viseme;
 
 /// What a phone asks of the mouth.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]

@@ -14,10 +14,10 @@
 use super::jaw::JawBaseline;
 use super::network::{MAX_LOOKAHEAD, Model};
 use super::reproject::{ReprojectError, Reprojector};
-use super::visemes::{FullWeights, Viseme, VisemeSet};
 use super::{Animator, ModelAnimator};
-use crate::codec::speex::features::FrameFeatures;
 use crate::lipsync::mouth::VisemeShapes;
+use crate::vocab::FrameFeatures;
+use crate::vocab::{FullWeights, Viseme, VisemeSet};
 
 /// Frames at or below this energy are digital silence: the mouth rests, whatever the network
 /// says (quiet breath and room noise through the codec stay above -75 dB).

@@ -10,7 +10,7 @@
 
 use super::decompose::{DecomposeError, Decomposer};
 use super::mouth::{ShapeError, VisemeShapes};
-use super::visemes::VisemeSet;
+use crate::vocab::VisemeSet;
 
 #[derive(Debug, thiserror::Error)]
 pub enum ReprojectError {
@@ -96,7 +96,7 @@ impl Reprojector {
 mod tests {
     use super::*;
     use crate::lipsync::mouth;
-    use crate::lipsync::visemes::Viseme;
+    use crate::vocab::Viseme;
 
     #[test]
     fn full_weights_reduce_to_a_set_that_keeps_openness_and_closure() {

@@ -23,10 +23,10 @@ use super::jitter::{
     Arrival, Correction, JitterBuffer, JitterConfig, JitterStats, Loudness, Piece, Playout,
 };
 use super::rtp::Rtp;
-use crate::codec::FRAME_SIZE;
 use crate::codec::any::{Codec, PayloadMap};
 use crate::codec::decoder::{DecodedFrame, FrameOrigin, StreamDecoder};
-use crate::codec::speex::features::{FrameFeatures, SILENCE_DB, flat_lsp};
+use crate::vocab::FRAME_SIZE;
+use crate::vocab::{FrameFeatures, SILENCE_DB};
 
 /// How a played frame came about.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
@@ -286,12 +286,7 @@ impl PeerReceiver {
             origin,
         } = frame.unwrap_or_else(|| DecodedFrame {
             pcm: [0; FRAME_SIZE],
-            features: FrameFeatures {
-                mode: None,
-                lsp: flat_lsp(),
-                energy_db: SILENCE_DB,
-                family: crate::codec::FeatureFamily::Bitstream,
-            },
+            features: FrameFeatures::silent(),
             origin: FrameOrigin::Concealed,
         });
         let kind = match (origin, stretched) {

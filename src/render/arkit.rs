@@ -15,7 +15,7 @@
 //! the jaw (`mouthUpperUp`/`mouthLowerDown` alone leave the lips touching), so every viseme that
 //! shows a gap has some `jawOpen`.
 
-use super::head::VISEME_COUNT;
+use crate::vocab::VISEME_COUNT;
 
 /// The ARKit blendshapes the recipe uses (names as Apple spells them).
 pub const ARKIT_NAMES: [&str; 19] = [
@@ -145,7 +145,7 @@ pub fn matrix() -> [[f32; ARKIT_NAMES.len()]; VISEME_COUNT] {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::render::head::VISEME_NAMES;
+    use crate::vocab::VISEME_NAMES;
 
     #[test]
     fn the_recipe_names_every_viseme_in_order_and_only_known_shapes() {

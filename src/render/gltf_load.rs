@@ -18,8 +18,9 @@ use super::RenderError;
 use super::arkit::{self, ARKIT_NAMES};
 use super::head::{
     EXPRESSION_COUNT, Expression, HeadModel, Material, MorphDelta, Primitive, TargetSource,
-    Texture, VISEME_COUNT, VISEME_NAMES, Vertex, smooth_normals,
+    Texture, Vertex, smooth_normals,
 };
+use crate::vocab::{VISEME_COUNT, VISEME_NAMES};
 
 /// Refuse absurd sizes before allocating for them.
 const MAX_VERTICES: usize = 4_000_000;

@@ -2,16 +2,11 @@
 //! pose of the living face (blink, gaze, head rotation), independent of the GPU.
 
 use bytemuck::{Pod, Zeroable};
-use glam::{Mat4, Quat, Vec2, Vec3};
+use glam::Vec3;
+
+use crate::vocab::{FacePose, VISEME_COUNT, VISEME_NAMES, VisemeWeights};
 
 use super::RenderError;
-
-/// The 15 viseme names of the Oculus / MPEG-4 set, in the order used everywhere in the renderer.
-pub const VISEME_NAMES: [&str; VISEME_COUNT] = [
-    "sil", "PP", "FF", "TH", "DD", "kk", "CH", "SS", "nn", "RR", "aa", "E", "I", "O", "U",
-];
-/// Number of viseme shapes the renderer blends.
-pub const VISEME_COUNT: usize = 15;
 
 /// The expression shapes blended beside the visemes (the eyes), in slot order after the 15
 /// visemes. Looking "left" and "right" are the head's own sides (left is +X for a head facing +Z).
@@ -75,154 +70,18 @@ pub fn slot_name(slot: usize) -> Option<&'static str> {
         .copied()
 }
 
-/// Index of a viseme name in [`VISEME_NAMES`] (exact spelling, as in the design brief).
-pub fn viseme_index(name: &str) -> Option<usize> {
-    VISEME_NAMES.iter().position(|v| *v == name)
-}
-
-/// One weight per viseme, in [`VISEME_NAMES`] order. Convex weights are expected
-/// (non-negative, sum 1); the renderer blends whatever it is given.
-#[derive(Debug, Clone, Copy, PartialEq)]
-pub struct VisemeWeights(pub [f32; VISEME_COUNT]);
-
-impl Default for VisemeWeights {
-    fn default() -> Self {
-        Self::neutral()
-    }
-}
-
-impl VisemeWeights {
-    /// All weight on `sil`: the neutral face.
-    pub fn neutral() -> Self {
-        Self::one_hot(0)
-    }
-
-    /// All weight on viseme `index` (clamped into range).
-    pub fn one_hot(index: usize) -> Self {
-        let mut w = [0.0; VISEME_COUNT];
-        w[index.min(VISEME_COUNT - 1)] = 1.0;
-        Self(w)
-    }
-
-    /// All weight on the named viseme.
-    pub fn single(name: &str) -> Option<Self> {
-        viseme_index(name).map(Self::one_hot)
-    }
-
-    /// Builds weights from (name, weight) pairs of a possibly reduced viseme set.
-    pub fn from_named<'a>(
-        pairs: impl IntoIterator<Item = (&'a str, f32)>,
-    ) -> Result<Self, RenderError> {
-        let mut w = [0.0; VISEME_COUNT];
-        for (name, value) in pairs {
-            let i =
-                viseme_index(name).ok_or_else(|| RenderError::UnknownViseme(name.to_owned()))?;
-            w[i] += value;
+/// The weights of a pose's expression slots, in [`EXPRESSION_NAMES`] order: blink, and the gaze
+/// split into up/down/left/right. Non-finite values count as 0; all are clamped to 0..1.
+pub fn expression_weights(pose: &FacePose) -> [f32; EXPRESSION_COUNT] {
+    let f = |v: f32| {
+        if v.is_finite() {
+            v.clamp(0.0, 1.0)
+        } else {
+            0.0
         }
-        Ok(Self(w))
-    }
-
-    /// Linear interpolation; convex inputs give a convex result.
-    pub fn lerp(&self, other: &Self, t: f32) -> Self {
-        let mut w = [0.0; VISEME_COUNT];
-        for (i, out) in w.iter_mut().enumerate() {
-            *out = self.0[i] + (other.0[i] - self.0[i]) * t;
-        }
-        Self(w)
-    }
-}
-
-/// What a face does besides its mouth, for one frame: eyelids, gaze and head rotation. The
-/// living face ([`crate::lipsync::life`]) makes one per 20 ms frame; [`FacePose::REST`] is a
-/// still head looking ahead with open eyes.
-#[derive(Debug, Clone, Copy, PartialEq, Default)]
-pub struct FacePose {
-    /// Eyelid closure: 0 open .. 1 shut.
-    pub blink: f32,
-    /// Gaze in head space, as a fraction of the head's full eye-look shapes (-1..1): x > 0 looks
-    /// to the head's own left (+X), y > 0 up.
-    pub gaze: Vec2,
-    /// Head rotation about the neck pivot ([`FaceFrame::neck_pivot`]), in radians: `pitch` about
-    /// +X (positive: chin down, a nod), `yaw` about +Y (positive: the face turns to the head's
-    /// left), `roll` about +Z (positive: the top of the head tilts to the head's right).
-    pub pitch: f32,
-    pub yaw: f32,
-    pub roll: f32,
-}
-
-impl FacePose {
-    /// Eyes open and ahead, head still.
-    pub const REST: FacePose = FacePose {
-        blink: 0.0,
-        gaze: Vec2::ZERO,
-        pitch: 0.0,
-        yaw: 0.0,
-        roll: 0.0,
     };
-
-    /// The same eyes with the head still (the lipreading close-up keeps the mouth steady).
-    pub fn without_head_motion(self) -> Self {
-        Self {
-            pitch: 0.0,
-            yaw: 0.0,
-            roll: 0.0,
-            ..self
-        }
-    }
-
-    /// The weights of the expression slots, in [`EXPRESSION_NAMES`] order: blink, and the gaze
-    /// split into up/down/left/right. Non-finite values count as 0; all are clamped to 0..1.
-    pub fn expression_weights(&self) -> [f32; EXPRESSION_COUNT] {
-        let f = |v: f32| {
-            if v.is_finite() {
-                v.clamp(0.0, 1.0)
-            } else {
-                0.0
-            }
-        };
-        let (x, y) = (self.gaze.x, self.gaze.y);
-        [f(self.blink), f(y), f(-y), f(x), f(-x)]
-    }
-
-    /// True when the head is not rotated (exactly).
-    pub fn head_is_still(&self) -> bool {
-        self.pitch == 0.0 && self.yaw == 0.0 && self.roll == 0.0
-    }
-
-    /// The head's rotation as a quaternion (yaw, then pitch, then roll); identity for
-    /// non-finite angles.
-    pub fn head_rotation(&self) -> Quat {
-        let finite = |v: f32| if v.is_finite() { v } else { 0.0 };
-        Quat::from_euler(
-            glam::EulerRot::YXZ,
-            finite(self.yaw),
-            finite(self.pitch),
-            finite(self.roll),
-        )
-    }
-
-    /// The head rotation about `pivot` as a model matrix (a rigid motion, so it transforms
-    /// normals too); exactly the identity for a still head.
-    pub fn head_matrix(&self, pivot: Vec3) -> Mat4 {
-        if self.head_is_still() {
-            return Mat4::IDENTITY;
-        }
-        Mat4::from_translation(pivot)
-            * Mat4::from_quat(self.head_rotation())
-            * Mat4::from_translation(-pivot)
-    }
-
-    /// Linear interpolation of every component.
-    pub fn lerp(&self, other: &Self, t: f32) -> Self {
-        let l = |a: f32, b: f32| a + (b - a) * t;
-        Self {
-            blink: l(self.blink, other.blink),
-            gaze: self.gaze.lerp(other.gaze, t),
-            pitch: l(self.pitch, other.pitch),
-            yaw: l(self.yaw, other.yaw),
-            roll: l(self.roll, other.roll),
-        }
-    }
+    let (x, y) = (pose.gaze.x, pose.gaze.y);
+    [f(pose.blink), f(y), f(-y), f(x), f(-x)]
 }
 
 /// Weights of all [`TARGET_COUNT`] slots: the visemes as given, then the pose's expressions;
@@ -233,7 +92,7 @@ pub fn slot_weights(weights: &VisemeWeights, pose: &FacePose) -> [f32; TARGET_CO
     for (dst, &src) in w.iter_mut().zip(weights.0.iter()) {
         *dst = src;
     }
-    w[VISEME_COUNT..].copy_from_slice(&pose.expression_weights());
+    w[VISEME_COUNT..].copy_from_slice(&expression_weights(pose));
     for x in &mut w {
         if !x.is_finite() || x.abs() < MIN_SLOT_WEIGHT {
             *x = 0.0;
@@ -584,6 +443,7 @@ pub fn smooth_normals(positions: &[Vec3], indices: &[u32]) -> Vec<Vec3> {
 #[cfg(test)]
 mod tests {
     use super::*;
+    use glam::{Mat4, Vec2};
 
     #[test]
     fn the_pose_drives_only_the_eye_slots() {
@@ -608,7 +468,7 @@ mod tests {
             ..FacePose::REST
         };
         assert_eq!(
-            odd.expression_weights(),
+            expression_weights(&odd),
             [0.0, 0.0, 0.0, 1.0, 0.0],
             "non-finite as 0, clamped to 1"
         );

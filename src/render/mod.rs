@@ -17,7 +17,7 @@ pub mod renderer;
 pub mod target;
 
 pub use camera::{Camera, Framing};
-pub use head::{FacePose, HeadModel, VISEME_COUNT, VISEME_NAMES, VisemeWeights, viseme_index};
+pub use head::HeadModel;
 pub use offscreen::{FrameOptions, GpuContext, OffscreenRenderer, WeightTrack, render_frames};
 pub use renderer::{GpuHead, HeadInstance, HeadRenderer};
 

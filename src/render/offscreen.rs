@@ -6,10 +6,11 @@ use std::sync::Arc;
 
 use super::RenderError;
 use super::camera::{Camera, Framing};
-use super::head::{FacePose, HeadModel, VISEME_COUNT, VisemeWeights, viseme_index};
+use super::head::HeadModel;
 use super::readback::read_buffer;
 use super::renderer::{DEPTH_FORMAT, GpuHead, HeadInstance, HeadRenderer};
 use super::target::{HeadTarget, TARGET_FORMAT, sample_count_for};
+use crate::vocab::{FacePose, VISEME_COUNT, Viseme, VisemeWeights};
 
 /// A device and queue made without a window.
 pub struct GpuContext {
@@ -341,7 +342,11 @@ impl WeightTrack {
     pub fn from_columns(names: &[&str], rows: &[(f64, Vec<f32>)]) -> Result<Self, RenderError> {
         let idx: Vec<usize> = names
             .iter()
-            .map(|n| viseme_index(n).ok_or_else(|| RenderError::UnknownViseme((*n).to_owned())))
+            .map(|n| {
+                Viseme::from_name(n)
+                    .map(Viseme::index)
+                    .ok_or_else(|| RenderError::UnknownViseme((*n).to_owned()))
+            })
             .collect::<Result<_, _>>()?;
         let mut track = Self::default();
         for (t, values) in rows {

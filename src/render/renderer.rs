@@ -8,9 +8,8 @@ use wgpu::util::DeviceExt;
 
 use super::RenderError;
 use super::camera::Camera;
-use super::head::{
-    FaceFrame, FacePose, HeadModel, MorphDelta, TARGET_COUNT, Vertex, VisemeWeights, slot_weights,
-};
+use super::head::{FaceFrame, HeadModel, MorphDelta, TARGET_COUNT, Vertex, slot_weights};
+use crate::vocab::{FacePose, VisemeWeights};
 
 /// The WGSL source of the head shader (`shaders/head.wgsl`).
 pub const SHADER_SOURCE: &str = include_str!("../../shaders/head.wgsl");

@@ -16,10 +16,10 @@ use crate::codec::g722;
 use crate::codec::lpc::LpcAnalyser;
 use crate::codec::opus;
 use crate::codec::speex::codec::EncoderConfig;
-use crate::codec::speex::features::FrameFeatures;
 use crate::codec::speex::stream;
-use crate::codec::{FRAME_SIZE, FeatureFamily};
 use crate::train::corpus::{BoxError, CorpusError, PreparedUtterance, Utterance, prepare};
+use crate::vocab::FrameFeatures;
+use crate::vocab::{FRAME_SIZE, FeatureFamily};
 
 /// The way a receiver gets its features: which codec, at what setting, from which input rate.
 #[derive(Debug, Clone, Copy, PartialEq)]
@@ -55,7 +55,7 @@ impl CodecPath {
             CodecPath::Opus { wideband: true, .. }
             | CodecPath::Opusenc { .. }
             | CodecPath::G722 => 16_000,
-            _ => crate::codec::SAMPLE_RATE,
+            _ => crate::vocab::SAMPLE_RATE,
         }
     }
 }

@@ -5,10 +5,10 @@
 use std::ops::Range;
 use std::path::{Path, PathBuf};
 
-use crate::codec::speex::features::FrameFeatures;
 use crate::lipsync::coarticulation::{FRAME_SECONDS, TimedTarget, frame_targets};
 use crate::lipsync::phones::{CueClass, UnknownPhone, is_bilabial, phone_target};
-use crate::lipsync::visemes::FullWeights;
+use crate::vocab::FrameFeatures;
+use crate::vocab::FullWeights;
 
 /// Error type a feature extractor may return.
 pub type BoxError = Box<dyn std::error::Error + Send + Sync>;
@@ -446,7 +446,7 @@ pub fn prepare(
 #[cfg(test)]
 pub(crate) mod tests {
     use super::*;
-    use crate::lipsync::visemes::Viseme;
+    use crate::vocab::Viseme;
 
     pub(crate) fn timit_root() -> PathBuf {
         PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("../shared/data/timit-sample")

@@ -343,10 +343,10 @@ impl fmt::Display for CrossValidation {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::lipsync::visemes::VisemeSet;
     use crate::train::corpus::tests::timit_root;
     use crate::train::corpus::{Corpus, prepare};
     use crate::train::stand_in;
+    use crate::vocab::VisemeSet;
 
     fn group(corpus: &Corpus, speaker: &str) -> SpeakerGroup {
         let prepared = utterances(corpus, speaker, 0..2);

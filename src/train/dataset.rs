@@ -1,12 +1,12 @@
 //! The training frames in the network's layout: scaled inputs, targets over the model's set and
 //! loss weights, and the seeded generator behind shuffling, initialisation and augmentation.
 
-use crate::codec::speex::LSP_COUNT;
 use crate::lipsync::mouth::{Articulation, CUE_COUNT, cues};
 use crate::lipsync::network::{Model, silence_features};
 use crate::lipsync::phones::CueClass;
-use crate::lipsync::visemes::{Viseme, VisemeSet};
 use crate::train::corpus::PreparedUtterance;
+use crate::vocab::LSP_COUNT;
+use crate::vocab::{Viseme, VisemeSet};
 
 /// xorshift64*: small, fast and reproducible.
 #[derive(Debug, Clone)]

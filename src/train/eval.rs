@@ -24,9 +24,9 @@ use crate::lipsync::mouth::{
 };
 use crate::lipsync::network::Model;
 use crate::lipsync::phones::CueClass;
-use crate::lipsync::visemes::{Viseme, VisemeSet};
 use crate::lipsync::{Animator, ModelAnimator};
 use crate::train::corpus::{Corpus, CorpusError, FeatureFn, PreparedUtterance, prepare};
+use crate::vocab::{Viseme, VisemeSet};
 
 #[derive(Debug, thiserror::Error)]
 pub enum EvalError {
@@ -449,7 +449,7 @@ mod tests {
             })
             .collect();
         let targets = targets_from_phones(&phones, 16000, samples).unwrap();
-        let features = vec![crate::lipsync::network::silence_features(); targets.len()];
+        let features = vec![crate::vocab::FrameFeatures::silent(); targets.len()];
         PreparedUtterance {
             speaker: "x".into(),
             id: "y".into(),

@@ -2,12 +2,12 @@
 //! normalisation prior, seeded initial weights.
 
 use super::dataset::Rng;
-use crate::codec::speex::LSP_COUNT;
 use crate::lipsync::network::{
     FEATURES_PER_FRAME, InputScaling, Model, SpeakerNorm, silence_features,
 };
 use crate::train::corpus::PreparedUtterance;
 use crate::train::trainer::TrainConfig;
+use crate::vocab::LSP_COUNT;
 
 pub(super) fn percentile(values: &mut [f32], q: f32) -> f32 {
     values.sort_by(f32::total_cmp);

@@ -5,8 +5,8 @@
 use std::f64::consts::PI;
 use std::path::Path;
 
-use crate::codec::speex::features::FrameFeatures;
 use crate::train::corpus::BoxError;
+use crate::vocab::FrameFeatures;
 
 const ORDER: usize = 10;
 const FRAME: usize = 160;
@@ -137,7 +137,7 @@ pub fn features_for_utterance(path: &Path) -> Result<Vec<FrameFeatures>, BoxErro
     let hamming: Vec<f64> = (0..WINDOW)
         .map(|i| 0.54 - 0.46 * (2.0 * PI * i as f64 / (WINDOW - 1) as f64).cos())
         .collect();
-    let mut previous = crate::lipsync::network::silence_features().lsp;
+    let mut previous = crate::vocab::FrameFeatures::silent().lsp;
     let mut frames = Vec::with_capacity(audio.len() / FRAME);
     for n in 0..audio.len() / FRAME {
         let end = (n + 1) * FRAME;
@@ -160,7 +160,7 @@ pub fn features_for_utterance(path: &Path) -> Result<Vec<FrameFeatures>, BoxErro
             mode: Some(5),
             lsp: previous,
             energy_db: (10.0 * (power + 1e-10).log10()) as f32,
-            family: crate::codec::FeatureFamily::Analysis,
+            family: crate::vocab::FeatureFamily::Analysis,
         });
     }
     Ok(frames)

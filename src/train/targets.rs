@@ -4,8 +4,8 @@
 use crate::lipsync::decompose::{DecomposeError, PointTrack};
 use crate::lipsync::mouth::VisemeShapes;
 use crate::lipsync::reproject::decomposition_map;
-use crate::lipsync::visemes::VisemeSet;
 use crate::train::corpus::PreparedUtterance;
+use crate::vocab::VisemeSet;
 
 /// Per utterance: its targets over `set`, frames x `set.len()` flattened: the 15-viseme weights
 /// through the receiver's re-projection map (`lipsync::reproject`), so the set's shapes are

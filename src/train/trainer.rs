@@ -19,12 +19,12 @@ use super::init::initial_model;
 use crate::lipsync::decompose::DecomposeError;
 use crate::lipsync::mouth::VisemeShapes;
 use crate::lipsync::network::{Dynamics, MAX_LOOKAHEAD, MULTIPLY_ADD_BUDGET, Model, input_count};
-use crate::lipsync::visemes::VisemeSet;
 use crate::train::corpus::{
     Corpus, CorpusError, FeatureFn, PreparedUtterance, SpeakerSplit, prepare,
 };
 use crate::train::eval::{EvalError, Scores, score};
 pub use crate::train::targets::set_targets;
+use crate::vocab::VisemeSet;
 
 #[derive(Debug, Clone)]
 pub struct TrainConfig {

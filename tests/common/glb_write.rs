@@ -6,9 +6,8 @@
 
 use serde_json::{Value, json};
 
-use lipcall::render::head::{
-    HeadModel, Material, MorphDelta, VISEME_COUNT, VISEME_NAMES, Vertex, slot_name,
-};
+use lipcall::render::head::{HeadModel, Material, MorphDelta, Vertex, slot_name};
+use lipcall::vocab::{VISEME_COUNT, VISEME_NAMES};
 
 const ARRAY_BUFFER: u32 = 34962;
 const ELEMENT_ARRAY_BUFFER: u32 = 34963;

@@ -7,9 +7,9 @@ use std::process::{Child, Command, Stdio};
 use std::sync::mpsc;
 use std::time::{Duration, Instant};
 
-use lipcall::codec::speex::FRAME_SIZE;
 use lipcall::codec::speex::codec::{Decoder, FrameOutcome};
 use lipcall::codec::speex::ogg_file;
+use lipcall::vocab::FRAME_SIZE;
 
 /// A child process that binds its own port (port 0) and says which, read from its output
 /// before anything is sent to it: no port is picked by the test and raced for, and no sleep

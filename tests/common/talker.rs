@@ -2,7 +2,7 @@
 //! noise between them, so a test can tell frames that must be heard from those a playout may
 //! drop or stretch.
 
-use lipcall::codec::FRAME_SIZE;
+use lipcall::vocab::FRAME_SIZE;
 
 /// Frame `k` of a talker who sounds for the first `loud` frames of every `period` and is
 /// faint noise (-66 dBFS) for the rest; and whether the frame is loud.

@@ -6,7 +6,7 @@
 
 use opus::{Application, Bitrate, Channels, ErrorCode};
 
-use super::{FRAME_SIZE, SAMPLE_RATE};
+use crate::vocab::{FRAME_SIZE, SAMPLE_RATE};
 
 /// The largest packet one 20 ms frame can take (RFC 6716 3.2.1: 1275 bytes plus the TOC byte);
 /// libopus never writes more than this for one frame.

@@ -19,8 +19,8 @@ use std::sync::LazyLock;
 use super::stream::Decoded;
 use crate::codec::lpc::{LpcAnalyser, levinson, lsp_from_lpc};
 use crate::codec::silk::{Nlsf, SilkWalker};
-use crate::codec::speex::features::{FrameFeatures, energy_db, ordered_lsp};
-use crate::codec::{FRAME_SIZE, LSP_COUNT, SAMPLE_RATE};
+use crate::vocab::{FRAME_SIZE, LSP_COUNT, SAMPLE_RATE};
+use crate::vocab::{FrameFeatures, energy_db, ordered_lsp};
 
 /// Points of the 0-4 kHz spectrum the refit reads: enough for the few formants below 4 kHz of an
 /// order-16 envelope, few enough to stay a small part of decoding a frame.
@@ -199,7 +199,7 @@ pub fn stream_features(decoded: &Decoded) -> Vec<FrameFeatures> {
                     mode: Some(mode),
                     lsp,
                     energy_db: energy_db(pcm),
-                    family: crate::codec::FeatureFamily::Nlsf,
+                    family: crate::vocab::FeatureFamily::Nlsf,
                 },
                 None => analyser.analyse(pcm).features(None),
             }

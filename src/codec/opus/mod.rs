@@ -7,4 +7,4 @@ mod nlsf_map;
 pub mod ogg_file;
 pub mod stream;
 
-pub use super::{FRAME_SIZE, SAMPLE_RATE};
+pub use crate::vocab::{FRAME_SIZE, SAMPLE_RATE};

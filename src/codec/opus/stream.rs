@@ -2,12 +2,12 @@
 //! look-ahead, the last granule position trimming the padding) and decoding the way opusdec
 //! does (pre-skip dropped, end trimmed, output gain applied), at 8 kHz.
 
-use super::SAMPLE_RATE;
 use super::codec::{
     CodecError, Decoder, Encoder, EncoderConfig, MAX_PACKET_BYTES, MAX_PACKET_MS, OPUS_CLOCK_RATE,
     packet_samples,
 };
 use super::ogg_file::{self, OggOpusError, OpusFile, OpusHead};
+use crate::vocab::SAMPLE_RATE;
 
 /// No file lipcall has a use for lasts longer; a stream of tiny packets claiming more is
 /// refused before its audio fills memory.
@@ -216,7 +216,7 @@ pub fn round_trip(pcm: &[i16], config: EncoderConfig) -> Result<Decoded, StreamE
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::codec::FRAME_SIZE;
+    use crate::vocab::FRAME_SIZE;
 
     fn speechy(n: usize) -> Vec<i16> {
         (0..n)

@@ -12,8 +12,8 @@
 //! per-subframe interpolated copies it builds filters from; consumers needing ordered LSPs
 //! must do the same.
 
-use super::LSP_COUNT;
 use super::lsp_tables::{CDBK_NB, CDBK_NB_HIGH1, CDBK_NB_HIGH2, CDBK_NB_LOW1, CDBK_NB_LOW2};
+use crate::vocab::LSP_COUNT;
 
 /// Ten LSPs in radians.
 pub type Lsp = [f32; LSP_COUNT];

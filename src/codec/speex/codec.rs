@@ -10,7 +10,7 @@ use std::ptr::NonNull;
 
 use speex_sys as sys;
 
-use super::FRAME_SIZE;
+use crate::vocab::FRAME_SIZE;
 
 /// Largest packet we ever produce: 8 frames of the biggest mode (492 bits) plus a terminator.
 pub const MAX_PACKET_BYTES: usize = 8 * 62 + 1;

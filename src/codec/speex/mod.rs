@@ -9,4 +9,4 @@ pub mod ogg_file;
 pub mod split;
 pub mod stream;
 
-pub use super::{FRAME_SIZE, LSP_COUNT, SAMPLE_RATE};
+pub use crate::vocab::{FRAME_SIZE, LSP_COUNT, SAMPLE_RATE};

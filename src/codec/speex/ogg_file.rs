@@ -5,9 +5,9 @@ use std::io::Cursor;
 
 use ogg::reading::{OggReadError, PacketReader};
 
-use super::{FRAME_SIZE, SAMPLE_RATE};
 pub use crate::codec::ogg::Page;
 use crate::codec::ogg::{self as ogg_shared, ReadFault};
+use crate::vocab::{FRAME_SIZE, SAMPLE_RATE};
 
 const MAGIC: &[u8; 8] = b"Speex   ";
 const HEADER_SIZE: usize = 80;

@@ -122,10 +122,10 @@ pub fn split_frames(packet: &[u8]) -> Option<Vec<Vec<u8>>> {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::codec::speex::FRAME_SIZE;
     use crate::codec::speex::codec::{
         Decoder, Encoder, EncoderConfig, FrameOutcome, MAX_PACKET_BYTES,
     };
+    use crate::vocab::FRAME_SIZE;
 
     #[test]
     fn split_frames_decode_like_the_whole_packet() {

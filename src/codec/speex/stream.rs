@@ -1,10 +1,11 @@
 //! Whole Ogg Speex streams: encoding PCM the way speexenc does and decoding the way speexdec does
 //! (same granule bookkeeping, same samples trimmed at start and end), with per-frame features.
 
-use super::FRAME_SIZE;
 use super::codec::{CodecError, Decoder, Encoder, EncoderConfig, FrameOutcome, MAX_PACKET_BYTES};
-use super::features::{FeatureExtractor, FrameFeatures};
+use super::features::FeatureExtractor;
 use super::ogg_file::{self, OggSpeexError, SpeexFile, SpeexHeader};
+use crate::vocab::FRAME_SIZE;
+use crate::vocab::FrameFeatures;
 
 #[derive(Debug, thiserror::Error)]
 pub enum StreamError {

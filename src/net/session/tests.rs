@@ -1,8 +1,8 @@
 use super::*;
-use crate::codec::FRAME_SIZE;
 use crate::codec::any::{EncoderSettings, FrameEncoder, MAX_FRAME_PAYLOAD};
 use crate::codec::g711::ulaw_to_linear;
 use crate::net::peer::FrameKind;
+use crate::vocab::FRAME_SIZE;
 use timers::EXPIRY_INTERVAL;
 
 const FRAME: Duration = Duration::from_millis(20);

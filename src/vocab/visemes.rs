@@ -1,10 +1,17 @@
-//! The 15 Oculus / MPEG-4 visemes and the reduced sets (2 to 6 shapes) of the paper's Table I.
+//! The 15 Oculus / MPEG-4 visemes, the weights over them that drive a head, and the reduced
+//! sets (2 to 6 shapes) of the paper's Table I.
 
 use std::fmt;
 use std::str::FromStr;
 
 /// Number of visemes in the full set.
 pub const VISEME_COUNT: usize = 15;
+
+/// The 15 names, in the order of [`Viseme::ALL`] (the order of every weight vector and of a
+/// head's morph target slots).
+pub const VISEME_NAMES: [&str; VISEME_COUNT] = [
+    "sil", "PP", "FF", "TH", "DD", "kk", "CH", "SS", "nn", "RR", "aa", "E", "I", "O", "U",
+];
 
 /// Weights over all 15 visemes, indexed by `Viseme as usize`.
 pub type FullWeights = [f32; VISEME_COUNT];
@@ -50,24 +57,16 @@ impl Viseme {
     ];
 
     /// The name used in files and on the command line (`sil PP FF TH DD kk CH SS nn RR aa E I O U`).
-    pub fn name(self) -> &'static str {
-        match self {
-            Viseme::Sil => "sil",
-            Viseme::PP => "PP",
-            Viseme::FF => "FF",
-            Viseme::TH => "TH",
-            Viseme::DD => "DD",
-            Viseme::Kk => "kk",
-            Viseme::CH => "CH",
-            Viseme::SS => "SS",
-            Viseme::Nn => "nn",
-            Viseme::RR => "RR",
-            Viseme::Aa => "aa",
-            Viseme::E => "E",
-            Viseme::I => "I",
-            Viseme::O => "O",
-            Viseme::U => "U",
-        }
+    pub const fn name(self) -> &'static str {
+        VISEME_NAMES[self as usize]
+    }
+
+    /// The viseme of a name, spelt exactly as in [`VISEME_NAMES`].
+    pub fn from_name(name: &str) -> Option<Self> {
+        VISEME_NAMES
+            .iter()
+            .position(|v| *v == name)
+            .map(|i| Self::ALL[i])
     }
 
     pub fn index(self) -> usize {
@@ -88,6 +87,56 @@ impl fmt::Display for Viseme {
     }
 }
 
+/// One weight per viseme, in [`VISEME_NAMES`] order. Convex weights are expected
+/// (non-negative, sum 1); the renderer blends whatever it is given.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct VisemeWeights(pub [f32; VISEME_COUNT]);
+
+impl Default for VisemeWeights {
+    fn default() -> Self {
+        Self::neutral()
+    }
+}
+
+impl VisemeWeights {
+    /// All weight on `sil`: the neutral face.
+    pub fn neutral() -> Self {
+        Self::one_hot(0)
+    }
+
+    /// All weight on viseme `index` (clamped into range).
+    pub fn one_hot(index: usize) -> Self {
+        let mut w = [0.0; VISEME_COUNT];
+        w[index.min(VISEME_COUNT - 1)] = 1.0;
+        Self(w)
+    }
+
+    /// All weight on the named viseme.
+    pub fn single(name: &str) -> Option<Self> {
+        Viseme::from_name(name).map(|v| Self(v.one_hot()))
+    }
+
+    /// Builds weights from (name, weight) pairs of a possibly reduced viseme set.
+    pub fn from_named<'a>(
+        pairs: impl IntoIterator<Item = (&'a str, f32)>,
+    ) -> Result<Self, VisemeError> {
+        let mut w = [0.0; VISEME_COUNT];
+        for (name, value) in pairs {
+            w[name.parse::<Viseme>()?.index()] += value;
+        }
+        Ok(Self(w))
+    }
+
+    /// Linear interpolation; convex inputs give a convex result.
+    pub fn lerp(&self, other: &Self, t: f32) -> Self {
+        let mut w = [0.0; VISEME_COUNT];
+        for (i, out) in w.iter_mut().enumerate() {
+            *out = self.0[i] + (other.0[i] - self.0[i]) * t;
+        }
+        Self(w)
+    }
+}
+
 #[derive(Debug, Clone, PartialEq, Eq, thiserror::Error)]
 pub enum VisemeError {
     #[error("unknown viseme {0:?} (expected one of: sil PP FF TH DD kk CH SS nn RR aa E I O U)")]
@@ -102,10 +151,7 @@ impl FromStr for Viseme {
     type Err = VisemeError;
 
     fn from_str(name: &str) -> Result<Self, Self::Err> {
-        Viseme::ALL
-            .into_iter()
-            .find(|v| v.name() == name)
-            .ok_or_else(|| VisemeError::UnknownName(name.to_string()))
+        Viseme::from_name(name).ok_or_else(|| VisemeError::UnknownName(name.to_string()))
     }
 }
 
