@@ -95,11 +95,9 @@ fn pulse_running() -> bool {
 #[test]
 fn switching_the_output_leaves_the_ui_lock_free() {
     if !pulse_running() {
-        assert!(
-            std::env::var_os("CI").is_none(),
-            "CI must provide the PulseAudio null sink (.ci/pulse-null-sink.sh)"
+        common::unavailable(
+            "no PulseAudio server (.ci/pulse-null-sink.sh): output switch not timed",
         );
-        eprintln!("no PulseAudio server: output switch not timed");
         return;
     }
     let engine = Engine::start(EngineConfig {

@@ -21,11 +21,7 @@ fn require_pulse() -> bool {
     if pulse_running() {
         return true;
     }
-    assert!(
-        std::env::var_os("CI").is_none(),
-        "CI must provide the PulseAudio null sink (.ci/pulse-null-sink.sh)"
-    );
-    eprintln!("no PulseAudio server: timing test not run (start .ci/pulse-null-sink.sh)");
+    common::unavailable("no PulseAudio server (start .ci/pulse-null-sink.sh): timing test not run");
     false
 }
 

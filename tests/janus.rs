@@ -184,7 +184,7 @@ fn a_wrong_pin_and_an_unreachable_janus_fail_at_once_with_janus_s_reason() {
     assert!(started.elapsed() < Duration::from_secs(5));
 
     if !janus_installed() {
-        eprintln!("skipped the pin check: no `janus` binary (Debian package janus)");
+        common::unavailable("the pin check: no `janus` binary (Debian package janus)");
         return;
     }
     let dir = tempfile::tempdir().unwrap();

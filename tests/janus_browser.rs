@@ -185,7 +185,7 @@ fn a_browser_and_lipcall_hear_each_other_in_a_janus_room() {
         return;
     }
     if !chromium_installed() {
-        eprintln!("skipped: no `chromium` binary (Debian package chromium; .ci/run installs it)");
+        common::unavailable("no `chromium` binary (Debian package chromium)");
         return;
     }
     let dir = tempfile::tempdir().unwrap();

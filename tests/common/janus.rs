@@ -67,7 +67,7 @@ pub fn runs_here(test: &str) -> bool {
         return false;
     }
     if !janus_installed() {
-        eprintln!("skipped: no `janus` binary (Debian package janus; .ci/run installs it)");
+        super::unavailable("no `janus` binary (Debian package janus)");
         return false;
     }
     true

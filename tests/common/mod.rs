@@ -77,6 +77,16 @@ pub mod netns;
 pub mod talker;
 
 /// Whether a PulseAudio server answers (the null sink of .ci/pulse-null-sink.sh).
+/// A test's real peer or data is missing: under CI (`CI` set, as `.ci/run` runs) that fails the
+/// test with the reason, since .ci/run installs everything; elsewhere the test says so and skips.
+pub fn unavailable(reason: &str) {
+    assert!(
+        std::env::var_os("CI").is_none(),
+        "{reason}: CI must provide it (.ci/run installs and starts every test peer)"
+    );
+    eprintln!("skipped: {reason}");
+}
+
 pub fn pulse_running() -> bool {
     Command::new("pactl")
         .arg("info")
