@@ -7,12 +7,11 @@ use std::path::{Path, PathBuf};
 use anyhow::{Context, Result, bail};
 
 use crate::audio::wav;
+use crate::call::pipeline::{PeerPipeline, Track, stream_track};
 use crate::codec::opus;
 use crate::codec::speex::codec::EncoderConfig;
 use crate::codec::speex::stream;
-use crate::lipsync::life::life_track;
-use crate::lipsync::receiver::animate_stream;
-use crate::lipsync::{LipSync, LipSyncOptions};
+use crate::lipsync::LipSyncOptions;
 use crate::render::head::Expression;
 use crate::render::{self, FrameOptions, Framing, HeadModel};
 use crate::vocab::FRAME_SIZE;
@@ -99,15 +98,10 @@ pub fn weight_track(args: &AnimateArgs) -> Result<Animation> {
         closure_bias: args.closure_bias,
         visemes,
     };
-    let mut lipsync = LipSync::new(&model, &options)?;
-    let rows = animate_stream(&mut lipsync, &features);
-    let target = lipsync.visemes().clone();
     // Frame by frame as the app makes them, from the same features and decoded samples.
-    let poses = if args.life {
-        life_track(&features, &pcm, args.seed)
-    } else {
-        Vec::new()
-    };
+    let mut pipeline = PeerPipeline::new(&model, &options, args.seed, args.life)?;
+    let Track { rows, poses } = stream_track(&mut pipeline, &features, &pcm);
+    let target = pipeline.visemes().clone();
     Ok(Animation {
         visemes: target,
         rows,

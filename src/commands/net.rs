@@ -10,6 +10,7 @@ use anyhow::{Context, Result, bail};
 
 use super::recording::{Recorder, TICK, stop_flag, stopped};
 use crate::audio::wav;
+use crate::call::pipeline::{Animated, PeerPipeline};
 use crate::codec::any::{Codec, EncoderSettings, FrameEncoder, MAX_FRAME_PAYLOAD, PayloadMap};
 use crate::codec::speex::split::split_frames;
 use crate::codec::{opus, speex};
@@ -331,11 +332,11 @@ pub struct ReceiveArgs {
     pub payload_types: Vec<String>,
 }
 
-/// What the receiver keeps per remote speaker: with `--weights`, its lip sync and the output
+/// What the receiver keeps per remote speaker: with `--weights`, its pipeline and the output
 /// ticks of the frames whose weights have not come out yet.
 struct PeerTrack<'m> {
     ssrc: u32,
-    lipsync: Option<LipSync<'m>>,
+    pipeline: Option<PeerPipeline<'m>>,
     /// The next frame's tag (frames fed to the lip sync, counted).
     next_tag: u64,
     /// (tag, output tick) of frames waiting for their weights, oldest first.
@@ -347,10 +348,13 @@ impl PeerTrack<'_> {
     fn store(
         waiting: &mut VecDeque<(u64, usize)>,
         ssrc: u32,
-        out: Option<(u64, &[f32])>,
+        out: Option<Animated<'_>>,
         recorder: &mut Recorder,
     ) -> Result<()> {
-        let Some((tag, w)) = out else {
+        let Some(Animated {
+            tag, weights: w, ..
+        }) = out
+        else {
             return Ok(());
         };
         while let Some(&(t, frame)) = waiting.front() {
@@ -366,8 +370,8 @@ impl PeerTrack<'_> {
     /// The frames still waiting for their look-ahead, given out now (the peer's next frame
     /// did not come in time, or the call ended).
     fn flush(&mut self, all: bool, recorder: &mut Recorder) -> Result<()> {
-        if let Some(lipsync) = &mut self.lipsync {
-            while let Some(out) = lipsync.flush() {
+        if let Some(pipeline) = &mut self.pipeline {
+            while let Some(out) = pipeline.flush() {
                 Self::store(&mut self.waiting, self.ssrc, Some(out), recorder)?;
                 if !all {
                     break;
@@ -577,13 +581,18 @@ fn play_tick<'m>(
         let slot = match tracks.iter().position(|t| t.ssrc == f.ssrc) {
             Some(i) => i,
             None => {
-                let lipsync = match model {
-                    Some(model) => Some(LipSync::new(model, &LipSyncOptions::default())?),
+                let pipeline = match model {
+                    Some(model) => Some(PeerPipeline::new(
+                        model,
+                        &LipSyncOptions::default(),
+                        u64::from(f.ssrc),
+                        false,
+                    )?),
                     None => None,
                 };
                 tracks.push(PeerTrack {
                     ssrc: f.ssrc,
-                    lipsync,
+                    pipeline,
                     next_tag: 0,
                     waiting: VecDeque::new(),
                 });
@@ -592,11 +601,11 @@ fn play_tick<'m>(
         };
         let track = &mut tracks[slot];
         recorder.features(f.ssrc, index, &f.frame.features)?;
-        if let Some(lipsync) = &mut track.lipsync {
+        if let Some(pipeline) = &mut track.pipeline {
             let tag = track.next_tag;
             track.next_tag += 1;
             track.waiting.push_back((tag, index));
-            let out = lipsync.push(tag, &f.frame.features);
+            let out = pipeline.push(tag, &f.frame.features, &f.frame.pcm);
             PeerTrack::store(&mut track.waiting, f.ssrc, out, recorder)?;
         }
     }
