@@ -1,4 +1,6 @@
 //! The receive side of a call, shared by the app, the command line and evaluation: the
-//! per-peer pipeline from decoded frames to tagged weights and poses.
+//! per-peer pipeline from decoded frames to tagged weights and poses, and the one opener of
+//! media files.
 
+pub mod media;
 pub mod pipeline;

@@ -7,10 +7,8 @@ use std::path::{Path, PathBuf};
 use anyhow::{Context, Result, bail};
 
 use crate::audio::wav;
+use crate::call::media::MediaFile;
 use crate::call::pipeline::{PeerPipeline, Track, stream_track};
-use crate::codec::opus;
-use crate::codec::speex::codec::EncoderConfig;
-use crate::codec::speex::stream;
 use crate::lipsync::LipSyncOptions;
 use crate::render::head::Expression;
 use crate::render::{self, FrameOptions, Framing, HeadModel};
@@ -48,42 +46,12 @@ pub struct Animation {
     pub pcm: Vec<i16>,
 }
 
-/// Features as a receiver would see them: an Ogg Speex or Ogg Opus file (.spx, .opus, .ogg) is
-/// decoded, its features read from its bitstream (Speex LSPs, SILK NLSFs); anything else is read
-/// as WAV, resampled to 8 kHz and sent through Speex at the default quality.
+/// Features as a receiver would see them ([`MediaFile::heard`]): an Ogg Speex or Ogg Opus file
+/// decoded, its features read from its bitstream; a WAV resampled to 8 kHz and sent through
+/// Speex at the default quality.
 pub fn receiver_features(input: &Path) -> Result<(u32, Vec<i16>, Vec<FrameFeatures>)> {
-    let is_ogg = input.extension().is_some_and(|e| {
-        ["spx", "opus", "ogg"]
-            .iter()
-            .any(|ext| e.eq_ignore_ascii_case(ext))
-    });
-    let decoded = if is_ogg {
-        let bytes = crate::input::read(input, crate::input::MAX_INPUT_BYTES)?;
-        if opus::ogg_file::holds_opus(&bytes) {
-            let decoded =
-                opus::stream::decode(&bytes).with_context(|| input.display().to_string())?;
-            let features = opus::features::stream_features(&decoded);
-            if features.is_empty() {
-                bail!("{}: holds no audio frame", input.display());
-            }
-            return Ok((decoded.rate, decoded.pcm, features));
-        }
-        stream::decode(&bytes, true).with_context(|| input.display().to_string())?
-    } else {
-        let pcm = wav::read_narrowband(input)?;
-        if pcm.len() < FRAME_SIZE {
-            bail!(
-                "{}: too short: {} samples at 8 kHz, a frame needs {FRAME_SIZE}",
-                input.display(),
-                pcm.len()
-            );
-        }
-        stream::round_trip(&pcm, EncoderConfig::default())?
-    };
-    if decoded.features.is_empty() {
-        bail!("{}: holds no audio frame", input.display());
-    }
-    Ok((decoded.header.rate, decoded.pcm, decoded.features))
+    let heard = MediaFile::open(input)?.heard()?;
+    Ok((heard.rate, heard.pcm, heard.features))
 }
 
 pub fn weight_track(args: &AnimateArgs) -> Result<Animation> {

@@ -6,6 +6,7 @@ use std::path::Path;
 use anyhow::{Context, Result, bail};
 
 use crate::audio::wav;
+use crate::call::media::{MediaFile, MediaKind};
 use crate::codec::opus;
 use crate::codec::speex::codec::EncoderConfig;
 use crate::codec::speex::stream;
@@ -76,15 +77,14 @@ pub fn encode(input: &Path, output: &Path, settings: EncodeSettings) -> Result<(
 /// Decodes an Ogg Speex or Ogg Opus file, told apart by its content (an `.opus` name that
 /// holds no Opus gets the Opus reader's account of what it holds).
 pub fn decode(input: &Path, output: &Path, features: Option<&Path>, enhancer: bool) -> Result<()> {
-    let bytes = crate::input::read(input, crate::input::MAX_INPUT_BYTES)?;
-    if opus::ogg_file::holds_opus(&bytes) || has_opus_extension(input) {
+    let file = MediaFile::open(input)?;
+    if file.kind() == Some(MediaKind::OggOpus) {
         if features.is_some() {
             bail!("--features is not available for Opus files yet (only for Speex)");
         }
-        return decode_opus(input, output, &bytes);
+        return decode_opus(input, output, &file);
     }
-    let decoded =
-        stream::decode(&bytes, enhancer).with_context(|| format!("{}", input.display()))?;
+    let decoded = file.speex(enhancer)?;
     // As animate: a stream without a frame of audio is an error, not an empty WAV.
     if decoded.pcm.is_empty() {
         bail!("{}: holds no audio frame", input.display());
@@ -115,8 +115,8 @@ pub fn decode(input: &Path, output: &Path, features: Option<&Path>, enhancer: bo
     Ok(())
 }
 
-fn decode_opus(input: &Path, output: &Path, bytes: &[u8]) -> Result<()> {
-    let decoded = opus::stream::decode(bytes).with_context(|| format!("{}", input.display()))?;
+fn decode_opus(input: &Path, output: &Path, file: &MediaFile) -> Result<()> {
+    let decoded = file.opus()?;
     if decoded.pcm.is_empty() {
         bail!("{}: holds no audio frame", input.display());
     }

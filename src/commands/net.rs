@@ -9,18 +9,16 @@ use std::time::{Duration, Instant};
 use anyhow::{Context, Result, bail};
 
 use super::recording::{Recorder, TICK, stop_flag, stopped};
-use crate::audio::wav;
+use crate::call::media::{MediaError, MediaFile, MediaKind, Packets};
 use crate::call::pipeline::{Animated, PeerPipeline};
-use crate::codec::any::{Codec, EncoderSettings, FrameEncoder, MAX_FRAME_PAYLOAD, PayloadMap};
-use crate::codec::speex::split::split_frames;
-use crate::codec::{opus, speex};
+use crate::codec::any::{Codec, EncoderSettings, PayloadMap};
 use crate::lipsync::network::Model;
 use crate::lipsync::{self, LipSync, LipSyncOptions};
 use crate::net::relay::{Relay, RelayConfig};
 use crate::net::session::{PeerFrame, PeerInfo, Session, SessionConfig};
 use crate::net::srtp::MasterKey;
+use crate::vocab::FRAME_SIZE;
 use crate::vocab::FrameFeatures;
-use crate::vocab::{FRAME_SIZE, SAMPLE_RATE};
 
 /// How the call is keyed.
 #[derive(Debug, Clone, Default)]
@@ -67,24 +65,6 @@ fn announce_security(key: &Option<MasterKey>) {
     }
 }
 
-/// Payloads to send, each with its duration in ticks of the codec's RTP clock.
-type Packets = Vec<(Vec<u8>, u32)>;
-
-/// Encodes 8 kHz audio in 20 ms frames (the last padded with silence).
-fn encode_pcm(pcm: &[i16], codec: Codec, settings: &EncoderSettings) -> Result<Packets> {
-    let mut encoder = FrameEncoder::new(codec, settings)?;
-    let mut payload = [0u8; MAX_FRAME_PAYLOAD];
-    let mut out = Vec::with_capacity(pcm.len() / FRAME_SIZE + 1);
-    for chunk in pcm.chunks(FRAME_SIZE) {
-        let mut frame = [0i16; FRAME_SIZE];
-        frame[..chunk.len()].copy_from_slice(chunk);
-        if let Some((n, frames)) = encoder.encode(&frame, &mut payload)? {
-            out.push((payload[..n].to_vec(), frames * codec.frame_ticks()));
-        }
-    }
-    Ok(out)
-}
-
 /// Sends `packets` (payload, duration in RTP ticks of `codec`) each at its time from now, as a
 /// live source would.
 pub(crate) fn send_paced(
@@ -106,62 +86,21 @@ pub(crate) fn send_paced(
     Ok(())
 }
 
-/// What `send` sends: a coded file as it is (Ogg Speex, Ogg Opus), or audio encoded here (a
-/// WAV, or a coded file when `--codec` asks for another codec). Without `--codec`, a WAV goes
-/// as Speex, the reference path.
+/// What `send` sends ([`MediaFile::packets`]). A name of no known type whose content tells
+/// nothing (or that cannot be read) is refused for its name.
 pub(crate) fn load_packets(
     input: &Path,
     codec: Option<Codec>,
     settings: &EncoderSettings,
 ) -> Result<(Codec, Packets)> {
-    let ext = input
-        .extension()
-        .and_then(|e| e.to_str())
-        .map(str::to_ascii_lowercase);
-    let read = || crate::input::read(input, crate::input::MAX_INPUT_BYTES);
-    let what = || input.display().to_string();
-    match ext.as_deref() {
-        Some("spx" | "ogg" | "opus") => {
-            let bytes = read()?;
-            if opus::ogg_file::holds_opus(&bytes) || ext.as_deref() == Some("opus") {
-                let decoded = opus::stream::decode(&bytes).with_context(what)?;
-                if codec.is_some_and(|c| c != Codec::Opus) {
-                    let codec = codec.unwrap_or(Codec::Opus);
-                    return Ok((codec, encode_pcm(&decoded.pcm, codec, settings)?));
-                }
-                // Timestamps count 48 kHz ticks; the packets were decoded at 8 kHz.
-                let per_sample = Codec::Opus.clock_rate() / SAMPLE_RATE;
-                let packets = decoded
-                    .packets
-                    .into_iter()
-                    .map(|p| (p.data, p.samples as u32 * per_sample))
-                    .collect();
-                return Ok((Codec::Opus, packets));
-            }
-            if codec.is_some_and(|c| c != Codec::Speex) {
-                let codec = codec.unwrap_or(Codec::Speex);
-                let decoded = speex::stream::decode(&bytes, true).with_context(what)?;
-                return Ok((codec, encode_pcm(&decoded.pcm, codec, settings)?));
-            }
-            let file = speex::ogg_file::read(&bytes).with_context(what)?;
-            let per_packet = file.header.frames_per_packet.max(1) as u32;
-            let step = Codec::Speex.frame_ticks();
-            let mut out = Vec::new();
-            for packet in file.pages.iter().flat_map(|p| &p.packets) {
-                match split_frames(packet) {
-                    Some(frames) => out.extend(frames.into_iter().map(|f| (f, step))),
-                    None => out.push((packet.clone(), per_packet * step)),
-                }
-            }
-            Ok((Codec::Speex, out))
+    let file = match MediaFile::open(input) {
+        Ok(file) => file,
+        Err(_) if MediaKind::from_extension(input).is_none() => {
+            return Err(MediaError::Unknown(input.display().to_string()).into());
         }
-        Some("wav") => {
-            let pcm = wav::read_narrowband(input)?;
-            let codec = codec.unwrap_or(Codec::Speex);
-            Ok((codec, encode_pcm(&pcm, codec, settings)?))
-        }
-        _ => bail!("{}: expected a .wav, .spx or .opus file", input.display()),
-    }
+        Err(e) => return Err(e.into()),
+    };
+    Ok(file.packets(codec, settings)?)
 }
 
 /// The payload-type map from `--pt CODEC=PT` flags.
