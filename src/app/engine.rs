@@ -14,15 +14,16 @@ use crate::audio::pacer::DEFAULT_LEAD;
 use crate::audio::{
     Capture, DeviceChoice, FramePacer, Gate, MicControls, OutputStatus, Playback, PlaybackConfig,
 };
+use crate::call::janus::{JanusLink, is_janus_url};
+use crate::call::link::{Link, LinkEvent};
 use crate::codec::any::{Codec, EncoderSettings, FrameEncoder, MAX_FRAME_PAYLOAD};
 use crate::codec::speex::codec::{Encoder, EncoderConfig, MAX_PACKET_BYTES};
-use crate::net::janus::room::{Notice, RoomConfig};
+use crate::net::janus::room::RoomConfig;
 use crate::net::jitter::JitterConfig;
 use crate::net::session::{PeerFrame, PeerInfo, Session, SessionConfig, SessionStats};
 use crate::net::srtp::MasterKey;
 use crate::vocab::FRAME_SIZE;
 
-use super::link::{JanusLink, Link, RoomNews, is_janus_url};
 use super::roster::Roster;
 use super::settings::DEFAULT_CODEC;
 
@@ -386,7 +387,7 @@ struct Worker {
     shared: Arc<Mutex<Shared>>,
     counters: Arc<EngineCounters>,
     commands: Receiver<Command>,
-    link: Link,
+    link: Box<dyn Link>,
     demo: Option<Demo>,
     mic: Option<Capture>,
     /// The microphone's encoder, for the codec of the current call.
@@ -422,7 +423,7 @@ impl Worker {
         counters: Arc<EngineCounters>,
         commands: Receiver<Command>,
     ) -> anyhow::Result<Self> {
-        let link = Link::Session(idle_session(&config)?);
+        let link: Box<dyn Link> = Box::new(idle_session(&config)?);
         let mut worker = Self {
             encoder: FrameEncoder::new(DEFAULT_CODEC, &EncoderSettings::default())?,
             link,
@@ -529,7 +530,7 @@ impl Worker {
             Encryption::None
         };
         let local_addr = session.local_addr().ok();
-        self.switch_link(Link::Session(session), encoder);
+        self.switch_link(Box::new(session), encoder);
         self.relay = match room {
             Some(_) => RelayWatch::joining(Instant::now()),
             None => RelayWatch::default(),
@@ -568,7 +569,7 @@ impl Worker {
         let janus = JanusLink::join(config)?;
         let state = format!("joining {}…", janus.place());
         let encoder = FrameEncoder::new(Codec::Opus, &EncoderSettings::default())?;
-        self.switch_link(Link::Janus(Box::new(janus)), encoder);
+        self.switch_link(Box::new(janus), encoder);
         self.relay = RelayWatch::default();
         let mut s = lock(&self.shared);
         s.call = CallStatus {
@@ -592,7 +593,7 @@ impl Worker {
     }
 
     /// Hangs up the current link (and the demo) for a call's.
-    fn switch_link(&mut self, link: Link, encoder: FrameEncoder) {
+    fn switch_link(&mut self, link: Box<dyn Link>, encoder: FrameEncoder) {
         self.link.leave();
         self.demo = None;
         self.link = link;
@@ -606,10 +607,10 @@ impl Worker {
         for news in self.link.poll() {
             let mut s = lock(&self.shared);
             match news {
-                RoomNews::Joined { place, id } => {
+                LinkEvent::Joined { place, id } => {
                     s.call.state = format!("in {place} as {id}, sending opus");
                 }
-                RoomNews::Failed(reason) => {
+                LinkEvent::Failed(reason) => {
                     drop(s);
                     if let Err(e) = self.leave() {
                         tracing::warn!("back to listening: {e:#}");
@@ -617,14 +618,14 @@ impl Worker {
                     lock(&self.shared).call.error = Some(format!("Janus room: {reason}"));
                     return;
                 }
-                RoomNews::Notice(Notice::Lost { reason }) => {
+                LinkEvent::Lost { reason } => {
                     s.call.error = Some(format!("lost the Janus room ({reason}); rejoining"));
                 }
-                RoomNews::Notice(Notice::RejoinFailed { reason }) => {
+                LinkEvent::RejoinFailed { reason } => {
                     s.call.error = Some(format!("cannot rejoin the Janus room yet: {reason}"));
                 }
-                RoomNews::Notice(Notice::Rejoined { .. }) => s.call.error = None,
-                RoomNews::Notice(Notice::Joined { .. } | Notice::Left { .. }) => {}
+                LinkEvent::Rejoined { .. } => s.call.error = None,
+                LinkEvent::PeerJoined { .. } | LinkEvent::PeerLeft { .. } => {}
             }
         }
     }
@@ -633,7 +634,7 @@ impl Worker {
         self.link.leave();
         self.in_call = false;
         self.drop_peers();
-        self.link = Link::Session(idle_session(&self.config)?);
+        self.link = Box::new(idle_session(&self.config)?);
         self.set_idle_status();
         Ok(())
     }

@@ -5,7 +5,6 @@
 //! the sessions, the microphone and the per-peer animation at 20 ms.
 
 pub mod engine;
-mod link;
 pub mod peer;
 pub mod roster;
 pub mod settings;

@@ -9,6 +9,7 @@ use std::time::{Duration, Instant};
 use anyhow::{Context, Result, bail};
 
 use super::recording::{Recorder, TICK, stop_flag, stopped};
+use crate::call::link::{Link, LinkEvent};
 use crate::call::media::{MediaError, MediaFile, MediaKind, Packets};
 use crate::call::pipeline::{Animated, PeerPipeline};
 use crate::codec::any::{Codec, EncoderSettings, PayloadMap};
@@ -388,13 +389,13 @@ pub fn receive_with(
         args.weights.as_deref(),
     )?;
     announce_security(&config.key);
-    let session = Session::start(config)?;
+    let mut session = Session::start(config)?;
     eprintln!("lipcall: listening on {}", session.local_addr()?);
     if args.room.is_some() {
         wait_for_relay(&session)?;
     }
     let played = play(
-        &mut &session,
+        &mut session,
         args.seconds,
         model.as_ref(),
         on_frame,
@@ -426,32 +427,30 @@ pub fn receive_with(
     played.and(finished)
 }
 
-/// Where a receiver's played frames come from: a [`Session`], or a Janus room.
-pub(crate) trait FrameSource {
-    /// The next 20 ms (starting at `now` on the output clock) of every peer that is playing.
-    fn pull(&mut self, now: Instant, out: &mut Vec<PeerFrame>) -> Result<()>;
-    /// Every peer that came has left (the receive ends there without `--seconds`).
-    fn all_left(&mut self) -> bool;
-}
-
-impl FrameSource for &Session {
-    fn pull(&mut self, now: Instant, out: &mut Vec<PeerFrame>) -> Result<()> {
-        Session::pull(self, now, out);
-        Ok(())
-    }
-
-    /// Asked only once someone played: peers that said BYE are left, and so are peers the
-    /// session forgot (silent for its peer timeout).
-    fn all_left(&mut self) -> bool {
-        self.peers().iter().all(|p| p.said_bye)
+/// What a link said, on stderr (a Janus room's publishers and losses).
+pub(crate) fn print_event(event: &LinkEvent) {
+    match event {
+        LinkEvent::Joined { place, id } => eprintln!("lipcall: in {place} as {id}"),
+        LinkEvent::Failed(reason) => eprintln!("lipcall: the call failed: {reason}"),
+        LinkEvent::PeerJoined { id, name } => {
+            eprintln!("lipcall: {name:?} ({id}) is publishing; subscribed")
+        }
+        LinkEvent::PeerLeft { id, name } => eprintln!("lipcall: {name:?} ({id}) left"),
+        LinkEvent::Lost { reason } => {
+            eprintln!("lipcall: lost the Janus room ({reason}); rejoining")
+        }
+        LinkEvent::RejoinFailed { reason } => {
+            eprintln!("lipcall: cannot rejoin yet ({reason}); trying every second")
+        }
+        LinkEvent::Rejoined { id } => eprintln!("lipcall: back in the Janus room as {id}"),
     }
 }
 
-/// The receive loop: pulls every 20 ms, mixes, runs each peer's lip sync when a model is
+/// The receive loop: pulls every 20 ms, mixes, runs each peer's pipeline when a model is
 /// given, and streams what it plays to `recorder`. Ends after `seconds`, when every peer has
 /// left (without `seconds`), or when `stop` is set (SIGINT, SIGTERM).
 pub(crate) fn play<'m>(
-    source: &mut dyn FrameSource,
+    link: &mut dyn Link,
     seconds: Option<f64>,
     model: Option<&'m Model>,
     on_frame: &mut dyn FnMut(u32, f64, &FrameFeatures),
@@ -479,10 +478,11 @@ pub(crate) fn play<'m>(
             break Ok(());
         }
         frames.clear();
-        if let Err(e) = source.pull(due, &mut frames) {
-            break Err(e);
+        for event in link.poll() {
+            print_event(&event);
         }
-        if frames.is_empty() && timeline.is_some() && limit.is_none() && source.all_left() {
+        link.pull(due, &mut frames);
+        if frames.is_empty() && timeline.is_some() && limit.is_none() && link.all_left() {
             break Ok(());
         }
         if frames.is_empty() && timeline.is_none() {
