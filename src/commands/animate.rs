@@ -7,6 +7,7 @@ use std::path::{Path, PathBuf};
 use anyhow::{Context, Result, bail};
 
 use crate::audio::wav;
+use crate::call::csv;
 use crate::call::media::MediaFile;
 use crate::call::pipeline::{PeerPipeline, Track, stream_track};
 use crate::lipsync::LipSyncOptions;
@@ -179,20 +180,16 @@ fn render_frames(
     Ok(())
 }
 
-/// WEIGHTS.csv: `frame,time_s,<viseme names>`, one row per 20 ms.
+/// Writes WEIGHTS.csv ([`crate::call::csv`]), one row per 20 ms.
 pub fn write_weights_csv(path: &Path, track: &Animation) -> Result<()> {
     let file =
         std::fs::File::create(path).with_context(|| format!("cannot write {}", path.display()))?;
     let mut out = std::io::BufWriter::new(file);
     let names: Vec<&str> = track.visemes.members().iter().map(|v| v.name()).collect();
-    writeln!(out, "frame,time_s,{}", names.join(","))?;
+    csv::weights_header(&mut out, &names)?;
     for (n, row) in track.rows.iter().enumerate() {
         let time = (n * FRAME_SIZE) as f64 / f64::from(track.rate);
-        write!(out, "{n},{time:.3}")?;
-        for w in row {
-            write!(out, ",{w:.4}")?;
-        }
-        writeln!(out)?;
+        csv::weights_row(&mut out, n, time, row)?;
     }
     out.flush()
         .with_context(|| format!("cannot write {}", path.display()))

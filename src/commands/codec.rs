@@ -6,6 +6,7 @@ use std::path::Path;
 use anyhow::{Context, Result, bail};
 
 use crate::audio::wav;
+use crate::call::csv;
 use crate::call::media::{MediaFile, MediaKind};
 use crate::codec::opus;
 use crate::codec::speex::codec::EncoderConfig;
@@ -141,21 +142,15 @@ fn decode_opus(input: &Path, output: &Path, file: &MediaFile) -> Result<()> {
     Ok(())
 }
 
-/// Writes FEATURES.csv: `frame,time_s,mode,lsp1..lsp10,energy_db`, one row per 20 ms.
+/// Writes FEATURES.csv ([`crate::call::csv`]), one row per 20 ms.
 pub fn write_features_csv(path: &Path, rate: u32, rows: &[FrameFeatures]) -> Result<()> {
     let file =
         std::fs::File::create(path).with_context(|| format!("cannot write {}", path.display()))?;
     let mut out = std::io::BufWriter::new(file);
-    let lsp_names: Vec<String> = (1..=10).map(|i| format!("lsp{i}")).collect();
-    writeln!(out, "frame,time_s,mode,{},energy_db", lsp_names.join(","))?;
+    csv::features_header(&mut out)?;
     for (n, row) in rows.iter().enumerate() {
         let time = (n * FRAME_SIZE) as f64 / f64::from(rate);
-        let mode = row.mode.map(|m| m.to_string()).unwrap_or_default();
-        write!(out, "{n},{time:.3},{mode}")?;
-        for l in row.lsp {
-            write!(out, ",{l:.6}")?;
-        }
-        writeln!(out, ",{:.2}", row.energy_db)?;
+        csv::features_row(&mut out, n, time, row)?;
     }
     out.flush()
         .with_context(|| format!("cannot write {}", path.display()))
