@@ -4,7 +4,7 @@
 //! sees it through [`Shared`] (one short lock per UI frame) and steers it with [`Command`]s.
 
 use std::net::{SocketAddr, ToSocketAddrs};
-use std::sync::atomic::{AtomicBool, AtomicU64, Ordering};
+use std::sync::atomic::{AtomicBool, Ordering};
 use std::sync::mpsc::{Receiver, Sender, TryRecvError};
 use std::sync::{Arc, Mutex, MutexGuard};
 use std::thread::JoinHandle;
@@ -24,6 +24,7 @@ use crate::net::session::{PeerFrame, PeerInfo, Session, SessionConfig, SessionSt
 use crate::net::srtp::MasterKey;
 use crate::vocab::FRAME_SIZE;
 
+pub use super::counters::{DEMO_NAME, EngineCounters};
 use super::roster::Roster;
 use super::settings::DEFAULT_CODEC;
 
@@ -35,8 +36,6 @@ const STATUS_TICKS: u32 = 10;
 const POLL: Duration = Duration::from_millis(5);
 /// How long a relay may take to confirm our place in its room before the call says so.
 const RELAY_CONFIRM_WAIT: Duration = Duration::from_secs(3);
-/// Name the demo peer announces (SDES), so the UI can tell it apart.
-pub const DEMO_NAME: &str = "Demo speaker";
 const DEMO_WAV: &[u8] = include_bytes!("../../assets/speech/demo.wav");
 
 /// What the engine is asked to do.
@@ -121,37 +120,6 @@ pub struct Shared {
     pub output_status: String,
     pub input_status: String,
     pub mic: Option<MicControls>,
-}
-
-/// Time spent in the animation network (and re-projection), for the CPU report.
-#[derive(Debug, Default)]
-pub struct EngineCounters {
-    pub network_ns: AtomicU64,
-    pub frames_animated: AtomicU64,
-    pub ticks: AtomicU64,
-    /// Weights scheduled; of them, those given out by the look-ahead's fallback (the next
-    /// frame was late), and those scheduled after their frame had begun to be heard (the face
-    /// lagged the voice by up to the lateness), with the summed lateness in samples.
-    pub weights_sent: AtomicU64,
-    pub weights_fallback: AtomicU64,
-    pub weights_late: AtomicU64,
-    pub late_samples: AtomicU64,
-}
-
-impl EngineCounters {
-    /// Counts one row of weights for the frame at stream position `pos`, heard up to `heard`.
-    pub(super) fn weights_scheduled(&self, pos: u64, heard: Option<u64>, fallback: bool) {
-        self.weights_sent.fetch_add(1, Ordering::Relaxed);
-        if fallback {
-            self.weights_fallback.fetch_add(1, Ordering::Relaxed);
-        }
-        if let Some(heard) = heard
-            && heard > pos
-        {
-            self.weights_late.fetch_add(1, Ordering::Relaxed);
-            self.late_samples.fetch_add(heard - pos, Ordering::Relaxed);
-        }
-    }
 }
 
 pub struct Engine {

@@ -4,6 +4,7 @@
 //! each peer's weights at the audio position heard now; the engine thread ([`engine`]) runs
 //! the sessions, the microphone and the per-peer animation at 20 ms.
 
+pub mod counters;
 pub mod engine;
 pub mod peer;
 pub mod roster;
