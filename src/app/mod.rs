@@ -7,12 +7,14 @@
 mod audio_panel;
 mod call_panel;
 pub mod counters;
+mod demo;
 pub mod engine;
 pub mod peer;
 pub mod peer_panel;
 pub mod roster;
 pub mod settings;
 pub mod tiles;
+mod timing;
 
 use std::io::Write;
 use std::net::SocketAddr;
