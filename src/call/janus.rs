@@ -30,6 +30,15 @@ enum RoomState {
     Failed,
 }
 
+/// Why a join could not even start.
+#[derive(Debug, thiserror::Error)]
+pub enum JoinError {
+    #[error(transparent)]
+    Janus(#[from] JanusError),
+    #[error("cannot start the join's thread: {0}")]
+    Thread(#[from] std::io::Error),
+}
+
 /// Our membership of a Janus VideoRoom, from the first request on.
 pub struct JanusLink {
     state: RoomState,
@@ -42,7 +51,7 @@ pub struct JanusLink {
 
 impl JanusLink {
     /// Starts joining (publishing our microphone, subscribing to everyone else).
-    pub fn join(config: RoomConfig) -> anyhow::Result<Self> {
+    pub fn join(config: RoomConfig) -> Result<Self, JoinError> {
         let server = server_addr(config.url.trim())?;
         let place = format!("Janus room {:?} on {}", config.room, config.url);
         let handle = std::thread::Builder::new()
