@@ -2,6 +2,7 @@
 
 pub mod app;
 pub mod audio;
+pub mod call;
 pub mod codec;
 pub mod commands;
 pub mod input;

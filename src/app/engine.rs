@@ -4,7 +4,7 @@
 //! sees it through [`Shared`] (one short lock per UI frame) and steers it with [`Command`]s.
 
 use std::net::{SocketAddr, ToSocketAddrs};
-use std::sync::atomic::{AtomicBool, AtomicU64, Ordering};
+use std::sync::atomic::{AtomicBool, Ordering};
 use std::sync::mpsc::{Receiver, Sender, TryRecvError};
 use std::sync::{Arc, Mutex, MutexGuard};
 use std::thread::JoinHandle;
@@ -14,29 +14,26 @@ use crate::audio::pacer::DEFAULT_LEAD;
 use crate::audio::{
     Capture, DeviceChoice, FramePacer, Gate, MicControls, OutputStatus, Playback, PlaybackConfig,
 };
+use crate::call::janus::{JanusLink, is_janus_url};
+use crate::call::link::{Link, LinkEvent};
 use crate::codec::any::{Codec, EncoderSettings, FrameEncoder, MAX_FRAME_PAYLOAD};
-use crate::codec::speex::codec::{Encoder, EncoderConfig, MAX_PACKET_BYTES};
-use crate::net::janus::room::{Notice, RoomConfig};
+use crate::net::janus::room::RoomConfig;
 use crate::net::jitter::JitterConfig;
-use crate::net::session::{PeerFrame, PeerInfo, Session, SessionConfig, SessionStats};
+use crate::net::session::{PeerFrame, PeerInfo, Session, SessionConfig};
 use crate::net::srtp::MasterKey;
 use crate::vocab::FRAME_SIZE;
 
-use super::link::{JanusLink, Link, RoomNews, is_janus_url};
+pub use super::counters::{DEMO_NAME, EngineCounters};
+use super::demo::Demo;
 use super::roster::Roster;
 use super::settings::DEFAULT_CODEC;
+use super::timing::{RelayWatch, Ticker};
 
-const TICK: Duration = Duration::from_millis(20);
 /// The peers' status and the relay's are refreshed every this many ticks (200 ms).
 const STATUS_TICKS: u32 = 10;
 /// How often the worker looks at the mixer's demand: well within a frame, so that the few
 /// frames pulled ahead of the mixer are topped up before it needs them.
 const POLL: Duration = Duration::from_millis(5);
-/// How long a relay may take to confirm our place in its room before the call says so.
-const RELAY_CONFIRM_WAIT: Duration = Duration::from_secs(3);
-/// Name the demo peer announces (SDES), so the UI can tell it apart.
-pub const DEMO_NAME: &str = "Demo speaker";
-const DEMO_WAV: &[u8] = include_bytes!("../../assets/speech/demo.wav");
 
 /// What the engine is asked to do.
 #[derive(Debug, Clone)]
@@ -120,37 +117,6 @@ pub struct Shared {
     pub output_status: String,
     pub input_status: String,
     pub mic: Option<MicControls>,
-}
-
-/// Time spent in the animation network (and re-projection), for the CPU report.
-#[derive(Debug, Default)]
-pub struct EngineCounters {
-    pub network_ns: AtomicU64,
-    pub frames_animated: AtomicU64,
-    pub ticks: AtomicU64,
-    /// Weights scheduled; of them, those given out by the look-ahead's fallback (the next
-    /// frame was late), and those scheduled after their frame had begun to be heard (the face
-    /// lagged the voice by up to the lateness), with the summed lateness in samples.
-    pub weights_sent: AtomicU64,
-    pub weights_fallback: AtomicU64,
-    pub weights_late: AtomicU64,
-    pub late_samples: AtomicU64,
-}
-
-impl EngineCounters {
-    /// Counts one row of weights for the frame at stream position `pos`, heard up to `heard`.
-    pub(super) fn weights_scheduled(&self, pos: u64, heard: Option<u64>, fallback: bool) {
-        self.weights_sent.fetch_add(1, Ordering::Relaxed);
-        if fallback {
-            self.weights_fallback.fetch_add(1, Ordering::Relaxed);
-        }
-        if let Some(heard) = heard
-            && heard > pos
-        {
-            self.weights_late.fetch_add(1, Ordering::Relaxed);
-            self.late_samples.fetch_add(heard - pos, Ordering::Relaxed);
-        }
-    }
 }
 
 pub struct Engine {
@@ -247,146 +213,12 @@ pub fn describe_output(status: &OutputStatus) -> String {
     }
 }
 
-/// The bundled speech sample at 8 kHz.
-fn demo_speech() -> anyhow::Result<Vec<i16>> {
-    use crate::audio::wav;
-    let reader = hound::WavReader::new(std::io::Cursor::new(DEMO_WAV))?;
-    let spec = reader.spec();
-    let channels = usize::from(spec.channels.max(1));
-    let scale = 1.0 / (1u64 << (spec.bits_per_sample.clamp(1, 32) - 1)) as f32;
-    let interleaved: Vec<f32> = reader
-        .into_samples::<i32>()
-        .map(|s| s.map(|v| v as f32 * scale))
-        .collect::<Result<_, _>>()?;
-    let samples = interleaved
-        .chunks_exact(channels)
-        .map(|f| f.iter().sum::<f32>() / channels as f32)
-        .collect();
-    let audio = wav::MonoAudio {
-        rate: spec.sample_rate,
-        samples,
-    };
-    Ok(wav::to_i16(&wav::resample(
-        &audio,
-        crate::codec::speex::SAMPLE_RATE,
-    )?))
-}
-
-/// The looped demo speech, encoded frame by frame and sent to our own session, in Speex (the
-/// reference path; calls send the codec of the settings).
-struct Demo {
-    session: Session,
-    encoder: Encoder,
-    pcm: Vec<i16>,
-    at: usize,
-}
-
-impl Demo {
-    fn start(to: SocketAddr) -> anyhow::Result<Self> {
-        let pcm = demo_speech()?;
-        anyhow::ensure!(pcm.len() >= FRAME_SIZE, "the demo speech sample is empty");
-        let mut config = SessionConfig::new(SocketAddr::new(to.ip(), 0));
-        config.destinations = vec![to];
-        config.name = Some(DEMO_NAME.into());
-        let session = Session::start(config)?;
-        Ok(Self {
-            session,
-            encoder: Encoder::new(EncoderConfig::default())?,
-            pcm,
-            at: 0,
-        })
-    }
-
-    fn tick(&mut self) {
-        let mut frame = [0i16; FRAME_SIZE];
-        for s in frame.iter_mut() {
-            *s = self.pcm[self.at];
-            self.at = (self.at + 1) % self.pcm.len();
-        }
-        let mut packet = [0u8; MAX_PACKET_BYTES];
-        if let Some(n) = self.encoder.encode_frame(&frame, &mut packet) {
-            let _ = self.session.send_frames(&packet[..n], 1);
-        }
-    }
-}
-
-/// The system clock's 20 ms ticks, for the demo sender and the status. Ticks missed by a
-/// little are caught up at once, as a remote sender's late packets would come; after a longer
-/// stall (a suspended machine) the count is rebased instead of bursting.
-#[derive(Debug)]
-struct Ticker {
-    start: Instant,
-    count: u32,
-}
-
-/// Ticks missed beyond which the ticker rebases.
-const CATCH_UP_TICKS: u32 = 10;
-
-impl Ticker {
-    fn new(start: Instant) -> Self {
-        Self { start, count: 0 }
-    }
-
-    /// When the next tick is due.
-    fn due(&self) -> Instant {
-        self.start + TICK * self.count
-    }
-
-    /// The tick's number if one is due at `now`.
-    fn poll(&mut self, now: Instant) -> Option<u32> {
-        let due = self.due();
-        if now < due {
-            return None;
-        }
-        self.count = self.count.wrapping_add(1);
-        if now.duration_since(due) > TICK * CATCH_UP_TICKS {
-            self.count = (now.duration_since(self.start).as_millis() / TICK.as_millis()) as u32;
-        }
-        Some(self.count)
-    }
-}
-
-/// A relay call's join: says when the relay refused the room, or has not confirmed it in time.
-#[derive(Debug, Default)]
-struct RelayWatch {
-    /// When to say the relay has not confirmed (none: confirmed, said, or not a relay call).
-    deadline: Option<Instant>,
-}
-
-impl RelayWatch {
-    fn joining(now: Instant) -> Self {
-        Self {
-            deadline: Some(now + RELAY_CONFIRM_WAIT),
-        }
-    }
-
-    /// The call's error to show, from the session's account of the relay at `now`.
-    fn check(&mut self, stats: &SessionStats, now: Instant) -> Option<String> {
-        if let Some(why) = stats.relay_refusal {
-            self.deadline = None;
-            return Some(format!("the relay refused to join the room: {why}"));
-        }
-        if stats.relay_joined {
-            self.deadline = None;
-        }
-        if self.deadline.is_some_and(|d| now >= d) {
-            self.deadline = None;
-            return Some(
-                "the relay has not confirmed the join (no relay there, or one of an older \
-                 lipcall version)"
-                    .into(),
-            );
-        }
-        None
-    }
-}
-
 struct Worker {
     config: EngineConfig,
     shared: Arc<Mutex<Shared>>,
     counters: Arc<EngineCounters>,
     commands: Receiver<Command>,
-    link: Link,
+    link: Box<dyn Link>,
     demo: Option<Demo>,
     mic: Option<Capture>,
     /// The microphone's encoder, for the codec of the current call.
@@ -422,7 +254,7 @@ impl Worker {
         counters: Arc<EngineCounters>,
         commands: Receiver<Command>,
     ) -> anyhow::Result<Self> {
-        let link = Link::Session(idle_session(&config)?);
+        let link: Box<dyn Link> = Box::new(idle_session(&config)?);
         let mut worker = Self {
             encoder: FrameEncoder::new(DEFAULT_CODEC, &EncoderSettings::default())?,
             link,
@@ -529,7 +361,7 @@ impl Worker {
             Encryption::None
         };
         let local_addr = session.local_addr().ok();
-        self.switch_link(Link::Session(session), encoder);
+        self.switch_link(Box::new(session), encoder);
         self.relay = match room {
             Some(_) => RelayWatch::joining(Instant::now()),
             None => RelayWatch::default(),
@@ -568,7 +400,7 @@ impl Worker {
         let janus = JanusLink::join(config)?;
         let state = format!("joining {}…", janus.place());
         let encoder = FrameEncoder::new(Codec::Opus, &EncoderSettings::default())?;
-        self.switch_link(Link::Janus(Box::new(janus)), encoder);
+        self.switch_link(Box::new(janus), encoder);
         self.relay = RelayWatch::default();
         let mut s = lock(&self.shared);
         s.call = CallStatus {
@@ -592,7 +424,7 @@ impl Worker {
     }
 
     /// Hangs up the current link (and the demo) for a call's.
-    fn switch_link(&mut self, link: Link, encoder: FrameEncoder) {
+    fn switch_link(&mut self, link: Box<dyn Link>, encoder: FrameEncoder) {
         self.link.leave();
         self.demo = None;
         self.link = link;
@@ -606,10 +438,10 @@ impl Worker {
         for news in self.link.poll() {
             let mut s = lock(&self.shared);
             match news {
-                RoomNews::Joined { place, id } => {
+                LinkEvent::Joined { place, id } => {
                     s.call.state = format!("in {place} as {id}, sending opus");
                 }
-                RoomNews::Failed(reason) => {
+                LinkEvent::Failed(reason) => {
                     drop(s);
                     if let Err(e) = self.leave() {
                         tracing::warn!("back to listening: {e:#}");
@@ -617,14 +449,14 @@ impl Worker {
                     lock(&self.shared).call.error = Some(format!("Janus room: {reason}"));
                     return;
                 }
-                RoomNews::Notice(Notice::Lost { reason }) => {
+                LinkEvent::Lost { reason } => {
                     s.call.error = Some(format!("lost the Janus room ({reason}); rejoining"));
                 }
-                RoomNews::Notice(Notice::RejoinFailed { reason }) => {
+                LinkEvent::RejoinFailed { reason } => {
                     s.call.error = Some(format!("cannot rejoin the Janus room yet: {reason}"));
                 }
-                RoomNews::Notice(Notice::Rejoined { .. }) => s.call.error = None,
-                RoomNews::Notice(Notice::Joined { .. } | Notice::Left { .. }) => {}
+                LinkEvent::Rejoined { .. } => s.call.error = None,
+                LinkEvent::PeerJoined { .. } | LinkEvent::PeerLeft { .. } => {}
             }
         }
     }
@@ -633,7 +465,7 @@ impl Worker {
         self.link.leave();
         self.in_call = false;
         self.drop_peers();
-        self.link = Link::Session(idle_session(&self.config)?);
+        self.link = Box::new(idle_session(&self.config)?);
         self.set_idle_status();
         Ok(())
     }
@@ -777,101 +609,7 @@ impl Worker {
             .iter()
             .any(|i| i.name.as_deref() != Some(DEMO_NAME) && !i.ended);
         if real_peer && let Some(d) = self.demo.take() {
-            d.session.leave();
+            d.leave();
         }
-    }
-}
-
-#[cfg(test)]
-mod tests {
-    use super::*;
-    use crate::net::control::Refusal;
-
-    fn stats(joined: bool, refusal: Option<Refusal>) -> SessionStats {
-        SessionStats {
-            relay_joined: joined,
-            relay_refusal: refusal,
-            ..Default::default()
-        }
-    }
-
-    /// The ticks due at `now`, polled as the worker's loop does.
-    fn ticks_at(ticker: &mut Ticker, now: Instant) -> Vec<u32> {
-        std::iter::from_fn(|| ticker.poll(now)).collect()
-    }
-
-    #[test]
-    fn ticks_come_every_20_ms_and_a_short_stall_is_caught_up() {
-        let t0 = Instant::now();
-        let ms = |n| t0 + Duration::from_millis(n);
-        let mut ticker = Ticker::new(t0);
-        assert_eq!(ticks_at(&mut ticker, ms(0)), [1]);
-        assert_eq!(ticks_at(&mut ticker, ms(19)), [] as [u32; 0]);
-        assert_eq!(ticks_at(&mut ticker, ms(20)), [2]);
-        assert_eq!(ticker.due(), ms(40));
-        assert_eq!(ticks_at(&mut ticker, ms(120)), [3, 4, 5, 6, 7]);
-        assert_eq!(ticker.due(), ms(140));
-    }
-
-    #[test]
-    fn a_long_stall_is_not_made_up_in_a_burst() {
-        let t0 = Instant::now();
-        let mut ticker = Ticker::new(t0);
-        ticker.poll(t0);
-        let after = t0 + Duration::from_secs(5);
-        let ticks = ticks_at(&mut ticker, after);
-        assert!(ticks.len() <= 2, "{ticks:?}");
-        assert_eq!(
-            *ticks.last().unwrap(),
-            251,
-            "counted from the start: 5 s of ticks"
-        );
-        assert!(ticker.due() > after);
-    }
-
-    #[test]
-    fn an_unconfirmed_join_is_said_once_after_the_wait() {
-        let t0 = Instant::now();
-        let mut watch = RelayWatch::joining(t0);
-        let waiting = stats(false, None);
-        assert_eq!(watch.check(&waiting, t0), None);
-        let just_before = t0 + RELAY_CONFIRM_WAIT - Duration::from_millis(1);
-        assert_eq!(watch.check(&waiting, just_before), None);
-        let said = watch.check(&waiting, t0 + RELAY_CONFIRM_WAIT).unwrap();
-        assert!(said.contains("has not confirmed"), "{said}");
-        assert_eq!(
-            watch.check(&waiting, t0 + RELAY_CONFIRM_WAIT * 2),
-            None,
-            "said once, not every check"
-        );
-    }
-
-    #[test]
-    fn a_confirmed_join_is_never_called_unconfirmed() {
-        let t0 = Instant::now();
-        let mut watch = RelayWatch::joining(t0);
-        assert_eq!(watch.check(&stats(true, None), t0), None);
-        assert_eq!(
-            watch.check(&stats(false, None), t0 + RELAY_CONFIRM_WAIT * 2),
-            None
-        );
-    }
-
-    #[test]
-    fn a_refusal_is_said_at_once_and_ends_the_wait() {
-        let t0 = Instant::now();
-        let mut watch = RelayWatch::joining(t0);
-        let refused = stats(false, Some(Refusal::RoomFull));
-        let said = watch.check(&refused, t0).unwrap();
-        assert!(said.contains("refused") && said.contains("full"), "{said}");
-        let after = watch.check(&stats(false, None), t0 + RELAY_CONFIRM_WAIT);
-        assert_eq!(after, None, "no second complaint once refused");
-    }
-
-    #[test]
-    fn a_direct_call_is_not_watched() {
-        let mut watch = RelayWatch::default();
-        let later = Instant::now() + RELAY_CONFIRM_WAIT * 10;
-        assert_eq!(watch.check(&stats(false, None), later), None);
     }
 }

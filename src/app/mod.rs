@@ -4,12 +4,17 @@
 //! each peer's weights at the audio position heard now; the engine thread ([`engine`]) runs
 //! the sessions, the microphone and the per-peer animation at 20 ms.
 
+mod audio_panel;
+mod call_panel;
+pub mod counters;
+mod demo;
 pub mod engine;
-mod link;
 pub mod peer;
+pub mod peer_panel;
 pub mod roster;
 pub mod settings;
 pub mod tiles;
+mod timing;
 
 use std::io::Write;
 use std::net::SocketAddr;
@@ -23,13 +28,13 @@ use eframe::egui;
 
 use crate::audio::{DeviceChoice, DeviceInfo};
 use crate::codec::any::Codec;
-use crate::render::Framing;
-use crate::vocab::FacePose;
-use crate::vocab::VisemeWeights;
-use engine::{CallSpec, Command, Engine, EngineConfig};
-use peer::{FaceRow, PeerView};
-use settings::{PeerPrefs, Settings};
-use tiles::{HeadTile, HeadTiles, RenderCounters};
+use audio_panel::audio_ui;
+pub use call_panel::CallForm;
+use call_panel::call_ui;
+use engine::{Command, Engine, EngineConfig};
+pub use peer_panel::{ShownPeer, peer_controls_ui, peer_list_ui, tiles_ui};
+use settings::Settings;
+use tiles::{HeadTiles, RenderCounters};
 
 /// How the app starts (the command line's top-level flags).
 #[derive(Debug, Clone, Default)]
@@ -126,14 +131,6 @@ pub fn run(options: AppOptions) -> anyhow::Result<()> {
     result.map_err(|e| anyhow::anyhow!("the window failed: {e}"))
 }
 
-/// The call form's fields.
-#[derive(Debug, Clone, Default)]
-pub struct CallForm {
-    pub address: String,
-    pub room: String,
-    pub passphrase: String,
-}
-
 pub struct LipcallApp {
     engine: Engine,
     settings: Settings,
@@ -205,9 +202,8 @@ impl LipcallApp {
         }
     }
 
-    /// `shown[i]`: the UI frames that showed weights for `peers[i]`; `listening`: the call's
-    /// local address (so a script can call an app started on port 0).
-    fn write_status(&self, peers: &[PeerView], shown: &[u64], listening: Option<SocketAddr>) {
+    /// `listening`: the call's local address (so a script can call an app started on port 0).
+    fn write_status(&self, peers: &[ShownPeer], listening: Option<SocketAddr>) {
         let Some(path) = &self.options.status else {
             return;
         };
@@ -229,7 +225,12 @@ impl LipcallApp {
             c.late_samples.load(Ordering::Relaxed) as f64 / 8.0,
             listening.map_or("-".to_owned(), |a| a.to_string()),
         );
-        for (p, shown) in peers.iter().zip(shown) {
+        for ShownPeer {
+            view: p,
+            frames_shown: shown,
+            ..
+        } in peers
+        {
             text += &format!(
                 "peer ssrc={:08x} name={:?} demo={} talking={} animated={} shown={} received={} \
                  codec={} recovered={} unknown_pt={}\n",
@@ -280,14 +281,13 @@ impl eframe::App for LipcallApp {
         let now = Instant::now();
 
         // One lock: the snapshot, each peer's choices, and its weights for the audio heard now.
-        let (peers, call, output_status, input_status, mic, weights, mut prefs, shown) = {
+        let (mut peers, call, output_status, input_status, mic) = {
             let mut guard = engine::lock(&self.engine.shared);
             let s = &mut *guard;
             if let Some(status) = s.playback.poll() {
                 s.output_status = engine::describe_output(status);
             }
-            let (mut peers, mut weights, mut prefs, mut shown) =
-                (Vec::new(), Vec::new(), Vec::new(), Vec::new());
+            let mut peers = Vec::new();
             for peer in s.peers.iter_mut() {
                 let Some(view) = peer.view.clone() else {
                     continue;
@@ -299,17 +299,19 @@ impl eframe::App for LipcallApp {
                     peer.prefs = saved.clone();
                     peer.saved_prefs_applied = true;
                 }
-                let w = s
+                let face = s
                     .playback
                     .weights_now(&mut peer.schedule, view.feed, now)
                     .copied();
-                if w.is_some() {
+                if face.is_some() {
                     peer.frames_shown += 1;
                 }
-                peers.push(view);
-                weights.push(w);
-                prefs.push(peer.prefs.clone());
-                shown.push(peer.frames_shown);
+                peers.push(ShownPeer {
+                    view,
+                    face,
+                    prefs: peer.prefs.clone(),
+                    frames_shown: peer.frames_shown,
+                });
             }
             (
                 peers,
@@ -317,12 +319,9 @@ impl eframe::App for LipcallApp {
                 s.output_status.clone(),
                 s.input_status.clone(),
                 s.mic.clone(),
-                weights,
-                prefs,
-                shown,
             )
         };
-        let before = prefs.clone();
+        let before: Vec<_> = peers.iter().map(|p| p.prefs.clone()).collect();
 
         // Panels are the window's clear colour (see `clear_color`) rather than filled rectangles:
         // on a software adapter every pixel egui fills costs.
@@ -353,15 +352,18 @@ impl eframe::App for LipcallApp {
             .show(ui, |ui| peer_list_ui(ui, &peers));
         let central = egui::Frame::central_panel(ui.style()).fill(egui::Color32::TRANSPARENT);
         egui::CentralPanel::default().frame(central).show(ui, |ui| {
-            tiles_ui(ui, &peers, &weights, &mut prefs, self.heads.as_mut());
+            tiles_ui(ui, &mut peers, self.heads.as_mut());
         });
         if let Some(heads) = &mut self.heads {
             heads.end_frame();
         }
 
-        if prefs != before {
+        if peers.iter().zip(&before).any(|(p, was)| p.prefs != *was) {
             let mut s = engine::lock(&self.engine.shared);
-            for (p, pr) in peers.iter().zip(&prefs) {
+            for ShownPeer {
+                view: p, prefs: pr, ..
+            } in &peers
+            {
                 if let Some(peer) = s.peers.get_mut(p.ssrc) {
                     peer.prefs = pr.clone();
                 }
@@ -373,7 +375,7 @@ impl eframe::App for LipcallApp {
 
         if self.last_status.elapsed() >= Duration::from_millis(500) {
             self.last_status = Instant::now();
-            self.write_status(&peers, &shown, call.local_addr);
+            self.write_status(&peers, call.local_addr);
         }
         if self.last_save.elapsed() >= Duration::from_secs(5) {
             self.last_save = Instant::now();
@@ -384,7 +386,7 @@ impl eframe::App for LipcallApp {
             .quit_after
             .is_some_and(|s| self.started.elapsed().as_secs_f64() >= s)
         {
-            self.write_status(&peers, &shown, call.local_addr);
+            self.write_status(&peers, call.local_addr);
             ctx.send_viewport_cmd(egui::ViewportCommand::Close);
         }
         ctx.request_repaint_after(Duration::from_millis(20));
@@ -395,386 +397,4 @@ impl eframe::App for LipcallApp {
         engine::lock(&self.engine.shared).call.in_call = false;
         self.engine.send(Command::Leave);
     }
-}
-
-/// Join a room on a relay or call a peer directly; leave; the encryption indicator.
-fn call_ui(
-    ui: &mut egui::Ui,
-    form: &mut CallForm,
-    settings: &mut Settings,
-    call: &engine::CallStatus,
-    engine: &Engine,
-) {
-    ui.horizontal_wrapped(|ui| {
-        ui.strong("lipcall");
-        ui.separator();
-        ui.label("Name");
-        ui.add(egui::TextEdit::singleline(&mut settings.name).desired_width(90.0));
-        ui.label("Address");
-        ui.add(
-            egui::TextEdit::singleline(&mut form.address)
-                .hint_text("host:port or Janus URL")
-                .desired_width(150.0),
-        );
-        ui.label("Room");
-        ui.add(
-            egui::TextEdit::singleline(&mut form.room)
-                .hint_text("(direct call)")
-                .desired_width(90.0),
-        );
-        ui.label("Passphrase");
-        ui.add(
-            egui::TextEdit::singleline(&mut form.passphrase)
-                .password(true)
-                .desired_width(90.0),
-        );
-        codec_picker_ui(ui, &mut settings.codec);
-        let label = if form.room.trim().is_empty() {
-            "Call"
-        } else {
-            "Join room"
-        };
-        if ui
-            .add_enabled(!form.address.trim().is_empty(), egui::Button::new(label))
-            .clicked()
-        {
-            settings.last_address = form.address.clone();
-            settings.last_room = form.room.clone();
-            engine.send(Command::Call(CallSpec {
-                address: form.address.clone(),
-                room: Some(form.room.clone()),
-                passphrase: Some(form.passphrase.clone()),
-                name: settings.name.clone(),
-                codec: settings.codec,
-            }));
-        }
-        if ui
-            .add_enabled(call.in_call, egui::Button::new("Leave"))
-            .clicked()
-        {
-            engine.send(Command::Leave);
-        }
-        ui.separator();
-        let warn = egui::Color32::from_rgb(230, 160, 60);
-        match call.encryption {
-            engine::Encryption::EndToEnd => {
-                ui.colored_label(egui::Color32::LIGHT_GREEN, "encrypted end to end (SRTP)")
-            }
-            engine::Encryption::HopByHop => ui
-                .colored_label(
-                    warn,
-                    "encrypted hop by hop: the Janus server can hear the call",
-                )
-                .on_hover_text(
-                    "WebRTC encrypts each link (DTLS-SRTP). Janus decrypts every stream it \
-                     forwards; only lipcall's own rooms with a passphrase are end to end.",
-                ),
-            engine::Encryption::None => ui.colored_label(warn, "NOT encrypted"),
-        };
-        ui.label(&call.state);
-        if call.unknown_payload > 0 {
-            ui.colored_label(
-                egui::Color32::from_rgb(230, 160, 60),
-                format!(
-                    "{} packets of unknown payload types dropped",
-                    call.unknown_payload
-                ),
-            );
-        }
-        if let Some(e) = &call.error {
-            ui.colored_label(egui::Color32::LIGHT_RED, e);
-        }
-    });
-}
-
-/// The codec we send in the next call (a call in progress keeps its own).
-fn codec_picker_ui(ui: &mut egui::Ui, codec: &mut Codec) {
-    // One widget (its label inside), so that the row never wraps between label and box.
-    egui::ComboBox::from_id_salt("codec")
-        .selected_text(format!("Send {}", codec_label(*codec)))
-        .width(90.0)
-        .show_ui(ui, |ui| {
-            for c in Codec::ALL {
-                ui.selectable_value(codec, c, codec_label(c));
-            }
-        })
-        .response
-        .on_hover_text(
-            "The codec we send in new calls. Opus is what most VoIP speaks; every peer may \
-             send any of Opus, Speex, PCMU and PCMA, and all are received.",
-        );
-}
-
-fn codec_label(codec: Codec) -> &'static str {
-    match codec {
-        Codec::Speex => "Speex",
-        Codec::Opus => "Opus",
-        Codec::Pcmu => "PCMU",
-        Codec::Pcma => "PCMA",
-    }
-}
-
-/// Device pickers, the mic level meter, mute and push-to-talk.
-#[allow(clippy::too_many_arguments)]
-fn audio_ui(
-    ui: &mut egui::Ui,
-    settings: &mut Settings,
-    mic: Option<&crate::audio::MicControls>,
-    output_status: &str,
-    input_status: &str,
-    inputs: &[DeviceInfo],
-    outputs: &[DeviceInfo],
-    engine: &Engine,
-) {
-    ui.horizontal_wrapped(|ui| {
-        if device_picker_ui(ui, "Microphone", &mut settings.input_device, inputs) {
-            engine.send(Command::SetInput(DeviceChoice::from_option(
-                Some(settings.input_device.as_str()).filter(|s| !s.is_empty()),
-            )));
-        }
-        if device_picker_ui(ui, "Speaker", &mut settings.output_device, outputs) {
-            engine.send(Command::SetOutput(DeviceChoice::from_option(
-                Some(settings.output_device.as_str()).filter(|s| !s.is_empty()),
-            )));
-        }
-        match mic {
-            Some(mic) => {
-                let level = mic.level();
-                let fill = ((level.peak_dbfs + 60.0) / 60.0).clamp(0.0, 1.0);
-                ui.add(
-                    egui::ProgressBar::new(fill)
-                        .desired_width(120.0)
-                        .text(format!("{:.0} dBFS", level.peak_dbfs.max(-99.0))),
-                );
-                let mut muted = mic.muted();
-                if ui.checkbox(&mut muted, "Mute (M)").changed() {
-                    mic.set_muted(muted);
-                }
-                if ui
-                    .checkbox(&mut settings.push_to_talk, "Push-to-talk (hold Space)")
-                    .changed()
-                {
-                    mic.set_push_to_talk(settings.push_to_talk);
-                }
-                ui.label(if mic.transmitting() { "sending" } else { "" });
-            }
-            None => {
-                ui.label(input_status);
-            }
-        }
-        ui.separator();
-        ui.label(output_status);
-    });
-}
-
-/// A device combo box; true when the choice changed.
-fn device_picker_ui(
-    ui: &mut egui::Ui,
-    label: &str,
-    chosen: &mut String,
-    devices: &[DeviceInfo],
-) -> bool {
-    let shown = if chosen.is_empty() {
-        "default".to_owned()
-    } else {
-        devices
-            .iter()
-            .find(|d| &d.id == chosen)
-            .map_or_else(|| chosen.clone(), |d| d.name.clone())
-    };
-    let mut changed = false;
-    ui.label(label);
-    egui::ComboBox::from_id_salt(label)
-        .selected_text(shown)
-        .width(160.0)
-        .show_ui(ui, |ui| {
-            changed |= ui
-                .selectable_value(chosen, String::new(), "default")
-                .changed();
-            for d in devices {
-                changed |= ui.selectable_value(chosen, d.id.clone(), &d.name).changed();
-            }
-        });
-    changed
-}
-
-/// Names, talking indicators and link statistics.
-pub fn peer_list_ui(ui: &mut egui::Ui, peers: &[PeerView]) {
-    ui.heading("Peers");
-    if peers.is_empty() {
-        ui.label("Nobody here yet.");
-    }
-    for p in peers {
-        ui.horizontal(|ui| {
-            let colour = if p.talking {
-                egui::Color32::LIGHT_GREEN
-            } else {
-                egui::Color32::DARK_GRAY
-            };
-            let (dot, _) = ui.allocate_exact_size(egui::vec2(12.0, 12.0), egui::Sense::hover());
-            ui.painter().circle_filled(dot.center(), 5.0, colour);
-            ui.strong(&p.name);
-            if let Some(codec) = p.codec {
-                ui.label(codec_label(codec));
-            }
-            if p.is_demo {
-                ui.weak("(demo)");
-            }
-        });
-        ui.weak(format!(
-            "{}  loss {:.1}%  jitter {:.1} ms  delay {:.0} ms",
-            p.addr, p.loss_percent, p.jitter_ms, p.delay_ms
-        ));
-        if p.frames_recovered > 0 {
-            ui.weak(format!(
-                "{} lost frames rebuilt from FEC",
-                p.frames_recovered
-            ));
-        }
-        if p.unknown_payload > 0 {
-            ui.colored_label(
-                egui::Color32::from_rgb(230, 160, 60),
-                format!(
-                    "{} packets of an unknown payload type dropped",
-                    p.unknown_payload
-                ),
-            );
-        }
-        ui.separator();
-    }
-}
-
-/// The viseme sets offered: the network's own, the paper's reduced sets and the full one.
-pub const VISEME_CHOICES: [&str; 7] = ["", "2", "3", "4", "5", "6", "15"];
-
-fn visemes_label(choice: &str) -> String {
-    if choice.is_empty() {
-        "network's visemes".into()
-    } else {
-        format!("{choice} visemes")
-    }
-}
-
-/// One peer's controls: animation, the living face, mute, volume, lipreading view, jaw mode,
-/// viseme set, lip closures.
-pub fn peer_controls_ui(ui: &mut egui::Ui, id: u32, prefs: &mut PeerPrefs) {
-    ui.horizontal_wrapped(|ui| {
-        ui.checkbox(&mut prefs.animate, "Animate");
-        ui.add_enabled(
-            prefs.animate,
-            egui::Checkbox::new(&mut prefs.life, "Living face"),
-        )
-        .on_hover_text("Blinks, glances, and head nods and tilts with the voice");
-        ui.checkbox(&mut prefs.muted, "Mute");
-        ui.add(
-            egui::Slider::new(&mut prefs.volume, 0.0..=2.0)
-                .text("Vol")
-                .max_decimals(1),
-        );
-        ui.checkbox(&mut prefs.lipreading, "Lipreading");
-        ui.checkbox(&mut prefs.jaw, "Jaw only");
-        egui::ComboBox::new(("visemes", id), "Visemes")
-            .selected_text(visemes_label(&prefs.visemes))
-            .width(140.0)
-            .show_ui(ui, |ui| {
-                for c in VISEME_CHOICES {
-                    ui.selectable_value(&mut prefs.visemes, c.to_owned(), visemes_label(c));
-                }
-            });
-        ui.scope(|ui| {
-            // Narrower than the volume slider, so the row fits a third-of-the-window tile.
-            ui.spacing_mut().slider_width = 64.0;
-            ui.add_enabled(
-                !prefs.jaw,
-                egui::Slider::new(&mut prefs.closures, -1.0..=1.0)
-                    .text("Closures")
-                    .step_by(0.25)
-                    .show_value(false),
-            )
-            .on_hover_text(
-                "Lip closures for /p b m/: left, only the surest; right, nearly all of them, \
-                 at the cost of closing where there is none",
-            );
-        });
-    });
-}
-
-/// A grid of head tiles, each with its controls beneath.
-pub fn tiles_ui(
-    ui: &mut egui::Ui,
-    peers: &[PeerView],
-    faces: &[Option<FaceRow>],
-    prefs: &mut [PeerPrefs],
-    mut heads: Option<&mut HeadTiles>,
-) {
-    if peers.is_empty() {
-        ui.centered_and_justified(|ui| {
-            ui.label("Waiting for someone to talk… (call a peer or join a room above)");
-        });
-        return;
-    }
-    let n = peers.len();
-    let avail = ui.available_size();
-    let cols = (1..=n)
-        .min_by_key(|&c| {
-            let rows = n.div_ceil(c);
-            let w = avail.x / c as f32;
-            let h = avail.y / rows as f32 - 100.0;
-            // The largest square head that fits.
-            -(w.min(h).max(1.0) as i64)
-        })
-        .unwrap_or(1);
-    let rows = n.div_ceil(cols);
-    let tile_w = (avail.x / cols as f32 - 8.0).max(50.0);
-    let tile_h = (avail.y / rows as f32 - 8.0).max(80.0);
-    egui::Grid::new("tiles").spacing([8.0, 8.0]).show(ui, |ui| {
-        for (i, p) in peers.iter().enumerate() {
-            ui.allocate_ui(egui::vec2(tile_w, tile_h), |ui| {
-                ui.set_min_size(egui::vec2(tile_w, tile_h));
-                ui.vertical(|ui| {
-                    ui.horizontal(|ui| {
-                        ui.strong(&p.name);
-                        if p.talking {
-                            ui.colored_label(egui::Color32::LIGHT_GREEN, "talking");
-                        }
-                    });
-                    // Room for the name line and up to three rows of controls.
-                    let head_h = (tile_h - 100.0).max(40.0);
-                    let (rect, _) =
-                        ui.allocate_exact_size(egui::vec2(tile_w, head_h), egui::Sense::hover());
-                    let (w, mut pose) = match (prefs[i].animate, faces[i]) {
-                        (true, Some(face)) if prefs[i].life => {
-                            (VisemeWeights(face.weights), face.pose)
-                        }
-                        (true, Some(face)) => (VisemeWeights(face.weights), FacePose::REST),
-                        _ => (VisemeWeights::neutral(), FacePose::REST),
-                    };
-                    // The lipreading close-up keeps the mouth steady in the frame.
-                    if prefs[i].lipreading {
-                        pose = pose.without_head_motion();
-                    }
-                    if let Some(heads) = heads.as_deref_mut() {
-                        let tile = HeadTile {
-                            id: u64::from(p.ssrc),
-                            framing: if prefs[i].lipreading {
-                                Framing::Mouth
-                            } else {
-                                Framing::Face
-                            },
-                            weights: w,
-                            pose,
-                        };
-                        heads.show(ui, rect, tile);
-                    } else {
-                        ui.painter()
-                            .rect_filled(rect, 6.0, egui::Color32::from_gray(38));
-                    }
-                    peer_controls_ui(ui, p.ssrc, &mut prefs[i]);
-                });
-            });
-            if (i + 1) % cols == 0 {
-                ui.end_row();
-            }
-        }
-    });
 }

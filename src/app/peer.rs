@@ -6,14 +6,13 @@ use std::net::SocketAddr;
 use std::time::Instant;
 
 use crate::audio::{PeerFeed, PeerId, Schedule, ScheduleSender};
+pub use crate::call::pipeline::FaceRow;
+use crate::call::pipeline::PeerPipeline;
 use crate::codec::any::Codec;
-use crate::lipsync::life::{DEFAULT_SEED, LifeGenerator};
-use crate::lipsync::network::MAX_LOOKAHEAD;
-use crate::lipsync::{LipSync, LipSyncOptions};
+use crate::lipsync::LipSyncOptions;
+use crate::lipsync::life::DEFAULT_SEED;
 use crate::net::jitter::JitterStats;
-use crate::vocab::FacePose;
-use crate::vocab::FrameFeatures;
-use crate::vocab::{FullWeights, VisemeSet};
+use crate::vocab::{FrameFeatures, VisemeSet};
 
 use super::settings::PeerPrefs;
 
@@ -99,15 +98,6 @@ pub struct PeerView {
     pub buffer: JitterStats,
 }
 
-/// What a head shows for one 20 ms frame of a peer's audio: the mouth's weights over all 15
-/// visemes and the living face's pose (at rest when it is off), scheduled together so both are
-/// shown with the audio they belong to.
-#[derive(Debug, Clone, Copy, PartialEq)]
-pub struct FaceRow {
-    pub weights: FullWeights,
-    pub pose: FacePose,
-}
-
 /// The choices an animator is built from; a change rebuilds it.
 #[derive(Debug, Clone, PartialEq)]
 struct AnimationKey {
@@ -130,22 +120,12 @@ impl AnimationKey {
     }
 }
 
-/// Poses kept for frames whose weights the look-ahead still holds back.
-const POSE_RING: usize = MAX_LOOKAHEAD + 4;
-
-/// Turns one peer's decoded frames into weights over a chosen viseme set (the one receiver
-/// pipeline, [`LipSync`]) and, with the living face on, poses ([`LifeGenerator`]), or does
-/// nothing at all when the peer's animation is off.
+/// One peer's decoded frames through the one per-peer pipeline ([`PeerPipeline`]: weights over
+/// the chosen viseme set and, with the living face on, poses), or nothing at all when the peer's
+/// animation is off.
 pub struct PeerAnimation {
-    lipsync: Option<LipSync<'static>>,
+    pipeline: Option<PeerPipeline<'static>>,
     key: AnimationKey,
-    life: LifeGenerator,
-    /// The generator ran on the previous frame (so a face switched back on starts at rest).
-    life_running: bool,
-    /// (tag, pose) of the latest frames, to pair each frame's pose with its weights, which come
-    /// out after the look-ahead.
-    poses: [(u64, FacePose); POSE_RING],
-    next_pose: usize,
     pub frames_animated: u64,
 }
 
@@ -158,41 +138,20 @@ impl PeerAnimation {
     /// With the living face seeded by `seed` (the app uses the peer's SSRC, so two peers do not
     /// blink together).
     pub fn with_seed(prefs: &PeerPrefs, seed: u64) -> Self {
+        let model = crate::lipsync::builtin::shipped();
+        let pipeline = fallback(prefs, |options| {
+            PeerPipeline::new(model, options, seed, prefs.life)
+        });
         Self {
-            lipsync: Self::lipsync(prefs),
+            pipeline,
             key: AnimationKey::of(prefs),
-            life: LifeGenerator::new(seed),
-            life_running: false,
-            poses: [(u64::MAX, FacePose::REST); POSE_RING],
-            next_pose: 0,
             frames_animated: 0,
         }
     }
 
-    fn lipsync(prefs: &PeerPrefs) -> Option<LipSync<'static>> {
-        let model = crate::lipsync::builtin::shipped();
-        let options = LipSyncOptions {
-            jaw: prefs.jaw,
-            closure_bias: prefs.closures,
-            visemes: VisemeSet::parse(&prefs.visemes).ok(),
-        };
-        // A set the shapes cannot express falls back to the network's own.
-        LipSync::new(model, &options)
-            .or_else(|_| {
-                LipSync::new(
-                    model,
-                    &LipSyncOptions {
-                        visemes: None,
-                        ..options
-                    },
-                )
-            })
-            .ok()
-    }
-
     /// The viseme set the weights are expressed over.
     pub fn target(&self) -> Option<&VisemeSet> {
-        self.lipsync.as_ref().map(|l| l.visemes())
+        self.pipeline.as_ref().map(PeerPipeline::visemes)
     }
 
     /// Feeds one decoded frame (its features and its 160 samples), tagged with its stream
@@ -208,43 +167,48 @@ impl PeerAnimation {
     ) -> Option<(u64, FaceRow)> {
         if !self.key.matches(prefs) {
             // The face keeps living through a change of viseme set or mode.
-            self.lipsync = Self::lipsync(prefs);
+            let model = crate::lipsync::builtin::shipped();
+            if let Some(pipeline) = &mut self.pipeline
+                && fallback(prefs, |options| pipeline.rebuild(model, options)).is_none()
+            {
+                self.pipeline = None;
+            }
             self.key = AnimationKey::of(prefs);
         }
-        if !prefs.animate || self.lipsync.is_none() {
-            self.life_running = false;
+        let pipeline = self.pipeline.as_mut()?;
+        if !prefs.animate {
+            pipeline.pause_life();
             return None;
         }
         self.frames_animated += 1;
-        let pose = if prefs.life {
-            if !self.life_running {
-                self.life.settle();
-            }
-            self.life.step_frame(features, pcm)
-        } else {
-            FacePose::REST
-        };
-        self.life_running = prefs.life;
-        self.poses[self.next_pose] = (tag, pose);
-        self.next_pose = (self.next_pose + 1) % POSE_RING;
-        let (tag, weights) = self.lipsync.as_mut()?.push_full(tag, features)?;
-        Some((tag, self.row(tag, weights)))
+        pipeline.set_life(prefs.life);
+        pipeline.push_face(tag, features, pcm)
     }
 
     /// The oldest frame still waiting for its look-ahead, now: the peer's next frame did not
     /// come in time (loss, end of a talk spurt, the jitter buffer at its floor).
     pub fn flush(&mut self) -> Option<(u64, FaceRow)> {
-        let (tag, weights) = self.lipsync.as_mut()?.flush_full()?;
-        Some((tag, self.row(tag, weights)))
+        self.pipeline.as_mut()?.flush_face()
     }
+}
 
-    /// The weights of frame `tag` with the pose made for that frame.
-    fn row(&self, tag: u64, weights: FullWeights) -> FaceRow {
-        let pose = self
-            .poses
-            .iter()
-            .find(|(t, _)| *t == tag)
-            .map_or(FacePose::REST, |(_, pose)| *pose);
-        FaceRow { weights, pose }
-    }
+/// `make` with the peer's choices, or, where the shapes cannot express the chosen set, with the
+/// network's own set.
+fn fallback<T, E>(
+    prefs: &PeerPrefs,
+    mut make: impl FnMut(&LipSyncOptions) -> Result<T, E>,
+) -> Option<T> {
+    let options = LipSyncOptions {
+        jaw: prefs.jaw,
+        closure_bias: prefs.closures,
+        visemes: VisemeSet::parse(&prefs.visemes).ok(),
+    };
+    make(&options)
+        .or_else(|_| {
+            make(&LipSyncOptions {
+                visemes: None,
+                ..options
+            })
+        })
+        .ok()
 }

@@ -10,7 +10,7 @@ use crate::audio::Playback;
 use crate::net::peer::FrameKind;
 use crate::net::session::{PeerFrame, PeerInfo};
 
-use super::engine::{DEMO_NAME, EngineCounters};
+use super::counters::{DEMO_NAME, EngineCounters};
 use super::peer::{PeerView, RemotePeer};
 
 /// A peer whose last voiced frame is this recent is talking.

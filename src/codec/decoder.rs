@@ -14,16 +14,14 @@
 //! fades out over 60 ms, in the manner of G.711 Appendix I. A concealed frame keeps the last
 //! frame's LSPs while its energy falls, so the mouth closes.
 
-use std::collections::VecDeque;
-
 use super::any::Codec;
 use super::g711::Law;
 use super::lpc::LpcAnalyser;
-use super::opus::features::narrowband_lsp;
+use super::opus::features::CodedRuns;
 use super::silk::{self, SilkWalker};
 use super::speex::features::FrameTracker;
 use super::{opus, speex};
-use crate::vocab::{FRAME_SIZE, FeatureFamily, LSP_COUNT};
+use crate::vocab::{FRAME_SIZE, FeatureFamily, LSP_COUNT, SAMPLE_RATE};
 use crate::vocab::{FrameFeatures, energy_db, flat_lsp};
 
 /// Decoded samples a stream may hold ahead: the longest payload (a 1500-byte datagram of G.711,
@@ -165,7 +163,8 @@ const MAX_RUNS: usize = 96;
 struct SilkTrack {
     walker: SilkWalker,
     frames: Vec<silk::Frame>,
-    runs: VecDeque<(Option<[f32; LSP_COUNT]>, usize)>,
+    /// The coded spans, assigned to 20 ms frames as `stream_features` assigns a file's.
+    runs: CodedRuns<([f32; LSP_COUNT], u8)>,
 }
 
 impl SilkTrack {
@@ -173,18 +172,7 @@ impl SilkTrack {
         Self {
             walker: SilkWalker::new(),
             frames: Vec::with_capacity(8),
-            runs: VecDeque::with_capacity(MAX_RUNS),
-        }
-    }
-
-    fn push(&mut self, lsp: Option<[f32; LSP_COUNT]>, samples: usize) {
-        if samples == 0 {
-            return;
-        }
-        let full = self.runs.len() >= MAX_RUNS;
-        match self.runs.back_mut() {
-            Some(last) if full || last.0 == lsp => last.1 += samples,
-            _ => self.runs.push_back((lsp, samples)),
+            runs: CodedRuns::with_capacity(MAX_RUNS),
         }
     }
 
@@ -197,69 +185,26 @@ impl SilkTrack {
             .is_err()
         {
             self.walker.reset();
-            self.push(None, samples);
+            self.runs.push(None, samples);
             return;
         }
-        let mut left = samples;
-        for k in 0..self.frames.len() {
-            let (lsp, length) = match self.frames[k] {
-                silk::Frame::Silk(frame) => (
-                    narrowband_lsp(&frame.nlsf, frame.internal_rate_hz),
-                    frame.duration_ms as usize * FRAME_SIZE / 20,
-                ),
-                silk::Frame::Celt { duration_48k, .. }
-                | silk::Frame::Concealed { duration_48k, .. } => {
-                    (None, duration_48k as usize * FRAME_SIZE / 960)
-                }
-            };
-            let length = length.min(left);
-            self.push(lsp, length);
-            left -= length;
-        }
-        self.push(None, left);
+        self.runs.push_packet(&self.frames, samples, SAMPLE_RATE);
     }
 
     /// Concealed samples.
     fn gap(&mut self, samples: usize) {
         self.walker.packet_lost();
-        self.push(None, samples);
+        self.runs.push(None, samples);
     }
 
     /// Keeps the first `len` samples.
     fn truncate(&mut self, len: usize) {
-        let mut kept = 0;
-        let mut runs = 0;
-        for run in self.runs.iter_mut() {
-            if kept >= len {
-                break;
-            }
-            run.1 = run.1.min(len - kept);
-            kept += run.1;
-            runs += 1;
-        }
-        self.runs.truncate(runs);
+        self.runs.truncate(len);
     }
 
     /// Takes `samples` samples off the front: the LSPs of the coded run that covers most of them.
-    fn take(&mut self, mut samples: usize) -> Option<[f32; LSP_COUNT]> {
-        let mut best: Option<([f32; LSP_COUNT], usize)> = None;
-        while samples > 0 {
-            let Some(front) = self.runs.front_mut() else {
-                break;
-            };
-            let n = front.1.min(samples);
-            if let Some(lsp) = front.0
-                && best.is_none_or(|(_, most)| n > most)
-            {
-                best = Some((lsp, n));
-            }
-            front.1 -= n;
-            samples -= n;
-            if front.1 == 0 {
-                self.runs.pop_front();
-            }
-        }
-        best.map(|(lsp, _)| lsp)
+    fn take(&mut self, samples: usize) -> Option<[f32; LSP_COUNT]> {
+        self.runs.take(samples).map(|(lsp, _)| lsp)
     }
 }
 
@@ -574,6 +519,7 @@ impl Plc {
 mod tests {
     use super::super::any::{EncoderSettings, FrameEncoder, MAX_FRAME_PAYLOAD};
     use super::*;
+    use crate::codec::opus::features::narrowband_lsp;
 
     fn speech_like(frames: usize) -> Vec<[i16; FRAME_SIZE]> {
         (0..frames)
@@ -668,6 +614,43 @@ mod tests {
         // A lost frame keeps the last coded LSPs.
         let lost = dec.lost(None);
         assert_eq!(lost.features.lsp, *expected.last().unwrap());
+    }
+
+    #[test]
+    fn a_call_and_a_file_assign_the_same_nlsfs_to_each_frame() {
+        // The same Opus packets played by the receiver and read as a file (from sample 0, as a
+        // call hears them): every 20 ms row has the same LSPs, or an analysis on both sides.
+        let input = speech_like(60);
+        let packets = encode(Codec::Opus, &input);
+        let mut dec = StreamDecoder::new(Codec::Opus, true).unwrap();
+        let mut live = Vec::new();
+        let mut pcm = Vec::new();
+        for p in &packets {
+            dec.packet(p, 0);
+            let row = dec.frame();
+            pcm.extend_from_slice(&row.pcm);
+            live.push(row.features);
+        }
+        let ogg = opus::stream::encode(input.as_flattened(), Default::default()).unwrap();
+        let mut file = opus::stream::decode(&ogg).unwrap();
+        file.pcm = pcm;
+        file.packets = packets
+            .iter()
+            .enumerate()
+            .map(|(n, p)| opus::stream::DecodedPacket {
+                data: p.clone(),
+                samples: FRAME_SIZE,
+                pcm_offset: (n * FRAME_SIZE) as i64,
+                corrupt: false,
+            })
+            .collect();
+        let offline = opus::features::stream_features(&file);
+        assert_eq!(offline.len(), live.len());
+        for (n, (a, b)) in live.iter().zip(&offline).enumerate() {
+            assert_eq!(a.family, b.family, "row {n}");
+            assert_eq!(a.lsp, b.lsp, "row {n}");
+        }
+        assert!(live.iter().any(|f| f.family == FeatureFamily::Nlsf));
     }
 
     #[test]

@@ -7,12 +7,10 @@ use std::path::{Path, PathBuf};
 use anyhow::{Context, Result, bail};
 
 use crate::audio::wav;
-use crate::codec::opus;
-use crate::codec::speex::codec::EncoderConfig;
-use crate::codec::speex::stream;
-use crate::lipsync::life::life_track;
-use crate::lipsync::receiver::animate_stream;
-use crate::lipsync::{LipSync, LipSyncOptions};
+use crate::call::csv;
+use crate::call::media::MediaFile;
+use crate::call::pipeline::{PeerPipeline, Track, stream_track};
+use crate::lipsync::LipSyncOptions;
 use crate::render::head::Expression;
 use crate::render::{self, FrameOptions, Framing, HeadModel};
 use crate::vocab::FRAME_SIZE;
@@ -49,42 +47,12 @@ pub struct Animation {
     pub pcm: Vec<i16>,
 }
 
-/// Features as a receiver would see them: an Ogg Speex or Ogg Opus file (.spx, .opus, .ogg) is
-/// decoded, its features read from its bitstream (Speex LSPs, SILK NLSFs); anything else is read
-/// as WAV, resampled to 8 kHz and sent through Speex at the default quality.
+/// Features as a receiver would see them ([`MediaFile::heard`]): an Ogg Speex or Ogg Opus file
+/// decoded, its features read from its bitstream; a WAV resampled to 8 kHz and sent through
+/// Speex at the default quality.
 pub fn receiver_features(input: &Path) -> Result<(u32, Vec<i16>, Vec<FrameFeatures>)> {
-    let is_ogg = input.extension().is_some_and(|e| {
-        ["spx", "opus", "ogg"]
-            .iter()
-            .any(|ext| e.eq_ignore_ascii_case(ext))
-    });
-    let decoded = if is_ogg {
-        let bytes = crate::input::read(input, crate::input::MAX_INPUT_BYTES)?;
-        if opus::ogg_file::holds_opus(&bytes) {
-            let decoded =
-                opus::stream::decode(&bytes).with_context(|| input.display().to_string())?;
-            let features = opus::features::stream_features(&decoded);
-            if features.is_empty() {
-                bail!("{}: holds no audio frame", input.display());
-            }
-            return Ok((decoded.rate, decoded.pcm, features));
-        }
-        stream::decode(&bytes, true).with_context(|| input.display().to_string())?
-    } else {
-        let pcm = wav::read_narrowband(input)?;
-        if pcm.len() < FRAME_SIZE {
-            bail!(
-                "{}: too short: {} samples at 8 kHz, a frame needs {FRAME_SIZE}",
-                input.display(),
-                pcm.len()
-            );
-        }
-        stream::round_trip(&pcm, EncoderConfig::default())?
-    };
-    if decoded.features.is_empty() {
-        bail!("{}: holds no audio frame", input.display());
-    }
-    Ok((decoded.header.rate, decoded.pcm, decoded.features))
+    let heard = MediaFile::open(input)?.heard()?;
+    Ok((heard.rate, heard.pcm, heard.features))
 }
 
 pub fn weight_track(args: &AnimateArgs) -> Result<Animation> {
@@ -99,15 +67,10 @@ pub fn weight_track(args: &AnimateArgs) -> Result<Animation> {
         closure_bias: args.closure_bias,
         visemes,
     };
-    let mut lipsync = LipSync::new(&model, &options)?;
-    let rows = animate_stream(&mut lipsync, &features);
-    let target = lipsync.visemes().clone();
     // Frame by frame as the app makes them, from the same features and decoded samples.
-    let poses = if args.life {
-        life_track(&features, &pcm, args.seed)
-    } else {
-        Vec::new()
-    };
+    let mut pipeline = PeerPipeline::new(&model, &options, args.seed, args.life)?;
+    let Track { rows, poses } = stream_track(&mut pipeline, &features, &pcm);
+    let target = pipeline.visemes().clone();
     Ok(Animation {
         visemes: target,
         rows,
@@ -217,20 +180,16 @@ fn render_frames(
     Ok(())
 }
 
-/// WEIGHTS.csv: `frame,time_s,<viseme names>`, one row per 20 ms.
+/// Writes WEIGHTS.csv ([`crate::call::csv`]), one row per 20 ms.
 pub fn write_weights_csv(path: &Path, track: &Animation) -> Result<()> {
     let file =
         std::fs::File::create(path).with_context(|| format!("cannot write {}", path.display()))?;
     let mut out = std::io::BufWriter::new(file);
     let names: Vec<&str> = track.visemes.members().iter().map(|v| v.name()).collect();
-    writeln!(out, "frame,time_s,{}", names.join(","))?;
+    csv::weights_header(&mut out, &names)?;
     for (n, row) in track.rows.iter().enumerate() {
         let time = (n * FRAME_SIZE) as f64 / f64::from(track.rate);
-        write!(out, "{n},{time:.3}")?;
-        for w in row {
-            write!(out, ",{w:.4}")?;
-        }
-        writeln!(out)?;
+        csv::weights_row(&mut out, n, time, row)?;
     }
     out.flush()
         .with_context(|| format!("cannot write {}", path.display()))

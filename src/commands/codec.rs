@@ -6,6 +6,8 @@ use std::path::Path;
 use anyhow::{Context, Result, bail};
 
 use crate::audio::wav;
+use crate::call::csv;
+use crate::call::media::{MediaFile, MediaKind};
 use crate::codec::opus;
 use crate::codec::speex::codec::EncoderConfig;
 use crate::codec::speex::stream;
@@ -76,15 +78,14 @@ pub fn encode(input: &Path, output: &Path, settings: EncodeSettings) -> Result<(
 /// Decodes an Ogg Speex or Ogg Opus file, told apart by its content (an `.opus` name that
 /// holds no Opus gets the Opus reader's account of what it holds).
 pub fn decode(input: &Path, output: &Path, features: Option<&Path>, enhancer: bool) -> Result<()> {
-    let bytes = crate::input::read(input, crate::input::MAX_INPUT_BYTES)?;
-    if opus::ogg_file::holds_opus(&bytes) || has_opus_extension(input) {
+    let file = MediaFile::open(input)?;
+    if file.kind() == Some(MediaKind::OggOpus) {
         if features.is_some() {
             bail!("--features is not available for Opus files yet (only for Speex)");
         }
-        return decode_opus(input, output, &bytes);
+        return decode_opus(input, output, &file);
     }
-    let decoded =
-        stream::decode(&bytes, enhancer).with_context(|| format!("{}", input.display()))?;
+    let decoded = file.speex(enhancer)?;
     // As animate: a stream without a frame of audio is an error, not an empty WAV.
     if decoded.pcm.is_empty() {
         bail!("{}: holds no audio frame", input.display());
@@ -115,8 +116,8 @@ pub fn decode(input: &Path, output: &Path, features: Option<&Path>, enhancer: bo
     Ok(())
 }
 
-fn decode_opus(input: &Path, output: &Path, bytes: &[u8]) -> Result<()> {
-    let decoded = opus::stream::decode(bytes).with_context(|| format!("{}", input.display()))?;
+fn decode_opus(input: &Path, output: &Path, file: &MediaFile) -> Result<()> {
+    let decoded = file.opus()?;
     if decoded.pcm.is_empty() {
         bail!("{}: holds no audio frame", input.display());
     }
@@ -141,21 +142,15 @@ fn decode_opus(input: &Path, output: &Path, bytes: &[u8]) -> Result<()> {
     Ok(())
 }
 
-/// Writes FEATURES.csv: `frame,time_s,mode,lsp1..lsp10,energy_db`, one row per 20 ms.
+/// Writes FEATURES.csv ([`crate::call::csv`]), one row per 20 ms.
 pub fn write_features_csv(path: &Path, rate: u32, rows: &[FrameFeatures]) -> Result<()> {
     let file =
         std::fs::File::create(path).with_context(|| format!("cannot write {}", path.display()))?;
     let mut out = std::io::BufWriter::new(file);
-    let lsp_names: Vec<String> = (1..=10).map(|i| format!("lsp{i}")).collect();
-    writeln!(out, "frame,time_s,mode,{},energy_db", lsp_names.join(","))?;
+    csv::features_header(&mut out)?;
     for (n, row) in rows.iter().enumerate() {
         let time = (n * FRAME_SIZE) as f64 / f64::from(rate);
-        let mode = row.mode.map(|m| m.to_string()).unwrap_or_default();
-        write!(out, "{n},{time:.3},{mode}")?;
-        for l in row.lsp {
-            write!(out, ",{l:.6}")?;
-        }
-        writeln!(out, ",{:.2}", row.energy_db)?;
+        csv::features_row(&mut out, n, time, row)?;
     }
     out.flush()
         .with_context(|| format!("cannot write {}", path.display()))

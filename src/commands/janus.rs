@@ -8,13 +8,13 @@ use std::time::{Duration, Instant};
 
 use anyhow::{Context, Result, bail};
 
-use super::net::{FrameSource, load_packets, open_outputs, play, print_peer, send_paced};
+use super::net::{load_packets, open_outputs, play, print_event, print_peer, send_paced};
 use super::recording::stop_flag;
+use crate::call::janus::JanusLink;
 use crate::codec::any::{Codec, EncoderSettings};
 use crate::net::janus::JanusError;
 use crate::net::janus::room::{Member, Notice, RoomConfig, server_addr};
 use crate::net::jitter::JitterConfig;
-use crate::net::session::PeerFrame;
 use crate::vocab::FrameFeatures;
 
 #[derive(Debug, Clone)]
@@ -51,19 +51,7 @@ fn announce_security() {
 
 fn print_notices(notices: &[Notice]) {
     for n in notices {
-        match n {
-            Notice::Joined { feed, name } => {
-                eprintln!("lipcall: {name:?} ({feed}) is publishing; subscribed")
-            }
-            Notice::Left { feed, name } => eprintln!("lipcall: {name:?} ({feed}) left"),
-            Notice::Lost { reason } => {
-                eprintln!("lipcall: lost the Janus room ({reason}); rejoining")
-            }
-            Notice::RejoinFailed { reason } => {
-                eprintln!("lipcall: cannot rejoin yet ({reason}); trying every second")
-            }
-            Notice::Rejoined { id } => eprintln!("lipcall: back in the Janus room as {id}"),
-        }
+        print_event(&n.clone().into());
     }
 }
 
@@ -126,27 +114,6 @@ pub struct JanusReceiveArgs {
     pub seconds: Option<f64>,
 }
 
-/// The room as a source of played frames; Janus's events are followed between pulls.
-struct RoomSource {
-    room: Member,
-    /// Someone published at some point.
-    heard: bool,
-}
-
-impl FrameSource for RoomSource {
-    fn pull(&mut self, now: Instant, out: &mut Vec<PeerFrame>) -> Result<()> {
-        print_notices(&self.room.poll());
-        self.room.pull(now, out);
-        self.heard |= !out.is_empty();
-        Ok(())
-    }
-
-    fn all_left(&mut self) -> bool {
-        let feeds = self.room.feeds();
-        self.heard && self.room.in_room() && feeds.iter().all(|f| f.left)
-    }
-}
-
 pub fn receive(args: &JanusReceiveArgs) -> Result<()> {
     receive_with(args, &mut |_, _, _| {})
 }
@@ -173,32 +140,34 @@ pub fn receive_with(
         room.id().unwrap_or("-")
     );
     print_notices(&notices);
-    let mut source = RoomSource { room, heard: false };
+    let place = format!("Janus room {:?} on {}", args.janus.room, args.janus.url);
+    let mut link = JanusLink::joined(room, server, place);
     let played = play(
-        &mut source,
+        &mut link,
         args.seconds,
         model.as_ref(),
         on_frame,
         &mut recorder,
         &stop,
     );
-    let RoomSource { room, .. } = source;
-    let stats = room.media_stats();
-    eprintln!(
-        "lipcall: played {:.2} s; datagrams={} unmatched={} sent={}",
-        recorder.seconds(),
-        stats.datagrams,
-        stats.unmatched,
-        stats.sent
-    );
-    // The same line per peer as a direct `receive`, the feed's media coming from Janus.
-    for feed in room.feeds() {
-        match feed.peer_info(server) {
-            Some(peer) => print_peer(&peer),
-            None => eprintln!("peer feed={} name={:?} no media", feed.feed, feed.name),
+    if let Some(room) = link.member() {
+        let stats = room.media_stats();
+        eprintln!(
+            "lipcall: played {:.2} s; datagrams={} unmatched={} sent={}",
+            recorder.seconds(),
+            stats.datagrams,
+            stats.unmatched,
+            stats.sent
+        );
+        // The same line per peer as a direct `receive`, the feed's media coming from Janus.
+        for feed in room.feeds() {
+            match feed.peer_info(server) {
+                Some(peer) => print_peer(&peer),
+                None => eprintln!("peer feed={} name={:?} no media", feed.feed, feed.name),
+            }
         }
     }
-    if let Err(e) = room.leave() {
+    if let Err(e) = link.hang_up() {
         eprintln!("lipcall: leaving the room: {e}");
     }
     let finished = recorder.finish();

@@ -9,17 +9,17 @@ use std::time::{Duration, Instant};
 use anyhow::{Context, Result, bail};
 
 use super::recording::{Recorder, TICK, stop_flag, stopped};
-use crate::audio::wav;
-use crate::codec::any::{Codec, EncoderSettings, FrameEncoder, MAX_FRAME_PAYLOAD, PayloadMap};
-use crate::codec::speex::split::split_frames;
-use crate::codec::{opus, speex};
+use crate::call::link::{Link, LinkEvent};
+use crate::call::media::{MediaError, MediaFile, MediaKind, Packets};
+use crate::call::pipeline::{Animated, PeerPipeline};
+use crate::codec::any::{Codec, EncoderSettings, PayloadMap};
 use crate::lipsync::network::Model;
 use crate::lipsync::{self, LipSync, LipSyncOptions};
 use crate::net::relay::{Relay, RelayConfig};
 use crate::net::session::{PeerFrame, PeerInfo, Session, SessionConfig};
 use crate::net::srtp::MasterKey;
+use crate::vocab::FRAME_SIZE;
 use crate::vocab::FrameFeatures;
-use crate::vocab::{FRAME_SIZE, SAMPLE_RATE};
 
 /// How the call is keyed.
 #[derive(Debug, Clone, Default)]
@@ -66,24 +66,6 @@ fn announce_security(key: &Option<MasterKey>) {
     }
 }
 
-/// Payloads to send, each with its duration in ticks of the codec's RTP clock.
-type Packets = Vec<(Vec<u8>, u32)>;
-
-/// Encodes 8 kHz audio in 20 ms frames (the last padded with silence).
-fn encode_pcm(pcm: &[i16], codec: Codec, settings: &EncoderSettings) -> Result<Packets> {
-    let mut encoder = FrameEncoder::new(codec, settings)?;
-    let mut payload = [0u8; MAX_FRAME_PAYLOAD];
-    let mut out = Vec::with_capacity(pcm.len() / FRAME_SIZE + 1);
-    for chunk in pcm.chunks(FRAME_SIZE) {
-        let mut frame = [0i16; FRAME_SIZE];
-        frame[..chunk.len()].copy_from_slice(chunk);
-        if let Some((n, frames)) = encoder.encode(&frame, &mut payload)? {
-            out.push((payload[..n].to_vec(), frames * codec.frame_ticks()));
-        }
-    }
-    Ok(out)
-}
-
 /// Sends `packets` (payload, duration in RTP ticks of `codec`) each at its time from now, as a
 /// live source would.
 pub(crate) fn send_paced(
@@ -105,62 +87,21 @@ pub(crate) fn send_paced(
     Ok(())
 }
 
-/// What `send` sends: a coded file as it is (Ogg Speex, Ogg Opus), or audio encoded here (a
-/// WAV, or a coded file when `--codec` asks for another codec). Without `--codec`, a WAV goes
-/// as Speex, the reference path.
+/// What `send` sends ([`MediaFile::packets`]). A name of no known type whose content tells
+/// nothing (or that cannot be read) is refused for its name.
 pub(crate) fn load_packets(
     input: &Path,
     codec: Option<Codec>,
     settings: &EncoderSettings,
 ) -> Result<(Codec, Packets)> {
-    let ext = input
-        .extension()
-        .and_then(|e| e.to_str())
-        .map(str::to_ascii_lowercase);
-    let read = || crate::input::read(input, crate::input::MAX_INPUT_BYTES);
-    let what = || input.display().to_string();
-    match ext.as_deref() {
-        Some("spx" | "ogg" | "opus") => {
-            let bytes = read()?;
-            if opus::ogg_file::holds_opus(&bytes) || ext.as_deref() == Some("opus") {
-                let decoded = opus::stream::decode(&bytes).with_context(what)?;
-                if codec.is_some_and(|c| c != Codec::Opus) {
-                    let codec = codec.unwrap_or(Codec::Opus);
-                    return Ok((codec, encode_pcm(&decoded.pcm, codec, settings)?));
-                }
-                // Timestamps count 48 kHz ticks; the packets were decoded at 8 kHz.
-                let per_sample = Codec::Opus.clock_rate() / SAMPLE_RATE;
-                let packets = decoded
-                    .packets
-                    .into_iter()
-                    .map(|p| (p.data, p.samples as u32 * per_sample))
-                    .collect();
-                return Ok((Codec::Opus, packets));
-            }
-            if codec.is_some_and(|c| c != Codec::Speex) {
-                let codec = codec.unwrap_or(Codec::Speex);
-                let decoded = speex::stream::decode(&bytes, true).with_context(what)?;
-                return Ok((codec, encode_pcm(&decoded.pcm, codec, settings)?));
-            }
-            let file = speex::ogg_file::read(&bytes).with_context(what)?;
-            let per_packet = file.header.frames_per_packet.max(1) as u32;
-            let step = Codec::Speex.frame_ticks();
-            let mut out = Vec::new();
-            for packet in file.pages.iter().flat_map(|p| &p.packets) {
-                match split_frames(packet) {
-                    Some(frames) => out.extend(frames.into_iter().map(|f| (f, step))),
-                    None => out.push((packet.clone(), per_packet * step)),
-                }
-            }
-            Ok((Codec::Speex, out))
+    let file = match MediaFile::open(input) {
+        Ok(file) => file,
+        Err(_) if MediaKind::from_extension(input).is_none() => {
+            return Err(MediaError::Unknown(input.display().to_string()).into());
         }
-        Some("wav") => {
-            let pcm = wav::read_narrowband(input)?;
-            let codec = codec.unwrap_or(Codec::Speex);
-            Ok((codec, encode_pcm(&pcm, codec, settings)?))
-        }
-        _ => bail!("{}: expected a .wav, .spx or .opus file", input.display()),
-    }
+        Err(e) => return Err(e.into()),
+    };
+    Ok(file.packets(codec, settings)?)
 }
 
 /// The payload-type map from `--pt CODEC=PT` flags.
@@ -331,11 +272,11 @@ pub struct ReceiveArgs {
     pub payload_types: Vec<String>,
 }
 
-/// What the receiver keeps per remote speaker: with `--weights`, its lip sync and the output
+/// What the receiver keeps per remote speaker: with `--weights`, its pipeline and the output
 /// ticks of the frames whose weights have not come out yet.
 struct PeerTrack<'m> {
     ssrc: u32,
-    lipsync: Option<LipSync<'m>>,
+    pipeline: Option<PeerPipeline<'m>>,
     /// The next frame's tag (frames fed to the lip sync, counted).
     next_tag: u64,
     /// (tag, output tick) of frames waiting for their weights, oldest first.
@@ -347,10 +288,13 @@ impl PeerTrack<'_> {
     fn store(
         waiting: &mut VecDeque<(u64, usize)>,
         ssrc: u32,
-        out: Option<(u64, &[f32])>,
+        out: Option<Animated<'_>>,
         recorder: &mut Recorder,
     ) -> Result<()> {
-        let Some((tag, w)) = out else {
+        let Some(Animated {
+            tag, weights: w, ..
+        }) = out
+        else {
             return Ok(());
         };
         while let Some(&(t, frame)) = waiting.front() {
@@ -366,8 +310,8 @@ impl PeerTrack<'_> {
     /// The frames still waiting for their look-ahead, given out now (the peer's next frame
     /// did not come in time, or the call ended).
     fn flush(&mut self, all: bool, recorder: &mut Recorder) -> Result<()> {
-        if let Some(lipsync) = &mut self.lipsync {
-            while let Some(out) = lipsync.flush() {
+        if let Some(pipeline) = &mut self.pipeline {
+            while let Some(out) = pipeline.flush() {
                 Self::store(&mut self.waiting, self.ssrc, Some(out), recorder)?;
                 if !all {
                     break;
@@ -445,13 +389,13 @@ pub fn receive_with(
         args.weights.as_deref(),
     )?;
     announce_security(&config.key);
-    let session = Session::start(config)?;
+    let mut session = Session::start(config)?;
     eprintln!("lipcall: listening on {}", session.local_addr()?);
     if args.room.is_some() {
         wait_for_relay(&session)?;
     }
     let played = play(
-        &mut &session,
+        &mut session,
         args.seconds,
         model.as_ref(),
         on_frame,
@@ -483,32 +427,30 @@ pub fn receive_with(
     played.and(finished)
 }
 
-/// Where a receiver's played frames come from: a [`Session`], or a Janus room.
-pub(crate) trait FrameSource {
-    /// The next 20 ms (starting at `now` on the output clock) of every peer that is playing.
-    fn pull(&mut self, now: Instant, out: &mut Vec<PeerFrame>) -> Result<()>;
-    /// Every peer that came has left (the receive ends there without `--seconds`).
-    fn all_left(&mut self) -> bool;
-}
-
-impl FrameSource for &Session {
-    fn pull(&mut self, now: Instant, out: &mut Vec<PeerFrame>) -> Result<()> {
-        Session::pull(self, now, out);
-        Ok(())
-    }
-
-    /// Asked only once someone played: peers that said BYE are left, and so are peers the
-    /// session forgot (silent for its peer timeout).
-    fn all_left(&mut self) -> bool {
-        self.peers().iter().all(|p| p.said_bye)
+/// What a link said, on stderr (a Janus room's publishers and losses).
+pub(crate) fn print_event(event: &LinkEvent) {
+    match event {
+        LinkEvent::Joined { place, id } => eprintln!("lipcall: in {place} as {id}"),
+        LinkEvent::Failed(reason) => eprintln!("lipcall: the call failed: {reason}"),
+        LinkEvent::PeerJoined { id, name } => {
+            eprintln!("lipcall: {name:?} ({id}) is publishing; subscribed")
+        }
+        LinkEvent::PeerLeft { id, name } => eprintln!("lipcall: {name:?} ({id}) left"),
+        LinkEvent::Lost { reason } => {
+            eprintln!("lipcall: lost the Janus room ({reason}); rejoining")
+        }
+        LinkEvent::RejoinFailed { reason } => {
+            eprintln!("lipcall: cannot rejoin yet ({reason}); trying every second")
+        }
+        LinkEvent::Rejoined { id } => eprintln!("lipcall: back in the Janus room as {id}"),
     }
 }
 
-/// The receive loop: pulls every 20 ms, mixes, runs each peer's lip sync when a model is
+/// The receive loop: pulls every 20 ms, mixes, runs each peer's pipeline when a model is
 /// given, and streams what it plays to `recorder`. Ends after `seconds`, when every peer has
 /// left (without `seconds`), or when `stop` is set (SIGINT, SIGTERM).
 pub(crate) fn play<'m>(
-    source: &mut dyn FrameSource,
+    link: &mut dyn Link,
     seconds: Option<f64>,
     model: Option<&'m Model>,
     on_frame: &mut dyn FnMut(u32, f64, &FrameFeatures),
@@ -536,10 +478,11 @@ pub(crate) fn play<'m>(
             break Ok(());
         }
         frames.clear();
-        if let Err(e) = source.pull(due, &mut frames) {
-            break Err(e);
+        for event in link.poll() {
+            print_event(&event);
         }
-        if frames.is_empty() && timeline.is_some() && limit.is_none() && source.all_left() {
+        link.pull(due, &mut frames);
+        if frames.is_empty() && timeline.is_some() && limit.is_none() && link.all_left() {
             break Ok(());
         }
         if frames.is_empty() && timeline.is_none() {
@@ -577,13 +520,18 @@ fn play_tick<'m>(
         let slot = match tracks.iter().position(|t| t.ssrc == f.ssrc) {
             Some(i) => i,
             None => {
-                let lipsync = match model {
-                    Some(model) => Some(LipSync::new(model, &LipSyncOptions::default())?),
+                let pipeline = match model {
+                    Some(model) => Some(PeerPipeline::new(
+                        model,
+                        &LipSyncOptions::default(),
+                        u64::from(f.ssrc),
+                        false,
+                    )?),
                     None => None,
                 };
                 tracks.push(PeerTrack {
                     ssrc: f.ssrc,
-                    lipsync,
+                    pipeline,
                     next_tag: 0,
                     waiting: VecDeque::new(),
                 });
@@ -592,11 +540,11 @@ fn play_tick<'m>(
         };
         let track = &mut tracks[slot];
         recorder.features(f.ssrc, index, &f.frame.features)?;
-        if let Some(lipsync) = &mut track.lipsync {
+        if let Some(pipeline) = &mut track.pipeline {
             let tag = track.next_tag;
             track.next_tag += 1;
             track.waiting.push_back((tag, index));
-            let out = lipsync.push(tag, &f.frame.features);
+            let out = pipeline.push(tag, &f.frame.features, &f.frame.pcm);
             PeerTrack::store(&mut track.waiting, f.ssrc, out, recorder)?;
         }
     }

@@ -16,6 +16,7 @@ use std::time::Duration;
 
 use anyhow::{Context, Result};
 
+use crate::call::csv;
 use crate::vocab::FrameFeatures;
 use crate::vocab::{FRAME_SIZE, SAMPLE_RATE};
 
@@ -84,15 +85,6 @@ pub(crate) struct Recorder {
     since_sync: usize,
 }
 
-fn features_header(out: &mut Csv) -> std::io::Result<()> {
-    let lsp: Vec<String> = (1..=10).map(|i| format!("lsp{i}")).collect();
-    writeln!(out, "frame,time_s,mode,{},energy_db", lsp.join(","))
-}
-
-fn weights_header(out: &mut Csv, names: &[String]) -> std::io::Result<()> {
-    writeln!(out, "frame,time_s,{}", names.join(","))
-}
-
 fn time_of(frame: usize) -> f64 {
     frame as f64 * TICK.as_secs_f64()
 }
@@ -147,7 +139,8 @@ impl Recorder {
             Some(path) => {
                 let path = target(path);
                 let mut out = create(&path)?;
-                features_header(&mut out).with_context(|| format!("writing {}", path.display()))?;
+                csv::features_header(&mut out)
+                    .with_context(|| format!("writing {}", path.display()))?;
                 Some((path, out))
             }
             None => None,
@@ -156,7 +149,7 @@ impl Recorder {
             Some(path) => {
                 let path = target(path);
                 let mut out = create(&path)?;
-                weights_header(&mut out, &self.viseme_names)
+                csv::weights_header(&mut out, &self.viseme_names)
                     .with_context(|| format!("writing {}", path.display()))?;
                 Some((path, out))
             }
@@ -214,15 +207,8 @@ impl Recorder {
         let Some((path, out)) = &mut self.peer(ssrc)?.features else {
             return Ok(());
         };
-        let mode = features.mode.map(|m| m.to_string()).unwrap_or_default();
-        let mut row = || -> std::io::Result<()> {
-            write!(out, "{frame},{:.3},{mode}", time_of(frame))?;
-            for l in features.lsp {
-                write!(out, ",{l:.6}")?;
-            }
-            writeln!(out, ",{:.2}", features.energy_db)
-        };
-        row().with_context(|| format!("writing {}", path.display()))
+        csv::features_row(out, frame, time_of(frame), features)
+            .with_context(|| format!("writing {}", path.display()))
     }
 
     /// A peer's weights for output tick `frame` (empty: none came for it).
@@ -233,14 +219,8 @@ impl Recorder {
         let Some((path, out)) = &mut self.peer(ssrc)?.weights else {
             return Ok(());
         };
-        let mut row = || -> std::io::Result<()> {
-            write!(out, "{frame},{:.3}", time_of(frame))?;
-            for w in weights {
-                write!(out, ",{w:.4}")?;
-            }
-            writeln!(out)
-        };
-        row().with_context(|| format!("writing {}", path.display()))
+        csv::weights_row(out, frame, time_of(frame), weights)
+            .with_context(|| format!("writing {}", path.display()))
     }
 
     /// Seconds of audio written (what was played, up to its last audible tick).

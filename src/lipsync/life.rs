@@ -511,20 +511,6 @@ impl LifeGenerator {
     }
 }
 
-/// The poses of a whole stream, one per feature row (row n's samples are
-/// `pcm[n * 160..(n + 1) * 160]`), as the app makes them frame by frame.
-pub fn life_track(features: &[FrameFeatures], pcm: &[i16], seed: u64) -> Vec<FacePose> {
-    let mut life = LifeGenerator::new(seed);
-    features
-        .iter()
-        .enumerate()
-        .map(|(n, f)| {
-            let samples = pcm.get(n * FRAME_SIZE..(n + 1) * FRAME_SIZE).unwrap_or(&[]);
-            life.step_frame(f, samples)
-        })
-        .collect()
-}
-
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -622,18 +608,6 @@ mod tests {
         let poses = |seed| run(&mut LifeGenerator::new(seed), 1500, speech_frame);
         assert_eq!(poses(3), poses(3));
         assert_ne!(poses(3), poses(4));
-        // The helper the offline path uses is the same thing.
-        let pcm: Vec<i16> = (0..300).flat_map(speech_frame).collect();
-        let features: Vec<FrameFeatures> = pcm
-            .chunks(FRAME_SIZE)
-            .map(|c| FrameFeatures {
-                mode: Some(5),
-                lsp: crate::vocab::flat_lsp(),
-                energy_db: energy(c),
-                family: crate::vocab::FeatureFamily::Bitstream,
-            })
-            .collect();
-        assert_eq!(life_track(&features, &pcm, 3), poses(3)[..300].to_vec());
     }
 
     #[test]

@@ -1,8 +1,8 @@
-//! The one receiver pipeline, from decoded frames to the weights a head shows: the network (or
-//! the jaw baseline) with its closure bias, one frame of free look-ahead, a still mouth in
-//! digital silence, and the re-projection onto the viseme set the viewer chose. The app, `lipcall
-//! receive --weights` and `lipcall animate` all use it, so what `animate` writes is what the app
-//! shows.
+//! Decoded frames to the weights a head shows: the network (or the jaw baseline) with its
+//! closure bias, one frame of free look-ahead, a still mouth in digital silence, and the
+//! re-projection onto the viseme set the viewer chose. `crate::call::pipeline` wraps it with the
+//! living face into the one per-peer pipeline of the app, `receive`, `animate` and evaluation,
+//! so what `animate` writes and `evaluate` scores is what the app shows.
 //!
 //! Look-ahead: a model with `lookahead` 1 gives the weights of frame n once frame n + 1 has been
 //! decoded. The jitter buffer and the output device hold at least 20 ms each, so frame n + 1 is
@@ -10,6 +10,8 @@
 //! (a loss burst, the end of a talk spurt, the jitter buffer at its floor), the caller asks for
 //! [`LipSync::flush`]: the frame is animated as if its future repeated the newest frame, and the
 //! network's own output for it is dropped when the real future arrives.
+
+use std::marker::PhantomData;
 
 use super::jaw::JawBaseline;
 use super::network::{MAX_LOOKAHEAD, Model};
@@ -44,9 +46,10 @@ impl Default for LipSyncOptions {
     }
 }
 
-/// One peer's weights, in stream order, each tagged with the caller's tag of its frame.
-pub struct LipSync<'m> {
-    animator: Box<dyn Animator + Send + 'm>,
+/// One peer's weights, in stream order, each tagged with the caller's tag of its frame. The
+/// animator is the model's (or the jaw's) by default; evaluation hands in one of its own.
+pub struct LipSync<'m, A: Animator + ?Sized = dyn Animator + Send + 'm> {
+    animator: Box<A>,
     reprojector: Reprojector,
     lookahead: usize,
     /// Frames fed whose network output has not come yet, oldest first: (tag, silent).
@@ -57,6 +60,30 @@ pub struct LipSync<'m> {
     raw: Vec<f32>,
     out: Vec<f32>,
     rest: Vec<f32>,
+    model: PhantomData<&'m ()>,
+}
+
+/// An animator borrowed for a run (evaluation's), so a [`LipSync`] can drive it.
+impl<T: Animator + ?Sized> Animator for &mut T {
+    fn visemes(&self) -> &VisemeSet {
+        (**self).visemes()
+    }
+
+    fn reset(&mut self) {
+        (**self).reset();
+    }
+
+    fn animate(&mut self, features: &FrameFeatures, weights: &mut [f32]) {
+        (**self).animate(features, weights);
+    }
+
+    fn lookahead(&self) -> usize {
+        (**self).lookahead()
+    }
+
+    fn peek(&mut self, extra: usize, weights: &mut [f32]) {
+        (**self).peek(extra, weights);
+    }
 }
 
 impl<'m> LipSync<'m> {
@@ -69,8 +96,18 @@ impl<'m> LipSync<'m> {
                 options.closure_bias,
             ))
         };
+        Self::with_animator(animator, options.visemes.clone())
+    }
+}
+
+impl<'m, A: Animator + ?Sized> LipSync<'m, A> {
+    /// Around `animator`, re-projecting onto `visemes` (`None`: the animator's own set).
+    pub fn with_animator(
+        animator: Box<A>,
+        visemes: Option<VisemeSet>,
+    ) -> Result<Self, ReprojectError> {
         let source = animator.visemes().clone();
-        let target = options.visemes.clone().unwrap_or_else(|| source.clone());
+        let target = visemes.unwrap_or_else(|| source.clone());
         let mut rest = vec![0.0; target.len()];
         match target.position(Viseme::Sil).or(target.position(Viseme::PP)) {
             Some(i) => rest[i] = 1.0,
@@ -94,6 +131,7 @@ impl<'m> LipSync<'m> {
             pending: [(0, false); MAX_LOOKAHEAD + 1],
             pending_len: 0,
             flushed: 0,
+            model: PhantomData,
         })
     }
 
@@ -180,25 +218,25 @@ impl<'m> LipSync<'m> {
     }
 }
 
-/// Weights of every frame of a stream, in order, as the receiver gives them out (the frames
-/// still waiting at the end are flushed).
-pub fn animate_stream(lipsync: &mut LipSync, features: &[FrameFeatures]) -> Vec<Vec<f32>> {
-    let mut rows = Vec::with_capacity(features.len());
-    for (n, f) in features.iter().enumerate() {
-        if let Some((_, w)) = lipsync.push(n as u64, f) {
-            rows.push(w.to_vec());
-        }
-    }
-    while let Some((_, w)) = lipsync.flush() {
-        rows.push(w.to_vec());
-    }
-    rows
-}
-
 #[cfg(test)]
 mod tests {
     use super::*;
     use crate::lipsync::network::{InputScaling, silence_features};
+
+    /// Weights of every frame of a stream, in order, as the receiver gives them out (the frames
+    /// still waiting at the end are flushed).
+    fn animate_stream(lipsync: &mut LipSync, features: &[FrameFeatures]) -> Vec<Vec<f32>> {
+        let mut rows = Vec::with_capacity(features.len());
+        for (n, f) in features.iter().enumerate() {
+            if let Some((_, w)) = lipsync.push(n as u64, f) {
+                rows.push(w.to_vec());
+            }
+        }
+        while let Some((_, w)) = lipsync.flush() {
+            rows.push(w.to_vec());
+        }
+        rows
+    }
 
     fn loud(value: f32) -> FrameFeatures {
         let mut f = silence_features();

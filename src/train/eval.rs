@@ -17,6 +17,7 @@
 
 use std::fmt;
 
+use crate::call::pipeline::{PeerPipeline, run_stream};
 use crate::lipsync::decompose::{PointTrack, eq1_error, important_points};
 use crate::lipsync::jaw::JawBaseline;
 use crate::lipsync::mouth::{
@@ -24,7 +25,7 @@ use crate::lipsync::mouth::{
 };
 use crate::lipsync::network::Model;
 use crate::lipsync::phones::CueClass;
-use crate::lipsync::{Animator, ModelAnimator};
+use crate::lipsync::{Animator, LipSync, ModelAnimator};
 use crate::train::corpus::{Corpus, CorpusError, FeatureFn, PreparedUtterance, prepare};
 use crate::vocab::{Viseme, VisemeSet};
 
@@ -201,33 +202,38 @@ fn argmax_viseme(set: &VisemeSet, weights: &[f32]) -> Viseme {
     set.members()[best.0]
 }
 
-/// Runs an animator over every utterance (reset at each new speaker), frame n's weights at row n
-/// whatever its look-ahead: the last frames, whose future never comes, as the receiver's
-/// fallback gives them.
+/// Runs an animator over every utterance (reset at each new speaker) through the receiver's
+/// own pipeline ([`PeerPipeline`]: look-ahead, the rest in digital silence, the fallback for
+/// the last frames, whose future never comes), frame n's weights at row n: what `animate`
+/// writes and the app shows.
 pub fn predict(animator: &mut dyn Animator, utterances: &[PreparedUtterance]) -> Vec<Vec<f32>> {
     let k = animator.visemes().len();
-    let lookahead = animator.lookahead();
-    let mut scratch = vec![0.0; k];
+    let borrowed: Box<dyn Animator + '_> = Box::new(animator);
+    let mut pipeline = match LipSync::with_animator(borrowed, None) {
+        Ok(lipsync) => PeerPipeline::with_lipsync(lipsync),
+        Err(e) => {
+            // No receiver can show this set either; its rows score as an idle mouth.
+            tracing::error!("the model's viseme set cannot be shown: {e}");
+            return utterances
+                .iter()
+                .map(|u| vec![0.0; u.features.len() * k])
+                .collect();
+        }
+    };
     let mut speaker: Option<&str> = None;
     utterances
         .iter()
         .map(|utt| {
             // One speaker's utterances run as one call (the per-speaker state carries over).
             if speaker != Some(utt.speaker.as_str()) {
-                animator.reset();
+                pipeline.reset();
                 speaker = Some(utt.speaker.as_str());
             }
-            let frames = utt.features.len();
-            let mut out = vec![0.0; frames * k];
-            for (m, f) in utt.features.iter().enumerate() {
-                match m.checked_sub(lookahead) {
-                    Some(n) => animator.animate(f, &mut out[n * k..(n + 1) * k]),
-                    None => animator.animate(f, &mut scratch),
-                }
-            }
-            for n in frames.saturating_sub(lookahead)..frames {
-                animator.peek(n + lookahead + 1 - frames, &mut out[n * k..(n + 1) * k]);
-            }
+            let mut out = vec![0.0; utt.features.len() * k];
+            run_stream(&mut pipeline, &utt.features, &[], |frame| {
+                let n = frame.tag as usize;
+                out[n * k..(n + 1) * k].copy_from_slice(frame.weights);
+            });
             out
         })
         .collect()

@@ -13,12 +13,13 @@
 //! multiply-adds instead of a spectrum and a root search, so that the features cost a few
 //! percent of decoding (`cargo bench --bench codec`).
 
+use std::collections::VecDeque;
 use std::f64::consts::PI;
 use std::sync::LazyLock;
 
 use super::stream::Decoded;
 use crate::codec::lpc::{LpcAnalyser, levinson, lsp_from_lpc};
-use crate::codec::silk::{Nlsf, SilkWalker};
+use crate::codec::silk::{Frame, Nlsf, SilkWalker};
 use crate::vocab::{FRAME_SIZE, LSP_COUNT, SAMPLE_RATE};
 use crate::vocab::{FrameFeatures, energy_db, ordered_lsp};
 
@@ -141,61 +142,142 @@ fn refit(angles: &[f64], band: f64) -> Option<[f32; LSP_COUNT]> {
     Some(ordered_lsp(out))
 }
 
-/// The feature rows of a decoded Ogg Opus stream, one per 160 samples of `decoded.pcm` (8 kHz):
-/// each row takes the LSPs of the SILK frame whose decoded samples overlap it most, or an LPC
-/// analysis of its own audio where that frame was CELT-only; the energy is the row's.
-pub fn stream_features(decoded: &Decoded) -> Vec<FrameFeatures> {
-    let rows = decoded.pcm.len() / FRAME_SIZE;
-    // Per row: the LSPs of the most overlapping SILK frame so far, and that overlap.
-    let mut coded: Vec<Option<([f32; LSP_COUNT], u8, i64)>> = vec![None; rows];
-    let scale = i64::from(decoded.rate.max(1));
-    let mut walker = SilkWalker::new();
-    for packet in &decoded.packets {
-        let Ok(frames) = walker.walk_packet(&packet.data) else {
-            walker.packet_lost();
-            continue;
-        };
-        let mut start = packet.pcm_offset;
-        for frame in frames {
-            let (length, lsp, mode) = match frame {
-                crate::codec::silk::Frame::Silk(silk) => (
-                    i64::from(silk.duration_ms) * scale / 1000,
-                    narrowband_lsp(&silk.nlsf, silk.internal_rate_hz),
-                    silk.bandwidth as u8,
-                ),
-                crate::codec::silk::Frame::Celt { duration_48k, .. }
-                | crate::codec::silk::Frame::Concealed { duration_48k, .. } => {
-                    (i64::from(duration_48k) * scale / 48_000, None, 0)
-                }
-            };
-            if let Some(lsp) = lsp {
-                let end = start + length;
-                let first = start.max(0) / FRAME_SIZE as i64;
-                let last = (end - 1).max(0) / FRAME_SIZE as i64;
-                for row in first..=last.min(rows as i64 - 1) {
-                    let (lo, hi) = (row * FRAME_SIZE as i64, (row + 1) * FRAME_SIZE as i64);
-                    let overlap = hi.min(end) - lo.max(start);
-                    if let Some(slot) = coded.get_mut(row as usize)
-                        && overlap > 0
-                        && slot.is_none_or(|(_, _, best)| overlap > best)
-                    {
-                        *slot = Some((lsp, mode, overlap));
-                    }
-                }
-            }
-            start += length;
+/// One walked SILK-layer frame's span of decoded samples at `rate`, with the LSPs it codes and
+/// its bandwidth (`None`: a CELT-only or concealed frame codes none).
+pub fn frame_span(frame: &Frame, rate: u32) -> (Option<([f32; LSP_COUNT], u8)>, usize) {
+    let rate = rate as usize;
+    match frame {
+        Frame::Silk(silk) => (
+            narrowband_lsp(&silk.nlsf, silk.internal_rate_hz).map(|l| (l, silk.bandwidth as u8)),
+            silk.duration_ms as usize * rate / 1000,
+        ),
+        Frame::Celt { duration_48k, .. } | Frame::Concealed { duration_48k, .. } => {
+            (None, *duration_48k as usize * rate / 48_000)
         }
     }
+}
+
+/// The coded spans of a stream, in order, and their assignment to 20 ms rows: a row takes what
+/// the span covering most of its samples codes (the earliest of equals). The receiver pushes
+/// each payload's frames as it decodes them and takes a row per frame played
+/// ([`crate::codec::decoder`]); [`stream_features`] does the same over a whole file. Adjacent
+/// spans coding the same thing are one; at most `capacity` spans are kept (a full queue
+/// lengthens its newest).
+#[derive(Debug, Clone)]
+pub struct CodedRuns<T> {
+    runs: VecDeque<(Option<T>, usize)>,
+    capacity: usize,
+}
+
+impl CodedRuns<([f32; LSP_COUNT], u8)> {
+    /// A payload's walked frames, decoded to `samples` samples at `rate` (what its frames do
+    /// not cover codes nothing).
+    pub fn push_packet(&mut self, frames: &[Frame], samples: usize, rate: u32) {
+        let mut left = samples;
+        for frame in frames {
+            let (coded, length) = frame_span(frame, rate);
+            let length = length.min(left);
+            self.push(coded, length);
+            left -= length;
+        }
+        self.push(None, left);
+    }
+}
+
+impl<T: Copy + PartialEq> CodedRuns<T> {
+    pub fn with_capacity(capacity: usize) -> Self {
+        Self {
+            runs: VecDeque::with_capacity(capacity),
+            capacity: capacity.max(1),
+        }
+    }
+
+    /// The next `samples` samples code `coded` (`None`: nothing).
+    pub fn push(&mut self, coded: Option<T>, samples: usize) {
+        if samples == 0 {
+            return;
+        }
+        let full = self.runs.len() >= self.capacity;
+        match self.runs.back_mut() {
+            Some(last) if full || last.0 == coded => last.1 += samples,
+            _ => self.runs.push_back((coded, samples)),
+        }
+    }
+
+    /// Keeps the first `len` samples.
+    pub fn truncate(&mut self, len: usize) {
+        let mut kept = 0;
+        let mut runs = 0;
+        for run in self.runs.iter_mut() {
+            if kept >= len {
+                break;
+            }
+            run.1 = run.1.min(len - kept);
+            kept += run.1;
+            runs += 1;
+        }
+        self.runs.truncate(runs);
+    }
+
+    /// Takes `samples` samples off the front: what the coded run that covers most of them codes.
+    pub fn take(&mut self, mut samples: usize) -> Option<T> {
+        let mut best: Option<(T, usize)> = None;
+        while samples > 0 {
+            let Some(front) = self.runs.front_mut() else {
+                break;
+            };
+            let n = front.1.min(samples);
+            if let Some(coded) = front.0
+                && best.is_none_or(|(_, most)| n > most)
+            {
+                best = Some((coded, n));
+            }
+            front.1 -= n;
+            samples -= n;
+            if front.1 == 0 {
+                self.runs.pop_front();
+            }
+        }
+        best.map(|(coded, _)| coded)
+    }
+}
+
+/// The feature rows of a decoded Ogg Opus stream, one per 160 samples of `decoded.pcm` (8 kHz):
+/// each row takes the LSPs of the SILK frame whose decoded samples overlap it most
+/// ([`CodedRuns`], as the receiver assigns them), or an LPC analysis of its own audio where
+/// that frame was CELT-only; the energy is the row's.
+pub fn stream_features(decoded: &Decoded) -> Vec<FrameFeatures> {
+    let rows = decoded.pcm.len() / FRAME_SIZE;
+    let mut runs = CodedRuns::with_capacity(decoded.packets.len() * 3 + 2);
+    let mut walker = SilkWalker::new();
+    // Samples pushed, counted from the first of `decoded.pcm` (negative inside the pre-skip).
+    let mut at = decoded.packets.first().map_or(0, |p| p.pcm_offset.min(0));
+    let skipped = usize::try_from(-at).unwrap_or(0);
+    for packet in &decoded.packets {
+        if packet.pcm_offset > at {
+            runs.push(None, (packet.pcm_offset - at) as usize);
+            at = packet.pcm_offset;
+        }
+        let Ok(frames) = walker.walk_packet(&packet.data) else {
+            walker.packet_lost();
+            runs.push(None, packet.samples);
+            at += packet.samples as i64;
+            continue;
+        };
+        runs.push_packet(&frames, packet.samples, decoded.rate.max(1));
+        at += packet.samples as i64;
+    }
+    runs.take(skipped);
     let mut analyser = LpcAnalyser::new();
     decoded
         .pcm
         .chunks_exact(FRAME_SIZE)
-        .zip(coded)
-        .map(|(samples, coded)| {
+        .take(rows)
+        .map(|samples| {
             let pcm: &[i16; FRAME_SIZE] = samples.try_into().expect("chunks of FRAME_SIZE");
             // Only rows without NLSFs are analysed, as the receiver does (codec::decoder).
-            match coded {
-                Some((lsp, mode, _)) => FrameFeatures {
+            match runs.take(FRAME_SIZE) {
+                Some((lsp, mode)) => FrameFeatures {
                     mode: Some(mode),
                     lsp,
                     energy_db: energy_db(pcm),

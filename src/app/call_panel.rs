@@ -1,0 +1,133 @@
+//! The call bar: call a peer, join a room on a relay or a Janus server, leave; the codec sent
+//! and whether the call is encrypted.
+
+use eframe::egui;
+
+use super::engine::{self, CallSpec, Command, Engine};
+use super::settings::Settings;
+use crate::codec::any::Codec;
+
+/// The call form's fields.
+#[derive(Debug, Clone, Default)]
+pub struct CallForm {
+    pub address: String,
+    pub room: String,
+    pub passphrase: String,
+}
+
+/// Join a room on a relay or call a peer directly; leave; the encryption indicator.
+pub(super) fn call_ui(
+    ui: &mut egui::Ui,
+    form: &mut CallForm,
+    settings: &mut Settings,
+    call: &engine::CallStatus,
+    engine: &Engine,
+) {
+    ui.horizontal_wrapped(|ui| {
+        ui.strong("lipcall");
+        ui.separator();
+        ui.label("Name");
+        ui.add(egui::TextEdit::singleline(&mut settings.name).desired_width(90.0));
+        ui.label("Address");
+        ui.add(
+            egui::TextEdit::singleline(&mut form.address)
+                .hint_text("host:port or Janus URL")
+                .desired_width(150.0),
+        );
+        ui.label("Room");
+        ui.add(
+            egui::TextEdit::singleline(&mut form.room)
+                .hint_text("(direct call)")
+                .desired_width(90.0),
+        );
+        ui.label("Passphrase");
+        ui.add(
+            egui::TextEdit::singleline(&mut form.passphrase)
+                .password(true)
+                .desired_width(90.0),
+        );
+        codec_picker_ui(ui, &mut settings.codec);
+        let label = if form.room.trim().is_empty() {
+            "Call"
+        } else {
+            "Join room"
+        };
+        if ui
+            .add_enabled(!form.address.trim().is_empty(), egui::Button::new(label))
+            .clicked()
+        {
+            settings.last_address = form.address.clone();
+            settings.last_room = form.room.clone();
+            engine.send(Command::Call(CallSpec {
+                address: form.address.clone(),
+                room: Some(form.room.clone()),
+                passphrase: Some(form.passphrase.clone()),
+                name: settings.name.clone(),
+                codec: settings.codec,
+            }));
+        }
+        if ui
+            .add_enabled(call.in_call, egui::Button::new("Leave"))
+            .clicked()
+        {
+            engine.send(Command::Leave);
+        }
+        ui.separator();
+        let warn = egui::Color32::from_rgb(230, 160, 60);
+        match call.encryption {
+            engine::Encryption::EndToEnd => {
+                ui.colored_label(egui::Color32::LIGHT_GREEN, "encrypted end to end (SRTP)")
+            }
+            engine::Encryption::HopByHop => ui
+                .colored_label(
+                    warn,
+                    "encrypted hop by hop: the Janus server can hear the call",
+                )
+                .on_hover_text(
+                    "WebRTC encrypts each link (DTLS-SRTP). Janus decrypts every stream it \
+                     forwards; only lipcall's own rooms with a passphrase are end to end.",
+                ),
+            engine::Encryption::None => ui.colored_label(warn, "NOT encrypted"),
+        };
+        ui.label(&call.state);
+        if call.unknown_payload > 0 {
+            ui.colored_label(
+                egui::Color32::from_rgb(230, 160, 60),
+                format!(
+                    "{} packets of unknown payload types dropped",
+                    call.unknown_payload
+                ),
+            );
+        }
+        if let Some(e) = &call.error {
+            ui.colored_label(egui::Color32::LIGHT_RED, e);
+        }
+    });
+}
+
+/// The codec we send in the next call (a call in progress keeps its own).
+fn codec_picker_ui(ui: &mut egui::Ui, codec: &mut Codec) {
+    // One widget (its label inside), so that the row never wraps between label and box.
+    egui::ComboBox::from_id_salt("codec")
+        .selected_text(format!("Send {}", codec_label(*codec)))
+        .width(90.0)
+        .show_ui(ui, |ui| {
+            for c in Codec::ALL {
+                ui.selectable_value(codec, c, codec_label(c));
+            }
+        })
+        .response
+        .on_hover_text(
+            "The codec we send in new calls. Opus is what most VoIP speaks; every peer may \
+             send any of Opus, Speex, PCMU and PCMA, and all are received.",
+        );
+}
+
+pub(super) fn codec_label(codec: Codec) -> &'static str {
+    match codec {
+        Codec::Speex => "Speex",
+        Codec::Opus => "Opus",
+        Codec::Pcmu => "PCMU",
+        Codec::Pcma => "PCMA",
+    }
+}

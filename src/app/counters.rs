@@ -1,0 +1,38 @@
+//! What the app's engine and its roster both name, in a leaf neither imports the other for:
+//! the engine's counters and the demo peer's name.
+
+use std::sync::atomic::{AtomicU64, Ordering};
+
+/// Name the demo peer announces (SDES), so the UI can tell it apart.
+pub const DEMO_NAME: &str = "Demo speaker";
+
+/// Time spent in the animation network (and re-projection), for the CPU report.
+#[derive(Debug, Default)]
+pub struct EngineCounters {
+    pub network_ns: AtomicU64,
+    pub frames_animated: AtomicU64,
+    pub ticks: AtomicU64,
+    /// Weights scheduled; of them, those given out by the look-ahead's fallback (the next
+    /// frame was late), and those scheduled after their frame had begun to be heard (the face
+    /// lagged the voice by up to the lateness), with the summed lateness in samples.
+    pub weights_sent: AtomicU64,
+    pub weights_fallback: AtomicU64,
+    pub weights_late: AtomicU64,
+    pub late_samples: AtomicU64,
+}
+
+impl EngineCounters {
+    /// Counts one row of weights for the frame at stream position `pos`, heard up to `heard`.
+    pub(crate) fn weights_scheduled(&self, pos: u64, heard: Option<u64>, fallback: bool) {
+        self.weights_sent.fetch_add(1, Ordering::Relaxed);
+        if fallback {
+            self.weights_fallback.fetch_add(1, Ordering::Relaxed);
+        }
+        if let Some(heard) = heard
+            && heard > pos
+        {
+            self.weights_late.fetch_add(1, Ordering::Relaxed);
+            self.late_samples.fetch_add(heard - pos, Ordering::Relaxed);
+        }
+    }
+}

@@ -1,0 +1,228 @@
+//! A room on a Janus server as a call's [`Link`]: VideoRoom signalling and WebRTC media
+//! ([`crate::net::janus`]). The app's join (HTTP signalling, ICE and DTLS take a second or
+//! more) runs on its own thread so that the 20 ms tick never waits for it; the command line
+//! joins first and hands the room over.
+
+use std::net::SocketAddr;
+use std::thread::JoinHandle;
+use std::time::Instant;
+
+use super::link::{Link, LinkEvent};
+use crate::net::janus::JanusError;
+use crate::net::janus::room::{Member, Notice, RoomConfig, server_addr};
+use crate::net::session::{PeerFrame, PeerInfo};
+
+/// RTP ticks of one 20 ms frame on WebRTC's 48 kHz Opus clock.
+const OPUS_TICKS_PER_FRAME: u32 = 960;
+
+/// Whether a call address names a Janus server (its HTTP API) rather than a lipcall peer or
+/// relay (`host:port`).
+pub fn is_janus_url(address: &str) -> bool {
+    let a = address.trim();
+    a.starts_with("http://") || a.starts_with("https://")
+}
+
+type Joining = JoinHandle<Result<(Member, Vec<Notice>), JanusError>>;
+
+enum RoomState {
+    Joining(Option<Joining>),
+    In(Box<Member>),
+    Failed,
+}
+
+/// Why a join could not even start.
+#[derive(Debug, thiserror::Error)]
+pub enum JoinError {
+    #[error(transparent)]
+    Janus(#[from] JanusError),
+    #[error("cannot start the join's thread: {0}")]
+    Thread(#[from] std::io::Error),
+}
+
+/// Our membership of a Janus VideoRoom, from the first request on.
+pub struct JanusLink {
+    state: RoomState,
+    /// Where the server is, shown as every publisher's address.
+    server: SocketAddr,
+    place: String,
+    /// Someone published at some point.
+    heard: bool,
+}
+
+impl JanusLink {
+    /// Starts joining (publishing our microphone, subscribing to everyone else).
+    pub fn join(config: RoomConfig) -> Result<Self, JoinError> {
+        let server = server_addr(config.url.trim())?;
+        let place = format!("Janus room {:?} on {}", config.room, config.url);
+        let handle = std::thread::Builder::new()
+            .name("janus-join".into())
+            .spawn(move || Member::join(config, true))?;
+        Ok(Self {
+            state: RoomState::Joining(Some(handle)),
+            server,
+            place,
+            heard: false,
+        })
+    }
+
+    /// Around a room already joined (the command line joins before it plays).
+    pub fn joined(member: Member, server: SocketAddr, place: String) -> Self {
+        Self {
+            state: RoomState::In(Box::new(member)),
+            server,
+            place,
+            heard: false,
+        }
+    }
+
+    /// The room and server, for the call's status.
+    pub fn place(&self) -> &str {
+        &self.place
+    }
+
+    /// Follows the join, then the room (publishers coming and going, a lost and rejoined
+    /// session).
+    fn follow(&mut self) -> Vec<LinkEvent> {
+        match &mut self.state {
+            RoomState::Joining(handle) => {
+                if !handle.as_ref().is_some_and(JoinHandle::is_finished) {
+                    return Vec::new();
+                }
+                let joined = handle.take().map(JoinHandle::join);
+                match joined {
+                    Some(Ok(Ok((member, notices)))) => {
+                        let mut news = vec![LinkEvent::Joined {
+                            place: self.place.clone(),
+                            id: member.id().unwrap_or("-").to_owned(),
+                        }];
+                        news.extend(notices.into_iter().map(LinkEvent::from));
+                        self.state = RoomState::In(Box::new(member));
+                        news
+                    }
+                    Some(Ok(Err(e))) => self.fail(describe_janus_error(&e)),
+                    _ => self.fail("the Janus join stopped unexpectedly".into()),
+                }
+            }
+            RoomState::In(member) => member.poll().into_iter().map(LinkEvent::from).collect(),
+            RoomState::Failed => Vec::new(),
+        }
+    }
+
+    fn fail(&mut self, reason: String) -> Vec<LinkEvent> {
+        self.state = RoomState::Failed;
+        vec![LinkEvent::Failed(reason)]
+    }
+
+    /// Our membership, once joined.
+    pub fn member(&self) -> Option<&Member> {
+        match &self.state {
+            RoomState::In(member) => Some(member),
+            _ => None,
+        }
+    }
+
+    /// Leaves the room; `Err` where Janus did not confirm it.
+    pub fn hang_up(&mut self) -> Result<(), JanusError> {
+        match std::mem::replace(&mut self.state, RoomState::Failed) {
+            RoomState::In(member) => member.leave(),
+            // A join still running finishes on its own thread; its session times out on the
+            // server. Joining it here would stall the tick for as long as the join takes.
+            RoomState::Joining(_) | RoomState::Failed => Ok(()),
+        }
+    }
+
+    fn feed_infos(&self) -> Vec<PeerInfo> {
+        let Some(member) = self.member() else {
+            return Vec::new();
+        };
+        member
+            .feeds()
+            .iter()
+            .filter_map(|feed| feed.peer_info(self.server))
+            .collect()
+    }
+}
+
+/// A join's failure, with what to do about a pin.
+pub fn describe_janus_error(e: &JanusError) -> String {
+    match e {
+        JanusError::Plugin { code, reason } if *code == 433 || reason.contains("pin") => {
+            format!("{e}: the room has a pin, give it as the passphrase")
+        }
+        _ => e.to_string(),
+    }
+}
+
+impl Link for JanusLink {
+    fn pull(&mut self, now: Instant, out: &mut Vec<PeerFrame>) {
+        if let Some(m) = self.member() {
+            m.pull(now, out);
+        }
+        self.heard |= !out.is_empty();
+    }
+
+    fn peers(&self) -> Vec<PeerInfo> {
+        self.feed_infos()
+    }
+
+    fn all_left(&self) -> bool {
+        self.member()
+            .is_some_and(|m| self.heard && m.in_room() && m.feeds().iter().all(|f| f.left))
+    }
+
+    fn send_frames(&mut self, payload: &[u8], frames: u32) {
+        if let Some(m) = self.member()
+            && let Err(e) = m.send(payload, frames * OPUS_TICKS_PER_FRAME)
+        {
+            tracing::debug!("send to Janus: {e}");
+        }
+    }
+
+    fn skip_frames(&mut self, frames: u32) {
+        if let Some(m) = self.member() {
+            m.skip(frames * OPUS_TICKS_PER_FRAME);
+        }
+    }
+
+    fn unknown_payload(&self) -> u64 {
+        self.member()
+            .map(|m| m.feeds().iter().map(|f| f.receiver.unknown_payload).sum())
+            .unwrap_or(0)
+    }
+
+    fn leave(&mut self) {
+        if let Err(e) = self.hang_up() {
+            tracing::warn!("leaving the Janus room: {e}");
+        }
+    }
+
+    fn poll(&mut self) -> Vec<LinkEvent> {
+        self.follow()
+    }
+}
+
+/// A room's notice as any link says it.
+impl From<Notice> for LinkEvent {
+    fn from(notice: Notice) -> Self {
+        match notice {
+            Notice::Joined { feed, name } => LinkEvent::PeerJoined { id: feed, name },
+            Notice::Left { feed, name } => LinkEvent::PeerLeft { id: feed, name },
+            Notice::Lost { reason } => LinkEvent::Lost { reason },
+            Notice::RejoinFailed { reason } => LinkEvent::RejoinFailed { reason },
+            Notice::Rejoined { id } => LinkEvent::Rejoined { id },
+        }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn janus_urls_are_told_from_peer_addresses() {
+        assert!(is_janus_url("http://127.0.0.1:8088/janus"));
+        assert!(is_janus_url(" https://janus.example/janus"));
+        assert!(!is_janus_url("127.0.0.1:5004"));
+        assert!(!is_janus_url("relay.example:5004"));
+    }
+}

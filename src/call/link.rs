@@ -1,0 +1,124 @@
+//! A call's transport as the receive side sees it: decoded frames of every remote peer pulled
+//! on the output clock, the peers described, our own frames sent. lipcall's session (a direct
+//! call or a relay room) and a Janus room implement it; the app's worker and `receive` drive
+//! any of them alike.
+
+use std::net::SocketAddr;
+use std::time::Instant;
+
+use crate::net::session::{PeerFrame, PeerInfo, Session};
+
+/// What a link did since the last poll, for the caller to show.
+#[derive(Debug, Clone, PartialEq)]
+pub enum LinkEvent {
+    /// In the call (`place`: where, as the status shows it) as `id`.
+    Joined {
+        place: String,
+        id: String,
+    },
+    /// The first join failed: the call is over.
+    Failed(String),
+    /// A peer started sending (`id`: the transport's name for it).
+    PeerJoined {
+        id: String,
+        name: String,
+    },
+    PeerLeft {
+        id: String,
+        name: String,
+    },
+    /// The call was lost (the server restarted or is unreachable); getting it back.
+    Lost {
+        reason: String,
+    },
+    /// An attempt to get it back failed (said once per distinct reason).
+    RejoinFailed {
+        reason: String,
+    },
+    /// Back in the call, as `id`.
+    Rejoined {
+        id: String,
+    },
+}
+
+/// One call's transport.
+pub trait Link: Send {
+    /// The next 20 ms (starting at `now` on the output clock) of every peer that is playing.
+    fn pull(&mut self, now: Instant, out: &mut Vec<PeerFrame>);
+
+    /// Every remote peer, described (name, address, codec, reception statistics).
+    fn peers(&self) -> Vec<PeerInfo>;
+
+    /// Every peer that came has left (asked once someone played): a receive ends there.
+    fn all_left(&self) -> bool;
+
+    /// Sends one encoded payload of `frames` 20 ms frames of our own audio.
+    fn send_frames(&mut self, payload: &[u8], frames: u32);
+
+    /// Frames not sent (the microphone gate was closed): our stream's clock moves on.
+    fn skip_frames(&mut self, frames: u32);
+
+    /// RTP packets of payload types nobody mapped, dropped.
+    fn unknown_payload(&self) -> u64;
+
+    /// Hangs up (a second call does nothing).
+    fn leave(&mut self);
+
+    /// What happened since the last call (joins, losses, peers coming and going).
+    fn poll(&mut self) -> Vec<LinkEvent> {
+        Vec::new()
+    }
+
+    /// Where peers can reach us directly, if they can.
+    fn local_addr(&self) -> Option<SocketAddr> {
+        None
+    }
+
+    /// lipcall's own RTP session underneath, where the link runs on one (its relay handshake,
+    /// its statistics).
+    fn session(&self) -> Option<&Session> {
+        None
+    }
+}
+
+impl Link for Session {
+    fn pull(&mut self, now: Instant, out: &mut Vec<PeerFrame>) {
+        Session::pull(self, now, out);
+    }
+
+    fn peers(&self) -> Vec<PeerInfo> {
+        Session::peers(self)
+    }
+
+    /// Peers that said BYE are left, and so are peers the session forgot (silent for its peer
+    /// timeout).
+    fn all_left(&self) -> bool {
+        Session::peers(self).iter().all(|p| p.said_bye)
+    }
+
+    fn send_frames(&mut self, payload: &[u8], frames: u32) {
+        if let Err(e) = Session::send_frames(self, payload, frames) {
+            tracing::debug!("send: {e}");
+        }
+    }
+
+    fn skip_frames(&mut self, frames: u32) {
+        Session::skip_frames(self, frames);
+    }
+
+    fn unknown_payload(&self) -> u64 {
+        self.stats().unknown_payload
+    }
+
+    fn leave(&mut self) {
+        Session::leave(self);
+    }
+
+    fn local_addr(&self) -> Option<SocketAddr> {
+        Session::local_addr(self).ok()
+    }
+
+    fn session(&self) -> Option<&Session> {
+        Some(self)
+    }
+}
