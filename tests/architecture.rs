@@ -62,7 +62,6 @@ const CYCLES_BEING_BROKEN: &[&[&str]] = &[
         "render/renderer.rs",
         "render/target.rs",
     ],
-    &["train/closure_snap.rs", "train/init.rs", "train/trainer.rs"],
 ];
 
 const MAX_MAIN_LINES: usize = 150;

@@ -16,12 +16,13 @@ use crate::lipsync::{self, recipe};
 use crate::train::codec_features::{
     CodecFeatures, CodecPath, EVALUATION_QUALITY, LOW_QUALITY, augmentation_settings, quality,
 };
+use crate::train::config::TrainConfig;
 use crate::train::corpus::{Corpus, PreparedUtterance, SpeakerSplit, Utterance};
 use crate::train::crossval::{
     CrossValidation, SpeakerGroup, cross_validate, matching_snap, train_final,
 };
 use crate::train::eval::{EvalReport, evaluate_prepared, write_frames};
-use crate::train::trainer::{EpochStats, TrainConfig, train_on};
+use crate::train::trainer::{EpochStats, train_on};
 use crate::train::{an4, plot};
 use crate::vocab::FeatureFamily;
 use crate::vocab::VisemeSet;

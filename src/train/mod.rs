@@ -4,9 +4,11 @@ pub mod an4;
 mod backprop;
 mod closure_snap;
 pub mod codec_features;
+pub mod config;
 pub mod corpus;
 pub mod crossval;
 mod dataset;
+pub mod error;
 pub mod eval;
 mod init;
 pub mod plot;
@@ -14,7 +16,9 @@ pub mod sharpness;
 pub mod targets;
 pub mod trainer;
 
-pub use trainer::{TrainConfig, TrainReport, run};
+pub use config::TrainConfig;
+pub use error::TrainError;
+pub use trainer::{TrainReport, run};
 
 #[cfg(test)]
 pub(crate) mod stand_in;
