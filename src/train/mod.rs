@@ -2,6 +2,7 @@
 
 pub mod an4;
 mod backprop;
+pub mod card;
 mod closure_snap;
 pub mod codec_features;
 pub mod config;
@@ -11,8 +12,10 @@ mod dataset;
 pub mod error;
 pub mod eval;
 mod init;
+pub mod plan;
 pub mod plot;
 pub mod sharpness;
+pub mod table_i;
 pub mod targets;
 pub mod trainer;
 
