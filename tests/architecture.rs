@@ -120,6 +120,51 @@ fn main_rs_only_parses_and_dispatches() {
     );
 }
 
+/// The long flags of `lipcall <command> --help`, in the order shown.
+fn listed_flags(command: &str) -> Vec<String> {
+    let out = std::process::Command::new(env!("CARGO_BIN_EXE_lipcall"))
+        .args([command, "--help"])
+        .output()
+        .expect("run lipcall");
+    String::from_utf8_lossy(&out.stdout)
+        .lines()
+        .filter_map(|line| line.trim_start().strip_prefix("--"))
+        .filter_map(|rest| rest.split([' ', '\t']).next().map(str::to_owned))
+        .collect()
+}
+
+/// `--janus` is declared beside the flattened call arguments (`commands::janus::SendCommand`)
+/// and placed after the address by its display order; the help keeps the order it always had.
+#[test]
+fn send_and_receive_help_keep_their_flag_order() {
+    assert_eq!(
+        listed_flags("send"),
+        [
+            "to", "janus", "key", "key-hex", "name", "room", "codec", "quality", "pt", "no-rtcp",
+            "ssrc",
+        ]
+    );
+    assert_eq!(
+        listed_flags("receive"),
+        [
+            "listen",
+            "janus",
+            "wav",
+            "weights",
+            "features",
+            "key",
+            "key-hex",
+            "seconds",
+            "peer-timeout",
+            "clock-tolerance",
+            "relay",
+            "room",
+            "name",
+            "pt",
+        ]
+    );
+}
+
 #[test]
 fn no_file_over_the_size_limit() {
     let src = src_dir();
