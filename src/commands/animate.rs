@@ -18,22 +18,50 @@ use crate::vocab::FacePose;
 use crate::vocab::FrameFeatures;
 use crate::vocab::VisemeSet;
 
+/// `lipcall animate`'s flags. `baseline_jaw` replaces the network by the jaw baseline;
+/// `closure_bias` is [`crate::lipsync::ModelAnimator::with_closure_bias`]'s; `life` off keeps
+/// eyes and head still; the same `seed` gives the same living face.
+#[derive(Debug, Clone, clap::Args)]
 pub struct AnimateArgs {
     pub input: PathBuf,
+    /// Write WEIGHTS.csv: frame,time_s,<viseme names>.
+    #[arg(long, value_name = "WEIGHTS.csv")]
     pub weights: Option<PathBuf>,
+    /// Render numbered PNG frames of the head (plus weights.csv and audio.wav) into DIR.
+    #[arg(long, value_name = "DIR")]
     pub frames: Option<PathBuf>,
+    /// A glTF/GLB head with viseme or ARKit morph targets instead of the bundled one.
+    #[arg(long, value_name = "HEAD.glb")]
     pub head: Option<PathBuf>,
+    /// Frames per second of the rendered frames.
+    #[arg(long, default_value_t = 25, value_parser = parse_fps)]
     pub fps: u32,
+    /// Frame the mouth close-up (the lipreading view) instead of the whole face.
+    #[arg(long = "mouth")]
     pub mouth_close_up: bool,
+    /// Viseme set: a count (2..6 or 15) or names such as PP,aa,I.
+    #[arg(long, value_name = "N|NAMES")]
     pub visemes: Option<String>,
+    /// A model file from `lipcall train` instead of the built-in network.
+    #[arg(long, value_name = "FILE")]
     pub model: Option<PathBuf>,
+    /// Compare with a baseline instead of the network: `jaw` opens the jaw with the energy.
+    // A bool behind a valued flag: the hidden "" is the default when --baseline is absent.
+    #[arg(id = "baseline", long = "baseline", value_name = "BASELINE",
+          action = clap::ArgAction::Set, default_value = "", hide_default_value = true,
+          value_parser = baseline_parser())]
     pub baseline_jaw: bool,
-    /// [`ModelAnimator::with_closure_bias`]: -1 fewer lip closures .. 1 more.
+    /// Lip closures, from -1 (fewer, only the surest) through 0 (the model's balance) to 1
+    /// (close for nearly every /p b m/, and more often where there is none).
+    #[arg(long = "closures", value_name = "B", default_value_t = 0.0, allow_hyphen_values = true,
+          value_parser = crate::lipsync::parse_closure_bias)]
     pub closure_bias: f32,
-    /// The living face (blinks, saccades, head motion) in rendered frames; off: eyes and head
-    /// still, as with `--no-life`.
+    /// A still face in the frames: no blinks, no eye or head motion (the mouth still moves).
+    #[arg(long = "no-life", action = clap::ArgAction::SetFalse)]
     pub life: bool,
-    /// Seed of the living face's random choices (the same seed, the same face).
+    /// Seed of the living face's blinks, glances and head motion (the same seed and audio
+    /// give the same frames).
+    #[arg(long, value_name = "N", default_value_t = crate::lipsync::life::DEFAULT_SEED)]
     pub seed: u64,
 }
 
@@ -193,4 +221,19 @@ pub fn write_weights_csv(path: &Path, track: &Animation) -> Result<()> {
     }
     out.flush()
         .with_context(|| format!("cannot write {}", path.display()))
+}
+
+fn parse_fps(arg: &str) -> Result<u32, String> {
+    match arg {
+        "25" => Ok(25),
+        "50" => Ok(50),
+        _ => Err("must be 25 or 50".into()),
+    }
+}
+
+/// `--baseline`: `jaw` (true); the hidden empty value is the flag left out.
+fn baseline_parser() -> impl clap::builder::TypedValueParser<Value = bool> {
+    use clap::builder::{PossibleValue, PossibleValuesParser, TypedValueParser as _};
+    PossibleValuesParser::new([PossibleValue::new("jaw"), PossibleValue::new("").hide(true)])
+        .map(|name| name == "jaw")
 }

@@ -8,6 +8,17 @@ use crate::audio::{
     self, Capture, DeviceChoice, DeviceInfo, OutputStatus, Playback, PlaybackConfig,
 };
 
+/// `lipcall devices`'s flags.
+#[derive(Debug, Clone, clap::Args)]
+pub struct DevicesArgs {
+    /// Output device id (from the list), or "default".
+    #[arg(long)]
+    pub output: Option<String>,
+    /// Input device id (from the list), or "default".
+    #[arg(long)]
+    pub input: Option<String>,
+}
+
 fn print_list(title: &str, list: Result<Vec<DeviceInfo>, audio::AudioError>) {
     println!("{title}:");
     match list {

@@ -1,7 +1,7 @@
 //! `lipcall encode` and `lipcall decode`.
 
 use std::io::Write;
-use std::path::Path;
+use std::path::{Path, PathBuf};
 
 use anyhow::{Context, Result, bail};
 
@@ -35,6 +35,51 @@ impl FileCodec {
 fn has_opus_extension(path: &Path) -> bool {
     path.extension()
         .is_some_and(|e| e.eq_ignore_ascii_case("opus"))
+}
+
+/// `lipcall encode`'s flags; [`EncodeArgs::settings`] checks that they fit the codec.
+#[derive(Debug, Clone, clap::Args)]
+pub struct EncodeArgs {
+    pub input: PathBuf,
+    pub output: PathBuf,
+    /// The codec (default: opus for an .opus output, otherwise speex).
+    #[arg(long, value_enum)]
+    pub codec: Option<FileCodec>,
+    /// Speex quality, 0 (lowest) to 10 (highest); default 8.
+    #[arg(long, value_parser = clap::value_parser!(u8).range(0..=10))]
+    pub quality: Option<u8>,
+    /// Speex: variable bit rate.
+    #[arg(long)]
+    pub vbr: bool,
+    /// Encoder complexity: Speex 1 to 10 (default 3), Opus 0 to 10 (default 10).
+    #[arg(long, value_parser = clap::value_parser!(u8).range(0..=10))]
+    pub complexity: Option<u8>,
+    /// Speex: frames (20 ms each) per Ogg packet; default 1.
+    #[arg(long, value_parser = clap::value_parser!(u8).range(1..=8))]
+    pub frames_per_packet: Option<u8>,
+    /// Opus bitrate in kb/s, 6 to 510; default 16.
+    #[arg(long, value_name = "KBPS", value_parser = parse_kbps)]
+    pub bitrate: Option<u32>,
+    /// Opus: expected packet loss in percent; turns on in-band FEC (which libopus codes
+    /// from 18 kb/s in narrowband).
+    #[arg(long, value_name = "PERCENT", value_parser = clap::value_parser!(u8).range(0..=100))]
+    pub expect_loss: Option<u8>,
+    /// Opus: discontinuous transmission (tiny packets in silence).
+    #[arg(long)]
+    pub dtx: bool,
+}
+
+/// `lipcall decode`'s flags.
+#[derive(Debug, Clone, clap::Args)]
+pub struct DecodeArgs {
+    pub input: PathBuf,
+    pub output: PathBuf,
+    /// Write FEATURES.csv: frame,time_s,mode,lsp1..lsp10,energy_db.
+    #[arg(long, value_name = "FEATURES.csv")]
+    pub features: Option<PathBuf>,
+    /// Speex: turn the perceptual enhancer off (speexdec --no-enh).
+    #[arg(long)]
+    pub no_enh: bool,
 }
 
 /// What `encode` writes: the codec and its settings.
@@ -154,4 +199,59 @@ pub fn write_features_csv(path: &Path, rate: u32, rows: &[FrameFeatures]) -> Res
     }
     out.flush()
         .with_context(|| format!("cannot write {}", path.display()))
+}
+
+/// kb/s as opusenc's --bitrate takes them, to bits per second.
+fn parse_kbps(arg: &str) -> Result<u32, String> {
+    match arg.parse::<f64>() {
+        Ok(k) if (6.0..=510.0).contains(&k) => Ok((k * 1000.0).round() as u32),
+        _ => Err("must be a number of kb/s from 6 to 510".into()),
+    }
+}
+
+impl EncodeArgs {
+    /// The codec and its settings, or the usage error of a flag that belongs to the other
+    /// codec.
+    pub fn settings(&self) -> Result<EncodeSettings, &'static str> {
+        let codec = self
+            .codec
+            .unwrap_or_else(|| FileCodec::for_path(&self.output));
+        match codec {
+            FileCodec::Speex => {
+                if self.bitrate.is_some() || self.expect_loss.is_some() || self.dtx {
+                    return Err("--bitrate, --expect-loss and --dtx are Opus settings \
+                                (use --codec opus or an .opus output)");
+                }
+                if self.complexity == Some(0) {
+                    return Err("Speex complexity is 1 to 10");
+                }
+                let d = EncoderConfig::default();
+                Ok(EncodeSettings::Speex(EncoderConfig {
+                    quality: self.quality.unwrap_or(d.quality),
+                    vbr: self.vbr,
+                    complexity: self.complexity.unwrap_or(d.complexity),
+                    frames_per_packet: self
+                        .frames_per_packet
+                        .map_or(d.frames_per_packet, usize::from),
+                }))
+            }
+            FileCodec::Opus => {
+                if self.quality.is_some() || self.vbr || self.frames_per_packet.is_some() {
+                    return Err(
+                        "--quality, --vbr and --frames-per-packet are Speex settings; \
+                                Opus takes --bitrate",
+                    );
+                }
+                let d = opus::codec::EncoderConfig::default();
+                Ok(EncodeSettings::Opus(opus::codec::EncoderConfig {
+                    bitrate: self.bitrate.unwrap_or(d.bitrate),
+                    complexity: self.complexity.unwrap_or(d.complexity),
+                    fec: self.expect_loss.is_some_and(|l| l > 0),
+                    loss_percent: self.expect_loss.unwrap_or(0),
+                    dtx: self.dtx,
+                    ..d
+                }))
+            }
+        }
+    }
 }

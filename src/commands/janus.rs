@@ -8,7 +8,9 @@ use std::time::{Duration, Instant};
 
 use anyhow::{Context, Result, bail};
 
-use super::net::{load_packets, open_outputs, play, print_event, print_peer, send_paced};
+use super::net::{
+    ReceiveArgs, SendArgs, load_packets, open_outputs, play, print_event, print_peer, send_paced,
+};
 use super::recording::stop_flag;
 use crate::call::janus::JanusLink;
 use crate::codec::any::{Codec, EncoderSettings};
@@ -105,6 +107,33 @@ pub fn send(input: &std::path::Path, janus: &JanusArgs) -> Result<()> {
     Ok(())
 }
 
+/// `lipcall send`'s flags: a direct or relayed call, or with `--janus` a Janus room (`--room`
+/// and `--key` then name the room and its pin).
+#[derive(Debug, Clone, clap::Args)]
+pub struct SendCommand {
+    #[command(flatten)]
+    pub call: SendArgs,
+    /// Publish in a room (--room) of this Janus server instead, http://HOST:PORT/janus;
+    /// --key is the room's pin. Sent as Opus over WebRTC.
+    // Listed right after --to (display order 1 sorts before --key's by name).
+    #[arg(long, value_name = "URL", conflicts_with_all = ["to", "key_hex", "codec", "ssrc"],
+          requires = "room", display_order = 1)]
+    pub janus: Option<String>,
+}
+
+/// `lipcall receive`'s flags: direct callers or a relay room, or with `--janus` a Janus room.
+#[derive(Debug, Clone, clap::Args)]
+pub struct ReceiveCommand {
+    #[command(flatten)]
+    pub call: ReceiveArgs,
+    /// Join a room (--room) of this Janus server instead, http://HOST:PORT/janus, and
+    /// receive every publisher there; --key is the room's pin.
+    // Listed right after --listen (display order 1 sorts before --wav's by name).
+    #[arg(long, value_name = "URL", conflicts_with_all = ["listen", "relay", "key_hex"],
+          requires = "room", display_order = 1)]
+    pub janus: Option<String>,
+}
+
 #[derive(Debug, Clone)]
 pub struct JanusReceiveArgs {
     pub janus: JanusArgs,
@@ -172,4 +201,41 @@ pub fn receive_with(
     }
     let finished = recorder.finish();
     played.and(finished)
+}
+
+/// `lipcall send`: into the Janus room of `--janus`, or to `--to`.
+pub fn send_command(command: &SendCommand) -> Result<()> {
+    let call = &command.call;
+    match &command.janus {
+        Some(url) => send(
+            &call.input,
+            &JanusArgs {
+                url: url.clone(),
+                room: call.room.clone().unwrap_or_default(),
+                name: call.name.clone(),
+                pin: call.key.passphrase.clone(),
+            },
+        ),
+        None => super::net::send(call),
+    }
+}
+
+/// `lipcall receive`: from the Janus room of `--janus`, or on `--listen`.
+pub fn receive_command(command: &ReceiveCommand) -> Result<()> {
+    let call = &command.call;
+    match &command.janus {
+        Some(url) => receive(&JanusReceiveArgs {
+            janus: JanusArgs {
+                url: url.clone(),
+                room: call.room.clone().unwrap_or_default(),
+                name: call.name.clone(),
+                pin: call.key.passphrase.clone(),
+            },
+            wav: call.wav.clone(),
+            weights: call.weights.clone(),
+            features: call.features.clone(),
+            seconds: call.seconds,
+        }),
+        None => super::net::receive(call),
+    }
 }

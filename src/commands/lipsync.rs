@@ -4,25 +4,24 @@ use std::io::Write as _;
 use std::path::{Path, PathBuf};
 
 use anyhow::{Context, Result, bail};
-use indicatif::{ProgressBar, ProgressStyle};
 
 use crate::codec::g711::Law;
 use crate::codec::speex::codec::EncoderConfig;
-use crate::lipsync::decompose::{PointTrack, decompose_track, table_i, table_i_reduced};
+use crate::lipsync::decompose::{decompose_track, table_i, table_i_reduced};
 use crate::lipsync::markers::MarkerTrack;
 use crate::lipsync::mouth::VisemeShapes;
 use crate::lipsync::network::{Dynamics, Model};
 use crate::lipsync::{self, recipe};
+use crate::train::card::{CardSources, model_card};
 use crate::train::codec_features::{
-    CodecFeatures, CodecPath, EVALUATION_QUALITY, LOW_QUALITY, augmentation_settings, quality,
+    CodecFeatures, CodecPath, EVALUATION_QUALITY, LOW_QUALITY, quality,
 };
-use crate::train::corpus::{Corpus, PreparedUtterance, SpeakerSplit, Utterance};
-use crate::train::crossval::{
-    CrossValidation, SpeakerGroup, cross_validate, matching_snap, train_final,
-};
+use crate::train::config::TrainConfig;
+use crate::train::corpus::{Corpus, SpeakerSplit};
+use crate::train::crossval::cross_validate;
 use crate::train::eval::{EvalReport, evaluate_prepared, write_frames};
-use crate::train::trainer::{EpochStats, TrainConfig, train_on};
-use crate::train::{an4, plot};
+use crate::train::trainer::EpochStats;
+use crate::train::{an4, plan, plot, table_i};
 use crate::vocab::FeatureFamily;
 use crate::vocab::VisemeSet;
 
@@ -229,50 +228,6 @@ pub struct DecomposeArgs {
     pub weights: Option<PathBuf>,
 }
 
-fn bar(len: usize, what: &str, quiet: bool) -> ProgressBar {
-    if quiet {
-        return ProgressBar::hidden();
-    }
-    let bar = ProgressBar::new(len as u64);
-    bar.set_style(
-        ProgressStyle::with_template("{bar:30} {pos}/{len} {msg} {elapsed}")
-            .unwrap_or_else(|_| ProgressStyle::default_bar()),
-    );
-    bar.set_message(what.to_string());
-    bar
-}
-
-fn pick<'c>(
-    corpus: &'c Corpus,
-    speakers: &[String],
-    per_speaker: Option<usize>,
-) -> Result<Vec<&'c Utterance>> {
-    let mut chosen = Vec::new();
-    for name in speakers {
-        let utts = &corpus.speaker(name)?.utterances;
-        let n = per_speaker.unwrap_or(utts.len()).min(utts.len());
-        chosen.extend(utts[..n].iter());
-    }
-    Ok(chosen)
-}
-
-fn prepare_at(
-    codec: &CodecFeatures,
-    utts: &[&Utterance],
-    path: CodecPath,
-    what: &str,
-    quiet: bool,
-) -> Result<Vec<PreparedUtterance>> {
-    let progress = bar(utts.len(), what, quiet);
-    let mut out = Vec::with_capacity(utts.len());
-    for utt in utts {
-        out.extend(codec.prepare_through(std::slice::from_ref(utt), path)?);
-        progress.inc(1);
-    }
-    progress.finish_and_clear();
-    Ok(out)
-}
-
 fn parse_snap(text: &str) -> Result<Option<f32>> {
     match text {
         "auto" => Ok(None),
@@ -380,74 +335,42 @@ pub fn train(args: &TrainArgs) -> Result<()> {
     let corpus = Corpus::open(&args.corpus)?;
     let split = SpeakerSplit::standard(&corpus)?;
     let config = train_config(args, &split, snap)?;
-    let visemes = &config.visemes;
-    let settings = augmentation_settings();
     eprintln!(
-        "Training the viseme network ({visemes}) on the Speex-decoded features of {} \
+        "Training the viseme network ({}) on the Speex-decoded features of {} \
          (training speakers {}; validation speakers {} steer early stopping; the test speakers {} \
          are not touched). Each training utterance is seen at {} codec settings.",
+        config.visemes,
         args.corpus.display(),
         split.train.join(" "),
         split.validation.join(" "),
         split.test.join(" "),
-        args.versions.clamp(1, settings.len())
+        plan::codec_versions(args.versions)
     );
-    let codec = CodecFeatures::new();
-    let train_utts = pick(&corpus, &split.train, args.utterances)?;
-    let validation_utts = pick(&corpus, &split.validation, args.utterances)?;
-    let versions = args.versions.clamp(1, settings.len());
-    let progress = bar(
-        train_utts.len() * versions,
-        "Speex round trips (training)",
-        args.quiet,
-    );
-    let train = codec.prepare_augmented(&train_utts, &settings, versions, &|| progress.inc(1))?;
-    progress.finish_and_clear();
-    let validation = prepare_at(
-        &codec,
-        &validation_utts,
-        CodecPath::Speex(quality(EVALUATION_QUALITY)),
-        "Speex round trips (validation)",
-        args.quiet,
-    )?;
-
-    let mut report = train_on(&config, &train, &validation)?;
-    if let Some(threshold) = snap {
-        report.model.closure_snap = threshold;
-    }
-    report.model.sharpness = sharpness.unwrap_or(1.0);
-    report.split = split.clone();
-    report.model.notes = provenance_notes(
-        versions,
-        &format!(", validation at quality {EVALUATION_QUALITY}"),
-    );
-    report.model.notes.extend([
-        format!("training speakers: {}", split.train.join(" ")),
-        format!("validation speakers: {}", split.validation.join(" ")),
-        format!(
-            "seed {}, {}, best epoch {}",
-            args.seed,
-            loss_note(&config),
-            report.best_epoch
-        ),
-    ]);
+    let trained = plan::train_held_out(&corpus, &split, &config, args.versions, snap, sharpness)?;
+    let report = trained.report;
     report
         .model
         .save(&args.out)
         .with_context(|| format!("cannot save the model to {}", args.out.display()))?;
-    let low = prepare_at(
-        &codec,
+    let validation_utts = plan::pick(&corpus, &split.validation, args.utterances)?;
+    let low = plan::prepare_each(
+        &CodecFeatures::new(),
         &validation_utts,
         CodecPath::Speex(quality(LOW_QUALITY)),
         "Speex round trips (validation, low quality)",
-        args.quiet,
+        !args.quiet,
     )?;
     println!("{report}");
     let shapes = VisemeShapes::point_model();
     println!("validation at quality {EVALUATION_QUALITY}:");
     println!(
         "{}",
-        evaluate_prepared(&report.model, &validation, &split.validation, &shapes)?
+        evaluate_prepared(
+            &report.model,
+            &trained.validation,
+            &split.validation,
+            &shapes
+        )?
     );
     println!("validation at quality {LOW_QUALITY}:");
     println!(
@@ -459,20 +382,6 @@ pub fn train(args: &TrainArgs) -> Result<()> {
         eprintln!("wrote the learning curves to {}", path.display());
     }
     plot_curves(args.plot.as_deref(), &report.curve)
-}
-
-/// The first notes of a trained model file: where its weights come from.
-fn provenance_notes(versions: usize, features_tail: &str) -> Vec<String> {
-    vec![
-        "Derived from the TIMIT corpus sample (Copyright 1993 Linguistic Data Consortium, \
-         CC BY-NC-SA); see assets/models/README.md."
-            .into(),
-        format!(
-            "features: codec round trips, training at {versions} rotating settings of Speex \
-             qualities 3..10 and VBR 4/8, Opus (SILK NLSFs, 8 and 16 kHz input, 12-32 kb/s), \
-             G.711 and G.722 (LPC analysis){features_tail}"
-        ),
-    ]
 }
 
 fn plot_curves(path: Option<&Path>, curve: &[EpochStats]) -> Result<()> {
@@ -488,150 +397,19 @@ fn plot_curves(path: Option<&Path>, curve: &[EpochStats]) -> Result<()> {
     Ok(())
 }
 
-/// The loss and augmentation settings, for the model file's notes (the optional ones only
-/// when used).
-fn loss_note(config: &TrainConfig) -> String {
-    let mut note = format!(
-        "closure weight {}, sharp closures {}, openness weight {}",
-        config.closure_weight, config.sharp_closures, config.openness_weight
-    );
-    for (name, value) in [
-        ("width weight", config.width_weight),
-        ("rounding weight", config.rounding_weight),
-        ("segment closure weight", config.segment_closure_weight),
-        ("warp", config.warp),
-        ("weight decay", config.weight_decay),
-    ] {
-        if value != 0.0 {
-            note.push_str(&format!(", {name} {value}"));
-        }
-    }
-    if config.labiodental_weight != 1.0 {
-        note.push_str(&format!(", /f v/ weight {}", config.labiodental_weight));
-    }
-    note
-}
-
-/// CMU AN4 as a group that only trains: every aligned utterance at `--an4-versions` codec
-/// settings, its frames weighted by `--an4-weight`. Utterances without alignments, or whose
-/// labels or audio do not read, are skipped and counted.
-fn an4_group(
-    args: &TrainArgs,
-    (corpus, stats): (Corpus, an4::AlignmentStats),
-    codec: &CodecFeatures,
-    settings: &[CodecPath],
-) -> Result<SpeakerGroup> {
-    let speakers: Vec<String> = corpus.speakers.iter().map(|s| s.name.clone()).collect();
-    let utts = pick(&corpus, &speakers, args.utterances)?;
-    let versions = args.an4_versions.clamp(1, settings.len());
-    let progress = bar(utts.len(), "Speex round trips (AN4)", args.quiet);
-    let mut augmented = Vec::with_capacity(utts.len() * versions);
-    let mut failed = Vec::new();
-    for (i, utt) in utts.iter().enumerate() {
-        let rotated: Vec<CodecPath> = (0..versions)
-            .map(|k| settings[(i * versions + k) % settings.len()])
-            .collect();
-        match codec.prepare_augmented(std::slice::from_ref(utt), &rotated, versions, &|| {}) {
-            Ok(prepared) => augmented.extend(prepared),
-            Err(e) => failed.push(format!("{}/{}: {e}", utt.speaker, utt.id)),
-        }
-        progress.inc(1);
-    }
-    progress.finish_and_clear();
-    for utt in &mut augmented {
-        utt.weight = args.an4_weight;
-    }
-    eprintln!(
-        "AN4: {} utterances of {} speakers at {versions} codec setting(s), weight {}; {} without \
-         alignments and {} unreadable, skipped",
-        utts.len() - failed.len(),
-        speakers.len(),
-        args.an4_weight,
-        stats.unlabelled.len(),
-        failed.len()
-    );
-    for f in failed.iter().take(5) {
-        eprintln!("  skipped {f}");
-    }
-    Ok(SpeakerGroup {
-        name: "an4".into(),
-        augmented,
-        held_out: Vec::new(),
-    })
-}
-
-/// The closure snaps of SILK NLSF rows and of LPC-analysis rows, matched on the folds to the
-/// closures of Speex's LSPs (`crossval::matching_snap`): Opus at 16 kb/s from 16 and 8 kHz for
-/// the first, PCMU and G.722 for the second.
-fn family_snaps(
-    codec: &CodecFeatures,
-    cv: &CrossValidation,
-    region_utts: &[Vec<&Utterance>],
-    config: &TrainConfig,
-) -> Result<[Option<f32>; 2]> {
-    let opus = |wideband| CodecPath::Opus {
-        bitrate: 16_000,
-        wideband,
-    };
-    let families = [
-        ("SILK NLSFs", [opus(true), opus(false)]),
-        ("LPC analysis", [CodecPath::G711(Law::Mu), CodecPath::G722]),
-    ];
-    let mut snaps = [None, None];
-    for (slot, (name, paths)) in snaps.iter_mut().zip(families) {
-        let mut held_out = Vec::with_capacity(region_utts.len());
-        for utts in region_utts {
-            let mut prepared = Vec::new();
-            for path in paths {
-                prepared.extend(codec.prepare_through(utts, path)?);
-            }
-            held_out.push(prepared);
-        }
-        let (snap, scores) = matching_snap(cv, &held_out, &config.shapes)?;
-        println!(
-            "closure snap for {name} ({} and {}): {snap}, /p b m/ closed {:.1}% \
-             ({}/{}), false closures {:.1}%, openness r {:.3}",
-            paths[0],
-            paths[1],
-            100.0 * scores.closure_share(),
-            scores.closed_segments,
-            scores.bilabial_segments,
-            100.0 * scores.false_closure_rate,
-            scores.openness_r
-        );
-        *slot = Some(snap);
-    }
-    Ok(snaps)
-}
-
-/// The non-test speakers grouped by dialect region (`dr4-falr0` -> `dr4`).
-fn regions(split: &SpeakerSplit) -> Vec<(String, Vec<String>)> {
-    let mut groups: Vec<(String, Vec<String>)> = Vec::new();
-    for speaker in split.train.iter().chain(&split.validation) {
-        let region = speaker.split('-').next().unwrap_or(speaker).to_string();
-        match groups.iter_mut().find(|(name, _)| *name == region) {
-            Some((_, members)) => members.push(speaker.clone()),
-            None => groups.push((region, vec![speaker.clone()])),
-        }
-    }
-    groups
-}
-
 fn train_cross_validated(args: &TrainArgs) -> Result<()> {
     let snap = parse_snap(&args.snap)?;
     let sharpness = parse_sharpness(&args.sharpness)?;
     let corpus = Corpus::open(&args.corpus)?;
     let split = SpeakerSplit::standard(&corpus)?;
     let config = train_config(args, &split, snap)?;
-    let regions = regions(&split);
+    let regions = plan::regions(&split);
     // AN4's folders are checked before any work starts.
     let an4 = if args.an4_weight > 0.0 {
         Some(an4::open_aligned(&args.an4_audio, &args.an4_labels)?)
     } else {
         None
     };
-    let settings = augmentation_settings();
-    let versions = args.versions.clamp(1, settings.len());
     eprintln!(
         "Cross-validating the viseme network ({}) over {} folds, each holding out one dialect \
          region of {} (the test speakers {} are not touched); then training it on all of them.",
@@ -645,43 +423,38 @@ fn train_cross_validated(args: &TrainArgs) -> Result<()> {
         split.test.join(" ")
     );
     let codec = CodecFeatures::new();
-    let mut groups = Vec::new();
-    let mut region_utts = Vec::new();
-    for (name, speakers) in &regions {
-        let utts = pick(&corpus, speakers, args.utterances)?;
-        region_utts.push(utts.clone());
-        let progress = bar(
-            utts.len() * (versions + 1),
-            &format!("Speex round trips ({name})"),
-            args.quiet,
-        );
-        let augmented = codec.prepare_augmented(&utts, &settings, versions, &|| progress.inc(1))?;
-        let mut held_out = Vec::with_capacity(utts.len());
-        for utt in &utts {
-            held_out.extend(codec.prepare_through(
-                std::slice::from_ref(utt),
-                CodecPath::Speex(quality(EVALUATION_QUALITY)),
-            )?);
-            progress.inc(1);
-        }
-        progress.finish_and_clear();
-        groups.push(SpeakerGroup {
-            name: name.clone(),
-            augmented,
-            held_out,
-        });
-    }
+    let (mut groups, region_utts) =
+        plan::region_groups(&corpus, &regions, &codec, args.versions, &config)?;
     if let Some(aligned) = an4 {
-        groups.push(an4_group(args, aligned, &codec, &settings)?);
+        let (group, summary) =
+            plan::an4_group(aligned, &codec, args.an4_versions, args.an4_weight, &config)?;
+        print_an4_summary(&summary, args.an4_weight);
+        groups.push(group);
     }
-    let progress = bar(regions.len(), "folds", args.quiet);
+    let progress = plan::progress_bar(regions.len(), "folds", !args.quiet);
     progress.enable_steady_tick(std::time::Duration::from_secs(1));
     let mut cv = cross_validate(&config, &groups, snap, sharpness)?;
     progress.finish_and_clear();
     println!("cross-validation, Speex quality {EVALUATION_QUALITY}:");
     println!("{cv}");
     let family_snaps = if snap.is_none() {
-        family_snaps(&codec, &cv, &region_utts, &config)?
+        let matched = plan::family_snaps(&codec, &cv, &region_utts, &config.shapes)?;
+        for m in &matched {
+            println!(
+                "closure snap for {} ({} and {}): {}, /p b m/ closed {:.1}% \
+                 ({}/{}), false closures {:.1}%, openness r {:.3}",
+                m.name,
+                m.paths[0],
+                m.paths[1],
+                m.snap,
+                100.0 * m.scores.closure_share(),
+                m.scores.closed_segments,
+                m.scores.bilabial_segments,
+                100.0 * m.scores.false_closure_rate,
+                m.scores.openness_r
+            );
+        }
+        matched.map(|m| Some(m.snap))
     } else {
         [None, None]
     };
@@ -705,51 +478,28 @@ fn train_cross_validated(args: &TrainArgs) -> Result<()> {
         regions.iter().map(|(_, s)| s.len()).sum::<usize>(),
         cv.epochs
     );
-    let mut report = train_final(&config, &groups, &cv)?;
-    [report.model.nlsf_snap, report.model.analysis_snap] = family_snaps;
-    report.split = SpeakerSplit {
-        train: regions.iter().flat_map(|(_, s)| s.clone()).collect(),
-        validation: Vec::new(),
-        test: split.test.clone(),
-    };
-    report.model.notes = provenance_notes(versions, "");
-    if args.an4_weight > 0.0 {
-        report.model.notes.push(format!(
-            "and from CMU AN4 (Copyright 1991 Carnegie Mellon University, free for any use; \
-             labels by forced alignment, tools/align_an4.py), frames weighted {}",
-            args.an4_weight
-        ));
-    }
-    report.model.notes.extend([
-        format!("training speakers: {}", report.split.train.join(" ")),
-        format!(
-            "cross-validated by dialect region: pooled held-out openness r {:.3}, /p b m/ closed \
-             {:.1}%, false closures {:.1}%",
-            cv.pooled.openness_r,
-            100.0 * cv.pooled.closure_share(),
-            100.0 * cv.pooled.false_closure_rate
-        ),
-        format!(
-            "seed {}, {}, epochs {}, closure snap {}, sharpness {}{}",
-            args.seed,
-            loss_note(&config),
-            cv.epochs,
-            cv.closure_snap,
-            report.model.sharpness,
-            if report.model.sharpen_open_shapes_only {
-                " (open shapes)"
-            } else {
-                ""
-            }
-        ),
-    ]);
+    let report = plan::train_on_all_regions(
+        &config,
+        &groups,
+        &cv,
+        &split,
+        family_snaps,
+        args.versions,
+        args.an4_weight,
+    )?;
     report
         .model
         .save(&args.out)
         .with_context(|| format!("cannot save the model to {}", args.out.display()))?;
     eprintln!("wrote the model to {}", args.out.display());
     let card = args.out.with_extension("card.md");
-    std::fs::write(&card, model_card(args, &report.model, &cv))
+    let sources = CardSources {
+        model_file: &args.out,
+        corpus: &args.corpus,
+        an4_audio: &args.an4_audio,
+        an4_weight: args.an4_weight,
+    };
+    std::fs::write(&card, model_card(&sources, &report.model, &cv))
         .with_context(|| format!("cannot write {}", card.display()))?;
     eprintln!("wrote the model card to {}", card.display());
     if let Some(path) = &args.curves {
@@ -762,83 +512,20 @@ fn train_cross_validated(args: &TrainArgs) -> Result<()> {
     plot_curves(args.plot.as_deref(), &report.curve)
 }
 
-/// What a user of the weights needs to know: shape, data and licences, how it was chosen and
-/// how it scores out of sample.
-fn model_card(
-    args: &TrainArgs,
-    model: &Model,
-    cv: &crate::train::crossval::CrossValidation,
-) -> String {
-    let mut card = String::new();
-    let mut line = |text: String| {
-        card.push_str(&text);
-        card.push('\n');
-    };
-    line(format!("# Model card: {}", args.out.display()));
-    line(String::new());
-    line("## The network".into());
-    line(format!(
-        "- visemes: {} | inputs {} (context {}, look-ahead {} frame(s) = {} ms that the receiver's \
-         buffers hide) | hidden {} tanh | {} multiply-adds per frame (budget 400)",
-        model.visemes,
-        model.inputs(),
-        model.context,
-        model.lookahead,
-        20 * model.lookahead,
-        model.hidden,
-        model.multiply_adds()
-    ));
-    line(format!(
-        "- per-speaker LSP normalisation: {}",
-        match &model.speaker_norm {
-            Some(n) => format!("running mean over about {} speech frames", n.frames),
-            None => "off".into(),
-        }
-    ));
-    line(format!(
-        "- output sharpness {}{} (the logits times this before the softmax; tuned with the \
-         closure snap on the pooled folds)",
-        model.sharpness,
-        if model.sharpen_open_shapes_only {
-            ", the open shapes only"
-        } else {
-            ""
-        }
-    ));
-    line(format!(
-        "- closure snap {} (tuned on the pooled folds); {} for SILK NLSFs and {} for LPC \
-         analysis (each matched on the folds to the closures of Speex's LSPs)",
-        model.closure_snap,
-        model.closure_snap_of(FeatureFamily::Nlsf),
-        model.closure_snap_of(FeatureFamily::Analysis)
-    ));
-    line(String::new());
-    line("## Data and licences".into());
-    line(format!(
-        "- TIMIT corpus sample ({}), hand-labelled phones: Copyright 1993 Linguistic Data \
-         Consortium, CC BY-NC-SA. Weights derived from it carry the non-commercial term.",
-        args.corpus.display()
-    ));
-    if args.an4_weight > 0.0 {
-        line(format!(
-            "- CMU AN4 ({}), 84 speakers, phone labels by forced alignment \
-             (tools/alignments/an4, about 76 % of boundaries within 20 ms of hand labels): \
-             Copyright 1991 Carnegie Mellon University, free for any use with its notice. \
-             Frames weighted {} against TIMIT's.",
-            args.an4_audio.display(),
-            args.an4_weight
-        ));
-    }
-    line("- TIMIT dr5 and dr6 (4 speakers) are never used for training or any choice.".into());
-    line(String::new());
-    line(
-        "## Scores (cross-validated by dialect region, Speex quality 8, held-out speakers)".into(),
+fn print_an4_summary(summary: &plan::An4Summary, weight: f32) {
+    eprintln!(
+        "AN4: {} utterances of {} speakers at {} codec setting(s), weight {}; {} without \
+         alignments and {} unreadable, skipped",
+        summary.utterances,
+        summary.speakers,
+        summary.versions,
+        weight,
+        summary.unlabelled,
+        summary.failed.len()
     );
-    line(String::new());
-    line("```".into());
-    line(cv.to_string());
-    line("```".into());
-    card
+    for f in summary.failed.iter().take(5) {
+        eprintln!("  skipped {f}");
+    }
 }
 
 /// The model `--model` names, or the built-in one.
@@ -861,38 +548,20 @@ pub fn evaluate(args: &EvaluateArgs) -> Result<()> {
         (bitstream, Some(nlsf), Some(analysis));
     let corpus = Corpus::open(&args.corpus)?;
     let split = SpeakerSplit::standard(&corpus)?;
-    let chosen: Vec<String>;
-    let speakers = match args.speakers.as_str() {
-        "test" => &split.test,
-        "validation" => &split.validation,
-        "train" => &split.train,
-        list => {
-            let prefixes: Vec<&str> = list.split(',').map(str::trim).collect();
-            chosen = corpus
-                .speakers
-                .iter()
-                .map(|s| s.name.clone())
-                .filter(|name| {
-                    prefixes
-                        .iter()
-                        .any(|p| !p.is_empty() && name.starts_with(p))
-                })
-                .collect();
-            if chosen.is_empty() {
-                bail!(
-                    "--speakers {list:?} names no speaker of {}",
-                    args.corpus.display()
-                );
-            }
-            &chosen
-        }
+    let Some(speakers) = plan::named_speakers(&corpus, &split, &args.speakers) else {
+        bail!(
+            "--speakers {:?} names no speaker of {}",
+            args.speakers,
+            args.corpus.display()
+        );
     };
+    let speakers = &speakers;
     let config = EncoderConfig {
         quality: args.quality,
         vbr: args.vbr,
         ..EncoderConfig::default()
     };
-    let utts = pick(&corpus, speakers, args.utterances)?;
+    let utts = plan::pick(&corpus, speakers, args.utterances)?;
     let path = match args.codec {
         EvalCodec::Speex => CodecPath::Speex(config),
         EvalCodec::Opus | EvalCodec::OpusNb => CodecPath::Opus {
@@ -906,12 +575,12 @@ pub fn evaluate(args: &EvaluateArgs) -> Result<()> {
         EvalCodec::Pcma => CodecPath::G711(Law::A),
         EvalCodec::G722 => CodecPath::G722,
     };
-    let prepared = prepare_at(
+    let prepared = plan::prepare_each(
         &CodecFeatures::new(),
         &utts,
         path,
         &format!("{path} round trips"),
-        false,
+        true,
     )?;
     let report: EvalReport =
         evaluate_prepared(&model, &prepared, speakers, &VisemeShapes::point_model())?;
@@ -950,20 +619,7 @@ pub fn decompose(args: &DecomposeArgs) -> Result<()> {
 fn decompose_targets(args: &DecomposeArgs) -> Result<()> {
     let corpus = Corpus::open(&args.corpus)?;
     let shapes = VisemeShapes::point_model();
-    let full = VisemeSet::full();
-    let mut track = PointTrack::new(shapes.point_dim(), shapes.coords());
-    let mut utterances = 0;
-    for speaker in &corpus.speakers {
-        let n = args.utterances.unwrap_or(speaker.utterances.len());
-        for utt in speaker.utterances.iter().take(n) {
-            let targets = crate::train::corpus::utterance_targets(utt)?;
-            let weights = targets.weights.iter().map(|w| &w[..]);
-            for frame in PointTrack::from_weights(&shapes, &full, weights)?.frames() {
-                track.push(frame)?;
-            }
-            utterances += 1;
-        }
-    }
+    let (track, utterances) = table_i::phone_target_track(&corpus, &shapes, args.utterances)?;
     println!(
         "Table I: phone-derived viseme targets of {} ({} utterances, {} speakers) through the \
          point model, decomposed onto the reduced sets",
@@ -1014,15 +670,7 @@ fn decompose_markers(args: &DecomposeArgs, markers: &Path, keys: &Path) -> Resul
         let file = std::fs::File::create(out)
             .with_context(|| format!("cannot write {}", out.display()))?;
         let mut w = std::io::BufWriter::new(file);
-        let names: Vec<&str> = set.members().iter().map(|v| v.name()).collect();
-        writeln!(w, "frame,{}", names.join(","))?;
-        for (frame, row) in track.frame_numbers.iter().zip(&weights) {
-            write!(w, "{frame}")?;
-            for v in row {
-                write!(w, ",{v:.5}")?;
-            }
-            writeln!(w)?;
-        }
+        table_i::write_frame_weights(&mut w, &set, &track.frame_numbers, &weights)?;
         w.flush()
             .with_context(|| format!("cannot write {}", out.display()))?;
         eprintln!("wrote the weights over {set} to {}", out.display());

@@ -53,6 +53,33 @@ pub fn parse_passphrase(arg: &str) -> Result<String, String> {
     Ok(arg.to_owned())
 }
 
+/// Diagnostics (`tracing` events, and the `log` records of wgpu and eframe) go to stderr:
+/// warnings and errors, or what RUST_LOG asks for (`debug`, `lipcall=debug,wgpu=warn`).
+pub fn install_logging() {
+    use std::io::IsTerminal;
+    use tracing_subscriber::filter::{LevelFilter, Targets};
+    use tracing_subscriber::prelude::*;
+    let warnings = || Targets::new().with_default(LevelFilter::WARN);
+    let mut unreadable = None;
+    let filter = match std::env::var("RUST_LOG") {
+        Ok(spec) if !spec.trim().is_empty() => spec.parse::<Targets>().unwrap_or_else(|e| {
+            unreadable = Some(format!("RUST_LOG={spec:?} ignored ({e}): warnings only"));
+            warnings()
+        }),
+        _ => warnings(),
+    };
+    let layer = tracing_subscriber::fmt::layer()
+        .with_writer(std::io::stderr)
+        .with_ansi(std::io::stderr().is_terminal());
+    let installed = tracing_subscriber::registry()
+        .with(layer)
+        .with(filter)
+        .try_init();
+    if let (Ok(()), Some(why)) = (installed, unreadable) {
+        tracing::warn!("{why}");
+    }
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;

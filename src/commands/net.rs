@@ -21,12 +21,16 @@ use crate::net::srtp::MasterKey;
 use crate::vocab::FRAME_SIZE;
 use crate::vocab::FrameFeatures;
 
-/// How the call is keyed.
-#[derive(Debug, Clone, Default)]
+/// How the call is keyed (`--key`, `--key-hex`). The passphrase keys the room by PBKDF2 over
+/// passphrase and room name; the hex key is a raw 30-byte SRTP master key + salt.
+#[derive(Debug, Clone, Default, clap::Args)]
 pub struct KeyArgs {
-    /// Room passphrase (PBKDF2 over passphrase and room name).
+    /// Room passphrase: encrypts and authenticates media with SRTP. Without it (or
+    /// --key-hex) the call is plain RTP.
+    #[arg(long = "key", value_name = "PASSPHRASE", value_parser = super::parse_passphrase)]
     pub passphrase: Option<String>,
-    /// A raw 30-byte SRTP master key + salt in hex, for interop with other SRTP stacks.
+    /// Raw SRTP master key + salt (60 hex digits), e.g. to talk to GStreamer's srtpenc.
+    #[arg(id = "key_hex", long = "key-hex", value_name = "HEX")]
     pub hex: Option<String>,
 }
 
@@ -111,20 +115,47 @@ fn payload_map(assignments: &[String]) -> Result<PayloadMap> {
         .context("--pt")
 }
 
-#[derive(Debug, Clone)]
+/// `lipcall send` to a receiver or relay (`--janus`, in `commands::janus::SendCommand`, sends
+/// into a Janus room instead). `to` is empty only with `--janus`.
+#[derive(Debug, Clone, clap::Args)]
 pub struct SendArgs {
+    /// Audio to send: .wav (any rate, encoded here), or .spx or .opus (sent as they are,
+    /// unless --codec asks for another codec).
     pub input: PathBuf,
+    /// Receiver (or relay, with --room) as HOST:PORT.
+    #[arg(
+        long,
+        value_name = "HOST:PORT",
+        required_unless_present = "janus",
+        default_value = "",
+        hide_default_value = true
+    )]
     pub to: String,
+    #[command(flatten)]
     pub key: KeyArgs,
+    /// Display name sent to peers (RTCP SDES NAME).
+    #[arg(long)]
     pub name: Option<String>,
+    /// Join this room on the relay given by --to.
+    #[arg(long)]
     pub room: Option<String>,
-    pub quality: u8,
-    pub no_rtcp: bool,
-    pub ssrc: Option<u32>,
-    /// The codec to send; `None`: a coded file's own, Speex for a WAV.
+    /// The codec sent: speex, opus, pcmu or pcma (default: a coded file's own; Speex for
+    /// a WAV). Opus goes at 20 kb/s with in-band FEC.
+    #[arg(long, value_parser = parse_codec)]
     pub codec: Option<Codec>,
-    /// `CODEC=PT` assignments moving dynamic payload types (`opus=111`).
+    /// Speex quality for .wav input, 0 to 10.
+    #[arg(long, default_value_t = 8, value_parser = clap::value_parser!(u8).range(0..=10))]
+    pub quality: u8,
+    /// Carry a codec on another RTP payload type, e.g. opus=111 (repeatable). Without SDP the
+    /// defaults are GStreamer's: speex=110, opus=96; pcmu=0 and pcma=8 are static.
+    #[arg(long = "pt", value_name = "CODEC=PT", value_parser = parse_payload_type)]
     pub payload_types: Vec<String>,
+    /// Send no RTCP (for receivers that take RTP only, such as a bare GStreamer udpsrc).
+    #[arg(long)]
+    pub no_rtcp: bool,
+    /// Use this SSRC (hex) instead of a random one, for set-ups that need it in advance.
+    #[arg(long, value_parser = parse_hex_u32)]
+    pub ssrc: Option<u32>,
 }
 
 pub fn send(args: &SendArgs) -> Result<()> {
@@ -252,24 +283,73 @@ pub(crate) fn print_peer(peer: &PeerInfo) {
     );
 }
 
-#[derive(Debug, Clone)]
+/// `lipcall receive` from direct callers or a relay room (`--janus`, in
+/// `commands::janus::ReceiveCommand`, receives a Janus room instead). `listen` is empty only
+/// with `--janus`; `peer_timeout` and `clock_tolerance` are `None` only when built in code (the
+/// session's defaults).
+#[derive(Debug, Clone, clap::Args)]
 pub struct ReceiveArgs {
+    /// Address to listen on, HOST:PORT (port 0 picks one). Once bound, one stderr line
+    /// says the address: `lipcall: listening on IP:PORT` (a stable format, for scripts).
+    #[arg(
+        long,
+        value_name = "HOST:PORT",
+        required_unless_present = "janus",
+        default_value = "",
+        hide_default_value = true
+    )]
     pub listen: String,
+    /// Write the audio as played (all peers mixed), streamed to disk as it plays.
+    #[arg(long, value_name = "OUT.wav")]
     pub wav: Option<PathBuf>,
+    /// Write viseme weights from the built-in lip-sync network (one file per peer).
+    #[arg(long, value_name = "WEIGHTS.csv")]
     pub weights: Option<PathBuf>,
+    /// Write per-frame LSP + energy features aligned to OUT.wav (one file per peer).
+    #[arg(long, value_name = "FEATURES.csv")]
     pub features: Option<PathBuf>,
+    #[command(flatten)]
     pub key: KeyArgs,
+    /// Stop after this many seconds. Without it, the receive ends once everyone who called
+    /// has left: said BYE, or sent nothing for --peer-timeout. Before anyone calls it
+    /// waits. Ctrl-C (SIGINT) or SIGTERM ends it at any time; the files written so far are
+    /// finished and whole either way.
+    #[arg(long, allow_hyphen_values = true, value_parser = super::parse_seconds)]
     pub seconds: Option<f64>,
-    /// A peer silent (no RTP, no RTCP) this long has left; `None`: the session's default, 30 s.
+    /// A peer that sent nothing (no RTP, no RTCP) for this many seconds has left (in a
+    /// Janus room, Janus says when a publisher leaves).
+    #[arg(long, value_name = "SECONDS", default_value = "30", value_parser = super::parse_seconds)]
     pub peer_timeout: Option<f64>,
-    /// How far a new SRTP stream's sender clock may be from ours (seconds); `None`: the
-    /// session's default.
+    /// With --key: how far (either way) a caller's clock may be from ours. A new encrypted
+    /// stream stamped further off is refused as a replay of an earlier call (counted as
+    /// stale).
+    #[arg(long, value_name = "SECONDS", default_value = CLOCK_TOLERANCE_TEXT,
+          value_parser = clap::value_parser!(u32).range(1..=86_400))]
     pub clock_tolerance: Option<u32>,
+    /// Join a room on this relay (with --room).
+    #[arg(long, value_name = "HOST:PORT")]
     pub relay: Option<String>,
+    #[arg(long)]
     pub room: Option<String>,
+    /// Display name sent to peers.
+    #[arg(long)]
     pub name: Option<String>,
-    /// `CODEC=PT` assignments moving dynamic payload types (`opus=111`).
+    /// Carry a codec on another RTP payload type, e.g. opus=111 (repeatable). Without SDP the
+    /// defaults are GStreamer's: speex=110, opus=96; pcmu=0 and pcma=8 are static.
+    #[arg(long = "pt", value_name = "CODEC=PT", value_parser = parse_payload_type)]
     pub payload_types: Vec<String>,
+}
+
+/// `lipcall relay`.
+#[derive(Debug, Clone, clap::Args)]
+pub struct RelayArgs {
+    /// Address to listen on, HOST:PORT (port 0 picks one). Once bound, one stderr line
+    /// says the address: `lipcall: relay listening on IP:PORT` (a stable format).
+    #[arg(long, value_name = "HOST:PORT")]
+    pub listen: String,
+    /// Stop after this many seconds (otherwise run until killed).
+    #[arg(long, allow_hyphen_values = true, value_parser = super::parse_seconds)]
+    pub seconds: Option<f64>,
 }
 
 /// What the receiver keeps per remote speaker: with `--weights`, its pipeline and the output
@@ -602,4 +682,36 @@ fn print_relay(relay: &Relay) {
         s.malformed,
         s.rate_limited
     );
+}
+
+/// `--clock-tolerance`'s default as clap shows it: [`crate::net::srtp::DEFAULT_CLOCK_TOLERANCE`]
+/// (a test ties the two).
+const CLOCK_TOLERANCE_TEXT: &str = "30";
+
+fn parse_codec(s: &str) -> Result<Codec, String> {
+    s.parse()
+        .map_err(|e: crate::codec::any::PayloadMapError| e.to_string())
+}
+
+/// A `--pt CODEC=PT` flag, checked as the payload-type map will take it.
+fn parse_payload_type(s: &str) -> Result<String, String> {
+    PayloadMap::default()
+        .with_assignments(&[s])
+        .map(|_| s.to_string())
+        .map_err(|e| e.to_string())
+}
+
+fn parse_hex_u32(s: &str) -> Result<u32, String> {
+    u32::from_str_radix(s.trim_start_matches("0x"), 16).map_err(|e| e.to_string())
+}
+
+#[cfg(test)]
+mod argument_tests {
+    #[test]
+    fn the_shown_clock_tolerance_is_the_sessions_default() {
+        assert_eq!(
+            super::CLOCK_TOLERANCE_TEXT.parse::<u32>(),
+            Ok(crate::net::srtp::DEFAULT_CLOCK_TOLERANCE)
+        );
+    }
 }

@@ -5,8 +5,8 @@ use super::dataset::Dataset;
 use crate::lipsync::mouth::VisemeShapes;
 use crate::lipsync::network::{MIN_CLOSURE_SNAP, Model};
 use crate::train::corpus::PreparedUtterance;
+use crate::train::error::TrainError;
 use crate::train::eval::{Scores, score};
-use crate::train::trainer::TrainError;
 
 /// How much a false-closure share costs against the closure share when the closure-snap
 /// threshold is chosen: a closure elsewhere is a wrong cue, but a few frames of them (silences

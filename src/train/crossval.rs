@@ -16,12 +16,12 @@ use std::fmt;
 
 use crate::lipsync::network::Model;
 use crate::lipsync::phones::CueClass;
+use crate::train::config::TrainConfig;
 use crate::train::corpus::PreparedUtterance;
+use crate::train::error::TrainError;
 use crate::train::eval::Scores;
 use crate::train::sharpness::{Calibration, calibrate};
-use crate::train::trainer::{
-    HeldOutPredictions, TrainConfig, TrainError, TrainReport, best_epochs, train_on,
-};
+use crate::train::trainer::{HeldOutPredictions, TrainReport, best_epochs, train_on};
 
 /// The speakers held out by one fold, prepared twice: as training material (codec-augmented)
 /// and as held-out material (at the evaluation setting). A group with nothing held out (another

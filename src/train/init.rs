@@ -5,8 +5,8 @@ use super::dataset::Rng;
 use crate::lipsync::network::{
     FEATURES_PER_FRAME, InputScaling, Model, SpeakerNorm, silence_features,
 };
+use crate::train::config::TrainConfig;
 use crate::train::corpus::PreparedUtterance;
-use crate::train::trainer::TrainConfig;
 use crate::vocab::LSP_COUNT;
 
 pub(super) fn percentile(values: &mut [f32], q: f32) -> f32 {

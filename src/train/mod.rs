@@ -2,19 +2,26 @@
 
 pub mod an4;
 mod backprop;
+pub mod card;
 mod closure_snap;
 pub mod codec_features;
+pub mod config;
 pub mod corpus;
 pub mod crossval;
 mod dataset;
+pub mod error;
 pub mod eval;
 mod init;
+pub mod plan;
 pub mod plot;
 pub mod sharpness;
+pub mod table_i;
 pub mod targets;
 pub mod trainer;
 
-pub use trainer::{TrainConfig, TrainReport, run};
+pub use config::TrainConfig;
+pub use error::TrainError;
+pub use trainer::{TrainReport, run};
 
 #[cfg(test)]
 pub(crate) mod stand_in;

@@ -19,8 +19,8 @@ use super::closure_snap::{FALSE_CLOSURE_COST, HeldOutPredictions, best_snap};
 use crate::lipsync::mouth::VisemeShapes;
 use crate::lipsync::network::sharpen;
 use crate::lipsync::phones::CueClass;
+use crate::train::error::TrainError;
 use crate::train::eval::Scores;
-use crate::train::trainer::TrainError;
 
 /// How far openness r and rounding r may fall below the reference's.
 pub const R_TOLERANCE: f64 = 0.005;
