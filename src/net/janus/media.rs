@@ -1,18 +1,17 @@
-//! The WebRTC media of a Janus room: one UDP socket read by its own thread (as
-//! [`crate::net::session`] does), carrying any number of str0m peer connections: at most one
-//! that publishes our Opus stream and one per subscribed publisher. Datagrams are handed to
-//! the connection that accepts them (ICE credentials, then the remote address).
+//! The WebRTC media of a Janus room: one UDP socket carrying any number of str0m peer
+//! connections: at most one that publishes our Opus stream and one per subscribed publisher.
+//! Datagrams are handed to the connection that accepts them (ICE credentials, then the remote
+//! address).
 //!
 //! str0m does ICE, DTLS-SRTP and RTCP. Received RTP packets (str0m's RTP mode: no
 //! depacketising, no reordering) go into a [`PeerReceiver`] per publisher, the same jitter
 //! buffer, decoder and features as a direct call; the owner pulls frames every 20 ms.
+//!
+//! As a session is, the media is a core without I/O (`MediaCore`: the connections and the
+//! feeds' receivers) under the same socket thread as a session's.
 
-use std::collections::HashMap;
+use std::collections::{HashMap, VecDeque};
 use std::net::{IpAddr, SocketAddr, UdpSocket};
-use std::sync::atomic::{AtomicBool, Ordering};
-use std::sync::mpsc::{Receiver, Sender, channel};
-use std::sync::{Arc, Mutex, MutexGuard};
-use std::thread::JoinHandle;
 use std::time::{Duration, Instant};
 
 use str0m::change::{SdpAnswer, SdpOffer, SdpPendingOffer};
@@ -25,7 +24,14 @@ use crate::codec::any::PayloadMap;
 use crate::net::jitter::JitterConfig;
 use crate::net::peer::{PeerReceiver, ReceiverStats};
 use crate::net::rtp::{Rtp, RtpHeader};
-use crate::net::session::{PeerFrame, PeerInfo};
+use crate::net::session::driver::{Driver, SansIo};
+use crate::net::session::{PeerFrame, PeerInfo, Transmit, TransmitKind};
+
+/// How long the socket thread waits at most for a datagram: a connection's timeout that an
+/// owner's call brought forward is seen within it.
+const POLL: Duration = Duration::from_millis(2);
+/// With no connection, when the core next wants to be woken.
+const IDLE: Duration = Duration::from_secs(1);
 
 /// What the owner knows of one subscribed publisher.
 #[derive(Debug, Clone, PartialEq)]
@@ -81,43 +87,10 @@ struct Feed {
     left: bool,
 }
 
-struct Shared {
-    feeds: Mutex<HashMap<String, Feed>>,
-    stats: Mutex<MediaStats>,
-    stop: AtomicBool,
-    epoch: Instant,
-    jitter: JitterConfig,
-}
-
-fn lock<T>(m: &Mutex<T>) -> MutexGuard<'_, T> {
-    m.lock().unwrap_or_else(|poisoned| poisoned.into_inner())
-}
-
-type Reply<T> = Sender<Result<T, JanusError>>;
-
-enum Command {
-    Offer(Reply<String>),
-    Answer(String, Reply<()>),
-    Subscribe {
-        feed: String,
-        name: String,
-        offer: String,
-        reply: Reply<String>,
-    },
-    Unsubscribe(String),
-    Send {
-        payload: Vec<u8>,
-        ticks: u32,
-    },
-    Skip(u32),
-    Close,
-}
-
 /// The media side of a room.
 pub struct Media {
-    shared: Arc<Shared>,
-    commands: Sender<Command>,
-    thread: Option<JoinHandle<()>>,
+    driver: Driver<MediaCore>,
+    closed: bool,
 }
 
 impl std::fmt::Debug for Media {
@@ -166,6 +139,10 @@ pub fn local_ip_towards(remote: IpAddr) -> Result<IpAddr, JanusError> {
         .map_err(|e| JanusError::Media(format!("UDP: {e}")))
 }
 
+fn stopped() -> JanusError {
+    JanusError::Media("the media thread has stopped".into())
+}
+
 impl Media {
     /// Starts the media thread on one UDP port, offered as a host candidate on each of `ips`
     /// (all of one family).
@@ -181,128 +158,88 @@ impl Media {
             .map_err(|e| JanusError::Media(format!("UDP: {e}")))?
             .port();
         let local: Vec<SocketAddr> = ips.iter().map(|&ip| SocketAddr::new(ip, port)).collect();
-        let shared = Arc::new(Shared {
-            feeds: Mutex::new(HashMap::new()),
-            stats: Mutex::new(MediaStats::default()),
-            stop: AtomicBool::new(false),
-            epoch: Instant::now(),
-            jitter,
-        });
-        let (commands, rx) = channel();
-        let thread_shared = Arc::clone(&shared);
-        let thread = std::thread::Builder::new()
-            .name("lipcall-webrtc".into())
-            .spawn(move || {
-                let mut engine = Engine::new(socket, local, thread_shared);
-                engine.run(&rx);
-            })
+        let core = MediaCore::new(local, jitter, Instant::now());
+        let driver = Driver::start(socket, core, "lipcall-webrtc", POLL)
             .map_err(|e| JanusError::Media(format!("cannot start the media thread: {e}")))?;
         Ok(Self {
-            shared,
-            commands,
-            thread: Some(thread),
+            driver,
+            closed: false,
         })
     }
 
-    fn ask<T>(&self, make: impl FnOnce(Reply<T>) -> Command) -> Result<T, JanusError> {
-        let (tx, rx) = channel();
-        self.commands
-            .send(make(tx))
-            .map_err(|_| JanusError::Media("the media thread has stopped".into()))?;
-        rx.recv_timeout(Duration::from_secs(5))
-            .map_err(|_| JanusError::Media("the media thread did not answer".into()))?
+    /// Runs `f` on the core while the media runs.
+    fn with<T>(
+        &self,
+        f: impl FnOnce(&mut MediaCore, Instant) -> Result<T, JanusError>,
+    ) -> Result<T, JanusError> {
+        if self.closed {
+            return Err(stopped());
+        }
+        self.driver.with(|core| f(core, Instant::now()))
     }
 
     /// The SDP offer of our publishing connection (audio only, Opus, send only).
     pub fn publish_offer(&self) -> Result<String, JanusError> {
-        self.ask(Command::Offer)
+        self.with(MediaCore::offer)
     }
 
     pub fn publish_answer(&self, sdp: &str) -> Result<(), JanusError> {
-        let sdp = sdp.to_string();
-        self.ask(|r| Command::Answer(sdp, r))
+        self.with(|core, _| core.answer(sdp))
     }
 
     /// Answers Janus's offer for one publisher's stream; its frames come out of [`Self::pull`].
     pub fn subscribe(&self, feed: &str, name: &str, offer: &str) -> Result<String, JanusError> {
-        let (feed, name, offer) = (feed.to_string(), name.to_string(), offer.to_string());
-        self.ask(|reply| Command::Subscribe {
-            feed,
-            name,
-            offer,
-            reply,
-        })
+        self.with(|core, now| core.subscribe(feed.to_string(), name.to_string(), offer, now))
     }
 
     /// The publisher left: its buffered audio still plays out, then it falls silent.
     pub fn feed_left(&self, feed: &str) {
-        if let Some(f) = lock(&self.shared.feeds).get_mut(feed) {
-            f.left = true;
-        }
-        let _ = self.commands.send(Command::Unsubscribe(feed.to_string()));
+        let closed = self.closed;
+        self.driver.with(|core| core.feed_left(feed, !closed));
     }
 
     /// Sends one Opus payload lasting `ticks` of the 48 kHz RTP clock.
     pub fn send(&self, payload: &[u8], ticks: u32) -> Result<(), JanusError> {
-        self.commands
-            .send(Command::Send {
-                payload: payload.to_vec(),
-                ticks,
-            })
-            .map_err(|_| JanusError::Media("the media thread has stopped".into()))
+        self.with(|core, now| {
+            core.send(payload, ticks, now);
+            Ok(())
+        })
     }
 
     /// Moves the published stream's RTP clock on by `ticks` (48 kHz) without sending: a
     /// silent gap that the subscribers play as silence, not loss.
     pub fn skip(&self, ticks: u32) {
         // A stopped media thread has nothing to skip.
-        let _ = self.commands.send(Command::Skip(ticks));
+        let _ = self.with(|core, _| {
+            core.skip(ticks);
+            Ok(())
+        });
     }
 
     /// The next 20 ms of every subscribed publisher that is playing.
     pub fn pull(&self, now: Instant, out: &mut Vec<PeerFrame>) {
-        let mut feeds = lock(&self.shared.feeds);
-        for feed in feeds.values_mut() {
-            let Some(ssrc) = feed.ssrc else { continue };
-            if let Some(frame) = feed.receiver.pull(now) {
-                out.push(PeerFrame { ssrc, frame });
-            }
-        }
+        self.driver.access(|core| core.pull(now, out));
     }
 
     pub fn feeds(&self) -> Vec<FeedInfo> {
-        let feeds = lock(&self.shared.feeds);
-        let mut out: Vec<FeedInfo> = feeds
-            .iter()
-            .map(|(id, f)| FeedInfo {
-                feed: id.clone(),
-                name: f.name.clone(),
-                ssrc: f.ssrc,
-                connected: f.connected,
-                left: f.left,
-                receiver: f.receiver.stats(),
-            })
-            .collect();
-        out.sort_by(|a, b| a.feed.cmp(&b.feed));
-        out
+        self.driver.access(|core| core.feeds())
     }
 
     pub fn stats(&self) -> MediaStats {
-        *lock(&self.shared.stats)
+        self.driver.access(|core| core.stats)
     }
 
     /// Closes every connection (DTLS close and RTCP BYE go out) and stops the thread.
     pub fn close(&mut self) {
-        let _ = self.commands.send(Command::Close);
-        if let Some(t) = self.thread.take() {
-            let _ = t.join();
+        if !std::mem::replace(&mut self.closed, true) {
+            self.driver.with(MediaCore::close_all);
         }
+        self.driver.stop();
     }
 }
 
 impl Drop for Media {
     fn drop(&mut self) {
-        self.shared.stop.store(true, Ordering::Relaxed);
         self.close();
     }
 }
@@ -327,30 +264,79 @@ struct Conn {
     alive: bool,
 }
 
-struct Engine {
-    socket: UdpSocket,
+/// The connections and what they receive, without the socket: datagrams and the time go in,
+/// datagrams to send and decoded frames come out.
+struct MediaCore {
     /// Our host candidates: one port, several addresses.
     local: Vec<SocketAddr>,
-    shared: Arc<Shared>,
+    epoch: Instant,
+    jitter: JitterConfig,
+    /// The latest time the core was given.
+    now: Instant,
     conns: Vec<Conn>,
+    feeds: HashMap<String, Feed>,
+    stats: MediaStats,
+    outbox: VecDeque<Transmit>,
 }
 
-impl Engine {
-    fn new(socket: UdpSocket, local: Vec<SocketAddr>, shared: Arc<Shared>) -> Self {
+impl SansIo for MediaCore {
+    const BUFFER: usize = 2000;
+
+    fn handle_datagram(&mut self, data: &[u8], source: SocketAddr, now: Instant) {
+        self.now = now;
+        self.datagram(data, source, now);
+        self.conns.retain(|c| c.alive);
+    }
+
+    fn poll_timeout(&self) -> Instant {
+        let idle = self.now + IDLE;
+        self.conns.iter().map(|c| c.timeout).min().unwrap_or(idle)
+    }
+
+    fn handle_timeout(&mut self, now: Instant) {
+        self.now = now;
+        for i in 0..self.conns.len() {
+            if self.conns[i].timeout <= now {
+                let result = self.conns[i].rtc.handle_input(Input::Timeout(now));
+                self.after(i, result.map_err(|e| e.to_string()));
+            }
+        }
+        self.conns.retain(|c| c.alive);
+    }
+
+    fn poll_transmit(&mut self) -> Option<Transmit> {
+        self.outbox.pop_front()
+    }
+
+    fn transmitted(&mut self, _: Transmit, sent: bool) {
+        if sent {
+            self.stats.sent += 1;
+        } else {
+            self.stats.send_errors += 1;
+        }
+    }
+}
+
+impl MediaCore {
+    fn new(local: Vec<SocketAddr>, jitter: JitterConfig, now: Instant) -> Self {
         Self {
-            socket,
             local,
-            shared,
+            epoch: now,
+            jitter,
+            now,
             conns: Vec::new(),
+            feeds: HashMap::new(),
+            stats: MediaStats::default(),
+            outbox: VecDeque::new(),
         }
     }
 
-    fn new_rtc(&self, rtp_mode: bool) -> Result<Rtc, JanusError> {
+    fn new_rtc(&self, rtp_mode: bool, now: Instant) -> Result<Rtc, JanusError> {
         let mut rtc = Rtc::builder()
             .clear_codecs()
             .enable_opus(true, false)
             .set_rtp_mode(rtp_mode)
-            .build(Instant::now());
+            .build(now);
         for &addr in &self.local {
             let candidate = Candidate::host(addr, "udp")
                 .map_err(|e| JanusError::Media(format!("host candidate {addr}: {e}")))?;
@@ -359,57 +345,10 @@ impl Engine {
         Ok(rtc)
     }
 
-    fn run(&mut self, commands: &Receiver<Command>) {
-        let mut buf = vec![0u8; 2000];
-        // Every connection is drained after each mutation, as str0m requires.
-        loop {
-            while let Ok(command) = commands.try_recv() {
-                if !self.command(command) {
-                    return;
-                }
-            }
-            if self.shared.stop.load(Ordering::Relaxed) {
-                self.close_all();
-                return;
-            }
-            let now = Instant::now();
-            let next = self
-                .conns
-                .iter()
-                .map(|c| c.timeout)
-                .min()
-                .unwrap_or(now + Duration::from_millis(5));
-            // Commands (media to send) are checked at least every 2 ms.
-            let wait = next
-                .saturating_duration_since(now)
-                .clamp(Duration::from_millis(1), Duration::from_millis(2));
-            let _ = self.socket.set_read_timeout(Some(wait));
-            match self.socket.recv_from(&mut buf) {
-                Ok((n, source)) => self.datagram(&buf[..n], source),
-                Err(e)
-                    if matches!(
-                        e.kind(),
-                        std::io::ErrorKind::WouldBlock | std::io::ErrorKind::TimedOut
-                    ) => {}
-                Err(_) => {
-                    // An ICMP port unreachable from a peer that went away: nothing to read.
-                }
-            }
-            let now = Instant::now();
-            for i in 0..self.conns.len() {
-                if self.conns[i].timeout <= now {
-                    let result = self.conns[i].rtc.handle_input(Input::Timeout(now));
-                    self.after(i, result.map_err(|e| e.to_string()));
-                }
-            }
-            self.conns.retain(|c| c.alive);
-        }
-    }
-
-    fn datagram(&mut self, data: &[u8], source: SocketAddr) {
-        lock(&self.shared.stats).datagrams += 1;
+    fn datagram(&mut self, data: &[u8], source: SocketAddr, now: Instant) {
+        self.stats.datagrams += 1;
         let Ok(contents) = data.try_into() else {
-            lock(&self.shared.stats).unmatched += 1;
+            self.stats.unmatched += 1;
             return;
         };
         // The socket listens on every address; which one a datagram came to is taken to be
@@ -422,7 +361,7 @@ impl Engine {
             .copied()
             .unwrap_or(source);
         let input = Input::Receive(
-            Instant::now(),
+            now,
             Receive {
                 proto: Protocol::Udp,
                 source,
@@ -435,11 +374,11 @@ impl Engine {
                 let result = self.conns[i].rtc.handle_input(input);
                 self.after(i, result.map_err(|e| e.to_string()));
             }
-            None => lock(&self.shared.stats).unmatched += 1,
+            None => self.stats.unmatched += 1,
         }
     }
 
-    /// Drains connection `i` after a mutation; a failure closes it.
+    /// Drains connection `i` after a mutation, as str0m requires; a failure closes it.
     fn after(&mut self, i: usize, result: Result<(), String>) {
         if result.is_err() {
             self.fail(i, "WebRTC input rejected");
@@ -461,15 +400,11 @@ impl Engine {
                     }
                     return;
                 }
-                Output::Transmit(t) => {
-                    let sent = self.socket.send_to(&t.contents, t.destination).is_ok();
-                    let mut stats = lock(&self.shared.stats);
-                    if sent {
-                        stats.sent += 1;
-                    } else {
-                        stats.send_errors += 1;
-                    }
-                }
+                Output::Transmit(t) => self.outbox.push_back(Transmit {
+                    to: t.destination,
+                    data: t.contents.to_vec(),
+                    kind: TransmitKind::WebRtc,
+                }),
                 Output::Event(e) => self.event(i, e),
             }
         }
@@ -477,9 +412,9 @@ impl Engine {
 
     fn fail(&mut self, i: usize, reason: &'static str) {
         self.conns[i].alive = false;
-        lock(&self.shared.stats).failed = Some(reason);
+        self.stats.failed = Some(reason);
         if let Role::Subscriber { feed } = &self.conns[i].role
-            && let Some(f) = lock(&self.shared.feeds).get_mut(feed)
+            && let Some(f) = self.feeds.get_mut(feed)
         {
             f.connected = false;
         }
@@ -495,8 +430,7 @@ impl Engine {
                     timestamp: p.header.timestamp,
                     ssrc: *p.header.ssrc,
                 };
-                let mut feeds = lock(&self.shared.feeds);
-                if let Some(f) = feeds.get_mut(feed.as_str()) {
+                if let Some(f) = self.feeds.get_mut(feed.as_str()) {
                     f.ssrc.get_or_insert(header.ssrc);
                     f.receiver.insert(
                         &Rtp {
@@ -508,13 +442,13 @@ impl Engine {
                 }
             }
             (Role::Subscriber { feed }, Event::Connected) => {
-                if let Some(f) = lock(&self.shared.feeds).get_mut(feed.as_str()) {
+                if let Some(f) = self.feeds.get_mut(feed.as_str()) {
                     f.connected = true;
                 }
             }
             (Role::Publisher { mid, .. }, Event::MediaAdded(m)) => *mid = Some(m.mid),
             (Role::Publisher { .. }, Event::Connected) => {
-                lock(&self.shared.stats).publisher_connected = true;
+                self.stats.publisher_connected = true;
             }
             (_, Event::IceConnectionStateChange(IceConnectionState::Disconnected)) => {
                 self.fail(i, "ICE disconnected");
@@ -524,48 +458,30 @@ impl Engine {
         }
     }
 
-    fn publisher(&mut self) -> Option<usize> {
+    fn publisher(&self) -> Option<usize> {
         self.conns
             .iter()
             .position(|c| matches!(c.role, Role::Publisher { .. }))
     }
 
-    /// Handles one command; false to stop the thread.
-    fn command(&mut self, command: Command) -> bool {
-        match command {
-            Command::Offer(reply) => {
-                let _ = reply.send(self.offer());
-            }
-            Command::Answer(sdp, reply) => {
-                let _ = reply.send(self.answer(&sdp));
-            }
-            Command::Subscribe {
-                feed,
-                name,
-                offer,
-                reply,
-            } => {
-                let _ = reply.send(self.subscribe(feed, name, &offer));
-            }
-            Command::Unsubscribe(feed) => {
-                if let Some(i) = self
-                    .conns
-                    .iter()
-                    .position(|c| matches!(&c.role, Role::Subscriber { feed: f } if *f == feed))
-                {
-                    self.conns[i].rtc.disconnect();
-                    self.after(i, Ok(()));
-                    self.conns[i].alive = false;
-                }
-            }
-            Command::Send { payload, ticks } => self.send(payload, ticks),
-            Command::Skip(ticks) => self.skip(ticks),
-            Command::Close => {
-                self.close_all();
-                return false;
-            }
+    /// The feed left: marked so, and (while `running`) its connection disconnected.
+    fn feed_left(&mut self, feed: &str, running: bool) {
+        if let Some(f) = self.feeds.get_mut(feed) {
+            f.left = true;
         }
-        true
+        if !running {
+            return;
+        }
+        if let Some(i) = self
+            .conns
+            .iter()
+            .position(|c| matches!(&c.role, Role::Subscriber { feed: f } if f == feed))
+        {
+            self.conns[i].rtc.disconnect();
+            self.after(i, Ok(()));
+            self.conns[i].alive = false;
+        }
+        self.conns.retain(|c| c.alive);
     }
 
     fn close_all(&mut self) {
@@ -576,11 +492,11 @@ impl Engine {
         self.conns.clear();
     }
 
-    fn offer(&mut self) -> Result<String, JanusError> {
+    fn offer(&mut self, now: Instant) -> Result<String, JanusError> {
         if self.publisher().is_some() {
             return Err(JanusError::Media("already publishing".into()));
         }
-        let mut rtc = self.new_rtc(false)?;
+        let mut rtc = self.new_rtc(false, now)?;
         let mut change = rtc.sdp_api();
         let mid = change.add_media(MediaKind::Audio, Direction::SendOnly, None, None, None);
         let (offer, pending) = change
@@ -599,7 +515,7 @@ impl Engine {
                 pt,
                 time: 0,
             },
-            timeout: Instant::now(),
+            timeout: now,
             alive: true,
         });
         let i = self.conns.len() - 1;
@@ -629,12 +545,18 @@ impl Engine {
         }
     }
 
-    fn subscribe(&mut self, feed: String, name: String, offer: &str) -> Result<String, JanusError> {
+    fn subscribe(
+        &mut self,
+        feed: String,
+        name: String,
+        offer: &str,
+        now: Instant,
+    ) -> Result<String, JanusError> {
         let pt = super::messages::opus_payload_type(offer)
             .ok_or_else(|| JanusError::Media(format!("Janus offers no Opus for {name}")))?;
         let sdp = SdpOffer::from_sdp_string(offer)
             .map_err(|e| JanusError::Media(format!("Janus's SDP offer: {e}")))?;
-        let mut rtc = self.new_rtc(true)?;
+        let mut rtc = self.new_rtc(true, now)?;
         let answer = rtc
             .sdp_api()
             .accept_offer(sdp)
@@ -642,9 +564,8 @@ impl Engine {
         let payloads = PayloadMap::default()
             .with_assignments(&[format!("opus={pt}")])
             .map_err(|e| JanusError::Media(format!("Opus payload type {pt}: {e}")))?;
-        let receiver =
-            PeerReceiver::with_payloads(self.shared.jitter, self.shared.epoch, true, payloads);
-        lock(&self.shared.feeds).insert(
+        let receiver = PeerReceiver::with_payloads(self.jitter, self.epoch, true, payloads);
+        self.feeds.insert(
             feed.clone(),
             Feed {
                 name,
@@ -657,7 +578,7 @@ impl Engine {
         self.conns.push(Conn {
             rtc,
             role: Role::Subscriber { feed },
-            timeout: Instant::now(),
+            timeout: now,
             alive: true,
         });
         let i = self.conns.len() - 1;
@@ -672,7 +593,7 @@ impl Engine {
         }
     }
 
-    fn send(&mut self, payload: Vec<u8>, ticks: u32) {
+    fn send(&mut self, payload: &[u8], ticks: u32, now: Instant) {
         let Some(i) = self.publisher() else { return };
         let conn = &mut self.conns[i];
         let Role::Publisher { mid, pt, time, .. } = &mut conn.role else {
@@ -687,15 +608,38 @@ impl Engine {
             return;
         };
         // A packet str0m refuses is counted, not a reason to hang up.
-        let written = writer.write(pt, Instant::now(), at, payload).is_ok();
-        {
-            let mut stats = lock(&self.shared.stats);
-            if written {
-                stats.published += 1;
-            } else {
-                stats.send_errors += 1;
-            }
+        if writer.write(pt, now, at, payload.to_vec()).is_ok() {
+            self.stats.published += 1;
+        } else {
+            self.stats.send_errors += 1;
         }
         self.after(i, Ok(()));
+    }
+
+    /// The next 20 ms of every subscribed publisher that is playing.
+    fn pull(&mut self, now: Instant, out: &mut Vec<PeerFrame>) {
+        for feed in self.feeds.values_mut() {
+            let Some(ssrc) = feed.ssrc else { continue };
+            if let Some(frame) = feed.receiver.pull(now) {
+                out.push(PeerFrame { ssrc, frame });
+            }
+        }
+    }
+
+    fn feeds(&self) -> Vec<FeedInfo> {
+        let mut out: Vec<FeedInfo> = self
+            .feeds
+            .iter()
+            .map(|(id, f)| FeedInfo {
+                feed: id.clone(),
+                name: f.name.clone(),
+                ssrc: f.ssrc,
+                connected: f.connected,
+                left: f.left,
+                receiver: f.receiver.stats(),
+            })
+            .collect();
+        out.sort_by(|a, b| a.feed.cmp(&b.feed));
+        out
     }
 }

@@ -1,17 +1,30 @@
+//! The core's rules in simulated time, without sockets; then a few tests of the socket thread
+//! that drives it.
+
+use std::collections::HashMap;
+
+use super::inbound::{CONFIRM_PACKETS, PENDING_NAMES, UNCONFIRMED_TIMEOUT};
+use super::timers::{Due, EXPIRY_INTERVAL, system_draw};
 use super::*;
 use crate::codec::any::{EncoderSettings, FrameEncoder, MAX_FRAME_PAYLOAD};
 use crate::codec::g711::ulaw_to_linear;
+use crate::net::control::{Control, ControlKind, Cookie};
 use crate::net::peer::FrameKind;
+use crate::net::rtcp::{self, Outgoing, SenderInfo};
+use crate::net::rtp::RtpStream;
 use crate::vocab::FRAME_SIZE;
-use timers::EXPIRY_INTERVAL;
 
 const FRAME: Duration = Duration::from_millis(20);
 
-fn session(max_peers: usize) -> Shared {
-    let mut config = SessionConfig::new("127.0.0.1:0".parse().unwrap());
+/// Where the core under test is bound (no socket is).
+const LOCAL: SocketAddr =
+    SocketAddr::new(std::net::IpAddr::V4(std::net::Ipv4Addr::LOCALHOST), 4000);
+
+fn session(max_peers: usize) -> SessionCore {
+    let mut config = SessionConfig::new(LOCAL);
     config.max_peers = max_peers;
     config.ssrc = Some(1);
-    Shared::new(config).unwrap().0
+    SessionCore::new(config, LOCAL, Instant::now()).unwrap()
 }
 
 fn addr(port: u16) -> SocketAddr {
@@ -89,25 +102,23 @@ fn rtcp_from(ssrc: u32, sender: Option<SenderInfo>, bye: bool) -> Vec<u8> {
 /// Drives the session in simulated time: before each 20 ms tick `send(k)` gives the
 /// datagrams arriving in it, then every peer is pulled. Returns what each SSRC played.
 fn drive(
-    shared: &Shared,
+    core: &mut SessionCore,
     ticks: std::ops::Range<u32>,
     mut send: impl FnMut(u32) -> Vec<(SocketAddr, Vec<u8>)>,
     played: &mut HashMap<u32, Vec<FrameKind>>,
 ) {
+    let mut out = Vec::new();
     for k in ticks {
-        let now = shared.epoch + FRAME * k;
-        for (from, mut data) in send(k) {
-            shared.handle(&mut data, from, now);
+        let now = core.epoch + FRAME * k;
+        for (from, data) in send(k) {
+            core.handle_datagram(&data, from, now);
         }
-        let mut rx = lock(&shared.rx);
-        for (&ssrc, peer) in rx.peers.iter_mut() {
-            if let Some(f) = peer.receiver.pull(now) {
-                played.entry(ssrc).or_default().push(f.kind);
-            }
+        core.pull(now, &mut out);
+        for f in out.drain(..) {
+            played.entry(f.ssrc).or_default().push(f.frame.kind);
         }
-        drop(rx);
         if k % 50 == 0 {
-            shared.expire(now);
+            core.expire(now);
         }
     }
 }
@@ -118,8 +129,8 @@ fn decoded(played: &HashMap<u32, Vec<FrameKind>>, ssrc: u32) -> usize {
     })
 }
 
-fn peer_addr(shared: &Shared, ssrc: u32) -> Option<SocketAddr> {
-    lock(&shared.rx).peers.get(&ssrc).map(|p| p.addr)
+fn peer_addr(core: &SessionCore, ssrc: u32) -> Option<SocketAddr> {
+    core.peers.get(&ssrc).map(|p| p.addr)
 }
 
 fn names_from(ssrc: u32, name: &str) -> Vec<u8> {
@@ -143,12 +154,12 @@ fn names_from(ssrc: u32, name: &str) -> Vec<u8> {
 fn a_name_sent_before_the_first_packet_names_the_peer_from_its_address_only() {
     // Every sender's first RTCP (SDES) precedes its media: the caller used to stay
     // nameless until its next report, and the app took its demo peer for a real caller.
-    let shared = session(8);
+    let mut core = session(8);
     let mut played = HashMap::new();
     let mut ann = Caller::new(7, 100, 5000);
     let mut bob = Caller::new(8, 200, 6000);
     drive(
-        &shared,
+        &mut core,
         0..1,
         |_| {
             let mut junk: Vec<(SocketAddr, Vec<u8>)> = (0..PENDING_NAMES as u32)
@@ -161,22 +172,22 @@ fn a_name_sent_before_the_first_packet_names_the_peer_from_its_address_only() {
         },
         &mut played,
     );
-    assert!(lock(&shared.rx).peers.is_empty());
-    assert_eq!(lock(&shared.rx).pending_names.len(), PENDING_NAMES);
+    assert!(core.peers.is_empty());
+    assert_eq!(core.pending_names.len(), PENDING_NAMES);
     // The pending names were full of junk after Ann's: hers was displaced; send it again.
     drive(
-        &shared,
+        &mut core,
         1..2,
         |_| vec![(addr(5000), names_from(7, "Ann"))],
         &mut played,
     );
     drive(
-        &shared,
+        &mut core,
         2..12,
         |_| vec![(addr(5000), ann.packet()), (addr(6000), bob.packet())],
         &mut played,
     );
-    let rx = lock(&shared.rx);
+    let rx = &core;
     assert_eq!(rx.peers[&7].name.as_deref(), Some("Ann"));
     assert_eq!(rx.peers[&7].cname.as_deref(), Some("caller@host"));
     assert_eq!(rx.peers[&8].name, None);
@@ -185,10 +196,10 @@ fn a_name_sent_before_the_first_packet_names_the_peer_from_its_address_only() {
 #[test]
 fn junk_rtcp_makes_no_peer_and_keeps_no_caller_out() {
     // 32 receiver reports of 8 bytes from 32 SSRCs used to fill the peer table for 30 s.
-    let shared = session(32);
+    let mut core = session(32);
     let mut played = HashMap::new();
     drive(
-        &shared,
+        &mut core,
         0..1,
         |_| {
             (0..32u32)
@@ -201,10 +212,10 @@ fn junk_rtcp_makes_no_peer_and_keeps_no_caller_out() {
         },
         &mut played,
     );
-    assert!(lock(&shared.rx).peers.is_empty());
+    assert!(core.peers.is_empty());
     let mut caller = Caller::new(7, 100, 5000);
     drive(
-        &shared,
+        &mut core,
         1..121,
         |k| {
             if k <= 100 {
@@ -216,19 +227,19 @@ fn junk_rtcp_makes_no_peer_and_keeps_no_caller_out() {
         &mut played,
     );
     assert_eq!(decoded(&played, 7), 100);
-    assert_eq!(shared.stats_now().too_many_peers, 0);
+    assert_eq!(core.stats().too_many_peers, 0);
 }
 
 #[test]
 fn junk_media_never_evicts_a_talking_caller_nor_blocks_a_new_one() {
-    let shared = session(4);
+    let mut core = session(4);
     let mut played = HashMap::new();
     let mut a = Caller::new(7, 100, 5000);
     let mut b = Caller::new(8, 9000, 77);
     let mut junk = RtpStream::new(0, 0, 0);
     junk.set_payload(0, 160);
     drive(
-        &shared,
+        &mut core,
         0..260,
         |k| {
             let mut out = Vec::new();
@@ -251,22 +262,22 @@ fn junk_media_never_evicts_a_talking_caller_nor_blocks_a_new_one() {
     );
     assert_eq!(decoded(&played, 7), 200);
     assert_eq!(decoded(&played, 8), 100);
-    let stats = shared.stats_now();
+    let stats = core.stats();
     assert!(stats.evicted >= 90, "{stats:?}");
     assert_eq!(stats.too_many_peers, 0, "{stats:?}");
     // The junk ages out within seconds, the callers stay.
-    let mut peers: Vec<u32> = lock(&shared.rx).peers.keys().copied().collect();
+    let mut peers: Vec<u32> = core.peers.keys().copied().collect();
     peers.sort_unstable();
     assert_eq!(peers, [7, 8]);
 }
 
 #[test]
 fn a_spoofed_bye_from_another_address_is_ignored() {
-    let shared = session(32);
+    let mut core = session(32);
     let mut played = HashMap::new();
     let mut caller = Caller::new(7, 100, 5000);
     drive(
-        &shared,
+        &mut core,
         0..130,
         |k| {
             let mut out = Vec::new();
@@ -285,30 +296,30 @@ fn a_spoofed_bye_from_another_address_is_ignored() {
         &mut played,
     );
     assert_eq!(decoded(&played, 7), 100);
-    let peers = lock(&shared.rx).peers.get(&7).map(|p| p.said_bye).unwrap();
+    let peers = core.peers.get(&7).map(|p| p.said_bye).unwrap();
     assert!(!peers);
     // The lone BYE, and the compound's report and BYE.
-    assert_eq!(shared.stats_now().foreign, 3);
+    assert_eq!(core.stats().foreign, 3);
     // From the caller's own address it counts.
     drive(
-        &shared,
+        &mut core,
         130..131,
         |_| vec![(addr(5000), caller.report(true))],
         &mut played,
     );
-    assert!(lock(&shared.rx).peers[&7].said_bye);
+    assert!(core.peers[&7].said_bye);
 }
 
 #[test]
 fn packets_from_another_port_do_not_hijack_a_caller() {
-    let shared = session(32);
+    let mut core = session(32);
     let mut played = HashMap::new();
     let mut caller = Caller::new(7, 100, 5000);
     // Another port sends 60 packets with the caller's SSRC: first with its own sequence,
     // then copying the caller's next sequence number and timestamp.
     let mut spoof = Caller::new(7, 31_000, 1_000_000);
     drive(
-        &shared,
+        &mut core,
         0..170,
         |k| {
             let mut out = Vec::new();
@@ -325,22 +336,22 @@ fn packets_from_another_port_do_not_hijack_a_caller() {
         },
         &mut played,
     );
-    assert_eq!(peer_addr(&shared, 7), Some(addr(5000)));
+    assert_eq!(peer_addr(&core, 7), Some(addr(5000)));
     assert_eq!(decoded(&played, 7), 150);
-    let stats = shared.stats_now();
+    let stats = core.stats();
     assert_eq!((stats.foreign, stats.moved), (60, 0), "{stats:?}");
-    let j = lock(&shared.rx).peers[&7].receiver.stats().jitter;
+    let j = core.peers[&7].receiver.stats().jitter;
     assert_eq!((j.received, j.duplicates, j.lost), (150, 0, 0), "{j:?}");
 }
 
 #[test]
 fn a_caller_whose_address_changes_is_followed() {
     // A NAT rebinding: the stream goes on from a new port, the old one falls quiet.
-    let shared = session(32);
+    let mut core = session(32);
     let mut played = HashMap::new();
     let mut caller = Caller::new(7, 65_500, 5000);
     drive(
-        &shared,
+        &mut core,
         0..140,
         |k| match k {
             0..60 => vec![(addr(5000), caller.packet())],
@@ -349,20 +360,20 @@ fn a_caller_whose_address_changes_is_followed() {
         },
         &mut played,
     );
-    assert_eq!(peer_addr(&shared, 7), Some(addr(5002)));
-    assert_eq!(shared.stats_now().moved, 1);
+    assert_eq!(peer_addr(&core, 7), Some(addr(5002)));
+    assert_eq!(core.stats().moved, 1);
     // The packets that showed the move are not played: two frames concealed.
     assert_eq!(decoded(&played, 7), 120 - 2);
 }
 
 #[test]
 fn a_redial_on_the_same_ssrc_after_bye_plays() {
-    let shared = session(32);
+    let mut core = session(32);
     let mut played = HashMap::new();
     let mut first = Caller::new(7, 100, 5000);
     let mut second = Caller::new(7, 40_000, 3_000_000);
     drive(
-        &shared,
+        &mut core,
         0..260,
         |k| match k {
             0..100 => vec![(addr(5000), first.packet())],
@@ -374,7 +385,7 @@ fn a_redial_on_the_same_ssrc_after_bye_plays() {
         &mut played,
     );
     assert_eq!(decoded(&played, 7), 200);
-    let rx = lock(&shared.rx);
+    let rx = &core;
     let peer = &rx.peers[&7];
     assert!(!peer.said_bye);
     assert_eq!(peer.addr, addr(5004));
@@ -382,12 +393,11 @@ fn a_redial_on_the_same_ssrc_after_bye_plays() {
     assert_eq!((j.restarts, j.lost, j.late), (1, 0, 0), "{j:?}");
 }
 
-/// The network thread in simulated time: the timers run at their deadlines and datagrams arrive
-/// at the present, as `net_loop` does with its socket and the clock; the owner pulls every 20 ms.
-/// The session has no thread.
+/// The socket thread in simulated time: the timers run at their deadlines and datagrams arrive
+/// at the present, as the driver does with its socket and the clock; the owner pulls every
+/// 20 ms. What the core sends goes nowhere.
 struct Sim {
-    session: Session,
-    timers: Timers,
+    core: SessionCore,
     now: Instant,
     /// What the timers did, and when (since the epoch).
     fired: Vec<(Duration, Due)>,
@@ -397,54 +407,48 @@ struct Sim {
 
 impl Sim {
     fn new(config: SessionConfig, draw: fn() -> u32) -> Self {
-        Self::start(Shared::new(config).unwrap().0, draw)
-    }
-
-    /// Like [`Session::start`], without the thread.
-    fn start(shared: Shared, draw: fn() -> u32) -> Self {
-        if shared.config.room.is_some() {
-            shared.request_place();
-        }
-        let now = shared.epoch;
-        Self {
-            timers: Timers::new(&shared.config, now, draw),
-            session: Session {
-                shared: Arc::new(shared),
-                thread: None,
-            },
-            now,
+        let core = SessionCore::with_draw(config, LOCAL, Instant::now(), draw).unwrap();
+        let mut sim = Self {
+            now: core.epoch,
+            core,
             fired: Vec::new(),
             played: HashMap::new(),
-        }
+        };
+        sim.sent();
+        sim
     }
 
-    /// A member of a relay room whose "relay" is its own socket (what it sends there is never
-    /// read).
+    /// A member of a relay room at a made-up address.
     fn in_room() -> Self {
         let mut config = quiet_config(8);
         config.room = Some("room".into());
-        let mut shared = Shared::new(config).unwrap().0;
-        shared.config.destinations = vec![shared.socket.local_addr().unwrap()];
-        Self::start(shared, middle)
+        config.destinations = vec![addr(3478)];
+        Self::new(config, middle)
     }
 
-    fn shared(&self) -> &Shared {
-        &self.session.shared
+    /// What the core had to send, sent (nowhere).
+    fn sent(&mut self) {
+        while let Some(t) = self.core.poll_transmit() {
+            self.core.transmitted(t, true);
+        }
     }
 
     /// Runs the timers due until `at` (since the epoch), then makes it the present.
     fn advance_to(&mut self, at: Duration) {
-        let at = self.shared().epoch + at;
-        while self.timers.next_deadline() <= at {
-            let deadline = self.timers.next_deadline();
-            let due = self.session.shared.run_timers(&mut self.timers, deadline);
-            self.fired.push((deadline - self.shared().epoch, due));
+        let epoch = self.core.epoch;
+        let at = epoch + at;
+        while self.core.poll_timeout() <= at {
+            let deadline = self.core.poll_timeout();
+            let due = self.core.run_timers(deadline);
+            self.fired.push((deadline - epoch, due));
+            self.sent();
         }
         self.now = self.now.max(at);
     }
 
-    fn arrive(&mut self, from: SocketAddr, mut data: Vec<u8>) {
-        self.shared().handle(&mut data, from, self.now);
+    fn arrive(&mut self, from: SocketAddr, data: Vec<u8>) {
+        self.core.handle_datagram(&data, from, self.now);
+        self.sent();
     }
 
     /// 20 ms ticks: at each, the timers due run, `send(k)` gives the datagrams arriving and
@@ -460,7 +464,7 @@ impl Sim {
             for (from, data) in send(k) {
                 self.arrive(from, data);
             }
-            self.session.pull(self.now, &mut out);
+            self.core.pull(self.now, &mut out);
             for PeerFrame { ssrc, frame } in out.drain(..) {
                 self.played.entry(ssrc).or_default().push((k, frame));
             }
@@ -468,8 +472,8 @@ impl Sim {
     }
 
     fn relay_says(&mut self, kind: ControlKind, cookie: Cookie) {
-        let relay = self.shared().config.destinations[0];
-        let room = self.shared().room.unwrap();
+        let relay = self.core.config.destinations[0];
+        let room = self.core.room.unwrap();
         self.arrive(relay, Control::new(kind, room, cookie).encode().to_vec());
     }
 
@@ -483,13 +487,13 @@ impl Sim {
     }
 
     fn peers(&self) -> Vec<u32> {
-        self.session.peers().iter().map(|p| p.ssrc).collect()
+        self.core.peers().iter().map(|p| p.ssrc).collect()
     }
 }
 
 /// A session that sends no RTCP (it would go to the made-up peer addresses).
 fn quiet_config(max_peers: usize) -> SessionConfig {
-    let mut config = SessionConfig::new("127.0.0.1:0".parse().unwrap());
+    let mut config = SessionConfig::new(LOCAL);
     config.max_peers = max_peers;
     config.ssrc = Some(1);
     config.send_rtcp = false;
@@ -568,7 +572,7 @@ fn the_relay_join_is_retried_every_half_second_until_answered_then_kept_alive_ev
         // The retry set before the answer still goes; then only the keepalive.
         let at = [500, 1000, 1500, 6500, 11_500].map(ms);
         assert_eq!(sim.when(keepalive), at, "{answer:?}");
-        let stats = sim.session.stats();
+        let stats = sim.core.stats();
         assert_eq!(stats.relay_challenges, 1);
         assert_eq!(stats.relay_joined, answer == ControlKind::Joined);
     }
@@ -580,7 +584,7 @@ fn a_confirmed_peer_is_forgotten_after_peer_timeout_of_silence_not_before() {
     let mut caller = Caller::new(7, 100, 5000);
     // Its last packet arrives at 1 s, on the once-a-second expiry's grid.
     sim.run(41..51, talks(&mut caller, addr(5000), 41, 10));
-    let timeout = sim.shared().config.peer_timeout;
+    let timeout = sim.core.config.peer_timeout;
     sim.advance_to(ms(1000) + timeout - NANO);
     assert_eq!(sim.peers(), [7]);
     sim.advance_to(ms(1000) + timeout);
@@ -619,17 +623,14 @@ fn names_and_starts_sent_before_any_media_expire_after_2_s() {
             (addr(5000), caller.report(false)),
         ]
     });
-    let pending = |sim: &Sim| {
-        let rx = lock(&sim.shared().rx);
-        (rx.pending_names.len(), rx.pending_starts.len())
-    };
+    let pending = |sim: &Sim| (sim.core.pending_names.len(), sim.core.pending_starts.len());
     sim.advance_to(ms(1000) + UNCONFIRMED_TIMEOUT - NANO);
     assert_eq!(pending(&sim), (1, 1));
     sim.advance_to(ms(1000) + UNCONFIRMED_TIMEOUT);
     assert_eq!(pending(&sim), (0, 0));
     // Media after that makes a nameless peer.
     sim.run(150..151, talks(&mut caller, addr(5000), 150, 1));
-    assert_eq!(sim.session.peers()[0].name, None);
+    assert_eq!(sim.core.peers()[0].name, None);
 }
 
 #[test]
@@ -651,7 +652,7 @@ fn a_full_table_drops_the_unconfirmed_then_the_longest_silent_never_a_talker() {
             }
             out
         });
-        (sim.peers(), sim.session.stats())
+        (sim.peers(), sim.core.stats())
     };
     // At 5.1 s the others have been silent for 4.9 and 4.1 s: no room.
     let (peers, stats) = step(&mut sim, 0..256, Some(4));
@@ -716,11 +717,127 @@ fn a_peer_that_says_bye_plays_out_and_is_forgotten_after_peer_timeout() {
         _ => Vec::new(),
     });
     assert_eq!(decoded_frames(&sim, 7), 50);
-    let peer = &sim.session.peers()[0];
+    let peer = &sim.core.peers()[0];
     assert!(peer.said_bye && peer.ended, "{peer:?}");
-    let timeout = sim.shared().config.peer_timeout;
+    let timeout = sim.core.config.peer_timeout;
     sim.advance_to(ms(1000) + timeout - NANO);
     assert_eq!(sim.peers(), [7]);
     sim.advance_to(ms(1000) + timeout);
     assert!(sim.peers().is_empty());
+}
+
+#[test]
+fn the_relay_is_asked_with_a_join_then_confirmed_with_its_cookie() {
+    let relay = addr(3478);
+    let mut config = quiet_config(8);
+    config.room = Some("room".into());
+    config.destinations = vec![relay];
+    let mut core = SessionCore::new(config, LOCAL, Instant::now()).unwrap();
+    let room = core.room.unwrap();
+    let epoch = core.epoch;
+    let sent = |core: &mut SessionCore| -> Vec<(SocketAddr, ControlKind, Cookie)> {
+        let mut controls = Vec::new();
+        while let Some(t) = core.poll_transmit() {
+            assert_eq!(t.kind, TransmitKind::Control);
+            let c = Control::decode(&t.data).unwrap();
+            assert_eq!(c.room, room);
+            controls.push((t.to, c.kind, c.cookie));
+            core.transmitted(t, true);
+        }
+        controls
+    };
+    assert_eq!(sent(&mut core), [(relay, ControlKind::Join, Cookie::NONE)]);
+    core.handle_timeout(epoch + ms(499));
+    assert!(sent(&mut core).is_empty());
+    core.handle_timeout(epoch + ms(500));
+    assert_eq!(sent(&mut core), [(relay, ControlKind::Join, Cookie::NONE)]);
+    let cookie = Cookie([9; 16]);
+    let challenge = Control::new(ControlKind::Challenge, room, cookie).encode();
+    core.handle_datagram(&challenge, addr(6666), epoch + ms(505));
+    assert!(sent(&mut core).is_empty(), "a challenge not from the relay");
+    core.handle_datagram(&challenge, relay, epoch + ms(510));
+    assert_eq!(sent(&mut core), [(relay, ControlKind::Confirm, cookie)]);
+    core.handle_timeout(epoch + ms(1000));
+    assert_eq!(sent(&mut core), [(relay, ControlKind::Confirm, cookie)]);
+    core.leave(epoch + ms(1200));
+    assert_eq!(sent(&mut core), [(relay, ControlKind::Leave, cookie)]);
+    assert_eq!(core.stats().relay_challenges, 1);
+}
+
+/// Waits up to 2 s for `done`.
+fn eventually(mut done: impl FnMut() -> bool) -> bool {
+    let until = Instant::now() + Duration::from_secs(2);
+    while Instant::now() < until {
+        if done() {
+            return true;
+        }
+        std::thread::sleep(Duration::from_millis(5));
+    }
+    done()
+}
+
+#[test]
+fn the_socket_thread_carries_media_between_two_sessions() {
+    let mut config = SessionConfig::new("127.0.0.1:0".parse().unwrap());
+    config.send_rtcp = false;
+    let receiver = Session::start(config.clone()).unwrap();
+    config.destinations = vec![receiver.local_addr().unwrap()];
+    let sender = Session::start(config).unwrap();
+    let mut caller = Caller::new(0, 0, 0);
+    for _ in 0..10 {
+        let packet = caller.packet();
+        // The caller's payload, past its 12-byte RTP header.
+        sender.send_frames(&packet[12..], 1).unwrap();
+    }
+    assert!(
+        eventually(|| receiver.stats().rtp == 10),
+        "{:?}",
+        receiver.stats()
+    );
+    assert_eq!(sender.stats().sent_rtp, 10);
+    let peers = receiver.peers();
+    assert_eq!(peers.len(), 1);
+    assert_eq!(peers[0].ssrc, sender.ssrc());
+    assert_eq!(peers[0].addr, sender.local_addr().unwrap());
+    let mut frames = Vec::new();
+    receiver.pull(Instant::now() + Duration::from_millis(100), &mut frames);
+    assert_eq!(frames.len(), 1, "{frames:?}");
+}
+
+#[test]
+fn the_socket_thread_counts_a_datagram_cut_short_as_malformed() {
+    let session = Session::start(SessionConfig::new("127.0.0.1:0".parse().unwrap())).unwrap();
+    let socket = std::net::UdpSocket::bind("127.0.0.1:0").unwrap();
+    let mut oversized = vec![0u8; LARGEST_DATAGRAM + 100];
+    oversized[0] = 0x80;
+    socket
+        .send_to(&oversized, session.local_addr().unwrap())
+        .unwrap();
+    assert!(eventually(|| session.stats().datagrams == 1));
+    let stats = session.stats();
+    assert_eq!(
+        (stats.malformed, stats.rtp, stats.bytes),
+        (1, 0, 0),
+        "{stats:?}"
+    );
+}
+
+#[test]
+fn the_socket_thread_joins_the_relay_and_retries_until_answered() {
+    let relay = std::net::UdpSocket::bind("127.0.0.1:0").unwrap();
+    relay
+        .set_read_timeout(Some(Duration::from_secs(2)))
+        .unwrap();
+    let mut config = SessionConfig::new("127.0.0.1:0".parse().unwrap());
+    config.room = Some("room".into());
+    config.destinations = vec![relay.local_addr().unwrap()];
+    config.send_rtcp = false;
+    let session = Session::start(config).unwrap();
+    let mut buf = [0u8; 64];
+    for _ in 0..2 {
+        let (n, from) = relay.recv_from(&mut buf).unwrap();
+        assert_eq!(from, session.local_addr().unwrap());
+        let control = Control::decode(&buf[..n]).unwrap();
+        assert_eq!(control.kind, ControlKind::Join);
+    }
 }

@@ -1,11 +1,13 @@
-//! The network thread's timers without its socket or clock: when to report, to ask the relay
-//! for our place again and to forget the silent. The loop passes the time in, so the session's
-//! tests run it in simulated time.
+//! The session's timers without a clock: when to report, to ask the relay for our place again
+//! and to forget the silent. The time is passed in, so the session's tests run them in
+//! simulated time.
 
 use std::time::{Duration, Instant};
 
-use super::{JOIN_RETRY, SessionConfig};
+use super::SessionConfig;
 
+/// How soon an unanswered relay join is sent again.
+const JOIN_RETRY: Duration = Duration::from_millis(500);
 /// How often silent peers and stale hints are looked for.
 pub(super) const EXPIRY_INTERVAL: Duration = Duration::from_secs(1);
 

@@ -1,0 +1,169 @@
+//! The one socket thread under a sans-I/O core: it owns a UDP socket, hands the core each
+//! datagram as it arrives and runs its timeouts when due, and sends what the core queues. The
+//! owner's handle calls the same core (behind the one lock here, never inside the core) and
+//! sends what its call queued at once. The session and the Janus media both run on it.
+
+use std::net::{SocketAddr, UdpSocket};
+use std::sync::atomic::{AtomicBool, Ordering};
+use std::sync::{Arc, Mutex, MutexGuard};
+use std::thread::JoinHandle;
+use std::time::{Duration, Instant};
+
+/// A datagram for the socket.
+#[derive(Debug)]
+pub struct Transmit {
+    pub to: SocketAddr,
+    pub data: Vec<u8>,
+    /// What it is, for the core's counters.
+    pub kind: TransmitKind,
+}
+
+/// What a datagram to send is, for the counters.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum TransmitKind {
+    Rtp,
+    Rtcp,
+    Control,
+    /// Whatever a WebRTC connection sends (STUN, DTLS, SRTP, SRTCP).
+    WebRtc,
+}
+
+/// A protocol's state and rules without I/O, as the socket thread drives it.
+pub trait SansIo {
+    /// Bytes of the buffer a datagram is read into (one that fills it may have been cut
+    /// short).
+    const BUFFER: usize;
+    /// A datagram from `from` that arrived at `now`.
+    fn handle_datagram(&mut self, data: &[u8], from: SocketAddr, now: Instant);
+    /// When [`Self::handle_timeout`] is next due.
+    fn poll_timeout(&self) -> Instant;
+    /// Does what is due at `now`.
+    fn handle_timeout(&mut self, now: Instant);
+    /// The next datagram to send, if any.
+    fn poll_transmit(&mut self) -> Option<Transmit>;
+    /// A datagram from [`Self::poll_transmit`] went out (`sent`) or failed to.
+    fn transmitted(&mut self, transmit: Transmit, sent: bool);
+}
+
+struct Shared<C> {
+    core: Mutex<C>,
+    socket: UdpSocket,
+    stop: AtomicBool,
+}
+
+fn lock<C>(m: &Mutex<C>) -> MutexGuard<'_, C> {
+    // A panic while holding the lock leaves data that is still consistent enough for counters
+    // and buffers; keep serving rather than cascading the panic.
+    m.lock().unwrap_or_else(|poisoned| poisoned.into_inner())
+}
+
+impl<C: SansIo> Shared<C> {
+    /// Sends what the core has to send.
+    fn flush(&self, core: &mut C) {
+        while let Some(transmit) = core.poll_transmit() {
+            let sent = self.socket.send_to(&transmit.data, transmit.to).is_ok();
+            core.transmitted(transmit, sent);
+        }
+    }
+}
+
+/// A core driven by its socket thread; the thread stops when this is dropped.
+pub struct Driver<C> {
+    shared: Arc<Shared<C>>,
+    thread: Option<JoinHandle<()>>,
+}
+
+impl<C: SansIo + Send + 'static> Driver<C> {
+    /// Starts the thread `name` reading `socket` for `core`, waking at least every `poll` (to
+    /// see whether to stop). What the core queued before is sent first.
+    pub fn start(socket: UdpSocket, core: C, name: &str, poll: Duration) -> std::io::Result<Self> {
+        socket.set_read_timeout(Some(poll))?;
+        let reader = socket.try_clone()?;
+        let shared = Arc::new(Shared {
+            core: Mutex::new(core),
+            socket,
+            stop: AtomicBool::new(false),
+        });
+        {
+            let mut core = lock(&shared.core);
+            shared.flush(&mut core);
+        }
+        let thread_shared = Arc::clone(&shared);
+        let thread = std::thread::Builder::new()
+            .name(name.into())
+            .spawn(move || run(&thread_shared, &reader, poll))?;
+        Ok(Self {
+            shared,
+            thread: Some(thread),
+        })
+    }
+}
+
+impl<C: SansIo> Driver<C> {
+    /// Runs `f` on the core, then sends what it queued.
+    pub fn with<T>(&self, f: impl FnOnce(&mut C) -> T) -> T {
+        let mut core = lock(&self.shared.core);
+        let out = f(&mut core);
+        self.shared.flush(&mut core);
+        out
+    }
+
+    /// Runs `f` on the core, sending nothing (for calls that queue nothing).
+    pub fn access<T>(&self, f: impl FnOnce(&mut C) -> T) -> T {
+        f(&mut lock(&self.shared.core))
+    }
+
+    pub fn socket(&self) -> &UdpSocket {
+        &self.shared.socket
+    }
+
+    /// Stops the thread (at once if it is waiting, else after the datagram in hand).
+    pub fn stop(&mut self) {
+        self.shared.stop.store(true, Ordering::Relaxed);
+        if let Some(t) = self.thread.take() {
+            let _ = t.join();
+        }
+    }
+}
+
+impl<C> Drop for Driver<C> {
+    fn drop(&mut self) {
+        self.shared.stop.store(true, Ordering::Relaxed);
+        if let Some(t) = self.thread.take() {
+            let _ = t.join();
+        }
+    }
+}
+
+/// The socket thread: datagrams into the core as they come, its timeouts when due.
+fn run<C: SansIo>(shared: &Shared<C>, socket: &UdpSocket, poll: Duration) {
+    let mut buf = vec![0u8; C::BUFFER];
+    let mut waits = Some(poll);
+    while !shared.stop.load(Ordering::Relaxed) {
+        // Read afresh: the owner's calls may have set an earlier one.
+        let deadline = lock(&shared.core).poll_timeout();
+        // In whole milliseconds: the timeout is not set anew for every wake.
+        let remaining = deadline
+            .saturating_duration_since(Instant::now())
+            .as_millis();
+        let wait = Duration::from_millis(u64::try_from(remaining).unwrap_or(u64::MAX))
+            .clamp(Duration::from_millis(1), poll);
+        if waits != Some(wait) && socket.set_read_timeout(Some(wait)).is_ok() {
+            waits = Some(wait);
+        }
+        // Errors are timeouts, and ICMP errors from earlier sends: neither stops the thread.
+        let received = socket.recv_from(&mut buf).ok();
+        let now = Instant::now();
+        if received.is_none() && now < deadline {
+            continue;
+        }
+        let mut core = lock(&shared.core);
+        if let Some((n, from)) = received {
+            core.handle_datagram(&buf[..n.min(buf.len())], from, now);
+        }
+        if now >= core.poll_timeout() {
+            core.handle_timeout(now);
+        }
+        shared.flush(&mut core);
+    }
+}

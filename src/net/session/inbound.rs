@@ -1,0 +1,373 @@
+//! What comes in: media that makes and feeds peers, and RTCP about them, each pinned to the
+//! address its media came from.
+
+use std::collections::HashMap;
+use std::net::SocketAddr;
+use std::time::{Duration, Instant};
+
+use super::PeerInfo;
+use super::protocol::SessionCore;
+use crate::net::peer::PeerReceiver;
+use crate::net::rtcp::{self, RtcpItem};
+use crate::net::rtp::{self, Rtp};
+use crate::net::srtp::{Srtp, SrtpError};
+
+/// Packets a peer's media must have brought before it is confirmed.
+pub(super) const CONFIRM_PACKETS: u64 = 5;
+/// An unconfirmed peer without media for this long is forgotten.
+pub(super) const UNCONFIRMED_TIMEOUT: Duration = Duration::from_secs(2);
+/// A confirmed peer without media for this long may make room for a new one.
+const IDLE_EVICT: Duration = Duration::from_secs(5);
+/// Packets in sequence from a new address before a quiet peer moves there.
+const MOVE_PACKETS: u32 = 3;
+/// Start hints (SRs sent before a stream's first packet) kept for peers not yet created.
+pub(super) const PENDING_STARTS: usize = 8;
+/// Names (SDES sent before a stream's first packet, as every sender's first RTCP is) kept for
+/// peers not yet created: without them a caller stays nameless until its next report.
+pub(super) const PENDING_NAMES: usize = 8;
+
+/// SDES of a source that is not a peer yet: (SSRC, where from, CNAME, NAME, when).
+pub(super) type PendingNames = (u32, SocketAddr, Option<String>, Option<String>, Instant);
+
+pub(super) struct Peer {
+    pub receiver: PeerReceiver,
+    /// Where its media comes from: RTCP and RTP from elsewhere are ignored.
+    pub addr: SocketAddr,
+    pub cname: Option<String>,
+    pub name: Option<String>,
+    last_heard: Instant,
+    /// The last media packet from `addr`.
+    last_media: Instant,
+    /// Media packets filed.
+    media: u64,
+    /// Another address continuing this peer's sequence: (address, its next sequence number,
+    /// packets so far).
+    candidate: Option<(SocketAddr, u16, u32)>,
+    pub last_sr: Option<(u32, Instant)>,
+    rtt_ms: Option<f64>,
+    their_loss: Option<f64>,
+    pub said_bye: bool,
+}
+
+impl Peer {
+    fn confirmed(&self) -> bool {
+        self.media >= CONFIRM_PACKETS
+    }
+
+    /// Whether a packet from `from`, not the pinned address, shows the peer has moved there:
+    /// its pinned address is quiet and `from` sent `MOVE_PACKETS` in a row continuing the
+    /// peer's sequence. Packets from the pinned address cancel a candidate.
+    fn moved_to(&mut self, from: SocketAddr, seq: u16) -> bool {
+        let count = match self.candidate {
+            Some((addr, next, count)) if addr == from && next == seq => count + 1,
+            _ => {
+                let continues = self
+                    .receiver
+                    .highest_sequence()
+                    .is_some_and(|h| (1..=16).contains(&seq.wrapping_sub(h)));
+                if !continues {
+                    return false;
+                }
+                1
+            }
+        };
+        self.candidate = Some((from, seq.wrapping_add(1), count));
+        count >= MOVE_PACKETS
+    }
+
+    pub(super) fn info(&self, ssrc: u32) -> PeerInfo {
+        let receiver = self.receiver.stats();
+        PeerInfo {
+            ssrc,
+            addr: self.addr,
+            cname: self.cname.clone(),
+            name: self.name.clone(),
+            ended: self.said_bye && receiver.jitter.buffered_frames == 0,
+            receiver,
+            rtt_ms: self.rtt_ms,
+            their_loss: self.their_loss,
+            said_bye: self.said_bye,
+        }
+    }
+}
+
+impl SessionCore {
+    /// Decrypts `data` in place with `f`, if the session has a key; false (and counted) if it
+    /// is not to be read.
+    fn unprotect(
+        &mut self,
+        data: &mut Vec<u8>,
+        f: fn(&mut Srtp, &mut Vec<u8>) -> Result<(), SrtpError>,
+    ) -> bool {
+        let Some(srtp) = self.rx_srtp.as_mut() else {
+            return true;
+        };
+        match f(srtp, data) {
+            Ok(()) => true,
+            Err(SrtpError::Replay) => {
+                self.stats.replayed += 1;
+                false
+            }
+            Err(SrtpError::Stale) => {
+                self.stats.stale += 1;
+                false
+            }
+            Err(SrtpError::AuthFailed) => {
+                self.stats.auth_failed += 1;
+                false
+            }
+            Err(_) => {
+                self.stats.malformed += 1;
+                false
+            }
+        }
+    }
+
+    /// Makes room for a new peer: the oldest unconfirmed one goes, else one that has sent no
+    /// media for `IDLE_EVICT`; a talking peer never does. False if there is no room.
+    fn make_room(&mut self, now: Instant) -> bool {
+        if self.peers.len() < self.config.max_peers {
+            return true;
+        }
+        let victim = self
+            .peers
+            .iter()
+            .filter(|(_, p)| {
+                !p.confirmed() || now.saturating_duration_since(p.last_media) >= IDLE_EVICT
+            })
+            .min_by_key(|(_, p)| (p.confirmed(), p.last_media))
+            .map(|(&ssrc, _)| ssrc);
+        let Some(ssrc) = victim else {
+            self.stats.too_many_peers += 1;
+            return false;
+        };
+        self.peers.remove(&ssrc);
+        self.stats.evicted += 1;
+        true
+    }
+
+    /// A new peer from its first media packet, if it is media a mapped codec can read.
+    fn new_peer(&mut self, packet: &Rtp<'_>, from: SocketAddr, arrival: Instant) -> bool {
+        let readable = self
+            .config
+            .payloads
+            .codec(packet.header.payload_type)
+            .is_some_and(|c| c.payload_duration(packet.payload).is_some());
+        if !readable {
+            self.stats.unknown_payload += 1;
+            return false;
+        }
+        if !self.make_room(arrival) {
+            return false;
+        }
+        let ssrc = packet.header.ssrc;
+        let mut receiver = PeerReceiver::with_payloads(
+            self.config.jitter,
+            self.epoch,
+            self.config.enhancer,
+            self.config.payloads.clone(),
+        );
+        if let Some(i) = self
+            .pending_starts
+            .iter()
+            .position(|&(s, _, addr, _)| s == ssrc && addr == from)
+        {
+            let (_, ts, _, _) = self.pending_starts.swap_remove(i);
+            receiver.jitter().hint_start(ts);
+        }
+        let (cname, name) = match self
+            .pending_names
+            .iter()
+            .position(|(s, addr, ..)| *s == ssrc && *addr == from)
+        {
+            Some(i) => {
+                let (_, _, cname, name, _) = self.pending_names.swap_remove(i);
+                (cname, name)
+            }
+            None => (None, None),
+        };
+        self.peers.insert(
+            ssrc,
+            Peer {
+                receiver,
+                addr: from,
+                cname,
+                name,
+                last_heard: arrival,
+                last_media: arrival,
+                media: 0,
+                candidate: None,
+                last_sr: None,
+                rtt_ms: None,
+                their_loss: None,
+                said_bye: false,
+            },
+        );
+        true
+    }
+
+    pub(super) fn handle_rtp(&mut self, data: &mut Vec<u8>, from: SocketAddr, arrival: Instant) {
+        if !self.unprotect(data, Srtp::unprotect_rtp) {
+            return;
+        }
+        let packet = match rtp::parse(data, None) {
+            Ok(p) => p,
+            Err(_) => {
+                self.stats.malformed += 1;
+                return;
+            }
+        };
+        let ssrc = packet.header.ssrc;
+        if ssrc == self.ssrc {
+            self.stats.own += 1;
+            return;
+        }
+        self.stats.rtp += 1;
+        if !self.peers.contains_key(&ssrc) && !self.new_peer(&packet, from, arrival) {
+            return;
+        }
+        let Some(peer) = self.peers.get_mut(&ssrc) else {
+            return;
+        };
+        if peer.addr == from {
+            peer.candidate = None;
+        } else if peer.said_bye {
+            // A redial may come from anywhere; a straggler of the old stream changes nothing.
+            peer.addr = from;
+            peer.candidate = None;
+        } else if peer.moved_to(from, packet.header.sequence) {
+            peer.addr = from;
+            peer.candidate = None;
+            self.stats.moved += 1;
+        } else {
+            self.stats.foreign += 1;
+            return;
+        }
+        peer.last_heard = arrival;
+        peer.last_media = arrival;
+        peer.media += 1;
+        let restarts = peer.receiver.restarts();
+        if !peer.receiver.insert(&packet, arrival) {
+            self.stats.unknown_payload += 1;
+        }
+        if peer.receiver.restarts() != restarts {
+            peer.said_bye = false;
+        }
+    }
+
+    pub(super) fn handle_rtcp(&mut self, data: &mut Vec<u8>, from: SocketAddr, arrival: Instant) {
+        if !self.unprotect(data, Srtp::unprotect_rtcp) {
+            return;
+        }
+        let items = match rtcp::parse(data) {
+            Ok(items) => items,
+            Err(_) => {
+                self.stats.malformed += 1;
+                return;
+            }
+        };
+        let arrival_ntp = self.ntp_at(arrival);
+        let mut end_ts: HashMap<u32, u32> = HashMap::new();
+        for item in items {
+            match item {
+                RtcpItem::Report {
+                    reporter,
+                    sender,
+                    blocks,
+                } => {
+                    if reporter == self.ssrc {
+                        self.stats.own += 1;
+                        continue;
+                    }
+                    let Some(peer) = self.peers.get_mut(&reporter) else {
+                        // Not a peer (until its media comes): only where its stream will start
+                        // is worth keeping, a few at most.
+                        if let Some(info) = sender.filter(|i| i.packets == 0) {
+                            if self.pending_starts.len() == PENDING_STARTS {
+                                self.pending_starts.remove(0);
+                            }
+                            self.pending_starts
+                                .push((reporter, info.rtp_timestamp, from, arrival));
+                        }
+                        continue;
+                    };
+                    if peer.addr != from {
+                        self.stats.foreign += 1;
+                        continue;
+                    }
+                    peer.last_heard = arrival;
+                    if let Some(info) = sender {
+                        peer.last_sr = Some((rtcp::ntp_middle(info.ntp), arrival));
+                        end_ts.insert(reporter, info.rtp_timestamp);
+                        if info.packets == 0 {
+                            peer.receiver.jitter().hint_start(info.rtp_timestamp);
+                        }
+                    }
+                    if let Some(about_us) = blocks.iter().find(|b| b.ssrc == self.ssrc) {
+                        peer.rtt_ms = rtcp::round_trip(about_us, arrival_ntp).map(|s| s * 1000.0);
+                        peer.their_loss = Some(f64::from(about_us.fraction_lost) / 256.0);
+                    }
+                }
+                RtcpItem::Names { ssrc, cname, name } => {
+                    if ssrc == self.ssrc {
+                        continue;
+                    }
+                    match self.peers.get_mut(&ssrc) {
+                        Some(peer) if peer.addr == from => {
+                            if cname.is_some() {
+                                peer.cname = cname;
+                            }
+                            if name.is_some() {
+                                peer.name = name;
+                            }
+                        }
+                        Some(_) => {}
+                        None => {
+                            // Kept until its media comes, a few at most; junk only displaces
+                            // other pending names.
+                            self.pending_names
+                                .retain(|(s, addr, ..)| (*s, *addr) != (ssrc, from));
+                            if self.pending_names.len() == PENDING_NAMES {
+                                self.pending_names.remove(0);
+                            }
+                            self.pending_names.push((ssrc, from, cname, name, arrival));
+                        }
+                    }
+                }
+                RtcpItem::Bye { ssrcs } => {
+                    for ssrc in ssrcs {
+                        let Some(peer) = self.peers.get_mut(&ssrc) else {
+                            continue;
+                        };
+                        if peer.addr != from {
+                            self.stats.foreign += 1;
+                            continue;
+                        }
+                        peer.said_bye = true;
+                        match end_ts.get(&ssrc) {
+                            Some(&ts) => peer.receiver.jitter().hint_end(ts),
+                            None => peer.receiver.jitter().bye(),
+                        }
+                    }
+                }
+            }
+        }
+    }
+
+    /// Forgets silent peers and stale hints.
+    pub(super) fn expire(&mut self, now: Instant) {
+        let timeout = self.config.peer_timeout;
+        self.pending_starts
+            .retain(|&(_, _, _, at)| now.saturating_duration_since(at) < UNCONFIRMED_TIMEOUT);
+        self.pending_names
+            .retain(|(.., at)| now.saturating_duration_since(*at) < UNCONFIRMED_TIMEOUT);
+        // A forgotten peer's SRTP replay state stays: replayed, its packets are still refused.
+        self.peers.retain(|_, p| {
+            if p.confirmed() {
+                now.saturating_duration_since(p.last_heard) < timeout
+            } else {
+                now.saturating_duration_since(p.last_media) < UNCONFIRMED_TIMEOUT
+            }
+        });
+    }
+}

@@ -1,0 +1,477 @@
+//! The session without I/O ([`SessionCore`]): datagrams and the time go in, datagrams to send
+//! and decoded frames come out. It owns no socket, no thread and no lock; the
+//! [`super::Session`] handle drives it from one socket thread, and its tests in simulated time.
+
+use std::collections::{HashMap, VecDeque};
+use std::net::SocketAddr;
+use std::time::{Duration, Instant};
+
+use super::inbound::{PENDING_NAMES, PENDING_STARTS, Peer, PendingNames};
+use super::timers::{Due, Timers, system_draw};
+use super::{PeerFrame, PeerInfo, SessionConfig, SessionStats};
+use super::{Transmit, TransmitKind};
+use crate::net::control::{Control, ControlError, ControlKind, Cookie, RoomId};
+use crate::net::rtcp::{self, Outgoing, ReportBlock, SenderInfo};
+use crate::net::rtp::RtpStream;
+use crate::net::srtp::{MasterKey, Srtp};
+use crate::net::{DatagramKind, MAX_DATAGRAM, NetError, classify};
+
+/// The longest datagram the session reads; a longer one was cut short by the socket.
+pub const LARGEST_DATAGRAM: usize = MAX_DATAGRAM + 64;
+
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub(super) enum ReportKind {
+    /// Before the first packet: an SR with no packets marks where the stream starts.
+    Start,
+    Periodic,
+    /// The last word: SR (marking where the stream ends) + SDES + BYE.
+    Bye,
+}
+
+/// Our side of the relay's join handshake (see [`crate::net::control`]).
+#[derive(Default)]
+struct RelayLink {
+    /// The relay's cookie for our address: echoed to join, in keepalives and in the leave.
+    cookie: Option<Cookie>,
+    /// A join or keepalive is unanswered: a challenge now is the relay's answer to it, not
+    /// one provoked by someone else's forged join in our name.
+    awaiting: bool,
+}
+
+/// A call session's state and rules: any number of remote peers (each identified by SSRC, its
+/// address noted), RTCP reports, optional SRTP and an optional relay room.
+pub struct SessionCore {
+    pub(super) config: SessionConfig,
+    /// The relay room's id, when the session joins one.
+    pub(super) room: Option<RoomId>,
+    pub(super) epoch: Instant,
+    /// The wall clock at `epoch`, as NTP: reports stamp `epoch` plus the time passed.
+    ntp_epoch: u64,
+    pub(super) ssrc: u32,
+    cname: String,
+    stream: RtpStream,
+    tx_srtp: Option<Srtp>,
+    pub(super) rx_srtp: Option<Srtp>,
+    sent_since_report: bool,
+    started: bool,
+    left: bool,
+    pub(super) peers: HashMap<u32, Peer>,
+    pub(super) stats: SessionStats,
+    /// SRs with no packets sent yet (where a stream will start), by SSRC, from senders not yet
+    /// peers: (ssrc, RTP timestamp, from, arrival).
+    pub(super) pending_starts: Vec<(u32, u32, SocketAddr, Instant)>,
+    pub(super) pending_names: Vec<PendingNames>,
+    relay: RelayLink,
+    timers: Timers,
+    outbox: VecDeque<Transmit>,
+    /// Buffers of datagrams sent, for the next ones.
+    spare: Vec<Vec<u8>>,
+    /// The datagram being handled (decrypted in place).
+    scratch: Vec<u8>,
+}
+
+impl std::fmt::Debug for SessionCore {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.debug_struct("SessionCore")
+            .field("ssrc", &self.ssrc)
+            .field("stats", &self.stats)
+            .finish_non_exhaustive()
+    }
+}
+
+/// The session's SRTP end, when it has a key.
+fn srtp(key: Option<&MasterKey>, clock_tolerance: Duration) -> Result<Option<Srtp>, NetError> {
+    let Some(key) = key else { return Ok(None) };
+    let mut srtp = Srtp::new(key)?;
+    srtp.set_clock_tolerance(u32::try_from(clock_tolerance.as_secs()).unwrap_or(u32::MAX));
+    Ok(Some(srtp))
+}
+
+impl SessionCore {
+    /// A session whose socket is bound at `local`, starting at `now` (the epoch its jitter
+    /// buffers measure time from). A relay join, if any, is the first datagram to send.
+    pub fn new(config: SessionConfig, local: SocketAddr, now: Instant) -> Result<Self, NetError> {
+        Self::with_draw(config, local, now, system_draw)
+    }
+
+    /// A session whose reports are spread by `draw` (a uniform draw over `u32`).
+    pub(super) fn with_draw(
+        config: SessionConfig,
+        local: SocketAddr,
+        now: Instant,
+        draw: fn() -> u32,
+    ) -> Result<Self, NetError> {
+        let mut stream = RtpStream::new_random()?;
+        if let Some(ssrc) = config.ssrc {
+            stream.ssrc = ssrc;
+        }
+        let payload_type = config
+            .payloads
+            .payload_type(config.codec)
+            .ok_or(NetError::NoPayloadType(config.codec))?;
+        stream.set_payload(payload_type, config.codec.frame_ticks());
+        let ssrc = stream.ssrc;
+        let mut core = Self {
+            cname: format!("lipcall-{ssrc:08x}@{local}"),
+            ssrc,
+            epoch: now,
+            ntp_epoch: rtcp::ntp_now(),
+            stream,
+            tx_srtp: srtp(config.key.as_ref(), config.clock_tolerance)?,
+            rx_srtp: srtp(config.key.as_ref(), config.clock_tolerance)?,
+            sent_since_report: false,
+            started: false,
+            left: false,
+            peers: HashMap::new(),
+            stats: SessionStats::default(),
+            pending_starts: Vec::with_capacity(PENDING_STARTS),
+            pending_names: Vec::with_capacity(PENDING_NAMES),
+            relay: RelayLink::default(),
+            timers: Timers::new(&config, now, draw),
+            outbox: VecDeque::new(),
+            spare: Vec::new(),
+            scratch: Vec::with_capacity(LARGEST_DATAGRAM),
+            room: config.room.as_deref().map(RoomId::from_name),
+            config,
+        };
+        core.request_place();
+        Ok(core)
+    }
+
+    /// `at` on the wall clock, as NTP (counted from the epoch: the reports' stamps never step).
+    pub(super) fn ntp_at(&self, at: Instant) -> u64 {
+        let since = at.saturating_duration_since(self.epoch);
+        let fraction = (u64::from(since.subsec_nanos()) << 32) / 1_000_000_000;
+        self.ntp_epoch
+            .wrapping_add((since.as_secs() << 32) | fraction)
+    }
+
+    pub fn ssrc(&self) -> u32 {
+        self.ssrc
+    }
+
+    /// The instant the session's jitter buffers measure time from.
+    pub fn epoch(&self) -> Instant {
+        self.epoch
+    }
+
+    pub fn config(&self) -> &SessionConfig {
+        &self.config
+    }
+
+    pub fn stats(&self) -> SessionStats {
+        self.stats
+    }
+
+    pub fn peers(&self) -> Vec<PeerInfo> {
+        let mut peers: Vec<PeerInfo> = self.peers.iter().map(|(&s, p)| p.info(s)).collect();
+        peers.sort_by_key(|p| p.ssrc);
+        peers
+    }
+
+    /// The next datagram to send, if any.
+    pub fn poll_transmit(&mut self) -> Option<Transmit> {
+        self.outbox.pop_front()
+    }
+
+    /// A datagram from [`Self::poll_transmit`] went out (`sent`) or failed to.
+    pub fn transmitted(&mut self, transmit: Transmit, sent: bool) {
+        match (transmit.kind, sent) {
+            (TransmitKind::Control | TransmitKind::WebRtc, _) => {}
+            (TransmitKind::Rtp, true) => self.stats.sent_rtp += 1,
+            (TransmitKind::Rtcp, true) => self.stats.sent_rtcp += 1,
+            (_, false) => self.stats.send_errors += 1,
+        }
+        self.spare.push(transmit.data);
+    }
+
+    /// When [`Self::handle_timeout`] is next due.
+    pub fn poll_timeout(&self) -> Instant {
+        self.timers.next_deadline()
+    }
+
+    /// Does what is due at `now`: reports, the relay keepalive, forgetting the silent.
+    pub fn handle_timeout(&mut self, now: Instant) {
+        if now >= self.timers.next_deadline() {
+            self.run_timers(now);
+        }
+    }
+
+    /// Does what the timers say is due at `now`, and says what that was.
+    pub(super) fn run_timers(&mut self, now: Instant) -> Due {
+        let joining = !self.stats.relay_joined && self.stats.relay_refusal.is_none();
+        let due = self.timers.due(now, || joining);
+        if due.report {
+            self.send_report(ReportKind::Periodic, now);
+        }
+        if due.keepalive && !self.left {
+            self.request_place();
+        }
+        if due.expiry {
+            self.expire(now);
+        }
+        due
+    }
+
+    /// Sends one payload of the session's codec lasting `ticks` of its RTP clock (an Opus
+    /// packet of 60 ms: 2880) to every destination.
+    pub fn send_packet(
+        &mut self,
+        payload: &[u8],
+        ticks: u32,
+        now: Instant,
+    ) -> Result<(), NetError> {
+        if !self.started && self.config.send_rtcp {
+            // Tells receivers where the stream starts, in case its first packet is lost.
+            self.send_report(ReportKind::Start, now);
+        }
+        self.started = true;
+        let mut buf = self.spare.pop().unwrap_or_default();
+        self.stream.packetize_ticks(payload, ticks, &mut buf)?;
+        if let Some(srtp) = self.tx_srtp.as_mut() {
+            srtp.protect_rtp(&mut buf)?;
+        }
+        self.sent_since_report = true;
+        self.send_all(buf, TransmitKind::Rtp);
+        Ok(())
+    }
+
+    /// Frames not sent (silence, mute): the timestamp moves on and the next packet starts a
+    /// new talk spurt.
+    pub fn skip_frames(&mut self, frames: u32) {
+        self.stream.skip(frames);
+    }
+
+    /// Pulls the next 20 ms (starting at `now` on the output clock) from every peer that is
+    /// playing, appending to `out`.
+    pub fn pull(&mut self, now: Instant, out: &mut Vec<PeerFrame>) {
+        for (&ssrc, peer) in self.peers.iter_mut() {
+            if let Some(frame) = peer.receiver.pull(now) {
+                out.push(PeerFrame { ssrc, frame });
+            }
+        }
+    }
+
+    /// Says BYE (with a final SR marking where the stream ends) and leaves the relay room.
+    pub fn leave(&mut self, now: Instant) {
+        if std::mem::replace(&mut self.left, true) {
+            return;
+        }
+        if self.config.send_rtcp {
+            // Twice: a lost BYE would leave receivers concealing until their timeout.
+            self.send_report(ReportKind::Bye, now);
+            self.send_report(ReportKind::Bye, now);
+        }
+        if let (Some(room), Some(cookie)) = (self.room, self.relay.cookie) {
+            self.send_to_relay(Control::new(ControlKind::Leave, room, cookie));
+        }
+    }
+
+    /// Queues `data` to every destination.
+    fn send_all(&mut self, data: Vec<u8>, kind: TransmitKind) {
+        let Some((&last, others)) = self.config.destinations.split_last() else {
+            self.spare.push(data);
+            return;
+        };
+        for &to in others {
+            let mut copy = self.spare.pop().unwrap_or_default();
+            copy.clear();
+            copy.extend_from_slice(&data);
+            self.outbox.push_back(Transmit {
+                to,
+                data: copy,
+                kind,
+            });
+        }
+        self.outbox.push_back(Transmit {
+            to: last,
+            data,
+            kind,
+        });
+    }
+
+    fn send_to_relay(&mut self, control: Control) {
+        if let Some(&to) = self.config.destinations.first() {
+            let mut data = self.spare.pop().unwrap_or_default();
+            data.clear();
+            data.extend_from_slice(&control.encode());
+            self.outbox.push_back(Transmit {
+                to,
+                data,
+                kind: TransmitKind::Control,
+            });
+        }
+    }
+
+    /// Asks the relay for our place in the room: a join, or (with its cookie) the confirm that
+    /// is also the keepalive.
+    fn request_place(&mut self) {
+        let Some(room) = self.room else { return };
+        self.relay.awaiting = true;
+        let request = match self.relay.cookie {
+            Some(cookie) => Control::new(ControlKind::Confirm, room, cookie),
+            None => Control::new(ControlKind::Join, room, Cookie::NONE),
+        };
+        self.send_to_relay(request);
+    }
+
+    /// Sends a report now (normally the timers do so every `rtcp_interval`).
+    pub fn send_periodic_report(&mut self, now: Instant) {
+        self.send_report(ReportKind::Periodic, now);
+    }
+
+    fn send_report(&mut self, kind: ReportKind, now: Instant) {
+        let ntp = self.ntp_at(now);
+        let mut blocks = Vec::new();
+        let mut peer_addrs = Vec::new();
+        for (&ssrc, peer) in self.peers.iter_mut() {
+            peer_addrs.push(peer.addr);
+            let Some((fraction, lost, highest, jitter)) = peer.receiver.jitter().report() else {
+                continue;
+            };
+            let (last_sr, delay) = match peer.last_sr {
+                Some((middle, at)) => (
+                    middle,
+                    (now.saturating_duration_since(at).as_secs_f64() * 65536.0) as u32,
+                ),
+                None => (0, 0),
+            };
+            blocks.push(ReportBlock {
+                ssrc,
+                fraction_lost: fraction,
+                cumulative_lost: lost,
+                highest_sequence: highest,
+                jitter,
+                last_sr,
+                delay_since_last_sr: delay,
+            });
+        }
+        let info = SenderInfo {
+            ntp,
+            rtp_timestamp: self.stream.next_timestamp(),
+            packets: self.stream.packets_sent,
+            octets: self.stream.octets_sent,
+        };
+        let sender = match kind {
+            ReportKind::Start => Some(info),
+            ReportKind::Bye => self.started.then_some(info),
+            ReportKind::Periodic => self.sent_since_report.then_some(info),
+        };
+        self.sent_since_report = false;
+        let mut buf = self.spare.pop().unwrap_or_default();
+        buf.clear();
+        let built = rtcp::build(
+            &Outgoing {
+                ssrc: self.ssrc,
+                sender,
+                blocks: &blocks,
+                cname: &self.cname,
+                name: self.config.name.as_deref(),
+                bye: kind == ReportKind::Bye,
+            },
+            &mut buf,
+        );
+        if built.is_err() {
+            self.spare.push(buf);
+            return;
+        }
+        if let Some(srtp) = self.tx_srtp.as_mut()
+            && srtp.protect_rtcp(&mut buf).is_err()
+        {
+            self.spare.push(buf);
+            return;
+        }
+        if self.config.destinations.is_empty() {
+            // A pure receiver reports back to where its peers send from.
+            let mut done: Vec<SocketAddr> = Vec::new();
+            for to in peer_addrs {
+                if !done.contains(&to) {
+                    done.push(to);
+                    let mut copy = self.spare.pop().unwrap_or_default();
+                    copy.clear();
+                    copy.extend_from_slice(&buf);
+                    self.outbox.push_back(Transmit {
+                        to,
+                        data: copy,
+                        kind: TransmitKind::Rtcp,
+                    });
+                }
+            }
+        }
+        self.send_all(buf, TransmitKind::Rtcp);
+    }
+
+    /// Handles a datagram that arrived from `from` at `now`.
+    pub fn handle_datagram(&mut self, data: &[u8], from: SocketAddr, now: Instant) {
+        self.stats.datagrams += 1;
+        if data.len() > LARGEST_DATAGRAM {
+            // Cut short by the socket: whatever it was, it cannot be read.
+            self.stats.malformed += 1;
+            return;
+        }
+        self.stats.bytes += data.len() as u64;
+        let mut datagram = std::mem::take(&mut self.scratch);
+        datagram.clear();
+        datagram.extend_from_slice(data);
+        match classify(&datagram) {
+            DatagramKind::Control => {
+                self.stats.control += 1;
+                self.handle_control(&datagram, from);
+            }
+            DatagramKind::Rtcp => {
+                self.stats.rtcp += 1;
+                self.handle_rtcp(&mut datagram, from, now);
+            }
+            DatagramKind::Rtp => self.handle_rtp(&mut datagram, from, now),
+            DatagramKind::Unknown => self.stats.unknown += 1,
+        }
+        self.scratch = datagram;
+    }
+
+    /// The relay's answers; anything else (not from the relay, another room, a cookie that is
+    /// not ours) is ignored.
+    fn handle_control(&mut self, data: &[u8], from: SocketAddr) {
+        let from_relay = self.room.is_some() && self.config.destinations.first() == Some(&from);
+        let control = match Control::decode(data) {
+            Ok(control) if from_relay && Some(control.room) == self.room => control,
+            Ok(_) => {
+                self.stats.unknown += 1;
+                return;
+            }
+            Err(ControlError::Version(_)) if from_relay => {
+                self.stats.relay_outdated = true;
+                self.stats.malformed += 1;
+                return;
+            }
+            Err(_) => {
+                self.stats.malformed += 1;
+                return;
+            }
+        };
+        let ours = self
+            .relay
+            .cookie
+            .is_some_and(|c| c.matches(&control.cookie));
+        match control.kind {
+            ControlKind::Challenge if self.relay.awaiting => {
+                self.stats.relay_challenges += 1;
+                self.relay.cookie = Some(control.cookie);
+                self.send_to_relay(Control::new(
+                    ControlKind::Confirm,
+                    control.room,
+                    control.cookie,
+                ));
+            }
+            ControlKind::Joined if ours => {
+                self.relay.awaiting = false;
+                self.stats.relay_joined = true;
+                self.stats.relay_refusal = None;
+            }
+            ControlKind::Refused(why) if ours => {
+                self.relay.awaiting = false;
+                self.stats.relay_refusal = Some(why);
+            }
+            _ => self.stats.unknown += 1,
+        }
+    }
+}
