@@ -7,7 +7,8 @@
 use std::collections::VecDeque;
 
 use super::estimator::Trend;
-use super::{Correction, FRAME_SECONDS, JitterConfig, Loudness};
+use super::packets::FRAME_SECONDS;
+use super::{Correction, JitterConfig, Loudness};
 
 /// Packets whose slack steers the delay while playing.
 pub(super) const SLACK_WINDOW: usize = 100;

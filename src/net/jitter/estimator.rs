@@ -5,7 +5,8 @@
 
 use std::collections::VecDeque;
 
-use super::{FRAME_SECONDS, JitterConfig};
+use super::JitterConfig;
+use super::packets::FRAME_SECONDS;
 
 /// Pulls whose timing gives the pull clock's jitter.
 const PULL_WINDOW: usize = 50;

@@ -60,13 +60,12 @@ use std::time::Instant;
 
 use corrector::{Adjust, Corrector};
 use estimator::DelayEstimator;
+use packets::FRAME_SECONDS;
 pub use packets::{Arrival, Correction, JitterConfig, Loudness, Piece, Playout};
 use stats::Interarrival;
 pub use stats::JitterStats;
 use timeline::{MAX_DROPOUT, MAX_MISORDER, SeqCheck, Sequence, Timeline};
 
-/// Seconds of one playout frame.
-const FRAME_SECONDS: f64 = 0.02;
 /// The clock of a buffer until told otherwise (Speex, G.711).
 pub const DEFAULT_CLOCK: u32 = 8000;
 /// A packet lasts at most this many frames (longer claims are cut).

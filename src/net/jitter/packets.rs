@@ -2,6 +2,9 @@
 
 use std::time::{Duration, Instant};
 
+/// One frame of playout, in seconds.
+pub(super) const FRAME_SECONDS: f64 = 0.02;
+
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct JitterConfig {
     pub initial_delay: Duration,

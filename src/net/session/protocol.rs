@@ -6,7 +6,7 @@ use std::collections::{HashMap, VecDeque};
 use std::net::SocketAddr;
 use std::time::{Duration, Instant};
 
-use super::inbound::{PENDING_NAMES, PENDING_STARTS, Peer, PendingNames};
+use super::remote::{PENDING_NAMES, PENDING_STARTS, Peer, PendingNames};
 use super::timers::{Due, Timers, system_draw};
 use super::{PeerFrame, PeerInfo, SessionConfig, SessionStats};
 use super::{Transmit, TransmitKind};

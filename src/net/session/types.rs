@@ -1,0 +1,133 @@
+//! What a session is configured with and what it reports: shared by its sans-I/O core and the
+//! handle that drives it.
+
+use std::net::SocketAddr;
+use std::time::Duration;
+
+use crate::codec::any::{Codec, PayloadMap};
+use crate::net::control::Refusal;
+use crate::net::jitter::JitterConfig;
+use crate::net::peer::{PlayedFrame, ReceiverStats};
+use crate::net::srtp::{DEFAULT_CLOCK_TOLERANCE, MasterKey};
+
+#[derive(Debug, Clone)]
+pub struct SessionConfig {
+    pub bind: SocketAddr,
+    /// Where media and reports go: peers of a mesh, or the relay.
+    pub destinations: Vec<SocketAddr>,
+    /// A relay room to join (the relay is `destinations[0]`).
+    pub room: Option<String>,
+    /// SRTP master key; `None` sends plain RTP.
+    pub key: Option<MasterKey>,
+    /// How far a new SRTP stream's sender clock may be from ours (per-session keys: a stream
+    /// stamped further off is a replay of an earlier call, or a clock that is wrong).
+    pub clock_tolerance: Duration,
+    /// Display name sent as SDES NAME.
+    pub name: Option<String>,
+    pub jitter: JitterConfig,
+    pub max_peers: usize,
+    /// Peers silent for this long are forgotten.
+    pub peer_timeout: Duration,
+    /// Mean interval between RTCP reports (randomised by +-50 %).
+    pub rtcp_interval: Duration,
+    pub keepalive_interval: Duration,
+    pub send_rtcp: bool,
+    /// Perceptual enhancer in the decoders.
+    pub enhancer: bool,
+    /// Fixed SSRC (for interop set-ups that need it in advance); random when `None`.
+    pub ssrc: Option<u32>,
+    /// The codec this session sends.
+    pub codec: Codec,
+    /// Which codec each payload type carries, received and sent.
+    pub payloads: PayloadMap,
+}
+
+impl SessionConfig {
+    pub fn new(bind: SocketAddr) -> Self {
+        Self {
+            bind,
+            destinations: Vec::new(),
+            room: None,
+            key: None,
+            clock_tolerance: Duration::from_secs(u64::from(DEFAULT_CLOCK_TOLERANCE)),
+            name: None,
+            jitter: JitterConfig::default(),
+            max_peers: 32,
+            peer_timeout: Duration::from_secs(30),
+            rtcp_interval: Duration::from_secs(5),
+            keepalive_interval: Duration::from_secs(5),
+            send_rtcp: true,
+            enhancer: true,
+            ssrc: None,
+            codec: Codec::Speex,
+            payloads: PayloadMap::default(),
+        }
+    }
+}
+
+/// Datagram counters of a session.
+#[derive(Debug, Clone, Copy, Default, PartialEq, Eq)]
+pub struct SessionStats {
+    pub datagrams: u64,
+    pub bytes: u64,
+    pub rtp: u64,
+    pub rtcp: u64,
+    pub control: u64,
+    /// Unparseable RTP/RTCP/control datagrams, and oversized ones (cut short by the socket,
+    /// dropped unparsed).
+    pub malformed: u64,
+    /// Datagrams of no known kind.
+    pub unknown: u64,
+    /// RTP packets of a payload type no codec is mapped to (dropped, never decoded).
+    pub unknown_payload: u64,
+    /// SRTP/SRTCP packets that failed authentication.
+    pub auth_failed: u64,
+    pub replayed: u64,
+    /// SRTP streams new to us stamped further from our clock than `clock_tolerance`: a replay
+    /// of an earlier call, or a sender whose clock is off.
+    pub stale: u64,
+    /// Packets from new SSRCs beyond `max_peers`.
+    pub too_many_peers: u64,
+    /// Unconfirmed or idle peers removed to make room for a new one.
+    pub evicted: u64,
+    /// RTP or RTCP about a known peer from an address other than its own (ignored).
+    pub foreign: u64,
+    /// Peers that moved to a new address (their stream continued from it).
+    pub moved: u64,
+    /// Our own packets coming back (a relay or multicast echo).
+    pub own: u64,
+    pub sent_rtp: u64,
+    pub sent_rtcp: u64,
+    pub send_errors: u64,
+    /// The relay confirmed our place in the room.
+    pub relay_joined: bool,
+    /// Why the relay last turned our join down (cleared when it confirms one).
+    pub relay_refusal: Option<Refusal>,
+    /// Cookies the relay sent us to confirm our address with.
+    pub relay_challenges: u64,
+    /// The relay speaks another protocol version (an outdated lipcall on one side).
+    pub relay_outdated: bool,
+}
+
+/// What the session knows about one remote peer.
+#[derive(Debug, Clone, PartialEq)]
+pub struct PeerInfo {
+    pub ssrc: u32,
+    pub addr: SocketAddr,
+    pub cname: Option<String>,
+    pub name: Option<String>,
+    pub receiver: ReceiverStats,
+    /// Round trip from the peer's last report about us.
+    pub rtt_ms: Option<f64>,
+    /// Share of our packets the peer reported lost (last report, 0..1).
+    pub their_loss: Option<f64>,
+    pub said_bye: bool,
+    pub ended: bool,
+}
+
+/// One peer's frame in a pull.
+#[derive(Debug, Clone, PartialEq)]
+pub struct PeerFrame {
+    pub ssrc: u32,
+    pub frame: PlayedFrame,
+}
