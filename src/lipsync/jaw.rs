@@ -2,7 +2,7 @@
 //! Openness is the energy scaled from `[closed_db, open_db]` onto [0, 1] and clamped; the
 //! weights are `[1 - openness, openness]` over {PP, aa}.
 
-use super::Animator;
+use super::animator::Animator;
 use super::network::Model;
 use crate::vocab::FrameFeatures;
 use crate::vocab::{Viseme, VisemeSet};

@@ -13,10 +13,10 @@
 
 use std::marker::PhantomData;
 
+use super::animator::{Animator, ModelAnimator};
 use super::jaw::JawBaseline;
 use super::network::{MAX_LOOKAHEAD, Model};
 use super::reproject::{ReprojectError, Reprojector};
-use super::{Animator, ModelAnimator};
 use crate::lipsync::mouth::VisemeShapes;
 use crate::vocab::FrameFeatures;
 use crate::vocab::{FullWeights, Viseme, VisemeSet};

@@ -1,0 +1,183 @@
+//! What turns a stream of decoded frames into convex viseme weights: the [`Animator`] trait and
+//! the trained network behind it, with its closure snap per feature family.
+
+use super::network::{InferenceState, Model};
+use crate::vocab::FeatureFamily;
+use crate::vocab::FrameFeatures;
+use crate::vocab::VisemeSet;
+
+/// Anything that turns a stream of decoded frames into convex viseme weights.
+pub trait Animator {
+    fn visemes(&self) -> &VisemeSet;
+    /// Starts a new stream (forget the past frames).
+    fn reset(&mut self);
+    /// Feeds the next frame and writes weights over `self.visemes()` into `weights`: those of
+    /// the frame fed `self.lookahead()` calls ago.
+    fn animate(&mut self, features: &FrameFeatures, weights: &mut [f32]);
+    /// Frames the output lags the input (the future frames it looks at).
+    fn lookahead(&self) -> usize {
+        0
+    }
+    /// The weights [`Animator::animate`] would write if `extra` more frames, each a repeat of
+    /// the last one fed, were fed now; changes no state. The fallback for a frame whose future
+    /// has not arrived in time.
+    fn peek(&mut self, extra: usize, weights: &mut [f32]) {
+        let _ = (extra, weights);
+    }
+}
+
+/// A trained model with its per-stream state.
+#[derive(Debug, Clone)]
+pub struct ModelAnimator<'a> {
+    model: &'a Model,
+    state: InferenceState,
+    /// Scratch for [`Animator::peek`], so the fallback allocates nothing.
+    scratch: InferenceState,
+    last: FrameFeatures,
+    /// The closure snap per [`FeatureFamily`] of the newest row.
+    closure_snaps: [f32; 3],
+}
+
+const FAMILIES: [FeatureFamily; 3] = [
+    FeatureFamily::Bitstream,
+    FeatureFamily::Nlsf,
+    FeatureFamily::Analysis,
+];
+
+fn family_index(family: FeatureFamily) -> usize {
+    match family {
+        FeatureFamily::Bitstream => 0,
+        FeatureFamily::Nlsf => 1,
+        FeatureFamily::Analysis => 2,
+    }
+}
+
+impl<'a> ModelAnimator<'a> {
+    pub fn new(model: &'a Model) -> Self {
+        Self::with_closure_bias(model, 0.0)
+    }
+
+    /// With one closure-snap threshold for every family instead of the model's (0 = none).
+    pub fn with_closure_snap(model: &'a Model, closure_snap: f32) -> Self {
+        Self::with_snaps(model, [closure_snap; 3])
+    }
+
+    fn with_snaps(model: &'a Model, closure_snaps: [f32; 3]) -> Self {
+        let state = model.new_state();
+        Self {
+            model,
+            scratch: state.clone(),
+            state,
+            last: FrameFeatures::silent(),
+            closure_snaps,
+        }
+    }
+
+    /// With the model's closure snaps moved by `bias` ([`Model::closure_snap_with_bias`]).
+    pub fn with_closure_bias(model: &'a Model, bias: f32) -> Self {
+        Self::with_snaps(
+            model,
+            FAMILIES.map(|family| model.closure_snap_with_bias(family, bias)),
+        )
+    }
+
+    /// The closure snap for rows of `family`.
+    pub fn closure_snap(&self, family: FeatureFamily) -> f32 {
+        self.closure_snaps[family_index(family)]
+    }
+}
+
+/// Parses a closure bias for the command line: a number from -1 to 1.
+pub fn parse_closure_bias(text: &str) -> Result<f32, String> {
+    match text.parse::<f32>() {
+        Ok(b) if (-1.0..=1.0).contains(&b) => Ok(b),
+        _ => Err(format!("{text:?} is not a number from -1 to 1")),
+    }
+}
+
+impl Animator for ModelAnimator<'_> {
+    fn visemes(&self) -> &VisemeSet {
+        &self.model.visemes
+    }
+
+    fn reset(&mut self) {
+        self.model.reset(&mut self.state);
+        self.last = FrameFeatures::silent();
+    }
+
+    fn animate(&mut self, features: &FrameFeatures, weights: &mut [f32]) {
+        self.last = *features;
+        let snap = self.closure_snap(features.family);
+        self.model
+            .step_with_snap(&mut self.state, features, weights, snap);
+    }
+
+    fn lookahead(&self) -> usize {
+        self.model.lookahead
+    }
+
+    fn peek(&mut self, extra: usize, weights: &mut [f32]) {
+        self.scratch.copy_from(&self.state);
+        for _ in 0..extra {
+            self.model.push_frame(&mut self.scratch, &self.last);
+        }
+        let snap = self.closure_snap(self.last.family);
+        self.model.infer(&mut self.scratch, weights, snap);
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::lipsync::{default_model, network};
+
+    #[test]
+    fn closure_bias_moves_the_snap_around_the_models_own() {
+        let mut model = default_model();
+        let own = model.closure_snap;
+        assert!(own > 0.5 && own < 1.0);
+        let snap = |m: &Model, b: f32| {
+            ModelAnimator::with_closure_bias(m, b).closure_snap(FeatureFamily::Bitstream)
+        };
+        assert_eq!(snap(&model, 0.0), own);
+        assert!(snap(&model, 1.0) < own && snap(&model, -1.0) > own);
+        assert_eq!(snap(&model, f32::NAN), own);
+        assert_eq!(snap(&model, 7.0), snap(&model, 1.0));
+        model.closure_snap = 0.0;
+        assert_eq!(snap(&model, 0.0), 0.0);
+        assert_eq!(snap(&model, -1.0), 0.0);
+        assert!((snap(&model, 1.0) - (1.0 - network::CLOSURE_BIAS_SPAN)).abs() < 1e-6);
+        assert!(parse_closure_bias("-0.5").is_ok() && parse_closure_bias("1.5").is_err());
+    }
+
+    #[test]
+    fn each_feature_family_snaps_at_its_own_threshold() {
+        let mut model = default_model();
+        let closed = model.closed_index().unwrap();
+        let mut features = FrameFeatures::silent();
+        features.energy_db = -30.0;
+        let mut raw = vec![0.0; model.outputs()];
+        ModelAnimator::with_closure_snap(&model, 0.0).animate(&features, &mut raw);
+        let p = raw[closed];
+        assert!(p > 0.0 && p < 1.0, "{raw:?}");
+        // Speex LSPs snap above this row's closed weight, NLSFs below it.
+        model.closure_snap = p + 0.5 * (1.0 - p);
+        model.nlsf_snap = Some(0.5 * p);
+        model.analysis_snap = None;
+        let mut weights = vec![0.0; model.outputs()];
+        for (family, snapped) in [
+            (FeatureFamily::Bitstream, false),
+            (FeatureFamily::Analysis, false),
+            (FeatureFamily::Nlsf, true),
+        ] {
+            features.family = family;
+            ModelAnimator::new(&model).animate(&features, &mut weights);
+            assert_eq!(weights[closed] == 1.0, snapped, "{family:?}: {weights:?}");
+        }
+        model.closure_snap = 0.9;
+        model.nlsf_snap = Some(0.5);
+        let biased = ModelAnimator::with_closure_bias(&model, 1.0);
+        assert!((biased.closure_snap(FeatureFamily::Nlsf) - 0.4).abs() < 1e-6);
+        assert!((biased.closure_snap(FeatureFamily::Analysis) - 0.8).abs() < 1e-6);
+    }
+}
