@@ -293,6 +293,8 @@ fn spread_around(logits: &mut [f32], spared: Option<(usize, f32)>) {
 }
 
 /// Eight independent sums, so the compiler can keep them in SIMD lanes.
+// Without the hint, the build after the split called it out of line, once per row of each layer.
+#[inline]
 fn dot(a: &[f32], b: &[f32]) -> f32 {
     let n = a.len().min(b.len());
     let (a, b) = (&a[..n], &b[..n]);

@@ -103,6 +103,8 @@ const NORM_SPEECH_BELOW_PEAK_DB: f32 = 25.0;
 pub(super) const MAX_NORM_FRAMES: u32 = 100_000;
 
 impl SpeakerNorm {
+    // Without the hint, the build after the split called it out of line from push_frame.
+    #[inline]
     pub(super) fn update(
         &self,
         state: &mut InferenceState,
