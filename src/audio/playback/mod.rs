@@ -5,23 +5,30 @@
 //! resampling, peers joining and leaving all happen on the mixer thread, which keeps the ring
 //! filled to a target level. Without a device (or after losing it) a virtual sink consumes the
 //! ring at the same pace, so the rest of the app, lip-sync included, runs on as if heard.
+//!
+//! Here the engine the app holds ([`Playback`]): its peers, its status and the switch between
+//! outputs; beside it the sinks (`sink`: a device's stream and its callback, or the virtual
+//! sink) and the mixer thread that feeds them (`mix_thread`).
+
+mod mix_thread;
+mod sink;
 
 use std::collections::HashMap;
-use std::sync::atomic::{AtomicBool, AtomicU64, Ordering};
+use std::sync::atomic::Ordering;
 use std::sync::{Arc, Mutex, PoisonError, mpsc};
 use std::thread::JoinHandle;
 use std::time::{Duration, Instant};
 
-use cpal::traits::{DeviceTrait, StreamTrait};
-use cpal::{FromSample, Sample, SizedSample};
-
-use super::clock::{OutputClock, PeerClock, Schedule, SinkMapping};
-use super::devices::{self, DeviceChoice, Direction};
+use super::clock::{PeerClock, Schedule};
+use super::devices::DeviceChoice;
 use super::error::AudioError;
-use super::mixer::{
-    CHUNK, MAX_PEERS, MixProgress, Mixer, MixerPeer, PeerControls, PeerFeed, PeerId, Upsampler,
-};
+use super::mixer::{MAX_PEERS, MixProgress, Mixer, PeerControls, PeerFeed, PeerId};
 use crate::vocab::SAMPLE_RATE;
+use mix_thread::{Command, mixer_thread};
+use sink::{Sink, device_sink, virtual_sink};
+
+#[cfg(test)]
+pub(crate) use sink::test_output_state;
 
 /// How the engine runs.
 #[derive(Debug, Clone, PartialEq, Eq)]
@@ -71,56 +78,6 @@ pub struct PlaybackStats {
     pub device_errors: u64,
 }
 
-enum Command {
-    Attach {
-        ring: rtrb::Producer<f32>,
-        clock: Arc<OutputClock>,
-        target_frames: usize,
-    },
-    Add(MixerPeer),
-    Remove(PeerId),
-    Stop,
-}
-
-/// Raised by the device's error callback (atomics only).
-#[derive(Debug, Default)]
-struct Fault {
-    lost: AtomicBool,
-    errors: AtomicU64,
-}
-
-enum Sink {
-    Device {
-        _stream: cpal::Stream,
-        clock: Arc<OutputClock>,
-        fault: Arc<Fault>,
-    },
-    Virtual {
-        thread: Option<JoinHandle<()>>,
-        stop: Arc<AtomicBool>,
-        clock: Arc<OutputClock>,
-    },
-}
-
-impl Sink {
-    fn clock(&self) -> &Arc<OutputClock> {
-        match self {
-            Sink::Device { clock, .. } | Sink::Virtual { clock, .. } => clock,
-        }
-    }
-}
-
-impl Drop for Sink {
-    fn drop(&mut self) {
-        if let Sink::Virtual { thread, stop, .. } = self {
-            stop.store(true, Ordering::Relaxed);
-            if let Some(t) = thread.take() {
-                let _ = t.join();
-            }
-        }
-    }
-}
-
 struct PeerEntry {
     controls: Arc<PeerControls>,
     clock: PeerClock,
@@ -154,252 +111,6 @@ impl std::fmt::Debug for Playback {
             .field("status", &self.status)
             .field("peers", &self.peers.len())
             .finish()
-    }
-}
-
-/// The output callback's state: a ring to copy from and a clock to publish to.
-struct OutputState {
-    ring: rtrb::Consumer<f32>,
-    clock: Arc<OutputClock>,
-    channels: usize,
-    consumed: u64,
-}
-
-impl OutputState {
-    /// Fills an interleaved buffer from the mono ring; silence where the ring runs short.
-    /// No lock, no allocation, no system call beyond what the caller did to learn `heard_at`.
-    fn fill<T: Sample + FromSample<f32>>(
-        &mut self,
-        data: &mut [T],
-        heard_at: Instant,
-        latency: Duration,
-    ) {
-        let ch = self.channels.max(1);
-        let frames = data.len() / ch;
-        let before = self.consumed;
-        let n = self.ring.slots().min(frames);
-        if let Ok(chunk) = self.ring.read_chunk(n) {
-            let (a, b) = chunk.as_slices();
-            for (frame, &s) in data.chunks_exact_mut(ch).zip(a.iter().chain(b)) {
-                frame.fill(T::from_sample(s));
-            }
-            chunk.commit_all();
-        }
-        for frame in data.chunks_exact_mut(ch).skip(n) {
-            frame.fill(T::EQUILIBRIUM);
-        }
-        self.consumed += n as u64;
-        self.clock
-            .publish(before, self.consumed, frames as u64, heard_at, latency);
-    }
-}
-
-fn ring_capacity(rate: u32, buffer: Duration, chunk_out: usize) -> (usize, usize) {
-    let target = (buffer.as_secs_f64() * f64::from(rate)).ceil() as usize;
-    let target = target.max(chunk_out);
-    (target, 2 * target + 2 * chunk_out)
-}
-
-fn chunk_out_len(rate: u32) -> usize {
-    (CHUNK * rate as usize).div_ceil(SAMPLE_RATE as usize) + 1
-}
-
-fn build_output<T>(
-    device: &cpal::Device,
-    config: cpal::StreamConfig,
-    mut state: OutputState,
-    fault: Arc<Fault>,
-) -> Result<cpal::Stream, cpal::Error>
-where
-    T: SizedSample + FromSample<f32>,
-{
-    device.build_output_stream::<T, _, _>(
-        config,
-        move |data: &mut [T], info: &cpal::OutputCallbackInfo| {
-            let ts = info.timestamp();
-            let latency = ts
-                .playback
-                .checked_duration_since(ts.callback)
-                .unwrap_or_default();
-            state.fill(data, Instant::now() + latency, latency);
-        },
-        move |e: cpal::Error| {
-            fault.errors.fetch_add(1, Ordering::Relaxed);
-            if matches!(
-                e.kind(),
-                cpal::ErrorKind::DeviceNotAvailable | cpal::ErrorKind::StreamInvalidated
-            ) {
-                fault.lost.store(true, Ordering::Relaxed);
-            }
-        },
-        None,
-    )
-}
-
-/// Opens the device, builds and starts its stream. Returns the sink, its ring's producer, the
-/// target fill, and the status line.
-fn device_sink(
-    choice: &DeviceChoice,
-    buffer: Duration,
-) -> Result<(Sink, rtrb::Producer<f32>, usize, OutputStatus), AudioError> {
-    let opened = devices::open(choice, Direction::Output)?;
-    let rate = opened.config.sample_rate();
-    let channels = opened.config.channels();
-    let format = opened.config.sample_format();
-    let config: cpal::StreamConfig = opened.config.config();
-    let (target, cap) = ring_capacity(rate, buffer, chunk_out_len(rate));
-    let (tx, rx) = rtrb::RingBuffer::new(cap);
-    let clock = Arc::new(OutputClock::new(rate));
-    let fault = Arc::new(Fault::default());
-    let state = OutputState {
-        ring: rx,
-        clock: clock.clone(),
-        channels: usize::from(channels),
-        consumed: 0,
-    };
-    let d = &opened.device;
-    let f = fault.clone();
-    use cpal::SampleFormat as F;
-    let stream = match format {
-        F::F32 => build_output::<f32>(d, config, state, f),
-        F::F64 => build_output::<f64>(d, config, state, f),
-        F::I16 => build_output::<i16>(d, config, state, f),
-        F::U16 => build_output::<u16>(d, config, state, f),
-        F::I32 => build_output::<i32>(d, config, state, f),
-        F::U32 => build_output::<u32>(d, config, state, f),
-        F::I8 => build_output::<i8>(d, config, state, f),
-        F::U8 => build_output::<u8>(d, config, state, f),
-        other => return Err(AudioError::UnsupportedFormat(other.to_string())),
-    }
-    .map_err(|e| devices::no_device(Direction::Output, e.to_string()))?;
-    stream
-        .play()
-        .map_err(|e| devices::no_device(Direction::Output, e.to_string()))?;
-    let status = OutputStatus::Playing {
-        device: opened.name,
-        rate,
-        channels,
-    };
-    Ok((
-        Sink::Device {
-            _stream: stream,
-            clock,
-            fault,
-        },
-        tx,
-        target,
-        status,
-    ))
-}
-
-/// A sink that plays nothing at real-time pace: 8 kHz, 10 ms periods, timed by the system clock.
-fn virtual_sink(buffer: Duration) -> (Sink, rtrb::Producer<f32>, usize) {
-    const PERIOD: usize = 80;
-    let rate = SAMPLE_RATE;
-    let (target, cap) = ring_capacity(rate, buffer, CHUNK);
-    let (tx, rx) = rtrb::RingBuffer::new(cap);
-    let clock = Arc::new(OutputClock::new(rate));
-    let stop = Arc::new(AtomicBool::new(false));
-    let mut state = OutputState {
-        ring: rx,
-        clock: clock.clone(),
-        channels: 1,
-        consumed: 0,
-    };
-    let stop2 = stop.clone();
-    let thread = std::thread::Builder::new()
-        .name("lipcall-silent-sink".into())
-        .spawn(move || {
-            let mut scratch = [0.0f32; PERIOD];
-            let start = Instant::now();
-            let mut played: u64 = 0;
-            while !stop2.load(Ordering::Relaxed) {
-                let due = (start.elapsed().as_secs_f64() * f64::from(rate)) as u64;
-                // The period [played, played + PERIOD) is heard from its nominal start on.
-                while played <= due {
-                    let at = start + Duration::from_secs_f64(played as f64 / f64::from(rate));
-                    state.fill(&mut scratch, at, Duration::ZERO);
-                    played += PERIOD as u64;
-                }
-                std::thread::sleep(Duration::from_millis(5));
-            }
-        });
-    let thread = thread.ok();
-    (
-        Sink::Virtual {
-            thread,
-            stop,
-            clock,
-        },
-        tx,
-        target,
-    )
-}
-
-/// The mixer thread: keeps the current sink's ring filled to its target.
-fn mixer_thread(
-    mut mixer: Mixer,
-    commands: mpsc::Receiver<Command>,
-    detached: &Mutex<Option<String>>,
-) {
-    let detach = |why: String| {
-        tracing::warn!("{why}");
-        *detached.lock().unwrap_or_else(PoisonError::into_inner) = Some(why);
-    };
-    let mut chunk = [0.0f32; CHUNK];
-    let mut sink: Option<(rtrb::Producer<f32>, Upsampler, usize)> = None;
-    loop {
-        loop {
-            match commands.try_recv() {
-                Ok(Command::Attach {
-                    ring,
-                    clock,
-                    target_frames,
-                }) => match Upsampler::new(clock.rate()) {
-                    Ok(up) => {
-                        clock.set_mapping(SinkMapping {
-                            mix_start: mixer.position(),
-                            ring_start: 0,
-                            resampler_delay: up.delay() as u64,
-                            rate: clock.rate(),
-                        });
-                        sink = Some((ring, up, target_frames));
-                    }
-                    Err(e) => {
-                        detach(format!("output not attached: {e}"));
-                        sink = None;
-                    }
-                },
-                Ok(Command::Add(p)) => {
-                    if let Err(p) = mixer.add(p) {
-                        tracing::warn!("peer {:?} not mixed: table full", p.id());
-                    }
-                }
-                Ok(Command::Remove(id)) => {
-                    mixer.remove(id);
-                }
-                Ok(Command::Stop) | Err(mpsc::TryRecvError::Disconnected) => return,
-                Err(mpsc::TryRecvError::Empty) => break,
-            }
-        }
-        if let Some((ring, up, target)) = sink.as_mut() {
-            let cap = ring.buffer().capacity();
-            while cap - ring.slots() < *target && ring.slots() >= up.next_len() {
-                mixer.mix(&mut chunk);
-                match up.process(&chunk) {
-                    Ok(out) => {
-                        // Room was checked above; a short push cannot happen.
-                        let _ = ring.push_partial_slice(out);
-                    }
-                    Err(e) => {
-                        detach(format!("resampling failed, output detached: {e}"));
-                        sink = None;
-                        break;
-                    }
-                }
-            }
-        }
-        std::thread::sleep(Duration::from_millis(4));
     }
 }
 
@@ -687,54 +398,9 @@ pub struct RetiredOutput {
     _sink: Sink,
 }
 
-/// An output callback over a fresh ring, for tests that drive it by hand.
-#[cfg(test)]
-pub(crate) fn test_output_state(
-    rate: u32,
-    channels: usize,
-    capacity: usize,
-) -> (rtrb::Producer<f32>, impl FnMut(&mut [f32], Instant)) {
-    let (tx, rx) = rtrb::RingBuffer::new(capacity);
-    let mut st = OutputState {
-        ring: rx,
-        clock: Arc::new(OutputClock::new(rate)),
-        channels,
-        consumed: 0,
-    };
-    (tx, move |data: &mut [f32], at: Instant| {
-        st.fill(data, at, Duration::from_millis(10))
-    })
-}
-
 #[cfg(test)]
 mod tests {
     use super::*;
-
-    #[test]
-    fn output_callback_copies_counts_underruns_and_publishes() {
-        let (mut tx, rx) = rtrb::RingBuffer::new(16);
-        let clock = Arc::new(OutputClock::new(8000));
-        let mut st = OutputState {
-            ring: rx,
-            clock: clock.clone(),
-            channels: 2,
-            consumed: 0,
-        };
-        let _ = tx.push_partial_slice(&[0.5, -0.5, 0.25]);
-        let mut data = [7i16; 8]; // 4 stereo frames, 3 in the ring
-        let t = Instant::now();
-        st.fill(&mut data, t, Duration::from_millis(3));
-        assert_eq!(data, [16384, 16384, -16384, -16384, 8192, 8192, 0, 0]);
-        assert_eq!(clock.underruns(), 1);
-        assert_eq!(clock.underrun_frames(), 1);
-        assert_eq!(clock.frames_played(), 4);
-        let a = clock.anchor().unwrap();
-        assert_eq!((a.ring_frame, a.ring_end), (0, 3));
-        let mut data = [0.0f32; 8];
-        st.fill(&mut data, t, Duration::ZERO);
-        assert_eq!(clock.underrun_frames(), 5);
-        assert_eq!(clock.anchor().unwrap().ring_frame, 3);
-    }
 
     #[test]
     fn silent_engine_plays_peers_on_the_virtual_clock() {

@@ -1,0 +1,86 @@
+//! The mixer thread: takes peers and sinks by command and keeps the current sink's ring
+//! filled to its target, mixing and resampling 20 ms at a time.
+
+use std::sync::{Arc, Mutex, PoisonError, mpsc};
+use std::time::Duration;
+
+use crate::audio::clock::{OutputClock, SinkMapping};
+use crate::audio::mixer::{CHUNK, Mixer, MixerPeer, PeerId, Upsampler};
+
+pub(super) enum Command {
+    Attach {
+        ring: rtrb::Producer<f32>,
+        clock: Arc<OutputClock>,
+        target_frames: usize,
+    },
+    Add(MixerPeer),
+    Remove(PeerId),
+    Stop,
+}
+
+/// The mixer thread: keeps the current sink's ring filled to its target.
+pub(super) fn mixer_thread(
+    mut mixer: Mixer,
+    commands: mpsc::Receiver<Command>,
+    detached: &Mutex<Option<String>>,
+) {
+    let detach = |why: String| {
+        tracing::warn!("{why}");
+        *detached.lock().unwrap_or_else(PoisonError::into_inner) = Some(why);
+    };
+    let mut chunk = [0.0f32; CHUNK];
+    let mut sink: Option<(rtrb::Producer<f32>, Upsampler, usize)> = None;
+    loop {
+        loop {
+            match commands.try_recv() {
+                Ok(Command::Attach {
+                    ring,
+                    clock,
+                    target_frames,
+                }) => match Upsampler::new(clock.rate()) {
+                    Ok(up) => {
+                        clock.set_mapping(SinkMapping {
+                            mix_start: mixer.position(),
+                            ring_start: 0,
+                            resampler_delay: up.delay() as u64,
+                            rate: clock.rate(),
+                        });
+                        sink = Some((ring, up, target_frames));
+                    }
+                    Err(e) => {
+                        detach(format!("output not attached: {e}"));
+                        sink = None;
+                    }
+                },
+                Ok(Command::Add(p)) => {
+                    if let Err(p) = mixer.add(p) {
+                        tracing::warn!("peer {:?} not mixed: table full", p.id());
+                    }
+                }
+                Ok(Command::Remove(id)) => {
+                    mixer.remove(id);
+                }
+                Ok(Command::Stop) | Err(mpsc::TryRecvError::Disconnected) => return,
+                Err(mpsc::TryRecvError::Empty) => break,
+            }
+        }
+        if let Some((ring, up, target)) = sink.as_mut() {
+            let cap = ring.buffer().capacity();
+            while cap - ring.slots() < *target && ring.slots() >= up.next_len() {
+                mixer.mix(&mut chunk);
+                match up.process(&chunk) {
+                    Ok(out) => {
+                        // Room was checked above; a short push cannot happen.
+                        let _ = ring.push_partial_slice(out);
+                    }
+                    Err(e) => {
+                        detach(format!("resampling failed, output detached: {e}"));
+                        sink = None;
+                        break;
+                    }
+                }
+            }
+        }
+        std::thread::sleep(Duration::from_millis(4));
+    }
+}

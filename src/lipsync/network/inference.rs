@@ -1,0 +1,460 @@
+//! Inference: one frame through both layers, the per-stream input history that carries the
+//! context and look-ahead frames, the output sharpness and the closure snap. Allocates nothing.
+
+use super::normalise::{DELTA_SPAN_DB, scale_relative};
+use super::{FEATURES_PER_FRAME, Model, PEAK_FLOOR_DB, frame_width, silence_features};
+use crate::vocab::FeatureFamily;
+use crate::vocab::LSP_COUNT;
+use crate::vocab::{FrameFeatures, SILENCE_DB};
+
+/// How far a full closure bias moves the closure-snap threshold. On the shipped model's
+/// cross-validation a move of 0.05 trades about 14 points of /p b m/ closures against 6 of
+/// false closures (docs/model.md).
+pub const CLOSURE_BIAS_SPAN: f32 = 0.1;
+
+/// The lowest closure-snap threshold training tries or a bias reaches.
+pub const MIN_CLOSURE_SNAP: f32 = 0.3;
+
+/// The range of the output sharpness a model file may hold: beyond it the weights are all but
+/// one-hot (or all but uniform) and no calibration would choose it.
+pub const MIN_SHARPNESS: f32 = 0.25;
+pub const MAX_SHARPNESS: f32 = 4.0;
+
+/// Per-stream state of a running model: the scaled input history, the energy tracker and
+/// scratch space.
+#[derive(Debug, Clone)]
+pub struct InferenceState {
+    pub(super) input: Vec<f32>,
+    pub(super) hidden: Vec<f32>,
+    pub(super) peak_db: f32,
+    pub(super) previous_db: f32,
+    /// Scaled peak-relative energies, newest first, `1 + context + energy_context` of them.
+    pub(super) relative: Vec<f32>,
+    /// The speaker's running LSP means and the speech frames they have seen.
+    pub(super) lsp_mean: [f32; LSP_COUNT],
+    pub(super) speech_frames: u32,
+}
+
+impl InferenceState {
+    /// The network's input vector after the last frame pushed.
+    pub fn input(&self) -> &[f32] {
+        &self.input
+    }
+
+    /// Becomes a copy of `other` (a state of the same model) without allocating.
+    pub fn copy_from(&mut self, other: &Self) {
+        self.input.clone_from_slice(&other.input);
+        self.hidden.clone_from_slice(&other.hidden);
+        self.relative.clone_from_slice(&other.relative);
+        self.peak_db = other.peak_db;
+        self.previous_db = other.previous_db;
+        self.lsp_mean = other.lsp_mean;
+        self.speech_frames = other.speech_frames;
+    }
+}
+
+impl Model {
+    pub fn new_state(&self) -> InferenceState {
+        let relative_len = 1 + self.context + self.dynamics.map_or(0, |d| d.energy_context);
+        let mut state = InferenceState {
+            input: vec![0.0; self.inputs()],
+            hidden: vec![0.0; self.hidden],
+            peak_db: PEAK_FLOOR_DB,
+            previous_db: SILENCE_DB,
+            relative: vec![0.0; relative_len],
+            lsp_mean: [0.0; LSP_COUNT],
+            speech_frames: 0,
+        };
+        self.reset(&mut state);
+        state
+    }
+
+    /// Forgets the history: as if the stream had been silent.
+    pub fn reset(&self, state: &mut InferenceState) {
+        state.peak_db = PEAK_FLOOR_DB;
+        state.previous_db = SILENCE_DB;
+        state.speech_frames = 0;
+        if let Some(norm) = &self.speaker_norm {
+            state.lsp_mean = norm.prior;
+        }
+        let silence = silence_features();
+        let mut silent = [0.0; FEATURES_PER_FRAME + 2];
+        let width = frame_width(self.dynamics);
+        self.scaling
+            .apply(&silence, &mut silent[..FEATURES_PER_FRAME]);
+        if self.dynamics.is_some() {
+            silent[FEATURES_PER_FRAME] = scale_relative(SILENCE_DB - PEAK_FLOOR_DB);
+            silent[FEATURES_PER_FRAME + 1] = 0.0;
+        }
+        let frames = width * (1 + self.context);
+        for frame in state.input[..frames].chunks_exact_mut(width) {
+            frame.copy_from_slice(&silent[..width]);
+        }
+        state.relative.fill(silent[FEATURES_PER_FRAME]);
+        state.input[frames..].fill(silent[FEATURES_PER_FRAME]);
+    }
+
+    /// Feeds one frame into the state's input vector (the history shifts by one frame).
+    pub fn push_frame(&self, state: &mut InferenceState, features: &FrameFeatures) {
+        let width = frame_width(self.dynamics);
+        let frames = width * (1 + self.context);
+        state.input.copy_within(0..frames - width, width);
+        let energy = if features.energy_db.is_nan() {
+            SILENCE_DB
+        } else {
+            features.energy_db.max(SILENCE_DB)
+        };
+        if let Some(dynamics) = self.dynamics {
+            state.peak_db = energy
+                .max(state.peak_db - dynamics.peak_decay_db)
+                .max(PEAK_FLOOR_DB);
+        }
+        match &self.speaker_norm {
+            Some(norm) => {
+                let mut normalised = *features;
+                norm.update(state, energy, &mut normalised);
+                self.scaling
+                    .apply(&normalised, &mut state.input[..FEATURES_PER_FRAME]);
+            }
+            None => self
+                .scaling
+                .apply(features, &mut state.input[..FEATURES_PER_FRAME]),
+        }
+        if self.dynamics.is_none() {
+            return;
+        }
+        let relative = scale_relative(energy - state.peak_db);
+        let delta = ((energy - state.previous_db) / DELTA_SPAN_DB).clamp(-1.0, 1.0);
+        state.previous_db = energy;
+        state.input[FEATURES_PER_FRAME] = relative;
+        state.input[FEATURES_PER_FRAME + 1] = delta;
+        let len = state.relative.len();
+        state.relative.copy_within(0..len - 1, 1);
+        state.relative[0] = relative;
+        let extra = &state.relative[1 + self.context..];
+        state.input[frames..].copy_from_slice(extra);
+    }
+
+    /// Feeds one frame and writes convex weights over `self.visemes` into `weights`
+    /// (which must hold `self.outputs()` values). Allocates nothing.
+    pub fn step(&self, state: &mut InferenceState, features: &FrameFeatures, weights: &mut [f32]) {
+        self.step_with_snap(state, features, weights, self.closure_snap);
+    }
+
+    /// [`Model::step`] with another closure-snap threshold than the model's own.
+    pub fn step_with_snap(
+        &self,
+        state: &mut InferenceState,
+        features: &FrameFeatures,
+        weights: &mut [f32],
+        closure_snap: f32,
+    ) {
+        self.push_frame(state, features);
+        self.infer(state, weights, closure_snap);
+    }
+
+    /// The weights for the frames already pushed (no new frame).
+    pub fn infer(&self, state: &mut InferenceState, weights: &mut [f32], closure_snap: f32) {
+        self.output(&state.input, &mut state.hidden, weights);
+        self.snap_with(weights, closure_snap);
+    }
+
+    /// The weights the receiver uses before the closure snap: [`Model::forward`] with the
+    /// model's sharpness.
+    pub fn output(&self, input: &[f32], hidden: &mut [f32], weights: &mut [f32]) {
+        self.logits(input, hidden, weights);
+        if self.sharpness == 1.0 {
+            softmax_in_place(weights);
+            return;
+        }
+        let spared = self.spared_shape();
+        // The spared shape's weight as the plain softmax gives it.
+        let kept = spared.map(|c| {
+            let own = weights[c];
+            1.0 / weights.iter().map(|z| (z - own).exp()).sum::<f32>()
+        });
+        for w in weights.iter_mut() {
+            *w *= self.sharpness;
+        }
+        spread_around(weights, spared.zip(kept));
+    }
+
+    /// The shape [`Model::sharpness`] leaves alone, if any.
+    pub fn spared_shape(&self) -> Option<usize> {
+        if self.sharpen_open_shapes_only {
+            self.closed_index()
+        } else {
+            None
+        }
+    }
+
+    /// The closure snap moved by `bias` in [-1, 1]: positive closes the lips more readily
+    /// (every /p b m/, and more often elsewhere), negative less; 0 is the model's own balance,
+    /// chosen in training. A model without the rule keeps it off at 0 and below.
+    pub fn closure_snap_with_bias(&self, family: FeatureFamily, bias: f32) -> f32 {
+        let bias = if bias.is_finite() {
+            bias.clamp(-1.0, 1.0)
+        } else {
+            0.0
+        };
+        let own = self.closure_snap_of(family);
+        if own <= 0.0 && bias <= 0.0 {
+            return 0.0;
+        }
+        let from = if own > 0.0 { own } else { 1.0 };
+        (from - CLOSURE_BIAS_SPAN * bias).clamp(MIN_CLOSURE_SNAP, 1.0)
+    }
+
+    /// The closure snap for rows of `family`.
+    pub fn closure_snap_of(&self, family: FeatureFamily) -> f32 {
+        match family {
+            FeatureFamily::Bitstream => self.closure_snap,
+            FeatureFamily::Nlsf => self.nlsf_snap.unwrap_or(self.closure_snap),
+            FeatureFamily::Analysis => self.analysis_snap.unwrap_or(self.closure_snap),
+        }
+    }
+
+    /// The closure rule on one frame's output weights.
+    pub fn snap(&self, weights: &mut [f32]) {
+        self.snap_with(weights, self.closure_snap);
+    }
+
+    /// The closure rule at another threshold than the model's own (0 = none).
+    pub fn snap_with(&self, weights: &mut [f32], closure_snap: f32) {
+        if closure_snap <= 0.0 {
+            return;
+        }
+        if let Some(closed) = self.closed_index()
+            && weights[closed] >= closure_snap
+        {
+            weights.fill(0.0);
+            weights[closed] = 1.0;
+        }
+    }
+
+    /// Both layers on an already scaled input vector, as trained (no sharpness, no closure
+    /// rule).
+    pub fn forward(&self, input: &[f32], hidden: &mut [f32], weights: &mut [f32]) {
+        self.logits(input, hidden, weights);
+        softmax_in_place(weights);
+    }
+
+    fn logits(&self, input: &[f32], hidden: &mut [f32], weights: &mut [f32]) {
+        let inputs = input.len();
+        for ((h, row), b) in hidden
+            .iter_mut()
+            .zip(self.w1.chunks_exact(inputs))
+            .zip(&self.b1)
+        {
+            *h = (b + dot(row, input)).tanh();
+        }
+        for ((o, row), b) in weights
+            .iter_mut()
+            .zip(self.w2.chunks_exact(self.hidden))
+            .zip(&self.b2)
+        {
+            *o = b + dot(row, hidden);
+        }
+    }
+}
+
+/// Convex weights sharpened as [`Model::output`] does it on the logits, for outputs already
+/// computed: each raised to `sharpness` and the whole renormalised (the same as the logits
+/// multiplied by it, since the softmax's own normalisation cancels); with `spared`, that
+/// shape keeps its weight and the others share the rest so.
+pub fn sharpen(weights: &mut [f32], sharpness: f32, spared: Option<usize>) {
+    if sharpness == 1.0 {
+        return;
+    }
+    let kept = spared.map(|c| weights[c]);
+    for w in weights.iter_mut() {
+        *w = sharpness * w.max(f32::MIN_POSITIVE).ln();
+    }
+    spread_around(weights, spared.zip(kept));
+}
+
+/// The softmax of `logits`, or with `spared` = (c, w): shape c gets w and the softmax of the
+/// others shares 1 - w.
+fn spread_around(logits: &mut [f32], spared: Option<(usize, f32)>) {
+    let Some((c, kept)) = spared else {
+        softmax_in_place(logits);
+        return;
+    };
+    if logits.len() < 2 {
+        logits.fill(1.0);
+        return;
+    }
+    logits[c] = f32::NEG_INFINITY;
+    softmax_in_place(logits);
+    for w in logits.iter_mut() {
+        *w *= 1.0 - kept;
+    }
+    logits[c] = kept;
+}
+
+/// Eight independent sums, so the compiler can keep them in SIMD lanes.
+// Without the hint, the build after the split called it out of line, once per row of each layer.
+#[inline]
+fn dot(a: &[f32], b: &[f32]) -> f32 {
+    let n = a.len().min(b.len());
+    let (a, b) = (&a[..n], &b[..n]);
+    let mut lanes = [0.0f32; 8];
+    let (chunks_a, chunks_b) = (a.chunks_exact(8), b.chunks_exact(8));
+    let tail: f32 = chunks_a
+        .remainder()
+        .iter()
+        .zip(chunks_b.remainder())
+        .map(|(x, y)| x * y)
+        .sum();
+    for (ca, cb) in chunks_a.zip(chunks_b) {
+        for i in 0..8 {
+            lanes[i] += ca[i] * cb[i];
+        }
+    }
+    lanes.iter().sum::<f32>() + tail
+}
+
+pub(crate) fn softmax_in_place(values: &mut [f32]) {
+    let max = values.iter().copied().fold(f32::NEG_INFINITY, f32::max);
+    let mut total = 0.0;
+    for v in values.iter_mut() {
+        *v = (*v - max).exp();
+        total += *v;
+    }
+    for v in values.iter_mut() {
+        *v /= total;
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::lipsync::network::fixtures::{frame, sample_model};
+
+    #[test]
+    fn outputs_are_convex_and_use_the_past() {
+        let model = sample_model();
+        let mut state = model.new_state();
+        let mut first = [0.0; 3];
+        model.step(&mut state, &frame(-20.0), &mut first);
+        assert!((first.iter().sum::<f32>() - 1.0).abs() < 1e-6);
+        assert!(first.iter().all(|&w| w > 0.0));
+        let mut second = [0.0; 3];
+        model.step(&mut state, &frame(-20.0), &mut second);
+        assert_ne!(first, second, "the history changed the answer");
+        model.reset(&mut state);
+        model.step(&mut state, &frame(-20.0), &mut second);
+        assert_eq!(first, second);
+        assert_eq!(model.multiply_adds(), 33 * 4 + 4 * 3);
+    }
+
+    #[test]
+    fn sharpness_one_is_the_network_as_trained_bit_for_bit() {
+        let model = sample_model();
+        let mut state = model.new_state();
+        let (mut stepped, mut plain) = ([0.0; 3], [0.0; 3]);
+        let mut hidden = vec![0.0; model.hidden];
+        for energy in [-20.0, -35.0, -12.0] {
+            model.step(&mut state, &frame(energy), &mut stepped);
+            model.forward(state.input(), &mut hidden, &mut plain);
+            assert_eq!(stepped.map(f32::to_bits), plain.map(f32::to_bits));
+        }
+        let mut same = plain;
+        sharpen(&mut same, 1.0, None);
+        assert_eq!(same, plain);
+    }
+
+    #[test]
+    fn sharpening_raises_the_dominant_weight() {
+        let mut model = sample_model();
+        model.b2 = vec![0.8, 0.1, -0.4];
+        let mut state = model.new_state();
+        let mut plain = [0.0; 3];
+        model.step(&mut state, &frame(-20.0), &mut plain);
+        model.sharpness = 2.0;
+        let mut state = model.new_state();
+        let mut sharp = [0.0; 3];
+        model.step(&mut state, &frame(-20.0), &mut sharp);
+        let lead = |w: &[f32; 3]| (0..3).max_by(|&a, &b| w[a].total_cmp(&w[b])).unwrap();
+        assert_eq!(lead(&sharp), lead(&plain));
+        assert!(
+            sharp[lead(&plain)] > plain[lead(&plain)] + 0.05,
+            "{plain:?} {sharp:?}"
+        );
+        assert!((sharp.iter().sum::<f32>() - 1.0).abs() < 1e-6);
+        // The power of the weights is the scaled logits: the tuning and the receiver agree.
+        let mut powered = plain;
+        sharpen(&mut powered, 2.0, None);
+        for (p, s) in powered.iter().zip(&sharp) {
+            assert!((p - s).abs() < 1e-6, "{powered:?} {sharp:?}");
+        }
+        // Below 1 it softens.
+        let mut soft = plain;
+        sharpen(&mut soft, 0.5, None);
+        assert!(soft[lead(&plain)] < plain[lead(&plain)]);
+    }
+
+    #[test]
+    fn open_shapes_sharpening_leaves_the_closed_weight_alone() {
+        let mut model = sample_model();
+        model.b2 = vec![0.3, 0.6, -0.2];
+        let mut state = model.new_state();
+        let mut plain = [0.0; 3];
+        model.step(&mut state, &frame(-20.0), &mut plain);
+        model.sharpness = 2.0;
+        model.sharpen_open_shapes_only = true;
+        let text = model.to_text();
+        assert!(text.contains("\nsharpness 2 open-shapes\n"), "{text}");
+        assert_eq!(Model::from_text(&text).unwrap(), model);
+        let mut state = model.new_state();
+        let mut sharp = [0.0; 3];
+        model.step(&mut state, &frame(-20.0), &mut sharp);
+        assert!((sharp[0] - plain[0]).abs() < 1e-6, "{plain:?} {sharp:?}");
+        let open = |w: &[f32; 3]| w[1] / (w[1] + w[2]);
+        assert!(open(&sharp) > open(&plain) + 0.05, "{plain:?} {sharp:?}");
+        assert!((sharp.iter().sum::<f32>() - 1.0).abs() < 1e-6);
+        let mut powered = plain;
+        sharpen(&mut powered, 2.0, model.spared_shape());
+        for (p, s) in powered.iter().zip(&sharp) {
+            assert!((p - s).abs() < 1e-6, "{powered:?} {sharp:?}");
+        }
+        let other = text.replace("open-shapes", "closed");
+        assert!(Model::from_text(&other).is_err());
+    }
+}
+
+#[cfg(test)]
+mod timing {
+    use super::*;
+    use crate::lipsync::network::InputScaling;
+    use crate::vocab::VisemeSet;
+
+    /// `cargo test --release --lib inference_time -- --ignored --nocapture`
+    #[test]
+    #[ignore = "timing, meaningful in release only"]
+    fn inference_time_per_frame() {
+        let model = Model::zeros(
+            VisemeSet::reduced(6).unwrap(),
+            InputScaling::new(-70.0, -10.0),
+            2,
+            10,
+        );
+        let mut state = model.new_state();
+        let mut features = silence_features();
+        let mut weights = [0.0; 6];
+        let frames = 1_000_000;
+        let start = std::time::Instant::now();
+        for n in 0..frames {
+            features.energy_db = -60.0 + (n % 50) as f32;
+            model.step(&mut state, std::hint::black_box(&features), &mut weights);
+            std::hint::black_box(&weights);
+        }
+        let per_frame = start.elapsed().as_secs_f64() / frames as f64;
+        println!(
+            "{} multiply-adds, {:.0} ns per frame",
+            model.multiply_adds(),
+            per_frame * 1e9
+        );
+        assert!(per_frame < 1e-6);
+    }
+}

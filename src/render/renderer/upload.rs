@@ -1,0 +1,256 @@
+//! A head's upload to the GPU, once: vertices (those some target moves first), indices, the
+//! moving vertices' morph deltas and each material's uniform, texture and bind group.
+
+use std::sync::Arc;
+
+use bytemuck::{Pod, Zeroable};
+use wgpu::util::DeviceExt;
+
+use super::{HeadRenderer, pipeline_index};
+use crate::render::RenderError;
+use crate::render::head::{FaceFrame, HeadModel, MorphDelta, TARGET_COUNT, Vertex};
+
+#[repr(C)]
+#[derive(Debug, Clone, Copy, PartialEq, Pod, Zeroable)]
+struct MaterialUniform {
+    base_color: [f32; 4],
+}
+
+/// A draw call of one primitive.
+#[derive(Debug, Clone)]
+pub(super) struct DrawRange {
+    pub(super) indices: std::ops::Range<u32>,
+    pub(super) material: usize,
+}
+
+pub(super) struct GpuMaterial {
+    pub(super) bind_group: wgpu::BindGroup,
+    pub(super) pipeline: usize,
+    _uniform: wgpu::Buffer,
+    _texture: Option<wgpu::Texture>,
+}
+
+/// A head's meshes and morph deltas on the GPU, uploaded once and shareable between instances.
+pub struct GpuHead {
+    label: String,
+    pub(super) vertex_buffer: wgpu::Buffer,
+    pub(super) index_buffer: wgpu::Buffer,
+    pub(super) delta_buffer: wgpu::Buffer,
+    pub(super) materials: Vec<GpuMaterial>,
+    pub(super) draws: Vec<DrawRange>,
+    pub(super) morph_vertices: u32,
+    pub(super) vertex_count: u32,
+    /// Where each vertex of the model (primitives in order) sits in the GPU vertex buffer.
+    pub(super) model_to_gpu: Vec<u32>,
+    pub(super) frame: FaceFrame,
+}
+
+impl GpuHead {
+    /// Where the mouth is and how big the head is, for [`Camera::framing`].
+    ///
+    /// [`Camera::framing`]: crate::render::Camera::framing
+    pub fn face_frame(&self) -> &FaceFrame {
+        &self.frame
+    }
+
+    pub fn vertex_count(&self) -> u32 {
+        self.vertex_count
+    }
+
+    pub fn label(&self) -> &str {
+        &self.label
+    }
+}
+
+impl HeadRenderer {
+    /// Uploads a head's meshes, materials and morph deltas (once).
+    pub fn upload(
+        &self,
+        device: &wgpu::Device,
+        queue: &wgpu::Queue,
+        model: &HeadModel,
+        label: &str,
+    ) -> Result<Arc<GpuHead>, RenderError> {
+        model.validate()?;
+        let vertex_count = model.vertex_count();
+        let index_count: usize = model.primitives.iter().map(|p| p.indices.len()).sum();
+        if vertex_count >= u32::MAX as usize / 16 || index_count >= u32::MAX as usize {
+            return Err(RenderError::InvalidHead("too many vertices".into()));
+        }
+        // Vertices that some target moves come first and alone get delta storage: the vertex
+        // stage then blends only them (on a software adapter, most of a frame's time).
+        let moves = |p: &crate::render::head::Primitive, i: usize| {
+            p.targets
+                .iter()
+                .any(|t| t.get(i).is_some_and(|d| *d != MorphDelta::default()))
+        };
+        let moving: Vec<bool> = model
+            .primitives
+            .iter()
+            .flat_map(|p| (0..p.vertices.len()).map(move |i| moves(p, i)))
+            .collect();
+        let morph_vertices = moving.iter().filter(|&&m| m).count();
+        let (mut next_moving, mut next_still) = (0u32, morph_vertices as u32);
+        let model_to_gpu: Vec<u32> = moving
+            .iter()
+            .map(|&m| {
+                let next = if m { &mut next_moving } else { &mut next_still };
+                *next += 1;
+                *next - 1
+            })
+            .collect();
+        let delta_bytes =
+            (TARGET_COUNT * morph_vertices * std::mem::size_of::<MorphDelta>()) as u64;
+        let max_binding = device.limits().max_storage_buffer_binding_size;
+        if delta_bytes > max_binding {
+            return Err(RenderError::Unsupported(format!(
+                "{morph_vertices} morphing vertices need {delta_bytes} bytes of deltas, more than \
+                 the device's storage binding limit of {max_binding}"
+            )));
+        }
+
+        let mut vertices = vec![Vertex::default(); vertex_count];
+        let mut indices: Vec<u32> = Vec::with_capacity(index_count);
+        let mut deltas = vec![MorphDelta::default(); TARGET_COUNT * morph_vertices];
+        let mut draws = Vec::new();
+        let mut base = 0usize;
+        for p in &model.primitives {
+            let gpu = &model_to_gpu[base..base + p.vertices.len()];
+            for (i, v) in p.vertices.iter().enumerate() {
+                vertices[gpu[i] as usize] = *v;
+            }
+            for (t, target) in p.targets.iter().enumerate() {
+                for (i, d) in target.iter().enumerate() {
+                    if (gpu[i] as usize) < morph_vertices {
+                        deltas[t * morph_vertices + gpu[i] as usize] = *d;
+                    }
+                }
+            }
+            let first = indices.len() as u32;
+            indices.extend(p.indices.iter().map(|&i| gpu[i as usize]));
+            draws.push(DrawRange {
+                indices: first..indices.len() as u32,
+                material: p.material,
+            });
+            base += p.vertices.len();
+        }
+
+        let vertex_buffer = device.create_buffer_init(&wgpu::util::BufferInitDescriptor {
+            label: Some(&format!("{label} vertices")),
+            contents: bytemuck::cast_slice(&vertices),
+            usage: wgpu::BufferUsages::VERTEX | wgpu::BufferUsages::STORAGE,
+        });
+        let index_buffer = device.create_buffer_init(&wgpu::util::BufferInitDescriptor {
+            label: Some(&format!("{label} indices")),
+            contents: bytemuck::cast_slice(&indices),
+            usage: wgpu::BufferUsages::INDEX,
+        });
+        // A zero-sized storage binding is invalid; keep one dummy delta.
+        if deltas.is_empty() {
+            deltas.push(MorphDelta::default());
+        }
+        let delta_buffer = device.create_buffer_init(&wgpu::util::BufferInitDescriptor {
+            label: Some(&format!("{label} morph deltas")),
+            contents: bytemuck::cast_slice(&deltas),
+            usage: wgpu::BufferUsages::STORAGE,
+        });
+        let materials = model
+            .materials
+            .iter()
+            .enumerate()
+            .map(|(i, m)| self.upload_material(device, queue, m, &format!("{label} material {i}")))
+            .collect();
+        Ok(Arc::new(GpuHead {
+            label: label.to_owned(),
+            vertex_buffer,
+            index_buffer,
+            delta_buffer,
+            materials,
+            draws,
+            morph_vertices: morph_vertices as u32,
+            vertex_count: vertex_count as u32,
+            model_to_gpu,
+            frame: model.face_frame(),
+        }))
+    }
+
+    fn upload_material(
+        &self,
+        device: &wgpu::Device,
+        queue: &wgpu::Queue,
+        material: &crate::render::head::Material,
+        label: &str,
+    ) -> GpuMaterial {
+        let uniform = device.create_buffer_init(&wgpu::util::BufferInitDescriptor {
+            label: Some(&format!("{label} uniform")),
+            contents: bytemuck::bytes_of(&MaterialUniform {
+                base_color: material.base_color,
+            }),
+            usage: wgpu::BufferUsages::UNIFORM,
+        });
+        let white = crate::render::head::Texture {
+            width: 1,
+            height: 1,
+            rgba: vec![255; 4],
+        };
+        let image = material
+            .texture
+            .as_ref()
+            .filter(|t| {
+                let max = device.limits().max_texture_dimension_2d;
+                t.width > 0
+                    && t.height > 0
+                    && t.width <= max
+                    && t.height <= max
+                    && t.rgba.len() == 4 * t.width as usize * t.height as usize
+            })
+            .unwrap_or(&white);
+        let texture = device.create_texture_with_data(
+            queue,
+            &wgpu::TextureDescriptor {
+                label: Some(&format!("{label} base colour")),
+                size: wgpu::Extent3d {
+                    width: image.width,
+                    height: image.height,
+                    depth_or_array_layers: 1,
+                },
+                mip_level_count: 1,
+                sample_count: 1,
+                dimension: wgpu::TextureDimension::D2,
+                format: wgpu::TextureFormat::Rgba8UnormSrgb,
+                usage: wgpu::TextureUsages::TEXTURE_BINDING,
+                view_formats: &[],
+            },
+            wgpu::util::TextureDataOrder::LayerMajor,
+            &image.rgba,
+        );
+        let view = texture.create_view(&wgpu::TextureViewDescriptor {
+            label: Some(&format!("{label} base colour view")),
+            ..Default::default()
+        });
+        let bind_group = device.create_bind_group(&wgpu::BindGroupDescriptor {
+            label: Some(&format!("{label} bind group")),
+            layout: &self.material_layout,
+            entries: &[
+                wgpu::BindGroupEntry {
+                    binding: 0,
+                    resource: uniform.as_entire_binding(),
+                },
+                wgpu::BindGroupEntry {
+                    binding: 1,
+                    resource: wgpu::BindingResource::TextureView(&view),
+                },
+                wgpu::BindGroupEntry {
+                    binding: 2,
+                    resource: wgpu::BindingResource::Sampler(&self.sampler),
+                },
+            ],
+        });
+        GpuMaterial {
+            bind_group,
+            pipeline: pipeline_index(material.double_sided, material.texture.is_some()),
+            _uniform: uniform,
+            _texture: Some(texture),
+        }
+    }
+}
