@@ -2,7 +2,7 @@ use std::path::PathBuf;
 use std::process::ExitCode;
 
 use clap::{Parser, Subcommand};
-use lipcall::commands::{self, animate, audio, codec, janus, lipsync, net};
+use lipcall::commands::{self, animate, audio, codec, janus, lipsync, relay};
 
 /// Voice chat with lip-synced 3D heads, driven by the Speex decoder's own LSPs.
 #[derive(Parser)]
@@ -53,7 +53,7 @@ enum Command {
     /// Receive a call: jitter buffer, decode, features; write the audio as played.
     Receive(janus::ReceiveCommand),
     /// Run a relay: forwards each room member's packets to the others, without decoding them.
-    Relay(net::RelayArgs),
+    Relay(relay::RelayArgs),
     /// Train the viseme network on a TIMIT-style corpus through the real Speex codec.
     Train(lipsync::TrainArgs),
     /// Score a model and the jaw baseline on held-out speakers (Eq. 1, accuracy, openness r,
@@ -95,7 +95,7 @@ fn main() -> ExitCode {
         Command::Devices(a) => audio::devices(a.output.as_deref(), a.input.as_deref()),
         Command::Send(a) => janus::send_command(&a),
         Command::Receive(a) => janus::receive_command(&a),
-        Command::Relay(a) => net::relay(&a.listen, a.seconds),
+        Command::Relay(a) => relay::relay(&a.listen, a.seconds),
         Command::Train(a) => lipsync::train(&a),
         Command::Evaluate(a) => lipsync::evaluate(&a),
         Command::Decompose(a) => lipsync::decompose(&a),

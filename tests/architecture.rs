@@ -29,31 +29,6 @@ use std::path::{Path, PathBuf};
 /// Files of data tables, exempt from the size limit.
 const DATA_TABLES: &[&str] = &["codec/silk/tables.rs", "codec/speex/lsp_tables.rs"];
 
-/// TEMPORARY: files over the limit that other branches of issue 29 are splitting right now. The
-/// lead empties this list once those branches are merged; an entry whose file is back under the
-/// limit fails the check so that the list cannot go stale.
-const NOT_YET_SPLIT: &[&str] = &[
-    "commands/net.rs",
-    "lipsync/network.rs",
-    "render/gltf_load.rs",
-    "render/renderer.rs",
-];
-
-/// TEMPORARY: import cycles (the files of each, sorted) found when this check was written,
-/// which other branches of issue 29 are breaking. The lead empties this list once those branches
-/// are merged; an entry that no longer matches a cycle fails the check so that the list cannot go
-/// stale.
-const CYCLES_BEING_BROKEN: &[&[&str]] = &[&[
-    "render/camera.rs",
-    "render/gltf_load.rs",
-    "render/head.rs",
-    "render/mod.rs",
-    "render/offscreen.rs",
-    "render/readback.rs",
-    "render/renderer.rs",
-    "render/target.rs",
-]];
-
 const MAX_MAIN_LINES: usize = 150;
 const MAX_NON_TEST_LINES: usize = 700;
 
@@ -61,27 +36,13 @@ const MAX_NON_TEST_LINES: usize = 700;
 fn no_import_cycles_among_src_files() {
     let krate = Crate::load(&src_dir());
     let graph = krate.import_graph();
-    let mut unexpected = String::new();
-    let mut found = BTreeSet::new();
+    let mut cycles = String::new();
     for component in strongly_connected(&graph) {
-        let members: Vec<String> = component.iter().cloned().collect();
-        let listed = CYCLES_BEING_BROKEN.iter().any(|l| *l == members.as_slice());
-        found.insert(members);
-        if !listed {
-            unexpected += &describe_cycle(&graph, &component);
-        }
+        cycles += &describe_cycle(&graph, &component);
     }
-    let stale: Vec<_> = CYCLES_BEING_BROKEN
-        .iter()
-        .filter(|listed| !found.iter().any(|f| f.as_slice() == **listed))
-        .collect();
     assert!(
-        unexpected.is_empty(),
-        "import cycles among src/ files (each import is `file:line path`):\n{unexpected}"
-    );
-    assert!(
-        stale.is_empty(),
-        "CYCLES_BEING_BROKEN lists cycles that are gone or changed; remove them: {stale:?}"
+        cycles.is_empty(),
+        "import cycles among src/ files (each import is `file:line path`):\n{cycles}"
     );
 }
 
@@ -166,15 +127,11 @@ fn no_file_over_the_size_limit() {
     for file in &all_files {
         let text = std::fs::read_to_string(src.join(file)).expect("read a source file");
         let lines = non_test_lines(&text);
-        let listed = NOT_YET_SPLIT.contains(&file.as_str());
-        if lines > MAX_NON_TEST_LINES && !listed && !DATA_TABLES.contains(&file.as_str()) {
+        if lines > MAX_NON_TEST_LINES && !DATA_TABLES.contains(&file.as_str()) {
             over.push(format!("src/{file}: {lines} lines of non-test code"));
         }
-        if listed && lines <= MAX_NON_TEST_LINES {
-            stale.push(file.clone());
-        }
     }
-    for listed in NOT_YET_SPLIT.iter().chain(DATA_TABLES) {
+    for listed in DATA_TABLES {
         if !krate.files.contains_key(*listed) {
             stale.push(listed.to_string());
         }
@@ -186,8 +143,7 @@ fn no_file_over_the_size_limit() {
     );
     assert!(
         stale.is_empty(),
-        "NOT_YET_SPLIT or DATA_TABLES name files that are gone or under the limit; remove them: \
-         {stale:?}"
+        "DATA_TABLES names files that are gone; remove them: {stale:?}"
     );
 }
 

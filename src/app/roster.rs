@@ -196,7 +196,6 @@ mod tests {
     use super::*;
     use crate::audio::PlaybackConfig;
     use crate::codec::any::Codec;
-    use crate::lipsync::network::silence_features;
     use crate::net::peer::PlayedFrame;
     use crate::vocab::FRAME_SIZE;
     use crate::vocab::FrameFeatures;
@@ -255,7 +254,7 @@ mod tests {
                 features: FrameFeatures {
                     mode: Some(5),
                     energy_db,
-                    ..silence_features()
+                    ..crate::vocab::FrameFeatures::silent()
                 },
                 kind: FrameKind::Decoded,
                 codec: Codec::Speex,

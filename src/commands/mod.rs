@@ -8,6 +8,7 @@ pub mod janus;
 pub mod lipsync;
 pub mod net;
 mod recording;
+pub mod relay;
 
 /// The one line a user sees for an error: its chain joined by ": ", leaving out a cause whose
 /// text is already in the line (library errors name their `io::Error` in their own message and

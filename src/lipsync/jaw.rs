@@ -56,13 +56,12 @@ impl Animator for JawBaseline {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::lipsync::network::silence_features;
 
     #[test]
     fn jaw_opens_with_energy_and_clamps() {
         let mut jaw = JawBaseline::new(-60.0, -20.0);
         let mut w = [0.0; 2];
-        let mut f = silence_features();
+        let mut f = crate::vocab::FrameFeatures::silent();
         for (energy, open) in [(-100.0, 0.0), (-40.0, 0.5), (0.0, 1.0), (f32::NAN, 0.0)] {
             f.energy_db = energy;
             jaw.animate(&f, &mut w);

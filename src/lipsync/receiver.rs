@@ -221,7 +221,7 @@ impl<'m, A: Animator + ?Sized> LipSync<'m, A> {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::lipsync::network::{InputScaling, silence_features};
+    use crate::lipsync::network::InputScaling;
 
     /// Weights of every frame of a stream, in order, as the receiver gives them out (the frames
     /// still waiting at the end are flushed).
@@ -239,7 +239,7 @@ mod tests {
     }
 
     fn loud(value: f32) -> FrameFeatures {
-        let mut f = silence_features();
+        let mut f = crate::vocab::FrameFeatures::silent();
         f.energy_db = -30.0;
         f.lsp[0] = value;
         f
@@ -336,7 +336,10 @@ mod tests {
             let mut lipsync = LipSync::new(&model, &options).unwrap();
             let mut features: Vec<FrameFeatures> =
                 (0..20).map(|i| loud(0.3 + 0.05 * i as f32)).collect();
-            features.extend(std::iter::repeat_n(silence_features(), 30));
+            features.extend(std::iter::repeat_n(
+                crate::vocab::FrameFeatures::silent(),
+                30,
+            ));
             let rows = animate_stream(&mut lipsync, &features);
             let still = &rows[20..];
             assert!(

@@ -2,7 +2,7 @@
 //! loss weights, and the seeded generator behind shuffling, initialisation and augmentation.
 
 use crate::lipsync::mouth::{Articulation, CUE_COUNT, cues};
-use crate::lipsync::network::{Model, silence_features};
+use crate::lipsync::network::Model;
 use crate::lipsync::phones::CueClass;
 use crate::train::corpus::PreparedUtterance;
 use crate::vocab::LSP_COUNT;
@@ -106,7 +106,7 @@ pub(crate) fn build_dataset(
     };
     let closed = model.visemes.position(Viseme::PP);
     let full = VisemeSet::full();
-    let silence = silence_features();
+    let silence = crate::vocab::FrameFeatures::silent();
     let mut state = model.new_state();
     let mut start = 0;
     let mut speaker: Option<&str> = None;

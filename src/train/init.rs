@@ -2,9 +2,7 @@
 //! normalisation prior, seeded initial weights.
 
 use super::dataset::Rng;
-use crate::lipsync::network::{
-    FEATURES_PER_FRAME, InputScaling, Model, SpeakerNorm, silence_features,
-};
+use crate::lipsync::network::{FEATURES_PER_FRAME, InputScaling, Model, SpeakerNorm};
 use crate::train::config::TrainConfig;
 use crate::train::corpus::PreparedUtterance;
 use crate::vocab::LSP_COUNT;
@@ -52,7 +50,7 @@ pub(super) fn mean_speech_lsps(train: &[PreparedUtterance]) -> [f32; LSP_COUNT] 
             count += 1;
         }
     }
-    let mut mean = silence_features().lsp;
+    let mut mean = crate::vocab::FrameFeatures::silent().lsp;
     if count > 0 {
         for (m, s) in mean.iter_mut().zip(&sum) {
             *m = (*s / count as f64) as f32;

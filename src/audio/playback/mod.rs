@@ -25,6 +25,7 @@ use super::error::AudioError;
 use super::mixer::{MAX_PEERS, MixProgress, Mixer, PeerControls, PeerFeed, PeerId};
 use crate::vocab::SAMPLE_RATE;
 use mix_thread::{Command, mixer_thread};
+pub use sink::OutputStatus;
 use sink::{Sink, device_sink, virtual_sink};
 
 #[cfg(test)]
@@ -49,19 +50,6 @@ impl Default for PlaybackConfig {
             peer_queue: Duration::from_secs(1),
         }
     }
-}
-
-/// What the user hears.
-#[derive(Debug, Clone, PartialEq, Eq)]
-pub enum OutputStatus {
-    Playing {
-        device: String,
-        rate: u32,
-        channels: u16,
-    },
-    /// No device: the engine runs on a virtual clock and plays nothing; `reason` is the line
-    /// to show.
-    Silent { reason: String },
 }
 
 /// Counters for a status line or a test.

@@ -10,12 +10,24 @@ use std::time::{Duration, Instant};
 use cpal::traits::{DeviceTrait, StreamTrait};
 use cpal::{FromSample, Sample, SizedSample};
 
-use super::OutputStatus;
 use crate::audio::clock::OutputClock;
 use crate::audio::devices::{self, DeviceChoice, Direction};
 use crate::audio::error::AudioError;
 use crate::audio::mixer::CHUNK;
 use crate::vocab::SAMPLE_RATE;
+
+/// What the user hears.
+#[derive(Debug, Clone, PartialEq, Eq)]
+pub enum OutputStatus {
+    Playing {
+        device: String,
+        rate: u32,
+        channels: u16,
+    },
+    /// No device: the engine runs on a virtual clock and plays nothing; `reason` is the line
+    /// to show.
+    Silent { reason: String },
+}
 
 /// Raised by the device's error callback (atomics only).
 #[derive(Debug, Default)]

@@ -1,8 +1,10 @@
 //! Inference: one frame through both layers, the per-stream input history that carries the
 //! context and look-ahead frames, the output sharpness and the closure snap. Allocates nothing.
 
-use super::normalise::{DELTA_SPAN_DB, scale_relative};
-use super::{FEATURES_PER_FRAME, Model, PEAK_FLOOR_DB, frame_width, silence_features};
+use super::normalise::{
+    DELTA_SPAN_DB, NORM_PRIOR_FRAMES, NORM_SPEECH_BELOW_PEAK_DB, SpeakerNorm, scale_relative,
+};
+use super::{FEATURES_PER_FRAME, Model, PEAK_FLOOR_DB, frame_width};
 use crate::vocab::FeatureFamily;
 use crate::vocab::LSP_COUNT;
 use crate::vocab::{FrameFeatures, SILENCE_DB};
@@ -77,7 +79,7 @@ impl Model {
         if let Some(norm) = &self.speaker_norm {
             state.lsp_mean = norm.prior;
         }
-        let silence = silence_features();
+        let silence = FrameFeatures::silent();
         let mut silent = [0.0; FEATURES_PER_FRAME + 2];
         let width = frame_width(self.dynamics);
         self.scaling
@@ -326,6 +328,36 @@ pub(crate) fn softmax_in_place(values: &mut [f32]) {
     }
 }
 
+impl SpeakerNorm {
+    // Without the hint, the build after the split called it out of line from push_frame.
+    #[inline]
+    pub(super) fn update(
+        &self,
+        state: &mut InferenceState,
+        energy_db: f32,
+        features: &mut FrameFeatures,
+    ) {
+        let speech = energy_db > PEAK_FLOOR_DB
+            && energy_db > state.peak_db - NORM_SPEECH_BELOW_PEAK_DB
+            && features.lsp.iter().all(|l| l.is_finite());
+        if speech {
+            state.speech_frames = state.speech_frames.saturating_add(1);
+            let span = NORM_PRIOR_FRAMES + state.speech_frames.min(self.frames);
+            for (m, x) in state.lsp_mean.iter_mut().zip(&features.lsp) {
+                *m += (x - *m) / span as f32;
+            }
+        }
+        for ((x, m), p) in features
+            .lsp
+            .iter_mut()
+            .zip(&state.lsp_mean)
+            .zip(&self.prior)
+        {
+            *x += p - m;
+        }
+    }
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -440,7 +472,7 @@ mod timing {
             10,
         );
         let mut state = model.new_state();
-        let mut features = silence_features();
+        let mut features = FrameFeatures::silent();
         let mut weights = [0.0; 6];
         let frames = 1_000_000;
         let start = std::time::Instant::now();

@@ -14,145 +14,23 @@
 //! past frames' peak-relative energies follow (older frames, newest first).
 
 mod inference;
+mod model;
 mod model_file;
 mod normalise;
 
 pub use inference::{
     CLOSURE_BIAS_SPAN, InferenceState, MAX_SHARPNESS, MIN_CLOSURE_SNAP, MIN_SHARPNESS, sharpen,
 };
+pub use model::{MAX_LOOKAHEAD, MULTIPLY_ADD_BUDGET, Model, input_count, multiply_adds};
 pub use model_file::ModelError;
 pub use normalise::{
-    Dynamics, InputScaling, PEAK_FLOOR_DB, SpeakerNorm, frame_width, silence_features,
+    Dynamics, FEATURES_PER_FRAME, InputScaling, PEAK_FLOOR_DB, SpeakerNorm, frame_width,
 };
-
-use crate::vocab::{Viseme, VisemeSet};
-
-/// Features per frame: 10 LSPs and the energy.
-pub const FEATURES_PER_FRAME: usize = 11;
-
-/// Multiply-adds per frame the paper budgets for the network (Section III.D).
-pub const MULTIPLY_ADD_BUDGET: usize = 400;
-
-/// Look-ahead frames a model may use: each costs 20 ms that the receiver's buffers must hide.
-pub const MAX_LOOKAHEAD: usize = 2;
-
-/// A one-hidden-layer network from decoder features to convex viseme weights.
-#[derive(Debug, Clone, PartialEq)]
-pub struct Model {
-    pub visemes: VisemeSet,
-    pub scaling: InputScaling,
-    /// Frames fed besides the newest one.
-    pub context: usize,
-    /// How many of the fed frames lie after the frame the output describes: the weights of
-    /// frame n come out when frame n + lookahead is pushed (at most `context`).
-    pub lookahead: usize,
-    /// Causal per-speaker normalisation of the LSPs (version 3).
-    pub speaker_norm: Option<SpeakerNorm>,
-    /// Energy-derived inputs (version 2); `None` for the paper's raw 11 features.
-    pub dynamics: Option<Dynamics>,
-    /// When the closed viseme's weight reaches this, the output snaps to a full closure
-    /// (0 = never). A cheap causal rule: an average of closed and open is never closed.
-    pub closure_snap: f32,
-    /// The closure snap for rows of SILK NLSFs and of LPC analysis, where it differs from
-    /// `closure_snap` (which Speex's bitstream LSPs use): each family leans its own way.
-    pub nlsf_snap: Option<f32>,
-    pub analysis_snap: Option<f32>,
-    /// The logits are multiplied by this before the softmax: above 1 the leading shape takes
-    /// more of the weight (a network trained on blended targets hedges between shapes), 1 is
-    /// the network as trained. Applied before the closure snap.
-    pub sharpness: f32,
-    /// The sharpness leaves the closed shape's weight alone and sharpens the others among
-    /// themselves (`open-shapes` in the file).
-    pub sharpen_open_shapes_only: bool,
-    pub hidden: usize,
-    /// `hidden x inputs`, row-major.
-    pub w1: Vec<f32>,
-    pub b1: Vec<f32>,
-    /// `outputs x hidden`, row-major.
-    pub w2: Vec<f32>,
-    pub b2: Vec<f32>,
-    /// Free text kept as comment lines at the top of the file (provenance of the weights).
-    pub notes: Vec<String>,
-}
-
-impl Model {
-    /// A raw-feature network with all weights zero (uniform output), to be trained.
-    pub fn zeros(visemes: VisemeSet, scaling: InputScaling, context: usize, hidden: usize) -> Self {
-        Self::zeros_with(visemes, scaling, context, None, hidden)
-    }
-
-    /// A network with all weights zero, with or without dynamics.
-    pub fn zeros_with(
-        visemes: VisemeSet,
-        scaling: InputScaling,
-        context: usize,
-        dynamics: Option<Dynamics>,
-        hidden: usize,
-    ) -> Self {
-        let inputs = input_count(context, dynamics);
-        let outputs = visemes.len();
-        Self {
-            visemes,
-            scaling,
-            context,
-            lookahead: 0,
-            speaker_norm: None,
-            dynamics,
-            closure_snap: 0.0,
-            nlsf_snap: None,
-            analysis_snap: None,
-            sharpness: 1.0,
-            sharpen_open_shapes_only: false,
-            hidden,
-            w1: vec![0.0; hidden * inputs],
-            b1: vec![0.0; hidden],
-            w2: vec![0.0; outputs * hidden],
-            b2: vec![0.0; outputs],
-            notes: Vec::new(),
-        }
-    }
-
-    pub fn inputs(&self) -> usize {
-        input_count(self.context, self.dynamics)
-    }
-
-    pub fn outputs(&self) -> usize {
-        self.visemes.len()
-    }
-
-    /// Multiply-adds of one frame through both layers.
-    pub fn multiply_adds(&self) -> usize {
-        self.inputs() * self.hidden + self.hidden * self.outputs()
-    }
-
-    /// The names of the visemes the output weights drive, in output order (a head must have
-    /// a shape for each).
-    pub fn viseme_names(&self) -> Vec<&'static str> {
-        self.visemes.members().iter().map(|v| v.name()).collect()
-    }
-
-    /// Output index of the closed shape (PP, else sil) that `closure_snap` drives.
-    pub fn closed_index(&self) -> Option<usize> {
-        self.visemes
-            .position(Viseme::PP)
-            .or_else(|| self.visemes.position(Viseme::Sil))
-    }
-}
-
-/// Network inputs for this context and dynamics.
-pub fn input_count(context: usize, dynamics: Option<Dynamics>) -> usize {
-    frame_width(dynamics) * (1 + context) + dynamics.map_or(0, |d| d.energy_context)
-}
-
-/// Multiply-adds of one frame for a raw-feature network of this shape.
-pub fn multiply_adds(context: usize, hidden: usize, outputs: usize) -> usize {
-    FEATURES_PER_FRAME * (1 + context) * hidden + hidden * outputs
-}
 
 #[cfg(test)]
 mod fixtures {
     use super::*;
-    use crate::vocab::FrameFeatures;
+    use crate::vocab::{FrameFeatures, VisemeSet};
 
     pub(super) fn sample_model() -> Model {
         let mut model = Model::zeros(
@@ -177,7 +55,7 @@ mod fixtures {
     }
 
     pub(super) fn frame(energy_db: f32) -> FrameFeatures {
-        let mut f = silence_features();
+        let mut f = FrameFeatures::silent();
         f.energy_db = energy_db;
         f.lsp[0] = 0.2;
         f

@@ -554,7 +554,6 @@ fn parse_closure_snaps(line: usize, words: &[&str]) -> Result<[Option<f32>; 3], 
 mod tests {
     use super::*;
     use crate::lipsync::network::fixtures::sample_model;
-    use crate::lipsync::network::silence_features;
     use crate::vocab::FeatureFamily;
 
     #[test]
@@ -600,7 +599,7 @@ mod tests {
         ahead.lookahead = 1;
         ahead.speaker_norm = Some(SpeakerNorm {
             frames: 150,
-            prior: silence_features().lsp,
+            prior: crate::vocab::FrameFeatures::silent().lsp,
         });
         assert_eq!(Model::from_text(&ahead.to_text()).unwrap(), ahead);
         let mut families = model.clone();

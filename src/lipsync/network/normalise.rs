@@ -1,9 +1,11 @@
 //! The input normalisation: each feature scaled onto [-1, 1] ([`InputScaling`]), the causal
 //! per-speaker LSP normalisation ([`SpeakerNorm`]) and the energy-derived inputs ([`Dynamics`]).
 
-use super::{FEATURES_PER_FRAME, InferenceState};
 use crate::vocab::FrameFeatures;
 use crate::vocab::LSP_COUNT;
+
+/// Features per frame: 10 LSPs and the energy.
+pub const FEATURES_PER_FRAME: usize = LSP_COUNT + 1;
 
 /// Per input: `scaled = clamp((x - offset) * scale, -1, 1)`.
 #[derive(Debug, Clone, PartialEq)]
@@ -46,20 +48,6 @@ impl InputScaling {
     }
 }
 
-/// What a silent stream looks like before its first frame: evenly spread LSPs, no energy.
-pub fn silence_features() -> FrameFeatures {
-    let mut lsp = [0.0; 10];
-    for (i, l) in lsp.iter_mut().enumerate() {
-        *l = std::f32::consts::PI * (i + 1) as f32 / 11.0;
-    }
-    FrameFeatures {
-        mode: None,
-        lsp,
-        energy_db: -100.0,
-        family: crate::vocab::FeatureFamily::Bitstream,
-    }
-}
-
 /// Stateful, causal inputs derived from the energy (model file version 2). A running peak
 /// follows the loudest recent frame and falls by `peak_decay_db` per frame, so the energy
 /// relative to it is independent of the talker's level and the codec's gain; the dip of a stop
@@ -97,40 +85,10 @@ pub struct SpeakerNorm {
 }
 
 /// The prior counts as this many speech frames of the speaker's own.
-const NORM_PRIOR_FRAMES: u32 = 25;
+pub(super) const NORM_PRIOR_FRAMES: u32 = 25;
 /// Frames this far below the running peak (or below the floor) are not speech.
-const NORM_SPEECH_BELOW_PEAK_DB: f32 = 25.0;
+pub(super) const NORM_SPEECH_BELOW_PEAK_DB: f32 = 25.0;
 pub(super) const MAX_NORM_FRAMES: u32 = 100_000;
-
-impl SpeakerNorm {
-    // Without the hint, the build after the split called it out of line from push_frame.
-    #[inline]
-    pub(super) fn update(
-        &self,
-        state: &mut InferenceState,
-        energy_db: f32,
-        features: &mut FrameFeatures,
-    ) {
-        let speech = energy_db > PEAK_FLOOR_DB
-            && energy_db > state.peak_db - NORM_SPEECH_BELOW_PEAK_DB
-            && features.lsp.iter().all(|l| l.is_finite());
-        if speech {
-            state.speech_frames = state.speech_frames.saturating_add(1);
-            let span = NORM_PRIOR_FRAMES + state.speech_frames.min(self.frames);
-            for (m, x) in state.lsp_mean.iter_mut().zip(&features.lsp) {
-                *m += (x - *m) / span as f32;
-            }
-        }
-        for ((x, m), p) in features
-            .lsp
-            .iter_mut()
-            .zip(&state.lsp_mean)
-            .zip(&self.prior)
-        {
-            *x += p - m;
-        }
-    }
-}
 
 pub(super) fn scale_relative(relative_db: f32) -> f32 {
     ((relative_db + RELATIVE_SPAN_DB) / RELATIVE_SPAN_DB).clamp(-1.0, 1.0)
@@ -192,10 +150,10 @@ mod tests {
             dynamics,
             2,
         );
-        let prior = silence_features().lsp;
+        let prior = FrameFeatures::silent().lsp;
         model.speaker_norm = Some(SpeakerNorm { frames: 150, prior });
         let voice = |shift: f32, n: usize| {
-            let mut f = silence_features();
+            let mut f = FrameFeatures::silent();
             f.energy_db = -25.0;
             for (i, l) in f.lsp.iter_mut().enumerate() {
                 *l += shift + 0.05 * ((n + i) % 3) as f32;

@@ -18,6 +18,7 @@
 mod buffers;
 mod materials;
 mod primitive;
+mod target_names;
 mod targets;
 mod validate;
 
@@ -152,4 +153,20 @@ fn load_head_from_slice_in(bytes: &[u8], base: Option<&Path>) -> Result<HeadMode
     all_target_names.sort();
     all_target_names.dedup();
     build_model(raws, materials, all_target_names)
+}
+
+/// Path of the bundled default head, relative to the repository root.
+pub const DEFAULT_HEAD_PATH: &str = "assets/heads/default.glb";
+
+/// The bundled default head (built from the MakeHuman base mesh by `tools/build_head.py`).
+pub fn default_head() -> Result<HeadModel, RenderError> {
+    load_head_from_slice(include_bytes!("../../../assets/heads/default.glb"))
+}
+
+/// Loads `--head FILE.glb` if given, else the bundled default head.
+pub fn load_head_or_default(path: Option<&std::path::Path>) -> Result<HeadModel, RenderError> {
+    match path {
+        Some(p) => load_head(p),
+        None => default_head(),
+    }
 }

@@ -4,7 +4,7 @@
 use glam::{Mat3, Mat4, Vec3};
 use gltf::accessor::{DataType, Dimensions};
 
-use super::targets::{TargetKind, classify};
+use super::target_names::{TargetKind, classify};
 use super::validate::{MAX_COORDINATE, check_accessor, coordinate_ok};
 use crate::render::RenderError;
 use crate::render::head::{MorphDelta, Vertex, smooth_normals};

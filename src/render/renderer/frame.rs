@@ -6,7 +6,8 @@ use std::sync::Arc;
 use bytemuck::{Pod, Zeroable};
 use glam::{Mat4, Vec3};
 
-use super::{GpuHead, HeadRenderer};
+use super::GpuHead;
+use super::pipelines::HeadRenderer;
 use crate::render::camera::Camera;
 use crate::render::head::{TARGET_COUNT, slot_weights};
 use crate::vocab::{FacePose, VisemeWeights};

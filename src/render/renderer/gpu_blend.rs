@@ -1,8 +1,8 @@
 //! The vertex shader's blend run in a compute pass and read back, so tests can compare the
 //! GPU's blend with the CPU reference.
 
-use super::HeadRenderer;
 use super::frame::HeadInstance;
+use super::pipelines::HeadRenderer;
 use crate::render::RenderError;
 use crate::render::head::MorphDelta;
 

@@ -6,7 +6,7 @@ use std::sync::Arc;
 use bytemuck::{Pod, Zeroable};
 use wgpu::util::DeviceExt;
 
-use super::{HeadRenderer, pipeline_index};
+use super::pipelines::{HeadRenderer, pipeline_index};
 use crate::render::RenderError;
 use crate::render::head::{FaceFrame, HeadModel, MorphDelta, TARGET_COUNT, Vertex};
 
