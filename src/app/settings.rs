@@ -21,6 +21,7 @@ pub struct PeerPrefs {
     pub animate: bool,
     pub muted: bool,
     /// Linear gain, 0..=2.
+    #[serde(deserialize_with = "number_or_nan")]
     pub volume: f32,
     /// The large close-up of the mouth.
     pub lipreading: bool,
@@ -31,6 +32,7 @@ pub struct PeerPrefs {
     pub jaw: bool,
     /// Lip closures: -1 fewer (only the surest) .. 0 the model's balance .. 1 more (nearly
     /// every /p b m/, and more often where there is none); for lipreading.
+    #[serde(deserialize_with = "number_or_nan")]
     pub closures: f32,
     /// The living face: blinks, glances and head motion with the voice (off: eyes and head
     /// still; the mouth keeps moving).
@@ -50,6 +52,33 @@ impl Default for PeerPrefs {
             life: true,
         }
     }
+}
+
+impl PeerPrefs {
+    /// Every value in its range: a volume out of 0..=2 or a closure bias out of -1..=1 is
+    /// clamped, one that is no number at all (NaN, infinity, `null`) is the default.
+    fn sanitized(self) -> Self {
+        let default = Self::default();
+        let within = |v: f32, lo: f32, hi: f32, fallback: f32| {
+            if v.is_finite() {
+                v.clamp(lo, hi)
+            } else {
+                fallback
+            }
+        };
+        Self {
+            volume: within(self.volume, 0.0, 2.0, default.volume),
+            closures: within(self.closures, -1.0, 1.0, default.closures),
+            ..self
+        }
+    }
+}
+
+/// A number as f32 (NaN for `null`; beyond f32's range, its largest value), so that one odd
+/// value costs that value and not the whole file; [`PeerPrefs::sanitized`] then puts it in range.
+fn number_or_nan<'de, D: serde::Deserializer<'de>>(d: D) -> Result<f32, D::Error> {
+    let wide = f64::from(f32::MAX);
+    Ok(Option::<f64>::deserialize(d)?.map_or(f32::NAN, |v| v.clamp(-wide, wide) as f32))
 }
 
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
@@ -93,26 +122,47 @@ pub fn default_path() -> Option<PathBuf> {
 }
 
 impl Settings {
-    /// Loads the settings; a missing or unreadable file gives the defaults (and says why).
+    /// Loads the settings; a missing or unusable file gives the defaults (and says why). A
+    /// regular file that cannot be used (not JSON, over 1 MiB) is moved aside to
+    /// `settings.json.bad` first, so the next save does not put defaults over what the user had.
     pub fn load(path: &Path) -> (Self, Option<String>) {
         use crate::input::InputError;
         // Settings are a few hundred bytes; a device or a huge file there is not read.
-        match crate::input::read_to_string(path, 1 << 20) {
-            Ok(text) => match serde_json::from_str(&text) {
-                Ok(s) => (s, None),
-                Err(e) => (
-                    Self::default(),
-                    Some(format!("{}: ignored ({e})", path.display())),
-                ),
+        let why = match crate::input::read_to_string(path, 1 << 20) {
+            Ok(text) => match serde_json::from_str::<Self>(&text) {
+                Ok(s) => return (s.sanitized(), None),
+                Err(e) => format!("{}: ignored ({e})", path.display()),
             },
             Err(InputError::Io { source, .. }) if source.kind() == std::io::ErrorKind::NotFound => {
-                (Self::default(), None)
+                return (Self::default(), None);
             }
-            Err(e) => (Self::default(), Some(format!("settings ignored: {e}"))),
-        }
+            Err(e @ InputError::NotRegular { .. }) => {
+                return (Self::default(), Some(format!("settings ignored: {e}")));
+            }
+            Err(e) => format!("settings ignored: {e}"),
+        };
+        let aside = bad_copy_path(path);
+        let note = match std::fs::rename(path, &aside) {
+            Ok(()) => format!("{why}; the file is kept as {}", aside.display()),
+            Err(e) => format!("{why}; cannot move it aside to {}: {e}", aside.display()),
+        };
+        (Self::default(), Some(note))
     }
 
+    fn sanitized(mut self) -> Self {
+        self.peers = std::mem::take(&mut self.peers)
+            .into_iter()
+            .map(|(name, prefs)| (name, prefs.sanitized()))
+            .collect();
+        self
+    }
+
+    /// Writes the settings (atomically: a new file renamed over the old). Only a regular file
+    /// is replaced: a device or folder at the path is left alone, with an error.
     pub fn save(&self, path: &Path) -> std::io::Result<()> {
+        if std::fs::metadata(path).is_ok_and(|m| !m.is_file()) {
+            return Err(std::io::Error::other("not a regular file; left as it is"));
+        }
         if let Some(dir) = path.parent() {
             std::fs::create_dir_all(dir)?;
         }
@@ -121,6 +171,13 @@ impl Settings {
         std::fs::write(&tmp, text)?;
         std::fs::rename(&tmp, path)
     }
+}
+
+/// Where an unusable settings file is kept: `settings.json.bad` beside it.
+fn bad_copy_path(path: &Path) -> PathBuf {
+    let mut name = path.file_name().unwrap_or_default().to_os_string();
+    name.push(".bad");
+    path.with_file_name(name)
 }
 
 #[cfg(test)]
@@ -165,10 +222,59 @@ mod tests {
     }
 
     #[test]
-    fn a_device_as_the_settings_file_is_not_read() {
+    fn an_unusable_file_is_kept_aside_not_saved_over() {
+        let dir = tempfile::tempdir().unwrap();
+        let path = dir.path().join("settings.json");
+        let aside = dir.path().join("settings.json.bad");
+        for content in [
+            "{\"name\": \"Ada\", oops".to_string(),
+            " ".repeat((1 << 20) + 1),
+        ] {
+            std::fs::write(&path, &content).unwrap();
+            let (loaded, why) = Settings::load(&path);
+            let why = why.unwrap();
+            assert!(why.contains("settings.json.bad"), "{why}");
+            // What the app does on exit.
+            loaded.save(&path).unwrap();
+            assert_eq!(std::fs::read_to_string(&aside).unwrap(), content);
+            assert_eq!(Settings::load(&path), (Settings::default(), None));
+        }
+    }
+
+    #[test]
+    fn an_odd_number_costs_that_number_not_every_setting() {
+        let dir = tempfile::tempdir().unwrap();
+        let path = dir.path().join("settings.json");
+        std::fs::write(
+            &path,
+            r#"{"name": "Ada", "peers": {"Bob": {"volume": 1e39, "closures": -7, "muted": true},
+                "Cy": {"volume": null, "closures": 0.5}, "Di": {"volume": -3}}}"#,
+        )
+        .unwrap();
+        let (s, why) = Settings::load(&path);
+        assert!(why.is_none(), "{why:?}");
+        assert_eq!(s.name, "Ada");
+        let bob = &s.peers["Bob"];
+        assert!(
+            bob.muted && bob.volume == 2.0 && bob.closures == -1.0,
+            "{bob:?}"
+        );
+        assert_eq!((s.peers["Cy"].volume, s.peers["Cy"].closures), (1.0, 0.5));
+        assert_eq!(s.peers["Di"].volume, 0.0);
+        // Saved and loaded again: the same, every other setting kept.
+        s.save(&path).unwrap();
+        assert!(!std::fs::read_to_string(&path).unwrap().contains("null"));
+        assert_eq!(Settings::load(&path), (s, None));
+    }
+
+    #[test]
+    fn a_device_as_the_settings_file_is_not_read_nor_replaced() {
         let (s, why) = Settings::load(Path::new("/dev/zero"));
         assert_eq!(s, Settings::default());
         let why = why.unwrap();
         assert!(why.contains("not a regular file"), "{why}");
+        let dir = tempfile::tempdir().unwrap();
+        assert!(s.save(dir.path()).is_err());
+        assert!(dir.path().is_dir());
     }
 }
