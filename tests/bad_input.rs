@@ -202,6 +202,20 @@ fn bad_usage_exits_2() {
 }
 
 #[test]
+fn a_peer_timeout_too_short_to_hear_anyone_is_refused() {
+    for timeout in ["1e-300", "0.001"] {
+        let out = lipcall()
+            .args(["receive", "--listen", "127.0.0.1:0", "--seconds", "1"])
+            .args(["--peer-timeout", timeout])
+            .output()
+            .unwrap();
+        let stderr = String::from_utf8_lossy(&out.stderr);
+        assert_eq!(out.status.code(), Some(2), "{timeout}: {stderr}");
+        assert!(stderr.contains("--peer-timeout"), "{stderr}");
+    }
+}
+
+#[test]
 fn a_48k_stereo_wav_is_resampled_not_refused() {
     let dir = tempfile::tempdir().unwrap();
     let d = dir.path();

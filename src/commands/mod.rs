@@ -43,6 +43,20 @@ pub fn parse_seconds(arg: &str) -> Result<f64, String> {
     }
 }
 
+/// `--peer-timeout` (clap value parser): [`parse_seconds`], and at least a second. A peer is
+/// not gone between two packets: with Opus DTX a quiet one sends one every 400 ms, and a timeout
+/// of a few microseconds would drop every caller at once.
+pub fn parse_peer_timeout(arg: &str) -> Result<f64, String> {
+    const MIN: f64 = 1.0;
+    match parse_seconds(arg) {
+        Ok(s) if s >= MIN => Ok(s),
+        _ => Err(format!(
+            "must be a number of seconds from {MIN} to {MAX_SECONDS:e} (how long a peer may \
+             send nothing before it counts as gone)"
+        )),
+    }
+}
+
 /// A room passphrase (clap value parser): an empty one keys nothing a listener could not
 /// guess, and a call keyed by it must not be called encrypted.
 pub fn parse_passphrase(arg: &str) -> Result<String, String> {
@@ -93,6 +107,12 @@ mod tests {
             "NaN", "nan", "inf", "-inf", "-1", "0", "-0", "1e300", "", "ten",
         ] {
             assert!(parse_seconds(bad).is_err(), "{bad}");
+        }
+        assert_eq!(parse_peer_timeout("1"), Ok(1.0));
+        assert_eq!(parse_peer_timeout("30"), Ok(30.0));
+        for bad in ["1e-300", "0.5", "0", "nan", "1e300"] {
+            let why = parse_peer_timeout(bad).unwrap_err();
+            assert!(why.contains("from 1 to"), "{bad}: {why}");
         }
     }
 

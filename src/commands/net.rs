@@ -317,7 +317,7 @@ pub struct ReceiveArgs {
     pub seconds: Option<f64>,
     /// A peer that sent nothing (no RTP, no RTCP) for this many seconds has left (in a
     /// Janus room, Janus says when a publisher leaves).
-    #[arg(long, value_name = "SECONDS", default_value = "30", value_parser = super::parse_seconds)]
+    #[arg(long, value_name = "SECONDS", default_value = "30", value_parser = super::parse_peer_timeout)]
     pub peer_timeout: Option<f64>,
     /// With --key: how far (either way) a caller's clock may be from ours. A new encrypted
     /// stream stamped further off is refused as a replay of an earlier call (counted as
