@@ -202,6 +202,22 @@ fn bad_usage_exits_2() {
 }
 
 #[test]
+fn a_payload_type_taken_from_a_codec_is_said_on_receive() {
+    let out = lipcall()
+        .args(["receive", "--listen", "127.0.0.1:0", "--seconds", "0.5"])
+        .args(["--pt", "opus=110", "--pt", "speex=110"])
+        .output()
+        .unwrap();
+    let stderr = String::from_utf8_lossy(&out.stderr);
+    assert!(out.status.success(), "{stderr}");
+    assert!(
+        stderr.contains("warning: --pt leaves opus without a payload type"),
+        "{stderr}"
+    );
+    assert!(!stderr.contains("leaves speex"), "{stderr}");
+}
+
+#[test]
 fn a_peer_timeout_too_short_to_hear_anyone_is_refused() {
     for timeout in ["1e-300", "0.001"] {
         let out = lipcall()

@@ -114,6 +114,20 @@ fn payload_map(assignments: &[String]) -> Result<PayloadMap> {
         .context("--pt")
 }
 
+/// Says which codec an assignment took its type from and gave none back (`--pt speex=96` moves
+/// Speex onto Opus's type: Opus is then not received). `send` refuses its own codec unmapped.
+fn warn_unmapped(map: &PayloadMap) {
+    for codec in Codec::ALL {
+        if map.payload_type(codec).is_none() {
+            eprintln!(
+                "lipcall: warning: --pt leaves {codec} without a payload type: its packets are \
+                 counted as unknown and dropped (map it with --pt {}=PT)",
+                codec.name()
+            );
+        }
+    }
+}
+
 /// `lipcall send` to a receiver or relay (`--janus`, in `commands::janus::SendCommand`, sends
 /// into a Janus room instead). `to` is empty only with `--janus`.
 #[derive(Debug, Clone, clap::Args)]
@@ -443,6 +457,7 @@ pub fn receive_with(
     config.key = key;
     config.name = args.name.clone();
     config.payloads = payload_map(&args.payload_types)?;
+    warn_unmapped(&config.payloads);
     if let Some(timeout) = args.peer_timeout {
         config.peer_timeout = Duration::from_secs_f64(timeout);
     }
