@@ -165,6 +165,12 @@ fn broken_opus_files_give_one_line_errors() {
     let mid = flipped.len() / 2;
     flipped[mid] ^= 0x55;
     case("crc.opus", &flipped, "damaged");
+    // Every packet invalid (code 3 with a frame count of 0): no audio, not a second of silence.
+    case(
+        "allbad.opus",
+        &ogg_opus(&head, &tags, &vec![vec![0xFF, 0x00]; 50]),
+        "none of its 50 audio packets is valid Opus",
+    );
     // A Speex file named .opus is named for what it is.
     let spx = d.join("demo.spx");
     run(lipcall().arg("encode").arg(&wav).arg(&spx));

@@ -28,6 +28,8 @@ pub enum StreamError {
     MultiStream(u8),
     #[error("the stream lasts longer than {} hours", MAX_DURATION_S / 3600)]
     TooLong,
+    #[error("none of its {0} audio packets is valid Opus: there is no audio to decode")]
+    AllCorrupt(usize),
 }
 
 /// Encodes mono PCM at `config.input_rate` (8 kHz by default) into an Ogg Opus file that
@@ -184,6 +186,9 @@ pub fn decode_file(file: OpusFile, rate: u32) -> Result<Decoded, StreamError> {
         if page.end_of_stream {
             end_granule = Some(granule);
         }
+    }
+    if corrupt_packets > 0 && corrupt_packets == packets.len() {
+        return Err(StreamError::AllCorrupt(corrupt_packets));
     }
     let pre_skip = to_rate(u64::from(head.pre_skip)) as usize;
     let end = match (start_granule, end_granule) {
