@@ -5,7 +5,7 @@
 
 use std::io::{self, Write};
 
-use crate::vocab::{FrameFeatures, LSP_COUNT};
+use crate::vocab::{FRAME_SIZE, FrameFeatures, LSP_COUNT};
 
 /// FEATURES.csv's header line.
 pub fn features_header(out: &mut impl Write) -> io::Result<()> {
@@ -47,6 +47,34 @@ pub fn weights_row(
         write!(out, ",{w:.4}")?;
     }
     writeln!(out)
+}
+
+/// A whole FEATURES.csv of a stream at `rate`: the header, then one row per 20 ms frame.
+pub fn write_features(out: &mut impl Write, rate: u32, rows: &[FrameFeatures]) -> io::Result<()> {
+    features_header(out)?;
+    for (n, row) in rows.iter().enumerate() {
+        features_row(out, n, frame_start(n, rate), row)?;
+    }
+    Ok(())
+}
+
+/// A whole WEIGHTS.csv of a stream at `rate`: the header, then one row per 20 ms frame.
+pub fn write_weights<S: AsRef<str>>(
+    out: &mut impl Write,
+    names: &[S],
+    rate: u32,
+    rows: &[Vec<f32>],
+) -> io::Result<()> {
+    weights_header(out, names)?;
+    for (n, row) in rows.iter().enumerate() {
+        weights_row(out, n, frame_start(n, rate), row)?;
+    }
+    Ok(())
+}
+
+/// Where frame `n` of a stream at `rate` starts, in seconds.
+fn frame_start(n: usize, rate: u32) -> f64 {
+    (n * FRAME_SIZE) as f64 / f64::from(rate)
 }
 
 #[cfg(test)]

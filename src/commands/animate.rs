@@ -214,11 +214,7 @@ pub fn write_weights_csv(path: &Path, track: &Animation) -> Result<()> {
         std::fs::File::create(path).with_context(|| format!("cannot write {}", path.display()))?;
     let mut out = std::io::BufWriter::new(file);
     let names: Vec<&str> = track.visemes.members().iter().map(|v| v.name()).collect();
-    csv::weights_header(&mut out, &names)?;
-    for (n, row) in track.rows.iter().enumerate() {
-        let time = (n * FRAME_SIZE) as f64 / f64::from(track.rate);
-        csv::weights_row(&mut out, n, time, row)?;
-    }
+    csv::write_weights(&mut out, &names, track.rate, &track.rows)?;
     out.flush()
         .with_context(|| format!("cannot write {}", path.display()))
 }

@@ -12,7 +12,7 @@ use crate::codec::opus;
 use crate::codec::speex::codec::EncoderConfig;
 use crate::codec::speex::stream;
 use crate::vocab::FrameFeatures;
-use crate::vocab::{FRAME_SIZE, SAMPLE_RATE};
+use crate::vocab::SAMPLE_RATE;
 
 /// The codecs lipcall writes files in.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, clap::ValueEnum)]
@@ -192,11 +192,7 @@ pub fn write_features_csv(path: &Path, rate: u32, rows: &[FrameFeatures]) -> Res
     let file =
         std::fs::File::create(path).with_context(|| format!("cannot write {}", path.display()))?;
     let mut out = std::io::BufWriter::new(file);
-    csv::features_header(&mut out)?;
-    for (n, row) in rows.iter().enumerate() {
-        let time = (n * FRAME_SIZE) as f64 / f64::from(rate);
-        csv::features_row(&mut out, n, time, row)?;
-    }
+    csv::write_features(&mut out, rate, rows)?;
     out.flush()
         .with_context(|| format!("cannot write {}", path.display()))
 }
