@@ -82,11 +82,24 @@ pub fn free_tcp_port() -> u16 {
 
 /// Starts Janus with a copy of assets/janus in `dir` and waits until its HTTP API listens.
 pub fn start_janus(dir: &Path) -> Janus {
+    start_janus_with(dir, &[])
+}
+
+/// Debian's own VideoRoom configuration, as every stock deployment has it: rooms numbered
+/// (`string_ids` unset), a demo room 1234.
+pub const STOCK_VIDEOROOM: &str = "/etc/janus/janus.plugin.videoroom.jcfg";
+
+/// Starts Janus with assets/janus, each of `replaced` (a config file elsewhere, such as
+/// [`STOCK_VIDEOROOM`]) taking the place of the repository's file of the same name.
+pub fn start_janus_with(dir: &Path, replaced: &[&Path]) -> Janus {
     let config = dir.join("janus-config");
     std::fs::create_dir_all(&config).unwrap();
     let port = free_tcp_port();
     for entry in std::fs::read_dir(repo_file("assets/janus")).unwrap() {
-        let path = entry.unwrap().path();
+        let mut path = entry.unwrap().path();
+        if let Some(other) = replaced.iter().find(|r| r.file_name() == path.file_name()) {
+            path = other.to_path_buf();
+        }
         let text = std::fs::read_to_string(&path).unwrap();
         // The one change to the repository's config: the port.
         let text = text.replace("port = 8088", &format!("port = {port}"));

@@ -1,8 +1,9 @@
 //! Janus API and VideoRoom messages as JSON values, and what lipcall reads out of Janus's
 //! answers and events. No I/O: [`super::http`] carries them.
 //!
-//! Rooms are named by strings (the repository's Janus config sets the VideoRoom's
-//! `string_ids`), so room, publisher and feed ids are all strings here.
+//! A VideoRoom names rooms and publishers by positive integers (Janus's default) or, with its
+//! `string_ids`, by strings (the repository's config). lipcall holds every id as a string and
+//! sends it as the server's [`IdKind`] wants it.
 
 use serde_json::{Value, json};
 
@@ -13,6 +14,9 @@ pub const VIDEOROOM: &str = "janus.plugin.videoroom";
 /// VideoRoom error codes lipcall reacts to (janus_videoroom.c).
 pub const NO_SUCH_ROOM: i64 = 426;
 pub const ROOM_EXISTS: i64 = 427;
+/// A field of the wrong JSON type: a room id as a string where Janus wants a number, or the
+/// other way round.
+pub const INVALID_ELEMENT: i64 = 430;
 /// Janus core: the session is gone (expired, or Janus restarted).
 pub const NO_SUCH_SESSION: i64 = 458;
 
@@ -50,8 +54,38 @@ pub fn trickle_completed(transaction: &str) -> Value {
     json!({ "janus": "trickle", "transaction": transaction, "candidate": { "completed": true } })
 }
 
+/// How a VideoRoom spells its room, publisher and feed ids.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum IdKind {
+    /// Positive integers: Janus's default (`string_ids = false`).
+    Numbers,
+    /// Strings (`string_ids = true`).
+    Strings,
+}
+
+impl IdKind {
+    /// What to try first for a room given as `room`: a number where it is one.
+    pub fn guess(room: &str) -> Self {
+        match room.trim().parse::<u64>() {
+            Ok(n) if n > 0 => Self::Numbers,
+            _ => Self::Strings,
+        }
+    }
+
+    /// `id` as this server wants it; `None` where a numbering server cannot name it.
+    pub fn id(self, id: &str) -> Option<Value> {
+        match self {
+            Self::Strings => Some(Value::String(id.to_string())),
+            Self::Numbers => match id.trim().parse::<u64>() {
+                Ok(n) if n > 0 => Some(Value::from(n)),
+                _ => None,
+            },
+        }
+    }
+}
+
 /// A room for voices: Opus only, no video, many publishers.
-pub fn create_room(room: &str, pin: Option<&str>) -> Value {
+pub fn create_room(room: &Value, pin: Option<&str>) -> Value {
     let mut body = json!({
         "request": "create",
         "room": room,
@@ -67,7 +101,7 @@ pub fn create_room(room: &str, pin: Option<&str>) -> Value {
     body
 }
 
-pub fn join_publisher(room: &str, display: &str, pin: Option<&str>) -> Value {
+pub fn join_publisher(room: &Value, display: &str, pin: Option<&str>) -> Value {
     let mut body = json!({
         "request": "join", "ptype": "publisher", "room": room, "display": display,
     });
@@ -82,8 +116,8 @@ pub fn publish(display: &str) -> Value {
 }
 
 pub fn join_subscriber(
-    room: &str,
-    feed: &str,
+    room: &Value,
+    feed: &Value,
     private_id: Option<&Value>,
     pin: Option<&str>,
 ) -> Value {
@@ -104,13 +138,35 @@ pub fn start() -> Value {
     json!({ "request": "start" })
 }
 
-/// An id that may be a number or (with `string_ids`) a string, as a string.
+/// The longest publisher id or display name lipcall takes (as RTCP caps a name).
+pub const MAX_NAME_BYTES: usize = 64;
+
+/// An id that may be a number or (with `string_ids`) a string, as a string; `None` for one no
+/// summary line could print (control characters, longer than [`MAX_NAME_BYTES`]).
 pub fn id_string(v: &Value) -> Option<String> {
     match v {
-        Value::String(s) => Some(s.clone()),
+        Value::String(s)
+            if !s.is_empty() && s.len() <= MAX_NAME_BYTES && !s.chars().any(char::is_control) =>
+        {
+            Some(s.clone())
+        }
         Value::Number(n) => Some(n.to_string()),
         _ => None,
     }
+}
+
+/// A display name as lipcall shows it: control characters replaced, at most
+/// [`MAX_NAME_BYTES`] bytes (cut at a character boundary).
+pub fn display_name(name: &str) -> String {
+    let mut shown = String::new();
+    for c in name.chars() {
+        let c = if c.is_control() { '\u{fffd}' } else { c };
+        if shown.len() + c.len_utf8() > MAX_NAME_BYTES {
+            break;
+        }
+        shown.push(c);
+    }
+    shown
 }
 
 /// Janus's own error (`"janus": "error"`) as an error, other answers unchanged.
@@ -200,7 +256,7 @@ pub fn room_news(data: &Value) -> RoomNews {
             if has_audio {
                 news.publishers.push(Publisher {
                     id,
-                    display: p["display"].as_str().unwrap_or("").to_string(),
+                    display: display_name(p["display"].as_str().unwrap_or("")),
                 });
             }
         }
@@ -276,14 +332,50 @@ mod tests {
 
     #[test]
     fn messages_have_their_fields() {
-        let m = message("t1", join_publisher("room", "Ann", Some("pw")), None);
+        let m = message(
+            "t1",
+            join_publisher(&json!("room"), "Ann", Some("pw")),
+            None,
+        );
         assert_eq!(m["body"]["pin"], "pw");
         assert_eq!(m["body"]["display"], "Ann");
         assert!(m.get("jsep").is_none());
         let m = message("t2", publish("Ann"), Some(("offer", "v=0")));
         assert_eq!(m["jsep"]["type"], "offer");
-        let s = join_subscriber("room", "b", Some(&json!(123)), None);
+        let s = join_subscriber(&json!("room"), &json!("b"), Some(&json!(123)), None);
         assert_eq!(s["streams"][0]["feed"], "b");
         assert_eq!(s["private_id"], 123);
+    }
+
+    #[test]
+    fn ids_are_sent_as_the_server_numbers_them() {
+        assert_eq!(IdKind::guess("1234"), IdKind::Numbers);
+        assert_eq!(IdKind::guess("lipcall-test"), IdKind::Strings);
+        assert_eq!(IdKind::guess("0"), IdKind::Strings);
+        assert_eq!(IdKind::Numbers.id("1234"), Some(json!(1234)));
+        assert_eq!(IdKind::Numbers.id("room"), None);
+        assert_eq!(IdKind::Strings.id("1234"), Some(json!("1234")));
+        let m = join_publisher(&IdKind::Numbers.id("1234").unwrap(), "Ann", None);
+        assert!(m["room"].is_u64(), "{m}");
+    }
+
+    #[test]
+    fn hostile_ids_and_names_are_refused_or_cut() {
+        let news = room_news(&json!({"publishers": [
+            {"id": "a\r\nlipcall: fake line", "display": "X", "audio_codec": "opus"},
+            {"id": "x".repeat(100), "display": "Y", "audio_codec": "opus"},
+            {"id": "b", "display": format!("Bea\n{}", "z".repeat(100_000)), "audio_codec": "opus"},
+            {"id": "c", "display": "Zoë".repeat(30), "audio_codec": "opus"},
+        ]}));
+        let ids: Vec<&str> = news.publishers.iter().map(|p| p.id.as_str()).collect();
+        assert_eq!(ids, ["b", "c"]);
+        let bea = &news.publishers[0].display;
+        assert!(
+            bea.starts_with("Bea\u{fffd}zz") && bea.len() <= MAX_NAME_BYTES,
+            "{bea}"
+        );
+        let zoe = &news.publishers[1].display;
+        assert!(zoe.len() <= MAX_NAME_BYTES && zoe.ends_with('ë'), "{zoe}");
+        assert!(room_news(&json!({"leaving": "q\u{0}"})).gone.is_empty());
     }
 }

@@ -23,6 +23,11 @@ pub enum JanusError {
     Janus { code: i64, reason: String },
     #[error("Janus VideoRoom error {code}: {reason}")]
     Plugin { code: i64, reason: String },
+    #[error(
+        "this Janus numbers its rooms (its VideoRoom has string_ids = false), so the room \
+         {room:?} cannot be named: give a positive number, e.g. --room 1234 (Janus said: {reason})"
+    )]
+    RoomIds { room: String, reason: String },
     #[error("unexpected answer from Janus: {0}")]
     Protocol(String),
     #[error("{0}")]

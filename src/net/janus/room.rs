@@ -12,7 +12,7 @@ use serde_json::Value;
 use super::JanusError;
 use super::http::Client;
 use super::media::{FeedInfo, Media, MediaStats, host_ips};
-use super::messages::{self, NO_SUCH_ROOM, ROOM_EXISTS, VIDEOROOM};
+use super::messages::{self, INVALID_ELEMENT, IdKind, NO_SUCH_ROOM, ROOM_EXISTS, VIDEOROOM};
 use crate::net::jitter::JitterConfig;
 use crate::net::session::PeerFrame;
 
@@ -60,6 +60,9 @@ pub struct Room {
     media: Media,
     config: RoomConfig,
     handle: u64,
+    /// How this server numbers rooms and feeds, and our room as it wants it.
+    ids: IdKind,
+    room_id: Value,
     id: String,
     private_id: Option<Value>,
     /// Subscription handle per publisher id.
@@ -110,20 +113,7 @@ impl Room {
         let janus_ip = server_addr(&config.url)?.ip();
         let mut client = Client::connect(&config.url)?;
         let handle = client.attach(VIDEOROOM)?;
-        let pin = config.pin.as_deref();
-        let join = || messages::join_publisher(&config.room, &config.name, pin);
-        let joined = match client.call(handle, join(), None) {
-            Err(JanusError::Plugin { code, .. }) if code == NO_SUCH_ROOM => {
-                match client.request(handle, messages::create_room(&config.room, pin)) {
-                    Ok(_) => {}
-                    // Someone else created it in between.
-                    Err(JanusError::Plugin { code, .. }) if code == ROOM_EXISTS => {}
-                    Err(e) => return Err(e),
-                }
-                client.call(handle, join(), None)?
-            }
-            other => other?,
-        };
+        let (ids, room_id, joined) = join_as_numbered(&mut client, handle, &config)?;
         let data = messages::plugin_data(&joined)?;
         let id = messages::id_string(&data["id"])
             .ok_or_else(|| JanusError::Protocol(format!("no publisher id in {data}")))?;
@@ -135,6 +125,8 @@ impl Room {
             media,
             config,
             handle,
+            ids,
+            room_id,
             id,
             private_id,
             subscriptions: HashMap::new(),
@@ -244,10 +236,15 @@ impl Room {
     }
 
     fn subscribe(&mut self, feed: &str, name: &str) -> Result<u64, JanusError> {
+        let feed_id = self.ids.id(feed).ok_or_else(|| {
+            JanusError::Protocol(format!(
+                "publisher id {feed:?} is not a number in a room numbered by Janus"
+            ))
+        })?;
         let handle = self.client.attach(VIDEOROOM)?;
         let body = messages::join_subscriber(
-            &self.config.room,
-            feed,
+            &self.room_id,
+            &feed_id,
             self.private_id.as_ref(),
             self.config.pin.as_deref(),
         );
@@ -279,6 +276,62 @@ impl Room {
     pub fn leave(mut self) -> Result<(), JanusError> {
         self.media.close();
         self.client.destroy()
+    }
+}
+
+/// Joins `config.room` as a publisher, creating it where it does not exist, with the room id as
+/// the server numbers rooms: a number where the room is one and the server takes numbers,
+/// else a string; a name on a server that numbers rooms is a clear error.
+fn join_as_numbered(
+    client: &mut Client,
+    handle: u64,
+    config: &RoomConfig,
+) -> Result<(IdKind, Value, Value), JanusError> {
+    let first = IdKind::guess(&config.room);
+    let mut ids = first;
+    loop {
+        let room_id = ids
+            .id(&config.room)
+            .ok_or_else(|| JanusError::Protocol("empty room id".into()))?;
+        match join_or_create(client, handle, config, &room_id) {
+            Err(JanusError::Plugin { code, .. })
+                if code == INVALID_ELEMENT && ids == IdKind::Numbers =>
+            {
+                ids = IdKind::Strings;
+            }
+            Err(JanusError::Plugin { code, reason })
+                if code == INVALID_ELEMENT && first == IdKind::Strings =>
+            {
+                return Err(JanusError::RoomIds {
+                    room: config.room.clone(),
+                    reason,
+                });
+            }
+            Ok(joined) => return Ok((ids, room_id, joined)),
+            Err(e) => return Err(e),
+        }
+    }
+}
+
+fn join_or_create(
+    client: &mut Client,
+    handle: u64,
+    config: &RoomConfig,
+    room: &Value,
+) -> Result<Value, JanusError> {
+    let pin = config.pin.as_deref();
+    let join = || messages::join_publisher(room, &config.name, pin);
+    match client.call(handle, join(), None) {
+        Err(JanusError::Plugin { code, .. }) if code == NO_SUCH_ROOM => {
+            match client.request(handle, messages::create_room(room, pin)) {
+                Ok(_) => {}
+                // Someone else created it in between.
+                Err(JanusError::Plugin { code, .. }) if code == ROOM_EXISTS => {}
+                Err(e) => return Err(e),
+            }
+            client.call(handle, join(), None)
+        }
+        other => other,
     }
 }
 
