@@ -456,6 +456,9 @@ impl Worker {
                     s.call.error = Some(format!("cannot rejoin the Janus room yet: {reason}"));
                 }
                 LinkEvent::Rejoined { .. } => s.call.error = None,
+                LinkEvent::PeerSkipped { name, reason, .. } => {
+                    tracing::warn!("{name:?} cannot be heard, skipped: {reason}");
+                }
                 LinkEvent::PeerJoined { .. } | LinkEvent::PeerLeft { .. } => {}
             }
         }

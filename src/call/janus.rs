@@ -93,7 +93,7 @@ impl JanusLink {
                     Some(Ok(Ok((member, notices)))) => {
                         let mut news = vec![LinkEvent::Joined {
                             place: self.place.clone(),
-                            id: member.id().unwrap_or("-").to_owned(),
+                            id: member.id().unwrap_or_else(|| "-".into()),
                         }];
                         news.extend(notices.into_iter().map(LinkEvent::from));
                         self.state = RoomState::In(Box::new(member));
@@ -210,6 +210,11 @@ impl From<Notice> for LinkEvent {
             Notice::Lost { reason } => LinkEvent::Lost { reason },
             Notice::RejoinFailed { reason } => LinkEvent::RejoinFailed { reason },
             Notice::Rejoined { id } => LinkEvent::Rejoined { id },
+            Notice::Skipped { feed, name, reason } => LinkEvent::PeerSkipped {
+                id: feed,
+                name,
+                reason,
+            },
         }
     }
 }

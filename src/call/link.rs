@@ -27,6 +27,12 @@ pub enum LinkEvent {
         id: String,
         name: String,
     },
+    /// A peer that cannot be heard (it sends no codec we have); the call goes on without it.
+    PeerSkipped {
+        id: String,
+        name: String,
+        reason: String,
+    },
     /// The call was lost (the server restarted or is unreachable); getting it back.
     Lost {
         reason: String,

@@ -84,7 +84,7 @@ pub fn send(input: &std::path::Path, janus: &JanusArgs) -> Result<()> {
         ticks as f64 / clock,
         packets.len(),
         janus.room,
-        room.id().unwrap_or("-")
+        room.id().unwrap_or_else(|| "-".into())
     );
     let start = Instant::now();
     send_paced(&packets, codec, |payload, duration| {
@@ -166,7 +166,7 @@ pub fn receive_with(
         "lipcall: in room {:?} on {} as {}",
         args.janus.room,
         args.janus.url,
-        room.id().unwrap_or("-")
+        room.id().unwrap_or_else(|| "-".into())
     );
     print_notices(&notices);
     let place = format!("Janus room {:?} on {}", args.janus.room, args.janus.url);

@@ -518,6 +518,9 @@ pub(crate) fn print_event(event: &LinkEvent) {
             eprintln!("lipcall: {name:?} ({id}) is publishing; subscribed")
         }
         LinkEvent::PeerLeft { id, name } => eprintln!("lipcall: {name:?} ({id}) left"),
+        LinkEvent::PeerSkipped { id, name, reason } => {
+            eprintln!("lipcall: {name:?} ({id}) cannot be heard, skipped: {reason}")
+        }
         LinkEvent::Lost { reason } => {
             eprintln!("lipcall: lost the Janus room ({reason}); rejoining")
         }

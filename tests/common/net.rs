@@ -125,6 +125,10 @@ impl Listening {
         SocketAddr::from(([127, 0, 0, 1], self.port))
     }
 
+    pub fn pid(&self) -> u32 {
+        self.child.id()
+    }
+
     /// Sends SIGINT (see [`interrupt`]).
     pub fn interrupt(&self) {
         interrupt(&self.child);

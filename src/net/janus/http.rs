@@ -6,7 +6,9 @@
 use std::collections::VecDeque;
 use std::sync::Arc;
 use std::sync::atomic::{AtomicBool, AtomicU64, Ordering};
-use std::sync::mpsc::{Receiver, RecvTimeoutError, Sender, TryRecvError, channel};
+use std::sync::mpsc::{
+    Receiver, RecvTimeoutError, SyncSender, TryRecvError, TrySendError, sync_channel,
+};
 use std::time::{Duration, Instant};
 
 use serde_json::Value;
@@ -18,6 +20,13 @@ use super::messages;
 const EVENT_TIMEOUT: Duration = Duration::from_secs(10);
 /// Janus destroys a session after 60 s of silence (its default `session_timeout`).
 const KEEPALIVE: Duration = Duration::from_secs(15);
+/// Events the long poll hands over before it waits for them to be read: a server flooding
+/// events is slowed to the reader's pace instead of filling memory.
+const EVENTS_IN_FLIGHT: usize = 256;
+/// Events of other requests kept while waiting for one answer; past this the oldest go.
+const EVENTS_SET_ASIDE: usize = 1024;
+/// The most events taken from one long-poll answer (lipcall asks for at most 10).
+const EVENTS_PER_ANSWER: usize = 100;
 
 /// What the long-poll thread hands over.
 enum Polled {
@@ -73,8 +82,19 @@ fn post(agent: &ureq::Agent, url: &str, body: &Value) -> Result<Value, JanusErro
             reason: format!("HTTP status {}", response.status()),
         });
     }
-    let reply: Value = response.body_mut().read_json().map_err(http)?;
+    let reply: Value = response
+        .body_mut()
+        .read_json()
+        .map_err(|e| not_janus(url, e))?;
     messages::check(reply)
+}
+
+/// A server that answered, but not with Janus's JSON.
+fn not_janus(url: &str, e: ureq::Error) -> JanusError {
+    JanusError::NotJanus {
+        url: url.to_string(),
+        reason: e.to_string(),
+    }
 }
 
 impl Client {
@@ -89,7 +109,7 @@ impl Client {
             &messages::create_session(&transaction(&counter)),
         )?;
         let session = messages::success_id(&reply)?;
-        let (tx, events) = channel();
+        let (tx, events) = sync_channel(EVENTS_IN_FLIGHT);
         let stop = Arc::new(AtomicBool::new(false));
         let poller = Poller {
             url: format!("{base}/{session}"),
@@ -173,7 +193,13 @@ impl Client {
             let left = deadline.saturating_duration_since(Instant::now());
             match self.events.recv_timeout(left) {
                 Ok(Polled::Event(e)) if e["transaction"] == transaction => return Ok(e),
-                Ok(Polled::Event(e)) => self.queued.push_back(e),
+                Ok(Polled::Event(e)) => {
+                    if self.queued.len() == EVENTS_SET_ASIDE {
+                        self.queued.pop_front();
+                        tracing::debug!("too many Janus events waiting; the oldest dropped");
+                    }
+                    self.queued.push_back(e);
+                }
                 Ok(Polled::Lost(e)) => {
                     self.lost = Some(e.to_string());
                     return Err(e);
@@ -244,7 +270,7 @@ struct Poller {
     keepalive_agent: ureq::Agent,
     counter: Arc<AtomicU64>,
     stop: Arc<AtomicBool>,
-    tx: Sender<Polled>,
+    tx: SyncSender<Polled>,
 }
 
 impl Poller {
@@ -255,22 +281,39 @@ impl Poller {
                 last_keepalive = Instant::now();
                 let t = transaction(&self.counter);
                 if let Err(e) = post(&self.keepalive_agent, &self.url, &messages::keepalive(&t)) {
-                    let _ = self.tx.send(Polled::Lost(e));
+                    self.hand_over(Polled::Lost(e));
                     return;
                 }
             }
             match self.poll() {
                 Ok(events) => {
                     for e in events {
-                        if self.tx.send(Polled::Event(e)).is_err() {
+                        if !self.hand_over(Polled::Event(e)) {
                             return;
                         }
                     }
                 }
                 Err(_) if self.stop.load(Ordering::Relaxed) => return,
                 Err(e) => {
-                    let _ = self.tx.send(Polled::Lost(e));
+                    self.hand_over(Polled::Lost(e));
                     return;
+                }
+            }
+        }
+    }
+
+    /// Waits until the owner has room for `polled`; false when the owner is gone or stopping.
+    fn hand_over(&self, mut polled: Polled) -> bool {
+        loop {
+            match self.tx.try_send(polled) {
+                Ok(()) => return true,
+                Err(TrySendError::Disconnected(_)) => return false,
+                Err(TrySendError::Full(back)) => {
+                    if self.stop.load(Ordering::Relaxed) {
+                        return false;
+                    }
+                    polled = back;
+                    std::thread::sleep(Duration::from_millis(10));
                 }
             }
         }
@@ -292,11 +335,15 @@ impl Poller {
                 reason: format!("HTTP status {}", response.status()),
             });
         }
-        let reply: Value = response.body_mut().read_json().map_err(http)?;
-        let events = match reply {
+        let reply: Value = response
+            .body_mut()
+            .read_json()
+            .map_err(|e| not_janus(&self.url, e))?;
+        let mut events = match reply {
             Value::Array(events) => events,
             one => vec![one],
         };
+        events.truncate(EVENTS_PER_ANSWER);
         let mut out = Vec::with_capacity(events.len());
         for e in events {
             match e["janus"].as_str() {

@@ -12,6 +12,7 @@
 
 use std::collections::{HashMap, VecDeque};
 use std::net::{IpAddr, SocketAddr, UdpSocket};
+use std::sync::atomic::{AtomicBool, Ordering};
 use std::time::{Duration, Instant};
 
 use str0m::change::{SdpAnswer, SdpOffer, SdpPendingOffer};
@@ -32,6 +33,9 @@ use crate::net::session::{PeerFrame, PeerInfo, Transmit, TransmitKind};
 const POLL: Duration = Duration::from_millis(2);
 /// With no connection, when the core next wants to be woken.
 const IDLE: Duration = Duration::from_secs(1);
+/// Publishers that left and played out, kept (without their decoders) for the summary; the
+/// oldest go first, so that a room of churning publishers holds no more than this.
+const DEPARTED_KEPT: usize = 64;
 
 /// What the owner knows of one subscribed publisher.
 #[derive(Debug, Clone, PartialEq)]
@@ -87,10 +91,24 @@ struct Feed {
     left: bool,
 }
 
-/// The media side of a room.
+impl Feed {
+    fn info(&self, feed: String) -> FeedInfo {
+        FeedInfo {
+            feed,
+            name: self.name.clone(),
+            ssrc: self.ssrc,
+            connected: self.connected,
+            left: self.left,
+            receiver: self.receiver.stats(),
+        }
+    }
+}
+
+/// The media side of a room: shared by the room's signalling and the receive tick, its thread
+/// stops when the last owner drops it.
 pub struct Media {
     driver: Driver<MediaCore>,
-    closed: bool,
+    closed: AtomicBool,
 }
 
 impl std::fmt::Debug for Media {
@@ -163,7 +181,7 @@ impl Media {
             .map_err(|e| JanusError::Media(format!("cannot start the media thread: {e}")))?;
         Ok(Self {
             driver,
-            closed: false,
+            closed: AtomicBool::new(false),
         })
     }
 
@@ -172,7 +190,7 @@ impl Media {
         &self,
         f: impl FnOnce(&mut MediaCore, Instant) -> Result<T, JanusError>,
     ) -> Result<T, JanusError> {
-        if self.closed {
+        if self.closed.load(Ordering::Relaxed) {
             return Err(stopped());
         }
         self.driver.with(|core| f(core, Instant::now()))
@@ -194,7 +212,7 @@ impl Media {
 
     /// The publisher left: its buffered audio still plays out, then it falls silent.
     pub fn feed_left(&self, feed: &str) {
-        let closed = self.closed;
+        let closed = self.closed.load(Ordering::Relaxed);
         self.driver.with(|core| core.feed_left(feed, !closed));
     }
 
@@ -229,18 +247,19 @@ impl Media {
         self.driver.access(|core| core.stats)
     }
 
-    /// Closes every connection (DTLS close and RTCP BYE go out) and stops the thread.
-    pub fn close(&mut self) {
-        if !std::mem::replace(&mut self.closed, true) {
+    /// Closes every connection (DTLS close and RTCP BYE go out); the thread stops with the
+    /// last owner.
+    pub fn hang_up(&self) {
+        if !self.closed.swap(true, Ordering::Relaxed) {
             self.driver.with(MediaCore::close_all);
         }
-        self.driver.stop();
     }
 }
 
 impl Drop for Media {
     fn drop(&mut self) {
-        self.close();
+        self.hang_up();
+        self.driver.stop();
     }
 }
 
@@ -275,6 +294,8 @@ struct MediaCore {
     now: Instant,
     conns: Vec<Conn>,
     feeds: HashMap<String, Feed>,
+    /// Publishers gone and played out, oldest first.
+    departed: VecDeque<FeedInfo>,
     stats: MediaStats,
     outbox: VecDeque<Transmit>,
 }
@@ -326,6 +347,7 @@ impl MediaCore {
             now,
             conns: Vec::new(),
             feeds: HashMap::new(),
+            departed: VecDeque::new(),
             stats: MediaStats::default(),
             outbox: VecDeque::new(),
         }
@@ -618,28 +640,38 @@ impl MediaCore {
 
     /// The next 20 ms of every subscribed publisher that is playing.
     fn pull(&mut self, now: Instant, out: &mut Vec<PeerFrame>) {
-        for feed in self.feeds.values_mut() {
-            let Some(ssrc) = feed.ssrc else { continue };
-            if let Some(frame) = feed.receiver.pull(now) {
-                out.push(PeerFrame { ssrc, frame });
+        let mut played_out = Vec::new();
+        for (id, feed) in &mut self.feeds {
+            let frame = feed.ssrc.and_then(|ssrc| {
+                feed.receiver
+                    .pull(now)
+                    .map(|frame| PeerFrame { ssrc, frame })
+            });
+            match frame {
+                Some(frame) => out.push(frame),
+                None if feed.left => played_out.push(id.clone()),
+                None => {}
+            }
+        }
+        for id in played_out {
+            if let Some(feed) = self.feeds.remove(&id) {
+                if self.departed.len() == DEPARTED_KEPT {
+                    self.departed.pop_front();
+                }
+                self.departed.push_back(feed.info(id));
             }
         }
     }
 
+    /// Every publisher playing, then those gone (the last [`DEPARTED_KEPT`]).
     fn feeds(&self) -> Vec<FeedInfo> {
         let mut out: Vec<FeedInfo> = self
             .feeds
             .iter()
-            .map(|(id, f)| FeedInfo {
-                feed: id.clone(),
-                name: f.name.clone(),
-                ssrc: f.ssrc,
-                connected: f.connected,
-                left: f.left,
-                receiver: f.receiver.stats(),
-            })
+            .map(|(id, f)| f.info(id.clone()))
             .collect();
         out.sort_by(|a, b| a.feed.cmp(&b.feed));
+        out.extend(self.departed.iter().cloned());
         out
     }
 }

@@ -19,6 +19,8 @@ pub mod room;
 pub enum JanusError {
     #[error("cannot reach Janus at {url}: {reason}")]
     Http { url: String, reason: String },
+    #[error("{url} answers, but not as Janus does ({reason}): is it Janus's HTTP API?")]
+    NotJanus { url: String, reason: String },
     #[error("Janus error {code}: {reason}")]
     Janus { code: i64, reason: String },
     #[error("Janus VideoRoom error {code}: {reason}")]

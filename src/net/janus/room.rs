@@ -2,9 +2,17 @@
 //! = the room passphrase), creating the room when it does not exist yet, publishes our Opus
 //! stream when asked, and subscribes to every other publisher (one subscription each, so a
 //! publisher joining or leaving renegotiates nothing else).
+//!
+//! The signalling (HTTP requests that take up to seconds each) runs on a thread of its own;
+//! the owner's 20 ms tick only pulls media and reads notices, so no Janus, however slow or
+//! busy, holds up the audio, `--seconds` or a stop.
 
-use std::collections::HashMap;
+use std::collections::{HashMap, HashSet};
 use std::net::{SocketAddr, ToSocketAddrs};
+use std::sync::atomic::{AtomicBool, Ordering};
+use std::sync::mpsc::{Receiver, SyncSender, TrySendError, sync_channel};
+use std::sync::{Arc, Mutex, PoisonError};
+use std::thread::JoinHandle;
 use std::time::{Duration, Instant};
 
 use serde_json::Value;
@@ -53,11 +61,17 @@ pub enum Notice {
     Rejoined {
         id: String,
     },
+    /// A publisher we cannot hear (no Opus in its stream, or its subscription failed).
+    Skipped {
+        feed: String,
+        name: String,
+        reason: String,
+    },
 }
 
 pub struct Room {
     client: Client,
-    media: Media,
+    media: Arc<Media>,
     config: RoomConfig,
     handle: u64,
     /// How this server numbers rooms and feeds, and our room as it wants it.
@@ -119,7 +133,7 @@ impl Room {
             .ok_or_else(|| JanusError::Protocol(format!("no publisher id in {data}")))?;
         let private_id = (!data["private_id"].is_null()).then(|| data["private_id"].clone());
         let news = messages::room_news(data);
-        let media = Media::start(&host_ips(janus_ip)?, config.jitter)?;
+        let media = Arc::new(Media::start(&host_ips(janus_ip)?, config.jitter)?);
         let mut room = Self {
             client,
             media,
@@ -132,7 +146,7 @@ impl Room {
             subscriptions: HashMap::new(),
         };
         let mut notices = Vec::new();
-        room.apply(news, &mut notices)?;
+        room.apply(news, &mut notices, &AtomicBool::new(false))?;
         Ok((room, notices))
     }
 
@@ -188,19 +202,28 @@ impl Room {
         self.media.skip(ticks);
     }
 
-    /// Follows the room: subscribes to new publishers, lets those who left play out.
-    pub fn poll(&mut self) -> Result<Vec<Notice>, JanusError> {
-        let mut notices = Vec::new();
-        while let Some(event) = self.client.next_event()? {
+    /// Follows the room: subscribes to new publishers, lets those who left play out. The
+    /// events waiting are taken together, so a publisher that came and went in between is
+    /// never subscribed to; `stop` ends it between subscriptions.
+    pub fn poll(&mut self, stop: &AtomicBool) -> Result<Vec<Notice>, JanusError> {
+        let mut news = messages::RoomNews::default();
+        for _ in 0..EVENTS_PER_POLL {
+            let Some(event) = self.client.next_event()? else {
+                break;
+            };
             if event["janus"] != "event" || event["sender"] != self.handle {
                 continue;
             }
             let Ok(data) = messages::plugin_data(&event) else {
                 continue;
             };
-            let news = messages::room_news(data);
-            self.apply(news, &mut notices)?;
+            let more = messages::room_news(data);
+            news.publishers.retain(|p| !more.gone.contains(&p.id));
+            news.publishers.extend(more.publishers);
+            news.gone.extend(more.gone);
         }
+        let mut notices = Vec::new();
+        self.apply(news, &mut notices, stop)?;
         Ok(notices)
     }
 
@@ -208,7 +231,9 @@ impl Room {
         &mut self,
         news: messages::RoomNews,
         notices: &mut Vec<Notice>,
+        stop: &AtomicBool,
     ) -> Result<(), JanusError> {
+        let gone: HashSet<String> = news.gone.iter().cloned().collect();
         for gone in news.gone {
             if let Some((handle, name)) = self.subscriptions.remove(&gone) {
                 self.media.feed_left(&gone);
@@ -221,27 +246,43 @@ impl Room {
             return Ok(());
         }
         for p in news.publishers {
-            if p.id == self.id || self.subscriptions.contains_key(&p.id) {
+            if stop.load(Ordering::Relaxed) {
+                break;
+            }
+            if p.id == self.id || gone.contains(&p.id) || self.subscriptions.contains_key(&p.id) {
                 continue;
             }
-            let handle = self.subscribe(&p.id, &p.display)?;
-            self.subscriptions
-                .insert(p.id.clone(), (handle, p.display.clone()));
-            notices.push(Notice::Joined {
-                feed: p.id,
-                name: p.display,
-            });
+            let handle = self.client.attach(VIDEOROOM)?;
+            match self.subscribe(handle, &p.id, &p.display) {
+                Ok(()) => {
+                    self.subscriptions
+                        .insert(p.id.clone(), (handle, p.display.clone()));
+                    notices.push(Notice::Joined {
+                        feed: p.id,
+                        name: p.display,
+                    });
+                }
+                Err(e) if concerns_the_session(&e) => return Err(e),
+                Err(e) => {
+                    // Only this publisher is out: the room and everyone else stay.
+                    let _ = self.client.detach(handle);
+                    notices.push(Notice::Skipped {
+                        feed: p.id,
+                        name: p.display,
+                        reason: e.to_string(),
+                    });
+                }
+            }
         }
         Ok(())
     }
 
-    fn subscribe(&mut self, feed: &str, name: &str) -> Result<u64, JanusError> {
+    fn subscribe(&mut self, handle: u64, feed: &str, name: &str) -> Result<(), JanusError> {
         let feed_id = self.ids.id(feed).ok_or_else(|| {
             JanusError::Protocol(format!(
                 "publisher id {feed:?} is not a number in a room numbered by Janus"
             ))
         })?;
-        let handle = self.client.attach(VIDEOROOM)?;
         let body = messages::join_subscriber(
             &self.room_id,
             &feed_id,
@@ -255,16 +296,7 @@ impl Room {
         let answer = self.media.subscribe(feed, name, offer)?;
         self.client
             .call(handle, messages::start(), Some(("answer", &answer)))?;
-        self.client.trickle_completed(handle)?;
-        Ok(handle)
-    }
-
-    pub fn pull(&self, now: Instant, out: &mut Vec<PeerFrame>) {
-        self.media.pull(now, out);
-    }
-
-    pub fn feeds(&self) -> Vec<FeedInfo> {
-        self.media.feeds()
+        self.client.trickle_completed(handle)
     }
 
     pub fn media_stats(&self) -> MediaStats {
@@ -274,9 +306,24 @@ impl Room {
     /// Hangs up (DTLS close, RTCP BYE) and destroys the Janus session, which takes us out of
     /// the room.
     pub fn leave(mut self) -> Result<(), JanusError> {
-        self.media.close();
+        self.media.hang_up();
         self.client.destroy()
     }
+}
+
+/// At most this many of Janus's events are read per poll (a flooding server waits).
+const EVENTS_PER_POLL: usize = 200;
+
+/// Whether a subscription's failure means the Janus session itself is in trouble (rejoin),
+/// rather than that one publisher cannot be heard (skip it).
+fn concerns_the_session(e: &JanusError) -> bool {
+    matches!(
+        e,
+        JanusError::Http { .. }
+            | JanusError::NotJanus { .. }
+            | JanusError::Janus { .. }
+            | JanusError::Lost(_)
+    )
 }
 
 /// Joins `config.room` as a publisher, creating it where it does not exist, with the room id as
@@ -339,12 +386,21 @@ fn join_or_create(
 /// restarted, or unreachable for longer than its session timeout) it says so and rejoins every
 /// second until Janus answers, publishing again if it published. Audio sent while away is
 /// dropped; the subscriptions are made afresh (new peers, as after a real departure).
+///
+/// The room lives on the signalling thread; this handle holds the current media and the
+/// notices, so none of its calls waits for Janus.
 pub struct Member {
-    config: RoomConfig,
-    publish: bool,
-    room: Option<Room>,
-    retry_at: Instant,
-    last_failure: Option<String>,
+    shared: Arc<Mutex<Current>>,
+    notices: Receiver<Notice>,
+    stop: Arc<AtomicBool>,
+    signalling: Option<JoinHandle<()>>,
+}
+
+/// What the tick side sees of the room the signalling thread is in.
+#[derive(Default)]
+struct Current {
+    media: Option<Arc<Media>>,
+    id: Option<String>,
     /// Packets published in rooms lost since.
     published_before: u64,
 }
@@ -352,133 +408,251 @@ pub struct Member {
 impl std::fmt::Debug for Member {
     fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
         f.debug_struct("Member")
-            .field("room", &self.room)
+            .field("id", &self.current().id)
             .finish_non_exhaustive()
     }
 }
 
 const REJOIN_EVERY: Duration = Duration::from_secs(1);
 const PUBLISH_TIMEOUT: Duration = Duration::from_secs(10);
+/// How often the signalling thread looks for Janus's events.
+const FOLLOW_EVERY: Duration = Duration::from_millis(20);
+/// Notices not yet read by the owner; past this (a room churning faster than anyone reads)
+/// the newest are dropped, not the memory grown.
+const NOTICES_KEPT: usize = 1024;
+/// How long leaving waits for the signalling thread to hang up.
+const LEAVE_WAIT: Duration = Duration::from_secs(2);
 
 impl Member {
     /// Joins (and publishes, when `publish`); a first join that fails is an error.
     pub fn join(config: RoomConfig, publish: bool) -> Result<(Self, Vec<Notice>), JanusError> {
-        let (room, notices) = Self::enter(&config, publish)?;
+        let (room, notices) = enter(&config, publish)?;
+        let shared = Arc::new(Mutex::new(Current::default()));
+        let (tx, rx) = sync_channel(NOTICES_KEPT);
+        let stop = Arc::new(AtomicBool::new(false));
+        let follower = Follower {
+            config,
+            publish,
+            shared: Arc::clone(&shared),
+            tx,
+            stop: Arc::clone(&stop),
+            retry_at: Instant::now(),
+            last_failure: None,
+        };
+        follower.entered(&room);
+        let signalling = std::thread::Builder::new()
+            .name("lipcall-janus-room".into())
+            .spawn(move || follower.run(room))
+            .map_err(|e| JanusError::Protocol(format!("cannot start the room's thread: {e}")))?;
         Ok((
             Self {
-                config,
-                publish,
-                room: Some(room),
-                retry_at: Instant::now(),
-                last_failure: None,
-                published_before: 0,
+                shared,
+                notices: rx,
+                stop,
+                signalling: Some(signalling),
             },
             notices,
         ))
     }
 
-    fn enter(config: &RoomConfig, publish: bool) -> Result<(Room, Vec<Notice>), JanusError> {
-        let (mut room, notices) = Room::join(config.clone())?;
-        if publish {
-            room.publish()?;
-            room.wait_published(PUBLISH_TIMEOUT)?;
-        }
-        Ok((room, notices))
+    fn current(&self) -> std::sync::MutexGuard<'_, Current> {
+        self.shared.lock().unwrap_or_else(PoisonError::into_inner)
+    }
+
+    fn media(&self) -> Option<Arc<Media>> {
+        self.current().media.clone()
     }
 
     /// Our publisher id, while in the room.
-    pub fn id(&self) -> Option<&str> {
-        self.room.as_ref().map(Room::id)
+    pub fn id(&self) -> Option<String> {
+        self.current().id.clone()
     }
 
-    /// Follows the room; on a lost session, leaves it and rejoins when Janus answers.
+    /// What happened in the room since the last call (never waits for Janus).
     pub fn poll(&mut self) -> Vec<Notice> {
-        let mut notices = Vec::new();
-        if let Some(room) = &mut self.room {
-            match room.poll() {
-                Ok(n) => notices = n,
-                Err(e) => {
-                    notices.push(Notice::Lost {
-                        reason: e.to_string(),
-                    });
-                    if let Some(room) = self.room.take() {
-                        self.published_before += room.media_stats().published;
-                        let _ = room.leave();
-                    }
-                    self.retry_at = Instant::now();
-                }
-            }
-        }
-        if self.room.is_none() && Instant::now() >= self.retry_at {
-            self.retry_at = Instant::now() + REJOIN_EVERY;
-            match Self::enter(&self.config, self.publish) {
-                Ok((room, n)) => {
-                    notices.push(Notice::Rejoined {
-                        id: room.id().to_string(),
-                    });
-                    notices.extend(n);
-                    self.room = Some(room);
-                    self.last_failure = None;
-                }
-                Err(e) => {
-                    let reason = e.to_string();
-                    if self.last_failure.as_ref() != Some(&reason) {
-                        notices.push(Notice::RejoinFailed {
-                            reason: reason.clone(),
-                        });
-                        self.last_failure = Some(reason);
-                    }
-                }
-            }
-        }
-        notices
+        self.notices.try_iter().collect()
     }
 
     /// Sends one Opus payload; dropped while out of the room.
     pub fn send(&self, payload: &[u8], ticks: u32) -> Result<(), JanusError> {
-        match &self.room {
-            Some(room) => room.send(payload, ticks),
+        match self.media() {
+            Some(media) => media.send(payload, ticks),
             None => Ok(()),
         }
     }
 
     /// Moves our stream's clock on by `ticks` without sending (a silent gap).
     pub fn skip(&self, ticks: u32) {
-        if let Some(room) = &self.room {
-            room.skip(ticks);
+        if let Some(media) = self.media() {
+            media.skip(ticks);
         }
     }
 
     pub fn pull(&self, now: Instant, out: &mut Vec<PeerFrame>) {
-        if let Some(room) = &self.room {
-            room.pull(now, out);
+        if let Some(media) = self.media() {
+            media.pull(now, out);
         }
     }
 
     /// The publishers of the current session (none while out of the room).
     pub fn feeds(&self) -> Vec<FeedInfo> {
-        self.room.as_ref().map(Room::feeds).unwrap_or_default()
+        self.media().map(|m| m.feeds()).unwrap_or_default()
     }
 
     pub fn in_room(&self) -> bool {
-        self.room.is_some()
+        self.current().media.is_some()
     }
 
     /// The current session's media counters, `published` counting every session's.
     pub fn media_stats(&self) -> MediaStats {
-        let mut stats = self
-            .room
+        let current = self.current();
+        let mut stats = current
+            .media
             .as_ref()
-            .map(Room::media_stats)
+            .map(|m| m.stats())
             .unwrap_or_default();
-        stats.published += self.published_before;
+        stats.published += current.published_before;
         stats
     }
 
-    pub fn leave(self) -> Result<(), JanusError> {
-        match self.room {
-            Some(room) => room.leave(),
-            None => Ok(()),
+    /// Leaves the room: the signalling thread hangs up and destroys the session. Waits for it
+    /// at most [`LEAVE_WAIT`]; a thread still held by a request that Janus does not answer is
+    /// left to finish on its own (Janus then times the session out).
+    pub fn leave(mut self) -> Result<(), JanusError> {
+        self.stop.store(true, Ordering::Relaxed);
+        let Some(thread) = self.signalling.take() else {
+            return Ok(());
+        };
+        let deadline = Instant::now() + LEAVE_WAIT;
+        while !thread.is_finished() {
+            if Instant::now() >= deadline {
+                return Err(JanusError::Timeout(format!(
+                    "Janus did not confirm the leave within {} s",
+                    LEAVE_WAIT.as_secs()
+                )));
+            }
+            std::thread::sleep(Duration::from_millis(5));
+        }
+        let _ = thread.join();
+        Ok(())
+    }
+}
+
+impl Drop for Member {
+    fn drop(&mut self) {
+        self.stop.store(true, Ordering::Relaxed);
+    }
+}
+
+fn enter(config: &RoomConfig, publish: bool) -> Result<(Room, Vec<Notice>), JanusError> {
+    let (mut room, notices) = Room::join(config.clone())?;
+    if publish {
+        room.publish()?;
+        room.wait_published(PUBLISH_TIMEOUT)?;
+    }
+    Ok((room, notices))
+}
+
+/// The signalling thread: follows the room, rejoins a lost one, leaves when told.
+struct Follower {
+    config: RoomConfig,
+    publish: bool,
+    shared: Arc<Mutex<Current>>,
+    tx: SyncSender<Notice>,
+    stop: Arc<AtomicBool>,
+    retry_at: Instant,
+    last_failure: Option<String>,
+}
+
+impl Follower {
+    fn run(mut self, room: Room) {
+        let mut room = Some(room);
+        while !self.stop.load(Ordering::Relaxed) {
+            match &mut room {
+                Some(r) => {
+                    if let Err(e) = self.follow(r) {
+                        self.tell(Notice::Lost {
+                            reason: e.to_string(),
+                        });
+                        if let Some(lost) = room.take() {
+                            self.left(&lost);
+                            let _ = lost.leave();
+                        }
+                        self.retry_at = Instant::now();
+                    }
+                }
+                None if Instant::now() >= self.retry_at => room = self.rejoin(),
+                None => {}
+            }
+            std::thread::sleep(FOLLOW_EVERY);
+        }
+        if let Some(r) = room {
+            let _ = r.leave();
+        }
+    }
+
+    fn follow(&mut self, room: &mut Room) -> Result<(), JanusError> {
+        for notice in room.poll(&self.stop)? {
+            self.tell(notice);
+        }
+        Ok(())
+    }
+
+    fn rejoin(&mut self) -> Option<Room> {
+        self.retry_at = Instant::now() + REJOIN_EVERY;
+        match enter(&self.config, self.publish) {
+            Ok((room, notices)) => {
+                // Told to stop while rejoining: hang up at once.
+                if self.stop.load(Ordering::Relaxed) {
+                    let _ = room.leave();
+                    return None;
+                }
+                self.entered(&room);
+                self.tell(Notice::Rejoined {
+                    id: room.id().to_string(),
+                });
+                for n in notices {
+                    self.tell(n);
+                }
+                self.last_failure = None;
+                Some(room)
+            }
+            Err(e) => {
+                let reason = e.to_string();
+                if self.last_failure.as_ref() != Some(&reason) {
+                    self.tell(Notice::RejoinFailed {
+                        reason: reason.clone(),
+                    });
+                    self.last_failure = Some(reason);
+                }
+                None
+            }
+        }
+    }
+
+    fn current(&self) -> std::sync::MutexGuard<'_, Current> {
+        self.shared.lock().unwrap_or_else(PoisonError::into_inner)
+    }
+
+    fn entered(&self, room: &Room) {
+        let mut current = self.current();
+        current.media = Some(Arc::clone(&room.media));
+        current.id = Some(room.id().to_string());
+    }
+
+    fn left(&self, room: &Room) {
+        let mut current = self.current();
+        current.published_before += room.media_stats().published;
+        current.media = None;
+        current.id = None;
+    }
+
+    fn tell(&self, notice: Notice) {
+        match self.tx.try_send(notice) {
+            Ok(()) | Err(TrySendError::Disconnected(_)) => {}
+            Err(TrySendError::Full(dropped)) => {
+                tracing::debug!("room notice dropped (nobody reading): {dropped:?}");
+            }
         }
     }
 }
