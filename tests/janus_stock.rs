@@ -7,9 +7,11 @@ mod common;
 use std::path::Path;
 use std::time::{Duration, Instant};
 
-use common::janus::{IN_ROOM, STOCK_VIDEOROOM, receive_in_room, start_janus_with};
+use common::janus::{
+    IN_ROOM, STOCK_VIDEOROOM, envelope, envelope_correlation, receive_in_room, start_janus_with,
+};
 use common::net::{finish, spawn, spawn_listening};
-use common::{lipcall, read_wav_i16, repo_file};
+use common::{lipcall, repo_file};
 
 fn stock_janus_here(test: &str) -> bool {
     if !common::janus::runs_here(test) {
@@ -20,48 +22,6 @@ fn stock_janus_here(test: &str) -> bool {
         return false;
     }
     true
-}
-
-/// The level (dB) of each 20 ms of a WAV, whatever its rate.
-fn envelope(path: &Path) -> Vec<f64> {
-    let (rate, samples) = read_wav_i16(path);
-    let frame = (rate / 50) as usize;
-    samples
-        .chunks_exact(frame)
-        .map(|c| {
-            let power = c.iter().map(|&x| f64::from(x).powi(2)).sum::<f64>() / frame as f64;
-            10.0 * (power + 1.0).log10()
-        })
-        .collect()
-}
-
-/// The best correlation of two level contours within +-1 s of lag.
-fn envelope_correlation(a: &[f64], b: &[f64]) -> f64 {
-    (-50isize..=50)
-        .filter_map(|lag| {
-            let pairs: Vec<(f64, f64)> = (0..a.len())
-                .filter_map(|i| {
-                    let j = i as isize + lag;
-                    (j >= 0 && (j as usize) < b.len()).then(|| (a[i], b[j as usize]))
-                })
-                .collect();
-            (pairs.len() > 100).then(|| pearson(&pairs))
-        })
-        .fold(f64::MIN, f64::max)
-}
-
-fn pearson(pairs: &[(f64, f64)]) -> f64 {
-    let n = pairs.len() as f64;
-    let (ma, mb) = pairs
-        .iter()
-        .fold((0.0, 0.0), |(x, y), (a, b)| (x + a / n, y + b / n));
-    let (mut sab, mut saa, mut sbb) = (0.0, 0.0, 0.0);
-    for (a, b) in pairs {
-        sab += (a - ma) * (b - mb);
-        saa += (a - ma).powi(2);
-        sbb += (b - mb).powi(2);
-    }
-    sab / (saa * sbb).sqrt().max(1e-12)
 }
 
 #[test]

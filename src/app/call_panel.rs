@@ -5,7 +5,14 @@ use eframe::egui;
 
 use super::engine::{self, CallSpec, Command, Engine};
 use super::settings::Settings;
+use crate::call::janus::is_janus_url;
 use crate::codec::any::Codec;
+use crate::net::janus::messages::JanusAuth;
+
+fn non_empty(s: &str) -> Option<String> {
+    let s = s.trim();
+    (!s.is_empty()).then(|| s.to_string())
+}
 
 /// The call form's fields.
 #[derive(Debug, Clone, Default)]
@@ -13,6 +20,9 @@ pub struct CallForm {
     pub address: String,
     pub room: String,
     pub passphrase: String,
+    /// A Janus's api_secret and stored token (asked only for a Janus URL; never saved).
+    pub janus_secret: String,
+    pub janus_token: String,
 }
 
 /// Join a room on a relay or call a peer directly; leave; the encryption indicator.
@@ -46,6 +56,22 @@ pub(super) fn call_ui(
                 .password(true)
                 .desired_width(90.0),
         );
+        if is_janus_url(&form.address) {
+            ui.label("API secret");
+            ui.add(
+                egui::TextEdit::singleline(&mut form.janus_secret)
+                    .password(true)
+                    .hint_text("(none)")
+                    .desired_width(80.0),
+            );
+            ui.label("Token");
+            ui.add(
+                egui::TextEdit::singleline(&mut form.janus_token)
+                    .password(true)
+                    .hint_text("(none)")
+                    .desired_width(80.0),
+            );
+        }
         codec_picker_ui(ui, &mut settings.codec);
         let label = if form.room.trim().is_empty() {
             "Call"
@@ -64,6 +90,10 @@ pub(super) fn call_ui(
                 passphrase: Some(form.passphrase.clone()),
                 name: settings.name.clone(),
                 codec: settings.codec,
+                janus_auth: JanusAuth {
+                    api_secret: non_empty(&form.janus_secret),
+                    token: non_empty(&form.janus_token),
+                },
             }));
         }
         if ui

@@ -17,6 +17,7 @@ use crate::audio::{
 use crate::call::janus::{JanusLink, is_janus_url};
 use crate::call::link::{Link, LinkEvent};
 use crate::codec::any::{Codec, EncoderSettings, FrameEncoder, MAX_FRAME_PAYLOAD};
+use crate::net::janus::messages::JanusAuth;
 use crate::net::janus::room::RoomConfig;
 use crate::net::jitter::JitterConfig;
 use crate::net::session::{PeerFrame, PeerInfo, Session, SessionConfig};
@@ -53,6 +54,8 @@ pub struct CallSpec {
     pub passphrase: Option<String>,
     pub name: String,
     pub codec: Codec,
+    /// A Janus's api_secret and token, where it asks for them.
+    pub janus_auth: JanusAuth,
 }
 
 impl Default for CallSpec {
@@ -63,6 +66,7 @@ impl Default for CallSpec {
             passphrase: None,
             name: String::new(),
             codec: DEFAULT_CODEC,
+            janus_auth: JanusAuth::default(),
         }
     }
 }
@@ -391,6 +395,7 @@ impl Worker {
             .ok_or_else(|| anyhow::anyhow!("a Janus server needs a room name"))?;
         let config = RoomConfig {
             url: spec.address.trim().to_owned(),
+            auth: spec.janus_auth.clone(),
             room,
             name: self.call_name(spec),
             pin: spec.passphrase.clone().filter(|p| !p.is_empty()),

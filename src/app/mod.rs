@@ -163,7 +163,7 @@ impl LipcallApp {
         let form = CallForm {
             address: settings.last_address.clone(),
             room: settings.last_room.clone(),
-            passphrase: String::new(),
+            ..CallForm::default()
         };
         let (inputs, outputs) = if options.no_audio {
             (Vec::new(), Vec::new())

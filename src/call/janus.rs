@@ -15,12 +15,7 @@ use crate::net::session::{PeerFrame, PeerInfo};
 /// RTP ticks of one 20 ms frame on WebRTC's 48 kHz Opus clock.
 const OPUS_TICKS_PER_FRAME: u32 = 960;
 
-/// Whether a call address names a Janus server (its HTTP API) rather than a lipcall peer or
-/// relay (`host:port`).
-pub fn is_janus_url(address: &str) -> bool {
-    let a = address.trim();
-    a.starts_with("http://") || a.starts_with("https://")
-}
+pub use crate::net::janus::url::is_janus_url;
 
 type Joining = JoinHandle<Result<(Member, Vec<Notice>), JanusError>>;
 
@@ -216,18 +211,5 @@ impl From<Notice> for LinkEvent {
                 reason,
             },
         }
-    }
-}
-
-#[cfg(test)]
-mod tests {
-    use super::*;
-
-    #[test]
-    fn janus_urls_are_told_from_peer_addresses() {
-        assert!(is_janus_url("http://127.0.0.1:8088/janus"));
-        assert!(is_janus_url(" https://janus.example/janus"));
-        assert!(!is_janus_url("127.0.0.1:5004"));
-        assert!(!is_janus_url("relay.example:5004"));
     }
 }

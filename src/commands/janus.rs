@@ -15,14 +15,16 @@ use super::recording::stop_flag;
 use crate::call::janus::JanusLink;
 use crate::codec::any::{Codec, EncoderSettings};
 use crate::net::janus::JanusError;
+use crate::net::janus::messages::JanusAuth;
 use crate::net::janus::room::{Member, Notice, RoomConfig, server_addr};
 use crate::net::jitter::JitterConfig;
 use crate::vocab::FrameFeatures;
 
 #[derive(Debug, Clone)]
 pub struct JanusArgs {
-    /// Janus's HTTP API, `http://host:8088/janus`.
+    /// Janus's API, `http(s)://host:8088/janus`.
     pub url: String,
+    pub auth: JanusAuth,
     pub room: String,
     pub name: Option<String>,
     /// The room's pin.
@@ -33,6 +35,7 @@ impl JanusArgs {
     fn config(&self, subscribe: bool, default_name: &str) -> RoomConfig {
         RoomConfig {
             url: self.url.clone(),
+            auth: self.auth.clone(),
             room: self.room.clone(),
             name: self
                 .name
@@ -119,6 +122,28 @@ pub struct SendCommand {
     #[arg(long, value_name = "URL", conflicts_with_all = ["to", "key_hex", "codec", "ssrc"],
           requires = "room", display_order = 1)]
     pub janus: Option<String>,
+    #[command(flatten)]
+    pub auth: JanusAuthArgs,
+}
+
+/// The credentials a Janus that restricts its API asks for.
+#[derive(Debug, Clone, Default, clap::Args)]
+pub struct JanusAuthArgs {
+    /// The Janus server's api_secret (its janus.jcfg), sent with every request.
+    #[arg(long, value_name = "SECRET", requires = "janus")]
+    pub janus_secret: Option<String>,
+    /// A token the Janus admin stored for us (token_auth), sent with every request.
+    #[arg(long, value_name = "TOKEN", requires = "janus")]
+    pub janus_token: Option<String>,
+}
+
+impl JanusAuthArgs {
+    fn auth(&self) -> JanusAuth {
+        JanusAuth {
+            api_secret: self.janus_secret.clone(),
+            token: self.janus_token.clone(),
+        }
+    }
 }
 
 /// `lipcall receive`'s flags: direct callers or a relay room, or with `--janus` a Janus room.
@@ -132,6 +157,8 @@ pub struct ReceiveCommand {
     #[arg(long, value_name = "URL", conflicts_with_all = ["listen", "relay", "key_hex"],
           requires = "room", display_order = 1)]
     pub janus: Option<String>,
+    #[command(flatten)]
+    pub auth: JanusAuthArgs,
 }
 
 #[derive(Debug, Clone)]
@@ -211,6 +238,7 @@ pub fn send_command(command: &SendCommand) -> Result<()> {
             &call.input,
             &JanusArgs {
                 url: url.clone(),
+                auth: command.auth.auth(),
                 room: call.room.clone().unwrap_or_default(),
                 name: call.name.clone(),
                 pin: call.key.passphrase.clone(),
@@ -227,6 +255,7 @@ pub fn receive_command(command: &ReceiveCommand) -> Result<()> {
         Some(url) => receive(&JanusReceiveArgs {
             janus: JanusArgs {
                 url: url.clone(),
+                auth: command.auth.auth(),
                 room: call.room.clone().unwrap_or_default(),
                 name: call.name.clone(),
                 pin: call.key.passphrase.clone(),

@@ -92,23 +92,40 @@ pub const STOCK_VIDEOROOM: &str = "/etc/janus/janus.plugin.videoroom.jcfg";
 /// Starts Janus with assets/janus, each of `replaced` (a config file elsewhere, such as
 /// [`STOCK_VIDEOROOM`]) taking the place of the repository's file of the same name.
 pub fn start_janus_with(dir: &Path, replaced: &[&Path]) -> Janus {
+    start_janus_edited(dir, "http", |name, text| {
+        match replaced
+            .iter()
+            .find(|r| r.file_name() == Some(name.as_ref()))
+        {
+            Some(other) => std::fs::read_to_string(other).unwrap(),
+            None => text,
+        }
+    })
+}
+
+/// Starts Janus with assets/janus, each file's text (by name) passed through `edit` after the
+/// port (`PORT` in what `edit` returns is the port too); its API at `scheme://127.0.0.1:PORT/janus`.
+pub fn start_janus_edited(
+    dir: &Path,
+    scheme: &str,
+    edit: impl Fn(&str, String) -> String,
+) -> Janus {
     let config = dir.join("janus-config");
     std::fs::create_dir_all(&config).unwrap();
     let port = free_tcp_port();
     for entry in std::fs::read_dir(repo_file("assets/janus")).unwrap() {
-        let mut path = entry.unwrap().path();
-        if let Some(other) = replaced.iter().find(|r| r.file_name() == path.file_name()) {
-            path = other.to_path_buf();
-        }
+        let path = entry.unwrap().path();
+        let name = path.file_name().unwrap().to_string_lossy().to_string();
         let text = std::fs::read_to_string(&path).unwrap();
-        // The one change to the repository's config: the port.
+        // The one change every test makes to the repository's config: the port.
         let text = text.replace("port = 8088", &format!("port = {port}"));
-        std::fs::write(config.join(path.file_name().unwrap()), text).unwrap();
+        let text = edit(&name, text).replace("PORT", &port.to_string());
+        std::fs::write(config.join(&name), text).unwrap();
     }
     let log = dir.join("janus.log");
     let mut janus = Janus {
         child: run_janus(&config, &log),
-        url: format!("http://127.0.0.1:{port}/janus"),
+        url: format!("{scheme}://127.0.0.1:{port}/janus"),
         port,
         config,
         log,
@@ -154,4 +171,46 @@ impl Janus {
         self.child = run_janus(&self.config, &self.log);
         self.wait_ready();
     }
+}
+
+/// The level (dB) of each 20 ms of a WAV, whatever its rate.
+pub fn envelope(path: &Path) -> Vec<f64> {
+    let (rate, samples) = super::read_wav_i16(path);
+    let frame = (rate / 50) as usize;
+    samples
+        .chunks_exact(frame)
+        .map(|c| {
+            let power = c.iter().map(|&x| f64::from(x).powi(2)).sum::<f64>() / frame as f64;
+            10.0 * (power + 1.0).log10()
+        })
+        .collect()
+}
+
+/// The best correlation of two level contours within +-1 s of lag.
+pub fn envelope_correlation(a: &[f64], b: &[f64]) -> f64 {
+    (-50isize..=50)
+        .filter_map(|lag| {
+            let pairs: Vec<(f64, f64)> = (0..a.len())
+                .filter_map(|i| {
+                    let j = i as isize + lag;
+                    (j >= 0 && (j as usize) < b.len()).then(|| (a[i], b[j as usize]))
+                })
+                .collect();
+            (pairs.len() > 100).then(|| pearson(&pairs))
+        })
+        .fold(f64::MIN, f64::max)
+}
+
+fn pearson(pairs: &[(f64, f64)]) -> f64 {
+    let n = pairs.len() as f64;
+    let (ma, mb) = pairs
+        .iter()
+        .fold((0.0, 0.0), |(x, y), (a, b)| (x + a / n, y + b / n));
+    let (mut sab, mut saa, mut sbb) = (0.0, 0.0, 0.0);
+    for (a, b) in pairs {
+        sab += (a - ma) * (b - mb);
+        saa += (a - ma).powi(2);
+        sbb += (b - mb).powi(2);
+    }
+    sab / (saa * sbb).sqrt().max(1e-12)
 }

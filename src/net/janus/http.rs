@@ -13,8 +13,10 @@ use std::time::{Duration, Instant};
 
 use serde_json::Value;
 
+use ureq::tls::{RootCerts, TlsConfig, TlsProvider};
+
 use super::JanusError;
-use super::messages;
+use super::messages::{self, JanusAuth};
 
 /// How long an asynchronous request may take before its event comes.
 const EVENT_TIMEOUT: Duration = Duration::from_secs(10);
@@ -38,7 +40,7 @@ enum Polled {
 /// A Janus session over HTTP.
 pub struct Client {
     base: String,
-    agent: ureq::Agent,
+    api: Api,
     session: u64,
     events: Receiver<Polled>,
     /// Events read while waiting for another one.
@@ -57,36 +59,60 @@ impl std::fmt::Debug for Client {
     }
 }
 
-fn new_agent(timeout: Duration) -> ureq::Agent {
-    ureq::Agent::config_builder()
-        .timeout_global(Some(timeout))
-        // Janus answers errors in JSON with status 200; anything else is reported with its status.
-        .http_status_as_error(false)
-        .build()
-        .into()
+/// An HTTP(S) client of the API with its credentials: https through the system's OpenSSL and
+/// certificate store (`SSL_CERT_FILE` adds a private CA).
+#[derive(Clone)]
+struct Api {
+    agent: ureq::Agent,
+    auth: JanusAuth,
+}
+
+impl Api {
+    fn new(timeout: Duration, auth: &JanusAuth) -> Self {
+        let tls = TlsConfig::builder()
+            .provider(TlsProvider::NativeTls)
+            .root_certs(RootCerts::PlatformVerifier)
+            .build();
+        let agent = ureq::Agent::config_builder()
+            .timeout_global(Some(timeout))
+            .tls_config(tls)
+            // Janus answers errors in JSON with status 200; anything else is reported with
+            // its status.
+            .http_status_as_error(false)
+            .build()
+            .into();
+        Self {
+            agent,
+            auth: auth.clone(),
+        }
+    }
+
+    fn post(&self, url: &str, body: Value) -> Result<Value, JanusError> {
+        let http = |e: ureq::Error| JanusError::Http {
+            url: url.to_string(),
+            reason: e.to_string(),
+        };
+        let mut response = self
+            .agent
+            .post(url)
+            .send_json(self.auth.sign(body))
+            .map_err(http)?;
+        if !response.status().is_success() {
+            return Err(JanusError::Http {
+                url: url.to_string(),
+                reason: format!("HTTP status {}", response.status()),
+            });
+        }
+        let reply: Value = response
+            .body_mut()
+            .read_json()
+            .map_err(|e| not_janus(url, e))?;
+        messages::check(reply)
+    }
 }
 
 fn transaction(counter: &AtomicU64) -> String {
     format!("lipcall-{}", counter.fetch_add(1, Ordering::Relaxed))
-}
-
-fn post(agent: &ureq::Agent, url: &str, body: &Value) -> Result<Value, JanusError> {
-    let http = |e: ureq::Error| JanusError::Http {
-        url: url.to_string(),
-        reason: e.to_string(),
-    };
-    let mut response = agent.post(url).send_json(body).map_err(http)?;
-    if !response.status().is_success() {
-        return Err(JanusError::Http {
-            url: url.to_string(),
-            reason: format!("HTTP status {}", response.status()),
-        });
-    }
-    let reply: Value = response
-        .body_mut()
-        .read_json()
-        .map_err(|e| not_janus(url, e))?;
-    messages::check(reply)
 }
 
 /// A server that answered, but not with Janus's JSON.
@@ -98,23 +124,19 @@ fn not_janus(url: &str, e: ureq::Error) -> JanusError {
 }
 
 impl Client {
-    /// Creates a session on the Janus at `base` (`http://host:8088/janus`).
-    pub fn connect(base: &str) -> Result<Self, JanusError> {
-        let base = base.trim_end_matches('/').to_string();
-        let agent = new_agent(Duration::from_secs(5));
+    /// Creates a session on the Janus at `base` (`http(s)://host:8088/janus`).
+    pub fn connect(base: &str, auth: &JanusAuth) -> Result<Self, JanusError> {
+        let base = base.trim().trim_end_matches('/').to_string();
+        let api = Api::new(Duration::from_secs(5), auth);
         let counter = Arc::new(AtomicU64::new(1));
-        let reply = post(
-            &agent,
-            &base,
-            &messages::create_session(&transaction(&counter)),
-        )?;
+        let reply = api.post(&base, messages::create_session(&transaction(&counter)))?;
         let session = messages::success_id(&reply)?;
         let (tx, events) = sync_channel(EVENTS_IN_FLIGHT);
         let stop = Arc::new(AtomicBool::new(false));
         let poller = Poller {
             url: format!("{base}/{session}"),
-            agent: new_agent(Duration::from_secs(45)),
-            keepalive_agent: agent.clone(),
+            api: Api::new(Duration::from_secs(45), auth),
+            keepalive_api: api.clone(),
             counter: Arc::clone(&counter),
             stop: Arc::clone(&stop),
             tx,
@@ -125,7 +147,7 @@ impl Client {
             .map_err(|e| JanusError::Protocol(format!("cannot start the long-poll thread: {e}")))?;
         Ok(Self {
             base,
-            agent,
+            api,
             session,
             events,
             queued: VecDeque::new(),
@@ -142,20 +164,20 @@ impl Client {
     /// Attaches a plugin; returns the handle id.
     pub fn attach(&mut self, plugin: &str) -> Result<u64, JanusError> {
         let t = transaction(&self.next_transaction);
-        let reply = self.post_session(&messages::attach(&t, plugin))?;
+        let reply = self.post_session(messages::attach(&t, plugin))?;
         messages::success_id(&reply)
     }
 
-    fn post_session(&mut self, body: &Value) -> Result<Value, JanusError> {
+    fn post_session(&mut self, body: Value) -> Result<Value, JanusError> {
         let url = format!("{}/{}", self.base, self.session);
-        post(&self.agent, &url, body)
+        self.api.post(&url, body)
     }
 
     /// A plugin request answered at once (`create`, `exists`, ...): the plugin's data.
     pub fn request(&mut self, handle: u64, body: Value) -> Result<Value, JanusError> {
         let t = transaction(&self.next_transaction);
         let url = format!("{}/{}/{handle}", self.base, self.session);
-        let reply = post(&self.agent, &url, &messages::message(&t, body, None))?;
+        let reply = self.api.post(&url, messages::message(&t, body, None))?;
         messages::plugin_data(&reply).cloned()
     }
 
@@ -169,7 +191,7 @@ impl Client {
     ) -> Result<Value, JanusError> {
         let t = transaction(&self.next_transaction);
         let url = format!("{}/{}/{handle}", self.base, self.session);
-        let reply = post(&self.agent, &url, &messages::message(&t, body, jsep))?;
+        let reply = self.api.post(&url, messages::message(&t, body, jsep))?;
         if reply["janus"] != "ack" {
             // Some requests are answered at once even when they could have been later.
             messages::plugin_data(&reply)?;
@@ -184,7 +206,9 @@ impl Client {
     pub fn trickle_completed(&mut self, handle: u64) -> Result<(), JanusError> {
         let t = transaction(&self.next_transaction);
         let url = format!("{}/{}/{handle}", self.base, self.session);
-        post(&self.agent, &url, &messages::trickle_completed(&t)).map(|_| ())
+        self.api
+            .post(&url, messages::trickle_completed(&t))
+            .map(|_| ())
     }
 
     fn wait_for(&mut self, transaction: &str) -> Result<Value, JanusError> {
@@ -242,7 +266,7 @@ impl Client {
     pub fn detach(&mut self, handle: u64) -> Result<(), JanusError> {
         let t = transaction(&self.next_transaction);
         let url = format!("{}/{}/{handle}", self.base, self.session);
-        post(&self.agent, &url, &messages::detach(&t)).map(|_| ())
+        self.api.post(&url, messages::detach(&t)).map(|_| ())
     }
 
     /// Destroys the session: Janus hangs up its peer connections and tells the room.
@@ -252,7 +276,7 @@ impl Client {
             return Ok(());
         }
         let t = transaction(&self.next_transaction);
-        self.post_session(&messages::destroy(&t)).map(|_| ())
+        self.post_session(messages::destroy(&t)).map(|_| ())
     }
 }
 
@@ -266,8 +290,8 @@ impl Drop for Client {
 
 struct Poller {
     url: String,
-    agent: ureq::Agent,
-    keepalive_agent: ureq::Agent,
+    api: Api,
+    keepalive_api: Api,
     counter: Arc<AtomicU64>,
     stop: Arc<AtomicBool>,
     tx: SyncSender<Polled>,
@@ -280,7 +304,7 @@ impl Poller {
             if last_keepalive.elapsed() >= KEEPALIVE {
                 last_keepalive = Instant::now();
                 let t = transaction(&self.counter);
-                if let Err(e) = post(&self.keepalive_agent, &self.url, &messages::keepalive(&t)) {
+                if let Err(e) = self.keepalive_api.post(&self.url, messages::keepalive(&t)) {
                     self.hand_over(Polled::Lost(e));
                     return;
                 }
@@ -324,11 +348,11 @@ impl Poller {
             url: self.url.clone(),
             reason: e.to_string(),
         };
-        let mut response = self
-            .agent
-            .get(&format!("{}?maxev=10", self.url))
-            .call()
-            .map_err(http)?;
+        let mut request = self.api.agent.get(&self.url).query("maxev", "10");
+        for (key, value) in self.api.auth.query() {
+            request = request.query(key, value);
+        }
+        let mut response = request.call().map_err(http)?;
         if !response.status().is_success() {
             return Err(JanusError::Http {
                 url: self.url.clone(),

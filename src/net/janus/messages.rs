@@ -20,6 +20,39 @@ pub const INVALID_ELEMENT: i64 = 430;
 /// Janus core: the session is gone (expired, or Janus restarted).
 pub const NO_SUCH_SESSION: i64 = 458;
 
+/// What a Janus that restricts its API asks of every request: its `api_secret`, and a token
+/// its admin stored (`token_auth`).
+#[derive(Debug, Clone, Default, PartialEq, Eq)]
+pub struct JanusAuth {
+    pub api_secret: Option<String>,
+    pub token: Option<String>,
+}
+
+impl JanusAuth {
+    /// `request` with the credentials Janus reads from every request.
+    pub fn sign(&self, mut request: Value) -> Value {
+        if let Some(secret) = &self.api_secret {
+            request["apisecret"] = json!(secret);
+        }
+        if let Some(token) = &self.token {
+            request["token"] = json!(token);
+        }
+        request
+    }
+
+    /// The same, as the query of a long poll (a GET has no body).
+    pub fn query(&self) -> Vec<(&'static str, &str)> {
+        let mut q = Vec::new();
+        if let Some(secret) = &self.api_secret {
+            q.push(("apisecret", secret.as_str()));
+        }
+        if let Some(token) = &self.token {
+            q.push(("token", token.as_str()));
+        }
+        q
+    }
+}
+
 pub fn create_session(transaction: &str) -> Value {
     json!({ "janus": "create", "transaction": transaction })
 }

@@ -13,6 +13,7 @@ pub mod http;
 pub mod media;
 pub mod messages;
 pub mod room;
+pub mod url;
 
 /// Everything a Janus room can fail with.
 #[derive(Debug, thiserror::Error)]

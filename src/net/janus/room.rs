@@ -8,7 +8,6 @@
 //! busy, holds up the audio, `--seconds` or a stop.
 
 use std::collections::{HashMap, HashSet};
-use std::net::{SocketAddr, ToSocketAddrs};
 use std::sync::atomic::{AtomicBool, Ordering};
 use std::sync::mpsc::{Receiver, SyncSender, TrySendError, sync_channel};
 use std::sync::{Arc, Mutex, PoisonError};
@@ -20,14 +19,19 @@ use serde_json::Value;
 use super::JanusError;
 use super::http::Client;
 use super::media::{FeedInfo, Media, MediaStats, host_ips};
-use super::messages::{self, INVALID_ELEMENT, IdKind, NO_SUCH_ROOM, ROOM_EXISTS, VIDEOROOM};
+use super::messages::{
+    self, INVALID_ELEMENT, IdKind, JanusAuth, NO_SUCH_ROOM, ROOM_EXISTS, VIDEOROOM,
+};
+pub use super::url::server_addr;
 use crate::net::jitter::JitterConfig;
 use crate::net::session::PeerFrame;
 
 #[derive(Debug, Clone)]
 pub struct RoomConfig {
-    /// Janus's HTTP API, `http://host:8088/janus`.
+    /// Janus's API, `http(s)://host:8088/janus`.
     pub url: String,
+    /// What a Janus that restricts its API asks of every request.
+    pub auth: JanusAuth,
     pub room: String,
     /// Display name in the room.
     pub name: String,
@@ -92,40 +96,11 @@ impl std::fmt::Debug for Room {
     }
 }
 
-/// The host part of an `http://host:port/path` URL.
-fn url_host(url: &str) -> Option<(String, u16)> {
-    let rest = url.strip_prefix("http://")?;
-    let authority = rest.split('/').next()?;
-    match authority.rsplit_once(':') {
-        Some((host, port)) if !host.ends_with(']') || host.starts_with('[') => Some((
-            host.trim_matches(['[', ']']).to_string(),
-            port.parse().ok()?,
-        )),
-        _ => Some((authority.to_string(), 80)),
-    }
-}
-
-/// Where the Janus server of an `http://HOST:PORT/janus` URL is.
-pub fn server_addr(url: &str) -> Result<SocketAddr, JanusError> {
-    let (host, port) = url_host(url).ok_or_else(|| JanusError::Http {
-        url: url.to_string(),
-        reason: "expected an http://HOST:PORT/janus URL".into(),
-    })?;
-    (host.as_str(), port)
-        .to_socket_addrs()
-        .ok()
-        .and_then(|mut a| a.next())
-        .ok_or_else(|| JanusError::Http {
-            url: url.to_string(),
-            reason: format!("cannot resolve {host}"),
-        })
-}
-
 impl Room {
     /// Connects to Janus and joins the room, creating it if it does not exist.
     pub fn join(config: RoomConfig) -> Result<(Self, Vec<Notice>), JanusError> {
         let janus_ip = server_addr(&config.url)?.ip();
-        let mut client = Client::connect(&config.url)?;
+        let mut client = Client::connect(&config.url, &config.auth)?;
         let handle = client.attach(VIDEOROOM)?;
         let (ids, room_id, joined) = join_as_numbered(&mut client, handle, &config)?;
         let data = messages::plugin_data(&joined)?;
@@ -654,45 +629,5 @@ impl Follower {
                 tracing::debug!("room notice dropped (nobody reading): {dropped:?}");
             }
         }
-    }
-}
-
-#[cfg(test)]
-mod tests {
-    use super::*;
-
-    #[test]
-    fn janus_urls_name_their_host() {
-        assert_eq!(
-            url_host("http://127.0.0.1:8088/janus"),
-            Some(("127.0.0.1".into(), 8088))
-        );
-        assert_eq!(
-            url_host("http://janus.example/janus"),
-            Some(("janus.example".into(), 80))
-        );
-        assert_eq!(
-            url_host("http://[::1]:8088/janus"),
-            Some(("::1".into(), 8088))
-        );
-        assert_eq!(url_host("https://x/janus"), None);
-    }
-
-    #[test]
-    fn the_server_address_comes_from_the_url() {
-        assert_eq!(
-            server_addr("http://127.0.0.1:8088/janus").unwrap(),
-            SocketAddr::from(([127, 0, 0, 1], 8088))
-        );
-        assert_eq!(
-            server_addr("http://127.0.0.1/janus").unwrap(),
-            SocketAddr::from(([127, 0, 0, 1], 80))
-        );
-        assert_eq!(
-            server_addr("http://[::1]:8088/janus").unwrap(),
-            "[::1]:8088".parse().unwrap()
-        );
-        let e = server_addr("https://127.0.0.1:8089/janus").unwrap_err();
-        assert!(e.to_string().contains("expected an http://"), "{e}");
     }
 }

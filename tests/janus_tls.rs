@@ -1,0 +1,145 @@
+//! Janus as deployments on the internet run it: its API over HTTPS with a certificate (here a
+//! self-signed one the test makes with openssl and hands to lipcall as the system's store
+//! does, through SSL_CERT_FILE) and an `api_secret`. Each test runs in a network namespace of
+//! its own (tests/common/netns.rs).
+
+mod common;
+
+use std::path::Path;
+use std::process::Command;
+use std::time::Duration;
+
+use common::janus::{IN_ROOM, envelope, envelope_correlation, start_janus_edited};
+use common::net::{finish, spawn, spawn_listening};
+use common::{lipcall, repo_file};
+
+const SECRET: &str = "s3cret janus";
+
+/// A self-signed certificate for 127.0.0.1: (certificate, key).
+fn self_signed(dir: &Path) -> (String, String) {
+    let cert = dir.join("janus-cert.pem");
+    let key = dir.join("janus-key.pem");
+    let status = Command::new("openssl")
+        .args([
+            "req", "-x509", "-newkey", "rsa:2048", "-nodes", "-days", "2",
+        ])
+        .args([
+            "-subj",
+            "/CN=127.0.0.1",
+            "-addext",
+            "subjectAltName=IP:127.0.0.1",
+        ])
+        .arg("-keyout")
+        .arg(&key)
+        .arg("-out")
+        .arg(&cert)
+        .output()
+        .expect("openssl (Debian package openssl)");
+    assert!(status.status.success(), "{status:?}");
+    (
+        cert.to_string_lossy().into_owned(),
+        key.to_string_lossy().into_owned(),
+    )
+}
+
+fn janus_https_with_secret(dir: &Path, cert: &str, key: &str) -> common::janus::Janus {
+    start_janus_edited(dir, "https", |name, text| match name {
+        "janus.transport.http.jcfg" => format!(
+            "general: {{\n\tjson = \"compact\"\n\tbase_path = \"/janus\"\n\thttp = false\n\t\
+             https = true\n\tsecure_ip = \"127.0.0.1\"\n\tsecure_port = PORT\n}}\n\
+             admin: {{\n\tadmin_http = false\n\tadmin_https = false\n}}\n\
+             certificates: {{\n\tcert_pem = \"{cert}\"\n\tcert_key = \"{key}\"\n}}\n"
+        ),
+        "janus.jcfg" => text.replace(
+            "\tserver_name = \"lipcall-janus\"",
+            &format!("\tserver_name = \"lipcall-janus\"\n\tapi_secret = \"{SECRET}\""),
+        ),
+        _ => text,
+    })
+}
+
+#[test]
+fn a_janus_over_https_with_an_api_secret_carries_a_call() {
+    if !common::janus::runs_here("a_janus_over_https_with_an_api_secret_carries_a_call") {
+        return;
+    }
+    let dir = tempfile::tempdir().unwrap();
+    let (cert, key) = self_signed(dir.path());
+    let janus = janus_https_with_secret(dir.path(), &cert, &key);
+    let speech = repo_file("assets/speech/demo.wav");
+    let wav = dir.path().join("tls.wav");
+    let weights = dir.path().join("tls-weights.csv");
+    let receiver = spawn_listening(
+        lipcall()
+            .env("SSL_CERT_FILE", &cert)
+            .args(["receive", "--janus", &janus.url, "--room", "secure"])
+            .args(["--janus-secret", SECRET, "--name", "Bob", "--seconds", "13"])
+            .arg("--wav")
+            .arg(&wav)
+            .arg("--weights")
+            .arg(&weights),
+        IN_ROOM,
+    );
+    let sender = spawn(
+        lipcall()
+            .env("SSL_CERT_FILE", &cert)
+            .arg("send")
+            .arg(&speech)
+            .args(["--janus", &janus.url, "--room", "secure"])
+            .args(["--janus-secret", SECRET, "--name", "Ann"]),
+    );
+    let (_, sent) = finish(
+        sender,
+        Duration::from_secs(30),
+        "lipcall send --janus https",
+    );
+    let (_, received) = receiver.finish(Duration::from_secs(30), "lipcall receive --janus https");
+    let r = envelope_correlation(&envelope(&speech), &envelope(&wav));
+    eprintln!("level contour r {r:.3}");
+    assert!(
+        r > 0.9,
+        "heard over HTTPS: r {r:.3}\nsender: {sent}\nreceiver: {received}"
+    );
+    assert!(received.contains("left"), "{received}");
+
+    // Without the secret: Janus's refusal, said at once.
+    let out = lipcall()
+        .env("SSL_CERT_FILE", &cert)
+        .args([
+            "receive",
+            "--janus",
+            &janus.url,
+            "--room",
+            "secure",
+            "--seconds",
+            "2",
+        ])
+        .output()
+        .unwrap();
+    let stderr = String::from_utf8_lossy(&out.stderr);
+    assert_eq!(out.status.code(), Some(1), "{stderr}");
+    assert!(stderr.contains("Janus error 403"), "{stderr}");
+
+    // A certificate nobody vouches for: refused, with TLS's reason.
+    let out = lipcall()
+        .env("SSL_CERT_FILE", "/nonexistent")
+        .env("SSL_CERT_DIR", "/nonexistent")
+        .args([
+            "receive",
+            "--janus",
+            &janus.url,
+            "--room",
+            "secure",
+            "--seconds",
+            "2",
+        ])
+        .args(["--janus-secret", SECRET])
+        .output()
+        .unwrap();
+    let stderr = String::from_utf8_lossy(&out.stderr);
+    assert_eq!(out.status.code(), Some(1), "{stderr}");
+    assert!(
+        stderr.contains("cannot reach Janus") && stderr.contains("certificate"),
+        "{stderr}"
+    );
+}
