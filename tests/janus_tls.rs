@@ -7,9 +7,9 @@ mod common;
 
 use std::path::Path;
 use std::process::Command;
-use std::time::Duration;
+use std::time::{Duration, Instant};
 
-use common::janus::{IN_ROOM, envelope, envelope_correlation, start_janus_edited};
+use common::janus::{IN_ROOM, envelope, envelope_correlation, free_tcp_port, start_janus_edited};
 use common::net::{finish, spawn, spawn_listening};
 use common::{lipcall, repo_file};
 
@@ -58,6 +58,100 @@ fn janus_https_with_secret(dir: &Path, cert: &str, key: &str) -> common::janus::
     })
 }
 
+/// Janus with its WebSocket transport over TLS (wss) and an api_secret: the Janus and its
+/// `wss://127.0.0.1:PORT` URL.
+fn janus_wss_with_secret(dir: &Path, cert: &str, key: &str) -> (common::janus::Janus, String) {
+    let config = dir.join("janus-config");
+    std::fs::create_dir_all(&config).unwrap();
+    let port = free_tcp_port();
+    std::fs::write(
+        config.join("janus.transport.websockets.jcfg"),
+        format!(
+            "general: {{\n\tjson = \"compact\"\n\tws = false\n\twss = true\n\t\
+             wss_ip = \"127.0.0.1\"\n\twss_port = {port}\n}}\n\
+             admin: {{\n\tadmin_ws = false\n\tadmin_wss = false\n}}\n\
+             certificates: {{\n\tcert_pem = \"{cert}\"\n\tcert_key = \"{key}\"\n}}\n"
+        ),
+    )
+    .unwrap();
+    let janus = start_janus_edited(dir, "http", |name, text| match name {
+        "janus.jcfg" => text
+            .replace(
+                "\tserver_name = \"lipcall-janus\"",
+                &format!("\tserver_name = \"lipcall-janus\"\n\tapi_secret = \"{SECRET}\""),
+            )
+            .replace(",libjanus_websockets.so", ""),
+        _ => text,
+    });
+    let deadline = Instant::now() + Duration::from_secs(15);
+    while std::net::TcpStream::connect(("127.0.0.1", port)).is_err() {
+        assert!(
+            Instant::now() < deadline,
+            "Janus did not open its WebSocket port"
+        );
+        std::thread::sleep(Duration::from_millis(50));
+    }
+    (janus, format!("wss://127.0.0.1:{port}"))
+}
+
+/// `send` and `receive` meet in `room` at `url`, with the secret: how well the speech is heard.
+fn call_through(dir: &Path, url: &str, cert: &str, room: &str) -> f64 {
+    let speech = repo_file("assets/speech/demo.wav");
+    let wav = dir.join(format!("{room}.wav"));
+    let receiver = spawn_listening(
+        lipcall()
+            .env("SSL_CERT_FILE", cert)
+            .args(["receive", "--janus", url, "--room", room])
+            .args(["--janus-secret", SECRET, "--name", "Bob", "--seconds", "13"])
+            .arg("--wav")
+            .arg(&wav),
+        IN_ROOM,
+    );
+    let sender = spawn(
+        lipcall()
+            .env("SSL_CERT_FILE", cert)
+            .arg("send")
+            .arg(&speech)
+            .args(["--janus", url, "--room", room])
+            .args(["--janus-secret", SECRET, "--name", "Ann"]),
+    );
+    let (_, sent) = finish(sender, Duration::from_secs(30), "lipcall send --janus");
+    let (_, received) = receiver.finish(Duration::from_secs(30), "lipcall receive --janus");
+    let r = envelope_correlation(&envelope(&speech), &envelope(&wav));
+    eprintln!("{url}: level contour r {r:.3}\nsender: {sent}\nreceiver: {received}");
+    assert!(received.contains("left"), "{received}");
+    r
+}
+
+#[test]
+fn a_janus_over_wss_with_an_api_secret_carries_a_call() {
+    if !common::janus::runs_here("a_janus_over_wss_with_an_api_secret_carries_a_call") {
+        return;
+    }
+    let dir = tempfile::tempdir().unwrap();
+    let (cert, key) = self_signed(dir.path());
+    let (_janus, url) = janus_wss_with_secret(dir.path(), &cert, &key);
+    let r = call_through(dir.path(), &url, &cert, "over-wss");
+    assert!(r > 0.9, "heard over WSS: r {r:.3}");
+
+    let out = lipcall()
+        .env("SSL_CERT_FILE", &cert)
+        .args([
+            "receive",
+            "--janus",
+            &url,
+            "--room",
+            "over-wss",
+            "--seconds",
+            "2",
+        ])
+        .output()
+        .unwrap();
+    let stderr = String::from_utf8_lossy(&out.stderr);
+    assert_eq!(out.status.code(), Some(1), "{stderr}");
+    assert!(stderr.contains("Janus error 403"), "{stderr}");
+}
+
 #[test]
 fn a_janus_over_https_with_an_api_secret_carries_a_call() {
     if !common::janus::runs_here("a_janus_over_https_with_an_api_secret_carries_a_call") {
@@ -66,41 +160,8 @@ fn a_janus_over_https_with_an_api_secret_carries_a_call() {
     let dir = tempfile::tempdir().unwrap();
     let (cert, key) = self_signed(dir.path());
     let janus = janus_https_with_secret(dir.path(), &cert, &key);
-    let speech = repo_file("assets/speech/demo.wav");
-    let wav = dir.path().join("tls.wav");
-    let weights = dir.path().join("tls-weights.csv");
-    let receiver = spawn_listening(
-        lipcall()
-            .env("SSL_CERT_FILE", &cert)
-            .args(["receive", "--janus", &janus.url, "--room", "secure"])
-            .args(["--janus-secret", SECRET, "--name", "Bob", "--seconds", "13"])
-            .arg("--wav")
-            .arg(&wav)
-            .arg("--weights")
-            .arg(&weights),
-        IN_ROOM,
-    );
-    let sender = spawn(
-        lipcall()
-            .env("SSL_CERT_FILE", &cert)
-            .arg("send")
-            .arg(&speech)
-            .args(["--janus", &janus.url, "--room", "secure"])
-            .args(["--janus-secret", SECRET, "--name", "Ann"]),
-    );
-    let (_, sent) = finish(
-        sender,
-        Duration::from_secs(30),
-        "lipcall send --janus https",
-    );
-    let (_, received) = receiver.finish(Duration::from_secs(30), "lipcall receive --janus https");
-    let r = envelope_correlation(&envelope(&speech), &envelope(&wav));
-    eprintln!("level contour r {r:.3}");
-    assert!(
-        r > 0.9,
-        "heard over HTTPS: r {r:.3}\nsender: {sent}\nreceiver: {received}"
-    );
-    assert!(received.contains("left"), "{received}");
+    let r = call_through(dir.path(), &janus.url, &cert, "secure");
+    assert!(r > 0.9, "heard over HTTPS: r {r:.3}");
 
     // Without the secret: Janus's refusal, said at once.
     let out = lipcall()

@@ -1,7 +1,8 @@
-//! Janus's HTTP API: requests are POSTs answered at once (`success`, `ack` or `error`); what
-//! comes later (a plugin's answer to an asynchronous request, room events) is fetched by a long
-//! poll, a GET on the session that Janus holds up to 30 s. One thread runs the long poll and
-//! the keepalive and hands events over a channel; requests are made on the caller's thread.
+//! A Janus session over its API. Over HTTP(S), requests are POSTs answered at once (`success`,
+//! `ack` or `error`); what comes later (a plugin's answer to an asynchronous request, room
+//! events) is fetched by a long poll, a GET on the session that Janus holds up to 30 s. One
+//! thread runs the long poll and the keepalive and hands events over a channel; requests are
+//! made on the caller's thread. Over a WebSocket ([`super::ws`]) one socket carries both.
 
 use std::collections::VecDeque;
 use std::sync::Arc;
@@ -17,11 +18,13 @@ use ureq::tls::{RootCerts, TlsConfig, TlsProvider};
 
 use super::JanusError;
 use super::messages::{self, JanusAuth};
+use super::url::{JanusUrl, Transport};
+use super::ws::WsCarrier;
 
 /// How long an asynchronous request may take before its event comes.
 const EVENT_TIMEOUT: Duration = Duration::from_secs(10);
 /// Janus destroys a session after 60 s of silence (its default `session_timeout`).
-const KEEPALIVE: Duration = Duration::from_secs(15);
+pub(super) const KEEPALIVE: Duration = Duration::from_secs(15);
 /// Events the long poll hands over before it waits for them to be read: a server flooding
 /// events is slowed to the reader's pace instead of filling memory.
 const EVENTS_IN_FLIGHT: usize = 256;
@@ -30,17 +33,22 @@ const EVENTS_SET_ASIDE: usize = 1024;
 /// The most events taken from one long-poll answer (lipcall asks for at most 10).
 const EVENTS_PER_ANSWER: usize = 100;
 
-/// What the long-poll thread hands over.
-enum Polled {
+/// What the long-poll (or WebSocket) thread hands over.
+pub(super) enum Polled {
     Event(Value),
     /// The session is gone or Janus unreachable; the thread has stopped.
     Lost(JanusError),
 }
 
-/// A Janus session over HTTP.
+/// How requests reach Janus.
+enum Carrier {
+    Http { api: Api, base: String },
+    WebSocket(WsCarrier),
+}
+
+/// A Janus session.
 pub struct Client {
-    base: String,
-    api: Api,
+    carrier: Carrier,
     session: u64,
     events: Receiver<Polled>,
     /// Events read while waiting for another one.
@@ -53,7 +61,7 @@ pub struct Client {
 impl std::fmt::Debug for Client {
     fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
         f.debug_struct("Client")
-            .field("base", &self.base)
+            .field("websocket", &matches!(self.carrier, Carrier::WebSocket(_)))
             .field("session", &self.session)
             .finish_non_exhaustive()
     }
@@ -111,7 +119,7 @@ impl Api {
     }
 }
 
-fn transaction(counter: &AtomicU64) -> String {
+pub(super) fn transaction(counter: &AtomicU64) -> String {
     format!("lipcall-{}", counter.fetch_add(1, Ordering::Relaxed))
 }
 
@@ -124,15 +132,29 @@ fn not_janus(url: &str, e: ureq::Error) -> JanusError {
 }
 
 impl Client {
-    /// Creates a session on the Janus at `base` (`http(s)://host:8088/janus`).
+    /// Creates a session on the Janus at `base` (`http(s)://host:8088/janus`, or
+    /// `ws(s)://host:8188` for its WebSocket transport).
     pub fn connect(base: &str, auth: &JanusAuth) -> Result<Self, JanusError> {
         let base = base.trim().trim_end_matches('/').to_string();
-        let api = Api::new(Duration::from_secs(5), auth);
         let counter = Arc::new(AtomicU64::new(1));
+        let stop = Arc::new(AtomicBool::new(false));
+        let (tx, events) = sync_channel(EVENTS_IN_FLIGHT);
+        if JanusUrl::parse(&base)?.transport == Transport::WebSocket {
+            let mut ws = WsCarrier::open(&base, auth, tx, Arc::clone(&stop), Arc::clone(&counter))?;
+            let reply = ws.request(messages::create_session(&transaction(&counter)))?;
+            let session = messages::success_id(&reply)?;
+            ws.set_session(session);
+            return Ok(Self::new(
+                Carrier::WebSocket(ws),
+                session,
+                events,
+                counter,
+                stop,
+            ));
+        }
+        let api = Api::new(Duration::from_secs(5), auth);
         let reply = api.post(&base, messages::create_session(&transaction(&counter)))?;
         let session = messages::success_id(&reply)?;
-        let (tx, events) = sync_channel(EVENTS_IN_FLIGHT);
-        let stop = Arc::new(AtomicBool::new(false));
         let poller = Poller {
             url: format!("{base}/{session}"),
             api: Api::new(Duration::from_secs(45), auth),
@@ -145,16 +167,52 @@ impl Client {
             .name("lipcall-janus-poll".into())
             .spawn(move || poller.run())
             .map_err(|e| JanusError::Protocol(format!("cannot start the long-poll thread: {e}")))?;
-        Ok(Self {
-            base,
-            api,
+        Ok(Self::new(
+            Carrier::Http { api, base },
+            session,
+            events,
+            counter,
+            stop,
+        ))
+    }
+
+    fn new(
+        carrier: Carrier,
+        session: u64,
+        events: Receiver<Polled>,
+        next_transaction: Arc<AtomicU64>,
+        stop: Arc<AtomicBool>,
+    ) -> Self {
+        Self {
+            carrier,
             session,
             events,
             queued: VecDeque::new(),
-            next_transaction: counter,
+            next_transaction,
             stop,
             lost: None,
-        })
+        }
+    }
+
+    /// A request to the session (`handle`: to one of its plugin handles), answered at once.
+    fn exchange(&mut self, handle: Option<u64>, body: Value) -> Result<Value, JanusError> {
+        match &mut self.carrier {
+            Carrier::Http { api, base } => {
+                let url = match handle {
+                    Some(h) => format!("{base}/{}/{h}", self.session),
+                    None => format!("{base}/{}", self.session),
+                };
+                api.post(&url, body)
+            }
+            Carrier::WebSocket(ws) => {
+                let mut body = body;
+                body["session_id"] = self.session.into();
+                if let Some(h) = handle {
+                    body["handle_id"] = h.into();
+                }
+                ws.request(body)
+            }
+        }
     }
 
     pub fn session(&self) -> u64 {
@@ -164,20 +222,14 @@ impl Client {
     /// Attaches a plugin; returns the handle id.
     pub fn attach(&mut self, plugin: &str) -> Result<u64, JanusError> {
         let t = transaction(&self.next_transaction);
-        let reply = self.post_session(messages::attach(&t, plugin))?;
+        let reply = self.exchange(None, messages::attach(&t, plugin))?;
         messages::success_id(&reply)
-    }
-
-    fn post_session(&mut self, body: Value) -> Result<Value, JanusError> {
-        let url = format!("{}/{}", self.base, self.session);
-        self.api.post(&url, body)
     }
 
     /// A plugin request answered at once (`create`, `exists`, ...): the plugin's data.
     pub fn request(&mut self, handle: u64, body: Value) -> Result<Value, JanusError> {
         let t = transaction(&self.next_transaction);
-        let url = format!("{}/{}/{handle}", self.base, self.session);
-        let reply = self.api.post(&url, messages::message(&t, body, None))?;
+        let reply = self.exchange(Some(handle), messages::message(&t, body, None))?;
         messages::plugin_data(&reply).cloned()
     }
 
@@ -190,8 +242,7 @@ impl Client {
         jsep: Option<(&str, &str)>,
     ) -> Result<Value, JanusError> {
         let t = transaction(&self.next_transaction);
-        let url = format!("{}/{}/{handle}", self.base, self.session);
-        let reply = self.api.post(&url, messages::message(&t, body, jsep))?;
+        let reply = self.exchange(Some(handle), messages::message(&t, body, jsep))?;
         if reply["janus"] != "ack" {
             // Some requests are answered at once even when they could have been later.
             messages::plugin_data(&reply)?;
@@ -205,9 +256,7 @@ impl Client {
     /// Tells Janus our candidates are all in the SDP already sent on `handle`.
     pub fn trickle_completed(&mut self, handle: u64) -> Result<(), JanusError> {
         let t = transaction(&self.next_transaction);
-        let url = format!("{}/{}/{handle}", self.base, self.session);
-        self.api
-            .post(&url, messages::trickle_completed(&t))
+        self.exchange(Some(handle), messages::trickle_completed(&t))
             .map(|_| ())
     }
 
@@ -257,7 +306,7 @@ impl Client {
             }
             Err(TryRecvError::Empty) => Ok(None),
             Err(TryRecvError::Disconnected) => {
-                Err(JanusError::Protocol("the long-poll thread ended".into()))
+                Err(JanusError::Protocol("the event thread ended".into()))
             }
         }
     }
@@ -265,18 +314,21 @@ impl Client {
     /// Detaches a plugin handle (hanging up its peer connection).
     pub fn detach(&mut self, handle: u64) -> Result<(), JanusError> {
         let t = transaction(&self.next_transaction);
-        let url = format!("{}/{}/{handle}", self.base, self.session);
-        self.api.post(&url, messages::detach(&t)).map(|_| ())
+        self.exchange(Some(handle), messages::detach(&t))
+            .map(|_| ())
     }
 
     /// Destroys the session: Janus hangs up its peer connections and tells the room.
     pub fn destroy(&mut self) -> Result<(), JanusError> {
-        self.stop.store(true, Ordering::Relaxed);
         if self.lost.is_some() {
+            self.stop.store(true, Ordering::Relaxed);
             return Ok(());
         }
         let t = transaction(&self.next_transaction);
-        self.post_session(messages::destroy(&t)).map(|_| ())
+        let destroyed = self.exchange(None, messages::destroy(&t)).map(|_| ());
+        // After the request: a WebSocket's thread sends what is queued, then closes.
+        self.stop.store(true, Ordering::Relaxed);
+        destroyed
     }
 }
 
@@ -326,21 +378,8 @@ impl Poller {
         }
     }
 
-    /// Waits until the owner has room for `polled`; false when the owner is gone or stopping.
-    fn hand_over(&self, mut polled: Polled) -> bool {
-        loop {
-            match self.tx.try_send(polled) {
-                Ok(()) => return true,
-                Err(TrySendError::Disconnected(_)) => return false,
-                Err(TrySendError::Full(back)) => {
-                    if self.stop.load(Ordering::Relaxed) {
-                        return false;
-                    }
-                    polled = back;
-                    std::thread::sleep(Duration::from_millis(10));
-                }
-            }
-        }
+    fn hand_over(&self, polled: Polled) -> bool {
+        hand_over(&self.tx, &self.stop, polled)
     }
 
     fn poll(&self) -> Result<Vec<Value>, JanusError> {
@@ -381,5 +420,22 @@ impl Poller {
             }
         }
         Ok(out)
+    }
+}
+
+/// Waits until the owner has room for `polled`; false when the owner is gone or stopping.
+pub(super) fn hand_over(tx: &SyncSender<Polled>, stop: &AtomicBool, mut polled: Polled) -> bool {
+    loop {
+        match tx.try_send(polled) {
+            Ok(()) => return true,
+            Err(TrySendError::Disconnected(_)) => return false,
+            Err(TrySendError::Full(back)) => {
+                if stop.load(Ordering::Relaxed) {
+                    return false;
+                }
+                polled = back;
+                std::thread::sleep(Duration::from_millis(10));
+            }
+        }
     }
 }

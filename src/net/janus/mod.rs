@@ -3,7 +3,8 @@
 //! Janus forwards each publisher's Opus stream to every subscriber unmixed, so each remote
 //! speaker stays a peer of its own with its own lip sync. The media is WebRTC: ICE, DTLS-SRTP
 //! and RTCP through str0m, which is sans-I/O and driven by our own UDP thread
-//! ([`media`]). Signalling is Janus's HTTP API ([`http`]) carrying the VideoRoom requests
+//! ([`media`]). Signalling is Janus's API over HTTP(S) or its WebSocket ([`http`], `ws`),
+//! at a URL [`url`] takes apart, carrying the VideoRoom requests
 //! ([`messages`]); [`room`] puts the two together.
 //!
 //! DTLS-SRTP is hop by hop: Janus decrypts every stream it forwards and could read it, unlike
@@ -14,6 +15,7 @@ pub mod media;
 pub mod messages;
 pub mod room;
 pub mod url;
+mod ws;
 
 /// Everything a Janus room can fail with.
 #[derive(Debug, thiserror::Error)]
