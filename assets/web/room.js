@@ -14,16 +14,22 @@ const VIDEOROOM = 'janus.plugin.videoroom';
 // VideoRoom error codes (janus_videoroom.c).
 const NO_SUCH_ROOM = 426;
 const ROOM_EXISTS = 427;
+const INVALID_ELEMENT = 430;
 
 const query = new URLSearchParams(location.search);
 const config = {
   room: query.get('room'),
   pin: query.get('pin') || null,
   name: query.get('name') || 'browser',
-  janus: query.get('janus') || `${location.protocol}//${location.hostname || '127.0.0.1'}:8088/janus`,
+  janus:
+    query.get('janus') ||
+    `${location.protocol}//${location.hostname || '127.0.0.1'}:${location.protocol === 'https:' ? 8089 : 8088}/janus`,
   debug: query.get('debug') === '1',
 };
 
+// A stock Janus numbers its rooms (string_ids unset): a room that is a number goes as one, and
+// as a string where the server names rooms by strings, as lipcall does.
+let roomId = /^[1-9][0-9]{0,14}$/.test(config.room || '') ? Number(config.room) : config.room;
 let janus = null;
 let publisher = null;
 let myId = null;
@@ -120,7 +126,7 @@ function joinAsPublisher() {
     message: withPin({
       request: 'join',
       ptype: 'publisher',
-      room: config.room,
+      room: roomId,
       display: config.name,
     }),
   });
@@ -132,7 +138,7 @@ function createRoom() {
   publisher.send({
     message: withPin({
       request: 'create',
-      room: config.room,
+      room: roomId,
       description: `lipcall ${config.room}`,
       publishers: 64,
       audiocodec: 'opus',
@@ -164,6 +170,15 @@ function onPublisherMessage(msg, jsep) {
   } else if (msg.videoroom === 'event') {
     if (msg.error_code === NO_SUCH_ROOM && !triedCreate) {
       createRoom();
+      return;
+    }
+    if (msg.error_code === INVALID_ELEMENT && !joined) {
+      if (typeof roomId === 'number') {
+        roomId = config.room;
+        joinAsPublisher();
+      } else {
+        fail(`this Janus numbers its rooms: give the room as a number (Janus said: ${msg.error})`);
+      }
       return;
     }
     if (msg.error_code) {
@@ -211,7 +226,7 @@ function subscribe(id, name) {
       const body = withPin({
         request: 'join',
         ptype: 'subscriber',
-        room: config.room,
+        room: roomId,
         streams: [{ feed: id }],
       });
       if (privateId !== null && privateId !== undefined) {
@@ -230,7 +245,7 @@ function subscribe(id, name) {
           jsep,
           tracks: [],
           success: (answer) => {
-            feed.handle.send({ message: { request: 'start', room: config.room }, jsep: answer });
+            feed.handle.send({ message: { request: 'start', room: roomId }, jsep: answer });
           },
           error: (error) => log(`feed ${id} answer failed: ${error.message || error}`),
         });
