@@ -44,11 +44,17 @@ impl SessionCore {
         }
     }
 
-    /// Makes room for a new peer: the oldest unconfirmed one goes, else one that has sent no
-    /// media for `IDLE_EVICT`; a talking peer never does. False if there is no room.
+    /// Makes room for a new peer: an unconfirmed one goes, else one that has sent no media for
+    /// `IDLE_EVICT`; a talking peer never does. Of the unconfirmed, the oldest of the address
+    /// holding the most goes: one socket churning new SSRCs only ever evicts its own, so a
+    /// caller from elsewhere lives to confirm. False if there is no room.
     fn make_room(&mut self, now: Instant) -> bool {
         if self.peers.len() < self.config.max_peers {
             return true;
+        }
+        let mut unconfirmed_at: HashMap<SocketAddr, usize> = HashMap::new();
+        for p in self.peers.values().filter(|p| !p.confirmed()) {
+            *unconfirmed_at.entry(p.addr).or_default() += 1;
         }
         let victim = self
             .peers
@@ -56,7 +62,14 @@ impl SessionCore {
             .filter(|(_, p)| {
                 !p.confirmed() || now.saturating_duration_since(p.last_media) >= IDLE_EVICT
             })
-            .min_by_key(|(_, p)| (p.confirmed(), p.last_media))
+            .min_by_key(|(_, p)| {
+                let crowd = if p.confirmed() {
+                    0
+                } else {
+                    unconfirmed_at.get(&p.addr).copied().unwrap_or(0)
+                };
+                (p.confirmed(), std::cmp::Reverse(crowd), p.last_media)
+            })
             .map(|(&ssrc, _)| ssrc);
         let Some(ssrc) = victim else {
             self.stats.too_many_peers += 1;

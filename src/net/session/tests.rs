@@ -231,6 +231,43 @@ fn junk_rtcp_makes_no_peer_and_keeps_no_caller_out() {
 }
 
 #[test]
+fn a_socket_churning_new_ssrcs_never_locks_a_new_caller_out() {
+    let mut core = session(32);
+    let mut caller = Caller::new(7, 100, 5000);
+    let mut churn = RtpStream::new(0, 0, 0);
+    churn.set_payload(0, 160);
+    let mut next_ssrc = 1_000_000;
+    let mut heard = 0;
+    let mut out = Vec::new();
+    for k in 0..260u32 {
+        let tick = core.epoch + FRAME * k;
+        // 2,000 valid PCMU packets a second, one every 0.5 ms, each from a new SSRC, all from
+        // one socket; the caller's packet lands in the middle of a tick's burst.
+        for i in 0..40u32 {
+            let now = tick + Duration::from_micros(500 * u64::from(i));
+            if i == 14 && (10..210).contains(&k) {
+                core.handle_datagram(&caller.packet(), addr(5000), now);
+            }
+            churn.ssrc = next_ssrc;
+            next_ssrc += 1;
+            let mut buf = Vec::new();
+            churn.packetize(&[0x55; 160], 1, &mut buf).unwrap();
+            core.handle_datagram(&buf, addr(6000), now);
+        }
+        core.pull(tick + FRAME, &mut out);
+        heard += out
+            .drain(..)
+            .filter(|f| f.ssrc == 7 && f.frame.kind == FrameKind::Decoded)
+            .count();
+        if k % 50 == 0 {
+            core.expire(tick);
+        }
+    }
+    assert!(heard >= 180, "the caller played {heard} of 200 frames");
+    assert!(core.stats().evicted > 9000, "{:?}", core.stats());
+}
+
+#[test]
 fn junk_media_never_evicts_a_talking_caller_nor_blocks_a_new_one() {
     let mut core = session(4);
     let mut played = HashMap::new();

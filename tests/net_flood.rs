@@ -1,0 +1,75 @@
+//! A flood of new SSRCs on a real socket: one UDP socket on 127.0.0.1 sends 2,000 valid
+//! packets a second, each from a new SSRC, while a real `lipcall send` calls `receive`. The
+//! caller must still be heard.
+
+mod common;
+
+use std::net::UdpSocket;
+use std::sync::Arc;
+use std::sync::atomic::{AtomicBool, Ordering};
+use std::time::{Duration, Instant};
+
+use common::net::{finish, spawn, start_receiver};
+use common::{lipcall, repo_file};
+use lipcall::net::rtp::RtpStream;
+
+/// Sends PCMU packets (payload type 0, any bytes decode) from new SSRCs to `to` at 2,000 a
+/// second until `stop`.
+fn churn(to: std::net::SocketAddr, stop: Arc<AtomicBool>) -> u64 {
+    let socket = UdpSocket::bind("127.0.0.1:0").unwrap();
+    let mut stream = RtpStream::new(0, 0, 0);
+    stream.set_payload(0, 160);
+    let start = Instant::now();
+    let mut sent = 0u64;
+    while !stop.load(Ordering::Relaxed) {
+        let due = start + Duration::from_micros(500 * sent);
+        if let Some(wait) = due.checked_duration_since(Instant::now()) {
+            std::thread::sleep(wait);
+        }
+        stream.ssrc = 0x4000_0000 + sent as u32;
+        let mut buf = Vec::new();
+        stream.packetize(&[0x55; 160], 1, &mut buf).unwrap();
+        let _ = socket.send_to(&buf, to);
+        sent += 1;
+    }
+    sent
+}
+
+#[test]
+fn a_caller_is_heard_through_a_flood_of_new_ssrcs() {
+    let receiver = start_receiver(&["--seconds", "11"]);
+    let stop = Arc::new(AtomicBool::new(false));
+    let flood = {
+        let stop = Arc::clone(&stop);
+        let to = receiver.socket_addr();
+        std::thread::spawn(move || churn(to, stop))
+    };
+    std::thread::sleep(Duration::from_millis(500));
+    let sender = spawn(
+        lipcall()
+            .arg("send")
+            .arg(repo_file("assets/speech/demo.wav"))
+            .args(["--to", &receiver.addr()]),
+    );
+    let (_, sent) = finish(sender, Duration::from_secs(30), "lipcall send");
+    stop.store(true, Ordering::Relaxed);
+    let flooded = flood.join().unwrap();
+    let (_, received) = receiver.finish(Duration::from_secs(30), "lipcall receive");
+    let played = received
+        .lines()
+        .filter(|l| l.starts_with("peer "))
+        .filter_map(|l| {
+            l.split_whitespace()
+                .find_map(|kv| kv.strip_prefix("played="))
+                .and_then(|v| v.parse::<u32>().ok())
+        })
+        .max()
+        .unwrap_or(0);
+    // demo.wav is 8.8 s: 441 frames of 20 ms.
+    eprintln!("flood of {flooded} packets; the caller played {played} frames\n{sent}");
+    assert!(flooded > 10_000, "{flooded}");
+    assert!(
+        played >= 397,
+        "the caller played {played} of 441 frames:\n{received}"
+    );
+}
