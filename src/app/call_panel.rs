@@ -119,7 +119,7 @@ fn codec_picker_ui(ui: &mut egui::Ui, codec: &mut Codec) {
         .response
         .on_hover_text(
             "The codec we send in new calls. Opus is what most VoIP speaks; every peer may \
-             send any of Opus, Speex, PCMU, PCMA and G.722, and all are received.",
+             send any of Opus, Speex (narrowband or wideband), PCMU, PCMA and G.722, and all are received.",
         );
 }
 
@@ -130,5 +130,6 @@ pub(super) fn codec_label(codec: Codec) -> &'static str {
         Codec::Pcmu => "PCMU",
         Codec::Pcma => "PCMA",
         Codec::G722 => "G.722",
+        Codec::SpeexWb => "Speex WB",
     }
 }

@@ -15,7 +15,7 @@ use serde::{Deserialize, Serialize};
 
 use super::g711::Law;
 use super::{g722, opus, speex};
-use crate::vocab::{FRAME_SIZE, SAMPLE_RATE};
+use crate::vocab::SAMPLE_RATE;
 
 /// The codecs of a call.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Hash, Serialize, Deserialize)]
@@ -31,15 +31,19 @@ pub enum Codec {
     Pcma,
     /// G.722 at 64 kbit/s: 16 kHz audio in two sub-bands.
     G722,
+    /// Speex wideband (RFC 5574 `speex/16000`): 16 kHz audio, the LSPs read from its
+    /// narrowband layer.
+    SpeexWb,
 }
 
 impl Codec {
-    pub const ALL: [Codec; 5] = [
+    pub const ALL: [Codec; 6] = [
         Codec::Speex,
         Codec::Opus,
         Codec::Pcmu,
         Codec::Pcma,
         Codec::G722,
+        Codec::SpeexWb,
     ];
 
     /// The name on the command line and in settings.
@@ -50,13 +54,14 @@ impl Codec {
             Codec::Pcmu => "pcmu",
             Codec::Pcma => "pcma",
             Codec::G722 => "g722",
+            Codec::SpeexWb => "speex-wb",
         }
     }
 
     /// The encoding name in SDP and in GStreamer's RTP caps.
     pub const fn encoding_name(self) -> &'static str {
         match self {
-            Codec::Speex => "SPEEX",
+            Codec::Speex | Codec::SpeexWb => "SPEEX",
             Codec::Opus => "OPUS",
             Codec::Pcmu => "PCMU",
             Codec::Pcma => "PCMA",
@@ -68,6 +73,7 @@ impl Codec {
     pub const fn clock_rate(self) -> u32 {
         match self {
             Codec::Opus => opus::codec::OPUS_CLOCK_RATE,
+            Codec::SpeexWb => speex::codec::Band::Wide.rate(),
             Codec::Speex | Codec::Pcmu | Codec::Pcma | Codec::G722 => SAMPLE_RATE,
         }
     }
@@ -78,6 +84,7 @@ impl Codec {
         match self {
             Codec::Opus => opus::codec::OPUS_CLOCK_RATE,
             Codec::G722 => g722::AUDIO_RATE,
+            Codec::SpeexWb => speex::codec::Band::Wide.rate(),
             Codec::Speex | Codec::Pcmu | Codec::Pcma => SAMPLE_RATE,
         }
     }
@@ -100,6 +107,7 @@ impl Codec {
             Codec::Pcmu => Law::Mu.payload_type(),
             Codec::Pcma => Law::A.payload_type(),
             Codec::G722 => g722::PAYLOAD_TYPE,
+            Codec::SpeexWb => 97,
         }
     }
 
@@ -112,7 +120,7 @@ impl Codec {
         match self {
             Codec::Pcmu => Some(Law::Mu),
             Codec::Pcma => Some(Law::A),
-            Codec::Speex | Codec::Opus | Codec::G722 => None,
+            Codec::Speex | Codec::Opus | Codec::G722 | Codec::SpeexWb => None,
         }
     }
 
@@ -124,6 +132,17 @@ impl Codec {
             Codec::Speex => speex::split::frame_count(payload)
                 .and_then(|n| u32::try_from(n).ok())
                 .map(|n| n * self.frame_ticks()),
+            // Wideband frames' lengths vary with their layer's submode: walked, not counted.
+            Codec::SpeexWb => {
+                let frames = speex::bitstream::Walker::new()
+                    .frames(payload)
+                    .map_while(Result::ok)
+                    .count();
+                u32::try_from(frames)
+                    .ok()
+                    .filter(|&n| n > 0)
+                    .map(|n| n * self.frame_ticks())
+            }
             Codec::Opus => opus::codec::packet_samples(payload, self.clock_rate())
                 .ok()
                 .and_then(|n| u32::try_from(n).ok()),
@@ -139,7 +158,7 @@ impl Codec {
     /// start anywhere (G.711 at any sample, Opus at any 2.5 ms) and are placed where their
     /// timestamps say.
     pub const fn whole_frames(self) -> bool {
-        matches!(self, Codec::Speex)
+        matches!(self, Codec::Speex | Codec::SpeexWb)
     }
 
     /// Samples at 8 kHz in `ticks` of this codec's clock (rounded down).
@@ -156,7 +175,7 @@ impl fmt::Display for Codec {
 
 #[derive(Debug, Clone, PartialEq, Eq, thiserror::Error)]
 pub enum PayloadMapError {
-    #[error("unknown codec {0:?} (expected speex, opus, pcmu, pcma or g722)")]
+    #[error("unknown codec {0:?} (expected speex, speex-wb, opus, pcmu, pcma or g722)")]
     UnknownCodec(String),
     #[error("expected CODEC=PT such as opus=111, not {0:?}")]
     Syntax(String),
@@ -358,6 +377,10 @@ impl FrameEncoder {
     pub fn new(codec: Codec, settings: &EncoderSettings) -> Result<Self, EncodeError> {
         Ok(match codec {
             Codec::Speex => FrameEncoder::Speex(speex::codec::Encoder::new(settings.speex)?),
+            Codec::SpeexWb => FrameEncoder::Speex(speex::codec::Encoder::with_band(
+                settings.speex,
+                speex::codec::Band::Wide,
+            )?),
             Codec::Opus => FrameEncoder::Opus(opus::codec::Encoder::new(settings.opus)?),
             Codec::Pcmu => FrameEncoder::G711(Law::Mu),
             Codec::Pcma => FrameEncoder::G711(Law::A),
@@ -380,7 +403,10 @@ impl FrameEncoder {
 
     pub fn codec(&self) -> Codec {
         match self {
-            FrameEncoder::Speex(_) => Codec::Speex,
+            FrameEncoder::Speex(enc) => match enc.band() {
+                speex::codec::Band::Narrow => Codec::Speex,
+                speex::codec::Band::Wide => Codec::SpeexWb,
+            },
             FrameEncoder::Opus(_) => Codec::Opus,
             FrameEncoder::G711(Law::Mu) => Codec::Pcmu,
             FrameEncoder::G711(Law::A) => Codec::Pcma,
@@ -408,8 +434,7 @@ impl FrameEncoder {
             FrameEncoder::Speex(enc) => {
                 let mut packet = [0u8; speex::codec::MAX_PACKET_BYTES];
                 let frames = enc.config().frames_per_packet as u32;
-                let frame: &[i16; FRAME_SIZE] = frame.try_into().unwrap_or(&[0; FRAME_SIZE]);
-                Ok(enc.encode_frame(frame, &mut packet).map(|n| {
+                Ok(enc.encode_samples(frame, &mut packet)?.map(|n| {
                     out[..n].copy_from_slice(&packet[..n]);
                     (n, frames)
                 }))
@@ -430,6 +455,7 @@ impl FrameEncoder {
 #[cfg(test)]
 mod tests {
     use super::*;
+    use crate::vocab::FRAME_SIZE;
 
     #[test]
     fn payload_types_follow_gstreamer_and_rfc_3551() {

@@ -93,7 +93,10 @@ enum Inner {
 }
 
 struct SpeexStream {
+    /// Narrowband, also of a wideband stream (its narrowband layer): the features' signal.
     decoder: speex::codec::Decoder,
+    /// The wideband decoder of a wideband stream, for the ear.
+    wide: Option<speex::codec::Decoder>,
     tracker: FrameTracker,
     /// The packet just given could not be loaded: its first frame is concealed.
     failed: bool,
@@ -267,8 +270,15 @@ impl StreamDecoder {
             }))
         };
         let inner = match codec {
-            Codec::Speex => Inner::Speex(Box::new(SpeexStream {
+            Codec::Speex | Codec::SpeexWb => Inner::Speex(Box::new(SpeexStream {
                 decoder: speex::codec::Decoder::new(enhancer)?,
+                wide: match codec {
+                    Codec::SpeexWb => Some(speex::codec::Decoder::with_band(
+                        enhancer,
+                        speex::codec::Band::Wide,
+                    )?),
+                    _ => None,
+                },
                 tracker: FrameTracker::new(),
                 failed: false,
             })),
@@ -324,6 +334,9 @@ impl StreamDecoder {
         match &mut self.inner {
             Inner::Speex(s) => {
                 s.failed = s.decoder.load(payload).is_err();
+                if let Some(wide) = &mut s.wide {
+                    s.failed |= wide.load(payload).is_err();
+                }
                 // A packet the walker cannot read still decodes; its rows keep held LSPs.
                 let _ = s.tracker.start_packet(payload);
                 self.errors += u64::from(s.failed);
@@ -353,7 +366,7 @@ impl StreamDecoder {
                 if decoded {
                     let features = s.tracker.decoded(&pcm);
                     return DecodedFrame {
-                        audio: FrameAudio::narrowband(&pcm),
+                        audio: s.wide_audio(&pcm, false),
                         pcm,
                         features,
                         origin: FrameOrigin::Decoded,
@@ -401,12 +414,30 @@ impl StreamDecoder {
 }
 
 impl SpeexStream {
+    /// The frame for the ear: the narrowband one, or the wideband decoder's of the same
+    /// packet (its concealment where `conceal`, or where it fails).
+    fn wide_audio(&mut self, pcm: &[i16; FRAME_SIZE], conceal: bool) -> FrameAudio {
+        let Some(wide) = &mut self.wide else {
+            return FrameAudio::narrowband(pcm);
+        };
+        let mut audio = FrameAudio::silence(wide.band().rate());
+        let decoded = !conceal
+            && matches!(
+                wide.decode_next_into(audio.samples_mut()),
+                Ok(speex::codec::FrameOutcome::Decoded)
+            );
+        if !decoded {
+            let _ = wide.conceal_into(audio.samples_mut());
+        }
+        audio
+    }
+
     fn conceal(&mut self) -> DecodedFrame {
         let mut pcm = [0i16; FRAME_SIZE];
         self.decoder.conceal(&mut pcm);
         let features = self.tracker.concealed(&pcm);
         DecodedFrame {
-            audio: FrameAudio::narrowband(&pcm),
+            audio: self.wide_audio(&pcm, true),
             pcm,
             features,
             origin: FrameOrigin::Concealed,
@@ -722,6 +753,7 @@ mod tests {
             (Codec::G722, 16_000),
             (Codec::Pcmu, 8000),
             (Codec::Speex, 8000),
+            (Codec::SpeexWb, 16_000),
         ] {
             let settings = EncoderSettings::wideband(opus::codec::Bandwidth::Fullband);
             let mut enc = FrameEncoder::new(codec, &settings).unwrap();
@@ -747,6 +779,19 @@ mod tests {
                 let (theirs, ours) = (upper_share(&input[10..]), upper_share(&wide[10..]));
                 assert!(ours > 0.5 * theirs, "{codec}: {ours} vs {theirs}");
             }
+        }
+        // Speex wideband's rows are those of its narrowband layer, as a narrowband decoder
+        // (which steps over the wideband layer) makes of the same packets.
+        let packets = encode(Codec::SpeexWb, 40);
+        let mut wide = StreamDecoder::new(Codec::SpeexWb, true).unwrap();
+        let mut narrow = StreamDecoder::new(Codec::Speex, true).unwrap();
+        for p in &packets {
+            wide.packet(p, 0);
+            narrow.packet(p, 0);
+            let (w, n) = (wide.frame(), narrow.frame());
+            assert_eq!(w.features, n.features);
+            assert_eq!(w.pcm, n.pcm);
+            assert_eq!(w.audio.rate(), 16_000);
         }
         // G.722's features are those of its lower band alone, as the offline path computes.
         let input = speech_like_at(30, 16_000);
