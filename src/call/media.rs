@@ -163,6 +163,14 @@ impl MediaFile {
         })
     }
 
+    /// An Ogg Opus file decoded at another Opus rate (48 kHz: its own).
+    pub fn opus_at(&self, rate: u32) -> Result<opus::stream::Decoded, MediaError> {
+        opus::stream::decode_at(&self.bytes, rate).map_err(|source| MediaError::Opus {
+            path: self.name(),
+            source,
+        })
+    }
+
     /// A WAV file at 8 kHz mono (another kind gets the WAV reader's account).
     pub fn wav(&self) -> Result<Vec<i16>, MediaError> {
         Ok(wav::read_narrowband(&self.path)?)

@@ -21,7 +21,7 @@ pub const OPUS_CLOCK_RATE: u32 = 48_000;
 /// Samples of the longest packet at 8 kHz.
 pub const MAX_PACKET_SAMPLES: usize = SAMPLE_RATE as usize * MAX_PACKET_MS / 1000;
 
-const RATES: [u32; 5] = [8000, 12_000, 16_000, 24_000, 48_000];
+pub const RATES: [u32; 5] = [8000, 12_000, 16_000, 24_000, 48_000];
 
 /// The audio band an encoder codes (RFC 6716 2: narrowband 4 kHz up to fullband 20 kHz).
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Hash, Default)]
