@@ -41,7 +41,7 @@ struct AppFlags {
 enum Command {
     /// Encode a WAV file (any rate, mono or stereo) to Ogg Speex narrowband or Ogg Opus.
     Encode(codec::EncodeArgs),
-    /// Decode an Ogg Speex or Ogg Opus file to WAV (Opus at 8 kHz), optionally writing the
+    /// Decode an Ogg Speex or Ogg Opus file to WAV (Opus at 48 kHz), optionally writing the
     /// per-frame LSP + energy features (Speex).
     Decode(codec::DecodeArgs),
     /// Viseme weights (and rendered frames) for a WAV or Speex file, as a receiver would show them.
@@ -90,7 +90,7 @@ fn main() -> ExitCode {
             let settings = a.settings().unwrap_or_else(|why| usage_error(why));
             codec::encode(&a.input, &a.output, settings)
         }
-        Command::Decode(a) => codec::decode(&a.input, &a.output, a.features.as_deref(), !a.no_enh),
+        Command::Decode(a) => codec::decode(&a),
         Command::Animate(a) => animate::animate(&a),
         Command::Devices(a) => audio::devices(a.output.as_deref(), a.input.as_deref()),
         Command::Send(a) => janus::send_command(&a),

@@ -45,6 +45,7 @@ fn the_engine_joins_an_encrypted_room_and_animates_a_sender() {
         name: Some("Mallory".into()),
         room: Some("lab".into()),
         quality: 8,
+        bandwidth: lipcall::codec::opus::codec::Bandwidth::Fullband,
         no_rtcp: false,
         ssrc: None,
         codec: Some(Codec::Opus),

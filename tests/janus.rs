@@ -95,7 +95,7 @@ fn two_lipcalls_in_a_janus_room_hear_each_other_and_the_receiver_animates() {
     let direct_rx = spawn_listening(
         lipcall()
             .args(["receive", "--listen", "127.0.0.1:0"])
-            .args(["--seconds", "11"])
+            .args(["--seconds", "11", "--rate", "8000"])
             .arg("--wav")
             .arg(&direct_wav),
         Announce::Lipcall,

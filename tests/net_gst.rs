@@ -218,6 +218,7 @@ fn lipcall_send_into_gstreamer_srtpdec() {
 /// What `lipcall receive` made of a stream GStreamer sent, beside GStreamer's own decode of the
 /// very RTP packets it sent (a tee after the payloader).
 struct Received {
+    rate: u32,
     source: Vec<i16>,
     reference: Vec<i16>,
     played: Vec<i16>,
@@ -247,10 +248,73 @@ fn csv_rows(path: &Path) -> usize {
 
 /// The GStreamer elements reading an 8 kHz mono WAV.
 fn gst_wav_source(cmd: &mut Command, clip: &Path) {
+    gst_wav_source_at(cmd, clip, 8000);
+}
+
+/// The GStreamer elements reading a mono WAV at `rate`.
+fn gst_wav_source_at(cmd: &mut Command, clip: &Path, rate: u32) {
     cmd.arg("filesrc")
         .arg(format!("location={}", clip.display()))
         .args(["!", "wavparse", "!", "audioconvert", "!", "audioresample"])
-        .args(["!", "audio/x-raw,rate=8000,channels=1"]);
+        .arg("!")
+        .arg(format!("audio/x-raw,rate={rate},channels=1"));
+}
+
+/// `seconds` of speech at `rate`: the demo (16 kHz) as it is or resampled, and above 16 kHz
+/// with a hiss from 5 kHz up mixed in (speech recorded at 16 kHz has nothing above 8 kHz).
+fn clip_at(dir: &Path, seconds: &str, rate: u32) -> std::path::PathBuf {
+    if rate == 8000 {
+        return clip(dir, seconds);
+    }
+    let speech = dir.join(format!("speech{rate}.wav"));
+    run(Command::new("sox")
+        .arg(common::repo_file("assets/speech/demo.wav"))
+        .args(["-D", "-b", "16", "-c", "1", "-r", &rate.to_string()])
+        .arg(&speech)
+        .args(["trim", "0", seconds]));
+    if rate <= 16_000 {
+        return speech;
+    }
+    let hiss = dir.join("hiss.wav");
+    run(Command::new("sox")
+        .args(["-n", "-D", "-b", "16", "-c", "1", "-r", &rate.to_string()])
+        .arg(&hiss)
+        .args([
+            "synth",
+            seconds,
+            "pinknoise",
+            "highpass",
+            "5000",
+            "gain",
+            "-28",
+        ]));
+    let out = dir.join(format!("clip{rate}.wav"));
+    run(Command::new("sox")
+        .args(["-m", "-D"])
+        .arg(&speech)
+        .arg(&hiss)
+        .arg(&out));
+    out
+}
+
+/// Energy above `hz` (a 4th-order Butterworth high-pass: two biquads), in dB.
+fn band_db(pcm: &[i16], rate: u32, hz: f64) -> f64 {
+    let w = 2.0 * std::f64::consts::PI * hz / f64::from(rate);
+    let mut x: Vec<f64> = pcm.iter().map(|&s| f64::from(s)).collect();
+    for q in [0.541_196_1, 1.306_562_9] {
+        let alpha = w.sin() / (2.0 * q);
+        let a0 = 1.0 + alpha;
+        let b0 = (1.0 + w.cos()) / 2.0 / a0;
+        let b1 = -(1.0 + w.cos()) / a0;
+        let (a1, a2) = (-2.0 * w.cos() / a0, (1.0 - alpha) / a0);
+        let (mut x1, mut x2, mut y1, mut y2) = (0.0, 0.0, 0.0, 0.0);
+        for v in x.iter_mut() {
+            let y = b0 * *v + b1 * x1 + b0 * x2 - a1 * y1 - a2 * y2;
+            (x2, x1, y2, y1) = (x1, *v, y1, y);
+            *v = y;
+        }
+    }
+    10.0 * x.iter().map(|v| v * v).sum::<f64>().max(1.0).log10()
 }
 
 fn chain(cmd: &mut Command, elements: &[&str]) {
@@ -285,8 +349,19 @@ fn gst_into_receive(
     decoder: &[&str],
     receive_args: &[&str],
 ) -> Received {
+    gst_into_receive_at(encoder, payloader, decoder, receive_args, 8000)
+}
+
+/// [`gst_into_receive`] of a clip at `rate`, GStreamer decoding at `rate` too.
+fn gst_into_receive_at(
+    encoder: &[&str],
+    payloader: &str,
+    decoder: &[&str],
+    receive_args: &[&str],
+    rate: u32,
+) -> Received {
     let dir = tempfile::tempdir().unwrap();
-    let clip = clip(dir.path(), "3");
+    let clip = clip_at(dir.path(), "3", rate);
     let out = dir.path().join("received.wav");
     let features = dir.path().join("features.csv");
     let weights = dir.path().join("weights.csv");
@@ -306,25 +381,28 @@ fn gst_into_receive(
     );
     let mut gst = Command::new("gst-launch-1.0");
     gst.arg("-q");
-    gst_wav_source(&mut gst, &clip);
+    gst_wav_source_at(&mut gst, &clip, rate);
     chain(&mut gst, encoder);
     chain(&mut gst, &[payloader, "tee name=t"]);
     gst.args(["t.", "!", "queue", "!", "udpsink", "host=127.0.0.1"])
         .arg(format!("port={}", receiver.port))
         .args(["t.", "!", "queue"]);
     chain(&mut gst, decoder);
-    chain(
-        &mut gst,
-        &["audio/x-raw,rate=8000,channels=1", "wavenc", "filesink"],
-    );
+    let caps = format!("audio/x-raw,rate={rate},channels=1");
+    chain(&mut gst, &[&caps, "wavenc", "filesink"]);
     gst.arg(format!("location={}", reference.display()));
     run(&mut gst);
     let (_, stderr) = receiver.finish(Duration::from_secs(60), "lipcall receive");
     let (rows, tail) = feature_rows(&features);
+    let (played_rate, played) = read_wav_i16(&out);
+    if !played.is_empty() {
+        assert_eq!(played_rate, rate, "OUT.wav at the stream's own rate");
+    }
     Received {
+        rate,
         source: read_wav_i16(&clip).1,
         reference: read_wav_i16(&reference).1,
-        played: read_wav_i16(&out).1,
+        played,
         stderr,
         tail,
         feature_rows: rows,
@@ -339,8 +417,11 @@ fn check_against_gstreamer(r: &Received, codec: &str) {
     assert_eq!(peer["codec"], codec, "{}", r.stderr);
     assert!(num(&peer, "received") >= 20.0, "{}", r.stderr);
     assert_eq!(num(&peer, "decode_errors"), 0.0, "{}", r.stderr);
-    assert_eq!(r.played.len() % 160, 0);
-    let frames = r.played.len() / 160;
+    // Frames and offsets in samples of the stream's own rate.
+    let frame = r.rate as usize / 50;
+    let scale = r.rate as usize / 8000;
+    assert_eq!(r.played.len() % frame, 0);
+    let frames = r.played.len() / frame;
     assert_eq!(r.feature_rows, frames);
     assert_eq!(r.weight_rows, frames);
     // The stream as played lasts as GStreamer's decode, +-1 frame: without the concealed tail
@@ -348,7 +429,7 @@ fn check_against_gstreamer(r: &Received, codec: &str) {
     // delay (counted; a loaded machine makes the receiver's ticks late now and then).
     let (stretched, dropped) = (num(&peer, "stretched"), num(&peer, "dropped"));
     let stream = (frames - r.tail) as i64 - stretched as i64 + dropped as i64;
-    let theirs = r.reference.len().div_ceil(160) as i64;
+    let theirs = r.reference.len().div_ceil(frame) as i64;
     assert!(
         (stream - theirs).abs() <= 1,
         "{codec}: played {stream} frames (+{} concealed), GStreamer decoded {theirs}",
@@ -357,10 +438,10 @@ fn check_against_gstreamer(r: &Received, codec: &str) {
     // Against the source, 200 ms at a time, each chunk at its best whole-frame shift. The
     // median chunk is the measure; over all chunks together too when the buffer did not adapt
     // (a chunk across an inserted frame compares concealment with speech).
-    let gst = align(&r.source, &r.reference, 2000);
-    let ours = align(&r.source, &r.played, 2000);
-    let same = align(&r.reference, &r.played, 2000);
-    let (whole, lag) = snr_at_best_lag(&r.source, &r.reference, 2000);
+    let gst = align(&r.source, &r.reference, 2000 * scale);
+    let ours = align(&r.source, &r.played, 2000 * scale);
+    let same = align(&r.reference, &r.played, 2000 * scale);
+    let (whole, lag) = snr_at_best_lag(&r.source, &r.reference, 2000 * scale);
     eprintln!(
         "{codec}: against the source, median 200 ms: GStreamer {:.2} dB, lipcall {:.2} dB; all \
          chunks: GStreamer {:.2} dB, lipcall {:.2} dB (GStreamer's whole clip at lag {lag}: \
@@ -388,6 +469,27 @@ fn check_against_gstreamer(r: &Received, codec: &str) {
     }
     // And sample for sample, GStreamer's decode is what lipcall played.
     assert!(same.median() > 60.0, "{codec}: {same:?}");
+    // Above the narrowband: the same energy from 4 kHz up as GStreamer heard.
+    if r.rate > 8000 {
+        let (ours, theirs) = (
+            band_db(&r.played, r.rate, 4000.0),
+            band_db(&r.reference, r.rate, 4000.0),
+        );
+        let whole = band_db(&r.reference, r.rate, 20.0);
+        eprintln!(
+            "{codec}: energy above 4 kHz: lipcall {ours:.2} dB, GStreamer {theirs:.2} dB ({:.1} dB \
+             below the whole band)",
+            whole - theirs
+        );
+        assert!(
+            (ours - theirs).abs() <= 1.0,
+            "{codec}: {ours:.2} vs {theirs:.2} dB"
+        );
+        assert!(
+            whole - theirs < 30.0,
+            "{codec}: nothing above 4 kHz to compare"
+        );
+    }
 }
 
 /// GStreamer `opusenc ! rtpopuspay` (payload type 96, 48 kHz clock) into `lipcall receive
@@ -395,14 +497,70 @@ fn check_against_gstreamer(r: &Received, codec: &str) {
 #[test]
 fn gstreamer_rtpopuspay_into_lipcall_receive() {
     let _serial = serial();
-    let r = gst_into_receive(
+    let r = gst_into_receive_at(
         &["opusenc bitrate=16000"],
         "rtpopuspay",
         &["rtpopusdepay", "opusdec"],
         &[],
+        48_000,
     );
     check_against_gstreamer(&r, "opus");
     assert!(num(&fields(&r.stderr, "peer "), "received") >= 140.0);
+}
+
+/// Fullband Opus from GStreamer (`opusenc` at 48 kHz, up to 20 kHz) into `lipcall receive
+/// --wav`: a 48 kHz WAV as good as GStreamer's own 48 kHz decode, with the same energy from
+/// 4 to 20 kHz.
+#[test]
+fn gstreamer_fullband_opus_into_lipcall_receive_at_48_khz() {
+    let _serial = serial();
+    let r = gst_into_receive_at(
+        &["opusenc bitrate=64000 bandwidth=fullband"],
+        "rtpopuspay",
+        &["rtpopusdepay", "opusdec"],
+        &[],
+        48_000,
+    );
+    check_against_gstreamer(&r, "opus");
+}
+
+/// GStreamer's Speex wideband (`speexenc` of 16 kHz audio) into `lipcall receive --pt
+/// speex-wb=110`: 16 kHz audio as GStreamer's `speexdec` decodes it.
+#[test]
+fn gstreamer_speex_wideband_into_lipcall_receive_at_16_khz() {
+    let _serial = serial();
+    let r = gst_into_receive_at(
+        &["speexenc"],
+        "rtpspeexpay",
+        &["rtpspeexdepay", "speexdec"],
+        // (Speex narrowband moves aside: a session keeps a type for the codec it sends.)
+        &["--pt", "speex-wb=110", "--pt", "speex=111"],
+        16_000,
+    );
+    check_against_gstreamer(&r, "speex-wb");
+}
+
+/// GStreamer's G.722 (`avenc_g722` from gstreamer1.0-libav) on its static payload type 9 into
+/// `lipcall receive --wav`: 16 kHz audio, both sub-bands, as GStreamer's `avdec_g722` decodes.
+#[test]
+fn gstreamer_g722_into_lipcall_receive_at_16_khz() {
+    let _serial = serial();
+    if !Command::new("gst-inspect-1.0")
+        .arg("avenc_g722")
+        .output()
+        .is_ok_and(|o| o.status.success())
+    {
+        common::unavailable("GStreamer's avenc_g722 (gstreamer1.0-libav)");
+        return;
+    }
+    let r = gst_into_receive_at(
+        &["avenc_g722"],
+        "rtpg722pay",
+        &["rtpg722depay", "avdec_g722"],
+        &[],
+        16_000,
+    );
+    check_against_gstreamer(&r, "g722");
 }
 
 /// GStreamer `mulawenc ! rtppcmupay` (static payload type 0, packets of 173.5 and 82.5 ms)
@@ -458,14 +616,23 @@ fn lipcall_send_into_gst(
     caps: &str,
     decoder: &[&str],
 ) -> Vec<i16> {
+    lipcall_send_into_gst_at(input, send_args, caps, decoder, 8000)
+}
+
+/// [`lipcall_send_into_gst`], GStreamer decoding at `rate`.
+fn lipcall_send_into_gst_at(
+    input: &Path,
+    send_args: &[&str],
+    caps: &str,
+    decoder: &[&str],
+    rate: u32,
+) -> Vec<i16> {
     let dir = tempfile::tempdir().unwrap();
     let out = dir.path().join("gst.wav");
     let mut gst = gst_udpsrc(caps);
     chain(&mut gst, decoder);
-    chain(
-        &mut gst,
-        &["audio/x-raw,rate=8000,channels=1", "wavenc", "filesink"],
-    );
+    let raw = format!("audio/x-raw,rate={rate},channels=1");
+    chain(&mut gst, &[&raw, "wavenc", "filesink"]);
     gst.arg(format!("location={}", out.display()));
     let gst = spawn_listening(&mut gst, Announce::GstUdpsrc);
     run(lipcall()
@@ -474,29 +641,53 @@ fn lipcall_send_into_gst(
         .args(["--to", &gst.addr(), "--no-rtcp"])
         .args(send_args));
     stop_udpsrc(gst);
-    let (rate, pcm) = read_wav_i16(&out);
-    assert_eq!(rate, 8000);
+    let (got, pcm) = read_wav_i16(&out);
+    assert_eq!(got, rate);
     pcm
 }
 
-/// Payloads lipcall sends for `clip` with `codec` (its encoder, its settings), and their decode
-/// at 8 kHz, frame after frame as a receiver hears them.
+/// What lipcall's own encoder and decoder make of a clip: the payloads `send` sends.
+struct RoundTrip {
+    payloads: Vec<Vec<u8>>,
+    /// The 8 kHz decode the features come from.
+    narrowband: Vec<i16>,
+    /// The decode the ear gets, at the codec's own rate.
+    audio: Vec<i16>,
+}
+
+/// Payloads lipcall sends for `clip` with `codec` (its encoder at its input rate, the settings
+/// of `send`), and their decode, frame after frame as a receiver hears them.
 fn encode_and_decode(clip: &Path, codec: Codec) -> (usize, Vec<i16>) {
-    let pcm = lipcall::audio::wav::read_narrowband(clip).unwrap();
-    let mut encoder = FrameEncoder::new(codec, &EncoderSettings::default()).unwrap();
+    let trip = round_trip(clip, codec);
+    (trip.payloads.len(), trip.narrowband)
+}
+
+fn round_trip(clip: &Path, codec: Codec) -> RoundTrip {
+    use lipcall::audio::wav;
+    use lipcall::codec::opus::codec::Bandwidth;
+    let settings = EncoderSettings::wideband(Bandwidth::Fullband);
+    let mut encoder = FrameEncoder::new(codec, &settings).unwrap();
+    let audio = wav::read_mono(clip).unwrap();
+    let pcm = wav::to_i16(&wav::resample(&audio, encoder.input_rate()).unwrap());
     let mut decoder = StreamDecoder::new(codec, true).unwrap();
     let mut payload = [0u8; MAX_FRAME_PAYLOAD];
-    let mut out = Vec::new();
-    let mut packets = 0;
-    for chunk in pcm.chunks(160) {
-        let mut frame = [0i16; 160];
+    let mut trip = RoundTrip {
+        payloads: Vec::new(),
+        narrowband: Vec::new(),
+        audio: Vec::new(),
+    };
+    let n_frame = encoder.frame_samples();
+    for chunk in pcm.chunks(n_frame) {
+        let mut frame = vec![0i16; n_frame];
         frame[..chunk.len()].copy_from_slice(chunk);
         let (n, _) = encoder.encode(&frame, &mut payload).unwrap().unwrap();
         decoder.packet(&payload[..n], 0);
-        out.extend_from_slice(&decoder.frame().pcm);
-        packets += 1;
+        let decoded = decoder.frame();
+        trip.narrowband.extend_from_slice(&decoded.pcm);
+        trip.audio.extend_from_slice(decoded.audio.samples());
+        trip.payloads.push(payload[..n].to_vec());
     }
-    (packets, out)
+    trip
 }
 
 fn check_sent(codec: Codec, packets: usize, expected: &[i16], got: &[i16], source: &[i16]) {
@@ -538,6 +729,84 @@ fn lipcall_send_opus_into_gstreamer_rtpopusdepay() {
         &got,
         &read_wav_i16(&clip).1,
     );
+}
+
+/// `lipcall send --codec opus` of a 48 kHz WAV into `udpsrc ! rtpopusdepay ! opusdec` at
+/// 48 kHz: a fullband stream (every TOC says so), which GStreamer decodes as well as lipcall's
+/// own round trip does, up to 20 kHz.
+#[test]
+fn lipcall_send_fullband_opus_into_gstreamer_at_48_khz() {
+    let _serial = serial();
+    let dir = tempfile::tempdir().unwrap();
+    let clip = clip_at(dir.path(), "3", 48_000);
+    let got = lipcall_send_into_gst_at(
+        &clip,
+        &["--codec", "opus"],
+        "application/x-rtp,media=audio,clock-rate=48000,encoding-name=OPUS,payload=96",
+        &["rtpopusdepay", "opusdec"],
+        48_000,
+    );
+    let trip = round_trip(&clip, Codec::Opus);
+    // TOC configurations 14-15 (hybrid) and 28-31 (CELT) are fullband (RFC 6716 3.1).
+    for p in &trip.payloads {
+        let config = p[0] >> 3;
+        assert!(matches!(config, 14 | 15 | 28..=31), "TOC config {config}");
+    }
+    let source = read_wav_i16(&clip).1;
+    let theirs = align(&source, &got, 12_000);
+    let ours = align(&source, &trip.audio, 12_000);
+    let same = align(&trip.audio, &got, 2400);
+    let frames = got.len() as i64 / 960;
+    let (band_theirs, band_source) = (
+        band_db(&got, 48_000, 12_000.0),
+        band_db(&source, 48_000, 12_000.0),
+    );
+    eprintln!(
+        "opus fullband: against the source, GStreamer's decode {:.2} dB (median {:.2}), \
+         lipcall's round trip {:.2} dB (median {:.2}); GStreamer against lipcall median {:.1} dB; \
+         above 12 kHz GStreamer {band_theirs:.1} dB, source {band_source:.1} dB; {frames} frames \
+         of {}",
+        theirs.overall(),
+        theirs.median(),
+        ours.overall(),
+        ours.median(),
+        same.median(),
+        trip.payloads.len()
+    );
+    assert!((frames - trip.payloads.len() as i64).abs() <= 1);
+    assert!((theirs.median() - ours.median()).abs() <= 1.0);
+    assert!((theirs.overall() - ours.overall()).abs() <= 1.0);
+    assert!(
+        (band_theirs - band_source).abs() <= 6.0,
+        "the band above 12 kHz is missing"
+    );
+}
+
+/// `lipcall send --codec speex-wb` of a 16 kHz WAV into `rtpspeexdepay ! speexdec` at 16 kHz
+/// (payload type 97, RTP clock 16000, RFC 5574): what lipcall's own decoder makes of it.
+#[test]
+fn lipcall_send_speex_wideband_into_gstreamer_at_16_khz() {
+    let _serial = serial();
+    let dir = tempfile::tempdir().unwrap();
+    let clip = clip_at(dir.path(), "3", 16_000);
+    let got = lipcall_send_into_gst_at(
+        &clip,
+        &["--codec", "speex-wb"],
+        "application/x-rtp,media=audio,clock-rate=16000,encoding-name=SPEEX,payload=97",
+        &["rtpspeexdepay", "speexdec"],
+        16_000,
+    );
+    let trip = round_trip(&clip, Codec::SpeexWb);
+    let same = align(&trip.audio, &got, 800);
+    let frames = got.len() as i64 / 320;
+    eprintln!(
+        "speex-wb: GStreamer's decode against lipcall's median {:.1} dB; {frames} frames of {}",
+        same.median(),
+        trip.payloads.len()
+    );
+    assert!((frames - trip.payloads.len() as i64).abs() <= 1);
+    assert!(same.median() > 60.0, "{same:?}");
+    assert!(band_db(&got, 16_000, 4000.0) > band_db(&got, 16_000, 20.0) - 30.0);
 }
 
 /// An Ogg Opus file goes as it is: its packets, timestamped by their durations.
@@ -613,7 +882,7 @@ fn peers_with_different_codecs_in_one_call() {
             .arg(&out)
             .arg("--features")
             .arg(&features)
-            .args(["--seconds", "6"]),
+            .args(["--seconds", "6", "--rate", "8000"]),
         Announce::Lipcall,
     );
     let (port, to) = (receiver.port, receiver.addr());

@@ -144,7 +144,9 @@ fn impaired_call(imp: Impairment, codec: &str) {
             .arg(&features)
             .arg("--weights")
             .arg(&weights)
-            .args(["--key", "impaired", "--seconds", "15"]),
+            .args(["--key", "impaired", "--seconds", "15"])
+            // Compared with the 8 kHz source whatever the codec's own rate.
+            .args(["--rate", "8000"]),
         Announce::Lipcall,
     );
     let receiver_addr: SocketAddr = receiver.addr().parse().unwrap();

@@ -81,7 +81,11 @@ fn lipcall_opus_plays_in_opusdec_with_the_input_length() {
         // opusdec trims by the granule arithmetic: the exact input length.
         assert_eq!(theirs.len(), original.len(), "{name}: length");
         let ours_wav = d.join(format!("ours-{name}.wav"));
-        run(lipcall().arg("decode").arg(&opus).arg(&ours_wav));
+        run(lipcall()
+            .arg("decode")
+            .arg(&opus)
+            .arg(&ours_wav)
+            .args(["--rate", "8000"]));
         let (_, ours) = read_wav_i16(&ours_wav);
         assert_eq!(ours.len(), original.len(), "{name}: length");
         // opusdec decodes at 48 kHz and resamples with a fractional-sample delay, which costs
@@ -100,6 +104,10 @@ fn lipcall_opus_plays_in_opusdec_with_the_input_length() {
         let (_, theirs48) = read_wav_i16(&wav48);
         let ours48 = stream::decode_at(&std::fs::read(&opus).unwrap(), 48_000).unwrap();
         assert_eq!(theirs48.len(), 6 * original.len(), "{name}: 48 kHz length");
+        // `decode` writes the stream's own 48 kHz unless told another rate.
+        let native_wav = d.join(format!("ours48-{name}.wav"));
+        run(lipcall().arg("decode").arg(&opus).arg(&native_wav));
+        assert_eq!(read_wav_i16(&native_wav), (48_000, ours48.pcm.clone()));
         assert_eq!(ours48.pcm.len(), theirs48.len(), "{name}: 48 kHz length");
         let diff = max_abs_diff(&ours48.pcm, &theirs48);
         let snr48 = snr_db(&theirs48, &ours48.pcm);
@@ -159,7 +167,11 @@ fn opusenc_files_decode_as_opusdec_decodes_them() {
             // At 8 kHz lipcall's libopus decodes straight to 8 kHz; opusdec decodes at 48 kHz
             // and resamples with the Speex resampler.
             let ours_wav = d.join(format!("{name}-ours.wav"));
-            run(lipcall().arg("decode").arg(&opus).arg(&ours_wav));
+            run(lipcall()
+                .arg("decode")
+                .arg(&opus)
+                .arg(&ours_wav)
+                .args(["--rate", "8000"]));
             let (rate, ours) = read_wav_i16(&ours_wav);
             assert_eq!(rate, 8000);
             let theirs_wav = d.join(format!("{name}-opusdec.wav"));

@@ -149,7 +149,7 @@ fn codec_picker_ui(ui: &mut egui::Ui, codec: &mut Codec) {
         .response
         .on_hover_text(
             "The codec we send in new calls. Opus is what most VoIP speaks; every peer may \
-             send any of Opus, Speex, PCMU and PCMA, and all are received.",
+             send any of Opus, Speex (narrowband or wideband), PCMU, PCMA and G.722, and all are received.",
         );
 }
 
@@ -159,5 +159,7 @@ pub(super) fn codec_label(codec: Codec) -> &'static str {
         Codec::Opus => "Opus",
         Codec::Pcmu => "PCMU",
         Codec::Pcma => "PCMA",
+        Codec::G722 => "G.722",
+        Codec::SpeexWb => "Speex WB",
     }
 }

@@ -10,6 +10,7 @@ use std::sync::{Arc, Mutex, MutexGuard};
 use std::thread::JoinHandle;
 use std::time::{Duration, Instant};
 
+use crate::audio::FrameResampler;
 use crate::audio::pacer::DEFAULT_LEAD;
 use crate::audio::{
     Capture, DeviceChoice, FramePacer, Gate, MicControls, OutputStatus, Playback, PlaybackConfig,
@@ -22,7 +23,7 @@ use crate::net::janus::room::RoomConfig;
 use crate::net::jitter::JitterConfig;
 use crate::net::session::{PeerFrame, PeerInfo, Session, SessionConfig};
 use crate::net::srtp::MasterKey;
-use crate::vocab::FRAME_SIZE;
+use crate::vocab::{FRAME_SIZE, MAX_FRAME_SAMPLES, SAMPLE_RATE};
 
 pub use super::counters::{DEMO_NAME, EngineCounters};
 use super::demo::Demo;
@@ -227,6 +228,8 @@ struct Worker {
     mic: Option<Capture>,
     /// The microphone's encoder, for the codec of the current call.
     encoder: FrameEncoder,
+    /// The microphone's 8 kHz frames to the encoder's rate, where it takes another.
+    mic_resampler: Option<FrameResampler>,
     /// The session has destinations: the microphone is sent.
     in_call: bool,
     /// A relay call's join, until the relay confirms it.
@@ -261,6 +264,7 @@ impl Worker {
         let link: Box<dyn Link> = Box::new(idle_session(&config)?);
         let mut worker = Self {
             encoder: FrameEncoder::new(DEFAULT_CODEC, &EncoderSettings::default())?,
+            mic_resampler: None,
             link,
             demo: None,
             mic: None,
@@ -569,11 +573,31 @@ impl Worker {
         let Some(mic) = &mut self.mic else { return };
         let in_call = self.in_call;
         let mut frame = [0i16; FRAME_SIZE];
+        let mut wide = [0i16; MAX_FRAME_SAMPLES];
         let mut payload = [0u8; MAX_FRAME_PAYLOAD];
+        let rate = self.encoder.input_rate();
+        if rate != SAMPLE_RATE
+            && self
+                .mic_resampler
+                .as_ref()
+                .is_none_or(|r| r.to_rate() != rate)
+        {
+            self.mic_resampler = FrameResampler::new(SAMPLE_RATE, rate).ok();
+        }
         loop {
             match mic.read_frame(&mut frame) {
                 Ok(Some(Gate::Open)) if in_call => {
-                    if let Ok(Some((n, frames))) = self.encoder.encode(&frame, &mut payload) {
+                    let input = match &mut self.mic_resampler {
+                        Some(r) if rate != SAMPLE_RATE => {
+                            let wide = &mut wide[..self.encoder.frame_samples()];
+                            if r.process_into(&frame, wide).is_err() {
+                                continue;
+                            }
+                            &*wide
+                        }
+                        _ => &frame[..],
+                    };
+                    if let Ok(Some((n, frames))) = self.encoder.encode(input, &mut payload) {
                         self.link.send_frames(&payload[..n], frames);
                     }
                 }

@@ -249,16 +249,16 @@ mod tests {
         let amplitude = if energy_db > -90.0 { 3000.0 } else { 0.0 };
         PeerFrame {
             ssrc,
-            frame: PlayedFrame {
-                pcm: std::array::from_fn(|i| (amplitude * (i as f32 * 0.3).sin()) as i16),
-                features: FrameFeatures {
+            frame: PlayedFrame::narrowband(
+                std::array::from_fn(|i| (amplitude * (i as f32 * 0.3).sin()) as i16),
+                FrameFeatures {
                     mode: Some(5),
                     energy_db,
                     ..crate::vocab::FrameFeatures::silent()
                 },
-                kind: FrameKind::Decoded,
-                codec: Codec::Speex,
-            },
+                FrameKind::Decoded,
+                Codec::Speex,
+            ),
         }
     }
 

@@ -54,6 +54,7 @@ pub use pacer::{FramePacer, Pulls};
 pub use playback::{
     OpenedOutput, OutputStatus, Playback, PlaybackConfig, PlaybackStats, RetiredOutput,
 };
+pub use resample::FrameResampler;
 
 /// The real-time paths allocate nothing once running: checked with a counting allocator.
 // A counting global allocator proves the real-time paths allocate nothing; it needs unsafe.

@@ -163,6 +163,14 @@ impl MediaFile {
         })
     }
 
+    /// An Ogg Opus file decoded at another Opus rate (48 kHz: its own).
+    pub fn opus_at(&self, rate: u32) -> Result<opus::stream::Decoded, MediaError> {
+        opus::stream::decode_at(&self.bytes, rate).map_err(|source| MediaError::Opus {
+            path: self.name(),
+            source,
+        })
+    }
+
     /// A WAV file at 8 kHz mono (another kind gets the WAV reader's account).
     pub fn wav(&self) -> Result<Vec<i16>, MediaError> {
         Ok(wav::read_narrowband(&self.path)?)
@@ -217,7 +225,10 @@ impl MediaFile {
             Some(MediaKind::OggOpus) => {
                 let decoded = self.opus()?;
                 if let Some(codec) = codec.filter(|&c| c != Codec::Opus) {
-                    return Ok((codec, encode_pcm(&decoded.pcm, codec, settings)?));
+                    return Ok((
+                        codec,
+                        encode_pcm(&decoded.pcm, decoded.rate, codec, settings)?,
+                    ));
                 }
                 // Timestamps count 48 kHz ticks; the packets were decoded at 8 kHz.
                 let per_sample = Codec::Opus.clock_rate() / SAMPLE_RATE;
@@ -231,7 +242,8 @@ impl MediaFile {
             Some(MediaKind::OggSpeex) => {
                 if let Some(codec) = codec.filter(|&c| c != Codec::Speex) {
                     let decoded = self.speex(true)?;
-                    return Ok((codec, encode_pcm(&decoded.pcm, codec, settings)?));
+                    let rate = decoded.header.rate;
+                    return Ok((codec, encode_pcm(&decoded.pcm, rate, codec, settings)?));
                 }
                 let file =
                     speex::ogg_file::read(&self.bytes).map_err(|source| MediaError::SpeexFile {
@@ -250,9 +262,11 @@ impl MediaFile {
                 Ok((Codec::Speex, out))
             }
             Some(MediaKind::Wav) => {
-                let pcm = self.wav()?;
+                let audio = wav::read_mono(&self.path)?;
                 let codec = codec.unwrap_or(Codec::Speex);
-                Ok((codec, encode_pcm(&pcm, codec, settings)?))
+                let rate = FrameEncoder::new(codec, settings)?.input_rate();
+                let pcm = wav::to_i16(&wav::resample(&audio, rate)?);
+                Ok((codec, encode_pcm(&pcm, rate, codec, settings)?))
             }
             None => Err(MediaError::Unknown(self.name())),
         }
@@ -269,17 +283,33 @@ impl From<speex::stream::Decoded> for Heard {
     }
 }
 
-/// Encodes 8 kHz audio in 20 ms frames (the last padded with silence).
+/// Encodes audio at `rate` in 20 ms frames (the last padded with silence), resampled first to
+/// the encoder's rate where it takes another.
 pub fn encode_pcm(
     pcm: &[i16],
+    rate: u32,
     codec: Codec,
     settings: &EncoderSettings,
 ) -> Result<Packets, MediaError> {
     let mut encoder = FrameEncoder::new(codec, settings)?;
+    let input_rate = encoder.input_rate();
+    let resampled;
+    let pcm = if rate == input_rate {
+        pcm
+    } else {
+        let audio = wav::MonoAudio {
+            rate,
+            samples: pcm.iter().map(|&s| f32::from(s) / 32768.0).collect(),
+        };
+        resampled = wav::to_i16(&wav::resample(&audio, input_rate)?);
+        &resampled[..]
+    };
+    let frame_samples = encoder.frame_samples();
     let mut payload = [0u8; MAX_FRAME_PAYLOAD];
-    let mut out = Vec::with_capacity(pcm.len() / FRAME_SIZE + 1);
-    for chunk in pcm.chunks(FRAME_SIZE) {
-        let mut frame = [0i16; FRAME_SIZE];
+    let mut out = Vec::with_capacity(pcm.len() / frame_samples + 1);
+    let mut frame = vec![0i16; frame_samples];
+    for chunk in pcm.chunks(frame_samples) {
+        frame.fill(0);
         frame[..chunk.len()].copy_from_slice(chunk);
         if let Some((n, frames)) = encoder.encode(&frame, &mut payload)? {
             out.push((payload[..n].to_vec(), frames * codec.frame_ticks()));

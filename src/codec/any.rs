@@ -1,8 +1,9 @@
 //! Every codec lipcall speaks, as a call sees it: its RTP identity (name, clock rate, payload
-//! type), how long a payload lasts, and an encoder of 20 ms frames at 8 kHz. The decoder side is
-//! [`super::decoder::StreamDecoder`].
+//! type), how long a payload lasts, the rate its audio is heard at, and an encoder of 20 ms
+//! frames at its own input rate. The decoder side is [`super::decoder::StreamDecoder`].
 //!
-//! Payload types. PCMU and PCMA have the static types of RFC 3551 (0 and 8). Speex and Opus
+//! Payload types. PCMU, PCMA and G.722 have the static types of RFC 3551 (0, 8 and 9; G.722's
+//! RTP clock is 8000 though it samples at 16 kHz, RFC 3551 4.5.2). Speex and Opus
 //! have dynamic ones, normally agreed in SDP; without SDP lipcall uses GStreamer's payloader
 //! defaults (`rtpspeexpay` 110, `rtpopuspay` 96, checked with `gst-inspect-1.0`), so GStreamer
 //! talks to it with no options, and a [`PayloadMap`] can move them (`--pt opus=111`).
@@ -13,8 +14,8 @@ use std::str::FromStr;
 use serde::{Deserialize, Serialize};
 
 use super::g711::Law;
-use super::{opus, speex};
-use crate::vocab::{FRAME_SIZE, SAMPLE_RATE};
+use super::{g722, opus, speex};
+use crate::vocab::SAMPLE_RATE;
 
 /// The codecs of a call.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Hash, Serialize, Deserialize)]
@@ -28,10 +29,22 @@ pub enum Codec {
     Pcmu,
     /// G.711 A-law.
     Pcma,
+    /// G.722 at 64 kbit/s: 16 kHz audio in two sub-bands.
+    G722,
+    /// Speex wideband (RFC 5574 `speex/16000`): 16 kHz audio, the LSPs read from its
+    /// narrowband layer.
+    SpeexWb,
 }
 
 impl Codec {
-    pub const ALL: [Codec; 4] = [Codec::Speex, Codec::Opus, Codec::Pcmu, Codec::Pcma];
+    pub const ALL: [Codec; 6] = [
+        Codec::Speex,
+        Codec::Opus,
+        Codec::Pcmu,
+        Codec::Pcma,
+        Codec::G722,
+        Codec::SpeexWb,
+    ];
 
     /// The name on the command line and in settings.
     pub const fn name(self) -> &'static str {
@@ -40,16 +53,19 @@ impl Codec {
             Codec::Opus => "opus",
             Codec::Pcmu => "pcmu",
             Codec::Pcma => "pcma",
+            Codec::G722 => "g722",
+            Codec::SpeexWb => "speex-wb",
         }
     }
 
     /// The encoding name in SDP and in GStreamer's RTP caps.
     pub const fn encoding_name(self) -> &'static str {
         match self {
-            Codec::Speex => "SPEEX",
+            Codec::Speex | Codec::SpeexWb => "SPEEX",
             Codec::Opus => "OPUS",
             Codec::Pcmu => "PCMU",
             Codec::Pcma => "PCMA",
+            Codec::G722 => "G722",
         }
     }
 
@@ -57,8 +73,25 @@ impl Codec {
     pub const fn clock_rate(self) -> u32 {
         match self {
             Codec::Opus => opus::codec::OPUS_CLOCK_RATE,
+            Codec::SpeexWb => speex::codec::Band::Wide.rate(),
+            Codec::Speex | Codec::Pcmu | Codec::Pcma | Codec::G722 => SAMPLE_RATE,
+        }
+    }
+
+    /// The rate its decoder gives the ear: what the stream carries at most (Opus is always
+    /// decoded at 48 kHz, whatever band its TOC says it codes).
+    pub const fn audio_rate(self) -> u32 {
+        match self {
+            Codec::Opus => opus::codec::OPUS_CLOCK_RATE,
+            Codec::G722 => g722::AUDIO_RATE,
+            Codec::SpeexWb => speex::codec::Band::Wide.rate(),
             Codec::Speex | Codec::Pcmu | Codec::Pcma => SAMPLE_RATE,
         }
+    }
+
+    /// The rate of the audio its encoder takes.
+    pub const fn input_rate(self) -> u32 {
+        self.audio_rate()
     }
 
     /// RTP timestamp units ("ticks") in one 20 ms frame.
@@ -73,34 +106,47 @@ impl Codec {
             Codec::Opus => 96,
             Codec::Pcmu => Law::Mu.payload_type(),
             Codec::Pcma => Law::A.payload_type(),
+            Codec::G722 => g722::PAYLOAD_TYPE,
+            Codec::SpeexWb => 97,
         }
     }
 
     /// Whether the codec has a payload type of its own in RFC 3551's static table.
     pub const fn is_static(self) -> bool {
-        matches!(self, Codec::Pcmu | Codec::Pcma)
+        matches!(self, Codec::Pcmu | Codec::Pcma | Codec::G722)
     }
 
     pub const fn law(self) -> Option<Law> {
         match self {
             Codec::Pcmu => Some(Law::Mu),
             Codec::Pcma => Some(Law::A),
-            Codec::Speex | Codec::Opus => None,
+            Codec::Speex | Codec::Opus | Codec::G722 | Codec::SpeexWb => None,
         }
     }
 
     /// How long a payload lasts, in ticks of [`Codec::clock_rate`], read without decoding it:
-    /// Speex by counting its frames, Opus from its TOC and frame count, G.711 by its length
-    /// (one byte per sample, any length). `None` when the payload is not one of this codec.
+    /// Speex by counting its frames, Opus from its TOC and frame count, G.711 and G.722 by
+    /// their length (one byte per tick, any length). `None` when the payload is not one of this codec.
     pub fn payload_duration(self, payload: &[u8]) -> Option<u32> {
         match self {
             Codec::Speex => speex::split::frame_count(payload)
                 .and_then(|n| u32::try_from(n).ok())
                 .map(|n| n * self.frame_ticks()),
+            // Wideband frames' lengths vary with their layer's submode: walked, not counted.
+            Codec::SpeexWb => {
+                let frames = speex::bitstream::Walker::new()
+                    .frames(payload)
+                    .map_while(Result::ok)
+                    .count();
+                u32::try_from(frames)
+                    .ok()
+                    .filter(|&n| n > 0)
+                    .map(|n| n * self.frame_ticks())
+            }
             Codec::Opus => opus::codec::packet_samples(payload, self.clock_rate())
                 .ok()
                 .and_then(|n| u32::try_from(n).ok()),
-            Codec::Pcmu | Codec::Pcma => match payload.len() {
+            Codec::Pcmu | Codec::Pcma | Codec::G722 => match payload.len() {
                 0 => None,
                 n => u32::try_from(n).ok(),
             },
@@ -112,7 +158,7 @@ impl Codec {
     /// start anywhere (G.711 at any sample, Opus at any 2.5 ms) and are placed where their
     /// timestamps say.
     pub const fn whole_frames(self) -> bool {
-        matches!(self, Codec::Speex)
+        matches!(self, Codec::Speex | Codec::SpeexWb)
     }
 
     /// Samples at 8 kHz in `ticks` of this codec's clock (rounded down).
@@ -129,7 +175,7 @@ impl fmt::Display for Codec {
 
 #[derive(Debug, Clone, PartialEq, Eq, thiserror::Error)]
 pub enum PayloadMapError {
-    #[error("unknown codec {0:?} (expected speex, opus, pcmu or pcma)")]
+    #[error("unknown codec {0:?} (expected speex, speex-wb, opus, pcmu, pcma or g722)")]
     UnknownCodec(String),
     #[error("expected CODEC=PT such as opus=111, not {0:?}")]
     Syntax(String),
@@ -275,19 +321,50 @@ impl Default for EncoderSettings {
     }
 }
 
+impl EncoderSettings {
+    /// Opus at its own 48 kHz input rate coding `bandwidth` (fullband: up to 20 kHz), at a
+    /// bitrate that carries it (libopus's hybrid mode needs about 32 kb/s for fullband speech),
+    /// with the same in-band FEC; the other codecs as by default.
+    pub fn wideband(bandwidth: opus::codec::Bandwidth) -> Self {
+        use opus::codec::Bandwidth;
+        let defaults = Self::default();
+        let bitrate = match bandwidth {
+            Bandwidth::Narrowband | Bandwidth::Mediumband => defaults.opus.bitrate,
+            Bandwidth::Wideband => 24_000,
+            Bandwidth::Superwideband | Bandwidth::Fullband | Bandwidth::Auto => 32_000,
+        };
+        Self {
+            opus: opus::codec::EncoderConfig {
+                bitrate,
+                input_rate: opus::codec::OPUS_CLOCK_RATE,
+                bandwidth,
+                ..defaults.opus
+            },
+            ..defaults
+        }
+    }
+}
+
 #[derive(Debug, thiserror::Error, PartialEq, Eq)]
 pub enum EncodeError {
     #[error(transparent)]
     Speex(#[from] speex::codec::CodecError),
     #[error(transparent)]
     Opus(#[from] opus::codec::CodecError),
+    #[error("{codec} takes 20 ms frames of {expected} samples, not {got}")]
+    FrameLength {
+        codec: Codec,
+        got: usize,
+        expected: usize,
+    },
 }
 
-/// A sender's encoder: 20 ms frames of 8 kHz audio in, payloads out.
+/// A sender's encoder: 20 ms frames at its input rate in, payloads out.
 pub enum FrameEncoder {
     Speex(speex::codec::Encoder),
     Opus(opus::codec::Encoder),
     G711(Law),
+    G722(Box<g722::WidebandEncoder>),
 }
 
 impl fmt::Debug for FrameEncoder {
@@ -300,44 +377,77 @@ impl FrameEncoder {
     pub fn new(codec: Codec, settings: &EncoderSettings) -> Result<Self, EncodeError> {
         Ok(match codec {
             Codec::Speex => FrameEncoder::Speex(speex::codec::Encoder::new(settings.speex)?),
-            Codec::Opus => {
-                FrameEncoder::Opus(opus::codec::Encoder::new(opus::codec::EncoderConfig {
-                    input_rate: SAMPLE_RATE,
-                    ..settings.opus
-                })?)
-            }
+            Codec::SpeexWb => FrameEncoder::Speex(speex::codec::Encoder::with_band(
+                settings.speex,
+                speex::codec::Band::Wide,
+            )?),
+            Codec::Opus => FrameEncoder::Opus(opus::codec::Encoder::new(settings.opus)?),
             Codec::Pcmu => FrameEncoder::G711(Law::Mu),
             Codec::Pcma => FrameEncoder::G711(Law::A),
+            Codec::G722 => FrameEncoder::G722(Box::default()),
         })
+    }
+
+    /// The rate of the frames [`FrameEncoder::encode`] takes (Opus: as its settings say).
+    pub fn input_rate(&self) -> u32 {
+        match self {
+            FrameEncoder::Opus(enc) => enc.config().input_rate,
+            _ => self.codec().input_rate(),
+        }
+    }
+
+    /// Samples in one 20 ms input frame.
+    pub fn frame_samples(&self) -> usize {
+        self.input_rate() as usize / 50
     }
 
     pub fn codec(&self) -> Codec {
         match self {
-            FrameEncoder::Speex(_) => Codec::Speex,
+            FrameEncoder::Speex(enc) => match enc.band() {
+                speex::codec::Band::Narrow => Codec::Speex,
+                speex::codec::Band::Wide => Codec::SpeexWb,
+            },
             FrameEncoder::Opus(_) => Codec::Opus,
             FrameEncoder::G711(Law::Mu) => Codec::Pcmu,
             FrameEncoder::G711(Law::A) => Codec::Pcma,
+            FrameEncoder::G722(_) => Codec::G722,
         }
     }
 
-    /// Encodes one frame into `out`. Returns the payload's length and the frames it holds, or
-    /// `None` while the codec holds frames back (Speex with several frames per packet).
+    /// Encodes one 20 ms frame at [`FrameEncoder::input_rate`] into `out`. Returns the
+    /// payload's length and the frames it holds, or `None` while the codec holds frames back
+    /// (Speex with several frames per packet).
     pub fn encode(
         &mut self,
-        frame: &[i16; FRAME_SIZE],
+        frame: &[i16],
         out: &mut [u8; MAX_FRAME_PAYLOAD],
     ) -> Result<Option<(usize, u32)>, EncodeError> {
+        let expected = self.frame_samples();
+        if frame.len() != expected {
+            return Err(EncodeError::FrameLength {
+                codec: self.codec(),
+                got: frame.len(),
+                expected,
+            });
+        }
         match self {
             FrameEncoder::Speex(enc) => {
                 let mut packet = [0u8; speex::codec::MAX_PACKET_BYTES];
                 let frames = enc.config().frames_per_packet as u32;
-                Ok(enc.encode_frame(frame, &mut packet).map(|n| {
+                Ok(enc.encode_samples(frame, &mut packet)?.map(|n| {
                     out[..n].copy_from_slice(&packet[..n]);
                     (n, frames)
                 }))
             }
             FrameEncoder::Opus(enc) => Ok(Some((enc.encode_frame(frame, out)?, 1))),
             FrameEncoder::G711(law) => Ok(Some((law.encode_into(frame, out), 1))),
+            FrameEncoder::G722(enc) => {
+                let frame: &[i16; g722::WIDEBAND_FRAME] =
+                    frame.try_into().unwrap_or(&[0; g722::WIDEBAND_FRAME]);
+                let payload = enc.encode_frame(frame);
+                out[..payload.len()].copy_from_slice(&payload);
+                Ok(Some((payload.len(), 1)))
+            }
         }
     }
 }
@@ -345,6 +455,7 @@ impl FrameEncoder {
 #[cfg(test)]
 mod tests {
     use super::*;
+    use crate::vocab::FRAME_SIZE;
 
     #[test]
     fn payload_types_follow_gstreamer_and_rfc_3551() {
@@ -387,21 +498,29 @@ mod tests {
         assert!(matches!(bad("opus=128"), Some(PayloadMapError::Syntax(_))));
         assert!(matches!(bad("opus"), Some(PayloadMapError::Syntax(_))));
         assert!(matches!(
-            bad("g722=9"),
+            bad("g729=18"),
             Some(PayloadMapError::UnknownCodec(_))
         ));
+        assert!(matches!(bad("g722=0"), Some(PayloadMapError::Range { .. })));
         assert!(bad("pcmu=0").is_none());
+        assert!(bad("g722=9").is_none());
+        assert_eq!(PayloadMap::default().codec(9), Some(Codec::G722));
     }
 
     #[test]
     fn durations_are_read_without_decoding() {
         let settings = EncoderSettings::default();
-        let frame: [i16; FRAME_SIZE] =
-            std::array::from_fn(|i| ((i as f32 * 0.3).sin() * 5000.0) as i16);
         let mut out = [0u8; MAX_FRAME_PAYLOAD];
         for codec in Codec::ALL {
             let mut enc = FrameEncoder::new(codec, &settings).unwrap();
             assert_eq!(enc.codec(), codec);
+            let frame: Vec<i16> = (0..enc.frame_samples())
+                .map(|i| ((i as f32 * 0.3).sin() * 5000.0) as i16)
+                .collect();
+            assert!(matches!(
+                enc.encode(&frame[1..], &mut out),
+                Err(EncodeError::FrameLength { .. })
+            ));
             let (n, frames) = enc.encode(&frame, &mut out).unwrap().unwrap();
             assert_eq!(frames, 1);
             assert_eq!(

@@ -1,5 +1,10 @@
-//! One remote stream's decoder, whatever its codec: payloads in, 20 ms frames of 8 kHz audio
-//! out, each with the features the lip-sync network eats, and concealment for what is missing.
+//! One remote stream's decoder, whatever its codec: payloads in, 20 ms frames out, each with
+//! its audio at the codec's own rate (48 kHz Opus, 8 kHz G.711), the 8 kHz signal the features
+//! come from, the features the lip-sync network eats, and concealment for what is missing.
+//!
+//! The features stay what they were when everything ran at 8 kHz: Opus is decoded twice, at
+//! 8 kHz for the features (libopus decodes to it directly, as the offline paths do) and at
+//! 48 kHz for the ear, so that no resampler's delay or ripple moves a feature row.
 //!
 //! Speex decodes frame by frame as before: its packets hold whole 20 ms frames, and the LSPs
 //! come from its bitstream walker ([`FrameTracker`]). Opus and G.711 payloads may last any
@@ -16,13 +21,14 @@
 
 use super::any::Codec;
 use super::g711::Law;
+use super::g722;
 use super::lpc::LpcAnalyser;
 use super::opus::features::CodedRuns;
 use super::silk::{self, SilkWalker};
 use super::speex::features::FrameTracker;
 use super::{opus, speex};
 use crate::vocab::{FRAME_SIZE, FeatureFamily, LSP_COUNT, SAMPLE_RATE};
-use crate::vocab::{FrameFeatures, energy_db, flat_lsp};
+use crate::vocab::{FrameAudio, FrameFeatures, energy_db, flat_lsp};
 
 /// Decoded samples a stream may hold ahead: the longest payload (a 1500-byte datagram of G.711,
 /// or 120 ms of Opus) behind at most two frames of leftovers.
@@ -48,6 +54,9 @@ pub enum FrameOrigin {
 /// 20 ms of decoded audio with its features.
 #[derive(Debug, Clone, PartialEq)]
 pub struct DecodedFrame {
+    /// What the ear hears, at the codec's rate.
+    pub audio: FrameAudio,
+    /// The 8 kHz signal the features were computed from (narrowband: the lip-sync side's).
     pub pcm: [i16; FRAME_SIZE],
     pub features: FrameFeatures,
     pub origin: FrameOrigin,
@@ -84,7 +93,10 @@ enum Inner {
 }
 
 struct SpeexStream {
+    /// Narrowband, also of a wideband stream (its narrowband layer): the features' signal.
     decoder: speex::codec::Decoder,
+    /// The wideband decoder of a wideband stream, for the ear.
+    wide: Option<speex::codec::Decoder>,
     tracker: FrameTracker,
     /// The packet just given could not be loaded: its first frame is concealed.
     failed: bool,
@@ -209,51 +221,96 @@ impl SilkTrack {
 }
 
 enum QueuedCodec {
-    Opus(opus::codec::Decoder),
-    G711 { law: Law, plc: Box<Plc> },
+    /// The same packets decoded at 8 kHz (features) and at 48 kHz (audio).
+    Opus {
+        narrow: opus::codec::Decoder,
+        wide: opus::codec::Decoder,
+    },
+    G711 {
+        law: Law,
+        plc: Box<Plc>,
+    },
+    /// The lower sub-band alone at 8 kHz (features), and both through the QMF at 16 kHz.
+    G722 {
+        low: Box<g722::LowBandDecoder>,
+        full: Box<g722::WidebandDecoder>,
+        plc: Box<Plc>,
+        wide_plc: Box<Plc>,
+    },
 }
 
 struct QueuedStream {
     codec: QueuedCodec,
+    /// The 8 kHz signal the features come from.
     queue: Vec<i16>,
+    /// The audio at the codec's rate: `scale` samples for each of `queue`, always.
+    wide: Vec<i16>,
+    scale: usize,
     /// Mode of the last payload decoded: Opus's TOC configuration, G.711's payload type.
     mode: Option<u8>,
     features: FeatureSource,
     scratch: [i16; opus::codec::MAX_PACKET_SAMPLES],
+    wide_scratch: Vec<i16>,
 }
 
 impl StreamDecoder {
     /// A decoder for `codec`; `enhancer` is Speex's perceptual enhancer (speexdec's default).
     pub fn new(codec: Codec, enhancer: bool) -> Result<Self, DecoderError> {
-        let queued = |codec, features| {
+        let queued = |codec, features, rate: u32| {
+            let scale = (rate / SAMPLE_RATE) as usize;
             Inner::Queued(Box::new(QueuedStream {
                 codec,
                 queue: Vec::with_capacity(QUEUE_CAPACITY),
+                wide: Vec::with_capacity(QUEUE_CAPACITY * scale),
+                scale,
                 mode: None,
                 features,
                 scratch: [0; opus::codec::MAX_PACKET_SAMPLES],
+                wide_scratch: vec![0; opus::codec::MAX_PACKET_SAMPLES * scale],
             }))
         };
         let inner = match codec {
-            Codec::Speex => Inner::Speex(Box::new(SpeexStream {
+            Codec::Speex | Codec::SpeexWb => Inner::Speex(Box::new(SpeexStream {
                 decoder: speex::codec::Decoder::new(enhancer)?,
+                wide: match codec {
+                    Codec::SpeexWb => Some(speex::codec::Decoder::with_band(
+                        enhancer,
+                        speex::codec::Band::Wide,
+                    )?),
+                    _ => None,
+                },
                 tracker: FrameTracker::new(),
                 failed: false,
             })),
             Codec::Opus => queued(
-                QueuedCodec::Opus(opus::codec::Decoder::new()?),
+                QueuedCodec::Opus {
+                    narrow: opus::codec::Decoder::new()?,
+                    wide: opus::codec::Decoder::with_rate(codec.audio_rate())?,
+                },
                 FeatureSource::opus(),
+                codec.audio_rate(),
             ),
             Codec::Pcmu | Codec::Pcma => {
                 let law = codec.law().unwrap_or(Law::Mu);
                 queued(
                     QueuedCodec::G711 {
                         law,
-                        plc: Box::new(Plc::new()),
+                        plc: Box::new(Plc::new(1)),
                     },
                     FeatureSource::analysis(),
+                    codec.audio_rate(),
                 )
             }
+            Codec::G722 => queued(
+                QueuedCodec::G722 {
+                    low: Box::default(),
+                    full: Box::default(),
+                    plc: Box::new(Plc::new(1)),
+                    wide_plc: Box::new(Plc::new(2)),
+                },
+                FeatureSource::analysis(),
+                codec.audio_rate(),
+            ),
         };
         Ok(Self {
             codec,
@@ -277,6 +334,9 @@ impl StreamDecoder {
         match &mut self.inner {
             Inner::Speex(s) => {
                 s.failed = s.decoder.load(payload).is_err();
+                if let Some(wide) = &mut s.wide {
+                    s.failed |= wide.load(payload).is_err();
+                }
                 // A packet the walker cannot read still decodes; its rows keep held LSPs.
                 let _ = s.tracker.start_packet(payload);
                 self.errors += u64::from(s.failed);
@@ -306,6 +366,7 @@ impl StreamDecoder {
                 if decoded {
                     let features = s.tracker.decoded(&pcm);
                     return DecodedFrame {
+                        audio: s.wide_audio(&pcm, false),
                         pcm,
                         features,
                         origin: FrameOrigin::Decoded,
@@ -325,16 +386,21 @@ impl StreamDecoder {
             Inner::Speex(s) => s.conceal(),
             Inner::Queued(q) => {
                 if q.queue.is_empty()
-                    && let (QueuedCodec::Opus(dec), Some(next)) = (&mut q.codec, next)
+                    && let (QueuedCodec::Opus { narrow, wide }, Some(next)) = (&mut q.codec, next)
                     && opus::fec::carries_fec(next)
                 {
                     let mut pcm = [0i16; FRAME_SIZE];
-                    if dec.decode_fec(next, &mut pcm).is_ok() {
+                    if narrow.decode_fec(next, &mut pcm).is_ok() {
+                        let mut audio = FrameAudio::silence(wide.rate());
+                        if wide.decode_fec(next, audio.samples_mut()).is_err() {
+                            audio = FrameAudio::silence(wide.rate());
+                        }
                         let mode = next.first().map(|toc| toc >> 3);
                         let features =
                             q.features
                                 .features(&pcm, mode, FrameOrigin::Recovered, None);
                         return DecodedFrame {
+                            audio,
                             pcm,
                             features,
                             origin: FrameOrigin::Recovered,
@@ -348,11 +414,30 @@ impl StreamDecoder {
 }
 
 impl SpeexStream {
+    /// The frame for the ear: the narrowband one, or the wideband decoder's of the same
+    /// packet (its concealment where `conceal`, or where it fails).
+    fn wide_audio(&mut self, pcm: &[i16; FRAME_SIZE], conceal: bool) -> FrameAudio {
+        let Some(wide) = &mut self.wide else {
+            return FrameAudio::narrowband(pcm);
+        };
+        let mut audio = FrameAudio::silence(wide.band().rate());
+        let decoded = !conceal
+            && matches!(
+                wide.decode_next_into(audio.samples_mut()),
+                Ok(speex::codec::FrameOutcome::Decoded)
+            );
+        if !decoded {
+            let _ = wide.conceal_into(audio.samples_mut());
+        }
+        audio
+    }
+
     fn conceal(&mut self) -> DecodedFrame {
         let mut pcm = [0i16; FRAME_SIZE];
         self.decoder.conceal(&mut pcm);
         let features = self.tracker.concealed(&pcm);
         DecodedFrame {
+            audio: self.wide_audio(&pcm, true),
             pcm,
             features,
             origin: FrameOrigin::Concealed,
@@ -369,6 +454,7 @@ impl QueuedStream {
     fn decode(&mut self, payload: &[u8], offset: usize) -> bool {
         if self.queue.len() > offset + FRAME_SIZE {
             self.queue.truncate(offset);
+            self.wide.truncate(offset * self.scale);
             if let Some(track) = &mut self.features.silk {
                 track.truncate(offset);
             }
@@ -377,14 +463,19 @@ impl QueuedStream {
         }
         let start = self.queue.len();
         match &mut self.codec {
-            QueuedCodec::Opus(dec) => {
-                let Ok(n) = dec.decode(payload, &mut self.scratch) else {
+            QueuedCodec::Opus { narrow, wide } => {
+                let Ok(n) = narrow.decode(payload, &mut self.scratch) else {
                     return false;
                 };
                 if start + n > QUEUE_CAPACITY {
                     return false;
                 }
                 self.queue.extend_from_slice(&self.scratch[..n]);
+                let m = n * self.scale;
+                if wide.decode(payload, &mut self.wide_scratch).is_err() {
+                    self.wide_scratch[..m].fill(0);
+                }
+                self.wide.extend_from_slice(&self.wide_scratch[..m]);
                 if let Some(track) = &mut self.features.silk {
                     track.payload(payload, n);
                 }
@@ -398,7 +489,27 @@ impl QueuedStream {
                 self.queue.resize(start + n, 0);
                 law.decode_into(&payload[..n], &mut self.queue[start..]);
                 plc.heard(&self.queue[start..]);
+                self.wide.extend_from_slice(&self.queue[start..]);
                 self.mode = Some(law.payload_type());
+            }
+            QueuedCodec::G722 {
+                low,
+                full,
+                plc,
+                wide_plc,
+            } => {
+                let n = payload.len().min(QUEUE_CAPACITY - start);
+                if n == 0 {
+                    return false;
+                }
+                self.queue.resize(start + n, 0);
+                low.decode_into(&payload[..n], &mut self.queue[start..]);
+                plc.heard(&self.queue[start..]);
+                let wide_start = self.wide.len();
+                self.wide.resize(wide_start + 2 * n, 0);
+                full.decode_into(&payload[..n], &mut self.wide[wide_start..]);
+                wide_plc.heard(&self.wide[wide_start..]);
+                self.mode = Some(g722::PAYLOAD_TYPE);
             }
         }
         true
@@ -409,21 +520,36 @@ impl QueuedStream {
         let start = self.queue.len();
         let n = n.min(QUEUE_CAPACITY - start);
         self.queue.resize(start + n, 0);
+        let wide_start = self.wide.len();
+        self.wide.resize(wide_start + n * self.scale, 0);
         if let Some(track) = &mut self.features.silk {
             track.gap(n);
         }
         let out = &mut self.queue[start..];
+        let wide_out = &mut self.wide[wide_start..];
         match &mut self.codec {
-            QueuedCodec::Opus(dec) => {
+            QueuedCodec::Opus { narrow, wide } => {
                 // libopus conceals whole 2.5 ms steps (20 samples at 8 kHz).
                 let steps = n.div_ceil(20) * 20;
                 let scratch = &mut self.scratch[..steps.min(opus::codec::MAX_PACKET_SAMPLES)];
-                if dec.conceal(scratch).is_ok() {
+                if narrow.conceal(scratch).is_ok() {
                     let m = out.len().min(scratch.len());
                     out[..m].copy_from_slice(&scratch[..m]);
                 }
+                let scratch = &mut self.wide_scratch[..scratch.len() * self.scale];
+                if wide.conceal(scratch).is_ok() {
+                    let m = wide_out.len().min(scratch.len());
+                    wide_out[..m].copy_from_slice(&scratch[..m]);
+                }
             }
-            QueuedCodec::G711 { plc, .. } => plc.conceal(out),
+            QueuedCodec::G711 { plc, .. } => {
+                plc.conceal(out);
+                wide_out.copy_from_slice(out);
+            }
+            QueuedCodec::G722 { plc, wide_plc, .. } => {
+                plc.conceal(out);
+                wide_plc.conceal(wide_out);
+            }
         }
     }
 
@@ -436,6 +562,9 @@ impl QueuedStream {
         let n = self.queue.len().min(FRAME_SIZE);
         pcm[..n].copy_from_slice(&self.queue[..n]);
         self.queue.drain(..n);
+        let wide_n = (n * self.scale).min(self.wide.len());
+        let audio = FrameAudio::from_slice(self.scale as u32 * SAMPLE_RATE, &self.wide[..wide_n]);
+        self.wide.drain(..wide_n);
         let coded = self.features.silk.as_mut().and_then(|t| t.take(n));
         let origin = if had > 0 {
             FrameOrigin::Decoded
@@ -444,6 +573,7 @@ impl QueuedStream {
         };
         let features = self.features.features(&pcm, self.mode, origin, coded);
         DecodedFrame {
+            audio,
             pcm,
             features,
             origin,
@@ -451,37 +581,42 @@ impl QueuedStream {
     }
 }
 
-/// G.711 has no concealment of its own: repeat the last pitch period of what was heard, fading
-/// to silence over 60 ms.
+/// G.711 and G.722 have no concealment of their own: repeat the last pitch period of what was
+/// heard, fading to silence over 60 ms. `scale` is the rate over 8 kHz (2 for G.722's 16 kHz).
 struct Plc {
-    history: [i16; HISTORY],
+    history: Vec<i16>,
+    scale: usize,
     period: usize,
     /// Samples concealed since the last heard ones.
     concealed: usize,
 }
 
 impl Plc {
-    fn new() -> Self {
+    fn new(scale: usize) -> Self {
         Self {
-            history: [0; HISTORY],
-            period: FRAME_SIZE,
+            history: vec![0; HISTORY * scale],
+            scale,
+            period: FRAME_SIZE * scale,
             concealed: 0,
         }
     }
 
     fn heard(&mut self, samples: &[i16]) {
-        let n = samples.len().min(HISTORY);
+        let len = self.history.len();
+        let n = samples.len().min(len);
         self.history.copy_within(n.., 0);
-        self.history[HISTORY - n..].copy_from_slice(&samples[samples.len() - n..]);
+        self.history[len - n..].copy_from_slice(&samples[samples.len() - n..]);
         self.concealed = 0;
     }
 
     /// The lag of the strongest normalised autocorrelation over the last frame.
     fn pitch(&self) -> usize {
-        let recent = &self.history[HISTORY - FRAME_SIZE..];
-        let mut best = (0.0f64, FRAME_SIZE);
-        for lag in PITCH_RANGE {
-            let earlier = &self.history[HISTORY - FRAME_SIZE - lag..HISTORY - lag];
+        let (len, frame) = (self.history.len(), FRAME_SIZE * self.scale);
+        let recent = &self.history[len - frame..];
+        let mut best = (0.0f64, frame);
+        let lags = PITCH_RANGE.start() * self.scale..=PITCH_RANGE.end() * self.scale;
+        for lag in lags {
+            let earlier = &self.history[len - frame - lag..len - lag];
             let (mut xy, mut yy) = (0.0f64, 0.0f64);
             for (&x, &y) in recent.iter().zip(earlier) {
                 xy += f64::from(x) * f64::from(y);
@@ -501,9 +636,10 @@ impl Plc {
         if self.concealed == 0 {
             self.period = self.pitch();
         }
-        let base = HISTORY - self.period;
+        let base = self.history.len() - self.period;
+        let fade = G711_FADE * self.scale;
         for o in out.iter_mut() {
-            let gain = 1.0 - self.concealed as f32 / G711_FADE as f32;
+            let gain = 1.0 - self.concealed as f32 / fade as f32;
             *o = if gain > 0.0 {
                 let s = self.history[base + self.concealed % self.period];
                 (f32::from(s) * gain) as i16
@@ -522,28 +658,43 @@ mod tests {
     use crate::codec::opus::features::narrowband_lsp;
 
     fn speech_like(frames: usize) -> Vec<[i16; FRAME_SIZE]> {
+        speech_like_at(frames, SAMPLE_RATE)
+            .iter()
+            .map(|f| f[..].try_into().unwrap())
+            .collect()
+    }
+
+    /// 20 ms frames at `rate` of a buzz with two formants (and, above 8 kHz, a 6 kHz hiss).
+    fn speech_like_at(frames: usize, rate: u32) -> Vec<Vec<i16>> {
+        let n = rate as usize / 50;
         (0..frames)
             .map(|f| {
-                std::array::from_fn(|i| {
-                    let t = (f * FRAME_SIZE + i) as f32 / 8000.0;
-                    let env = (std::f32::consts::PI * t * 2.0).sin().abs();
-                    let mut s = 0.0;
-                    for h in 1..20 {
-                        let fr = 140.0 * h as f32;
-                        let amp = 1.0 / (1.0 + ((fr - 700.0) / 250.0).powi(2))
-                            + 0.6 / (1.0 + ((fr - 1500.0) / 300.0).powi(2));
-                        s += amp * (2.0 * std::f32::consts::PI * fr * t).sin();
-                    }
-                    (5000.0 * env * s) as i16
-                })
+                (0..n)
+                    .map(|i| {
+                        let t = (f * n + i) as f32 / rate as f32;
+                        let env = (std::f32::consts::PI * t * 2.0).sin().abs();
+                        let mut s = 0.0;
+                        for h in 1..20 {
+                            let fr = 140.0 * h as f32;
+                            let amp = 1.0 / (1.0 + ((fr - 700.0) / 250.0).powi(2))
+                                + 0.6 / (1.0 + ((fr - 1500.0) / 300.0).powi(2));
+                            s += amp * (2.0 * std::f32::consts::PI * fr * t).sin();
+                        }
+                        if rate > 8000 {
+                            s += 0.3 * (2.0 * std::f32::consts::PI * 6000.0 * t).sin();
+                        }
+                        (5000.0 * env * s) as i16
+                    })
+                    .collect()
             })
             .collect()
     }
 
-    fn encode(codec: Codec, frames: &[[i16; FRAME_SIZE]]) -> Vec<Vec<u8>> {
+    /// `frames` frames of [`speech_like_at`] the encoder's rate, encoded.
+    fn encode(codec: Codec, frames: usize) -> Vec<Vec<u8>> {
         let mut enc = FrameEncoder::new(codec, &EncoderSettings::default()).unwrap();
         let mut out = [0u8; MAX_FRAME_PAYLOAD];
-        frames
+        speech_like_at(frames, enc.input_rate())
             .iter()
             .filter_map(|f| {
                 enc.encode(f, &mut out)
@@ -561,7 +712,7 @@ mod tests {
     fn every_codec_decodes_frame_by_frame_with_features() {
         let input = speech_like(100);
         for codec in Codec::ALL {
-            let packets = encode(codec, &input);
+            let packets = encode(codec, input.len());
             assert_eq!(packets.len(), 100, "{codec}");
             let mut dec = StreamDecoder::new(codec, true).unwrap();
             let mut out = Vec::new();
@@ -580,12 +731,86 @@ mod tests {
         }
     }
 
+    /// Energy above 4 kHz over all energy, of 20 ms frames at `rate` (a first difference as a
+    /// crude high-pass is enough to tell a band that is there from one that is not).
+    fn upper_share(frames: &[Vec<i16>]) -> f64 {
+        let all: f64 = frames.iter().map(|f| energy(f)).sum();
+        let diff: f64 = frames
+            .iter()
+            .map(|f| {
+                f.windows(2)
+                    .map(|w| (f64::from(w[1]) - f64::from(w[0])).powi(2))
+                    .sum::<f64>()
+            })
+            .sum();
+        diff / all.max(1.0)
+    }
+
+    #[test]
+    fn the_ear_gets_each_codecs_own_band_and_the_features_the_8_khz_signal() {
+        for (codec, rate) in [
+            (Codec::Opus, 48_000),
+            (Codec::G722, 16_000),
+            (Codec::Pcmu, 8000),
+            (Codec::Speex, 8000),
+            (Codec::SpeexWb, 16_000),
+        ] {
+            let settings = EncoderSettings::wideband(opus::codec::Bandwidth::Fullband);
+            let mut enc = FrameEncoder::new(codec, &settings).unwrap();
+            let input = speech_like_at(60, enc.input_rate());
+            let mut dec = StreamDecoder::new(codec, true).unwrap();
+            let mut wide = Vec::new();
+            let mut out = [0u8; MAX_FRAME_PAYLOAD];
+            for f in &input {
+                let (n, _) = enc.encode(f, &mut out).unwrap().unwrap();
+                dec.packet(&out[..n], 0);
+                let frame = dec.frame();
+                assert_eq!(frame.audio.rate(), rate, "{codec}");
+                assert_eq!(frame.audio.samples().len(), rate as usize / 50);
+                // The 8 kHz signal is what the features were computed from.
+                assert!((energy_db(&frame.pcm) - frame.features.energy_db).abs() < 0.01);
+                wide.push(frame.audio.samples().to_vec());
+            }
+            let ratio = energy(&wide.concat()[rate as usize / 5..])
+                / energy(&input.concat()[rate as usize / 5..]);
+            assert!((0.3..3.0).contains(&ratio), "{codec}: {ratio}");
+            if rate > 8000 {
+                // The 6 kHz hiss went in and came out.
+                let (theirs, ours) = (upper_share(&input[10..]), upper_share(&wide[10..]));
+                assert!(ours > 0.5 * theirs, "{codec}: {ours} vs {theirs}");
+            }
+        }
+        // Speex wideband's rows are those of its narrowband layer, as a narrowband decoder
+        // (which steps over the wideband layer) makes of the same packets.
+        let packets = encode(Codec::SpeexWb, 40);
+        let mut wide = StreamDecoder::new(Codec::SpeexWb, true).unwrap();
+        let mut narrow = StreamDecoder::new(Codec::Speex, true).unwrap();
+        for p in &packets {
+            wide.packet(p, 0);
+            narrow.packet(p, 0);
+            let (w, n) = (wide.frame(), narrow.frame());
+            assert_eq!(w.features, n.features);
+            assert_eq!(w.pcm, n.pcm);
+            assert_eq!(w.audio.rate(), 16_000);
+        }
+        // G.722's features are those of its lower band alone, as the offline path computes.
+        let input = speech_like_at(30, 16_000);
+        let mut enc = g722::WidebandEncoder::new();
+        let mut low = g722::LowBandDecoder::new();
+        let mut dec = StreamDecoder::new(Codec::G722, true).unwrap();
+        for f in &input {
+            let payload = enc.encode_frame(f[..].try_into().unwrap());
+            dec.packet(&payload, 0);
+            assert_eq!(dec.frame().pcm, low.decode_frame(&payload));
+        }
+    }
+
     #[test]
     fn opus_rows_carry_the_lsps_its_silk_layer_coded() {
         // Each 20 ms packet is one SILK frame: its row holds exactly that frame's NLSFs mapped,
         // whether the packets arrive on the 20 ms grid or one 40 ms payload at a time.
         let input = speech_like(40);
-        let packets = encode(Codec::Opus, &input);
+        let packets = encode(Codec::Opus, input.len());
         let mut walker = SilkWalker::new();
         let expected: Vec<[f32; LSP_COUNT]> = packets
             .iter()
@@ -621,7 +846,7 @@ mod tests {
         // The same Opus packets played by the receiver and read as a file (from sample 0, as a
         // call hears them): every 20 ms row has the same LSPs, or an analysis on both sides.
         let input = speech_like(60);
-        let packets = encode(Codec::Opus, &input);
+        let packets = encode(Codec::Opus, input.len());
         let mut dec = StreamDecoder::new(Codec::Opus, true).unwrap();
         let mut live = Vec::new();
         let mut pcm = Vec::new();
@@ -657,7 +882,7 @@ mod tests {
     fn concealment_keeps_the_lsps_and_fades() {
         let input = speech_like(60);
         for codec in Codec::ALL {
-            let packets = encode(codec, &input);
+            let packets = encode(codec, input.len());
             let mut dec = StreamDecoder::new(codec, true).unwrap();
             let mut last = None;
             for p in &packets[..25] {
@@ -687,7 +912,7 @@ mod tests {
     #[test]
     fn opus_rebuilds_a_lost_frame_from_the_next_packets_fec() {
         let input = speech_like(50);
-        let packets = encode(Codec::Opus, &input);
+        let packets = encode(Codec::Opus, input.len());
         let lost = (20..49)
             .find(|&i| opus::fec::carries_fec(&packets[i + 1]))
             .expect("FEC at 20 kb/s");

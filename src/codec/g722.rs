@@ -2,9 +2,10 @@
 //! `audio-codec` crate (pure Rust, from spandsp's public-domain G.722).
 //!
 //! G.722 splits 16 kHz audio into two 8 kHz sub-bands; the lower one is the 0-4 kHz signal at
-//! 8 kHz, exactly what the features and the playback work at. So the receiver decodes only the
-//! lower band (one 8 kHz sample per payload byte, no resampling, half the work) and analyses
-//! it like G.711 audio ([`super::lpc`]); the upper band (4-7 kHz) is dropped.
+//! 8 kHz, exactly what the features work at. So the features come from the lower band alone
+//! ([`LowBandDecoder`], one 8 kHz sample per payload byte, analysed like G.711 audio by
+//! [`super::lpc`]), while the ear gets both sub-bands through the QMF synthesis at 16 kHz
+//! ([`WidebandDecoder`]).
 //!
 //! Measured against the reference (spandsp's libg722, which ffmpeg matches bit for bit): the
 //! crate's decoder is bit-exact after a start-up transient (its initial scale factors differ:
@@ -18,6 +19,8 @@ use crate::vocab::FRAME_SIZE;
 
 /// The static RTP payload type (RFC 3551; its RTP clock is 8000 though it samples at 16 kHz).
 pub const PAYLOAD_TYPE: u8 = 9;
+/// The rate of its audio.
+pub const AUDIO_RATE: u32 = 16_000;
 /// Payload bytes per 20 ms at 64 kbit/s: one byte per pair of 16 kHz samples.
 pub const FRAME_BYTES: usize = FRAME_SIZE;
 /// 16 kHz input samples per 20 ms frame.
@@ -60,6 +63,40 @@ impl LowBandDecoder {
         let mut out = [0i16; FRAME_SIZE];
         self.decode_into(payload, &mut out);
         out
+    }
+}
+
+/// Decodes G.722 payloads to 16 kHz audio: both sub-bands, recombined.
+pub struct WidebandDecoder {
+    inner: G722Decoder,
+}
+
+impl std::fmt::Debug for WidebandDecoder {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.write_str("WidebandDecoder")
+    }
+}
+
+impl Default for WidebandDecoder {
+    fn default() -> Self {
+        Self {
+            inner: G722Decoder::with_options(Bitrate::Mode1_64000, false, false),
+        }
+    }
+}
+
+impl WidebandDecoder {
+    pub fn new() -> Self {
+        Self::default()
+    }
+
+    /// Decodes as many payload bytes as `out` holds pairs of samples, two 16 kHz samples per
+    /// byte; returns the samples written.
+    pub fn decode_into(&mut self, payload: &[u8], out: &mut [i16]) -> usize {
+        let n = payload.len().min(out.len() / 2);
+        self.inner
+            .decode_frame_into(&payload[..n], &mut out[..2 * n])
+            .unwrap_or(0)
     }
 }
 
@@ -135,7 +172,31 @@ mod tests {
     }
 
     #[test]
+    fn the_full_decoder_keeps_both_bands() {
+        let mut encoder = WidebandEncoder::new();
+        let mut decoder = WidebandDecoder::new();
+        for hz in [1000.0, 6000.0] {
+            let mut out = [0i16; WIDEBAND_FRAME];
+            let (mut sum, mut count) = (0.0, 0);
+            for frame in 0..50 {
+                let n =
+                    decoder.decode_into(&encoder.encode_frame(&tone(hz, 10000.0, frame)), &mut out);
+                assert_eq!(n, WIDEBAND_FRAME);
+                if frame >= 25 {
+                    sum += out.iter().map(|&s| f64::from(s).powi(2)).sum::<f64>();
+                    count += out.len();
+                }
+            }
+            let db = 20.0 * ((sum / count as f64).sqrt() / (10000.0 / 2f64.sqrt())).log10();
+            assert!(db.abs() < 1.0, "{hz} Hz: {db:.1} dB");
+        }
+    }
+
+    #[test]
     fn any_payload_decodes_without_panic() {
+        let mut wide = WidebandDecoder::new();
+        let mut out16 = [0i16; 801];
+        assert_eq!(wide.decode_into(&[0x5a; 1000], &mut out16), 800);
         let mut decoder = LowBandDecoder::new();
         let mut state = 0x1234_5678u32;
         let mut out = [0i16; 400];

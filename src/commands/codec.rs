@@ -80,6 +80,34 @@ pub struct DecodeArgs {
     /// Speex: turn the perceptual enhancer off (speexdec --no-enh).
     #[arg(long)]
     pub no_enh: bool,
+    /// OUT.wav's sample rate, Hz (default: the stream's own, 48000 for Opus as opusdec
+    /// writes, 8000 for Speex narrowband). Opus decodes straight to 8, 12, 16, 24 or 48 kHz;
+    /// other rates are resampled.
+    #[arg(long, value_name = "HZ", value_parser = parse_rate)]
+    pub rate: Option<u32>,
+}
+
+fn parse_rate(s: &str) -> Result<u32, String> {
+    let rate: u32 = s.trim().parse().map_err(|e| format!("{e}"))?;
+    if wav::RATES.contains(&rate) && rate <= 192_000 {
+        Ok(rate)
+    } else {
+        Err(format!("{rate} Hz: expected 4000 to 192000"))
+    }
+}
+
+/// `pcm` at `from` as it is, or resampled to `to`.
+fn at_rate(pcm: Vec<i16>, from: u32, to: Option<u32>) -> Result<(u32, Vec<i16>)> {
+    match to {
+        Some(to) if to != from => {
+            let audio = wav::MonoAudio {
+                rate: from,
+                samples: pcm.iter().map(|&s| f32::from(s) / 32768.0).collect(),
+            };
+            Ok((to, wav::to_i16(&wav::resample(&audio, to)?)))
+        }
+        _ => Ok((from, pcm)),
+    }
 }
 
 /// What `encode` writes: the codec and its settings.
@@ -122,20 +150,23 @@ pub fn encode(input: &Path, output: &Path, settings: EncodeSettings) -> Result<(
 
 /// Decodes an Ogg Speex or Ogg Opus file, told apart by its content (an `.opus` name that
 /// holds no Opus gets the Opus reader's account of what it holds).
-pub fn decode(input: &Path, output: &Path, features: Option<&Path>, enhancer: bool) -> Result<()> {
+pub fn decode(args: &DecodeArgs) -> Result<()> {
+    let (input, output) = (&args.input, &args.output);
+    let (features, enhancer) = (args.features.as_deref(), !args.no_enh);
     let file = MediaFile::open(input)?;
     if file.kind() == Some(MediaKind::OggOpus) {
         if features.is_some() {
             bail!("--features is not available for Opus files yet (only for Speex)");
         }
-        return decode_opus(input, output, &file);
+        return decode_opus(input, output, &file, args.rate);
     }
     let decoded = file.speex(enhancer)?;
     // As animate: a stream without a frame of audio is an error, not an empty WAV.
     if decoded.pcm.is_empty() {
         bail!("{}: holds no audio frame", input.display());
     }
-    wav::write_mono_i16(output, decoded.header.rate, &decoded.pcm)?;
+    let (rate, pcm) = at_rate(decoded.pcm.clone(), decoded.header.rate, args.rate)?;
+    wav::write_mono_i16(output, rate, &pcm)?;
     if decoded.corrupt_packets > 0 {
         eprintln!(
             "warning: {} damaged packet(s) were partly skipped",
@@ -161,12 +192,16 @@ pub fn decode(input: &Path, output: &Path, features: Option<&Path>, enhancer: bo
     Ok(())
 }
 
-fn decode_opus(input: &Path, output: &Path, file: &MediaFile) -> Result<()> {
-    let decoded = file.opus()?;
+fn decode_opus(input: &Path, output: &Path, file: &MediaFile, rate: Option<u32>) -> Result<()> {
+    let opus_rate = rate
+        .filter(|r| opus::codec::RATES.contains(r))
+        .unwrap_or(opus::codec::OPUS_CLOCK_RATE);
+    let decoded = file.opus_at(opus_rate)?;
     if decoded.pcm.is_empty() {
         bail!("{}: holds no audio frame", input.display());
     }
-    wav::write_mono_i16(output, SAMPLE_RATE, &decoded.pcm)?;
+    let (rate, pcm) = at_rate(decoded.pcm, opus_rate, rate)?;
+    wav::write_mono_i16(output, rate, &pcm)?;
     if decoded.corrupt_packets > 0 {
         eprintln!(
             "warning: {} damaged packet(s) were concealed",
@@ -174,9 +209,10 @@ fn decode_opus(input: &Path, output: &Path, file: &MediaFile) -> Result<()> {
         );
     }
     eprintln!(
-        "{}: {:.2} s of audio at 8 kHz, {} Opus packets{}",
+        "{}: {:.2} s of audio at {} Hz, {} Opus packets{}",
         output.display(),
-        decoded.pcm.len() as f64 / f64::from(SAMPLE_RATE),
+        pcm.len() as f64 / f64::from(rate),
+        rate,
         decoded.packets.len(),
         if decoded.head.channels > 1 {
             " (stereo mixed to mono)"

@@ -72,7 +72,8 @@ fn pin_hint(e: JanusError) -> anyhow::Error {
 
 /// Publishes a file's audio in the room, paced in real time.
 pub fn send(input: &std::path::Path, janus: &JanusArgs) -> Result<()> {
-    let (codec, packets) = load_packets(input, Some(Codec::Opus), &EncoderSettings::default())?;
+    let settings = EncoderSettings::wideband(crate::codec::opus::codec::Bandwidth::Fullband);
+    let (codec, packets) = load_packets(input, Some(Codec::Opus), &settings)?;
     if packets.is_empty() {
         bail!("{}: no audio to send", input.display());
     }
@@ -165,6 +166,7 @@ pub struct ReceiveCommand {
 pub struct JanusReceiveArgs {
     pub janus: JanusArgs,
     pub wav: Option<PathBuf>,
+    pub rate: Option<u32>,
     pub weights: Option<PathBuf>,
     pub features: Option<PathBuf>,
     pub seconds: Option<f64>,
@@ -181,6 +183,7 @@ pub fn receive_with(
     let stop = stop_flag()?;
     let (model, mut recorder) = open_outputs(
         args.wav.as_deref(),
+        args.rate,
         args.features.as_deref(),
         args.weights.as_deref(),
     )?;
@@ -261,6 +264,7 @@ pub fn receive_command(command: &ReceiveCommand) -> Result<()> {
                 pin: call.key.passphrase.clone(),
             },
             wav: call.wav.clone(),
+            rate: call.rate,
             weights: call.weights.clone(),
             features: call.features.clone(),
             seconds: call.seconds,

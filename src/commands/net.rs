@@ -9,15 +9,16 @@ use std::time::{Duration, Instant};
 use anyhow::{Context, Result, bail};
 
 use super::recording::{Recorder, TICK, stop_flag, stopped};
+use crate::audio::FrameResampler;
 use crate::call::link::{Link, LinkEvent};
 use crate::call::media::{MediaError, MediaFile, MediaKind, Packets};
 use crate::call::pipeline::{Animated, PeerPipeline};
 use crate::codec::any::{Codec, EncoderSettings, PayloadMap};
+use crate::codec::opus::codec::Bandwidth;
 use crate::lipsync::network::Model;
 use crate::lipsync::{self, LipSync, LipSyncOptions};
 use crate::net::session::{PeerFrame, PeerInfo, Session, SessionConfig};
 use crate::net::srtp::MasterKey;
-use crate::vocab::FRAME_SIZE;
 use crate::vocab::FrameFeatures;
 
 /// How the call is keyed (`--key`, `--key-hex`). The passphrase keys the room by PBKDF2 over
@@ -156,6 +157,10 @@ pub struct SendArgs {
     /// a WAV). Opus goes at 20 kb/s with in-band FEC.
     #[arg(long, value_parser = parse_codec)]
     pub codec: Option<Codec>,
+    /// The band Opus codes from a .wav (at 48 kHz): nb, mb, wb, swb or fb (up to 20 kHz),
+    /// or auto (libopus picks by bitrate: 20 kb/s for nb and mb, 24 for wb, 32 above).
+    #[arg(long, default_value = "fb", value_parser = parse_bandwidth)]
+    pub bandwidth: Bandwidth,
     /// Speex quality for .wav input, 0 to 10.
     #[arg(long, default_value_t = 8, value_parser = clap::value_parser!(u8).range(0..=10))]
     pub quality: u8,
@@ -173,7 +178,7 @@ pub struct SendArgs {
 
 pub fn send(args: &SendArgs) -> Result<()> {
     let payloads = payload_map(&args.payload_types)?;
-    let mut settings = EncoderSettings::default();
+    let mut settings = EncoderSettings::wideband(args.bandwidth);
     settings.speex.quality = args.quality;
     let (codec, packets) = load_packets(&args.input, args.codec, &settings)?;
     if packets.is_empty() {
@@ -312,9 +317,14 @@ pub struct ReceiveArgs {
         hide_default_value = true
     )]
     pub listen: String,
-    /// Write the audio as played (all peers mixed), streamed to disk as it plays.
+    /// Write the audio as played (all peers mixed), streamed to disk as it plays, at the
+    /// rate of the streams first heard (48000 for Opus, 16000 for G.722, 8000 for G.711 and
+    /// Speex narrowband) unless --rate says another.
     #[arg(long, value_name = "OUT.wav")]
     pub wav: Option<PathBuf>,
+    /// OUT.wav's sample rate, Hz (every peer is resampled to it).
+    #[arg(long, value_name = "HZ", value_parser = parse_rate)]
+    pub rate: Option<u32>,
     /// Write viseme weights from the built-in lip-sync network (one file per peer).
     #[arg(long, value_name = "WEIGHTS.csv")]
     pub weights: Option<PathBuf>,
@@ -362,6 +372,8 @@ struct PeerTrack<'m> {
     next_tag: u64,
     /// (tag, output tick) of frames waiting for their weights, oldest first.
     waiting: VecDeque<(u64, usize)>,
+    /// The peer's audio to the mix's rate.
+    resampler: Option<FrameResampler>,
 }
 
 impl PeerTrack<'_> {
@@ -426,11 +438,13 @@ fn viseme_names(model: Option<&Model>) -> Result<Vec<String>> {
 /// now) and the lip-sync model that `--weights` needs.
 pub(crate) fn open_outputs(
     wav: Option<&Path>,
+    rate: Option<u32>,
     features: Option<&Path>,
     weights: Option<&Path>,
 ) -> Result<(Option<Model>, Recorder)> {
     let model = weights.map(|_| lipsync::default_model());
-    let recorder = Recorder::create(wav, features, weights, viseme_names(model.as_ref())?)?;
+    let names = viseme_names(model.as_ref())?;
+    let recorder = Recorder::create(wav, rate, features, weights, names)?;
     Ok((model, recorder))
 }
 
@@ -467,6 +481,7 @@ pub fn receive_with(
     let stop = stop_flag()?;
     let (model, mut recorder) = open_outputs(
         args.wav.as_deref(),
+        args.rate,
         args.features.as_deref(),
         args.weights.as_deref(),
     )?;
@@ -595,11 +610,13 @@ fn play_tick<'m>(
     on_frame: &mut dyn FnMut(u32, f64, &FrameFeatures),
     recorder: &mut Recorder,
 ) -> Result<()> {
-    let mut mix = [0i32; FRAME_SIZE];
+    let heard = frames.iter().map(|f| f.frame.audio.rate()).max();
+    let mix_rate = match heard {
+        Some(rate) if recorder.wants_audio() => Some(recorder.mix_rate(rate)?),
+        _ => None,
+    };
+    let mut mix = vec![0i32; mix_rate.map_or(0, |r| r as usize / 50)];
     for f in frames {
-        for (m, &s) in mix.iter_mut().zip(&f.frame.pcm) {
-            *m += i32::from(s);
-        }
         let time = index as f64 * TICK.as_secs_f64();
         on_frame(f.ssrc, time, &f.frame.features);
         let slot = match tracks.iter().position(|t| t.ssrc == f.ssrc) {
@@ -619,11 +636,20 @@ fn play_tick<'m>(
                     pipeline,
                     next_tag: 0,
                     waiting: VecDeque::new(),
+                    resampler: None,
                 });
                 tracks.len() - 1
             }
         };
         let track = &mut tracks[slot];
+        if let Some(to) = mix_rate {
+            let from = f.frame.audio.rate();
+            let resampler = match &mut track.resampler {
+                Some(r) if r.from_rate() == from && r.to_rate() == to => r,
+                slot => slot.insert(FrameResampler::new(from, to)?),
+            };
+            resampler.add_into(f.frame.audio.samples(), &mut mix)?;
+        }
         recorder.features(f.ssrc, index, &f.frame.features)?;
         if let Some(pipeline) = &mut track.pipeline {
             let tag = track.next_tag;
@@ -638,10 +664,7 @@ fn play_tick<'m>(
             track.flush(false, recorder)?;
         }
     }
-    let mut pcm = [0i16; FRAME_SIZE];
-    for (p, &m) in pcm.iter_mut().zip(&mix) {
-        *p = m.clamp(-32768, 32767) as i16;
-    }
+    let pcm: Vec<i16> = mix.iter().map(|&m| m.clamp(-32768, 32767) as i16).collect();
     recorder.audio(&pcm, !frames.is_empty())
 }
 
@@ -660,6 +683,22 @@ fn parse_payload_type(s: &str) -> Result<String, String> {
         .with_assignments(&[s])
         .map(|_| s.to_string())
         .map_err(|e| e.to_string())
+}
+
+fn parse_bandwidth(s: &str) -> Result<Bandwidth, String> {
+    s.parse()
+}
+
+/// A sample rate a 20 ms frame holds whole, 8 to 48 kHz.
+fn parse_rate(s: &str) -> Result<u32, String> {
+    let rate: u32 = s.trim().parse().map_err(|e| format!("{e}"))?;
+    if crate::vocab::audio::valid_rate(rate) {
+        Ok(rate)
+    } else {
+        Err(format!(
+            "{rate} Hz: expected 8000 to 48000, divisible by 50 (8000, 16000, 44100, 48000)"
+        ))
+    }
 }
 
 fn parse_hex_u32(s: &str) -> Result<u32, String> {

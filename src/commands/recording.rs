@@ -18,7 +18,7 @@ use anyhow::{Context, Result};
 
 use crate::call::csv;
 use crate::vocab::FrameFeatures;
-use crate::vocab::{FRAME_SIZE, SAMPLE_RATE};
+use crate::vocab::SAMPLE_RATE;
 
 /// One 20 ms tick of the output timeline.
 pub(crate) const TICK: Duration = Duration::from_millis(20);
@@ -69,6 +69,10 @@ struct PeerFiles {
 /// The outputs of one receive, written as it plays.
 pub(crate) struct Recorder {
     wav: Option<(PathBuf, hound::WavWriter<BufWriter<File>>)>,
+    /// The mix's rate: asked for, or the first audible streams' own (fixed then).
+    rate: Option<u32>,
+    /// The rate OUT.wav's header says so far.
+    wav_rate: u32,
     features: Option<PathBuf>,
     weights: Option<PathBuf>,
     /// WEIGHTS.csv's header after `frame,time_s`.
@@ -92,28 +96,24 @@ fn time_of(frame: usize) -> f64 {
 impl Recorder {
     /// Creates the files now: OUT.wav, and the first peer's FEATURES.csv and WEIGHTS.csv (with
     /// `viseme_names` as its columns).
+    /// OUT.wav is at `rate` if given, else at the rate of the streams first heard (8 kHz if
+    /// none is).
     pub(crate) fn create(
         wav: Option<&Path>,
+        rate: Option<u32>,
         features: Option<&Path>,
         weights: Option<&Path>,
         viseme_names: Vec<String>,
     ) -> Result<Self> {
+        let wav_rate = rate.unwrap_or(SAMPLE_RATE);
         let wav = match wav {
-            Some(path) => {
-                let spec = hound::WavSpec {
-                    channels: 1,
-                    sample_rate: SAMPLE_RATE,
-                    bits_per_sample: 16,
-                    sample_format: hound::SampleFormat::Int,
-                };
-                let writer = hound::WavWriter::create(path, spec)
-                    .with_context(|| format!("cannot write {}", path.display()))?;
-                Some((path.to_path_buf(), writer))
-            }
+            Some(path) => Some((path.to_path_buf(), wav_writer(path, wav_rate)?)),
             None => None,
         };
         let mut recorder = Self {
             wav,
+            rate,
+            wav_rate,
             features: features.map(Path::to_path_buf),
             weights: weights.map(Path::to_path_buf),
             viseme_names,
@@ -171,15 +171,40 @@ impl Recorder {
             .context("a peer's files were just made")
     }
 
-    /// The next tick of the mix; `audible`: some peer played in it.
-    pub(crate) fn audio(&mut self, mix: &[i16; FRAME_SIZE], audible: bool) -> Result<()> {
+    /// Whether the mix is written anywhere.
+    pub(crate) fn wants_audio(&self) -> bool {
+        self.wav.is_some()
+    }
+
+    /// The rate the mix is written at: the one asked for, or fixed now to `heard`, the rate of
+    /// the streams of the first audible tick (OUT.wav, still empty, is made anew at it).
+    pub(crate) fn mix_rate(&mut self, heard: u32) -> Result<u32> {
+        if let Some(rate) = self.rate {
+            return Ok(rate);
+        }
+        self.rate = Some(heard);
+        if heard != self.wav_rate {
+            if let Some((path, old)) = self.wav.take() {
+                // Finished first: its header must not land on the new file.
+                let _ = old.finalize();
+                self.wav = Some((path.clone(), wav_writer(&path, heard)?));
+            }
+            self.wav_rate = heard;
+        }
+        Ok(heard)
+    }
+
+    /// The next tick of the mix, 20 ms at [`Recorder::mix_rate`]; `audible`: some peer played
+    /// in it.
+    pub(crate) fn audio(&mut self, mix: &[i16], audible: bool) -> Result<()> {
         if !audible {
             self.pending_silence += 1;
             return Ok(());
         }
         let silence = std::mem::take(&mut self.pending_silence);
+        let tick = self.wav_rate as usize / 50;
         if let Some((path, wav)) = &mut self.wav {
-            let samples = std::iter::repeat_n(0, silence * FRAME_SIZE).chain(mix.iter().copied());
+            let samples = std::iter::repeat_n(0, silence * tick).chain(mix.iter().copied());
             for s in samples {
                 wav.write_sample(s)
                     .with_context(|| format!("writing {}", path.display()))?;
@@ -255,6 +280,16 @@ impl Recorder {
     }
 }
 
+fn wav_writer(path: &Path, rate: u32) -> Result<hound::WavWriter<BufWriter<File>>> {
+    let spec = hound::WavSpec {
+        channels: 1,
+        sample_rate: rate,
+        bits_per_sample: 16,
+        sample_format: hound::SampleFormat::Int,
+    };
+    hound::WavWriter::create(path, spec).with_context(|| format!("cannot write {}", path.display()))
+}
+
 /// FEATURES.csv of a second or later peer: `NAME-<ssrc>.csv` beside the first.
 fn peer_path(path: &Path, ssrc: u32) -> PathBuf {
     let stem = path
@@ -267,6 +302,7 @@ fn peer_path(path: &Path, ssrc: u32) -> PathBuf {
 #[cfg(test)]
 mod tests {
     use super::*;
+    use crate::vocab::FRAME_SIZE;
 
     fn read(path: &Path) -> String {
         std::fs::read_to_string(path).unwrap()
@@ -276,7 +312,7 @@ mod tests {
     fn trailing_silence_is_left_out_and_inner_silence_kept() {
         let dir = tempfile::tempdir().unwrap();
         let wav = dir.path().join("out.wav");
-        let mut rec = Recorder::create(Some(&wav), None, None, Vec::new()).unwrap();
+        let mut rec = Recorder::create(Some(&wav), None, None, None, Vec::new()).unwrap();
         let loud = [1000i16; FRAME_SIZE];
         let quiet = [0i16; FRAME_SIZE];
         rec.audio(&loud, true).unwrap();
@@ -301,7 +337,7 @@ mod tests {
         let features = dir.path().join("f.csv");
         let weights = dir.path().join("w.csv");
         let names = vec!["sil".to_string(), "aa".to_string()];
-        let mut rec = Recorder::create(None, Some(&features), Some(&weights), names).unwrap();
+        let mut rec = Recorder::create(None, None, Some(&features), Some(&weights), names).unwrap();
         // Created (header only) before anyone called.
         assert_eq!(read(&features).lines().count(), 1);
         assert_eq!(read(&weights), "frame,time_s,sil,aa\n");
@@ -326,7 +362,7 @@ mod tests {
     fn a_missing_directory_fails_before_anything_plays() {
         let dir = tempfile::tempdir().unwrap();
         let wav = dir.path().join("no/such/dir/out.wav");
-        let err = Recorder::create(Some(&wav), None, None, Vec::new())
+        let err = Recorder::create(Some(&wav), None, None, None, Vec::new())
             .err()
             .unwrap();
         assert!(format!("{err:#}").contains("cannot write"), "{err:#}");

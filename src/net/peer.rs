@@ -25,7 +25,7 @@ use super::jitter::{
 use super::rtp::Rtp;
 use crate::codec::any::{Codec, PayloadMap};
 use crate::codec::decoder::{DecodedFrame, FrameOrigin, StreamDecoder};
-use crate::vocab::FRAME_SIZE;
+use crate::vocab::{FRAME_SIZE, FrameAudio};
 use crate::vocab::{FrameFeatures, SILENCE_DB};
 
 /// How a played frame came about.
@@ -43,10 +43,32 @@ pub enum FrameKind {
 /// 20 ms of one peer's audio as played, with its features.
 #[derive(Debug, Clone, PartialEq)]
 pub struct PlayedFrame {
+    /// What the ear hears, at the codec's own rate (48 kHz Opus, 16 kHz G.722, ...).
+    pub audio: FrameAudio,
+    /// The same 20 ms as the 8 kHz signal the features came from: what the lip-sync pipeline
+    /// is given beside them.
     pub pcm: [i16; FRAME_SIZE],
     pub features: FrameFeatures,
     pub kind: FrameKind,
     pub codec: Codec,
+}
+
+impl PlayedFrame {
+    /// A frame of 8 kHz audio, heard as it is.
+    pub fn narrowband(
+        pcm: [i16; FRAME_SIZE],
+        features: FrameFeatures,
+        kind: FrameKind,
+        codec: Codec,
+    ) -> Self {
+        Self {
+            audio: FrameAudio::narrowband(&pcm),
+            pcm,
+            features,
+            kind,
+            codec,
+        }
+    }
 }
 
 /// Below this a frame is quiet whatever the speaker's level (dBFS; speech sits at -35 to -10).
@@ -281,10 +303,12 @@ impl PeerReceiver {
             .or(self.codec)
             .unwrap_or(Codec::Speex);
         let DecodedFrame {
+            audio,
             pcm,
             features,
             origin,
         } = frame.unwrap_or_else(|| DecodedFrame {
+            audio: FrameAudio::silence(codec.audio_rate()),
             pcm: [0; FRAME_SIZE],
             features: FrameFeatures::silent(),
             origin: FrameOrigin::Concealed,
@@ -301,6 +325,7 @@ impl PeerReceiver {
             FrameKind::Decoded => {}
         }
         Some(PlayedFrame {
+            audio,
             pcm,
             features,
             kind,

@@ -2,10 +2,12 @@
 //! weights, the face's pose. It sits at the bottom: every module may import it, and it imports
 //! nothing of the crate.
 
+pub mod audio;
 pub mod features;
 pub mod pose;
 pub mod visemes;
 
+pub use audio::{FrameAudio, MAX_AUDIO_RATE, MAX_FRAME_SAMPLES};
 pub use features::{
     FRAME_SIZE, FeatureFamily, FrameFeatures, LSP_COUNT, LSP_MARGIN, SAMPLE_RATE, SILENCE_DB,
     energy_db, flat_lsp, ordered_lsp,

@@ -28,6 +28,8 @@ pub fn receive_in_room(
                 "receive", "--janus", &janus.url, "--room", room, "--key", pin,
             ])
             .args(["--name", "Bob", "--seconds", seconds])
+            // Compared with 8 kHz sources (the Opus stream itself is decoded at 48 kHz).
+            .args(["--rate", "8000"])
             .arg("--wav")
             .arg(wav)
             .arg("--weights")

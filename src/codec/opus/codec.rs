@@ -21,7 +21,85 @@ pub const OPUS_CLOCK_RATE: u32 = 48_000;
 /// Samples of the longest packet at 8 kHz.
 pub const MAX_PACKET_SAMPLES: usize = SAMPLE_RATE as usize * MAX_PACKET_MS / 1000;
 
-const RATES: [u32; 5] = [8000, 12_000, 16_000, 24_000, 48_000];
+pub const RATES: [u32; 5] = [8000, 12_000, 16_000, 24_000, 48_000];
+
+/// The audio band an encoder codes (RFC 6716 2: narrowband 4 kHz up to fullband 20 kHz).
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Hash, Default)]
+pub enum Bandwidth {
+    /// libopus picks by bitrate and input rate.
+    #[default]
+    Auto,
+    Narrowband,
+    Mediumband,
+    Wideband,
+    Superwideband,
+    Fullband,
+}
+
+impl Bandwidth {
+    pub const ALL: [Bandwidth; 6] = [
+        Bandwidth::Auto,
+        Bandwidth::Narrowband,
+        Bandwidth::Mediumband,
+        Bandwidth::Wideband,
+        Bandwidth::Superwideband,
+        Bandwidth::Fullband,
+    ];
+
+    /// The short name on the command line and in settings.
+    pub const fn name(self) -> &'static str {
+        match self {
+            Bandwidth::Auto => "auto",
+            Bandwidth::Narrowband => "nb",
+            Bandwidth::Mediumband => "mb",
+            Bandwidth::Wideband => "wb",
+            Bandwidth::Superwideband => "swb",
+            Bandwidth::Fullband => "fb",
+        }
+    }
+
+    /// The highest audio frequency it codes, Hz (none for `Auto`).
+    pub const fn top_hz(self) -> Option<u32> {
+        match self {
+            Bandwidth::Auto => None,
+            Bandwidth::Narrowband => Some(4000),
+            Bandwidth::Mediumband => Some(6000),
+            Bandwidth::Wideband => Some(8000),
+            Bandwidth::Superwideband => Some(12_000),
+            Bandwidth::Fullband => Some(20_000),
+        }
+    }
+
+    fn libopus(self) -> opus::Bandwidth {
+        match self {
+            Bandwidth::Auto => opus::Bandwidth::Auto,
+            Bandwidth::Narrowband => opus::Bandwidth::Narrowband,
+            Bandwidth::Mediumband => opus::Bandwidth::Mediumband,
+            Bandwidth::Wideband => opus::Bandwidth::Wideband,
+            Bandwidth::Superwideband => opus::Bandwidth::Superwideband,
+            Bandwidth::Fullband => opus::Bandwidth::Fullband,
+        }
+    }
+}
+
+impl std::fmt::Display for Bandwidth {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.write_str(self.name())
+    }
+}
+
+impl std::str::FromStr for Bandwidth {
+    type Err = String;
+
+    fn from_str(s: &str) -> Result<Self, Self::Err> {
+        Bandwidth::ALL
+            .into_iter()
+            .find(|b| b.name().eq_ignore_ascii_case(s.trim()))
+            .ok_or_else(|| {
+                format!("unknown bandwidth {s:?} (expected nb, mb, wb, swb, fb or auto)")
+            })
+    }
+}
 
 #[derive(Debug, thiserror::Error, PartialEq, Eq)]
 pub enum CodecError {
@@ -85,6 +163,8 @@ pub struct EncoderConfig {
     /// The rate of the PCM handed to `encode_frame`: 8000 (160-sample frames) or any other
     /// Opus rate (48000: 960-sample frames).
     pub input_rate: u32,
+    /// The band coded (libopus's choice by default).
+    pub bandwidth: Bandwidth,
 }
 
 impl Default for EncoderConfig {
@@ -97,6 +177,7 @@ impl Default for EncoderConfig {
             fec: false,
             loss_percent: 0,
             input_rate: SAMPLE_RATE,
+            bandwidth: Bandwidth::Auto,
         }
     }
 }
@@ -135,6 +216,7 @@ impl Encoder {
         inner.set_dtx(config.dtx)?;
         inner.set_inband_fec(config.fec)?;
         inner.set_packet_loss_perc(i32::from(config.loss_percent))?;
+        inner.set_bandwidth(config.bandwidth.libopus())?;
         Ok(Self { inner, config })
     }
 

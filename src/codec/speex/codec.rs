@@ -1,4 +1,6 @@
-//! A small safe wrapper over the reference libspeex 1.2.1 narrowband encoder and decoder.
+//! A small safe wrapper over the reference libspeex 1.2.1 encoder and decoder, narrowband
+//! (8 kHz) and wideband (16 kHz: a narrowband layer for 0-4 kHz, then a layer for 4-8 kHz that
+//! a narrowband decoder steps over).
 //!
 //! libspeex is built statically by `speex-sys` from its bundled C source (float build). Every
 //! unsafe call lives in this file; each state is owned by exactly one Rust value and freed on drop.
@@ -31,6 +33,38 @@ pub enum CodecError {
     Overflow,
     #[error("a packet of {0} bytes is larger than any Speex packet can be")]
     PacketTooLarge(usize),
+    #[error("a frame of {got} samples where this mode's 20 ms is {expected}")]
+    FrameLength { got: usize, expected: usize },
+}
+
+/// Speex's bands: its narrowband mode, or the wideband mode over it.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Hash, Default)]
+pub enum Band {
+    #[default]
+    Narrow,
+    Wide,
+}
+
+impl Band {
+    /// The audio rate.
+    pub const fn rate(self) -> u32 {
+        match self {
+            Band::Narrow => 8000,
+            Band::Wide => 16_000,
+        }
+    }
+
+    /// Samples in one 20 ms frame.
+    pub const fn frame_size(self) -> usize {
+        self.rate() as usize / 50
+    }
+
+    fn mode(self) -> *const sys::SpeexMode {
+        match self {
+            Band::Narrow => &raw const sys::speex_nb_mode,
+            Band::Wide => &raw const sys::speex_wb_mode,
+        }
+    }
 }
 
 /// How the encoder is set up. The defaults are speexenc's: quality 8, CBR, complexity 3.
@@ -100,6 +134,7 @@ pub struct Encoder {
     state: NonNull<c_void>,
     bits: Bits,
     config: EncoderConfig,
+    band: Band,
     frames_pending: usize,
 }
 
@@ -108,14 +143,19 @@ unsafe impl Send for Encoder {}
 
 impl Encoder {
     pub fn new(config: EncoderConfig) -> Result<Self, CodecError> {
+        Self::with_band(config, Band::Narrow)
+    }
+
+    pub fn with_band(config: EncoderConfig, band: Band) -> Result<Self, CodecError> {
         config.validate()?;
-        // SAFETY: speex_nb_mode is a static of the library; init returns null only on OOM.
-        let raw = unsafe { sys::speex_encoder_init(&sys::speex_nb_mode) };
+        // SAFETY: the modes are statics of the library; init returns null only on OOM.
+        let raw = unsafe { sys::speex_encoder_init(band.mode()) };
         let state = NonNull::new(raw).ok_or(CodecError::Init)?;
         let mut encoder = Self {
             state,
             bits: Bits::new(),
             config,
+            band,
             frames_pending: 0,
         };
         encoder.ctl(sys::SPEEX_SET_COMPLEXITY, i32::from(config.complexity));
@@ -149,6 +189,10 @@ impl Encoder {
         self.config
     }
 
+    pub fn band(&self) -> Band {
+        self.band
+    }
+
     /// Samples the encoder delays its input by (its analysis look-ahead).
     pub fn lookahead(&self) -> usize {
         let mut v: c_int = 0;
@@ -170,15 +214,32 @@ impl Encoder {
         frame: &[i16; FRAME_SIZE],
         packet: &mut [u8; MAX_PACKET_BYTES],
     ) -> Option<usize> {
+        self.encode_samples(frame, packet).ok().flatten()
+    }
+
+    /// [`Encoder::encode_frame`] for either band: `frame` must hold 20 ms at its rate.
+    pub fn encode_samples(
+        &mut self,
+        frame: &[i16],
+        packet: &mut [u8; MAX_PACKET_BYTES],
+    ) -> Result<Option<usize>, CodecError> {
+        let expected = self.band.frame_size();
+        if frame.len() != expected {
+            return Err(CodecError::FrameLength {
+                got: frame.len(),
+                expected,
+            });
+        }
         // libspeex takes a mutable pointer but only reads the input of speex_encode_int.
-        let mut input = *frame;
-        // SAFETY: input holds exactly one frame; state and bits are valid.
+        let mut input = [0i16; 2 * FRAME_SIZE];
+        input[..expected].copy_from_slice(frame);
+        // SAFETY: input holds at least one frame of the mode; state and bits are valid.
         unsafe { sys::speex_encode_int(self.state.as_ptr(), input.as_mut_ptr(), self.bits.ptr()) };
         self.frames_pending += 1;
         if self.frames_pending < self.config.frames_per_packet {
-            return None;
+            return Ok(None);
         }
-        Some(self.flush(packet))
+        Ok(Some(self.flush(packet)))
     }
 
     /// Ends the packet being built, padding it with terminators up to `frames_per_packet`
@@ -223,6 +284,7 @@ impl Drop for Encoder {
 pub struct Decoder {
     state: NonNull<c_void>,
     bits: Bits,
+    band: Band,
     /// Frames of the loaded packet decoded so far.
     frame: usize,
     /// The frame at which libspeex would report the packet corrupt, found by the walker
@@ -247,12 +309,18 @@ pub enum FrameOutcome {
 impl Decoder {
     /// `enhancer` is the perceptual enhancer (speexdec's default is on).
     pub fn new(enhancer: bool) -> Result<Self, CodecError> {
+        Self::with_band(enhancer, Band::Narrow)
+    }
+
+    /// A decoder of `band` (a narrowband one decodes a wideband stream's narrowband layer).
+    pub fn with_band(enhancer: bool, band: Band) -> Result<Self, CodecError> {
         // SAFETY: as for the encoder.
-        let raw = unsafe { sys::speex_decoder_init(&sys::speex_nb_mode) };
+        let raw = unsafe { sys::speex_decoder_init(band.mode()) };
         let state = NonNull::new(raw).ok_or(CodecError::Init)?;
         let mut decoder = Self {
             state,
             bits: Bits::new(),
+            band,
             frame: 0,
             corrupt_at: None,
         };
@@ -292,8 +360,18 @@ impl Decoder {
         Ok(())
     }
 
+    pub fn band(&self) -> Band {
+        self.band
+    }
+
     /// Decodes the next frame of the loaded packet.
     pub fn decode_next(&mut self, out: &mut [i16; FRAME_SIZE]) -> Result<FrameOutcome, CodecError> {
+        self.decode_next_into(out)
+    }
+
+    /// [`Decoder::decode_next`] for either band: `out` must hold 20 ms at its rate.
+    pub fn decode_next_into(&mut self, out: &mut [i16]) -> Result<FrameOutcome, CodecError> {
+        self.check_length(out.len())?;
         if self.corrupt_at == Some(self.frame) {
             return Err(CodecError::Corrupted);
         }
@@ -316,12 +394,28 @@ impl Decoder {
         }
     }
 
+    fn check_length(&self, got: usize) -> Result<(), CodecError> {
+        let expected = self.band.frame_size();
+        if got == expected {
+            Ok(())
+        } else {
+            Err(CodecError::FrameLength { got, expected })
+        }
+    }
+
     /// Synthesises a frame for a lost packet from the decoder's state (packet loss concealment).
     pub fn conceal(&mut self, out: &mut [i16; FRAME_SIZE]) {
+        let _ = self.conceal_into(out);
+    }
+
+    /// [`Decoder::conceal`] for either band: `out` must hold 20 ms at its rate.
+    pub fn conceal_into(&mut self, out: &mut [i16]) -> Result<(), CodecError> {
+        self.check_length(out.len())?;
         // SAFETY: a null bits pointer asks libspeex for concealment; out holds one frame.
         unsafe {
             sys::speex_decode_int(self.state.as_ptr(), std::ptr::null_mut(), out.as_mut_ptr())
         };
+        Ok(())
     }
 
     /// Samples of delay the decoder adds (speexdec trims them at the start of a stream).
