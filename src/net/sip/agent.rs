@@ -37,6 +37,9 @@ use super::register::{
 use super::sdp::{self, LocalAudio, Negotiated, SdpError};
 use crate::codec::any::Codec;
 
+/// How long a refused caller has to acknowledge the refusal.
+const REFUSAL_WAIT: Duration = Duration::from_secs(2);
+
 /// What the agent does.
 #[derive(Debug, Clone, PartialEq, Eq)]
 pub enum Role {
@@ -454,13 +457,25 @@ async fn answer(
         events,
         AgentEvent::Incoming(format!("{:?}", invite.base_headers.from.uri.uri)),
     );
+    // An offer we cannot take is refused as RFC 3264 says (488), before ezk would answer it.
+    if !invite.body.is_empty() {
+        let offer = std::str::from_utf8(&invite.body)
+            .map_err(|_| SdpError::Malformed {
+                line: String::new(),
+                why: "the offer is not UTF-8",
+            })
+            .and_then(sdp::parse)
+            .and_then(|remote| sdp::negotiate(&remote, &media.audio.codecs));
+        if let Err(e) = offer {
+            refuse(endpoint, invite, StatusCode::NOT_ACCEPTABLE_HERE).await;
+            return Err(SipError::Sdp(e));
+        }
+    }
     let inbound = match InboundCall::from_invite(endpoint.clone(), invite, contact) {
         Ok(inbound) => inbound,
         Err(refused) => {
-            let (mut invite, why) = *refused;
-            let transaction = endpoint.create_server_inv_tsx(&mut invite);
-            let response = endpoint.create_response(&invite, StatusCode::BAD_REQUEST, None);
-            let _ = transaction.respond_failure(response).await;
+            let (invite, why) = *refused;
+            refuse(endpoint, invite, StatusCode::BAD_REQUEST).await;
             return Err(SipError::Protocol(format!("the caller's INVITE: {why}")));
         }
     };
@@ -476,6 +491,18 @@ async fn answer(
     })?;
     send(events, AgentEvent::Established);
     follow(call, events, commands).await
+}
+
+/// Answers an INVITE with a failure.
+async fn refuse(endpoint: &Endpoint, mut invite: IncomingRequest, code: StatusCode) {
+    let transaction = endpoint.create_server_inv_tsx(&mut invite);
+    let response = endpoint.create_response(&invite, code, None);
+    // The caller's ACK ends the transaction; one that never comes must not hold us.
+    match tokio::time::timeout(REFUSAL_WAIT, transaction.respond_failure(response)).await {
+        Ok(Ok(())) => {}
+        Ok(Err(e)) => tracing::debug!("refusing an INVITE: {e}"),
+        Err(_) => tracing::debug!("refusing an INVITE: no ACK"),
+    }
 }
 
 /// An established call until either side hangs up.

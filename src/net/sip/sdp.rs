@@ -552,8 +552,14 @@ mod tests {
                 bytes[at] = byte;
             }
             let text = String::from_utf8_lossy(&bytes);
-            if let Ok(remote) = parse(&text) {
-                let _ = negotiate(&remote, &Codec::ALL);
+            if let Ok(chosen) = parse(&text).and_then(|r| negotiate(&r, &Codec::ALL)) {
+                // Whatever was agreed, our answer says it back.
+                let back = parse(&answer(&local(), &chosen, 2)).unwrap();
+                let again = negotiate(&back, &Codec::ALL).unwrap();
+                prop_assert_eq!(
+                    (again.codec, again.payload_type, again.events),
+                    (chosen.codec, chosen.payload_type, chosen.events)
+                );
             }
         }
     }
