@@ -11,7 +11,9 @@ use ezk_sip_auth::{
     RequestParts, ResponseParts,
 };
 use ezk_sip_core::Endpoint;
+use ezk_sip_core::transaction::TsxResponse;
 use ezk_sip_core::transport::TargetTransportInfo;
+use ezk_sip_types::header::typed::{Contact, Expires};
 use ezk_sip_types::uri::SipUri;
 use ezk_sip_types::{Headers, StatusCode};
 use ezk_sip_ua::register::Registration;
@@ -160,7 +162,7 @@ pub async fn register(
         match code.into_u16() {
             200..=299 => {
                 if !remove {
-                    registration.receive_success_response(response);
+                    registration.receive_success_response(with_granted_expiry(response));
                 }
                 return Ok(());
             }
@@ -190,6 +192,30 @@ pub async fn register(
             }
         }
     }
+}
+
+/// A 200 to REGISTER with the binding's lifetime as an Expires header, which is where ezk
+/// reads it: registrars that shorten it (kamailio's `max_expires`) often say so only in the
+/// Contact's `expires` parameter, and a refresh timed by what we asked for would come too late.
+fn with_granted_expiry(mut response: TsxResponse) -> TsxResponse {
+    if response.headers.get_named::<Expires>().is_ok() {
+        return response;
+    }
+    let granted = response
+        .headers
+        .get_named::<Vec<Contact>>()
+        .ok()
+        .and_then(|contacts| {
+            contacts
+                .iter()
+                .filter_map(|c| c.params.get_val("expires"))
+                .filter_map(|v| v.parse::<u32>().ok())
+                .min()
+        });
+    if let Some(seconds) = granted {
+        response.headers.insert_named(&Expires(seconds));
+    }
+    response
 }
 
 /// Keeps the binding fresh until told to stop, then removes it.
