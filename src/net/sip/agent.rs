@@ -81,6 +81,8 @@ pub struct Agent {
     hang_up: UnboundedSender<()>,
     events: mpsc::Receiver<AgentEvent>,
     thread: Option<JoinHandle<()>>,
+    /// The call's end (or failure) was reported.
+    last_word: bool,
 }
 
 impl std::fmt::Debug for Agent {
@@ -111,6 +113,7 @@ impl Agent {
             hang_up,
             events,
             thread: Some(thread),
+            last_word: false,
         })
     }
 
@@ -119,13 +122,38 @@ impl Agent {
         let _ = self.hang_up.send(());
     }
 
-    /// The next event within `timeout`.
-    pub fn next_event(&self, timeout: Duration) -> Option<AgentEvent> {
-        self.events.recv_timeout(timeout).ok()
+    /// The next event within `timeout`. An agent that stopped without saying how the call
+    /// ended (its thread panicked in the SIP stack) reports that as a failure.
+    pub fn next_event(&mut self, timeout: Duration) -> Option<AgentEvent> {
+        match self.events.recv_timeout(timeout) {
+            Ok(event) => Some(self.seen(event)),
+            Err(mpsc::RecvTimeoutError::Timeout) => None,
+            Err(mpsc::RecvTimeoutError::Disconnected) => self.gone(),
+        }
     }
 
-    pub fn try_event(&self) -> Option<AgentEvent> {
-        self.events.try_recv().ok()
+    pub fn try_event(&mut self) -> Option<AgentEvent> {
+        match self.events.try_recv() {
+            Ok(event) => Some(self.seen(event)),
+            Err(mpsc::TryRecvError::Empty) => None,
+            Err(mpsc::TryRecvError::Disconnected) => self.gone(),
+        }
+    }
+
+    /// Notes whether `event` is the agent's last word (the call ended or failed).
+    fn seen(&mut self, event: AgentEvent) -> AgentEvent {
+        self.last_word |= matches!(event, AgentEvent::Ended { .. } | AgentEvent::Failed(_));
+        event
+    }
+
+    /// Said once: the agent's thread ended without a last word.
+    fn gone(&mut self) -> Option<AgentEvent> {
+        if std::mem::replace(&mut self.last_word, true) {
+            return None;
+        }
+        Some(AgentEvent::Failed(SipError::Protocol(
+            "the SIP stack stopped unexpectedly".into(),
+        )))
     }
 
     /// Waits up to `limit` for the agent to finish (its BYE answered, the binding removed).
@@ -544,6 +572,33 @@ pub fn codecs(chosen: Option<Codec>) -> Vec<Codec> {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn a_failure_is_the_last_word_and_a_silent_end_is_one() {
+        let taken = std::net::UdpSocket::bind("127.0.0.1:0").unwrap();
+        let config = AgentConfig {
+            bind: taken.local_addr().unwrap(),
+            account: None,
+            audio: LocalAudio {
+                addr: "127.0.0.1:4000".parse().unwrap(),
+                codecs: codecs(None),
+                session_id: 1,
+            },
+            role: Role::Answer,
+        };
+        let mut agent = Agent::start(config).unwrap();
+        let event = agent.next_event(Duration::from_secs(5));
+        assert!(
+            matches!(event, Some(AgentEvent::Failed(SipError::Bind { .. }))),
+            "{event:?}"
+        );
+        assert!(agent.wait(Duration::from_secs(5)));
+        assert_eq!(agent.try_event(), None, "nothing after the last word");
+        // A thread that ends without one is a failure, said once.
+        agent.last_word = false;
+        assert!(matches!(agent.try_event(), Some(AgentEvent::Failed(_))));
+        assert_eq!(agent.try_event(), None);
+    }
 
     #[test]
     fn one_codec_or_every_one_sip_peers_speak() {
