@@ -270,3 +270,153 @@ fn an_unreachable_registrar_is_a_clear_failure() {
         "the password is never shown: {log}"
     );
 }
+
+/// Answers, then after a second puts us on hold (re-INVITE, sendonly) and after two more
+/// resumes (sendrecv); SIPp checks that our answers say recvonly, then sendrecv.
+const HOLDS: &str = r#"<?xml version="1.0" encoding="ISO-8859-1" ?>
+<scenario name="hold and resume">
+  <recv request="INVITE" crlf="true">
+    <action>
+      <ereg regexp=".*" search_in="hdr" header="From:" assign_to="caller"/>
+      <ereg regexp="sip:[^>]*" search_in="hdr" header="Contact:" assign_to="caller_contact"/>
+    </action>
+  </recv>
+  <send><![CDATA[
+SIP/2.0 200 OK
+[last_Via:]
+[last_From:]
+[last_To:];tag=[pid]SIPpTag01[call_number]
+[last_Call-ID:]
+[last_CSeq:]
+Contact: <sip:[local_ip]:[local_port];transport=[transport]>
+Content-Type: application/sdp
+Content-Length: [len]
+
+v=0
+o=sipp 1 1 IN IP4 [local_ip]
+s=-
+c=IN IP4 [media_ip]
+t=0 0
+m=audio [media_port] RTP/AVP 0
+a=rtpmap:0 PCMU/8000
+a=sendrecv
+]]></send>
+  <recv request="ACK" crlf="true"/>
+  <pause milliseconds="1000"/>
+  <send retrans="500"><![CDATA[
+INVITE [$caller_contact] SIP/2.0
+Via: SIP/2.0/[transport] [local_ip]:[local_port];branch=[branch]
+From: <sip:echo@[local_ip]:[local_port]>;tag=[pid]SIPpTag01[call_number]
+To: [$caller]
+Call-ID: [call_id]
+CSeq: 1 INVITE
+Contact: <sip:[local_ip]:[local_port];transport=[transport]>
+Max-Forwards: 70
+Content-Type: application/sdp
+Content-Length: [len]
+
+v=0
+o=sipp 1 2 IN IP4 [local_ip]
+s=-
+c=IN IP4 [media_ip]
+t=0 0
+m=audio [media_port] RTP/AVP 0
+a=rtpmap:0 PCMU/8000
+a=sendonly
+]]></send>
+  <recv response="200">
+    <action>
+      <ereg regexp="a=recvonly" search_in="body" check_it="true" assign_to="held"/>
+    </action>
+  </recv>
+  <send><![CDATA[
+ACK [$caller_contact] SIP/2.0
+Via: SIP/2.0/[transport] [local_ip]:[local_port];branch=[branch]
+From: <sip:echo@[local_ip]:[local_port]>;tag=[pid]SIPpTag01[call_number]
+To: [$caller]
+Call-ID: [call_id]
+CSeq: 1 ACK
+X-Held: [$held]
+Max-Forwards: 70
+Content-Length: 0
+
+]]></send>
+  <pause milliseconds="2000"/>
+  <send retrans="500"><![CDATA[
+INVITE [$caller_contact] SIP/2.0
+Via: SIP/2.0/[transport] [local_ip]:[local_port];branch=[branch]
+From: <sip:echo@[local_ip]:[local_port]>;tag=[pid]SIPpTag01[call_number]
+To: [$caller]
+Call-ID: [call_id]
+CSeq: 2 INVITE
+Contact: <sip:[local_ip]:[local_port];transport=[transport]>
+Max-Forwards: 70
+Content-Type: application/sdp
+Content-Length: [len]
+
+v=0
+o=sipp 1 3 IN IP4 [local_ip]
+s=-
+c=IN IP4 [media_ip]
+t=0 0
+m=audio [media_port] RTP/AVP 0
+a=rtpmap:0 PCMU/8000
+a=sendrecv
+]]></send>
+  <recv response="200">
+    <action>
+      <ereg regexp="a=sendrecv" search_in="body" check_it="true" assign_to="resumed"/>
+    </action>
+  </recv>
+  <send><![CDATA[
+ACK [$caller_contact] SIP/2.0
+Via: SIP/2.0/[transport] [local_ip]:[local_port];branch=[branch]
+From: <sip:echo@[local_ip]:[local_port]>;tag=[pid]SIPpTag01[call_number]
+To: [$caller]
+Call-ID: [call_id]
+CSeq: 2 ACK
+X-Resumed: [$resumed]
+Max-Forwards: 70
+Content-Length: 0
+
+]]></send>
+  <recv request="BYE"/>
+  <send><![CDATA[
+SIP/2.0 200 OK
+[last_Via:]
+[last_From:]
+[last_To:]
+[last_Call-ID:]
+[last_CSeq:]
+Content-Length: 0
+
+]]></send>
+</scenario>
+"#;
+
+#[test]
+fn a_peer_that_holds_gets_no_media_until_it_resumes() {
+    if !have_sipp() {
+        return;
+    }
+    let dir = tempfile::tempdir().unwrap();
+    let port = free_port(false);
+    let sipp = sipp_uas(dir.path(), port, free_port(true), Some(HOLDS));
+    let (out, _) = call(dir.path(), port, &["--codec", "pcmu", "--seconds", "6"]);
+    let log = stderr(&out);
+    assert!(out.status.success(), "{log}");
+    let sipp = sipp.finish(Duration::from_secs(10)).expect("SIPp ended");
+    assert!(
+        sipp.status.success(),
+        "SIPp: {}",
+        String::from_utf8_lossy(&sipp.stdout)
+    );
+    // About 6 s of packets, less the 2 s on hold.
+    let sent: u32 = log
+        .split("sent_rtp=")
+        .nth(1)
+        .and_then(|rest| rest.split_whitespace().next())
+        .and_then(|n| n.parse().ok())
+        .unwrap_or_else(|| panic!("no sent_rtp in {log}"));
+    assert!((150..=240).contains(&sent), "sent {sent} packets: {log}");
+}

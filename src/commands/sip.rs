@@ -249,13 +249,12 @@ fn run_call(
             &stop,
         ),
     };
-    let sent = playing.next;
     let digits_sent = link.digits_sent();
     link.leave();
     let stats = link.rtp_stats();
     eprintln!(
         "lipcall: played {:.2} s; datagrams={} rtp={} rtcp={} malformed={} unknown_pt={} \
-         dtmf_in={} sent_rtp={sent} dtmf_sent={} send_errors={}",
+         dtmf_in={} sent_rtp={} dtmf_sent={} send_errors={}",
         recorder.seconds(),
         stats.datagrams,
         stats.rtp,
@@ -263,6 +262,7 @@ fn run_call(
         stats.malformed,
         stats.unknown_payload,
         stats.events_in,
+        stats.sent_rtp,
         stats.sent_events,
         stats.send_errors
     );
