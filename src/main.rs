@@ -2,7 +2,7 @@ use std::path::PathBuf;
 use std::process::ExitCode;
 
 use clap::{Parser, Subcommand};
-use lipcall::commands::{self, animate, audio, codec, janus, lipsync, relay};
+use lipcall::commands::{self, animate, audio, codec, janus, lipsync, relay, sip};
 
 /// Voice chat with lip-synced 3D heads, driven by the Speex decoder's own LSPs.
 #[derive(Parser)]
@@ -52,6 +52,8 @@ enum Command {
     Send(janus::SendCommand),
     /// Receive a call: jitter buffer, decode, features; write the audio as played.
     Receive(janus::ReceiveCommand),
+    /// A phone call over SIP: call an address or answer a call, playing a file as our voice.
+    Sip(sip::SipCommand),
     /// Run a relay: forwards each room member's packets to the others, without decoding them.
     Relay(relay::RelayArgs),
     /// Train the viseme network on a TIMIT-style corpus through the real Speex codec.
@@ -95,6 +97,7 @@ fn main() -> ExitCode {
         Command::Devices(a) => audio::devices(a.output.as_deref(), a.input.as_deref()),
         Command::Send(a) => janus::send_command(&a),
         Command::Receive(a) => janus::receive_command(&a),
+        Command::Sip(a) => sip::run(&a),
         Command::Relay(a) => relay::relay(&a.listen, a.seconds),
         Command::Train(a) => lipsync::train(&a),
         Command::Evaluate(a) => lipsync::evaluate(&a),

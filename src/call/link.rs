@@ -75,6 +75,12 @@ pub trait Link: Send {
         Vec::new()
     }
 
+    /// The call is over for good (hung up, refused): nothing more will come, whether or not
+    /// anyone was heard. Links that wait for peers to come say no.
+    fn over(&self) -> bool {
+        false
+    }
+
     /// Where peers can reach us directly, if they can.
     fn local_addr(&self) -> Option<SocketAddr> {
         None

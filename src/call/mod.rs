@@ -7,3 +7,4 @@ pub mod janus;
 pub mod link;
 pub mod media;
 pub mod pipeline;
+pub mod sip;

@@ -9,6 +9,7 @@ pub mod lipsync;
 pub mod net;
 mod recording;
 pub mod relay;
+pub mod sip;
 
 /// The one line a user sees for an error: its chain joined by ": ", leaving out a cause whose
 /// text is already in the line (library errors name their `io::Error` in their own message and

@@ -585,6 +585,9 @@ pub(crate) fn play<'m>(
         if frames.is_empty() && timeline.is_some() && limit.is_none() && link.all_left() {
             break Ok(());
         }
+        if frames.is_empty() && link.over() {
+            break Ok(());
+        }
         if frames.is_empty() && timeline.is_none() {
             continue;
         }
@@ -672,7 +675,7 @@ fn play_tick<'m>(
 /// (a test ties the two).
 const CLOCK_TOLERANCE_TEXT: &str = "30";
 
-fn parse_codec(s: &str) -> Result<Codec, String> {
+pub(crate) fn parse_codec(s: &str) -> Result<Codec, String> {
     s.parse()
         .map_err(|e: crate::codec::any::PayloadMapError| e.to_string())
 }

@@ -19,6 +19,7 @@ pub mod relay;
 pub mod rtcp;
 pub mod rtp;
 pub mod session;
+pub mod sip;
 pub mod srtp;
 
 /// Largest datagram we read or forward.

@@ -74,6 +74,7 @@ pub mod lpc;
 pub mod mesh;
 pub mod net;
 pub mod netns;
+pub mod sip;
 pub mod talker;
 
 /// Whether a PulseAudio server answers (the null sink of .ci/pulse-null-sink.sh).

@@ -434,9 +434,24 @@ def marker_seeds():
     write("markers", "origin-far", "frame,nose_x,nose_y,lip_x,lip_y\n1,-3e38,0,3e38,0\n2,0,0,1,1\n")
 
 
+def sdp_seeds():
+    write("sdp", "softphone-offer",
+          "v=0\r\no=- 123 456 IN IP4 127.0.0.1\r\ns=-\r\nc=IN IP4 127.0.0.1\r\nt=0 0\r\n"
+          "m=audio 10000 RTP/AVP 96 0 8 101\r\na=rtpmap:96 opus/48000/2\r\n"
+          "a=fmtp:96 stereo=1\r\na=rtpmap:101 telephone-event/8000\r\na=fmtp:101 0-15\r\n"
+          "a=sendrecv\r\n")
+    write("sdp", "sipp-answer",
+          "v=0\r\no=sipp 1 1 IN IP4 127.0.0.1\r\ns=-\r\nc=IN IP4 127.0.0.1\r\nt=0 0\r\n"
+          "m=audio 6000 RTP/AVP 0\r\na=rtpmap:0 PCMU/8000\r\n")
+    write("sdp", "ipv6-hold-video",
+          "v=0\r\no=x 1 2 IN IP6 ::1\r\ns=-\r\nt=0 0\r\nm=audio 7000 RTP/AVP 8 9 18 111 102\r\n"
+          "c=IN IP6 ::1\r\na=rtpmap:111 OPUS/48000/2\r\na=rtpmap:102 telephone-event/48000\r\n"
+          "a=sendonly\r\nm=video 0 RTP/AVP 96\r\n")
+
+
 def main():
     for make in (rtp_and_rtcp_seeds, relay_seeds, codec_seeds, wav_seeds, gltf_seeds, model_seeds,
-                 marker_seeds):
+                 marker_seeds, sdp_seeds):
         make()
     total = sum(os.path.getsize(os.path.join(d, f)) for d, _, fs in os.walk(CORPUS) for f in fs)
     print(f"seeds written to {CORPUS}: {total} bytes", file=sys.stderr)

@@ -1,0 +1,291 @@
+//! A SIP phone call as a call's [`Link`]: the user agent ([`crate::net::sip::agent`]) on its
+//! own thread, and once SDP has agreed a codec and an address, the call's RTP
+//! ([`crate::net::sip::media`]) on the socket our SDP named. The caller is one peer like any
+//! other: its frames come from the same jitter buffer and decoders.
+
+use std::net::{SocketAddr, UdpSocket};
+use std::time::{Duration, Instant};
+
+use super::link::{Link, LinkEvent};
+use crate::codec::any::Codec;
+use crate::net::session::{PeerFrame, PeerInfo};
+use crate::net::sip::agent::{Agent, AgentConfig, AgentEvent, SipError};
+use crate::net::sip::media::{SipRtp, SipRtpStats};
+use crate::net::sip::sdp::Negotiated;
+
+/// How long a hang-up waits for the peer to confirm it.
+const HANG_UP_WAIT: Duration = Duration::from_secs(3);
+
+/// Where a call stands.
+#[derive(Debug, Clone, PartialEq)]
+pub enum CallState {
+    /// Registering, dialling, ringing or waiting for a caller.
+    Setting,
+    Established,
+    Ended {
+        by_peer: bool,
+    },
+    Failed(SipError),
+}
+
+/// One SIP call.
+pub struct SipLink {
+    agent: Agent,
+    /// Our RTP socket until the media starts on it.
+    socket: Option<UdpSocket>,
+    local_rtp: SocketAddr,
+    rtp: Option<SipRtp>,
+    negotiated: Option<Negotiated>,
+    state: CallState,
+    /// Who the peer is (the dialled URI, or the caller).
+    peer: String,
+    /// Progress lines for the user (registered, ringing, a caller).
+    notices: Vec<String>,
+    events: Vec<LinkEvent>,
+}
+
+impl std::fmt::Debug for SipLink {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.debug_struct("SipLink")
+            .field("state", &self.state)
+            .finish_non_exhaustive()
+    }
+}
+
+impl SipLink {
+    /// Starts the user agent; `socket` is the RTP socket whose address `config.audio` gives.
+    pub fn start(config: AgentConfig, socket: UdpSocket, peer: String) -> Result<Self, SipError> {
+        let local_rtp = socket.local_addr().map_err(|e| SipError::Bind {
+            addr: config.audio.addr,
+            why: e.to_string(),
+        })?;
+        let agent = Agent::start(config)?;
+        Ok(Self {
+            agent,
+            socket: Some(socket),
+            local_rtp,
+            rtp: None,
+            negotiated: None,
+            state: CallState::Setting,
+            peer,
+            notices: Vec::new(),
+            events: Vec::new(),
+        })
+    }
+
+    pub fn state(&self) -> &CallState {
+        &self.state
+    }
+
+    /// What SDP agreed, once it has.
+    pub fn negotiated(&self) -> Option<&Negotiated> {
+        self.negotiated.as_ref()
+    }
+
+    /// The progress lines since the last call.
+    pub fn take_notices(&mut self) -> Vec<String> {
+        std::mem::take(&mut self.notices)
+    }
+
+    pub fn rtp_stats(&self) -> SipRtpStats {
+        self.rtp
+            .as_ref()
+            .map(|r| r.with(|c| c.stats()))
+            .unwrap_or_default()
+    }
+
+    /// Follows the agent for up to `wait` (or only what is there, with zero).
+    pub fn follow(&mut self, wait: Duration) {
+        let mut next = if wait.is_zero() {
+            self.agent.try_event()
+        } else {
+            self.agent.next_event(wait)
+        };
+        while let Some(event) = next {
+            self.handle(event);
+            next = self.agent.try_event();
+        }
+    }
+
+    fn handle(&mut self, event: AgentEvent) {
+        match event {
+            AgentEvent::Listening(addr) => {
+                self.notices
+                    .push(format!("SIP on {addr} (UDP), RTP on {}", self.local_rtp));
+            }
+            AgentEvent::Registered(registrar) => {
+                self.notices.push(format!("registered with {registrar}"));
+            }
+            AgentEvent::Incoming(from) => {
+                self.peer = from.clone();
+                self.notices.push(format!("call from {from}; answering"));
+            }
+            AgentEvent::Ringing => self.notices.push(format!("{} is ringing", self.peer)),
+            AgentEvent::Media(negotiated) => self.media(negotiated),
+            AgentEvent::Established => {
+                self.state = CallState::Established;
+                self.events.push(LinkEvent::Joined {
+                    place: format!("a SIP call with {}", self.peer),
+                    id: self.local_rtp.to_string(),
+                });
+            }
+            AgentEvent::Ended { by_peer } => {
+                if self.state == CallState::Established {
+                    self.events.push(LinkEvent::PeerLeft {
+                        id: self.peer.clone(),
+                        name: self.peer.clone(),
+                    });
+                }
+                self.state = CallState::Ended { by_peer };
+            }
+            AgentEvent::Failed(e) => {
+                self.events.push(LinkEvent::Failed(e.to_string()));
+                self.state = CallState::Failed(e);
+            }
+        }
+    }
+
+    fn media(&mut self, negotiated: Negotiated) {
+        self.notices.push(format!(
+            "media: {} (payload type {}) with {}{}",
+            negotiated.codec,
+            negotiated.payload_type,
+            negotiated.remote,
+            if negotiated.events.is_some() {
+                ", DTMF events"
+            } else {
+                ""
+            }
+        ));
+        match (&self.rtp, self.socket.take()) {
+            (Some(rtp), _) => rtp.with(|core| core.renegotiate(negotiated.clone())),
+            (None, Some(socket)) => match SipRtp::start(socket, negotiated.clone()) {
+                Ok(rtp) => self.rtp = Some(rtp),
+                Err(e) => {
+                    let e = SipError::Protocol(format!("cannot start the call's RTP: {e}"));
+                    self.events.push(LinkEvent::Failed(e.to_string()));
+                    self.state = CallState::Failed(e);
+                    self.agent.hang_up();
+                }
+            },
+            (None, None) => {}
+        }
+        self.negotiated = Some(negotiated);
+    }
+
+    /// The codec our audio must be sent in, once agreed.
+    pub fn codec(&self) -> Option<Codec> {
+        self.negotiated.as_ref().map(|n| n.codec)
+    }
+
+    /// Sends one payload of the agreed codec lasting `ticks`.
+    pub fn send_packet(&self, payload: &[u8], ticks: u32) {
+        if let Some(rtp) = &self.rtp
+            && let Err(e) = rtp.with(|c| c.send_packet(payload, ticks))
+        {
+            tracing::debug!("SIP RTP: {e}");
+        }
+    }
+
+    /// Queues DTMF keys; false where the peer agreed no telephone-events (or a key is none).
+    pub fn send_digits(&self, keys: &str) -> bool {
+        self.rtp
+            .as_ref()
+            .is_some_and(|rtp| rtp.with(|c| c.queue_digits(keys)))
+    }
+
+    pub fn digits_sent(&self) -> bool {
+        self.rtp
+            .as_ref()
+            .is_none_or(|r| r.with(|c| c.digits_sent()))
+    }
+
+    /// Hangs up and waits (a little) for the peer to confirm.
+    pub fn hang_up(&mut self) {
+        self.agent.hang_up();
+        if !self.agent.wait(HANG_UP_WAIT) {
+            tracing::warn!("the SIP peer did not confirm the hang-up");
+        }
+        self.follow(Duration::ZERO);
+        if let Some(rtp) = &mut self.rtp {
+            rtp.stop();
+        }
+    }
+
+    fn ended(&self) -> bool {
+        matches!(self.state, CallState::Ended { .. } | CallState::Failed(_))
+    }
+}
+
+impl Link for SipLink {
+    fn pull(&mut self, now: Instant, out: &mut Vec<PeerFrame>) {
+        if let Some(rtp) = &self.rtp {
+            rtp.with(|core| {
+                if let Err(e) = core.step_digits() {
+                    tracing::debug!("DTMF: {e}");
+                }
+                core.pull(now, out);
+            });
+        }
+    }
+
+    fn peers(&self) -> Vec<PeerInfo> {
+        let Some(rtp) = &self.rtp else {
+            return Vec::new();
+        };
+        let (ssrc, addr, receiver) = rtp.with(|c| (c.ssrc(), c.remote(), c.receiver_stats()));
+        let Some(ssrc) = ssrc else {
+            return Vec::new();
+        };
+        vec![PeerInfo {
+            ssrc,
+            addr,
+            cname: None,
+            name: Some(self.peer.clone()),
+            receiver,
+            rtt_ms: None,
+            their_loss: None,
+            said_bye: self.ended(),
+            ended: self.ended(),
+        }]
+    }
+
+    fn all_left(&self) -> bool {
+        self.ended()
+    }
+
+    fn send_frames(&mut self, payload: &[u8], frames: u32) {
+        if let Some(codec) = self.codec() {
+            self.send_packet(payload, codec.frame_ticks() * frames.max(1));
+        }
+    }
+
+    fn skip_frames(&mut self, frames: u32) {
+        if let Some(rtp) = &self.rtp {
+            rtp.with(|c| c.skip_frames(frames));
+        }
+    }
+
+    fn unknown_payload(&self) -> u64 {
+        self.rtp_stats().unknown_payload
+    }
+
+    fn leave(&mut self) {
+        if !self.ended() {
+            self.hang_up();
+        }
+    }
+
+    fn poll(&mut self) -> Vec<LinkEvent> {
+        self.follow(Duration::ZERO);
+        std::mem::take(&mut self.events)
+    }
+
+    fn over(&self) -> bool {
+        self.ended()
+    }
+
+    fn local_addr(&self) -> Option<SocketAddr> {
+        Some(self.local_rtp)
+    }
+}

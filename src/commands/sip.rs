@@ -1,0 +1,387 @@
+//! `lipcall sip call` and `lipcall sip answer`: a phone call over SIP that plays a file as our
+//! voice and does with the peer's what `receive` does (WAV as played, WEIGHTS.csv, summary).
+
+use std::net::{IpAddr, SocketAddr, ToSocketAddrs, UdpSocket};
+use std::path::{Path, PathBuf};
+use std::sync::atomic::AtomicBool;
+use std::time::{Duration, Instant};
+
+use anyhow::{Context, Result, bail};
+
+use super::net::{load_packets, open_outputs, parse_codec, play, print_peer};
+use super::recording::{stop_flag, stopped};
+use crate::call::link::{Link, LinkEvent};
+use crate::call::media::Packets;
+use crate::call::sip::{CallState, SipLink};
+use crate::codec::any::{Codec, EncoderSettings};
+use crate::net::janus::media::local_ip_towards;
+use crate::net::session::{PeerFrame, PeerInfo};
+use crate::net::sip::agent::{Account, AgentConfig, Role, codecs};
+use crate::net::sip::sdp::LocalAudio;
+
+/// How often the set-up phase looks at the stop flag and the deadline.
+const SETUP_STEP: Duration = Duration::from_millis(50);
+
+#[derive(Debug, Clone, clap::Args)]
+pub struct SipCommand {
+    #[command(subcommand)]
+    pub action: SipAction,
+}
+
+#[derive(Debug, Clone, clap::Subcommand)]
+pub enum SipAction {
+    /// Call a SIP address; ends when either side hangs up or after --seconds.
+    Call(SipCallArgs),
+    /// Wait for a call and answer the first; ends when either side hangs up or after --seconds.
+    Answer(SipAnswerArgs),
+}
+
+/// What both directions share.
+#[derive(Debug, Clone, clap::Args)]
+pub struct SipCommon {
+    /// Our voice: any audio file lipcall reads, sent in the agreed codec, paced in real time.
+    #[arg(long, value_name = "IN")]
+    pub play: PathBuf,
+    /// Our SIP account, sip:USER@DOMAIN: registers (digest authentication) before the call.
+    #[arg(long, value_name = "URI", requires = "password")]
+    pub account: Option<String>,
+    #[arg(long, requires = "account")]
+    pub password: Option<String>,
+    /// Register with this HOST[:PORT] instead of the account's domain.
+    #[arg(long, value_name = "HOST:PORT", requires = "account")]
+    pub registrar: Option<String>,
+    /// Write the peer's audio as played.
+    #[arg(long, value_name = "OUT.wav")]
+    pub wav: Option<PathBuf>,
+    /// Write the peer's viseme weights per 20 ms.
+    #[arg(long, value_name = "WEIGHTS.csv")]
+    pub weights: Option<PathBuf>,
+    /// Stop after this many seconds (set-up included).
+    #[arg(long, allow_hyphen_values = true, value_parser = super::parse_seconds)]
+    pub seconds: Option<f64>,
+    /// Offer or accept only this codec (otherwise Opus, PCMU and PCMA, in that order).
+    #[arg(long, value_parser = parse_sip_codec)]
+    pub codec: Option<Codec>,
+}
+
+#[derive(Debug, Clone, clap::Args)]
+pub struct SipCallArgs {
+    /// Whom to call: sip:USER@HOST[:PORT].
+    pub target: String,
+    #[command(flatten)]
+    pub common: SipCommon,
+    /// DTMF keys (0-9 * # A-D) to send as RFC 4733 events once the call is answered.
+    #[arg(long, value_name = "DIGITS")]
+    pub dtmf: Option<String>,
+    /// Our SIP socket (UDP); by default a free port on the address towards the peer.
+    #[arg(long, value_name = "HOST:PORT")]
+    pub bind: Option<String>,
+}
+
+#[derive(Debug, Clone, clap::Args)]
+pub struct SipAnswerArgs {
+    /// Where to wait for calls (UDP).
+    #[arg(long, value_name = "HOST:PORT", default_value = "0.0.0.0:5060")]
+    pub listen: String,
+    #[command(flatten)]
+    pub common: SipCommon,
+}
+
+fn parse_sip_codec(s: &str) -> Result<Codec, String> {
+    match parse_codec(s)? {
+        Codec::Speex => Err("SIP peers do not speak Speex: opus, pcmu or pcma".into()),
+        codec => Ok(codec),
+    }
+}
+
+pub fn run(command: &SipCommand) -> Result<()> {
+    match &command.action {
+        SipAction::Call(args) => call(args),
+        SipAction::Answer(args) => answer(args),
+    }
+}
+
+/// The host of `sip:USER@HOST[:PORT];params`.
+fn host_port(uri: &str) -> &str {
+    let bare = uri.trim().trim_start_matches("sip:");
+    let after_user = bare.rsplit_once('@').map_or(bare, |(_, h)| h);
+    after_user.split([';', '?']).next().unwrap_or(after_user)
+}
+
+/// The IP address of `HOST[:PORT]` (SIP's default port when none is given).
+fn resolve_host(host: &str) -> Result<IpAddr> {
+    let with_port = if host.starts_with('[') || host.matches(':').count() == 1 {
+        host.to_owned()
+    } else {
+        format!("{host}:5060")
+    };
+    with_port
+        .to_socket_addrs()
+        .with_context(|| format!("cannot resolve {host}"))?
+        .next()
+        .map(|a| a.ip())
+        .with_context(|| format!("{host} has no address"))
+}
+
+fn account(common: &SipCommon) -> Result<Option<Account>> {
+    let (Some(uri), Some(password)) = (&common.account, &common.password) else {
+        return Ok(None);
+    };
+    let mut account = Account::parse(uri, password)?;
+    account.registrar = common.registrar.clone();
+    Ok(Some(account))
+}
+
+fn session_id() -> u64 {
+    std::time::SystemTime::now()
+        .duration_since(std::time::UNIX_EPOCH)
+        .map_or(1, |d| d.as_secs())
+}
+
+fn call(args: &SipCallArgs) -> Result<()> {
+    let account = account(&args.common)?;
+    let towards = match &account {
+        Some(a) => host_port(a.registrar()),
+        None => host_port(&args.target),
+    };
+    let bind = match &args.bind {
+        Some(bind) => bind
+            .parse::<SocketAddr>()
+            .with_context(|| format!("--bind {bind:?}: expected IP:PORT"))?,
+        None => SocketAddr::new(local_ip_towards(resolve_host(towards)?)?, 0),
+    };
+    let role = Role::Call(args.target.clone());
+    run_call(&args.common, account, bind, role, args.dtmf.as_deref())
+}
+
+fn answer(args: &SipAnswerArgs) -> Result<()> {
+    let account = account(&args.common)?;
+    let mut listen = args
+        .listen
+        .to_socket_addrs()
+        .with_context(|| format!("--listen {:?}", args.listen))?
+        .next()
+        .with_context(|| format!("--listen {:?} has no address", args.listen))?;
+    if listen.ip().is_unspecified() {
+        // Our Contact and SDP must name an address the peer can reach.
+        let towards = match &account {
+            Some(a) => resolve_host(host_port(a.registrar()))?,
+            None => IpAddr::from([203, 0, 113, 1]),
+        };
+        listen.set_ip(local_ip_towards(towards)?);
+    }
+    run_call(&args.common, account, listen, Role::Answer, None)
+}
+
+/// Our file, encoded in the agreed codec.
+fn voice(path: &Path, codec: Codec) -> Result<Packets> {
+    let (_, packets) = load_packets(path, Some(codec), &EncoderSettings::default())?;
+    if packets.is_empty() {
+        bail!("{}: no audio to send", path.display());
+    }
+    Ok(packets)
+}
+
+fn run_call(
+    common: &SipCommon,
+    account: Option<Account>,
+    bind: SocketAddr,
+    role: Role,
+    dtmf: Option<&str>,
+) -> Result<()> {
+    // A file that cannot be read fails before any call is made.
+    voice(&common.play, Codec::Pcmu)?;
+    let stop = stop_flag()?;
+    let (model, mut recorder) =
+        open_outputs(common.wav.as_deref(), None, None, common.weights.as_deref())?;
+    let rtp = UdpSocket::bind(SocketAddr::new(bind.ip(), 0))
+        .with_context(|| format!("cannot open an RTP socket on {}", bind.ip()))?;
+    let audio = LocalAudio {
+        addr: rtp.local_addr().context("RTP socket")?,
+        codecs: codecs(common.codec),
+        session_id: session_id(),
+    };
+    let peer = match &role {
+        Role::Call(target) => target.clone(),
+        Role::Answer => "the caller".to_owned(),
+    };
+    let answering = role == Role::Answer;
+    let config = AgentConfig {
+        bind,
+        account,
+        audio,
+        role,
+    };
+    eprintln!("lipcall: warning: SIP calls are NOT encrypted (plain RTP, no SRTP yet)");
+    let mut link = SipLink::start(config, rtp, peer)?;
+    let start = Instant::now();
+    let limit = common.seconds.map(Duration::from_secs_f64);
+    if let Err(e) = set_up(&mut link, start, limit, &stop, answering) {
+        link.hang_up();
+        return Err(e);
+    }
+    let codec = link
+        .codec()
+        .context("the call was answered without media")?;
+    let packets = voice(&common.play, codec)?;
+    if let Some(keys) = dtmf
+        && !link.send_digits(keys)
+    {
+        eprintln!("lipcall: warning: DTMF {keys:?} not sent: the peer agreed no telephone-events");
+    }
+    let remaining = limit.map(|l| l.saturating_sub(start.elapsed()).as_secs_f64());
+    let mut playing = Playing {
+        link: &mut link,
+        packets,
+        next: 0,
+        start: Instant::now(),
+        sent_ticks: 0,
+        clock: f64::from(codec.clock_rate()),
+    };
+    let played = match remaining {
+        Some(s) if s <= 0.0 => Ok(()),
+        _ => play(
+            &mut playing,
+            remaining,
+            model.as_ref(),
+            &mut |_, _, _| {},
+            &mut recorder,
+            &stop,
+        ),
+    };
+    let digits_sent = link.digits_sent();
+    link.leave();
+    let stats = link.rtp_stats();
+    eprintln!(
+        "lipcall: played {:.2} s; datagrams={} rtp={} rtcp={} malformed={} unknown_pt={} \
+         dtmf_in={} sent_rtp={} dtmf_sent={} send_errors={}",
+        recorder.seconds(),
+        stats.datagrams,
+        stats.rtp,
+        stats.rtcp,
+        stats.malformed,
+        stats.unknown_payload,
+        stats.events_in,
+        stats.sent_rtp,
+        stats.sent_events,
+        stats.send_errors
+    );
+    for peer in link.peers() {
+        print_peer(&peer);
+    }
+    if dtmf.is_some() && !digits_sent {
+        eprintln!("lipcall: warning: the call ended before every DTMF key was sent");
+    }
+    let finished = recorder.finish();
+    match link.state() {
+        CallState::Failed(e) => bail!("the call failed: {e}"),
+        CallState::Ended { by_peer: true } => eprintln!("lipcall: the peer hung up"),
+        _ => eprintln!("lipcall: hung up"),
+    }
+    played.and(finished)
+}
+
+/// Registers and dials (or waits for a caller) until the call is answered; an error where it
+/// is refused, fails, or the time runs out (the call is then cancelled).
+fn set_up(
+    link: &mut SipLink,
+    start: Instant,
+    limit: Option<Duration>,
+    stop: &AtomicBool,
+    answering: bool,
+) -> Result<()> {
+    loop {
+        link.follow(SETUP_STEP);
+        for notice in link.take_notices() {
+            eprintln!("lipcall: {notice}");
+        }
+        match link.state() {
+            CallState::Established => return Ok(()),
+            CallState::Failed(e) => bail!("{e}"),
+            CallState::Ended { .. } => bail!("the call ended before it was answered"),
+            CallState::Setting => {}
+        }
+        if stopped(stop) {
+            bail!("stopped by a signal before the call was answered");
+        }
+        if limit.is_some_and(|l| start.elapsed() >= l) {
+            let seconds = limit.map_or(0.0, |l| l.as_secs_f64());
+            if answering {
+                bail!("no call came within {seconds} s");
+            }
+            bail!("no answer within {seconds} s; the call was cancelled");
+        }
+    }
+}
+
+/// The call with our file played into it: each pull first sends the packets now due.
+struct Playing<'l> {
+    link: &'l mut SipLink,
+    packets: Packets,
+    next: usize,
+    start: Instant,
+    sent_ticks: u64,
+    clock: f64,
+}
+
+impl Link for Playing<'_> {
+    fn pull(&mut self, now: Instant, out: &mut Vec<PeerFrame>) {
+        let elapsed = Instant::now().saturating_duration_since(self.start);
+        while let Some((payload, ticks)) = self.packets.get(self.next) {
+            let due = Duration::from_secs_f64(self.sent_ticks as f64 / self.clock);
+            if due > elapsed {
+                break;
+            }
+            self.link.send_packet(payload, *ticks);
+            self.sent_ticks += u64::from(*ticks);
+            self.next += 1;
+        }
+        self.link.pull(now, out);
+    }
+
+    fn peers(&self) -> Vec<PeerInfo> {
+        self.link.peers()
+    }
+
+    fn all_left(&self) -> bool {
+        self.link.all_left()
+    }
+
+    fn send_frames(&mut self, payload: &[u8], frames: u32) {
+        self.link.send_frames(payload, frames);
+    }
+
+    fn skip_frames(&mut self, frames: u32) {
+        self.link.skip_frames(frames);
+    }
+
+    fn unknown_payload(&self) -> u64 {
+        self.link.unknown_payload()
+    }
+
+    fn leave(&mut self) {
+        self.link.leave();
+    }
+
+    fn poll(&mut self) -> Vec<LinkEvent> {
+        self.link.poll()
+    }
+
+    fn over(&self) -> bool {
+        self.link.over()
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn the_host_of_a_sip_address() {
+        assert_eq!(host_port("sip:bob@127.0.0.1:5070"), "127.0.0.1:5070");
+        assert_eq!(host_port("bob@pbx.example;transport=udp"), "pbx.example");
+        assert_eq!(host_port("sip:127.0.0.1"), "127.0.0.1");
+        assert!(resolve_host("127.0.0.1").is_ok());
+        assert!(resolve_host("127.0.0.1:5070").is_ok());
+    }
+}

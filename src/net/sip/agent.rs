@@ -1,0 +1,608 @@
+//! The SIP user agent of one call, on its own thread with its own tokio runtime (the ezk stack
+//! is async; the rest of lipcall is not): registration ([`super::register`]), one outgoing call (INVITE, ringing, CANCEL, answer, BYE) or the first incoming
+//! one. The owner talks to it through channels: events come out, a hang-up goes in.
+//!
+//! ezk runs the dialogs and transactions; the SDP goes through [`super::sdp`] by way of
+//! [`SdpMedia`], ezk's media backend, which only negotiates: the RTP itself is
+//! [`super::media`]'s, on the socket whose address the SDP gives.
+
+use std::future::Future;
+use std::net::SocketAddr;
+use std::sync::mpsc;
+use std::thread::JoinHandle;
+use std::time::Duration;
+
+use bytesstr::BytesStr;
+use ezk_sdp_types::SessionDescription;
+use ezk_sip_core::transport::TargetTransportInfo;
+use ezk_sip_core::{Endpoint, IncomingRequest, Layer, MayTake};
+use ezk_sip_types::header::typed::Contact;
+use ezk_sip_types::uri::{NameAddr, SipUri};
+use ezk_sip_types::{Method, StatusCode};
+use ezk_sip_ua::dialog::DialogLayer;
+use ezk_sip_ua::invite::InviteLayer;
+use ezk_sip_ua::register::Registration;
+use ezk_sip_ua::{
+    AcceptCallError, Call, CallEvent, InboundCall, MakeCallCompletionError, MakeCallError,
+    MediaBackend, OutboundCall,
+};
+use tokio::select;
+use tokio::sync::mpsc::{UnboundedReceiver, UnboundedSender, unbounded_channel};
+
+pub use super::error::SipError;
+pub use super::register::Account;
+use super::register::{
+    Limited, REGISTER_EXPIRY, REGISTER_TIMEOUT, keep_registered, reason_of, register, uri,
+};
+use super::sdp::{self, LocalAudio, Negotiated, SdpError};
+use crate::codec::any::Codec;
+
+/// How long a refused caller has to acknowledge the refusal.
+const REFUSAL_WAIT: Duration = Duration::from_secs(2);
+
+/// What the agent does.
+#[derive(Debug, Clone, PartialEq, Eq)]
+pub enum Role {
+    /// Calls this `sip:` URI.
+    Call(String),
+    /// Answers the first call that comes.
+    Answer,
+}
+
+#[derive(Debug, Clone)]
+pub struct AgentConfig {
+    /// Where the SIP socket listens (UDP).
+    pub bind: SocketAddr,
+    pub account: Option<Account>,
+    pub audio: LocalAudio,
+    pub role: Role,
+}
+
+/// What happened, in order.
+#[derive(Debug, Clone, PartialEq)]
+pub enum AgentEvent {
+    Listening(SocketAddr),
+    Registered(String),
+    /// A call came in (from whom).
+    Incoming(String),
+    Ringing,
+    /// The SDP exchange agreed this (again at a re-INVITE).
+    Media(Negotiated),
+    Established,
+    /// The call is over: hung up by the peer or by us (a CANCEL before the answer included).
+    Ended {
+        by_peer: bool,
+    },
+    Failed(SipError),
+}
+
+/// The agent's thread and its channels.
+pub struct Agent {
+    hang_up: UnboundedSender<()>,
+    events: mpsc::Receiver<AgentEvent>,
+    thread: Option<JoinHandle<()>>,
+    /// The call's end (or failure) was reported.
+    last_word: bool,
+}
+
+impl std::fmt::Debug for Agent {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.debug_struct("Agent").finish_non_exhaustive()
+    }
+}
+
+impl Agent {
+    pub fn start(config: AgentConfig) -> Result<Self, SipError> {
+        let (events_tx, events) = mpsc::channel();
+        let (hang_up, commands) = unbounded_channel();
+        let runtime = tokio::runtime::Builder::new_current_thread()
+            .enable_all()
+            .build()
+            .map_err(|e| SipError::Thread(e.to_string()))?;
+        let thread = std::thread::Builder::new()
+            .name("lipcall-sip".into())
+            .spawn(move || {
+                runtime.block_on(async move {
+                    if let Err(e) = run(config, &events_tx, commands).await {
+                        let _ = events_tx.send(AgentEvent::Failed(e));
+                    }
+                });
+            })
+            .map_err(|e| SipError::Thread(e.to_string()))?;
+        Ok(Self {
+            hang_up,
+            events,
+            thread: Some(thread),
+            last_word: false,
+        })
+    }
+
+    /// Ends the call (a CANCEL while it rings, a BYE once answered) and the registration.
+    pub fn hang_up(&self) {
+        let _ = self.hang_up.send(());
+    }
+
+    /// The next event within `timeout`. An agent that stopped without saying how the call
+    /// ended (its thread panicked in the SIP stack) reports that as a failure.
+    pub fn next_event(&mut self, timeout: Duration) -> Option<AgentEvent> {
+        match self.events.recv_timeout(timeout) {
+            Ok(event) => Some(self.seen(event)),
+            Err(mpsc::RecvTimeoutError::Timeout) => None,
+            Err(mpsc::RecvTimeoutError::Disconnected) => self.gone(),
+        }
+    }
+
+    pub fn try_event(&mut self) -> Option<AgentEvent> {
+        match self.events.try_recv() {
+            Ok(event) => Some(self.seen(event)),
+            Err(mpsc::TryRecvError::Empty) => None,
+            Err(mpsc::TryRecvError::Disconnected) => self.gone(),
+        }
+    }
+
+    /// Notes whether `event` is the agent's last word (the call ended or failed).
+    fn seen(&mut self, event: AgentEvent) -> AgentEvent {
+        self.last_word |= matches!(event, AgentEvent::Ended { .. } | AgentEvent::Failed(_));
+        event
+    }
+
+    /// Said once: the agent's thread ended without a last word.
+    fn gone(&mut self) -> Option<AgentEvent> {
+        if std::mem::replace(&mut self.last_word, true) {
+            return None;
+        }
+        Some(AgentEvent::Failed(SipError::Protocol(
+            "the SIP stack stopped unexpectedly".into(),
+        )))
+    }
+
+    /// Waits up to `limit` for the agent to finish (its BYE answered, the binding removed).
+    pub fn wait(&mut self, limit: Duration) -> bool {
+        let deadline = std::time::Instant::now() + limit;
+        while let Some(thread) = &self.thread {
+            if thread.is_finished() {
+                if let Some(thread) = self.thread.take() {
+                    let _ = thread.join();
+                }
+                return true;
+            }
+            if std::time::Instant::now() >= deadline {
+                return false;
+            }
+            std::thread::sleep(Duration::from_millis(10));
+        }
+        true
+    }
+}
+
+impl Drop for Agent {
+    fn drop(&mut self) {
+        self.hang_up();
+        // A peer that never answers our BYE must not hold the process: the thread is left
+        // to end with it.
+        self.wait(Duration::from_secs(2));
+    }
+}
+
+/// ezk's media backend: negotiates through [`super::sdp`] and tells the owner what was agreed.
+struct SdpMedia {
+    audio: LocalAudio,
+    events: mpsc::Sender<AgentEvent>,
+    version: u64,
+}
+
+impl SdpMedia {
+    fn description(text: &str) -> Result<SessionDescription, SdpError> {
+        SessionDescription::parse(&BytesStr::from(text)).map_err(|_| SdpError::Malformed {
+            line: text.chars().take(80).collect(),
+            why: "lipcall's own description did not parse",
+        })
+    }
+
+    fn agreed(&mut self, negotiated: Negotiated) {
+        let _ = self.events.send(AgentEvent::Media(negotiated));
+    }
+
+    fn offer(&mut self) -> Result<SessionDescription, SdpError> {
+        self.version += 1;
+        Self::description(&sdp::offer(&self.audio, self.version))
+    }
+
+    fn take_answer(&mut self, answer: &SessionDescription) -> Result<(), SdpError> {
+        let remote = sdp::parse(&answer.to_string())?;
+        let negotiated = sdp::negotiate(&remote, &self.audio.codecs)?;
+        self.agreed(negotiated);
+        Ok(())
+    }
+
+    fn answer(&mut self, offer: &SessionDescription) -> Result<SessionDescription, SdpError> {
+        let remote = sdp::parse(&offer.to_string())?;
+        let negotiated = sdp::negotiate(&remote, &self.audio.codecs)?;
+        self.version += 1;
+        let answer = Self::description(&sdp::answer(&self.audio, &negotiated, self.version))?;
+        self.agreed(negotiated);
+        Ok(answer)
+    }
+}
+
+impl MediaBackend for SdpMedia {
+    type Error = SdpError;
+    type Event = ();
+
+    fn has_media(&self) -> bool {
+        true
+    }
+
+    fn create_sdp_offer(
+        &mut self,
+    ) -> impl Future<Output = Result<SessionDescription, Self::Error>> + Send {
+        std::future::ready(self.offer())
+    }
+
+    fn receive_sdp_answer(
+        &mut self,
+        sdp: SessionDescription,
+    ) -> impl Future<Output = Result<(), Self::Error>> + Send {
+        std::future::ready(self.take_answer(&sdp))
+    }
+
+    fn receive_sdp_offer(
+        &mut self,
+        sdp: SessionDescription,
+    ) -> impl Future<Output = Result<SessionDescription, Self::Error>> + Send {
+        std::future::ready(self.answer(&sdp))
+    }
+
+    fn run(&mut self) -> impl Future<Output = Result<Self::Event, Self::Error>> + Send {
+        // The RTP runs on its own socket thread: nothing to drive here.
+        std::future::pending()
+    }
+}
+
+/// Hands the first INVITE outside a dialog to the agent; any other gets 486 Busy Here.
+struct IncomingLayer {
+    calls: tokio::sync::mpsc::Sender<IncomingRequest>,
+}
+
+#[async_trait::async_trait]
+impl Layer for IncomingLayer {
+    fn name(&self) -> &'static str {
+        "lipcall-incoming"
+    }
+
+    async fn receive(&self, endpoint: &Endpoint, request: MayTake<'_, IncomingRequest>) {
+        if request.line.method != Method::INVITE {
+            return;
+        }
+        let invite = request.take();
+        if let Err(refused) = self.calls.try_send(invite) {
+            let mut invite = refused.into_inner();
+            let transaction = endpoint.create_server_inv_tsx(&mut invite);
+            let response = endpoint.create_response(&invite, StatusCode::BUSY_HERE, None);
+            if let Err(e) = transaction.respond_failure(response).await {
+                tracing::debug!("486 to a second caller: {e}");
+            }
+        }
+    }
+}
+
+fn send(events: &mpsc::Sender<AgentEvent>, event: AgentEvent) {
+    let _ = events.send(event);
+}
+
+async fn run(
+    config: AgentConfig,
+    events: &mpsc::Sender<AgentEvent>,
+    mut commands: UnboundedReceiver<()>,
+) -> Result<(), SipError> {
+    let (calls, mut incoming) = tokio::sync::mpsc::channel(1);
+    let mut builder = Endpoint::builder();
+    builder.add_layer(DialogLayer::default());
+    builder.add_layer(InviteLayer::default());
+    builder.add_layer(IncomingLayer { calls });
+    let transport = builder
+        .bind_udp(config.bind)
+        .await
+        .map_err(|e| SipError::Bind {
+            addr: config.bind,
+            why: e.to_string(),
+        })?;
+    let bound = transport.bound();
+    let endpoint = builder.build();
+    send(events, AgentEvent::Listening(bound));
+
+    let user = config
+        .account
+        .as_ref()
+        .map_or("lipcall", |a| a.user.as_str())
+        .to_owned();
+    let contact = Contact::new(NameAddr::uri(
+        SipUri::new(bound.into()).user(user.clone().into()),
+    ));
+    let id = match &config.account {
+        Some(a) => NameAddr::uri(uri(&format!("{}@{}", a.user, a.domain))?),
+        None => NameAddr::uri(SipUri::new(bound.into()).user(user.into())),
+    };
+
+    let mut stop_registration = None;
+    let mut registration_task = None;
+    if let Some(account) = &config.account {
+        let registrar_name = account.registrar().to_owned();
+        let mut registration = Registration::new(
+            id.clone(),
+            contact.clone(),
+            uri(&registrar_name)?,
+            REGISTER_EXPIRY,
+        );
+        let mut auth = Limited::new(Some(account));
+        let mut target = TargetTransportInfo::default();
+        select! {
+            registered = register(&endpoint, &mut registration, &mut auth, &mut target, &registrar_name, false) => registered?,
+            _ = commands.recv() => {
+                send(events, AgentEvent::Ended { by_peer: false });
+                return Ok(());
+            }
+        }
+        send(events, AgentEvent::Registered(registrar_name.clone()));
+        let (stop, stopped) = tokio::sync::oneshot::channel();
+        stop_registration = Some(stop);
+        registration_task = Some(tokio::spawn(keep_registered(
+            endpoint.clone(),
+            registration,
+            auth,
+            target,
+            registrar_name,
+            stopped,
+        )));
+    }
+
+    let media = SdpMedia {
+        audio: config.audio.clone(),
+        events: events.clone(),
+        version: 0,
+    };
+    let result = match &config.role {
+        Role::Call(target) => {
+            drop(incoming);
+            let auth = Limited::new(config.account.as_ref());
+            call(
+                &endpoint,
+                auth,
+                id,
+                contact,
+                target,
+                media,
+                events,
+                &mut commands,
+            )
+            .await
+        }
+        Role::Answer => {
+            answer(
+                &endpoint,
+                &mut incoming,
+                contact,
+                media,
+                events,
+                &mut commands,
+            )
+            .await
+        }
+    };
+
+    if let (Some(stop), Some(task)) = (stop_registration, registration_task) {
+        let _ = stop.send(());
+        let _ = tokio::time::timeout(REGISTER_TIMEOUT, task).await;
+    }
+    result
+}
+
+#[allow(clippy::too_many_arguments)]
+async fn call(
+    endpoint: &Endpoint,
+    auth: Limited,
+    id: NameAddr,
+    contact: Contact,
+    target: &str,
+    media: SdpMedia,
+    events: &mpsc::Sender<AgentEvent>,
+    commands: &mut UnboundedReceiver<()>,
+) -> Result<(), SipError> {
+    let target_uri = uri(target)?;
+    let made = select! {
+        made = OutboundCall::make(endpoint.clone(), auth, id, contact, target_uri, media) => made,
+        _ = commands.recv() => {
+            send(events, AgentEvent::Ended { by_peer: false });
+            return Ok(());
+        }
+    };
+    let mut outbound = made.map_err(|e| match e {
+        MakeCallError::Failed(line) => SipError::CallRefused {
+            target: target.to_owned(),
+            code: line.code.into_u16(),
+            reason: reason_of(line.code, line.reason.as_ref()),
+        },
+        MakeCallError::Core(ezk_sip_core::Error::RequestTimedOut) => {
+            SipError::NoAnswer(target.to_owned())
+        }
+        MakeCallError::Core(e) => SipError::Protocol(e.to_string()),
+        MakeCallError::Auth(_) => SipError::CallAuth(target.to_owned()),
+        MakeCallError::Media(e) => SipError::Sdp(e),
+    })?;
+    send(events, AgentEvent::Ringing);
+    let completed = select! {
+        completed = outbound.wait_for_completion() => completed,
+        _ = commands.recv() => {
+            if let Err(e) = outbound.cancel().await {
+                tracing::debug!("CANCEL: {e}");
+            }
+            send(events, AgentEvent::Ended { by_peer: false });
+            return Ok(());
+        }
+    };
+    let completion_error = |e: MakeCallCompletionError<SdpError>| match e {
+        MakeCallCompletionError::Failed(line) => SipError::CallRefused {
+            target: target.to_owned(),
+            code: line.code.into_u16(),
+            reason: reason_of(line.code, line.reason.as_ref()),
+        },
+        MakeCallCompletionError::Core(ezk_sip_core::Error::RequestTimedOut) => {
+            SipError::NoAnswer(target.to_owned())
+        }
+        MakeCallCompletionError::Core(e) => SipError::Protocol(e.to_string()),
+        MakeCallCompletionError::Media(e) => SipError::Sdp(e),
+        MakeCallCompletionError::MissingSdpInResponse => {
+            SipError::Protocol(format!("{target} answered without a session description"))
+        }
+    };
+    let call = completed
+        .map_err(completion_error)?
+        .finish()
+        .await
+        .map_err(completion_error)?;
+    send(events, AgentEvent::Established);
+    follow(call, events, commands).await
+}
+
+async fn answer(
+    endpoint: &Endpoint,
+    incoming: &mut tokio::sync::mpsc::Receiver<IncomingRequest>,
+    contact: Contact,
+    media: SdpMedia,
+    events: &mpsc::Sender<AgentEvent>,
+    commands: &mut UnboundedReceiver<()>,
+) -> Result<(), SipError> {
+    let invite = select! {
+        invite = incoming.recv() => invite,
+        _ = commands.recv() => None,
+    };
+    let Some(invite) = invite else {
+        send(events, AgentEvent::Ended { by_peer: false });
+        return Ok(());
+    };
+    incoming.close();
+    send(
+        events,
+        AgentEvent::Incoming(format!("{:?}", invite.base_headers.from.uri.uri)),
+    );
+    // An offer we cannot take is refused as RFC 3264 says (488), before ezk would answer it.
+    if !invite.body.is_empty() {
+        let offer = std::str::from_utf8(&invite.body)
+            .map_err(|_| SdpError::Malformed {
+                line: String::new(),
+                why: "the offer is not UTF-8",
+            })
+            .and_then(sdp::parse)
+            .and_then(|remote| sdp::negotiate(&remote, &media.audio.codecs));
+        if let Err(e) = offer {
+            refuse(endpoint, invite, StatusCode::NOT_ACCEPTABLE_HERE).await;
+            return Err(SipError::Sdp(e));
+        }
+    }
+    let inbound = match InboundCall::from_invite(endpoint.clone(), invite, contact) {
+        Ok(inbound) => inbound,
+        Err(refused) => {
+            let (invite, why) = *refused;
+            refuse(endpoint, invite, StatusCode::BAD_REQUEST).await;
+            return Err(SipError::Protocol(format!("the caller's INVITE: {why}")));
+        }
+    };
+    let mut inbound = inbound.with_media(media);
+    inbound
+        .respond_provisional(StatusCode::RINGING)
+        .await
+        .map_err(|e| SipError::Protocol(e.to_string()))?;
+    let call = inbound.accept().await.map_err(|e| match e {
+        AcceptCallError::Cancelled => SipError::CallerCancelled,
+        AcceptCallError::Media(e) => SipError::Sdp(e),
+        other => SipError::Protocol(other.to_string()),
+    })?;
+    send(events, AgentEvent::Established);
+    follow(call, events, commands).await
+}
+
+/// Answers an INVITE with a failure.
+async fn refuse(endpoint: &Endpoint, mut invite: IncomingRequest, code: StatusCode) {
+    let transaction = endpoint.create_server_inv_tsx(&mut invite);
+    let response = endpoint.create_response(&invite, code, None);
+    // The caller's ACK ends the transaction; one that never comes must not hold us.
+    match tokio::time::timeout(REFUSAL_WAIT, transaction.respond_failure(response)).await {
+        Ok(Ok(())) => {}
+        Ok(Err(e)) => tracing::debug!("refusing an INVITE: {e}"),
+        Err(_) => tracing::debug!("refusing an INVITE: no ACK"),
+    }
+}
+
+/// An established call until either side hangs up.
+async fn follow(
+    mut call: Call<SdpMedia>,
+    events: &mpsc::Sender<AgentEvent>,
+    commands: &mut UnboundedReceiver<()>,
+) -> Result<(), SipError> {
+    loop {
+        select! {
+            event = call.run() => match event.map_err(|e| SipError::Protocol(e.to_string()))? {
+                CallEvent::Internal(internal) => call
+                    .handle_internal_event(internal)
+                    .await
+                    .map_err(|e| SipError::Protocol(e.to_string()))?,
+                CallEvent::Media(()) => {}
+                CallEvent::Terminated => {
+                    send(events, AgentEvent::Ended { by_peer: true });
+                    return Ok(());
+                }
+            },
+            _ = commands.recv() => {
+                call.terminate().await.map_err(|e| SipError::Protocol(format!("BYE: {e}")))?;
+                send(events, AgentEvent::Ended { by_peer: false });
+                return Ok(());
+            }
+        }
+    }
+}
+
+/// The codecs a call offers and accepts: only `chosen`, or every one SIP peers speak.
+pub fn codecs(chosen: Option<Codec>) -> Vec<Codec> {
+    match chosen {
+        Some(codec) => vec![codec],
+        None => vec![Codec::Opus, Codec::Pcmu, Codec::Pcma],
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn a_failure_is_the_last_word_and_a_silent_end_is_one() {
+        let taken = std::net::UdpSocket::bind("127.0.0.1:0").unwrap();
+        let config = AgentConfig {
+            bind: taken.local_addr().unwrap(),
+            account: None,
+            audio: LocalAudio {
+                addr: "127.0.0.1:4000".parse().unwrap(),
+                codecs: codecs(None),
+                session_id: 1,
+            },
+            role: Role::Answer,
+        };
+        let mut agent = Agent::start(config).unwrap();
+        let event = agent.next_event(Duration::from_secs(5));
+        assert!(
+            matches!(event, Some(AgentEvent::Failed(SipError::Bind { .. }))),
+            "{event:?}"
+        );
+        assert!(agent.wait(Duration::from_secs(5)));
+        assert_eq!(agent.try_event(), None, "nothing after the last word");
+        // A thread that ends without one is a failure, said once.
+        agent.last_word = false;
+        assert!(matches!(agent.try_event(), Some(AgentEvent::Failed(_))));
+        assert_eq!(agent.try_event(), None);
+    }
+
+    #[test]
+    fn one_codec_or_every_one_sip_peers_speak() {
+        assert_eq!(codecs(Some(Codec::Pcma)), vec![Codec::Pcma]);
+        assert_eq!(codecs(None), vec![Codec::Opus, Codec::Pcmu, Codec::Pcma]);
+    }
+}

@@ -1,0 +1,430 @@
+//! The RTP of one SIP call: the payload types and address SDP agreed, symmetric RTP (we send to
+//! where the peer's media comes from, which is what gets through a NAT), one remote stream
+//! into the same [`PeerReceiver`] (jitter buffer, decoder, features) as every other call, our
+//! own stream out, and RFC 4733 DTMF events.
+//!
+//! As the session's and the Janus media's, the rules are a core without I/O ([`SipRtpCore`])
+//! under the shared socket thread ([`Driver`]).
+
+use std::collections::VecDeque;
+use std::net::{SocketAddr, UdpSocket};
+use std::time::{Duration, Instant};
+
+use super::sdp::Negotiated;
+use crate::net::jitter::JitterConfig;
+use crate::net::peer::{PeerReceiver, ReceiverStats};
+use crate::net::rtp::{self, RtpStream};
+use crate::net::session::driver::{Driver, SansIo};
+use crate::net::session::{LARGEST_DATAGRAM, PeerFrame, Transmit, TransmitKind};
+
+/// How long the socket thread waits at most for a datagram.
+const POLL: Duration = Duration::from_millis(10);
+/// One DTMF digit: this many 20 ms packets of the tone, then three end packets, then a pause.
+const DIGIT_PACKETS: u32 = 5;
+const END_PACKETS: u32 = 3;
+const PAUSE_PACKETS: u32 = 5;
+/// The RFC 4733 volume field (-10 dBm0).
+const EVENT_VOLUME: u8 = 10;
+
+#[derive(Debug, Clone, Copy, Default, PartialEq, Eq)]
+pub struct SipRtpStats {
+    pub datagrams: u64,
+    pub rtp: u64,
+    pub malformed: u64,
+    /// RTCP (we send none; reports on the RTP port are counted and dropped).
+    pub rtcp: u64,
+    /// Packets of a payload type SDP did not agree.
+    pub unknown_payload: u64,
+    /// RFC 4733 event packets received.
+    pub events_in: u64,
+    pub sent_rtp: u64,
+    pub sent_events: u64,
+    pub send_errors: u64,
+    /// The peer's media came from another address than its SDP named (we followed it).
+    pub latched: Option<SocketAddr>,
+}
+
+/// A digit being sent.
+struct Digit {
+    event: u8,
+    timestamp: u32,
+    step: u32,
+}
+
+/// The sans-I/O RTP of one SIP call.
+pub struct SipRtpCore {
+    stream: RtpStream,
+    negotiated: Negotiated,
+    frame_ticks: u32,
+    remote: SocketAddr,
+    heard_from: bool,
+    receiver: PeerReceiver,
+    ssrc: Option<u32>,
+    jitter: JitterConfig,
+    epoch: Instant,
+    digits: VecDeque<u8>,
+    digit: Option<Digit>,
+    outbox: VecDeque<Transmit>,
+    stats: SipRtpStats,
+}
+
+/// The RFC 4733 event code of a DTMF key.
+pub fn event_code(key: char) -> Option<u8> {
+    match key.to_ascii_uppercase() {
+        d @ '0'..='9' => Some(d as u8 - b'0'),
+        '*' => Some(10),
+        '#' => Some(11),
+        l @ 'A'..='D' => Some(l as u8 - b'A' + 12),
+        _ => None,
+    }
+}
+
+impl SipRtpCore {
+    pub fn new(negotiated: Negotiated, now: Instant) -> Result<Self, getrandom::Error> {
+        let mut stream = RtpStream::new_random()?;
+        let frame_ticks = negotiated.codec.frame_ticks();
+        stream.set_payload(negotiated.payload_type, frame_ticks);
+        let jitter = JitterConfig::default();
+        Ok(Self {
+            stream,
+            frame_ticks,
+            remote: negotiated.remote,
+            heard_from: false,
+            receiver: PeerReceiver::with_payloads(jitter, now, true, negotiated.payloads.clone()),
+            ssrc: None,
+            jitter,
+            epoch: now,
+            digits: VecDeque::new(),
+            digit: None,
+            outbox: VecDeque::new(),
+            stats: SipRtpStats::default(),
+            negotiated,
+        })
+    }
+
+    pub fn stats(&self) -> SipRtpStats {
+        self.stats
+    }
+
+    pub fn receiver_stats(&self) -> ReceiverStats {
+        self.receiver.stats()
+    }
+
+    /// The remote stream's SSRC, once it sent.
+    pub fn ssrc(&self) -> Option<u32> {
+        self.ssrc
+    }
+
+    pub fn remote(&self) -> SocketAddr {
+        self.remote
+    }
+
+    /// A new offer or answer in the same call (a re-INVITE: hold, resume, another address).
+    pub fn renegotiate(&mut self, negotiated: Negotiated) {
+        if negotiated.remote != self.negotiated.remote {
+            self.remote = negotiated.remote;
+            self.heard_from = false;
+        }
+        if negotiated.payload_type != self.negotiated.payload_type {
+            self.frame_ticks = negotiated.codec.frame_ticks();
+            self.stream
+                .set_payload(negotiated.payload_type, self.frame_ticks);
+        }
+        self.negotiated = negotiated;
+    }
+
+    fn queue(&mut self, data: Vec<u8>) {
+        self.outbox.push_back(Transmit {
+            to: self.remote,
+            data,
+            kind: TransmitKind::Rtp,
+        });
+    }
+
+    /// Sends one payload of the agreed codec lasting `ticks` (nothing while the peer holds the
+    /// call: it said it receives nothing).
+    pub fn send_packet(&mut self, payload: &[u8], ticks: u32) -> Result<(), rtp::RtpError> {
+        if !self.negotiated.direction.reversed().sends() {
+            self.stream.skip(ticks / self.frame_ticks.max(1));
+            return Ok(());
+        }
+        let mut buf = Vec::with_capacity(payload.len() + 12);
+        self.stream.packetize_ticks(payload, ticks, &mut buf)?;
+        self.queue(buf);
+        self.stats.sent_rtp += 1;
+        Ok(())
+    }
+
+    pub fn skip_frames(&mut self, frames: u32) {
+        self.stream.skip(frames);
+    }
+
+    /// Queues DTMF keys (0-9 * # A-D) to send as RFC 4733 events; `false` when the peer
+    /// agreed no events or a key is not one.
+    pub fn queue_digits(&mut self, keys: &str) -> bool {
+        let codes: Option<Vec<u8>> = keys.chars().map(event_code).collect();
+        match (codes, self.negotiated.events) {
+            (Some(codes), Some(_)) => {
+                self.digits.extend(codes);
+                true
+            }
+            _ => false,
+        }
+    }
+
+    /// Whether every queued digit went out.
+    pub fn digits_sent(&self) -> bool {
+        self.digits.is_empty() && self.digit.is_none()
+    }
+
+    /// One 20 ms step of the digit being sent: a packet of its event (RFC 4733 2.5), its
+    /// duration growing, then the end packets, then a pause before the next digit.
+    pub fn step_digits(&mut self) -> Result<(), rtp::RtpError> {
+        let Some(events_pt) = self.negotiated.events else {
+            self.digits.clear();
+            return Ok(());
+        };
+        if self.digit.is_none() {
+            let Some(event) = self.digits.pop_front() else {
+                return Ok(());
+            };
+            self.digit = Some(Digit {
+                event,
+                timestamp: self.stream.next_timestamp(),
+                step: 0,
+            });
+        }
+        let Some(digit) = self.digit.as_mut() else {
+            return Ok(());
+        };
+        let step = digit.step;
+        digit.step += 1;
+        let (event, timestamp) = (digit.event, digit.timestamp);
+        if step >= DIGIT_PACKETS + END_PACKETS + PAUSE_PACKETS {
+            self.digit = None;
+            return self.step_digits();
+        }
+        if step >= DIGIT_PACKETS + END_PACKETS {
+            return Ok(());
+        }
+        let end = step >= DIGIT_PACKETS;
+        let duration = self.frame_ticks * (step.min(DIGIT_PACKETS - 1) + 1);
+        let [d1, d2] = u16::try_from(duration).unwrap_or(u16::MAX).to_be_bytes();
+        let payload = [event, (u8::from(end) << 7) | EVENT_VOLUME, d1, d2];
+        let header = rtp::RtpHeader {
+            marker: step == 0,
+            payload_type: events_pt,
+            sequence: self.stream_sequence(),
+            timestamp,
+            ssrc: self.stream.ssrc,
+        };
+        let mut buf = Vec::with_capacity(16);
+        rtp::write(&header, &payload, &mut buf)?;
+        self.queue(buf);
+        self.stats.sent_events += 1;
+        Ok(())
+    }
+
+    /// The next sequence number of our stream, taken for an event packet: events and audio
+    /// share one sequence (RFC 4733 2.1). The stream numbers its own packets, so an event
+    /// goes out as a zero-length step of the stream (its timestamp unchanged) and is then
+    /// rewritten with its own header.
+    fn stream_sequence(&mut self) -> u16 {
+        let mut scratch = Vec::with_capacity(16);
+        match self.stream.packetize_ticks(&[0], 0, &mut scratch) {
+            Ok(header) => header.sequence,
+            Err(_) => 0,
+        }
+    }
+
+    /// The next 20 ms of the peer, if it is playing.
+    pub fn pull(&mut self, now: Instant, out: &mut Vec<PeerFrame>) {
+        if let (Some(ssrc), Some(frame)) = (self.ssrc, self.receiver.pull(now)) {
+            out.push(PeerFrame { ssrc, frame });
+        }
+    }
+
+    fn handle(&mut self, data: &[u8], from: SocketAddr, now: Instant) {
+        self.stats.datagrams += 1;
+        // RTCP shares the RTP port where the peer multiplexes it (RFC 5761 4: types 64-95).
+        if data.len() >= 2 && (200..=206).contains(&data[1]) {
+            self.stats.rtcp += 1;
+            return;
+        }
+        let packet = match rtp::parse(data, None) {
+            Ok(p) => p,
+            Err(_) => {
+                self.stats.malformed += 1;
+                return;
+            }
+        };
+        let pt = packet.header.payload_type;
+        if Some(pt) == self.negotiated.events {
+            self.stats.events_in += 1;
+            return;
+        }
+        if !self.negotiated.audio_types.contains(&pt) {
+            self.stats.unknown_payload += 1;
+            return;
+        }
+        self.stats.rtp += 1;
+        if !self.heard_from || from != self.remote {
+            if from != self.negotiated.remote {
+                self.stats.latched = Some(from);
+            }
+            self.remote = from;
+            self.heard_from = true;
+        }
+        if self.ssrc != Some(packet.header.ssrc) {
+            if self.ssrc.is_some() {
+                // A new stream (the peer restarted its sender): a fresh timeline.
+                self.receiver = PeerReceiver::with_payloads(
+                    self.jitter,
+                    self.epoch,
+                    true,
+                    self.negotiated.payloads.clone(),
+                );
+            }
+            self.ssrc = Some(packet.header.ssrc);
+        }
+        self.receiver.insert(&packet, now);
+    }
+}
+
+impl SansIo for SipRtpCore {
+    const BUFFER: usize = LARGEST_DATAGRAM + 1;
+
+    fn handle_datagram(&mut self, data: &[u8], from: SocketAddr, now: Instant) {
+        if data.len() > LARGEST_DATAGRAM {
+            self.stats.malformed += 1;
+            return;
+        }
+        self.handle(data, from, now);
+    }
+
+    fn poll_timeout(&self) -> Instant {
+        Instant::now() + POLL
+    }
+
+    fn handle_timeout(&mut self, _now: Instant) {}
+
+    fn poll_transmit(&mut self) -> Option<Transmit> {
+        self.outbox.pop_front()
+    }
+
+    fn transmitted(&mut self, _transmit: Transmit, sent: bool) {
+        if !sent {
+            self.stats.send_errors += 1;
+        }
+    }
+}
+
+/// A call's RTP running on its socket thread.
+pub struct SipRtp {
+    driver: Driver<SipRtpCore>,
+}
+
+impl std::fmt::Debug for SipRtp {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.debug_struct("SipRtp").finish_non_exhaustive()
+    }
+}
+
+impl SipRtp {
+    /// Starts the media on `socket` (the one whose address our SDP gave).
+    pub fn start(socket: UdpSocket, negotiated: Negotiated) -> std::io::Result<Self> {
+        let core = SipRtpCore::new(negotiated, Instant::now()).map_err(std::io::Error::other)?;
+        let driver = Driver::start(socket, core, "lipcall-sip-rtp", POLL)?;
+        Ok(Self { driver })
+    }
+
+    pub fn with<T>(&self, f: impl FnOnce(&mut SipRtpCore) -> T) -> T {
+        self.driver.with(f)
+    }
+
+    pub fn stop(&mut self) {
+        self.driver.stop();
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::codec::any::{Codec, PayloadMap};
+    use crate::net::sip::sdp::Direction;
+
+    fn negotiated() -> Negotiated {
+        Negotiated {
+            remote: "127.0.0.1:9000".parse().unwrap(),
+            codec: Codec::Pcmu,
+            payload_type: 0,
+            events: Some(101),
+            direction: Direction::SendRecv,
+            payloads: PayloadMap::default(),
+            audio_types: vec![0],
+        }
+    }
+
+    #[test]
+    fn a_digit_is_five_growing_packets_then_three_ends_on_one_timestamp() {
+        let now = Instant::now();
+        let mut core = SipRtpCore::new(negotiated(), now).unwrap();
+        assert!(core.queue_digits("1#"));
+        assert!(!core.queue_digits("x"));
+        let mut packets = Vec::new();
+        for _ in 0..13 {
+            core.step_digits().unwrap();
+            while let Some(t) = core.poll_transmit() {
+                packets.push(t.data);
+            }
+        }
+        assert_eq!(packets.len(), 8);
+        let parsed: Vec<_> = packets
+            .iter()
+            .map(|p| rtp::parse(p, None).unwrap())
+            .collect();
+        assert!(parsed[0].header.marker && !parsed[1].header.marker);
+        assert!(
+            parsed
+                .iter()
+                .all(|p| p.header.timestamp == parsed[0].header.timestamp)
+        );
+        assert_eq!(parsed[0].payload, &[1, 10, 0, 160]);
+        assert_eq!(parsed[7].payload, &[1, 128 | 10, 3, 32]);
+        let seqs: Vec<u16> = parsed.iter().map(|p| p.header.sequence).collect();
+        assert!(
+            seqs.windows(2).all(|w| w[1] == w[0].wrapping_add(1)),
+            "{seqs:?}"
+        );
+        core.step_digits().unwrap();
+        let next = rtp::parse(&core.poll_transmit().unwrap().data, None)
+            .unwrap()
+            .payload
+            .to_vec();
+        assert_eq!(next[0], 11, "then #");
+    }
+
+    #[test]
+    fn media_is_received_from_wherever_it_comes_and_answered_there() {
+        let now = Instant::now();
+        let mut core = SipRtpCore::new(negotiated(), now).unwrap();
+        let mut sender = RtpStream::new(42, 1, 0);
+        sender.set_payload(0, 160);
+        let mut buf = Vec::new();
+        sender.packetize(&[0xff; 160], 1, &mut buf).unwrap();
+        let nat: SocketAddr = "10.0.0.1:40000".parse().unwrap();
+        core.handle_datagram(&buf, nat, now);
+        assert_eq!(core.stats().rtp, 1);
+        assert_eq!(core.stats().latched, Some(nat));
+        core.send_packet(&[0xff; 160], 160).unwrap();
+        assert_eq!(core.poll_transmit().unwrap().to, nat);
+        // Unagreed types, events and garbage are counted, never decoded.
+        sender.set_payload(8, 160);
+        sender.packetize(&[0xd5; 160], 1, &mut buf).unwrap();
+        core.handle_datagram(&buf, nat, now);
+        core.handle_datagram(&[0x80, 0, 1], nat, now);
+        assert_eq!(core.stats().unknown_payload, 1);
+        assert_eq!(core.stats().malformed, 1);
+        assert_eq!(core.ssrc(), Some(42));
+    }
+}

@@ -1,0 +1,9 @@
+//! Phone calls over SIP (RFC 3261): a user agent on the ezk stack ([`agent`]) that registers
+//! ([`register`]), SDP offer and answer ([`sdp`]), and the call's RTP through the same
+//! per-peer receiver as every call ([`media`]).
+
+pub mod agent;
+pub mod error;
+pub mod media;
+pub mod register;
+pub mod sdp;

@@ -1,0 +1,566 @@
+//! SDP offer and answer for one audio stream (RFC 3264, RFC 4566): what lipcall offers (Opus,
+//! PCMU, PCMA and RFC 4733 telephone-event), reading a peer's description (its media address,
+//! formats and direction), and choosing the codec both sides speak.
+//!
+//! The SIP stack (ezk) parses SDP into its own types; this module reads the description it
+//! prints back, so that every value a hostile peer controls passes one strict, bounded reader
+//! with its own errors.
+
+use std::net::{IpAddr, SocketAddr};
+
+use crate::codec::any::{Codec, PayloadMap};
+
+/// A description longer than this is refused unread.
+pub const MAX_SDP_BYTES: usize = 16 * 1024;
+/// Formats on one media line that we look at.
+const MAX_FORMATS: usize = 64;
+
+/// Payload types lipcall offers for what has no static type.
+pub const OPUS_PT: u8 = 111;
+pub const EVENT_PT: u8 = 101;
+pub const EVENT_WIDE_PT: u8 = 102;
+
+#[derive(Debug, Clone, PartialEq, Eq, thiserror::Error)]
+pub enum SdpError {
+    #[error("the session description is {0} bytes (at most {MAX_SDP_BYTES})")]
+    TooLong(usize),
+    #[error("the session description has no audio stream")]
+    NoAudio,
+    #[error("the audio stream was refused (port 0)")]
+    Refused,
+    #[error("the session description has no connection address (c=)")]
+    NoAddress,
+    #[error("malformed SDP line {line:?}: {why}")]
+    Malformed { line: String, why: &'static str },
+    #[error("no codec in common (the peer offers {0}; lipcall speaks Opus, PCMU and PCMA)")]
+    NoCommonCodec(String),
+    #[error("the peer's audio is RTP/SAVP (SRTP) and no key lipcall can use was given")]
+    Encrypted,
+}
+
+/// Which way media flows, as one side says it (RFC 3264 section 5.1).
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum Direction {
+    SendRecv,
+    SendOnly,
+    RecvOnly,
+    Inactive,
+}
+
+impl Direction {
+    fn attribute(self) -> &'static str {
+        match self {
+            Direction::SendRecv => "sendrecv",
+            Direction::SendOnly => "sendonly",
+            Direction::RecvOnly => "recvonly",
+            Direction::Inactive => "inactive",
+        }
+    }
+
+    /// The direction an answer gives to an offer of `self`.
+    pub fn reversed(self) -> Self {
+        match self {
+            Direction::SendOnly => Direction::RecvOnly,
+            Direction::RecvOnly => Direction::SendOnly,
+            other => other,
+        }
+    }
+
+    /// Whether the side that said it sends.
+    pub fn sends(self) -> bool {
+        matches!(self, Direction::SendRecv | Direction::SendOnly)
+    }
+}
+
+/// One payload format of a media line.
+#[derive(Debug, Clone, PartialEq, Eq)]
+pub struct Format {
+    pub payload_type: u8,
+    /// Upper case (`OPUS`, `PCMU`, `TELEPHONE-EVENT`); empty for a dynamic type with no rtpmap.
+    pub encoding: String,
+    pub clock_rate: u32,
+}
+
+/// A peer's audio stream as its description gives it.
+#[derive(Debug, Clone, PartialEq, Eq)]
+pub struct RemoteAudio {
+    pub addr: SocketAddr,
+    pub formats: Vec<Format>,
+    pub direction: Direction,
+}
+
+/// What we describe of our side.
+#[derive(Debug, Clone, PartialEq, Eq)]
+pub struct LocalAudio {
+    /// Where our RTP socket is reachable.
+    pub addr: SocketAddr,
+    /// The codecs we offer or accept, preferred first.
+    pub codecs: Vec<Codec>,
+    pub session_id: u64,
+}
+
+/// The outcome of an offer and its answer.
+#[derive(Debug, Clone, PartialEq, Eq)]
+pub struct Negotiated {
+    /// Where our RTP goes (until symmetric RTP latches onto where the peer's comes from).
+    pub remote: SocketAddr,
+    pub codec: Codec,
+    pub payload_type: u8,
+    /// RFC 4733 events: payload type, with the codec's clock.
+    pub events: Option<u8>,
+    /// The peer's direction, as it said it.
+    pub direction: Direction,
+    /// Every payload type of the peer that carries a codec we decode.
+    pub payloads: PayloadMap,
+    pub audio_types: Vec<u8>,
+}
+
+/// The payload types that carry SDP's static formats we know (RFC 3551).
+fn static_format(pt: u8) -> Option<(&'static str, u32)> {
+    match pt {
+        0 => Some(("PCMU", 8000)),
+        8 => Some(("PCMA", 8000)),
+        9 => Some(("G722", 8000)),
+        _ => None,
+    }
+}
+
+fn codec_of(format: &Format) -> Option<Codec> {
+    match (format.encoding.as_str(), format.clock_rate) {
+        ("OPUS", 48000) => Some(Codec::Opus),
+        ("PCMU", 8000) => Some(Codec::Pcmu),
+        ("PCMA", 8000) => Some(Codec::Pcma),
+        _ => None,
+    }
+}
+
+fn malformed(line: &str, why: &'static str) -> SdpError {
+    let mut line = line.to_owned();
+    line.truncate(80);
+    SdpError::Malformed { line, why }
+}
+
+fn parse_address(line: &str, value: &str) -> Result<Option<IpAddr>, SdpError> {
+    let mut parts = value.split_ascii_whitespace();
+    let (Some("IN"), Some(family), Some(addr)) = (parts.next(), parts.next(), parts.next()) else {
+        return Err(malformed(line, "expected IN IP4|IP6 ADDRESS"));
+    };
+    // A multicast address may carry /ttl; a host name is not something we can send to.
+    let addr = addr.split('/').next().unwrap_or(addr);
+    let ip: IpAddr = addr
+        .parse()
+        .map_err(|_| malformed(line, "the address is not an IP address"))?;
+    match (family, ip) {
+        ("IP4", IpAddr::V4(_)) | ("IP6", IpAddr::V6(_)) => Ok(Some(ip)),
+        _ => Err(malformed(line, "the address does not match its family")),
+    }
+}
+
+fn parse_rtpmap(line: &str, value: &str) -> Result<(u8, String, u32), SdpError> {
+    let (pt, rest) = value
+        .split_once(' ')
+        .ok_or_else(|| malformed(line, "expected PT ENCODING/CLOCK"))?;
+    let pt: u8 = pt
+        .trim()
+        .parse()
+        .ok()
+        .filter(|&pt| pt < 128)
+        .ok_or_else(|| malformed(line, "bad payload type"))?;
+    let mut fields = rest.trim().split('/');
+    let encoding = fields.next().unwrap_or_default().to_ascii_uppercase();
+    let clock: u32 = fields
+        .next()
+        .and_then(|c| c.parse().ok())
+        .filter(|&c| c > 0)
+        .ok_or_else(|| malformed(line, "bad clock rate"))?;
+    if encoding.is_empty() || encoding.len() > 32 {
+        return Err(malformed(line, "bad encoding name"));
+    }
+    Ok((pt, encoding, clock))
+}
+
+/// The first audio stream as read so far: its port, formats, own address and direction.
+struct AudioLine {
+    port: u16,
+    formats: Vec<Format>,
+    addr: Option<IpAddr>,
+    direction: Option<Direction>,
+}
+
+/// Reads the first audio stream of a description.
+pub fn parse(text: &str) -> Result<RemoteAudio, SdpError> {
+    if text.len() > MAX_SDP_BYTES {
+        return Err(SdpError::TooLong(text.len()));
+    }
+    let mut session_addr = None;
+    let mut session_direction = Direction::SendRecv;
+    let mut audio: Option<AudioLine> = None;
+    let mut in_audio = false;
+    let mut past_audio = false;
+    for line in text.split(['\r', '\n']).filter(|l| !l.is_empty()) {
+        let Some((kind, value)) = line.split_once('=') else {
+            return Err(malformed(line, "expected TYPE=VALUE"));
+        };
+        match kind {
+            "m" => {
+                let seen = audio.is_some();
+                in_audio = false;
+                if seen {
+                    past_audio = true;
+                    continue;
+                }
+                let mut parts = value.split_ascii_whitespace();
+                let (Some(media), Some(port), Some(proto)) =
+                    (parts.next(), parts.next(), parts.next())
+                else {
+                    return Err(malformed(line, "expected MEDIA PORT PROTO FORMATS"));
+                };
+                if media != "audio" {
+                    continue;
+                }
+                let port: u16 = port
+                    .split('/')
+                    .next()
+                    .and_then(|p| p.parse().ok())
+                    .ok_or_else(|| malformed(line, "bad port"))?;
+                match proto {
+                    "RTP/AVP" | "RTP/AVPF" => {}
+                    "RTP/SAVP" | "RTP/SAVPF" => return Err(SdpError::Encrypted),
+                    _ => return Err(malformed(line, "not RTP/AVP audio")),
+                }
+                let mut formats = Vec::new();
+                for pt in parts.take(MAX_FORMATS) {
+                    let pt: u8 = pt
+                        .parse()
+                        .ok()
+                        .filter(|&pt| pt < 128)
+                        .ok_or_else(|| malformed(line, "bad payload type"))?;
+                    let (encoding, clock_rate) = static_format(pt).unwrap_or(("", 0));
+                    formats.push(Format {
+                        payload_type: pt,
+                        encoding: encoding.to_owned(),
+                        clock_rate,
+                    });
+                }
+                audio = Some(AudioLine {
+                    port,
+                    formats,
+                    addr: None,
+                    direction: None,
+                });
+                in_audio = true;
+            }
+            "c" => {
+                let addr = parse_address(line, value)?;
+                match (&mut audio, in_audio) {
+                    (Some(a), true) => a.addr = addr,
+                    (None, _) if !past_audio => session_addr = addr,
+                    _ => {}
+                }
+            }
+            "a" => {
+                let (name, attr_value) = value.split_once(':').unwrap_or((value, ""));
+                let direction = match name {
+                    "sendrecv" => Some(Direction::SendRecv),
+                    "sendonly" => Some(Direction::SendOnly),
+                    "recvonly" => Some(Direction::RecvOnly),
+                    "inactive" => Some(Direction::Inactive),
+                    _ => None,
+                };
+                match (&mut audio, in_audio) {
+                    (Some(a), true) => {
+                        if let Some(d) = direction {
+                            a.direction = Some(d);
+                        } else if name == "rtpmap" {
+                            let (pt, encoding, clock) = parse_rtpmap(line, attr_value)?;
+                            if let Some(f) = a.formats.iter_mut().find(|f| f.payload_type == pt) {
+                                f.encoding = encoding;
+                                f.clock_rate = clock;
+                            }
+                        }
+                    }
+                    (None, _) => {
+                        if let Some(d) = direction {
+                            session_direction = d;
+                        }
+                    }
+                    _ => {}
+                }
+            }
+            _ if kind.len() == 1 => {}
+            _ => return Err(malformed(line, "expected a one-letter type")),
+        }
+    }
+    let AudioLine {
+        port,
+        formats,
+        addr: media_addr,
+        direction,
+    } = audio.ok_or(SdpError::NoAudio)?;
+    if port == 0 {
+        return Err(SdpError::Refused);
+    }
+    let ip = media_addr.or(session_addr).ok_or(SdpError::NoAddress)?;
+    Ok(RemoteAudio {
+        addr: SocketAddr::new(ip, port),
+        formats,
+        direction: direction.unwrap_or(session_direction),
+    })
+}
+
+/// The telephone-event format of `remote` on `clock`, if it has one.
+fn events_at(remote: &RemoteAudio, clock: u32) -> Option<u8> {
+    remote
+        .formats
+        .iter()
+        .find(|f| f.encoding == "TELEPHONE-EVENT" && f.clock_rate == clock)
+        .map(|f| f.payload_type)
+}
+
+/// Chooses the codec: the first of the peer's formats (its preference) that we allow. `answer`
+/// says the peer's description answers ours (its formats are then among ours).
+pub fn negotiate(remote: &RemoteAudio, allowed: &[Codec]) -> Result<Negotiated, SdpError> {
+    let mut payloads = PayloadMap::default();
+    let mut audio_types = Vec::new();
+    let mut chosen = None;
+    for format in &remote.formats {
+        let Some(codec) = codec_of(format).filter(|c| allowed.contains(c)) else {
+            continue;
+        };
+        if audio_types
+            .iter()
+            .any(|&pt| payloads.codec(pt) == Some(codec))
+        {
+            continue;
+        }
+        if payloads.set(codec, format.payload_type).is_err() {
+            continue;
+        }
+        audio_types.push(format.payload_type);
+        chosen.get_or_insert((codec, format.payload_type));
+    }
+    let Some((codec, payload_type)) = chosen else {
+        let offered: Vec<String> = remote
+            .formats
+            .iter()
+            .map(|f| match f.encoding.as_str() {
+                "" => f.payload_type.to_string(),
+                e => format!("{e}/{}", f.clock_rate),
+            })
+            .collect();
+        return Err(SdpError::NoCommonCodec(offered.join(" ")));
+    };
+    Ok(Negotiated {
+        remote: remote.addr,
+        codec,
+        payload_type,
+        events: events_at(remote, codec.clock_rate()),
+        direction: remote.direction,
+        payloads,
+        audio_types,
+    })
+}
+
+fn header(local: &LocalAudio, version: u64) -> String {
+    let family = if local.addr.is_ipv4() { "IP4" } else { "IP6" };
+    let ip = local.addr.ip();
+    format!(
+        "v=0\r\no=lipcall {} {version} IN {family} {ip}\r\ns=lipcall\r\nc=IN {family} {ip}\r\nt=0 0\r\n",
+        local.session_id
+    )
+}
+
+fn rtpmap(codec: Codec, pt: u8) -> String {
+    match codec {
+        Codec::Opus => format!("a=rtpmap:{pt} opus/48000/2\r\na=fmtp:{pt} useinbandfec=1\r\n"),
+        other => format!(
+            "a=rtpmap:{pt} {}/{}\r\n",
+            other.encoding_name(),
+            other.clock_rate()
+        ),
+    }
+}
+
+fn offered_type(codec: Codec) -> u8 {
+    match codec {
+        Codec::Opus => OPUS_PT,
+        other => other.default_payload_type(),
+    }
+}
+
+/// Our offer: every allowed codec SIP peers speak, then telephone-event at 8 kHz (and at
+/// 48 kHz beside Opus).
+pub fn offer(local: &LocalAudio, version: u64) -> String {
+    let codecs: Vec<Codec> = local
+        .codecs
+        .iter()
+        .copied()
+        .filter(|c| *c != Codec::Speex)
+        .collect();
+    let mut types: Vec<u8> = codecs.iter().map(|&c| offered_type(c)).collect();
+    types.push(EVENT_PT);
+    let wide = codecs.contains(&Codec::Opus);
+    if wide {
+        types.push(EVENT_WIDE_PT);
+    }
+    let list: Vec<String> = types.iter().map(u8::to_string).collect();
+    let mut sdp = header(local, version);
+    sdp.push_str(&format!(
+        "m=audio {} RTP/AVP {}\r\n",
+        local.addr.port(),
+        list.join(" ")
+    ));
+    for &codec in &codecs {
+        sdp.push_str(&rtpmap(codec, offered_type(codec)));
+    }
+    sdp.push_str(&format!(
+        "a=rtpmap:{EVENT_PT} telephone-event/8000\r\na=fmtp:{EVENT_PT} 0-16\r\n"
+    ));
+    if wide {
+        sdp.push_str(&format!(
+            "a=rtpmap:{EVENT_WIDE_PT} telephone-event/48000\r\na=fmtp:{EVENT_WIDE_PT} 0-16\r\n"
+        ));
+    }
+    sdp.push_str("a=ptime:20\r\na=sendrecv\r\n");
+    sdp
+}
+
+/// Our answer to an offer that negotiated as `chosen`: its codec and events on the peer's
+/// payload types, the direction mirrored.
+pub fn answer(local: &LocalAudio, chosen: &Negotiated, version: u64) -> String {
+    let mut types = vec![chosen.payload_type];
+    types.extend(chosen.events);
+    let list: Vec<String> = types.iter().map(u8::to_string).collect();
+    let mut sdp = header(local, version);
+    sdp.push_str(&format!(
+        "m=audio {} RTP/AVP {}\r\n",
+        local.addr.port(),
+        list.join(" ")
+    ));
+    sdp.push_str(&rtpmap(chosen.codec, chosen.payload_type));
+    if let Some(pt) = chosen.events {
+        sdp.push_str(&format!(
+            "a=rtpmap:{pt} telephone-event/{}\r\na=fmtp:{pt} 0-16\r\n",
+            chosen.codec.clock_rate()
+        ));
+    }
+    sdp.push_str(&format!(
+        "a=ptime:20\r\na={}\r\n",
+        chosen.direction.reversed().attribute()
+    ));
+    sdp
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use proptest::prelude::*;
+
+    const BARESIP_OFFER: &str = "v=0\r\no=- 123 456 IN IP4 127.0.0.1\r\ns=-\r\nc=IN IP4 127.0.0.1\r\n\
+        t=0 0\r\nm=audio 10000 RTP/AVP 96 0 8 101\r\na=rtpmap:96 opus/48000/2\r\n\
+        a=fmtp:96 stereo=1\r\na=rtpmap:101 telephone-event/8000\r\na=sendrecv\r\n";
+
+    fn local() -> LocalAudio {
+        LocalAudio {
+            addr: "127.0.0.1:4000".parse().unwrap(),
+            codecs: vec![Codec::Opus, Codec::Pcmu, Codec::Pcma],
+            session_id: 7,
+        }
+    }
+
+    #[test]
+    fn a_softphone_offer_negotiates_its_first_codec_and_events() {
+        let remote = parse(BARESIP_OFFER).unwrap();
+        assert_eq!(remote.addr, "127.0.0.1:10000".parse().unwrap());
+        let n = negotiate(&remote, &[Codec::Pcmu, Codec::Opus]).unwrap();
+        assert_eq!((n.codec, n.payload_type), (Codec::Opus, 96));
+        assert_eq!(n.payloads.codec(96), Some(Codec::Opus));
+        assert_eq!(
+            n.events, None,
+            "events at 8 kHz do not go with Opus's clock"
+        );
+        let n = negotiate(&remote, &[Codec::Pcmu]).unwrap();
+        assert_eq!(
+            (n.codec, n.payload_type, n.events),
+            (Codec::Pcmu, 0, Some(101))
+        );
+        let answer = answer(&local(), &n, 1);
+        assert!(
+            answer.contains("m=audio 4000 RTP/AVP 0 101\r\n"),
+            "{answer}"
+        );
+        let back = parse(&answer).unwrap();
+        assert_eq!(back.formats[0].encoding, "PCMU");
+    }
+
+    #[test]
+    fn our_offer_reads_back() {
+        let offer = offer(&local(), 1);
+        let remote = parse(&offer).unwrap();
+        assert_eq!(remote.addr, local().addr);
+        let n = negotiate(&remote, &[Codec::Opus]).unwrap();
+        assert_eq!(
+            (n.codec, n.payload_type, n.events),
+            (Codec::Opus, 111, Some(102))
+        );
+    }
+
+    #[test]
+    fn hostile_descriptions_are_errors() {
+        assert_eq!(parse("v=0\r\n"), Err(SdpError::NoAudio));
+        assert!(matches!(parse("garbage"), Err(SdpError::Malformed { .. })));
+        assert_eq!(
+            parse("v=0\r\nc=IN IP4 1.2.3.4\r\nm=audio 0 RTP/AVP 0\r\n"),
+            Err(SdpError::Refused)
+        );
+        assert_eq!(
+            parse("v=0\r\nm=audio 5 RTP/AVP 0\r\n"),
+            Err(SdpError::NoAddress)
+        );
+        assert!(parse("v=0\r\nc=IN IP4 host.example\r\nm=audio 5 RTP/AVP 0\r\n").is_err());
+        assert!(parse("v=0\r\nc=IN IP4 1.2.3.4\r\nm=audio 5 RTP/AVP 300\r\n").is_err());
+        assert_eq!(
+            parse("v=0\r\nc=IN IP4 1.2.3.4\r\nm=audio 5 RTP/SAVP 0\r\n"),
+            Err(SdpError::Encrypted)
+        );
+        let g729 = parse("v=0\r\nc=IN IP4 1.2.3.4\r\nm=audio 5 RTP/AVP 18\r\n").unwrap();
+        assert!(matches!(
+            negotiate(&g729, &[Codec::Pcmu]),
+            Err(SdpError::NoCommonCodec(_))
+        ));
+        assert!(matches!(
+            parse(&"a=x\r\n".repeat(MAX_SDP_BYTES)),
+            Err(SdpError::TooLong(_))
+        ));
+    }
+
+    proptest! {
+        #![proptest_config(ProptestConfig::with_cases(2000))]
+
+        #[test]
+        fn any_text_parses_or_is_an_error(text in "(([vocmtas]=[ -~]{0,40})?\r\n){0,12}") {
+            if let Ok(remote) = parse(&text) {
+                let _ = negotiate(&remote, &Codec::ALL);
+            }
+        }
+
+        #[test]
+        fn mutated_offers_never_panic(cut in 0usize..400, byte in any::<u8>(), at in 0usize..400) {
+            let mut bytes = BARESIP_OFFER.as_bytes().to_vec();
+            bytes.truncate(cut.max(1));
+            if at < bytes.len() {
+                bytes[at] = byte;
+            }
+            let text = String::from_utf8_lossy(&bytes);
+            if let Ok(chosen) = parse(&text).and_then(|r| negotiate(&r, &Codec::ALL)) {
+                // Whatever was agreed, our answer says it back.
+                let back = parse(&answer(&local(), &chosen, 2)).unwrap();
+                let again = negotiate(&back, &Codec::ALL).unwrap();
+                prop_assert_eq!(
+                    (again.codec, again.payload_type, again.events),
+                    (chosen.codec, chosen.payload_type, chosen.events)
+                );
+            }
+        }
+    }
+}

@@ -1,0 +1,515 @@
+//! lipcall and a real softphone (Debian's baresip 1.0) on 127.0.0.1: lipcall registers with a
+//! kamailio that demands digest authentication and calls baresip through it; baresip calls
+//! `lipcall sip answer`. Each side's microphone is a WAV file (baresip's `aufile`), each side
+//! records what it hears (baresip's `sndfile`), and either side hangs up.
+
+mod common;
+
+use std::io::Write;
+use std::net::TcpStream;
+use std::path::{Path, PathBuf};
+use std::process::Command;
+use std::time::Duration;
+
+use common::sip::{Logged, Peer, best_alignment, free_port, installed, mulaw_round_trip};
+
+const PASSWORD: &str = "lipcall-test-secret";
+
+fn have(tools: &[&str]) -> bool {
+    for tool in tools {
+        if !installed(tool) {
+            common::unavailable(&format!("{tool} is not installed"));
+            return false;
+        }
+    }
+    true
+}
+
+/// kamailio as registrar and proxy on `port`: REGISTER must answer a digest challenge for
+/// [`PASSWORD`]; everything else is routed by the location table (kept in memory). `extra`:
+/// more `modparam` lines.
+fn kamailio(dir: &Path, port: u16, extra: &str) -> Logged {
+    let modules = [
+        "tm",
+        "sl",
+        "pv",
+        "maxfwd",
+        "usrloc",
+        "registrar",
+        "textops",
+        "siputils",
+        "auth",
+    ];
+    let loads: String = modules
+        .iter()
+        .map(|m| format!("loadmodule \"{m}.so\"\n"))
+        .collect();
+    let config = format!(
+        r#"#!KAMAILIO
+debug=2
+log_stderror=yes
+children=2
+disable_tcp=yes
+auto_aliases=no
+listen=udp:127.0.0.1:{port}
+alias="127.0.0.1:{port}"
+mpath="/usr/lib/x86_64-linux-gnu/kamailio/modules/"
+{loads}modparam("usrloc", "db_mode", 0)
+{extra}
+
+request_route {{
+    if (!mf_process_maxfwd_header("10")) {{
+        sl_send_reply("483", "Too Many Hops");
+        exit;
+    }}
+    if (is_method("CANCEL")) {{
+        if (t_check_trans()) {{
+            t_relay();
+        }}
+        exit;
+    }}
+    if (has_totag()) {{
+        if (is_method("ACK") && !t_check_trans()) {{
+            exit;
+        }}
+        t_relay();
+        exit;
+    }}
+    if (is_method("REGISTER")) {{
+        if (!pv_www_authenticate("$td", "{PASSWORD}", "0")) {{
+            www_challenge("$td", "0");
+            exit;
+        }}
+        save("location");
+        exit;
+    }}
+    if (!lookup("location")) {{
+        sl_send_reply("404", "Not Found");
+        exit;
+    }}
+    t_relay();
+}}
+"#
+    );
+    let path = dir.join("kamailio.cfg");
+    std::fs::write(&path, config).unwrap();
+    let kamailio = Peer::spawn_logged(
+        "kamailio",
+        Command::new("kamailio")
+            .arg("-f")
+            .arg(&path)
+            .args(["-DD", "-E", "-m", "32", "-M", "8", "-Y"])
+            .arg(dir),
+    );
+    assert!(
+        kamailio.wait_for("SO_RCVBUF is finally", Duration::from_secs(10)),
+        "kamailio did not start: {}",
+        kamailio.text()
+    );
+    kamailio
+}
+
+/// baresip with its own config folder: `account` its accounts line, its microphone `source`
+/// (8 kHz mono), what it hears dumped into `dir`/heard by sndfile.
+fn baresip(dir: &Path, port: u16, control: u16, account: &str, source: &Path) -> Logged {
+    let home = dir.join("baresip");
+    let heard = dir.join("heard");
+    std::fs::create_dir_all(&home).unwrap();
+    std::fs::create_dir_all(&heard).unwrap();
+    let config = format!(
+        "poll_method epoll\nsip_listen 127.0.0.1:{port}\nsip_trans_def udp\n\
+         audio_player alsa,null\naudio_alert alsa,null\naudio_source aufile,{}\n\
+         module_path /usr/lib/baresip/modules\nmodule g711.so\nmodule aufile.so\n\
+         module alsa.so\nmodule sndfile.so\nmodule_app account.so\nmodule_app menu.so\n\
+         module_app ctrl_tcp.so\nctrl_tcp_listen 127.0.0.1:{control}\nsnd_path {}\n",
+        source.display(),
+        heard.display()
+    );
+    std::fs::write(home.join("config"), config).unwrap();
+    std::fs::write(home.join("accounts"), format!("{account}\n")).unwrap();
+    let baresip = Peer::spawn_logged("baresip", Command::new("baresip").arg("-f").arg(&home));
+    assert!(
+        baresip.wait_for("baresip is ready", Duration::from_secs(10)),
+        "baresip did not start: {}",
+        baresip.text()
+    );
+    baresip
+}
+
+/// A command to baresip's ctrl_tcp (a netstring of JSON).
+fn tell_baresip(control: u16, command: &str, params: &str) {
+    let json = format!(r#"{{"command":"{command}","params":"{params}","token":"t"}}"#);
+    let mut stream = TcpStream::connect(("127.0.0.1", control)).unwrap();
+    stream
+        .write_all(format!("{}:{json},", json.len()).as_bytes())
+        .unwrap();
+}
+
+/// The WAV sndfile wrote for the audio baresip decoded.
+fn baresip_heard(dir: &Path) -> PathBuf {
+    std::fs::read_dir(dir.join("heard"))
+        .unwrap()
+        .filter_map(Result::ok)
+        .map(|e| e.path())
+        .find(|p| p.to_string_lossy().ends_with("-dec.wav"))
+        .expect("baresip dumped what it heard")
+}
+
+/// The median, over quarter seconds of speech from 1 s to 4 s, of the SNR of `heard` against
+/// `sent` at the lag where each quarter agrees best (the jitter buffer may drop or stretch a
+/// frame now and then, which moves the lag), beside the same for a perfect G.711 round trip.
+fn median_snr(sent: &[i16], heard: &[i16]) -> (f64, f64) {
+    const QUARTER: usize = 2000;
+    let round_trip = mulaw_round_trip(sent);
+    let mut ours = Vec::new();
+    let mut g711 = Vec::new();
+    for from in (8000..32000).step_by(QUARTER) {
+        let piece = &sent[from..from + QUARTER];
+        let power = piece.iter().map(|&s| f64::from(s).powi(2)).sum::<f64>() / QUARTER as f64;
+        if power < 1e4 {
+            // Silence: nothing to compare.
+            continue;
+        }
+        let (lag, _) = best_alignment(sent, heard, from, QUARTER, 1600);
+        let start = usize::try_from(from as isize + lag).unwrap_or(0);
+        ours.push(common::snr_db(piece, &heard[start.min(heard.len())..]));
+        g711.push(common::snr_db(piece, &round_trip[from..]));
+    }
+    assert!(
+        ours.len() >= 6,
+        "too little speech to compare: {}",
+        ours.len()
+    );
+    let median = |v: &mut Vec<f64>| {
+        v.sort_by(f64::total_cmp);
+        v[v.len() / 2]
+    };
+    (median(&mut ours), median(&mut g711))
+}
+
+/// The strongest correlation (in absolute value) between a viseme column of WEIGHTS.csv and
+/// the energy of the frames of `audio` its rows name.
+fn weights_following_speech(csv: &str, audio: &[i16]) -> f64 {
+    let rows: Vec<Vec<f64>> = csv
+        .lines()
+        .skip(1)
+        .map(|l| l.split(',').map(|v| v.parse().unwrap()).collect())
+        .collect();
+    assert!(rows.len() > 200, "{} rows of weights", rows.len());
+    let energy: Vec<f64> = rows
+        .iter()
+        .map(|r| {
+            let at = r[0] as usize * 160;
+            let frame = &audio[at.min(audio.len())..(at + 160).min(audio.len())];
+            let power = frame.iter().map(|&s| f64::from(s).powi(2)).sum::<f64>();
+            10.0 * (power / 160.0 + 1.0).log10()
+        })
+        .collect();
+    let correlation = |a: &[f64], b: &[f64]| {
+        let (ma, mb) = (
+            a.iter().sum::<f64>() / a.len() as f64,
+            b.iter().sum::<f64>() / b.len() as f64,
+        );
+        let cov: f64 = a.iter().zip(b).map(|(x, y)| (x - ma) * (y - mb)).sum();
+        let va: f64 = a.iter().map(|x| (x - ma).powi(2)).sum();
+        let vb: f64 = b.iter().map(|y| (y - mb).powi(2)).sum();
+        cov / (va * vb).sqrt().max(1e-12)
+    };
+    (2..rows[0].len())
+        .map(|c| {
+            let column: Vec<f64> = rows.iter().map(|r| r[c]).collect();
+            correlation(&column, &energy).abs()
+        })
+        .fold(0.0, f64::max)
+}
+
+fn reversed_8k(dir: &Path) -> PathBuf {
+    let out = dir.join("reversed8k.wav");
+    common::run(
+        Command::new("sox")
+            .arg(common::demo_8k(dir))
+            .arg(&out)
+            .arg("reverse"),
+    );
+    out
+}
+
+#[test]
+fn lipcall_registers_with_kamailio_calls_baresip_and_hears_it() {
+    if !have(&["kamailio", "baresip", "sox"]) {
+        return;
+    }
+    let dir = tempfile::tempdir().unwrap();
+    let (kam_port, bob_port, control) = (free_port(false), free_port(false), free_port(false));
+    let _kamailio = kamailio(dir.path(), kam_port, "");
+    let bob_speech = reversed_8k(dir.path());
+    let bob = baresip(
+        dir.path(),
+        bob_port,
+        control,
+        &format!(
+            "<sip:bob@127.0.0.1:{kam_port}>;auth_pass={PASSWORD};answermode=auto;regint=60;audio_codecs=PCMU"
+        ),
+        &bob_speech,
+    );
+    assert!(
+        bob.wait_for("200 OK", Duration::from_secs(10)),
+        "baresip did not register: {}",
+        bob.text()
+    );
+    let heard = dir.path().join("lipcall-heard.wav");
+    let weights = dir.path().join("weights.csv");
+    let ours = common::demo_8k(dir.path());
+    let out = common::lipcall()
+        .args(["sip", "call", &format!("sip:bob@127.0.0.1:{kam_port}")])
+        .arg("--play")
+        .arg(&ours)
+        .args(["--account", &format!("sip:alice@127.0.0.1:{kam_port}")])
+        .args([
+            "--password",
+            PASSWORD,
+            "--codec",
+            "pcmu",
+            "--dtmf",
+            "1#9",
+            "--seconds",
+            "6",
+        ])
+        .arg("--wav")
+        .arg(&heard)
+        .arg("--weights")
+        .arg(&weights)
+        .output()
+        .unwrap();
+    let log = String::from_utf8_lossy(&out.stderr).into_owned();
+    assert!(out.status.success(), "{log}\nbaresip: {}", bob.text());
+    assert!(
+        log.contains(&format!("registered with 127.0.0.1:{kam_port}")),
+        "{log}"
+    );
+    assert!(
+        !log.contains(PASSWORD),
+        "the password is never shown: {log}"
+    );
+
+    // Our BYE ended baresip's call too; our DTMF reached it.
+    assert!(
+        bob.wait_for("session closed", Duration::from_secs(5)),
+        "baresip: {}",
+        bob.text()
+    );
+    let bob_log = bob.text();
+    for key in ['1', '#', '9'] {
+        assert!(
+            bob_log.contains(&format!("received event: '{key}' (end=1)")),
+            "DTMF {key} did not reach baresip: {bob_log}"
+        );
+    }
+
+    // What we heard is baresip's speech, as good as G.711 carries it.
+    let (_, sent) = common::read_wav_i16(&bob_speech);
+    let (_, got) = common::read_wav_i16(&heard);
+    let (snr, g711) = median_snr(&sent, &got);
+    eprintln!("SNR {snr:.2} dB; a G.711 round trip of the same WAV: {g711:.2} dB");
+    assert!(
+        snr >= g711 - 1.0,
+        "SNR {snr:.2} dB against G.711's {g711:.2} dB"
+    );
+    // Baresip heard ours.
+    let (_, ours_sent) = common::read_wav_i16(&ours);
+    let (_, bob_got) = common::read_wav_i16(&baresip_heard(dir.path()));
+    let (_, corr) = best_alignment(&ours_sent, &bob_got, 8000, 8000, 4000);
+    assert!(corr > 0.95, "baresip did not hear our speech: {corr:.3}");
+
+    // The weights move with the speech: some viseme follows the loudness of what we heard.
+    let csv = std::fs::read_to_string(&weights).unwrap();
+    let moving = weights_following_speech(&csv, &got);
+    assert!(
+        moving > 0.5,
+        "no viseme weight follows the speech (best |r| {moving:.2})"
+    );
+}
+
+#[test]
+fn baresip_calls_lipcall_which_answers_until_baresip_hangs_up() {
+    if !have(&["baresip", "sox"]) {
+        return;
+    }
+    let dir = tempfile::tempdir().unwrap();
+    let (lipcall_port, bob_port, control) = (free_port(false), free_port(false), free_port(false));
+    let heard = dir.path().join("lipcall-heard.wav");
+    let ours = common::demo_8k(dir.path());
+    let answer = Peer::spawn_logged(
+        "lipcall sip answer",
+        common::lipcall()
+            .args([
+                "sip",
+                "answer",
+                "--listen",
+                &format!("127.0.0.1:{lipcall_port}"),
+            ])
+            .arg("--play")
+            .arg(&ours)
+            .args(["--seconds", "30"])
+            .arg("--wav")
+            .arg(&heard),
+    );
+    assert!(
+        answer.wait_for("SIP on", Duration::from_secs(10)),
+        "{}",
+        answer.text()
+    );
+    let bob_speech = reversed_8k(dir.path());
+    let bob = baresip(
+        dir.path(),
+        bob_port,
+        control,
+        "<sip:bob@127.0.0.1>;regint=0;audio_codecs=PCMU",
+        &bob_speech,
+    );
+    tell_baresip(
+        control,
+        "dial",
+        &format!("sip:lipcall@127.0.0.1:{lipcall_port}"),
+    );
+    assert!(
+        answer.wait_for("in a SIP call", Duration::from_secs(10)),
+        "lipcall did not answer: {}\nbaresip: {}",
+        answer.text(),
+        bob.text()
+    );
+    std::thread::sleep(Duration::from_secs(4));
+    tell_baresip(control, "hangup", "");
+    // lipcall ends on baresip's BYE, well before its 30 s.
+    let mut answer = answer;
+    let mut child = answer.peer.child.take().unwrap();
+    let deadline = std::time::Instant::now() + Duration::from_secs(8);
+    let status = loop {
+        if let Some(status) = child.try_wait().unwrap() {
+            break status;
+        }
+        assert!(
+            std::time::Instant::now() < deadline,
+            "lipcall did not end: {}",
+            answer.text()
+        );
+        std::thread::sleep(Duration::from_millis(50));
+    };
+    std::thread::sleep(Duration::from_millis(200));
+    let log = answer.text();
+    assert!(status.success(), "{log}");
+    assert!(log.contains("the peer hung up"), "{log}");
+
+    // Both directions heard.
+    let (_, sent) = common::read_wav_i16(&bob_speech);
+    let (_, got) = common::read_wav_i16(&heard);
+    assert!(
+        got.len() > 3 * 8000,
+        "lipcall heard {} samples: {log}",
+        got.len()
+    );
+    let (_, corr) = best_alignment(&sent, &got, 8000, 16000, 1600);
+    assert!(corr > 0.95, "lipcall did not hear baresip: {corr:.3}");
+    let (_, ours_sent) = common::read_wav_i16(&ours);
+    let (_, bob_got) = common::read_wav_i16(&baresip_heard(dir.path()));
+    let (_, corr) = best_alignment(&ours_sent, &bob_got, 8000, 8000, 4000);
+    assert!(corr > 0.95, "baresip did not hear lipcall: {corr:.3}");
+}
+
+#[test]
+fn a_wrong_password_is_refused_clearly() {
+    if !have(&["kamailio"]) {
+        return;
+    }
+    let dir = tempfile::tempdir().unwrap();
+    let port = free_port(false);
+    let _kamailio = kamailio(dir.path(), port, "");
+    let started = std::time::Instant::now();
+    let out = common::lipcall()
+        .args(["sip", "call", &format!("sip:bob@127.0.0.1:{port}")])
+        .arg("--play")
+        .arg(common::demo_8k(dir.path()))
+        .args(["--account", &format!("sip:alice@127.0.0.1:{port}")])
+        .args(["--password", "not-the-password", "--seconds", "20"])
+        .output()
+        .unwrap();
+    let log = String::from_utf8_lossy(&out.stderr).into_owned();
+    assert_eq!(out.status.code(), Some(1), "{log}");
+    assert!(
+        log.contains("refused our credentials: wrong user name or password"),
+        "{log}"
+    );
+    assert!(!log.contains("not-the-password"), "{log}");
+    assert!(
+        started.elapsed() < Duration::from_secs(5),
+        "{:?}",
+        started.elapsed()
+    );
+}
+
+#[test]
+fn sip_answer_registers_with_sha256_refreshes_and_is_reached_through_kamailio() {
+    if !have(&["kamailio", "baresip", "sox"]) {
+        return;
+    }
+    let dir = tempfile::tempdir().unwrap();
+    let (kam_port, lipcall_port) = (free_port(false), free_port(false));
+    let (bob_port, control) = (free_port(false), free_port(false));
+    // SHA-256 digests, and bindings of 20 s: only a refresh keeps lipcall reachable past them.
+    let _kamailio = kamailio(
+        dir.path(),
+        kam_port,
+        "modparam(\"auth\", \"algorithm\", \"SHA-256\")\n\
+         modparam(\"registrar\", \"max_expires\", 20)\n\
+         modparam(\"registrar\", \"min_expires\", 20)",
+    );
+    let heard = dir.path().join("lipcall-heard.wav");
+    let answer = Peer::spawn_logged(
+        "lipcall sip answer",
+        common::lipcall()
+            .args([
+                "sip",
+                "answer",
+                "--listen",
+                &format!("127.0.0.1:{lipcall_port}"),
+            ])
+            .arg("--play")
+            .arg(common::demo_8k(dir.path()))
+            .args(["--account", &format!("sip:alice@127.0.0.1:{kam_port}")])
+            .args(["--password", PASSWORD, "--seconds", "60"])
+            .arg("--wav")
+            .arg(&heard),
+    );
+    assert!(
+        answer.wait_for("registered with", Duration::from_secs(10)),
+        "{}",
+        answer.text()
+    );
+    std::thread::sleep(Duration::from_secs(23));
+    let bob_speech = reversed_8k(dir.path());
+    let bob = baresip(
+        dir.path(),
+        bob_port,
+        control,
+        "<sip:bob@127.0.0.1>;regint=0;audio_codecs=PCMU",
+        &bob_speech,
+    );
+    tell_baresip(control, "dial", &format!("sip:alice@127.0.0.1:{kam_port}"));
+    assert!(
+        answer.wait_for("in a SIP call", Duration::from_secs(10)),
+        "lipcall was not reached through kamailio: {}\nbaresip: {}",
+        answer.text(),
+        bob.text()
+    );
+    std::thread::sleep(Duration::from_secs(3));
+    tell_baresip(control, "hangup", "");
+    assert!(
+        answer.wait_for("the peer hung up", Duration::from_secs(8)),
+        "{}",
+        answer.text()
+    );
+    let (_, sent) = common::read_wav_i16(&bob_speech);
+    let (_, got) = common::read_wav_i16(&heard);
+    let (_, corr) = best_alignment(&sent, &got, 8000, 8000, 1600);
+    assert!(corr > 0.95, "lipcall did not hear baresip: {corr:.3}");
+}
