@@ -6,4 +6,5 @@ pub mod csv;
 pub mod janus;
 pub mod link;
 pub mod media;
+pub mod mumble;
 pub mod pipeline;

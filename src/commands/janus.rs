@@ -119,6 +119,8 @@ pub struct SendCommand {
     #[arg(long, value_name = "URL", conflicts_with_all = ["to", "key_hex", "codec", "ssrc"],
           requires = "room", display_order = 1)]
     pub janus: Option<String>,
+    #[command(flatten)]
+    pub mumble: super::mumble::MumbleFlags,
 }
 
 /// `lipcall receive`'s flags: direct callers or a relay room, or with `--janus` a Janus room.
@@ -132,6 +134,8 @@ pub struct ReceiveCommand {
     #[arg(long, value_name = "URL", conflicts_with_all = ["listen", "relay", "key_hex"],
           requires = "room", display_order = 1)]
     pub janus: Option<String>,
+    #[command(flatten)]
+    pub mumble: super::mumble::MumbleFlags,
 }
 
 #[derive(Debug, Clone)]
@@ -206,6 +210,11 @@ pub fn receive_with(
 /// `lipcall send`: into the Janus room of `--janus`, or to `--to`.
 pub fn send_command(command: &SendCommand) -> Result<()> {
     let call = &command.call;
+    if let Some(mumble) =
+        super::mumble::MumbleArgs::from_flags(&command.mumble, call.name.as_deref())
+    {
+        return super::mumble::send(&call.input, &mumble);
+    }
     match &command.janus {
         Some(url) => send(
             &call.input,
@@ -223,6 +232,17 @@ pub fn send_command(command: &SendCommand) -> Result<()> {
 /// `lipcall receive`: from the Janus room of `--janus`, or on `--listen`.
 pub fn receive_command(command: &ReceiveCommand) -> Result<()> {
     let call = &command.call;
+    if let Some(mumble) =
+        super::mumble::MumbleArgs::from_flags(&command.mumble, call.name.as_deref())
+    {
+        return super::mumble::receive(&super::mumble::MumbleReceiveArgs {
+            mumble,
+            wav: call.wav.clone(),
+            weights: call.weights.clone(),
+            features: call.features.clone(),
+            seconds: call.seconds,
+        });
+    }
     match &command.janus {
         Some(url) => receive(&JanusReceiveArgs {
             janus: JanusArgs {

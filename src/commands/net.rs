@@ -139,7 +139,7 @@ pub struct SendArgs {
     #[arg(
         long,
         value_name = "HOST:PORT",
-        required_unless_present = "janus",
+        required_unless_present_any = ["janus", "mumble"],
         default_value = "",
         hide_default_value = true
     )]
@@ -307,7 +307,7 @@ pub struct ReceiveArgs {
     #[arg(
         long,
         value_name = "HOST:PORT",
-        required_unless_present = "janus",
+        required_unless_present_any = ["janus", "mumble"],
         default_value = "",
         hide_default_value = true
     )]
