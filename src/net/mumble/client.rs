@@ -37,6 +37,8 @@ pub const ANNOUNCED_VERSION: u32 = messages::version(1, 3, 4);
 const PING_INTERVAL: Duration = Duration::from_secs(5);
 /// UDP counts as working while a datagram came back within this.
 const UDP_FRESH: Duration = Duration::from_secs(12);
+/// How long the first UDP ping may take to come back before the tunnel is used.
+const FIRST_PING_ANSWER: Duration = Duration::from_secs(1);
 /// At most one request for fresh nonces in this.
 const RESYNC_EVERY: Duration = Duration::from_secs(5);
 /// Bytes of a UDP datagram buffer (Mumble's own limit is 1024).
@@ -55,9 +57,13 @@ pub struct ClientCore {
     connected: bool,
     channels: BTreeMap<u32, Channel>,
     users: BTreeMap<u32, User>,
+    /// Speakers of earlier connections (for the summary).
+    departed: Vec<(u32, String, ReceiverStats)>,
     crypt: Option<CryptState>,
     udp_heard: Option<Instant>,
     udp_working: bool,
+    /// A UDP ping went out on this connection.
+    pinged_once: bool,
     next_ping: Instant,
     resync_asked: Option<Instant>,
     send_sequence: u64,
@@ -90,9 +96,11 @@ impl ClientCore {
             connected: false,
             channels: BTreeMap::new(),
             users: BTreeMap::new(),
+            departed: Vec::new(),
             crypt: None,
             udp_heard: None,
             udp_working: false,
+            pinged_once: false,
             next_ping: now,
             resync_asked: None,
             send_sequence: 0,
@@ -103,7 +111,7 @@ impl ClientCore {
     }
 
     /// A TLS connection is up: say who we are. Everything of an earlier connection (session,
-    /// keys, users) is forgotten; speakers still playing play out.
+    /// keys, users) is forgotten.
     pub fn connected(&mut self, now: Instant) {
         self.deframer = Deframer::default();
         self.control.clear();
@@ -114,9 +122,12 @@ impl ClientCore {
         self.set_udp(false);
         self.fatal = None;
         self.channels.clear();
-        for user in self.users.values_mut() {
-            user.gone = true;
-        }
+        // Session ids start afresh on a restarted server: an old speaker's id may be a new
+        // one's. (What was still buffered of the old ones is dropped; the loss cut it anyway.)
+        let spoke = std::mem::take(&mut self.users)
+            .into_iter()
+            .filter_map(|(s, u)| Some((s, u.name.clone(), u.stats()?)));
+        self.departed.extend(spoke);
         self.push(
             MessageType::Version,
             &Version {
@@ -261,8 +272,11 @@ impl ClientCore {
                 }
             }
         }
-        // A first UDP ping right away: voice takes UDP as soon as it comes back.
+        // A first UDP ping right away: voice takes UDP as soon as it comes back. If none has
+        // come back within a second, the next goes through the tunnel as well.
+        self.pinged_once = false;
         self.udp_ping(now);
+        self.next_ping = now + FIRST_PING_ANSWER;
         let channel = self.channel_name(self.own_channel());
         self.events.push_back(ClientEvent::Synced {
             session,
@@ -423,12 +437,20 @@ impl ClientCore {
         }
     }
 
+    /// Pings the server by UDP and, while UDP is not working, through the tunnel too: the
+    /// server sends voice to the address its last UDP packet came from, and through the
+    /// tunnel once it gets a tunnelled one (murmur starts out sending by UDP, to an address
+    /// we might not be reachable at).
     fn udp_ping(&mut self, now: Instant) {
-        if self.config.tcp_only {
-            return;
-        }
         let timestamp = now.saturating_duration_since(self.epoch).as_micros() as u64;
-        self.send_datagram(&voice::ping(timestamp));
+        let packet = voice::ping(timestamp);
+        if !self.config.tcp_only {
+            self.send_datagram(&packet);
+        }
+        if !self.udp_working && (self.config.tcp_only || self.pinged_once) {
+            self.control.push_back(messages::tunnel(&packet));
+        }
+        self.pinged_once = true;
     }
 
     fn send_datagram(&mut self, plain: &[u8]) -> bool {
@@ -491,7 +513,7 @@ impl ClientCore {
         if self.udp_working && !self.config.tcp_only && self.send_datagram(&packet) {
             self.stats.udp_sent += 1;
         } else {
-            self.push(MessageType::UdpTunnel, &messages::UdpTunnel { packet });
+            self.control.push_back(messages::tunnel(&packet));
             self.stats.tunnel_sent += 1;
         }
         Ok(())
@@ -556,16 +578,19 @@ impl ClientCore {
         }
     }
 
-    /// Every user who has spoken: session, name, reception, whether they left.
+    /// Every user who has spoken (on this connection and earlier ones): session, name,
+    /// reception, whether they left.
     pub fn speakers(&self) -> Vec<(u32, String, ReceiverStats, bool)> {
         let own = self.own_channel();
-        self.users
+        let earlier = self
+            .departed
             .iter()
-            .filter_map(|(&s, u)| {
-                let stats = u.stats()?;
-                Some((s, u.name.clone(), stats, u.gone || u.channel != own))
-            })
-            .collect()
+            .map(|(s, name, stats)| (*s, name.clone(), *stats, true));
+        let now = self.users.iter().filter_map(|(&s, u)| {
+            let stats = u.stats()?;
+            Some((s, u.name.clone(), stats, u.gone || u.channel != own))
+        });
+        earlier.chain(now).collect()
     }
 
     /// The name of a user we know.
@@ -573,16 +598,15 @@ impl ClientCore {
         self.users.get(&session).map(|u| u.name.as_str())
     }
 
-    /// Drops users who left and whose audio has played out.
+    /// Drops users who left without a word (speakers stay for the summary).
     fn forget_gone(&mut self) {
-        self.users.retain(|_, u| !(u.gone && u.played_out()));
+        self.users.retain(|_, u| !(u.gone && u.stats().is_none()));
     }
 }
 
-impl SansIo for ClientCore {
-    const BUFFER: usize = DATAGRAM;
-
-    fn handle_datagram(&mut self, data: &[u8], from: SocketAddr, now: Instant) {
+impl ClientCore {
+    /// A UDP datagram from `from`.
+    pub fn datagram(&mut self, data: &[u8], from: SocketAddr, now: Instant) {
         if from != self.server || self.config.tcp_only {
             return;
         }
@@ -615,11 +639,13 @@ impl SansIo for ClientCore {
         }
     }
 
-    fn poll_timeout(&self) -> Instant {
+    /// When [`Self::wake`] is next due.
+    pub fn next_wake(&self) -> Instant {
         self.next_ping
     }
 
-    fn handle_timeout(&mut self, now: Instant) {
+    /// Pings and checks on UDP, when due.
+    pub fn wake(&mut self, now: Instant) {
         if now < self.next_ping {
             return;
         }
@@ -653,8 +679,30 @@ impl SansIo for ClientCore {
         self.udp_ping(now);
     }
 
-    fn poll_transmit(&mut self) -> Option<Transmit> {
+    /// The next datagram to send.
+    pub fn next_transmit(&mut self) -> Option<Transmit> {
         self.datagrams.pop_front()
+    }
+}
+
+/// The UDP socket thread drives the core through its inherent methods.
+impl SansIo for ClientCore {
+    const BUFFER: usize = DATAGRAM;
+
+    fn handle_datagram(&mut self, data: &[u8], from: SocketAddr, now: Instant) {
+        self.datagram(data, from, now);
+    }
+
+    fn poll_timeout(&self) -> Instant {
+        self.next_wake()
+    }
+
+    fn handle_timeout(&mut self, now: Instant) {
+        self.wake(now);
+    }
+
+    fn poll_transmit(&mut self) -> Option<Transmit> {
+        self.next_transmit()
     }
 
     fn transmitted(&mut self, _transmit: Transmit, sent: bool) {

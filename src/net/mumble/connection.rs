@@ -164,7 +164,19 @@ fn open_tls(
     let host = server.rsplit_once(':').map_or(server, |(h, _)| h);
     let stream = config
         .connect(host.trim_matches(['[', ']']), tcp)
-        .map_err(|e| tls_error(e.to_string()))?;
+        .map_err(|e| {
+            let reason = e.to_string();
+            if reason.to_ascii_lowercase().contains("unexpected eof") {
+                // murmur drops a connection before TLS when every session slot is taken.
+                MumbleError::Rejected(
+                    "the server closed the connection before TLS: the server is full (or it \
+                     bans this address)"
+                        .into(),
+                )
+            } else {
+                tls_error(reason)
+            }
+        })?;
     let certificate = stream
         .ssl()
         .peer_certificate()

@@ -69,12 +69,6 @@ pub struct Version {
 }
 
 #[derive(Clone, PartialEq, prost::Message)]
-pub struct UdpTunnel {
-    #[prost(bytes = "vec", tag = "1")]
-    pub packet: Vec<u8>,
-}
-
-#[derive(Clone, PartialEq, prost::Message)]
 pub struct Authenticate {
     #[prost(string, optional, tag = "1")]
     pub username: Option<String>,
@@ -297,7 +291,8 @@ impl Incoming {
         };
         Ok(match known {
             T::Version => Self::Version(decode("Version", body)?),
-            T::UdpTunnel => Self::UdpTunnel(decode::<UdpTunnel>("UDPTunnel", body)?.packet),
+            // Not protobuf: the voice packet itself, as it would travel by UDP.
+            T::UdpTunnel => Self::UdpTunnel(body.to_vec()),
             T::Ping => Self::Ping(decode("Ping", body)?),
             T::Reject => Self::Reject(decode("Reject", body)?),
             T::ServerSync => Self::ServerSync(decode("ServerSync", body)?),
@@ -317,12 +312,21 @@ impl Incoming {
 
 /// One message framed for the TLS stream.
 pub fn frame(kind: MessageType, message: &impl prost::Message) -> Vec<u8> {
-    let body = message.encode_to_vec();
+    frame_bytes(kind, &message.encode_to_vec())
+}
+
+/// A voice packet framed as a UDPTunnel message (whose body is the packet itself, not
+/// protobuf).
+pub fn tunnel(packet: &[u8]) -> Vec<u8> {
+    frame_bytes(MessageType::UdpTunnel, packet)
+}
+
+fn frame_bytes(kind: MessageType, body: &[u8]) -> Vec<u8> {
     let mut out = Vec::with_capacity(HEADER + body.len());
     out.extend_from_slice(&(kind as u16).to_be_bytes());
     // Our own messages are small (a voice packet, a name): far below u32::MAX.
     out.extend_from_slice(&u32::try_from(body.len()).unwrap_or(u32::MAX).to_be_bytes());
-    out.extend_from_slice(&body);
+    out.extend_from_slice(body);
     out
 }
 

@@ -50,3 +50,6 @@ pub enum MumbleError {
     #[error("{0}")]
     Io(#[from] std::io::Error),
 }
+
+#[cfg(test)]
+mod tests;

@@ -114,11 +114,6 @@ impl User {
     pub fn stats(&self) -> Option<ReceiverStats> {
         self.receiver.as_ref().map(PeerReceiver::stats)
     }
-
-    /// Nothing of this user's is left to play.
-    pub fn played_out(&mut self) -> bool {
-        self.receiver.as_mut().is_none_or(|r| r.jitter().idle())
-    }
 }
 
 #[cfg(test)]
