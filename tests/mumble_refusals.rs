@@ -38,6 +38,37 @@ fn refused(
     last
 }
 
+/// A `receive --mumble` as `name` that stays in for 30 s; returns once it has joined.
+fn holder(dir: &std::path::Path, who: &str, murmur: &Murmur, name: &str) -> std::process::Child {
+    let log = dir.join(format!("{who}.log"));
+    let child = lipcall_as(dir, who)
+        .args([
+            "receive",
+            "--mumble",
+            &murmur.address(),
+            "--name",
+            name,
+            "--seconds",
+            "30",
+        ])
+        .stderr(std::fs::File::create(&log).unwrap())
+        .spawn()
+        .unwrap();
+    let deadline = Instant::now() + Duration::from_secs(20);
+    while !std::fs::read_to_string(&log)
+        .unwrap_or_default()
+        .contains("joined as")
+    {
+        assert!(
+            Instant::now() < deadline,
+            "{name} did not join: {}",
+            std::fs::read_to_string(&log).unwrap_or_default()
+        );
+        std::thread::sleep(Duration::from_millis(50));
+    }
+    child
+}
+
 #[test]
 fn a_wrong_server_password_is_refused_clearly() {
     if !runs_here("a_wrong_server_password_is_refused_clearly") {
@@ -52,7 +83,7 @@ fn a_wrong_server_password_is_refused_clearly() {
 }
 
 #[test]
-fn a_full_server_and_a_name_in_use_are_refused_clearly() {
+fn a_full_server_a_name_taken_over_and_a_refused_name_are_said_clearly() {
     if !runs_here("a_full_server_and_a_name_in_use_are_refused_clearly") {
         return;
     }
@@ -82,9 +113,11 @@ fn a_full_server_and_a_name_in_use_are_refused_clearly() {
     let _ = first.kill();
     let _ = first.wait();
 
-    // On a server with room, the name itself is what is refused.
-    let roomy = Murmur::start(&dir.path().join("roomy"), "");
-    let mut holder = lipcall_as(dir.path(), "first")
+    // On a server with room, a name in use from the same address counts as a reconnect of
+    // a ghost: murmur removes the older session. That one says so and ends, status 1.
+    let roomy = Murmur::start(&dir.path().join("roomy"), "username=[A-Za-z]+");
+    let ghost = holder(dir.path(), "first-roomy", &roomy, "Ann");
+    let mut newer = lipcall_as(dir.path(), "third")
         .args([
             "receive",
             "--mumble",
@@ -97,13 +130,21 @@ fn a_full_server_and_a_name_in_use_are_refused_clearly() {
         .stderr(std::process::Stdio::null())
         .spawn()
         .unwrap();
-    std::thread::sleep(Duration::from_secs(2));
-    let taken = refused(dir.path(), "third", &roomy, "Ann", &[]);
-    assert!(taken.contains("name is in use"), "{taken}");
-    let bad = refused(dir.path(), "third", &roomy, "", &[]);
+    let start = Instant::now();
+    let out = ghost.wait_with_output().unwrap();
+    let _ = newer.kill();
+    let _ = newer.wait();
+    let log = std::fs::read_to_string(dir.path().join("first-roomy.log")).unwrap();
+    assert_eq!(out.status.code(), Some(1), "{log}");
+    assert!(start.elapsed() < Duration::from_secs(20), "{log}");
+    assert!(log.contains("the Mumble server removed us"), "{log}");
+    assert!(
+        !log.contains("reconnecting"),
+        "a removed client does not fight back: {log}"
+    );
+    // A name the server's rule refuses.
+    let bad = refused(dir.path(), "third", &roomy, "Ann 2", &[]);
     assert!(bad.contains("does not accept this name"), "{bad}");
-    let _ = holder.kill();
-    let _ = holder.wait();
 }
 
 #[test]

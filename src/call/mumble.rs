@@ -43,6 +43,8 @@ pub struct MumbleLink {
     heard: bool,
     /// What the server said that is no [`LinkEvent`] (refusals, text messages, UDP state).
     notes: Vec<String>,
+    /// The server removed us: why (the call is over).
+    removed: Option<String>,
 }
 
 impl MumbleLink {
@@ -60,6 +62,7 @@ impl MumbleLink {
             place,
             heard: false,
             notes: Vec::new(),
+            removed: None,
         }
     }
 
@@ -69,6 +72,11 @@ impl MumbleLink {
 
     pub fn place(&self) -> &str {
         &self.place
+    }
+
+    /// Why the server removed us, if it did.
+    pub fn removed(&self) -> Option<&str> {
+        self.removed.as_deref()
     }
 
     /// What the server said since the last call that no [`LinkEvent`] carries.
@@ -91,6 +99,10 @@ impl MumbleLink {
             Notice::Rejoined(session) => LinkEvent::Rejoined {
                 id: session.to_string(),
             },
+            Notice::Client(ClientEvent::Removed(reason)) => {
+                self.removed = Some(reason.clone());
+                LinkEvent::Failed(format!("the Mumble server removed us: {reason}"))
+            }
             Notice::Client(ClientEvent::Synced { .. }) => return None,
             Notice::Client(ClientEvent::Rejected(reason)) => {
                 self.notes.push(format!("the server refused us: {reason}"));
@@ -140,8 +152,9 @@ impl Link for MumbleLink {
             .collect()
     }
 
+    /// Everyone who spoke has left, or we were removed.
     fn all_left(&self) -> bool {
-        self.heard && self.connection.speakers().iter().all(|s| s.3)
+        self.removed.is_some() || (self.heard && self.connection.speakers().iter().all(|s| s.3))
     }
 
     fn send_frames(&mut self, payload: &[u8], frames: u32) {

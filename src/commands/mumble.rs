@@ -4,12 +4,13 @@
 //! sync) with the same outputs, one WAV and CSV per speaker.
 
 use std::path::{Path, PathBuf};
+use std::sync::atomic::{AtomicBool, Ordering};
 use std::time::{Duration, Instant};
 
 use anyhow::{Context, Result, bail};
 
 use super::net::{load_packets, open_outputs, play, print_peer, send_paced};
-use super::recording::stop_flag;
+use super::recording::{stop_flag, stopped};
 use crate::call::link::{Link, LinkEvent};
 use crate::call::mumble::MumbleLink;
 use crate::codec::any::{Codec, EncoderSettings};
@@ -87,6 +88,9 @@ fn print_notice(notice: &Notice) {
         }
         Notice::Client(ClientEvent::Rejected(reason)) => {
             eprintln!("lipcall: the Mumble server refused us: {reason}")
+        }
+        Notice::Client(ClientEvent::Removed(reason)) => {
+            eprintln!("lipcall: the Mumble server removed us: {reason}")
         }
         Notice::Client(ClientEvent::Denied(reason)) => {
             eprintln!("lipcall: the Mumble server refused: {reason}")
@@ -190,6 +194,9 @@ pub fn send(input: &Path, args: &MumbleArgs) -> Result<()> {
         }
         for notice in connection.poll() {
             print_notice(&notice);
+            if let Notice::Client(ClientEvent::Removed(reason)) = notice {
+                bail!("the Mumble server removed us: {reason}");
+            }
         }
         Ok(())
     })?;
@@ -206,8 +213,10 @@ pub fn send(input: &Path, args: &MumbleArgs) -> Result<()> {
     Ok(())
 }
 
-/// A Mumble link whose events are told in Mumble's words as the receive loop polls them.
-struct Told<'a>(&'a mut MumbleLink);
+/// A Mumble link whose events are told in Mumble's words as the receive loop polls them. The
+/// loop's stop flag is ours: a signal (the process's flag) sets it, and so does the server
+/// removing us.
+struct Told<'a>(&'a mut MumbleLink, &'a AtomicBool, &'a AtomicBool);
 
 impl Link for Told<'_> {
     fn pull(&mut self, now: Instant, out: &mut Vec<PeerFrame>) {
@@ -232,6 +241,9 @@ impl Link for Told<'_> {
         self.0.leave();
     }
     fn poll(&mut self) -> Vec<LinkEvent> {
+        if stopped(self.1) {
+            self.2.store(true, Ordering::Relaxed);
+        }
         for event in self.0.poll() {
             match event {
                 LinkEvent::PeerJoined { id, name } => {
@@ -250,7 +262,10 @@ impl Link for Told<'_> {
                     eprintln!("lipcall: back on the Mumble server as session {id}")
                 }
                 LinkEvent::Joined { place, id } => eprintln!("lipcall: in {place} as {id}"),
-                LinkEvent::Failed(reason) => eprintln!("lipcall: the call failed: {reason}"),
+                LinkEvent::Failed(reason) => {
+                    eprintln!("lipcall: {reason}; ending the receive");
+                    self.2.store(true, Ordering::Relaxed);
+                }
             }
         }
         for note in self.0.take_notes() {
@@ -288,13 +303,14 @@ pub fn receive(args: &MumbleReceiveArgs) -> Result<()> {
         connection.server()
     );
     let mut link = MumbleLink::joined(connection, place);
+    let ended = AtomicBool::new(false);
     let played = play(
-        &mut Told(&mut link),
+        &mut Told(&mut link, &stop, &ended),
         args.seconds,
         model.as_ref(),
         &mut |_, _, _| {},
         &mut recorder,
-        &stop,
+        &ended,
     );
     let stats = link.connection().stats();
     eprintln!(
@@ -313,5 +329,9 @@ pub fn receive(args: &MumbleReceiveArgs) -> Result<()> {
     }
     link.leave();
     let finished = recorder.finish();
-    played.and(finished)
+    played.and(finished)?;
+    match link.removed() {
+        Some(reason) => bail!("the Mumble server removed us: {reason}"),
+        None => Ok(()),
+    }
 }

@@ -68,6 +68,9 @@ pub struct ClientCore {
     resync_asked: Option<Instant>,
     send_sequence: u64,
     welcome: String,
+    /// The server removed us (kicked, banned, or the same name connected from this address):
+    /// why. Not rejoined.
+    kicked: Option<String>,
     /// A protocol error that ends the connection.
     fatal: Option<MumbleError>,
     pub stats: ClientStats,
@@ -105,6 +108,7 @@ impl ClientCore {
             resync_asked: None,
             send_sequence: 0,
             welcome: String::new(),
+            kicked: None,
             fatal: None,
             stats: ClientStats::default(),
         }
@@ -185,6 +189,11 @@ impl ClientCore {
         }
     }
 
+    /// Why the server removed us, if it did.
+    pub fn kicked(&self) -> Option<&str> {
+        self.kicked.as_deref()
+    }
+
     /// A stream error that ends the connection (a frame too large to trust the rest).
     pub fn take_fatal(&mut self) -> Option<MumbleError> {
         self.fatal.take()
@@ -210,11 +219,16 @@ impl ClientCore {
                 }
             }
             Incoming::UserState(u) => self.user_state(u, now),
-            Incoming::UserRemove(u) => {
-                if let Some(session) = u.session {
-                    self.user_left(session);
+            Incoming::UserRemove(u) => match u.session {
+                Some(session) if Some(session) == self.session => {
+                    let reason = u.reason.filter(|r| !r.is_empty());
+                    let why = reason.unwrap_or_else(|| "no reason given".into());
+                    self.kicked = Some(why.clone());
+                    self.events.push_back(ClientEvent::Removed(why));
                 }
-            }
+                Some(session) => self.user_left(session),
+                None => self.stats.malformed += 1,
+            },
             Incoming::CryptSetup(c) => self.crypt_setup(c),
             Incoming::PermissionDenied(d) => {
                 let reason = d

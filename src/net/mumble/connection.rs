@@ -385,8 +385,16 @@ fn run(mut stream: Tls, shared: &Shared, server: &str, identity: &Identity, know
             }
             shared.drain_events();
         };
+        let kicked = shared
+            .driver
+            .access(|core| core.kicked().map(str::to_string));
         shared.driver.access(ClientCore::disconnected);
         shared.drain_events();
+        if kicked.is_some() {
+            // Said by the core's Removed event; coming back would only be refused or kick
+            // the one who took our place.
+            return;
+        }
         shared.notify(Notice::Lost(lost));
         let mut said: Option<String> = None;
         stream = loop {

@@ -25,6 +25,9 @@ pub enum ClientEvent {
     },
     /// The server turned us down; the connection is over.
     Rejected(String),
+    /// The server removed us after the join (kicked, banned, or our name connected again from
+    /// this address); the connection is over and not rejoined.
+    Removed(String),
     /// Someone is in our channel (or came into it).
     UserJoined {
         session: u32,
