@@ -28,7 +28,6 @@ use super::speakers::User;
 use super::voice::{self, ServerPacket};
 use crate::codec::any::PayloadMap;
 use crate::net::peer::{PeerReceiver, ReceiverStats};
-use crate::net::session::driver::SansIo;
 use crate::net::session::{PeerFrame, Transmit, TransmitKind};
 
 /// What we announce: 1.3.4, so that 1.5 servers answer with the legacy voice format.
@@ -41,8 +40,6 @@ const UDP_FRESH: Duration = Duration::from_secs(12);
 const FIRST_PING_ANSWER: Duration = Duration::from_secs(1);
 /// At most one request for fresh nonces in this.
 const RESYNC_EVERY: Duration = Duration::from_secs(5);
-/// Bytes of a UDP datagram buffer (Mumble's own limit is 1024).
-const DATAGRAM: usize = 2048;
 
 /// The protocol state of one server connection (and, after a reconnect, the next).
 pub struct ClientCore {
@@ -696,32 +693,5 @@ impl ClientCore {
     /// The next datagram to send.
     pub fn next_transmit(&mut self) -> Option<Transmit> {
         self.datagrams.pop_front()
-    }
-}
-
-/// The UDP socket thread drives the core through its inherent methods.
-impl SansIo for ClientCore {
-    const BUFFER: usize = DATAGRAM;
-
-    fn handle_datagram(&mut self, data: &[u8], from: SocketAddr, now: Instant) {
-        self.datagram(data, from, now);
-    }
-
-    fn poll_timeout(&self) -> Instant {
-        self.next_wake()
-    }
-
-    fn handle_timeout(&mut self, now: Instant) {
-        self.wake(now);
-    }
-
-    fn poll_transmit(&mut self) -> Option<Transmit> {
-        self.next_transmit()
-    }
-
-    fn transmitted(&mut self, _transmit: Transmit, sent: bool) {
-        if !sent {
-            tracing::debug!("Mumble UDP: a datagram could not be sent");
-        }
     }
 }

@@ -18,7 +18,8 @@ use super::client::{Channel, ClientConfig, ClientCore, ClientEvent, ClientStats}
 use super::identity::{Identity, KnownServers, Trust, fingerprint};
 use crate::net::peer::ReceiverStats;
 use crate::net::session::PeerFrame;
-use crate::net::session::driver::Driver;
+use crate::net::session::Transmit;
+use crate::net::session::driver::{Driver, SansIo};
 
 /// The port Mumble servers listen on unless told otherwise.
 pub const DEFAULT_PORT: u16 = 64738;
@@ -28,6 +29,8 @@ const CONNECT_TIMEOUT: Duration = Duration::from_secs(5);
 /// How long the server may take from our Authenticate to its ServerSync or Reject.
 const JOIN_TIMEOUT: Duration = Duration::from_secs(10);
 const RETRY: Duration = Duration::from_secs(1);
+/// Bytes of a UDP datagram buffer (Mumble's own limit is 1024).
+const DATAGRAM: usize = 2048;
 /// The UDP thread's longest wait.
 const UDP_POLL: Duration = Duration::from_millis(5);
 
@@ -424,6 +427,33 @@ fn run(mut stream: Tls, shared: &Shared, server: &str, identity: &Identity, know
                 }
             }
         };
+    }
+}
+
+/// The UDP socket thread drives the core through its inherent methods.
+impl SansIo for ClientCore {
+    const BUFFER: usize = DATAGRAM;
+
+    fn handle_datagram(&mut self, data: &[u8], from: SocketAddr, now: Instant) {
+        self.datagram(data, from, now);
+    }
+
+    fn poll_timeout(&self) -> Instant {
+        self.next_wake()
+    }
+
+    fn handle_timeout(&mut self, now: Instant) {
+        self.wake(now);
+    }
+
+    fn poll_transmit(&mut self) -> Option<Transmit> {
+        self.next_transmit()
+    }
+
+    fn transmitted(&mut self, _transmit: Transmit, sent: bool) {
+        if !sent {
+            tracing::debug!("Mumble UDP: a datagram could not be sent");
+        }
     }
 }
 
