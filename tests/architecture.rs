@@ -85,14 +85,15 @@ fn listed_flags(command: &str) -> Vec<String> {
 }
 
 /// `--janus` is declared beside the flattened call arguments (`commands::janus::SendCommand`)
-/// and placed after the address by its display order; the help keeps the order it always had.
+/// and placed after the address by its display order; the help keeps the order it always had,
+/// `--mumble` among the first and its own flags after the rest.
 #[test]
 fn send_and_receive_help_keep_their_flag_order() {
     assert_eq!(
         listed_flags("send"),
         [
-            "to", "janus", "key", "key-hex", "name", "room", "codec", "quality", "pt", "no-rtcp",
-            "ssrc",
+            "to", "janus", "key", "mumble", "key-hex", "name", "room", "codec", "quality", "pt",
+            "no-rtcp", "ssrc", "channel", "password", "tcp-only",
         ]
     );
     assert_eq!(
@@ -100,6 +101,7 @@ fn send_and_receive_help_keep_their_flag_order() {
         [
             "listen",
             "janus",
+            "mumble",
             "wav",
             "weights",
             "features",
@@ -112,6 +114,9 @@ fn send_and_receive_help_keep_their_flag_order() {
             "room",
             "name",
             "pt",
+            "channel",
+            "password",
+            "tcp-only",
         ]
     );
 }

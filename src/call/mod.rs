@@ -6,5 +6,6 @@ pub mod csv;
 pub mod janus;
 pub mod link;
 pub mod media;
+pub mod mumble;
 pub mod pipeline;
 pub mod sip;

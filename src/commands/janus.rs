@@ -125,6 +125,8 @@ pub struct SendCommand {
     pub janus: Option<String>,
     #[command(flatten)]
     pub auth: JanusAuthArgs,
+    #[command(flatten)]
+    pub mumble: super::mumble::MumbleFlags,
 }
 
 /// The credentials a Janus that restricts its API asks for.
@@ -160,6 +162,8 @@ pub struct ReceiveCommand {
     pub janus: Option<String>,
     #[command(flatten)]
     pub auth: JanusAuthArgs,
+    #[command(flatten)]
+    pub mumble: super::mumble::MumbleFlags,
 }
 
 #[derive(Debug, Clone)]
@@ -236,6 +240,11 @@ pub fn receive_with(
 /// `lipcall send`: into the Janus room of `--janus`, or to `--to`.
 pub fn send_command(command: &SendCommand) -> Result<()> {
     let call = &command.call;
+    if let Some(mumble) =
+        super::mumble::MumbleArgs::from_flags(&command.mumble, call.name.as_deref())
+    {
+        return super::mumble::send(&call.input, &mumble);
+    }
     match &command.janus {
         Some(url) => send(
             &call.input,
@@ -254,6 +263,17 @@ pub fn send_command(command: &SendCommand) -> Result<()> {
 /// `lipcall receive`: from the Janus room of `--janus`, or on `--listen`.
 pub fn receive_command(command: &ReceiveCommand) -> Result<()> {
     let call = &command.call;
+    if let Some(mumble) =
+        super::mumble::MumbleArgs::from_flags(&command.mumble, call.name.as_deref())
+    {
+        return super::mumble::receive(&super::mumble::MumbleReceiveArgs {
+            mumble,
+            wav: call.wav.clone(),
+            weights: call.weights.clone(),
+            features: call.features.clone(),
+            seconds: call.seconds,
+        });
+    }
     match &command.janus {
         Some(url) => receive(&JanusReceiveArgs {
             janus: JanusArgs {

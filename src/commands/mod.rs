@@ -6,6 +6,7 @@ pub mod audio;
 pub mod codec;
 pub mod janus;
 pub mod lipsync;
+pub mod mumble;
 pub mod net;
 mod recording;
 pub mod relay;

@@ -140,7 +140,7 @@ pub struct SendArgs {
     #[arg(
         long,
         value_name = "HOST:PORT",
-        required_unless_present = "janus",
+        required_unless_present_any = ["janus", "mumble"],
         default_value = "",
         hide_default_value = true
     )]
@@ -312,7 +312,7 @@ pub struct ReceiveArgs {
     #[arg(
         long,
         value_name = "HOST:PORT",
-        required_unless_present = "janus",
+        required_unless_present_any = ["janus", "mumble"],
         default_value = "",
         hide_default_value = true
     )]

@@ -14,6 +14,7 @@
 pub mod control;
 pub mod janus;
 pub mod jitter;
+pub mod mumble;
 pub mod peer;
 pub mod relay;
 pub mod rtcp;

@@ -449,9 +449,35 @@ def sdp_seeds():
           "a=sendonly\r\nm=video 0 RTP/AVP 96\r\n")
 
 
+def mumble_seeds():
+    """A flag byte (odd: TLS tunnel only), then operations: op, time step (ms), a 2-byte length
+    and the bytes (see fuzz_targets/mumble.rs)."""
+    def frame(kind, body):
+        return struct.pack(">HI", kind, len(body)) + body
+
+    def op(code, data, step=20):
+        return bytes([code, step]) + struct.pack(">H", len(data)) + data
+
+    def voice(session, sequence, payload, last=False):
+        length = len(payload) | (0x2000 if last else 0)
+        return bytes([0x80, session, sequence, 0x80 | (length >> 8), length & 0xFF]) + payload
+
+    channel = frame(7, b"\x08\x01\x10\x00\x1a\x05Lobby")
+    users = frame(9, b"\x08\x05\x1a\x03Bob\x28\x01") + frame(9, b"\x08\x03\x1a\x04fuzz\x28\x00")
+    sync = frame(5, b"\x08\x03\x1a\x02hi")
+    moved = frame(9, b"\x08\x03\x28\x01")
+    opus = bytes([0x08]) + bytes(range(40))
+    talk = b"".join(op(2, voice(5, 2 * i, opus)) + op(4, b"") for i in range(6))
+    write("mumble", "join-and-talk", b"\0" + op(0, channel + users + sync + moved) + talk)
+    tunnelled = b"".join(op(0, frame(1, voice(5, 2 * i, opus, i == 5))) for i in range(6))
+    write("mumble", "tunnel-only", b"\1" + op(0, channel + users + sync) + tunnelled + op(3, opus))
+    reject = frame(4, b"\x08\x04\x12\x05wrong")
+    write("mumble", "reject-and-raw", b"\0" + op(0, reject) + op(1, b"\x00\x01\x02\x03\x04"))
+
+
 def main():
     for make in (rtp_and_rtcp_seeds, relay_seeds, codec_seeds, wav_seeds, gltf_seeds, model_seeds,
-                 marker_seeds, sdp_seeds):
+                 marker_seeds, sdp_seeds, mumble_seeds):
         make()
     total = sum(os.path.getsize(os.path.join(d, f)) for d, _, fs in os.walk(CORPUS) for f in fs)
     print(f"seeds written to {CORPUS}: {total} bytes", file=sys.stderr)

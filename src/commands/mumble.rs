@@ -1,0 +1,341 @@
+//! `lipcall send --mumble` and `lipcall receive --mumble`: the headless client of a Mumble
+//! server. Audio goes as Opus (what Mumble speaks); each speaker in the channel is a peer,
+//! received through the same path as a direct call (jitter buffer, decoder, features, lip
+//! sync) with the same outputs, one WAV and CSV per speaker.
+
+use std::path::{Path, PathBuf};
+use std::sync::atomic::{AtomicBool, Ordering};
+use std::time::{Duration, Instant};
+
+use anyhow::{Context, Result, bail};
+
+use super::net::{load_packets, open_outputs, play, print_peer, send_paced};
+use super::recording::{stop_flag, stopped};
+use crate::call::link::{Link, LinkEvent};
+use crate::call::mumble::MumbleLink;
+use crate::codec::any::{Codec, EncoderSettings};
+use crate::net::jitter::JitterConfig;
+use crate::net::mumble::client::{ClientConfig, ClientEvent};
+use crate::net::mumble::connection::{ConnectConfig, Connection, Notice};
+use crate::net::mumble::identity::{self, Trust};
+use crate::net::session::{PeerFrame, PeerInfo};
+
+/// 48 kHz ticks of a 20 ms Opus frame.
+const TICKS_PER_FRAME: u32 = 960;
+/// How long a channel move may take to be confirmed or refused.
+const MOVE_WAIT: Duration = Duration::from_secs(2);
+
+/// The flags `send` and `receive` share for a Mumble server.
+#[derive(Debug, Clone, clap::Args)]
+pub struct MumbleFlags {
+    /// Join this Mumble server instead, HOST[:PORT] (port 64738 by default), as --name.
+    /// Its certificate is trusted on first use; ours is made once and kept (both in
+    /// $XDG_CONFIG_HOME/lipcall/mumble/). Sent as Opus.
+    // Listed right after --to/--listen (display order 1 sorts before the others by name).
+    #[arg(
+        long,
+        value_name = "HOST[:PORT]",
+        conflicts_with = "janus",
+        requires = "name",
+        display_order = 1
+    )]
+    pub mumble: Option<String>,
+    /// With --mumble: the channel to join (the server's default channel otherwise).
+    #[arg(long, requires = "mumble", display_order = 91)]
+    pub channel: Option<String>,
+    /// With --mumble: the server's password.
+    #[arg(long, requires = "mumble", display_order = 92)]
+    pub password: Option<String>,
+    /// With --mumble: voice through the TLS connection only, never UDP (for networks that
+    /// block UDP; Mumble's own TCP tunnel).
+    #[arg(long, requires = "mumble", display_order = 93)]
+    pub tcp_only: bool,
+}
+
+/// A Mumble join as the commands ask for it.
+#[derive(Debug, Clone)]
+pub struct MumbleArgs {
+    pub server: String,
+    pub name: String,
+    pub channel: Option<String>,
+    pub password: Option<String>,
+    pub tcp_only: bool,
+}
+
+impl MumbleArgs {
+    /// From the flags (`None` without --mumble); `name` is --name.
+    pub fn from_flags(flags: &MumbleFlags, name: Option<&str>) -> Option<Self> {
+        Some(Self {
+            server: flags.mumble.clone()?,
+            name: name.unwrap_or("lipcall").to_string(),
+            channel: flags.channel.clone(),
+            password: flags.password.clone(),
+            tcp_only: flags.tcp_only,
+        })
+    }
+}
+
+fn print_notice(notice: &Notice) {
+    match notice {
+        Notice::Client(ClientEvent::Synced {
+            session, channel, ..
+        }) => eprintln!("lipcall: joined as session {session} in channel {channel:?}"),
+        Notice::Client(ClientEvent::UserJoined { session, name }) => {
+            eprintln!("lipcall: {name:?} (session {session}) is in the channel")
+        }
+        Notice::Client(ClientEvent::UserLeft { session, name }) => {
+            eprintln!("lipcall: {name:?} (session {session}) left")
+        }
+        Notice::Client(ClientEvent::Rejected(reason)) => {
+            eprintln!("lipcall: the Mumble server refused us: {reason}")
+        }
+        Notice::Client(ClientEvent::Removed(reason)) => {
+            eprintln!("lipcall: the Mumble server removed us: {reason}")
+        }
+        Notice::Client(ClientEvent::Denied(reason)) => {
+            eprintln!("lipcall: the Mumble server refused: {reason}")
+        }
+        Notice::Client(ClientEvent::Text { from, message }) => {
+            eprintln!("lipcall: {from} says: {message}")
+        }
+        Notice::Client(ClientEvent::UdpWorking(true)) => eprintln!("lipcall: voice goes by UDP"),
+        Notice::Client(ClientEvent::UdpWorking(false)) => {
+            eprintln!("lipcall: voice goes through the TLS tunnel")
+        }
+        Notice::Lost(reason) => {
+            eprintln!("lipcall: lost the Mumble server ({reason}); reconnecting")
+        }
+        Notice::RejoinFailed(reason) => {
+            eprintln!("lipcall: cannot reconnect yet ({reason}); trying every second")
+        }
+        Notice::Rejoined(session) => {
+            eprintln!("lipcall: back on the Mumble server as session {session}")
+        }
+    }
+}
+
+/// Connects and joins (the channel asked for, if any); says whose certificate we trust.
+fn connect(args: &MumbleArgs) -> Result<Connection> {
+    let dir = identity::default_dir()
+        .context("no folder for the client certificate: set HOME or XDG_CONFIG_HOME")?;
+    let config = ConnectConfig {
+        address: args.server.clone(),
+        client: ClientConfig {
+            name: args.name.clone(),
+            password: args.password.clone(),
+            channel: args.channel.clone(),
+            jitter: JitterConfig::default(),
+            tcp_only: args.tcp_only,
+        },
+        identity_dir: dir,
+    };
+    let connection = Connection::connect(config).with_context(|| {
+        format!(
+            "joining the Mumble server {} as {:?}",
+            args.server, args.name
+        )
+    })?;
+    let (print, trust) = connection.fingerprint();
+    match trust {
+        Trust::New => eprintln!(
+            "lipcall: first visit to {}: its certificate (SHA-256 {print}) is now trusted",
+            connection.server()
+        ),
+        Trust::Known => eprintln!(
+            "lipcall: {} shows the certificate trusted before (SHA-256 {print})",
+            connection.server()
+        ),
+    }
+    eprintln!(
+        "lipcall: media encrypted hop by hop (TLS, OCB2-AES128): the Mumble server can hear it"
+    );
+    if let Some(channel) = &args.channel {
+        let deadline = Instant::now() + MOVE_WAIT;
+        loop {
+            for notice in connection.poll() {
+                print_notice(&notice);
+                if let Notice::Client(ClientEvent::Denied(reason)) = notice {
+                    bail!("cannot join channel {channel:?}: {reason}");
+                }
+            }
+            if connection.current_channel().as_deref() == Some(channel.as_str()) {
+                break;
+            }
+            if Instant::now() > deadline {
+                bail!("the Mumble server did not move us to channel {channel:?}");
+            }
+            std::thread::sleep(Duration::from_millis(10));
+        }
+    }
+    Ok(connection)
+}
+
+/// Sends a file's audio to the channel, paced in real time.
+pub fn send(input: &Path, args: &MumbleArgs) -> Result<()> {
+    let (codec, packets) = load_packets(input, Some(Codec::Opus), &EncoderSettings::default())?;
+    if packets.is_empty() {
+        bail!("{}: no audio to send", input.display());
+    }
+    let mut connection = connect(args)?;
+    let clock = f64::from(codec.clock_rate());
+    let ticks: u64 = packets.iter().map(|(_, t)| u64::from(*t)).sum();
+    eprintln!(
+        "lipcall: sending {:.2} s ({} packets of {codec}) to {} as {:?}",
+        ticks as f64 / clock,
+        packets.len(),
+        connection.server(),
+        args.name
+    );
+    let start = Instant::now();
+    send_paced(&packets, codec, |payload, duration| {
+        // While the server is away (a restart) the audio is dropped; the call goes on.
+        if let Err(e) = connection.send_voice(payload, duration.div_ceil(TICKS_PER_FRAME)) {
+            tracing::debug!("Mumble: {e}");
+        }
+        for notice in connection.poll() {
+            print_notice(&notice);
+            if let Notice::Client(ClientEvent::Removed(reason)) = notice {
+                bail!("the Mumble server removed us: {reason}");
+            }
+        }
+        Ok(())
+    })?;
+    // The last packets reach the server before we leave.
+    std::thread::sleep(Duration::from_millis(300));
+    let stats = connection.stats();
+    eprintln!(
+        "lipcall: sent {:.2} s; udp_sent={} tunnel_sent={}",
+        start.elapsed().as_secs_f64(),
+        stats.udp_sent,
+        stats.tunnel_sent
+    );
+    connection.close();
+    Ok(())
+}
+
+/// A Mumble link whose events are told in Mumble's words as the receive loop polls them. The
+/// loop's stop flag is ours: a signal (the process's flag) sets it, and so does the server
+/// removing us.
+struct Told<'a>(&'a mut MumbleLink, &'a AtomicBool, &'a AtomicBool);
+
+impl Link for Told<'_> {
+    fn pull(&mut self, now: Instant, out: &mut Vec<PeerFrame>) {
+        self.0.pull(now, out);
+    }
+    fn peers(&self) -> Vec<PeerInfo> {
+        self.0.peers()
+    }
+    fn all_left(&self) -> bool {
+        self.0.all_left()
+    }
+    fn send_frames(&mut self, payload: &[u8], frames: u32) {
+        self.0.send_frames(payload, frames);
+    }
+    fn skip_frames(&mut self, frames: u32) {
+        self.0.skip_frames(frames);
+    }
+    fn unknown_payload(&self) -> u64 {
+        self.0.unknown_payload()
+    }
+    fn leave(&mut self) {
+        self.0.leave();
+    }
+    fn poll(&mut self) -> Vec<LinkEvent> {
+        if stopped(self.1) {
+            self.2.store(true, Ordering::Relaxed);
+        }
+        for event in self.0.poll() {
+            match event {
+                LinkEvent::PeerJoined { id, name } => {
+                    eprintln!("lipcall: {name:?} (session {id}) is in the channel")
+                }
+                LinkEvent::PeerLeft { id, name } => {
+                    eprintln!("lipcall: {name:?} (session {id}) left")
+                }
+                LinkEvent::PeerSkipped { id, name, reason } => {
+                    eprintln!("lipcall: {name:?} (session {id}) cannot be heard: {reason}")
+                }
+                LinkEvent::Lost { reason } => {
+                    eprintln!("lipcall: lost the Mumble server ({reason}); reconnecting")
+                }
+                LinkEvent::RejoinFailed { reason } => {
+                    eprintln!("lipcall: cannot reconnect yet ({reason}); trying every second")
+                }
+                LinkEvent::Rejoined { id } => {
+                    eprintln!("lipcall: back on the Mumble server as session {id}")
+                }
+                LinkEvent::Joined { place, id } => eprintln!("lipcall: in {place} as {id}"),
+                LinkEvent::Failed(reason) => {
+                    eprintln!("lipcall: {reason}; ending the receive");
+                    self.2.store(true, Ordering::Relaxed);
+                }
+            }
+        }
+        for note in self.0.take_notes() {
+            eprintln!("lipcall: {note}");
+        }
+        Vec::new()
+    }
+}
+
+#[derive(Debug, Clone)]
+pub struct MumbleReceiveArgs {
+    pub mumble: MumbleArgs,
+    pub wav: Option<PathBuf>,
+    pub weights: Option<PathBuf>,
+    pub features: Option<PathBuf>,
+    pub seconds: Option<f64>,
+}
+
+/// Joins the channel and receives every speaker there until `--seconds`, a signal, or (without
+/// `--seconds`) everyone who spoke has left.
+pub fn receive(args: &MumbleReceiveArgs) -> Result<()> {
+    let stop = stop_flag()?;
+    let (model, mut recorder) = open_outputs(
+        args.wav.as_deref(),
+        None,
+        args.features.as_deref(),
+        args.weights.as_deref(),
+    )?;
+    let connection = connect(&args.mumble)?;
+    for notice in connection.poll() {
+        print_notice(&notice);
+    }
+    let place = format!(
+        "channel {:?} of Mumble server {}",
+        connection.current_channel().unwrap_or_default(),
+        connection.server()
+    );
+    let mut link = MumbleLink::joined(connection, place);
+    let ended = AtomicBool::new(false);
+    let played = play(
+        &mut Told(&mut link, &stop, &ended),
+        args.seconds,
+        model.as_ref(),
+        &mut |_, _, _| {},
+        &mut recorder,
+        &ended,
+    );
+    let stats = link.connection().stats();
+    eprintln!(
+        "lipcall: played {:.2} s; udp={} tunnel={} decrypt_failed={} malformed={} other_codec={} \
+         resyncs={}",
+        recorder.seconds(),
+        stats.udp_received,
+        stats.tunnel_received,
+        stats.decrypt_failed,
+        stats.malformed,
+        stats.other_codec,
+        stats.resyncs
+    );
+    for peer in link.peers() {
+        print_peer(&peer);
+    }
+    link.leave();
+    let finished = recorder.finish();
+    played.and(finished)?;
+    match link.removed() {
+        Some(reason) => bail!("the Mumble server removed us: {reason}"),
+        None => Ok(()),
+    }
+}

@@ -1,0 +1,472 @@
+//! A Mumble connection's I/O: the TLS stream (its own thread, reading with a short timeout and
+//! writing what the core queued) and the UDP socket (the socket thread every sans-I/O core in
+//! lipcall runs on). When the server goes away the TLS thread says so and reconnects every
+//! second, until it gets back in or the connection is closed.
+
+use std::io::{ErrorKind, Read, Write};
+use std::net::{SocketAddr, TcpStream, ToSocketAddrs, UdpSocket};
+use std::path::PathBuf;
+use std::sync::atomic::{AtomicBool, Ordering};
+use std::sync::{Arc, Mutex};
+use std::thread::JoinHandle;
+use std::time::{Duration, Instant};
+
+use openssl::ssl::{SslConnector, SslMethod, SslStream, SslVerifyMode};
+
+use super::MumbleError;
+use super::client::{Channel, ClientConfig, ClientCore, ClientEvent, ClientStats};
+use super::identity::{Identity, KnownServers, Trust, fingerprint};
+use crate::net::peer::ReceiverStats;
+use crate::net::session::PeerFrame;
+use crate::net::session::Transmit;
+use crate::net::session::driver::{Driver, SansIo};
+
+/// The port Mumble servers listen on unless told otherwise.
+pub const DEFAULT_PORT: u16 = 64738;
+/// How long a TLS read waits before the thread looks at its queue again.
+const READ_WAIT: Duration = Duration::from_millis(5);
+const CONNECT_TIMEOUT: Duration = Duration::from_secs(5);
+/// How long the server may take from our Authenticate to its ServerSync or Reject.
+const JOIN_TIMEOUT: Duration = Duration::from_secs(10);
+const RETRY: Duration = Duration::from_secs(1);
+/// Bytes of a UDP datagram buffer (Mumble's own limit is 1024).
+const DATAGRAM: usize = 2048;
+/// The UDP thread's longest wait.
+const UDP_POLL: Duration = Duration::from_millis(5);
+
+/// What the connection reports, beyond the core's own events.
+#[derive(Debug, Clone, PartialEq)]
+pub enum Notice {
+    Client(ClientEvent),
+    /// The server went away (`reason`); reconnecting.
+    Lost(String),
+    /// A reconnect failed (once per distinct reason).
+    RejoinFailed(String),
+    /// Back in, as `session`.
+    Rejoined(u32),
+}
+
+/// How to reach a server and as whom.
+#[derive(Debug, Clone)]
+pub struct ConnectConfig {
+    /// HOST or HOST:PORT.
+    pub address: String,
+    pub client: ClientConfig,
+    /// Our certificate and the known servers; [`super::identity::default_dir`] by default.
+    pub identity_dir: PathBuf,
+}
+
+/// `HOST[:PORT]` with the default port, as `host:port` text.
+pub fn with_port(address: &str) -> String {
+    let a = address.trim();
+    let has_port = match a.rsplit_once(':') {
+        Some((host, port)) => {
+            port.parse::<u16>().is_ok() && (!host.contains(':') || host.ends_with(']'))
+        }
+        None => false,
+    };
+    if has_port {
+        a.to_string()
+    } else if a.contains(':') && !a.starts_with('[') {
+        format!("[{a}]:{DEFAULT_PORT}")
+    } else {
+        format!("{a}:{DEFAULT_PORT}")
+    }
+}
+
+struct Shared {
+    driver: Driver<ClientCore>,
+    notices: Mutex<Vec<Notice>>,
+    stop: AtomicBool,
+}
+
+impl Shared {
+    fn notify(&self, notice: Notice) {
+        self.notices
+            .lock()
+            .unwrap_or_else(|p| p.into_inner())
+            .push(notice);
+    }
+
+    /// Moves the core's events into the notices.
+    fn drain_events(&self) {
+        let events: Vec<ClientEvent> = self
+            .driver
+            .access(|core| std::iter::from_fn(|| core.poll_event()).collect());
+        for e in events {
+            self.notify(Notice::Client(e));
+        }
+    }
+}
+
+/// A connection to a Mumble server, joined.
+pub struct Connection {
+    shared: Arc<Shared>,
+    thread: Option<JoinHandle<()>>,
+    server: String,
+    fingerprint: String,
+    trust: Trust,
+}
+
+impl std::fmt::Debug for Connection {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.debug_struct("Connection")
+            .field("server", &self.server)
+            .finish_non_exhaustive()
+    }
+}
+
+type Tls = SslStream<TcpStream>;
+
+/// TCP, then TLS with our certificate; the server's certificate checked against the known
+/// ones. Its fingerprint and how it stands come back with the stream.
+fn open_tls(
+    server: &str,
+    identity: &Identity,
+    known: &KnownServers,
+) -> Result<(Tls, SocketAddr, String, Trust), MumbleError> {
+    let unreachable = |reason: String| MumbleError::Unreachable {
+        server: server.to_string(),
+        reason,
+    };
+    let tls_error = |reason: String| MumbleError::Tls {
+        server: server.to_string(),
+        reason,
+    };
+    let addrs: Vec<SocketAddr> = server
+        .to_socket_addrs()
+        .map_err(|e| unreachable(e.to_string()))?
+        .collect();
+    let mut last = String::from("no address");
+    let mut tcp = None;
+    for addr in addrs {
+        match TcpStream::connect_timeout(&addr, CONNECT_TIMEOUT) {
+            Ok(s) => {
+                tcp = Some((s, addr));
+                break;
+            }
+            Err(e) => last = e.to_string(),
+        }
+    }
+    let (tcp, addr) = tcp.ok_or_else(|| unreachable(last))?;
+    tcp.set_nodelay(true)?;
+    tcp.set_read_timeout(Some(JOIN_TIMEOUT))?;
+    let mut builder =
+        SslConnector::builder(SslMethod::tls_client()).map_err(|e| tls_error(e.to_string()))?;
+    // Mumble servers use self-signed certificates: trust is the known fingerprint, below.
+    builder.set_verify(SslVerifyMode::NONE);
+    builder
+        .set_certificate(&identity.certificate)
+        .and_then(|()| builder.set_private_key(&identity.key))
+        .map_err(|e| tls_error(e.to_string()))?;
+    let connector = builder.build();
+    let mut config = connector
+        .configure()
+        .map_err(|e| tls_error(e.to_string()))?;
+    config.set_verify_hostname(false);
+    let host = server.rsplit_once(':').map_or(server, |(h, _)| h);
+    let stream = config
+        .connect(host.trim_matches(['[', ']']), tcp)
+        .map_err(|e| {
+            let reason = e.to_string();
+            if reason.to_ascii_lowercase().contains("unexpected eof") {
+                // murmur drops a connection before TLS when every session slot is taken.
+                MumbleError::Rejected(
+                    "the server closed the connection before TLS: the server is full (or it \
+                     bans this address)"
+                        .into(),
+                )
+            } else {
+                tls_error(reason)
+            }
+        })?;
+    let certificate = stream
+        .ssl()
+        .peer_certificate()
+        .ok_or_else(|| tls_error("the server showed no certificate".into()))?;
+    let print = fingerprint(&certificate)?;
+    let trust = known.check(server, &print)?;
+    Ok((stream, addr, print, trust))
+}
+
+fn write_queued(stream: &mut Tls, shared: &Shared) -> std::io::Result<()> {
+    while let Some(bytes) = shared.driver.access(ClientCore::poll_control) {
+        stream.write_all(&bytes)?;
+    }
+    stream.flush()
+}
+
+/// Reads what is there (waiting at most the socket's read timeout) into the core; `Err` when
+/// the stream ended or broke.
+fn read_some(stream: &mut Tls, shared: &Shared, buf: &mut [u8]) -> Result<(), String> {
+    match stream.read(buf) {
+        Ok(0) => Err("the server closed the connection".into()),
+        Ok(n) => {
+            shared
+                .driver
+                .with(|core| core.handle_stream(&buf[..n], Instant::now()));
+            match shared.driver.access(ClientCore::take_fatal) {
+                Some(e) => Err(e.to_string()),
+                None => Ok(()),
+            }
+        }
+        Err(e) if matches!(e.kind(), ErrorKind::WouldBlock | ErrorKind::TimedOut) => Ok(()),
+        Err(e) => Err(e.to_string()),
+    }
+}
+
+/// Authenticates on a fresh stream and waits for the server's ServerSync (our session) or
+/// Reject. Events other than those go on to the notices.
+fn join(stream: &mut Tls, shared: &Shared) -> Result<u32, MumbleError> {
+    shared.driver.with(|core| core.connected(Instant::now()));
+    stream.get_ref().set_read_timeout(Some(READ_WAIT))?;
+    let deadline = Instant::now() + JOIN_TIMEOUT;
+    let mut buf = vec![0u8; 16 * 1024];
+    loop {
+        write_queued(stream, shared)?;
+        if let Err(reason) = read_some(stream, shared, &mut buf) {
+            return Err(MumbleError::Unreachable {
+                server: "the server".into(),
+                reason,
+            });
+        }
+        let events: Vec<ClientEvent> = shared
+            .driver
+            .access(|core| std::iter::from_fn(|| core.poll_event()).collect());
+        let mut session = None;
+        for e in events {
+            match e {
+                ClientEvent::Rejected(reason) => return Err(MumbleError::Rejected(reason)),
+                ClientEvent::Synced { session: s, .. } => {
+                    session = Some(s);
+                    shared.notify(Notice::Client(e));
+                }
+                other => shared.notify(Notice::Client(other)),
+            }
+        }
+        if let Some(s) = session {
+            return Ok(s);
+        }
+        if Instant::now() > deadline {
+            return Err(MumbleError::Timeout(
+                "the Mumble server did not answer our authentication within 10 s".into(),
+            ));
+        }
+    }
+}
+
+impl Connection {
+    /// Connects, authenticates and joins; returns once in (or with why not).
+    pub fn connect(config: ConnectConfig) -> Result<Self, MumbleError> {
+        let server = with_port(&config.address);
+        let identity = Identity::load_or_create(&config.identity_dir)?;
+        let known = KnownServers::new(&config.identity_dir);
+        let (mut stream, addr, print, trust) = open_tls(&server, &identity, &known)?;
+        let bind: SocketAddr = if addr.is_ipv4() {
+            ([0, 0, 0, 0], 0).into()
+        } else {
+            (std::net::Ipv6Addr::UNSPECIFIED, 0).into()
+        };
+        let socket = UdpSocket::bind(bind)?;
+        let core = ClientCore::new(config.client.clone(), addr, Instant::now());
+        let driver = Driver::start(socket, core, "lipcall-mumble-udp", UDP_POLL)?;
+        let shared = Arc::new(Shared {
+            driver,
+            notices: Mutex::new(Vec::new()),
+            stop: AtomicBool::new(false),
+        });
+        join(&mut stream, &shared)?;
+        let thread_shared = Arc::clone(&shared);
+        let thread_server = server.clone();
+        let thread = std::thread::Builder::new()
+            .name("lipcall-mumble-tls".into())
+            .spawn(move || run(stream, &thread_shared, &thread_server, &identity, &known))?;
+        Ok(Self {
+            shared,
+            thread: Some(thread),
+            server,
+            fingerprint: print,
+            trust,
+        })
+    }
+
+    /// `host:port` of the server.
+    pub fn server(&self) -> &str {
+        &self.server
+    }
+
+    /// The server certificate's SHA-256 fingerprint, and whether it was first seen now.
+    pub fn fingerprint(&self) -> (&str, &Trust) {
+        (&self.fingerprint, &self.trust)
+    }
+
+    /// What happened since the last call.
+    pub fn poll(&self) -> Vec<Notice> {
+        self.shared.drain_events();
+        std::mem::take(
+            &mut *self
+                .shared
+                .notices
+                .lock()
+                .unwrap_or_else(|p| p.into_inner()),
+        )
+    }
+
+    pub fn send_voice(&self, payload: &[u8], frames: u32) -> Result<(), MumbleError> {
+        self.shared
+            .driver
+            .with(|core| core.send_voice(payload, frames))
+    }
+
+    pub fn skip_frames(&self, frames: u32) {
+        self.shared.driver.access(|core| core.skip_frames(frames));
+    }
+
+    pub fn pull(&self, now: Instant, out: &mut Vec<PeerFrame>) {
+        self.shared.driver.access(|core| core.pull(now, out));
+    }
+
+    /// Every user who spoke: session, name, reception, whether they left.
+    pub fn speakers(&self) -> Vec<(u32, String, ReceiverStats, bool)> {
+        self.shared.driver.access(|core| core.speakers())
+    }
+
+    pub fn session(&self) -> Option<u32> {
+        self.shared.driver.access(|core| core.session())
+    }
+
+    pub fn stats(&self) -> ClientStats {
+        self.shared.driver.access(|core| core.stats)
+    }
+
+    pub fn udp_working(&self) -> bool {
+        self.shared.driver.access(|core| core.udp_working())
+    }
+
+    pub fn current_channel(&self) -> Option<String> {
+        self.shared.driver.access(|core| core.current_channel())
+    }
+
+    pub fn channels(&self) -> Vec<Channel> {
+        self.shared.driver.access(|core| core.channels())
+    }
+
+    pub fn join_channel(&self, id: u32) {
+        self.shared.driver.access(|core| core.join_channel(id));
+    }
+
+    /// Disconnects (the TLS stream is shut down; the server sees us leave).
+    pub fn close(&mut self) {
+        self.shared.stop.store(true, Ordering::Relaxed);
+        if let Some(t) = self.thread.take() {
+            let _ = t.join();
+        }
+    }
+}
+
+impl Drop for Connection {
+    fn drop(&mut self) {
+        self.close();
+    }
+}
+
+/// The TLS thread: pumps the stream; on loss, reconnects every second.
+fn run(mut stream: Tls, shared: &Shared, server: &str, identity: &Identity, known: &KnownServers) {
+    let mut buf = vec![0u8; 16 * 1024];
+    loop {
+        let lost = loop {
+            if shared.stop.load(Ordering::Relaxed) {
+                let _ = write_queued(&mut stream, shared);
+                let _ = stream.shutdown();
+                return;
+            }
+            if let Err(e) = write_queued(&mut stream, shared) {
+                break e.to_string();
+            }
+            if let Err(reason) = read_some(&mut stream, shared, &mut buf) {
+                break reason;
+            }
+            shared.drain_events();
+        };
+        let kicked = shared
+            .driver
+            .access(|core| core.kicked().map(str::to_string));
+        shared.driver.access(ClientCore::disconnected);
+        shared.drain_events();
+        if kicked.is_some() {
+            // Said by the core's Removed event; coming back would only be refused or kick
+            // the one who took our place.
+            return;
+        }
+        shared.notify(Notice::Lost(lost));
+        let mut said: Option<String> = None;
+        stream = loop {
+            std::thread::sleep(RETRY);
+            if shared.stop.load(Ordering::Relaxed) {
+                return;
+            }
+            let attempt = open_tls(server, identity, known).and_then(|(mut s, ..)| {
+                let session = join(&mut s, shared)?;
+                Ok((s, session))
+            });
+            match attempt {
+                Ok((s, session)) => {
+                    shared.notify(Notice::Rejoined(session));
+                    break s;
+                }
+                Err(e) => {
+                    let reason = e.to_string();
+                    if said.as_deref() != Some(reason.as_str()) {
+                        shared.notify(Notice::RejoinFailed(reason.clone()));
+                        said = Some(reason);
+                    }
+                    if matches!(e, MumbleError::CertificateChanged { .. }) {
+                        // Not the server we trusted: stop trying.
+                        return;
+                    }
+                }
+            }
+        };
+    }
+}
+
+/// The UDP socket thread drives the core through its inherent methods.
+impl SansIo for ClientCore {
+    const BUFFER: usize = DATAGRAM;
+
+    fn handle_datagram(&mut self, data: &[u8], from: SocketAddr, now: Instant) {
+        self.datagram(data, from, now);
+    }
+
+    fn poll_timeout(&self) -> Instant {
+        self.next_wake()
+    }
+
+    fn handle_timeout(&mut self, now: Instant) {
+        self.wake(now);
+    }
+
+    fn poll_transmit(&mut self) -> Option<Transmit> {
+        self.next_transmit()
+    }
+
+    fn transmitted(&mut self, _transmit: Transmit, sent: bool) {
+        if !sent {
+            tracing::debug!("Mumble UDP: a datagram could not be sent");
+        }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn the_default_port_is_added() {
+        assert_eq!(with_port("127.0.0.1"), "127.0.0.1:64738");
+        assert_eq!(with_port("127.0.0.1:1234"), "127.0.0.1:1234");
+        assert_eq!(with_port("mumble.example"), "mumble.example:64738");
+        assert_eq!(with_port("::1"), "[::1]:64738");
+        assert_eq!(with_port("[::1]:99"), "[::1]:99");
+    }
+}

@@ -1,0 +1,328 @@
+//! The client core against a scripted server: the join, channels and users, voice by UDP and
+//! through the tunnel, nonce resynchronisation, and a hostile server's bytes.
+
+use std::net::SocketAddr;
+use std::time::{Duration, Instant};
+
+use proptest::prelude::*;
+
+use super::client::{ClientConfig, ClientCore, ClientEvent};
+use super::crypt::CryptState;
+use super::messages::{
+    self, ChannelState, CryptSetup, Deframer, Incoming, MessageType, ServerSync, UserRemove,
+    UserState,
+};
+use super::voice;
+use crate::net::jitter::JitterConfig;
+
+const KEY: [u8; 16] = [7; 16];
+const OURS: [u8; 16] = [1; 16];
+const THEIRS: [u8; 16] = [2; 16];
+
+fn server() -> SocketAddr {
+    ([127, 0, 0, 1], 64738).into()
+}
+
+fn config(channel: Option<&str>, tcp_only: bool) -> ClientConfig {
+    ClientConfig {
+        name: "me".into(),
+        password: Some("pw".into()),
+        channel: channel.map(str::to_string),
+        jitter: JitterConfig::default(),
+        tcp_only,
+    }
+}
+
+/// What the client sent on the TLS stream, decoded (type, body).
+fn sent(core: &mut ClientCore) -> Vec<(u16, Vec<u8>)> {
+    let mut d = Deframer::default();
+    while let Some(bytes) = core.poll_control() {
+        d.push(&bytes);
+    }
+    std::iter::from_fn(|| d.next_frame().unwrap()).collect()
+}
+
+fn events(core: &mut ClientCore) -> Vec<ClientEvent> {
+    std::iter::from_fn(|| core.poll_event()).collect()
+}
+
+fn user(session: u32, name: &str, channel: u32) -> Vec<u8> {
+    messages::frame(
+        MessageType::UserState,
+        &UserState {
+            session: Some(session),
+            name: Some(name.into()),
+            channel_id: Some(channel),
+            ..Default::default()
+        },
+    )
+}
+
+/// A client joined as session 3 in Root (channel 0), with Lobby (1) beside it, Bob (5) in
+/// Root and Cy (6) in Lobby.
+fn joined(now: Instant, channel: Option<&str>, tcp_only: bool) -> ClientCore {
+    let mut core = ClientCore::new(config(channel, tcp_only), server(), now);
+    core.connected(now);
+    let mut stream = messages::frame(
+        MessageType::CryptSetup,
+        &CryptSetup {
+            key: Some(KEY.to_vec()),
+            client_nonce: Some(OURS.to_vec()),
+            server_nonce: Some(THEIRS.to_vec()),
+        },
+    );
+    for (id, name) in [(0, "Root"), (1, "Lobby")] {
+        stream.extend(messages::frame(
+            MessageType::ChannelState,
+            &ChannelState {
+                channel_id: Some(id),
+                parent: (id > 0).then_some(0),
+                name: Some(name.into()),
+                max_users: None,
+            },
+        ));
+    }
+    stream.extend(user(5, "Bob", 0));
+    stream.extend(user(6, "Cy", 1));
+    stream.extend(user(3, "me", 0));
+    stream.extend(messages::frame(
+        MessageType::ServerSync,
+        &ServerSync {
+            session: Some(3),
+            welcome_text: Some("hi".into()),
+            ..Default::default()
+        },
+    ));
+    core.handle_stream(&stream, now);
+    core
+}
+
+#[test]
+fn the_join_says_who_we_are_and_who_is_there() {
+    let now = Instant::now();
+    let mut core = ClientCore::new(config(None, false), server(), now);
+    core.connected(now);
+    let hello = sent(&mut core);
+    assert_eq!(hello[0].0, MessageType::Version as u16);
+    assert_eq!(hello[1].0, MessageType::Authenticate as u16);
+    let auth = <messages::Authenticate as prost::Message>::decode(hello[1].1.as_slice()).unwrap();
+    assert_eq!(auth.username.as_deref(), Some("me"));
+    assert_eq!(auth.opus, Some(true));
+
+    let mut core = joined(now, None, false);
+    let got = events(&mut core);
+    assert!(got.contains(&ClientEvent::UserJoined {
+        session: 5,
+        name: "Bob".into()
+    }));
+    assert!(
+        !got.iter()
+            .any(|e| matches!(e, ClientEvent::UserJoined { session: 6 | 3, .. }))
+    );
+    assert!(
+        got.iter()
+            .any(|e| matches!(e, ClientEvent::Synced { session: 3, .. }))
+    );
+    assert_eq!(core.current_channel().as_deref(), Some("Root"));
+}
+
+#[test]
+fn a_channel_asked_for_is_joined_and_its_users_become_the_peers() {
+    let now = Instant::now();
+    let mut core = joined(now, Some("Lobby"), false);
+    let moves: Vec<_> = sent(&mut core)
+        .into_iter()
+        .filter(|(t, _)| *t == MessageType::UserState as u16)
+        .collect();
+    assert_eq!(moves.len(), 1);
+    events(&mut core);
+    // The server confirms the move.
+    core.handle_stream(&user(3, "me", 1), now);
+    let got = events(&mut core);
+    assert!(got.contains(&ClientEvent::UserLeft {
+        session: 5,
+        name: "Bob".into()
+    }));
+    assert!(got.contains(&ClientEvent::UserJoined {
+        session: 6,
+        name: "Cy".into()
+    }));
+    core.handle_stream(
+        &messages::frame(
+            MessageType::UserRemove,
+            &UserRemove {
+                session: Some(6),
+                ..Default::default()
+            },
+        ),
+        now,
+    );
+    assert!(events(&mut core).contains(&ClientEvent::UserLeft {
+        session: 6,
+        name: "Cy".into()
+    }));
+}
+
+fn opus_frame() -> Vec<u8> {
+    let mut encoder =
+        opus::Encoder::new(48_000, opus::Channels::Mono, opus::Application::Voip).unwrap();
+    let pcm: Vec<i16> = (0..960)
+        .map(|i| ((i as f32 * 0.05).sin() * 8000.0) as i16)
+        .collect();
+    encoder.encode_vec(&pcm, 400).unwrap()
+}
+
+#[test]
+fn voice_by_udp_and_through_the_tunnel_reaches_each_speakers_receiver() {
+    let t0 = Instant::now();
+    let mut core = joined(t0, None, false);
+    let mut server_crypt = CryptState::new(&KEY, THEIRS, OURS);
+    let frame = opus_frame();
+    for i in 0..10u64 {
+        let at = t0 + Duration::from_millis(20 * i);
+        let packet = voice::server_opus(5, 2 * i, &frame, false);
+        if i % 2 == 0 {
+            core.datagram(&server_crypt.encrypt(&packet), server(), at);
+        } else {
+            core.handle_stream(&messages::tunnel(&packet), at);
+        }
+    }
+    assert_eq!(core.stats.udp_received, 5);
+    assert_eq!(core.stats.tunnel_received, 5);
+    assert!(core.udp_working());
+    let mut frames = Vec::new();
+    for i in 0..20u32 {
+        core.pull(
+            t0 + Duration::from_millis(100 + 20 * u64::from(i)),
+            &mut frames,
+        );
+    }
+    assert!(frames.iter().all(|f| f.ssrc == 5));
+    assert!(frames.len() >= 8, "{} frames", frames.len());
+    let speakers = core.speakers();
+    assert_eq!(speakers.len(), 1);
+    assert_eq!(speakers[0].1, "Bob");
+    assert_eq!(speakers[0].2.jitter.lost, 0);
+
+    // Our voice goes by UDP now that UDP works, and decrypts at the server (after the UDP
+    // ping of the join).
+    core.send_voice(&frame, 1).unwrap();
+    let mut server_rx = CryptState::new(&KEY, THEIRS, OURS);
+    let plain: Vec<Vec<u8>> = std::iter::from_fn(|| core.next_transmit())
+        .map(|t| server_rx.decrypt(&t.data).unwrap())
+        .collect();
+    assert_eq!(plain.len(), 2);
+    assert_eq!(plain[0][0] >> 5, voice::TYPE_PING);
+    assert_eq!(plain[1], voice::client_opus(0, &frame, false).unwrap());
+    assert_eq!(core.stats.udp_sent, 1);
+}
+
+#[test]
+fn tcp_only_sends_everything_through_the_tunnel() {
+    let now = Instant::now();
+    let mut core = joined(now, None, true);
+    sent(&mut core);
+    core.send_voice(&opus_frame(), 1).unwrap();
+    assert!(core.next_transmit().is_none());
+    let tunnelled = sent(&mut core);
+    assert_eq!(tunnelled.len(), 1);
+    assert_eq!(tunnelled[0].0, MessageType::UdpTunnel as u16);
+    assert_eq!(tunnelled[0].1[0] >> 5, voice::TYPE_OPUS);
+}
+
+#[test]
+fn datagrams_that_stop_decrypting_ask_for_fresh_nonces_and_the_answer_resyncs() {
+    let t0 = Instant::now();
+    let mut core = joined(t0, None, false);
+    sent(&mut core);
+    let mut server_crypt = CryptState::new(&KEY, THEIRS, OURS);
+    let ping = voice::ping(1);
+    core.datagram(&server_crypt.encrypt(&ping), server(), t0);
+    // The server's nonce runs far ahead (lost packets beyond the window).
+    for _ in 0..300 {
+        server_crypt.encrypt(&ping);
+    }
+    let late = t0 + Duration::from_secs(6);
+    core.datagram(&server_crypt.encrypt(&ping), server(), late);
+    let asked = sent(&mut core);
+    assert!(
+        asked
+            .iter()
+            .any(|(t, body)| *t == MessageType::CryptSetup as u16 && body.is_empty())
+    );
+    // Asked once, not for every bad datagram.
+    core.datagram(&server_crypt.encrypt(&ping), server(), late);
+    assert!(sent(&mut core).is_empty());
+    // The server's answer: its nonce.
+    core.handle_stream(
+        &messages::frame(
+            MessageType::CryptSetup,
+            &CryptSetup {
+                server_nonce: Some(server_crypt.encrypt_iv.to_vec()),
+                ..Default::default()
+            },
+        ),
+        late,
+    );
+    let before = core.stats.udp_received;
+    core.datagram(&server_crypt.encrypt(&ping), server(), late);
+    assert_eq!(core.stats.udp_received, before + 1);
+}
+
+#[test]
+fn a_reject_is_said_in_words() {
+    let now = Instant::now();
+    let mut core = ClientCore::new(config(None, false), server(), now);
+    core.connected(now);
+    core.handle_stream(
+        &messages::frame(
+            MessageType::Reject,
+            &messages::Reject {
+                r#type: Some(messages::RejectType::WrongServerPw as i32),
+                reason: Some("Wrong certificate or password".into()),
+            },
+        ),
+        now,
+    );
+    match events(&mut core).as_slice() {
+        [ClientEvent::Rejected(why)] => assert!(why.contains("wrong server password"), "{why}"),
+        other => panic!("{other:?}"),
+    }
+}
+
+proptest! {
+    #![proptest_config(ProptestConfig::with_cases(200))]
+
+    /// A hostile server's bytes (stream and datagrams, raw or properly encrypted): no panic,
+    /// and whatever is framed comes out as framed.
+    #[test]
+    fn a_hostile_server_cannot_make_the_client_panic(
+        ops in proptest::collection::vec((0u8..4, proptest::collection::vec(any::<u8>(), 0..80)), 0..40)
+    ) {
+        let t0 = Instant::now();
+        let mut core = joined(t0, Some("Lobby"), false);
+        let mut server_crypt = CryptState::new(&KEY, THEIRS, OURS);
+        let mut frames = Vec::new();
+        for (i, (op, bytes)) in ops.iter().enumerate() {
+            let now = t0 + Duration::from_millis(20 * i as u64);
+            match op {
+                0 => core.handle_stream(bytes, now),
+                1 => core.datagram(bytes, server(), now),
+                2 => core.datagram(&server_crypt.encrypt(bytes), server(), now),
+                _ => core.handle_stream(&messages::tunnel(bytes), now),
+            }
+            let _ = core.take_fatal();
+            core.pull(now, &mut frames);
+            core.wake(now);
+            while core.poll_control().is_some() {}
+            while core.next_transmit().is_some() {}
+            while core.poll_event().is_some() {}
+        }
+        // The decoder of every frame message stays total.
+        for kind in 0..30u16 {
+            for (_, bytes) in &ops {
+                let _ = Incoming::decode(kind, bytes);
+            }
+        }
+    }
+}

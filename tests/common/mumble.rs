@@ -1,0 +1,171 @@
+//! A private murmurd (Debian's `mumble-server`) for the Mumble tests: its own ini and database
+//! in a temp dir, on a free loopback port, killed at the end.
+
+use std::net::{TcpListener, TcpStream, UdpSocket};
+use std::path::{Path, PathBuf};
+use std::process::{Child, Command, Stdio};
+use std::time::{Duration, Instant};
+
+/// Whether murmurd can be run here.
+pub fn murmurd_installed() -> bool {
+    Command::new("murmurd")
+        .arg("-version")
+        .stdout(Stdio::null())
+        .stderr(Stdio::null())
+        .status()
+        .is_ok()
+}
+
+/// Whether the Mumble tests can run here (else says why: a failure under CI).
+pub fn runs_here(test: &str) -> bool {
+    if murmurd_installed() {
+        return true;
+    }
+    super::unavailable(&format!(
+        "{test}: murmurd (Debian's mumble-server) is not installed"
+    ));
+    false
+}
+
+/// A loopback port free for both TCP and UDP (murmurd listens on both).
+fn free_port() -> u16 {
+    loop {
+        let port = TcpListener::bind("127.0.0.1:0")
+            .and_then(|l| l.local_addr())
+            .map(|a| a.port())
+            .expect("a free loopback port");
+        if UdpSocket::bind(("127.0.0.1", port)).is_ok() {
+            return port;
+        }
+    }
+}
+
+pub struct Murmur {
+    child: Option<Child>,
+    pub port: u16,
+    ini: PathBuf,
+}
+
+impl Murmur {
+    /// Starts murmurd in `dir` with `extra` ini lines (a password, a user limit, ...).
+    pub fn start(dir: &Path, extra: &str) -> Self {
+        let state = dir.join("murmur");
+        std::fs::create_dir_all(&state).unwrap();
+        // Started as root, murmurd runs as the mumble-server user: it must reach its folder.
+        for d in [dir, state.as_path()] {
+            use std::os::unix::fs::PermissionsExt;
+            std::fs::set_permissions(d, std::fs::Permissions::from_mode(0o777)).unwrap();
+        }
+        let port = free_port();
+        let ini = state.join("murmur.ini");
+        std::fs::write(
+            &ini,
+            format!(
+                "database={db}\nhost=127.0.0.1\nport={port}\nlogfile={log}\nwelcometext=lipcall test\n\
+                 bandwidth=72000\n{extra}\n",
+                db = state.join("murmur.sqlite").display(),
+                log = state.join("murmur.log").display(),
+            ),
+        )
+        .unwrap();
+        let mut murmur = Self {
+            child: None,
+            port,
+            ini,
+        };
+        murmur.launch();
+        murmur
+    }
+
+    fn launch(&mut self) {
+        let child = Command::new("murmurd")
+            .arg("-fg")
+            .arg("-ini")
+            .arg(&self.ini)
+            .stdout(Stdio::null())
+            .stderr(Stdio::null())
+            .spawn()
+            .expect("murmurd");
+        self.child = Some(child);
+        let deadline = Instant::now() + Duration::from_secs(20);
+        while TcpStream::connect(("127.0.0.1", self.port)).is_err() {
+            assert!(
+                Instant::now() < deadline,
+                "murmurd did not listen on {}",
+                self.port
+            );
+            std::thread::sleep(Duration::from_millis(50));
+        }
+        // The certificate is made at the first start, after the port is open.
+        std::thread::sleep(Duration::from_millis(500));
+    }
+
+    pub fn address(&self) -> String {
+        format!("127.0.0.1:{}", self.port)
+    }
+
+    pub fn stop(&mut self) {
+        if let Some(mut c) = self.child.take() {
+            let _ = c.kill();
+            let _ = c.wait();
+        }
+    }
+
+    /// Kills and starts it again (same database and certificate, same port).
+    pub fn restart(&mut self, pause: Duration) {
+        self.stop();
+        std::thread::sleep(pause);
+        self.launch();
+    }
+}
+
+impl Drop for Murmur {
+    fn drop(&mut self) {
+        self.stop();
+    }
+}
+
+/// A lipcall command with its own config folder (its client certificate, known servers).
+pub fn lipcall_as(dir: &Path, who: &str) -> Command {
+    let mut cmd = super::lipcall();
+    cmd.env("XDG_CONFIG_HOME", dir.join(format!("config-{who}")));
+    cmd
+}
+
+/// SNR of `test` against `reference`, each 100 ms segment aligned on its own within 4 frames
+/// of the steady-state lag (found within `max` samples over 2-6 s): the speech heard is
+/// compared, not its position (a playout may move in a pause).
+pub fn segmental_snr(reference: &[i16], test: &[i16], max: usize) -> f64 {
+    const SEGMENT: usize = 800;
+    const FOLLOW: isize = 4 * 160;
+    let energies = |at: usize, len: usize, lag: isize| -> Option<(f64, f64)> {
+        let from = at as isize + lag;
+        if from < 0 || from as usize + len > test.len() || at + len > reference.len() {
+            return None;
+        }
+        let t = &test[from as usize..from as usize + len];
+        let r = &reference[at..at + len];
+        let signal: f64 = r.iter().map(|&x| f64::from(x).powi(2)).sum();
+        let error: f64 = r
+            .iter()
+            .zip(t)
+            .map(|(&a, &b)| (f64::from(a) - f64::from(b)).powi(2))
+            .sum();
+        Some((signal, error))
+    };
+    let best = |at: usize, len: usize, around: isize, reach: isize| {
+        (around - reach..=around + reach)
+            .filter_map(|lag| energies(at, len, lag).map(|(s, e)| (lag, s, e)))
+            .min_by(|a, b| a.2.total_cmp(&b.2))
+    };
+    let steady = (16_000.min(reference.len()), 32_000.min(reference.len() / 2));
+    let first = best(steady.0, steady.1, 0, max as isize).map_or(0, |(lag, ..)| lag);
+    let (mut signal, mut error) = (0.0, 0.0);
+    for at in (0..reference.len().saturating_sub(SEGMENT)).step_by(SEGMENT) {
+        if let Some((_, s, e)) = best(at, SEGMENT, first, FOLLOW) {
+            signal += s;
+            error += e;
+        }
+    }
+    10.0 * (signal / error.max(1e-9)).log10()
+}
