@@ -28,6 +28,7 @@ fn the_engine_joins_an_encrypted_room_and_animates_a_sender() {
         passphrase: Some("open sesame".into()),
         name: "Eve".into(),
         codec: Codec::Opus,
+        ..CallSpec::default()
     }));
     let deadline = Instant::now() + Duration::from_secs(10);
     while !lock(&engine.shared).call.in_call {

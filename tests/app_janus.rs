@@ -48,6 +48,7 @@ fn join(engine: &Engine, url: &str, room: &str, pin: Option<&str>) {
         passphrase: pin.map(Into::into),
         name: "Carol".into(),
         codec: Codec::Opus,
+        ..CallSpec::default()
     }));
 }
 

@@ -6,6 +6,7 @@ use eframe::egui;
 use super::engine::{self, CallSpec, Command, Engine};
 use super::settings::Settings;
 use crate::codec::any::Codec;
+use crate::codec::opus::codec::Bandwidth;
 
 /// The call form's fields.
 #[derive(Debug, Clone, Default)]
@@ -47,6 +48,9 @@ pub(super) fn call_ui(
                 .desired_width(90.0),
         );
         codec_picker_ui(ui, &mut settings.codec);
+        if settings.codec == Codec::Opus {
+            bandwidth_picker_ui(ui, &mut settings.bandwidth);
+        }
         let label = if form.room.trim().is_empty() {
             "Call"
         } else {
@@ -64,6 +68,7 @@ pub(super) fn call_ui(
                 passphrase: Some(form.passphrase.clone()),
                 name: settings.name.clone(),
                 codec: settings.codec,
+                bandwidth: settings.bandwidth,
             }));
         }
         if ui
@@ -121,6 +126,34 @@ fn codec_picker_ui(ui: &mut egui::Ui, codec: &mut Codec) {
             "The codec we send in new calls. Opus is what most VoIP speaks; every peer may \
              send any of Opus, Speex (narrowband or wideband), PCMU, PCMA and G.722, and all are received.",
         );
+}
+
+/// The band Opus codes in the next call.
+fn bandwidth_picker_ui(ui: &mut egui::Ui, bandwidth: &mut Bandwidth) {
+    egui::ComboBox::from_id_salt("bandwidth")
+        .selected_text(bandwidth_label(*bandwidth))
+        .width(70.0)
+        .show_ui(ui, |ui| {
+            for b in Bandwidth::ALL {
+                ui.selectable_value(bandwidth, b, bandwidth_label(b));
+            }
+        })
+        .response
+        .on_hover_text(
+            "The band Opus codes: fullband (up to 20 kHz, 32 kb/s) carries the /s f th sh/ \
+             that telephone bands cut; narrowband (4 kHz, 20 kb/s) saves bits.",
+        );
+}
+
+fn bandwidth_label(bandwidth: Bandwidth) -> &'static str {
+    match bandwidth {
+        Bandwidth::Auto => "Auto band",
+        Bandwidth::Narrowband => "4 kHz",
+        Bandwidth::Mediumband => "6 kHz",
+        Bandwidth::Wideband => "8 kHz",
+        Bandwidth::Superwideband => "12 kHz",
+        Bandwidth::Fullband => "20 kHz",
+    }
 }
 
 pub(super) fn codec_label(codec: Codec) -> &'static str {
