@@ -91,7 +91,17 @@ fn send_and_receive_help_keep_their_flag_order() {
     assert_eq!(
         listed_flags("send"),
         [
-            "to", "janus", "key", "key-hex", "name", "room", "codec", "quality", "pt", "no-rtcp",
+            "to",
+            "janus",
+            "key",
+            "key-hex",
+            "name",
+            "room",
+            "codec",
+            "bandwidth",
+            "quality",
+            "pt",
+            "no-rtcp",
             "ssrc",
         ]
     );
@@ -101,6 +111,7 @@ fn send_and_receive_help_keep_their_flag_order() {
             "listen",
             "janus",
             "wav",
+            "rate",
             "weights",
             "features",
             "key",
