@@ -455,9 +455,10 @@ fn check_against_gstreamer(r: &Received, codec: &str) {
     );
     assert!(
         (ours.median() - gst.median()).abs() <= 1.0,
-        "{codec}: lipcall {:.2} dB vs GStreamer {:.2} dB against the source",
+        "{codec}: lipcall {:.2} dB vs GStreamer {:.2} dB against the source; {same:?}\n{}",
         ours.median(),
-        gst.median()
+        gst.median(),
+        r.stderr
     );
     if stretched + dropped == 0.0 {
         assert!(
