@@ -92,8 +92,8 @@ fn send_and_receive_help_keep_their_flag_order() {
     assert_eq!(
         listed_flags("send"),
         [
-            "to", "janus", "key", "mumble", "key-hex", "name", "room", "codec", "quality", "pt",
-            "no-rtcp", "ssrc", "channel", "password", "tcp-only",
+            "to", "janus", "key", "mumble", "key-hex", "name", "room", "codec", "bandwidth", "quality",
+            "pt", "no-rtcp", "ssrc", "janus-secret", "janus-token", "channel", "password", "tcp-only",
         ]
     );
     assert_eq!(
@@ -103,6 +103,7 @@ fn send_and_receive_help_keep_their_flag_order() {
             "janus",
             "mumble",
             "wav",
+            "rate",
             "weights",
             "features",
             "key",

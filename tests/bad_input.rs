@@ -197,7 +197,7 @@ fn bad_usage_exits_2() {
         vec!["encode"],
         vec!["encode", "a.wav", "b.spx", "--quality", "11"],
         vec!["frobnicate"],
-        vec!["send", "a.wav", "--to", "127.0.0.1:9", "--codec", "g722"],
+        vec!["send", "a.wav", "--to", "127.0.0.1:9", "--codec", "g729"],
         vec!["send", "a.wav", "--to", "127.0.0.1:9", "--pt", "opus=5"],
         vec!["send", "a.wav", "--to", "127.0.0.1:9", "--pt", "opus"],
         vec!["receive", "--listen", "127.0.0.1:0", "--pt", "vorbis=100"],

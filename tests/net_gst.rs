@@ -8,8 +8,8 @@ use std::process::Command;
 use std::time::Duration;
 
 use common::net::{
-    Announce, align, decode_frames, fields, finish, num, ogg_packets, snr_at_best_lag, spawn,
-    spawn_listening,
+    Announce, align, align_frames, decode_frames, fields, finish, num, ogg_packets,
+    snr_at_best_lag, spawn, spawn_listening,
 };
 use common::{lipcall, read_wav_i16, run};
 use lipcall::codec::any::{Codec, EncoderSettings, FrameEncoder, MAX_FRAME_PAYLOAD};
@@ -438,9 +438,9 @@ fn check_against_gstreamer(r: &Received, codec: &str) {
     // Against the source, 200 ms at a time, each chunk at its best whole-frame shift. The
     // median chunk is the measure; over all chunks together too when the buffer did not adapt
     // (a chunk across an inserted frame compares concealment with speech).
-    let gst = align(&r.source, &r.reference, 2000 * scale);
-    let ours = align(&r.source, &r.played, 2000 * scale);
-    let same = align(&r.reference, &r.played, 2000 * scale);
+    let gst = align_frames(&r.source, &r.reference, 2000 * scale, frame);
+    let ours = align_frames(&r.source, &r.played, 2000 * scale, frame);
+    let same = align_frames(&r.reference, &r.played, 2000 * scale, frame);
     let (whole, lag) = snr_at_best_lag(&r.source, &r.reference, 2000 * scale);
     eprintln!(
         "{codec}: against the source, median 200 ms: GStreamer {:.2} dB, lipcall {:.2} dB; all \
@@ -455,9 +455,10 @@ fn check_against_gstreamer(r: &Received, codec: &str) {
     );
     assert!(
         (ours.median() - gst.median()).abs() <= 1.0,
-        "{codec}: lipcall {:.2} dB vs GStreamer {:.2} dB against the source",
+        "{codec}: lipcall {:.2} dB vs GStreamer {:.2} dB against the source; {same:?}\n{}",
         ours.median(),
-        gst.median()
+        gst.median(),
+        r.stderr
     );
     if stretched + dropped == 0.0 {
         assert!(
@@ -753,9 +754,9 @@ fn lipcall_send_fullband_opus_into_gstreamer_at_48_khz() {
         assert!(matches!(config, 14 | 15 | 28..=31), "TOC config {config}");
     }
     let source = read_wav_i16(&clip).1;
-    let theirs = align(&source, &got, 12_000);
-    let ours = align(&source, &trip.audio, 12_000);
-    let same = align(&trip.audio, &got, 2400);
+    let theirs = align_frames(&source, &got, 12_000, 960);
+    let ours = align_frames(&source, &trip.audio, 12_000, 960);
+    let same = align_frames(&trip.audio, &got, 2400, 960);
     let frames = got.len() as i64 / 960;
     let (band_theirs, band_source) = (
         band_db(&got, 48_000, 12_000.0),
@@ -797,7 +798,7 @@ fn lipcall_send_speex_wideband_into_gstreamer_at_16_khz() {
         16_000,
     );
     let trip = round_trip(&clip, Codec::SpeexWb);
-    let same = align(&trip.audio, &got, 800);
+    let same = align_frames(&trip.audio, &got, 800, 320);
     let frames = got.len() as i64 / 320;
     eprintln!(
         "speex-wb: GStreamer's decode against lipcall's median {:.1} dB; {frames} frames of {}",

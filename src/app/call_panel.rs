@@ -7,6 +7,7 @@ use super::engine::{self, CallSpec, Command, Engine};
 use super::settings::Settings;
 use crate::call::janus::is_janus_url;
 use crate::codec::any::Codec;
+use crate::codec::opus::codec::Bandwidth;
 use crate::net::janus::messages::JanusAuth;
 
 fn non_empty(s: &str) -> Option<String> {
@@ -73,6 +74,9 @@ pub(super) fn call_ui(
             );
         }
         codec_picker_ui(ui, &mut settings.codec);
+        if settings.codec == Codec::Opus {
+            bandwidth_picker_ui(ui, &mut settings.bandwidth);
+        }
         let label = if form.room.trim().is_empty() {
             "Call"
         } else {
@@ -94,6 +98,7 @@ pub(super) fn call_ui(
                     api_secret: non_empty(&form.janus_secret),
                     token: non_empty(&form.janus_token),
                 },
+                bandwidth: settings.bandwidth,
             }));
         }
         if ui
@@ -151,6 +156,34 @@ fn codec_picker_ui(ui: &mut egui::Ui, codec: &mut Codec) {
             "The codec we send in new calls. Opus is what most VoIP speaks; every peer may \
              send any of Opus, Speex (narrowband or wideband), PCMU, PCMA and G.722, and all are received.",
         );
+}
+
+/// The band Opus codes in the next call.
+fn bandwidth_picker_ui(ui: &mut egui::Ui, bandwidth: &mut Bandwidth) {
+    egui::ComboBox::from_id_salt("bandwidth")
+        .selected_text(bandwidth_label(*bandwidth))
+        .width(70.0)
+        .show_ui(ui, |ui| {
+            for b in Bandwidth::ALL {
+                ui.selectable_value(bandwidth, b, bandwidth_label(b));
+            }
+        })
+        .response
+        .on_hover_text(
+            "The band Opus codes: fullband (up to 20 kHz, 32 kb/s) carries the /s f th sh/ \
+             that telephone bands cut; narrowband (4 kHz, 20 kb/s) saves bits.",
+        );
+}
+
+fn bandwidth_label(bandwidth: Bandwidth) -> &'static str {
+    match bandwidth {
+        Bandwidth::Auto => "Auto band",
+        Bandwidth::Narrowband => "4 kHz",
+        Bandwidth::Mediumband => "6 kHz",
+        Bandwidth::Wideband => "8 kHz",
+        Bandwidth::Superwideband => "12 kHz",
+        Bandwidth::Fullband => "20 kHz",
+    }
 }
 
 pub(super) fn codec_label(codec: Codec) -> &'static str {

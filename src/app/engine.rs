@@ -10,7 +10,6 @@ use std::sync::{Arc, Mutex, MutexGuard};
 use std::thread::JoinHandle;
 use std::time::{Duration, Instant};
 
-use crate::audio::FrameResampler;
 use crate::audio::pacer::DEFAULT_LEAD;
 use crate::audio::{
     Capture, DeviceChoice, FramePacer, Gate, MicControls, OutputStatus, Playback, PlaybackConfig,
@@ -19,11 +18,12 @@ use crate::call::janus::{JanusLink, is_janus_url};
 use crate::call::link::{Link, LinkEvent};
 use crate::codec::any::{Codec, EncoderSettings, FrameEncoder, MAX_FRAME_PAYLOAD};
 use crate::net::janus::messages::JanusAuth;
+use crate::codec::opus::codec::Bandwidth;
 use crate::net::janus::room::RoomConfig;
 use crate::net::jitter::JitterConfig;
 use crate::net::session::{PeerFrame, PeerInfo, Session, SessionConfig};
 use crate::net::srtp::MasterKey;
-use crate::vocab::{FRAME_SIZE, MAX_FRAME_SAMPLES, SAMPLE_RATE};
+use crate::vocab::MAX_FRAME_SAMPLES;
 
 pub use super::counters::{DEMO_NAME, EngineCounters};
 use super::demo::Demo;
@@ -57,6 +57,8 @@ pub struct CallSpec {
     pub codec: Codec,
     /// A Janus's api_secret and token, where it asks for them.
     pub janus_auth: JanusAuth,
+    /// The band Opus codes (the microphone is read at 48 kHz for it).
+    pub bandwidth: Bandwidth,
 }
 
 impl Default for CallSpec {
@@ -68,6 +70,7 @@ impl Default for CallSpec {
             name: String::new(),
             codec: DEFAULT_CODEC,
             janus_auth: JanusAuth::default(),
+            bandwidth: Bandwidth::Fullband,
         }
     }
 }
@@ -228,8 +231,6 @@ struct Worker {
     mic: Option<Capture>,
     /// The microphone's encoder, for the codec of the current call.
     encoder: FrameEncoder,
-    /// The microphone's 8 kHz frames to the encoder's rate, where it takes another.
-    mic_resampler: Option<FrameResampler>,
     /// The session has destinations: the microphone is sent.
     in_call: bool,
     /// A relay call's join, until the relay confirms it.
@@ -264,7 +265,6 @@ impl Worker {
         let link: Box<dyn Link> = Box::new(idle_session(&config)?);
         let mut worker = Self {
             encoder: FrameEncoder::new(DEFAULT_CODEC, &EncoderSettings::default())?,
-            mic_resampler: None,
             link,
             demo: None,
             mic: None,
@@ -355,7 +355,8 @@ impl Worker {
         } else {
             SocketAddr::from((std::net::Ipv6Addr::UNSPECIFIED, 0))
         };
-        let encoder = FrameEncoder::new(spec.codec, &EncoderSettings::default())?;
+        let settings = EncoderSettings::wideband(spec.bandwidth);
+        let encoder = FrameEncoder::new(spec.codec, &settings)?;
         let mut sc = SessionConfig::new(bind);
         sc.destinations = vec![to];
         sc.room = room.clone();
@@ -408,7 +409,8 @@ impl Worker {
         };
         let janus = JanusLink::join(config)?;
         let state = format!("joining {}…", janus.place());
-        let encoder = FrameEncoder::new(Codec::Opus, &EncoderSettings::default())?;
+        let settings = EncoderSettings::wideband(spec.bandwidth);
+        let encoder = FrameEncoder::new(Codec::Opus, &settings)?;
         self.switch_link(Box::new(janus), encoder);
         self.relay = RelayWatch::default();
         let mut s = lock(&self.shared);
@@ -572,32 +574,20 @@ impl Worker {
     fn send_mic(&mut self) {
         let Some(mic) = &mut self.mic else { return };
         let in_call = self.in_call;
-        let mut frame = [0i16; FRAME_SIZE];
-        let mut wide = [0i16; MAX_FRAME_SAMPLES];
-        let mut payload = [0u8; MAX_FRAME_PAYLOAD];
-        let rate = self.encoder.input_rate();
-        if rate != SAMPLE_RATE
-            && self
-                .mic_resampler
-                .as_ref()
-                .is_none_or(|r| r.to_rate() != rate)
-        {
-            self.mic_resampler = FrameResampler::new(SAMPLE_RATE, rate).ok();
+        // The microphone resampled once, straight to the rate the encoder takes.
+        if let Err(e) = mic.set_rate(self.encoder.input_rate()) {
+            tracing::debug!(
+                "microphone kept at {} samples a frame: {e}",
+                mic.frame_samples()
+            );
         }
+        let mut frame = [0i16; MAX_FRAME_SAMPLES];
+        let frame = &mut frame[..mic.frame_samples()];
+        let mut payload = [0u8; MAX_FRAME_PAYLOAD];
         loop {
-            match mic.read_frame(&mut frame) {
+            match mic.read_frame(frame) {
                 Ok(Some(Gate::Open)) if in_call => {
-                    let input = match &mut self.mic_resampler {
-                        Some(r) if rate != SAMPLE_RATE => {
-                            let wide = &mut wide[..self.encoder.frame_samples()];
-                            if r.process_into(&frame, wide).is_err() {
-                                continue;
-                            }
-                            &*wide
-                        }
-                        _ => &frame[..],
-                    };
-                    if let Ok(Some((n, frames))) = self.encoder.encode(input, &mut payload) {
+                    if let Ok(Some((n, frames))) = self.encoder.encode(frame, &mut payload) {
                         self.link.send_frames(&payload[..n], frames);
                     }
                 }

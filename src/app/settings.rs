@@ -6,6 +6,7 @@ use std::path::{Path, PathBuf};
 use serde::{Deserialize, Serialize};
 
 use crate::codec::any::Codec;
+use crate::codec::opus::codec::Bandwidth;
 
 /// The codec new calls send unless the settings say otherwise: Opus. It is what the VoIP world
 /// speaks today (WebRTC, SIP phones, Mumble, Discord), and it carries in-band FEC, so a lost
@@ -93,6 +94,8 @@ pub struct Settings {
     pub push_to_talk: bool,
     /// The codec we send in new calls.
     pub codec: Codec,
+    /// The band Opus codes in new calls (fullband: up to 20 kHz).
+    pub bandwidth: Bandwidth,
     /// Per-peer choices by display name (SSRCs change every call).
     pub peers: BTreeMap<String, PeerPrefs>,
 }
@@ -107,6 +110,7 @@ impl Default for Settings {
             output_device: String::new(),
             push_to_talk: false,
             codec: DEFAULT_CODEC,
+            bandwidth: Bandwidth::Fullband,
             peers: BTreeMap::new(),
         }
     }

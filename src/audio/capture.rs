@@ -1,9 +1,10 @@
-//! Microphone capture: device callback -> ring -> 8 kHz frames for the encoder.
+//! Microphone capture: device callback -> ring -> 20 ms frames at the encoder's rate (48 kHz
+//! for Opus, 16 kHz for G.722 and Speex wideband, 8 kHz for the narrowband codecs).
 //!
 //! The callback ([`InputFeeder`]) converts whatever the device delivers to f32 mono, updates the
 //! level meter (atomics) and pushes into an rtrb ring; on a full ring it drops and counts. The
-//! encoder thread's side ([`FrameReader`]) resamples to 8 kHz with buffers allocated once and
-//! hands out 160-sample frames, gated by mute and push-to-talk.
+//! encoder thread's side ([`FrameReader`]) resamples in one step to the encoder's rate with
+//! buffers allocated once and hands out 20 ms frames, gated by mute and push-to-talk.
 
 use std::sync::Arc;
 use std::sync::atomic::{AtomicBool, AtomicU32, AtomicU64, Ordering};
@@ -163,11 +164,15 @@ impl InputFeeder {
     }
 }
 
-/// Device rate -> 8 kHz, one frame at a time, buffers allocated once.
+/// Device rate -> the encoder's rate (8 kHz unless told another), one 20 ms frame at a time,
+/// buffers allocated once.
 pub struct Downsampler {
     resampler: Option<Fft<f32>>,
     input: Vec<f32>,
     output: Vec<f32>,
+    /// Samples of one output frame.
+    frame: usize,
+    rate: u32,
 }
 
 impl std::fmt::Debug for Downsampler {
@@ -178,22 +183,40 @@ impl std::fmt::Debug for Downsampler {
 
 impl Downsampler {
     pub fn new(rate: u32) -> Result<Self, AudioError> {
-        let resampler = fft_resampler(rate, SAMPLE_RATE, FRAME_SIZE, FixedSync::Output)?;
-        let (imax, omax) = resampler.as_ref().map_or((FRAME_SIZE, FRAME_SIZE), |r| {
+        Self::to_rate(rate, SAMPLE_RATE)
+    }
+
+    /// From the device's `rate` to 20 ms frames at `out` (8 kHz to 48 kHz).
+    pub fn to_rate(rate: u32, out: u32) -> Result<Self, AudioError> {
+        if !crate::vocab::audio::valid_rate(out) {
+            return Err(AudioError::Resampler(format!(
+                "no 20 ms frames at {out} Hz"
+            )));
+        }
+        let frame = out as usize / 50;
+        let resampler = fft_resampler(rate, out, frame, FixedSync::Output)?;
+        let (imax, omax) = resampler.as_ref().map_or((frame, frame), |r| {
             (r.input_frames_max(), r.output_frames_max())
         });
         Ok(Self {
             resampler,
             input: vec![0.0; imax],
             output: vec![0.0; omax],
+            frame,
+            rate: out,
         })
+    }
+
+    /// The rate of the frames it gives.
+    pub fn rate(&self) -> u32 {
+        self.rate
     }
 
     /// Device samples the next frame needs.
     pub fn needed(&self) -> usize {
         self.resampler
             .as_ref()
-            .map_or(FRAME_SIZE, |r| r.input_frames_next())
+            .map_or(self.frame, |r| r.input_frames_next())
     }
 
     /// Output (8 kHz) samples of delay.
@@ -206,7 +229,7 @@ impl Downsampler {
     fn process_from(
         &mut self,
         ring: &mut rtrb::Consumer<f32>,
-        out: &mut [f32; FRAME_SIZE],
+        out: &mut [f32],
     ) -> Result<bool, AudioError> {
         let need = self.needed();
         let Ok(chunk) = ring.read_chunk(need) else {
@@ -222,10 +245,18 @@ impl Downsampler {
 
     /// Resamples the first `n` samples of the internal input buffer (tests and benches fill it
     /// through [`Self::process_slice`]).
-    fn process(&mut self, n: usize, out: &mut [f32; FRAME_SIZE]) -> Result<(), AudioError> {
+    fn process(&mut self, n: usize, out: &mut [f32]) -> Result<(), AudioError> {
         let err = |e: &dyn std::fmt::Display| AudioError::Resampler(e.to_string());
+        if out.len() != self.frame {
+            return Err(AudioError::Resampler(format!(
+                "a frame of {} samples where 20 ms at {} Hz is {}",
+                out.len(),
+                self.rate,
+                self.frame
+            )));
+        }
         let Some(r) = self.resampler.as_mut() else {
-            out.copy_from_slice(&self.input[..FRAME_SIZE]);
+            out.copy_from_slice(&self.input[..self.frame]);
             return Ok(());
         };
         let olen = self.output.len();
@@ -236,17 +267,13 @@ impl Downsampler {
             .process_into_buffer(&inp, &mut outp, None)
             .map_err(|e| err(&e))?;
         out.fill(0.0);
-        let got = got.min(FRAME_SIZE);
+        let got = got.min(self.frame);
         out[..got].copy_from_slice(&self.output[..got]);
         Ok(())
     }
 
-    /// Resamples `input` (exactly [`Self::needed`] samples) into one 8 kHz frame.
-    pub fn process_slice(
-        &mut self,
-        input: &[f32],
-        out: &mut [f32; FRAME_SIZE],
-    ) -> Result<(), AudioError> {
+    /// Resamples `input` (exactly [`Self::needed`] samples) into one frame.
+    pub fn process_slice(&mut self, input: &[f32], out: &mut [f32]) -> Result<(), AudioError> {
         let need = self.needed();
         if input.len() != need {
             return Err(AudioError::Resampler(format!(
@@ -268,19 +295,49 @@ pub enum Gate {
     Closed,
 }
 
-/// The encoder thread's end: 8 kHz frames out of the ring.
+/// The encoder thread's end: 20 ms frames out of the ring, at 8 kHz or the rate the encoder
+/// takes ([`FrameReader::set_rate`]).
 #[derive(Debug)]
 pub struct FrameReader {
     ring: rtrb::Consumer<f32>,
     down: Downsampler,
+    device_rate: u32,
     controls: MicControls,
-    frame: [f32; FRAME_SIZE],
+    frame: Vec<f32>,
 }
 
 impl FrameReader {
-    /// The next 20 ms frame, `None` until the device has delivered enough. Never blocks: poll
-    /// it every few milliseconds, or after each 20 ms tick, and take frames while it yields.
-    pub fn read_frame(&mut self, out: &mut [i16; FRAME_SIZE]) -> Result<Option<Gate>, AudioError> {
+    /// Frames at `rate` from now on (Opus's 48 kHz, G.722's 16 kHz, ...). On an error the
+    /// rate stays as it was.
+    pub fn set_rate(&mut self, rate: u32) -> Result<(), AudioError> {
+        if rate != self.down.rate() {
+            self.down = Downsampler::to_rate(self.device_rate, rate)?;
+            self.frame = vec![0.0; rate as usize / 50];
+        }
+        Ok(())
+    }
+
+    /// The rate of the frames it gives.
+    pub fn rate(&self) -> u32 {
+        self.down.rate()
+    }
+
+    /// Samples in one of its frames.
+    pub fn frame_samples(&self) -> usize {
+        self.frame.len()
+    }
+
+    /// The next 20 ms frame into `out` ([`FrameReader::frame_samples`] long), `None` until
+    /// the device has delivered enough. Never blocks: poll it every few milliseconds, or after
+    /// each 20 ms tick, and take frames while it yields.
+    pub fn read_frame(&mut self, out: &mut [i16]) -> Result<Option<Gate>, AudioError> {
+        if out.len() != self.frame.len() {
+            return Err(AudioError::Resampler(format!(
+                "a frame of {} samples where 20 ms is {}",
+                out.len(),
+                self.frame.len()
+            )));
+        }
         if !self.down.process_from(&mut self.ring, &mut self.frame)? {
             return Ok(None);
         }
@@ -319,8 +376,9 @@ pub fn capture_pipeline(
         FrameReader {
             ring: rx,
             down,
+            device_rate: rate,
             controls,
-            frame: [0.0; FRAME_SIZE],
+            frame: vec![0.0; FRAME_SIZE],
         },
     ))
 }
@@ -408,8 +466,18 @@ impl Capture {
     }
 
     /// See [`FrameReader::read_frame`].
-    pub fn read_frame(&mut self, out: &mut [i16; FRAME_SIZE]) -> Result<Option<Gate>, AudioError> {
+    pub fn read_frame(&mut self, out: &mut [i16]) -> Result<Option<Gate>, AudioError> {
         self.reader.read_frame(out)
+    }
+
+    /// See [`FrameReader::set_rate`].
+    pub fn set_rate(&mut self, rate: u32) -> Result<(), AudioError> {
+        self.reader.set_rate(rate)
+    }
+
+    /// Samples in one of its frames.
+    pub fn frame_samples(&self) -> usize {
+        self.reader.frame_samples()
     }
 
     pub fn controls(&self) -> MicControls {
@@ -443,6 +511,47 @@ mod tests {
                 amp * (2.0 * std::f32::consts::PI * freq * t).sin()
             })
             .collect()
+    }
+
+    #[test]
+    fn frames_come_at_the_encoders_rate_in_one_resampling_step() {
+        // A 44.1 kHz microphone read for Opus (48 kHz) and for G.722 (16 kHz): a 9 kHz tone,
+        // above any narrowband, comes through at its level where the rate can carry it.
+        for (out_rate, carries) in [(48_000, true), (16_000, false), (8000, false)] {
+            let (mut feeder, mut reader) =
+                capture_pipeline(44_100, 1, Duration::from_secs(2)).unwrap();
+            reader.set_rate(out_rate).unwrap();
+            assert_eq!(reader.rate(), out_rate);
+            let n = out_rate as usize / 50;
+            assert_eq!(reader.frame_samples(), n);
+            let mut wrong = vec![0i16; n + 1];
+            assert!(reader.read_frame(&mut wrong).is_err());
+            for block in tone(44_100, 9000.0, 0.5, 44_100, 0).chunks(441) {
+                feeder.feed(block);
+            }
+            let mut frame = vec![0i16; n];
+            let mut got = Vec::new();
+            while let Some(gate) = reader.read_frame(&mut frame).unwrap() {
+                assert_eq!(gate, Gate::Open);
+                got.extend_from_slice(&frame);
+            }
+            assert!(got.len() >= 40 * n, "{out_rate}: {} samples", got.len());
+            let tail = &got[got.len() / 2..];
+            let rms = (tail.iter().map(|&s| f64::from(s).powi(2)).sum::<f64>() / tail.len() as f64)
+                .sqrt()
+                / 32768.0;
+            if carries {
+                assert!(
+                    (rms / (0.5 / 2f64.sqrt()) - 1.0).abs() < 0.05,
+                    "{out_rate}: {rms}"
+                );
+            } else {
+                assert!(rms < 0.01, "{out_rate}: 9 kHz leaked at {rms}");
+            }
+        }
+        let (_, mut reader) = capture_pipeline(44_100, 1, Duration::from_secs(1)).unwrap();
+        assert!(reader.set_rate(44_123).is_err());
+        assert_eq!(reader.rate(), 8000);
     }
 
     #[test]

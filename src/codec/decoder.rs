@@ -1012,9 +1012,14 @@ mod tests {
             let mut dec = StreamDecoder::new(codec, true).unwrap();
             for junk in [&[][..], &[0xff; 3], &[0x0b, 48], &[0u8; 1500]] {
                 dec.packet(junk, 0);
-                let _ = dec.frame();
+                let played = dec.frame();
                 dec.packet(junk, u32::MAX);
-                let _ = dec.lost(Some(junk));
+                let lost = dec.lost(Some(junk));
+                for f in [played, lost] {
+                    // Whatever came in, 20 ms at the codec's own rate came out.
+                    assert_eq!(f.audio.rate(), codec.audio_rate(), "{codec}");
+                    assert!(f.features.lsp.iter().all(|v| v.is_finite()));
+                }
             }
         }
     }

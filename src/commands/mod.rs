@@ -45,6 +45,23 @@ pub fn parse_seconds(arg: &str) -> Result<f64, String> {
     }
 }
 
+/// `--bandwidth` (clap value parser): an Opus band.
+pub fn parse_bandwidth(arg: &str) -> Result<crate::codec::opus::codec::Bandwidth, String> {
+    arg.parse()
+}
+
+/// A sample rate a 20 ms frame holds whole, 8 to 48 kHz (`receive --rate`).
+pub fn parse_frame_rate(arg: &str) -> Result<u32, String> {
+    let rate: u32 = arg.trim().parse().map_err(|e| format!("{e}"))?;
+    if crate::vocab::audio::valid_rate(rate) {
+        Ok(rate)
+    } else {
+        Err(format!(
+            "{rate} Hz: expected 8000 to 48000, divisible by 50 (8000, 16000, 44100, 48000)"
+        ))
+    }
+}
+
 /// `--peer-timeout` (clap value parser): [`parse_seconds`], and at least a second. A peer is
 /// not gone between two packets: with Opus DTX a quiet one sends one every 400 ms, and a timeout
 /// of a few microseconds would drop every caller at once.

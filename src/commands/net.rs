@@ -159,7 +159,7 @@ pub struct SendArgs {
     pub codec: Option<Codec>,
     /// The band Opus codes from a .wav (at 48 kHz): nb, mb, wb, swb or fb (up to 20 kHz),
     /// or auto (libopus picks by bitrate: 20 kb/s for nb and mb, 24 for wb, 32 above).
-    #[arg(long, default_value = "fb", value_parser = parse_bandwidth)]
+    #[arg(long, default_value = "fb", value_parser = super::parse_bandwidth)]
     pub bandwidth: Bandwidth,
     /// Speex quality for .wav input, 0 to 10.
     #[arg(long, default_value_t = 8, value_parser = clap::value_parser!(u8).range(0..=10))]
@@ -323,7 +323,7 @@ pub struct ReceiveArgs {
     #[arg(long, value_name = "OUT.wav")]
     pub wav: Option<PathBuf>,
     /// OUT.wav's sample rate, Hz (every peer is resampled to it).
-    #[arg(long, value_name = "HZ", value_parser = parse_rate)]
+    #[arg(long, value_name = "HZ", value_parser = super::parse_frame_rate)]
     pub rate: Option<u32>,
     /// Write viseme weights from the built-in lip-sync network (one file per peer).
     #[arg(long, value_name = "WEIGHTS.csv")]
@@ -686,22 +686,6 @@ fn parse_payload_type(s: &str) -> Result<String, String> {
         .with_assignments(&[s])
         .map(|_| s.to_string())
         .map_err(|e| e.to_string())
-}
-
-fn parse_bandwidth(s: &str) -> Result<Bandwidth, String> {
-    s.parse()
-}
-
-/// A sample rate a 20 ms frame holds whole, 8 to 48 kHz.
-fn parse_rate(s: &str) -> Result<u32, String> {
-    let rate: u32 = s.trim().parse().map_err(|e| format!("{e}"))?;
-    if crate::vocab::audio::valid_rate(rate) {
-        Ok(rate)
-    } else {
-        Err(format!(
-            "{rate} Hz: expected 8000 to 48000, divisible by 50 (8000, 16000, 44100, 48000)"
-        ))
-    }
 }
 
 fn parse_hex_u32(s: &str) -> Result<u32, String> {

@@ -183,6 +183,12 @@ impl Recorder {
             return Ok(rate);
         }
         self.rate = Some(heard);
+        if let Some((path, _)) = &self.wav {
+            eprintln!(
+                "lipcall: {} at {heard} Hz, the rate of the stream first heard",
+                path.display()
+            );
+        }
         if heard != self.wav_rate {
             if let Some((path, old)) = self.wav.take() {
                 // Finished first: its header must not land on the new file.

@@ -278,14 +278,20 @@ impl Alignment {
 }
 
 pub fn align(reference: &[i16], test: &[i16], max_offset: usize) -> Alignment {
+    align_frames(reference, test, max_offset, FRAME_SIZE)
+}
+
+/// [`align`] of streams whose 20 ms frames hold `frame` samples (960 at 48 kHz): chunks of
+/// 200 ms, each at its best shift of up to 4 whole frames.
+pub fn align_frames(reference: &[i16], test: &[i16], max_offset: usize, frame: usize) -> Alignment {
     let window = 4000
         .min(reference.len())
         .min(test.len().saturating_sub(max_offset));
     let start = reference
-        .chunks(FRAME_SIZE)
+        .chunks(frame)
         .position(|c| energy(c) > 1e6 * c.len() as f64)
         .unwrap_or(0)
-        * FRAME_SIZE;
+        * frame;
     let reference_part = &reference[start..(start + window).min(reference.len())];
     let mut best = (f64::NEG_INFINITY, 0i64);
     for lag in 0..=max_offset as i64 {
@@ -299,7 +305,7 @@ pub fn align(reference: &[i16], test: &[i16], max_offset: usize) -> Alignment {
         }
     }
     let offset = best.1;
-    let chunk = 10 * FRAME_SIZE;
+    let chunk = 10 * frame;
     let mut chunk_snr = Vec::new();
     let mut energies = (0.0, 0.0);
     for (i, t) in test.chunks_exact(chunk).enumerate() {
@@ -307,14 +313,14 @@ pub fn align(reference: &[i16], test: &[i16], max_offset: usize) -> Alignment {
         // before it starts.
         let end = ((i + 1) * chunk) as i64 - offset;
         if energy(t) < 1e6 * chunk as f64
-            || end + 4 * FRAME_SIZE as i64 > reference.len() as i64
+            || end + 4 * frame as i64 > reference.len() as i64
             || end < chunk as i64
         {
             continue;
         }
         let mut best_chunk = (f64::NEG_INFINITY, (0.0, 0.0));
         for shift in -4i64..=4 {
-            let r0 = (i * chunk) as i64 - offset + shift * FRAME_SIZE as i64;
+            let r0 = (i * chunk) as i64 - offset + shift * frame as i64;
             if r0 < 0 {
                 continue;
             }

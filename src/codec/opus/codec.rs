@@ -24,7 +24,10 @@ pub const MAX_PACKET_SAMPLES: usize = SAMPLE_RATE as usize * MAX_PACKET_MS / 100
 pub const RATES: [u32; 5] = [8000, 12_000, 16_000, 24_000, 48_000];
 
 /// The audio band an encoder codes (RFC 6716 2: narrowband 4 kHz up to fullband 20 kHz).
-#[derive(Debug, Clone, Copy, PartialEq, Eq, Hash, Default)]
+#[derive(
+    Debug, Clone, Copy, PartialEq, Eq, Hash, Default, serde::Serialize, serde::Deserialize,
+)]
+#[serde(rename_all = "lowercase")]
 pub enum Bandwidth {
     /// libopus picks by bitrate and input rate.
     #[default]

@@ -347,6 +347,12 @@ impl Decoder {
         self.corrupt_at = match Walker::new().frames(packet).find_map(Result::err) {
             // Truncation is not corrupt to libspeex: it decodes the missing bits as zeros.
             None | Some(BitstreamError::Truncated { .. }) => None,
+            // The walker meets a wideband layer at the start of the frame after it; the
+            // wideband decoder reads it at the end of the frame it belongs to.
+            Some(
+                error @ (BitstreamError::InvalidWidebandSubmode { .. }
+                | BitstreamError::TooManyWidebandLayers { .. }),
+            ) if self.band == Band::Wide => Some(error.frame().saturating_sub(1)),
             Some(error) => Some(error.frame()),
         };
         // SAFETY: libspeex copies `len` bytes from the slice (growing its own buffer if needed).
