@@ -513,3 +513,54 @@ fn sip_answer_registers_with_sha256_refreshes_and_is_reached_through_kamailio() 
     let (_, corr) = best_alignment(&sent, &got, 8000, 8000, 1600);
     assert!(corr > 0.95, "lipcall did not hear baresip: {corr:.3}");
 }
+
+#[test]
+fn a_call_cancelled_before_the_answer_stops_baresip_ringing_through_kamailio() {
+    if !have(&["kamailio", "baresip", "sox"]) {
+        return;
+    }
+    let dir = tempfile::tempdir().unwrap();
+    let (kam_port, bob_port, control) = (free_port(false), free_port(false), free_port(false));
+    let _kamailio = kamailio(dir.path(), kam_port, "");
+    let bob = baresip(
+        dir.path(),
+        bob_port,
+        control,
+        &format!(
+            "<sip:bob@127.0.0.1:{kam_port}>;auth_pass={PASSWORD};answermode=manual;regint=60;audio_codecs=PCMU"
+        ),
+        &reversed_8k(dir.path()),
+    );
+    assert!(
+        bob.wait_for("200 OK", Duration::from_secs(10)),
+        "{}",
+        bob.text()
+    );
+    let started = std::time::Instant::now();
+    let out = common::lipcall()
+        .args(["sip", "call", &format!("sip:bob@127.0.0.1:{kam_port}")])
+        .arg("--play")
+        .arg(common::demo_8k(dir.path()))
+        .args(["--account", &format!("sip:alice@127.0.0.1:{kam_port}")])
+        .args(["--password", PASSWORD, "--seconds", "3"])
+        .output()
+        .unwrap();
+    let log = String::from_utf8_lossy(&out.stderr).into_owned();
+    assert_eq!(out.status.code(), Some(1), "{log}");
+    assert!(log.contains("is ringing"), "{log}");
+    assert!(
+        log.contains("no answer within 3 s; the call was cancelled"),
+        "{log}"
+    );
+    assert!(
+        started.elapsed() < Duration::from_secs(5),
+        "{:?}: {log}",
+        started.elapsed()
+    );
+    // kamailio matched our CANCEL to the INVITE and passed it on: baresip stopped ringing.
+    assert!(
+        bob.wait_for("session closed", Duration::from_secs(3)),
+        "baresip still rings: {}",
+        bob.text()
+    );
+}
