@@ -27,8 +27,8 @@ fn have(tools: &[&str]) -> bool {
 
 /// kamailio as registrar and proxy on `port`: REGISTER must answer a digest challenge for
 /// [`PASSWORD`]; everything else is routed by the location table (kept in memory). `extra`:
-/// more `modparam` lines.
-fn kamailio(dir: &Path, port: u16, extra: &str) -> Logged {
+/// more `modparam` lines; `route`: script run on a new request before it is routed.
+fn kamailio_with(dir: &Path, port: u16, extra: &str, route: &str) -> Logged {
     let modules = [
         "tm",
         "sl",
@@ -83,6 +83,7 @@ request_route {{
         save("location");
         exit;
     }}
+    {route}
     if (!lookup("location")) {{
         sl_send_reply("404", "Not Found");
         exit;
@@ -107,6 +108,10 @@ request_route {{
         kamailio.text()
     );
     kamailio
+}
+
+fn kamailio(dir: &Path, port: u16, extra: &str) -> Logged {
+    kamailio_with(dir, port, extra, "")
 }
 
 /// baresip with its own config folder: `account` its accounts line, its microphone `source`
@@ -561,6 +566,53 @@ fn a_call_cancelled_before_the_answer_stops_baresip_ringing_through_kamailio() {
     assert!(
         bob.wait_for("session closed", Duration::from_secs(3)),
         "baresip still rings: {}",
+        bob.text()
+    );
+}
+
+#[test]
+fn a_proxy_that_challenges_the_invite_gets_its_answer() {
+    if !have(&["kamailio", "baresip", "sox"]) {
+        return;
+    }
+    let dir = tempfile::tempdir().unwrap();
+    let (kam_port, bob_port, control) = (free_port(false), free_port(false), free_port(false));
+    // Calls from our domain must answer a 407 first.
+    let challenge = format!(
+        "if (is_method(\"INVITE\") && !pv_proxy_authenticate(\"$fd\", \"{PASSWORD}\", \"0\")) {{ proxy_challenge(\"$fd\", \"0\"); exit; }}"
+    );
+    let kamailio = kamailio_with(dir.path(), kam_port, "", &challenge);
+    let bob = baresip(
+        dir.path(),
+        bob_port,
+        control,
+        &format!(
+            "<sip:bob@127.0.0.1:{kam_port}>;auth_pass={PASSWORD};answermode=auto;regint=60;audio_codecs=PCMU"
+        ),
+        &reversed_8k(dir.path()),
+    );
+    assert!(
+        bob.wait_for("200 OK", Duration::from_secs(10)),
+        "{}",
+        bob.text()
+    );
+    let call = |password: &str| {
+        common::lipcall()
+            .args(["sip", "call", &format!("sip:bob@127.0.0.1:{kam_port}")])
+            .arg("--play")
+            .arg(common::demo_8k(dir.path()))
+            .args(["--account", &format!("sip:alice@127.0.0.1:{kam_port}")])
+            .args(["--password", password, "--seconds", "3"])
+            .output()
+            .unwrap()
+    };
+    let out = call(PASSWORD);
+    let log = String::from_utf8_lossy(&out.stderr).into_owned();
+    assert!(out.status.success(), "{log}\nkamailio: {}", kamailio.text());
+    assert!(log.contains("in a SIP call"), "{log}");
+    assert!(
+        bob.wait_for("session closed", Duration::from_secs(5)),
+        "{}",
         bob.text()
     );
 }
