@@ -11,7 +11,7 @@ use crate::codec::any::Codec;
 use crate::net::session::{PeerFrame, PeerInfo};
 use crate::net::sip::agent::{Agent, AgentConfig, AgentEvent, SipError};
 use crate::net::sip::media::{SipRtp, SipRtpStats};
-use crate::net::sip::sdp::Negotiated;
+use crate::net::sip::sdp::{Negotiated, SdesKey};
 
 /// How long a hang-up waits for the peer to confirm it.
 const HANG_UP_WAIT: Duration = Duration::from_secs(3);
@@ -34,6 +34,8 @@ pub struct SipLink {
     /// Our RTP socket until the media starts on it.
     socket: Option<UdpSocket>,
     local_rtp: SocketAddr,
+    /// Our SRTP key, used where SDP agrees SRTP.
+    key: SdesKey,
     rtp: Option<SipRtp>,
     negotiated: Option<Negotiated>,
     state: CallState,
@@ -59,11 +61,13 @@ impl SipLink {
             addr: config.audio.addr,
             why: e.to_string(),
         })?;
+        let key = config.audio.key.clone();
         let agent = Agent::start(config)?;
         Ok(Self {
             agent,
             socket: Some(socket),
             local_rtp,
+            key,
             rtp: None,
             negotiated: None,
             state: CallState::Setting,
@@ -147,7 +151,7 @@ impl SipLink {
 
     fn media(&mut self, negotiated: Negotiated) {
         self.notices.push(format!(
-            "media: {} (payload type {}) with {}{}",
+            "media: {} (payload type {}) with {}{}{}",
             negotiated.codec,
             negotiated.payload_type,
             negotiated.remote,
@@ -155,11 +159,16 @@ impl SipLink {
                 ", DTMF events"
             } else {
                 ""
+            },
+            if negotiated.srtp.is_some() {
+                ", SRTP (keys exchanged in SDP)"
+            } else {
+                ", NOT encrypted (plain RTP)"
             }
         ));
         match (&self.rtp, self.socket.take()) {
             (Some(rtp), _) => rtp.with(|core| core.renegotiate(negotiated.clone())),
-            (None, Some(socket)) => match SipRtp::start(socket, negotiated.clone()) {
+            (None, Some(socket)) => match SipRtp::start(socket, negotiated.clone(), &self.key) {
                 Ok(rtp) => self.rtp = Some(rtp),
                 Err(e) => {
                     let e = SipError::Protocol(format!("cannot start the call's RTP: {e}"));

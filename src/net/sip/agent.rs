@@ -440,6 +440,8 @@ mod tests {
                 addr: "127.0.0.1:4000".parse().unwrap(),
                 codecs: codecs(None),
                 session_id: 1,
+                key: super::super::sdp::SdesKey([0; 30]),
+                offer_srtp: false,
             },
             role: Role::Answer,
         };

@@ -67,6 +67,9 @@ impl SdpMedia {
     pub fn take_answer_text(&mut self, answer: &str) -> Result<(), SdpError> {
         let remote = sdp::parse(answer)?;
         let negotiated = sdp::negotiate(&remote, &self.audio.codecs)?;
+        if self.audio.offer_srtp && negotiated.srtp.is_none() {
+            return Err(SdpError::Unencrypted);
+        }
         self.agreed(negotiated);
         Ok(())
     }
