@@ -134,6 +134,9 @@ pub async fn dial(
 ) -> Result<Option<InviteSession>, SipError> {
     let offer = media.offer()?.to_string();
     let mut initiator = InviteInitiator::new(endpoint.clone(), id, contact, target_uri);
+    // ezk's initiator sends no PRACK: a peer told we support 100rel would wait for one after a
+    // reliable 183 and give up on the call.
+    initiator.support_100rel = false;
     let mut earlies: Vec<Early> = Vec::new();
     let mut ringing = false;
     let mut cancelled = false;
