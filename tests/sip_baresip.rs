@@ -414,7 +414,10 @@ fn baresip_calls_lipcall_which_answers_until_baresip_hangs_up() {
         got.len()
     );
     let (lag, corr) = best_alignment(&sent, &got, 8000, 8000, 1600);
-    assert!(corr > 0.95, "lipcall did not hear baresip: {corr:.3} at lag {lag}");
+    assert!(
+        corr > 0.95,
+        "lipcall did not hear baresip: {corr:.3} at lag {lag}"
+    );
     let (_, ours_sent) = common::read_wav_i16(&ours);
     let (_, bob_got) = common::read_wav_i16(&baresip_heard(dir.path()));
     let (_, corr) = best_alignment(&ours_sent, &bob_got, 8000, 8000, 4000);

@@ -41,6 +41,8 @@ pub struct SipLink {
     state: CallState,
     /// Who the peer is (the dialled URI, or the caller).
     peer: String,
+    /// The call was answered (not only ringing with early media).
+    answered: bool,
     /// Progress lines for the user (registered, ringing, a caller).
     notices: Vec<String>,
     events: Vec<LinkEvent>,
@@ -71,6 +73,7 @@ impl SipLink {
             rtp: None,
             negotiated: None,
             state: CallState::Setting,
+            answered: false,
             peer,
             notices: Vec::new(),
             events: Vec::new(),
@@ -125,9 +128,13 @@ impl SipLink {
                 self.notices.push(format!("call from {from}; answering"));
             }
             AgentEvent::Ringing => self.notices.push(format!("{} is ringing", self.peer)),
+            AgentEvent::EarlyMedia => self
+                .notices
+                .push(format!("{} sends early media before answering", self.peer)),
             AgentEvent::Media(negotiated) => self.media(negotiated),
             AgentEvent::Established => {
                 self.state = CallState::Established;
+                self.answered = true;
                 self.events.push(LinkEvent::Joined {
                     place: format!("a SIP call with {}", self.peer),
                     id: self.local_rtp.to_string(),
@@ -187,8 +194,17 @@ impl SipLink {
         self.negotiated.as_ref().map(|n| n.codec)
     }
 
-    /// Sends one payload of the agreed codec lasting `ticks`.
+    /// Whether the call was answered (early media alone is not).
+    pub fn answered(&self) -> bool {
+        self.answered
+    }
+
+    /// Sends one payload of the agreed codec lasting `ticks` (once answered: early media
+    /// flows one way).
     pub fn send_packet(&self, payload: &[u8], ticks: u32) {
+        if self.state != CallState::Established {
+            return;
+        }
         if let Some(rtp) = &self.rtp
             && let Err(e) = rtp.with(|c| c.send_packet(payload, ticks))
         {

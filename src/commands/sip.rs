@@ -288,6 +288,14 @@ fn run_call(
         eprintln!("lipcall: warning: the call ended before every DTMF key was sent");
     }
     let finished = recorder.finish();
+    if !link.answered() {
+        finished?;
+        if let CallState::Failed(e) = link.state() {
+            bail!("{e}");
+        }
+        let seconds = limit.map_or(0.0, |l| l.as_secs_f64());
+        bail!("no answer within {seconds} s; the call was cancelled");
+    }
     match link.state() {
         CallState::Failed(e) => bail!("the call failed: {e}"),
         CallState::Ended { by_peer: true } => eprintln!("lipcall: the peer hung up"),
@@ -312,6 +320,8 @@ fn set_up(
         }
         match link.state() {
             CallState::Established => return Ok(()),
+            // Early media: played (and animated) while it rings.
+            CallState::Setting if link.codec().is_some() => return Ok(()),
             CallState::Failed(e) => bail!("{e}"),
             CallState::Ended { .. } => bail!("the call ended before it was answered"),
             CallState::Setting => {}
@@ -341,6 +351,10 @@ struct Playing<'l> {
 
 impl Link for Playing<'_> {
     fn pull(&mut self, now: Instant, out: &mut Vec<PeerFrame>) {
+        if !self.link.answered() {
+            // Our file starts when the call is answered, not while early media plays.
+            self.start = Instant::now();
+        }
         let elapsed = Instant::now().saturating_duration_since(self.start);
         while let Some((payload, ticks)) = self.packets.get(self.next) {
             let due = Duration::from_secs_f64(self.sent_ticks as f64 / self.clock);
@@ -379,7 +393,12 @@ impl Link for Playing<'_> {
     }
 
     fn poll(&mut self) -> Vec<LinkEvent> {
-        self.link.poll()
+        let events = self.link.poll();
+        // Progress during the call too: the answer after early media, a re-INVITE's media.
+        for notice in self.link.take_notices() {
+            eprintln!("lipcall: {notice}");
+        }
+        events
     }
 
     fn over(&self) -> bool {

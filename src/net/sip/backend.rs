@@ -21,6 +21,8 @@ pub enum AgentEvent {
     /// A call came in (from whom).
     Incoming(String),
     Ringing,
+    /// The peer sends media before answering (a 183 with its description).
+    EarlyMedia,
     /// The SDP exchange agreed this (again at a re-INVITE).
     Media(Negotiated),
     Established,

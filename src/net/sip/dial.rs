@@ -106,6 +106,30 @@ async fn cancel(endpoint: &Endpoint, initiator: &InviteInitiator) -> Result<(), 
         .map_err(|e| SipError::Protocol(format!("CANCEL: {e}")))
 }
 
+/// Early media: the first 183 whose description we can take starts the media before the
+/// answer (announcements, ringback); one we cannot take is left to the final answer.
+fn take_early(
+    response: &TsxResponse,
+    media: &mut SdpMedia,
+    events: &mpsc::Sender<AgentEvent>,
+    early_answer: &mut bool,
+) {
+    if *early_answer || response.line.code != StatusCode::SESSION_PROGRESS {
+        return;
+    }
+    match sdp_body(&response.headers, &response.body) {
+        Some(Ok(text)) => match media.take_answer_text(&text) {
+            Ok(()) => {
+                *early_answer = true;
+                send(events, AgentEvent::EarlyMedia);
+            }
+            Err(e) => tracing::warn!("early media we cannot take: {e}"),
+        },
+        Some(Err(e)) => tracing::warn!("early media we cannot take: {e}"),
+        None => {}
+    }
+}
+
 /// Waits for the next response of any early dialog.
 async fn next_early(earlies: &mut [Early]) -> (usize, Result<EarlyResponse, ezk_sip_core::Error>) {
     poll_fn(|cx| {
@@ -140,6 +164,7 @@ pub async fn dial(
     let mut earlies: Vec<Early> = Vec::new();
     let mut ringing = false;
     let mut cancelled = false;
+    let mut early_answer = false;
     'invite: loop {
         let mut invite = initiator.create_invite();
         invite.headers.insert_named(&sdp_type());
@@ -159,8 +184,13 @@ pub async fn dial(
             };
             let (session, response) = select! {
                 response = initiator.receive() => match response.map_err(|e| core_error(target, e))? {
-                    Response::Provisional(_) | Response::EarlyEvent => continue,
-                    Response::Early(early, _, _) => {
+                    Response::Provisional(response) => {
+                        take_early(&response, media, events, &mut early_answer);
+                        continue;
+                    }
+                    Response::EarlyEvent => continue,
+                    Response::Early(early, response, _) => {
+                        take_early(&response, media, events, &mut early_answer);
                         earlies.push(early);
                         if !std::mem::replace(&mut ringing, true) {
                             send(events, AgentEvent::Ringing);
@@ -200,7 +230,10 @@ pub async fn dial(
                             earlies.remove(i);
                             (session, response)
                         }
-                        EarlyResponse::Provisional(..) => continue,
+                        EarlyResponse::Provisional(response, _) => {
+                            take_early(&response, media, events, &mut early_answer);
+                            continue;
+                        }
                         EarlyResponse::Terminated => {
                             earlies.remove(i);
                             continue;
@@ -218,7 +251,15 @@ pub async fn dial(
                 }
             };
             return established(
-                endpoint, initiator, earlies, session, response, media, target, cancelled,
+                endpoint,
+                initiator,
+                earlies,
+                session,
+                response,
+                media,
+                target,
+                cancelled,
+                early_answer,
             )
             .await
             .map(Some);
@@ -238,6 +279,7 @@ async fn established(
     media: &mut SdpMedia,
     target: &str,
     cancelled: bool,
+    early_answer: bool,
 ) -> Result<InviteSession, SipError> {
     for early in earlies {
         tokio::spawn(early.cancel());
@@ -263,6 +305,8 @@ async fn established(
     let taken = match sdp_body(&response.headers, &response.body) {
         Some(Ok(text)) => media.take_answer_text(&text),
         Some(Err(e)) => Err(e),
+        // The 183's description was the answer (RFC 3264): the 200 need not repeat it.
+        None if early_answer => Ok(()),
         None => Err(SdpError::Malformed {
             line: String::new(),
             why: "the answer has no session description",

@@ -24,6 +24,9 @@ const POLL: Duration = Duration::from_millis(10);
 const DIGIT_PACKETS: u32 = 5;
 const END_PACKETS: u32 = 3;
 const PAUSE_PACKETS: u32 = 5;
+/// A new stream replaces the peer's current one only after the current one has been silent
+/// this long: a stray or echoed second stream on the port never cuts into the call.
+const STREAM_HANDOVER: Duration = Duration::from_millis(200);
 /// The RFC 4733 volume field (-10 dBm0).
 const EVENT_VOLUME: u8 = 10;
 
@@ -43,6 +46,8 @@ pub struct SipRtpStats {
     pub send_errors: u64,
     /// SRTP packets that failed authentication (or replays), dropped.
     pub auth_failed: u64,
+    /// Packets of a second stream while the current one is still sending (dropped).
+    pub other_stream: u64,
     /// The peer's media came from another address than its SDP named (we followed it).
     pub latched: Option<SocketAddr>,
 }
@@ -63,6 +68,8 @@ pub struct SipRtpCore {
     heard_from: bool,
     receiver: PeerReceiver,
     ssrc: Option<u32>,
+    /// When the current stream last sent.
+    last_heard: Instant,
     jitter: JitterConfig,
     epoch: Instant,
     digits: VecDeque<u8>,
@@ -115,6 +122,7 @@ impl SipRtpCore {
             heard_from: false,
             receiver: PeerReceiver::with_payloads(jitter, now, true, negotiated.payloads.clone()),
             ssrc: None,
+            last_heard: now,
             jitter,
             epoch: now,
             digits: VecDeque::new(),
@@ -310,7 +318,15 @@ impl SipRtpCore {
             self.stats.unknown_payload += 1;
             return;
         }
+        let ssrc = packet.header.ssrc;
+        if self.ssrc.is_some_and(|current| current != ssrc)
+            && now.saturating_duration_since(self.last_heard) < STREAM_HANDOVER
+        {
+            self.stats.other_stream += 1;
+            return;
+        }
         self.stats.rtp += 1;
+        self.last_heard = now;
         if !self.heard_from || from != self.remote {
             if from != self.negotiated.remote {
                 self.stats.latched = Some(from);
@@ -474,6 +490,15 @@ mod tests {
         assert_eq!(core.stats().unknown_payload, 1);
         assert_eq!(core.stats().malformed, 1);
         assert_eq!(core.ssrc(), Some(42));
+        // A second stream while the first one talks is dropped; after a pause it takes over.
+        let mut other = RtpStream::new(43, 1, 0);
+        other.set_payload(0, 160);
+        other.packetize(&[0xff; 160], 1, &mut buf).unwrap();
+        core.handle_datagram(&buf, nat, now + Duration::from_millis(20));
+        assert_eq!((core.ssrc(), core.stats().other_stream), (Some(42), 1));
+        other.packetize(&[0xff; 160], 1, &mut buf).unwrap();
+        core.handle_datagram(&buf, nat, now + Duration::from_millis(500));
+        assert_eq!(core.ssrc(), Some(43));
     }
 }
 
