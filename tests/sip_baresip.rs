@@ -44,6 +44,7 @@ fn kamailio_with(dir: &Path, port: u16, extra: &str, route: &str) -> Logged {
         .iter()
         .map(|m| format!("loadmodule \"{m}.so\"\n"))
         .collect();
+    let modules = kamailio_modules();
     let config = format!(
         r#"#!KAMAILIO
 debug=2
@@ -53,7 +54,7 @@ disable_tcp=yes
 auto_aliases=no
 listen=udp:127.0.0.1:{port}
 alias="127.0.0.1:{port}"
-mpath="/usr/lib/x86_64-linux-gnu/kamailio/modules/"
+mpath="{modules}"
 {loads}modparam("usrloc", "db_mode", 0)
 {extra}
 
@@ -108,6 +109,20 @@ request_route {{
         kamailio.text()
     );
     kamailio
+}
+
+/// Debian installs kamailio's modules under the architecture's library folder.
+fn kamailio_modules() -> String {
+    let lib = Path::new("/usr/lib");
+    std::fs::read_dir(lib)
+        .into_iter()
+        .flatten()
+        .filter_map(Result::ok)
+        .map(|e| e.path().join("kamailio/modules"))
+        .chain([lib.join("kamailio/modules")])
+        .find(|p| p.join("tm.so").exists())
+        .map(|p| format!("{}/", p.display()))
+        .expect("kamailio's modules (tm.so) under /usr/lib")
 }
 
 fn kamailio(dir: &Path, port: u16, extra: &str) -> Logged {
