@@ -92,8 +92,24 @@ fn send_and_receive_help_keep_their_flag_order() {
     assert_eq!(
         listed_flags("send"),
         [
-            "to", "janus", "key", "mumble", "key-hex", "name", "room", "codec", "bandwidth", "quality",
-            "pt", "no-rtcp", "ssrc", "janus-secret", "janus-token", "channel", "password", "tcp-only",
+            "to",
+            "janus",
+            "key",
+            "mumble",
+            "key-hex",
+            "name",
+            "room",
+            "codec",
+            "bandwidth",
+            "quality",
+            "pt",
+            "no-rtcp",
+            "ssrc",
+            "janus-secret",
+            "janus-token",
+            "channel",
+            "password",
+            "tcp-only",
         ]
     );
     assert_eq!(

@@ -27,8 +27,8 @@ fn have(tools: &[&str]) -> bool {
 
 /// kamailio as registrar and proxy on `port`: REGISTER must answer a digest challenge for
 /// [`PASSWORD`]; everything else is routed by the location table (kept in memory). `extra`:
-/// more `modparam` lines.
-fn kamailio(dir: &Path, port: u16, extra: &str) -> Logged {
+/// more `modparam` lines; `route`: script run on a new request before it is routed.
+fn kamailio_with(dir: &Path, port: u16, extra: &str, route: &str) -> Logged {
     let modules = [
         "tm",
         "sl",
@@ -44,6 +44,7 @@ fn kamailio(dir: &Path, port: u16, extra: &str) -> Logged {
         .iter()
         .map(|m| format!("loadmodule \"{m}.so\"\n"))
         .collect();
+    let modules = kamailio_modules();
     let config = format!(
         r#"#!KAMAILIO
 debug=2
@@ -53,7 +54,7 @@ disable_tcp=yes
 auto_aliases=no
 listen=udp:127.0.0.1:{port}
 alias="127.0.0.1:{port}"
-mpath="/usr/lib/x86_64-linux-gnu/kamailio/modules/"
+mpath="{modules}"
 {loads}modparam("usrloc", "db_mode", 0)
 {extra}
 
@@ -83,6 +84,7 @@ request_route {{
         save("location");
         exit;
     }}
+    {route}
     if (!lookup("location")) {{
         sl_send_reply("404", "Not Found");
         exit;
@@ -109,6 +111,24 @@ request_route {{
     kamailio
 }
 
+/// Debian installs kamailio's modules under the architecture's library folder.
+fn kamailio_modules() -> String {
+    let lib = Path::new("/usr/lib");
+    std::fs::read_dir(lib)
+        .into_iter()
+        .flatten()
+        .filter_map(Result::ok)
+        .map(|e| e.path().join("kamailio/modules"))
+        .chain([lib.join("kamailio/modules")])
+        .find(|p| p.join("tm.so").exists())
+        .map(|p| format!("{}/", p.display()))
+        .expect("kamailio's modules (tm.so) under /usr/lib")
+}
+
+fn kamailio(dir: &Path, port: u16, extra: &str) -> Logged {
+    kamailio_with(dir, port, extra, "")
+}
+
 /// baresip with its own config folder: `account` its accounts line, its microphone `source`
 /// (8 kHz mono), what it hears dumped into `dir`/heard by sndfile.
 fn baresip(dir: &Path, port: u16, control: u16, account: &str, source: &Path) -> Logged {
@@ -120,7 +140,7 @@ fn baresip(dir: &Path, port: u16, control: u16, account: &str, source: &Path) ->
         "poll_method epoll\nsip_listen 127.0.0.1:{port}\nsip_trans_def udp\n\
          audio_player alsa,null\naudio_alert alsa,null\naudio_source aufile,{}\n\
          module_path /usr/lib/baresip/modules\nmodule g711.so\nmodule aufile.so\n\
-         module alsa.so\nmodule sndfile.so\nmodule_app account.so\nmodule_app menu.so\n\
+         module alsa.so\nmodule sndfile.so\nmodule srtp.so\nmodule_app account.so\nmodule_app menu.so\n\
          module_app ctrl_tcp.so\nctrl_tcp_listen 127.0.0.1:{control}\nsnd_path {}\n",
         source.display(),
         heard.display()
@@ -408,8 +428,11 @@ fn baresip_calls_lipcall_which_answers_until_baresip_hangs_up() {
         "lipcall heard {} samples: {log}",
         got.len()
     );
-    let (_, corr) = best_alignment(&sent, &got, 8000, 16000, 1600);
-    assert!(corr > 0.95, "lipcall did not hear baresip: {corr:.3}");
+    let (lag, corr) = best_alignment(&sent, &got, 8000, 8000, 1600);
+    assert!(
+        corr > 0.95,
+        "lipcall did not hear baresip: {corr:.3} at lag {lag}"
+    );
     let (_, ours_sent) = common::read_wav_i16(&ours);
     let (_, bob_got) = common::read_wav_i16(&baresip_heard(dir.path()));
     let (_, corr) = best_alignment(&ours_sent, &bob_got, 8000, 8000, 4000);
@@ -512,4 +535,208 @@ fn sip_answer_registers_with_sha256_refreshes_and_is_reached_through_kamailio() 
     let (_, got) = common::read_wav_i16(&heard);
     let (_, corr) = best_alignment(&sent, &got, 8000, 8000, 1600);
     assert!(corr > 0.95, "lipcall did not hear baresip: {corr:.3}");
+}
+
+#[test]
+fn a_call_cancelled_before_the_answer_stops_baresip_ringing_through_kamailio() {
+    if !have(&["kamailio", "baresip", "sox"]) {
+        return;
+    }
+    let dir = tempfile::tempdir().unwrap();
+    let (kam_port, bob_port, control) = (free_port(false), free_port(false), free_port(false));
+    let _kamailio = kamailio(dir.path(), kam_port, "");
+    let bob = baresip(
+        dir.path(),
+        bob_port,
+        control,
+        &format!(
+            "<sip:bob@127.0.0.1:{kam_port}>;auth_pass={PASSWORD};answermode=manual;regint=60;audio_codecs=PCMU"
+        ),
+        &reversed_8k(dir.path()),
+    );
+    assert!(
+        bob.wait_for("200 OK", Duration::from_secs(10)),
+        "{}",
+        bob.text()
+    );
+    let started = std::time::Instant::now();
+    let out = common::lipcall()
+        .args(["sip", "call", &format!("sip:bob@127.0.0.1:{kam_port}")])
+        .arg("--play")
+        .arg(common::demo_8k(dir.path()))
+        .args(["--account", &format!("sip:alice@127.0.0.1:{kam_port}")])
+        .args(["--password", PASSWORD, "--seconds", "3"])
+        .output()
+        .unwrap();
+    let log = String::from_utf8_lossy(&out.stderr).into_owned();
+    assert_eq!(out.status.code(), Some(1), "{log}");
+    assert!(log.contains("is ringing"), "{log}");
+    assert!(
+        log.contains("no answer within 3 s; the call was cancelled"),
+        "{log}"
+    );
+    assert!(
+        started.elapsed() < Duration::from_secs(5),
+        "{:?}: {log}",
+        started.elapsed()
+    );
+    // kamailio matched our CANCEL to the INVITE and passed it on: baresip stopped ringing.
+    assert!(
+        bob.wait_for("session closed", Duration::from_secs(3)),
+        "baresip still rings: {}",
+        bob.text()
+    );
+}
+
+#[test]
+fn a_proxy_that_challenges_the_invite_gets_its_answer() {
+    if !have(&["kamailio", "baresip", "sox"]) {
+        return;
+    }
+    let dir = tempfile::tempdir().unwrap();
+    let (kam_port, bob_port, control) = (free_port(false), free_port(false), free_port(false));
+    // Calls from our domain must answer a 407 first.
+    let challenge = format!(
+        "if (is_method(\"INVITE\") && !pv_proxy_authenticate(\"$fd\", \"{PASSWORD}\", \"0\")) {{ proxy_challenge(\"$fd\", \"0\"); exit; }}"
+    );
+    let kamailio = kamailio_with(dir.path(), kam_port, "", &challenge);
+    let bob = baresip(
+        dir.path(),
+        bob_port,
+        control,
+        &format!(
+            "<sip:bob@127.0.0.1:{kam_port}>;auth_pass={PASSWORD};answermode=auto;regint=60;audio_codecs=PCMU"
+        ),
+        &reversed_8k(dir.path()),
+    );
+    assert!(
+        bob.wait_for("200 OK", Duration::from_secs(10)),
+        "{}",
+        bob.text()
+    );
+    let call = |password: &str| {
+        common::lipcall()
+            .args(["sip", "call", &format!("sip:bob@127.0.0.1:{kam_port}")])
+            .arg("--play")
+            .arg(common::demo_8k(dir.path()))
+            .args(["--account", &format!("sip:alice@127.0.0.1:{kam_port}")])
+            .args(["--password", password, "--seconds", "3"])
+            .output()
+            .unwrap()
+    };
+    let out = call(PASSWORD);
+    let log = String::from_utf8_lossy(&out.stderr).into_owned();
+    assert!(out.status.success(), "{log}\nkamailio: {}", kamailio.text());
+    assert!(log.contains("in a SIP call"), "{log}");
+    assert!(
+        bob.wait_for("session closed", Duration::from_secs(5)),
+        "{}",
+        bob.text()
+    );
+}
+
+#[test]
+fn srtp_keyed_by_sdes_with_baresip_both_ways() {
+    if !have(&["baresip", "sox"]) {
+        return;
+    }
+    // lipcall calls a baresip that insists on SRTP.
+    let dir = tempfile::tempdir().unwrap();
+    let (bob_port, control) = (free_port(false), free_port(false));
+    let bob_speech = reversed_8k(dir.path());
+    let bob = baresip(
+        dir.path(),
+        bob_port,
+        control,
+        "<sip:bob@127.0.0.1>;regint=0;answermode=auto;audio_codecs=PCMU;mediaenc=srtp-mand",
+        &bob_speech,
+    );
+    let heard = dir.path().join("lipcall-heard.wav");
+    let out = common::lipcall()
+        .args([
+            "sip",
+            "call",
+            &format!("sip:bob@127.0.0.1:{bob_port}"),
+            "--srtp",
+        ])
+        .arg("--play")
+        .arg(common::demo_8k(dir.path()))
+        .args(["--codec", "pcmu", "--seconds", "5"])
+        .arg("--wav")
+        .arg(&heard)
+        .output()
+        .unwrap();
+    let log = String::from_utf8_lossy(&out.stderr).into_owned();
+    assert!(out.status.success(), "{log}\nbaresip: {}", bob.text());
+    assert!(log.contains("SRTP (keys exchanged in SDP)"), "{log}");
+    assert!(log.contains("auth_failed=0"), "{log}");
+    let (_, sent) = common::read_wav_i16(&bob_speech);
+    let (_, got) = common::read_wav_i16(&heard);
+    let (_, corr) = best_alignment(&sent, &got, 8000, 8000, 1600);
+    assert!(
+        corr > 0.95,
+        "lipcall did not hear baresip over SRTP: {corr:.3}"
+    );
+    let (_, ours) = common::read_wav_i16(&common::demo_8k(dir.path()));
+    let (_, bob_got) = common::read_wav_i16(&baresip_heard(dir.path()));
+    let (_, corr) = best_alignment(&ours, &bob_got, 8000, 8000, 4000);
+    assert!(
+        corr > 0.95,
+        "baresip did not hear lipcall over SRTP: {corr:.3}"
+    );
+    drop(bob);
+
+    // A baresip that insists on SRTP calls `sip answer`, which takes the offer.
+    let dir = tempfile::tempdir().unwrap();
+    let (lipcall_port, bob_port, control) = (free_port(false), free_port(false), free_port(false));
+    let heard = dir.path().join("lipcall-heard.wav");
+    let answer = Peer::spawn_logged(
+        "lipcall sip answer",
+        common::lipcall()
+            .args([
+                "sip",
+                "answer",
+                "--listen",
+                &format!("127.0.0.1:{lipcall_port}"),
+            ])
+            .arg("--play")
+            .arg(common::demo_8k(dir.path()))
+            .args(["--seconds", "6"])
+            .arg("--wav")
+            .arg(&heard),
+    );
+    assert!(
+        answer.wait_for("SIP on", Duration::from_secs(10)),
+        "{}",
+        answer.text()
+    );
+    let bob_speech = reversed_8k(dir.path());
+    let bob = baresip(
+        dir.path(),
+        bob_port,
+        control,
+        "<sip:bob@127.0.0.1>;regint=0;audio_codecs=PCMU;mediaenc=srtp-mand",
+        &bob_speech,
+    );
+    tell_baresip(
+        control,
+        "dial",
+        &format!("sip:lipcall@127.0.0.1:{lipcall_port}"),
+    );
+    assert!(
+        answer.wait_for("played", Duration::from_secs(15)),
+        "{}\nbaresip: {}",
+        answer.text(),
+        bob.text()
+    );
+    std::thread::sleep(Duration::from_millis(300));
+    let log = answer.text();
+    assert!(log.contains("SRTP (keys exchanged in SDP)"), "{log}");
+    let (_, sent) = common::read_wav_i16(&bob_speech);
+    let (_, got) = common::read_wav_i16(&heard);
+    let (_, corr) = best_alignment(&sent, &got, 8000, 8000, 1600);
+    assert!(
+        corr > 0.95,
+        "sip answer did not hear baresip over SRTP: {corr:.3}: {log}"
+    );
 }

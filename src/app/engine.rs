@@ -17,8 +17,8 @@ use crate::audio::{
 use crate::call::janus::{JanusLink, is_janus_url};
 use crate::call::link::{Link, LinkEvent};
 use crate::codec::any::{Codec, EncoderSettings, FrameEncoder, MAX_FRAME_PAYLOAD};
-use crate::net::janus::messages::JanusAuth;
 use crate::codec::opus::codec::Bandwidth;
+use crate::net::janus::messages::JanusAuth;
 use crate::net::janus::room::RoomConfig;
 use crate::net::jitter::JitterConfig;
 use crate::net::session::{PeerFrame, PeerInfo, Session, SessionConfig};

@@ -11,7 +11,7 @@ use crate::codec::any::Codec;
 use crate::net::session::{PeerFrame, PeerInfo};
 use crate::net::sip::agent::{Agent, AgentConfig, AgentEvent, SipError};
 use crate::net::sip::media::{SipRtp, SipRtpStats};
-use crate::net::sip::sdp::Negotiated;
+use crate::net::sip::sdp::{Negotiated, SdesKey};
 
 /// How long a hang-up waits for the peer to confirm it.
 const HANG_UP_WAIT: Duration = Duration::from_secs(3);
@@ -34,11 +34,15 @@ pub struct SipLink {
     /// Our RTP socket until the media starts on it.
     socket: Option<UdpSocket>,
     local_rtp: SocketAddr,
+    /// Our SRTP key, used where SDP agrees SRTP.
+    key: SdesKey,
     rtp: Option<SipRtp>,
     negotiated: Option<Negotiated>,
     state: CallState,
     /// Who the peer is (the dialled URI, or the caller).
     peer: String,
+    /// The call was answered (not only ringing with early media).
+    answered: bool,
     /// Progress lines for the user (registered, ringing, a caller).
     notices: Vec<String>,
     events: Vec<LinkEvent>,
@@ -59,14 +63,17 @@ impl SipLink {
             addr: config.audio.addr,
             why: e.to_string(),
         })?;
+        let key = config.audio.key.clone();
         let agent = Agent::start(config)?;
         Ok(Self {
             agent,
             socket: Some(socket),
             local_rtp,
+            key,
             rtp: None,
             negotiated: None,
             state: CallState::Setting,
+            answered: false,
             peer,
             notices: Vec::new(),
             events: Vec::new(),
@@ -121,9 +128,13 @@ impl SipLink {
                 self.notices.push(format!("call from {from}; answering"));
             }
             AgentEvent::Ringing => self.notices.push(format!("{} is ringing", self.peer)),
+            AgentEvent::EarlyMedia => self
+                .notices
+                .push(format!("{} sends early media before answering", self.peer)),
             AgentEvent::Media(negotiated) => self.media(negotiated),
             AgentEvent::Established => {
                 self.state = CallState::Established;
+                self.answered = true;
                 self.events.push(LinkEvent::Joined {
                     place: format!("a SIP call with {}", self.peer),
                     id: self.local_rtp.to_string(),
@@ -147,7 +158,7 @@ impl SipLink {
 
     fn media(&mut self, negotiated: Negotiated) {
         self.notices.push(format!(
-            "media: {} (payload type {}) with {}{}",
+            "media: {} (payload type {}) with {}{}{}",
             negotiated.codec,
             negotiated.payload_type,
             negotiated.remote,
@@ -155,11 +166,16 @@ impl SipLink {
                 ", DTMF events"
             } else {
                 ""
+            },
+            if negotiated.srtp.is_some() {
+                ", SRTP (keys exchanged in SDP)"
+            } else {
+                ", NOT encrypted (plain RTP)"
             }
         ));
         match (&self.rtp, self.socket.take()) {
             (Some(rtp), _) => rtp.with(|core| core.renegotiate(negotiated.clone())),
-            (None, Some(socket)) => match SipRtp::start(socket, negotiated.clone()) {
+            (None, Some(socket)) => match SipRtp::start(socket, negotiated.clone(), &self.key) {
                 Ok(rtp) => self.rtp = Some(rtp),
                 Err(e) => {
                     let e = SipError::Protocol(format!("cannot start the call's RTP: {e}"));
@@ -178,8 +194,17 @@ impl SipLink {
         self.negotiated.as_ref().map(|n| n.codec)
     }
 
-    /// Sends one payload of the agreed codec lasting `ticks`.
+    /// Whether the call was answered (early media alone is not).
+    pub fn answered(&self) -> bool {
+        self.answered
+    }
+
+    /// Sends one payload of the agreed codec lasting `ticks` (once answered: early media
+    /// flows one way).
     pub fn send_packet(&self, payload: &[u8], ticks: u32) {
+        if self.state != CallState::Established {
+            return;
+        }
         if let Some(rtp) = &self.rtp
             && let Err(e) = rtp.with(|c| c.send_packet(payload, ticks))
         {

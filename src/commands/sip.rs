@@ -17,7 +17,7 @@ use crate::codec::any::{Codec, EncoderSettings};
 use crate::net::janus::media::local_ip_towards;
 use crate::net::session::{PeerFrame, PeerInfo};
 use crate::net::sip::agent::{Account, AgentConfig, Role, codecs};
-use crate::net::sip::sdp::LocalAudio;
+use crate::net::sip::sdp::{LocalAudio, SdesKey};
 
 /// How often the set-up phase looks at the stop flag and the deadline.
 const SETUP_STEP: Duration = Duration::from_millis(50);
@@ -73,6 +73,11 @@ pub struct SipCallArgs {
     /// DTMF keys (0-9 * # A-D) to send as RFC 4733 events once the call is answered.
     #[arg(long, value_name = "DIGITS")]
     pub dtmf: Option<String>,
+    /// Encrypt the media: offer SRTP (AES_CM_128_HMAC_SHA1_80) keyed by SDES (RFC 4568), and
+    /// refuse an answer without it. The keys travel in the SIP messages: as safe as the path
+    /// the signalling takes. (`sip answer` takes SRTP whenever the caller offers it.)
+    #[arg(long)]
+    pub srtp: bool,
     /// Our SIP socket (UDP); by default a free port on the address towards the peer.
     #[arg(long, value_name = "HOST:PORT")]
     pub bind: Option<String>,
@@ -151,7 +156,14 @@ fn call(args: &SipCallArgs) -> Result<()> {
         None => SocketAddr::new(local_ip_towards(resolve_host(towards)?)?, 0),
     };
     let role = Role::Call(args.target.clone());
-    run_call(&args.common, account, bind, role, args.dtmf.as_deref())
+    run_call(
+        &args.common,
+        account,
+        bind,
+        role,
+        args.dtmf.as_deref(),
+        args.srtp,
+    )
 }
 
 fn answer(args: &SipAnswerArgs) -> Result<()> {
@@ -170,7 +182,7 @@ fn answer(args: &SipAnswerArgs) -> Result<()> {
         };
         listen.set_ip(local_ip_towards(towards)?);
     }
-    run_call(&args.common, account, listen, Role::Answer, None)
+    run_call(&args.common, account, listen, Role::Answer, None, false)
 }
 
 /// Our file, encoded in the agreed codec.
@@ -188,6 +200,7 @@ fn run_call(
     bind: SocketAddr,
     role: Role,
     dtmf: Option<&str>,
+    srtp: bool,
 ) -> Result<()> {
     // A file that cannot be read fails before any call is made.
     voice(&common.play, Codec::Pcmu)?;
@@ -200,6 +213,8 @@ fn run_call(
         addr: rtp.local_addr().context("RTP socket")?,
         codecs: codecs(common.codec),
         session_id: session_id(),
+        key: SdesKey::random().context("no randomness for an SRTP key")?,
+        offer_srtp: srtp,
     };
     let peer = match &role {
         Role::Call(target) => target.clone(),
@@ -212,7 +227,6 @@ fn run_call(
         audio,
         role,
     };
-    eprintln!("lipcall: warning: SIP calls are NOT encrypted (plain RTP, no SRTP yet)");
     let mut link = SipLink::start(config, rtp, peer)?;
     let start = Instant::now();
     let limit = common.seconds.map(Duration::from_secs_f64);
@@ -254,13 +268,14 @@ fn run_call(
     let stats = link.rtp_stats();
     eprintln!(
         "lipcall: played {:.2} s; datagrams={} rtp={} rtcp={} malformed={} unknown_pt={} \
-         dtmf_in={} sent_rtp={} dtmf_sent={} send_errors={}",
+         auth_failed={} dtmf_in={} sent_rtp={} dtmf_sent={} send_errors={}",
         recorder.seconds(),
         stats.datagrams,
         stats.rtp,
         stats.rtcp,
         stats.malformed,
         stats.unknown_payload,
+        stats.auth_failed,
         stats.events_in,
         stats.sent_rtp,
         stats.sent_events,
@@ -273,6 +288,14 @@ fn run_call(
         eprintln!("lipcall: warning: the call ended before every DTMF key was sent");
     }
     let finished = recorder.finish();
+    if !link.answered() {
+        finished?;
+        if let CallState::Failed(e) = link.state() {
+            bail!("{e}");
+        }
+        let seconds = limit.map_or(0.0, |l| l.as_secs_f64());
+        bail!("no answer within {seconds} s; the call was cancelled");
+    }
     match link.state() {
         CallState::Failed(e) => bail!("the call failed: {e}"),
         CallState::Ended { by_peer: true } => eprintln!("lipcall: the peer hung up"),
@@ -297,6 +320,8 @@ fn set_up(
         }
         match link.state() {
             CallState::Established => return Ok(()),
+            // Early media: played (and animated) while it rings.
+            CallState::Setting if link.codec().is_some() => return Ok(()),
             CallState::Failed(e) => bail!("{e}"),
             CallState::Ended { .. } => bail!("the call ended before it was answered"),
             CallState::Setting => {}
@@ -326,6 +351,10 @@ struct Playing<'l> {
 
 impl Link for Playing<'_> {
     fn pull(&mut self, now: Instant, out: &mut Vec<PeerFrame>) {
+        if !self.link.answered() {
+            // Our file starts when the call is answered, not while early media plays.
+            self.start = Instant::now();
+        }
         let elapsed = Instant::now().saturating_duration_since(self.start);
         while let Some((payload, ticks)) = self.packets.get(self.next) {
             let due = Duration::from_secs_f64(self.sent_ticks as f64 / self.clock);
@@ -364,7 +393,12 @@ impl Link for Playing<'_> {
     }
 
     fn poll(&mut self) -> Vec<LinkEvent> {
-        self.link.poll()
+        let events = self.link.poll();
+        // Progress during the call too: the answer after early media, a re-INVITE's media.
+        for notice in self.link.take_notices() {
+            eprintln!("lipcall: {notice}");
+        }
+        events
     }
 
     fn over(&self) -> bool {

@@ -6,14 +6,11 @@
 //! [`SdpMedia`], ezk's media backend, which only negotiates: the RTP itself is
 //! [`super::media`]'s, on the socket whose address the SDP gives.
 
-use std::future::Future;
 use std::net::SocketAddr;
 use std::sync::mpsc;
 use std::thread::JoinHandle;
 use std::time::Duration;
 
-use bytesstr::BytesStr;
-use ezk_sdp_types::SessionDescription;
 use ezk_sip_core::transport::TargetTransportInfo;
 use ezk_sip_core::{Endpoint, IncomingRequest, Layer, MayTake};
 use ezk_sip_types::header::typed::Contact;
@@ -22,19 +19,17 @@ use ezk_sip_types::{Method, StatusCode};
 use ezk_sip_ua::dialog::DialogLayer;
 use ezk_sip_ua::invite::InviteLayer;
 use ezk_sip_ua::register::Registration;
-use ezk_sip_ua::{
-    AcceptCallError, Call, CallEvent, InboundCall, MakeCallCompletionError, MakeCallError,
-    MediaBackend, OutboundCall,
-};
+use ezk_sip_ua::{AcceptCallError, Call, CallEvent, InboundCall};
 use tokio::select;
 use tokio::sync::mpsc::{UnboundedReceiver, UnboundedSender, unbounded_channel};
 
+pub use super::backend::AgentEvent;
+use super::backend::{SdpMedia, send};
+use super::dial;
 pub use super::error::SipError;
 pub use super::register::Account;
-use super::register::{
-    Limited, REGISTER_EXPIRY, REGISTER_TIMEOUT, keep_registered, reason_of, register, uri,
-};
-use super::sdp::{self, LocalAudio, Negotiated, SdpError};
+use super::register::{Limited, REGISTER_EXPIRY, REGISTER_TIMEOUT, keep_registered, register, uri};
+use super::sdp::{self, LocalAudio, SdpError};
 use crate::codec::any::Codec;
 
 /// How long a refused caller has to acknowledge the refusal.
@@ -56,24 +51,6 @@ pub struct AgentConfig {
     pub account: Option<Account>,
     pub audio: LocalAudio,
     pub role: Role,
-}
-
-/// What happened, in order.
-#[derive(Debug, Clone, PartialEq)]
-pub enum AgentEvent {
-    Listening(SocketAddr),
-    Registered(String),
-    /// A call came in (from whom).
-    Incoming(String),
-    Ringing,
-    /// The SDP exchange agreed this (again at a re-INVITE).
-    Media(Negotiated),
-    Established,
-    /// The call is over: hung up by the peer or by us (a CANCEL before the answer included).
-    Ended {
-        by_peer: bool,
-    },
-    Failed(SipError),
 }
 
 /// The agent's thread and its channels.
@@ -184,81 +161,6 @@ impl Drop for Agent {
     }
 }
 
-/// ezk's media backend: negotiates through [`super::sdp`] and tells the owner what was agreed.
-struct SdpMedia {
-    audio: LocalAudio,
-    events: mpsc::Sender<AgentEvent>,
-    version: u64,
-}
-
-impl SdpMedia {
-    fn description(text: &str) -> Result<SessionDescription, SdpError> {
-        SessionDescription::parse(&BytesStr::from(text)).map_err(|_| SdpError::Malformed {
-            line: text.chars().take(80).collect(),
-            why: "lipcall's own description did not parse",
-        })
-    }
-
-    fn agreed(&mut self, negotiated: Negotiated) {
-        let _ = self.events.send(AgentEvent::Media(negotiated));
-    }
-
-    fn offer(&mut self) -> Result<SessionDescription, SdpError> {
-        self.version += 1;
-        Self::description(&sdp::offer(&self.audio, self.version))
-    }
-
-    fn take_answer(&mut self, answer: &SessionDescription) -> Result<(), SdpError> {
-        let remote = sdp::parse(&answer.to_string())?;
-        let negotiated = sdp::negotiate(&remote, &self.audio.codecs)?;
-        self.agreed(negotiated);
-        Ok(())
-    }
-
-    fn answer(&mut self, offer: &SessionDescription) -> Result<SessionDescription, SdpError> {
-        let remote = sdp::parse(&offer.to_string())?;
-        let negotiated = sdp::negotiate(&remote, &self.audio.codecs)?;
-        self.version += 1;
-        let answer = Self::description(&sdp::answer(&self.audio, &negotiated, self.version))?;
-        self.agreed(negotiated);
-        Ok(answer)
-    }
-}
-
-impl MediaBackend for SdpMedia {
-    type Error = SdpError;
-    type Event = ();
-
-    fn has_media(&self) -> bool {
-        true
-    }
-
-    fn create_sdp_offer(
-        &mut self,
-    ) -> impl Future<Output = Result<SessionDescription, Self::Error>> + Send {
-        std::future::ready(self.offer())
-    }
-
-    fn receive_sdp_answer(
-        &mut self,
-        sdp: SessionDescription,
-    ) -> impl Future<Output = Result<(), Self::Error>> + Send {
-        std::future::ready(self.take_answer(&sdp))
-    }
-
-    fn receive_sdp_offer(
-        &mut self,
-        sdp: SessionDescription,
-    ) -> impl Future<Output = Result<SessionDescription, Self::Error>> + Send {
-        std::future::ready(self.answer(&sdp))
-    }
-
-    fn run(&mut self) -> impl Future<Output = Result<Self::Event, Self::Error>> + Send {
-        // The RTP runs on its own socket thread: nothing to drive here.
-        std::future::pending()
-    }
-}
-
 /// Hands the first INVITE outside a dialog to the agent; any other gets 486 Busy Here.
 struct IncomingLayer {
     calls: tokio::sync::mpsc::Sender<IncomingRequest>,
@@ -284,10 +186,6 @@ impl Layer for IncomingLayer {
             }
         }
     }
-}
-
-fn send(events: &mpsc::Sender<AgentEvent>, event: AgentEvent) {
-    let _ = events.send(event);
 }
 
 async fn run(
@@ -404,64 +302,23 @@ async fn call(
     id: NameAddr,
     contact: Contact,
     target: &str,
-    media: SdpMedia,
+    mut media: SdpMedia,
     events: &mpsc::Sender<AgentEvent>,
     commands: &mut UnboundedReceiver<()>,
 ) -> Result<(), SipError> {
     let target_uri = uri(target)?;
-    let made = select! {
-        made = OutboundCall::make(endpoint.clone(), auth, id, contact, target_uri, media) => made,
-        _ = commands.recv() => {
-            send(events, AgentEvent::Ended { by_peer: false });
-            return Ok(());
-        }
+    let session = dial::dial(
+        endpoint, auth, id, contact, target, target_uri, &mut media, events, commands,
+    )
+    .await?;
+    let Some(session) = session else {
+        send(events, AgentEvent::Ended { by_peer: false });
+        return Ok(());
     };
-    let mut outbound = made.map_err(|e| match e {
-        MakeCallError::Failed(line) => SipError::CallRefused {
-            target: target.to_owned(),
-            code: line.code.into_u16(),
-            reason: reason_of(line.code, line.reason.as_ref()),
-        },
-        MakeCallError::Core(ezk_sip_core::Error::RequestTimedOut) => {
-            SipError::NoAnswer(target.to_owned())
-        }
-        MakeCallError::Core(e) => SipError::Protocol(e.to_string()),
-        MakeCallError::Auth(_) => SipError::CallAuth(target.to_owned()),
-        MakeCallError::Media(e) => SipError::Sdp(e),
-    })?;
-    send(events, AgentEvent::Ringing);
-    let completed = select! {
-        completed = outbound.wait_for_completion() => completed,
-        _ = commands.recv() => {
-            if let Err(e) = outbound.cancel().await {
-                tracing::debug!("CANCEL: {e}");
-            }
-            send(events, AgentEvent::Ended { by_peer: false });
-            return Ok(());
-        }
-    };
-    let completion_error = |e: MakeCallCompletionError<SdpError>| match e {
-        MakeCallCompletionError::Failed(line) => SipError::CallRefused {
-            target: target.to_owned(),
-            code: line.code.into_u16(),
-            reason: reason_of(line.code, line.reason.as_ref()),
-        },
-        MakeCallCompletionError::Core(ezk_sip_core::Error::RequestTimedOut) => {
-            SipError::NoAnswer(target.to_owned())
-        }
-        MakeCallCompletionError::Core(e) => SipError::Protocol(e.to_string()),
-        MakeCallCompletionError::Media(e) => SipError::Sdp(e),
-        MakeCallCompletionError::MissingSdpInResponse => {
-            SipError::Protocol(format!("{target} answered without a session description"))
-        }
-    };
-    let call = completed
-        .map_err(completion_error)?
-        .finish()
-        .await
-        .map_err(completion_error)?;
     send(events, AgentEvent::Established);
-    follow(call, events, commands).await
+    let by_peer = dial::follow(session, &mut media, commands).await?;
+    send(events, AgentEvent::Ended { by_peer });
+    Ok(())
 }
 
 async fn answer(
@@ -583,6 +440,8 @@ mod tests {
                 addr: "127.0.0.1:4000".parse().unwrap(),
                 codecs: codecs(None),
                 session_id: 1,
+                key: super::super::sdp::SdesKey([0; 30]),
+                offer_srtp: false,
             },
             role: Role::Answer,
         };

@@ -10,12 +10,13 @@ use std::collections::VecDeque;
 use std::net::{SocketAddr, UdpSocket};
 use std::time::{Duration, Instant};
 
-use super::sdp::Negotiated;
+use super::sdp::{Negotiated, SdesKey};
 use crate::net::jitter::JitterConfig;
 use crate::net::peer::{PeerReceiver, ReceiverStats};
 use crate::net::rtp::{self, RtpStream};
 use crate::net::session::driver::{Driver, SansIo};
 use crate::net::session::{LARGEST_DATAGRAM, PeerFrame, Transmit, TransmitKind};
+use crate::net::srtp::{MasterKey, Srtp};
 
 /// How long the socket thread waits at most for a datagram.
 const POLL: Duration = Duration::from_millis(10);
@@ -23,6 +24,9 @@ const POLL: Duration = Duration::from_millis(10);
 const DIGIT_PACKETS: u32 = 5;
 const END_PACKETS: u32 = 3;
 const PAUSE_PACKETS: u32 = 5;
+/// A new stream replaces the peer's current one only after the current one has been silent
+/// this long: a stray or echoed second stream on the port never cuts into the call.
+const STREAM_HANDOVER: Duration = Duration::from_millis(200);
 /// The RFC 4733 volume field (-10 dBm0).
 const EVENT_VOLUME: u8 = 10;
 
@@ -40,6 +44,10 @@ pub struct SipRtpStats {
     pub sent_rtp: u64,
     pub sent_events: u64,
     pub send_errors: u64,
+    /// SRTP packets that failed authentication (or replays), dropped.
+    pub auth_failed: u64,
+    /// Packets of a second stream while the current one is still sending (dropped).
+    pub other_stream: u64,
     /// The peer's media came from another address than its SDP named (we followed it).
     pub latched: Option<SocketAddr>,
 }
@@ -60,12 +68,32 @@ pub struct SipRtpCore {
     heard_from: bool,
     receiver: PeerReceiver,
     ssrc: Option<u32>,
+    /// When the current stream last sent.
+    last_heard: Instant,
     jitter: JitterConfig,
     epoch: Instant,
     digits: VecDeque<u8>,
     digit: Option<Digit>,
     outbox: VecDeque<Transmit>,
     stats: SipRtpStats,
+    /// SRTP (SDES): ours protects what we send, the peer's key what it sends.
+    tx_srtp: Option<Srtp>,
+    rx_srtp: Option<Srtp>,
+}
+
+/// Both ends of SDES-keyed SRTP: our key for what we send, the peer's for what we receive.
+fn sdes_contexts(
+    negotiated: &Negotiated,
+    ours: &SdesKey,
+) -> std::io::Result<(Option<Srtp>, Option<Srtp>)> {
+    let Some(theirs) = &negotiated.srtp else {
+        return Ok((None, None));
+    };
+    let context = |key: &SdesKey| -> std::io::Result<Srtp> {
+        let master = MasterKey::from_bytes(&key.0).map_err(std::io::Error::other)?;
+        Srtp::new(&master).map_err(std::io::Error::other)
+    };
+    Ok((Some(context(ours)?), Some(context(&theirs.key)?)))
 }
 
 /// The RFC 4733 event code of a DTMF key.
@@ -80,8 +108,10 @@ pub fn event_code(key: char) -> Option<u8> {
 }
 
 impl SipRtpCore {
-    pub fn new(negotiated: Negotiated, now: Instant) -> Result<Self, getrandom::Error> {
-        let mut stream = RtpStream::new_random()?;
+    /// The call's RTP as `negotiated`, our SRTP key `ours` where SRTP was agreed.
+    pub fn new(negotiated: Negotiated, ours: &SdesKey, now: Instant) -> std::io::Result<Self> {
+        let (tx_srtp, rx_srtp) = sdes_contexts(&negotiated, ours)?;
+        let mut stream = RtpStream::new_random().map_err(std::io::Error::other)?;
         let frame_ticks = negotiated.codec.frame_ticks();
         stream.set_payload(negotiated.payload_type, frame_ticks);
         let jitter = JitterConfig::default();
@@ -92,12 +122,15 @@ impl SipRtpCore {
             heard_from: false,
             receiver: PeerReceiver::with_payloads(jitter, now, true, negotiated.payloads.clone()),
             ssrc: None,
+            last_heard: now,
             jitter,
             epoch: now,
             digits: VecDeque::new(),
             digit: None,
             outbox: VecDeque::new(),
             stats: SipRtpStats::default(),
+            tx_srtp,
+            rx_srtp,
             negotiated,
         })
     }
@@ -133,7 +166,13 @@ impl SipRtpCore {
         self.negotiated = negotiated;
     }
 
-    fn queue(&mut self, data: Vec<u8>) {
+    fn queue(&mut self, mut data: Vec<u8>) {
+        if let Some(srtp) = self.tx_srtp.as_mut()
+            && srtp.protect_rtp(&mut data).is_err()
+        {
+            self.stats.send_errors += 1;
+            return;
+        }
         self.outbox.push_back(Transmit {
             to: self.remote,
             data,
@@ -251,6 +290,18 @@ impl SipRtpCore {
             self.stats.rtcp += 1;
             return;
         }
+        let mut clear;
+        let data = match self.rx_srtp.as_mut() {
+            Some(srtp) => {
+                clear = data.to_vec();
+                if srtp.unprotect_rtp(&mut clear).is_err() {
+                    self.stats.auth_failed += 1;
+                    return;
+                }
+                clear.as_slice()
+            }
+            None => data,
+        };
         let packet = match rtp::parse(data, None) {
             Ok(p) => p,
             Err(_) => {
@@ -267,7 +318,15 @@ impl SipRtpCore {
             self.stats.unknown_payload += 1;
             return;
         }
+        let ssrc = packet.header.ssrc;
+        if self.ssrc.is_some_and(|current| current != ssrc)
+            && now.saturating_duration_since(self.last_heard) < STREAM_HANDOVER
+        {
+            self.stats.other_stream += 1;
+            return;
+        }
         self.stats.rtp += 1;
+        self.last_heard = now;
         if !self.heard_from || from != self.remote {
             if from != self.negotiated.remote {
                 self.stats.latched = Some(from);
@@ -332,8 +391,12 @@ impl std::fmt::Debug for SipRtp {
 
 impl SipRtp {
     /// Starts the media on `socket` (the one whose address our SDP gave).
-    pub fn start(socket: UdpSocket, negotiated: Negotiated) -> std::io::Result<Self> {
-        let core = SipRtpCore::new(negotiated, Instant::now()).map_err(std::io::Error::other)?;
+    pub fn start(
+        socket: UdpSocket,
+        negotiated: Negotiated,
+        ours: &SdesKey,
+    ) -> std::io::Result<Self> {
+        let core = SipRtpCore::new(negotiated, ours, Instant::now())?;
         let driver = Driver::start(socket, core, "lipcall-sip-rtp", POLL)?;
         Ok(Self { driver })
     }
@@ -362,13 +425,14 @@ mod tests {
             direction: Direction::SendRecv,
             payloads: PayloadMap::default(),
             audio_types: vec![0],
+            srtp: None,
         }
     }
 
     #[test]
     fn a_digit_is_five_growing_packets_then_three_ends_on_one_timestamp() {
         let now = Instant::now();
-        let mut core = SipRtpCore::new(negotiated(), now).unwrap();
+        let mut core = SipRtpCore::new(negotiated(), &SdesKey([1; 30]), now).unwrap();
         assert!(core.queue_digits("1#"));
         assert!(!core.queue_digits("x"));
         let mut packets = Vec::new();
@@ -407,7 +471,7 @@ mod tests {
     #[test]
     fn media_is_received_from_wherever_it_comes_and_answered_there() {
         let now = Instant::now();
-        let mut core = SipRtpCore::new(negotiated(), now).unwrap();
+        let mut core = SipRtpCore::new(negotiated(), &SdesKey([1; 30]), now).unwrap();
         let mut sender = RtpStream::new(42, 1, 0);
         sender.set_payload(0, 160);
         let mut buf = Vec::new();
@@ -426,5 +490,55 @@ mod tests {
         assert_eq!(core.stats().unknown_payload, 1);
         assert_eq!(core.stats().malformed, 1);
         assert_eq!(core.ssrc(), Some(42));
+        // A second stream while the first one talks is dropped; after a pause it takes over.
+        let mut other = RtpStream::new(43, 1, 0);
+        other.set_payload(0, 160);
+        other.packetize(&[0xff; 160], 1, &mut buf).unwrap();
+        core.handle_datagram(&buf, nat, now + Duration::from_millis(20));
+        assert_eq!((core.ssrc(), core.stats().other_stream), (Some(42), 1));
+        other.packetize(&[0xff; 160], 1, &mut buf).unwrap();
+        core.handle_datagram(&buf, nat, now + Duration::from_millis(500));
+        assert_eq!(core.ssrc(), Some(43));
+    }
+}
+
+#[cfg(test)]
+mod srtp_tests {
+    use super::*;
+    use crate::codec::any::{Codec, PayloadMap};
+    use crate::net::sip::sdp::{Direction, Sdes};
+
+    #[test]
+    fn sdes_keyed_ends_hear_each_other_and_drop_the_unkeyed() {
+        let now = Instant::now();
+        let (a_key, b_key) = (SdesKey([1; 30]), SdesKey([2; 30]));
+        let towards = |key: &SdesKey| Negotiated {
+            remote: "127.0.0.1:9000".parse().unwrap(),
+            codec: Codec::Pcmu,
+            payload_type: 0,
+            events: None,
+            direction: Direction::SendRecv,
+            payloads: PayloadMap::default(),
+            audio_types: vec![0],
+            srtp: Some(Sdes {
+                tag: 1,
+                key: key.clone(),
+            }),
+        };
+        let mut a = SipRtpCore::new(towards(&b_key), &a_key, now).unwrap();
+        let mut b = SipRtpCore::new(towards(&a_key), &b_key, now).unwrap();
+        let from: SocketAddr = "127.0.0.1:9001".parse().unwrap();
+        a.send_packet(&[0xff; 160], 160).unwrap();
+        let sent = a.poll_transmit().unwrap().data;
+        assert_eq!(sent.len(), 12 + 160 + 10, "authenticated");
+        b.handle_datagram(&sent, from, now);
+        assert_eq!((b.stats().rtp, b.stats().auth_failed), (1, 0));
+        // Plain RTP (or a wrong key) into a keyed call is dropped.
+        let mut plain = RtpStream::new(5, 1, 0);
+        plain.set_payload(0, 160);
+        let mut buf = Vec::new();
+        plain.packetize(&[0xff; 160], 1, &mut buf).unwrap();
+        b.handle_datagram(&buf, from, now);
+        assert_eq!((b.stats().rtp, b.stats().auth_failed), (1, 1));
     }
 }

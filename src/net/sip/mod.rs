@@ -3,6 +3,8 @@
 //! per-peer receiver as every call ([`media`]).
 
 pub mod agent;
+pub mod backend;
+pub mod dial;
 pub mod error;
 pub mod media;
 pub mod register;

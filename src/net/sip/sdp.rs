@@ -15,6 +15,65 @@ pub const MAX_SDP_BYTES: usize = 16 * 1024;
 /// Formats on one media line that we look at.
 const MAX_FORMATS: usize = 64;
 
+/// The one SRTP crypto suite lipcall keys by SDES (RFC 4568), as src/net/srtp.rs runs it.
+pub const SRTP_SUITE: &str = "AES_CM_128_HMAC_SHA1_80";
+/// An SDES inline key: 16 bytes of master key, 14 of salt.
+pub const SDES_KEY_LEN: usize = 30;
+
+/// An SRTP master key and salt given in SDP; never printed.
+#[derive(Clone, PartialEq, Eq)]
+pub struct SdesKey(pub [u8; SDES_KEY_LEN]);
+
+impl std::fmt::Debug for SdesKey {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.write_str("SdesKey(..)")
+    }
+}
+
+impl SdesKey {
+    pub fn random() -> Result<Self, getrandom::Error> {
+        let mut key = [0; SDES_KEY_LEN];
+        getrandom::fill(&mut key)?;
+        Ok(Self(key))
+    }
+
+    fn inline(&self) -> String {
+        use base64::Engine;
+        base64::engine::general_purpose::STANDARD.encode(self.0)
+    }
+
+    /// `inline:KEY[|LIFETIME][|MKI:LEN]` (RFC 4568 9.1) of our suite; `None` for any other.
+    fn parse(params: &str) -> Option<Self> {
+        use base64::Engine;
+        let inline = params
+            .split_ascii_whitespace()
+            .next()?
+            .strip_prefix("inline:")?;
+        let key = inline.split('|').next()?;
+        let bytes = base64::engine::general_purpose::STANDARD.decode(key).ok()?;
+        Some(Self(bytes.try_into().ok()?))
+    }
+}
+
+/// The peer's SDES crypto attribute we took.
+#[derive(Debug, Clone, PartialEq, Eq)]
+pub struct Sdes {
+    pub tag: u32,
+    pub key: SdesKey,
+}
+
+fn parse_crypto(value: &str) -> Option<Sdes> {
+    let mut parts = value.splitn(3, ' ');
+    let tag = parts.next()?.parse().ok()?;
+    if parts.next()? != SRTP_SUITE {
+        return None;
+    }
+    Some(Sdes {
+        tag,
+        key: SdesKey::parse(parts.next()?)?,
+    })
+}
+
 /// Payload types lipcall offers for what has no static type.
 pub const OPUS_PT: u8 = 111;
 pub const EVENT_PT: u8 = 101;
@@ -34,8 +93,10 @@ pub enum SdpError {
     Malformed { line: String, why: &'static str },
     #[error("no codec in common (the peer offers {0}; lipcall speaks Opus, PCMU and PCMA)")]
     NoCommonCodec(String),
-    #[error("the peer's audio is RTP/SAVP (SRTP) and no key lipcall can use was given")]
+    #[error("the peer offers SRTP with no crypto suite lipcall speaks ({SRTP_SUITE} by SDES)")]
     Encrypted,
+    #[error("we asked for SRTP and the peer answered without it")]
+    Unencrypted,
 }
 
 /// Which way media flows, as one side says it (RFC 3264 section 5.1).
@@ -87,6 +148,9 @@ pub struct RemoteAudio {
     pub addr: SocketAddr,
     pub formats: Vec<Format>,
     pub direction: Direction,
+    /// RTP/SAVP: SRTP, keyed by the first crypto attribute of our suite (if any).
+    pub secure: bool,
+    pub crypto: Option<Sdes>,
 }
 
 /// What we describe of our side.
@@ -97,6 +161,10 @@ pub struct LocalAudio {
     /// The codecs we offer or accept, preferred first.
     pub codecs: Vec<Codec>,
     pub session_id: u64,
+    /// Our SRTP key: offered with RTP/SAVP when `offer_srtp`, and given in an answer to an
+    /// offer of SRTP.
+    pub key: SdesKey,
+    pub offer_srtp: bool,
 }
 
 /// The outcome of an offer and its answer.
@@ -113,6 +181,8 @@ pub struct Negotiated {
     /// Every payload type of the peer that carries a codec we decode.
     pub payloads: PayloadMap,
     pub audio_types: Vec<u8>,
+    /// SRTP, with the peer's key (ours is in [`LocalAudio`]).
+    pub srtp: Option<Sdes>,
 }
 
 /// The payload types that carry SDP's static formats we know (RFC 3551).
@@ -185,6 +255,8 @@ struct AudioLine {
     formats: Vec<Format>,
     addr: Option<IpAddr>,
     direction: Option<Direction>,
+    secure: bool,
+    crypto: Option<Sdes>,
 }
 
 /// Reads the first audio stream of a description.
@@ -223,11 +295,11 @@ pub fn parse(text: &str) -> Result<RemoteAudio, SdpError> {
                     .next()
                     .and_then(|p| p.parse().ok())
                     .ok_or_else(|| malformed(line, "bad port"))?;
-                match proto {
-                    "RTP/AVP" | "RTP/AVPF" => {}
-                    "RTP/SAVP" | "RTP/SAVPF" => return Err(SdpError::Encrypted),
+                let secure = match proto {
+                    "RTP/AVP" | "RTP/AVPF" => false,
+                    "RTP/SAVP" | "RTP/SAVPF" => true,
                     _ => return Err(malformed(line, "not RTP/AVP audio")),
-                }
+                };
                 let mut formats = Vec::new();
                 for pt in parts.take(MAX_FORMATS) {
                     let pt: u8 = pt
@@ -247,6 +319,8 @@ pub fn parse(text: &str) -> Result<RemoteAudio, SdpError> {
                     formats,
                     addr: None,
                     direction: None,
+                    secure,
+                    crypto: None,
                 });
                 in_audio = true;
             }
@@ -271,6 +345,10 @@ pub fn parse(text: &str) -> Result<RemoteAudio, SdpError> {
                     (Some(a), true) => {
                         if let Some(d) = direction {
                             a.direction = Some(d);
+                        } else if name == "crypto" {
+                            if a.crypto.is_none() {
+                                a.crypto = parse_crypto(attr_value);
+                            }
                         } else if name == "rtpmap" {
                             let (pt, encoding, clock) = parse_rtpmap(line, attr_value)?;
                             if let Some(f) = a.formats.iter_mut().find(|f| f.payload_type == pt) {
@@ -296,6 +374,8 @@ pub fn parse(text: &str) -> Result<RemoteAudio, SdpError> {
         formats,
         addr: media_addr,
         direction,
+        secure,
+        crypto,
     } = audio.ok_or(SdpError::NoAudio)?;
     if port == 0 {
         return Err(SdpError::Refused);
@@ -305,6 +385,8 @@ pub fn parse(text: &str) -> Result<RemoteAudio, SdpError> {
         addr: SocketAddr::new(ip, port),
         formats,
         direction: direction.unwrap_or(session_direction),
+        secure,
+        crypto,
     })
 }
 
@@ -320,6 +402,9 @@ fn events_at(remote: &RemoteAudio, clock: u32) -> Option<u8> {
 /// Chooses the codec: the first of the peer's formats (its preference) that we allow. `answer`
 /// says the peer's description answers ours (its formats are then among ours).
 pub fn negotiate(remote: &RemoteAudio, allowed: &[Codec]) -> Result<Negotiated, SdpError> {
+    if remote.secure && remote.crypto.is_none() {
+        return Err(SdpError::Encrypted);
+    }
     let mut payloads = PayloadMap::default();
     let mut audio_types = Vec::new();
     let mut chosen = None;
@@ -358,6 +443,7 @@ pub fn negotiate(remote: &RemoteAudio, allowed: &[Codec]) -> Result<Negotiated, 
         direction: remote.direction,
         payloads,
         audio_types,
+        srtp: remote.secure.then(|| remote.crypto.clone()).flatten(),
     })
 }
 
@@ -406,10 +492,21 @@ pub fn offer(local: &LocalAudio, version: u64) -> String {
     let list: Vec<String> = types.iter().map(u8::to_string).collect();
     let mut sdp = header(local, version);
     sdp.push_str(&format!(
-        "m=audio {} RTP/AVP {}\r\n",
+        "m=audio {} {} {}\r\n",
         local.addr.port(),
+        if local.offer_srtp {
+            "RTP/SAVP"
+        } else {
+            "RTP/AVP"
+        },
         list.join(" ")
     ));
+    if local.offer_srtp {
+        sdp.push_str(&format!(
+            "a=crypto:1 {SRTP_SUITE} inline:{}\r\n",
+            local.key.inline()
+        ));
+    }
     for &codec in &codecs {
         sdp.push_str(&rtpmap(codec, offered_type(codec)));
     }
@@ -433,10 +530,22 @@ pub fn answer(local: &LocalAudio, chosen: &Negotiated, version: u64) -> String {
     let list: Vec<String> = types.iter().map(u8::to_string).collect();
     let mut sdp = header(local, version);
     sdp.push_str(&format!(
-        "m=audio {} RTP/AVP {}\r\n",
+        "m=audio {} {} {}\r\n",
         local.addr.port(),
+        if chosen.srtp.is_some() {
+            "RTP/SAVP"
+        } else {
+            "RTP/AVP"
+        },
         list.join(" ")
     ));
+    if let Some(theirs) = &chosen.srtp {
+        sdp.push_str(&format!(
+            "a=crypto:{} {SRTP_SUITE} inline:{}\r\n",
+            theirs.tag,
+            local.key.inline()
+        ));
+    }
     sdp.push_str(&rtpmap(chosen.codec, chosen.payload_type));
     if let Some(pt) = chosen.events {
         sdp.push_str(&format!(
@@ -465,7 +574,45 @@ mod tests {
             addr: "127.0.0.1:4000".parse().unwrap(),
             codecs: vec![Codec::Opus, Codec::Pcmu, Codec::Pcma],
             session_id: 7,
+            key: SdesKey([7; SDES_KEY_LEN]),
+            offer_srtp: false,
         }
+    }
+
+    #[test]
+    fn sdes_keys_go_both_ways_and_never_print() {
+        let mut ours = local();
+        ours.offer_srtp = true;
+        let offer = offer(&ours, 1);
+        assert!(offer.contains("m=audio 4000 RTP/SAVP "), "{offer}");
+        assert!(
+            offer.contains("a=crypto:1 AES_CM_128_HMAC_SHA1_80 inline:"),
+            "{offer}"
+        );
+        let remote = parse(&offer).unwrap();
+        let chosen = negotiate(&remote, &[Codec::Pcmu]).unwrap();
+        let theirs = chosen.srtp.clone().expect("SRTP agreed");
+        assert_eq!((theirs.tag, &theirs.key), (1, &ours.key));
+        assert!(!format!("{chosen:?}").contains("7, 7"));
+        // An answer to it gives our key under the offer's tag.
+        let answer = answer(&local(), &chosen, 2);
+        assert!(
+            answer.contains("RTP/SAVP") && answer.contains("a=crypto:1 "),
+            "{answer}"
+        );
+        // SRTP with another suite only, or no key, is refused; a broken key is no key.
+        let other = "v=0\r\nc=IN IP4 1.2.3.4\r\nm=audio 5 RTP/SAVP 0\r\n\
+                     a=crypto:1 AES_256_CM_HMAC_SHA1_80 inline:AAAA\r\n";
+        assert_eq!(
+            negotiate(&parse(other).unwrap(), &[Codec::Pcmu]),
+            Err(SdpError::Encrypted)
+        );
+        let short = "v=0\r\nc=IN IP4 1.2.3.4\r\nm=audio 5 RTP/SAVP 0\r\n\
+                     a=crypto:1 AES_CM_128_HMAC_SHA1_80 inline:AAAA\r\n";
+        assert_eq!(
+            negotiate(&parse(short).unwrap(), &[Codec::Pcmu]),
+            Err(SdpError::Encrypted)
+        );
     }
 
     #[test]
@@ -519,10 +666,8 @@ mod tests {
         );
         assert!(parse("v=0\r\nc=IN IP4 host.example\r\nm=audio 5 RTP/AVP 0\r\n").is_err());
         assert!(parse("v=0\r\nc=IN IP4 1.2.3.4\r\nm=audio 5 RTP/AVP 300\r\n").is_err());
-        assert_eq!(
-            parse("v=0\r\nc=IN IP4 1.2.3.4\r\nm=audio 5 RTP/SAVP 0\r\n"),
-            Err(SdpError::Encrypted)
-        );
+        let no_key = parse("v=0\r\nc=IN IP4 1.2.3.4\r\nm=audio 5 RTP/SAVP 0\r\n").unwrap();
+        assert_eq!(negotiate(&no_key, &[Codec::Pcmu]), Err(SdpError::Encrypted));
         let g729 = parse("v=0\r\nc=IN IP4 1.2.3.4\r\nm=audio 5 RTP/AVP 18\r\n").unwrap();
         assert!(matches!(
             negotiate(&g729, &[Codec::Pcmu]),

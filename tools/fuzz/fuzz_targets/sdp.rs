@@ -20,6 +20,8 @@ fuzz_target!(|data: &[u8]| {
         addr: ([127, 0, 0, 1], 4000).into(),
         codecs: Codec::ALL.to_vec(),
         session_id: 1,
+        key: sdp::SdesKey([1; sdp::SDES_KEY_LEN]),
+        offer_srtp: false,
     };
     let answer = sdp::answer(&local, &chosen, 1);
     let back = sdp::parse(&answer).expect("our answer reads back");
@@ -28,5 +30,6 @@ fuzz_target!(|data: &[u8]| {
         (again.codec, again.payload_type, again.events),
         (chosen.codec, chosen.payload_type, chosen.events)
     );
+    assert_eq!(again.srtp.is_some(), chosen.srtp.is_some());
     assert_eq!(back.addr, local.addr);
 });

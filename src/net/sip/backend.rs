@@ -1,0 +1,128 @@
+//! What the SIP stack hands the owner (events) and what it asks of our media (ezk's
+//! [`MediaBackend`]): offers, answers and what they agreed, through [`super::sdp`]. The RTP
+//! itself is [`super::media`]'s, on the socket whose address the SDP gives.
+
+use std::future::Future;
+use std::net::SocketAddr;
+use std::sync::mpsc;
+
+use bytesstr::BytesStr;
+use ezk_sdp_types::SessionDescription;
+use ezk_sip_ua::MediaBackend;
+
+use super::error::SipError;
+use super::sdp::{self, LocalAudio, Negotiated, SdpError};
+
+/// What happened, in order.
+#[derive(Debug, Clone, PartialEq)]
+pub enum AgentEvent {
+    Listening(SocketAddr),
+    Registered(String),
+    /// A call came in (from whom).
+    Incoming(String),
+    Ringing,
+    /// The peer sends media before answering (a 183 with its description).
+    EarlyMedia,
+    /// The SDP exchange agreed this (again at a re-INVITE).
+    Media(Negotiated),
+    Established,
+    /// The call is over: hung up by the peer or by us (a CANCEL before the answer included).
+    Ended {
+        by_peer: bool,
+    },
+    Failed(SipError),
+}
+
+pub fn send(events: &mpsc::Sender<AgentEvent>, event: AgentEvent) {
+    let _ = events.send(event);
+}
+
+/// ezk's media backend: negotiates through [`super::sdp`] and tells the owner what was agreed.
+pub struct SdpMedia {
+    pub audio: LocalAudio,
+    pub events: mpsc::Sender<AgentEvent>,
+    pub version: u64,
+}
+
+impl SdpMedia {
+    fn description(text: &str) -> Result<SessionDescription, SdpError> {
+        SessionDescription::parse(&BytesStr::from(text)).map_err(|_| SdpError::Malformed {
+            line: text.chars().take(80).collect(),
+            why: "lipcall's own description did not parse",
+        })
+    }
+
+    fn agreed(&mut self, negotiated: Negotiated) {
+        let _ = self.events.send(AgentEvent::Media(negotiated));
+    }
+
+    pub fn offer(&mut self) -> Result<SessionDescription, SdpError> {
+        self.version += 1;
+        Self::description(&sdp::offer(&self.audio, self.version))
+    }
+
+    pub fn take_answer(&mut self, answer: &SessionDescription) -> Result<(), SdpError> {
+        self.take_answer_text(&answer.to_string())
+    }
+
+    /// Takes the peer's answer to our offer.
+    pub fn take_answer_text(&mut self, answer: &str) -> Result<(), SdpError> {
+        let remote = sdp::parse(answer)?;
+        let negotiated = sdp::negotiate(&remote, &self.audio.codecs)?;
+        if self.audio.offer_srtp && negotiated.srtp.is_none() {
+            return Err(SdpError::Unencrypted);
+        }
+        self.agreed(negotiated);
+        Ok(())
+    }
+
+    pub fn answer(&mut self, offer: &SessionDescription) -> Result<SessionDescription, SdpError> {
+        let answer = self.answer_text(&offer.to_string())?;
+        Self::description(&answer)
+    }
+
+    /// Our answer to the peer's offer, as text.
+    pub fn answer_text(&mut self, offer: &str) -> Result<String, SdpError> {
+        let remote = sdp::parse(offer)?;
+        let negotiated = sdp::negotiate(&remote, &self.audio.codecs)?;
+        self.version += 1;
+        let answer = sdp::answer(&self.audio, &negotiated, self.version);
+        Self::description(&answer)?;
+        self.agreed(negotiated);
+        Ok(answer)
+    }
+}
+
+impl MediaBackend for SdpMedia {
+    type Error = SdpError;
+    type Event = ();
+
+    fn has_media(&self) -> bool {
+        true
+    }
+
+    fn create_sdp_offer(
+        &mut self,
+    ) -> impl Future<Output = Result<SessionDescription, Self::Error>> + Send {
+        std::future::ready(self.offer())
+    }
+
+    fn receive_sdp_answer(
+        &mut self,
+        sdp: SessionDescription,
+    ) -> impl Future<Output = Result<(), Self::Error>> + Send {
+        std::future::ready(self.take_answer(&sdp))
+    }
+
+    fn receive_sdp_offer(
+        &mut self,
+        sdp: SessionDescription,
+    ) -> impl Future<Output = Result<SessionDescription, Self::Error>> + Send {
+        std::future::ready(self.answer(&sdp))
+    }
+
+    fn run(&mut self) -> impl Future<Output = Result<Self::Event, Self::Error>> + Send {
+        // The RTP runs on its own socket thread: nothing to drive here.
+        std::future::pending()
+    }
+}

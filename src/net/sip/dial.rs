@@ -1,0 +1,388 @@
+//! An outgoing call on ezk's INVITE initiator: the offer, digest answers to 401 and 407, ringing
+//! (early dialogs included), the answer, and until then a CANCEL that matches the INVITE. ezk's
+//! own `OutboundCall` sends its CANCEL with a Via branch of its own, which RFC 3261 (9.1) does
+//! not allow: kamailio drops it and the callee keeps ringing. Here the CANCEL copies the
+//! INVITE's Via, From, To, Call-ID and CSeq number. Once answered, the session is followed here
+//! too (re-INVITEs answered through the same SDP, BYE either way).
+
+use std::future::poll_fn;
+use std::sync::mpsc;
+use std::task::Poll;
+use std::time::Duration;
+
+use bytesstr::BytesStr;
+use ezk_sip_auth::{ClientAuthenticator, RequestParts, ResponseParts};
+use ezk_sip_core::transaction::TsxResponse;
+use ezk_sip_core::{Endpoint, Request};
+use ezk_sip_types::header::typed::{CSeq, Contact, ContentType};
+use ezk_sip_types::uri::{NameAddr, SipUri};
+use ezk_sip_types::{Method, Name, StatusCode};
+use ezk_sip_ua::invite::create_ack;
+use ezk_sip_ua::invite::initiator::{Early, EarlyResponse, InviteInitiator, Response};
+use ezk_sip_ua::invite::session::{InviteSession, InviteSessionEvent};
+use tokio::select;
+use tokio::sync::mpsc::UnboundedReceiver;
+
+use super::backend::{AgentEvent, SdpMedia, send};
+use super::error::SipError;
+use super::register::{Limited, reason_of};
+use super::sdp::SdpError;
+
+/// How long a cancelled INVITE may take to end (the callee's 487).
+const CANCEL_WAIT: Duration = Duration::from_secs(3);
+
+fn sdp_type() -> ContentType {
+    ContentType(BytesStr::from_static("application/sdp"))
+}
+
+/// The SDP text of a message, if it carries one.
+fn sdp_body(headers: &ezk_sip_types::Headers, body: &[u8]) -> Option<Result<String, SdpError>> {
+    let is_sdp = headers
+        .get_named::<ContentType>()
+        .is_ok_and(|t| t.0.eq_ignore_ascii_case("application/sdp"));
+    if !is_sdp || body.is_empty() {
+        return None;
+    }
+    Some(
+        std::str::from_utf8(body)
+            .map(str::to_owned)
+            .map_err(|_| SdpError::Malformed {
+                line: String::new(),
+                why: "the description is not UTF-8",
+            }),
+    )
+}
+
+fn refused(target: &str, response: &TsxResponse) -> SipError {
+    let code = response.line.code;
+    SipError::CallRefused {
+        target: target.to_owned(),
+        code: code.into_u16(),
+        reason: reason_of(code, response.line.reason.as_ref()),
+    }
+}
+
+fn core_error(target: &str, e: ezk_sip_core::Error) -> SipError {
+    match e {
+        ezk_sip_core::Error::RequestTimedOut => SipError::NoAnswer(target.to_owned()),
+        e => SipError::Protocol(e.to_string()),
+    }
+}
+
+/// Sends a CANCEL for the INVITE `initiator` sent (RFC 3261 9.1: its Request-URI, top Via,
+/// From, To, Call-ID and CSeq number; to where the INVITE went).
+async fn cancel(endpoint: &Endpoint, initiator: &InviteInitiator) -> Result<(), SipError> {
+    let Some(transaction) = initiator.transaction() else {
+        return Ok(());
+    };
+    let invite = transaction.request();
+    let mut cancel = Request::new(Method::CANCEL, invite.msg.line.uri.clone());
+    let headers = &invite.msg.headers;
+    if let Some(via) = headers.get_raw(&Name::VIA).next() {
+        cancel.headers.insert(Name::VIA, via.clone());
+    }
+    for name in [Name::FROM, Name::TO, Name::CALL_ID, Name::ROUTE] {
+        // A header the INVITE lacks (Route) is simply not copied.
+        let _ = headers.clone_into(&mut cancel.headers, name);
+    }
+    let cseq = headers
+        .get_named::<CSeq>()
+        .map_err(|e| SipError::Protocol(format!("our own INVITE: {e}")))?;
+    cancel
+        .headers
+        .insert_named(&CSeq::new(cseq.cseq, Method::CANCEL));
+    cancel.headers.insert(Name::MAX_FORWARDS, "70");
+    let mut target = ezk_sip_core::transport::TargetTransportInfo {
+        via_host_port: None,
+        transport: Some((invite.parts.transport.clone(), invite.parts.destination)),
+    };
+    let mut outgoing = endpoint
+        .create_outgoing(cancel, &mut target)
+        .await
+        .map_err(|e| SipError::Protocol(format!("CANCEL: {e}")))?;
+    endpoint
+        .send_outgoing_request(&mut outgoing)
+        .await
+        .map_err(|e| SipError::Protocol(format!("CANCEL: {e}")))
+}
+
+/// Early media: the first 183 whose description we can take starts the media before the
+/// answer (announcements, ringback); one we cannot take is left to the final answer.
+fn take_early(
+    response: &TsxResponse,
+    media: &mut SdpMedia,
+    events: &mpsc::Sender<AgentEvent>,
+    early_answer: &mut bool,
+) {
+    if *early_answer || response.line.code != StatusCode::SESSION_PROGRESS {
+        return;
+    }
+    match sdp_body(&response.headers, &response.body) {
+        Some(Ok(text)) => match media.take_answer_text(&text) {
+            Ok(()) => {
+                *early_answer = true;
+                send(events, AgentEvent::EarlyMedia);
+            }
+            Err(e) => tracing::warn!("early media we cannot take: {e}"),
+        },
+        Some(Err(e)) => tracing::warn!("early media we cannot take: {e}"),
+        None => {}
+    }
+}
+
+/// Waits for the next response of any early dialog.
+async fn next_early(earlies: &mut [Early]) -> (usize, Result<EarlyResponse, ezk_sip_core::Error>) {
+    poll_fn(|cx| {
+        for (i, early) in earlies.iter_mut().enumerate() {
+            if let Poll::Ready(response) = early.poll_receive(cx) {
+                return Poll::Ready((i, response));
+            }
+        }
+        Poll::Pending
+    })
+    .await
+}
+
+/// Places the call; `Ok(None)` when we hung up before the answer (the INVITE cancelled).
+#[allow(clippy::too_many_arguments)]
+pub async fn dial(
+    endpoint: &Endpoint,
+    mut auth: Limited,
+    id: NameAddr,
+    contact: Contact,
+    target: &str,
+    target_uri: SipUri,
+    media: &mut SdpMedia,
+    events: &mpsc::Sender<AgentEvent>,
+    commands: &mut UnboundedReceiver<()>,
+) -> Result<Option<InviteSession>, SipError> {
+    let offer = media.offer()?.to_string();
+    let mut initiator = InviteInitiator::new(endpoint.clone(), id, contact, target_uri);
+    // ezk's initiator sends no PRACK: a peer told we support 100rel would wait for one after a
+    // reliable 183 and give up on the call.
+    initiator.support_100rel = false;
+    let mut earlies: Vec<Early> = Vec::new();
+    let mut ringing = false;
+    let mut cancelled = false;
+    let mut early_answer = false;
+    'invite: loop {
+        let mut invite = initiator.create_invite();
+        invite.headers.insert_named(&sdp_type());
+        invite.body = offer.clone().into();
+        auth.authorize_request(&mut invite.headers);
+        initiator
+            .send_invite(invite)
+            .await
+            .map_err(|e| core_error(target, e))?;
+        loop {
+            let cancel_deadline = async {
+                if cancelled {
+                    tokio::time::sleep(CANCEL_WAIT).await;
+                } else {
+                    std::future::pending::<()>().await;
+                }
+            };
+            let (session, response) = select! {
+                response = initiator.receive() => match response.map_err(|e| core_error(target, e))? {
+                    Response::Provisional(response) => {
+                        take_early(&response, media, events, &mut early_answer);
+                        continue;
+                    }
+                    Response::EarlyEvent => continue,
+                    Response::Early(early, response, _) => {
+                        take_early(&response, media, events, &mut early_answer);
+                        earlies.push(early);
+                        if !std::mem::replace(&mut ringing, true) {
+                            send(events, AgentEvent::Ringing);
+                        }
+                        continue;
+                    }
+                    Response::Failure(response) => {
+                        let code = response.line.code.into_u16();
+                        if cancelled {
+                            return Ok(None);
+                        }
+                        if code != 401 && code != 407 {
+                            return Err(refused(target, &response));
+                        }
+                        let Some(transaction) = initiator.transaction() else {
+                            return Err(refused(target, &response));
+                        };
+                        let request = &transaction.request().msg;
+                        auth.handle_rejection(
+                            RequestParts { line: &request.line, headers: &request.headers, body: &request.body },
+                            ResponseParts { line: &response.line, headers: &response.headers, body: &response.body },
+                        )
+                        .map_err(|_| SipError::CallAuth(target.to_owned()))?;
+                        continue 'invite;
+                    }
+                    Response::Session(session, response) => (session, response),
+                    Response::Finished => {
+                        if cancelled {
+                            return Ok(None);
+                        }
+                        return Err(SipError::NoAnswer(target.to_owned()));
+                    }
+                },
+                (i, response) = next_early(&mut earlies), if !earlies.is_empty() => {
+                    match response.map_err(|e| core_error(target, e))? {
+                        EarlyResponse::Success(session, response) => {
+                            earlies.remove(i);
+                            (session, response)
+                        }
+                        EarlyResponse::Provisional(response, _) => {
+                            take_early(&response, media, events, &mut early_answer);
+                            continue;
+                        }
+                        EarlyResponse::Terminated => {
+                            earlies.remove(i);
+                            continue;
+                        }
+                    }
+                }
+                _ = commands.recv(), if !cancelled => {
+                    cancel(endpoint, &initiator).await?;
+                    cancelled = true;
+                    continue;
+                }
+                () = cancel_deadline => {
+                    tracing::warn!("{target} did not confirm the CANCEL");
+                    return Ok(None);
+                }
+            };
+            return established(
+                endpoint,
+                initiator,
+                earlies,
+                session,
+                response,
+                media,
+                target,
+                cancelled,
+                early_answer,
+            )
+            .await
+            .map(Some);
+        }
+    }
+}
+
+/// A final 2xx: its answer taken, ACKed; the other early dialogs cancelled. A call answered
+/// just as we cancelled it is hung up at once.
+#[allow(clippy::too_many_arguments)]
+async fn established(
+    endpoint: &Endpoint,
+    mut initiator: InviteInitiator,
+    earlies: Vec<Early>,
+    mut session: InviteSession,
+    response: TsxResponse,
+    media: &mut SdpMedia,
+    target: &str,
+    cancelled: bool,
+    early_answer: bool,
+) -> Result<InviteSession, SipError> {
+    for early in earlies {
+        tokio::spawn(early.cancel());
+    }
+    let mut ack = create_ack(&session.dialog, response.base_headers.cseq.cseq)
+        .await
+        .map_err(|e| core_error(target, e))?;
+    endpoint
+        .send_outgoing_request(&mut ack)
+        .await
+        .map_err(|e| SipError::Protocol(format!("ACK: {e}")))?;
+    initiator.set_acknowledge(&session, ack);
+    // Retransmitted 2xx are ACKed again while the transaction lasts.
+    tokio::spawn(async move {
+        while let Ok(
+            Response::Provisional(_)
+            | Response::EarlyEvent
+            | Response::Early(..)
+            | Response::Session(..),
+        ) = initiator.receive().await
+        {}
+    });
+    let taken = match sdp_body(&response.headers, &response.body) {
+        Some(Ok(text)) => media.take_answer_text(&text),
+        Some(Err(e)) => Err(e),
+        // The 183's description was the answer (RFC 3264): the 200 need not repeat it.
+        None if early_answer => Ok(()),
+        None => Err(SdpError::Malformed {
+            line: String::new(),
+            why: "the answer has no session description",
+        }),
+    };
+    if cancelled || taken.is_err() {
+        let _ = session.terminate().await;
+    }
+    taken?;
+    if cancelled {
+        return Err(SipError::Protocol(format!(
+            "{target} answered as we hung up"
+        )));
+    }
+    Ok(session)
+}
+
+/// An answered call until either side hangs up; `true` when the peer did.
+pub async fn follow(
+    mut session: InviteSession,
+    media: &mut SdpMedia,
+    commands: &mut UnboundedReceiver<()>,
+) -> Result<bool, SipError> {
+    loop {
+        select! {
+            event = session.run() => match event.map_err(|e| SipError::Protocol(e.to_string()))? {
+                InviteSessionEvent::RefreshNeeded => {
+                    if let Err(e) = session.refresh().await {
+                        tracing::warn!("refreshing the session: {e}");
+                    }
+                }
+                InviteSessionEvent::Notify(_) => {}
+                InviteSessionEvent::ReInviteReceived(reinvite) => {
+                    let answer = match sdp_body(&reinvite.invite.headers, &reinvite.invite.body) {
+                        Some(Ok(text)) => media.answer_text(&text),
+                        Some(Err(e)) => Err(e),
+                        // An offerless re-INVITE (a refresh) gets our current offer.
+                        None => media.offer().map(|d| d.to_string()),
+                    };
+                    match answer {
+                        Ok(answer) => {
+                            let mut response = session
+                                .dialog
+                                .create_response(&reinvite.invite, StatusCode::OK, None)
+                                .map_err(|e| SipError::Protocol(e.to_string()))?;
+                            response.msg.headers.insert_named(&sdp_type());
+                            response.msg.body = answer.into();
+                            if let Err(e) = session.handle_reinvite_success(reinvite, response).await {
+                                tracing::warn!("answering a re-INVITE: {e}");
+                            }
+                        }
+                        Err(e) => {
+                            tracing::warn!("a re-INVITE we cannot take: {e}");
+                            let response = session
+                                .dialog
+                                .create_response(&reinvite.invite, StatusCode::NOT_ACCEPTABLE_HERE, None)
+                                .map_err(|e| SipError::Protocol(e.to_string()))?;
+                            let _ = reinvite.transaction.respond_failure(response).await;
+                        }
+                    }
+                }
+                InviteSessionEvent::Bye(bye) => {
+                    if let Err(e) = session.handle_bye(bye).await {
+                        tracing::debug!("answering BYE: {e}");
+                    }
+                    return Ok(true);
+                }
+                InviteSessionEvent::Terminated => return Ok(true),
+            },
+            _ = commands.recv() => {
+                session
+                    .terminate()
+                    .await
+                    .map_err(|e| SipError::Protocol(format!("BYE: {e}")))?;
+                return Ok(false);
+            }
+        }
+    }
+}
