@@ -131,6 +131,8 @@ fn send_and_receive_help_keep_their_flag_order() {
             "room",
             "name",
             "pt",
+            "janus-secret",
+            "janus-token",
             "channel",
             "password",
             "tcp-only",

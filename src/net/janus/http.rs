@@ -7,9 +7,7 @@
 use std::collections::VecDeque;
 use std::sync::Arc;
 use std::sync::atomic::{AtomicBool, AtomicU64, Ordering};
-use std::sync::mpsc::{
-    Receiver, RecvTimeoutError, SyncSender, TryRecvError, TrySendError, sync_channel,
-};
+use std::sync::mpsc::{Receiver, RecvTimeoutError, SyncSender, TryRecvError, sync_channel};
 use std::time::{Duration, Instant};
 
 use serde_json::Value;
@@ -17,14 +15,13 @@ use serde_json::Value;
 use ureq::tls::{RootCerts, TlsConfig, TlsProvider};
 
 use super::JanusError;
+use super::events::{KEEPALIVE, Polled, hand_over, transaction};
 use super::messages::{self, JanusAuth};
 use super::url::{JanusUrl, Transport};
 use super::ws::WsCarrier;
 
 /// How long an asynchronous request may take before its event comes.
 const EVENT_TIMEOUT: Duration = Duration::from_secs(10);
-/// Janus destroys a session after 60 s of silence (its default `session_timeout`).
-pub(super) const KEEPALIVE: Duration = Duration::from_secs(15);
 /// Events the long poll hands over before it waits for them to be read: a server flooding
 /// events is slowed to the reader's pace instead of filling memory.
 const EVENTS_IN_FLIGHT: usize = 256;
@@ -32,13 +29,6 @@ const EVENTS_IN_FLIGHT: usize = 256;
 const EVENTS_SET_ASIDE: usize = 1024;
 /// The most events taken from one long-poll answer (lipcall asks for at most 10).
 const EVENTS_PER_ANSWER: usize = 100;
-
-/// What the long-poll (or WebSocket) thread hands over.
-pub(super) enum Polled {
-    Event(Value),
-    /// The session is gone or Janus unreachable; the thread has stopped.
-    Lost(JanusError),
-}
 
 /// How requests reach Janus.
 enum Carrier {
@@ -117,10 +107,6 @@ impl Api {
             .map_err(|e| not_janus(url, e))?;
         messages::check(reply)
     }
-}
-
-pub(super) fn transaction(counter: &AtomicU64) -> String {
-    format!("lipcall-{}", counter.fetch_add(1, Ordering::Relaxed))
 }
 
 /// A server that answered, but not with Janus's JSON.
@@ -420,22 +406,5 @@ impl Poller {
             }
         }
         Ok(out)
-    }
-}
-
-/// Waits until the owner has room for `polled`; false when the owner is gone or stopping.
-pub(super) fn hand_over(tx: &SyncSender<Polled>, stop: &AtomicBool, mut polled: Polled) -> bool {
-    loop {
-        match tx.try_send(polled) {
-            Ok(()) => return true,
-            Err(TrySendError::Disconnected(_)) => return false,
-            Err(TrySendError::Full(back)) => {
-                if stop.load(Ordering::Relaxed) {
-                    return false;
-                }
-                polled = back;
-                std::thread::sleep(Duration::from_millis(10));
-            }
-        }
     }
 }

@@ -10,6 +10,7 @@
 //! DTLS-SRTP is hop by hop: Janus decrypts every stream it forwards and could read it, unlike
 //! lipcall's end-to-end SRTP rooms, whose relay cannot.
 
+mod events;
 pub mod http;
 pub mod media;
 pub mod messages;

@@ -17,7 +17,7 @@ use tungstenite::stream::MaybeTlsStream;
 use tungstenite::{Message, WebSocket};
 
 use super::JanusError;
-use super::http::{KEEPALIVE, Polled, hand_over, transaction};
+use super::events::{KEEPALIVE, Polled, hand_over, transaction};
 use super::messages::{self, JanusAuth};
 
 /// How long a request waits for its immediate answer.
