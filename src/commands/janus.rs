@@ -243,6 +243,10 @@ pub fn send_command(command: &SendCommand) -> Result<()> {
     if let Some(mumble) =
         super::mumble::MumbleArgs::from_flags(&command.mumble, call.name.as_deref())
     {
+        let others = !call.to.is_empty() || call.room.is_some() || call.key.passphrase.is_some();
+        if others || call.key.hex.is_some() {
+            bail!("--mumble joins a Mumble server: it does not go with --to, --room or --key");
+        }
         return super::mumble::send(&call.input, &mumble);
     }
     match &command.janus {
@@ -266,6 +270,13 @@ pub fn receive_command(command: &ReceiveCommand) -> Result<()> {
     if let Some(mumble) =
         super::mumble::MumbleArgs::from_flags(&command.mumble, call.name.as_deref())
     {
+        let others = !call.listen.is_empty() || call.relay.is_some() || call.room.is_some();
+        if others || call.key.passphrase.is_some() || call.key.hex.is_some() {
+            bail!(
+                "--mumble joins a Mumble server: it does not go with --listen, --relay, --room or \
+                 --key"
+            );
+        }
         return super::mumble::receive(&super::mumble::MumbleReceiveArgs {
             mumble,
             wav: call.wav.clone(),
