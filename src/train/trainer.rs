@@ -14,7 +14,7 @@ use super::backprop::{Params, loss_and_gradient, model_params_mut, segment_loss_
 use super::closure_snap::predictions;
 pub use super::closure_snap::{FALSE_CLOSURE_COST, HeldOutPredictions, best_snap, snap_candidates};
 use super::config::TrainConfig;
-use super::dataset::{Dataset, Rng, build_dataset, warp_lsps};
+use super::dataset::{Dataset, Rng, append_video, build_dataset, warp_lsps};
 use super::error::TrainError;
 use super::init::initial_model;
 use crate::lipsync::network::{MAX_LOOKAHEAD, MULTIPLY_ADD_BUDGET, Model, input_count};
@@ -295,7 +295,10 @@ impl Run {
             train
         };
         let model = initial_model(config, train, &mut rng);
-        let train_data = prepare_frames(&model, config, train)?;
+        let mut train_data = prepare_frames(&model, config, train)?;
+        if let Some(video) = &config.video {
+            append_video(&mut train_data, &model, video);
+        }
         if train_data.frames() == 0 {
             return Err(TrainError::NoFrames);
         }
