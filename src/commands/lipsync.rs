@@ -506,6 +506,11 @@ fn train_cross_validated(args: &TrainArgs) -> Result<()> {
         corpus: &args.corpus,
         an4_audio: &args.an4_audio,
         an4_weight: args.an4_weight,
+        grid: args
+            .lips
+            .grid
+            .as_deref()
+            .map(|root| (root, args.lips.lip_weight)),
     };
     std::fs::write(&card, model_card(&sources, &report.model, &cv))
         .with_context(|| format!("cannot write {}", card.display()))?;
