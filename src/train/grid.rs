@@ -290,6 +290,25 @@ mod tests {
         std::fs::remove_file(&path).unwrap();
     }
 
+    proptest::proptest! {
+        /// Any text, or a valid header over junk rows, is lips or an error, never a panic.
+        #[test]
+        fn parsers_never_panic(rows in "[0-9,.x\\-\n]{0,300}") {
+            let _ = parse_track(&rows, Path::new("t.csv"));
+            let mut header = String::from("time_s,tracked");
+            for index in landmark::USED {
+                header.push_str(&format!(",x_{index},y_{index},z_{index}"));
+            }
+            let _ = parse_track(&format!("{header}\n{rows}"), Path::new("t.csv"));
+            let path = std::env::temp_dir()
+                .join(format!("lipcall-lips-prop-{}.csv", std::process::id()));
+            let text = format!("frame,time_s,tracked,aperture,width,protrusion,lower_lip_back\n{rows}");
+            std::fs::write(&path, text).unwrap();
+            let _ = read_lips_csv(&path);
+            std::fs::remove_file(&path).unwrap();
+        }
+    }
+
     #[test]
     fn tracks_parse_into_lips_and_untracked_rows() {
         let mut header = String::from("time_s,tracked");
