@@ -129,7 +129,8 @@ pub struct LipTrainArgs {
     #[arg(long, value_name = "N", default_value_t = recipe::LIP_VERSIONS)]
     pub lip_versions: usize,
     /// The lips each audio frame is trained towards are this much earlier than the frame
-    /// (a multiple of 20 ms): the lips lead the sound, the network sees one frame ahead.
+    /// (a multiple of 20 ms), for lips that lead their sound by more than the one frame the
+    /// network sees ahead (s1's trail it: 0).
     #[arg(long, value_name = "MS", default_value_t = recipe::LIP_SHIFT_MS)]
     pub lip_shift_ms: u32,
 }
