@@ -2,7 +2,7 @@ use std::path::PathBuf;
 use std::process::ExitCode;
 
 use clap::{Parser, Subcommand};
-use lipcall::commands::{self, animate, audio, codec, janus, lipsync, relay, sip};
+use lipcall::commands::{self, animate, audio, codec, grid, janus, lipsync, relay, sip};
 
 /// Voice chat with lip-synced 3D heads, driven by the Speex decoder's own LSPs.
 #[derive(Parser)]
@@ -63,6 +63,8 @@ enum Command {
     Evaluate(lipsync::EvaluateArgs),
     /// The paper's Table I (decomposition error for 2..6 visemes), or decompose real marker tracks.
     Decompose(lipsync::DecomposeArgs),
+    /// GRID data step: per-20-ms lip targets from the tracked video, and s1's audio-visual lag.
+    Grid(grid::GridArgs),
 }
 
 /// Exits with clap's usage error (status 2) for flags that do not fit together.
@@ -102,6 +104,7 @@ fn main() -> ExitCode {
         Command::Train(a) => lipsync::train(&a),
         Command::Evaluate(a) => lipsync::evaluate(&a),
         Command::Decompose(a) => lipsync::decompose(&a),
+        Command::Grid(a) => grid::grid(&a),
     };
     finish(result)
 }

@@ -149,6 +149,8 @@ pub struct TrainArgs {
     /// No progress bars.
     #[arg(long)]
     pub quiet: bool,
+    #[command(flatten)]
+    pub lips: super::grid::LipTrainArgs,
 }
 
 #[derive(Debug, clap::Args)]
@@ -188,6 +190,8 @@ pub struct EvaluateArgs {
     /// Also write the per-frame openness and aperture of targets, network and jaw baseline.
     #[arg(long, value_name = "CSV")]
     pub per_frame: Option<PathBuf>,
+    #[command(flatten)]
+    pub lips: super::grid::LipEvalArgs,
 }
 
 /// Codec paths `evaluate` can score.
@@ -323,6 +327,7 @@ fn train_config(args: &TrainArgs, split: &SpeakerSplit, snap: Option<f32>) -> Re
         show_progress: !args.quiet,
         allow_over_budget: args.allow_over_budget,
         nested_fold_epochs: args.nested_epochs,
+        video: None,
     })
 }
 
@@ -334,7 +339,8 @@ pub fn train(args: &TrainArgs) -> Result<()> {
     let sharpness = parse_sharpness(&args.sharpness)?;
     let corpus = Corpus::open(&args.corpus)?;
     let split = SpeakerSplit::standard(&corpus)?;
-    let config = train_config(args, &split, snap)?;
+    let mut config = train_config(args, &split, snap)?;
+    config.video = super::grid::video_training(&args.lips, &CodecFeatures::new())?;
     eprintln!(
         "Training the viseme network ({}) on the Speex-decoded features of {} \
          (training speakers {}; validation speakers {} steer early stopping; the test speakers {} \
@@ -423,6 +429,8 @@ fn train_cross_validated(args: &TrainArgs) -> Result<()> {
         split.test.join(" ")
     );
     let codec = CodecFeatures::new();
+    let mut config = config;
+    config.video = super::grid::video_training(&args.lips, &codec)?;
     let (mut groups, region_utts) =
         plan::region_groups(&corpus, &regions, &codec, args.versions, &config)?;
     if let Some(aligned) = an4 {
@@ -498,6 +506,11 @@ fn train_cross_validated(args: &TrainArgs) -> Result<()> {
         corpus: &args.corpus,
         an4_audio: &args.an4_audio,
         an4_weight: args.an4_weight,
+        grid: args
+            .lips
+            .grid
+            .as_deref()
+            .map(|root| (root, args.lips.lip_weight)),
     };
     std::fs::write(&card, model_card(&sources, &report.model, &cv))
         .with_context(|| format!("cannot write {}", card.display()))?;
@@ -597,6 +610,7 @@ pub fn evaluate(args: &EvaluateArgs) -> Result<()> {
         path
     );
     print!("{report}");
+    super::grid::evaluate_lips(&args.lips, &model, path)?;
     if let Some(path) = &args.per_frame {
         let file = std::fs::File::create(path)
             .with_context(|| format!("cannot create {}", path.display()))?;

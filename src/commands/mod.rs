@@ -4,6 +4,7 @@
 pub mod animate;
 pub mod audio;
 pub mod codec;
+pub mod grid;
 pub mod janus;
 pub mod lipsync;
 pub mod mumble;

@@ -7,6 +7,7 @@ pub mod coarticulation;
 pub mod decompose;
 pub mod jaw;
 pub mod life;
+pub mod lips;
 pub mod markers;
 pub mod mouth;
 pub mod network;

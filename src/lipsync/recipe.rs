@@ -24,3 +24,12 @@ pub const CODEC_VERSIONS: usize = 6;
 pub const AN4_WEIGHT: f32 = 0.1;
 pub const AN4_CODEC_VERSIONS: usize = 1;
 pub const SEED: u64 = 0x5EED_CAFE;
+/// Measured lips (`train --grid`): loss weight of a video frame, s1 clips and codec versions
+/// used, the weight of the squared aperture and width errors, and how much earlier than its
+/// audio frame the lips are taken (none: s1's lip opening trails his sound's energy by about
+/// 11 ms; see docs/model.md).
+pub const LIP_WEIGHT: f32 = 1.0;
+pub const LIP_CLIPS: usize = 300;
+pub const LIP_VERSIONS: usize = 2;
+pub const LIP_CUE_WEIGHT: f32 = 20.0;
+pub const LIP_SHIFT_MS: u32 = 0;

@@ -4,6 +4,7 @@
 use super::dataset::Dataset;
 use crate::lipsync::mouth::CUE_COUNT;
 use crate::lipsync::network::Model;
+use crate::train::video::LIP_CUES;
 
 /// Gradients (or Adam moments) shaped like the model's parameters.
 #[derive(Debug, Clone)]
@@ -60,6 +61,16 @@ pub(crate) fn loss_and_gradient(
         let (x, t) = (data.input(n), data.target(n));
         model.forward(x, &mut hidden, &mut probs);
         let weight = data.weights[n] as f64 / total_weight;
+        if let Some(lips) = data.video.get(n).copied().flatten() {
+            loss += weight * video_loss(data, &probs, &lips, &mut delta_out);
+            if let Some(grad) = grad.as_deref_mut() {
+                for d in delta_out.iter_mut() {
+                    *d *= weight as f32;
+                }
+                backprop(model, x, &hidden, &delta_out, &mut delta_hidden, grad);
+            }
+            continue;
+        }
         let kl: f64 = t
             .iter()
             .zip(&probs)
@@ -93,6 +104,30 @@ pub(crate) fn loss_and_gradient(
         backprop(model, x, &hidden, &delta_out, &mut delta_hidden, grad);
     }
     loss
+}
+
+/// A video frame's loss, the weighted squared errors of the aperture and width the weights
+/// show through the keys; its gradient at the logits goes into `delta_out`.
+fn video_loss(data: &Dataset, probs: &[f32], lips: &[f32; LIP_CUES], delta_out: &mut [f32]) -> f64 {
+    let mut shown = [0.0f32; LIP_CUES];
+    for (p, key) in probs.iter().zip(&data.video_keys) {
+        for (s, k) in shown.iter_mut().zip(key) {
+            *s += p * k;
+        }
+    }
+    let mut errors = [0.0f32; LIP_CUES];
+    let mut loss = 0.0f32;
+    for i in 0..LIP_CUES {
+        errors[i] = shown[i] - lips[i];
+        loss += data.video_cue_weights[i] * errors[i] * errors[i];
+    }
+    // d(shown)/d(logit k) = p_k (key_k - shown) through the softmax.
+    for ((d, p), key) in delta_out.iter_mut().zip(probs).zip(&data.video_keys) {
+        *d = (0..LIP_CUES)
+            .map(|i| 2.0 * data.video_cue_weights[i] * errors[i] * p * (key[i] - shown[i]))
+            .sum();
+    }
+    loss as f64
 }
 
 /// Adds the gradient of one frame into `grad`, given the loss gradient at the output logits.

@@ -97,6 +97,9 @@ pub struct CardSources<'a> {
     pub an4_audio: &'a Path,
     /// 0: no AN4.
     pub an4_weight: f32,
+    /// The GRID data step's output and the loss weight of a video frame, when s1's measured
+    /// lips were trained on.
+    pub grid: Option<(&'a Path, f32)>,
 }
 
 /// What a user of the weights needs to know: shape, data and licences, how it was chosen and
@@ -160,6 +163,15 @@ pub fn model_card(sources: &CardSources, model: &Model, cv: &CrossValidation) ->
              Frames weighted {} against TIMIT's.",
             sources.an4_audio.display(),
             sources.an4_weight
+        ));
+    }
+    if let Some((root, weight)) = sources.grid {
+        line(format!(
+            "- GRID audiovisual corpus ({}), speaker s1's lips tracked in video (MediaPipe face \
+             mesh), every tenth clip held out, video frames weighted {weight}: Cooke, Barker, \
+             Cunningham and Shao, J. Acoust. Soc. Am. 120 (5), 2421-2424, 2006; CC BY 4.0 \
+             (attribution). The 9 other-speaker clips are for validation only.",
+            root.display()
         ));
     }
     line("- TIMIT dr5 and dr6 (4 speakers) are never used for training or any choice.".into());

@@ -1,11 +1,12 @@
 //! The settings of one training run: the data, the network's shape, the loss and the optimiser.
-//! Every part of training reads them; they import nothing of training but the speaker split.
+//! Every part of training reads them; they import nothing of training but the speaker split and the video clips.
 
 use std::path::PathBuf;
 
 use crate::lipsync::mouth::VisemeShapes;
 use crate::lipsync::network::Dynamics;
 use crate::train::corpus::SpeakerSplit;
+use crate::train::video::VideoTraining;
 use crate::vocab::VisemeSet;
 
 #[derive(Debug, Clone)]
@@ -72,6 +73,8 @@ pub struct TrainConfig {
     /// Cross-validation: each fold takes its epochs from an inner cross-validation over the
     /// other groups instead of early stopping on its own held-out group.
     pub nested_fold_epochs: bool,
+    /// Measured lips as a second loss term (training frames only; never validation).
+    pub video: Option<VideoTraining>,
 }
 
 impl Default for TrainConfig {
@@ -107,6 +110,7 @@ impl Default for TrainConfig {
             show_progress: true,
             allow_over_budget: false,
             nested_fold_epochs: false,
+            video: None,
         }
     }
 }

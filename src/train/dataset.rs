@@ -5,6 +5,7 @@ use crate::lipsync::mouth::{Articulation, CUE_COUNT, cues};
 use crate::lipsync::network::Model;
 use crate::lipsync::phones::CueClass;
 use crate::train::corpus::PreparedUtterance;
+use crate::train::video::{LIP_CUES, VideoTraining, head_lips};
 use crate::vocab::LSP_COUNT;
 use crate::vocab::{Viseme, VisemeSet};
 
@@ -59,6 +60,12 @@ pub(crate) struct Dataset {
     pub(super) cues: Vec<[f32; CUE_COUNT]>,
     pub(super) target_cues: Vec<[f32; CUE_COUNT]>,
     pub(super) cue_weights: [f32; CUE_COUNT],
+    /// Measured lips of video frames (aperture, width on the head's scale); `None` for
+    /// phone-labelled frames, which alone carry the KL and cue terms.
+    pub(super) video: Vec<Option<[f32; LIP_CUES]>>,
+    /// Aperture and width of each output viseme, and the weights of their squared errors.
+    pub(super) video_keys: Vec<[f32; LIP_CUES]>,
+    pub(super) video_cue_weights: [f32; LIP_CUES],
     pub(super) input_len: usize,
     pub(super) outputs: usize,
 }
@@ -101,6 +108,15 @@ pub(crate) fn build_dataset(
             .collect(),
         target_cues: Vec::new(),
         cue_weights: [0.0; CUE_COUNT],
+        video: Vec::new(),
+        video_keys: (0..outputs)
+            .map(|k| {
+                let mut one_hot = vec![0.0; outputs];
+                one_hot[k] = 1.0;
+                head_lips(&model.visemes, &one_hot)
+            })
+            .collect(),
+        video_cue_weights: [0.0; LIP_CUES],
         input_len,
         outputs,
     };
@@ -133,6 +149,7 @@ pub(crate) fn build_dataset(
             }
             data.inputs.extend_from_slice(state.input());
             data.target_cues.push(cues(&full, &utt.targets.weights[n]));
+            data.video.push(None);
             let in_closure = utt.targets.in_bilabial(n);
             data.weights
                 .push(utt.weight * if in_closure { closure_weight } else { 1.0 });
@@ -161,6 +178,45 @@ pub(crate) fn build_dataset(
         data.lengths.push(utt.features.len());
     }
     data
+}
+
+/// Appends the frames of measured-lip clips: no phone targets (zero KL target, zero cues),
+/// their lips as video targets, each tracked frame weighing `training.frame_weight`.
+pub(crate) fn append_video(data: &mut Dataset, model: &Model, training: &VideoTraining) {
+    data.video_cue_weights = training.cue_weights;
+    let mut state = model.new_state();
+    let silence = crate::vocab::FrameFeatures::silent();
+    let mut speaker: Option<&str> = None;
+    for clip in training.clips.iter() {
+        if speaker != Some(clip.speaker.as_str()) {
+            model.reset(&mut state);
+            speaker = Some(clip.speaker.as_str());
+        }
+        let fed = clip.features.iter().chain(std::iter::repeat_n(
+            clip.features.last().unwrap_or(&silence),
+            model.lookahead,
+        ));
+        for (m, features) in fed.enumerate() {
+            model.push_frame(&mut state, features);
+            let Some(n) = m.checked_sub(model.lookahead) else {
+                continue;
+            };
+            if n >= clip.features.len() {
+                break;
+            }
+            data.inputs.extend_from_slice(state.input());
+            data.targets.extend(std::iter::repeat_n(0.0, data.outputs));
+            data.target_cues.push([0.0; CUE_COUNT]);
+            let lips = clip.lips.get(n).copied().flatten();
+            data.weights.push(if lips.is_some() {
+                training.frame_weight
+            } else {
+                0.0
+            });
+            data.video.push(Some(lips.unwrap_or_default()));
+        }
+        data.lengths.push(clip.features.len());
+    }
 }
 
 /// Copies of `utterances` whose LSPs are scaled by a random factor in `[1 - warp, 1 + warp]`

@@ -27,7 +27,7 @@ use crate::lipsync::network::Model;
 use crate::lipsync::phones::CueClass;
 use crate::lipsync::{Animator, LipSync, ModelAnimator};
 use crate::train::corpus::{Corpus, CorpusError, FeatureFn, PreparedUtterance, prepare};
-use crate::vocab::{Viseme, VisemeSet};
+use crate::vocab::{FrameFeatures, Viseme, VisemeSet};
 
 #[derive(Debug, thiserror::Error)]
 pub enum EvalError {
@@ -83,7 +83,7 @@ impl Scores {
     }
 }
 
-fn pearson(a: &[f64], b: &[f64]) -> f64 {
+pub fn pearson(a: &[f64], b: &[f64]) -> f64 {
     let n = a.len().min(b.len()) as f64;
     let (ma, mb) = (a.iter().sum::<f64>() / n, b.iter().sum::<f64>() / n);
     let (mut cov, mut va, mut vb) = (0.0, 0.0, 0.0);
@@ -207,6 +207,19 @@ fn argmax_viseme(set: &VisemeSet, weights: &[f32]) -> Viseme {
 /// the last frames, whose future never comes), frame n's weights at row n: what `animate`
 /// writes and the app shows.
 pub fn predict(animator: &mut dyn Animator, utterances: &[PreparedUtterance]) -> Vec<Vec<f32>> {
+    let streams: Vec<(&str, &[FrameFeatures])> = utterances
+        .iter()
+        .map(|u| (u.speaker.as_str(), &u.features[..]))
+        .collect();
+    predict_streams(animator, &streams)
+}
+
+/// [`predict`] on `(speaker, features)` streams: the weights the receiver's pipeline shows for
+/// each frame, a speaker's streams run as one call.
+pub fn predict_streams(
+    animator: &mut dyn Animator,
+    streams: &[(&str, &[FrameFeatures])],
+) -> Vec<Vec<f32>> {
     let k = animator.visemes().len();
     let borrowed: Box<dyn Animator + '_> = Box::new(animator);
     let mut pipeline = match LipSync::with_animator(borrowed, None) {
@@ -214,23 +227,23 @@ pub fn predict(animator: &mut dyn Animator, utterances: &[PreparedUtterance]) ->
         Err(e) => {
             // No receiver can show this set either; its rows score as an idle mouth.
             tracing::error!("the model's viseme set cannot be shown: {e}");
-            return utterances
+            return streams
                 .iter()
-                .map(|u| vec![0.0; u.features.len() * k])
+                .map(|(_, f)| vec![0.0; f.len() * k])
                 .collect();
         }
     };
-    let mut speaker: Option<&str> = None;
-    utterances
+    let mut current: Option<&str> = None;
+    streams
         .iter()
-        .map(|utt| {
+        .map(|&(speaker, features)| {
             // One speaker's utterances run as one call (the per-speaker state carries over).
-            if speaker != Some(utt.speaker.as_str()) {
+            if current != Some(speaker) {
                 pipeline.reset();
-                speaker = Some(utt.speaker.as_str());
+                current = Some(speaker);
             }
-            let mut out = vec![0.0; utt.features.len() * k];
-            run_stream(&mut pipeline, &utt.features, &[], |frame| {
+            let mut out = vec![0.0; features.len() * k];
+            run_stream(&mut pipeline, features, &[], |frame| {
                 let n = frame.tag as usize;
                 out[n * k..(n + 1) * k].copy_from_slice(frame.weights);
             });

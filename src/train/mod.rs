@@ -11,13 +11,16 @@ pub mod crossval;
 mod dataset;
 pub mod error;
 pub mod eval;
+pub mod grid;
 mod init;
+pub mod lag;
 pub mod plan;
 pub mod plot;
 pub mod sharpness;
 pub mod table_i;
 pub mod targets;
 pub mod trainer;
+pub mod video;
 
 pub use config::TrainConfig;
 pub use error::TrainError;

@@ -14,7 +14,7 @@ use super::backprop::{Params, loss_and_gradient, model_params_mut, segment_loss_
 use super::closure_snap::predictions;
 pub use super::closure_snap::{FALSE_CLOSURE_COST, HeldOutPredictions, best_snap, snap_candidates};
 use super::config::TrainConfig;
-use super::dataset::{Dataset, Rng, build_dataset, warp_lsps};
+use super::dataset::{Dataset, Rng, append_video, build_dataset, warp_lsps};
 use super::error::TrainError;
 use super::init::initial_model;
 use crate::lipsync::network::{MAX_LOOKAHEAD, MULTIPLY_ADD_BUDGET, Model, input_count};
@@ -295,7 +295,10 @@ impl Run {
             train
         };
         let model = initial_model(config, train, &mut rng);
-        let train_data = prepare_frames(&model, config, train)?;
+        let mut train_data = prepare_frames(&model, config, train)?;
+        if let Some(video) = &config.video {
+            append_video(&mut train_data, &model, video);
+        }
         if train_data.frames() == 0 {
             return Err(TrainError::NoFrames);
         }
@@ -506,6 +509,61 @@ mod tests {
             loss_and_gradient(m, &data, &frames, None)
         });
         assert!(checked > 20);
+    }
+
+    #[test]
+    fn video_loss_gradient_matches_finite_differences_and_pulls_towards_the_lips() {
+        use crate::train::video::{VideoClip, VideoTraining};
+        let (train, _) = tiny_data();
+        let config = TrainConfig {
+            visemes: VisemeSet::parse("PP,FF,aa,I,U").unwrap(),
+            hidden: 4,
+            context: 1,
+            lookahead: 1,
+            ..TrainConfig::default()
+        };
+        let mut rng = Rng::new(5);
+        let mut model = initial_model(&config, &train[..1], &mut rng);
+        for b in model.b1.iter_mut().chain(&mut model.b2) {
+            *b = rng.next_f32() - 0.5;
+        }
+        let clip = |lips: &dyn Fn(usize) -> Option<[f32; 2]>| VideoClip {
+            speaker: "s1".into(),
+            name: "clip".into(),
+            features: train[1].features.clone(),
+            lips: (0..train[1].features.len()).map(lips).collect(),
+        };
+        let training = |clip: VideoClip| VideoTraining {
+            clips: std::sync::Arc::new(vec![clip]),
+            frame_weight: 2.0,
+            cue_weights: [20.0, 10.0],
+        };
+        let targets = set_targets(&config.visemes, &config.shapes, &train[..1]).unwrap();
+        let mut data = build_dataset(&model, &train[..1], &targets, 1.0, false);
+        let phone_frames = data.frames();
+        let varied =
+            clip(&|n| (n % 3 != 0).then_some([0.1 * (n % 7) as f32, 0.05 * (n % 5) as f32]));
+        append_video(&mut data, &model, &training(varied));
+        assert_eq!(data.frames(), phone_frames + train[1].features.len());
+        let frames: Vec<usize> = (0..data.frames()).step_by(5).collect();
+        let mut grad = Params::zeros_like(&model);
+        loss_and_gradient(&model, &data, &frames, Some(&mut grad));
+        let checked = assert_gradient(&model, &grad, 5, |m| {
+            loss_and_gradient(m, &data, &frames, None)
+        });
+        assert!(checked > 20);
+        // Lips as wide open as aa's shape everywhere: more aa, less loss.
+        let mut open_only = build_dataset(&model, &[], &[], 1.0, false);
+        append_video(
+            &mut open_only,
+            &model,
+            &training(clip(&|_| Some([1.0, 0.1]))),
+        );
+        let all: Vec<usize> = (0..open_only.frames()).collect();
+        let before = loss_and_gradient(&model, &open_only, &all, None);
+        let aa = model.visemes.position(crate::vocab::Viseme::Aa).unwrap();
+        model.b2[aa] += 2.0;
+        assert!(loss_and_gradient(&model, &open_only, &all, None) < 0.5 * before);
     }
 
     /// Three visemes, four hidden units, one context frame: quick to train and to check.

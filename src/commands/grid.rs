@@ -1,0 +1,234 @@
+//! `lipcall grid`: the GRID data step. Turns the tracked video of each clip into per-20-ms-frame
+//! lip targets beside its audio as a WAV (what the codec paths read), and measures s1's
+//! audio-visual lag.
+
+use std::path::{Path, PathBuf};
+use std::process::Command;
+use std::sync::Arc;
+
+use anyhow::{Context, Result, bail};
+
+use crate::audio::wav;
+use crate::lipsync::jaw::JawBaseline;
+use crate::lipsync::network::Model;
+use crate::lipsync::{Animator, ModelAnimator, recipe};
+use crate::train::codec_features::{CodecFeatures, CodecPath, augmentation_settings};
+use crate::train::grid::{self, AUDIO_FRAME_S, LipClip};
+use crate::train::lag::{self, ClipSeries};
+use crate::train::video::{VideoTraining, map_onto_head, prepare_clips, score_clips};
+
+#[derive(Debug, clap::Args)]
+pub struct GridArgs {
+    /// The GRID data: s1/{audio,tracks}, other-speakers/{audio,tracks}.
+    #[arg(long, value_name = "DIR", default_value = "../shared/data/grid")]
+    pub data: PathBuf,
+    /// Where the clips' WAVs and lips CSVs go (s1/, other/) and lag.csv.
+    #[arg(long, value_name = "DIR", default_value = "target/grid")]
+    pub out: PathBuf,
+}
+
+/// Decodes a FLAC to a 16-bit WAV at its own rate with sox.
+fn flac_to_wav(flac: &Path, wav_path: &Path) -> Result<()> {
+    let status = Command::new("sox")
+        .arg(flac)
+        .args(["-b", "16"])
+        .arg(wav_path)
+        .status()
+        .context("cannot run sox (apt install sox)")?;
+    if !status.success() {
+        bail!("sox could not decode {}", flac.display());
+    }
+    Ok(())
+}
+
+pub fn grid(args: &GridArgs) -> Result<()> {
+    let mut s1_series = Vec::new();
+    for (set, source) in grid::SETS.iter().zip(["s1", "other-speakers"]) {
+        let tracks = args.data.join(source).join("tracks");
+        let audio = args.data.join(source).join("audio");
+        let out = args.out.join(set);
+        std::fs::create_dir_all(&out)
+            .with_context(|| format!("cannot create {}", out.display()))?;
+        let mut names: Vec<String> = std::fs::read_dir(&tracks)
+            .with_context(|| format!("cannot list {}", tracks.display()))?
+            .filter_map(|e| e.ok())
+            .filter_map(|e| {
+                e.file_name()
+                    .to_str()
+                    .and_then(|n| n.strip_suffix(".csv"))
+                    .map(str::to_string)
+            })
+            .collect();
+        names.sort();
+        let (mut frames, mut tracked) = (0usize, 0usize);
+        for name in &names {
+            let wav_path = out.join(format!("{name}.wav"));
+            flac_to_wav(&audio.join(format!("{name}.flac")), &wav_path)?;
+            let sound = wav::read_mono(&wav_path)?;
+            let track_path = tracks.join(format!("{name}.csv"));
+            let text = crate::input::read_to_string(&track_path, crate::input::MAX_INPUT_BYTES)?;
+            let video = grid::parse_track(&text, &track_path)?;
+            let audio_frames =
+                (sound.samples.len() as f64 / sound.rate as f64 / AUDIO_FRAME_S) as usize;
+            let lips = grid::audio_frame_lips(&video, audio_frames, 0.0);
+            frames += lips.len();
+            tracked += lips.iter().flatten().count();
+            grid::write_lips_csv(&out.join(format!("{name}.lips.csv")), &lips)?;
+            if *set == "s1" {
+                s1_series.push(ClipSeries {
+                    aperture: lips.iter().map(|l| l.map(|l| l.aperture)).collect(),
+                    energy_db: lag::frame_energy_db(&sound.samples, sound.rate),
+                });
+            }
+        }
+        eprintln!(
+            "{set}: {} clips, {frames} audio frames of 20 ms, {tracked} with tracked lips -> {}",
+            names.len(),
+            out.display()
+        );
+    }
+    report_lag(&s1_series, &args.out.join("lag.csv"))
+}
+
+fn report_lag(clips: &[ClipSeries], path: &Path) -> Result<()> {
+    let level = lag::cross_correlation(clips, 10, false);
+    let onsets = lag::cross_correlation(clips, 10, true);
+    let mut csv = String::from("lag_ms,r_aperture_energy,r_aperture_change_energy_change\n");
+    for ((k, r), (_, d)) in level.iter().zip(&onsets) {
+        csv.push_str(&format!(
+            "{},{r:.4},{d:.4}\n",
+            (*k as f64 * AUDIO_FRAME_S * 1000.0).round()
+        ));
+    }
+    std::fs::write(path, csv).with_context(|| format!("cannot write {}", path.display()))?;
+    let ms = |frames: Option<f64>| frames.map_or(f64::NAN, |f| f * AUDIO_FRAME_S * 1000.0);
+    println!(
+        "s1 audio-visual lag (positive: the lips lead the sound): aperture vs energy peaks at \
+         {:.0} ms, aperture change vs energy change (onsets) at {:.0} ms; curves in {}",
+        ms(lag::peak_lag(&level)),
+        ms(lag::peak_lag(&onsets)),
+        path.display()
+    );
+    Ok(())
+}
+
+/// `train`'s options for measured lips.
+#[derive(Debug, clap::Args)]
+pub struct LipTrainArgs {
+    /// The data step's output (`lipcall grid --out DIR`): train on s1's measured lips too
+    /// (his held-out clips and the other speakers' never).
+    #[arg(long, value_name = "DIR")]
+    pub grid: Option<PathBuf>,
+    /// Loss weight of a video frame against a phone-labelled frame's 1.
+    #[arg(long, value_name = "W", default_value_t = recipe::LIP_WEIGHT)]
+    pub lip_weight: f32,
+    /// s1 training clips used (of his 898 not held out).
+    #[arg(long, value_name = "N", default_value_t = recipe::LIP_CLIPS)]
+    pub lip_clips: usize,
+    /// Codec versions of each of them.
+    #[arg(long, value_name = "N", default_value_t = recipe::LIP_VERSIONS)]
+    pub lip_versions: usize,
+    /// The lips each audio frame is trained towards are this much earlier than the frame
+    /// (a multiple of 20 ms), for lips that lead their sound by more than the one frame the
+    /// network sees ahead (s1's trail it: 0).
+    #[arg(long, value_name = "MS", default_value_t = recipe::LIP_SHIFT_MS)]
+    pub lip_shift_ms: u32,
+}
+
+/// `evaluate`'s options for measured lips.
+#[derive(Debug, clap::Args)]
+pub struct LipEvalArgs {
+    /// Also score aperture and width against the measured lips of the GRID clips the data
+    /// step wrote here (s1's held-out clips and the other speakers').
+    #[arg(long, value_name = "DIR")]
+    pub grid: Option<PathBuf>,
+}
+
+/// s1's training clips (all but the held-out tenth), the first `limit`.
+fn s1_training_clips(root: &Path, limit: usize) -> Result<Vec<LipClip>> {
+    Ok(grid::load_clips(root, "s1")?
+        .into_iter()
+        .enumerate()
+        .filter(|(i, _)| !grid::s1_held_out(*i))
+        .map(|(_, c)| c)
+        .take(limit)
+        .collect())
+}
+
+/// The video half of training, or `None` without `--grid`.
+pub fn video_training(args: &LipTrainArgs, codec: &CodecFeatures) -> Result<Option<VideoTraining>> {
+    let Some(root) = &args.grid else {
+        return Ok(None);
+    };
+    if !(args.lip_weight.is_finite() && args.lip_weight >= 0.0) {
+        bail!("--lip-weight must be a finite number of 0 or more");
+    }
+    if !args.lip_shift_ms.is_multiple_of(20) || args.lip_shift_ms > 100 {
+        bail!("--lip-shift-ms must be a multiple of 20 ms up to 100");
+    }
+    let clips = s1_training_clips(root, args.lip_clips)?;
+    let shift = -((args.lip_shift_ms / 20) as i32);
+    let mut prepared = prepare_clips(
+        codec,
+        &clips,
+        &augmentation_settings(),
+        args.lip_versions,
+        shift,
+    )?;
+    let map = map_onto_head(
+        &mut ModelAnimator::new(&crate::lipsync::default_model()),
+        &mut prepared,
+    );
+    eprintln!(
+        "measured lips: {} of s1's training clips at {} codec setting(s), {} ms earlier than \
+         their audio frames, weight {}; aperture x{:.2}{:+.3}, width x{:.2}{:+.3} onto the \
+         head's scale",
+        clips.len(),
+        args.lip_versions,
+        args.lip_shift_ms,
+        args.lip_weight,
+        map[0].0,
+        map[0].1,
+        map[1].0,
+        map[1].1
+    );
+    Ok(Some(VideoTraining {
+        clips: Arc::new(prepared),
+        frame_weight: args.lip_weight,
+        cue_weights: [recipe::LIP_CUE_WEIGHT; 2],
+    }))
+}
+
+/// Prints aperture and width r of `model` (and of the jaw baseline) against the measured lips
+/// of s1's held-out clips and of the other speakers' clips, through `path`.
+pub fn evaluate_lips(args: &LipEvalArgs, model: &Model, path: CodecPath) -> Result<()> {
+    let Some(root) = &args.grid else {
+        return Ok(());
+    };
+    let codec = CodecFeatures::new();
+    let held_out: Vec<LipClip> = grid::load_clips(root, "s1")?
+        .into_iter()
+        .enumerate()
+        .filter(|(i, _)| grid::s1_held_out(*i))
+        .map(|(_, c)| c)
+        .collect();
+    let others = grid::load_clips(root, "other")?;
+    println!("measured lips (GRID), {path}: Pearson r of the face's lips against the video's");
+    println!("| clips | animator | aperture r | width r | per-clip mean aperture r / width r |");
+    println!("|---|---|---|---|---|");
+    for (name, clips) in [("s1 held out", &held_out), ("9 other speakers", &others)] {
+        let prepared = prepare_clips(&codec, clips, &[path], 1, 0)?;
+        let rows: [(&str, Box<dyn Animator>); 2] = [
+            ("network", Box::new(ModelAnimator::new(model))),
+            ("jaw baseline", Box::new(JawBaseline::from_model(model))),
+        ];
+        for (animator_name, mut animator) in rows {
+            let s = score_clips(animator.as_mut(), &prepared);
+            println!(
+                "| {name} ({} clips, {} frames) | {animator_name} | {:.3} | {:.3} | {:.3} / {:.3} |",
+                s.clips, s.frames, s.aperture_r, s.width_r, s.clip_aperture_r, s.clip_width_r
+            );
+        }
+    }
+    Ok(())
+}

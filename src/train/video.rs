@@ -1,0 +1,221 @@
+//! Measured lips as a second kind of truth: GRID clips through the codec paths, their lip
+//! aperture and width as targets of a loss term on the network's convex weights (through the
+//! head's own viseme shapes, so that what is trained is what a face shows), and the scores of
+//! any animator against real lips.
+//!
+//! The network's weights become an aperture and a width through the design table's viseme
+//! shapes ([`lip_aperture`], [`cues`]); s1's measured lips (in outer-eye distances) are mapped
+//! onto that scale by an affine map whose mean and spread match what the phone-trained network
+//! shows on his training clips. Pearson r, the score, does not depend on that map.
+
+use std::sync::Arc;
+
+use crate::lipsync::Animator;
+use crate::lipsync::mouth::{Cue, cues, lip_aperture};
+use crate::train::codec_features::{CodecFeatures, CodecPath};
+use crate::train::corpus::{BoxError, CorpusError};
+use crate::train::eval::{pearson, predict_streams};
+use crate::train::grid::LipClip;
+use crate::vocab::{FrameFeatures, VisemeSet};
+
+/// The measures trained and scored: aperture and width.
+pub const LIP_CUES: usize = 2;
+
+/// One clip's features through a codec path beside its lips (`None` untracked).
+#[derive(Debug, Clone)]
+pub struct VideoClip {
+    /// The call the clip belongs to: s1's clips are one speaker, each other clip its own.
+    pub speaker: String,
+    pub name: String,
+    pub features: Vec<FrameFeatures>,
+    pub lips: Vec<Option<[f32; LIP_CUES]>>,
+}
+
+/// The video half of a training run.
+#[derive(Debug, Clone)]
+pub struct VideoTraining {
+    /// Targets already shifted by the lag and mapped onto the head's scale.
+    pub clips: Arc<Vec<VideoClip>>,
+    /// Loss weight of a video frame against a phone-labelled frame's 1.
+    pub frame_weight: f32,
+    /// Weights of the squared aperture and width errors inside a video frame's loss.
+    pub cue_weights: [f32; LIP_CUES],
+}
+
+/// Aperture and width the head shows for convex `weights` over `set`.
+pub fn head_lips(set: &VisemeSet, weights: &[f32]) -> [f32; LIP_CUES] {
+    [
+        lip_aperture(set, weights),
+        cues(set, weights)[Cue::Width as usize],
+    ]
+}
+
+/// The call name of a clip of `set` (`s1` or another speaker's clip).
+fn speaker_of(clip: &LipClip) -> String {
+    if clip.set == "s1" {
+        "grid-s1".into()
+    } else {
+        format!("grid-{}-{}", clip.set, clip.name)
+    }
+}
+
+/// Each clip through one of `settings` (rotating, `versions` per clip), its lips `shift`
+/// audio frames later (negative: earlier) than the frame they stand beside.
+pub fn prepare_clips(
+    codec: &CodecFeatures,
+    clips: &[LipClip],
+    settings: &[CodecPath],
+    versions: usize,
+    shift: i32,
+) -> Result<Vec<VideoClip>, CorpusError> {
+    let versions = versions.clamp(1, settings.len().max(1));
+    let mut out = Vec::new();
+    for (i, clip) in clips.iter().enumerate() {
+        for k in 0..versions {
+            let Some(&path) = settings.get((i * versions + k) % settings.len().max(1)) else {
+                continue;
+            };
+            let mut features =
+                codec
+                    .features_through(&clip.wav, path)
+                    .map_err(|source: BoxError| CorpusError::Features {
+                        path: clip.wav.clone(),
+                        source,
+                    })?;
+            let lips: Vec<Option<[f32; LIP_CUES]>> = (0..features.len())
+                .map(|n| {
+                    let m = usize::try_from(n as i64 + shift as i64).ok()?;
+                    clip.lips
+                        .get(m)
+                        .copied()
+                        .flatten()
+                        .map(|l| [l.aperture, l.width])
+                })
+                .collect();
+            features.truncate(clip.lips.len());
+            let mut lips = lips;
+            lips.truncate(features.len());
+            out.push(VideoClip {
+                speaker: speaker_of(clip),
+                name: clip.name.clone(),
+                features,
+                lips,
+            });
+        }
+    }
+    Ok(out)
+}
+
+fn streams(clips: &[VideoClip]) -> Vec<(&str, &[FrameFeatures])> {
+    clips
+        .iter()
+        .map(|c| (c.speaker.as_str(), &c.features[..]))
+        .collect()
+}
+
+/// Maps each clip's lips by `scale * x + offset`, per measure, so that their mean and spread
+/// over all tracked frames equal those of what `animator` shows on the same frames.
+pub fn map_onto_head(animator: &mut dyn Animator, clips: &mut [VideoClip]) -> [(f32, f32); 2] {
+    let set = animator.visemes().clone();
+    let k = set.len();
+    let shown = predict_streams(animator, &streams(clips));
+    let mut map = [(1.0, 0.0); LIP_CUES];
+    for (cue, m) in map.iter_mut().enumerate() {
+        let (mut head, mut video) = (Vec::new(), Vec::new());
+        for (clip, weights) in clips.iter().zip(&shown) {
+            for (n, lips) in clip.lips.iter().enumerate() {
+                if let Some(lips) = lips {
+                    head.push(head_lips(&set, &weights[n * k..(n + 1) * k])[cue] as f64);
+                    video.push(lips[cue] as f64);
+                }
+            }
+        }
+        let (head_mean, head_sd) = mean_sd(&head);
+        let (video_mean, video_sd) = mean_sd(&video);
+        if video_sd > 0.0 && head_sd > 0.0 {
+            let scale = head_sd / video_sd;
+            *m = (scale as f32, (head_mean - scale * video_mean) as f32);
+        }
+    }
+    for clip in clips.iter_mut() {
+        for lips in clip.lips.iter_mut().flatten() {
+            for (x, (scale, offset)) in lips.iter_mut().zip(map) {
+                *x = scale * *x + offset;
+            }
+        }
+    }
+    map
+}
+
+fn mean_sd(x: &[f64]) -> (f64, f64) {
+    let n = x.len().max(1) as f64;
+    let mean = x.iter().sum::<f64>() / n;
+    let var = x.iter().map(|v| (v - mean) * (v - mean)).sum::<f64>() / n;
+    (mean, var.sqrt())
+}
+
+/// How well what an animator shows follows measured lips.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct LipScores {
+    /// Pearson r over all tracked frames of all clips together.
+    pub aperture_r: f64,
+    pub width_r: f64,
+    /// The mean of the clips' own r.
+    pub clip_aperture_r: f64,
+    pub clip_width_r: f64,
+    pub clips: usize,
+    pub frames: usize,
+}
+
+/// Scores `animator` on `clips` (their lips unshifted: the face against the real face).
+pub fn score_clips(animator: &mut dyn Animator, clips: &[VideoClip]) -> LipScores {
+    let set = animator.visemes().clone();
+    let k = set.len();
+    let shown = predict_streams(animator, &streams(clips));
+    let mut pooled = [(Vec::new(), Vec::new()), (Vec::new(), Vec::new())];
+    let mut per_clip = [0.0f64; LIP_CUES];
+    let mut frames = 0;
+    for (clip, weights) in clips.iter().zip(&shown) {
+        let mut own = [(Vec::new(), Vec::new()), (Vec::new(), Vec::new())];
+        for (n, lips) in clip.lips.iter().enumerate() {
+            let Some(lips) = lips else { continue };
+            frames += 1;
+            let head = head_lips(&set, &weights[n * k..(n + 1) * k]);
+            for cue in 0..LIP_CUES {
+                for (h, v) in [&mut pooled[cue], &mut own[cue]] {
+                    h.push(head[cue] as f64);
+                    v.push(lips[cue] as f64);
+                }
+            }
+        }
+        for (sum, (h, v)) in per_clip.iter_mut().zip(&own) {
+            *sum += pearson(h, v);
+        }
+    }
+    let clips_n = clips.len().max(1) as f64;
+    LipScores {
+        aperture_r: pearson(&pooled[0].0, &pooled[0].1),
+        width_r: pearson(&pooled[1].0, &pooled[1].1),
+        clip_aperture_r: per_clip[0] / clips_n,
+        clip_width_r: per_clip[1] / clips_n,
+        clips: clips.len(),
+        frames,
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::lipsync::mouth::Articulation;
+    use crate::vocab::Viseme;
+
+    #[test]
+    fn head_lips_follow_the_design_table() {
+        let set = VisemeSet::parse("PP,FF,aa,I,U").unwrap();
+        let aa = head_lips(&set, &[0.0, 0.0, 1.0, 0.0, 0.0]);
+        assert_eq!(aa[0], Articulation::of(Viseme::Aa).lip_aperture);
+        let mix = head_lips(&set, &[0.0, 0.0, 0.0, 0.5, 0.5]);
+        let (i, u) = (Articulation::of(Viseme::I), Articulation::of(Viseme::U));
+        assert!((mix[1] - 0.5 * (i.width + u.width)).abs() < 1e-6);
+    }
+}
