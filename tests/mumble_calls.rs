@@ -15,6 +15,8 @@ fn receiver(dir: &std::path::Path, murmur: &Murmur, extra: &[&str]) -> std::proc
     let child = spawn(
         lipcall_as(dir, "rx")
             .args(["receive", "--mumble", &murmur.address(), "--name", "Rx"])
+            // Compared with the 8 kHz source.
+            .args(["--rate", "8000"])
             .arg("--wav")
             .arg(dir.join("rx.wav"))
             .arg("--weights")
@@ -43,6 +45,7 @@ fn direct_opus_snr(dir: &std::path::Path, source: &[i16]) -> f64 {
     let rx = spawn_listening(
         lipcall()
             .args(["receive", "--listen", "127.0.0.1:0", "--seconds", "11"])
+            .args(["--rate", "8000"])
             .arg("--wav")
             .arg(&wav),
         Announce::Lipcall,

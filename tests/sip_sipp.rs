@@ -55,6 +55,9 @@ fn echo(codec: &str, scenario: Option<String>, min_correlation: f64) {
             "5",
             "--wav",
             wav.to_str().unwrap(),
+            // Compared with the 8 kHz source.
+            "--rate",
+            "8000",
             "--weights",
             weights.to_str().unwrap(),
         ],

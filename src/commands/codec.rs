@@ -214,10 +214,10 @@ fn decode_opus(input: &Path, output: &Path, file: &MediaFile, rate: Option<u32>)
         pcm.len() as f64 / f64::from(rate),
         rate,
         decoded.packets.len(),
-        if decoded.head.channels > 1 {
-            " (stereo mixed to mono)"
-        } else {
-            ""
+        match decoded.head.channels {
+            1 => String::new(),
+            2 => " (stereo mixed to mono)".to_string(),
+            n => format!(" ({n} channels mixed to mono)"),
         }
     );
     Ok(())

@@ -8,9 +8,8 @@ use std::time::{Duration, Instant};
 
 use anyhow::{Context, Result, bail};
 
-use super::net::{
-    ReceiveArgs, SendArgs, load_packets, open_outputs, play, print_event, print_peer, send_paced,
-};
+use super::net::{ReceiveArgs, SendArgs, load_packets, print_peer, send_paced};
+use super::playout::{open_outputs, play, print_event};
 use super::recording::stop_flag;
 use crate::call::janus::JanusLink;
 use crate::codec::any::{Codec, EncoderSettings};
@@ -280,6 +279,7 @@ pub fn receive_command(command: &ReceiveCommand) -> Result<()> {
         return super::mumble::receive(&super::mumble::MumbleReceiveArgs {
             mumble,
             wav: call.wav.clone(),
+            rate: call.rate,
             weights: call.weights.clone(),
             features: call.features.clone(),
             seconds: call.seconds,

@@ -9,6 +9,7 @@ pub mod janus;
 pub mod lipsync;
 pub mod mumble;
 pub mod net;
+mod playout;
 mod recording;
 pub mod relay;
 pub mod sip;

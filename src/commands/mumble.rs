@@ -9,7 +9,8 @@ use std::time::{Duration, Instant};
 
 use anyhow::{Context, Result, bail};
 
-use super::net::{load_packets, open_outputs, play, print_peer, send_paced};
+use super::net::{load_packets, print_peer, send_paced};
+use super::playout::{open_outputs, play};
 use super::recording::{stop_flag, stopped};
 use crate::call::link::{Link, LinkEvent};
 use crate::call::mumble::MumbleLink;
@@ -282,6 +283,8 @@ impl Link for Told<'_> {
 pub struct MumbleReceiveArgs {
     pub mumble: MumbleArgs,
     pub wav: Option<PathBuf>,
+    /// OUT.wav's rate (else the rate of the stream first heard).
+    pub rate: Option<u32>,
     pub weights: Option<PathBuf>,
     pub features: Option<PathBuf>,
     pub seconds: Option<f64>,
@@ -293,7 +296,7 @@ pub fn receive(args: &MumbleReceiveArgs) -> Result<()> {
     let stop = stop_flag()?;
     let (model, mut recorder) = open_outputs(
         args.wav.as_deref(),
-        None,
+        args.rate,
         args.features.as_deref(),
         args.weights.as_deref(),
     )?;

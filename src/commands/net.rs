@@ -1,23 +1,17 @@
 //! `lipcall send`, `lipcall receive` and `lipcall relay`: the headless real-time transport.
 
-use std::collections::VecDeque;
 use std::net::{SocketAddr, ToSocketAddrs};
 use std::path::{Path, PathBuf};
-use std::sync::atomic::AtomicBool;
 use std::time::{Duration, Instant};
 
 use anyhow::{Context, Result, bail};
 
-use super::recording::{Recorder, TICK, stop_flag, stopped};
-use crate::audio::FrameResampler;
-use crate::call::link::{Link, LinkEvent};
+use super::playout::{open_outputs, play};
+use super::recording::{TICK, stop_flag};
 use crate::call::media::{MediaError, MediaFile, MediaKind, Packets};
-use crate::call::pipeline::{Animated, PeerPipeline};
 use crate::codec::any::{Codec, EncoderSettings, PayloadMap};
 use crate::codec::opus::codec::Bandwidth;
-use crate::lipsync::network::Model;
-use crate::lipsync::{self, LipSync, LipSyncOptions};
-use crate::net::session::{PeerFrame, PeerInfo, Session, SessionConfig};
+use crate::net::session::{PeerInfo, Session, SessionConfig};
 use crate::net::srtp::MasterKey;
 use crate::vocab::FrameFeatures;
 
@@ -363,91 +357,6 @@ pub struct ReceiveArgs {
     pub payload_types: Vec<String>,
 }
 
-/// What the receiver keeps per remote speaker: with `--weights`, its pipeline and the output
-/// ticks of the frames whose weights have not come out yet.
-struct PeerTrack<'m> {
-    ssrc: u32,
-    pipeline: Option<PeerPipeline<'m>>,
-    /// The next frame's tag (frames fed to the lip sync, counted).
-    next_tag: u64,
-    /// (tag, output tick) of frames waiting for their weights, oldest first.
-    waiting: VecDeque<(u64, usize)>,
-    /// The peer's audio to the mix's rate.
-    resampler: Option<FrameResampler>,
-}
-
-impl PeerTrack<'_> {
-    /// Weights the lip sync gave out (for the frame tagged `tag`) go to WEIGHTS.csv.
-    fn store(
-        waiting: &mut VecDeque<(u64, usize)>,
-        ssrc: u32,
-        out: Option<Animated<'_>>,
-        recorder: &mut Recorder,
-    ) -> Result<()> {
-        let Some(Animated {
-            tag, weights: w, ..
-        }) = out
-        else {
-            return Ok(());
-        };
-        while let Some(&(t, frame)) = waiting.front() {
-            if t > tag {
-                break;
-            }
-            waiting.pop_front();
-            recorder.weights(ssrc, frame, if t == tag { w } else { &[] })?;
-        }
-        Ok(())
-    }
-
-    /// The frames still waiting for their look-ahead, given out now (the peer's next frame
-    /// did not come in time, or the call ended).
-    fn flush(&mut self, all: bool, recorder: &mut Recorder) -> Result<()> {
-        if let Some(pipeline) = &mut self.pipeline {
-            while let Some(out) = pipeline.flush() {
-                Self::store(&mut self.waiting, self.ssrc, Some(out), recorder)?;
-                if !all {
-                    break;
-                }
-            }
-        }
-        if all {
-            for (_, frame) in self.waiting.drain(..) {
-                recorder.weights(self.ssrc, frame, &[])?;
-            }
-        }
-        Ok(())
-    }
-}
-
-/// WEIGHTS.csv's viseme columns for a model (what its lip sync gives out).
-fn viseme_names(model: Option<&Model>) -> Result<Vec<String>> {
-    let Some(model) = model else {
-        return Ok(Vec::new());
-    };
-    let lipsync = LipSync::new(model, &LipSyncOptions::default())?;
-    Ok(lipsync
-        .visemes()
-        .members()
-        .iter()
-        .map(|v| v.name().to_string())
-        .collect())
-}
-
-/// What a receive writes (each path checked before the call: one that cannot be written fails
-/// now) and the lip-sync model that `--weights` needs.
-pub(crate) fn open_outputs(
-    wav: Option<&Path>,
-    rate: Option<u32>,
-    features: Option<&Path>,
-    weights: Option<&Path>,
-) -> Result<(Option<Model>, Recorder)> {
-    let model = weights.map(|_| lipsync::default_model());
-    let names = viseme_names(model.as_ref())?;
-    let recorder = Recorder::create(wav, rate, features, weights, names)?;
-    Ok((model, recorder))
-}
-
 pub fn receive(args: &ReceiveArgs) -> Result<()> {
     receive_with(args, &mut |_, _, _| {})
 }
@@ -522,153 +431,6 @@ pub fn receive_with(
     }
     let finished = recorder.finish();
     played.and(finished)
-}
-
-/// What a link said, on stderr (a Janus room's publishers and losses).
-pub(crate) fn print_event(event: &LinkEvent) {
-    match event {
-        LinkEvent::Joined { place, id } => eprintln!("lipcall: in {place} as {id}"),
-        LinkEvent::Failed(reason) => eprintln!("lipcall: the call failed: {reason}"),
-        LinkEvent::PeerJoined { id, name } => {
-            eprintln!("lipcall: {name:?} ({id}) is publishing; subscribed")
-        }
-        LinkEvent::PeerLeft { id, name } => eprintln!("lipcall: {name:?} ({id}) left"),
-        LinkEvent::PeerSkipped { id, name, reason } => {
-            eprintln!("lipcall: {name:?} ({id}) cannot be heard, skipped: {reason}")
-        }
-        LinkEvent::Lost { reason } => {
-            eprintln!("lipcall: lost the Janus room ({reason}); rejoining")
-        }
-        LinkEvent::RejoinFailed { reason } => {
-            eprintln!("lipcall: cannot rejoin yet ({reason}); trying every second")
-        }
-        LinkEvent::Rejoined { id } => eprintln!("lipcall: back in the Janus room as {id}"),
-    }
-}
-
-/// The receive loop: pulls every 20 ms, mixes, runs each peer's pipeline when a model is
-/// given, and streams what it plays to `recorder`. Ends after `seconds`, when every peer has
-/// left (without `seconds`), or when `stop` is set (SIGINT, SIGTERM).
-pub(crate) fn play<'m>(
-    link: &mut dyn Link,
-    seconds: Option<f64>,
-    model: Option<&'m Model>,
-    on_frame: &mut dyn FnMut(u32, f64, &FrameFeatures),
-    recorder: &mut Recorder,
-    stop: &AtomicBool,
-) -> Result<()> {
-    let limit = seconds.map(Duration::from_secs_f64);
-    let start = Instant::now();
-    let mut tracks: Vec<PeerTrack> = Vec::new();
-    let mut frames: Vec<PeerFrame> = Vec::new();
-    // Output ticks since the first audible one.
-    let mut timeline: Option<usize> = None;
-    let mut tick = 0u32;
-    let result = loop {
-        let due = start + TICK * tick;
-        tick += 1;
-        if let Some(wait) = due.checked_duration_since(Instant::now()) {
-            std::thread::sleep(wait);
-        }
-        if stopped(stop) {
-            eprintln!("lipcall: stopped by a signal; finishing the outputs");
-            break Ok(());
-        }
-        if limit.is_some_and(|l| due.duration_since(start) >= l) {
-            break Ok(());
-        }
-        frames.clear();
-        for event in link.poll() {
-            print_event(&event);
-        }
-        link.pull(due, &mut frames);
-        if frames.is_empty() && timeline.is_some() && limit.is_none() && link.all_left() {
-            break Ok(());
-        }
-        if frames.is_empty() && link.over() {
-            break Ok(());
-        }
-        if frames.is_empty() && timeline.is_none() {
-            continue;
-        }
-        let row = timeline.get_or_insert(0);
-        let index = *row;
-        *row += 1;
-        if let Err(e) = play_tick(&frames, index, model, &mut tracks, on_frame, recorder) {
-            break Err(e);
-        }
-    };
-    for track in &mut tracks {
-        track.flush(true, recorder)?;
-    }
-    result
-}
-
-/// One output tick: every peer's frame mixed, its features and weights recorded.
-fn play_tick<'m>(
-    frames: &[PeerFrame],
-    index: usize,
-    model: Option<&'m Model>,
-    tracks: &mut Vec<PeerTrack<'m>>,
-    on_frame: &mut dyn FnMut(u32, f64, &FrameFeatures),
-    recorder: &mut Recorder,
-) -> Result<()> {
-    let heard = frames.iter().map(|f| f.frame.audio.rate()).max();
-    let mix_rate = match heard {
-        Some(rate) if recorder.wants_audio() => Some(recorder.mix_rate(rate)?),
-        _ => None,
-    };
-    let mut mix = vec![0i32; mix_rate.map_or(0, |r| r as usize / 50)];
-    for f in frames {
-        let time = index as f64 * TICK.as_secs_f64();
-        on_frame(f.ssrc, time, &f.frame.features);
-        let slot = match tracks.iter().position(|t| t.ssrc == f.ssrc) {
-            Some(i) => i,
-            None => {
-                let pipeline = match model {
-                    Some(model) => Some(PeerPipeline::new(
-                        model,
-                        &LipSyncOptions::default(),
-                        u64::from(f.ssrc),
-                        false,
-                    )?),
-                    None => None,
-                };
-                tracks.push(PeerTrack {
-                    ssrc: f.ssrc,
-                    pipeline,
-                    next_tag: 0,
-                    waiting: VecDeque::new(),
-                    resampler: None,
-                });
-                tracks.len() - 1
-            }
-        };
-        let track = &mut tracks[slot];
-        if let Some(to) = mix_rate {
-            let from = f.frame.audio.rate();
-            let resampler = match &mut track.resampler {
-                Some(r) if r.from_rate() == from && r.to_rate() == to => r,
-                slot => slot.insert(FrameResampler::new(from, to)?),
-            };
-            resampler.add_into(f.frame.audio.samples(), &mut mix)?;
-        }
-        recorder.features(f.ssrc, index, &f.frame.features)?;
-        if let Some(pipeline) = &mut track.pipeline {
-            let tag = track.next_tag;
-            track.next_tag += 1;
-            track.waiting.push_back((tag, index));
-            let out = pipeline.push(tag, &f.frame.features, &f.frame.pcm);
-            PeerTrack::store(&mut track.waiting, f.ssrc, out, recorder)?;
-        }
-    }
-    for track in tracks.iter_mut() {
-        if !frames.iter().any(|f| f.ssrc == track.ssrc) {
-            track.flush(false, recorder)?;
-        }
-    }
-    let pcm: Vec<i16> = mix.iter().map(|&m| m.clamp(-32768, 32767) as i16).collect();
-    recorder.audio(&pcm, !frames.is_empty())
 }
 
 /// `--clock-tolerance`'s default as clap shows it: [`crate::net::srtp::DEFAULT_CLOCK_TOLERANCE`]

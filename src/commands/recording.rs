@@ -5,7 +5,7 @@
 //! after the call), written as frames play, and made whole about once a second (the WAV's
 //! header counts what was written), so even a killed receive leaves files that read.
 
-use std::collections::HashMap;
+use std::collections::{HashMap, HashSet};
 use std::fs::File;
 use std::io::{BufWriter, Write};
 use std::path::{Path, PathBuf};
@@ -80,7 +80,11 @@ pub(crate) struct Recorder {
     /// The files the first peer takes (created up front, so that a receive nobody called still
     /// leaves them, header only).
     first: Option<PeerFiles>,
+    /// The peer that took them.
+    first_ssrc: Option<u32>,
     peers: HashMap<u32, PeerFiles>,
+    /// Peers gone whose files were closed: one who comes back appends to its own.
+    released: HashSet<u32>,
     /// Silent ticks after the last audible one: written only when audio follows (the WAV ends
     /// with the last audio played).
     pending_silence: usize,
@@ -118,7 +122,9 @@ impl Recorder {
             weights: weights.map(Path::to_path_buf),
             viseme_names,
             first: None,
+            first_ssrc: None,
             peers: HashMap::new(),
+            released: HashSet::new(),
             pending_silence: 0,
             ticks: 0,
             since_sync: 0,
@@ -160,15 +166,61 @@ impl Recorder {
 
     fn peer(&mut self, ssrc: u32) -> Result<&mut PeerFiles> {
         if !self.peers.contains_key(&ssrc) {
-            let files = match self.first.take() {
-                Some(files) => files,
-                None => self.peer_files(Some(ssrc))?,
+            let files = if self.released.contains(&ssrc) {
+                self.reopen(ssrc)?
+            } else {
+                match self.first.take() {
+                    Some(files) => {
+                        self.first_ssrc = Some(ssrc);
+                        files
+                    }
+                    None => self.peer_files(Some(ssrc))?,
+                }
             };
             self.peers.insert(ssrc, files);
         }
         self.peers
             .get_mut(&ssrc)
             .context("a peer's files were just made")
+    }
+
+    /// A peer gone from the call: its files are finished and closed (a flood of short-lived
+    /// SSRCs must not hold a file each for the rest of the call).
+    pub(crate) fn release(&mut self, ssrc: u32) -> Result<()> {
+        let Some(mut files) = self.peers.remove(&ssrc) else {
+            return Ok(());
+        };
+        for (path, out) in files.features.iter_mut().chain(files.weights.iter_mut()) {
+            out.flush()
+                .with_context(|| format!("writing {}", path.display()))?;
+        }
+        self.released.insert(ssrc);
+        Ok(())
+    }
+
+    /// The files of a peer released before, opened again to go on where they ended.
+    fn reopen(&self, ssrc: u32) -> Result<PeerFiles> {
+        let target = |path: &PathBuf| {
+            if self.first_ssrc == Some(ssrc) {
+                path.clone()
+            } else {
+                peer_path(path, ssrc)
+            }
+        };
+        let append = |path: &Option<PathBuf>| -> Result<Option<(PathBuf, Csv)>> {
+            let Some(path) = path.as_ref().map(target) else {
+                return Ok(None);
+            };
+            let file = File::options()
+                .append(true)
+                .open(&path)
+                .with_context(|| format!("cannot write {}", path.display()))?;
+            Ok(Some((path, BufWriter::new(file))))
+        };
+        Ok(PeerFiles {
+            features: append(&self.features)?,
+            weights: append(&self.weights)?,
+        })
     }
 
     /// Whether the mix is written anywhere.
@@ -362,6 +414,27 @@ mod tests {
         let second = read(&dir.path().join("f-00000009.csv"));
         assert!(second.lines().nth(1).unwrap().starts_with("1,0.020,"));
         assert_eq!(read(&dir.path().join("w-00000009.csv")).lines().count(), 1);
+    }
+
+    #[test]
+    fn a_released_peer_that_comes_back_goes_on_in_its_own_file() {
+        let dir = tempfile::tempdir().unwrap();
+        let weights = dir.path().join("w.csv");
+        let mut r = Recorder::create(None, None, None, Some(&weights), vec!["aa".into()]).unwrap();
+        r.weights(7, 0, &[0.5]).unwrap();
+        r.weights(9, 0, &[0.25]).unwrap();
+        r.release(7).unwrap();
+        r.release(9).unwrap();
+        assert!(r.peers.is_empty());
+        r.weights(9, 3, &[0.75]).unwrap();
+        r.weights(7, 3, &[1.0]).unwrap();
+        r.finish().unwrap();
+        let first = read(&weights);
+        assert_eq!(first.lines().count(), 3, "{first}");
+        assert_eq!(first.matches("frame,").count(), 1, "{first}");
+        let later = read(&peer_path(&weights, 9));
+        assert_eq!(later.lines().count(), 3, "{later}");
+        assert_eq!(later.matches("frame,").count(), 1, "{later}");
     }
 
     #[test]

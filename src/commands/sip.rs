@@ -8,7 +8,8 @@ use std::time::{Duration, Instant};
 
 use anyhow::{Context, Result, bail};
 
-use super::net::{load_packets, open_outputs, parse_codec, play, print_peer};
+use super::net::{load_packets, parse_codec, print_peer};
+use super::playout::{open_outputs, play};
 use super::recording::{stop_flag, stopped};
 use crate::call::link::{Link, LinkEvent};
 use crate::call::media::Packets;
@@ -50,9 +51,13 @@ pub struct SipCommon {
     /// Register with this HOST[:PORT] instead of the account's domain.
     #[arg(long, value_name = "HOST:PORT", requires = "account")]
     pub registrar: Option<String>,
-    /// Write the peer's audio as played.
+    /// Write the peer's audio as played, at its codec's rate (48000 for Opus, 8000 for
+    /// G.711) unless --rate says another.
     #[arg(long, value_name = "OUT.wav")]
     pub wav: Option<PathBuf>,
+    /// OUT.wav's sample rate, Hz.
+    #[arg(long, value_name = "HZ", value_parser = super::parse_frame_rate)]
+    pub rate: Option<u32>,
     /// Write the peer's viseme weights per 20 ms.
     #[arg(long, value_name = "WEIGHTS.csv")]
     pub weights: Option<PathBuf>,
@@ -205,8 +210,12 @@ fn run_call(
     // A file that cannot be read fails before any call is made.
     voice(&common.play, Codec::Pcmu)?;
     let stop = stop_flag()?;
-    let (model, mut recorder) =
-        open_outputs(common.wav.as_deref(), None, None, common.weights.as_deref())?;
+    let (model, mut recorder) = open_outputs(
+        common.wav.as_deref(),
+        common.rate,
+        None,
+        common.weights.as_deref(),
+    )?;
     let rtp = UdpSocket::bind(SocketAddr::new(bind.ip(), 0))
         .with_context(|| format!("cannot open an RTP socket on {}", bind.ip()))?;
     let audio = LocalAudio {

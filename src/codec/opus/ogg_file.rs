@@ -260,9 +260,73 @@ fn tags_packet(vendor: &str, comments: &[String]) -> Vec<u8> {
     ogg_shared::comment_packet(TAGS_MAGIC, vendor, comments)
 }
 
-/// Reads the first Ogg Opus stream of a file. Other logical streams (and chained links after
-/// the first) are ignored.
+/// Reads the first Ogg Opus stream of a file (the first link of a chain). Other logical
+/// streams are ignored.
 pub fn read(bytes: &[u8]) -> Result<OpusFile, OggOpusError> {
+    let mut links = read_chain(bytes)?;
+    Ok(links.swap_remove(0))
+}
+
+/// One link of a chain as it is read.
+#[derive(Default)]
+struct LinkReader {
+    serial: Option<u32>,
+    head: Option<OpusHead>,
+    tags: Option<(String, Vec<String>)>,
+    pages: Vec<Page>,
+    ended: bool,
+}
+
+impl LinkReader {
+    fn starting(serial: u32) -> Self {
+        Self {
+            serial: Some(serial),
+            ..Self::default()
+        }
+    }
+
+    fn take(&mut self, packet: ogg::Packet) -> Result<(), OggOpusError> {
+        self.ended = packet.last_in_stream();
+        if self.head.is_none() {
+            if !(packet.first_in_page() && packet.last_in_page()) {
+                return Err(OggOpusError::BadHeader(
+                    "it shares its page with other data",
+                ));
+            }
+            self.head = Some(OpusHead::from_packet(&packet.data)?);
+        } else if self.tags.is_none() {
+            self.tags = Some(parse_tags(&packet.data)?);
+        } else {
+            ogg_shared::push_audio_packet(&mut self.pages, packet);
+        }
+        Ok(())
+    }
+
+    fn finish(self) -> Result<OpusFile, OggOpusError> {
+        let head = self.head.ok_or(OggOpusError::Truncated)?;
+        let Some((vendor, comments)) = self.tags else {
+            return Err(if self.ended {
+                OggOpusError::BadTags("the stream ends before its OpusTags packet")
+            } else {
+                OggOpusError::Truncated
+            });
+        };
+        if !self.ended {
+            return Err(OggOpusError::Truncated);
+        }
+        Ok(OpusFile {
+            head,
+            vendor,
+            comments,
+            pages: self.pages,
+        })
+    }
+}
+
+/// Reads every link of a chained Ogg Opus file (RFC 7845 3: streams one after another, as
+/// concatenated files are, each with its own headers), in order; at least one. Other logical
+/// streams grouped with a link are ignored.
+pub fn read_chain(bytes: &[u8]) -> Result<Vec<OpusFile>, OggOpusError> {
     if bytes.is_empty() {
         return Err(OggOpusError::Empty);
     }
@@ -270,56 +334,33 @@ pub fn read(bytes: &[u8]) -> Result<OpusFile, OggOpusError> {
         return Err(OggOpusError::NotOgg);
     }
     let mut reader = PacketReader::new(Cursor::new(bytes));
-    let mut serial = None;
+    let mut links = Vec::new();
+    let mut link = LinkReader::default();
     let mut foreign = None;
-    let mut head = None;
-    let mut tags = None;
-    let mut pages: Vec<Page> = Vec::new();
-    let mut ended = false;
     while let Some(packet) = reader.read_packet().map_err(map_ogg_error)? {
-        if serial.is_none() && packet.first_in_stream() {
+        if packet.first_in_stream() {
             if packet.data.starts_with(HEAD_MAGIC) {
-                serial = Some(packet.stream_serial());
-            } else if foreign.is_none() {
+                if link.serial.is_none() {
+                    link = LinkReader::starting(packet.stream_serial());
+                } else if link.ended {
+                    let done =
+                        std::mem::replace(&mut link, LinkReader::starting(packet.stream_serial()));
+                    links.push(done.finish()?);
+                }
+            } else if foreign.is_none() && link.serial.is_none() {
                 foreign = Some(classify_foreign(&packet.data));
             }
         }
-        if ended || serial != Some(packet.stream_serial()) {
+        if link.ended || link.serial != Some(packet.stream_serial()) {
             continue;
         }
-        ended = packet.last_in_stream();
-        if head.is_none() {
-            if !(packet.first_in_page() && packet.last_in_page()) {
-                return Err(OggOpusError::BadHeader(
-                    "it shares its page with other data",
-                ));
-            }
-            head = Some(OpusHead::from_packet(&packet.data)?);
-        } else if tags.is_none() {
-            tags = Some(parse_tags(&packet.data)?);
-        } else {
-            ogg_shared::push_audio_packet(&mut pages, packet);
-        }
+        link.take(packet)?;
     }
-    let Some(head) = head else {
+    if link.serial.is_none() {
         return Err(foreign.unwrap_or(OggOpusError::OtherCodec("no Opus stream")));
-    };
-    let Some((vendor, comments)) = tags else {
-        return Err(if ended {
-            OggOpusError::BadTags("the stream ends before its OpusTags packet")
-        } else {
-            OggOpusError::Truncated
-        });
-    };
-    if !ended {
-        return Err(OggOpusError::Truncated);
     }
-    Ok(OpusFile {
-        head,
-        vendor,
-        comments,
-        pages,
-    })
+    links.push(link.finish()?);
+    Ok(links)
 }
 
 /// Builds an Ogg Opus file from audio packets. `granule_of(i)` is the granule position after

@@ -26,6 +26,11 @@ pub enum StreamError {
     BadGranule,
     #[error("Opus with {0} streams (surround) is not supported: lipcall decodes one stream")]
     MultiStream(u8),
+    #[error(
+        "channel mapping family {0} (ambisonics or channels of no defined meaning) is not \
+         supported: lipcall plays mono or stereo Opus"
+    )]
+    MappingFamily(u8),
     #[error("the stream lasts longer than {} hours", MAX_DURATION_S / 3600)]
     TooLong,
     #[error("none of its {0} audio packets is valid Opus: there is no audio to decode")]
@@ -117,19 +122,43 @@ pub struct Decoded {
 
 /// Decodes an Ogg Opus file to 8 kHz mono as opusdec does, including the samples it trims.
 pub fn decode(bytes: &[u8]) -> Result<Decoded, StreamError> {
-    decode_file(ogg_file::read(bytes)?, SAMPLE_RATE)
+    decode_at(bytes, SAMPLE_RATE)
 }
 
 /// Decodes an Ogg Opus file at another Opus rate (48 kHz: what opusdec decodes at before it
 /// resamples).
+/// A chained file (links one after another, as concatenated files are) decodes link by
+/// link, each with its own decoder, pre-skip and end trimming, into one signal.
 pub fn decode_at(bytes: &[u8], rate: u32) -> Result<Decoded, StreamError> {
-    decode_file(ogg_file::read(bytes)?, rate)
+    let mut links = ogg_file::read_chain(bytes)?.into_iter();
+    let first = links
+        .next()
+        .ok_or(StreamError::Ogg(OggOpusError::Truncated))?;
+    let mut whole = decode_file(first, rate)?;
+    let max_samples = MAX_DURATION_S * rate as usize;
+    for link in links {
+        let next = decode_file(link, rate)?;
+        if whole.pcm.len() + next.pcm.len() > max_samples {
+            return Err(StreamError::TooLong);
+        }
+        let offset = whole.pcm.len() as i64;
+        whole.pcm.extend_from_slice(&next.pcm);
+        whole.packets.extend(next.packets.into_iter().map(|mut p| {
+            p.pcm_offset += offset;
+            p
+        }));
+        whole.corrupt_packets += next.corrupt_packets;
+    }
+    Ok(whole)
 }
 
 pub fn decode_file(file: OpusFile, rate: u32) -> Result<Decoded, StreamError> {
     let head = file.head;
     if head.streams != 1 {
         return Err(StreamError::MultiStream(head.streams));
+    }
+    if head.mapping_family > 1 {
+        return Err(StreamError::MappingFamily(head.mapping_family));
     }
     let mut decoder = Decoder::with_rate(rate)?;
     decoder.set_gain(head.output_gain)?;
@@ -150,7 +179,9 @@ pub fn decode_file(file: OpusFile, rate: u32) -> Result<Decoded, StreamError> {
         for data in page.packets {
             let offset = full.len();
             let (samples, corrupt) = match decoder.decode(&data, &mut out) {
-                Ok(n) => (n, false),
+                // An empty packet is a lost one (RFC 6716 3.1): concealed, and counted so that
+                // a file of nothing else is no audio at all.
+                Ok(n) => (n, data.is_empty()),
                 Err(CodecError::Corrupted | CodecError::OutputTooSmall { .. }) => {
                     let n = packet_samples(&data, rate).unwrap_or(last_duration);
                     decoder.conceal(&mut out[..n])?;
@@ -238,6 +269,59 @@ mod tests {
                 (6000.0 * env * s) as i16
             })
             .collect()
+    }
+
+    #[test]
+    fn undefined_channel_mappings_and_files_of_empty_packets_are_refused() {
+        let head = OpusHead {
+            channels: 255,
+            mapping_family: 255,
+            streams: 1,
+            coupled: 0,
+            mapping: std::iter::once(0)
+                .chain(std::iter::repeat_n(255, 254))
+                .collect(),
+            ..OpusHead::mono(312, 48_000)
+        };
+        let packets = vec![vec![0x08, 0xff, 0xfe]; 10];
+        let bytes =
+            ogg_file::write(&head, "t", &[], &packets, |i| (i as u64 + 1) * 960, 1).unwrap();
+        assert!(matches!(
+            decode(&bytes),
+            Err(StreamError::MappingFamily(255))
+        ));
+        let empty = vec![Vec::new(); 5000];
+        let head = OpusHead::mono(312, 48_000);
+        let bytes = ogg_file::write(&head, "t", &[], &empty, |i| (i as u64 + 1) * 960, 2).unwrap();
+        assert!(matches!(decode(&bytes), Err(StreamError::AllCorrupt(5000))));
+    }
+
+    #[test]
+    fn a_chained_file_decodes_every_link_in_order() {
+        let one = encode(&speechy(16_000), EncoderConfig::default()).unwrap();
+        let quiet: Vec<i16> = speechy(12_000).iter().map(|&x| x / 4).collect();
+        let two = encode(&quiet, EncoderConfig::default()).unwrap();
+        let chained = [one.clone(), two.clone()].concat();
+        assert_eq!(ogg_file::read_chain(&chained).unwrap().len(), 2);
+        let (a, b, whole) = (
+            decode(&one).unwrap(),
+            decode(&two).unwrap(),
+            decode(&chained).unwrap(),
+        );
+        assert_eq!(whole.pcm.len(), a.pcm.len() + b.pcm.len());
+        assert_eq!(whole.pcm, [a.pcm.clone(), b.pcm].concat());
+        assert_eq!(whole.packets.len(), a.packets.len() + b.packets.len());
+        let second = &whole.packets[a.packets.len()];
+        assert_eq!(
+            second.pcm_offset,
+            a.pcm.len() as i64 + b.packets[0].pcm_offset
+        );
+        // A second link cut short is as a single one cut short.
+        let cut = [one, two[..two.len() - 40].to_vec()].concat();
+        assert!(matches!(
+            decode(&cut),
+            Err(StreamError::Ogg(OggOpusError::Truncated))
+        ));
     }
 
     #[test]

@@ -85,6 +85,8 @@ pub struct Room {
     private_id: Option<Value>,
     /// Subscription handle per publisher id.
     subscriptions: HashMap<String, (u64, String)>,
+    /// Publishers gone whose media is still to be told so, once their departure was said.
+    departed: Vec<String>,
 }
 
 impl std::fmt::Debug for Room {
@@ -119,9 +121,11 @@ impl Room {
             id,
             private_id,
             subscriptions: HashMap::new(),
+            departed: Vec::new(),
         };
         let mut notices = Vec::new();
         room.apply(news, &mut notices, &AtomicBool::new(false))?;
+        room.mark_departed();
         Ok((room, notices))
     }
 
@@ -211,7 +215,7 @@ impl Room {
         let gone: HashSet<String> = news.gone.iter().cloned().collect();
         for gone in news.gone {
             if let Some((handle, name)) = self.subscriptions.remove(&gone) {
-                self.media.feed_left(&gone);
+                self.departed.push(gone.clone());
                 // Janus may have hung it up already; the handle goes either way.
                 let _ = self.client.detach(handle);
                 notices.push(Notice::Left { feed: gone, name });
@@ -276,6 +280,14 @@ impl Room {
 
     pub fn media_stats(&self) -> MediaStats {
         self.media.stats()
+    }
+
+    /// Lets the media of publishers gone play out and fall silent. Called after their
+    /// departure was told, so that nobody sees every feed gone before hearing who left.
+    fn mark_departed(&mut self) {
+        for feed in self.departed.drain(..) {
+            self.media.feed_left(&feed);
+        }
     }
 
     /// Hangs up (DTLS close, RTCP BYE) and destroys the Janus session, which takes us out of
@@ -570,6 +582,7 @@ impl Follower {
         for notice in room.poll(&self.stop)? {
             self.tell(notice);
         }
+        room.mark_departed();
         Ok(())
     }
 
