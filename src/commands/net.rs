@@ -267,7 +267,7 @@ pub(crate) fn print_peer(peer: &PeerInfo) {
     eprintln!(
         "peer ssrc={:08x} name={:?} addr={} codec={codec} received={} played={} lost={} late={} \
          duplicates={} reordered={} concealed={} recovered={} stretched={} dropped={} forced={} \
-         drift_ppm={:.0} unknown_pt={} decode_errors={} jitter_ms={:.1} target_ms={:.1} \
+         overflow={} flushed={} drift_ppm={:.0} unknown_pt={} decode_errors={} jitter_ms={:.1} target_ms={:.1} \
          delay_ms={:.1} rtt_ms={} their_loss={} bye={}",
         peer.ssrc,
         peer.name.as_deref().unwrap_or(""),
@@ -283,6 +283,8 @@ pub(crate) fn print_peer(peer: &PeerInfo) {
         j.stretched,
         j.dropped,
         j.forced,
+        j.overflow,
+        j.flushed,
         j.drift_ppm,
         peer.receiver.unknown_payload,
         peer.receiver.decode_errors,
