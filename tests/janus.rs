@@ -9,49 +9,7 @@ use std::time::{Duration, Instant};
 
 use common::janus::{IN_ROOM, free_tcp_port, janus_installed, receive_in_room, start_janus};
 use common::net::{Announce, finish, spawn, spawn_listening};
-use common::{demo_8k, lipcall, read_wav_i16, repo_file};
-
-/// SNR of `test` against `reference`, each 100 ms segment of the reference aligned on its own
-/// (within 4 frames of the best lag within `max` samples over 2-6 s), the energies summed over
-/// all segments. A playout may move in time
-/// where nothing is lost (a late first packet, a frame shed in a pause): what is compared is
-/// the speech heard, not its position.
-fn segmental_snr(reference: &[i16], test: &[i16], max: usize) -> (f64, isize) {
-    const SEGMENT: usize = 800;
-    const FOLLOW: isize = 4 * 160;
-    let energies_over = |at: usize, len: usize, lag: isize| -> Option<(f64, f64)> {
-        let from = at as isize + lag;
-        if from < 0 || from as usize + len > test.len() || at + len > reference.len() {
-            return None;
-        }
-        let t = &test[from as usize..from as usize + len];
-        let r = &reference[at..at + len];
-        let signal: f64 = r.iter().map(|&x| f64::from(x).powi(2)).sum();
-        let error: f64 = r
-            .iter()
-            .zip(t)
-            .map(|(&a, &b)| (f64::from(a) - f64::from(b)).powi(2))
-            .sum();
-        Some((signal, error))
-    };
-    let best = |at: usize, len: usize, around: isize, reach: isize| {
-        (around - reach..=around + reach)
-            .filter_map(|lag| energies_over(at, len, lag).map(|(s, e)| (lag, s, e)))
-            .min_by(|a, b| a.2.total_cmp(&b.2))
-    };
-    // The lag of the steady state (2-6 s in): the first second may hold the start-up's moves.
-    let steady = (16_000.min(reference.len()), 32_000.min(reference.len() / 2));
-    let first_lag = best(steady.0, steady.1, 0, max as isize).map_or(0, |(lag, ..)| lag);
-    let (mut signal, mut error) = (0.0, 0.0);
-    for at in (0..reference.len().saturating_sub(SEGMENT)).step_by(SEGMENT) {
-        let Some((_, s, e)) = best(at, SEGMENT, first_lag, FOLLOW) else {
-            continue;
-        };
-        signal += s;
-        error += e;
-    }
-    (10.0 * (signal / error.max(1e-9)).log10(), first_lag)
-}
+use common::{demo_8k, lipcall, read_wav_i16, repo_file, segmental_snr};
 
 #[test]
 fn two_lipcalls_in_a_janus_room_hear_each_other_and_the_receiver_animates() {

@@ -7,8 +7,9 @@ mod common;
 use std::process::Command;
 use std::time::Duration;
 
-use common::mumble::{Murmur, lipcall_as, runs_here, segmental_snr};
+use common::mumble::{Murmur, lipcall_as, runs_here};
 use common::net::{finish, spawn};
+use common::segmental_snr;
 use common::{demo_8k, read_wav_i16, repo_file, run};
 
 fn pymumble_installed() -> bool {
@@ -120,7 +121,7 @@ fn a_pymumble_bot_is_heard_and_animated_and_hears_lipcall() {
         .arg(&heard8k));
     let source = read_wav_i16(&demo_8k(dir.path())).1;
     let got = read_wav_i16(&heard8k).1;
-    let snr = segmental_snr(&source, &got, 2000);
+    let snr = segmental_snr(&source, &got, 2000).0;
     eprintln!(
         "the bot heard {:.2} s of Ann's {:.2} s; SNR {snr:.2} dB",
         got.len() as f64 / 8000.0,

@@ -6,8 +6,9 @@ mod common;
 
 use std::time::Duration;
 
-use common::mumble::{Murmur, lipcall_as, runs_here, segmental_snr};
+use common::mumble::{Murmur, lipcall_as, runs_here};
 use common::net::{Announce, finish, spawn, spawn_listening};
+use common::segmental_snr;
 use common::{demo_8k, lipcall, read_wav_i16, repo_file};
 
 /// `receive --mumble` as Rx, started before the sender; it ends when the sender has left.
@@ -58,7 +59,7 @@ fn direct_opus_snr(dir: &std::path::Path, source: &[i16]) -> f64 {
     );
     finish(tx, Duration::from_secs(30), "lipcall send --codec opus");
     rx.finish(Duration::from_secs(30), "lipcall receive");
-    segmental_snr(source, &read_wav_i16(&wav).1, 2000)
+    segmental_snr(source, &read_wav_i16(&wav).1, 2000).0
 }
 
 fn field(stderr: &str, key: &str) -> u64 {
@@ -94,7 +95,7 @@ fn two_lipcalls_on_murmur_hear_each_other_and_the_receiver_animates() {
     assert!(received.contains("name=\"Ann\""), "{received}");
 
     let got = read_wav_i16(&dir.path().join("rx.wav")).1;
-    let snr = segmental_snr(&source, &got, 2000);
+    let snr = segmental_snr(&source, &got, 2000).0;
     let direct = direct_opus_snr(dir.path(), &source);
     eprintln!(
         "SNR through murmur {snr:.2} dB, direct Opus round trip {direct:.2} dB; received {:.2} s \
@@ -166,7 +167,7 @@ fn with_udp_blocked_the_tls_tunnel_carries_the_call() {
     assert_eq!(field(&received, "udp"), 0, "{received}");
     assert!(field(&received, "tunnel") >= 400, "{received}");
     let got = read_wav_i16(&dir.path().join("rx.wav")).1;
-    let snr = segmental_snr(&source, &got, 2000);
+    let snr = segmental_snr(&source, &got, 2000).0;
     eprintln!("SNR through the tunnel {snr:.2} dB");
     assert!(snr > 5.0, "{snr:.2} dB\n{received}");
     assert!(

@@ -82,8 +82,14 @@ fn echo(codec: &str, scenario: Option<String>, min_correlation: f64) {
         "heard only {} samples: {log}",
         heard.len()
     );
-    // Two seconds of speech, a second in, wherever the echo put them.
-    let (lag, corr) = best_alignment(&sent, &heard, 8000, 16000, 1600);
+    // Two seconds of speech, a second in, as four half seconds each aligned on its own
+    // (wherever the echo put them): three of the four must be our speech, so one frame the
+    // jitter buffer shed under load moves one window, not the verdict.
+    let mut windows: Vec<(isize, f64)> = (0..4)
+        .map(|k| best_alignment(&sent, &heard, 8000 + 4000 * k, 4000, 1600))
+        .collect();
+    windows.sort_by(|a, b| a.1.total_cmp(&b.1));
+    let (lag, corr) = windows[1];
     eprintln!("{codec}: correlation {corr:.3} with our speech at lag {lag}");
     assert!(
         corr >= min_correlation,
