@@ -123,6 +123,18 @@ fn call_through(dir: &Path, url: &str, cert: &str, room: &str) -> f64 {
     r
 }
 
+/// Without the secret, Janus's refusal is said at once and the receive exits 1.
+fn refused_without_the_secret(url: &str, cert: &str, room: &str) {
+    let out = lipcall()
+        .env("SSL_CERT_FILE", cert)
+        .args(["receive", "--janus", url, "--room", room, "--seconds", "2"])
+        .output()
+        .unwrap();
+    let stderr = String::from_utf8_lossy(&out.stderr);
+    assert_eq!(out.status.code(), Some(1), "{stderr}");
+    assert!(stderr.contains("Janus error 403"), "{stderr}");
+}
+
 #[test]
 fn a_janus_over_wss_with_an_api_secret_carries_a_call() {
     if !common::janus::runs_here("a_janus_over_wss_with_an_api_secret_carries_a_call") {
@@ -134,22 +146,7 @@ fn a_janus_over_wss_with_an_api_secret_carries_a_call() {
     let r = call_through(dir.path(), &url, &cert, "over-wss");
     assert!(r > 0.9, "heard over WSS: r {r:.3}");
 
-    let out = lipcall()
-        .env("SSL_CERT_FILE", &cert)
-        .args([
-            "receive",
-            "--janus",
-            &url,
-            "--room",
-            "over-wss",
-            "--seconds",
-            "2",
-        ])
-        .output()
-        .unwrap();
-    let stderr = String::from_utf8_lossy(&out.stderr);
-    assert_eq!(out.status.code(), Some(1), "{stderr}");
-    assert!(stderr.contains("Janus error 403"), "{stderr}");
+    refused_without_the_secret(&url, &cert, "over-wss");
 }
 
 #[test]
@@ -163,23 +160,7 @@ fn a_janus_over_https_with_an_api_secret_carries_a_call() {
     let r = call_through(dir.path(), &janus.url, &cert, "secure");
     assert!(r > 0.9, "heard over HTTPS: r {r:.3}");
 
-    // Without the secret: Janus's refusal, said at once.
-    let out = lipcall()
-        .env("SSL_CERT_FILE", &cert)
-        .args([
-            "receive",
-            "--janus",
-            &janus.url,
-            "--room",
-            "secure",
-            "--seconds",
-            "2",
-        ])
-        .output()
-        .unwrap();
-    let stderr = String::from_utf8_lossy(&out.stderr);
-    assert_eq!(out.status.code(), Some(1), "{stderr}");
-    assert!(stderr.contains("Janus error 403"), "{stderr}");
+    refused_without_the_secret(&janus.url, &cert, "secure");
 
     // A certificate nobody vouches for: refused, with TLS's reason.
     let out = lipcall()
