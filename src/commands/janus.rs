@@ -3,13 +3,12 @@
 //! received audio takes the same path as a direct call's (jitter buffer, decoder, features,
 //! lip sync) and the same outputs.
 
-use std::path::PathBuf;
 use std::time::{Duration, Instant};
 
 use anyhow::{Context, Result, bail};
 
 use super::net::{ReceiveArgs, SendArgs, load_packets, print_peer, send_paced};
-use super::playout::{open_outputs, play, print_event};
+use super::playout::{ReceiveOutputs, play, print_event};
 use super::recording::stop_flag;
 use crate::call::janus::JanusLink;
 use crate::codec::any::{Codec, EncoderSettings};
@@ -168,11 +167,7 @@ pub struct ReceiveCommand {
 #[derive(Debug, Clone)]
 pub struct JanusReceiveArgs {
     pub janus: JanusArgs,
-    pub wav: Option<PathBuf>,
-    pub rate: Option<u32>,
-    pub weights: Option<PathBuf>,
-    pub features: Option<PathBuf>,
-    pub seconds: Option<f64>,
+    pub out: ReceiveOutputs,
 }
 
 pub fn receive(args: &JanusReceiveArgs) -> Result<()> {
@@ -184,12 +179,7 @@ pub fn receive_with(
     on_frame: &mut dyn FnMut(u32, f64, &FrameFeatures),
 ) -> Result<()> {
     let stop = stop_flag()?;
-    let (model, mut recorder) = open_outputs(
-        args.wav.as_deref(),
-        args.rate,
-        args.features.as_deref(),
-        args.weights.as_deref(),
-    )?;
+    let (model, mut recorder) = args.out.open()?;
     let server = server_addr(&args.janus.url)?;
     let (room, notices) = Member::join(args.janus.config(true, "lipcall-receiver"), false)
         .map_err(pin_hint)
@@ -206,7 +196,7 @@ pub fn receive_with(
     let mut link = JanusLink::joined(room, server, place);
     let played = play(
         &mut link,
-        args.seconds,
+        args.out.seconds,
         model.as_ref(),
         on_frame,
         &mut recorder,
@@ -266,6 +256,13 @@ pub fn send_command(command: &SendCommand) -> Result<()> {
 /// `lipcall receive`: from the Janus room of `--janus`, or on `--listen`.
 pub fn receive_command(command: &ReceiveCommand) -> Result<()> {
     let call = &command.call;
+    let out = ReceiveOutputs {
+        wav: call.wav.clone(),
+        rate: call.rate,
+        weights: call.weights.clone(),
+        features: call.features.clone(),
+        seconds: call.seconds,
+    };
     if let Some(mumble) =
         super::mumble::MumbleArgs::from_flags(&command.mumble, call.name.as_deref())
     {
@@ -276,14 +273,7 @@ pub fn receive_command(command: &ReceiveCommand) -> Result<()> {
                  --key"
             );
         }
-        return super::mumble::receive(&super::mumble::MumbleReceiveArgs {
-            mumble,
-            wav: call.wav.clone(),
-            rate: call.rate,
-            weights: call.weights.clone(),
-            features: call.features.clone(),
-            seconds: call.seconds,
-        });
+        return super::mumble::receive(&super::mumble::MumbleReceiveArgs { mumble, out });
     }
     match &command.janus {
         Some(url) => receive(&JanusReceiveArgs {
@@ -294,11 +284,7 @@ pub fn receive_command(command: &ReceiveCommand) -> Result<()> {
                 name: call.name.clone(),
                 pin: call.key.passphrase.clone(),
             },
-            wav: call.wav.clone(),
-            rate: call.rate,
-            weights: call.weights.clone(),
-            features: call.features.clone(),
-            seconds: call.seconds,
+            out,
         }),
         None => super::net::receive(call),
     }

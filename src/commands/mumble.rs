@@ -3,14 +3,14 @@
 //! received through the same path as a direct call (jitter buffer, decoder, features, lip
 //! sync) with the same outputs, one WAV and CSV per speaker.
 
-use std::path::{Path, PathBuf};
+use std::path::Path;
 use std::sync::atomic::{AtomicBool, Ordering};
 use std::time::{Duration, Instant};
 
 use anyhow::{Context, Result, bail};
 
 use super::net::{load_packets, print_peer, send_paced};
-use super::playout::{open_outputs, play};
+use super::playout::{ReceiveOutputs, play};
 use super::recording::{stop_flag, stopped};
 use crate::call::link::{Link, LinkEvent};
 use crate::call::mumble::MumbleLink;
@@ -282,24 +282,14 @@ impl Link for Told<'_> {
 #[derive(Debug, Clone)]
 pub struct MumbleReceiveArgs {
     pub mumble: MumbleArgs,
-    pub wav: Option<PathBuf>,
-    /// OUT.wav's rate (else the rate of the stream first heard).
-    pub rate: Option<u32>,
-    pub weights: Option<PathBuf>,
-    pub features: Option<PathBuf>,
-    pub seconds: Option<f64>,
+    pub out: ReceiveOutputs,
 }
 
 /// Joins the channel and receives every speaker there until `--seconds`, a signal, or (without
 /// `--seconds`) everyone who spoke has left.
 pub fn receive(args: &MumbleReceiveArgs) -> Result<()> {
     let stop = stop_flag()?;
-    let (model, mut recorder) = open_outputs(
-        args.wav.as_deref(),
-        args.rate,
-        args.features.as_deref(),
-        args.weights.as_deref(),
-    )?;
+    let (model, mut recorder) = args.out.open()?;
     let connection = connect(&args.mumble)?;
     for notice in connection.poll() {
         print_notice(&notice);
@@ -313,7 +303,7 @@ pub fn receive(args: &MumbleReceiveArgs) -> Result<()> {
     let ended = AtomicBool::new(false);
     let played = play(
         &mut Told(&mut link, &stop, &ended),
-        args.seconds,
+        args.out.seconds,
         model.as_ref(),
         &mut |_, _, _| {},
         &mut recorder,

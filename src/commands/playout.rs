@@ -89,6 +89,30 @@ fn viseme_names(model: Option<&Model>) -> Result<Vec<String>> {
         .collect())
 }
 
+/// What a receive writes and how long it lasts, whatever carries the call (a Janus room, a
+/// Mumble channel).
+#[derive(Debug, Clone, Default)]
+pub struct ReceiveOutputs {
+    pub wav: Option<std::path::PathBuf>,
+    /// OUT.wav's rate (else the rate of the stream first heard).
+    pub rate: Option<u32>,
+    pub weights: Option<std::path::PathBuf>,
+    pub features: Option<std::path::PathBuf>,
+    pub seconds: Option<f64>,
+}
+
+impl ReceiveOutputs {
+    /// [`open_outputs`] for these paths.
+    pub(crate) fn open(&self) -> Result<(Option<Model>, Recorder)> {
+        open_outputs(
+            self.wav.as_deref(),
+            self.rate,
+            self.features.as_deref(),
+            self.weights.as_deref(),
+        )
+    }
+}
+
 /// What a receive writes (each path checked before the call: one that cannot be written fails
 /// now) and the lip-sync model that `--weights` needs.
 pub(crate) fn open_outputs(
