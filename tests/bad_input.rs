@@ -161,6 +161,31 @@ fn broken_opus_files_give_one_line_errors() {
         &ogg_opus(&head, b"OpusHead", &audio),
         "OpusTags",
     );
+    // Granule positions that disagree with the audio (a middle page a second ahead): decoded
+    // by its packets, and said.
+    let skewed = ogg_file::write(
+        &file.head,
+        "v",
+        &[],
+        &audio,
+        |i| (i as u64 + 1) * 960 + if i == 99 { 48_000 } else { 0 },
+        7,
+    )
+    .unwrap();
+    let skewed_path = d.join("skewed.opus");
+    std::fs::write(&skewed_path, skewed).unwrap();
+    let out = lipcall()
+        .arg("decode")
+        .arg(&skewed_path)
+        .arg(&out_wav)
+        .output()
+        .unwrap();
+    let stderr = String::from_utf8_lossy(&out.stderr);
+    assert!(out.status.success(), "{stderr}");
+    assert!(
+        stderr.contains("1 page(s) carry granule positions that disagree"),
+        "{stderr}"
+    );
     let mut flipped = bytes.clone();
     let mid = flipped.len() / 2;
     flipped[mid] ^= 0x55;

@@ -208,6 +208,13 @@ fn decode_opus(input: &Path, output: &Path, file: &MediaFile, rate: Option<u32>)
             decoded.corrupt_packets
         );
     }
+    if decoded.bad_granules > 0 {
+        eprintln!(
+            "warning: {} page(s) carry granule positions that disagree with their audio \
+             (a cut or badly written file); the packets were decoded as they are",
+            decoded.bad_granules
+        );
+    }
     eprintln!(
         "{}: {:.2} s of audio at {} Hz, {} Opus packets{}",
         output.display(),

@@ -176,6 +176,7 @@ impl PeerReceiver {
         let Some(codec) = self.payloads.codec(h.payload_type) else {
             self.unknown_payload += 1;
             self.last_unknown_type = Some(h.payload_type);
+            self.jitter.unplayable(h.sequence);
             return false;
         };
         self.jitter.set_clock(codec.clock_rate());
@@ -547,6 +548,27 @@ mod tests {
         assert_eq!(stats.unknown_payload, 50);
         assert_eq!(stats.last_unknown_type, Some(100));
         assert_eq!((stats.jitter.received, stats.codec), (0, None));
+    }
+
+    #[test]
+    fn packets_of_unknown_payload_types_are_not_counted_lost() {
+        // A phone's telephone-event (or comfort noise) between its speech packets, on the same
+        // SSRC and sequence numbers: they came, so none of them is lost.
+        let mut rx = PeerReceiver::new(JitterConfig::default(), Instant::now(), true);
+        let mut sender = Sender::new(Codec::Speex);
+        let out = call(&mut rx, 100, |k| {
+            let pt = if k % 10 == 5 { 101 } else { 110 };
+            sender.stream.set_payload(pt, 160);
+            Some(sender.packet(k))
+        });
+        let stats = rx.stats();
+        assert_eq!(stats.unknown_payload, 10, "{stats:?}");
+        assert_eq!(
+            (stats.jitter.received, stats.jitter.lost),
+            (90, 0),
+            "{stats:?}"
+        );
+        assert!(out.iter().flatten().count() >= 90, "{stats:?}");
     }
 
     #[test]

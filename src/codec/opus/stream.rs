@@ -118,6 +118,10 @@ pub struct Decoded {
     pub packets: Vec<DecodedPacket>,
     /// Packets libopus rejected as corrupt (each concealed for its duration).
     pub corrupt_packets: usize,
+    /// Pages whose granule position disagrees with the audio before them (a page that is not
+    /// the last must count its packets exactly; the last may only trim): the file was cut or
+    /// written wrong. Its packets are played as they are.
+    pub bad_granules: usize,
 }
 
 /// Decodes an Ogg Opus file to 8 kHz mono as opusdec does, including the samples it trims.
@@ -148,6 +152,7 @@ pub fn decode_at(bytes: &[u8], rate: u32) -> Result<Decoded, StreamError> {
             p
         }));
         whole.corrupt_packets += next.corrupt_packets;
+        whole.bad_granules += next.bad_granules;
     }
     Ok(whole)
 }
@@ -174,6 +179,7 @@ pub fn decode_file(file: OpusFile, rate: u32) -> Result<Decoded, StreamError> {
     // ends, from the first and the last page.
     let mut start_granule = None;
     let mut end_granule = None;
+    let mut bad_granules = 0;
     let mut last_duration = decoder.frame_samples();
     for page in file.pages {
         for data in page.packets {
@@ -206,13 +212,24 @@ pub fn decode_file(file: OpusFile, rate: u32) -> Result<Decoded, StreamError> {
             continue;
         };
         let page_end = full.len() as u64 * per_sample;
-        if start_granule.is_none() {
-            start_granule = Some(match granule.checked_sub(page_end) {
-                Some(start) => start,
-                // A first page may end short of its packets only by end trimming.
-                None if page.end_of_stream => 0,
-                None => return Err(StreamError::BadGranule),
-            });
+        match start_granule {
+            None => {
+                start_granule = Some(match granule.checked_sub(page_end) {
+                    Some(start) => start,
+                    // A first page may end short of its packets only by end trimming.
+                    None if page.end_of_stream => 0,
+                    None => return Err(StreamError::BadGranule),
+                });
+            }
+            Some(start) => {
+                let counted = start.saturating_add(page_end);
+                let agrees = if page.end_of_stream {
+                    granule <= counted
+                } else {
+                    granule == counted
+                };
+                bad_granules += usize::from(!agrees);
+            }
         }
         if page.end_of_stream {
             end_granule = Some(granule);
@@ -241,6 +258,7 @@ pub fn decode_file(file: OpusFile, rate: u32) -> Result<Decoded, StreamError> {
         pcm,
         packets,
         corrupt_packets,
+        bad_granules,
     })
 }
 
@@ -415,6 +433,26 @@ mod tests {
         let energy = |s: &[i16]| s.iter().map(|&x| f64::from(x).powi(2)).sum::<f64>();
         let ratio_db = 10.0 * (energy(&quieter.pcm) / energy(&plain.pcm)).log10();
         assert!((ratio_db + 6.0).abs() < 0.1, "{ratio_db:.2} dB");
+    }
+
+    #[test]
+    fn granules_that_disagree_with_the_audio_are_counted() {
+        let bytes = encode(&speechy(40_000), EncoderConfig::default()).unwrap();
+        let file = ogg_file::read(&bytes).unwrap();
+        assert!(file.pages.len() >= 3);
+        assert_eq!(
+            decode_file(file.clone(), SAMPLE_RATE).unwrap().bad_granules,
+            0
+        );
+        // A middle page a second ahead of its audio, and a last page claiming more than it holds.
+        let mut wrong = file.clone();
+        wrong.pages[1].granule = wrong.pages[1].granule.map(|g| g + 48_000);
+        let last = wrong.pages.len() - 1;
+        wrong.pages[last].granule = wrong.pages[last].granule.map(|g| g + 960);
+        let d = decode_file(wrong, SAMPLE_RATE).unwrap();
+        assert_eq!(d.bad_granules, 2);
+        // Played by its packets: nothing of the audio is cut.
+        assert!(d.pcm.len() >= 40_000, "{}", d.pcm.len());
     }
 
     #[test]

@@ -293,6 +293,15 @@ impl JitterBuffer {
         });
     }
 
+    /// A packet that came but carries nothing to play (a payload type no codec is mapped to,
+    /// such as a phone's telephone-event): its sequence number is accounted as received, so
+    /// that it is not counted lost, and its slot is concealed like any gap.
+    pub fn unplayable(&mut self, seq: u16) {
+        if let SeqCheck::Fresh(..) = self.check_sequence(seq) {
+            self.sequence.count_received();
+        }
+    }
+
     /// Files a received packet.
     pub fn file(&mut self, packet: Arrival<'_>) {
         let now = self.seconds(packet.at);
