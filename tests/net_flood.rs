@@ -9,31 +9,9 @@ use std::sync::Arc;
 use std::sync::atomic::{AtomicBool, Ordering};
 use std::time::{Duration, Instant};
 
-use common::net::{finish, spawn, start_receiver};
+use common::net::{finish, new_ssrc_flood, spawn, start_receiver};
 use common::{lipcall, repo_file};
 use lipcall::net::rtp::RtpStream;
-
-/// Sends PCMU packets (payload type 0, any bytes decode) from new SSRCs to `to` at 2,000 a
-/// second until `stop`.
-fn churn(to: std::net::SocketAddr, stop: Arc<AtomicBool>) -> u64 {
-    let socket = UdpSocket::bind("127.0.0.1:0").unwrap();
-    let mut stream = RtpStream::new(0, 0, 0);
-    stream.set_payload(0, 160);
-    let start = Instant::now();
-    let mut sent = 0u64;
-    while !stop.load(Ordering::Relaxed) {
-        let due = start + Duration::from_micros(500 * sent);
-        if let Some(wait) = due.checked_duration_since(Instant::now()) {
-            std::thread::sleep(wait);
-        }
-        stream.ssrc = 0x4000_0000 + sent as u32;
-        let mut buf = Vec::new();
-        stream.packetize(&[0x55; 160], 1, &mut buf).unwrap();
-        let _ = socket.send_to(&buf, to);
-        sent += 1;
-    }
-    sent
-}
 
 #[test]
 fn a_caller_is_heard_through_a_flood_of_new_ssrcs() {
@@ -42,7 +20,7 @@ fn a_caller_is_heard_through_a_flood_of_new_ssrcs() {
     let flood = {
         let stop = Arc::clone(&stop);
         let to = receiver.socket_addr();
-        std::thread::spawn(move || churn(to, stop))
+        std::thread::spawn(move || new_ssrc_flood(to, &stop))
     };
     std::thread::sleep(Duration::from_millis(500));
     let sender = spawn(

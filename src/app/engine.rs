@@ -406,6 +406,7 @@ impl Worker {
             pin: spec.passphrase.clone().filter(|p| !p.is_empty()),
             subscribe: true,
             jitter: JitterConfig::default(),
+            stun: None,
         };
         let janus = JanusLink::join(config)?;
         let state = format!("joining {}…", janus.place());

@@ -27,6 +27,8 @@ pub struct JanusArgs {
     pub name: Option<String>,
     /// The room's pin.
     pub pin: Option<String>,
+    /// A STUN server (HOST:PORT) that tells us our address outside a NAT.
+    pub stun: Option<String>,
 }
 
 impl JanusArgs {
@@ -42,6 +44,7 @@ impl JanusArgs {
             pin: self.pin.clone(),
             subscribe,
             jitter: JitterConfig::default(),
+            stun: self.stun.clone(),
         }
     }
 }
@@ -122,27 +125,46 @@ pub struct SendCommand {
           requires = "room", display_order = 1)]
     pub janus: Option<String>,
     #[command(flatten)]
-    pub auth: JanusAuthArgs,
+    pub server: JanusServerArgs,
     #[command(flatten)]
     pub mumble: super::mumble::MumbleFlags,
 }
 
-/// The credentials a Janus that restricts its API asks for.
+/// What a Janus deployment may ask of us: the credentials of a restricted API, and a STUN
+/// server for peers behind a NAT.
 #[derive(Debug, Clone, Default, clap::Args)]
-pub struct JanusAuthArgs {
+pub struct JanusServerArgs {
     /// The Janus server's api_secret (its janus.jcfg), sent with every request.
     #[arg(long, value_name = "SECRET", requires = "janus")]
     pub janus_secret: Option<String>,
     /// A token the Janus admin stored for us (token_auth), sent with every request.
     #[arg(long, value_name = "TOKEN", requires = "janus")]
     pub janus_token: Option<String>,
+    /// A STUN server, HOST:PORT, asked for our public address, which WebRTC then offers
+    /// beside the local ones (behind a NAT; see docs/janus.md).
+    #[arg(long, value_name = "HOST:PORT", requires = "janus")]
+    pub stun: Option<String>,
 }
 
-impl JanusAuthArgs {
-    fn auth(&self) -> JanusAuth {
-        JanusAuth {
-            api_secret: self.janus_secret.clone(),
-            token: self.janus_token.clone(),
+impl JanusServerArgs {
+    /// The Janus room of `url` that `call`'s flags name.
+    fn room_args(
+        &self,
+        url: &str,
+        room: Option<&String>,
+        name: Option<&String>,
+        pin: Option<&String>,
+    ) -> JanusArgs {
+        JanusArgs {
+            url: url.to_string(),
+            auth: JanusAuth {
+                api_secret: self.janus_secret.clone(),
+                token: self.janus_token.clone(),
+            },
+            room: room.cloned().unwrap_or_default(),
+            name: name.cloned(),
+            pin: pin.cloned(),
+            stun: self.stun.clone(),
         }
     }
 }
@@ -159,7 +181,7 @@ pub struct ReceiveCommand {
           requires = "room", display_order = 1)]
     pub janus: Option<String>,
     #[command(flatten)]
-    pub auth: JanusAuthArgs,
+    pub server: JanusServerArgs,
     #[command(flatten)]
     pub mumble: super::mumble::MumbleFlags,
 }
@@ -241,13 +263,12 @@ pub fn send_command(command: &SendCommand) -> Result<()> {
     match &command.janus {
         Some(url) => send(
             &call.input,
-            &JanusArgs {
-                url: url.clone(),
-                auth: command.auth.auth(),
-                room: call.room.clone().unwrap_or_default(),
-                name: call.name.clone(),
-                pin: call.key.passphrase.clone(),
-            },
+            &command.server.room_args(
+                url,
+                call.room.as_ref(),
+                call.name.as_ref(),
+                call.key.passphrase.as_ref(),
+            ),
         ),
         None => super::net::send(call),
     }
@@ -277,13 +298,12 @@ pub fn receive_command(command: &ReceiveCommand) -> Result<()> {
     }
     match &command.janus {
         Some(url) => receive(&JanusReceiveArgs {
-            janus: JanusArgs {
-                url: url.clone(),
-                auth: command.auth.auth(),
-                room: call.room.clone().unwrap_or_default(),
-                name: call.name.clone(),
-                pin: call.key.passphrase.clone(),
-            },
+            janus: command.server.room_args(
+                url,
+                call.room.as_ref(),
+                call.name.as_ref(),
+                call.key.passphrase.as_ref(),
+            ),
             out,
         }),
         None => super::net::receive(call),

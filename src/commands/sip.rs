@@ -15,7 +15,7 @@ use crate::call::link::{Link, LinkEvent};
 use crate::call::media::Packets;
 use crate::call::sip::{CallState, SipLink};
 use crate::codec::any::{Codec, EncoderSettings};
-use crate::net::janus::media::local_ip_towards;
+use crate::net::janus::candidates::local_ip_towards;
 use crate::net::session::{PeerFrame, PeerInfo};
 use crate::net::sip::agent::{Account, AgentConfig, Role, codecs};
 use crate::net::sip::sdp::{LocalAudio, SdesKey};

@@ -22,6 +22,7 @@ pub mod rtp;
 pub mod session;
 pub mod sip;
 pub mod srtp;
+pub mod stun;
 
 /// Largest datagram we read or forward.
 pub const MAX_DATAGRAM: usize = 1500;

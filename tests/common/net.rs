@@ -398,3 +398,25 @@ pub fn talk(session: &lipcall::net::session::Session, frames: u32) {
         session.send_frames(&payload[..n], count).unwrap();
     }
 }
+
+/// Sends PCMU packets (payload type 0, any bytes decode) from new SSRCs to `to` at 2,000 a
+/// second until `stop`.
+pub fn new_ssrc_flood(to: std::net::SocketAddr, stop: &std::sync::atomic::AtomicBool) -> u64 {
+    let socket = std::net::UdpSocket::bind("127.0.0.1:0").unwrap();
+    let mut stream = lipcall::net::rtp::RtpStream::new(0, 0, 0);
+    stream.set_payload(0, 160);
+    let start = Instant::now();
+    let mut sent = 0u64;
+    while !stop.load(std::sync::atomic::Ordering::Relaxed) {
+        let due = start + Duration::from_micros(500 * sent);
+        if let Some(wait) = due.checked_duration_since(Instant::now()) {
+            std::thread::sleep(wait);
+        }
+        stream.ssrc = 0x4000_0000 + sent as u32;
+        let mut buf = Vec::new();
+        stream.packetize(&[0x55; 160], 1, &mut buf).unwrap();
+        let _ = socket.send_to(&buf, to);
+        sent += 1;
+    }
+    sent
+}

@@ -21,6 +21,7 @@ use str0m::net::{Protocol, Receive};
 use str0m::{Candidate, Event, IceConnectionState, Input, Output, Rtc};
 
 use super::JanusError;
+use super::candidates;
 use crate::codec::any::PayloadMap;
 use crate::net::jitter::JitterConfig;
 use crate::net::peer::{PeerReceiver, ReceiverStats};
@@ -117,54 +118,19 @@ impl std::fmt::Debug for Media {
     }
 }
 
-/// The addresses we offer as host candidates for a Janus at `janus`: the one the kernel would
-/// reach it from and, when that is loopback, the one towards the rest of the network. Janus
-/// (libnice) never gathers loopback candidates, so even a Janus on 127.0.0.1 offers only the
-/// machine's own interface addresses; the media still never leaves the machine.
-pub fn host_ips(janus: IpAddr) -> Result<Vec<IpAddr>, JanusError> {
-    let first = local_ip_towards(janus)?;
-    let mut ips = vec![first];
-    if first.is_loopback() {
-        // A documentation address (RFC 5737, RFC 3849): only the route to it is looked up.
-        let outside: IpAddr = if first.is_ipv4() {
-            [203, 0, 113, 1].into()
-        } else {
-            "2001:db8::1".parse().unwrap_or(first)
-        };
-        if let Ok(ip) = local_ip_towards(outside)
-            && !ip.is_loopback()
-        {
-            ips.push(ip);
-        }
-    }
-    Ok(ips)
-}
-
-/// The local address to reach `remote` from.
-pub fn local_ip_towards(remote: IpAddr) -> Result<IpAddr, JanusError> {
-    let bind: SocketAddr = if remote.is_ipv4() {
-        ([0, 0, 0, 0], 0).into()
-    } else {
-        (std::net::Ipv6Addr::UNSPECIFIED, 0).into()
-    };
-    let probe = UdpSocket::bind(bind).map_err(|e| JanusError::Media(format!("UDP: {e}")))?;
-    probe
-        .connect((remote, 9))
-        .map_err(|e| JanusError::Media(format!("no route to {remote}: {e}")))?;
-    probe
-        .local_addr()
-        .map(|a| a.ip())
-        .map_err(|e| JanusError::Media(format!("UDP: {e}")))
-}
-
 fn stopped() -> JanusError {
     JanusError::Media("the media thread has stopped".into())
 }
 
 impl Media {
     /// Starts the media thread on one UDP port, offered as a host candidate on each of `ips`
-    /// (all of one family).
-    pub fn start(ips: &[IpAddr], jitter: JitterConfig) -> Result<Self, JanusError> {
+    /// (all of one family), and with a `stun` server (HOST:PORT) as the server-reflexive
+    /// candidate it sees.
+    pub fn start(
+        ips: &[IpAddr],
+        jitter: JitterConfig,
+        stun: Option<&str>,
+    ) -> Result<Self, JanusError> {
         let any: IpAddr = match ips.first() {
             Some(IpAddr::V6(_)) => std::net::Ipv6Addr::UNSPECIFIED.into(),
             _ => std::net::Ipv4Addr::UNSPECIFIED.into(),
@@ -176,7 +142,10 @@ impl Media {
             .map_err(|e| JanusError::Media(format!("UDP: {e}")))?
             .port();
         let local: Vec<SocketAddr> = ips.iter().map(|&ip| SocketAddr::new(ip, port)).collect();
-        let core = MediaCore::new(local, jitter, Instant::now());
+        let mut core = MediaCore::new(local, jitter, Instant::now());
+        if let Some(server) = stun {
+            core.reflexive = candidates::reflexive(&socket, server, port, &core.local);
+        }
         let driver = Driver::start(socket, core, "lipcall-webrtc", POLL)
             .map_err(|e| JanusError::Media(format!("cannot start the media thread: {e}")))?;
         Ok(Self {
@@ -288,6 +257,8 @@ struct Conn {
 struct MediaCore {
     /// Our host candidates: one port, several addresses.
     local: Vec<SocketAddr>,
+    /// Our address outside a NAT (from STUN) and the local address it maps.
+    reflexive: Option<(SocketAddr, SocketAddr)>,
     epoch: Instant,
     jitter: JitterConfig,
     /// The latest time the core was given.
@@ -342,6 +313,7 @@ impl MediaCore {
     fn new(local: Vec<SocketAddr>, jitter: JitterConfig, now: Instant) -> Self {
         Self {
             local,
+            reflexive: None,
             epoch: now,
             jitter,
             now,
@@ -362,6 +334,12 @@ impl MediaCore {
         for &addr in &self.local {
             let candidate = Candidate::host(addr, "udp")
                 .map_err(|e| JanusError::Media(format!("host candidate {addr}: {e}")))?;
+            rtc.add_local_candidate(candidate);
+        }
+        if let Some((public, base)) = self.reflexive {
+            let candidate = Candidate::server_reflexive(public, base, "udp").map_err(|e| {
+                JanusError::Media(format!("server-reflexive candidate {public}: {e}"))
+            })?;
             rtc.add_local_candidate(candidate);
         }
         Ok(rtc)
@@ -673,5 +651,26 @@ impl MediaCore {
         out.sort_by(|a, b| a.feed.cmp(&b.feed));
         out.extend(self.departed.iter().cloned());
         out
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn the_offer_carries_the_address_stun_saw() {
+        let local: SocketAddr = "10.0.0.5:40000".parse().unwrap();
+        let public: SocketAddr = "198.51.100.7:61000".parse().unwrap();
+        let now = Instant::now();
+        let mut core = MediaCore::new(vec![local], JitterConfig::default(), now);
+        let plain = core.offer(now).unwrap();
+        assert!(plain.contains("typ host"), "{plain}");
+        assert!(!plain.contains("typ srflx"), "{plain}");
+        let mut core = MediaCore::new(vec![local], JitterConfig::default(), now);
+        core.reflexive = Some((public, local));
+        let offer = core.offer(now).unwrap();
+        assert!(offer.contains("198.51.100.7 61000 typ srflx"), "{offer}");
+        assert!(offer.contains("10.0.0.5 40000 typ host"), "{offer}");
     }
 }

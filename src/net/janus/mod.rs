@@ -3,13 +3,14 @@
 //! Janus forwards each publisher's Opus stream to every subscriber unmixed, so each remote
 //! speaker stays a peer of its own with its own lip sync. The media is WebRTC: ICE, DTLS-SRTP
 //! and RTCP through str0m, which is sans-I/O and driven by our own UDP thread
-//! ([`media`]). Signalling is Janus's API over HTTP(S) or its WebSocket ([`http`], `ws`),
+//! ([`media`]), offering the addresses [`candidates`] gathers. Signalling is Janus's API over HTTP(S) or its WebSocket ([`http`], `ws`),
 //! at a URL [`url`] takes apart, carrying the VideoRoom requests
 //! ([`messages`]); [`room`] puts the two together.
 //!
 //! DTLS-SRTP is hop by hop: Janus decrypts every stream it forwards and could read it, unlike
 //! lipcall's end-to-end SRTP rooms, whose relay cannot.
 
+pub mod candidates;
 mod events;
 pub mod http;
 pub mod media;

@@ -17,8 +17,9 @@ use std::time::{Duration, Instant};
 use serde_json::Value;
 
 use super::JanusError;
+use super::candidates::host_ips;
 use super::http::Client;
-use super::media::{FeedInfo, Media, MediaStats, host_ips};
+use super::media::{FeedInfo, Media, MediaStats};
 use super::messages::{
     self, INVALID_ELEMENT, IdKind, JanusAuth, NO_SUCH_ROOM, ROOM_EXISTS, VIDEOROOM,
 };
@@ -40,6 +41,9 @@ pub struct RoomConfig {
     /// Subscribe to the other publishers (a receiver does; a send-only member need not).
     pub subscribe: bool,
     pub jitter: JitterConfig,
+    /// A STUN server (HOST:PORT) asked for our address outside a NAT, offered to Janus as a
+    /// server-reflexive candidate.
+    pub stun: Option<String>,
 }
 
 /// Something that happened in the room, for the user.
@@ -110,7 +114,11 @@ impl Room {
             .ok_or_else(|| JanusError::Protocol(format!("no publisher id in {data}")))?;
         let private_id = (!data["private_id"].is_null()).then(|| data["private_id"].clone());
         let news = messages::room_news(data);
-        let media = Arc::new(Media::start(&host_ips(janus_ip)?, config.jitter)?);
+        let media = Arc::new(Media::start(
+            &host_ips(janus_ip)?,
+            config.jitter,
+            config.stun.as_deref(),
+        )?);
         let mut room = Self {
             client,
             media,
