@@ -11,7 +11,7 @@ use lipcall::app::engine::{CallSpec, Command, Encryption, Engine, EngineConfig, 
 use lipcall::audio::DeviceChoice;
 use lipcall::codec::any::Codec;
 
-use common::janus::start_janus;
+use common::janus::{STOCK_VIDEOROOM, start_janus, start_janus_with};
 
 fn wait_for(what: &str, engine: &Engine, mut done: impl FnMut(&Engine) -> bool) {
     let deadline = Instant::now() + Duration::from_secs(20);
@@ -59,8 +59,26 @@ fn the_app_joins_a_janus_room_and_animates_each_publisher() {
     }
     let dir = tempfile::tempdir().unwrap();
     let janus = start_janus(dir.path());
+    app_animates_a_publisher(&janus.url, "app-room");
+}
+
+/// Debian's janus with its own configuration (numbered rooms, as stock deployments run it):
+/// the app joins its demo room 1234.
+#[test]
+fn the_app_joins_a_room_of_a_stock_janus() {
+    if !common::janus::runs_here("the_app_joins_a_room_of_a_stock_janus") {
+        return;
+    }
+    let dir = tempfile::tempdir().unwrap();
+    let janus = start_janus_with(dir.path(), &[std::path::Path::new(STOCK_VIDEOROOM)]);
+    app_animates_a_publisher(&janus.url, "1234");
+}
+
+/// The app joins `room` at `url`, a `send --janus` publisher there animates her head, and she
+/// is gone once she left.
+fn app_animates_a_publisher(url: &str, room: &str) {
     let app = engine("Carol");
-    join(&app, &janus.url, "app-room", None);
+    join(&app, url, room, None);
     wait_for("the app is in the room", &app, |e| {
         lock(&e.shared).call.state.contains("in Janus room")
     });
@@ -74,9 +92,7 @@ fn the_app_joins_a_janus_room_and_animates_each_publisher() {
     let alice = Process::new(env!("CARGO_BIN_EXE_lipcall"))
         .arg("send")
         .arg(common::repo_file("assets/speech/demo.wav"))
-        .args([
-            "--janus", &janus.url, "--room", "app-room", "--name", "Alice",
-        ])
+        .args(["--janus", url, "--room", room, "--name", "Alice"])
         .stdout(Stdio::null())
         .stderr(Stdio::piped())
         .spawn()
