@@ -18,6 +18,7 @@ use crate::call::janus::{JanusLink, is_janus_url};
 use crate::call::link::{Link, LinkEvent};
 use crate::codec::any::{Codec, EncoderSettings, FrameEncoder, MAX_FRAME_PAYLOAD};
 use crate::codec::opus::codec::Bandwidth;
+use crate::net::janus::candidates::IceServers;
 use crate::net::janus::messages::JanusAuth;
 use crate::net::janus::room::RoomConfig;
 use crate::net::jitter::JitterConfig;
@@ -406,7 +407,7 @@ impl Worker {
             pin: spec.passphrase.clone().filter(|p| !p.is_empty()),
             subscribe: true,
             jitter: JitterConfig::default(),
-            stun: None,
+            ice: IceServers::default(),
         };
         let janus = JanusLink::join(config)?;
         let state = format!("joining {}…", janus.place());

@@ -13,6 +13,7 @@ use super::recording::stop_flag;
 use crate::call::janus::JanusLink;
 use crate::codec::any::{Codec, EncoderSettings};
 use crate::net::janus::JanusError;
+use crate::net::janus::candidates::{IceServers, TurnServer};
 use crate::net::janus::messages::JanusAuth;
 use crate::net::janus::room::{Member, Notice, RoomConfig, server_addr};
 use crate::net::jitter::JitterConfig;
@@ -27,8 +28,8 @@ pub struct JanusArgs {
     pub name: Option<String>,
     /// The room's pin.
     pub pin: Option<String>,
-    /// A STUN server (HOST:PORT) that tells us our address outside a NAT.
-    pub stun: Option<String>,
+    /// STUN and TURN servers for the media's ICE.
+    pub ice: IceServers,
 }
 
 impl JanusArgs {
@@ -44,7 +45,7 @@ impl JanusArgs {
             pin: self.pin.clone(),
             subscribe,
             jitter: JitterConfig::default(),
-            stun: self.stun.clone(),
+            ice: self.ice.clone(),
         }
     }
 }
@@ -144,6 +145,18 @@ pub struct JanusServerArgs {
     /// beside the local ones (behind a NAT; see docs/janus.md).
     #[arg(long, value_name = "HOST:PORT", requires = "janus")]
     pub stun: Option<String>,
+    /// A TURN server, HOST:PORT, whose relay WebRTC offers too (symmetric NATs, UDP let out
+    /// only to the relay); with --turn-user and --turn-password.
+    #[arg(long, value_name = "HOST:PORT", requires_all = ["janus", "turn_user", "turn_password"])]
+    pub turn: Option<String>,
+    #[arg(long, value_name = "USER", requires = "turn")]
+    pub turn_user: Option<String>,
+    #[arg(long, value_name = "PASSWORD", requires = "turn")]
+    pub turn_password: Option<String>,
+    /// Send and receive through the TURN relay only: Janus never learns this machine's own
+    /// addresses.
+    #[arg(long, requires = "turn")]
+    pub turn_only: bool,
 }
 
 impl JanusServerArgs {
@@ -164,7 +177,15 @@ impl JanusServerArgs {
             room: room.cloned().unwrap_or_default(),
             name: name.cloned(),
             pin: pin.cloned(),
-            stun: self.stun.clone(),
+            ice: IceServers {
+                stun: self.stun.clone(),
+                turn: self.turn.as_ref().map(|server| TurnServer {
+                    server: server.clone(),
+                    username: self.turn_user.clone().unwrap_or_default(),
+                    password: self.turn_password.clone().unwrap_or_default(),
+                }),
+                relay_only: self.turn_only,
+            },
         }
     }
 }

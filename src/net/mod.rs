@@ -23,6 +23,7 @@ pub mod session;
 pub mod sip;
 pub mod srtp;
 pub mod stun;
+pub mod turn;
 
 /// Largest datagram we read or forward.
 pub const MAX_DATAGRAM: usize = 1500;

@@ -1,14 +1,72 @@
-//! The addresses we offer Janus's ICE: our host addresses, and the one a STUN server sees
-//! from outside a NAT (a server-reflexive candidate).
+//! The addresses we offer Janus's ICE: our host addresses, the one a STUN server sees from
+//! outside a NAT (a server-reflexive candidate), and a TURN server's relay (a relayed one).
 
-use std::net::{IpAddr, SocketAddr, UdpSocket};
-use std::time::Duration;
+use std::net::{IpAddr, SocketAddr, ToSocketAddrs, UdpSocket};
+use std::time::{Duration, Instant};
 
 use super::JanusError;
 use crate::net::stun;
+use crate::net::turn::{TurnClient, TurnConfig};
 
 /// How long a join waits for the STUN server before offering local addresses only.
 const STUN_WAIT: Duration = Duration::from_millis(1500);
+
+/// The servers that take a call across NATs, as the user gives them.
+#[derive(Debug, Clone, Default, PartialEq, Eq)]
+pub struct IceServers {
+    /// A STUN server, HOST:PORT.
+    pub stun: Option<String>,
+    pub turn: Option<TurnServer>,
+    /// Offer the TURN relay's address only: all media goes through the relay, and the peer
+    /// never learns our own addresses.
+    pub relay_only: bool,
+}
+
+/// A TURN server and the long-term credentials it gave us.
+#[derive(Clone, PartialEq, Eq)]
+pub struct TurnServer {
+    /// HOST:PORT, or `turn:HOST:PORT`.
+    pub server: String,
+    pub username: String,
+    pub password: String,
+}
+
+impl std::fmt::Debug for TurnServer {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.debug_struct("TurnServer")
+            .field("server", &self.server)
+            .field("username", &self.username)
+            .finish_non_exhaustive()
+    }
+}
+
+/// A TURN client for `turn`, asked from our media `port`, and the local address it asks from
+/// (the base of its relayed candidate).
+pub fn turn_client(
+    turn: &TurnServer,
+    port: u16,
+    family: SocketAddr,
+    now: Instant,
+) -> Result<(TurnClient, SocketAddr), JanusError> {
+    let name = turn.server.trim();
+    let name = name.strip_prefix("turn:").unwrap_or(name);
+    let server = name
+        .to_socket_addrs()
+        .ok()
+        .and_then(|mut a| a.find(|a| a.is_ipv4() == family.is_ipv4()))
+        .ok_or_else(|| {
+            JanusError::Media(format!(
+                "TURN server {name:?}: give it as HOST:PORT of this machine's address family"
+            ))
+        })?;
+    let base = SocketAddr::new(local_ip_towards(server.ip())?, port);
+    let config = TurnConfig {
+        server,
+        username: turn.username.clone(),
+        password: turn.password.clone(),
+    };
+    Ok((TurnClient::new(config, now), base))
+}
 
 /// The addresses we offer as host candidates for a Janus at `janus`: the one the kernel would
 /// reach it from and, when that is loopback, the one towards the rest of the network. Janus

@@ -21,89 +21,26 @@ use str0m::net::{Protocol, Receive};
 use str0m::{Candidate, Event, IceConnectionState, Input, Output, Rtc};
 
 use super::JanusError;
-use super::candidates;
+use super::candidates::{self, IceServers};
+use super::feeds::{Feed, FeedInfo, MediaStats};
 use crate::codec::any::PayloadMap;
 use crate::net::jitter::JitterConfig;
-use crate::net::peer::{PeerReceiver, ReceiverStats};
+use crate::net::peer::PeerReceiver;
 use crate::net::rtp::{Rtp, RtpHeader};
 use crate::net::session::driver::{Driver, SansIo};
-use crate::net::session::{PeerFrame, PeerInfo, Transmit, TransmitKind};
+use crate::net::session::{PeerFrame, Transmit, TransmitKind};
+use crate::net::turn::TurnClient;
 
 /// How long the socket thread waits at most for a datagram: a connection's timeout that an
 /// owner's call brought forward is seen within it.
 const POLL: Duration = Duration::from_millis(2);
 /// With no connection, when the core next wants to be woken.
 const IDLE: Duration = Duration::from_secs(1);
+/// How long a join waits for a TURN allocation.
+const TURN_WAIT: Duration = Duration::from_secs(4);
 /// Publishers that left and played out, kept (without their decoders) for the summary; the
 /// oldest go first, so that a room of churning publishers holds no more than this.
 const DEPARTED_KEPT: usize = 64;
-
-/// What the owner knows of one subscribed publisher.
-#[derive(Debug, Clone, PartialEq)]
-pub struct FeedInfo {
-    pub feed: String,
-    pub name: String,
-    /// The SSRC its packets arrive with (Janus's, for this subscription).
-    pub ssrc: Option<u32>,
-    pub connected: bool,
-    /// It left the room (or stopped publishing).
-    pub left: bool,
-    pub receiver: ReceiverStats,
-}
-
-impl FeedInfo {
-    /// The feed as a peer of the call, as a lipcall session describes its peers (its media
-    /// comes from the Janus `server`); `None` before its first packet.
-    pub fn peer_info(&self, server: SocketAddr) -> Option<PeerInfo> {
-        Some(PeerInfo {
-            ssrc: self.ssrc?,
-            addr: server,
-            cname: None,
-            name: Some(self.name.clone()),
-            receiver: self.receiver,
-            rtt_ms: None,
-            their_loss: None,
-            said_bye: self.left,
-            ended: self.left,
-        })
-    }
-}
-
-#[derive(Debug, Clone, Copy, Default, PartialEq, Eq)]
-pub struct MediaStats {
-    pub datagrams: u64,
-    /// Datagrams no connection accepted.
-    pub unmatched: u64,
-    pub sent: u64,
-    /// Datagrams the socket refused, and Opus packets str0m refused.
-    pub send_errors: u64,
-    /// Opus packets handed to str0m for sending.
-    pub published: u64,
-    pub publisher_connected: bool,
-    /// A connection failed (ICE or DTLS): its reason.
-    pub failed: Option<&'static str>,
-}
-
-struct Feed {
-    name: String,
-    receiver: PeerReceiver,
-    ssrc: Option<u32>,
-    connected: bool,
-    left: bool,
-}
-
-impl Feed {
-    fn info(&self, feed: String) -> FeedInfo {
-        FeedInfo {
-            feed,
-            name: self.name.clone(),
-            ssrc: self.ssrc,
-            connected: self.connected,
-            left: self.left,
-            receiver: self.receiver.stats(),
-        }
-    }
-}
 
 /// The media side of a room: shared by the room's signalling and the receive tick, its thread
 /// stops when the last owner drops it.
@@ -129,7 +66,7 @@ impl Media {
     pub fn start(
         ips: &[IpAddr],
         jitter: JitterConfig,
-        stun: Option<&str>,
+        ice: &IceServers,
     ) -> Result<Self, JanusError> {
         let any: IpAddr = match ips.first() {
             Some(IpAddr::V6(_)) => std::net::Ipv6Addr::UNSPECIFIED.into(),
@@ -143,15 +80,60 @@ impl Media {
             .port();
         let local: Vec<SocketAddr> = ips.iter().map(|&ip| SocketAddr::new(ip, port)).collect();
         let mut core = MediaCore::new(local, jitter, Instant::now());
-        if let Some(server) = stun {
+        core.relay_only = ice.relay_only;
+        if let Some(server) = &ice.stun {
             core.reflexive = candidates::reflexive(&socket, server, port, &core.local);
+        }
+        if let (Some(turn), Some(&family)) = (&ice.turn, core.local.first()) {
+            core.turn = Some(candidates::turn_client(turn, port, family, Instant::now())?);
         }
         let driver = Driver::start(socket, core, "lipcall-webrtc", POLL)
             .map_err(|e| JanusError::Media(format!("cannot start the media thread: {e}")))?;
-        Ok(Self {
+        let media = Self {
             driver,
             closed: AtomicBool::new(false),
-        })
+        };
+        if ice.turn.is_some() {
+            media.await_relay(ice.relay_only)?;
+        }
+        Ok(media)
+    }
+
+    /// Waits for the TURN allocation, so that the first offer carries the relay; without one
+    /// the call goes on with our own addresses, unless it was to be relayed only.
+    fn await_relay(&self, relay_only: bool) -> Result<(), JanusError> {
+        let deadline = Instant::now() + TURN_WAIT;
+        loop {
+            let state = self.driver.access(|core| {
+                core.turn
+                    .as_ref()
+                    .map(|(t, _)| (t.server(), t.relayed(), t.failed().cloned()))
+            });
+            let Some((server, relayed, failed)) = state else {
+                return Ok(());
+            };
+            let failed = match (relayed, failed) {
+                (Some(relayed), _) => {
+                    tracing::info!("TURN server {server}: relaying through {relayed}");
+                    return Ok(());
+                }
+                (None, Some(e)) => e.to_string(),
+                (None, None) if Instant::now() >= deadline => {
+                    format!("TURN server {server} gave no relay within {TURN_WAIT:?}")
+                }
+                (None, None) => {
+                    std::thread::sleep(Duration::from_millis(10));
+                    continue;
+                }
+            };
+            if relay_only {
+                return Err(JanusError::Media(format!(
+                    "{failed}: the call was to be relayed only"
+                )));
+            }
+            tracing::warn!("{failed}: offering our own addresses only");
+            return Ok(());
+        }
     }
 
     /// Runs `f` on the core while the media runs.
@@ -259,6 +241,10 @@ struct MediaCore {
     local: Vec<SocketAddr>,
     /// Our address outside a NAT (from STUN) and the local address it maps.
     reflexive: Option<(SocketAddr, SocketAddr)>,
+    /// A TURN allocation, and the local address it is asked from.
+    turn: Option<(TurnClient, SocketAddr)>,
+    /// Offer the relay only.
+    relay_only: bool,
     epoch: Instant,
     jitter: JitterConfig,
     /// The latest time the core was given.
@@ -282,11 +268,16 @@ impl SansIo for MediaCore {
 
     fn poll_timeout(&self) -> Instant {
         let idle = self.now + IDLE;
-        self.conns.iter().map(|c| c.timeout).min().unwrap_or(idle)
+        let turn = self.turn.as_ref().and_then(|(t, _)| t.poll_timeout());
+        let conns = self.conns.iter().map(|c| c.timeout);
+        conns.chain(turn).min().unwrap_or(idle)
     }
 
     fn handle_timeout(&mut self, now: Instant) {
         self.now = now;
+        if let Some((turn, _)) = &mut self.turn {
+            turn.handle_timeout(now);
+        }
         for i in 0..self.conns.len() {
             if self.conns[i].timeout <= now {
                 let result = self.conns[i].rtc.handle_input(Input::Timeout(now));
@@ -297,6 +288,15 @@ impl SansIo for MediaCore {
     }
 
     fn poll_transmit(&mut self) -> Option<Transmit> {
+        if let Some((turn, _)) = &mut self.turn
+            && let Some(data) = turn.poll_transmit()
+        {
+            return Some(Transmit {
+                to: turn.server(),
+                data,
+                kind: TransmitKind::WebRtc,
+            });
+        }
         self.outbox.pop_front()
     }
 
@@ -314,6 +314,8 @@ impl MediaCore {
         Self {
             local,
             reflexive: None,
+            turn: None,
+            relay_only: false,
             epoch: now,
             jitter,
             now,
@@ -331,6 +333,18 @@ impl MediaCore {
             .enable_opus(true, false)
             .set_rtp_mode(rtp_mode)
             .build(now);
+        let relayed = self.relayed();
+        if let Some((relayed, base)) = relayed {
+            let candidate = Candidate::relayed(relayed, base, "udp")
+                .map_err(|e| JanusError::Media(format!("relayed candidate {relayed}: {e}")))?;
+            rtc.add_local_candidate(candidate);
+        }
+        if self.relay_only {
+            return match relayed {
+                Some(_) => Ok(rtc),
+                None => Err(JanusError::Media("no TURN relay to offer".into())),
+            };
+        }
         for &addr in &self.local {
             let candidate = Candidate::host(addr, "udp")
                 .map_err(|e| JanusError::Media(format!("host candidate {addr}: {e}")))?;
@@ -345,12 +359,23 @@ impl MediaCore {
         Ok(rtc)
     }
 
+    /// The relay's address and our local address it is asked from, once allocated.
+    fn relayed(&self) -> Option<(SocketAddr, SocketAddr)> {
+        let (turn, base) = self.turn.as_ref()?;
+        turn.relayed().map(|r| (r, *base))
+    }
+
     fn datagram(&mut self, data: &[u8], source: SocketAddr, now: Instant) {
         self.stats.datagrams += 1;
-        let Ok(contents) = data.try_into() else {
-            self.stats.unmatched += 1;
+        if let Some((turn, _)) = self.turn.as_mut().filter(|(t, _)| t.server() == source) {
+            // TURN's own answers stay with the client; what a peer sent through the relay
+            // came, as far as ICE knows, to the relayed address.
+            let relayed = turn.handle(data, now).zip(turn.relayed());
+            if let Some(((peer, data), relayed)) = relayed {
+                self.deliver(&data, peer, relayed, now);
+            }
             return;
-        };
+        }
         // The socket listens on every address; which one a datagram came to is taken to be
         // the one on the same side of loopback as its source.
         let destination = self
@@ -360,6 +385,15 @@ impl MediaCore {
             .or(self.local.first())
             .copied()
             .unwrap_or(source);
+        self.deliver(data, source, destination, now);
+    }
+
+    /// Hands a datagram to the connection that takes it.
+    fn deliver(&mut self, data: &[u8], source: SocketAddr, destination: SocketAddr, now: Instant) {
+        let Ok(contents) = data.try_into() else {
+            self.stats.unmatched += 1;
+            return;
+        };
         let input = Input::Receive(
             now,
             Receive {
@@ -400,11 +434,16 @@ impl MediaCore {
                     }
                     return;
                 }
-                Output::Transmit(t) => self.outbox.push_back(Transmit {
-                    to: t.destination,
-                    data: t.contents.to_vec(),
-                    kind: TransmitKind::WebRtc,
-                }),
+                Output::Transmit(t) => match &mut self.turn {
+                    Some((turn, _)) if turn.relayed() == Some(t.source) => {
+                        turn.send_to(t.destination, &t.contents, self.now);
+                    }
+                    _ => self.outbox.push_back(Transmit {
+                        to: t.destination,
+                        data: t.contents.to_vec(),
+                        kind: TransmitKind::WebRtc,
+                    }),
+                },
                 Output::Event(e) => self.event(i, e),
             }
         }
@@ -490,6 +529,9 @@ impl MediaCore {
             self.after(i, result);
         }
         self.conns.clear();
+        if let Some((turn, _)) = &mut self.turn {
+            turn.close(self.now);
+        }
     }
 
     fn offer(&mut self, now: Instant) -> Result<String, JanusError> {
@@ -672,5 +714,33 @@ mod tests {
         let offer = core.offer(now).unwrap();
         assert!(offer.contains("198.51.100.7 61000 typ srflx"), "{offer}");
         assert!(offer.contains("10.0.0.5 40000 typ host"), "{offer}");
+    }
+
+    #[test]
+    fn a_relay_only_offer_carries_the_relay_alone() {
+        use crate::net::turn::TurnConfig;
+        let local: SocketAddr = "10.0.0.5:40000".parse().unwrap();
+        let now = Instant::now();
+        let mut core = MediaCore::new(vec![local], JitterConfig::default(), now);
+        core.relay_only = true;
+        let config = TurnConfig {
+            server: "192.0.2.10:3478".parse().unwrap(),
+            username: "ann".into(),
+            password: "secret".into(),
+        };
+        core.turn = Some((TurnClient::new(config, now), local));
+        // Until the relay is allocated there is nothing to offer.
+        assert!(core.offer(now).is_err());
+        let relayed: SocketAddr = "192.0.2.10:50000".parse().unwrap();
+        let turn = &mut core.turn.as_mut().unwrap().0;
+        let request = turn.poll_transmit().unwrap();
+        turn.handle(&crate::net::turn::tests::allocated(&request, relayed), now);
+        let offer = core.offer(now).unwrap();
+        let candidates: Vec<&str> = offer.lines().filter(|l| l.contains("candidate")).collect();
+        assert_eq!(candidates.len(), 1, "{offer}");
+        assert!(
+            candidates[0].contains("192.0.2.10 50000 typ relay"),
+            "{offer}"
+        );
     }
 }

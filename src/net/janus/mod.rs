@@ -12,6 +12,7 @@
 
 pub mod candidates;
 mod events;
+pub mod feeds;
 pub mod http;
 pub mod media;
 pub mod messages;

@@ -17,9 +17,10 @@ use std::time::{Duration, Instant};
 use serde_json::Value;
 
 use super::JanusError;
-use super::candidates::host_ips;
+use super::candidates::{IceServers, host_ips};
+use super::feeds::{FeedInfo, MediaStats};
 use super::http::Client;
-use super::media::{FeedInfo, Media, MediaStats};
+use super::media::Media;
 use super::messages::{
     self, INVALID_ELEMENT, IdKind, JanusAuth, NO_SUCH_ROOM, ROOM_EXISTS, VIDEOROOM,
 };
@@ -41,9 +42,8 @@ pub struct RoomConfig {
     /// Subscribe to the other publishers (a receiver does; a send-only member need not).
     pub subscribe: bool,
     pub jitter: JitterConfig,
-    /// A STUN server (HOST:PORT) asked for our address outside a NAT, offered to Janus as a
-    /// server-reflexive candidate.
-    pub stun: Option<String>,
+    /// STUN and TURN servers for the media's ICE.
+    pub ice: IceServers,
 }
 
 /// Something that happened in the room, for the user.
@@ -117,7 +117,7 @@ impl Room {
         let media = Arc::new(Media::start(
             &host_ips(janus_ip)?,
             config.jitter,
-            config.stun.as_deref(),
+            &config.ice,
         )?);
         let mut room = Self {
             client,

@@ -1,0 +1,522 @@
+//! A TURN client (RFC 8656) over UDP, sans-I/O: an allocation on a TURN server relays our
+//! media when no direct path exists (a symmetric NAT, a network that lets UDP out only to the
+//! relay). Datagrams from the server and the time go in; datagrams for the server, the relayed
+//! address and what peers sent through the relay come out. Messages are built and checked with
+//! `ezk-stun-types`; long-term credentials (MD5 key, realm and nonce from the 401), refreshes,
+//! permissions and retransmissions are ours.
+
+use std::collections::{HashMap, VecDeque};
+use std::net::{IpAddr, SocketAddr};
+use std::time::{Duration, Instant};
+
+use ezk_stun_types::attributes::turn::{
+    Data, Lifetime, RequestedTransport, XorPeerAddress, XorRelayedAddress,
+};
+use ezk_stun_types::attributes::{
+    ErrorCode, MessageIntegrity, MessageIntegrityKey, Nonce, Realm, Username,
+    long_term_password_md5,
+};
+use ezk_stun_types::{Class, Message, MessageBuilder, Method, TransactionId};
+
+/// RFC 8489's first retransmission timeout, doubled on each retry.
+const FIRST_RTO: Duration = Duration::from_millis(250);
+/// A request unanswered this long has failed.
+const REQUEST_TIMEOUT: Duration = Duration::from_secs(8);
+/// Permissions last 300 s (RFC 8656 9); renewed this long before.
+const PERMISSION_LIFETIME: Duration = Duration::from_secs(300);
+const RENEW_BEFORE: Duration = Duration::from_secs(60);
+/// IANA's protocol number for UDP, the transport we ask the relay for.
+const UDP: u8 = 17;
+
+#[derive(Debug, Clone, PartialEq, Eq)]
+pub struct TurnConfig {
+    pub server: SocketAddr,
+    pub username: String,
+    pub password: String,
+}
+
+#[derive(Debug, Clone, PartialEq, Eq, thiserror::Error)]
+pub enum TurnError {
+    #[error("TURN server {server} refused the allocation: {code} {reason}")]
+    Refused {
+        server: SocketAddr,
+        code: u32,
+        reason: String,
+    },
+    #[error("TURN server {0} did not answer")]
+    NoAnswer(SocketAddr),
+    #[error("TURN server {0} asked for credentials twice: wrong user name or password")]
+    BadCredentials(SocketAddr),
+}
+
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+enum Request {
+    Allocate,
+    Refresh { lifetime: u32 },
+    Permission(IpAddr),
+}
+
+#[derive(Debug)]
+struct Pending {
+    id: TransactionId,
+    request: Request,
+    bytes: Vec<u8>,
+    next: Instant,
+    rto: Duration,
+    deadline: Instant,
+    /// Sent again with fresh credentials once already (a second 401 means they are wrong).
+    authenticated_again: bool,
+}
+
+/// The realm, nonce and key the server's challenge gave.
+#[derive(Debug, Clone)]
+struct Credentials {
+    realm: String,
+    nonce: Vec<u8>,
+    key: Vec<u8>,
+}
+
+/// One allocation on one TURN server.
+#[derive(Debug)]
+pub struct TurnClient {
+    config: TurnConfig,
+    credentials: Option<Credentials>,
+    relayed: Option<SocketAddr>,
+    /// When the allocation runs out.
+    expires: Option<Instant>,
+    failed: Option<TurnError>,
+    /// Peers the relay lets through, and when each permission runs out.
+    permissions: HashMap<IpAddr, Instant>,
+    pending: Vec<Pending>,
+    outbox: VecDeque<Vec<u8>>,
+}
+
+impl TurnClient {
+    /// Starts asking `config.server` for an allocation.
+    pub fn new(config: TurnConfig, now: Instant) -> Self {
+        let mut client = Self {
+            config,
+            credentials: None,
+            relayed: None,
+            expires: None,
+            failed: None,
+            permissions: HashMap::new(),
+            pending: Vec::new(),
+            outbox: VecDeque::new(),
+        };
+        client.request(Request::Allocate, now, false);
+        client
+    }
+
+    pub fn server(&self) -> SocketAddr {
+        self.config.server
+    }
+
+    /// The address the server relays for us, once allocated.
+    pub fn relayed(&self) -> Option<SocketAddr> {
+        self.relayed.filter(|_| self.failed.is_none())
+    }
+
+    /// Why there is no allocation, once that is known.
+    pub fn failed(&self) -> Option<&TurnError> {
+        self.failed.as_ref()
+    }
+
+    /// A datagram from the server: a response (consumed), or what a peer sent us through the
+    /// relay (returned with the peer's address).
+    pub fn handle(&mut self, datagram: &[u8], now: Instant) -> Option<(SocketAddr, Vec<u8>)> {
+        let mut message = Message::parse(datagram.to_vec()).ok()?;
+        match (message.class(), message.method()) {
+            (Class::Indication, Method::Data) => {
+                let peer = message.attribute::<XorPeerAddress>()?.ok()?.0;
+                let data = message.attribute::<Data>()?.ok()?.0.to_vec();
+                self.permissions
+                    .contains_key(&peer.ip())
+                    .then_some((peer, data))
+            }
+            (Class::Success | Class::Error, _) => {
+                let at = self
+                    .pending
+                    .iter()
+                    .position(|p| p.id == message.transaction_id())?;
+                if !self.authentic(&mut message) {
+                    return None;
+                }
+                let pending = self.pending.swap_remove(at);
+                if message.class() == Class::Success {
+                    self.succeeded(pending.request, &mut message, now);
+                } else {
+                    self.refused(pending, &mut message, now);
+                }
+                None
+            }
+            _ => None,
+        }
+    }
+
+    /// Whether a response carries our key's integrity (when we have a key and it has one).
+    fn authentic(&self, message: &mut Message) -> bool {
+        let Some(credentials) = &self.credentials else {
+            return true;
+        };
+        let key = MessageIntegrityKey::new(&credentials.key);
+        !matches!(
+            message.attribute_with::<MessageIntegrity>(key),
+            Some(Err(_))
+        )
+    }
+
+    fn succeeded(&mut self, request: Request, message: &mut Message, now: Instant) {
+        let lifetime = message
+            .attribute::<Lifetime>()
+            .and_then(Result::ok)
+            .map(|l| Duration::from_secs(u64::from(l.0)));
+        match request {
+            Request::Allocate => {
+                let relayed = message
+                    .attribute::<XorRelayedAddress>()
+                    .and_then(Result::ok);
+                match relayed {
+                    Some(a) => {
+                        self.relayed = Some(a.0);
+                        self.expires = Some(now + lifetime.unwrap_or(Duration::from_secs(600)));
+                    }
+                    None => {
+                        self.failed = Some(TurnError::Refused {
+                            server: self.config.server,
+                            code: 0,
+                            reason: "no relayed address in its answer".into(),
+                        })
+                    }
+                }
+            }
+            Request::Refresh { .. } => {
+                self.expires = lifetime.map(|l| now + l).or(self.expires);
+            }
+            Request::Permission(ip) => {
+                self.permissions.insert(ip, now + PERMISSION_LIFETIME);
+            }
+        }
+    }
+
+    fn refused(&mut self, pending: Pending, message: &mut Message, now: Instant) {
+        let (code, reason) = match message.attribute::<ErrorCode>() {
+            Some(Ok(e)) => (e.number, e.reason.to_string()),
+            _ => (0, String::new()),
+        };
+        // 401: the challenge (realm and nonce); 438: our nonce went stale. Either way ask
+        // again with what the server gave, once.
+        if matches!(code, 401 | 438) && !pending.authenticated_again {
+            let realm = message
+                .attribute::<Realm>()
+                .and_then(Result::ok)
+                .map(|r| r.0.to_string())
+                .or_else(|| self.credentials.as_ref().map(|c| c.realm.clone()));
+            let nonce = message
+                .attribute::<Nonce>()
+                .and_then(Result::ok)
+                .map(|n| n.0.to_vec());
+            if let (Some(realm), Some(nonce)) = (realm, nonce) {
+                let key =
+                    long_term_password_md5(&self.config.username, &realm, &self.config.password);
+                self.credentials = Some(Credentials { realm, nonce, key });
+                self.request(pending.request, now, true);
+                return;
+            }
+        }
+        match pending.request {
+            Request::Allocate if matches!(code, 401 | 438) => {
+                self.failed = Some(TurnError::BadCredentials(self.config.server));
+            }
+            Request::Allocate => {
+                self.failed = Some(TurnError::Refused {
+                    server: self.config.server,
+                    code,
+                    reason,
+                })
+            }
+            Request::Refresh { .. } | Request::Permission(_) => {
+                tracing::warn!(
+                    "TURN server {} refused a {:?}: {code} {reason}",
+                    self.config.server,
+                    pending.request
+                );
+            }
+        }
+    }
+
+    /// Sends `data` to `peer` through the relay (asking the relay to let the peer through
+    /// first, if it does not yet). False when there is no allocation to send from.
+    pub fn send_to(&mut self, peer: SocketAddr, data: &[u8], now: Instant) -> bool {
+        if self.relayed().is_none() {
+            return false;
+        }
+        self.permit(peer.ip(), now);
+        let mut builder =
+            MessageBuilder::new(Class::Indication, Method::Send, TransactionId::random());
+        builder.add_attr(XorPeerAddress(peer));
+        builder.add_attr(Data::new(data));
+        self.outbox.push_back(builder.finish());
+        true
+    }
+
+    /// Asks for (or renews) a permission for `ip`, unless one is good or on its way.
+    fn permit(&mut self, ip: IpAddr, now: Instant) {
+        let good = self
+            .permissions
+            .get(&ip)
+            .is_some_and(|&until| until > now + RENEW_BEFORE);
+        let asked = self
+            .pending
+            .iter()
+            .any(|p| p.request == Request::Permission(ip));
+        if !good && !asked {
+            self.request(Request::Permission(ip), now, false);
+        }
+    }
+
+    /// Gives the allocation back (a Refresh with lifetime 0); nothing more is relayed.
+    pub fn close(&mut self, now: Instant) {
+        if self.relayed.take().is_some() {
+            self.request(Request::Refresh { lifetime: 0 }, now, false);
+            // Sent once, not waited for.
+            self.pending.clear();
+        }
+        self.permissions.clear();
+    }
+
+    pub fn poll_transmit(&mut self) -> Option<Vec<u8>> {
+        self.outbox.pop_front()
+    }
+
+    /// When [`Self::handle_timeout`] has something to do.
+    pub fn poll_timeout(&self) -> Option<Instant> {
+        let retries = self.pending.iter().map(|p| p.next.min(p.deadline));
+        let renew = self.expires.map(|e| e - RENEW_BEFORE);
+        let permissions = self.permissions.values().map(|&until| until - RENEW_BEFORE);
+        retries.chain(renew).chain(permissions).min()
+    }
+
+    pub fn handle_timeout(&mut self, now: Instant) {
+        let mut gave_up = Vec::new();
+        for p in &mut self.pending {
+            if p.deadline <= now {
+                gave_up.push(p.request);
+            } else if p.next <= now {
+                self.outbox.push_back(p.bytes.clone());
+                p.rto *= 2;
+                p.next = now + p.rto;
+            }
+        }
+        self.pending.retain(|p| p.deadline > now);
+        if gave_up.contains(&Request::Allocate) {
+            self.failed = Some(TurnError::NoAnswer(self.config.server));
+        }
+        if self.relayed().is_none() {
+            return;
+        }
+        let refreshing = self
+            .pending
+            .iter()
+            .any(|p| matches!(p.request, Request::Refresh { .. }));
+        if self.expires.is_some_and(|e| e - RENEW_BEFORE <= now) && !refreshing {
+            self.request(Request::Refresh { lifetime: 600 }, now, false);
+        }
+        // Permissions still in use are renewed by the next send; others lapse.
+        self.permissions.retain(|_, until| *until > now);
+    }
+
+    /// Sends `request` (with our credentials, once the server has challenged us).
+    fn request(&mut self, request: Request, now: Instant, again: bool) {
+        let id = TransactionId::random();
+        let method = match request {
+            Request::Allocate => Method::Allocate,
+            Request::Refresh { .. } => Method::Refresh,
+            Request::Permission(_) => Method::CreatePermission,
+        };
+        let mut builder = MessageBuilder::new(Class::Request, method, id);
+        match request {
+            Request::Allocate => builder.add_attr(RequestedTransport {
+                protocol_number: UDP,
+            }),
+            Request::Refresh { lifetime } => builder.add_attr(Lifetime(lifetime)),
+            Request::Permission(ip) => builder.add_attr(XorPeerAddress(SocketAddr::new(ip, 0))),
+        }
+        if let Some(c) = &self.credentials {
+            builder.add_attr(Username::new(&self.config.username));
+            builder.add_attr(Realm::new(&c.realm));
+            builder.add_attr(Nonce::new(&c.nonce));
+            builder.add_attr_with(MessageIntegrity, MessageIntegrityKey::new(&c.key));
+        }
+        let bytes = builder.finish();
+        self.outbox.push_back(bytes.clone());
+        self.pending.push(Pending {
+            id,
+            request,
+            bytes,
+            next: now + FIRST_RTO,
+            rto: FIRST_RTO,
+            deadline: now + REQUEST_TIMEOUT,
+            authenticated_again: again,
+        });
+    }
+}
+
+#[cfg(test)]
+pub(crate) mod tests {
+    use super::*;
+    use proptest::prelude::*;
+
+    const SERVER: &str = "192.0.2.10:3478";
+
+    fn client(now: Instant) -> TurnClient {
+        TurnClient::new(
+            TurnConfig {
+                server: SERVER.parse().unwrap(),
+                username: "ann".into(),
+                password: "secret".into(),
+            },
+            now,
+        )
+    }
+
+    /// A server's answer to the request in `request`.
+    fn answer(
+        request: &[u8],
+        class: Class,
+        add: impl FnOnce(&mut MessageBuilder),
+    ) -> (Method, Vec<u8>) {
+        let parsed = Message::parse(request.to_vec()).unwrap();
+        let mut b = MessageBuilder::new(class, parsed.method(), parsed.transaction_id());
+        add(&mut b);
+        (parsed.method(), b.finish())
+    }
+
+    /// A server's unauthenticated success answer to an Allocate `request`.
+    pub(crate) fn allocated(request: &[u8], relayed: SocketAddr) -> Vec<u8> {
+        answer(request, Class::Success, |b| {
+            b.add_attr(XorRelayedAddress(relayed));
+            b.add_attr(Lifetime(600));
+        })
+        .1
+    }
+
+    #[test]
+    fn a_challenged_allocation_is_asked_again_with_the_key_and_relays() {
+        let now = Instant::now();
+        let mut c = client(now);
+        let first = c.poll_transmit().unwrap();
+        let (method, challenge) = answer(&first, Class::Error, |b| {
+            b.add_attr(ErrorCode {
+                number: 401,
+                reason: "Unauthorized",
+            });
+            b.add_attr(Realm::new("lipcall.test"));
+            b.add_attr(Nonce::new(b"n0nce"));
+        });
+        assert_eq!(method, Method::Allocate);
+        assert_eq!(c.handle(&challenge, now), None);
+        let second = c.poll_transmit().unwrap();
+        let mut parsed = Message::parse(second.clone()).unwrap();
+        assert_eq!(parsed.attribute::<Username>().unwrap().unwrap().0, "ann");
+        let key = long_term_password_md5("ann", "lipcall.test", "secret");
+        assert!(matches!(
+            parsed.attribute_with::<MessageIntegrity>(MessageIntegrityKey::new(&key)),
+            Some(Ok(_))
+        ));
+        let relayed: SocketAddr = "192.0.2.10:50000".parse().unwrap();
+        let (_, ok) = answer(&second, Class::Success, |b| {
+            b.add_attr(XorRelayedAddress(relayed));
+            b.add_attr(Lifetime(600));
+            b.add_attr_with(MessageIntegrity, MessageIntegrityKey::new(&key));
+        });
+        c.handle(&ok, now);
+        assert_eq!(c.relayed(), Some(relayed));
+
+        // Sending asks for a permission, then goes out as a Send indication.
+        let peer: SocketAddr = "198.51.100.3:4000".parse().unwrap();
+        assert!(c.send_to(peer, b"hello", now));
+        let permission = c.poll_transmit().unwrap();
+        let send = c.poll_transmit().unwrap();
+        let mut s = Message::parse(send).unwrap();
+        assert_eq!((s.class(), s.method()), (Class::Indication, Method::Send));
+        assert_eq!(s.attribute::<XorPeerAddress>().unwrap().unwrap().0, peer);
+        let (method, granted) = answer(&permission, Class::Success, |b| {
+            b.add_attr_with(MessageIntegrity, MessageIntegrityKey::new(&key));
+        });
+        assert_eq!(method, Method::CreatePermission);
+        c.handle(&granted, now);
+
+        // What the peer sends comes back out with its address.
+        let mut data =
+            MessageBuilder::new(Class::Indication, Method::Data, TransactionId::random());
+        data.add_attr(XorPeerAddress(peer));
+        data.add_attr(Data::new(b"hi back"));
+        assert_eq!(
+            c.handle(&data.finish(), now),
+            Some((peer, b"hi back".to_vec()))
+        );
+
+        // Refreshed before it runs out.
+        let later = now + Duration::from_secs(560);
+        assert!(c.poll_timeout().unwrap() <= later);
+        c.handle_timeout(later);
+        let refresh = std::iter::from_fn(|| c.poll_transmit())
+            .map(|m| Message::parse(m).unwrap())
+            .find(|m| m.method() == Method::Refresh);
+        assert!(refresh.is_some());
+    }
+
+    #[test]
+    fn a_second_challenge_means_wrong_credentials() {
+        let now = Instant::now();
+        let mut c = client(now);
+        for _ in 0..2 {
+            let request = c.poll_transmit().unwrap();
+            let (_, challenge) = answer(&request, Class::Error, |b| {
+                b.add_attr(ErrorCode {
+                    number: 401,
+                    reason: "Unauthorized",
+                });
+                b.add_attr(Realm::new("lipcall.test"));
+                b.add_attr(Nonce::new(b"n0nce"));
+            });
+            c.handle(&challenge, now);
+        }
+        assert_eq!(
+            c.failed(),
+            Some(&TurnError::BadCredentials(SERVER.parse().unwrap()))
+        );
+        assert_eq!(c.relayed(), None);
+        assert!(!c.send_to("198.51.100.3:4000".parse().unwrap(), b"x", now));
+    }
+
+    #[test]
+    fn a_silent_server_is_retried_then_given_up() {
+        let now = Instant::now();
+        let mut c = client(now);
+        let mut sent = 0;
+        let mut t = now;
+        while c.failed().is_none() && t < now + Duration::from_secs(20) {
+            while c.poll_transmit().is_some() {
+                sent += 1;
+            }
+            t = c.poll_timeout().unwrap().max(t);
+            c.handle_timeout(t);
+        }
+        assert_eq!(
+            c.failed(),
+            Some(&TurnError::NoAnswer(SERVER.parse().unwrap()))
+        );
+        assert!(sent >= 4, "{sent}");
+        assert!(t <= now + REQUEST_TIMEOUT + Duration::from_millis(1));
+    }
+
+    proptest! {
+        #[test]
+        fn any_datagram_is_handled_without_panic(data in proptest::collection::vec(any::<u8>(), 0..300)) {
+            let mut c = client(Instant::now());
+            let _ = c.handle(&data, Instant::now());
+        }
+    }
+}
