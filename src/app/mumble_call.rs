@@ -484,4 +484,19 @@ mod tests {
         ids.sort_unstable();
         assert_eq!(ids, [0, 4, 5, 6, 7]);
     }
+
+    proptest::proptest! {
+        #[test]
+        fn any_channel_states_list_each_channel_once(
+            links in proptest::collection::btree_map(0u32..12, proptest::option::of(0u32..14), 0..12),
+        ) {
+            let channels: Vec<Channel> =
+                links.iter().map(|(&id, &parent)| channel(id, parent, "c")).collect();
+            let rows = channel_tree(&channels, vec![member(1, 3, true)]);
+            let mut ids: Vec<u32> = rows.iter().map(|r| r.id).collect();
+            ids.sort_unstable();
+            let want: Vec<u32> = links.keys().copied().collect();
+            proptest::prop_assert_eq!(ids, want);
+        }
+    }
 }
