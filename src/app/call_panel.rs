@@ -1,11 +1,12 @@
-//! The call bar: call a peer, join a room on a relay or a Janus server, leave; the codec sent
-//! and whether the call is encrypted.
+//! The call bar: call a peer, join a room on a relay or a Janus server or a Mumble server's
+//! channel, leave; the codec sent and whether the call is encrypted.
 
 use eframe::egui;
 
 use super::engine::{self, CallSpec, Command, Engine};
 use super::settings::Settings;
 use crate::call::janus::is_janus_url;
+use crate::call::mumble::is_mumble_url;
 use crate::codec::any::Codec;
 use crate::codec::opus::codec::Bandwidth;
 use crate::net::janus::messages::JanusAuth;
@@ -42,16 +43,23 @@ pub(super) fn call_ui(
         ui.label("Address");
         ui.add(
             egui::TextEdit::singleline(&mut form.address)
-                .hint_text("host:port or Janus URL")
+                .hint_text("host:port, Janus URL or mumble://host/channel")
                 .desired_width(150.0),
         );
-        ui.label("Room");
-        ui.add(
-            egui::TextEdit::singleline(&mut form.room)
-                .hint_text("(direct call)")
-                .desired_width(90.0),
-        );
-        ui.label("Passphrase");
+        let mumble = is_mumble_url(&form.address);
+        if !mumble {
+            ui.label("Room");
+            ui.add(
+                egui::TextEdit::singleline(&mut form.room)
+                    .hint_text("(direct call)")
+                    .desired_width(90.0),
+            );
+        }
+        ui.label(if mumble {
+            "Server password"
+        } else {
+            "Passphrase"
+        });
         ui.add(
             egui::TextEdit::singleline(&mut form.passphrase)
                 .password(true)
@@ -77,7 +85,9 @@ pub(super) fn call_ui(
         if settings.codec == Codec::Opus {
             bandwidth_picker_ui(ui, &mut settings.bandwidth);
         }
-        let label = if form.room.trim().is_empty() {
+        let label = if mumble {
+            "Join server"
+        } else if form.room.trim().is_empty() {
             "Call"
         } else {
             "Join room"
@@ -99,6 +109,7 @@ pub(super) fn call_ui(
                     token: non_empty(&form.janus_token),
                 },
                 bandwidth: settings.bandwidth,
+                mumble_identity: None,
             }));
         }
         if ui
@@ -114,13 +125,11 @@ pub(super) fn call_ui(
                 ui.colored_label(egui::Color32::LIGHT_GREEN, "encrypted end to end (SRTP)")
             }
             engine::Encryption::HopByHop => ui
-                .colored_label(
-                    warn,
-                    "encrypted hop by hop: the Janus server can hear the call",
-                )
+                .colored_label(warn, "encrypted hop by hop: the server can hear the call")
                 .on_hover_text(
-                    "WebRTC encrypts each link (DTLS-SRTP). Janus decrypts every stream it \
-                     forwards; only lipcall's own rooms with a passphrase are end to end.",
+                    "Each link is encrypted (WebRTC's DTLS-SRTP to Janus; TLS and OCB2-AES128 \
+                     to Mumble), but the server decrypts every stream it forwards; only \
+                     lipcall's own rooms with a passphrase are end to end.",
                 ),
             engine::Encryption::None => ui.colored_label(warn, "NOT encrypted"),
         };

@@ -4,6 +4,7 @@
 //! sees it through [`Shared`] (one short lock per UI frame) and steers it with [`Command`]s.
 
 use std::net::{SocketAddr, ToSocketAddrs};
+use std::path::PathBuf;
 use std::sync::atomic::{AtomicBool, Ordering};
 use std::sync::mpsc::{Receiver, Sender, TryRecvError};
 use std::sync::{Arc, Mutex, MutexGuard};
@@ -16,6 +17,7 @@ use crate::audio::{
 };
 use crate::call::janus::{JanusLink, is_janus_url};
 use crate::call::link::{Link, LinkEvent};
+use crate::call::mumble::is_mumble_url;
 use crate::codec::any::{Codec, EncoderSettings, FrameEncoder, MAX_FRAME_PAYLOAD};
 use crate::codec::opus::codec::Bandwidth;
 use crate::net::janus::candidates::IceServers;
@@ -26,8 +28,10 @@ use crate::net::session::{PeerFrame, PeerInfo, Session, SessionConfig};
 use crate::net::srtp::MasterKey;
 use crate::vocab::MAX_FRAME_SAMPLES;
 
+pub use super::call_status::{CallStatus, Encryption};
 pub use super::counters::{DEMO_NAME, EngineCounters};
 use super::demo::Demo;
+use super::mumble_call::{MumbleCall, MumbleJoin, MumbleView, follow};
 use super::roster::Roster;
 use super::settings::DEFAULT_CODEC;
 use super::timing::{RelayWatch, Ticker};
@@ -45,6 +49,8 @@ pub enum Command {
     Leave,
     SetInput(DeviceChoice),
     SetOutput(DeviceChoice),
+    /// Move to this channel of the Mumble server we are on.
+    Channel(u32),
 }
 
 /// A call: a peer's (or relay's) address, with a room for a relay, and the codec we send in
@@ -60,6 +66,8 @@ pub struct CallSpec {
     pub janus_auth: JanusAuth,
     /// The band Opus codes (the microphone is read at 48 kHz for it).
     pub bandwidth: Bandwidth,
+    /// Our Mumble certificate and the servers we trust (the user's config folder if none).
+    pub mumble_identity: Option<PathBuf>,
 }
 
 impl Default for CallSpec {
@@ -72,6 +80,7 @@ impl Default for CallSpec {
             codec: DEFAULT_CODEC,
             janus_auth: JanusAuth::default(),
             bandwidth: Bandwidth::Fullband,
+            mumble_identity: None,
         }
     }
 }
@@ -89,33 +98,6 @@ pub struct EngineConfig {
     pub no_audio: bool,
 }
 
-/// Who can hear the call besides its members.
-#[derive(Debug, Clone, Copy, Default, PartialEq, Eq)]
-pub enum Encryption {
-    /// Plain RTP: anyone on the path.
-    #[default]
-    None,
-    /// lipcall's SRTP with the room passphrase: only those who know it (a relay cannot).
-    EndToEnd,
-    /// WebRTC's DTLS-SRTP through a Janus server: the server decrypts and can hear it.
-    HopByHop,
-}
-
-/// The call as the UI shows it.
-#[derive(Debug, Clone, Default)]
-pub struct CallStatus {
-    /// Human-readable state ("idle, listening on ..", "in call with ..").
-    pub state: String,
-    pub in_call: bool,
-    pub encryption: Encryption,
-    /// The codec we send in the call.
-    pub codec: Option<Codec>,
-    pub local_addr: Option<SocketAddr>,
-    pub error: Option<String>,
-    /// RTP packets of payload types no codec is mapped to, dropped (from anyone).
-    pub unknown_payload: u64,
-}
-
 /// State both threads touch; the engine holds the lock only briefly each tick.
 pub struct Shared {
     pub playback: Playback,
@@ -126,6 +108,8 @@ pub struct Shared {
     pub output_status: String,
     pub input_status: String,
     pub mic: Option<MicControls>,
+    /// The Mumble server we are on: its channels and users.
+    pub mumble: Option<MumbleView>,
 }
 
 pub struct Engine {
@@ -160,6 +144,7 @@ impl Engine {
             output_status,
             input_status: String::new(),
             mic: None,
+            mumble: None,
         }));
         let counters = Arc::new(EngineCounters::default());
         let stop = Arc::new(AtomicBool::new(false));
@@ -236,6 +221,7 @@ struct Worker {
     in_call: bool,
     /// A relay call's join, until the relay confirms it.
     relay: RelayWatch,
+    mumble: Option<MumbleCall>,
 }
 
 fn resolve(addr: &str) -> anyhow::Result<SocketAddr> {
@@ -271,6 +257,7 @@ impl Worker {
             mic: None,
             in_call: false,
             relay: RelayWatch::default(),
+            mumble: None,
             config,
             shared,
             counters,
@@ -340,6 +327,18 @@ impl Worker {
     fn call(&mut self, spec: &CallSpec) -> anyhow::Result<()> {
         if is_janus_url(&spec.address) {
             return self.join_janus(spec);
+        }
+        if is_mumble_url(&spec.address) {
+            let join = MumbleJoin {
+                name: self.call_name(spec),
+                password: spec.passphrase.as_deref(),
+                bandwidth: spec.bandwidth,
+                identity: spec.mumble_identity.as_deref(),
+            };
+            let (link, call, encoder) = MumbleCall::join(&spec.address, join)?;
+            self.switch_link(link, encoder);
+            self.mumble = Some(call);
+            return Ok(());
         }
         let to = resolve(&spec.address)?;
         let room = spec.room.clone().filter(|r| !r.trim().is_empty());
@@ -495,6 +494,7 @@ impl Worker {
         let result = match command {
             Command::Call(spec) => self.call(&spec),
             Command::Leave => self.leave(),
+            Command::Channel(id) => self.mumble.as_ref().map_or(Ok(()), |m| m.join_channel(id)),
             Command::SetInput(choice) => {
                 self.open_mic(&choice);
                 Ok(())
@@ -539,6 +539,13 @@ impl Worker {
             }
             self.send_mic();
             self.follow_room();
+            let over = {
+                let s = &mut *lock(&self.shared);
+                follow(&mut self.mumble, &mut s.call, &mut s.mumble, s.mic.as_ref())
+            };
+            if over && let Err(e) = self.leave() {
+                tracing::warn!("back to listening: {e:#}");
+            }
             if let Some(tick) = ticker.poll(Instant::now()) {
                 if let Some(demo) = &mut self.demo {
                     demo.tick();

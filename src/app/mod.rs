@@ -6,9 +6,12 @@
 
 mod audio_panel;
 mod call_panel;
+pub mod call_status;
+mod channel_panel;
 pub mod counters;
 mod demo;
 pub mod engine;
+pub mod mumble_call;
 pub mod peer;
 pub mod peer_panel;
 pub mod roster;
@@ -31,6 +34,7 @@ use crate::codec::any::Codec;
 use audio_panel::audio_ui;
 pub use call_panel::CallForm;
 use call_panel::call_ui;
+use channel_panel::channels_ui;
 use engine::{Command, Engine, EngineConfig};
 pub use peer_panel::{ShownPeer, peer_controls_ui, peer_list_ui, tiles_ui};
 use settings::Settings;
@@ -281,7 +285,7 @@ impl eframe::App for LipcallApp {
         let now = Instant::now();
 
         // One lock: the snapshot, each peer's choices, and its weights for the audio heard now.
-        let (mut peers, call, output_status, input_status, mic) = {
+        let (mut peers, call, output_status, input_status, mic, mumble) = {
             let mut guard = engine::lock(&self.engine.shared);
             let s = &mut *guard;
             if let Some(status) = s.playback.poll() {
@@ -319,6 +323,7 @@ impl eframe::App for LipcallApp {
                 s.output_status.clone(),
                 s.input_status.clone(),
                 s.mic.clone(),
+                s.mumble.clone(),
             )
         };
         let before: Vec<_> = peers.iter().map(|p| p.prefs.clone()).collect();
@@ -349,7 +354,12 @@ impl eframe::App for LipcallApp {
             .resizable(true)
             .default_size(240.0)
             .min_size(200.0)
-            .show(ui, |ui| peer_list_ui(ui, &peers));
+            .show(ui, |ui| {
+                if let Some(view) = &mumble {
+                    channels_ui(ui, view, &self.engine);
+                }
+                peer_list_ui(ui, &peers);
+            });
         let central = egui::Frame::central_panel(ui.style()).fill(egui::Color32::TRANSPARENT);
         egui::CentralPanel::default().frame(central).show(ui, |ui| {
             tiles_ui(ui, &mut peers, self.heads.as_mut());

@@ -8,7 +8,7 @@ use std::time::{Duration, Instant};
 use anyhow::{Context, Result, bail};
 
 use super::net::{ReceiveArgs, SendArgs, load_packets, print_peer, send_paced};
-use super::playout::{ReceiveOutputs, play, print_event};
+use super::playout::{JANUS, ReceiveOutputs, play, print_event};
 use super::recording::stop_flag;
 use crate::call::janus::JanusLink;
 use crate::codec::any::{Codec, EncoderSettings};
@@ -58,7 +58,7 @@ fn announce_security() {
 
 fn print_notices(notices: &[Notice]) {
     for n in notices {
-        print_event(&n.clone().into());
+        print_event(&n.clone().into(), JANUS);
     }
 }
 
@@ -239,6 +239,7 @@ pub fn receive_with(
     let mut link = JanusLink::joined(room, server, place);
     let played = play(
         &mut link,
+        JANUS,
         args.out.seconds,
         model.as_ref(),
         on_frame,

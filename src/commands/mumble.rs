@@ -10,7 +10,7 @@ use std::time::{Duration, Instant};
 use anyhow::{Context, Result, bail};
 
 use super::net::{load_packets, print_peer, send_paced};
-use super::playout::{ReceiveOutputs, play};
+use super::playout::{MUMBLE, ReceiveOutputs, play};
 use super::recording::{stop_flag, stopped};
 use crate::call::link::{Link, LinkEvent};
 use crate::call::mumble::MumbleLink;
@@ -214,9 +214,9 @@ pub fn send(input: &Path, args: &MumbleArgs) -> Result<()> {
     Ok(())
 }
 
-/// A Mumble link whose events are told in Mumble's words as the receive loop polls them. The
-/// loop's stop flag is ours: a signal (the process's flag) sets it, and so does the server
-/// removing us.
+/// A Mumble link whose notes (refusals, text messages, the UDP state) are told as the receive
+/// loop polls it. The loop's stop flag is ours: a signal (the process's flag) sets it, and so
+/// does the server removing us.
 struct Told<'a>(&'a mut MumbleLink, &'a AtomicBool, &'a AtomicBool);
 
 impl Link for Told<'_> {
@@ -245,37 +245,14 @@ impl Link for Told<'_> {
         if stopped(self.1) {
             self.2.store(true, Ordering::Relaxed);
         }
-        for event in self.0.poll() {
-            match event {
-                LinkEvent::PeerJoined { id, name } => {
-                    eprintln!("lipcall: {name:?} (session {id}) is in the channel")
-                }
-                LinkEvent::PeerLeft { id, name } => {
-                    eprintln!("lipcall: {name:?} (session {id}) left")
-                }
-                LinkEvent::PeerSkipped { id, name, reason } => {
-                    eprintln!("lipcall: {name:?} (session {id}) cannot be heard: {reason}")
-                }
-                LinkEvent::Lost { reason } => {
-                    eprintln!("lipcall: lost the Mumble server ({reason}); reconnecting")
-                }
-                LinkEvent::RejoinFailed { reason } => {
-                    eprintln!("lipcall: cannot reconnect yet ({reason}); trying every second")
-                }
-                LinkEvent::Rejoined { id } => {
-                    eprintln!("lipcall: back on the Mumble server as session {id}")
-                }
-                LinkEvent::Joined { place, id } => eprintln!("lipcall: in {place} as {id}"),
-                LinkEvent::Failed(reason) => {
-                    eprintln!("lipcall: {reason}; ending the receive");
-                    self.2.store(true, Ordering::Relaxed);
-                }
-            }
+        let events = self.0.poll();
+        if events.iter().any(|e| matches!(e, LinkEvent::Failed(_))) {
+            self.2.store(true, Ordering::Relaxed);
         }
         for note in self.0.take_notes() {
             eprintln!("lipcall: {note}");
         }
-        Vec::new()
+        events
     }
 }
 
@@ -303,6 +280,7 @@ pub fn receive(args: &MumbleReceiveArgs) -> Result<()> {
     let ended = AtomicBool::new(false);
     let played = play(
         &mut Told(&mut link, &stop, &ended),
+        MUMBLE,
         args.out.seconds,
         model.as_ref(),
         &mut |_, _, _| {},

@@ -6,7 +6,7 @@ use std::time::{Duration, Instant};
 
 use anyhow::{Context, Result, bail};
 
-use super::playout::{open_outputs, play};
+use super::playout::{DIRECT, open_outputs, play};
 use super::recording::{TICK, stop_flag};
 use crate::call::media::{MediaError, MediaFile, MediaKind, Packets};
 use crate::codec::any::{Codec, EncoderSettings, PayloadMap};
@@ -404,6 +404,7 @@ pub fn receive_with(
     }
     let played = play(
         &mut session,
+        DIRECT,
         args.seconds,
         model.as_ref(),
         on_frame,

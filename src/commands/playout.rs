@@ -127,25 +127,68 @@ pub(crate) fn open_outputs(
     Ok((model, recorder))
 }
 
-/// What a link said, on stderr (a Janus room's publishers and losses).
-pub(crate) fn print_event(event: &LinkEvent) {
+/// How a transport's messages name the call and its peers, so that each says its own.
+#[derive(Debug, Clone, Copy)]
+pub(crate) struct Wording {
+    /// The call as a place: "the Janus room".
+    pub(crate) place: &'static str,
+    /// Back in it: "back in the Janus room as".
+    pub(crate) back: &'static str,
+    /// What getting it back is: "rejoin" ("rejoining", "cannot rejoin yet").
+    pub(crate) retry: &'static str,
+    /// Before a peer's id: "session " (Mumble), nothing (a Janus feed).
+    pub(crate) peer: &'static str,
+    /// A peer arriving: "is publishing; subscribed".
+    pub(crate) arrives: &'static str,
+}
+
+pub(crate) const JANUS: Wording = Wording {
+    place: "the Janus room",
+    back: "back in the Janus room as",
+    retry: "rejoin",
+    peer: "",
+    arrives: "is publishing; subscribed",
+};
+
+pub(crate) const MUMBLE: Wording = Wording {
+    place: "the Mumble server",
+    back: "back on the Mumble server as session",
+    retry: "reconnect",
+    peer: "session ",
+    arrives: "is in the channel",
+};
+
+/// lipcall's own session (a direct call or a relay room) and a SIP call.
+pub(crate) const DIRECT: Wording = Wording {
+    place: "the call",
+    back: "back in the call as",
+    retry: "rejoin",
+    peer: "SSRC ",
+    arrives: "is sending",
+};
+
+/// What a link said (peers coming and going, losses), on stderr in its transport's words.
+pub(crate) fn print_event(event: &LinkEvent, words: Wording) {
+    let Wording {
+        place,
+        back,
+        retry,
+        peer,
+        arrives,
+    } = words;
     match event {
         LinkEvent::Joined { place, id } => eprintln!("lipcall: in {place} as {id}"),
         LinkEvent::Failed(reason) => eprintln!("lipcall: the call failed: {reason}"),
-        LinkEvent::PeerJoined { id, name } => {
-            eprintln!("lipcall: {name:?} ({id}) is publishing; subscribed")
-        }
-        LinkEvent::PeerLeft { id, name } => eprintln!("lipcall: {name:?} ({id}) left"),
+        LinkEvent::PeerJoined { id, name } => eprintln!("lipcall: {name:?} ({peer}{id}) {arrives}"),
+        LinkEvent::PeerLeft { id, name } => eprintln!("lipcall: {name:?} ({peer}{id}) left"),
         LinkEvent::PeerSkipped { id, name, reason } => {
-            eprintln!("lipcall: {name:?} ({id}) cannot be heard, skipped: {reason}")
+            eprintln!("lipcall: {name:?} ({peer}{id}) cannot be heard, skipped: {reason}")
         }
-        LinkEvent::Lost { reason } => {
-            eprintln!("lipcall: lost the Janus room ({reason}); rejoining")
-        }
+        LinkEvent::Lost { reason } => eprintln!("lipcall: lost {place} ({reason}); {retry}ing"),
         LinkEvent::RejoinFailed { reason } => {
-            eprintln!("lipcall: cannot rejoin yet ({reason}); trying every second")
+            eprintln!("lipcall: cannot {retry} yet ({reason}); trying every second")
         }
-        LinkEvent::Rejoined { id } => eprintln!("lipcall: back in the Janus room as {id}"),
+        LinkEvent::Rejoined { id } => eprintln!("lipcall: {back} {id}"),
     }
 }
 
@@ -154,6 +197,7 @@ pub(crate) fn print_event(event: &LinkEvent) {
 /// left (without `seconds`), or when `stop` is set (SIGINT, SIGTERM).
 pub(crate) fn play<'m>(
     link: &mut dyn Link,
+    words: Wording,
     seconds: Option<f64>,
     model: Option<&'m Model>,
     on_frame: &mut dyn FnMut(u32, f64, &FrameFeatures),
@@ -182,7 +226,7 @@ pub(crate) fn play<'m>(
         }
         frames.clear();
         for event in link.poll() {
-            print_event(&event);
+            print_event(&event, words);
         }
         link.pull(due, &mut frames);
         if frames.is_empty() && timeline.is_some() && limit.is_none() && link.all_left() {

@@ -9,7 +9,7 @@ use std::time::{Duration, Instant};
 use anyhow::{Context, Result, bail};
 
 use super::net::{load_packets, parse_codec, print_peer};
-use super::playout::{open_outputs, play};
+use super::playout::{DIRECT, open_outputs, play};
 use super::recording::{stop_flag, stopped};
 use crate::call::link::{Link, LinkEvent};
 use crate::call::media::Packets;
@@ -265,6 +265,7 @@ fn run_call(
         Some(s) if s <= 0.0 => Ok(()),
         _ => play(
             &mut playing,
+            DIRECT,
             remaining,
             model.as_ref(),
             &mut |_, _, _| {},

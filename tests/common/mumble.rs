@@ -100,6 +100,31 @@ impl Murmur {
         std::thread::sleep(Duration::from_millis(500));
     }
 
+    /// Adds channels under Root (ids 1, 2, ... in order) to the server's database and
+    /// restarts it: murmurd makes none from its ini, and unregistered users may not.
+    pub fn add_channels(&mut self, names: &[&str]) {
+        self.stop();
+        let db = self.ini.with_file_name("murmur.sqlite");
+        let rows: Vec<String> = names
+            .iter()
+            .enumerate()
+            .map(|(i, n)| format!("(1, {}, 0, '{n}', 1)", i + 1))
+            .collect();
+        let script = format!(
+            "import sqlite3, sys\nc = sqlite3.connect(sys.argv[1])\n\
+             c.execute(\"insert into channels values {}\")\nc.commit()\n",
+            rows.join(", ")
+        );
+        let status = Command::new("python3")
+            .arg("-c")
+            .arg(script)
+            .arg(&db)
+            .status()
+            .expect("python3");
+        assert!(status.success(), "channels not added to {}", db.display());
+        self.launch();
+    }
+
     pub fn address(&self) -> String {
         format!("127.0.0.1:{}", self.port)
     }

@@ -21,8 +21,7 @@ use super::crypt::CryptState;
 use super::events::describe_reject;
 pub use super::events::{Channel, ClientConfig, ClientEvent, ClientStats};
 use super::messages::{
-    self, Authenticate, ChannelState, CryptSetup, Deframer, Incoming, MessageType, Ping, UserState,
-    Version,
+    self, Authenticate, CryptSetup, Deframer, Incoming, MessageType, Ping, UserState, Version,
 };
 use super::speakers::User;
 use super::voice::{self, ServerPacket};
@@ -43,19 +42,21 @@ const RESYNC_EVERY: Duration = Duration::from_secs(5);
 
 /// The protocol state of one server connection (and, after a reconnect, the next).
 pub struct ClientCore {
-    config: ClientConfig,
+    pub(super) config: ClientConfig,
     server: SocketAddr,
     epoch: Instant,
     deframer: Deframer,
     control: VecDeque<Vec<u8>>,
     datagrams: VecDeque<Transmit>,
-    events: VecDeque<ClientEvent>,
-    session: Option<u32>,
+    pub(super) events: VecDeque<ClientEvent>,
+    pub(super) session: Option<u32>,
     connected: bool,
-    channels: BTreeMap<u32, Channel>,
-    users: BTreeMap<u32, User>,
+    pub(super) channels: BTreeMap<u32, Channel>,
+    pub(super) users: BTreeMap<u32, User>,
     /// Speakers of earlier connections (for the summary).
-    departed: Vec<(u32, String, ReceiverStats)>,
+    pub(super) departed: Vec<(u32, String, ReceiverStats)>,
+    /// Our self-mute as last asked for (none asked: the server's default, unmuted).
+    pub(super) self_mute: Option<bool>,
     crypt: Option<CryptState>,
     udp_heard: Option<Instant>,
     udp_working: bool,
@@ -97,6 +98,7 @@ impl ClientCore {
             channels: BTreeMap::new(),
             users: BTreeMap::new(),
             departed: Vec::new(),
+            self_mute: None,
             crypt: None,
             udp_heard: None,
             udp_working: false,
@@ -161,7 +163,7 @@ impl ClientCore {
         }
     }
 
-    fn push(&mut self, kind: MessageType, message: &impl prost::Message) {
+    pub(super) fn push(&mut self, kind: MessageType, message: &impl prost::Message) {
         self.control.push_back(messages::frame(kind, message));
     }
 
@@ -260,6 +262,7 @@ impl ClientCore {
         self.session = Some(session);
         self.welcome = sync.welcome_text.unwrap_or_default();
         self.present();
+        self.send_self_mute();
         if let Some(wanted) = self.config.channel.clone() {
             match self.channels.values().find(|c| c.name == wanted) {
                 Some(c) => {
@@ -294,118 +297,6 @@ impl ClientCore {
             channel,
             welcome: self.welcome.clone(),
         });
-    }
-
-    fn channel_state(&mut self, c: ChannelState) {
-        let Some(id) = c.channel_id else {
-            self.stats.malformed += 1;
-            return;
-        };
-        let entry = self.channels.entry(id).or_insert(Channel {
-            id,
-            parent: None,
-            name: String::new(),
-        });
-        if let Some(name) = c.name {
-            entry.name = name;
-        }
-        if c.parent.is_some() {
-            entry.parent = c.parent;
-        }
-    }
-
-    fn own_channel(&self) -> u32 {
-        self.session
-            .and_then(|s| self.users.get(&s))
-            .map_or(0, |u| u.channel)
-    }
-
-    fn channel_name(&self, id: u32) -> String {
-        self.channels
-            .get(&id)
-            .map_or_else(|| format!("channel {id}"), |c| c.name.clone())
-    }
-
-    fn user_state(&mut self, u: UserState, _now: Instant) {
-        let Some(session) = u.session else {
-            self.stats.malformed += 1;
-            return;
-        };
-        let own = self.own_channel();
-        let is_new = self.users.get(&session).is_none_or(|u| u.gone);
-        let user = self.users.entry(session).or_default();
-        user.gone = false;
-        let was_in = !is_new && user.channel == own;
-        if let Some(name) = u.name {
-            user.name = name;
-        }
-        if let Some(channel) = u.channel_id {
-            user.channel = channel;
-        } else if is_new {
-            user.channel = 0;
-        }
-        let (name, channel) = (user.name.clone(), user.channel);
-        let Some(ours) = self.session else {
-            // Still joining: who is there is told once we know which user we are.
-            return;
-        };
-        if session == ours {
-            if channel != own {
-                self.moved(own, channel);
-            }
-            return;
-        }
-        let is_in = channel == own;
-        if is_in && !was_in {
-            self.events
-                .push_back(ClientEvent::UserJoined { session, name });
-        } else if was_in && !is_in {
-            self.events
-                .push_back(ClientEvent::UserLeft { session, name });
-        }
-    }
-
-    /// We moved from channel `from` to `to`: those there joined us, those left behind left.
-    fn moved(&mut self, from: u32, to: u32) {
-        let ours = self.session;
-        for (&session, user) in &self.users {
-            if Some(session) == ours || user.gone {
-                continue;
-            }
-            let name = user.name.clone();
-            if user.channel == from {
-                self.events
-                    .push_back(ClientEvent::UserLeft { session, name });
-            } else if user.channel == to {
-                self.events
-                    .push_back(ClientEvent::UserJoined { session, name });
-            }
-        }
-    }
-
-    /// Everyone in our channel once we know who we are.
-    fn present(&mut self) {
-        let own = self.own_channel();
-        let ours = self.session;
-        for (&session, user) in &self.users {
-            if Some(session) != ours && !user.gone && user.channel == own {
-                self.events.push_back(ClientEvent::UserJoined {
-                    session,
-                    name: user.name.clone(),
-                });
-            }
-        }
-    }
-
-    fn user_left(&mut self, session: u32) {
-        if let Some(user) = self.users.get_mut(&session) {
-            user.gone = true;
-            let name = user.name.clone();
-            if Some(session) != self.session {
-                self.events
-                    .push_back(ClientEvent::UserLeft { session, name });
-            }
-        }
     }
 
     fn crypt_setup(&mut self, c: CryptSetup) {
@@ -553,30 +444,6 @@ impl ClientCore {
         self.udp_working
     }
 
-    /// The name of the channel we are in, once joined.
-    pub fn current_channel(&self) -> Option<String> {
-        self.session?;
-        Some(self.channel_name(self.own_channel()))
-    }
-
-    pub fn channels(&self) -> Vec<Channel> {
-        self.channels.values().cloned().collect()
-    }
-
-    /// Moves us to channel `id`.
-    pub fn join_channel(&mut self, id: u32) {
-        if let Some(session) = self.session {
-            self.push(
-                MessageType::UserState,
-                &UserState {
-                    session: Some(session),
-                    channel_id: Some(id),
-                    ..Default::default()
-                },
-            );
-        }
-    }
-
     /// The next 20 ms of every speaker that is playing.
     pub fn pull(&mut self, now: Instant, out: &mut Vec<PeerFrame>) {
         for (&session, user) in &mut self.users {
@@ -587,26 +454,6 @@ impl ClientCore {
                 });
             }
         }
-    }
-
-    /// Every user who has spoken (on this connection and earlier ones): session, name,
-    /// reception, whether they left.
-    pub fn speakers(&self) -> Vec<(u32, String, ReceiverStats, bool)> {
-        let own = self.own_channel();
-        let earlier = self
-            .departed
-            .iter()
-            .map(|(s, name, stats)| (*s, name.clone(), *stats, true));
-        let now = self.users.iter().filter_map(|(&s, u)| {
-            let stats = u.stats()?;
-            Some((s, u.name.clone(), stats, u.gone || u.channel != own))
-        });
-        earlier.chain(now).collect()
-    }
-
-    /// The name of a user we know.
-    pub fn user_name(&self, session: u32) -> Option<&str> {
-        self.users.get(&session).map(|u| u.name.as_str())
     }
 
     /// Drops users who left without a word (speakers stay for the summary).

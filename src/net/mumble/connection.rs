@@ -15,6 +15,7 @@ use openssl::ssl::{SslConnector, SslMethod, SslStream, SslVerifyMode};
 
 use super::MumbleError;
 use super::client::{Channel, ClientConfig, ClientCore, ClientEvent, ClientStats};
+use super::events::Member;
 use super::identity::{Identity, KnownServers, Trust, fingerprint};
 use crate::net::peer::ReceiverStats;
 use crate::net::session::PeerFrame;
@@ -353,6 +354,16 @@ impl Connection {
 
     pub fn join_channel(&self, id: u32) {
         self.shared.driver.access(|core| core.join_channel(id));
+    }
+
+    /// Tells the server whether we muted ourselves (others see it).
+    pub fn set_self_mute(&self, muted: bool) {
+        self.shared.driver.access(|core| core.set_self_mute(muted));
+    }
+
+    /// Everyone on the server now, ourselves included.
+    pub fn members(&self) -> Vec<Member> {
+        self.shared.driver.access(|core| core.members())
     }
 
     /// Disconnects (the TLS stream is shut down; the server sees us leave).

@@ -89,3 +89,16 @@ pub(super) fn describe_reject(kind: Option<i32>, reason: Option<&str>) -> String
         None => what.to_string(),
     }
 }
+
+/// A user on the server, as the UI lists them.
+#[derive(Debug, Clone, PartialEq, Eq)]
+pub struct Member {
+    pub session: u32,
+    pub name: String,
+    /// The channel they are in.
+    pub channel: u32,
+    /// They muted themselves.
+    pub self_mute: bool,
+    /// This is us.
+    pub us: bool,
+}

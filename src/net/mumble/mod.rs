@@ -5,7 +5,7 @@
 //! A client keeps a TLS connection for control messages ([`messages`]: protobuf, framed by
 //! type and length) and sends voice ([`voice`]: Mumble's legacy packet format) by UDP,
 //! encrypted with OCB2-AES128 ([`crypt`]), or inside the TLS stream when UDP does not get
-//! through. [`client`] is the protocol without I/O; [`connection`] drives it (the TLS thread
+//! through. [`client`] is the protocol without I/O ([`presence`]: its channels and users); [`connection`] drives it (the TLS thread
 //! and the UDP socket thread) and reconnects when the server goes away; [`identity`] keeps
 //! our client certificate and the servers' certificates trusted on first use.
 //!
@@ -17,6 +17,7 @@ pub mod crypt;
 pub mod events;
 pub mod identity;
 pub mod messages;
+pub mod presence;
 pub mod speakers;
 pub mod voice;
 

@@ -66,6 +66,8 @@ pub struct User {
     timeline: Timeline,
     /// Left the server (its buffered audio still plays out).
     pub gone: bool,
+    /// Muted themselves (Mumble's self-mute).
+    pub self_mute: bool,
 }
 
 impl User {

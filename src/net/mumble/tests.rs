@@ -163,6 +163,76 @@ fn a_channel_asked_for_is_joined_and_its_users_become_the_peers() {
     }));
 }
 
+/// The UserStates the client sent: (session, channel, self_mute).
+fn user_states(core: &mut ClientCore) -> Vec<(Option<u32>, Option<u32>, Option<bool>)> {
+    sent(core)
+        .into_iter()
+        .filter(|(t, _)| *t == MessageType::UserState as u16)
+        .map(|(_, body)| {
+            let u = <UserState as prost::Message>::decode(body.as_slice()).unwrap();
+            (u.session, u.channel_id, u.self_mute)
+        })
+        .collect()
+}
+
+#[test]
+fn self_mute_is_told_once_per_change_seen_in_others_and_told_again_after_a_reconnect() {
+    let now = Instant::now();
+    let mut core = joined(now, None, false);
+    sent(&mut core);
+    core.set_self_mute(true);
+    core.set_self_mute(true);
+    assert_eq!(user_states(&mut core), [(Some(3), None, Some(true))]);
+
+    // Bob mutes himself; the members say so, and who we are.
+    core.handle_stream(
+        &messages::frame(
+            MessageType::UserState,
+            &UserState {
+                session: Some(5),
+                self_mute: Some(true),
+                ..Default::default()
+            },
+        ),
+        now,
+    );
+    let members = core.members();
+    let bob = members.iter().find(|m| m.session == 5).unwrap();
+    assert!(bob.self_mute && bob.channel == 0 && !bob.us);
+    assert!(members.iter().any(|m| m.session == 3 && m.us));
+
+    // A move is remembered: after a reconnect we go back there, still muted.
+    core.join_channel(1);
+    assert_eq!(user_states(&mut core), [(Some(3), Some(1), None)]);
+    core.disconnected();
+    core.connected(now);
+    sent(&mut core);
+    let mut again = Vec::new();
+    for (id, name) in [(0, "Root"), (1, "Lobby")] {
+        again.extend(messages::frame(
+            MessageType::ChannelState,
+            &ChannelState {
+                channel_id: Some(id),
+                parent: (id > 0).then_some(0),
+                name: Some(name.into()),
+                max_users: None,
+            },
+        ));
+    }
+    again.extend(user(3, "me", 0));
+    again.extend(messages::frame(
+        MessageType::ServerSync,
+        &ServerSync {
+            session: Some(3),
+            ..Default::default()
+        },
+    ));
+    core.handle_stream(&again, now);
+    let told = user_states(&mut core);
+    assert!(told.contains(&(Some(3), None, Some(true))), "{told:?}");
+    assert!(told.contains(&(Some(3), Some(1), None)), "{told:?}");
+}
+
 fn opus_frame() -> Vec<u8> {
     let mut encoder =
         opus::Encoder::new(48_000, opus::Channels::Mono, opus::Application::Voip).unwrap();

@@ -1,0 +1,244 @@
+//! The app on a real Mumble server (Debian's murmurd, started here with a second channel):
+//! `mumble://HOST:PORT/` in the call bar joins it; a `lipcall send --mumble` speaker becomes a
+//! peer whose frames play and whose talking light is on; the app's mute and push-to-talk reach
+//! the server as self-mute and a second lipcall on the server sees them; a channel switch moves
+//! the app (the second lipcall sees it there); a restarted murmurd is said and rejoined, back
+//! in the channel the app had moved to; and a server whose certificate changed is refused with
+//! the reason in the call bar.
+
+mod common;
+
+use std::path::Path;
+use std::process::Stdio;
+use std::time::{Duration, Instant};
+
+use lipcall::app::engine::{CallSpec, Command, Encryption, Engine, EngineConfig, lock};
+use lipcall::app::mumble_call::MumbleView;
+use lipcall::audio::{DeviceChoice, MicControls};
+
+use common::mumble::{Murmur, lipcall_as, runs_here};
+
+fn wait_for(what: &str, engine: &Engine, limit_s: u64, mut done: impl FnMut(&Engine) -> bool) {
+    let deadline = Instant::now() + Duration::from_secs(limit_s);
+    while !done(engine) {
+        let s = lock(&engine.shared);
+        assert!(
+            Instant::now() < deadline,
+            "{what}: state {:?}, error {:?}, peers {:?}, mumble {:?}",
+            s.call.state,
+            s.call.error,
+            s.peers.views(),
+            s.mumble
+        );
+        drop(s);
+        std::thread::sleep(Duration::from_millis(20));
+    }
+}
+
+fn engine(name: &str) -> Engine {
+    Engine::start(EngineConfig {
+        listen: None,
+        demo: false,
+        name: name.into(),
+        input: DeviceChoice::Default,
+        output: DeviceChoice::Default,
+        no_audio: true,
+    })
+    .unwrap()
+}
+
+/// Joins `mumble://` + `server` as `name`, with its own certificate folder under `dir`.
+fn join(engine: &Engine, dir: &Path, server: &str, name: &str) {
+    engine.send(Command::Call(CallSpec {
+        address: format!("mumble://{server}"),
+        name: name.into(),
+        mumble_identity: Some(dir.join(format!("identity-{name}"))),
+        ..CallSpec::default()
+    }));
+}
+
+fn view(engine: &Engine) -> Option<MumbleView> {
+    lock(&engine.shared).mumble.clone()
+}
+
+/// What `seer` sees of `whom`: the channel's name and whether they muted themselves.
+fn seen(seer: &Engine, whom: &str) -> Option<(String, bool)> {
+    let v = view(seer)?;
+    v.members()
+        .find(|(_, m)| m.name == whom)
+        .map(|(c, m)| (c.name.clone(), m.self_mute))
+}
+
+#[test]
+fn the_app_joins_a_mumble_server_hears_a_speaker_switches_channel_and_shows_self_mute() {
+    let test = "the_app_joins_a_mumble_server_hears_a_speaker_switches_channel_and_shows_self_mute";
+    if !runs_here(test) {
+        return;
+    }
+    let dir = tempfile::tempdir().unwrap();
+    let mut murmur = Murmur::start(dir.path(), "");
+    murmur.add_channels(&["Cellar"]);
+    let server = murmur.address();
+
+    let app = engine("Carol");
+    join(&app, dir.path(), &format!("{server}/Root"), "Carol");
+    wait_for("the app is in Root", &app, 20, |e| {
+        lock(&e.shared).call.state.contains("in channel \"Root\"")
+    });
+    {
+        let s = lock(&app.shared);
+        assert!(s.call.in_call && s.call.error.is_none(), "{:?}", s.call);
+        assert_eq!(s.call.encryption, Encryption::HopByHop);
+        let v = s.mumble.as_ref().unwrap();
+        assert!(v.first_visit, "{v:?}");
+        assert_eq!(v.fingerprint.len(), 95, "SHA-256 as 32 hex pairs: {v:?}");
+        let names: Vec<&str> = v.channels.iter().map(|c| c.name.as_str()).collect();
+        assert_eq!(names, ["Root", "Cellar"]);
+    }
+
+    // A second lipcall on the server sees what the app tells it.
+    let observer = engine("Obs");
+    join(&observer, dir.path(), &server, "Obs");
+    // No microphone: nothing of Carol's can be heard, and the server says so.
+    wait_for("Obs sees Carol muted", &observer, 20, |e| {
+        seen(e, "Carol") == Some(("Root".into(), true))
+    });
+    let mic = MicControls::default();
+    lock(&app.shared).mic = Some(mic.clone());
+    wait_for("Obs sees Carol unmuted", &observer, 10, |e| {
+        seen(e, "Carol") == Some(("Root".into(), false))
+    });
+    mic.set_muted(true);
+    wait_for("Carol's mute reaches Obs", &observer, 10, |e| {
+        seen(e, "Carol") == Some(("Root".into(), true))
+    });
+    assert!(view(&app).unwrap().self_muted);
+    mic.set_muted(false);
+    mic.set_push_to_talk(true);
+    wait_for(
+        "push-to-talk with the key up is muted",
+        &observer,
+        10,
+        |e| seen(e, "Carol") == Some(("Root".into(), true)),
+    );
+    mic.set_talk_pressed(true);
+    wait_for("the talk key held unmutes", &observer, 10, |e| {
+        seen(e, "Carol") == Some(("Root".into(), false))
+    });
+
+    // Ann speaks in Root: a peer with her name, her frames played, her talking light on.
+    let ann = lipcall_as(dir.path(), "ann")
+        .arg("send")
+        .arg(common::repo_file("assets/speech/demo.wav"))
+        .args(["--mumble", &server, "--name", "Ann"])
+        .stdout(Stdio::null())
+        .stderr(Stdio::piped())
+        .spawn()
+        .unwrap();
+    wait_for("Ann is heard, animated and lit", &app, 30, |e| {
+        let s = lock(&e.shared);
+        s.peers.views().iter().any(|p| {
+            p.name == "Ann"
+                && p.named
+                && p.frames_received > 50
+                && p.frames_animated > 50
+                && p.talking
+        })
+    });
+    {
+        let s = lock(&app.shared);
+        let views = s.peers.views();
+        let ann = views.iter().find(|p| p.name == "Ann").unwrap();
+        assert!(s.playback.peer_controls(ann.feed).is_some());
+    }
+    let out = ann.wait_with_output().unwrap();
+    assert!(
+        out.status.success(),
+        "{}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+    wait_for("Ann is gone once she left", &app, 20, |e| {
+        lock(&e.shared).peers.views().is_empty()
+    });
+
+    // The app moves to Cellar: Obs sees it there.
+    let cellar = view(&app)
+        .unwrap()
+        .channels
+        .iter()
+        .find(|c| c.name == "Cellar")
+        .unwrap()
+        .id;
+    app.send(Command::Channel(cellar));
+    wait_for("Obs sees Carol in Cellar", &observer, 10, |e| {
+        seen(e, "Carol").is_some_and(|(c, _)| c == "Cellar")
+    });
+    wait_for("the app says it is in Cellar", &app, 10, |e| {
+        let s = lock(&e.shared);
+        s.call.state.contains("in channel \"Cellar\"")
+            && s.mumble
+                .as_ref()
+                .is_some_and(|v| v.channels.iter().any(|c| c.ours && c.name == "Cellar"))
+    });
+
+    // murmurd restarts: said, rejoined, back in Cellar and still unmuted.
+    murmur.restart(Duration::from_millis(300));
+    wait_for("the loss is said", &app, 20, |e| {
+        let s = lock(&e.shared);
+        s.call
+            .error
+            .as_deref()
+            .is_some_and(|e| e.contains("lost the Mumble server"))
+            || s.call.state.contains("reconnecting")
+    });
+    wait_for("rejoined, in Cellar again", &app, 30, |e| {
+        let s = lock(&e.shared);
+        s.call.error.is_none() && s.call.state.contains("in channel \"Cellar\"")
+    });
+    wait_for(
+        "Obs, rejoined too, sees Carol in Cellar",
+        &observer,
+        30,
+        |e| seen(e, "Carol") == Some(("Cellar".into(), false)),
+    );
+
+    app.send(Command::Leave);
+    wait_for("the app left the server", &app, 10, |e| {
+        let s = lock(&e.shared);
+        !s.call.in_call && s.mumble.is_none()
+    });
+    wait_for("Obs sees Carol gone", &observer, 10, |e| {
+        seen(e, "Carol").is_none()
+    });
+}
+
+#[test]
+fn a_changed_server_certificate_is_refused_in_the_call_bar() {
+    if !runs_here("a_changed_server_certificate_is_refused_in_the_call_bar") {
+        return;
+    }
+    let dir = tempfile::tempdir().unwrap();
+    let murmur = Murmur::start(dir.path(), "");
+    let app = engine("Dana");
+    join(&app, dir.path(), &murmur.address(), "Dana");
+    wait_for("the app is on the server", &app, 20, |e| {
+        lock(&e.shared).call.state.contains("in channel")
+    });
+    app.send(Command::Leave);
+    wait_for("the app left", &app, 10, |e| !lock(&e.shared).call.in_call);
+
+    // Another certificate under the same address than the one trusted on the first visit.
+    let known = dir.path().join("identity-Dana/known_servers");
+    let text = std::fs::read_to_string(&known).unwrap();
+    assert!(text.contains(&murmur.address()), "{text}");
+    std::fs::write(&known, format!("{} AA:BB:CC\n", murmur.address())).unwrap();
+    join(&app, dir.path(), &murmur.address(), "Dana");
+    wait_for("the changed certificate is refused", &app, 20, |e| {
+        let s = lock(&e.shared);
+        !s.call.in_call
+            && s.call.error.as_deref().is_some_and(|e| {
+                e.contains("certificate of") && e.contains("changed") && e.contains("AA:BB:CC")
+            })
+    });
+    assert!(view(&app).is_none());
+}
