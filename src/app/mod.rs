@@ -222,7 +222,7 @@ impl LipcallApp {
             c.weights_sent.load(Ordering::Relaxed),
             c.weights_fallback.load(Ordering::Relaxed),
             c.weights_late.load(Ordering::Relaxed),
-            c.late_samples.load(Ordering::Relaxed) as f64 / 8.0,
+            c.late_us.load(Ordering::Relaxed) as f64 / 1000.0,
             listening.map_or("-".to_owned(), |a| a.to_string()),
         );
         for ShownPeer {
