@@ -51,6 +51,9 @@ pub struct AppOptions {
     pub no_audio: bool,
     /// Settings file instead of the XDG one.
     pub settings: Option<PathBuf>,
+    /// Call this address (HOST:PORT, or a relay or Janus address) at start, with the settings'
+    /// codec and band: two apps then talk unattended.
+    pub call: Option<String>,
 }
 
 /// Opens the window and runs until it is closed.
@@ -78,6 +81,15 @@ pub fn run(options: AppOptions) -> anyhow::Result<()> {
     })?;
     if let Some(addr) = engine::lock(&engine.shared).call.local_addr {
         eprintln!("lipcall: listening on {addr}");
+    }
+    if let Some(address) = &options.call {
+        engine.send(engine::Command::Call(engine::CallSpec {
+            address: address.clone(),
+            name: settings.name.clone(),
+            codec: settings.codec,
+            bandwidth: settings.bandwidth,
+            ..engine::CallSpec::default()
+        }));
     }
 
     let mut wgpu_options = eframe::egui_wgpu::WgpuConfiguration::default();
@@ -208,10 +220,16 @@ impl LipcallApp {
             return;
         };
         let c = &self.engine.counters;
+        let (output_ms, underruns) = {
+            let s = engine::lock(&self.engine.shared);
+            let delay = s.playback.output_delay(Instant::now());
+            let ms = delay.map_or(f64::NAN, |d| d.as_secs_f64() * 1000.0);
+            (ms, s.playback.stats().underruns)
+        };
         let mut text = format!(
             "time_s={:.2} ui_frames={} network_ms={:.1} frames_animated={} record_ms={:.1} \
              tiles_drawn={} tiles_shown={} weights_sent={} weights_fallback={} weights_late={} late_ms={:.1} \
-             listening={}\n",
+             output_ms={output_ms:.1} underruns={underruns} listening={}\n",
             self.started.elapsed().as_secs_f64(),
             self.frames,
             c.network_ns.load(Ordering::Relaxed) as f64 / 1e6,
@@ -233,7 +251,7 @@ impl LipcallApp {
         {
             text += &format!(
                 "peer ssrc={:08x} name={:?} demo={} talking={} animated={} shown={} received={} \
-                 codec={} recovered={} unknown_pt={}\n",
+                 codec={} recovered={} unknown_pt={} jitter_buffer_ms={:.1} queue_ms={:.1}\n",
                 p.ssrc,
                 p.name,
                 p.is_demo,
@@ -244,6 +262,8 @@ impl LipcallApp {
                 p.codec.map_or("-", Codec::name),
                 p.frames_recovered,
                 p.unknown_payload,
+                p.delay_ms,
+                p.queued_ms,
             );
         }
         let tmp = path.with_extension("tmp");

@@ -330,6 +330,15 @@ impl Playback {
         self.sink.clock().heard_mix_position(now)
     }
 
+    /// How long what the mixer has mixed waits before it is heard, at `now`: the output ring,
+    /// the resampler (if any) and the device's own latency. `None` before the first callback.
+    pub fn output_delay(&self, now: Instant) -> Option<Duration> {
+        let heard = self.heard_mix_position(now)?;
+        let mixed = self.mixed.chunks() * u64::from(self.mix_rate) / 50;
+        let waiting = mixed.saturating_sub(heard) as f64 / f64::from(self.mix_rate);
+        Some(Duration::from_secs_f64(waiting))
+    }
+
     /// The position in peer `id`'s stream (as counted by [`PeerFeed::push`]) heard at `now`;
     /// `None` when that peer is silent there or unknown.
     pub fn heard_position(&mut self, id: PeerId, now: Instant) -> Option<u64> {
