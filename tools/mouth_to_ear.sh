@@ -19,7 +19,7 @@ pids=()
 cleanup() {
     for p in "${pids[@]}"; do kill "$p" 2>/dev/null || true; done
     wait 2>/dev/null || true
-    rm -rf "$work"
+    rm -rf "$work" 2>/dev/null || true
 }
 trap cleanup EXIT
 export XDG_RUNTIME_DIR=$work/xdg

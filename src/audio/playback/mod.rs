@@ -47,7 +47,7 @@ impl Default for PlaybackConfig {
     fn default() -> Self {
         Self {
             device: DeviceChoice::Default,
-            buffer: Duration::from_millis(60),
+            buffer: Duration::from_millis(30),
             peer_queue: Duration::from_secs(1),
         }
     }

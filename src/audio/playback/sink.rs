@@ -156,7 +156,10 @@ pub(super) fn device_sink(
     let rate = opened.config.sample_rate();
     let channels = opened.config.channels();
     let format = opened.config.sample_format();
-    let config: cpal::StreamConfig = opened.config.config();
+    let mut config: cpal::StreamConfig = opened.config.config();
+    if let Some(period) = devices::period(opened.config.buffer_size(), rate) {
+        config.buffer_size = cpal::BufferSize::Fixed(period);
+    }
     let (target, cap) = ring_capacity(rate, buffer, chunk_out_len(rate));
     let (tx, rx) = rtrb::RingBuffer::new(cap);
     let clock = Arc::new(OutputClock::new(rate));
