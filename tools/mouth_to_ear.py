@@ -140,7 +140,7 @@ def main():
     time.sleep(1.5)
     mouth_rec.stop()
     ear_rec.stop()
-    head, _ = status_fields(ear_status)
+    head, peer = status_fields(ear_status)
     underruns = int(head.get("underruns", 0)) - (underruns_before or 0)
 
     t_mouth = [mouth_rec.origin() + i / RATE for i in onsets(mouth_rec.samples)]
@@ -167,7 +167,8 @@ def main():
           "Opus's 6.5 ms look-ahead):")
     print(f"  framing {framing:.1f}  " + "  ".join(f"{k[:-3]} {v:.1f}" for k, v in parts.items())
           + f"  capture+network+polling (the rest) {statistics.median(delays) - told:.1f}")
-    print(f"listener's output underruns during the clicks: {underruns}")
+    print(f"listener's output underruns during the clicks: {underruns}; silence played for the "
+          f"talker, its queue empty, over the call: {peer.get('starved_ms', '?')} ms")
     return 0
 
 

@@ -220,11 +220,20 @@ impl LipcallApp {
             return;
         };
         let c = &self.engine.counters;
-        let (output_ms, underruns) = {
+        let (output_ms, underruns, starved_ms) = {
             let s = engine::lock(&self.engine.shared);
             let delay = s.playback.output_delay(Instant::now());
             let ms = delay.map_or(f64::NAN, |d| d.as_secs_f64() * 1000.0);
-            (ms, s.playback.stats().underruns)
+            let rate = f64::from(s.playback.mix_rate());
+            // Silence the mixer played for each peer, its queue empty mid-stream.
+            let starved: Vec<f64> = peers
+                .iter()
+                .map(|p| {
+                    let c = s.playback.peer_controls(p.view.feed);
+                    c.map_or(0.0, |c| c.starved() as f64 * 1000.0 / rate)
+                })
+                .collect();
+            (ms, s.playback.stats().underruns, starved)
         };
         let mut text = format!(
             "time_s={:.2} ui_frames={} network_ms={:.1} frames_animated={} record_ms={:.1} \
@@ -243,15 +252,19 @@ impl LipcallApp {
             c.late_us.load(Ordering::Relaxed) as f64 / 1000.0,
             listening.map_or("-".to_owned(), |a| a.to_string()),
         );
-        for ShownPeer {
-            view: p,
-            frames_shown: shown,
-            ..
-        } in peers
+        for (
+            i,
+            ShownPeer {
+                view: p,
+                frames_shown: shown,
+                ..
+            },
+        ) in peers.iter().enumerate()
         {
             text += &format!(
                 "peer ssrc={:08x} name={:?} demo={} talking={} animated={} shown={} received={} \
-                 codec={} recovered={} unknown_pt={} jitter_buffer_ms={:.1} queue_ms={:.1}\n",
+                 codec={} recovered={} unknown_pt={} jitter_buffer_ms={:.1} queue_ms={:.1} \
+                 starved_ms={:.0}\n",
                 p.ssrc,
                 p.name,
                 p.is_demo,
@@ -264,6 +277,7 @@ impl LipcallApp {
                 p.unknown_payload,
                 p.delay_ms,
                 p.queued_ms,
+                starved_ms.get(i).copied().unwrap_or(0.0),
             );
         }
         let tmp = path.with_extension("tmp");
