@@ -174,13 +174,18 @@ impl PeerFeed {
     }
 
     /// [`PeerFeed::push_paced`] for a decoded frame at its codec's own rate: resampled once to
-    /// the mixer's. Allocates only when the peer's rate changes (a new resampler). A frame the
-    /// resampler refuses is queued as silence, so that the stream keeps its time.
+    /// the mixer's. The position returned is where the frame's first sample is heard in the
+    /// stream, the resampler's delay included (tag the frame's weights with it). Allocates only
+    /// when the peer's rate changes (a new resampler). A frame the resampler refuses is queued
+    /// as silence, so that the stream keeps its time.
     pub fn push_frame(&mut self, audio: &FrameAudio, ahead: usize, resuming: bool) -> Option<u64> {
         let mut out = [0i16; MAX_FRAME_SAMPLES];
         let out = &mut out[..self.frame_len()];
+        // The resampler puts the frame's audio this many samples after where it is queued.
+        let mut delay = 0;
         if audio.rate() == self.rate {
-            out.copy_from_slice(&audio.samples()[..out.len().min(audio.samples().len())]);
+            let n = out.len().min(audio.samples().len());
+            out[..n].copy_from_slice(&audio.samples()[..n]);
         } else {
             if self
                 .resampler
@@ -191,6 +196,7 @@ impl PeerFeed {
             }
             match self.resampler.as_mut() {
                 Some(r) => {
+                    delay = r.delay() as u64;
                     if let Err(e) = r.process_into(audio.samples(), out) {
                         tracing::debug!("peer {:?}: frame not resampled: {e}", self.id);
                     }
@@ -202,7 +208,7 @@ impl PeerFeed {
                 ),
             }
         }
-        self.push_paced(out, ahead, resuming)
+        self.push_paced(out, ahead, resuming).map(|pos| pos + delay)
     }
 
     /// Stream position of the next sample to be queued.
@@ -629,20 +635,64 @@ mod tests {
         }
         let mut out = Vec::new();
         let mut chunk = [0.0f32; 960];
+        let mut first = [0u64; 3];
         for f in 0..50 {
-            for (feed, &(rate, freq)) in feeds.iter_mut().zip(&peers) {
+            for (i, (feed, &(rate, freq))) in feeds.iter_mut().zip(&peers).enumerate() {
                 let pos = feed.push_frame(&tone(rate, freq, f), 2, f == 0).unwrap();
-                // The first frame after one frame of silence (two ahead), then 960 a frame.
-                assert_eq!(pos, 960 * (f as u64 + 1));
+                // The first frame after one frame of silence (two ahead; a resampled peer's
+                // later by its resampler's delay), then 960 a frame.
+                if f == 0 {
+                    first[i] = pos;
+                }
+                assert_eq!(pos, first[i] + 960 * f as u64);
             }
             mixer.mix(&mut chunk);
             out.extend_from_slice(&chunk);
         }
+        assert_eq!(first[2], 960, "the 48 kHz peer is not resampled");
+        assert!(first[0] > 960 && first[1] > 960);
         assert_eq!(mixer.position(), 50 * 960);
         let steady = &out[48_000 / 4..];
         let a = tone_amplitude(steady, 48_000.0, 6000.0);
         assert!((a - 8000.0 / 32768.0).abs() < 0.02, "6 kHz at {a}");
         assert!(tone_amplitude(steady, 48_000.0, 1000.0) < 0.005);
+    }
+
+    #[test]
+    fn a_resampled_peer_is_heard_at_the_position_its_frame_was_tagged_with() {
+        // A click at the start of frame 10 of an 8 kHz and of a 16 kHz peer: in a 48 kHz mix it
+        // begins where the position push_frame returned for that frame says (the resampler's
+        // delay included), within a millisecond, so the mouth's row is shown with it.
+        for rate in [8000u32, 16_000, 44_100, 48_000] {
+            let mut mixer = Mixer::at_rate(48_000);
+            let (mut feed, m, _) =
+                peer_channel_at(PeerId(1), 48_000, 48_000, Arc::new(PeerControls::default()));
+            mixer.add(m).unwrap();
+            let n = rate as usize / 50;
+            let mut out = Vec::new();
+            let mut chunk = [0.0f32; 960];
+            let mut tagged = 0;
+            for f in 0..20 {
+                let mut pcm = vec![0i16; n];
+                if f == 10 {
+                    pcm[..n / 4].fill(20_000);
+                }
+                let pos = feed
+                    .push_frame(&FrameAudio::from_slice(rate, &pcm), 2, f == 0)
+                    .unwrap();
+                if f == 10 {
+                    tagged = pos;
+                }
+                mixer.mix(&mut chunk);
+                out.extend_from_slice(&chunk);
+            }
+            let onset = out.iter().position(|s| s.abs() > 0.3).unwrap() as i64;
+            let off_ms = (onset - tagged as i64) as f64 / 48.0;
+            assert!(
+                off_ms.abs() <= 1.0,
+                "{rate} Hz: heard {off_ms:.2} ms after its tag"
+            );
+        }
     }
 
     #[test]
