@@ -98,11 +98,14 @@ fn main() -> anyhow::Result<()> {
         let mut s = lock(&engine.shared);
         s.playback.poll();
         let stats = s.playback.stats();
-        let mixed = s.playback.mixed().chunks() * FRAME_SIZE as u64;
+        let mix_rate = u64::from(s.playback.mix_rate());
+        let mixed = s.playback.mixed().chunks() * mix_rate / 50;
         let out_ms = s
             .playback
             .heard_mix_position(now)
-            .map_or(f64::NAN, |heard| (mixed as f64 - heard as f64) / 8.0);
+            .map_or(f64::NAN, |heard| {
+                (mixed as f64 - heard as f64) * 1000.0 / mix_rate as f64
+            });
         // Over the last interval (a device may take a while to start).
         let dev_ppm = device_rate.map_or(f64::NAN, |rate| {
             let frames = (stats.frames_played - played.0) as f64;

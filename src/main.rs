@@ -35,6 +35,9 @@ struct AppFlags {
     /// App: settings file (default: $XDG_CONFIG_HOME/lipcall/settings.json).
     #[arg(long, value_name = "FILE")]
     settings: Option<PathBuf>,
+    /// App: call HOST:PORT at start (with the settings' codec).
+    #[arg(long, value_name = "HOST:PORT")]
+    call: Option<String>,
 }
 
 #[derive(Subcommand)]
@@ -87,6 +90,7 @@ fn main() -> ExitCode {
             status: a.status,
             no_audio: a.no_audio,
             settings: a.settings,
+            call: a.call,
         }));
     };
     let result = match command {

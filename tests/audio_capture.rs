@@ -32,14 +32,16 @@ fn loopback_through_the_monitor_gives_8k_frames_meter_and_gates() {
     let mut mic = Capture::start(&DeviceChoice::Default).expect("the monitor source opens");
     let controls = mic.controls();
 
-    // 3 s of 500 Hz at half scale (-6 dBFS).
-    let tone: Vec<i16> = (0..24_000)
+    // 3 s of 500 Hz at half scale (-6 dBFS), at the mixer's rate.
+    let mut feed = pb.add_peer().unwrap();
+    let rate = feed.rate() as f32;
+    let tone: Vec<i16> = (0..3 * feed.rate())
         .map(|i| {
-            let ph = 2.0 * std::f32::consts::PI * 500.0 * i as f32 / 8000.0;
+            let ph = 2.0 * std::f32::consts::PI * 500.0 * i as f32 / rate;
             (16384.0 * ph.sin()) as i16
         })
         .collect();
-    pb.add_peer().unwrap().push(&tone);
+    feed.push(&tone);
 
     let mut frame = [0i16; FRAME_SIZE];
     let mut loud_frames = 0;

@@ -161,26 +161,31 @@ fn av_offset_on_the_null_sink() {
         "{:?}",
         pb.status()
     );
+    let mut feed = pb.add_peer().unwrap();
+    let id = feed.id();
+    // The mixer runs at the device's rate: the stream and its positions count samples at it.
+    let rate = u64::from(feed.rate());
+    assert_eq!(rate, u64::from(pb.mix_rate()));
     // Bursts of 1 kHz at half scale, 10 ms long, every 250 ms after a 300 ms lead-in.
     const BURSTS: usize = 12;
-    let burst_at: Vec<u64> = (0..BURSTS as u64).map(|k| 2400 + 2000 * k).collect();
-    let mut pcm = vec![0i16; 2400 + 2000 * BURSTS + 2000];
+    let burst_at: Vec<u64> = (0..BURSTS as u64)
+        .map(|k| 3 * rate / 10 + rate * k / 4)
+        .collect();
+    let mut pcm = vec![0i16; 3 * rate as usize / 10 + rate as usize * (BURSTS + 1) / 4];
     for &b in &burst_at {
-        for i in 0..80 {
-            let ph = 2.0 * std::f32::consts::PI * 1000.0 * i as f32 / 8000.0;
+        for i in 0..rate as usize / 100 {
+            let ph = 2.0 * std::f32::consts::PI * 1000.0 * i as f32 / rate as f32;
             pcm[b as usize + i] = (16384.0 * ph.sin()) as i16;
         }
     }
-    let mut feed = pb.add_peer().unwrap();
-    let id = feed.id();
     assert_eq!(feed.push(&pcm), (0, pcm.len()));
 
     // Poll the clock: (instant, heard stream position).
     let mut polls: Vec<(Instant, u64)> = Vec::new();
     // Until the last burst has been heard; generous for a slow start on a loaded machine (an
     // idle null sink can take up to 2 s to begin consuming).
-    let last = burst_at[BURSTS - 1] + 800;
-    let deadline = Instant::now() + Duration::from_secs_f64(pcm.len() as f64 / 8000.0 + 5.0);
+    let last = burst_at[BURSTS - 1] + rate / 10;
+    let deadline = Instant::now() + Duration::from_secs_f64(pcm.len() as f64 / rate as f64 + 5.0);
     while Instant::now() < deadline && polls.last().is_none_or(|&(_, p)| p < last) {
         let now = Instant::now();
         if let Some(p) = pb.heard_position(id, now) {

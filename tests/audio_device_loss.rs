@@ -54,7 +54,9 @@ fn losing_the_output_goes_silent_and_keeps_time() {
     );
     let mut feed = pb.add_peer().unwrap();
     let id = feed.id();
-    feed.push(&[1000; 8000]);
+    // One second at the mixer's rate (the device's).
+    let second = vec![1000i16; feed.rate() as usize];
+    feed.push(&second);
     // An idle null sink may take a while to start consuming a new stream.
     let deadline = Instant::now() + Duration::from_secs(4);
     while pb.stats().frames_played < 4800 && Instant::now() < deadline {
@@ -90,7 +92,7 @@ fn losing_the_output_goes_silent_and_keeps_time() {
     eprintln!("after loss: {reason}");
     // The virtual clock takes over: the peer's audio goes on being "heard". Half a second more
     // of it, so the clock cannot run past the end of the queue however late the switch came.
-    feed.push(&[1000; 4000]);
+    feed.push(&second[..second.len() / 2]);
     std::thread::sleep(Duration::from_millis(300));
     let a = pb.heard_position(id, Instant::now());
     std::thread::sleep(Duration::from_millis(200));

@@ -14,16 +14,23 @@ pub struct EngineCounters {
     pub ticks: AtomicU64,
     /// Weights scheduled; of them, those given out by the look-ahead's fallback (the next
     /// frame was late), and those scheduled after their frame had begun to be heard (the face
-    /// lagged the voice by up to the lateness), with the summed lateness in samples.
+    /// lagged the voice by up to the lateness), with the summed lateness in microseconds.
     pub weights_sent: AtomicU64,
     pub weights_fallback: AtomicU64,
     pub weights_late: AtomicU64,
-    pub late_samples: AtomicU64,
+    pub late_us: AtomicU64,
 }
 
 impl EngineCounters {
-    /// Counts one row of weights for the frame at stream position `pos`, heard up to `heard`.
-    pub(crate) fn weights_scheduled(&self, pos: u64, heard: Option<u64>, fallback: bool) {
+    /// Counts one row of weights for the frame at stream position `pos`, heard up to `heard`
+    /// (positions in samples at `rate`).
+    pub(crate) fn weights_scheduled(
+        &self,
+        pos: u64,
+        heard: Option<u64>,
+        rate: u32,
+        fallback: bool,
+    ) {
         self.weights_sent.fetch_add(1, Ordering::Relaxed);
         if fallback {
             self.weights_fallback.fetch_add(1, Ordering::Relaxed);
@@ -32,7 +39,8 @@ impl EngineCounters {
             && heard > pos
         {
             self.weights_late.fetch_add(1, Ordering::Relaxed);
-            self.late_samples.fetch_add(heard - pos, Ordering::Relaxed);
+            let late_us = (heard - pos).saturating_mul(1_000_000) / u64::from(rate.max(1));
+            self.late_us.fetch_add(late_us, Ordering::Relaxed);
         }
     }
 }

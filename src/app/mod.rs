@@ -55,6 +55,9 @@ pub struct AppOptions {
     pub no_audio: bool,
     /// Settings file instead of the XDG one.
     pub settings: Option<PathBuf>,
+    /// Call this address (HOST:PORT, or a relay or Janus address) at start, with the settings'
+    /// codec and band: two apps then talk unattended.
+    pub call: Option<String>,
 }
 
 /// Opens the window and runs until it is closed.
@@ -82,6 +85,15 @@ pub fn run(options: AppOptions) -> anyhow::Result<()> {
     })?;
     if let Some(addr) = engine::lock(&engine.shared).call.local_addr {
         eprintln!("lipcall: listening on {addr}");
+    }
+    if let Some(address) = &options.call {
+        engine.send(engine::Command::Call(engine::CallSpec {
+            address: address.clone(),
+            name: settings.name.clone(),
+            codec: settings.codec,
+            bandwidth: settings.bandwidth,
+            ..engine::CallSpec::default()
+        }));
     }
 
     let mut wgpu_options = eframe::egui_wgpu::WgpuConfiguration::default();
@@ -212,10 +224,25 @@ impl LipcallApp {
             return;
         };
         let c = &self.engine.counters;
+        let (output_ms, underruns, starved_ms) = {
+            let s = engine::lock(&self.engine.shared);
+            let delay = s.playback.output_delay(Instant::now());
+            let ms = delay.map_or(f64::NAN, |d| d.as_secs_f64() * 1000.0);
+            let rate = f64::from(s.playback.mix_rate());
+            // Silence the mixer played for each peer, its queue empty mid-stream.
+            let starved: Vec<f64> = peers
+                .iter()
+                .map(|p| {
+                    let c = s.playback.peer_controls(p.view.feed);
+                    c.map_or(0.0, |c| c.starved() as f64 * 1000.0 / rate)
+                })
+                .collect();
+            (ms, s.playback.stats().underruns, starved)
+        };
         let mut text = format!(
             "time_s={:.2} ui_frames={} network_ms={:.1} frames_animated={} record_ms={:.1} \
              tiles_drawn={} tiles_shown={} weights_sent={} weights_fallback={} weights_late={} late_ms={:.1} \
-             listening={}\n",
+             output_ms={output_ms:.1} underruns={underruns} listening={}\n",
             self.started.elapsed().as_secs_f64(),
             self.frames,
             c.network_ns.load(Ordering::Relaxed) as f64 / 1e6,
@@ -226,18 +253,22 @@ impl LipcallApp {
             c.weights_sent.load(Ordering::Relaxed),
             c.weights_fallback.load(Ordering::Relaxed),
             c.weights_late.load(Ordering::Relaxed),
-            c.late_samples.load(Ordering::Relaxed) as f64 / 8.0,
+            c.late_us.load(Ordering::Relaxed) as f64 / 1000.0,
             listening.map_or("-".to_owned(), |a| a.to_string()),
         );
-        for ShownPeer {
-            view: p,
-            frames_shown: shown,
-            ..
-        } in peers
+        for (
+            i,
+            ShownPeer {
+                view: p,
+                frames_shown: shown,
+                ..
+            },
+        ) in peers.iter().enumerate()
         {
             text += &format!(
                 "peer ssrc={:08x} name={:?} demo={} talking={} animated={} shown={} received={} \
-                 codec={} recovered={} unknown_pt={}\n",
+                 codec={} recovered={} unknown_pt={} jitter_buffer_ms={:.1} queue_ms={:.1} \
+                 starved_ms={:.0}\n",
                 p.ssrc,
                 p.name,
                 p.is_demo,
@@ -248,6 +279,9 @@ impl LipcallApp {
                 p.codec.map_or("-", Codec::name),
                 p.frames_recovered,
                 p.unknown_payload,
+                p.delay_ms,
+                p.queued_ms,
+                starved_ms.get(i).copied().unwrap_or(0.0),
             );
         }
         let tmp = path.with_extension("tmp");

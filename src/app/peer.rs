@@ -46,7 +46,7 @@ impl RemotePeer {
     /// SSRC, so two peers do not blink together.
     pub(super) fn new(ssrc: u32, feed: PeerFeed) -> Self {
         let prefs = PeerPrefs::default();
-        let (weights, schedule) = Schedule::channel(SCHEDULE_ROWS);
+        let (weights, schedule) = Schedule::channel_with_rows(SCHEDULE_ROWS, feed.frame_len());
         Self {
             view: None,
             animation: PeerAnimation::with_seed(&prefs, u64::from(ssrc)),

@@ -80,8 +80,10 @@ impl Roster {
             let resuming = !std::mem::replace(&mut peer.playing, ahead.is_some());
             // (Not queued when the mixer has mixed silence in its place already, or while the
             // output takes nothing: a device that has not started or stalls, a stopped mixer.)
+            // The ear gets the codec's own band, resampled once to the mixer's rate; the face
+            // the 8 kHz signal its features came from.
             let queued =
-                ahead.and_then(|ahead| peer.feed.push_paced(&f.frame.pcm, ahead, resuming));
+                ahead.and_then(|ahead| peer.feed.push_frame(&f.frame.audio, ahead, resuming));
             let Some(pos) = queued else {
                 continue;
             };
@@ -101,7 +103,7 @@ impl Roster {
             }
             if let Some((pos, row)) = out {
                 let heard = playback.heard_position(peer.feed.id(), now);
-                counters.weights_scheduled(pos, heard, false);
+                counters.weights_scheduled(pos, heard, peer.feed.rate(), false);
                 peer.weights.send(pos, row);
             }
         }
@@ -112,7 +114,7 @@ impl Roster {
             peer.playing = false;
             if let Some((pos, row)) = peer.animation.flush() {
                 let heard = playback.heard_position(peer.feed.id(), now);
-                counters.weights_scheduled(pos, heard, true);
+                counters.weights_scheduled(pos, heard, peer.feed.rate(), true);
                 peer.weights.send(pos, row);
             }
         }
@@ -181,7 +183,7 @@ fn view_of(peer: &RemotePeer, info: &PeerInfo, now: Instant) -> PeerView {
         frames_received: peer.frames_received,
         frames_recovered: info.receiver.recovered,
         unknown_payload: info.receiver.unknown_payload,
-        queued_ms: peer.feed.queued() as f64 * 1000.0 / f64::from(crate::codec::speex::SAMPLE_RATE),
+        queued_ms: peer.feed.queued() as f64 * 1000.0 / f64::from(peer.feed.rate()),
         buffer: *jitter,
     }
 }
@@ -197,7 +199,6 @@ mod tests {
     use crate::audio::PlaybackConfig;
     use crate::codec::any::Codec;
     use crate::net::peer::PlayedFrame;
-    use crate::vocab::FRAME_SIZE;
     use crate::vocab::FrameFeatures;
 
     struct Call {
@@ -376,12 +377,15 @@ mod tests {
         call.pull(200, &[]);
         assert_eq!(call.count(&call.counters.weights_sent), 10);
         assert_eq!(call.count(&call.counters.weights_fallback), 1);
-        // The UI finds a row for every sample of the ten frames, and none elsewhere.
+        // The UI finds a row for every sample of the ten frames (at the mixer's rate: the peer's
+        // 8 kHz frames were resampled to it), and none elsewhere.
+        let frame = call.playback.mix_rate() as usize / 50;
+        assert_eq!(frame, 960);
         let schedule = &mut call.roster.get_mut(7).unwrap().schedule;
-        let covered = (0..40 * FRAME_SIZE as u64)
+        let covered = (0..40 * frame as u64)
             .filter(|&pos| schedule.at(pos).is_some())
             .count();
-        assert_eq!(covered, 10 * FRAME_SIZE);
+        assert_eq!(covered, 10 * frame);
     }
 
     #[test]

@@ -436,7 +436,10 @@ impl Capture {
         let rate = opened.config.sample_rate();
         let channels = opened.config.channels();
         let format = opened.config.sample_format();
-        let config: cpal::StreamConfig = opened.config.config();
+        let mut config: cpal::StreamConfig = opened.config.config();
+        if let Some(period) = devices::period(opened.config.buffer_size(), rate) {
+            config.buffer_size = cpal::BufferSize::Fixed(period);
+        }
         let (feeder, reader) = capture_pipeline(rate, channels, Duration::from_millis(500))?;
         let shared = reader.controls.0.clone();
         let d = &opened.device;

@@ -4,8 +4,8 @@
 //! 1. output callback: ring frame <-> wall time. Each callback publishes (frames taken from the
 //!    output ring before this buffer, instant the buffer's first frame reaches the listener)
 //!    using the device's own latency report ([`OutputClock`]).
-//! 2. mixer thread: ring frame <-> 8 kHz mix position (where the sink was attached, resampler
-//!    delay, rate), fixed per sink ([`SinkMapping`]).
+//! 2. mixer thread: ring frame <-> mix position (where the sink was attached, resampler delay,
+//!    the device's rate and the mixer's), fixed per sink ([`SinkMapping`]).
 //! 3. mixer thread: mix position <-> peer stream position, one [`Segment`] per mixed chunk, since a
 //!    peer whose queue ran dry contributes silence and its stream stops advancing ([`PeerClock`]).
 //!
@@ -17,7 +17,7 @@ use std::sync::OnceLock;
 use std::sync::atomic::{AtomicBool, AtomicU64, Ordering, fence};
 use std::time::{Duration, Instant};
 
-use crate::vocab::{FRAME_SIZE, SAMPLE_RATE};
+use crate::vocab::FRAME_SIZE;
 
 /// Nanoseconds since a process-wide origin: lets atomics carry instants.
 pub fn instant_to_nanos(t: Instant) -> u64 {
@@ -149,7 +149,7 @@ impl OutputClock {
             .map(|a| heard_ring_frame(a, self.rate, instant_to_nanos(now)))
     }
 
-    /// The 8 kHz mix position being heard at `now`; `None` before the first callback, before the
+    /// The mix position (at the mixer's rate) being heard at `now`; `None` before the first callback, before the
     /// mixer attached, or while what is heard predates the mixer's first chunk.
     pub fn heard_mix_position(&self, now: Instant) -> Option<u64> {
         let ring = self.heard_ring_frame(now)?;
@@ -191,17 +191,19 @@ pub fn heard_ring_frame(a: Anchor, rate: u32, now_ns: u64) -> f64 {
     f.clamp(0.0, a.ring_end as f64)
 }
 
-/// How the ring frames of one sink relate to the 8 kHz mix timeline.
+/// How the ring frames of one sink relate to the mix timeline.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 pub struct SinkMapping {
     /// Mix position of the first chunk written to this sink.
     pub mix_start: u64,
     /// Ring frames written before that chunk (prefilled silence).
     pub ring_start: u64,
-    /// Delay of the 8 kHz -> device resampler, in device frames.
+    /// Delay of the mixer -> device resampler, in device frames (0 when the rates match).
     pub resampler_delay: u64,
     /// Device rate.
     pub rate: u32,
+    /// The mixer's rate: the unit of mix positions.
+    pub mix_rate: u32,
 }
 
 impl SinkMapping {
@@ -211,7 +213,7 @@ impl SinkMapping {
         if rel < 0.0 {
             return None;
         }
-        let mix = rel * f64::from(SAMPLE_RATE) / f64::from(self.rate.max(1));
+        let mix = rel * f64::from(self.mix_rate) / f64::from(self.rate.max(1));
         Some(self.mix_start + mix as u64)
     }
 
@@ -220,7 +222,7 @@ impl SinkMapping {
         let rel = mix.checked_sub(self.mix_start)? as f64;
         Some(
             (self.ring_start + self.resampler_delay) as f64
-                + rel * f64::from(self.rate) / f64::from(SAMPLE_RATE),
+                + rel * f64::from(self.rate) / f64::from(self.mix_rate.max(1)),
         )
     }
 }
@@ -232,6 +234,7 @@ struct MappingCell {
     ring_start: AtomicU64,
     resampler_delay: AtomicU64,
     rate: AtomicU64,
+    mix_rate: AtomicU64,
 }
 
 impl MappingCell {
@@ -241,6 +244,8 @@ impl MappingCell {
         self.resampler_delay
             .store(m.resampler_delay, Ordering::Relaxed);
         self.rate.store(u64::from(m.rate), Ordering::Relaxed);
+        self.mix_rate
+            .store(u64::from(m.mix_rate), Ordering::Relaxed);
         self.set.store(true, Ordering::Release);
     }
 
@@ -253,6 +258,7 @@ impl MappingCell {
             ring_start: self.ring_start.load(Ordering::Relaxed),
             resampler_delay: self.resampler_delay.load(Ordering::Relaxed),
             rate: u32::try_from(self.rate.load(Ordering::Relaxed)).unwrap_or(1),
+            mix_rate: u32::try_from(self.mix_rate.load(Ordering::Relaxed)).unwrap_or(1),
         })
     }
 }
@@ -336,7 +342,7 @@ impl PeerClock {
 pub struct Schedule<W> {
     incoming: Option<rtrb::Consumer<(u64, W)>>,
     rows: VecDeque<(u64, W)>,
-    /// Samples a row covers (one Speex frame).
+    /// Stream samples a row covers (20 ms at the mixer's rate).
     row_len: u64,
 }
 
@@ -378,13 +384,21 @@ impl<W> Schedule<W> {
         Self::default()
     }
 
-    /// A schedule fed from another thread through a ring of `capacity` rows.
+    /// A schedule of 8 kHz streams (rows of 160 samples) fed from another thread through a ring
+    /// of `capacity` rows.
     pub fn channel(capacity: usize) -> (ScheduleSender<W>, Self) {
+        Self::channel_with_rows(capacity, FRAME_SIZE)
+    }
+
+    /// [`Schedule::channel`] for rows of `row_len` stream samples (20 ms at the mixer's rate,
+    /// [`super::PeerFeed::frame_len`]).
+    pub fn channel_with_rows(capacity: usize, row_len: usize) -> (ScheduleSender<W>, Self) {
         let (tx, rx) = rtrb::RingBuffer::new(capacity.max(1));
         (
             ScheduleSender { tx, dropped: 0 },
             Self {
                 incoming: Some(rx),
+                row_len: row_len.max(1) as u64,
                 ..Self::default()
             },
         )
@@ -408,7 +422,7 @@ impl<W> Schedule<W> {
         }
     }
 
-    /// The row covering stream position `pos` (`start <= pos < start + FRAME_SIZE`), or `None`
+    /// The row covering stream position `pos` (`start <= pos < start + row length`), or `None`
     /// when no row covers it. Rows wholly before `pos` are dropped: positions heard only grow.
     pub fn at(&mut self, pos: u64) -> Option<&W> {
         self.drain();
@@ -432,6 +446,7 @@ impl<W> Schedule<W> {
 #[cfg(test)]
 mod tests {
     use super::*;
+    use crate::vocab::SAMPLE_RATE;
 
     #[test]
     fn heard_frame_follows_the_anchor_and_stops_at_the_ring_end() {
@@ -462,6 +477,7 @@ mod tests {
             ring_start: 0,
             resampler_delay: 0,
             rate: 48_000,
+            mix_rate: SAMPLE_RATE,
         });
         assert_eq!(clock.underruns(), 1);
         assert_eq!(clock.underrun_frames(), 80);
@@ -483,6 +499,7 @@ mod tests {
             ring_start: 960,
             resampler_delay: 480,
             rate: 48_000,
+            mix_rate: SAMPLE_RATE,
         };
         assert_eq!(m.mix_position(1000.0), None);
         assert_eq!(m.mix_position(1440.0), Some(8000));
@@ -550,6 +567,7 @@ mod tests {
             ring_start: 0,
             resampler_delay: 480,
             rate: 48_000,
+            mix_rate: SAMPLE_RATE,
         });
         let mut pc = PeerClock::new(None);
         pc.push(Segment {

@@ -77,6 +77,16 @@ fn device_name(device: &cpal::Device) -> String {
         .unwrap_or_else(|_| device.to_string())
 }
 
+/// The device buffer to ask for, in frames: 10 ms where the device says it can (its default is
+/// often several times that, all of it heard, or captured, as delay), else its default (`None`).
+pub(crate) fn period(supported: &cpal::SupportedBufferSize, rate: u32) -> Option<u32> {
+    let wanted = rate / 100;
+    match *supported {
+        cpal::SupportedBufferSize::Range { min, max } if min <= max => Some(wanted.clamp(min, max)),
+        _ => None,
+    }
+}
+
 /// The platform's default host (ALSA on Linux; its pulse plugin reaches PulseAudio/PipeWire).
 pub(crate) fn host() -> cpal::Host {
     cpal::default_host()

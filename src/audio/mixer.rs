@@ -1,8 +1,13 @@
-//! Per-peer 8 kHz queues and the mixer that sums them, then resamples to the device rate.
+//! Per-peer queues at the mixer's rate and the mixer that sums them, 20 ms at a time.
 //!
-//! The decoder thread of each peer pushes PCM into its own ring ([`PeerFeed`]); the mixer thread
-//! pops a chunk from every peer, applies volume and mute, sums, clips and resamples. Nothing
-//! here runs in the device callback, so peers come and go through plain ownership moves.
+//! The mixer runs at the output device's rate (48 kHz without a device), so each peer is
+//! resampled once, from its codec's own rate, as its decoded frames are queued
+//! ([`PeerFeed::push_frame`]): a fullband Opus peer is heard fullband. The engine thread pushes
+//! into each peer's ring ([`PeerFeed`]); the mixer thread pops a chunk from every peer, applies
+//! volume and mute, sums and clips, and resamples only where the device's rate is not the
+//! mixer's (an output switched to another rate). Nothing here runs in the device callback, so
+//! peers come and go through plain ownership moves. Positions (mix and stream) count samples at
+//! the mixer's rate.
 
 use std::sync::Arc;
 use std::sync::atomic::{AtomicBool, AtomicU32, AtomicU64, Ordering};
@@ -12,11 +17,29 @@ use rubato::{Fft, FixedSync, Resampler};
 
 use super::clock::{PeerClock, Segment};
 use super::error::AudioError;
-use super::resample::fft_resampler;
-use crate::vocab::{FRAME_SIZE, SAMPLE_RATE};
+use super::resample::{FrameResampler, fft_resampler};
+use crate::vocab::{FRAME_SIZE, FrameAudio, MAX_FRAME_SAMPLES, SAMPLE_RATE};
 
-/// Samples of the 8 kHz mix produced per step (one Speex frame, 20 ms).
+/// Samples of an 8 kHz mix produced per step (one Speex frame, 20 ms).
 pub const CHUNK: usize = FRAME_SIZE;
+/// The mixer's rate where the device's cannot be one (no device, or a rate whose 20 ms is not a
+/// whole number of samples, or above 48 kHz).
+pub const DEFAULT_MIX_RATE: u32 = 48_000;
+
+/// The rate a mixer runs at for a device at `device_rate`: the device's own where 20 ms of it is
+/// a whole number of samples, up to 48 kHz (no resampling after the mix), else 48 kHz.
+pub fn mix_rate_for(device_rate: u32) -> u32 {
+    if crate::vocab::audio::valid_rate(device_rate) {
+        device_rate
+    } else {
+        DEFAULT_MIX_RATE
+    }
+}
+
+/// Samples in 20 ms at `rate`.
+pub fn frame_len(rate: u32) -> usize {
+    rate as usize / 50
+}
 /// Peers the mixer holds without growing its table.
 pub const MAX_PEERS: usize = 64;
 
@@ -90,6 +113,10 @@ pub struct PeerFeed {
     tx: rtrb::Producer<i16>,
     written: u64,
     controls: Arc<PeerControls>,
+    /// The mixer's rate: what the queue holds.
+    rate: u32,
+    /// The peer's frames to the mixer's rate, made for the rate its frames come at.
+    resampler: Option<FrameResampler>,
 }
 
 impl PeerFeed {
@@ -97,8 +124,18 @@ impl PeerFeed {
         self.id
     }
 
-    /// Queues decoded samples. Returns the stream position of the first sample queued (tag the
-    /// frame's weights with it) and how many were queued.
+    /// The mixer's rate, at which the queue's samples and stream positions count.
+    pub fn rate(&self) -> u32 {
+        self.rate
+    }
+
+    /// Samples in 20 ms at the mixer's rate.
+    pub fn frame_len(&self) -> usize {
+        frame_len(self.rate)
+    }
+
+    /// Queues samples at the mixer's rate. Returns the stream position of the first sample queued
+    /// (tag the frame's weights with it) and how many were queued.
     pub fn push(&mut self, pcm: &[i16]) -> (u64, usize) {
         let start = self.written;
         let (done, _rest) = self.tx.push_partial_slice(pcm);
@@ -116,22 +153,62 @@ impl PeerFeed {
     /// `ahead` frames ahead of the mixer. The first frame of a peer that starts, or speaks again
     /// after a silence (`resuming`), comes after enough silence to put it there too; a queue
     /// already `ahead + 2` frames long (an output that takes nothing) takes nothing more. The
-    /// stream position of the frame's first sample, or `None` if it was not queued.
+    /// stream position of the frame's first sample, or `None` if it was not queued. `pcm` is at
+    /// the mixer's rate.
     pub fn push_paced(&mut self, pcm: &[i16], ahead: usize, resuming: bool) -> Option<u64> {
-        const SILENCE: [i16; CHUNK] = [0; CHUNK];
+        const SILENCE: [i16; MAX_FRAME_SAMPLES] = [0; MAX_FRAME_SAMPLES];
+        let frame = self.frame_len();
         let queued = self.queued();
-        if queued >= (ahead + 2) * CHUNK {
+        if queued >= (ahead + 2) * frame {
             return None;
         }
         if resuming {
-            let mut pad = (ahead.saturating_sub(1) * CHUNK).saturating_sub(queued);
+            let mut pad = (ahead.saturating_sub(1) * frame).saturating_sub(queued);
             while pad > 0 {
-                let n = pad.min(CHUNK);
+                let n = pad.min(frame);
                 self.push(&SILENCE[..n]);
                 pad -= n;
             }
         }
         Some(self.push(pcm).0)
+    }
+
+    /// [`PeerFeed::push_paced`] for a decoded frame at its codec's own rate: resampled once to
+    /// the mixer's. The position returned is where the frame's first sample is heard in the
+    /// stream, the resampler's delay included (tag the frame's weights with it). Allocates only
+    /// when the peer's rate changes (a new resampler). A frame the resampler refuses is queued
+    /// as silence, so that the stream keeps its time.
+    pub fn push_frame(&mut self, audio: &FrameAudio, ahead: usize, resuming: bool) -> Option<u64> {
+        let mut out = [0i16; MAX_FRAME_SAMPLES];
+        let out = &mut out[..self.frame_len()];
+        // The resampler puts the frame's audio this many samples after where it is queued.
+        let mut delay = 0;
+        if audio.rate() == self.rate {
+            let n = out.len().min(audio.samples().len());
+            out[..n].copy_from_slice(&audio.samples()[..n]);
+        } else {
+            if self
+                .resampler
+                .as_ref()
+                .is_none_or(|r| r.from_rate() != audio.rate())
+            {
+                self.resampler = FrameResampler::new(audio.rate(), self.rate).ok();
+            }
+            match self.resampler.as_mut() {
+                Some(r) => {
+                    delay = r.delay() as u64;
+                    if let Err(e) = r.process_into(audio.samples(), out) {
+                        tracing::debug!("peer {:?}: frame not resampled: {e}", self.id);
+                    }
+                }
+                None => tracing::debug!(
+                    "peer {:?}: no resampler from {} Hz: silence",
+                    self.id,
+                    audio.rate()
+                ),
+            }
+        }
+        self.push_paced(out, ahead, resuming).map(|pos| pos + delay)
     }
 
     /// Stream position of the next sample to be queued.
@@ -166,14 +243,24 @@ impl MixerPeer {
     }
 }
 
-/// Creates the three ends of a peer: the decoder's feed, the mixer's queue and the reader's
-/// clock. `queue` is the queue's capacity in 8 kHz samples.
+/// Creates the three ends of a peer of an 8 kHz mixer: the decoder's feed, the mixer's queue
+/// and the reader's clock. `queue` is the queue's capacity in samples.
 pub fn peer_channel(
     id: PeerId,
     queue: usize,
     controls: Arc<PeerControls>,
 ) -> (PeerFeed, MixerPeer, PeerClock) {
-    let (tx, rx) = rtrb::RingBuffer::new(queue.max(CHUNK));
+    peer_channel_at(id, SAMPLE_RATE, queue, controls)
+}
+
+/// [`peer_channel`] for a mixer at `rate`; `queue` in samples at that rate.
+pub fn peer_channel_at(
+    id: PeerId,
+    rate: u32,
+    queue: usize,
+    controls: Arc<PeerControls>,
+) -> (PeerFeed, MixerPeer, PeerClock) {
+    let (tx, rx) = rtrb::RingBuffer::new(queue.max(frame_len(rate)));
     // Segments are per chunk: room for 10 s unread before the mapping loses any.
     let (seg_tx, seg_rx) = rtrb::RingBuffer::new(500);
     (
@@ -182,6 +269,8 @@ pub fn peer_channel(
             tx,
             written: 0,
             controls: controls.clone(),
+            rate,
+            resampler: None,
         },
         MixerPeer {
             id,
@@ -205,12 +294,13 @@ impl MixProgress {
     }
 }
 
-/// Sums the peers' 8 kHz streams into one mix, chunk by chunk.
+/// Sums the peers' streams into one mix, 20 ms at a time, at its rate.
 #[derive(Debug)]
 pub struct Mixer {
     peers: Vec<MixerPeer>,
     position: u64,
     progress: MixProgress,
+    rate: u32,
 }
 
 impl Default for Mixer {
@@ -220,12 +310,33 @@ impl Default for Mixer {
 }
 
 impl Mixer {
+    /// An 8 kHz mixer.
     pub fn new() -> Self {
+        Self::at_rate(SAMPLE_RATE)
+    }
+
+    /// A mixer at `rate` (20 ms of it a whole number of samples, at most 48 kHz; others mix at
+    /// [`DEFAULT_MIX_RATE`]).
+    pub fn at_rate(rate: u32) -> Self {
         Self {
             peers: Vec::with_capacity(MAX_PEERS),
             position: 0,
             progress: MixProgress::default(),
+            rate: if crate::vocab::audio::valid_rate(rate) {
+                rate
+            } else {
+                DEFAULT_MIX_RATE
+            },
         }
+    }
+
+    pub fn rate(&self) -> u32 {
+        self.rate
+    }
+
+    /// Samples per chunk (20 ms at the mixer's rate).
+    pub fn chunk_len(&self) -> usize {
+        frame_len(self.rate)
     }
 
     /// Its count of chunks mixed, readable from other threads.
@@ -251,14 +362,18 @@ impl Mixer {
         self.peers.len()
     }
 
-    /// Mix position of the next chunk (8 kHz samples mixed so far).
+    /// Mix position of the next chunk (samples mixed so far, at the mixer's rate).
     pub fn position(&self) -> u64 {
         self.position
     }
 
-    /// Mixes the next chunk into `out` (in -1..=1, clipped). Every peer's queue is read even
-    /// when muted, so its stream keeps time with what the others hear.
-    pub fn mix(&mut self, out: &mut [f32; CHUNK]) {
+    /// Mixes the next chunk into `out` (in -1..=1, clipped; [`Mixer::chunk_len`] samples, or as
+    /// many as `out` holds). Every peer's queue is read even when muted, so its stream keeps
+    /// time with what the others hear.
+    pub fn mix(&mut self, out: &mut [f32]) {
+        let chunk_len = self.chunk_len();
+        let len = chunk_len.min(out.len());
+        let out = &mut out[..len];
         out.fill(0.0);
         let mix_start = self.position;
         for p in &mut self.peers {
@@ -267,7 +382,7 @@ impl Mixer {
             } else {
                 p.controls.volume() / 32768.0
             };
-            let n = p.rx.slots().min(CHUNK);
+            let n = p.rx.slots().min(chunk_len);
             if let Ok(chunk) = p.rx.read_chunk(n) {
                 let (a, b) = chunk.as_slices();
                 for (o, &s) in out.iter_mut().zip(a.iter().chain(b)) {
@@ -285,28 +400,30 @@ impl Mixer {
                     p.controls.lost_segments.fetch_add(1, Ordering::Relaxed);
                 }
             }
-            if n < CHUNK && p.stream_pos + n as u64 > 0 {
+            if n < chunk_len && p.stream_pos + n as u64 > 0 {
                 p.controls
                     .starved
-                    .fetch_add((CHUNK - n) as u64, Ordering::Relaxed);
+                    .fetch_add((chunk_len - n) as u64, Ordering::Relaxed);
             }
             p.stream_pos += n as u64;
         }
         for o in out.iter_mut() {
             *o = o.clamp(-1.0, 1.0);
         }
-        self.position += CHUNK as u64;
+        self.position += chunk_len as u64;
         self.progress
             .0
-            .store(self.position / CHUNK as u64, Ordering::Release);
+            .store(self.position / chunk_len as u64, Ordering::Release);
     }
 }
 
-/// 8 kHz -> device rate, one [`CHUNK`] at a time, into a buffer allocated once.
+/// The mixer's rate -> the device's, one chunk (20 ms) at a time, into a buffer allocated once;
+/// a copy where the two are equal.
 pub struct Upsampler {
     resampler: Option<Fft<f32>>,
     out: Vec<f32>,
     rate: u32,
+    chunk: usize,
 }
 
 impl std::fmt::Debug for Upsampler {
@@ -318,13 +435,21 @@ impl std::fmt::Debug for Upsampler {
 }
 
 impl Upsampler {
+    /// From an 8 kHz mix to `rate`.
     pub fn new(rate: u32) -> Result<Self, AudioError> {
-        let resampler = fft_resampler(SAMPLE_RATE, rate, CHUNK, FixedSync::Input)?;
-        let max = resampler.as_ref().map_or(CHUNK, |r| r.output_frames_max());
+        Self::between(SAMPLE_RATE, rate)
+    }
+
+    /// From a mix at `from` to a device at `to`.
+    pub fn between(from: u32, to: u32) -> Result<Self, AudioError> {
+        let chunk = frame_len(from).max(1);
+        let resampler = fft_resampler(from, to, chunk, FixedSync::Input)?;
+        let max = resampler.as_ref().map_or(chunk, |r| r.output_frames_max());
         Ok(Self {
             resampler,
             out: vec![0.0; max],
-            rate,
+            rate: to,
+            chunk,
         })
     }
 
@@ -341,18 +466,26 @@ impl Upsampler {
     pub fn next_len(&self) -> usize {
         self.resampler
             .as_ref()
-            .map_or(CHUNK, |r| r.output_frames_next())
+            .map_or(self.chunk, |r| r.output_frames_next())
     }
 
-    /// Resamples one chunk; the returned slice lives until the next call.
-    pub fn process(&mut self, input: &[f32; CHUNK]) -> Result<&[f32], AudioError> {
+    /// Resamples one chunk (20 ms at the mixer's rate); the returned slice lives until the next
+    /// call.
+    pub fn process(&mut self, input: &[f32]) -> Result<&[f32], AudioError> {
         let err = |e: &dyn std::fmt::Display| AudioError::Resampler(e.to_string());
+        let chunk = self.chunk;
+        if input.len() < chunk {
+            return Err(AudioError::Resampler(format!(
+                "{} samples for a chunk of {chunk}",
+                input.len()
+            )));
+        }
         let Some(r) = self.resampler.as_mut() else {
-            self.out[..CHUNK].copy_from_slice(input);
-            return Ok(&self.out[..CHUNK]);
+            self.out[..chunk].copy_from_slice(&input[..chunk]);
+            return Ok(&self.out[..chunk]);
         };
         let frames_out = self.out.len();
-        let inp = InterleavedSlice::new(&input[..], 1, CHUNK).map_err(|e| err(&e))?;
+        let inp = InterleavedSlice::new(&input[..chunk], 1, chunk).map_err(|e| err(&e))?;
         let mut outp =
             InterleavedSlice::new_mut(&mut self.out[..], 1, frames_out).map_err(|e| err(&e))?;
         let (_, n) = r
@@ -474,6 +607,92 @@ mod tests {
             feed.push_paced(&[100; CHUNK], 2, false);
         }
         assert_eq!(feed.queued(), 4 * CHUNK);
+    }
+
+    #[test]
+    fn a_48_khz_mixer_hears_each_peer_at_its_own_band() {
+        // A 16 kHz peer (G.722, Speex WB) with a 6 kHz tone, an 8 kHz peer, a 48 kHz peer with
+        // a 15 kHz tone: each resampled once into its queue, positions counted at 48 kHz.
+        let mut mixer = Mixer::at_rate(48_000);
+        let tone = |rate: u32, freq: f64, f: usize| {
+            let n = rate as usize / 50;
+            let pcm: Vec<i16> = (0..n)
+                .map(|i| {
+                    let t = (f * n + i) as f64 / f64::from(rate);
+                    (8000.0 * (2.0 * std::f64::consts::PI * freq * t).sin()) as i16
+                })
+                .collect();
+            FrameAudio::from_slice(rate, &pcm)
+        };
+        let peers = [(16_000u32, 6000.0), (8000, 1000.0), (48_000, 15_000.0)];
+        let mut feeds = Vec::new();
+        for (i, _) in peers.iter().enumerate() {
+            let c = Arc::new(PeerControls::default());
+            c.set_volume(if i == 0 { 1.0 } else { 0.0 });
+            let (f, m, _) = peer_channel_at(PeerId(i as u32), 48_000, 48_000, c);
+            mixer.add(m).unwrap();
+            feeds.push(f);
+        }
+        let mut out = Vec::new();
+        let mut chunk = [0.0f32; 960];
+        let mut first = [0u64; 3];
+        for f in 0..50 {
+            for (i, (feed, &(rate, freq))) in feeds.iter_mut().zip(&peers).enumerate() {
+                let pos = feed.push_frame(&tone(rate, freq, f), 2, f == 0).unwrap();
+                // The first frame after one frame of silence (two ahead; a resampled peer's
+                // later by its resampler's delay), then 960 a frame.
+                if f == 0 {
+                    first[i] = pos;
+                }
+                assert_eq!(pos, first[i] + 960 * f as u64);
+            }
+            mixer.mix(&mut chunk);
+            out.extend_from_slice(&chunk);
+        }
+        assert_eq!(first[2], 960, "the 48 kHz peer is not resampled");
+        assert!(first[0] > 960 && first[1] > 960);
+        assert_eq!(mixer.position(), 50 * 960);
+        let steady = &out[48_000 / 4..];
+        let a = tone_amplitude(steady, 48_000.0, 6000.0);
+        assert!((a - 8000.0 / 32768.0).abs() < 0.02, "6 kHz at {a}");
+        assert!(tone_amplitude(steady, 48_000.0, 1000.0) < 0.005);
+    }
+
+    #[test]
+    fn a_resampled_peer_is_heard_at_the_position_its_frame_was_tagged_with() {
+        // A click at the start of frame 10 of an 8 kHz and of a 16 kHz peer: in a 48 kHz mix it
+        // begins where the position push_frame returned for that frame says (the resampler's
+        // delay included), within a millisecond, so the mouth's row is shown with it.
+        for rate in [8000u32, 16_000, 44_100, 48_000] {
+            let mut mixer = Mixer::at_rate(48_000);
+            let (mut feed, m, _) =
+                peer_channel_at(PeerId(1), 48_000, 48_000, Arc::new(PeerControls::default()));
+            mixer.add(m).unwrap();
+            let n = rate as usize / 50;
+            let mut out = Vec::new();
+            let mut chunk = [0.0f32; 960];
+            let mut tagged = 0;
+            for f in 0..20 {
+                let mut pcm = vec![0i16; n];
+                if f == 10 {
+                    pcm[..n / 4].fill(20_000);
+                }
+                let pos = feed
+                    .push_frame(&FrameAudio::from_slice(rate, &pcm), 2, f == 0)
+                    .unwrap();
+                if f == 10 {
+                    tagged = pos;
+                }
+                mixer.mix(&mut chunk);
+                out.extend_from_slice(&chunk);
+            }
+            let onset = out.iter().position(|s| s.abs() > 0.3).unwrap() as i64;
+            let off_ms = (onset - tagged as i64) as f64 / 48.0;
+            assert!(
+                off_ms.abs() <= 1.0,
+                "{rate} Hz: heard {off_ms:.2} ms after its tag"
+            );
+        }
     }
 
     #[test]

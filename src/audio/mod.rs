@@ -1,5 +1,6 @@
 //! Audio in and out: WAV files (any rate, resampled to 8 kHz mono), and the real-time device
-//! layer of the app: capture, per-peer mixing, playback and the playback clock for lip-sync.
+//! layer of the app: capture, per-peer mixing at the output device's rate, playback and the
+//! playback clock for lip-sync.
 //!
 //! Threads: the device callbacks (capture, output) only touch rtrb rings and atomics; the
 //! mixer thread sums peers and resamples; decoder threads push PCM into per-peer queues; the
@@ -15,11 +16,15 @@
 //! if let OutputStatus::Silent { reason } = playback.status() {
 //!     println!("{reason}");
 //! }
-//! // Per remote peer: the feed goes to its decoder thread, with the weights' sender.
+//! // Per remote peer: the feed goes to its decoder thread, with the weights' sender. The
+//! // mixer runs at the device's rate; positions count samples at it, 20 ms a row.
 //! let mut feed = playback.add_peer()?;
-//! let (mut rows, mut weights) = Schedule::<[f32; 6]>::channel(256);
-//! let (pos, _queued) = feed.push(&[0i16; 160]); // a decoded 20 ms frame
-//! rows.send(pos, [1.0, 0.0, 0.0, 0.0, 0.0, 0.0]); // its viseme weights
+//! let (mut rows, mut weights) = Schedule::<[f32; 6]>::channel_with_rows(256, feed.frame_len());
+//! // A decoded 20 ms frame at its codec's rate (here 48 kHz Opus), resampled once to the mix.
+//! let audio = lipcall::vocab::FrameAudio::silence(48_000);
+//! if let Some(pos) = feed.push_frame(&audio, 2, true) {
+//!     rows.send(pos, [1.0, 0.0, 0.0, 0.0, 0.0, 0.0]); // its viseme weights
+//! }
 //! // Each UI frame: notice a lost device, then the weights of what is heard now.
 //! playback.poll();
 //! let _shown = playback.weights_now(&mut weights, feed.id(), Instant::now());
@@ -120,7 +125,9 @@ mod realtime_tests {
     #[test]
     fn callbacks_mixer_and_frame_reader_do_not_allocate() {
         use super::capture::capture_pipeline;
-        use super::mixer::{CHUNK, Mixer, PeerControls, PeerId, Upsampler, peer_channel};
+        use super::mixer::{
+            CHUNK, Mixer, PeerControls, PeerId, Upsampler, peer_channel, peer_channel_at,
+        };
         use super::playback::test_output_state;
 
         // The counter sees allocations at all.
@@ -170,6 +177,32 @@ mod realtime_tests {
             }
         });
         assert_eq!(n, 0, "mixer or output path allocated");
+
+        // At 48 kHz, peers at their codecs' rates resampled into their queues once each (the
+        // resampler is made on a peer's first frame, before counting), and the mix.
+        let mut mixer = Mixer::at_rate(48_000);
+        let mut feeds = Vec::new();
+        let audio = [8000u32, 16_000, 48_000].map(|rate| {
+            let pcm: Vec<i16> = (0..rate / 50).map(|i| (i % 200) as i16 * 50).collect();
+            crate::vocab::FrameAudio::from_slice(rate, &pcm)
+        });
+        for (i, a) in audio.iter().enumerate() {
+            let c = Arc::new(PeerControls::default());
+            let (mut f, m, _) = peer_channel_at(PeerId(i as u32), 48_000, 48_000, c);
+            mixer.add(m).unwrap();
+            f.push_frame(a, 2, true);
+            feeds.push(f);
+        }
+        let mut chunk = [0.0f32; 960];
+        let n = allocations(|| {
+            for _ in 0..100 {
+                for (f, a) in feeds.iter_mut().zip(&audio) {
+                    f.push_frame(a, 2, false);
+                }
+                mixer.mix(&mut chunk);
+            }
+        });
+        assert_eq!(n, 0, "a 48 kHz mixer's peers allocated");
     }
 
     /// The app runs the receiver pipeline per peer and frame on its engine thread, beside the

@@ -161,3 +161,23 @@ pub fn segmental_snr(reference: &[i16], test: &[i16], max: usize) -> (f64, isize
     }
     (10.0 * (signal / error.max(1e-9)).log10(), first_lag)
 }
+
+/// Energy above `hz` (a 4th-order Butterworth high-pass: two biquads), in dB.
+pub fn band_db(pcm: &[i16], rate: u32, hz: f64) -> f64 {
+    let w = 2.0 * std::f64::consts::PI * hz / f64::from(rate);
+    let mut x: Vec<f64> = pcm.iter().map(|&s| f64::from(s)).collect();
+    for q in [0.541_196_1, 1.306_562_9] {
+        let alpha = w.sin() / (2.0 * q);
+        let a0 = 1.0 + alpha;
+        let b0 = (1.0 + w.cos()) / 2.0 / a0;
+        let b1 = -(1.0 + w.cos()) / a0;
+        let (a1, a2) = (-2.0 * w.cos() / a0, (1.0 - alpha) / a0);
+        let (mut x1, mut x2, mut y1, mut y2) = (0.0, 0.0, 0.0, 0.0);
+        for v in x.iter_mut() {
+            let y = b0 * *v + b1 * x1 + b0 * x2 - a1 * y1 - a2 * y2;
+            (x2, x1, y2, y1) = (x1, *v, y1, y);
+            *v = y;
+        }
+    }
+    10.0 * x.iter().map(|v| v * v).sum::<f64>().max(1.0).log10()
+}

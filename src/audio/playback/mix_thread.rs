@@ -1,11 +1,13 @@
 //! The mixer thread: takes peers and sinks by command and keeps the current sink's ring
-//! filled to its target, mixing and resampling 20 ms at a time.
+//! filled to its target, mixing 20 ms at a time (and resampling where the sink's rate is not
+//! the mixer's).
 
 use std::sync::{Arc, Mutex, PoisonError, mpsc};
 use std::time::Duration;
 
 use crate::audio::clock::{OutputClock, SinkMapping};
-use crate::audio::mixer::{CHUNK, Mixer, MixerPeer, PeerId, Upsampler};
+use crate::audio::mixer::{Mixer, MixerPeer, PeerId, Upsampler};
+use crate::vocab::MAX_FRAME_SAMPLES;
 
 pub(super) enum Command {
     Attach {
@@ -28,7 +30,8 @@ pub(super) fn mixer_thread(
         tracing::warn!("{why}");
         *detached.lock().unwrap_or_else(PoisonError::into_inner) = Some(why);
     };
-    let mut chunk = [0.0f32; CHUNK];
+    let mut chunk = [0.0f32; MAX_FRAME_SAMPLES];
+    let chunk = &mut chunk[..mixer.chunk_len()];
     let mut sink: Option<(rtrb::Producer<f32>, Upsampler, usize)> = None;
     loop {
         loop {
@@ -37,13 +40,14 @@ pub(super) fn mixer_thread(
                     ring,
                     clock,
                     target_frames,
-                }) => match Upsampler::new(clock.rate()) {
+                }) => match Upsampler::between(mixer.rate(), clock.rate()) {
                     Ok(up) => {
                         clock.set_mapping(SinkMapping {
                             mix_start: mixer.position(),
                             ring_start: 0,
                             resampler_delay: up.delay() as u64,
                             rate: clock.rate(),
+                            mix_rate: mixer.rate(),
                         });
                         sink = Some((ring, up, target_frames));
                     }
@@ -67,8 +71,8 @@ pub(super) fn mixer_thread(
         if let Some((ring, up, target)) = sink.as_mut() {
             let cap = ring.buffer().capacity();
             while cap - ring.slots() < *target && ring.slots() >= up.next_len() {
-                mixer.mix(&mut chunk);
-                match up.process(&chunk) {
+                mixer.mix(chunk);
+                match up.process(chunk) {
                     Ok(out) => {
                         // Room was checked above; a short push cannot happen.
                         let _ = ring.push_partial_slice(out);

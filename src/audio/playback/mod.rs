@@ -22,8 +22,9 @@ use std::time::{Duration, Instant};
 use super::clock::{PeerClock, Schedule};
 use super::devices::DeviceChoice;
 use super::error::AudioError;
-use super::mixer::{MAX_PEERS, MixProgress, Mixer, PeerControls, PeerFeed, PeerId};
-use crate::vocab::SAMPLE_RATE;
+use super::mixer::{
+    DEFAULT_MIX_RATE, MAX_PEERS, MixProgress, Mixer, PeerControls, PeerFeed, PeerId, mix_rate_for,
+};
 use mix_thread::{Command, mixer_thread};
 pub use sink::OutputStatus;
 use sink::{Sink, device_sink, virtual_sink};
@@ -46,7 +47,7 @@ impl Default for PlaybackConfig {
     fn default() -> Self {
         Self {
             device: DeviceChoice::Default,
-            buffer: Duration::from_millis(60),
+            buffer: Duration::from_millis(30),
             peer_queue: Duration::from_secs(1),
         }
     }
@@ -85,6 +86,8 @@ pub struct Playback {
     /// Why the mixer thread stopped feeding the sink, for [`Playback::poll`] to report.
     detached: Arc<Mutex<Option<String>>>,
     mixed: MixProgress,
+    /// The mixer's rate, fixed for the engine's life: the first output's (48 kHz without one).
+    mix_rate: u32,
 }
 
 /// A device that has played nothing for this long while reporting errors is taken as gone:
@@ -118,7 +121,7 @@ impl Playback {
     }
 
     fn start_silent_because(config: PlaybackConfig, reason: String) -> Result<Self, AudioError> {
-        let (sink, ring, target) = virtual_sink(config.buffer);
+        let (sink, ring, target) = virtual_sink(DEFAULT_MIX_RATE, config.buffer);
         Self::with_sink(config, sink, ring, target, OutputStatus::Silent { reason })
     }
 
@@ -132,7 +135,8 @@ impl Playback {
         let (tx, rx) = mpsc::channel();
         let detached = Arc::new(Mutex::new(None));
         let detached2 = detached.clone();
-        let mix = Mixer::new();
+        let mix = Mixer::at_rate(mix_rate_for(sink.clock().rate()));
+        let mix_rate = mix.rate();
         let mixed = mix.progress();
         let mixer = std::thread::Builder::new()
             .name("lipcall-mixer".into())
@@ -155,7 +159,13 @@ impl Playback {
             progress: (0, 0, Instant::now()),
             detached,
             mixed,
+            mix_rate,
         })
+    }
+
+    /// The mixer's rate: what [`PeerFeed`]s queue and stream positions count in.
+    pub fn mix_rate(&self) -> u32 {
+        self.mix_rate
     }
 
     /// The mixer's count of 20 ms chunks mixed: what the output has asked of the peers' queues
@@ -192,7 +202,7 @@ impl Playback {
         if let Some(why) = detached {
             // Not "Playing" while nothing is fed: a virtual sink keeps the clocks going.
             if matches!(self.sink, Sink::Device { .. }) {
-                let (sink, ring, target) = virtual_sink(self.config.buffer);
+                let (sink, ring, target) = virtual_sink(self.mix_rate, self.config.buffer);
                 self.attach(sink, ring, target).ok()?;
                 self.progress = (0, 0, Instant::now());
             }
@@ -213,7 +223,7 @@ impl Playback {
         if !lost {
             return None;
         }
-        let (sink, ring, target) = virtual_sink(self.config.buffer);
+        let (sink, ring, target) = virtual_sink(self.mix_rate, self.config.buffer);
         self.attach(sink, ring, target).ok()?;
         self.progress = (0, 0, Instant::now());
         self.status = OutputStatus::Silent {
@@ -294,8 +304,9 @@ impl Playback {
         let id = PeerId(self.next_id);
         self.next_id += 1;
         let controls = Arc::new(PeerControls::default());
-        let queue = (self.config.peer_queue.as_secs_f64() * f64::from(SAMPLE_RATE)) as usize;
-        let (feed, mixer_peer, clock) = super::mixer::peer_channel(id, queue, controls.clone());
+        let queue = (self.config.peer_queue.as_secs_f64() * f64::from(self.mix_rate)) as usize;
+        let (feed, mixer_peer, clock) =
+            super::mixer::peer_channel_at(id, self.mix_rate, queue, controls.clone());
         self.commands
             .send(Command::Add(mixer_peer))
             .map_err(|_| AudioError::MixerStopped)?;
@@ -314,9 +325,18 @@ impl Playback {
         self.peers.get(&id).map(|p| &*p.controls)
     }
 
-    /// The 8 kHz mix position heard at `now`.
+    /// The mix position (samples at [`Playback::mix_rate`]) heard at `now`.
     pub fn heard_mix_position(&self, now: Instant) -> Option<u64> {
         self.sink.clock().heard_mix_position(now)
+    }
+
+    /// How long what the mixer has mixed waits before it is heard, at `now`: the output ring,
+    /// the resampler (if any) and the device's own latency. `None` before the first callback.
+    pub fn output_delay(&self, now: Instant) -> Option<Duration> {
+        let heard = self.heard_mix_position(now)?;
+        let mixed = self.mixed.chunks() * u64::from(self.mix_rate) / 50;
+        let waiting = mixed.saturating_sub(heard) as f64 / f64::from(self.mix_rate);
+        Some(Duration::from_secs_f64(waiting))
     }
 
     /// The position in peer `id`'s stream (as counted by [`PeerFeed::push`]) heard at `now`;
@@ -397,10 +417,15 @@ mod tests {
         let added = Instant::now();
         let mut feed = pb.add_peer().unwrap();
         let id = feed.id();
-        let (mut rows, mut schedule) = Schedule::channel(64);
+        // The mixer runs at 48 kHz without a device: stream positions count 48 kHz samples.
+        assert_eq!(
+            (pb.mix_rate(), feed.rate(), feed.frame_len()),
+            (48_000, 48_000, 960)
+        );
+        let (mut rows, mut schedule) = Schedule::channel_with_rows(64, 960);
         for f in 0..50u64 {
-            let (start, n) = feed.push(&[1000; 160]);
-            assert_eq!((start, n), (f * 160, 160));
+            let (start, n) = feed.push(&[1000; 960]);
+            assert_eq!((start, n), (f * 960, 960));
             rows.send(start, f);
         }
         std::thread::sleep(Duration::from_millis(400));
@@ -408,10 +433,10 @@ mod tests {
         let pos = pb.heard_position(id, now).expect("peer heard");
         // Past the start, and not past what the time since the peer came can play: the virtual
         // clock takes a chunk at once, then one every 20 ms (the sleep may last longer than 400 ms).
-        let playable = (now - added).as_secs_f64() * 8000.0 + super::super::mixer::CHUNK as f64;
+        let playable = (now - added).as_secs_f64() * 48_000.0 + 960.0;
         assert!(pos > 0 && (pos as f64) <= playable, "{pos} of {playable}");
         let row = *pb.weights_now(&mut schedule, id, now).expect("a row");
-        assert_eq!(row, pos / 160);
+        assert_eq!(row, pos / 960);
         pb.peer_controls(id).unwrap().set_volume(0.5);
         assert!(pb.stats().frames_played > 0);
         pb.remove_peer(id);

@@ -13,8 +13,6 @@ use cpal::{FromSample, Sample, SizedSample};
 use crate::audio::clock::OutputClock;
 use crate::audio::devices::{self, DeviceChoice, Direction};
 use crate::audio::error::AudioError;
-use crate::audio::mixer::CHUNK;
-use crate::vocab::SAMPLE_RATE;
 
 /// What the user hears.
 #[derive(Debug, Clone, PartialEq, Eq)]
@@ -111,8 +109,9 @@ fn ring_capacity(rate: u32, buffer: Duration, chunk_out: usize) -> (usize, usize
     (target, 2 * target + 2 * chunk_out)
 }
 
+/// Device frames one 20 ms chunk of the mix can come to, whatever the mixer's rate.
 fn chunk_out_len(rate: u32) -> usize {
-    (CHUNK * rate as usize).div_ceil(SAMPLE_RATE as usize) + 1
+    (rate as usize).div_ceil(50) + 1
 }
 
 fn build_output<T>(
@@ -157,7 +156,10 @@ pub(super) fn device_sink(
     let rate = opened.config.sample_rate();
     let channels = opened.config.channels();
     let format = opened.config.sample_format();
-    let config: cpal::StreamConfig = opened.config.config();
+    let mut config: cpal::StreamConfig = opened.config.config();
+    if let Some(period) = devices::period(opened.config.buffer_size(), rate) {
+        config.buffer_size = cpal::BufferSize::Fixed(period);
+    }
     let (target, cap) = ring_capacity(rate, buffer, chunk_out_len(rate));
     let (tx, rx) = rtrb::RingBuffer::new(cap);
     let clock = Arc::new(OutputClock::new(rate));
@@ -203,11 +205,13 @@ pub(super) fn device_sink(
     ))
 }
 
-/// A sink that plays nothing at real-time pace: 8 kHz, 10 ms periods, timed by the system clock.
-pub(super) fn virtual_sink(buffer: Duration) -> (Sink, rtrb::Producer<f32>, usize) {
-    const PERIOD: usize = 80;
-    let rate = SAMPLE_RATE;
-    let (target, cap) = ring_capacity(rate, buffer, CHUNK);
+/// A sink that plays nothing at real-time pace: at `rate` (the mixer's), 10 ms periods, timed by
+/// the system clock.
+pub(super) fn virtual_sink(rate: u32, buffer: Duration) -> (Sink, rtrb::Producer<f32>, usize) {
+    const MAX_PERIOD: usize = crate::vocab::MAX_AUDIO_RATE as usize / 100;
+    let rate = rate.clamp(100, crate::vocab::MAX_AUDIO_RATE);
+    let period = rate as usize / 100;
+    let (target, cap) = ring_capacity(rate, buffer, chunk_out_len(rate));
     let (tx, rx) = rtrb::RingBuffer::new(cap);
     let clock = Arc::new(OutputClock::new(rate));
     let stop = Arc::new(AtomicBool::new(false));
@@ -221,7 +225,8 @@ pub(super) fn virtual_sink(buffer: Duration) -> (Sink, rtrb::Producer<f32>, usiz
     let thread = std::thread::Builder::new()
         .name("lipcall-silent-sink".into())
         .spawn(move || {
-            let mut scratch = [0.0f32; PERIOD];
+            let mut scratch = [0.0f32; MAX_PERIOD];
+            let scratch = &mut scratch[..period];
             let start = Instant::now();
             let mut played: u64 = 0;
             while !stop2.load(Ordering::Relaxed) {
@@ -229,8 +234,8 @@ pub(super) fn virtual_sink(buffer: Duration) -> (Sink, rtrb::Producer<f32>, usiz
                 // The period [played, played + PERIOD) is heard from its nominal start on.
                 while played <= due {
                     let at = start + Duration::from_secs_f64(played as f64 / f64::from(rate));
-                    state.fill(&mut scratch, at, Duration::ZERO);
-                    played += PERIOD as u64;
+                    state.fill(scratch, at, Duration::ZERO);
+                    played += period as u64;
                 }
                 std::thread::sleep(Duration::from_millis(5));
             }
