@@ -11,6 +11,7 @@ use crate::render::arkit::{self, ARKIT_NAMES};
 use crate::render::head::{
     EXPRESSION_COUNT, Expression, HeadModel, Material, MorphDelta, Primitive, TargetSource,
 };
+use crate::render::mouth_gauge;
 use crate::vocab::{VISEME_COUNT, VISEME_NAMES};
 
 pub(super) fn build_model(
@@ -156,7 +157,34 @@ pub(super) fn build_model(
         Err(RenderError::NoUsableTargets { .. }) => Err(RenderError::NoUsableTargets {
             found: all_target_names,
         }),
-        other => other.map(|()| model),
+        Err(e) => Err(e),
+        Ok(()) => {
+            let mut model = model;
+            calibrate_mouth(&mut model);
+            Ok(model)
+        }
+    }
+}
+
+/// Opens the head's mouth as far as a real speaker's (see [`mouth_gauge`]) and says so.
+fn calibrate_mouth(model: &mut HeadModel) {
+    match mouth_gauge::calibrate(model) {
+        Some(c) if c.opening_gain > 1.0 || c.width_gain > 1.0 => tracing::info!(
+            "the head's mouth opened {:.3} eye widths and its width moved {:.3}: its mouth \
+             motion is scaled by {:.2} (sideways {:.2}) to {:.3} and {:.3}",
+            c.gap_before,
+            c.width_range_before,
+            c.opening_gain,
+            c.opening_gain * c.width_gain,
+            c.gap_after,
+            c.width_range_after
+        ),
+        Some(c) => tracing::debug!(
+            "the head's mouth opens {:.3} eye widths and its width moves {:.3}: kept as it is",
+            c.gap_before,
+            c.width_range_before
+        ),
+        None => tracing::debug!("the head's lips could not be measured: mouth kept as it is"),
     }
 }
 
