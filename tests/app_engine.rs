@@ -22,14 +22,14 @@ fn the_engine_joins_an_encrypted_room_and_animates_a_sender() {
         no_audio: true,
     })
     .unwrap();
-    engine.send(Command::Call(CallSpec {
+    engine.send(Command::Call(Box::new(CallSpec {
         address: relay_addr.clone(),
         room: Some("lab".into()),
         passphrase: Some("open sesame".into()),
         name: "Eve".into(),
         codec: Codec::Opus,
         ..CallSpec::default()
-    }));
+    })));
     let deadline = Instant::now() + Duration::from_secs(10);
     while !lock(&engine.shared).call.in_call {
         assert!(Instant::now() < deadline, "{:?}", lock(&engine.shared).call);

@@ -12,6 +12,7 @@ use lipcall::audio::DeviceChoice;
 use lipcall::codec::any::Codec;
 
 use common::janus::{STOCK_VIDEOROOM, start_janus, start_janus_with};
+use lipcall::net::janus::candidates::{IceServers, TurnServer};
 
 fn wait_for(what: &str, engine: &Engine, mut done: impl FnMut(&Engine) -> bool) {
     let deadline = Instant::now() + Duration::from_secs(20);
@@ -42,14 +43,19 @@ fn engine(name: &str) -> Engine {
 }
 
 fn join(engine: &Engine, url: &str, room: &str, pin: Option<&str>) {
-    engine.send(Command::Call(CallSpec {
+    join_with(engine, url, room, pin, IceServers::default());
+}
+
+fn join_with(engine: &Engine, url: &str, room: &str, pin: Option<&str>, ice: IceServers) {
+    engine.send(Command::Call(Box::new(CallSpec {
         address: url.into(),
         room: Some(room.into()),
         passphrase: pin.map(Into::into),
         name: "Carol".into(),
         codec: Codec::Opus,
+        ice,
         ..CallSpec::default()
-    }));
+    })));
 }
 
 #[test]
@@ -59,7 +65,7 @@ fn the_app_joins_a_janus_room_and_animates_each_publisher() {
     }
     let dir = tempfile::tempdir().unwrap();
     let janus = start_janus(dir.path());
-    app_animates_a_publisher(&janus.url, "app-room");
+    app_animates_a_publisher(&janus.url, "app-room", IceServers::default());
 }
 
 /// Debian's janus with its own configuration (numbered rooms, as stock deployments run it):
@@ -71,14 +77,40 @@ fn the_app_joins_a_room_of_a_stock_janus() {
     }
     let dir = tempfile::tempdir().unwrap();
     let janus = start_janus_with(dir.path(), &[std::path::Path::new(STOCK_VIDEOROOM)]);
-    app_animates_a_publisher(&janus.url, "1234");
+    app_animates_a_publisher(&janus.url, "1234", IceServers::default());
+}
+
+/// The app's media relayed only through a TURN server (the settings' NAT menu): coturn on the
+/// namespace's address, and a publisher heard and animated through it.
+#[test]
+fn the_app_joins_through_a_turn_relay_only() {
+    if !common::janus::runs_here("the_app_joins_through_a_turn_relay_only") {
+        return;
+    }
+    let dir = tempfile::tempdir().unwrap();
+    let Some(coturn) =
+        common::nat::start_coturn(dir.path(), &common::nat::media_ip(), Some("ann:s3cret"))
+    else {
+        return;
+    };
+    let janus = start_janus(dir.path());
+    let ice = IceServers {
+        stun: None,
+        turn: Some(TurnServer {
+            server: coturn.addr.to_string(),
+            username: "ann".into(),
+            password: "s3cret".into(),
+        }),
+        relay_only: true,
+    };
+    app_animates_a_publisher(&janus.url, "turn-room", ice);
 }
 
 /// The app joins `room` at `url`, a `send --janus` publisher there animates her head, and she
 /// is gone once she left.
-fn app_animates_a_publisher(url: &str, room: &str) {
+fn app_animates_a_publisher(url: &str, room: &str, ice: IceServers) {
     let app = engine("Carol");
-    join(&app, url, room, None);
+    join_with(&app, url, room, None, ice);
     wait_for("the app is in the room", &app, |e| {
         lock(&e.shared).call.state.contains("in Janus room")
     });

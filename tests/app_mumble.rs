@@ -49,12 +49,12 @@ fn engine(name: &str) -> Engine {
 
 /// Joins `mumble://` + `server` as `name`, with its own certificate folder under `dir`.
 fn join(engine: &Engine, dir: &Path, server: &str, name: &str) {
-    engine.send(Command::Call(CallSpec {
+    engine.send(Command::Call(Box::new(CallSpec {
         address: format!("mumble://{server}"),
         name: name.into(),
         mumble_identity: Some(dir.join(format!("identity-{name}"))),
         ..CallSpec::default()
-    }));
+    })));
 }
 
 fn view(engine: &Engine) -> Option<MumbleView> {

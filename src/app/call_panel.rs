@@ -4,7 +4,7 @@
 use eframe::egui;
 
 use super::engine::{self, CallSpec, Command, Engine};
-use super::settings::Settings;
+use super::settings::{NatSettings, Settings};
 use crate::call::janus::is_janus_url;
 use crate::call::mumble::is_mumble_url;
 use crate::codec::any::Codec;
@@ -66,6 +66,7 @@ pub(super) fn call_ui(
                 .desired_width(90.0),
         );
         if is_janus_url(&form.address) {
+            nat_menu_ui(ui, &mut settings.nat);
             ui.label("API secret");
             ui.add(
                 egui::TextEdit::singleline(&mut form.janus_secret)
@@ -98,7 +99,7 @@ pub(super) fn call_ui(
         {
             settings.last_address = form.address.clone();
             settings.last_room = form.room.clone();
-            engine.send(Command::Call(CallSpec {
+            engine.send(Command::Call(Box::new(CallSpec {
                 address: form.address.clone(),
                 room: Some(form.room.clone()),
                 passphrase: Some(form.passphrase.clone()),
@@ -109,8 +110,9 @@ pub(super) fn call_ui(
                     token: non_empty(&form.janus_token),
                 },
                 bandwidth: settings.bandwidth,
+                ice: settings.nat.ice(),
                 mumble_identity: None,
-            }));
+            })));
         }
         if ui
             .add_enabled(call.in_call, egui::Button::new("Leave"))
@@ -204,4 +206,36 @@ pub(super) fn codec_label(codec: Codec) -> &'static str {
         Codec::G722 => "G.722",
         Codec::SpeexWb => "Speex WB",
     }
+}
+
+/// The STUN and TURN servers a Janus room's media asks (kept in the settings).
+fn nat_menu_ui(ui: &mut egui::Ui, nat: &mut NatSettings) {
+    let label = if nat.turn.trim().is_empty() && nat.stun.trim().is_empty() {
+        "NAT: none"
+    } else {
+        "NAT: set"
+    };
+    ui.menu_button(label, |ui| {
+        ui.label("Behind a NAT (see docs/janus.md)");
+        egui::Grid::new("nat").num_columns(2).show(ui, |ui| {
+            ui.label("STUN server");
+            ui.add(egui::TextEdit::singleline(&mut nat.stun).hint_text("host:3478"));
+            ui.end_row();
+            ui.label("TURN server");
+            ui.add(egui::TextEdit::singleline(&mut nat.turn).hint_text("host:3478"));
+            ui.end_row();
+            ui.label("TURN user");
+            ui.text_edit_singleline(&mut nat.turn_user);
+            ui.end_row();
+            ui.label("TURN password");
+            ui.add(egui::TextEdit::singleline(&mut nat.turn_password).password(true));
+            ui.end_row();
+        });
+        ui.checkbox(
+            &mut nat.turn_only,
+            "Relay only (hide this machine's addresses)",
+        );
+    })
+    .response
+    .on_hover_text("STUN and TURN servers for Janus rooms when this machine is behind a NAT");
 }

@@ -45,7 +45,7 @@ const POLL: Duration = Duration::from_millis(5);
 /// What the engine is asked to do.
 #[derive(Debug, Clone)]
 pub enum Command {
-    Call(CallSpec),
+    Call(Box<CallSpec>),
     Leave,
     SetInput(DeviceChoice),
     SetOutput(DeviceChoice),
@@ -68,6 +68,8 @@ pub struct CallSpec {
     pub bandwidth: Bandwidth,
     /// Our Mumble certificate and the servers we trust (the user's config folder if none).
     pub mumble_identity: Option<PathBuf>,
+    /// STUN and TURN servers for a Janus room's media.
+    pub ice: IceServers,
 }
 
 impl Default for CallSpec {
@@ -81,6 +83,7 @@ impl Default for CallSpec {
             janus_auth: JanusAuth::default(),
             bandwidth: Bandwidth::Fullband,
             mumble_identity: None,
+            ice: IceServers::default(),
         }
     }
 }
@@ -406,7 +409,7 @@ impl Worker {
             pin: spec.passphrase.clone().filter(|p| !p.is_empty()),
             subscribe: true,
             jitter: JitterConfig::default(),
-            ice: IceServers::default(),
+            ice: spec.ice.clone(),
         };
         let janus = JanusLink::join(config)?;
         let state = format!("joining {}…", janus.place());

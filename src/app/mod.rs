@@ -87,13 +87,13 @@ pub fn run(options: AppOptions) -> anyhow::Result<()> {
         eprintln!("lipcall: listening on {addr}");
     }
     if let Some(address) = &options.call {
-        engine.send(engine::Command::Call(engine::CallSpec {
+        engine.send(engine::Command::Call(Box::new(engine::CallSpec {
             address: address.clone(),
             name: settings.name.clone(),
             codec: settings.codec,
             bandwidth: settings.bandwidth,
             ..engine::CallSpec::default()
-        }));
+        })));
     }
 
     let mut wgpu_options = eframe::egui_wgpu::WgpuConfiguration::default();

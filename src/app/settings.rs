@@ -7,6 +7,7 @@ use serde::{Deserialize, Serialize};
 
 use crate::codec::any::Codec;
 use crate::codec::opus::codec::Bandwidth;
+use crate::net::janus::candidates::{IceServers, TurnServer};
 
 /// The codec new calls send unless the settings say otherwise: Opus. It is what the VoIP world
 /// speaks today (WebRTC, SIP phones, Mumble, Discord), and it carries in-band FEC, so a lost
@@ -98,6 +99,49 @@ pub struct Settings {
     pub bandwidth: Bandwidth,
     /// Per-peer choices by display name (SSRCs change every call).
     pub peers: BTreeMap<String, PeerPrefs>,
+    /// STUN and TURN servers for Janus rooms behind a NAT.
+    pub nat: NatSettings,
+}
+
+/// The servers that take a Janus room's media across NATs (see docs/janus.md).
+#[derive(Clone, Default, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(default)]
+pub struct NatSettings {
+    /// HOST:PORT; empty: none.
+    pub stun: String,
+    pub turn: String,
+    pub turn_user: String,
+    pub turn_password: String,
+    /// All media through the TURN relay: the room never learns this machine's addresses.
+    pub turn_only: bool,
+}
+
+impl std::fmt::Debug for NatSettings {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.debug_struct("NatSettings")
+            .field("stun", &self.stun)
+            .field("turn", &self.turn)
+            .field("turn_user", &self.turn_user)
+            .field("turn_only", &self.turn_only)
+            .finish_non_exhaustive()
+    }
+}
+
+impl NatSettings {
+    /// The servers a call asks, blank fields left out.
+    pub fn ice(&self) -> IceServers {
+        let given = |s: &str| Some(s.trim().to_string()).filter(|s| !s.is_empty());
+        let turn = given(&self.turn).map(|server| TurnServer {
+            server,
+            username: self.turn_user.trim().to_string(),
+            password: self.turn_password.clone(),
+        });
+        IceServers {
+            stun: given(&self.stun),
+            relay_only: self.turn_only && turn.is_some(),
+            turn,
+        }
+    }
 }
 
 impl Default for Settings {
@@ -112,6 +156,7 @@ impl Default for Settings {
             codec: DEFAULT_CODEC,
             bandwidth: Bandwidth::Fullband,
             peers: BTreeMap::new(),
+            nat: NatSettings::default(),
         }
     }
 }
@@ -223,6 +268,35 @@ mod tests {
         assert_eq!(d, Settings::default());
         assert!(why.is_some());
         assert_eq!(Settings::load(&dir.path().join("none.json")), (d, None));
+    }
+
+    #[test]
+    fn nat_servers_round_trip_and_the_password_is_not_in_debug_output() {
+        let dir = tempfile::tempdir().unwrap();
+        let path = dir.path().join("settings.json");
+        let s = Settings {
+            nat: NatSettings {
+                stun: " stun.example.org:3478 ".into(),
+                turn: "turn.example.org:3478".into(),
+                turn_user: "ann".into(),
+                turn_password: "hunter2".into(),
+                turn_only: true,
+            },
+            ..Default::default()
+        };
+        s.save(&path).unwrap();
+        assert_eq!(Settings::load(&path), (s.clone(), None));
+        assert!(!format!("{s:?}").contains("hunter2"));
+        let ice = s.nat.ice();
+        assert_eq!(ice.stun.as_deref(), Some("stun.example.org:3478"));
+        assert!(ice.relay_only);
+        assert!(!format!("{ice:?}").contains("hunter2"));
+        // No TURN server: nothing to relay through, whatever the box says.
+        let none = NatSettings {
+            turn_only: true,
+            ..Default::default()
+        };
+        assert_eq!(none.ice(), IceServers::default());
     }
 
     #[test]

@@ -73,6 +73,7 @@ pub fn snr_db(reference: &[i16], test: &[i16]) -> f64 {
 pub mod lpc;
 pub mod mesh;
 pub mod mumble;
+pub mod nat;
 pub mod net;
 pub mod netns;
 pub mod sip;
