@@ -268,7 +268,7 @@ impl MumbleCall {
                 }
                 LinkEvent::RejoinFailed { reason } => {
                     status.error = Some(format!(
-                        "cannot reconnect to the Mumble server {server} yet: {reason}"
+                        "cannot reconnect to the Mumble server {server}: {reason}"
                     ));
                 }
                 LinkEvent::Rejoined { id } => {
