@@ -205,8 +205,8 @@ fn a_restarted_murmur_is_said_and_rejoined_and_the_call_goes_on() {
     // cut) played seconds of speech.
     let ann = received
         .lines()
-        .filter(|l| l.starts_with("peer ") && l.contains("name=\"Ann\""))
-        .last()
+        .rev()
+        .find(|l| l.starts_with("peer ") && l.contains("name=\"Ann\""))
         .unwrap_or_else(|| panic!("{received}"));
     assert!(field(ann, "played") > 100, "{received}");
 }
