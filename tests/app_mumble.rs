@@ -3,8 +3,8 @@
 //! peer whose frames play and whose talking light is on; the app's mute and push-to-talk reach
 //! the server as self-mute and a second lipcall on the server sees them; a channel switch moves
 //! the app (the second lipcall sees it there); a restarted murmurd is said and rejoined, back
-//! in the channel the app had moved to; and a server whose certificate changed is refused with
-//! the reason in the call bar.
+//! in the channel the app had moved to; and a wrong server password and a server whose
+//! certificate changed are refused with the reason in the call bar.
 
 mod common;
 
@@ -218,20 +218,31 @@ fn a_changed_server_certificate_is_refused_in_the_call_bar() {
         return;
     }
     let dir = tempfile::tempdir().unwrap();
-    let murmur = Murmur::start(dir.path(), "");
+    let mut murmur = Murmur::start(dir.path(), "");
     let app = engine("Dana");
     join(&app, dir.path(), &murmur.address(), "Dana");
     wait_for("the app is on the server", &app, 20, |e| {
         lock(&e.shared).call.state.contains("in channel")
     });
-    app.send(Command::Leave);
-    wait_for("the app left", &app, 10, |e| !lock(&e.shared).call.in_call);
 
-    // Another certificate under the same address than the one trusted on the first visit.
+    // Another certificate under the same address than the one trusted on the first visit,
+    // seen when the restarted server is rejoined: the call ends, saying why.
     let known = dir.path().join("identity-Dana/known_servers");
     let text = std::fs::read_to_string(&known).unwrap();
     assert!(text.contains(&murmur.address()), "{text}");
     std::fs::write(&known, format!("{} AA:BB:CC\n", murmur.address())).unwrap();
+    murmur.restart(Duration::from_millis(300));
+    wait_for("the call ends on the changed certificate", &app, 20, |e| {
+        let s = lock(&e.shared);
+        !s.call.in_call
+            && s.call.error.as_deref().is_some_and(|e| {
+                e.contains("certificate of")
+                    && e.contains("AA:BB:CC")
+                    && e.contains("not reconnecting")
+            })
+    });
+
+    // And a new join is refused.
     join(&app, dir.path(), &murmur.address(), "Dana");
     wait_for("the changed certificate is refused", &app, 20, |e| {
         let s = lock(&e.shared);
@@ -241,4 +252,35 @@ fn a_changed_server_certificate_is_refused_in_the_call_bar() {
             })
     });
     assert!(view(&app).is_none());
+}
+
+#[test]
+fn a_wrong_server_password_is_said_in_the_call_bar() {
+    if !runs_here("a_wrong_server_password_is_said_in_the_call_bar") {
+        return;
+    }
+    let dir = tempfile::tempdir().unwrap();
+    let murmur = Murmur::start(dir.path(), "serverpassword=open sesame");
+    let app = engine("Eve");
+    let call = |password: &str| {
+        app.send(Command::Call(CallSpec {
+            address: format!("mumble://{}", murmur.address()),
+            passphrase: Some(password.into()),
+            mumble_identity: Some(dir.path().join("identity-Eve")),
+            ..CallSpec::default()
+        }));
+    };
+    call("guess");
+    wait_for("the wrong password is said", &app, 20, |e| {
+        let s = lock(&e.shared);
+        !s.call.in_call
+            && s.call.error.as_deref().is_some_and(|e| {
+                e.contains("wrong server password (give it as the server password)")
+            })
+    });
+    call("open sesame");
+    wait_for("the right one lets the app in", &app, 20, |e| {
+        let s = lock(&e.shared);
+        s.call.state.contains("in channel") && s.call.error.is_none()
+    });
 }

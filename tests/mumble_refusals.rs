@@ -173,3 +173,34 @@ fn a_missing_channel_and_a_changed_certificate_are_refused_clearly() {
         "{changed}"
     );
 }
+
+#[test]
+fn a_server_back_with_another_certificate_ends_the_receive() {
+    if !runs_here("a_server_back_with_another_certificate_ends_the_receive") {
+        return;
+    }
+    let dir = tempfile::tempdir().unwrap();
+    let mut murmur = Murmur::start(dir.path(), "");
+    let mut rx = holder(dir.path(), "rx", &murmur, "Rx");
+    let known = dir.path().join("config-rx/lipcall/mumble/known_servers");
+    std::fs::write(&known, format!("{} AA:BB:CC\n", murmur.address())).unwrap();
+    murmur.restart(Duration::from_millis(300));
+    let deadline = Instant::now() + Duration::from_secs(20);
+    let status = loop {
+        if let Some(status) = rx.try_wait().unwrap() {
+            break status;
+        }
+        if Instant::now() > deadline {
+            let _ = rx.kill();
+            panic!("the receive went on after the certificate changed");
+        }
+        std::thread::sleep(Duration::from_millis(50));
+    };
+    let log = std::fs::read_to_string(dir.path().join("rx.log")).unwrap();
+    assert_eq!(status.code(), Some(1), "{log}");
+    let last = log.lines().last().unwrap_or_default();
+    assert!(
+        last.contains("certificate of") && last.contains("not reconnecting"),
+        "{log}"
+    );
+}

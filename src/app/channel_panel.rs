@@ -4,13 +4,14 @@
 
 use eframe::egui;
 
-use super::engine::{Command, Engine};
 use super::mumble_call::MumbleView;
 
 /// Indent of one level of the channel tree.
 const INDENT: f32 = 12.0;
 
-pub(super) fn channels_ui(ui: &mut egui::Ui, view: &MumbleView, engine: &Engine) {
+/// Shows the server; returns the channel clicked, to move to.
+pub fn channels_ui(ui: &mut egui::Ui, view: &MumbleView) -> Option<u32> {
+    let mut chosen = None;
     ui.heading("Mumble");
     ui.label(format!("server {}", view.server));
     let trust = if view.first_visit {
@@ -47,7 +48,7 @@ pub(super) fn channels_ui(ui: &mut egui::Ui, view: &MumbleView, engine: &Engine)
                     "move to this channel"
                 });
             if button.clicked() && !row.ours {
-                engine.send(Command::Channel(row.id));
+                chosen = Some(row.id);
             }
         });
         for m in &row.members {
@@ -66,4 +67,70 @@ pub(super) fn channels_ui(ui: &mut egui::Ui, view: &MumbleView, engine: &Engine)
         }
     }
     ui.separator();
+    chosen
+}
+
+#[cfg(test)]
+mod tests {
+    use egui_kittest::Harness;
+    use egui_kittest::kittest::Queryable;
+
+    use super::*;
+    use crate::app::mumble_call::ChannelRow;
+    use crate::net::mumble::events::Member;
+
+    fn member(session: u32, name: &str, channel: u32, self_mute: bool, us: bool) -> Member {
+        Member {
+            session,
+            name: name.into(),
+            channel,
+            self_mute,
+            us,
+        }
+    }
+
+    #[test]
+    fn the_tree_shows_who_is_where_and_a_click_picks_another_channel() {
+        let view = MumbleView {
+            server: "127.0.0.1:64738".into(),
+            fingerprint: vec!["AB"; 32].join(":"),
+            first_visit: true,
+            channels: vec![
+                ChannelRow {
+                    id: 0,
+                    name: "Root".into(),
+                    depth: 0,
+                    members: vec![member(3, "Carol", 0, true, true)],
+                    ours: true,
+                },
+                ChannelRow {
+                    id: 4,
+                    name: "Cellar".into(),
+                    depth: 1,
+                    members: vec![member(5, "Bob", 4, false, false)],
+                    ours: false,
+                },
+            ],
+            self_muted: true,
+            udp: true,
+        };
+        let mut h = Harness::new_ui_state(
+            move |ui: &mut egui::Ui, chosen: &mut Vec<u32>| {
+                chosen.extend(channels_ui(ui, &view));
+            },
+            Vec::new(),
+        );
+        h.run();
+        h.get_by_label("Carol (you)");
+        h.get_by_label("Bob");
+        h.get_by_label("muted");
+        h.get_by_label("voice by UDP");
+        h.get_by_label("you are muted (the others see it)");
+        h.get_by_label("Root").click();
+        h.run();
+        assert!(h.state().is_empty(), "our own channel is no move");
+        h.get_by_label("Cellar").click();
+        h.run();
+        assert_eq!(h.state().as_slice(), [4]);
+    }
 }

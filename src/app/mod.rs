@@ -34,7 +34,7 @@ use crate::codec::any::Codec;
 use audio_panel::audio_ui;
 pub use call_panel::CallForm;
 use call_panel::call_ui;
-use channel_panel::channels_ui;
+pub use channel_panel::channels_ui;
 use engine::{Command, Engine, EngineConfig};
 pub use peer_panel::{ShownPeer, peer_controls_ui, peer_list_ui, tiles_ui};
 use settings::Settings;
@@ -389,8 +389,8 @@ impl eframe::App for LipcallApp {
             .default_size(240.0)
             .min_size(200.0)
             .show(ui, |ui| {
-                if let Some(view) = &mumble {
-                    channels_ui(ui, view, &self.engine);
+                if let Some(id) = mumble.as_ref().and_then(|view| channels_ui(ui, view)) {
+                    self.engine.send(Command::Channel(id));
                 }
                 peer_list_ui(ui, &peers);
             });

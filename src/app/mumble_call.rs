@@ -205,7 +205,8 @@ impl MumbleCall {
                 }
                 Some(Ok(Err(e))) => {
                     *stage = Stage::Over;
-                    status.error = Some(format!("Mumble server {}: {e}", self.server));
+                    status.error =
+                        Some(format!("Mumble server {}: {}", self.server, app_words(&e)));
                     return Step::Failed;
                 }
                 _ => {
@@ -267,7 +268,7 @@ impl MumbleCall {
                 }
                 LinkEvent::RejoinFailed { reason } => {
                     status.error = Some(format!(
-                        "cannot reconnect to the Mumble server {server} yet: {reason}"
+                        "cannot reconnect to the Mumble server {server}: {reason}"
                     ));
                 }
                 LinkEvent::Rejoined { id } => {
@@ -295,6 +296,16 @@ impl MumbleCall {
         }
         false
     }
+}
+
+/// A join's failure as the app says it: the protocol's reasons name the command line's flags.
+fn app_words(e: &MumbleError) -> String {
+    e.to_string()
+        .replace(
+            "(give it with --password)",
+            "(give it as the server password)",
+        )
+        .replace("pick another with --name", "pick another name")
 }
 
 /// The worker's look at its Mumble call, if any, once per loop: the join's outcome, the
@@ -418,12 +429,18 @@ impl Link for CallLink {
         }
     }
 
-    /// Disconnects. A join still running finishes on its own thread, and its connection
-    /// closes as it is dropped there.
+    /// Disconnects, on a thread of its own: a connection in the middle of a reconnect takes up
+    /// to a second to stop, which the worker's tick must not wait for. A join still running
+    /// finishes on its own thread, and its connection closes as it is dropped there.
     fn leave(&mut self) {
         let stage = std::mem::replace(&mut *lock(&self.0), Stage::Over);
         if let Stage::In(mut link) = stage {
-            link.leave();
+            let closing = std::thread::Builder::new()
+                .name("mumble-leave".into())
+                .spawn(move || link.leave());
+            if let Err(e) = closing {
+                tracing::warn!("cannot close the Mumble connection on its own thread: {e}");
+            }
         }
     }
 

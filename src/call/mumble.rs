@@ -45,6 +45,8 @@ pub struct MumbleLink {
     notes: Vec<String>,
     /// The server removed us: why (the call is over).
     removed: Option<String>,
+    /// The server came back with another certificate: why (the call is over).
+    untrusted: Option<String>,
 }
 
 impl MumbleLink {
@@ -63,6 +65,7 @@ impl MumbleLink {
             heard: false,
             notes: Vec::new(),
             removed: None,
+            untrusted: None,
         }
     }
 
@@ -77,6 +80,11 @@ impl MumbleLink {
     /// Why the server removed us, if it did.
     pub fn removed(&self) -> Option<&str> {
         self.removed.as_deref()
+    }
+
+    /// Why the call ended on a server that is no longer the one trusted, if it did.
+    pub fn untrusted(&self) -> Option<&str> {
+        self.untrusted.as_deref()
     }
 
     /// What the server said since the last call that no [`LinkEvent`] carries.
@@ -102,6 +110,11 @@ impl MumbleLink {
             Notice::Client(ClientEvent::Removed(reason)) => {
                 self.removed = Some(reason.clone());
                 LinkEvent::Failed(format!("the Mumble server removed us: {reason}"))
+            }
+            Notice::Untrusted(reason) => {
+                let reason = format!("{reason}; not reconnecting");
+                self.untrusted = Some(reason.clone());
+                LinkEvent::Failed(reason)
             }
             Notice::Client(ClientEvent::Synced { .. }) => return None,
             Notice::Client(ClientEvent::Rejected(reason)) => {
@@ -154,7 +167,12 @@ impl Link for MumbleLink {
 
     /// Everyone who spoke has left, or we were removed.
     fn all_left(&self) -> bool {
-        self.removed.is_some() || (self.heard && self.connection.speakers().iter().all(|s| s.3))
+        self.over() || (self.heard && self.connection.speakers().iter().all(|s| s.3))
+    }
+
+    /// Removed, or the server is no longer the one trusted.
+    fn over(&self) -> bool {
+        self.removed.is_some() || self.untrusted.is_some()
     }
 
     fn send_frames(&mut self, payload: &[u8], frames: u32) {

@@ -112,6 +112,7 @@ fn print_notice(notice: &Notice) {
         Notice::Rejoined(session) => {
             eprintln!("lipcall: back on the Mumble server as session {session}")
         }
+        Notice::Untrusted(reason) => eprintln!("lipcall: {reason}; not reconnecting"),
     }
 }
 
@@ -195,8 +196,12 @@ pub fn send(input: &Path, args: &MumbleArgs) -> Result<()> {
         }
         for notice in connection.poll() {
             print_notice(&notice);
-            if let Notice::Client(ClientEvent::Removed(reason)) = notice {
-                bail!("the Mumble server removed us: {reason}");
+            match notice {
+                Notice::Client(ClientEvent::Removed(reason)) => {
+                    bail!("the Mumble server removed us: {reason}")
+                }
+                Notice::Untrusted(reason) => bail!("{reason}; not reconnecting"),
+                _ => {}
             }
         }
         Ok(())
@@ -240,6 +245,9 @@ impl Link for Told<'_> {
     }
     fn leave(&mut self) {
         self.0.leave();
+    }
+    fn over(&self) -> bool {
+        self.0.over()
     }
     fn poll(&mut self) -> Vec<LinkEvent> {
         if stopped(self.1) {
@@ -305,6 +313,9 @@ pub fn receive(args: &MumbleReceiveArgs) -> Result<()> {
     link.leave();
     let finished = recorder.finish();
     played.and(finished)?;
+    if let Some(reason) = link.untrusted() {
+        bail!("{reason}");
+    }
     match link.removed() {
         Some(reason) => bail!("the Mumble server removed us: {reason}"),
         None => Ok(()),

@@ -45,6 +45,9 @@ pub enum Notice {
     RejoinFailed(String),
     /// Back in, as `session`.
     Rejoined(u32),
+    /// The server came back with another certificate than the one trusted: not the server we
+    /// joined, so no more reconnects (why, with both fingerprints).
+    Untrusted(String),
 }
 
 /// How to reach a server and as whom.
@@ -425,15 +428,15 @@ fn run(mut stream: Tls, shared: &Shared, server: &str, identity: &Identity, know
                     shared.notify(Notice::Rejoined(session));
                     break s;
                 }
+                Err(e @ MumbleError::CertificateChanged { .. }) => {
+                    shared.notify(Notice::Untrusted(e.to_string()));
+                    return;
+                }
                 Err(e) => {
                     let reason = e.to_string();
                     if said.as_deref() != Some(reason.as_str()) {
                         shared.notify(Notice::RejoinFailed(reason.clone()));
                         said = Some(reason);
-                    }
-                    if matches!(e, MumbleError::CertificateChanged { .. }) {
-                        // Not the server we trusted: stop trying.
-                        return;
                     }
                 }
             }
