@@ -1,10 +1,11 @@
 //! The app's engine without a window: it joins an encrypted room on a relay (sending Opus), and
 //! an Opus sender in the same room is heard and animated, its codec shown.
 
+mod common;
+
 use std::time::{Duration, Instant};
 
-use lipcall::app::engine::{CallSpec, Command, Engine, EngineConfig, lock};
-use lipcall::audio::DeviceChoice;
+use lipcall::app::engine::{CallSpec, Command, lock};
 use lipcall::codec::any::Codec;
 use lipcall::commands::net::{KeyArgs, SendArgs, send};
 use lipcall::net::relay::{Relay, RelayConfig};
@@ -13,15 +14,7 @@ use lipcall::net::relay::{Relay, RelayConfig};
 fn the_engine_joins_an_encrypted_room_and_animates_a_sender() {
     let relay = Relay::start("127.0.0.1:0".parse().unwrap(), RelayConfig::default()).unwrap();
     let relay_addr = relay.local_addr().to_string();
-    let engine = Engine::start(EngineConfig {
-        listen: None,
-        demo: false,
-        name: "Eve".into(),
-        input: DeviceChoice::Default,
-        output: DeviceChoice::Default,
-        no_audio: true,
-    })
-    .unwrap();
+    let engine = common::app::headless_engine("Eve", None);
     engine.send(Command::Call(Box::new(CallSpec {
         address: relay_addr.clone(),
         room: Some("lab".into()),

@@ -36,15 +36,7 @@ fn caller(to: std::net::SocketAddr, name: Option<&str>) -> std::thread::JoinHand
 
 #[test]
 fn a_peer_that_leaves_leaves_no_state_behind() {
-    let engine = Engine::start(EngineConfig {
-        listen: Some("127.0.0.1:0".parse().unwrap()),
-        demo: false,
-        name: "Eve".into(),
-        input: DeviceChoice::Default,
-        output: DeviceChoice::Default,
-        no_audio: true,
-    })
-    .unwrap();
+    let engine = common::app::headless_engine("Eve", Some("127.0.0.1:0"));
     let to = lock(&engine.shared)
         .call
         .local_addr

@@ -9,8 +9,7 @@ use std::sync::atomic::{AtomicBool, Ordering};
 use std::time::{Duration, Instant};
 
 use common::net::{new_ssrc_flood, talk};
-use lipcall::app::engine::{Engine, EngineConfig, lock};
-use lipcall::audio::DeviceChoice;
+use lipcall::app::engine::lock;
 use lipcall::net::session::{Session, SessionConfig};
 
 /// Frames the caller talks: 10 s.
@@ -18,15 +17,7 @@ const FRAMES: u32 = 500;
 
 #[test]
 fn the_app_hears_a_caller_through_a_flood_of_new_ssrcs() {
-    let engine = Engine::start(EngineConfig {
-        listen: Some("127.0.0.1:0".parse().unwrap()),
-        demo: false,
-        name: "Eve".into(),
-        input: DeviceChoice::Default,
-        output: DeviceChoice::Default,
-        no_audio: true,
-    })
-    .unwrap();
+    let engine = common::app::headless_engine("Eve", Some("127.0.0.1:0"));
     let to = lock(&engine.shared)
         .call
         .local_addr

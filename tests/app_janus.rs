@@ -7,8 +7,7 @@ mod common;
 use std::process::{Command as Process, Stdio};
 use std::time::{Duration, Instant};
 
-use lipcall::app::engine::{CallSpec, Command, Encryption, Engine, EngineConfig, lock};
-use lipcall::audio::DeviceChoice;
+use lipcall::app::engine::{CallSpec, Command, Encryption, Engine, lock};
 use lipcall::codec::any::Codec;
 
 use common::janus::{STOCK_VIDEOROOM, start_janus, start_janus_with};
@@ -31,15 +30,7 @@ fn wait_for(what: &str, engine: &Engine, mut done: impl FnMut(&Engine) -> bool) 
 }
 
 fn engine(name: &str) -> Engine {
-    Engine::start(EngineConfig {
-        listen: None,
-        demo: false,
-        name: name.into(),
-        input: DeviceChoice::Default,
-        output: DeviceChoice::Default,
-        no_audio: true,
-    })
-    .unwrap()
+    common::app::headless_engine(name, None)
 }
 
 fn join(engine: &Engine, url: &str, room: &str, pin: Option<&str>) {

@@ -12,9 +12,9 @@ use std::path::Path;
 use std::process::Stdio;
 use std::time::{Duration, Instant};
 
-use lipcall::app::engine::{CallSpec, Command, Encryption, Engine, EngineConfig, lock};
+use lipcall::app::engine::{CallSpec, Command, Encryption, Engine, lock};
 use lipcall::app::mumble_call::MumbleView;
-use lipcall::audio::{DeviceChoice, MicControls};
+use lipcall::audio::MicControls;
 
 use common::mumble::{Murmur, lipcall_as, runs_here};
 
@@ -36,15 +36,7 @@ fn wait_for(what: &str, engine: &Engine, limit_s: u64, mut done: impl FnMut(&Eng
 }
 
 fn engine(name: &str) -> Engine {
-    Engine::start(EngineConfig {
-        listen: None,
-        demo: false,
-        name: name.into(),
-        input: DeviceChoice::Default,
-        output: DeviceChoice::Default,
-        no_audio: true,
-    })
-    .unwrap()
+    common::app::headless_engine(name, None)
 }
 
 /// Joins `mumble://` + `server` as `name`, with its own certificate folder under `dir`.
@@ -263,12 +255,12 @@ fn a_wrong_server_password_is_said_in_the_call_bar() {
     let murmur = Murmur::start(dir.path(), "serverpassword=open sesame");
     let app = engine("Eve");
     let call = |password: &str| {
-        app.send(Command::Call(CallSpec {
+        app.send(Command::Call(Box::new(CallSpec {
             address: format!("mumble://{}", murmur.address()),
             passphrase: Some(password.into()),
             mumble_identity: Some(dir.path().join("identity-Eve")),
             ..CallSpec::default()
-        }));
+        })));
     };
     call("guess");
     wait_for("the wrong password is said", &app, 20, |e| {

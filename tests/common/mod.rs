@@ -1,6 +1,7 @@
 //! Helpers shared by the integration tests: running the reference tools and reading WAVs.
 #![allow(dead_code)]
 
+pub mod app;
 pub mod glb_write;
 pub mod janus;
 
