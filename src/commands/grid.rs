@@ -292,22 +292,25 @@ pub fn decompose_grid(args: &RealLipsArgs, chosen: Option<&str>) -> Result<()> {
         .filter_map(|n| VisemeSet::reduced(n).ok())
         .filter(|s| shapes.for_set(s).is_ok())
         .collect();
-    let mut extra = vec![recipe::VISEMES.to_string()];
-    extra.extend(chosen.map(str::to_string));
-    extra.push(
-        shapes
-            .visemes()
-            .iter()
-            .filter(|v| **v != Viseme::Sil)
-            .map(|v| v.name())
-            .collect::<Vec<_>>()
-            .join(","),
-    );
-    for names in extra {
-        let set = VisemeSet::parse(&names)?;
+    // The shipped network's set where the clips show all of it, the chosen one (which must),
+    // and every viseme that has a key shape.
+    let shipped = VisemeSet::parse(recipe::VISEMES)?;
+    let mut extra: Vec<VisemeSet> = Vec::new();
+    extra.extend(shapes.for_set(&shipped).is_ok().then_some(shipped));
+    if let Some(names) = chosen {
+        let set = VisemeSet::parse(names)?;
         shapes
             .for_set(&set)
             .with_context(|| format!("{set}: a viseme has no key shape"))?;
+        extra.push(set);
+    }
+    let all: Vec<Viseme> = shapes
+        .visemes()
+        .into_iter()
+        .filter(|v| *v != Viseme::Sil)
+        .collect();
+    extra.extend(VisemeSet::new(all).ok());
+    for set in extra {
         if !sets.contains(&set) {
             sets.push(set);
         }
