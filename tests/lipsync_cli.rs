@@ -416,3 +416,162 @@ fn decompose_prints_table_i_and_decomposes_marker_tracks() {
     ]);
     assert_clean_failure(&out, "unknown viseme \"XX\"");
 }
+
+/// A GRID-like folder: `clips` s1 clips of 25 video frames (1 s) whose lips follow a phone
+/// sequence cycling through /p/ (shut), /aa/ (open) and /iy/ (spread, half open), each phone
+/// 80 ms, with their phone files; and one other-speaker clip.
+fn tiny_grid(root: &Path, clips: usize) -> PathBuf {
+    const CONTOUR: [usize; 20] = [
+        61, 40, 37, 0, 267, 270, 291, 321, 314, 17, 84, 91, 78, 82, 13, 312, 308, 317, 14, 87,
+    ];
+    let mut header = String::from("time_s,tracked");
+    for l in [1, 33, 263].into_iter().chain(CONTOUR) {
+        header.push_str(&format!(",x_{l},y_{l},z_{l}"));
+    }
+    let phones = ["p", "aa", "iy"];
+    // Opening and spread (in pixels) of a phone; eyes 60 px apart.
+    let shape = |p: &str| match p {
+        "p" => (0.0, 0.0),
+        "aa" => (9.0, 0.0),
+        _ => (4.0, 6.0),
+    };
+    let track = |phone_at: &dyn Fn(f64) -> &'static str| -> String {
+        let mut text = header.clone();
+        for f in 0..25 {
+            let (open, spread) = shape(phone_at((f as f64 + 0.5) / 25.0));
+            let mut row = format!(
+                "\n{},1,160,150,0,130,120,0,190,120,0",
+                (f as f64 + 0.5) / 25.0
+            );
+            // Corners move out by the spread; the lower lip drops by the opening.
+            let points: [(f64, f64); 20] = [
+                (-20.0 - spread, 190.0),
+                (-12.0, 184.0),
+                (-6.0, 184.0),
+                (0.0, 184.0),
+                (6.0, 184.0),
+                (12.0, 184.0),
+                (20.0 + spread, 190.0),
+                (12.0, 196.0 + open),
+                (6.0, 196.0 + open),
+                (0.0, 196.0 + open),
+                (-6.0, 196.0 + open),
+                (-12.0, 196.0 + open),
+                (-14.0 - spread, 190.0),
+                (-6.0, 190.0),
+                (0.0, 190.0),
+                (6.0, 190.0),
+                (14.0 + spread, 190.0),
+                (6.0, 190.0 + open),
+                (0.0, 190.0 + open),
+                (-6.0, 190.0 + open),
+            ];
+            for (x, y) in points {
+                row.push_str(&format!(",{:.1},{y:.1},0", 160.0 + x));
+            }
+            text.push_str(&row);
+        }
+        text + "\n"
+    };
+    for (set, n) in [("s1", clips), ("other-speakers", 1)] {
+        std::fs::create_dir_all(root.join(set).join("tracks")).unwrap();
+        for c in 0..n {
+            let offset = c % 3;
+            let phone_at = move |t: f64| phones[((t / 0.08) as usize + offset) % 3];
+            let name = format!("c{c:03}");
+            std::fs::write(
+                root.join(set).join("tracks").join(format!("{name}.csv")),
+                track(&phone_at),
+            )
+            .unwrap();
+            if set == "s1" {
+                let mut phn = String::new();
+                for i in 0..12 {
+                    let start = i * 1280;
+                    phn.push_str(&format!(
+                        "{start} {} {}\n",
+                        start + 1280,
+                        phone_at(i as f64 * 0.08 + 0.04)
+                    ));
+                }
+                let dir = root.join("phones");
+                std::fs::create_dir_all(&dir).unwrap();
+                std::fs::write(dir.join(format!("{name}.phn")), phn).unwrap();
+            }
+        }
+    }
+    root.join("phones")
+}
+
+#[test]
+fn decompose_grid_prints_table_i_on_tracked_lips() {
+    let dir = tempfile::tempdir().unwrap();
+    let phones = tiny_grid(dir.path(), 11);
+    let grid = dir.path().to_str().unwrap();
+    let out = lipcall(&[
+        "decompose",
+        "--grid",
+        grid,
+        "--phones",
+        phones.to_str().unwrap(),
+    ]);
+    assert!(out.status.success(), "{}", stderr(&out));
+    let text = String::from_utf8_lossy(&out.stdout);
+    println!("{text}");
+    assert!(text.contains("9 training clips"), "{text}");
+    assert!(
+        text.contains("s1's 2 held-out clips") && text.contains("1 other-speaker"),
+        "{text}"
+    );
+    // Key shapes: aa opens 9 px of 60 (0.15 eye widths), PP is shut.
+    let key = |name: &str| -> Vec<f32> {
+        let line = text
+            .lines()
+            .find(|l| l.starts_with(&format!("{name} ")))
+            .unwrap();
+        line.split_whitespace()
+            .filter_map(|w| w.parse().ok())
+            .collect()
+    };
+    assert!(
+        (key("aa")[1] - 0.15).abs() < 0.01 && key("PP")[1].abs() < 0.01,
+        "{text}"
+    );
+    // Every frame is one of the three shapes: with all three the error is near 0, with two
+    // it is not.
+    let row = |names: &str| -> f32 {
+        let line = text
+            .lines()
+            .find(|l| l.contains(names) && l.contains('%'))
+            .unwrap();
+        line.split_whitespace()
+            .find_map(|w| {
+                w.trim_end_matches('%')
+                    .parse::<f32>()
+                    .ok()
+                    .filter(|_| w.ends_with('%'))
+            })
+            .unwrap()
+    };
+    assert!(row("PP aa I ") < 1.0, "{text}");
+    assert!(row("PP aa  ") > 5.0, "{text}");
+    // No phone files: a clear failure that says how to make them.
+    let out = lipcall(&[
+        "decompose",
+        "--grid",
+        grid,
+        "--phones",
+        "/nonexistent/phones",
+    ]);
+    assert_clean_failure(&out, "align_grid.py");
+    let out = lipcall(&[
+        "decompose",
+        "--grid",
+        grid,
+        "--markers",
+        "x.csv",
+        "--key-frames",
+        "k.csv",
+    ]);
+    assert_eq!(out.status.code(), Some(2));
+}

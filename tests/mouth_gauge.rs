@@ -247,3 +247,44 @@ fn in_speech_every_head_parts_its_lips_as_far_as_a_speaker() {
         );
     }
 }
+
+/// What the software adapter draws is what the gauge measured: the calibrated weak avatar's
+/// `aa`, blended by the vertex shader and read back, parts the lips as far as s1's widest.
+#[test]
+fn the_rendered_calibrated_avatar_opens_as_far_as_measured() {
+    use lipcall::render::head::Vertex;
+    use lipcall::render::{FrameOptions, Framing, GpuContext, OffscreenRenderer};
+    let ctx = match GpuContext::new_headless() {
+        Ok(ctx) => ctx,
+        Err(e) => {
+            println!("SKIPPED: no GPU adapter for the head renderer: {e}");
+            return;
+        }
+    };
+    let head = load_head_from_slice(&weak_viseme_avatar(0.35)).unwrap();
+    let gauge = MouthGauge::new(&head).unwrap();
+    let options = FrameOptions {
+        width: 96,
+        height: 96,
+        framing: Framing::Mouth,
+        ..Default::default()
+    };
+    let mut offscreen = OffscreenRenderer::new(&ctx, &head, options).unwrap();
+    let aa = VisemeWeights::single("aa").unwrap();
+    offscreen.render(&ctx, &aa).unwrap();
+    let drawn: Vec<Vertex> = offscreen
+        .blend_on_gpu(&ctx)
+        .unwrap()
+        .into_iter()
+        .map(|d| Vertex {
+            position: d.position,
+            normal: d.normal,
+            ..Vertex::default()
+        })
+        .collect();
+    let on_gpu = gauge.measure(&head, &drawn).gap;
+    let on_cpu = gauge.measure(&head, &head.blend_cpu(&aa)).gap;
+    println!("aa on the GPU: {on_gpu:.3} eye widths (CPU {on_cpu:.3})");
+    assert!((on_gpu - on_cpu).abs() < 0.005, "{on_gpu} vs {on_cpu}");
+    assert!(on_gpu >= 0.97 * TARGET_GAP, "{on_gpu}");
+}

@@ -9,13 +9,16 @@ use std::sync::Arc;
 use anyhow::{Context, Result, bail};
 
 use crate::audio::wav;
+use crate::lipsync::decompose::table_i;
 use crate::lipsync::jaw::JawBaseline;
 use crate::lipsync::network::Model;
 use crate::lipsync::{Animator, ModelAnimator, recipe};
 use crate::train::codec_features::{CodecFeatures, CodecPath, augmentation_settings};
 use crate::train::grid::{self, AUDIO_FRAME_S, LipClip};
+use crate::train::grid_shapes::{self, ContourClip, KeyRule};
 use crate::train::lag::{self, ClipSeries};
 use crate::train::video::{VideoTraining, map_onto_head, prepare_clips, score_clips};
+use crate::vocab::{Viseme, VisemeSet};
 
 #[derive(Debug, clap::Args)]
 pub struct GridArgs {
@@ -232,3 +235,121 @@ pub fn evaluate_lips(args: &LipEvalArgs, model: &Model, path: CodecPath) -> Resu
     }
     Ok(())
 }
+
+/// `decompose --grid`'s options.
+#[derive(Debug, clap::Args)]
+pub struct RealLipsArgs {
+    /// Table I on GRID s1's tracked lips instead (the GRID data folder).
+    #[arg(long, value_name = "DIR", conflicts_with = "markers")]
+    pub grid: Option<PathBuf>,
+    /// s1's phone alignments for --grid (tools/align_grid.py).
+    #[arg(long, value_name = "DIR", default_value = "tools/alignments/grid-s1")]
+    pub phones: PathBuf,
+}
+
+/// `lipcall decompose --grid`: Table I on GRID s1's real lips (see [`grid_shapes`]): key shapes
+/// from the phone centres of his training clips, every frame of his held-out clips and of the
+/// other speakers decomposed onto them.
+pub fn decompose_grid(args: &RealLipsArgs, chosen: Option<&str>) -> Result<()> {
+    let phones = args.phones.as_path();
+    let data = args
+        .grid
+        .as_deref()
+        .context("decompose --grid needs the GRID folder")?;
+    let clips = grid_shapes::load_s1(data, phones)?;
+    let training: Vec<&ContourClip> = clips.iter().filter(|c| !c.1).map(|c| &c.0).collect();
+    let held_out: Vec<&ContourClip> = clips.iter().filter(|c| c.1).map(|c| &c.0).collect();
+    let others = grid_shapes::load_other(data)?;
+    let others: Vec<&ContourClip> = others.iter().collect();
+    let rules = [KeyRule::Mean, KeyRule::ClearestQuarter];
+    let keyed: Vec<_> = rules
+        .iter()
+        .map(|&rule| grid_shapes::key_shapes(&training, 0.0, KEY_SHAPE_MIN_CENTRES, rule))
+        .collect::<Result<_, _>>()?;
+    println!(
+        "Table I on real lips: GRID s1's lip contour ({} points, eye line level, eye width \
+         unit, centred on the outer lip); key shapes from the phone centres of {} training \
+         clips ({}): the mean contour, or the mean of the clearest quarter; decomposed: every \
+         frame of s1's {} held-out clips and of the {} other-speaker clips",
+        grid_shapes::CONTOUR.len(),
+        training.len(),
+        phones.display(),
+        held_out.len(),
+        others.len()
+    );
+    println!("key shape  centres  lip gap, width (eye widths): mean / clearest quarter");
+    let (shapes, counts) = &keyed[0];
+    for v in shapes.visemes() {
+        let (gap, width) = grid_shapes::gap_and_width(shapes.shape(v)?);
+        let (gap_q, width_q) = grid_shapes::gap_and_width(keyed[1].0.shape(v)?);
+        println!(
+            "{:<9} {:>8}  {gap:.3} {width:.3} / {gap_q:.3} {width_q:.3}",
+            v.name(),
+            counts[v.index()],
+        );
+    }
+    let mut sets: Vec<VisemeSet> = (2..=6)
+        .filter_map(|n| VisemeSet::reduced(n).ok())
+        .filter(|s| shapes.for_set(s).is_ok())
+        .collect();
+    // The shipped network's set where the clips show all of it, the chosen one (which must),
+    // and every viseme that has a key shape.
+    let shipped = VisemeSet::parse(recipe::VISEMES)?;
+    let mut extra: Vec<VisemeSet> = Vec::new();
+    extra.extend(shapes.for_set(&shipped).is_ok().then_some(shipped));
+    if let Some(names) = chosen {
+        let set = VisemeSet::parse(names)?;
+        shapes
+            .for_set(&set)
+            .with_context(|| format!("{set}: a viseme has no key shape"))?;
+        extra.push(set);
+    }
+    let all: Vec<Viseme> = shapes
+        .visemes()
+        .into_iter()
+        .filter(|v| *v != Viseme::Sil)
+        .collect();
+    extra.extend(VisemeSet::new(all).ok());
+    for set in extra {
+        if !sets.contains(&set) {
+            sets.push(set);
+        }
+    }
+    let s1_track = grid_shapes::contour_track(&held_out)?;
+    let other_track = grid_shapes::contour_track(&others)?;
+    let mut tables = Vec::new();
+    for (shapes, _) in &keyed {
+        tables.push(table_i(&s1_track, shapes, &sets)?);
+        tables.push(table_i(&other_track, shapes, &sets)?);
+    }
+    println!(
+        "Eq. 1 error on the important points: s1 held out ({} of {} points, {} frames), other \
+         speakers ({} points, {} frames)",
+        tables[0].important_points.len(),
+        grid_shapes::CONTOUR.len(),
+        tables[0].frames,
+        tables[1].important_points.len(),
+        tables[1].frames
+    );
+    println!(
+        "{:>3}  {:<40} {:>19} {:>19}",
+        "No.", "Visemes", "mean: s1 / others", "clearest: s1 / others"
+    );
+    for (i, row) in tables[0].rows.iter().enumerate() {
+        let e = |t: usize| 100.0 * tables[t].rows[i].error;
+        println!(
+            "{:>3}  {:<40} {:>7.2}% / {:>6.2}%  {:>7.2}% / {:>6.2}%",
+            row.set.len(),
+            row.set.to_string().replace(',', " "),
+            e(0),
+            e(1),
+            e(2),
+            e(3)
+        );
+    }
+    Ok(())
+}
+
+/// A viseme needs this many phone centres for a key shape (GRID's small vocabulary leaves some,
+/// such as /ch/, nearly unseen).
+const KEY_SHAPE_MIN_CENTRES: usize = 30;

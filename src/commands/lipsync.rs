@@ -230,6 +230,8 @@ pub struct DecomposeArgs {
     /// Write the weights per marker frame: frame,<viseme names>.
     #[arg(long, value_name = "OUT.csv", requires = "markers")]
     pub weights: Option<PathBuf>,
+    #[command(flatten)]
+    pub lips: super::grid::RealLipsArgs,
 }
 
 fn parse_snap(text: &str) -> Result<Option<f32>> {
@@ -624,8 +626,9 @@ pub fn evaluate(args: &EvaluateArgs) -> Result<()> {
 }
 
 pub fn decompose(args: &DecomposeArgs) -> Result<()> {
-    match (&args.markers, &args.key_frames) {
-        (Some(markers), Some(keys)) => decompose_markers(args, markers, keys),
+    match (&args.lips.grid, &args.markers, &args.key_frames) {
+        (Some(_), ..) => super::grid::decompose_grid(&args.lips, args.visemes.as_deref()),
+        (None, Some(markers), Some(keys)) => decompose_markers(args, markers, keys),
         _ => decompose_targets(args),
     }
 }

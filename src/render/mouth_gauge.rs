@@ -1,8 +1,9 @@
 //! How far a head's mouth opens and spreads, measured on its own geometry in eye widths (the
 //! unit face trackers and the GRID lip tracks use), and the calibration that makes every head
 //! open about as far as a real speaker's mouth: avatars are built with very different ranges (a
-//! Ready Player Me `viseme_aa` parts the lips about a third as far as a speaker's widest /a/),
-//! and the network's weights only mean the same on every head once the ranges agree.
+//! Ready Player Me avatar's visemes parted its lips at most 0.086 eye widths in speech, where
+//! real speakers reach 0.10-0.22), and the network's weights only mean the same on every head
+//! once the ranges agree.
 //!
 //! The lip gap is read the way a camera in front of the face sees it: the head is cut by the
 //! vertical plane through the middle of the mouth, and along that line the front-most surface

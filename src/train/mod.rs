@@ -12,6 +12,7 @@ mod dataset;
 pub mod error;
 pub mod eval;
 pub mod grid;
+pub mod grid_shapes;
 mod init;
 pub mod lag;
 pub mod plan;
