@@ -42,7 +42,7 @@ pub(super) fn call_ui(
         ui.label("Address");
         ui.add(
             egui::TextEdit::singleline(&mut form.address)
-                .hint_text("host:port or Janus URL")
+                .hint_text("host:port, Janus URL, sip: or number")
                 .desired_width(150.0),
         );
         ui.label("Room");
@@ -114,13 +114,12 @@ pub(super) fn call_ui(
                 ui.colored_label(egui::Color32::LIGHT_GREEN, "encrypted end to end (SRTP)")
             }
             engine::Encryption::HopByHop => ui
-                .colored_label(
-                    warn,
-                    "encrypted hop by hop: the Janus server can hear the call",
-                )
+                .colored_label(warn, "encrypted hop by hop: the server can hear the call")
                 .on_hover_text(
                     "WebRTC encrypts each link (DTLS-SRTP). Janus decrypts every stream it \
-                     forwards; only lipcall's own rooms with a passphrase are end to end.",
+                     forwards; a SIP call's SRTP keys travel in its SIP messages, which every \
+                     proxy on the way reads. Only lipcall's own rooms with a passphrase are \
+                     end to end.",
                 ),
             engine::Encryption::None => ui.colored_label(warn, "NOT encrypted"),
         };

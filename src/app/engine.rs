@@ -2,6 +2,9 @@
 //! decoders' animators. It pulls decoded audio on the mixer's demand (the output device's
 //! clock, [`FramePacer`]), and runs the demo sender and the status on the system clock. The UI
 //! sees it through [`Shared`] (one short lock per UI frame) and steers it with [`Command`]s.
+//! Its SIP phone's hooks are in `engine/sip.rs`.
+
+mod sip;
 
 use std::net::{SocketAddr, ToSocketAddrs};
 use std::sync::atomic::{AtomicBool, Ordering};
@@ -29,6 +32,7 @@ pub use super::counters::{DEMO_NAME, EngineCounters};
 use super::demo::Demo;
 use super::roster::Roster;
 use super::settings::DEFAULT_CODEC;
+use super::sip_call::{PhoneCommand, PhoneStatus, SipPhone, is_sip_address};
 use super::timing::{RelayWatch, Ticker};
 
 /// The peers' status and the relay's are refreshed every this many ticks (200 ms).
@@ -44,6 +48,7 @@ pub enum Command {
     Leave,
     SetInput(DeviceChoice),
     SetOutput(DeviceChoice),
+    Phone(PhoneCommand),
 }
 
 /// A call: a peer's (or relay's) address, with a room for a relay, and the codec we send in
@@ -125,6 +130,7 @@ pub struct Shared {
     pub output_status: String,
     pub input_status: String,
     pub mic: Option<MicControls>,
+    pub phone: PhoneStatus,
 }
 
 pub struct Engine {
@@ -159,6 +165,7 @@ impl Engine {
             output_status,
             input_status: String::new(),
             mic: None,
+            phone: PhoneStatus::default(),
         }));
         let counters = Arc::new(EngineCounters::default());
         let stop = Arc::new(AtomicBool::new(false));
@@ -235,6 +242,7 @@ struct Worker {
     in_call: bool,
     /// A relay call's join, until the relay confirms it.
     relay: RelayWatch,
+    phone: SipPhone,
 }
 
 fn resolve(addr: &str) -> anyhow::Result<SocketAddr> {
@@ -270,6 +278,7 @@ impl Worker {
             mic: None,
             in_call: false,
             relay: RelayWatch::default(),
+            phone: SipPhone::default(),
             config,
             shared,
             counters,
@@ -339,6 +348,9 @@ impl Worker {
     fn call(&mut self, spec: &CallSpec) -> anyhow::Result<()> {
         if is_janus_url(&spec.address) {
             return self.join_janus(spec);
+        }
+        if is_sip_address(&spec.address) {
+            return self.dial_sip(spec);
         }
         let to = resolve(&spec.address)?;
         let room = spec.room.clone().filter(|r| !r.trim().is_empty());
@@ -493,6 +505,7 @@ impl Worker {
         let result = match command {
             Command::Call(spec) => self.call(&spec),
             Command::Leave => self.leave(),
+            Command::Phone(command) => self.phone_command(command),
             Command::SetInput(choice) => {
                 self.open_mic(&choice);
                 Ok(())
@@ -537,6 +550,7 @@ impl Worker {
             }
             self.send_mic();
             self.follow_room();
+            self.follow_phone();
             if let Some(tick) = ticker.poll(Instant::now()) {
                 if let Some(demo) = &mut self.demo {
                     demo.tick();

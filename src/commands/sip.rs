@@ -1,7 +1,7 @@
 //! `lipcall sip call` and `lipcall sip answer`: a phone call over SIP that plays a file as our
 //! voice and does with the peer's what `receive` does (WAV as played, WEIGHTS.csv, summary).
 
-use std::net::{IpAddr, SocketAddr, ToSocketAddrs, UdpSocket};
+use std::net::{IpAddr, SocketAddr, ToSocketAddrs};
 use std::path::{Path, PathBuf};
 use std::sync::atomic::AtomicBool;
 use std::time::{Duration, Instant};
@@ -17,8 +17,8 @@ use crate::call::sip::{CallState, SipLink};
 use crate::codec::any::{Codec, EncoderSettings};
 use crate::net::janus::media::local_ip_towards;
 use crate::net::session::{PeerFrame, PeerInfo};
-use crate::net::sip::agent::{Account, AgentConfig, Role, codecs};
-use crate::net::sip::sdp::{LocalAudio, SdesKey};
+use crate::net::sip::address::{bind_towards, host_port, resolve_host};
+use crate::net::sip::agent::{Account, Role, codecs};
 
 /// How often the set-up phase looks at the stop flag and the deadline.
 const SETUP_STEP: Duration = Duration::from_millis(50);
@@ -111,28 +111,6 @@ pub fn run(command: &SipCommand) -> Result<()> {
     }
 }
 
-/// The host of `sip:USER@HOST[:PORT];params`.
-fn host_port(uri: &str) -> &str {
-    let bare = uri.trim().trim_start_matches("sip:");
-    let after_user = bare.rsplit_once('@').map_or(bare, |(_, h)| h);
-    after_user.split([';', '?']).next().unwrap_or(after_user)
-}
-
-/// The IP address of `HOST[:PORT]` (SIP's default port when none is given).
-fn resolve_host(host: &str) -> Result<IpAddr> {
-    let with_port = if host.starts_with('[') || host.matches(':').count() == 1 {
-        host.to_owned()
-    } else {
-        format!("{host}:5060")
-    };
-    with_port
-        .to_socket_addrs()
-        .with_context(|| format!("cannot resolve {host}"))?
-        .next()
-        .map(|a| a.ip())
-        .with_context(|| format!("{host} has no address"))
-}
-
 fn account(common: &SipCommon) -> Result<Option<Account>> {
     let (Some(uri), Some(password)) = (&common.account, &common.password) else {
         return Ok(None);
@@ -142,23 +120,17 @@ fn account(common: &SipCommon) -> Result<Option<Account>> {
     Ok(Some(account))
 }
 
-fn session_id() -> u64 {
-    std::time::SystemTime::now()
-        .duration_since(std::time::UNIX_EPOCH)
-        .map_or(1, |d| d.as_secs())
-}
-
 fn call(args: &SipCallArgs) -> Result<()> {
     let account = account(&args.common)?;
     let towards = match &account {
-        Some(a) => host_port(a.registrar()),
-        None => host_port(&args.target),
+        Some(a) => a.registrar(),
+        None => &args.target,
     };
     let bind = match &args.bind {
         Some(bind) => bind
             .parse::<SocketAddr>()
             .with_context(|| format!("--bind {bind:?}: expected IP:PORT"))?,
-        None => SocketAddr::new(local_ip_towards(resolve_host(towards)?)?, 0),
+        None => bind_towards(towards)?,
     };
     let role = Role::Call(args.target.clone());
     run_call(
@@ -216,27 +188,8 @@ fn run_call(
         None,
         common.weights.as_deref(),
     )?;
-    let rtp = UdpSocket::bind(SocketAddr::new(bind.ip(), 0))
-        .with_context(|| format!("cannot open an RTP socket on {}", bind.ip()))?;
-    let audio = LocalAudio {
-        addr: rtp.local_addr().context("RTP socket")?,
-        codecs: codecs(common.codec),
-        session_id: session_id(),
-        key: SdesKey::random().context("no randomness for an SRTP key")?,
-        offer_srtp: srtp,
-    };
-    let peer = match &role {
-        Role::Call(target) => target.clone(),
-        Role::Answer => "the caller".to_owned(),
-    };
     let answering = role == Role::Answer;
-    let config = AgentConfig {
-        bind,
-        account,
-        audio,
-        role,
-    };
-    let mut link = SipLink::start(config, rtp, peer)?;
+    let mut link = SipLink::open(bind, account, role, codecs(common.codec), srtp)?;
     let start = Instant::now();
     let limit = common.seconds.map(Duration::from_secs_f64);
     if let Err(e) = set_up(&mut link, start, limit, &stop, answering) {
@@ -412,19 +365,5 @@ impl Link for Playing<'_> {
 
     fn over(&self) -> bool {
         self.link.over()
-    }
-}
-
-#[cfg(test)]
-mod tests {
-    use super::*;
-
-    #[test]
-    fn the_host_of_a_sip_address() {
-        assert_eq!(host_port("sip:bob@127.0.0.1:5070"), "127.0.0.1:5070");
-        assert_eq!(host_port("bob@pbx.example;transport=udp"), "pbx.example");
-        assert_eq!(host_port("sip:127.0.0.1"), "127.0.0.1");
-        assert!(resolve_host("127.0.0.1").is_ok());
-        assert!(resolve_host("127.0.0.1:5070").is_ok());
     }
 }

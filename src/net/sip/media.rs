@@ -241,6 +241,12 @@ impl SipRtpCore {
         let (event, timestamp) = (digit.event, digit.timestamp);
         if step >= DIGIT_PACKETS + END_PACKETS + PAUSE_PACKETS {
             self.digit = None;
+            // Where no audio went out meanwhile (no microphone), the stream's clock stood
+            // still: the next event must not start at this one's timestamp, or the peer
+            // takes it for a repeat of this one (RFC 4733 2.5.1.3).
+            if self.stream.next_timestamp() == timestamp {
+                self.stream.skip(step);
+            }
             return self.step_digits();
         }
         if step >= DIGIT_PACKETS + END_PACKETS {
@@ -461,11 +467,15 @@ mod tests {
             "{seqs:?}"
         );
         core.step_digits().unwrap();
-        let next = rtp::parse(&core.poll_transmit().unwrap().data, None)
-            .unwrap()
-            .payload
-            .to_vec();
-        assert_eq!(next[0], 11, "then #");
+        let data = core.poll_transmit().unwrap().data;
+        let next = rtp::parse(&data, None).unwrap();
+        assert_eq!(next.payload[0], 11, "then #");
+        // No audio went out between them: # still starts at a timestamp of its own, one
+        // digit's span (13 steps of 160) later.
+        assert_eq!(
+            next.header.timestamp,
+            parsed[0].header.timestamp.wrapping_add(13 * 160)
+        );
     }
 
     #[test]
