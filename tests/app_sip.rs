@@ -2,15 +2,22 @@
 //! proxy) on 127.0.0.1: the engine dials baresip, whose speech arrives as a peer in the roster,
 //! heard and animated, takes DTMF from the keypad, and baresip's hang-up brings the app back to
 //! idle; with an account, the app registers, baresip's call rings, is declined (603), rings
-//! again and is answered, and while the app is in another call a caller hears 486.
+//! again and is answered, and while the app is in another call a caller hears 486; and the
+//! phone's row, driven through egui_kittest: the account registered from the form, the banner's
+//! Answer, the keypad's keys.
 
 mod common;
 
 use std::time::{Duration, Instant};
 
 use common::sip::{PASSWORD, baresip, free_port, have, kamailio, reversed_8k, tell_baresip};
+use eframe::egui;
+use egui_kittest::Harness;
+use egui_kittest::kittest::Queryable;
 use lipcall::app::engine::{CallSpec, Command, Engine, EngineConfig, Shared, lock};
+use lipcall::app::settings::Settings;
 use lipcall::app::sip_call::PhoneCommand;
+use lipcall::app::{SipForm, sip_ui};
 use lipcall::audio::DeviceChoice;
 use lipcall::codec::any::Codec;
 use lipcall::net::relay::{Relay, RelayConfig};
@@ -216,4 +223,85 @@ fn the_app_registers_declines_answers_and_is_busy_in_another_call() {
         "{:?}",
         s.call
     );
+}
+
+/// What the phone's row is drawn from, as the app keeps it.
+struct Row {
+    form: SipForm,
+    settings: Settings,
+    engine: Engine,
+}
+
+#[test]
+fn the_banner_answers_and_the_keypad_sends_keys_through_the_ui() {
+    if !have(&["kamailio", "baresip", "sox"]) {
+        return;
+    }
+    let dir = tempfile::tempdir().unwrap();
+    let (kam_port, bob_port, control) = (free_port(false), free_port(false), free_port(false));
+    let _kamailio = kamailio(dir.path(), kam_port, "");
+    let bob = baresip(
+        dir.path(),
+        bob_port,
+        control,
+        "<sip:bob@127.0.0.1>;regint=0;audio_codecs=PCMU",
+        &reversed_8k(dir.path()),
+    );
+    let mut settings = Settings::default();
+    settings.sip.account = format!("sip:alice@127.0.0.1:{kam_port}");
+    settings.sip.password = PASSWORD.into();
+    let row = Row {
+        form: SipForm::default(),
+        settings,
+        engine: engine(),
+    };
+    let mut h = Harness::new_ui_state(
+        |ui: &mut egui::Ui, row: &mut Row| {
+            let phone = lock(&row.engine.shared).phone.clone();
+            sip_ui(ui, &mut row.form, &mut row.settings, &phone, &row.engine);
+        },
+        row,
+    );
+    // The account typed in and registered through the form.
+    h.get_by_label("Account…").click();
+    h.run();
+    h.get_by_label("Register").click();
+    h.run();
+    let limit = Duration::from_secs(15);
+    let wait = |h: &mut Harness<'_, Row>, what: &str, done: &dyn Fn(&Shared) -> bool| {
+        let deadline = Instant::now() + limit;
+        loop {
+            h.run();
+            if done(&lock(&h.state().engine.shared)) {
+                return;
+            }
+            assert!(
+                Instant::now() < deadline,
+                "{what}: {:?}",
+                lock(&h.state().engine.shared).phone
+            );
+            std::thread::sleep(Duration::from_millis(50));
+        }
+    };
+    wait(&mut h, "registered", &|s| {
+        s.phone.registration.starts_with("registered with")
+    });
+    tell_baresip(control, "dial", &format!("sip:alice@127.0.0.1:{kam_port}"));
+    wait(&mut h, "the banner", &|s| s.phone.ringing.is_some());
+    h.run();
+    assert!(h.query_by_label_contains("Incoming call from").is_some());
+    h.get_by_label("Answer").click();
+    wait(&mut h, "the caller heard", &|s| heard(s, "bob"));
+    wait(&mut h, "the keypad", &|s| s.phone.keypad);
+    h.get_by_label("7").click();
+    h.run();
+    assert!(
+        bob.wait_for("received event: '7' (end=1)", limit),
+        "baresip: {}",
+        bob.text()
+    );
+    wait(&mut h, "the key shown as sent", &|s| {
+        s.phone.keys_sent == "7"
+    });
+    assert!(h.query_by_label("sent 7").is_some());
 }

@@ -36,7 +36,7 @@ use call_panel::call_ui;
 use engine::{Command, Engine, EngineConfig};
 pub use peer_panel::{ShownPeer, peer_controls_ui, peer_list_ui, tiles_ui};
 use settings::Settings;
-use sip_panel::{SipForm, sip_ui};
+pub use sip_panel::{SipForm, sip_ui};
 use tiles::{HeadTiles, RenderCounters};
 
 /// How the app starts (the command line's top-level flags).

@@ -32,7 +32,7 @@ pub fn use_account(settings: &Settings, engine: &Engine) -> Result<(), String> {
     Ok(())
 }
 
-pub(super) fn sip_ui(
+pub fn sip_ui(
     ui: &mut egui::Ui,
     form: &mut SipForm,
     settings: &mut Settings,
@@ -82,24 +82,27 @@ pub(super) fn sip_ui(
 
 fn account_ui(ui: &mut egui::Ui, form: &mut SipForm, settings: &mut Settings, engine: &Engine) {
     ui.horizontal_wrapped(|ui| {
-        ui.label("Account");
+        let label = ui.label("Account");
         ui.add(
             egui::TextEdit::singleline(&mut settings.sip.account)
                 .hint_text("sip:user@provider")
                 .desired_width(170.0),
-        );
-        ui.label("Registrar");
+        )
+        .labelled_by(label.id);
+        let label = ui.label("Registrar");
         ui.add(
             egui::TextEdit::singleline(&mut settings.sip.registrar)
                 .hint_text("(the account's domain)")
                 .desired_width(130.0),
-        );
-        ui.label("Password");
+        )
+        .labelled_by(label.id);
+        let label = ui.label("Password");
         ui.add(
             egui::TextEdit::singleline(&mut settings.sip.password)
                 .password(true)
                 .desired_width(100.0),
-        );
+        )
+        .labelled_by(label.id);
         if ui
             .button("Register")
             .on_hover_text(
