@@ -64,7 +64,7 @@ pub struct SipCommon {
     /// Stop after this many seconds (set-up included).
     #[arg(long, allow_hyphen_values = true, value_parser = super::parse_seconds)]
     pub seconds: Option<f64>,
-    /// Offer or accept only this codec (otherwise Opus, PCMU and PCMA, in that order).
+    /// Offer or accept only this codec (otherwise Opus, G.722, PCMU and PCMA, in that order).
     #[arg(long, value_parser = parse_sip_codec)]
     pub codec: Option<Codec>,
 }
@@ -99,7 +99,9 @@ pub struct SipAnswerArgs {
 
 fn parse_sip_codec(s: &str) -> Result<Codec, String> {
     match parse_codec(s)? {
-        Codec::Speex => Err("SIP peers do not speak Speex: opus, pcmu or pcma".into()),
+        Codec::Speex | Codec::SpeexWb => {
+            Err("SIP peers do not speak Speex: opus, g722, pcmu or pcma".into())
+        }
         codec => Ok(codec),
     }
 }

@@ -477,7 +477,7 @@ async fn follow(
 pub fn codecs(chosen: Option<Codec>) -> Vec<Codec> {
     match chosen {
         Some(codec) => vec![codec],
-        None => vec![Codec::Opus, Codec::Pcmu, Codec::Pcma],
+        None => vec![Codec::Opus, Codec::G722, Codec::Pcmu, Codec::Pcma],
     }
 }
 
@@ -517,6 +517,9 @@ mod tests {
     #[test]
     fn one_codec_or_every_one_sip_peers_speak() {
         assert_eq!(codecs(Some(Codec::Pcma)), vec![Codec::Pcma]);
-        assert_eq!(codecs(None), vec![Codec::Opus, Codec::Pcmu, Codec::Pcma]);
+        assert_eq!(
+            codecs(None),
+            vec![Codec::Opus, Codec::G722, Codec::Pcmu, Codec::Pcma]
+        );
     }
 }
