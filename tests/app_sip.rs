@@ -58,10 +58,14 @@ fn wait_for(engine: &Engine, what: &str, limit: Duration, done: impl Fn(&Shared)
 
 /// A peer whose name contains `name` was heard and animated for a second and more, in PCMU.
 fn heard(s: &Shared, name: &str) -> bool {
+    heard_in(s, name, Codec::Pcmu)
+}
+
+fn heard_in(s: &Shared, name: &str, codec: Codec) -> bool {
     s.peers.views().iter().any(|p| {
         p.name.contains(name)
             && !p.is_demo
-            && p.codec == Some(Codec::Pcmu)
+            && p.codec == Some(codec)
             && p.frames_received > 50
             && p.frames_animated > 50
     })
@@ -127,6 +131,47 @@ fn the_app_dials_baresip_hears_it_sends_keys_and_idles_when_baresip_hangs_up() {
         )),
         "{state}"
     );
+}
+
+#[test]
+fn the_app_calls_a_wideband_baresip_in_g722() {
+    if !have(&["baresip", "sox"]) {
+        return;
+    }
+    let dir = tempfile::tempdir().unwrap();
+    let (bob_port, control) = (free_port(false), free_port(false));
+    // baresip's G.722 reads its microphone file at 16 kHz.
+    let speech = dir.path().join("reversed16k.wav");
+    common::run(
+        std::process::Command::new("sox")
+            .arg(reversed_8k(dir.path()))
+            .args(["-r", "16000"])
+            .arg(&speech),
+    );
+    let bob = baresip(
+        dir.path(),
+        bob_port,
+        control,
+        "<sip:bob@127.0.0.1>;regint=0;answermode=auto;audio_codecs=G722/16000/1",
+        &speech,
+    );
+    let engine = engine();
+    call(&engine, &format!("sip:bob@127.0.0.1:{bob_port}"));
+    wait_for(
+        &engine,
+        "bob heard in G.722",
+        Duration::from_secs(15),
+        |s| heard_in(s, "bob", Codec::G722) && s.call.codec == Some(Codec::G722),
+    );
+    assert!(
+        bob.text().contains("Set audio decoder: G722"),
+        "{}",
+        bob.text()
+    );
+    engine.send(Command::Leave);
+    wait_for(&engine, "idle", Duration::from_secs(10), |s| {
+        !s.call.in_call
+    });
 }
 
 #[test]

@@ -412,7 +412,7 @@ pub fn baresip(dir: &Path, port: u16, control: u16, account: &str, source: &Path
     let config = format!(
         "poll_method epoll\nsip_listen 127.0.0.1:{port}\nsip_trans_def udp\n\
          audio_player alsa,null\naudio_alert alsa,null\naudio_source aufile,{}\n\
-         module_path /usr/lib/baresip/modules\nmodule g711.so\nmodule aufile.so\n\
+         module_path /usr/lib/baresip/modules\nmodule g711.so\nmodule g722.so\nmodule aufile.so\n\
          module alsa.so\nmodule sndfile.so\nmodule srtp.so\nmodule_app account.so\nmodule_app menu.so\n\
          module_app ctrl_tcp.so\nctrl_tcp_listen 127.0.0.1:{control}\nsnd_path {}\n",
         source.display(),
