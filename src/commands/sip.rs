@@ -232,7 +232,7 @@ fn run_call(
     let stats = link.rtp_stats();
     eprintln!(
         "lipcall: played {:.2} s; datagrams={} rtp={} rtcp={} malformed={} unknown_pt={} \
-         auth_failed={} dtmf_in={} sent_rtp={} dtmf_sent={} send_errors={}",
+         auth_failed={} dtmf_in={} sent_rtp={} dtmf_sent={} keepalives={} send_errors={}",
         recorder.seconds(),
         stats.datagrams,
         stats.rtp,
@@ -243,6 +243,7 @@ fn run_call(
         stats.events_in,
         stats.sent_rtp,
         stats.sent_events,
+        stats.keepalives,
         stats.send_errors
     );
     for peer in link.peers() {
