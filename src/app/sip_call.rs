@@ -437,6 +437,23 @@ impl Link for SharedCall {
 #[cfg(test)]
 mod tests {
     use super::*;
+    use proptest::prelude::*;
+
+    proptest! {
+        #[test]
+        fn any_dial_string_is_a_target_or_refused(text in "\\PC{0,40}") {
+            let account = Account::parse("sip:alice@pbx.example", "pw").unwrap();
+            for account in [None, Some(&account)] {
+                match dial_target(&text, account) {
+                    Ok(uri) => {
+                        prop_assert!(is_sip_address(&text));
+                        prop_assert!(uri.to_ascii_lowercase().starts_with("sip"));
+                    }
+                    Err(why) => prop_assert!(!why.is_empty()),
+                }
+            }
+        }
+    }
 
     #[test]
     fn sip_uris_and_numbers_are_dialled_others_are_not() {
