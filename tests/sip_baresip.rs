@@ -5,175 +5,12 @@
 
 mod common;
 
-use std::io::Write;
-use std::net::TcpStream;
-use std::path::{Path, PathBuf};
-use std::process::Command;
 use std::time::Duration;
 
-use common::sip::{Logged, Peer, best_alignment, free_port, installed, mulaw_round_trip};
-
-const PASSWORD: &str = "lipcall-test-secret";
-
-fn have(tools: &[&str]) -> bool {
-    for tool in tools {
-        if !installed(tool) {
-            common::unavailable(&format!("{tool} is not installed"));
-            return false;
-        }
-    }
-    true
-}
-
-/// kamailio as registrar and proxy on `port`: REGISTER must answer a digest challenge for
-/// [`PASSWORD`]; everything else is routed by the location table (kept in memory). `extra`:
-/// more `modparam` lines; `route`: script run on a new request before it is routed.
-fn kamailio_with(dir: &Path, port: u16, extra: &str, route: &str) -> Logged {
-    let modules = [
-        "tm",
-        "sl",
-        "pv",
-        "maxfwd",
-        "usrloc",
-        "registrar",
-        "textops",
-        "siputils",
-        "auth",
-    ];
-    let loads: String = modules
-        .iter()
-        .map(|m| format!("loadmodule \"{m}.so\"\n"))
-        .collect();
-    let modules = kamailio_modules();
-    let config = format!(
-        r#"#!KAMAILIO
-debug=2
-log_stderror=yes
-children=2
-disable_tcp=yes
-auto_aliases=no
-listen=udp:127.0.0.1:{port}
-alias="127.0.0.1:{port}"
-mpath="{modules}"
-{loads}modparam("usrloc", "db_mode", 0)
-{extra}
-
-request_route {{
-    if (!mf_process_maxfwd_header("10")) {{
-        sl_send_reply("483", "Too Many Hops");
-        exit;
-    }}
-    if (is_method("CANCEL")) {{
-        if (t_check_trans()) {{
-            t_relay();
-        }}
-        exit;
-    }}
-    if (has_totag()) {{
-        if (is_method("ACK") && !t_check_trans()) {{
-            exit;
-        }}
-        t_relay();
-        exit;
-    }}
-    if (is_method("REGISTER")) {{
-        if (!pv_www_authenticate("$td", "{PASSWORD}", "0")) {{
-            www_challenge("$td", "0");
-            exit;
-        }}
-        save("location");
-        exit;
-    }}
-    {route}
-    if (!lookup("location")) {{
-        sl_send_reply("404", "Not Found");
-        exit;
-    }}
-    t_relay();
-}}
-"#
-    );
-    let path = dir.join("kamailio.cfg");
-    std::fs::write(&path, config).unwrap();
-    let kamailio = Peer::spawn_logged(
-        "kamailio",
-        Command::new("kamailio")
-            .arg("-f")
-            .arg(&path)
-            .args(["-DD", "-E", "-m", "32", "-M", "8", "-Y"])
-            .arg(dir),
-    );
-    assert!(
-        kamailio.wait_for("SO_RCVBUF is finally", Duration::from_secs(10)),
-        "kamailio did not start: {}",
-        kamailio.text()
-    );
-    kamailio
-}
-
-/// Debian installs kamailio's modules under the architecture's library folder.
-fn kamailio_modules() -> String {
-    let lib = Path::new("/usr/lib");
-    std::fs::read_dir(lib)
-        .into_iter()
-        .flatten()
-        .filter_map(Result::ok)
-        .map(|e| e.path().join("kamailio/modules"))
-        .chain([lib.join("kamailio/modules")])
-        .find(|p| p.join("tm.so").exists())
-        .map(|p| format!("{}/", p.display()))
-        .expect("kamailio's modules (tm.so) under /usr/lib")
-}
-
-fn kamailio(dir: &Path, port: u16, extra: &str) -> Logged {
-    kamailio_with(dir, port, extra, "")
-}
-
-/// baresip with its own config folder: `account` its accounts line, its microphone `source`
-/// (8 kHz mono), what it hears dumped into `dir`/heard by sndfile.
-fn baresip(dir: &Path, port: u16, control: u16, account: &str, source: &Path) -> Logged {
-    let home = dir.join("baresip");
-    let heard = dir.join("heard");
-    std::fs::create_dir_all(&home).unwrap();
-    std::fs::create_dir_all(&heard).unwrap();
-    let config = format!(
-        "poll_method epoll\nsip_listen 127.0.0.1:{port}\nsip_trans_def udp\n\
-         audio_player alsa,null\naudio_alert alsa,null\naudio_source aufile,{}\n\
-         module_path /usr/lib/baresip/modules\nmodule g711.so\nmodule aufile.so\n\
-         module alsa.so\nmodule sndfile.so\nmodule srtp.so\nmodule_app account.so\nmodule_app menu.so\n\
-         module_app ctrl_tcp.so\nctrl_tcp_listen 127.0.0.1:{control}\nsnd_path {}\n",
-        source.display(),
-        heard.display()
-    );
-    std::fs::write(home.join("config"), config).unwrap();
-    std::fs::write(home.join("accounts"), format!("{account}\n")).unwrap();
-    let baresip = Peer::spawn_logged("baresip", Command::new("baresip").arg("-f").arg(&home));
-    assert!(
-        baresip.wait_for("baresip is ready", Duration::from_secs(10)),
-        "baresip did not start: {}",
-        baresip.text()
-    );
-    baresip
-}
-
-/// A command to baresip's ctrl_tcp (a netstring of JSON).
-fn tell_baresip(control: u16, command: &str, params: &str) {
-    let json = format!(r#"{{"command":"{command}","params":"{params}","token":"t"}}"#);
-    let mut stream = TcpStream::connect(("127.0.0.1", control)).unwrap();
-    stream
-        .write_all(format!("{}:{json},", json.len()).as_bytes())
-        .unwrap();
-}
-
-/// The WAV sndfile wrote for the audio baresip decoded.
-fn baresip_heard(dir: &Path) -> PathBuf {
-    std::fs::read_dir(dir.join("heard"))
-        .unwrap()
-        .filter_map(Result::ok)
-        .map(|e| e.path())
-        .find(|p| p.to_string_lossy().ends_with("-dec.wav"))
-        .expect("baresip dumped what it heard")
-}
+use common::sip::{
+    PASSWORD, Peer, baresip, baresip_heard, best_alignment, free_port, have, kamailio,
+    kamailio_with, mulaw_round_trip, reversed_8k, tell_baresip,
+};
 
 /// The median, over quarter seconds of speech from 1 s to 4 s, of the SNR of `heard` against
 /// `sent` at the lag where each quarter agrees best (the jitter buffer may drop or stretch a
@@ -241,17 +78,6 @@ fn weights_following_speech(csv: &str, audio: &[i16]) -> f64 {
             correlation(&column, &energy).abs()
         })
         .fold(0.0, f64::max)
-}
-
-fn reversed_8k(dir: &Path) -> PathBuf {
-    let out = dir.join("reversed8k.wav");
-    common::run(
-        Command::new("sox")
-            .arg(common::demo_8k(dir))
-            .arg(&out)
-            .arg("reverse"),
-    );
-    out
 }
 
 #[test]

@@ -1,5 +1,5 @@
 //! `lipcall sip call` against SIPp (`sip-tester`) on 127.0.0.1: a UAS that echoes our RTP
-//! (we hear our own speech, in PCMU and in Opus), one that is busy, one that rings and never
+//! (we hear our own speech, in PCMU, Opus and G.722), one that is busy, one that rings and never
 //! answers (we CANCEL), one whose SDP is hostile; and a registrar that does not exist.
 
 mod common;
@@ -113,6 +113,12 @@ fn a_call_into_sipps_echo_hears_our_own_speech_in_opus() {
     let scenario =
         answering_scenario("m=audio [media_port] RTP/AVP 111\na=rtpmap:111 opus/48000/2");
     echo("opus", Some(scenario), 0.85);
+}
+
+#[test]
+fn a_call_into_sipps_echo_hears_our_own_speech_in_g722() {
+    let scenario = answering_scenario("m=audio [media_port] RTP/AVP 9\na=rtpmap:9 G722/8000");
+    echo("g722", Some(scenario), 0.97);
 }
 
 const BUSY: &str = r#"<?xml version="1.0" encoding="ISO-8859-1" ?>

@@ -43,7 +43,7 @@ pub(super) fn call_ui(
         ui.label("Address");
         ui.add(
             egui::TextEdit::singleline(&mut form.address)
-                .hint_text("host:port, Janus URL or mumble://host/channel")
+                .hint_text("host:port, Janus URL, mumble://host/channel, sip: or number")
                 .desired_width(150.0),
         );
         let mumble = is_mumble_url(&form.address);
@@ -130,8 +130,9 @@ pub(super) fn call_ui(
                 .colored_label(warn, "encrypted hop by hop: the server can hear the call")
                 .on_hover_text(
                     "Each link is encrypted (WebRTC's DTLS-SRTP to Janus; TLS and OCB2-AES128 \
-                     to Mumble), but the server decrypts every stream it forwards; only \
-                     lipcall's own rooms with a passphrase are end to end.",
+                     to Mumble), but the server decrypts every stream it forwards; a SIP call's \
+                     SRTP keys travel in its SIP messages, which every proxy on the way reads. \
+                     Only lipcall's own rooms with a passphrase are end to end.",
                 ),
             engine::Encryption::None => ui.colored_label(warn, "NOT encrypted"),
         };

@@ -2,6 +2,9 @@
 //! decoders' animators. It pulls decoded audio on the mixer's demand (the output device's
 //! clock, [`FramePacer`]), and runs the demo sender and the status on the system clock. The UI
 //! sees it through [`Shared`] (one short lock per UI frame) and steers it with [`Command`]s.
+//! Its SIP phone's hooks are in `engine/sip.rs`.
+
+mod sip;
 
 use std::net::{SocketAddr, ToSocketAddrs};
 use std::path::PathBuf;
@@ -34,6 +37,7 @@ use super::demo::Demo;
 use super::mumble_call::{MumbleCall, MumbleJoin, MumbleView, follow};
 use super::roster::Roster;
 use super::settings::DEFAULT_CODEC;
+use super::sip_call::{PhoneCommand, PhoneStatus, SipPhone, is_sip_address};
 use super::timing::{RelayWatch, Ticker};
 
 /// The peers' status and the relay's are refreshed every this many ticks (200 ms).
@@ -51,6 +55,7 @@ pub enum Command {
     SetOutput(DeviceChoice),
     /// Move to this channel of the Mumble server we are on.
     Channel(u32),
+    Phone(PhoneCommand),
 }
 
 /// A call: a peer's (or relay's) address, with a room for a relay, and the codec we send in
@@ -113,6 +118,7 @@ pub struct Shared {
     pub mic: Option<MicControls>,
     /// The Mumble server we are on: its channels and users.
     pub mumble: Option<MumbleView>,
+    pub phone: PhoneStatus,
 }
 
 pub struct Engine {
@@ -148,6 +154,7 @@ impl Engine {
             input_status: String::new(),
             mic: None,
             mumble: None,
+            phone: PhoneStatus::default(),
         }));
         let counters = Arc::new(EngineCounters::default());
         let stop = Arc::new(AtomicBool::new(false));
@@ -225,6 +232,7 @@ struct Worker {
     /// A relay call's join, until the relay confirms it.
     relay: RelayWatch,
     mumble: Option<MumbleCall>,
+    phone: SipPhone,
 }
 
 fn resolve(addr: &str) -> anyhow::Result<SocketAddr> {
@@ -261,6 +269,7 @@ impl Worker {
             in_call: false,
             relay: RelayWatch::default(),
             mumble: None,
+            phone: SipPhone::default(),
             config,
             shared,
             counters,
@@ -342,6 +351,9 @@ impl Worker {
             self.switch_link(link, encoder);
             self.mumble = Some(call);
             return Ok(());
+        }
+        if is_sip_address(&spec.address) {
+            return self.dial_sip(spec);
         }
         let to = resolve(&spec.address)?;
         let room = spec.room.clone().filter(|r| !r.trim().is_empty());
@@ -498,6 +510,7 @@ impl Worker {
             Command::Call(spec) => self.call(&spec),
             Command::Leave => self.leave(),
             Command::Channel(id) => self.mumble.as_ref().map_or(Ok(()), |m| m.join_channel(id)),
+            Command::Phone(command) => self.phone_command(command),
             Command::SetInput(choice) => {
                 self.open_mic(&choice);
                 Ok(())
@@ -549,6 +562,7 @@ impl Worker {
             if over && let Err(e) = self.leave() {
                 tracing::warn!("back to listening: {e:#}");
             }
+            self.follow_phone();
             if let Some(tick) = ticker.poll(Instant::now()) {
                 if let Some(demo) = &mut self.demo {
                     demo.tick();

@@ -16,6 +16,8 @@ pub mod peer;
 pub mod peer_panel;
 pub mod roster;
 pub mod settings;
+pub mod sip_call;
+mod sip_panel;
 pub mod tiles;
 mod timing;
 
@@ -38,6 +40,7 @@ pub use channel_panel::channels_ui;
 use engine::{Command, Engine, EngineConfig};
 pub use peer_panel::{ShownPeer, peer_controls_ui, peer_list_ui, tiles_ui};
 use settings::Settings;
+pub use sip_panel::{SipForm, sip_ui};
 use tiles::{HeadTiles, RenderCounters};
 
 /// How the app starts (the command line's top-level flags).
@@ -153,6 +156,7 @@ pub struct LipcallApp {
     settings_path: Option<PathBuf>,
     options: AppOptions,
     form: CallForm,
+    sip_form: SipForm,
     notes: Vec<String>,
     started: Instant,
     last_status: Instant,
@@ -192,12 +196,17 @@ impl LipcallApp {
         if let Some(mic) = &engine::lock(&engine.shared).mic {
             mic.set_push_to_talk(settings.push_to_talk);
         }
+        let sip_form = SipForm {
+            error: sip_panel::use_account(&settings, &engine).err(),
+            ..SipForm::default()
+        };
         Self {
             engine,
             settings,
             settings_path,
             options,
             form,
+            sip_form,
             notes,
             started: Instant::now(),
             last_status: Instant::now(),
@@ -319,7 +328,7 @@ impl eframe::App for LipcallApp {
         let now = Instant::now();
 
         // One lock: the snapshot, each peer's choices, and its weights for the audio heard now.
-        let (mut peers, call, output_status, input_status, mic, mumble) = {
+        let (mut peers, call, output_status, input_status, mic, mumble, phone) = {
             let mut guard = engine::lock(&self.engine.shared);
             let s = &mut *guard;
             if let Some(status) = s.playback.poll() {
@@ -358,6 +367,7 @@ impl eframe::App for LipcallApp {
                 s.input_status.clone(),
                 s.mic.clone(),
                 s.mumble.clone(),
+                s.phone.clone(),
             )
         };
         let before: Vec<_> = peers.iter().map(|p| p.prefs.clone()).collect();
@@ -367,6 +377,13 @@ impl eframe::App for LipcallApp {
         let side = egui::Frame::side_top_panel(ui.style()).fill(egui::Color32::TRANSPARENT);
         egui::Panel::top("call").frame(side).show(ui, |ui| {
             call_ui(ui, &mut self.form, &mut self.settings, &call, &self.engine);
+            sip_ui(
+                ui,
+                &mut self.sip_form,
+                &mut self.settings,
+                &phone,
+                &self.engine,
+            );
         });
         egui::Panel::bottom("audio").frame(side).show(ui, |ui| {
             audio_ui(

@@ -1,4 +1,5 @@
-//! Settings kept between runs: a small JSON file under the XDG config directory.
+//! Settings kept between runs: a small JSON file under the XDG config directory, readable by
+//! its owner alone (it holds the SIP account's password).
 
 use std::collections::BTreeMap;
 use std::path::{Path, PathBuf};
@@ -8,6 +9,7 @@ use serde::{Deserialize, Serialize};
 use crate::codec::any::Codec;
 use crate::codec::opus::codec::Bandwidth;
 use crate::net::janus::candidates::{IceServers, TurnServer};
+use crate::net::sip::agent::{Account, SipError};
 
 /// The codec new calls send unless the settings say otherwise: Opus. It is what the VoIP world
 /// speaks today (WebRTC, SIP phones, Mumble, Discord), and it carries in-band FEC, so a lost
@@ -101,6 +103,8 @@ pub struct Settings {
     pub peers: BTreeMap<String, PeerPrefs>,
     /// STUN and TURN servers for Janus rooms behind a NAT.
     pub nat: NatSettings,
+    /// The SIP account the app registers with and takes phone calls on.
+    pub sip: SipSettings,
 }
 
 /// The servers that take a Janus room's media across NATs (see docs/janus.md).
@@ -144,6 +148,48 @@ impl NatSettings {
     }
 }
 
+/// A SIP account: who we are, where we register, and the password (kept in the settings file,
+/// which only its owner may read; never in the log or in `Debug` output).
+#[derive(Clone, Default, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(default)]
+pub struct SipSettings {
+    /// `sip:USER@DOMAIN`; empty: no account (the app neither registers nor takes SIP calls).
+    pub account: String,
+    /// `HOST[:PORT]` to register with, where it is not the account's domain.
+    pub registrar: String,
+    pub password: String,
+}
+
+impl std::fmt::Debug for SipSettings {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.debug_struct("SipSettings")
+            .field("account", &self.account)
+            .field("registrar", &self.registrar)
+            .field(
+                "password",
+                &if self.password.is_empty() {
+                    ""
+                } else {
+                    "(set)"
+                },
+            )
+            .finish()
+    }
+}
+
+impl SipSettings {
+    /// The account to register, none where no account is given.
+    pub fn account(&self) -> Result<Option<Account>, SipError> {
+        if self.account.trim().is_empty() {
+            return Ok(None);
+        }
+        let mut account = Account::parse(&self.account, &self.password)?;
+        let registrar = self.registrar.trim();
+        account.registrar = (!registrar.is_empty()).then(|| registrar.to_owned());
+        Ok(Some(account))
+    }
+}
+
 impl Default for Settings {
     fn default() -> Self {
         Self {
@@ -157,6 +203,7 @@ impl Default for Settings {
             bandwidth: Bandwidth::Fullband,
             peers: BTreeMap::new(),
             nat: NatSettings::default(),
+            sip: SipSettings::default(),
         }
     }
 }
@@ -206,8 +253,9 @@ impl Settings {
         self
     }
 
-    /// Writes the settings (atomically: a new file renamed over the old). Only a regular file
-    /// is replaced: a device or folder at the path is left alone, with an error.
+    /// Writes the settings (atomically: a new file renamed over the old), readable and
+    /// writable by the owner alone. Only a regular file is replaced: a device or folder at
+    /// the path is left alone, with an error.
     pub fn save(&self, path: &Path) -> std::io::Result<()> {
         if std::fs::metadata(path).is_ok_and(|m| !m.is_file()) {
             return Err(std::io::Error::other("not a regular file; left as it is"));
@@ -217,9 +265,26 @@ impl Settings {
         }
         let text = serde_json::to_string_pretty(self).map_err(std::io::Error::other)?;
         let tmp = path.with_extension("json.tmp");
-        std::fs::write(&tmp, text)?;
+        write_private(&tmp, text.as_bytes())?;
         std::fs::rename(&tmp, path)
     }
+}
+
+/// Writes a new file that only its owner can read (mode 0600 where there are modes): a stale
+/// one is removed first, so that no looser mode is inherited from it.
+fn write_private(path: &Path, bytes: &[u8]) -> std::io::Result<()> {
+    use std::io::Write;
+    match std::fs::remove_file(path) {
+        Err(e) if e.kind() != std::io::ErrorKind::NotFound => return Err(e),
+        _ => {}
+    }
+    let mut options = std::fs::OpenOptions::new();
+    options.write(true).create_new(true);
+    #[cfg(unix)]
+    std::os::unix::fs::OpenOptionsExt::mode(&mut options, 0o600);
+    let mut file = options.open(path)?;
+    file.write_all(bytes)?;
+    file.sync_all()
 }
 
 /// Where an unusable settings file is kept: `settings.json.bad` beside it.
@@ -343,6 +408,47 @@ mod tests {
         s.save(&path).unwrap();
         assert!(!std::fs::read_to_string(&path).unwrap().contains("null"));
         assert_eq!(Settings::load(&path), (s, None));
+    }
+
+    #[test]
+    fn the_sip_password_is_kept_private_and_never_printed() {
+        let dir = tempfile::tempdir().unwrap();
+        let path = dir.path().join("settings.json");
+        // An old file anyone could read, and a stale temporary one.
+        std::fs::write(&path, "{}").unwrap();
+        std::fs::write(path.with_extension("json.tmp"), "{}").unwrap();
+        let s = Settings {
+            sip: SipSettings {
+                account: "sip:alice@pbx.example".into(),
+                registrar: "127.0.0.1:5070".into(),
+                password: "hunter2-secret".into(),
+            },
+            ..Settings::default()
+        };
+        s.save(&path).unwrap();
+        #[cfg(unix)]
+        {
+            use std::os::unix::fs::PermissionsExt;
+            let mode = std::fs::metadata(&path).unwrap().permissions().mode();
+            assert_eq!(mode & 0o777, 0o600, "{mode:o}");
+        }
+        assert_eq!(Settings::load(&path), (s.clone(), None));
+        for shown in [format!("{s:?}"), format!("{:?}", s.sip.account().unwrap())] {
+            assert!(!shown.contains("hunter2"), "{shown}");
+            assert!(shown.contains("alice"), "{shown}");
+        }
+        let account = s.sip.account().unwrap().unwrap();
+        assert_eq!(
+            (account.user.as_str(), account.registrar()),
+            ("alice", "127.0.0.1:5070")
+        );
+        assert_eq!(account.password, "hunter2-secret");
+        assert_eq!(SipSettings::default().account(), Ok(None));
+        let bad = SipSettings {
+            account: "alice".into(),
+            ..SipSettings::default()
+        };
+        assert!(bad.account().is_err());
     }
 
     #[test]

@@ -9,9 +9,9 @@ use std::time::{Duration, Instant};
 use super::link::{Link, LinkEvent};
 use crate::codec::any::Codec;
 use crate::net::session::{PeerFrame, PeerInfo};
-use crate::net::sip::agent::{Agent, AgentConfig, AgentEvent, SipError};
+use crate::net::sip::agent::{Account, Agent, AgentConfig, AgentEvent, Decision, Role, SipError};
 use crate::net::sip::media::{SipRtp, SipRtpStats};
-use crate::net::sip::sdp::{Negotiated, SdesKey};
+use crate::net::sip::sdp::{LocalAudio, Negotiated, SdesKey};
 
 /// How long a hang-up waits for the peer to confirm it.
 const HANG_UP_WAIT: Duration = Duration::from_secs(3);
@@ -43,6 +43,10 @@ pub struct SipLink {
     peer: String,
     /// The call was answered (not only ringing with early media).
     answered: bool,
+    /// Incoming calls wait for [`SipLink::decide`] ([`Role::Ask`]).
+    asks: bool,
+    /// The caller whose call rings, waiting for the owner's decision.
+    ringing: Option<String>,
     /// Progress lines for the user (registered, ringing, a caller).
     notices: Vec<String>,
     events: Vec<LinkEvent>,
@@ -64,6 +68,7 @@ impl SipLink {
             why: e.to_string(),
         })?;
         let key = config.audio.key.clone();
+        let asks = config.role == Role::Ask;
         let agent = Agent::start(config)?;
         Ok(Self {
             agent,
@@ -75,9 +80,64 @@ impl SipLink {
             state: CallState::Setting,
             answered: false,
             peer,
+            asks,
+            ringing: None,
             notices: Vec::new(),
             events: Vec::new(),
         })
+    }
+
+    /// A call on `bind` (SIP over UDP) with its RTP on a free port of the same address, SDP
+    /// offering or taking `codecs` (and SRTP with a fresh key where `srtp`).
+    pub fn open(
+        bind: SocketAddr,
+        account: Option<Account>,
+        role: Role,
+        codecs: Vec<Codec>,
+        srtp: bool,
+    ) -> Result<Self, SipError> {
+        let rtp_bind = SocketAddr::new(bind.ip(), 0);
+        let cannot = |why: String| SipError::Bind {
+            addr: rtp_bind,
+            why,
+        };
+        let socket = UdpSocket::bind(rtp_bind).map_err(|e| cannot(e.to_string()))?;
+        let audio = LocalAudio {
+            addr: socket.local_addr().map_err(|e| cannot(e.to_string()))?,
+            codecs,
+            session_id: std::time::SystemTime::now()
+                .duration_since(std::time::UNIX_EPOCH)
+                .map_or(1, |d| d.as_secs()),
+            key: SdesKey::random().map_err(|e| cannot(format!("no randomness for a key: {e}")))?,
+            offer_srtp: srtp,
+        };
+        let peer = match &role {
+            Role::Call(target) => target.clone(),
+            Role::Answer | Role::Ask => "the caller".to_owned(),
+        };
+        let config = AgentConfig {
+            bind,
+            account,
+            audio,
+            role,
+        };
+        Self::start(config, socket, peer)
+    }
+
+    /// The caller whose call rings until [`SipLink::decide`] says what to do with it.
+    pub fn ringing(&self) -> Option<&str> {
+        self.ringing.as_deref()
+    }
+
+    /// Answers or refuses the ringing call.
+    pub fn decide(&mut self, decision: Decision) {
+        self.ringing = None;
+        self.agent.decide(decision);
+    }
+
+    /// Who the peer is: the dialled URI, or the caller once one came.
+    pub fn peer(&self) -> &str {
+        &self.peer
     }
 
     pub fn state(&self) -> &CallState {
@@ -123,6 +183,11 @@ impl SipLink {
             AgentEvent::Registered(registrar) => {
                 self.notices.push(format!("registered with {registrar}"));
             }
+            AgentEvent::Incoming(from) if self.asks => {
+                self.notices.push(format!("call from {from}"));
+                self.peer = from.clone();
+                self.ringing = Some(from);
+            }
             AgentEvent::Incoming(from) => {
                 self.peer = from.clone();
                 self.notices.push(format!("call from {from}; answering"));
@@ -133,6 +198,7 @@ impl SipLink {
                 .push(format!("{} sends early media before answering", self.peer)),
             AgentEvent::Media(negotiated) => self.media(negotiated),
             AgentEvent::Established => {
+                self.ringing = None;
                 self.state = CallState::Established;
                 self.answered = true;
                 self.events.push(LinkEvent::Joined {
@@ -141,6 +207,7 @@ impl SipLink {
                 });
             }
             AgentEvent::Ended { by_peer } => {
+                self.ringing = None;
                 if self.state == CallState::Established {
                     self.events.push(LinkEvent::PeerLeft {
                         id: self.peer.clone(),
@@ -150,6 +217,7 @@ impl SipLink {
                 self.state = CallState::Ended { by_peer };
             }
             AgentEvent::Failed(e) => {
+                self.ringing = None;
                 self.events.push(LinkEvent::Failed(e.to_string()));
                 self.state = CallState::Failed(e);
             }

@@ -1,7 +1,7 @@
 //! `lipcall sip call` and `lipcall sip answer`: a phone call over SIP that plays a file as our
 //! voice and does with the peer's what `receive` does (WAV as played, WEIGHTS.csv, summary).
 
-use std::net::{IpAddr, SocketAddr, ToSocketAddrs, UdpSocket};
+use std::net::{IpAddr, SocketAddr, ToSocketAddrs};
 use std::path::{Path, PathBuf};
 use std::sync::atomic::AtomicBool;
 use std::time::{Duration, Instant};
@@ -17,8 +17,8 @@ use crate::call::sip::{CallState, SipLink};
 use crate::codec::any::{Codec, EncoderSettings};
 use crate::net::janus::candidates::local_ip_towards;
 use crate::net::session::{PeerFrame, PeerInfo};
-use crate::net::sip::agent::{Account, AgentConfig, Role, codecs};
-use crate::net::sip::sdp::{LocalAudio, SdesKey};
+use crate::net::sip::address::{bind_towards, host_port, resolve_host};
+use crate::net::sip::agent::{Account, Role, codecs};
 
 /// How often the set-up phase looks at the stop flag and the deadline.
 const SETUP_STEP: Duration = Duration::from_millis(50);
@@ -64,7 +64,7 @@ pub struct SipCommon {
     /// Stop after this many seconds (set-up included).
     #[arg(long, allow_hyphen_values = true, value_parser = super::parse_seconds)]
     pub seconds: Option<f64>,
-    /// Offer or accept only this codec (otherwise Opus, PCMU and PCMA, in that order).
+    /// Offer or accept only this codec (otherwise Opus, G.722, PCMU and PCMA, in that order).
     #[arg(long, value_parser = parse_sip_codec)]
     pub codec: Option<Codec>,
 }
@@ -99,7 +99,9 @@ pub struct SipAnswerArgs {
 
 fn parse_sip_codec(s: &str) -> Result<Codec, String> {
     match parse_codec(s)? {
-        Codec::Speex => Err("SIP peers do not speak Speex: opus, pcmu or pcma".into()),
+        Codec::Speex | Codec::SpeexWb => {
+            Err("SIP peers do not speak Speex: opus, g722, pcmu or pcma".into())
+        }
         codec => Ok(codec),
     }
 }
@@ -111,28 +113,6 @@ pub fn run(command: &SipCommand) -> Result<()> {
     }
 }
 
-/// The host of `sip:USER@HOST[:PORT];params`.
-fn host_port(uri: &str) -> &str {
-    let bare = uri.trim().trim_start_matches("sip:");
-    let after_user = bare.rsplit_once('@').map_or(bare, |(_, h)| h);
-    after_user.split([';', '?']).next().unwrap_or(after_user)
-}
-
-/// The IP address of `HOST[:PORT]` (SIP's default port when none is given).
-fn resolve_host(host: &str) -> Result<IpAddr> {
-    let with_port = if host.starts_with('[') || host.matches(':').count() == 1 {
-        host.to_owned()
-    } else {
-        format!("{host}:5060")
-    };
-    with_port
-        .to_socket_addrs()
-        .with_context(|| format!("cannot resolve {host}"))?
-        .next()
-        .map(|a| a.ip())
-        .with_context(|| format!("{host} has no address"))
-}
-
 fn account(common: &SipCommon) -> Result<Option<Account>> {
     let (Some(uri), Some(password)) = (&common.account, &common.password) else {
         return Ok(None);
@@ -142,23 +122,17 @@ fn account(common: &SipCommon) -> Result<Option<Account>> {
     Ok(Some(account))
 }
 
-fn session_id() -> u64 {
-    std::time::SystemTime::now()
-        .duration_since(std::time::UNIX_EPOCH)
-        .map_or(1, |d| d.as_secs())
-}
-
 fn call(args: &SipCallArgs) -> Result<()> {
     let account = account(&args.common)?;
     let towards = match &account {
-        Some(a) => host_port(a.registrar()),
-        None => host_port(&args.target),
+        Some(a) => a.registrar(),
+        None => &args.target,
     };
     let bind = match &args.bind {
         Some(bind) => bind
             .parse::<SocketAddr>()
             .with_context(|| format!("--bind {bind:?}: expected IP:PORT"))?,
-        None => SocketAddr::new(local_ip_towards(resolve_host(towards)?)?, 0),
+        None => bind_towards(towards)?,
     };
     let role = Role::Call(args.target.clone());
     run_call(
@@ -216,27 +190,8 @@ fn run_call(
         None,
         common.weights.as_deref(),
     )?;
-    let rtp = UdpSocket::bind(SocketAddr::new(bind.ip(), 0))
-        .with_context(|| format!("cannot open an RTP socket on {}", bind.ip()))?;
-    let audio = LocalAudio {
-        addr: rtp.local_addr().context("RTP socket")?,
-        codecs: codecs(common.codec),
-        session_id: session_id(),
-        key: SdesKey::random().context("no randomness for an SRTP key")?,
-        offer_srtp: srtp,
-    };
-    let peer = match &role {
-        Role::Call(target) => target.clone(),
-        Role::Answer => "the caller".to_owned(),
-    };
     let answering = role == Role::Answer;
-    let config = AgentConfig {
-        bind,
-        account,
-        audio,
-        role,
-    };
-    let mut link = SipLink::start(config, rtp, peer)?;
+    let mut link = SipLink::open(bind, account, role, codecs(common.codec), srtp)?;
     let start = Instant::now();
     let limit = common.seconds.map(Duration::from_secs_f64);
     if let Err(e) = set_up(&mut link, start, limit, &stop, answering) {
@@ -278,7 +233,7 @@ fn run_call(
     let stats = link.rtp_stats();
     eprintln!(
         "lipcall: played {:.2} s; datagrams={} rtp={} rtcp={} malformed={} unknown_pt={} \
-         auth_failed={} dtmf_in={} sent_rtp={} dtmf_sent={} send_errors={}",
+         auth_failed={} dtmf_in={} sent_rtp={} dtmf_sent={} keepalives={} send_errors={}",
         recorder.seconds(),
         stats.datagrams,
         stats.rtp,
@@ -289,6 +244,7 @@ fn run_call(
         stats.events_in,
         stats.sent_rtp,
         stats.sent_events,
+        stats.keepalives,
         stats.send_errors
     );
     for peer in link.peers() {
@@ -413,19 +369,5 @@ impl Link for Playing<'_> {
 
     fn over(&self) -> bool {
         self.link.over()
-    }
-}
-
-#[cfg(test)]
-mod tests {
-    use super::*;
-
-    #[test]
-    fn the_host_of_a_sip_address() {
-        assert_eq!(host_port("sip:bob@127.0.0.1:5070"), "127.0.0.1:5070");
-        assert_eq!(host_port("bob@pbx.example;transport=udp"), "pbx.example");
-        assert_eq!(host_port("sip:127.0.0.1"), "127.0.0.1");
-        assert!(resolve_host("127.0.0.1").is_ok());
-        assert!(resolve_host("127.0.0.1:5070").is_ok());
     }
 }

@@ -1,6 +1,8 @@
 //! The SIP user agent of one call, on its own thread with its own tokio runtime (the ezk stack
-//! is async; the rest of lipcall is not): registration ([`super::register`]), one outgoing call (INVITE, ringing, CANCEL, answer, BYE) or the first incoming
-//! one. The owner talks to it through channels: events come out, a hang-up goes in.
+//! is async; the rest of lipcall is not): registration ([`super::register`]), one outgoing call
+//! (INVITE, ringing, CANCEL, answer, BYE) or the first incoming one, answered at once or as the
+//! owner decides. The owner talks to it through channels: events come out, a hang-up and a
+//! decision go in.
 //!
 //! ezk runs the dialogs and transactions; the SDP goes through [`super::sdp`] by way of
 //! [`SdpMedia`], ezk's media backend, which only negotiates: the RTP itself is
@@ -42,6 +44,19 @@ pub enum Role {
     Call(String),
     /// Answers the first call that comes.
     Answer,
+    /// Rings with the first call that comes and answers or refuses it as the owner decides
+    /// ([`Agent::decide`]).
+    Ask,
+}
+
+/// What to do with a ringing call ([`Role::Ask`]).
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum Decision {
+    Answer,
+    /// 603 Decline.
+    Decline,
+    /// 486 Busy Here: the owner is in another call.
+    Busy,
 }
 
 #[derive(Debug, Clone)]
@@ -56,6 +71,7 @@ pub struct AgentConfig {
 /// The agent's thread and its channels.
 pub struct Agent {
     hang_up: UnboundedSender<()>,
+    decisions: UnboundedSender<Decision>,
     events: mpsc::Receiver<AgentEvent>,
     thread: Option<JoinHandle<()>>,
     /// The call's end (or failure) was reported.
@@ -72,6 +88,7 @@ impl Agent {
     pub fn start(config: AgentConfig) -> Result<Self, SipError> {
         let (events_tx, events) = mpsc::channel();
         let (hang_up, commands) = unbounded_channel();
+        let (decisions, decided) = unbounded_channel();
         let runtime = tokio::runtime::Builder::new_current_thread()
             .enable_all()
             .build()
@@ -80,7 +97,7 @@ impl Agent {
             .name("lipcall-sip".into())
             .spawn(move || {
                 runtime.block_on(async move {
-                    if let Err(e) = run(config, &events_tx, commands).await {
+                    if let Err(e) = run(config, &events_tx, commands, decided).await {
                         let _ = events_tx.send(AgentEvent::Failed(e));
                     }
                 });
@@ -88,6 +105,7 @@ impl Agent {
             .map_err(|e| SipError::Thread(e.to_string()))?;
         Ok(Self {
             hang_up,
+            decisions,
             events,
             thread: Some(thread),
             last_word: false,
@@ -97,6 +115,12 @@ impl Agent {
     /// Ends the call (a CANCEL while it rings, a BYE once answered) and the registration.
     pub fn hang_up(&self) {
         let _ = self.hang_up.send(());
+    }
+
+    /// Answers or refuses the call that rings ([`Role::Ask`]); said before a call rings, it
+    /// applies to the first that does.
+    pub fn decide(&self, decision: Decision) {
+        let _ = self.decisions.send(decision);
     }
 
     /// The next event within `timeout`. An agent that stopped without saying how the call
@@ -192,6 +216,7 @@ async fn run(
     config: AgentConfig,
     events: &mpsc::Sender<AgentEvent>,
     mut commands: UnboundedReceiver<()>,
+    mut decided: UnboundedReceiver<Decision>,
 ) -> Result<(), SipError> {
     let (calls, mut incoming) = tokio::sync::mpsc::channel(1);
     let mut builder = Endpoint::builder();
@@ -275,16 +300,14 @@ async fn run(
             )
             .await
         }
-        Role::Answer => {
-            answer(
-                &endpoint,
-                &mut incoming,
-                contact,
-                media,
+        Role::Answer | Role::Ask => {
+            let decided = (config.role == Role::Ask).then_some(&mut decided);
+            let channels = Channels {
                 events,
-                &mut commands,
-            )
-            .await
+                commands: &mut commands,
+                decided,
+            };
+            answer(&endpoint, &mut incoming, contact, media, channels).await
         }
     };
 
@@ -321,14 +344,26 @@ async fn call(
     Ok(())
 }
 
+/// How an answering agent hears from and talks to its owner; `decided` where the owner decides
+/// whether to answer.
+struct Channels<'c> {
+    events: &'c mpsc::Sender<AgentEvent>,
+    commands: &'c mut UnboundedReceiver<()>,
+    decided: Option<&'c mut UnboundedReceiver<Decision>>,
+}
+
 async fn answer(
     endpoint: &Endpoint,
     incoming: &mut tokio::sync::mpsc::Receiver<IncomingRequest>,
     contact: Contact,
     media: SdpMedia,
-    events: &mpsc::Sender<AgentEvent>,
-    commands: &mut UnboundedReceiver<()>,
+    channels: Channels<'_>,
 ) -> Result<(), SipError> {
+    let Channels {
+        events,
+        commands,
+        decided,
+    } = channels;
     let invite = select! {
         invite = incoming.recv() => invite,
         _ = commands.recv() => None,
@@ -369,6 +404,26 @@ async fn answer(
         .respond_provisional(StatusCode::RINGING)
         .await
         .map_err(|e| SipError::Protocol(e.to_string()))?;
+    if let Some(decided) = decided {
+        let refusal = select! {
+            decision = decided.recv() => match decision {
+                Some(Decision::Answer) => None,
+                Some(Decision::Busy) => Some(StatusCode::BUSY_HERE),
+                Some(Decision::Decline) | None => Some(StatusCode::DECLINE),
+            },
+            _ = commands.recv() => Some(StatusCode::DECLINE),
+            () = inbound.cancelled() => return Err(SipError::CallerCancelled),
+        };
+        if let Some(code) = refusal {
+            match tokio::time::timeout(REFUSAL_WAIT, inbound.decline(code, None)).await {
+                Ok(Ok(())) => {}
+                Ok(Err(e)) => tracing::debug!("refusing the call: {e}"),
+                Err(_) => tracing::debug!("refusing the call: no ACK"),
+            }
+            send(events, AgentEvent::Ended { by_peer: false });
+            return Ok(());
+        }
+    }
     let call = inbound.accept().await.map_err(|e| match e {
         AcceptCallError::Cancelled => SipError::CallerCancelled,
         AcceptCallError::Media(e) => SipError::Sdp(e),
@@ -422,7 +477,7 @@ async fn follow(
 pub fn codecs(chosen: Option<Codec>) -> Vec<Codec> {
     match chosen {
         Some(codec) => vec![codec],
-        None => vec![Codec::Opus, Codec::Pcmu, Codec::Pcma],
+        None => vec![Codec::Opus, Codec::G722, Codec::Pcmu, Codec::Pcma],
     }
 }
 
@@ -462,6 +517,9 @@ mod tests {
     #[test]
     fn one_codec_or_every_one_sip_peers_speak() {
         assert_eq!(codecs(Some(Codec::Pcma)), vec![Codec::Pcma]);
-        assert_eq!(codecs(None), vec![Codec::Opus, Codec::Pcmu, Codec::Pcma]);
+        assert_eq!(
+            codecs(None),
+            vec![Codec::Opus, Codec::G722, Codec::Pcmu, Codec::Pcma]
+        );
     }
 }

@@ -8,6 +8,8 @@ use super::sdp::SdpError;
 pub enum SipError {
     #[error("cannot use {addr} for SIP: {why}")]
     Bind { addr: SocketAddr, why: String },
+    #[error("cannot reach {host}: {why}")]
+    Unresolved { host: String, why: String },
     #[error("bad SIP address {0:?} (expected sip:USER@HOST[:PORT])")]
     BadUri(String),
     #[error("the registrar {0} did not answer within {1} s")]

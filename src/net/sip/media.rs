@@ -20,6 +20,9 @@ use crate::net::srtp::{MasterKey, Srtp};
 
 /// How long the socket thread waits at most for a datagram.
 const POLL: Duration = Duration::from_millis(10);
+/// A call that sent nothing for this long (on hold, muted, our file played out) sends an empty
+/// datagram, so that a NAT on the way keeps the media's mapping (RFC 6263: 15 s by default).
+pub const KEEPALIVE: Duration = Duration::from_secs(15);
 /// One DTMF digit: this many 20 ms packets of the tone, then three end packets, then a pause.
 const DIGIT_PACKETS: u32 = 5;
 const END_PACKETS: u32 = 3;
@@ -44,6 +47,8 @@ pub struct SipRtpStats {
     pub sent_rtp: u64,
     pub sent_events: u64,
     pub send_errors: u64,
+    /// Empty datagrams sent to keep a NAT's mapping open ([`KEEPALIVE`]).
+    pub keepalives: u64,
     /// SRTP packets that failed authentication (or replays), dropped.
     pub auth_failed: u64,
     /// Packets of a second stream while the current one is still sending (dropped).
@@ -75,6 +80,10 @@ pub struct SipRtpCore {
     digits: VecDeque<u8>,
     digit: Option<Digit>,
     outbox: VecDeque<Transmit>,
+    /// When we last sent, as the socket thread's clock saw it, and whether anything was
+    /// queued since.
+    last_sent: Instant,
+    sent_since: bool,
     stats: SipRtpStats,
     /// SRTP (SDES): ours protects what we send, the peer's key what it sends.
     tx_srtp: Option<Srtp>,
@@ -128,6 +137,8 @@ impl SipRtpCore {
             digits: VecDeque::new(),
             digit: None,
             outbox: VecDeque::new(),
+            last_sent: now,
+            sent_since: false,
             stats: SipRtpStats::default(),
             tx_srtp,
             rx_srtp,
@@ -173,11 +184,28 @@ impl SipRtpCore {
             self.stats.send_errors += 1;
             return;
         }
+        self.sent_since = true;
         self.outbox.push_back(Transmit {
             to: self.remote,
             data,
             kind: TransmitKind::Rtp,
         });
+    }
+
+    /// An empty datagram (RFC 6263 4.1) where nothing went out for [`KEEPALIVE`]: RTP stacks
+    /// drop it as too short to be RTP, and under SRTP it carries no key stream.
+    fn keep_alive(&mut self, now: Instant) {
+        if std::mem::take(&mut self.sent_since) {
+            self.last_sent = now;
+        } else if now.saturating_duration_since(self.last_sent) >= KEEPALIVE {
+            self.last_sent = now;
+            self.stats.keepalives += 1;
+            self.outbox.push_back(Transmit {
+                to: self.remote,
+                data: Vec::new(),
+                kind: TransmitKind::Rtp,
+            });
+        }
     }
 
     /// Sends one payload of the agreed codec lasting `ticks` (nothing while the peer holds the
@@ -241,6 +269,12 @@ impl SipRtpCore {
         let (event, timestamp) = (digit.event, digit.timestamp);
         if step >= DIGIT_PACKETS + END_PACKETS + PAUSE_PACKETS {
             self.digit = None;
+            // Where no audio went out meanwhile (no microphone), the stream's clock stood
+            // still: the next event must not start at this one's timestamp, or the peer
+            // takes it for a repeat of this one (RFC 4733 2.5.1.3).
+            if self.stream.next_timestamp() == timestamp {
+                self.stream.skip(step);
+            }
             return self.step_digits();
         }
         if step >= DIGIT_PACKETS + END_PACKETS {
@@ -365,7 +399,9 @@ impl SansIo for SipRtpCore {
         Instant::now() + POLL
     }
 
-    fn handle_timeout(&mut self, _now: Instant) {}
+    fn handle_timeout(&mut self, now: Instant) {
+        self.keep_alive(now);
+    }
 
     fn poll_transmit(&mut self) -> Option<Transmit> {
         self.outbox.pop_front()
@@ -461,11 +497,37 @@ mod tests {
             "{seqs:?}"
         );
         core.step_digits().unwrap();
-        let next = rtp::parse(&core.poll_transmit().unwrap().data, None)
-            .unwrap()
-            .payload
-            .to_vec();
-        assert_eq!(next[0], 11, "then #");
+        let data = core.poll_transmit().unwrap().data;
+        let next = rtp::parse(&data, None).unwrap();
+        assert_eq!(next.payload[0], 11, "then #");
+        // No audio went out between them: # still starts at a timestamp of its own, one
+        // digit's span (13 steps of 160) later.
+        assert_eq!(
+            next.header.timestamp,
+            parsed[0].header.timestamp.wrapping_add(13 * 160)
+        );
+    }
+
+    #[test]
+    fn a_call_that_sends_nothing_for_15_s_sends_an_empty_datagram() {
+        let t0 = Instant::now();
+        let mut core = SipRtpCore::new(negotiated(), &SdesKey([1; 30]), t0).unwrap();
+        let sent = |core: &mut SipRtpCore, at: Duration| {
+            core.handle_timeout(t0 + at);
+            std::iter::from_fn(|| core.poll_transmit()).collect::<Vec<_>>()
+        };
+        assert!(sent(&mut core, Duration::from_secs(14)).is_empty());
+        let keepalive = sent(&mut core, KEEPALIVE);
+        assert_eq!(keepalive.len(), 1);
+        assert!(keepalive[0].data.is_empty());
+        assert_eq!(keepalive[0].to, "127.0.0.1:9000".parse().unwrap());
+        assert!(sent(&mut core, Duration::from_secs(29)).is_empty());
+        // Audio sent at 29 s: the next keepalive is due 15 s after it, not after the last.
+        core.send_packet(&[0xff; 160], 160).unwrap();
+        assert_eq!(sent(&mut core, Duration::from_secs(29)).len(), 1);
+        assert!(sent(&mut core, Duration::from_secs(43)).is_empty());
+        assert_eq!(sent(&mut core, Duration::from_secs(44)).len(), 1);
+        assert_eq!(core.stats().keepalives, 2);
     }
 
     #[test]

@@ -2,6 +2,7 @@
 //! ([`register`]), SDP offer and answer ([`sdp`]), and the call's RTP through the same
 //! per-peer receiver as every call ([`media`]).
 
+pub mod address;
 pub mod agent;
 pub mod backend;
 pub mod dial;

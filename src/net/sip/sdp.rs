@@ -91,7 +91,7 @@ pub enum SdpError {
     NoAddress,
     #[error("malformed SDP line {line:?}: {why}")]
     Malformed { line: String, why: &'static str },
-    #[error("no codec in common (the peer offers {0}; lipcall speaks Opus, PCMU and PCMA)")]
+    #[error("no codec in common (the peer offers {0}; lipcall speaks Opus, G.722, PCMU and PCMA)")]
     NoCommonCodec(String),
     #[error("the peer offers SRTP with no crypto suite lipcall speaks ({SRTP_SUITE} by SDES)")]
     Encrypted,
@@ -200,6 +200,8 @@ fn codec_of(format: &Format) -> Option<Codec> {
         ("OPUS", 48000) => Some(Codec::Opus),
         ("PCMU", 8000) => Some(Codec::Pcmu),
         ("PCMA", 8000) => Some(Codec::Pcma),
+        // RFC 3551 4.5.2: G.722's RTP clock is 8000 though it samples at 16 kHz.
+        ("G722", 8000) => Some(Codec::G722),
         _ => None,
     }
 }
@@ -481,7 +483,7 @@ pub fn offer(local: &LocalAudio, version: u64) -> String {
         .codecs
         .iter()
         .copied()
-        .filter(|c| *c != Codec::Speex)
+        .filter(|c| !matches!(c, Codec::Speex | Codec::SpeexWb))
         .collect();
     let mut types: Vec<u8> = codecs.iter().map(|&c| offered_type(c)).collect();
     types.push(EVENT_PT);

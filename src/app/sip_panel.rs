@@ -1,0 +1,140 @@
+//! The phone's row under the call bar: the SIP account (URI, registrar, password) and how its
+//! registration stands, the banner of a call that rings (Answer, Decline), and the DTMF keypad
+//! while a SIP call takes keys. Calls are dialled in the call bar's address field (a `sip:`
+//! URI or a number).
+
+use eframe::egui;
+
+use super::engine::{Command, Engine};
+use super::settings::Settings;
+use super::sip_call::{PhoneCommand, PhoneStatus};
+
+/// The keypad's keys, row by row.
+const KEYPAD: [[&str; 3]; 4] = [
+    ["1", "2", "3"],
+    ["4", "5", "6"],
+    ["7", "8", "9"],
+    ["*", "0", "#"],
+];
+
+/// The account form's state.
+#[derive(Debug, Clone, Default)]
+pub struct SipForm {
+    pub editing: bool,
+    /// Why the account given cannot be used.
+    pub error: Option<String>,
+}
+
+/// Tells the engine to use the settings' account (none where it is empty).
+pub fn use_account(settings: &Settings, engine: &Engine) -> Result<(), String> {
+    let account = settings.sip.account().map_err(|e| e.to_string())?;
+    engine.send(Command::Phone(PhoneCommand::Account(account)));
+    Ok(())
+}
+
+pub fn sip_ui(
+    ui: &mut egui::Ui,
+    form: &mut SipForm,
+    settings: &mut Settings,
+    phone: &PhoneStatus,
+    engine: &Engine,
+) {
+    ui.horizontal_wrapped(|ui| {
+        ui.label("Phone (SIP)");
+        match &phone.account {
+            Some(account) => {
+                ui.label(account);
+                ui.weak(&phone.registration);
+            }
+            None => {
+                ui.weak("no account: sip: addresses can still be called directly");
+            }
+        }
+        let label = if form.editing { "Close" } else { "Account…" };
+        if ui.button(label).clicked() {
+            form.editing = !form.editing;
+        }
+        if let Some(note) = &phone.note {
+            ui.weak(note);
+        }
+    });
+    if form.editing {
+        account_ui(ui, form, settings, engine);
+    }
+    if let Some(caller) = &phone.ringing {
+        ui.horizontal_wrapped(|ui| {
+            ui.colored_label(
+                egui::Color32::from_rgb(120, 200, 255),
+                format!("Incoming call from {caller}"),
+            );
+            if ui.button("Answer").clicked() {
+                engine.send(Command::Phone(PhoneCommand::Answer));
+            }
+            if ui.button("Decline").clicked() {
+                engine.send(Command::Phone(PhoneCommand::Decline));
+            }
+        });
+    }
+    if phone.keypad {
+        keypad_ui(ui, phone, engine);
+    }
+}
+
+fn account_ui(ui: &mut egui::Ui, form: &mut SipForm, settings: &mut Settings, engine: &Engine) {
+    ui.horizontal_wrapped(|ui| {
+        let label = ui.label("Account");
+        ui.add(
+            egui::TextEdit::singleline(&mut settings.sip.account)
+                .hint_text("sip:user@provider")
+                .desired_width(170.0),
+        )
+        .labelled_by(label.id);
+        let label = ui.label("Registrar");
+        ui.add(
+            egui::TextEdit::singleline(&mut settings.sip.registrar)
+                .hint_text("(the account's domain)")
+                .desired_width(130.0),
+        )
+        .labelled_by(label.id);
+        let label = ui.label("Password");
+        ui.add(
+            egui::TextEdit::singleline(&mut settings.sip.password)
+                .password(true)
+                .desired_width(100.0),
+        )
+        .labelled_by(label.id);
+        if ui
+            .button("Register")
+            .on_hover_text(
+                "Registers with the account and rings here with its calls; kept in the \
+                 settings file, which only you can read. An empty account stops it.",
+            )
+            .clicked()
+        {
+            form.error = use_account(settings, engine).err();
+            form.editing = form.error.is_some();
+        }
+        if let Some(e) = &form.error {
+            ui.colored_label(egui::Color32::LIGHT_RED, e);
+        }
+    });
+}
+
+fn keypad_ui(ui: &mut egui::Ui, phone: &PhoneStatus, engine: &Engine) {
+    ui.horizontal(|ui| {
+        ui.label("Keypad");
+        egui::Grid::new("keypad").show(ui, |ui| {
+            for row in KEYPAD {
+                for key in row {
+                    if ui.button(key).clicked() {
+                        engine.send(Command::Phone(PhoneCommand::Keys(key.to_owned())));
+                    }
+                }
+                ui.end_row();
+            }
+        });
+        if !phone.keys_sent.is_empty() {
+            ui.weak(format!("sent {}", phone.keys_sent));
+        }
+    });
+}
