@@ -20,7 +20,12 @@ fn have_sipp() -> bool {
 
 fn call(dir: &Path, port: u16, extra: &[&str]) -> (Output, Duration) {
     let started = Instant::now();
-    let out = common::lipcall()
+    let mut lipcall = common::lipcall();
+    if extra.contains(&"--stun") {
+        // What the STUN server said is logged at info.
+        lipcall.env("RUST_LOG", "lipcall=info");
+    }
+    let out = lipcall
         .args(["sip", "call", &format!("sip:echo@127.0.0.1:{port}")])
         .arg("--play")
         .arg(common::demo_8k(dir))
@@ -35,10 +40,11 @@ fn stderr(out: &Output) -> String {
     String::from_utf8_lossy(&out.stderr).into_owned()
 }
 
-/// Calls an echoing SIPp and checks that what came back is the speech we sent.
-fn echo(codec: &str, scenario: Option<String>, min_correlation: f64) {
+/// Calls an echoing SIPp (with `extra` flags) and checks that what came back is the speech we
+/// sent; lipcall's stderr.
+fn echo(codec: &str, scenario: Option<String>, min_correlation: f64, extra: &[&str]) -> String {
     if !have_sipp() {
-        return;
+        return String::new();
     }
     let dir = tempfile::tempdir().unwrap();
     let (port, media) = (free_port(false), free_port(true));
@@ -60,7 +66,11 @@ fn echo(codec: &str, scenario: Option<String>, min_correlation: f64) {
             "8000",
             "--weights",
             weights.to_str().unwrap(),
-        ],
+        ]
+        .iter()
+        .chain(extra)
+        .copied()
+        .collect::<Vec<_>>(),
     );
     let log = stderr(&out);
     assert!(out.status.success(), "{log}");
@@ -101,24 +111,44 @@ fn echo(codec: &str, scenario: Option<String>, min_correlation: f64) {
         "weights: {} rows",
         rows.lines().count()
     );
+    log
 }
 
 #[test]
 fn a_call_into_sipps_echo_hears_our_own_speech_in_pcmu() {
-    echo("pcmu", None, 0.97);
+    echo("pcmu", None, 0.97, &[]);
+}
+
+/// With a STUN server (coturn), the SDP gives the media address it saw, and the call is heard.
+#[test]
+fn a_call_with_a_stun_server_offers_the_address_it_saw() {
+    let dir = tempfile::tempdir().unwrap();
+    let Some(coturn) = common::nat::start_coturn(dir.path(), "127.0.0.1", None) else {
+        return;
+    };
+    let server = coturn.addr.to_string();
+    let log = echo("pcmu", None, 0.97, &["--stun", &server]);
+    if !log.is_empty() {
+        assert!(
+            log.contains(&format!(
+                "STUN server {server}: our media address outside is 127.0.0.1:"
+            )),
+            "{log}"
+        );
+    }
 }
 
 #[test]
 fn a_call_into_sipps_echo_hears_our_own_speech_in_opus() {
     let scenario =
         answering_scenario("m=audio [media_port] RTP/AVP 111\na=rtpmap:111 opus/48000/2");
-    echo("opus", Some(scenario), 0.85);
+    echo("opus", Some(scenario), 0.85, &[]);
 }
 
 #[test]
 fn a_call_into_sipps_echo_hears_our_own_speech_in_g722() {
     let scenario = answering_scenario("m=audio [media_port] RTP/AVP 9\na=rtpmap:9 G722/8000");
-    echo("g722", Some(scenario), 0.97);
+    echo("g722", Some(scenario), 0.97, &[]);
 }
 
 const BUSY: &str = r#"<?xml version="1.0" encoding="ISO-8859-1" ?>

@@ -22,9 +22,6 @@ pub struct CallForm {
     pub address: String,
     pub room: String,
     pub passphrase: String,
-    /// A Janus's api_secret and stored token (asked only for a Janus URL; never saved).
-    pub janus_secret: String,
-    pub janus_token: String,
 }
 
 /// Join a room on a relay or call a peer directly; leave; the encryption indicator.
@@ -69,14 +66,14 @@ pub(super) fn call_ui(
             nat_menu_ui(ui, &mut settings.nat);
             ui.label("API secret");
             ui.add(
-                egui::TextEdit::singleline(&mut form.janus_secret)
+                egui::TextEdit::singleline(&mut settings.janus.api_secret)
                     .password(true)
                     .hint_text("(none)")
                     .desired_width(80.0),
             );
             ui.label("Token");
             ui.add(
-                egui::TextEdit::singleline(&mut form.janus_token)
+                egui::TextEdit::singleline(&mut settings.janus.token)
                     .password(true)
                     .hint_text("(none)")
                     .desired_width(80.0),
@@ -106,8 +103,8 @@ pub(super) fn call_ui(
                 name: settings.name.clone(),
                 codec: settings.codec,
                 janus_auth: JanusAuth {
-                    api_secret: non_empty(&form.janus_secret),
-                    token: non_empty(&form.janus_token),
+                    api_secret: non_empty(&settings.janus.api_secret),
+                    token: non_empty(&settings.janus.token),
                 },
                 bandwidth: settings.bandwidth,
                 ice: settings.nat.ice(),

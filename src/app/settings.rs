@@ -103,8 +103,29 @@ pub struct Settings {
     pub peers: BTreeMap<String, PeerPrefs>,
     /// STUN and TURN servers for Janus rooms behind a NAT.
     pub nat: NatSettings,
+    /// What a Janus that restricts its API asks for.
+    pub janus: JanusCredentials,
     /// The SIP account the app registers with and takes phone calls on.
     pub sip: SipSettings,
+}
+
+/// A Janus's `api_secret` and the token its admin stored for us (kept in the settings file,
+/// which only its owner may read; never in `Debug` output).
+#[derive(Clone, Default, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(default)]
+pub struct JanusCredentials {
+    pub api_secret: String,
+    pub token: String,
+}
+
+impl std::fmt::Debug for JanusCredentials {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        let said = |s: &str| if s.is_empty() { "" } else { "(set)" };
+        f.debug_struct("JanusCredentials")
+            .field("api_secret", &said(&self.api_secret))
+            .field("token", &said(&self.token))
+            .finish()
+    }
 }
 
 /// The servers that take a Janus room's media across NATs (see docs/janus.md).
@@ -203,6 +224,7 @@ impl Default for Settings {
             bandwidth: Bandwidth::Fullband,
             peers: BTreeMap::new(),
             nat: NatSettings::default(),
+            janus: JanusCredentials::default(),
             sip: SipSettings::default(),
         }
     }
@@ -348,6 +370,13 @@ mod tests {
                 turn_only: true,
             },
             ..Default::default()
+        };
+        let s = Settings {
+            janus: JanusCredentials {
+                api_secret: "janus-hunter2".into(),
+                token: "token-hunter2".into(),
+            },
+            ..s
         };
         s.save(&path).unwrap();
         assert_eq!(Settings::load(&path), (s.clone(), None));

@@ -145,7 +145,7 @@ impl SipPhone {
             .map_or(target.as_str(), |a| a.registrar());
         let bind = bind_towards(towards)?;
         let role = Role::Call(target.clone());
-        let link = SipLink::open(bind, self.account.clone(), role, codecs(None), false)?;
+        let link = SipLink::open(bind, self.account.clone(), role, codecs(None), false, None)?;
         Ok(self.take_call(link, format!("calling {target}…")))
     }
 
@@ -344,7 +344,14 @@ impl SipPhone {
 /// The account's listener: registered, ringing the user with the first call.
 fn listen(account: &Account) -> Result<SipLink, SipError> {
     let bind: SocketAddr = bind_towards(account.registrar())?;
-    SipLink::open(bind, Some(account.clone()), Role::Ask, codecs(None), false)
+    SipLink::open(
+        bind,
+        Some(account.clone()),
+        Role::Ask,
+        codecs(None),
+        false,
+        None,
+    )
 }
 
 /// The SIP call as the engine's link, shared with the phone (which follows its state, sends

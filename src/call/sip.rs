@@ -12,9 +12,12 @@ use crate::net::session::{PeerFrame, PeerInfo};
 use crate::net::sip::agent::{Account, Agent, AgentConfig, AgentEvent, Decision, Role, SipError};
 use crate::net::sip::media::{SipRtp, SipRtpStats};
 use crate::net::sip::sdp::{LocalAudio, Negotiated, SdesKey};
+use crate::net::stun;
 
 /// How long a hang-up waits for the peer to confirm it.
 const HANG_UP_WAIT: Duration = Duration::from_secs(3);
+/// How long a call waits for the STUN server before giving its local media address.
+const STUN_WAIT: Duration = Duration::from_millis(1500);
 
 /// Where a call stands.
 #[derive(Debug, Clone, PartialEq)]
@@ -88,13 +91,15 @@ impl SipLink {
     }
 
     /// A call on `bind` (SIP over UDP) with its RTP on a free port of the same address, SDP
-    /// offering or taking `codecs` (and SRTP with a fresh key where `srtp`).
+    /// offering or taking `codecs` (and SRTP with a fresh key where `srtp`); with a `stun`
+    /// server (HOST:PORT), the SDP gives the media address that server sees.
     pub fn open(
         bind: SocketAddr,
         account: Option<Account>,
         role: Role,
         codecs: Vec<Codec>,
         srtp: bool,
+        stun: Option<&str>,
     ) -> Result<Self, SipError> {
         let rtp_bind = SocketAddr::new(bind.ip(), 0);
         let cannot = |why: String| SipError::Bind {
@@ -102,8 +107,9 @@ impl SipLink {
             why,
         };
         let socket = UdpSocket::bind(rtp_bind).map_err(|e| cannot(e.to_string()))?;
+        let local = socket.local_addr().map_err(|e| cannot(e.to_string()))?;
         let audio = LocalAudio {
-            addr: socket.local_addr().map_err(|e| cannot(e.to_string()))?,
+            addr: stun.map_or(local, |server| media_address(&socket, server, local)),
             codecs,
             session_id: std::time::SystemTime::now()
                 .duration_since(std::time::UNIX_EPOCH)
@@ -307,6 +313,24 @@ impl SipLink {
 
     fn ended(&self) -> bool {
         matches!(self.state, CallState::Ended { .. } | CallState::Failed(_))
+    }
+}
+
+/// Where peers are to send our media: the address `server` (STUN) sees our RTP socket at,
+/// behind a NAT; the socket's own address when it cannot tell.
+fn media_address(socket: &UdpSocket, server: &str, local: SocketAddr) -> SocketAddr {
+    let asked = stun::resolve_server(server, local).and_then(|server| {
+        stun::reflexive_address(socket, server, STUN_WAIT).map(|public| (server, public))
+    });
+    match asked {
+        Ok((server, public)) => {
+            tracing::info!("STUN server {server}: our media address outside is {public}");
+            public
+        }
+        Err(e) => {
+            tracing::warn!("{e}: the SDP gives the local media address");
+            local
+        }
     }
 }
 

@@ -67,6 +67,9 @@ pub struct SipCommon {
     /// Offer or accept only this codec (otherwise Opus, G.722, PCMU and PCMA, in that order).
     #[arg(long, value_parser = parse_sip_codec)]
     pub codec: Option<Codec>,
+    /// A STUN server, HOST:PORT: the SDP gives the media address it sees (behind a NAT).
+    #[arg(long, value_name = "HOST:PORT")]
+    pub stun: Option<String>,
 }
 
 #[derive(Debug, Clone, clap::Args)]
@@ -191,7 +194,14 @@ fn run_call(
         common.weights.as_deref(),
     )?;
     let answering = role == Role::Answer;
-    let mut link = SipLink::open(bind, account, role, codecs(common.codec), srtp)?;
+    let mut link = SipLink::open(
+        bind,
+        account,
+        role,
+        codecs(common.codec),
+        srtp,
+        common.stun.as_deref(),
+    )?;
     let start = Instant::now();
     let limit = common.seconds.map(Duration::from_secs_f64);
     if let Err(e) = set_up(&mut link, start, limit, &stop, answering) {

@@ -57,6 +57,8 @@ pub struct ClientCore {
     pub(super) departed: Vec<(u32, String, ReceiverStats)>,
     /// Our self-mute as last asked for (none asked: the server's default, unmuted).
     pub(super) self_mute: Option<bool>,
+    /// What the server was last told of it, and when.
+    pub(super) self_mute_told: Option<(bool, Instant)>,
     crypt: Option<CryptState>,
     udp_heard: Option<Instant>,
     udp_working: bool,
@@ -99,6 +101,7 @@ impl ClientCore {
             users: BTreeMap::new(),
             departed: Vec::new(),
             self_mute: None,
+            self_mute_told: None,
             crypt: None,
             udp_heard: None,
             udp_working: false,
@@ -262,7 +265,7 @@ impl ClientCore {
         self.session = Some(session);
         self.welcome = sync.welcome_text.unwrap_or_default();
         self.present();
-        self.send_self_mute();
+        self.tell_self_mute(now, true);
         if let Some(wanted) = self.config.channel.clone() {
             match self.channels.values().find(|c| c.name == wanted) {
                 Some(c) => {
@@ -499,11 +502,13 @@ impl ClientCore {
 
     /// When [`Self::wake`] is next due.
     pub fn next_wake(&self) -> Instant {
-        self.next_ping
+        self.self_mute_due()
+            .map_or(self.next_ping, |due| due.min(self.next_ping))
     }
 
     /// Pings and checks on UDP, when due.
     pub fn wake(&mut self, now: Instant) {
+        self.tell_self_mute(now, false);
         if now < self.next_ping {
             return;
         }

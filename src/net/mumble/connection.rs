@@ -361,7 +361,9 @@ impl Connection {
 
     /// Tells the server whether we muted ourselves (others see it).
     pub fn set_self_mute(&self, muted: bool) {
-        self.shared.driver.access(|core| core.set_self_mute(muted));
+        self.shared
+            .driver
+            .access(|core| core.set_self_mute(muted, Instant::now()));
     }
 
     /// Everyone on the server now, ourselves included.

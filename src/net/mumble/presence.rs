@@ -2,12 +2,15 @@
 //! whether they muted themselves), the events of people coming into and leaving our channel,
 //! and our own state as others see it (our channel, our self-mute).
 
-use std::time::Instant;
+use std::time::{Duration, Instant};
 
 use super::client::ClientCore;
 use super::events::{Channel, ClientEvent, Member};
 use super::messages::{ChannelState, MessageType, UserState};
 use crate::net::peer::ReceiverStats;
+
+/// The least time between two self-mute changes told to the server.
+pub const SELF_MUTE_EVERY: Duration = Duration::from_millis(1100);
 
 impl ClientCore {
     pub(super) fn channel_state(&mut self, c: ChannelState) {
@@ -175,27 +178,43 @@ impl ClientCore {
     }
 
     /// Says to the server whether we muted ourselves (Mumble's self-mute, shown to everyone);
-    /// said again after a reconnect. Only a change is sent.
-    pub fn set_self_mute(&mut self, muted: bool) {
-        if self.self_mute == Some(muted) {
-            return;
-        }
+    /// said again after a reconnect. Only a change is sent, and changes are paced: a server
+    /// drops state changes that come faster than its message limit (murmur's default: a burst
+    /// of 5, then one a second), and push-to-talk changes it with every press, so what goes
+    /// out is the latest state, at most once every [`SELF_MUTE_EVERY`] ([`Self::wake`] sends
+    /// one held back).
+    pub fn set_self_mute(&mut self, muted: bool, now: Instant) {
         self.self_mute = Some(muted);
-        self.send_self_mute();
+        self.tell_self_mute(now, false);
     }
 
-    /// Our self-mute as the server was last told it, once joined.
-    pub(super) fn send_self_mute(&mut self) {
-        if let (Some(session), Some(muted)) = (self.session, self.self_mute) {
-            self.push(
-                MessageType::UserState,
-                &UserState {
-                    session: Some(session),
-                    self_mute: Some(muted),
-                    ..Default::default()
-                },
-            );
+    /// Tells the server our self-mute if it was told otherwise (or, `again`, whatever it was
+    /// told: after a reconnect), unless it was told within [`SELF_MUTE_EVERY`].
+    pub(super) fn tell_self_mute(&mut self, now: Instant, again: bool) {
+        let (Some(session), Some(muted)) = (self.session, self.self_mute) else {
+            return;
+        };
+        if !again
+            && let Some((told, at)) = self.self_mute_told
+            && (told == muted || now < at + SELF_MUTE_EVERY)
+        {
+            return;
         }
+        self.push(
+            MessageType::UserState,
+            &UserState {
+                session: Some(session),
+                self_mute: Some(muted),
+                ..Default::default()
+            },
+        );
+        self.self_mute_told = Some((muted, now));
+    }
+
+    /// When a self-mute change held back is due.
+    pub(super) fn self_mute_due(&self) -> Option<Instant> {
+        let (muted, (told, at)) = (self.self_mute?, self.self_mute_told?);
+        (muted != told).then_some(at + SELF_MUTE_EVERY)
     }
 
     /// Everyone on the server now (ourselves included), in session order.

@@ -12,6 +12,7 @@ use super::messages::{
     self, ChannelState, CryptSetup, Deframer, Incoming, MessageType, ServerSync, UserRemove,
     UserState,
 };
+use super::presence::SELF_MUTE_EVERY;
 use super::voice;
 use crate::net::jitter::JitterConfig;
 
@@ -180,8 +181,24 @@ fn self_mute_is_told_once_per_change_seen_in_others_and_told_again_after_a_recon
     let now = Instant::now();
     let mut core = joined(now, None, false);
     sent(&mut core);
-    core.set_self_mute(true);
-    core.set_self_mute(true);
+    core.set_self_mute(true, now);
+    core.set_self_mute(true, now);
+    assert_eq!(user_states(&mut core), [(Some(3), None, Some(true))]);
+    // Push-to-talk pressed and let go within the server's message limit: held back, and the
+    // last state told once the pace allows (unmuted then muted again: nothing to tell).
+    core.set_self_mute(false, now + Duration::from_millis(100));
+    core.set_self_mute(true, now + Duration::from_millis(200));
+    core.set_self_mute(false, now + Duration::from_millis(300));
+    assert_eq!(user_states(&mut core), []);
+    let due = now + SELF_MUTE_EVERY;
+    assert!(core.next_wake() <= due);
+    core.wake(due);
+    assert_eq!(user_states(&mut core), [(Some(3), None, Some(false))]);
+    core.set_self_mute(true, due + Duration::from_millis(50));
+    core.set_self_mute(false, due + Duration::from_millis(60));
+    core.wake(due + SELF_MUTE_EVERY);
+    assert_eq!(user_states(&mut core), []);
+    core.set_self_mute(true, due + SELF_MUTE_EVERY);
     assert_eq!(user_states(&mut core), [(Some(3), None, Some(true))]);
 
     // Bob mutes himself; the members say so, and who we are.
