@@ -52,17 +52,7 @@ pub fn grid(args: &GridArgs) -> Result<()> {
         let out = args.out.join(set);
         std::fs::create_dir_all(&out)
             .with_context(|| format!("cannot create {}", out.display()))?;
-        let mut names: Vec<String> = std::fs::read_dir(&tracks)
-            .with_context(|| format!("cannot list {}", tracks.display()))?
-            .filter_map(|e| e.ok())
-            .filter_map(|e| {
-                e.file_name()
-                    .to_str()
-                    .and_then(|n| n.strip_suffix(".csv"))
-                    .map(str::to_string)
-            })
-            .collect();
-        names.sort();
+        let names = crate::train::grid::clip_names(&tracks, ".csv")?;
         let (mut frames, mut tracked) = (0usize, 0usize);
         for name in &names {
             let wav_path = out.join(format!("{name}.wav"));

@@ -207,24 +207,30 @@ pub fn s1_held_out(index_in_name_order: usize) -> bool {
     index_in_name_order.is_multiple_of(10)
 }
 
-/// The clips of `set` under the data step's output `root`, in name order.
-pub fn load_clips(root: &Path, set: &str) -> Result<Vec<LipClip>, GridError> {
-    let dir = root.join(set);
+/// The names of the files in `dir` that end in `suffix`, without it, in name order.
+pub fn clip_names(dir: &Path, suffix: &str) -> Result<Vec<String>, GridError> {
     let io = |source| GridError::Io {
-        path: dir.clone(),
+        path: dir.to_path_buf(),
         source,
     };
-    let mut names: Vec<String> = std::fs::read_dir(&dir)
+    let mut names: Vec<String> = std::fs::read_dir(dir)
         .map_err(io)?
         .filter_map(|e| e.ok())
         .filter_map(|e| {
             e.file_name()
                 .to_str()
-                .and_then(|n| n.strip_suffix(".lips.csv"))
+                .and_then(|n| n.strip_suffix(suffix))
                 .map(str::to_string)
         })
         .collect();
     names.sort();
+    Ok(names)
+}
+
+/// The clips of `set` under the data step's output `root`, in name order.
+pub fn load_clips(root: &Path, set: &str) -> Result<Vec<LipClip>, GridError> {
+    let dir = root.join(set);
+    let names = clip_names(&dir, ".lips.csv")?;
     if names.is_empty() {
         return Err(format_error(
             &dir,

@@ -9,7 +9,7 @@
 use std::path::Path;
 
 use super::corpus::{PhoneSegment, read_phones};
-use super::grid::{GridError, VIDEO_FPS, s1_held_out};
+use super::grid::{GridError, VIDEO_FPS, clip_names, s1_held_out};
 use crate::lipsync::decompose::{DecomposeError, PointTrack};
 use crate::lipsync::lips::landmark::{LEFT_EYE_OUTER, NOSE_TIP, RIGHT_EYE_OUTER};
 use crate::lipsync::mouth::VisemeShapes;
@@ -165,21 +165,7 @@ pub fn phone_centres(phones: &[PhoneSegment]) -> Vec<(f64, Viseme)> {
 /// held out (every tenth by name, the rule of [`s1_held_out`] over all s1 tracks).
 pub fn load_s1(data: &Path, phones: &Path) -> Result<Vec<(ContourClip, bool)>, GridError> {
     let tracks = data.join("s1").join("tracks");
-    let io = |source| GridError::Io {
-        path: tracks.clone(),
-        source,
-    };
-    let mut names: Vec<String> = std::fs::read_dir(&tracks)
-        .map_err(io)?
-        .filter_map(|e| e.ok())
-        .filter_map(|e| {
-            e.file_name()
-                .to_str()
-                .and_then(|n| n.strip_suffix(".csv"))
-                .map(str::to_string)
-        })
-        .collect();
-    names.sort();
+    let names = clip_names(&tracks, ".csv")?;
     let mut clips = Vec::new();
     for (index, name) in names.into_iter().enumerate() {
         let phn = phones.join(format!("{name}.phn"));
