@@ -95,6 +95,14 @@ fn the_app_joins_a_mumble_server_hears_a_speaker_switches_channel_and_shows_self
     wait_for("Obs sees Carol muted", &observer, 20, |e| {
         seen(e, "Carol") == Some(("Root".into(), true))
     });
+    // Carol has said nothing, yet Obs shows her as a peer of the channel (a still head).
+    wait_for("Obs shows the silent Carol as a peer", &observer, 10, |e| {
+        let s = lock(&e.shared);
+        s.peers
+            .views()
+            .iter()
+            .any(|p| p.name == "Carol" && p.named && p.frames_received == 0)
+    });
     let mic = MicControls::default();
     lock(&app.shared).mic = Some(mic.clone());
     wait_for("Obs sees Carol unmuted", &observer, 10, |e| {
@@ -149,8 +157,15 @@ fn the_app_joins_a_mumble_server_hears_a_speaker_switches_channel_and_shows_self
         "{}",
         String::from_utf8_lossy(&out.stderr)
     );
+    // Ann is gone once she left; Obs, silent in the channel, stays.
     wait_for("Ann is gone once she left", &app, 20, |e| {
-        lock(&e.shared).peers.views().is_empty()
+        let names: Vec<String> = lock(&e.shared)
+            .peers
+            .views()
+            .into_iter()
+            .map(|p| p.name)
+            .collect();
+        names == ["Obs"]
     });
 
     // The app moves to Cellar: Obs sees it there.

@@ -650,8 +650,11 @@ impl Worker {
     /// demo's place.
     fn refresh_peers(&mut self, infos: &[PeerInfo]) {
         {
+            let silent = self.link.silent_members();
+            let everyone: Vec<PeerInfo> = infos.iter().chain(&silent).cloned().collect();
             let s = &mut *lock(&self.shared);
-            s.peers.describe(&mut s.playback, infos, Instant::now());
+            s.peers.seat(&mut s.playback, &silent);
+            s.peers.describe(&mut s.playback, &everyone, Instant::now());
         }
         let real_peer = infos
             .iter()

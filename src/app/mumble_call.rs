@@ -403,6 +403,13 @@ impl Link for CallLink {
         }
     }
 
+    fn silent_members(&self) -> Vec<PeerInfo> {
+        match &*lock(&self.0) {
+            Stage::In(link) => link.silent_members(),
+            _ => Vec::new(),
+        }
+    }
+
     fn all_left(&self) -> bool {
         match &*lock(&self.0) {
             Stage::In(link) => link.all_left(),

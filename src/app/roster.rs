@@ -140,6 +140,21 @@ impl Roster {
         }
     }
 
+    /// Gives each of `members` (in the call, silent so far) a place: a head, still until they
+    /// speak, and their controls.
+    pub(super) fn seat(&mut self, playback: &mut Playback, members: &[PeerInfo]) {
+        for m in members {
+            if let std::collections::btree_map::Entry::Vacant(e) = self.peers.entry(m.ssrc) {
+                match playback.add_peer() {
+                    Ok(feed) => {
+                        e.insert(RemotePeer::new(m.ssrc, feed));
+                    }
+                    Err(err) => tracing::debug!("member {:08x} not shown: {err}", m.ssrc),
+                }
+            }
+        }
+    }
+
     /// Forgets every peer (the call ended or changed).
     pub(super) fn clear(&mut self, playback: &mut Playback) {
         for (_, peer) in std::mem::take(&mut self.peers) {
@@ -297,6 +312,29 @@ mod tests {
         assert!(views[0].named);
         assert_eq!(views[0].feed, feed);
         assert_eq!(views[0].frames_received, 1);
+    }
+
+    #[test]
+    fn a_silent_member_is_seated_with_a_head_and_let_go_when_gone() {
+        let mut call = Call::new();
+        let bob = info(9, "Bob");
+        call.roster
+            .seat(&mut call.playback, std::slice::from_ref(&bob));
+        call.report(200, &[bob]);
+        let views = call.roster.views();
+        assert_eq!(views.len(), 1, "a member who has said nothing is shown");
+        assert_eq!(
+            (views[0].name.as_str(), views[0].frames_received),
+            ("Bob", 0)
+        );
+        let feed = views[0].feed;
+        assert!(
+            call.playback.peer_controls(feed).is_some(),
+            "with his controls"
+        );
+        call.report(400, &[]);
+        assert!(call.roster.is_empty(), "gone from the channel: let go");
+        assert!(call.playback.peer_controls(feed).is_none());
     }
 
     #[test]

@@ -55,6 +55,12 @@ pub trait Link: Send {
     /// Every remote peer, described (name, address, codec, reception statistics).
     fn peers(&self) -> Vec<PeerInfo>;
 
+    /// Those who are in the call but have sent nothing yet, where the link knows them (the
+    /// users of our Mumble channel): the app shows them too, with a still head.
+    fn silent_members(&self) -> Vec<PeerInfo> {
+        Vec::new()
+    }
+
     /// Every peer that came has left (asked once someone played): a receive ends there.
     fn all_left(&self) -> bool;
 

@@ -165,6 +165,29 @@ impl Link for MumbleLink {
             .collect()
     }
 
+    fn silent_members(&self) -> Vec<PeerInfo> {
+        let members = self.connection.members();
+        let Some(ours) = members.iter().find(|m| m.us).map(|m| m.channel) else {
+            return Vec::new();
+        };
+        let spoke: Vec<u32> = self.connection.speakers().iter().map(|s| s.0).collect();
+        members
+            .into_iter()
+            .filter(|m| !m.us && m.channel == ours && !spoke.contains(&m.session))
+            .map(|m| PeerInfo {
+                ssrc: m.session,
+                addr: self.server,
+                cname: None,
+                name: Some(m.name),
+                receiver: Default::default(),
+                rtt_ms: None,
+                their_loss: None,
+                said_bye: false,
+                ended: false,
+            })
+            .collect()
+    }
+
     /// Everyone who spoke has left, or we were removed.
     fn all_left(&self) -> bool {
         self.over() || (self.heard && self.connection.speakers().iter().all(|s| s.3))
