@@ -30,15 +30,37 @@ pub enum GridError {
     },
 }
 
-fn format_error(path: &Path, message: impl Into<String>) -> GridError {
+pub(super) fn format_error(path: &Path, message: impl Into<String>) -> GridError {
     GridError::Format {
         path: path.to_path_buf(),
         message: message.into(),
     }
 }
 
-/// The lips of each video frame of a track (`None` where no face was found).
-pub fn parse_track(text: &str, path: &Path) -> Result<Vec<Option<LipTargets>>, GridError> {
+/// One tracked row of a tracks CSV: its fields, and where it is for errors.
+pub(super) struct TrackRow<'a> {
+    pub fields: Vec<&'a str>,
+    line: usize,
+    path: &'a Path,
+}
+
+impl TrackRow<'_> {
+    /// An error about this row.
+    pub fn error(&self, message: String) -> GridError {
+        format_error(self.path, format!("line {}: {message}", self.line))
+    }
+}
+
+/// Reads a tracks CSV (a header naming `tracked` and the landmarks' coordinate columns, a row
+/// per video frame): `columns` finds what `frame` reads from each tracked row, given a lookup
+/// of column names; an untracked row is `None`, a row of another length than the header an
+/// error.
+pub(super) fn read_tracks<'a, C, T>(
+    text: &'a str,
+    path: &'a Path,
+    columns: impl FnOnce(&dyn Fn(&str) -> Result<usize, GridError>) -> Result<C, GridError>,
+    mut frame: impl FnMut(&C, &TrackRow<'a>) -> Result<T, GridError>,
+) -> Result<Vec<Option<T>>, GridError> {
     let mut lines = text
         .lines()
         .enumerate()
@@ -46,51 +68,65 @@ pub fn parse_track(text: &str, path: &Path) -> Result<Vec<Option<LipTargets>>, G
     let (_, header) = lines
         .next()
         .ok_or_else(|| format_error(path, "empty file"))?;
-    let columns: Vec<&str> = header.split(',').map(str::trim).collect();
+    let names: Vec<&str> = header.split(',').map(str::trim).collect();
     let column = |name: &str| {
-        columns
+        names
             .iter()
             .position(|c| *c == name)
             .ok_or_else(|| format_error(path, format!("no column {name}")))
     };
     let tracked = column("tracked")?;
-    let mut coordinate_columns = Vec::new();
-    for index in landmark::USED {
-        coordinate_columns.push([
-            column(&format!("x_{index}"))?,
-            column(&format!("y_{index}"))?,
-            column(&format!("z_{index}"))?,
-        ]);
-    }
+    let wanted = columns(&column)?;
     let mut frames = Vec::new();
     for (i, line) in lines {
-        let fields: Vec<&str> = line.split(',').map(str::trim).collect();
-        let row_error = |message: String| format_error(path, format!("line {}: {message}", i + 1));
-        if fields.get(tracked).copied() != Some("1") {
+        let row = TrackRow {
+            fields: line.split(',').map(str::trim).collect(),
+            line: i + 1,
+            path,
+        };
+        if row.fields.get(tracked).copied() != Some("1") {
             frames.push(None);
             continue;
         }
-        if fields.len() != columns.len() {
-            return Err(row_error(format!(
+        if row.fields.len() != names.len() {
+            return Err(row.error(format!(
                 "{} fields, the header has {}",
-                fields.len(),
-                columns.len()
+                row.fields.len(),
+                names.len()
             )));
         }
-        let mut points = [[0.0f32; 3]; landmark::USED.len()];
-        for (point, cols) in points.iter_mut().zip(&coordinate_columns) {
-            for (value, &col) in point.iter_mut().zip(cols) {
-                *value = fields[col]
-                    .parse()
-                    .map_err(|_| row_error(format!("{:?} is not a number", fields[col])))?;
-            }
-        }
-        let lips = LipFrame(points)
-            .targets()
-            .map_err(|e| row_error(e.to_string()))?;
-        frames.push(Some(lips));
+        frames.push(Some(frame(&wanted, &row)?));
     }
     Ok(frames)
+}
+
+/// The lips of each video frame of a track (`None` where no face was found).
+pub fn parse_track(text: &str, path: &Path) -> Result<Vec<Option<LipTargets>>, GridError> {
+    let coordinates = |column: &dyn Fn(&str) -> Result<usize, GridError>| {
+        landmark::USED
+            .iter()
+            .map(|index| {
+                Ok([
+                    column(&format!("x_{index}"))?,
+                    column(&format!("y_{index}"))?,
+                    column(&format!("z_{index}"))?,
+                ])
+            })
+            .collect::<Result<Vec<[usize; 3]>, GridError>>()
+    };
+    read_tracks(text, path, coordinates, |coordinate_columns, row| {
+        let mut points = [[0.0f32; 3]; landmark::USED.len()];
+        for (point, cols) in points.iter_mut().zip(coordinate_columns) {
+            for (value, &col) in point.iter_mut().zip(cols) {
+                *value = row.fields[col]
+                    .parse()
+                    .map_err(|_| row.error(format!("{:?} is not a number", row.fields[col])))?;
+            }
+        }
+        LipFrame(points)
+            .targets()
+            .map_err(|e| row.error(e.to_string()))
+    })
 }
 
 /// The lips at time `t_s` (seconds), linearly between the two nearest video frames; `None`

@@ -9,7 +9,7 @@
 use std::path::Path;
 
 use super::corpus::{PhoneSegment, read_phones};
-use super::grid::{GridError, VIDEO_FPS, clip_names, s1_held_out};
+use super::grid::{GridError, VIDEO_FPS, clip_names, format_error, read_tracks, s1_held_out};
 use crate::lipsync::decompose::{DecomposeError, PointTrack};
 use crate::lipsync::lips::landmark::{LEFT_EYE_OUTER, NOSE_TIP, RIGHT_EYE_OUTER};
 use crate::lipsync::mouth::VisemeShapes;
@@ -37,61 +37,28 @@ pub struct ContourClip {
     pub centres: Vec<(f64, Viseme)>,
 }
 
-fn format_error(path: &Path, message: impl Into<String>) -> GridError {
-    GridError::Format {
-        path: path.to_path_buf(),
-        message: message.into(),
-    }
-}
-
 /// The normalised lip contour of each video frame of a tracks CSV.
 pub fn parse_contours(text: &str, path: &Path) -> Result<Vec<Option<Vec<f32>>>, GridError> {
-    let mut lines = text
-        .lines()
-        .enumerate()
-        .filter(|(_, l)| !l.trim().is_empty());
-    let (_, header) = lines
-        .next()
-        .ok_or_else(|| format_error(path, "empty file"))?;
-    let columns: Vec<&str> = header.split(',').map(str::trim).collect();
-    let xy = |index: usize| -> Result<[usize; 2], GridError> {
-        let find = |name: String| {
-            columns
-                .iter()
-                .position(|c| *c == name)
-                .ok_or_else(|| format_error(path, format!("no column {name}")))
+    let wanted = |column: &dyn Fn(&str) -> Result<usize, GridError>| {
+        let xy = |index: usize| -> Result<[usize; 2], GridError> {
+            Ok([
+                column(&format!("x_{index}"))?,
+                column(&format!("y_{index}"))?,
+            ])
         };
-        Ok([find(format!("x_{index}"))?, find(format!("y_{index}"))?])
+        let references = [xy(NOSE_TIP)?, xy(RIGHT_EYE_OUTER)?, xy(LEFT_EYE_OUTER)?];
+        let lips: Vec<[usize; 2]> = CONTOUR.map(xy).into_iter().collect::<Result<_, _>>()?;
+        Ok((references, lips))
     };
-    let tracked = columns
-        .iter()
-        .position(|c| *c == "tracked")
-        .ok_or_else(|| format_error(path, "no column tracked"))?;
-    let references = [xy(NOSE_TIP)?, xy(RIGHT_EYE_OUTER)?, xy(LEFT_EYE_OUTER)?];
-    let lips = CONTOUR.map(xy);
-    let lips: Vec<[usize; 2]> = lips.into_iter().collect::<Result<_, _>>()?;
-    let mut frames = Vec::new();
-    for (i, line) in lines {
-        let fields: Vec<&str> = line.split(',').map(str::trim).collect();
-        let row_error = |message: String| format_error(path, format!("line {}: {message}", i + 1));
-        if fields.get(tracked).copied() != Some("1") {
-            frames.push(None);
-            continue;
-        }
-        if fields.len() != columns.len() {
-            return Err(row_error(format!(
-                "{} fields, the header has {}",
-                fields.len(),
-                columns.len()
-            )));
-        }
+    read_tracks(text, path, wanted, |(references, lips), row| {
+        let fields = &row.fields;
         let point = |[cx, cy]: [usize; 2]| -> Result<[f32; 2], GridError> {
             let parse = |c: usize| {
                 fields[c]
                     .parse::<f32>()
                     .ok()
                     .filter(|v| v.is_finite())
-                    .ok_or_else(|| row_error(format!("{:?} is not a number", fields[c])))
+                    .ok_or_else(|| row.error(format!("{:?} is not a number", fields[c])))
             };
             Ok([parse(cx)?, parse(cy)?])
         };
@@ -103,11 +70,11 @@ pub fn parse_contours(text: &str, path: &Path) -> Result<Vec<Option<Vec<f32>>>, 
         let (dx, dy) = (left_eye[0] - right_eye[0], left_eye[1] - right_eye[1]);
         let unit = dx.hypot(dy);
         if unit < 1e-3 {
-            return Err(row_error("the outer eye corners coincide".into()));
+            return Err(row.error("the outer eye corners coincide".into()));
         }
         let (c, s) = (dx / unit, dy / unit);
         let mut contour = Vec::with_capacity(CONTOUR_COORDS);
-        for &cols in &lips {
+        for &cols in lips {
             let [px, py] = point(cols)?;
             let (x, y) = (px - nose[0], py - nose[1]);
             contour.push((c * x + s * y) / unit);
@@ -119,9 +86,8 @@ pub fn parse_contours(text: &str, path: &Path) -> Result<Vec<Option<Vec<f32>>>, 
         for (i, x) in contour.iter_mut().enumerate() {
             *x -= centroid[i % 2];
         }
-        frames.push(Some(contour));
-    }
-    Ok(frames)
+        Ok(contour)
+    })
 }
 
 /// The contour at `t_s` seconds, linearly between the two nearest video frames (`None` where
