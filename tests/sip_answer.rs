@@ -8,26 +8,7 @@ use std::net::UdpSocket;
 use std::process::Command;
 use std::time::{Duration, Instant};
 
-use common::sip::{Logged, Peer, best_alignment, free_port, installed};
-
-fn answering(dir: &std::path::Path, port: u16, wav: &std::path::Path) -> Logged {
-    let answer = Peer::spawn_logged(
-        "lipcall sip answer",
-        common::lipcall()
-            .args(["sip", "answer", "--listen", &format!("127.0.0.1:{port}")])
-            .arg("--play")
-            .arg(common::demo_8k(dir))
-            .args(["--seconds", "30"])
-            .arg("--wav")
-            .arg(wav),
-    );
-    assert!(
-        answer.wait_for("SIP on", Duration::from_secs(10)),
-        "{}",
-        answer.text()
-    );
-    answer
-}
+use common::sip::{Logged, Peer, best_alignment, free_port, installed, lipcall_answering};
 
 /// Waits for the answering lipcall to exit; its status and log.
 fn exit_of(mut answer: Logged, limit: Duration) -> (Option<i32>, String) {
@@ -84,7 +65,7 @@ fn sip_answer_survives_garbage_takes_sipps_call_and_ends_on_its_bye() {
     let dir = tempfile::tempdir().unwrap();
     let port = free_port(false);
     let heard = dir.path().join("heard.wav");
-    let answer = answering(dir.path(), port, &heard);
+    let answer = lipcall_answering(dir.path(), port, "30", &heard);
     let socket = UdpSocket::bind("127.0.0.1:0").unwrap();
     for datagram in garbage() {
         let _ = socket.send_to(&datagram, ("127.0.0.1", port));
@@ -175,7 +156,7 @@ fn an_offer_lipcall_cannot_take_is_refused_with_488() {
     }
     let dir = tempfile::tempdir().unwrap();
     let port = free_port(false);
-    let answer = answering(dir.path(), port, &dir.path().join("heard.wav"));
+    let answer = lipcall_answering(dir.path(), port, "30", &dir.path().join("heard.wav"));
     let scenario = dir.path().join("g729.xml");
     std::fs::write(&scenario, G729_CALLER).unwrap();
     let sipp = Peer::spawn(

@@ -9,7 +9,7 @@ use std::time::Duration;
 
 use common::sip::{
     PASSWORD, Peer, baresip, baresip_heard, best_alignment, free_port, have, kamailio,
-    kamailio_with, mulaw_round_trip, reversed_8k, tell_baresip,
+    kamailio_with, lipcall_answering, mulaw_round_trip, reversed_8k, tell_baresip,
 };
 
 /// The median, over quarter seconds of speech from 1 s to 4 s, of the SNR of `heard` against
@@ -185,26 +185,7 @@ fn baresip_calls_lipcall_which_answers_until_baresip_hangs_up() {
     let (lipcall_port, bob_port, control) = (free_port(false), free_port(false), free_port(false));
     let heard = dir.path().join("lipcall-heard.wav");
     let ours = common::demo_8k(dir.path());
-    let answer = Peer::spawn_logged(
-        "lipcall sip answer",
-        common::lipcall()
-            .args([
-                "sip",
-                "answer",
-                "--listen",
-                &format!("127.0.0.1:{lipcall_port}"),
-            ])
-            .arg("--play")
-            .arg(&ours)
-            .args(["--seconds", "30"])
-            .arg("--wav")
-            .arg(&heard),
-    );
-    assert!(
-        answer.wait_for("SIP on", Duration::from_secs(10)),
-        "{}",
-        answer.text()
-    );
+    let answer = lipcall_answering(dir.path(), lipcall_port, "30", &heard);
     let bob_speech = reversed_8k(dir.path());
     let bob = baresip(
         dir.path(),
@@ -516,26 +497,7 @@ fn srtp_keyed_by_sdes_with_baresip_both_ways() {
     let dir = tempfile::tempdir().unwrap();
     let (lipcall_port, bob_port, control) = (free_port(false), free_port(false), free_port(false));
     let heard = dir.path().join("lipcall-heard.wav");
-    let answer = Peer::spawn_logged(
-        "lipcall sip answer",
-        common::lipcall()
-            .args([
-                "sip",
-                "answer",
-                "--listen",
-                &format!("127.0.0.1:{lipcall_port}"),
-            ])
-            .arg("--play")
-            .arg(common::demo_8k(dir.path()))
-            .args(["--seconds", "6"])
-            .arg("--wav")
-            .arg(&heard),
-    );
-    assert!(
-        answer.wait_for("SIP on", Duration::from_secs(10)),
-        "{}",
-        answer.text()
-    );
+    let answer = lipcall_answering(dir.path(), lipcall_port, "6", &heard);
     let bob_speech = reversed_8k(dir.path());
     let bob = baresip(
         dir.path(),

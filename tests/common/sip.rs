@@ -459,3 +459,24 @@ pub fn reversed_8k(dir: &Path) -> PathBuf {
     );
     out
 }
+
+/// `lipcall sip answer` on 127.0.0.1:`port`, playing the demo speech for up to `seconds` and
+/// writing what it hears to `wav`; returned once its SIP socket is open.
+pub fn lipcall_answering(dir: &Path, port: u16, seconds: &str, wav: &Path) -> Logged {
+    let answer = Peer::spawn_logged(
+        "lipcall sip answer",
+        super::lipcall()
+            .args(["sip", "answer", "--listen", &format!("127.0.0.1:{port}")])
+            .arg("--play")
+            .arg(super::demo_8k(dir))
+            .args(["--seconds", seconds])
+            .arg("--wav")
+            .arg(wav),
+    );
+    assert!(
+        answer.wait_for("SIP on", Duration::from_secs(10)),
+        "{}",
+        answer.text()
+    );
+    answer
+}
