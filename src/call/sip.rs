@@ -16,8 +16,6 @@ use crate::net::stun;
 
 /// How long a hang-up waits for the peer to confirm it.
 const HANG_UP_WAIT: Duration = Duration::from_secs(3);
-/// How long a call waits for the STUN server before giving its local media address.
-const STUN_WAIT: Duration = Duration::from_millis(1500);
 
 /// Where a call stands.
 #[derive(Debug, Clone, PartialEq)]
@@ -319,10 +317,7 @@ impl SipLink {
 /// Where peers are to send our media: the address `server` (STUN) sees our RTP socket at,
 /// behind a NAT; the socket's own address when it cannot tell.
 fn media_address(socket: &UdpSocket, server: &str, local: SocketAddr) -> SocketAddr {
-    let asked = stun::resolve_server(server, local).and_then(|server| {
-        stun::reflexive_address(socket, server, STUN_WAIT).map(|public| (server, public))
-    });
-    match asked {
+    match stun::ask(socket, server, local) {
         Ok((server, public)) => {
             tracing::info!("STUN server {server}: our media address outside is {public}");
             public

@@ -10,6 +10,8 @@ use ezk_stun_types::{Class, Message, MessageBuilder, Method, TransactionId};
 
 /// RFC 8489 6.2.1's first retransmission timeout; each retry doubles it.
 const FIRST_RTO: Duration = Duration::from_millis(250);
+/// How long a call waits for the STUN server before going on with its local address.
+pub const ASK_WAIT: Duration = Duration::from_millis(1500);
 
 #[derive(Debug, thiserror::Error, PartialEq, Eq)]
 pub enum StunError {
@@ -45,6 +47,17 @@ pub fn resolve_server(server: &str, like: SocketAddr) -> Result<SocketAddr, Stun
         .into_iter()
         .find(|a| a.is_ipv4() == like.is_ipv4())
         .ok_or_else(|| StunError::Unresolved(server.to_string()))
+}
+
+/// Asks the server named `server` (HOST:PORT) from `socket`, whose address is `local`, what
+/// address our datagrams come from, waiting [`ASK_WAIT`] at most: the server and that address.
+pub fn ask(
+    socket: &UdpSocket,
+    server: &str,
+    local: SocketAddr,
+) -> Result<(SocketAddr, SocketAddr), StunError> {
+    let server = resolve_server(server, local)?;
+    reflexive_address(socket, server, ASK_WAIT).map(|public| (server, public))
 }
 
 /// A Binding request and the transaction id its answer must carry.

@@ -2,14 +2,11 @@
 //! outside a NAT (a server-reflexive candidate), and a TURN server's relay (a relayed one).
 
 use std::net::{IpAddr, SocketAddr, ToSocketAddrs, UdpSocket};
-use std::time::{Duration, Instant};
+use std::time::Instant;
 
 use super::JanusError;
 use crate::net::stun;
 use crate::net::turn::{TurnClient, TurnConfig};
-
-/// How long a join waits for the STUN server before offering local addresses only.
-const STUN_WAIT: Duration = Duration::from_millis(1500);
 
 /// The servers that take a call across NATs, as the user gives them.
 #[derive(Debug, Clone, Default, PartialEq, Eq)]
@@ -117,10 +114,7 @@ pub fn reflexive(
     local: &[SocketAddr],
 ) -> Option<(SocketAddr, SocketAddr)> {
     let family = local.first().copied()?;
-    let asked = stun::resolve_server(server, family).and_then(|server| {
-        stun::reflexive_address(socket, server, STUN_WAIT).map(|public| (server, public))
-    });
-    match asked {
+    match stun::ask(socket, server, family) {
         Ok((server, public)) => {
             let base = local_ip_towards(server.ip())
                 .map(|ip| SocketAddr::new(ip, port))
