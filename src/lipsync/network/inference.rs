@@ -22,6 +22,10 @@ pub const MIN_CLOSURE_SNAP: f32 = 0.3;
 pub const MIN_SHARPNESS: f32 = 0.25;
 pub const MAX_SHARPNESS: f32 = 4.0;
 
+/// The most a model's output smoothing may weigh the running mean: at 0.9 a shape takes
+/// about 10 frames (200 ms) to show, longer than any phone.
+pub const MAX_SMOOTHING: f32 = 0.9;
+
 /// Per-stream state of a running model: the scaled input history, the energy tracker and
 /// scratch space.
 #[derive(Debug, Clone)]
@@ -35,6 +39,9 @@ pub struct InferenceState {
     /// The speaker's running LSP means and the speech frames they have seen.
     pub(super) lsp_mean: [f32; LSP_COUNT],
     pub(super) speech_frames: u32,
+    /// The running mean of the weights shown (the model's smoothing), once started.
+    pub(super) smoothed: Vec<f32>,
+    pub(super) smoothing_started: bool,
 }
 
 impl InferenceState {
@@ -52,6 +59,8 @@ impl InferenceState {
         self.previous_db = other.previous_db;
         self.lsp_mean = other.lsp_mean;
         self.speech_frames = other.speech_frames;
+        self.smoothed.clone_from_slice(&other.smoothed);
+        self.smoothing_started = other.smoothing_started;
     }
 }
 
@@ -66,6 +75,8 @@ impl Model {
             relative: vec![0.0; relative_len],
             lsp_mean: [0.0; LSP_COUNT],
             speech_frames: 0,
+            smoothed: vec![0.0; self.outputs()],
+            smoothing_started: false,
         };
         self.reset(&mut state);
         state
@@ -76,6 +87,7 @@ impl Model {
         state.peak_db = PEAK_FLOOR_DB;
         state.previous_db = SILENCE_DB;
         state.speech_frames = 0;
+        state.smoothing_started = false;
         if let Some(norm) = &self.speaker_norm {
             state.lsp_mean = norm.prior;
         }
@@ -158,7 +170,30 @@ impl Model {
     /// The weights for the frames already pushed (no new frame).
     pub fn infer(&self, state: &mut InferenceState, weights: &mut [f32], closure_snap: f32) {
         self.output(&state.input, &mut state.hidden, weights);
-        self.snap_with(weights, closure_snap);
+        if self.smoothing > 0.0 {
+            let closes = self.closes(weights, closure_snap);
+            self.smooth(state, weights);
+            if closes {
+                self.close(weights);
+            }
+        } else {
+            self.snap_with(weights, closure_snap);
+        }
+    }
+
+    /// `weights` become the running mean of the weights shown so far (the first frame after
+    /// a reset starts it). Convex weights stay convex.
+    fn smooth(&self, state: &mut InferenceState, weights: &mut [f32]) {
+        let keep = if state.smoothing_started {
+            self.smoothing
+        } else {
+            0.0
+        };
+        state.smoothing_started = true;
+        for (m, w) in state.smoothed.iter_mut().zip(weights.iter_mut()) {
+            *m = keep * *m + (1.0 - keep) * *w;
+            *w = *m;
+        }
     }
 
     /// The weights the receiver uses before the closure snap: [`Model::forward`] with the
@@ -223,12 +258,20 @@ impl Model {
 
     /// The closure rule at another threshold than the model's own (0 = none).
     pub fn snap_with(&self, weights: &mut [f32], closure_snap: f32) {
-        if closure_snap <= 0.0 {
-            return;
+        if self.closes(weights, closure_snap) {
+            self.close(weights);
         }
-        if let Some(closed) = self.closed_index()
-            && weights[closed] >= closure_snap
-        {
+    }
+
+    fn closes(&self, weights: &[f32], closure_snap: f32) -> bool {
+        closure_snap > 0.0
+            && self
+                .closed_index()
+                .is_some_and(|closed| weights[closed] >= closure_snap)
+    }
+
+    fn close(&self, weights: &mut [f32]) {
+        if let Some(closed) = self.closed_index() {
             weights.fill(0.0);
             weights[closed] = 1.0;
         }
@@ -452,6 +495,56 @@ mod tests {
         }
         let other = text.replace("open-shapes", "closed");
         assert!(Model::from_text(&other).is_err());
+    }
+
+    #[test]
+    fn smoothing_shows_a_running_mean_but_closes_at_once() {
+        let mut model = sample_model();
+        let loud = frame(-20.0);
+        // The frames' own weights, for a quiet lead-in and then a loud stretch.
+        let stream = [frame(-60.0), frame(-60.0), loud, loud, loud];
+        let own: Vec<[f32; 3]> = {
+            let mut state = model.new_state();
+            stream
+                .iter()
+                .map(|f| {
+                    let mut w = [0.0; 3];
+                    model.step(&mut state, f, &mut w);
+                    w
+                })
+                .collect()
+        };
+        model.smoothing = 0.5;
+        let mut state = model.new_state();
+        let mut mean = own[0];
+        for (n, (f, own)) in stream.iter().zip(&own).enumerate() {
+            let mut w = [0.0; 3];
+            model.step(&mut state, f, &mut w);
+            if n > 0 {
+                for (m, o) in mean.iter_mut().zip(own) {
+                    *m = 0.5 * *m + 0.5 * o;
+                }
+            }
+            for (w, m) in w.iter().zip(&mean) {
+                assert!((w - m).abs() < 1e-6, "frame {n}: {w} vs {m}");
+            }
+            assert!((w.iter().sum::<f32>() - 1.0).abs() < 1e-5);
+        }
+        // A reset starts the mean again from the next frame.
+        model.reset(&mut state);
+        let mut first = [0.0; 3];
+        model.step(&mut state, &stream[0], &mut first);
+        assert_eq!(first, own[0]);
+        // A frame whose own closed weight reaches the snap closes fully, smoothed or not;
+        // the running mean goes on from the frame's own weights.
+        let snap = own[4][0] - 1e-3;
+        let mut state = model.new_state();
+        let mut w = [0.0; 3];
+        for f in &stream {
+            model.step_with_snap(&mut state, f, &mut w, snap);
+        }
+        assert_eq!(w, [1.0, 0.0, 0.0]);
+        assert!(state.smoothed[0] < 1.0);
     }
 }
 

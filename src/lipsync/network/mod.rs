@@ -19,7 +19,8 @@ mod model_file;
 mod normalise;
 
 pub use inference::{
-    CLOSURE_BIAS_SPAN, InferenceState, MAX_SHARPNESS, MIN_CLOSURE_SNAP, MIN_SHARPNESS, sharpen,
+    CLOSURE_BIAS_SPAN, InferenceState, MAX_SHARPNESS, MAX_SMOOTHING, MIN_CLOSURE_SNAP,
+    MIN_SHARPNESS, sharpen,
 };
 pub use model::{MAX_LOOKAHEAD, MULTIPLY_ADD_BUDGET, Model, input_count, multiply_adds};
 pub use model_file::ModelError;

@@ -37,6 +37,11 @@ pub struct Model {
     /// The sharpness leaves the closed shape's weight alone and sharpens the others among
     /// themselves (`open-shapes` in the file).
     pub sharpen_open_shapes_only: bool,
+    /// The weights shown are a running mean of the network's: each frame's weights count
+    /// `1 - smoothing`, the running mean `smoothing` (0 = none). Measured lips move smoothly
+    /// where the frame-by-frame output jitters; the closure snap still reads the frame's own
+    /// weights, so a closure is as quick as without it.
+    pub smoothing: f32,
     pub hidden: usize,
     /// `hidden x inputs`, row-major.
     pub w1: Vec<f32>,
@@ -76,6 +81,7 @@ impl Model {
             analysis_snap: None,
             sharpness: 1.0,
             sharpen_open_shapes_only: false,
+            smoothing: 0.0,
             hidden,
             w1: vec![0.0; hidden * inputs],
             b1: vec![0.0; hidden],

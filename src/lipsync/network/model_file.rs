@@ -21,6 +21,8 @@
 //!                               from 0.25 to 4; `sharpness 1.6 open-shapes`: the closed
 //!                               shape keeps its weight and only the others are sharpened
 //!                               among themselves (the closures stay the closure snap's)
+//! smoothing 0.5                 (optional; absent = 0) the weights shown are a running mean:
+//!                               each frame's own weights count 1 - this, from 0 to 0.9
 //! hidden 10                     hidden units
 //! input_offset <11 numbers>     scaled input = clamp((x - offset) * scale, -1, 1)
 //! input_scale <11 numbers>      in the order lsp1..lsp10, energy_db
@@ -42,8 +44,8 @@ use std::path::Path;
 
 use super::normalise::{MAX_ENERGY_CONTEXT, MAX_NORM_FRAMES};
 use super::{
-    Dynamics, FEATURES_PER_FRAME, InputScaling, MAX_LOOKAHEAD, MAX_SHARPNESS, MIN_SHARPNESS, Model,
-    SpeakerNorm, input_count,
+    Dynamics, FEATURES_PER_FRAME, InputScaling, MAX_LOOKAHEAD, MAX_SHARPNESS, MAX_SMOOTHING,
+    MIN_SHARPNESS, Model, SpeakerNorm, input_count,
 };
 use crate::vocab::LSP_COUNT;
 use crate::vocab::{VisemeError, VisemeSet};
@@ -100,6 +102,9 @@ impl Model {
                 text.push_str(" open-shapes");
             }
             text.push('\n');
+        }
+        if self.smoothing != 0.0 {
+            let _ = writeln!(text, "smoothing {}", self.smoothing);
         }
         let _ = writeln!(text, "hidden {}", self.hidden);
         for (key, values) in [
@@ -247,6 +252,17 @@ impl Model {
             }
             None => (1.0, false),
         };
+        let smoothing = match lines.optional("smoothing") {
+            Some(found) if version_three => parse_smoothing(found)?,
+            Some((line, _)) => {
+                return Err(ModelError::UnexpectedKey {
+                    line,
+                    expected: "hidden",
+                    found: "smoothing".into(),
+                });
+            }
+            None => 0.0,
+        };
         let mut next = |key| lines.next(key);
         let hidden = parse_size(next("hidden")?, "hidden", MAX_HIDDEN)?;
         let inputs = input_count(context, dynamics);
@@ -279,6 +295,7 @@ impl Model {
             analysis_snap,
             sharpness,
             sharpen_open_shapes_only,
+            smoothing,
             hidden,
             w1,
             b1,
@@ -371,6 +388,25 @@ impl<'t> KeyedLines<'t> {
 }
 
 const OPEN_SHAPES_ONLY: &str = "open-shapes";
+
+/// `smoothing S`: a finite number from 0 to [`MAX_SMOOTHING`].
+fn parse_smoothing((line, words): (usize, Vec<&str>)) -> Result<f32, ModelError> {
+    let [word] = words[..] else {
+        return Err(ModelError::WrongCount {
+            line,
+            key: "smoothing",
+            expected: 1,
+            found: words.len(),
+        });
+    };
+    match word.parse::<f32>() {
+        Ok(s) if (0.0..=MAX_SMOOTHING).contains(&s) => Ok(s),
+        _ => Err(ModelError::Smoothing {
+            line,
+            text: word.to_string(),
+        }),
+    }
+}
 
 /// `sharpness G [open-shapes]`: a finite number from [`MIN_SHARPNESS`] to [`MAX_SHARPNESS`].
 fn parse_sharpness((line, words): (usize, Vec<&str>)) -> Result<(f32, bool), ModelError> {
@@ -498,6 +534,8 @@ pub enum ModelError {
         "line {line}: sharpness {text:?} is not a number from {MIN_SHARPNESS} to {MAX_SHARPNESS}"
     )]
     Sharpness { line: usize, text: String },
+    #[error("line {line}: smoothing {text:?} is not a number from 0 to {MAX_SMOOTHING}")]
+    Smoothing { line: usize, text: String },
     #[error("line {line}: data after `end`")]
     TrailingData { line: usize },
     #[error("{path}: {error}")]
@@ -641,6 +679,23 @@ mod tests {
         let shipped = crate::lipsync::builtin::shipped();
         let file = include_str!("../../../assets/models/default.lipmodel");
         assert_eq!(shipped.to_text(), file);
+    }
+
+    #[test]
+    fn smoothing_round_trips_and_a_bad_one_is_refused() {
+        let model = sample_model();
+        assert!(!model.to_text().contains("smoothing"));
+        let mut smooth = model.clone();
+        smooth.smoothing = 0.4;
+        let text = smooth.to_text();
+        assert!(text.contains("\nsmoothing 0.4\nhidden 4\n"), "{text}");
+        assert_eq!(Model::from_text(&text).unwrap(), smooth);
+        let plain = model.to_text();
+        for bad in ["-0.1", "0.95", "NaN", "x", "0.5 0.5"] {
+            let with = plain.replacen("hidden 4\n", &format!("smoothing {bad}\nhidden 4\n"), 1);
+            let message = Model::from_text(&with).unwrap_err().to_string();
+            assert!(message.contains("smoothing"), "{bad}: {message}");
+        }
     }
 
     #[test]
