@@ -17,7 +17,7 @@ use crate::train::codec_features::{CodecFeatures, CodecPath, augmentation_settin
 use crate::train::grid::{self, AUDIO_FRAME_S, LipClip};
 use crate::train::grid_shapes::{self, ContourClip, KeyRule};
 use crate::train::lag::{self, ClipSeries};
-use crate::train::video::{VideoTraining, map_onto_head, prepare_clips, score_clips};
+use crate::train::video::{VideoTraining, map_onto_head, prepare_clips, score_clips, vary_voices};
 use crate::vocab::{Viseme, VisemeSet};
 
 #[derive(Debug, clap::Args)]
@@ -126,6 +126,14 @@ pub struct LipTrainArgs {
     /// network sees ahead (s1's trail it: 0).
     #[arg(long, value_name = "MS", default_value_t = recipe::LIP_SHIFT_MS)]
     pub lip_shift_ms: u32,
+    /// Vocal-tract-length augmentation of s1's voice: each clip version's LSPs scaled by its
+    /// own factor in [1 - W, 1 + W]; 0 = off.
+    #[arg(long, value_name = "W", default_value_t = 0.0)]
+    pub lip_warp: f32,
+    /// Each s1 clip a call of its own (the speaker normalisation starts afresh, as for a
+    /// newcomer's first seconds) instead of all of them one long call.
+    #[arg(long)]
+    pub lip_calls: bool,
 }
 
 /// `evaluate`'s options for measured lips.
@@ -159,6 +167,9 @@ pub fn video_training(args: &LipTrainArgs, codec: &CodecFeatures) -> Result<Opti
     if !args.lip_shift_ms.is_multiple_of(20) || args.lip_shift_ms > 100 {
         bail!("--lip-shift-ms must be a multiple of 20 ms up to 100");
     }
+    if !(args.lip_warp.is_finite() && (0.0..0.5).contains(&args.lip_warp)) {
+        bail!("--lip-warp must be in [0, 0.5), not {}", args.lip_warp);
+    }
     let clips = s1_training_clips(root, args.lip_clips)?;
     let shift = -((args.lip_shift_ms / 20) as i32);
     let mut prepared = prepare_clips(
@@ -168,18 +179,27 @@ pub fn video_training(args: &LipTrainArgs, codec: &CodecFeatures) -> Result<Opti
         args.lip_versions,
         shift,
     )?;
+    if args.lip_calls || args.lip_warp > 0.0 {
+        vary_voices(&mut prepared, args.lip_warp, recipe::SEED);
+    }
     let map = map_onto_head(
         &mut ModelAnimator::new(&crate::lipsync::default_model()),
         &mut prepared,
     );
     eprintln!(
         "measured lips: {} of s1's training clips at {} codec setting(s), {} ms earlier than \
-         their audio frames, weight {}; aperture x{:.2}{:+.3}, width x{:.2}{:+.3} onto the \
-         head's scale",
+         their audio frames, weight {}, warp {}{}; aperture x{:.2}{:+.3}, width x{:.2}{:+.3} \
+         onto the head's scale",
         clips.len(),
         args.lip_versions,
         args.lip_shift_ms,
         args.lip_weight,
+        args.lip_warp,
+        if args.lip_calls {
+            ", each clip its own call"
+        } else {
+            ""
+        },
         map[0].0,
         map[0].1,
         map[1].0,

@@ -6,7 +6,7 @@ use crate::lipsync::network::Model;
 use crate::lipsync::phones::CueClass;
 use crate::train::corpus::PreparedUtterance;
 use crate::train::video::{LIP_CUES, VideoTraining, head_lips};
-use crate::vocab::LSP_COUNT;
+use crate::vocab::{FrameFeatures, LSP_COUNT};
 use crate::vocab::{Viseme, VisemeSet};
 
 /// xorshift64*: small, fast and reproducible.
@@ -226,19 +226,25 @@ pub(super) fn warp_lsps(
     warp: f32,
     rng: &mut Rng,
 ) -> Vec<PreparedUtterance> {
-    const TOP: f32 = std::f32::consts::PI - 0.01;
     utterances
         .iter()
         .map(|utt| {
-            let factor = 1.0 + warp * (2.0 * rng.next_f32() - 1.0);
             let mut utt = utt.clone();
-            for frame in &mut utt.features {
-                for (i, lsp) in frame.lsp.iter_mut().enumerate() {
-                    let ceiling = TOP - 0.01 * (LSP_COUNT - 1 - i) as f32;
-                    *lsp = (*lsp * factor).min(ceiling);
-                }
-            }
+            warp_frames(&mut utt.features, warp, rng);
             utt
         })
         .collect()
+}
+
+/// Scales the LSPs of `frames` (one voice) by one random factor in `[1 - warp, 1 + warp]`,
+/// kept increasing and inside (0, pi): the formants of a longer or shorter vocal tract.
+pub(crate) fn warp_frames(frames: &mut [FrameFeatures], warp: f32, rng: &mut Rng) {
+    const TOP: f32 = std::f32::consts::PI - 0.01;
+    let factor = 1.0 + warp * (2.0 * rng.next_f32() - 1.0);
+    for frame in frames {
+        for (i, lsp) in frame.lsp.iter_mut().enumerate() {
+            let ceiling = TOP - 0.01 * (LSP_COUNT - 1 - i) as f32;
+            *lsp = (*lsp * factor).min(ceiling);
+        }
+    }
 }

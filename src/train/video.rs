@@ -14,6 +14,7 @@ use crate::lipsync::Animator;
 use crate::lipsync::mouth::{Cue, cues, lip_aperture};
 use crate::train::codec_features::{CodecFeatures, CodecPath};
 use crate::train::corpus::{BoxError, CorpusError};
+use crate::train::dataset::{Rng, warp_frames};
 use crate::train::eval::{pearson, predict_streams};
 use crate::train::grid::LipClip;
 use crate::vocab::{FrameFeatures, VisemeSet};
@@ -104,6 +105,19 @@ pub fn prepare_clips(
         }
     }
     Ok(out)
+}
+
+/// Makes each clip a call of its own (the speaker normalisation starts afresh in each, as
+/// for a newcomer's first seconds), its LSPs scaled by its own random factor in
+/// `[1 - warp, 1 + warp]` (a longer or shorter vocal tract; 0 leaves them).
+pub fn vary_voices(clips: &mut [VideoClip], warp: f32, seed: u64) {
+    let mut rng = Rng::new(seed);
+    for (i, clip) in clips.iter_mut().enumerate() {
+        if warp > 0.0 {
+            warp_frames(&mut clip.features, warp, &mut rng);
+        }
+        clip.speaker = format!("{}-{i}", clip.speaker);
+    }
 }
 
 fn streams(clips: &[VideoClip]) -> Vec<(&str, &[FrameFeatures])> {
@@ -217,5 +231,36 @@ mod tests {
         let mix = head_lips(&set, &[0.0, 0.0, 0.0, 0.5, 0.5]);
         let (i, u) = (Articulation::of(Viseme::I), Articulation::of(Viseme::U));
         assert!((mix[1] - 0.5 * (i.width + u.width)).abs() < 1e-6);
+    }
+
+    #[test]
+    fn varied_voices_are_calls_of_their_own_with_their_own_tract() {
+        let mut frame = FrameFeatures::silent();
+        frame.lsp = std::array::from_fn(|i| 0.25 * (i + 1) as f32);
+        let clip = VideoClip {
+            speaker: "grid-s1".into(),
+            name: "bbaf2n".into(),
+            features: vec![frame; 4],
+            lips: vec![Some([0.1, 0.5]); 4],
+        };
+        let mut clips = vec![clip.clone(); 3];
+        vary_voices(&mut clips, 0.1, 7);
+        let names: Vec<&str> = clips.iter().map(|c| c.speaker.as_str()).collect();
+        assert_eq!(names, ["grid-s1-0", "grid-s1-1", "grid-s1-2"]);
+        let factors: Vec<f32> = clips
+            .iter()
+            .map(|c| c.features[0].lsp[0] / frame.lsp[0])
+            .collect();
+        for (c, f) in clips.iter().zip(&factors) {
+            assert!((0.9..=1.1).contains(f), "{f}");
+            assert!(c.features.iter().all(|x| x.lsp == c.features[0].lsp));
+            assert!(c.features[0].lsp.windows(2).all(|w| w[0] < w[1]));
+            assert_eq!(c.lips, clip.lips);
+        }
+        assert!(factors[0] != factors[1] && factors[1] != factors[2]);
+        let mut unwarped = vec![clip.clone(); 2];
+        vary_voices(&mut unwarped, 0.0, 7);
+        assert_eq!(unwarped[1].features, clip.features);
+        assert_eq!(unwarped[1].speaker, "grid-s1-1");
     }
 }
