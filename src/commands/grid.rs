@@ -13,7 +13,9 @@ use crate::lipsync::decompose::table_i;
 use crate::lipsync::jaw::JawBaseline;
 use crate::lipsync::network::Model;
 use crate::lipsync::{Animator, ModelAnimator, recipe};
-use crate::train::codec_features::{CodecFeatures, CodecPath, augmentation_settings};
+use crate::train::codec_features::{
+    CodecFeatures, CodecPath, EVALUATION_QUALITY, augmentation_settings, quality,
+};
 use crate::train::grid::{self, AUDIO_FRAME_S, LipClip};
 use crate::train::grid_shapes::{self, ContourClip, KeyRule};
 use crate::train::lag::{self, ClipSeries};
@@ -134,6 +136,10 @@ pub struct LipTrainArgs {
     /// newcomer's first seconds) instead of all of them one long call.
     #[arg(long)]
     pub lip_calls: bool,
+    /// Early stopping also watches the other speakers' lips (the clips never trained on, each
+    /// mapped onto the head's scale by its own mean and spread): validation across speakers.
+    #[arg(long)]
+    pub lip_validation: bool,
 }
 
 /// `evaluate`'s options for measured lips.
@@ -157,9 +163,14 @@ fn s1_training_clips(root: &Path, limit: usize) -> Result<Vec<LipClip>> {
 }
 
 /// The video half of training, or `None` without `--grid`.
-pub fn video_training(args: &LipTrainArgs, codec: &CodecFeatures) -> Result<Option<VideoTraining>> {
+/// The video half of training and, with `--lip-validation`, the other speakers' lips for
+/// early stopping; `None`s without `--grid`.
+pub fn video_training(
+    args: &LipTrainArgs,
+    codec: &CodecFeatures,
+) -> Result<(Option<VideoTraining>, Option<VideoTraining>)> {
     let Some(root) = &args.grid else {
-        return Ok(None);
+        return Ok((None, None));
     };
     if !(args.lip_weight.is_finite() && args.lip_weight >= 0.0) {
         bail!("--lip-weight must be a finite number of 0 or more");
@@ -205,11 +216,34 @@ pub fn video_training(args: &LipTrainArgs, codec: &CodecFeatures) -> Result<Opti
         map[1].0,
         map[1].1
     );
-    Ok(Some(VideoTraining {
-        clips: Arc::new(prepared),
-        frame_weight: args.lip_weight,
-        cue_weights: [recipe::LIP_CUE_WEIGHT; 2],
-    }))
+    let validation = if args.lip_validation {
+        let speex = CodecPath::Speex(quality(EVALUATION_QUALITY));
+        let mut others = prepare_clips(codec, &grid::load_clips(root, "other")?, &[speex], 1, 0)?;
+        let shipped_model = crate::lipsync::default_model();
+        let mut shipped = ModelAnimator::new(&shipped_model);
+        for clip in &mut others {
+            map_onto_head(&mut shipped, std::slice::from_mut(clip));
+        }
+        eprintln!(
+            "early stopping also watches the lips of {} other speakers' clips",
+            others.len()
+        );
+        Some(VideoTraining {
+            clips: Arc::new(others),
+            frame_weight: args.lip_weight,
+            cue_weights: [recipe::LIP_CUE_WEIGHT; 2],
+        })
+    } else {
+        None
+    };
+    Ok((
+        Some(VideoTraining {
+            clips: Arc::new(prepared),
+            frame_weight: args.lip_weight,
+            cue_weights: [recipe::LIP_CUE_WEIGHT; 2],
+        }),
+        validation,
+    ))
 }
 
 /// Prints aperture and width r of `model` (and of the jaw baseline) against the measured lips

@@ -329,7 +329,7 @@ fn train_config(args: &TrainArgs, split: &SpeakerSplit, snap: Option<f32>) -> Re
         show_progress: !args.quiet,
         allow_over_budget: args.allow_over_budget,
         nested_fold_epochs: args.nested_epochs,
-        video: None,
+        ..TrainConfig::default()
     })
 }
 
@@ -342,7 +342,8 @@ pub fn train(args: &TrainArgs) -> Result<()> {
     let corpus = Corpus::open(&args.corpus)?;
     let split = SpeakerSplit::standard(&corpus)?;
     let mut config = train_config(args, &split, snap)?;
-    config.video = super::grid::video_training(&args.lips, &CodecFeatures::new())?;
+    (config.video, config.lip_validation) =
+        super::grid::video_training(&args.lips, &CodecFeatures::new())?;
     eprintln!(
         "Training the viseme network ({}) on the Speex-decoded features of {} \
          (training speakers {}; validation speakers {} steer early stopping; the test speakers {} \
@@ -432,7 +433,7 @@ fn train_cross_validated(args: &TrainArgs) -> Result<()> {
     );
     let codec = CodecFeatures::new();
     let mut config = config;
-    config.video = super::grid::video_training(&args.lips, &codec)?;
+    (config.video, config.lip_validation) = super::grid::video_training(&args.lips, &codec)?;
     let (mut groups, region_utts) =
         plan::region_groups(&corpus, &regions, &codec, args.versions, &config)?;
     if let Some(aligned) = an4 {

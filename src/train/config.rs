@@ -75,6 +75,9 @@ pub struct TrainConfig {
     pub nested_fold_epochs: bool,
     /// Measured lips as a second loss term (training frames only; never validation).
     pub video: Option<VideoTraining>,
+    /// Other speakers' measured lips, never trained on: early stopping watches their loss
+    /// (times their frame weight) beside the held-out phones'.
+    pub lip_validation: Option<VideoTraining>,
 }
 
 impl Default for TrainConfig {
@@ -111,6 +114,7 @@ impl Default for TrainConfig {
             allow_over_budget: false,
             nested_fold_epochs: false,
             video: None,
+            lip_validation: None,
         }
     }
 }

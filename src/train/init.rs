@@ -1,7 +1,7 @@
 //! A new network before training: input scaling fitted on the training frames, the per-speaker
 //! normalisation prior, seeded initial weights.
 
-use super::dataset::Rng;
+use super::augment::Rng;
 use crate::lipsync::network::{FEATURES_PER_FRAME, InputScaling, Model, SpeakerNorm};
 use crate::train::config::TrainConfig;
 use crate::train::corpus::PreparedUtterance;

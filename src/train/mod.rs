@@ -1,6 +1,7 @@
 //! Offline training and evaluation of the lip-sync network on a TIMIT-style corpus.
 
 pub mod an4;
+pub mod augment;
 mod backprop;
 pub mod card;
 mod closure_snap;

@@ -10,11 +10,12 @@ use std::io::Write as _;
 
 use indicatif::{ProgressBar, ProgressStyle};
 
+use super::augment::Rng;
 use super::backprop::{Params, loss_and_gradient, model_params_mut, segment_loss_and_gradient};
 use super::closure_snap::predictions;
 pub use super::closure_snap::{FALSE_CLOSURE_COST, HeldOutPredictions, best_snap, snap_candidates};
 use super::config::TrainConfig;
-use super::dataset::{Dataset, Rng, append_video, build_dataset, warp_lsps};
+use super::dataset::{Dataset, append_video, build_dataset, warp_lsps};
 use super::error::TrainError;
 use super::init::initial_model;
 use crate::lipsync::network::{MAX_LOOKAHEAD, MULTIPLY_ADD_BUDGET, Model, input_count};
@@ -144,6 +145,7 @@ pub fn train_on(
     if validation_data.frames() == 0 {
         return Err(TrainError::NoFrames);
     }
+    let lips = run.lip_validation(config);
     let progress = if config.show_progress {
         ProgressBar::new(config.max_epochs as u64)
     } else {
@@ -159,7 +161,7 @@ pub fn train_on(
     for epoch in 1..=config.max_epochs {
         run.epoch(config);
         let train_loss = run.loss(config, &run.train_data);
-        let validation_loss = run.loss(config, &validation_data);
+        let validation_loss = run.loss(config, &validation_data) + run.lips_loss(config, &lips);
         let scores = score(
             &run.model.visemes,
             &config.shapes,
@@ -233,15 +235,17 @@ pub fn best_epochs(
     if data.iter().any(|d| d.frames() == 0) {
         return Err(TrainError::NoFrames);
     }
+    let lips = run.lip_validation(config);
     // Per set: the lowest loss, its epoch, and whether the set has stopped.
     let mut best = vec![(f64::INFINITY, 0usize, false); data.len()];
     for epoch in 1..=config.max_epochs {
         run.epoch(config);
+        let lips_loss = run.lips_loss(config, &lips);
         for (best, data) in best.iter_mut().zip(&data) {
             if best.2 {
                 continue;
             }
-            let loss = run.loss(config, data);
+            let loss = run.loss(config, data) + lips_loss;
             if loss < best.0 {
                 (best.0, best.1) = (loss, epoch);
             }
@@ -321,6 +325,22 @@ impl Run {
         utterances: &[PreparedUtterance],
     ) -> Result<Dataset, TrainError> {
         prepare_frames(&self.model, config, utterances)
+    }
+
+    /// The other speakers' lips of `config.lip_validation` as frames of their own.
+    fn lip_validation(&self, config: &TrainConfig) -> Option<Dataset> {
+        let lips = config.lip_validation.as_ref()?;
+        let mut data = build_dataset(&self.model, &[], &[], 0.0, false);
+        append_video(&mut data, &self.model, lips);
+        Some(data)
+    }
+
+    /// Their loss, times their frame weight (0 without them).
+    fn lips_loss(&self, config: &TrainConfig, lips: &Option<Dataset>) -> f64 {
+        match (lips, &config.lip_validation) {
+            (Some(data), Some(video)) => video.frame_weight as f64 * self.loss(config, data),
+            _ => 0.0,
+        }
     }
 
     /// The loss on `data` (frames and /p b m/ segments).

@@ -12,9 +12,9 @@ use std::sync::Arc;
 
 use crate::lipsync::Animator;
 use crate::lipsync::mouth::{Cue, cues, lip_aperture};
+use crate::train::augment::{Rng, warp_frames};
 use crate::train::codec_features::{CodecFeatures, CodecPath};
 use crate::train::corpus::{BoxError, CorpusError};
-use crate::train::dataset::{Rng, warp_frames};
 use crate::train::eval::{pearson, predict_streams};
 use crate::train::grid::LipClip;
 use crate::vocab::{FrameFeatures, VisemeSet};
