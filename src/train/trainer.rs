@@ -705,6 +705,42 @@ mod tests {
     }
 
     #[test]
+    fn early_stopping_watches_the_other_speakers_lips_when_given_them() {
+        use crate::train::video::{VideoClip, VideoTraining};
+        let (train, validation) = tiny_data();
+        let config = tiny_config();
+        let plain = train_on(&config, &train, &validation).unwrap();
+        // Lips as open as aa on every frame of a voice the training never heard.
+        let lips = |weight| VideoTraining {
+            clips: std::sync::Arc::new(vec![VideoClip {
+                speaker: "other".into(),
+                name: "clip".into(),
+                features: validation[0].features.clone(),
+                lips: vec![Some([1.0, 0.1]); validation[0].features.len()],
+            }]),
+            frame_weight: weight,
+            cue_weights: [20.0, 20.0],
+        };
+        let watched = |weight| {
+            let config = TrainConfig {
+                lip_validation: Some(lips(weight)),
+                ..tiny_config()
+            };
+            train_on(&config, &train, &validation).unwrap()
+        };
+        let light = watched(0.5);
+        // The training itself is the same; the validation loss carries the lips' loss too.
+        for (p, l) in plain.curve.iter().zip(&light.curve) {
+            assert_eq!(p.train_loss, l.train_loss);
+            assert!(l.validation_loss > p.validation_loss, "{p:?} {l:?}");
+        }
+        let heavy = watched(50.0);
+        let [p, l, h] = [&plain, &light, &heavy].map(|r| r.curve[0].validation_loss);
+        assert!(h - p > 50.0 * (l - p), "{p} {l} {h}");
+        assert!(heavy.best_epoch != plain.best_epoch || heavy.curve.len() != plain.curve.len());
+    }
+
+    #[test]
     fn tiny_training_run_learns_and_stops_early() {
         let (train, validation) = tiny_data();
         let curves =
