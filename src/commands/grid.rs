@@ -19,7 +19,9 @@ use crate::train::codec_features::{
 use crate::train::grid::{self, AUDIO_FRAME_S, LipClip};
 use crate::train::grid_shapes::{self, ContourClip, KeyRule};
 use crate::train::lag::{self, ClipSeries};
-use crate::train::video::{VideoTraining, map_onto_head, prepare_clips, score_clips, vary_voices};
+use crate::train::video::{
+    VideoTraining, centre_each_clip, map_onto_head, prepare_clips, score_clips, vary_voices,
+};
 use crate::vocab::{Viseme, VisemeSet};
 
 #[derive(Debug, clap::Args)]
@@ -140,6 +142,10 @@ pub struct LipTrainArgs {
     /// mapped onto the head's scale by its own mean and spread): validation across speakers.
     #[arg(long)]
     pub lip_validation: bool,
+    /// Each clip's lips moved to the mean of all clips (what differs between recordings is
+    /// not what the voice says).
+    #[arg(long)]
+    pub lip_centre: bool,
 }
 
 /// `evaluate`'s options for measured lips.
@@ -192,6 +198,9 @@ pub fn video_training(
     )?;
     if args.lip_calls || args.lip_warp > 0.0 {
         vary_voices(&mut prepared, args.lip_warp, recipe::SEED);
+    }
+    if args.lip_centre {
+        centre_each_clip(&mut prepared);
     }
     let map = map_onto_head(
         &mut ModelAnimator::new(&crate::lipsync::default_model()),
