@@ -1,8 +1,9 @@
 //! Head tiles: each peer's head is rendered into its own texture at the size the tile is shown,
-//! only when what it shows changed (weights, framing, size), and egui draws that texture like any
-//! image (sampled nearest: the texture has the tile's pixels, so filtering would only cost). The
-//! head pass is thus independent of egui's: multisampled on GPUs, sRGB-correct whatever format
-//! the window has, and free when a face is still.
+//! only when what it shows changed (weights, framing, size), with the coarsest level of detail
+//! that is exact to half a pixel at that size, and egui draws that texture like any image
+//! (sampled nearest: the texture has the tile's pixels, so filtering would only cost). The head
+//! pass is thus independent of egui's: multisampled on GPUs, sRGB-correct whatever format the
+//! window has, and free when a face is still.
 
 use std::collections::HashMap;
 use std::sync::Arc;
@@ -12,6 +13,7 @@ use std::time::Instant;
 use eframe::egui;
 use eframe::egui_wgpu;
 
+use crate::render::lod::DetailLevels;
 use crate::render::target::{HeadTarget, TARGET_FORMAT, sample_count_for};
 use crate::render::{Camera, Framing, GpuHead, HeadInstance, HeadRenderer};
 use crate::vocab::FacePose;
@@ -29,6 +31,8 @@ pub struct RenderCounters {
     pub tiles_drawn: AtomicU64,
     /// Tiles shown, rendered or not.
     pub tiles_shown: AtomicU64,
+    /// Triangles of the head renders (fewer per render in small tiles: levels of detail).
+    pub triangles_drawn: AtomicU64,
 }
 
 /// One head tile for one frame.
@@ -74,7 +78,14 @@ impl HeadTiles {
             samples,
         );
         let model = crate::render::default_head()?;
-        let head = renderer.upload(&state.device, &state.queue, &model, "default head")?;
+        let levels = DetailLevels::build(&model);
+        let head = renderer.upload_with_levels(
+            &state.device,
+            &state.queue,
+            &model,
+            &levels,
+            "default head",
+        )?;
         Ok(Self {
             state: state.clone(),
             renderer,
@@ -165,6 +176,7 @@ impl HeadTiles {
         let t0 = Instant::now();
         let camera = Camera::framing(head.face_frame(), tile.framing);
         let aspect = size.0 as f32 / size.1 as f32;
+        entry.instance.level = head.level_for(camera.pixels_per_metre(size.1));
         renderer.prepare(
             &state.queue,
             &mut entry.instance,
@@ -185,6 +197,10 @@ impl HeadTiles {
         state.queue.submit([encoder.finish()]);
         entry.shown = Some((tile, size));
         counters.tiles_drawn.fetch_add(1, Ordering::Relaxed);
+        counters.triangles_drawn.fetch_add(
+            head.triangle_count(entry.instance.level) as u64,
+            Ordering::Relaxed,
+        );
         counters
             .record_ns
             .fetch_add(t0.elapsed().as_nanos() as u64, Ordering::Relaxed);

@@ -12,6 +12,7 @@ pub mod camera;
 mod error;
 pub mod gltf_load;
 pub mod head;
+pub mod lod;
 pub mod mouth_gauge;
 pub mod offscreen;
 mod readback;
