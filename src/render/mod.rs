@@ -8,6 +8,7 @@
 //! ([`renderer::HeadRenderer::paint`]), which is the shape egui-wgpu paint callbacks need.
 
 pub mod arkit;
+pub mod blit;
 pub mod camera;
 mod error;
 pub mod gltf_load;
