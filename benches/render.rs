@@ -1,13 +1,18 @@
 //! Head renderer benchmarks on whatever adapter wgpu finds (lavapipe when there is no GPU):
 //! - `head_frame_cpu`: CPU time per head per frame, weights upload + draw encoding;
 //! - `offscreen_frame/N`: a whole 480x480 offscreen frame with N heads (1, 4, 16), GPU included;
-//!   frames per second = 1 / time.
+//!   frames per second = 1 / time;
+//! - `app_tiles/8_full`, `app_tiles/8_detail`: eight heads each rendered into its own 249x192
+//!   target (the app's tiles with eight peers in its 1280x720 window), as the full mesh and at the
+//!   level of detail that size picks.
 
 use std::hint::black_box;
 
 use criterion::{Criterion, criterion_group, criterion_main};
+use lipcall::render::lod::DetailLevels;
 use lipcall::render::offscreen::{FrameOptions, GpuContext, OffscreenRenderer};
 use lipcall::render::renderer::{DEPTH_FORMAT, HeadRenderer};
+use lipcall::render::target::HeadTarget;
 use lipcall::render::{Camera, Framing};
 use lipcall::vocab::FacePose;
 use lipcall::vocab::VisemeWeights;
@@ -125,6 +130,73 @@ fn bench(c: &mut Criterion) {
                 ctx.device
                     .poll(wgpu::PollType::Wait {
                         submission_index: Some(index),
+                        timeout: None,
+                    })
+                    .unwrap();
+            })
+        });
+    }
+    group.finish();
+    app_tiles(c, &ctx, &model);
+}
+
+/// Eight talking heads as the app draws them: one target and one submission per tile.
+fn app_tiles(c: &mut Criterion, ctx: &GpuContext, model: &lipcall::render::HeadModel) {
+    const TILES: usize = 8;
+    let (width, height) = (249, 192);
+    let device = &ctx.device;
+    let renderer = HeadRenderer::new(
+        device,
+        lipcall::render::target::TARGET_FORMAT,
+        Some(DEPTH_FORMAT),
+    );
+    let levels = DetailLevels::build(model);
+    let head = renderer
+        .upload_with_levels(device, &ctx.queue, model, &levels, "bench head")
+        .unwrap();
+    let camera = Camera::framing(head.face_frame(), Framing::Face);
+    let detail = head.level_for(camera.pixels_per_metre(height));
+    let targets: Vec<HeadTarget> = (0..TILES)
+        .map(|_| HeadTarget::new(device, width, height, 1, "bench tile"))
+        .collect();
+    let mut instances: Vec<_> = (0..TILES)
+        .map(|t| renderer.new_instance(device, head.clone(), &format!("bench tile {t}")))
+        .collect();
+    let mut group = c.benchmark_group("app_tiles");
+    group.sample_size(10);
+    group.measurement_time(std::time::Duration::from_secs(8));
+    for (name, level) in [("full", 0), ("detail", detail)] {
+        eprintln!(
+            "{name}: level {level}, {} triangles per head",
+            head.triangle_count(level)
+        );
+        let mut i = 0usize;
+        group.bench_function(format!("{TILES}_{name}"), |b| {
+            b.iter(|| {
+                i += 1;
+                let mut last = None;
+                for (t, (instance, target)) in instances.iter_mut().zip(&targets).enumerate() {
+                    instance.level = level;
+                    let aspect = width as f32 / height as f32;
+                    let weights = weights_at(i + 7 * t);
+                    renderer.prepare(
+                        &ctx.queue,
+                        instance,
+                        &camera,
+                        aspect,
+                        &weights,
+                        &FacePose::REST,
+                    );
+                    let mut encoder = device.create_command_encoder(&Default::default());
+                    {
+                        let mut pass = target.begin_pass(&mut encoder, [0.02; 3]);
+                        renderer.paint(&mut pass, instance);
+                    }
+                    last = Some(ctx.queue.submit([encoder.finish()]));
+                }
+                device
+                    .poll(wgpu::PollType::Wait {
+                        submission_index: last,
                         timeout: None,
                     })
                     .unwrap();

@@ -194,4 +194,19 @@ fn a_sender_into_the_app_is_shown_and_animated() {
         "animation frames do not advance: {a0} -> {a1}"
     );
     assert!(s1 > 0, "the tile never showed weights of heard audio");
+    // The tile's head is drawn at the level of detail its size needs: exact to half a pixel in
+    // a tile some 450 pixels high takes fewer triangles than the full head has.
+    let counter = |k: &str| {
+        late.split_whitespace()
+            .find_map(|w| w.strip_prefix(k))
+            .and_then(|v| v.parse::<u64>().ok())
+            .unwrap_or_else(|| panic!("no {k} in {late}"))
+    };
+    let (renders, triangles) = (counter("tiles_drawn="), counter("triangles_drawn="));
+    let full = lipcall::render::default_head().unwrap().triangle_count() as u64;
+    assert!(renders > 0, "no head render");
+    assert!(
+        triangles < renders * full && triangles > renders * full / 10,
+        "{triangles} triangles in {renders} renders of a {full}-triangle head"
+    );
 }

@@ -250,7 +250,7 @@ impl LipcallApp {
         };
         let mut text = format!(
             "time_s={:.2} ui_frames={} network_ms={:.1} frames_animated={} record_ms={:.1} \
-             tiles_drawn={} tiles_shown={} weights_sent={} weights_fallback={} weights_late={} late_ms={:.1} \
+             tiles_drawn={} tiles_shown={} triangles_drawn={} weights_sent={} weights_fallback={} weights_late={} late_ms={:.1} \
              output_ms={output_ms:.1} underruns={underruns} listening={}\n",
             self.started.elapsed().as_secs_f64(),
             self.frames,
@@ -259,6 +259,7 @@ impl LipcallApp {
             self.counters.record_ns.load(Ordering::Relaxed) as f64 / 1e6,
             self.counters.tiles_drawn.load(Ordering::Relaxed),
             self.counters.tiles_shown.load(Ordering::Relaxed),
+            self.counters.triangles_drawn.load(Ordering::Relaxed),
             c.weights_sent.load(Ordering::Relaxed),
             c.weights_fallback.load(Ordering::Relaxed),
             c.weights_late.load(Ordering::Relaxed),

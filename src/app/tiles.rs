@@ -1,8 +1,10 @@
 //! Head tiles: each peer's head is rendered into its own texture at the size the tile is shown,
-//! only when what it shows changed (weights, framing, size), and egui draws that texture like any
-//! image (sampled nearest: the texture has the tile's pixels, so filtering would only cost). The
-//! head pass is thus independent of egui's: multisampled on GPUs, sRGB-correct whatever format
-//! the window has, and free when a face is still.
+//! only when what it shows changed (weights, framing, size), with the coarsest level of detail
+//! that is exact to half a pixel at that size, and copied into egui's pass pixel for pixel by a
+//! paint callback ([`Blit`]: opaque texel loads, which a software adapter does many times faster
+//! than egui's filtered, blended image path). The head pass is thus independent of egui's:
+//! multisampled on GPUs, sRGB-correct whatever format the window has, and free when a face is
+//! still.
 
 use std::collections::HashMap;
 use std::sync::Arc;
@@ -12,6 +14,8 @@ use std::time::Instant;
 use eframe::egui;
 use eframe::egui_wgpu;
 
+use crate::render::blit::{Blit, BlitImage};
+use crate::render::lod::DetailLevels;
 use crate::render::target::{HeadTarget, TARGET_FORMAT, sample_count_for};
 use crate::render::{Camera, Framing, GpuHead, HeadInstance, HeadRenderer};
 use crate::vocab::FacePose;
@@ -29,6 +33,8 @@ pub struct RenderCounters {
     pub tiles_drawn: AtomicU64,
     /// Tiles shown, rendered or not.
     pub tiles_shown: AtomicU64,
+    /// Triangles of the head renders (fewer per render in small tiles: levels of detail).
+    pub triangles_drawn: AtomicU64,
 }
 
 /// One head tile for one frame.
@@ -43,7 +49,8 @@ pub struct HeadTile {
 struct Tile {
     instance: HeadInstance,
     target: HeadTarget,
-    texture: egui::TextureId,
+    /// The target's image as the blit binds it.
+    image: Arc<BlitImage>,
     /// What the texture shows now.
     shown: Option<(HeadTile, (u32, u32))>,
     seen_this_frame: bool,
@@ -54,9 +61,43 @@ pub struct HeadTiles {
     state: egui_wgpu::RenderState,
     renderer: HeadRenderer,
     head: Arc<GpuHead>,
+    blit: Arc<Blit>,
     samples: u32,
     tiles: HashMap<u64, Tile>,
     counters: Arc<RenderCounters>,
+}
+
+/// egui's paint callback for one tile: the blit of its image into `rect`.
+struct TileImage {
+    blit: Arc<Blit>,
+    image: Arc<BlitImage>,
+    rect: egui::Rect,
+}
+
+impl egui_wgpu::CallbackTrait for TileImage {
+    fn prepare(
+        &self,
+        _device: &wgpu::Device,
+        queue: &wgpu::Queue,
+        screen: &egui_wgpu::ScreenDescriptor,
+        _encoder: &mut wgpu::CommandEncoder,
+        _resources: &mut egui_wgpu::CallbackResources,
+    ) -> Vec<wgpu::CommandBuffer> {
+        // Where egui puts the callback's viewport, before cutting it at the window's edges.
+        let at = |points: f32| (points * screen.pixels_per_point).round() as i32;
+        let origin = [at(self.rect.min.x), at(self.rect.min.y)];
+        self.blit.place(queue, &self.image, origin);
+        Vec::new()
+    }
+
+    fn paint(
+        &self,
+        _info: egui::PaintCallbackInfo,
+        pass: &mut wgpu::RenderPass<'static>,
+        _resources: &egui_wgpu::CallbackResources,
+    ) {
+        self.blit.draw(pass, &self.image);
+    }
 }
 
 impl HeadTiles {
@@ -74,11 +115,19 @@ impl HeadTiles {
             samples,
         );
         let model = crate::render::default_head()?;
-        let head = renderer.upload(&state.device, &state.queue, &model, "default head")?;
+        let levels = DetailLevels::build(&model);
+        let head = renderer.upload_with_levels(
+            &state.device,
+            &state.queue,
+            &model,
+            &levels,
+            "default head",
+        )?;
         Ok(Self {
             state: state.clone(),
             renderer,
             head,
+            blit: Arc::new(Blit::new(&state.device, state.target_format)),
             samples,
             tiles: HashMap::new(),
             counters,
@@ -92,51 +141,44 @@ impl HeadTiles {
         let px = |points: f32| ((points * ppp).round() as u32).clamp(1, max);
         let size = (px(rect.width()), px(rect.height()));
         self.counters.tiles_shown.fetch_add(1, Ordering::Relaxed);
-        let texture = self.render_if_changed(tile, size);
-        ui.painter().image(
-            texture,
+        let image = self.render_if_changed(tile, size);
+        ui.painter().add(egui_wgpu::Callback::new_paint_callback(
             rect,
-            egui::Rect::from_min_max(egui::pos2(0.0, 0.0), egui::pos2(1.0, 1.0)),
-            egui::Color32::WHITE,
-        );
+            TileImage {
+                blit: self.blit.clone(),
+                image,
+                rect,
+            },
+        ));
     }
 
     /// Frees the targets of tiles not shown since the last call (peers that left).
     pub fn end_frame(&mut self) {
-        let state = &self.state;
-        self.tiles.retain(|_, t| {
-            let keep = std::mem::take(&mut t.seen_this_frame);
-            if !keep {
-                state.renderer.write().free_texture(&t.texture);
-            }
-            keep
-        });
+        self.tiles
+            .retain(|_, t| std::mem::take(&mut t.seen_this_frame));
     }
 
-    fn render_if_changed(&mut self, tile: HeadTile, size: (u32, u32)) -> egui::TextureId {
+    /// The tile's image, rendered first if its face or size changed.
+    fn render_if_changed(&mut self, tile: HeadTile, size: (u32, u32)) -> Arc<BlitImage> {
         let Self {
             state,
             renderer,
             head,
+            blit,
             samples,
             tiles,
             counters,
         } = self;
         let entry = tiles.entry(tile.id).or_insert_with(|| {
             let target = HeadTarget::new(&state.device, size.0, size.1, *samples, "head tile");
-            let texture = state.renderer.write().register_native_texture(
-                &state.device,
-                &target.unorm_view(),
-                wgpu::FilterMode::Nearest,
-            );
             Tile {
                 instance: renderer.new_instance(
                     &state.device,
                     head.clone(),
                     &format!("tile {}", tile.id),
                 ),
+                image: Arc::new(blit.image(&state.device, &target)),
                 target,
-                texture,
                 shown: None,
                 seen_this_frame: false,
             }
@@ -144,15 +186,7 @@ impl HeadTiles {
         entry.seen_this_frame = true;
         if entry.target.size() != size {
             entry.target = HeadTarget::new(&state.device, size.0, size.1, *samples, "head tile");
-            state
-                .renderer
-                .write()
-                .update_egui_texture_from_wgpu_texture(
-                    &state.device,
-                    &entry.target.unorm_view(),
-                    wgpu::FilterMode::Nearest,
-                    entry.texture,
-                );
+            entry.image = Arc::new(blit.image(&state.device, &entry.target));
             entry.shown = None;
         }
         if entry
@@ -160,11 +194,12 @@ impl HeadTiles {
             .as_ref()
             .is_some_and(|(shown, at)| *shown == tile && *at == size)
         {
-            return entry.texture;
+            return entry.image.clone();
         }
         let t0 = Instant::now();
         let camera = Camera::framing(head.face_frame(), tile.framing);
         let aspect = size.0 as f32 / size.1 as f32;
+        entry.instance.level = head.level_for(camera.pixels_per_metre(size.1));
         renderer.prepare(
             &state.queue,
             &mut entry.instance,
@@ -185,9 +220,13 @@ impl HeadTiles {
         state.queue.submit([encoder.finish()]);
         entry.shown = Some((tile, size));
         counters.tiles_drawn.fetch_add(1, Ordering::Relaxed);
+        counters.triangles_drawn.fetch_add(
+            head.triangle_count(entry.instance.level) as u64,
+            Ordering::Relaxed,
+        );
         counters
             .record_ns
             .fetch_add(t0.elapsed().as_nanos() as u64, Ordering::Relaxed);
-        entry.texture
+        entry.image.clone()
     }
 }

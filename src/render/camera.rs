@@ -59,6 +59,13 @@ impl Camera {
         }
     }
 
+    /// Pixels a metre spans at the target's distance in a viewport `viewport_height` pixels
+    /// high.
+    pub fn pixels_per_metre(&self, viewport_height: u32) -> f32 {
+        let distance = (self.eye - self.target).length();
+        viewport_height as f32 / (2.0 * distance * (0.5 * self.fov_y).tan())
+    }
+
     pub fn view(&self) -> Mat4 {
         glam::camera::rh::view::look_at_mat4(self.eye, self.target, self.up)
     }

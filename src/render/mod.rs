@@ -8,10 +8,12 @@
 //! ([`renderer::HeadRenderer::paint`]), which is the shape egui-wgpu paint callbacks need.
 
 pub mod arkit;
+pub mod blit;
 pub mod camera;
 mod error;
 pub mod gltf_load;
 pub mod head;
+pub mod lod;
 pub mod mouth_gauge;
 pub mod offscreen;
 mod readback;

@@ -7,6 +7,7 @@ use std::sync::Arc;
 use super::RenderError;
 use super::camera::{Camera, Framing};
 use super::head::HeadModel;
+use super::lod::DetailLevels;
 use super::readback::read_buffer;
 use super::renderer::{DEPTH_FORMAT, GpuHead, HeadInstance, HeadRenderer};
 use super::target::{HeadTarget, TARGET_FORMAT, sample_count_for};
@@ -150,6 +151,18 @@ impl OffscreenRenderer {
         options: FrameOptions,
         count: usize,
     ) -> Result<Self, RenderError> {
+        Self::with_levels(ctx, model, &DetailLevels::full(model), options, count)
+    }
+
+    /// Like [`Self::with_heads`] with the head's levels of detail `levels` (built from
+    /// `model`); the full mesh is drawn until [`Self::set_level`] says otherwise.
+    pub fn with_levels(
+        ctx: &GpuContext,
+        model: &HeadModel,
+        levels: &DetailLevels,
+        options: FrameOptions,
+        count: usize,
+    ) -> Result<Self, RenderError> {
         let max = ctx.device.limits().max_texture_dimension_2d;
         if options.width == 0 || options.height == 0 || options.width > max || options.height > max
         {
@@ -162,7 +175,8 @@ impl OffscreenRenderer {
         let samples = sample_count_for(&ctx.adapter);
         let renderer =
             HeadRenderer::with_samples(device, TARGET_FORMAT, Some(DEPTH_FORMAT), samples);
-        let head = renderer.upload(device, &ctx.queue, model, "lipcall head")?;
+        let head =
+            renderer.upload_with_levels(device, &ctx.queue, model, levels, "lipcall head")?;
         let instances = (0..count.max(1))
             .map(|i| {
                 renderer.new_instance(device, head.clone(), &format!("lipcall head instance {i}"))
@@ -202,6 +216,13 @@ impl OffscreenRenderer {
 
     pub fn head(&self) -> &Arc<GpuHead> {
         &self.head
+    }
+
+    /// Draws every head at level of detail `level` from the next frame on.
+    pub fn set_level(&mut self, level: usize) {
+        for instance in &mut self.instances {
+            instance.level = level;
+        }
     }
 
     /// Encodes and submits one frame, head `i` with `weights[i]` (the last entry for heads beyond

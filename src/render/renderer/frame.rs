@@ -62,6 +62,9 @@ pub struct HeadInstance {
     last_weights: Option<WeightsUniform>,
     /// Placement of the head in the scene (rotation, uniform scale, translation).
     pub model: Mat4,
+    /// Level of detail drawn (0, the full mesh, unless the head was uploaded with levels; see
+    /// [`GpuHead::level_for`]).
+    pub level: usize,
 }
 
 impl HeadInstance {
@@ -116,6 +119,7 @@ impl HeadRenderer {
             last_view: None,
             last_weights: None,
             model: Mat4::IDENTITY,
+            level: 0,
         }
     }
 
@@ -167,7 +171,7 @@ impl HeadRenderer {
         pass.set_vertex_buffer(0, head.vertex_buffer.slice(..));
         pass.set_index_buffer(head.index_buffer.slice(..), wgpu::IndexFormat::Uint32);
         let mut bound = None;
-        for draw in &head.draws {
+        for draw in &head.level(instance.level).draws {
             if let Some(material) = head.materials.get(draw.material) {
                 if bound != Some(material.pipeline) {
                     bound = Some(material.pipeline);

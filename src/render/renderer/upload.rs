@@ -1,5 +1,6 @@
-//! A head's upload to the GPU, once: vertices (those some target moves first), indices, the
-//! moving vertices' morph deltas and each material's uniform, texture and bind group.
+//! A head's upload to the GPU, once: vertices (those some target moves first), the indices of
+//! each level of detail, the moving vertices' morph deltas and each material's uniform, texture
+//! and bind group.
 
 use std::sync::Arc;
 
@@ -9,6 +10,7 @@ use wgpu::util::DeviceExt;
 use super::pipelines::{HeadRenderer, pipeline_index};
 use crate::render::RenderError;
 use crate::render::head::{FaceFrame, HeadModel, MorphDelta, TARGET_COUNT, Vertex};
+use crate::render::lod::DetailLevels;
 
 #[repr(C)]
 #[derive(Debug, Clone, Copy, PartialEq, Pod, Zeroable)]
@@ -21,6 +23,13 @@ struct MaterialUniform {
 pub(super) struct DrawRange {
     pub(super) indices: std::ops::Range<u32>,
     pub(super) material: usize,
+}
+
+/// One level of detail: its error bound and the draws of its triangles.
+pub(super) struct GpuLevel {
+    pub(super) error_m: f32,
+    pub(super) triangles: usize,
+    pub(super) draws: Vec<DrawRange>,
 }
 
 pub(super) struct GpuMaterial {
@@ -37,7 +46,8 @@ pub struct GpuHead {
     pub(super) index_buffer: wgpu::Buffer,
     pub(super) delta_buffer: wgpu::Buffer,
     pub(super) materials: Vec<GpuMaterial>,
-    pub(super) draws: Vec<DrawRange>,
+    /// Finest (the full mesh) first.
+    pub(super) levels: Vec<GpuLevel>,
     pub(super) morph_vertices: u32,
     pub(super) vertex_count: u32,
     /// Where each vertex of the model (primitives in order) sits in the GPU vertex buffer.
@@ -60,10 +70,32 @@ impl GpuHead {
     pub fn label(&self) -> &str {
         &self.label
     }
+
+    /// Number of levels of detail (1: the full mesh alone).
+    pub fn level_count(&self) -> usize {
+        self.levels.len()
+    }
+
+    /// Triangles drawn at `level` (clamped to the coarsest).
+    pub fn triangle_count(&self, level: usize) -> usize {
+        self.level(level).triangles
+    }
+
+    /// The coarsest level that stays under [`crate::render::lod::MAX_ERROR_PX`] where a metre
+    /// at the head's distance is `pixels_per_metre` pixels ([`Camera::pixels_per_metre`]).
+    ///
+    /// [`Camera::pixels_per_metre`]: crate::render::Camera::pixels_per_metre
+    pub fn level_for(&self, pixels_per_metre: f32) -> usize {
+        crate::render::lod::level_for(self.levels.iter().map(|l| l.error_m), pixels_per_metre)
+    }
+
+    pub(super) fn level(&self, level: usize) -> &GpuLevel {
+        &self.levels[level.min(self.levels.len() - 1)]
+    }
 }
 
 impl HeadRenderer {
-    /// Uploads a head's meshes, materials and morph deltas (once).
+    /// Uploads a head's meshes, materials and morph deltas (once), the full mesh alone.
     pub fn upload(
         &self,
         device: &wgpu::Device,
@@ -71,9 +103,35 @@ impl HeadRenderer {
         model: &HeadModel,
         label: &str,
     ) -> Result<Arc<GpuHead>, RenderError> {
+        self.upload_with_levels(device, queue, model, &DetailLevels::full(model), label)
+    }
+
+    /// [`Self::upload`] with the levels of detail `levels` (built from `model`), drawn as
+    /// [`super::HeadInstance::level`] says.
+    pub fn upload_with_levels(
+        &self,
+        device: &wgpu::Device,
+        queue: &wgpu::Queue,
+        model: &HeadModel,
+        levels: &DetailLevels,
+        label: &str,
+    ) -> Result<Arc<GpuHead>, RenderError> {
         model.validate()?;
+        let levels = levels.levels();
+        if levels.is_empty()
+            || levels.iter().any(|l| {
+                l.indices.len() != model.primitives.len()
+                    || l.indices.iter().zip(&model.primitives).any(|(ix, p)| {
+                        ix.len() % 3 != 0 || ix.iter().any(|&i| i as usize >= p.vertices.len())
+                    })
+            })
+        {
+            return Err(RenderError::InvalidHead(
+                "levels of detail that do not fit the head".into(),
+            ));
+        }
         let vertex_count = model.vertex_count();
-        let index_count: usize = model.primitives.iter().map(|p| p.indices.len()).sum();
+        let index_count: usize = levels.iter().flat_map(|l| &l.indices).map(Vec::len).sum();
         if vertex_count >= u32::MAX as usize / 16 || index_count >= u32::MAX as usize {
             return Err(RenderError::InvalidHead("too many vertices".into()));
         }
@@ -112,9 +170,16 @@ impl HeadRenderer {
         let mut vertices = vec![Vertex::default(); vertex_count];
         let mut indices: Vec<u32> = Vec::with_capacity(index_count);
         let mut deltas = vec![MorphDelta::default(); TARGET_COUNT * morph_vertices];
-        let mut draws = Vec::new();
+        let mut gpu_levels: Vec<GpuLevel> = levels
+            .iter()
+            .map(|l| GpuLevel {
+                error_m: l.error_m,
+                triangles: l.triangle_count(),
+                draws: Vec::new(),
+            })
+            .collect();
         let mut base = 0usize;
-        for p in &model.primitives {
+        for (k, p) in model.primitives.iter().enumerate() {
             let gpu = &model_to_gpu[base..base + p.vertices.len()];
             for (i, v) in p.vertices.iter().enumerate() {
                 vertices[gpu[i] as usize] = *v;
@@ -126,12 +191,14 @@ impl HeadRenderer {
                     }
                 }
             }
-            let first = indices.len() as u32;
-            indices.extend(p.indices.iter().map(|&i| gpu[i as usize]));
-            draws.push(DrawRange {
-                indices: first..indices.len() as u32,
-                material: p.material,
-            });
+            for (level, gpu_level) in levels.iter().zip(&mut gpu_levels) {
+                let first = indices.len() as u32;
+                indices.extend(level.indices[k].iter().map(|&i| gpu[i as usize]));
+                gpu_level.draws.push(DrawRange {
+                    indices: first..indices.len() as u32,
+                    material: p.material,
+                });
+            }
             base += p.vertices.len();
         }
 
@@ -166,7 +233,7 @@ impl HeadRenderer {
             index_buffer,
             delta_buffer,
             materials,
-            draws,
+            levels: gpu_levels,
             morph_vertices: morph_vertices as u32,
             vertex_count: vertex_count as u32,
             model_to_gpu,

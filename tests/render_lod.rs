@@ -1,0 +1,187 @@
+//! Levels of detail of the default head: fewer triangles where the head is shown small, and the
+//! same face a lipreader sees. GPU tests run on whatever adapter wgpu finds (lavapipe on CI) and
+//! are skipped, with a printed reason, only when there is none.
+
+use std::sync::OnceLock;
+
+use lipcall::render::head::HeadModel;
+use lipcall::render::lod::{DetailLevels, MAX_ERROR_PX};
+use lipcall::render::offscreen::{FrameOptions, GpuContext, OffscreenRenderer};
+use lipcall::render::{Camera, Framing};
+use lipcall::vocab::{VISEME_NAMES, VisemeWeights};
+
+fn default_head() -> &'static HeadModel {
+    static HEAD: OnceLock<HeadModel> = OnceLock::new();
+    HEAD.get_or_init(|| lipcall::render::default_head().expect("bundled head loads"))
+}
+
+fn levels() -> &'static DetailLevels {
+    static LEVELS: OnceLock<DetailLevels> = OnceLock::new();
+    LEVELS.get_or_init(|| DetailLevels::build(default_head()))
+}
+
+fn gpu() -> Option<GpuContext> {
+    match GpuContext::new_headless() {
+        Ok(ctx) => Some(ctx),
+        Err(e) => {
+            println!("SKIPPED: no GPU adapter for the head renderer: {e}");
+            None
+        }
+    }
+}
+
+#[test]
+fn coarser_levels_have_fewer_triangles_over_the_same_vertices() {
+    let head = default_head();
+    let levels = levels().levels();
+    let counts: Vec<usize> = levels.iter().map(|l| l.triangle_count()).collect();
+    let errors: Vec<f32> = levels.iter().map(|l| l.error_m).collect();
+    println!("triangles {counts:?}, errors in metres {errors:?}");
+    assert_eq!(counts[0], head.triangle_count(), "level 0 is the full mesh");
+    assert_eq!(errors[0], 0.0);
+    assert!(levels.len() >= 3, "{} levels", levels.len());
+    for k in 1..levels.len() {
+        assert!(counts[k] * 10 <= counts[k - 1] * 9, "level {k}: {counts:?}");
+        assert!(errors[k] >= errors[k - 1], "level {k}: {errors:?}");
+        assert!(errors[k] <= 0.004 * 1.01, "level {k}: {errors:?}");
+    }
+    assert!(
+        counts[levels.len() - 1] * 2 < counts[0],
+        "the coarsest level saves more than half: {counts:?}"
+    );
+    for level in levels {
+        assert_eq!(level.indices.len(), head.primitives.len());
+        for (ix, p) in level.indices.iter().zip(&head.primitives) {
+            assert_eq!(ix.len() % 3, 0);
+            assert!(!ix.is_empty(), "{} vanished", p.name);
+            assert!(ix.iter().all(|&i| (i as usize) < p.vertices.len()));
+        }
+    }
+}
+
+#[test]
+fn the_level_follows_the_size_the_head_is_shown_at() {
+    let levels = levels();
+    let errors: Vec<f32> = levels.levels().iter().map(|l| l.error_m).collect();
+    let camera = Camera::framing(&default_head().face_frame(), Framing::Face);
+    let mut last = usize::MAX;
+    for height in [2000, 1000, 500, 250, 120, 60, 30] {
+        let ppm = camera.pixels_per_metre(height);
+        let level = levels.level_for(ppm);
+        println!("{height} px high: {ppm:.0} px/m, level {level}");
+        assert!(errors[level] * ppm <= MAX_ERROR_PX);
+        if level + 1 < errors.len() {
+            assert!(errors[level + 1] * ppm > MAX_ERROR_PX, "not the coarsest");
+        }
+        assert!(last == usize::MAX || level >= last, "smaller, coarser");
+        last = level;
+    }
+    assert!(levels.level_for(camera.pixels_per_metre(120)) > 0);
+    assert_eq!(levels.level_for(f32::NAN), 0);
+    assert_eq!(levels.level_for(0.0), 0);
+    // The lipreading close-up magnifies the mouth: a small tile of it still needs detail.
+    let close = Camera::framing(&default_head().face_frame(), Framing::Mouth);
+    assert!(
+        levels.level_for(close.pixels_per_metre(120))
+            < levels.level_for(camera.pixels_per_metre(120))
+    );
+    // Half the height, twice the error allowed.
+    let ppm = camera.pixels_per_metre(400);
+    assert!((camera.pixels_per_metre(200) * 2.0 - ppm).abs() < 1e-3 * ppm);
+}
+
+type Region = (u32, u32, u32, u32);
+
+fn region_pixels(img: &image::RgbaImage, (x0, y0, x1, y1): Region) -> Vec<[i32; 4]> {
+    img.enumerate_pixels()
+        .filter(|(x, y, _)| (x0..x1).contains(x) && (y0..y1).contains(y))
+        .map(|(_, _, p)| p.0.map(i32::from))
+        .collect()
+}
+
+/// Pixels of `region` that differ by more than 24 levels in some channel.
+fn difference(a: &image::RgbaImage, b: &image::RgbaImage, region: Region) -> usize {
+    region_pixels(a, region)
+        .iter()
+        .zip(&region_pixels(b, region))
+        .filter(|(p, q)| (0..3).any(|k| (p[k] - q[k]).abs() > 24))
+        .count()
+}
+
+/// Pixels of `region` that show teeth (light grey).
+fn teeth(img: &image::RgbaImage, region: Region) -> usize {
+    region_pixels(img, region)
+        .iter()
+        .filter(|p| p[0].min(p[1]).min(p[2]) > 150 && p[0] - p[2] < 40)
+        .count()
+}
+
+/// At the level its size picks, a head tile shows the same face as the full mesh, in every
+/// viseme: all but a few edge pixels equal, in the mouth nearly all, and the same teeth.
+#[test]
+fn a_tile_at_its_level_looks_like_the_full_mesh() {
+    let Some(ctx) = gpu() else { return };
+    let head = default_head();
+    for (width, height) in [(249, 192), (160, 120)] {
+        let options = FrameOptions {
+            width,
+            height,
+            framing: Framing::Face,
+            ..Default::default()
+        };
+        let mut offscreen =
+            OffscreenRenderer::with_levels(&ctx, head, levels(), options, 1).unwrap();
+        let level = offscreen
+            .head()
+            .level_for(offscreen.camera.pixels_per_metre(height));
+        assert!(level > 0, "{width}x{height}: level {level}");
+        // The mouth: about a quarter of the height above the bottom, in the middle.
+        let region = (
+            width / 2 - height / 6,
+            height * 13 / 20,
+            width / 2 + height / 6,
+            height * 17 / 20,
+        );
+        let whole = (0, 0, width, height);
+        let mut worst = 0.0f64;
+        for (v, name) in VISEME_NAMES.iter().enumerate() {
+            let weights = VisemeWeights::one_hot(v);
+            offscreen.set_level(0);
+            let full = offscreen.render(&ctx, &weights).unwrap();
+            offscreen.set_level(level);
+            let coarse = offscreen.render(&ctx, &weights).unwrap();
+            if let Some(dir) = std::env::var_os("LIPCALL_LOD_SHOTS") {
+                let dir = std::path::Path::new(&dir);
+                full.save(dir.join(format!("{width}_{name}_full.png")))
+                    .unwrap();
+                coarse
+                    .save(dir.join(format!("{width}_{name}_lod{level}.png")))
+                    .unwrap();
+            }
+            let diff = difference(&full, &coarse, whole);
+            let share = diff as f64 / (width * height) as f64;
+            worst = worst.max(share);
+            let mouth_diff = difference(&full, &coarse, region);
+            let mouth_area = (region.2 - region.0) * (region.3 - region.1);
+            let (teeth_full, teeth_coarse) = (teeth(&full, region), teeth(&coarse, region));
+            println!(
+                "{width}x{height} level {level} {name}: {diff} pixels differ ({:.2} %), \
+                 {mouth_diff} of the mouth's {mouth_area}; teeth {teeth_full} vs {teeth_coarse}",
+                100.0 * share
+            );
+            assert!(share < 0.01, "{name}: {diff} pixels differ");
+            assert!(
+                mouth_diff * 50 <= mouth_area as usize,
+                "{name}: {mouth_diff} of the mouth's {mouth_area} pixels differ"
+            );
+            assert!(
+                teeth_full.abs_diff(teeth_coarse) <= 1 + teeth_full / 20,
+                "{name}: teeth {teeth_full} vs {teeth_coarse} pixels"
+            );
+        }
+        println!(
+            "{width}x{height}: at most {:.2} % of the pixels differ",
+            100.0 * worst
+        );
+    }
+}
