@@ -99,7 +99,7 @@ fn main() -> anyhow::Result<()> {
         s.playback.poll();
         let stats = s.playback.stats();
         let mix_rate = u64::from(s.playback.mix_rate());
-        let mixed = s.playback.mixed().chunks() * mix_rate / 50;
+        let mixed = s.playback.mixed().samples();
         let out_ms = s
             .playback
             .heard_mix_position(now)
