@@ -41,6 +41,13 @@ pub fn frame_len(rate: u32) -> usize {
     rate as usize / 50
 }
 
+/// Below -56 dBFS (RMS): a frame whose absence goes unheard.
+fn near_silent(pcm: &[i16]) -> bool {
+    const QUIET: f64 = 50.0;
+    let energy: f64 = pcm.iter().map(|&s| f64::from(s) * f64::from(s)).sum();
+    energy < QUIET * QUIET * pcm.len() as f64
+}
+
 /// Samples in one piece a mixer at `rate` mixes ([`Mixer::piece_len`]).
 pub fn piece_len(rate: u32) -> usize {
     if rate.is_multiple_of(100) {
@@ -68,6 +75,8 @@ pub struct PeerControls {
     starved: AtomicU64,
     /// Segments the reader was too slow to take (the lip-sync mapping lost them).
     lost_segments: AtomicU64,
+    /// Samples of near-silent frames not queued, to shed a queue's surplus.
+    shed: AtomicU64,
 }
 
 impl Default for PeerControls {
@@ -78,6 +87,7 @@ impl Default for PeerControls {
             overflow: AtomicU64::new(0),
             starved: AtomicU64::new(0),
             lost_segments: AtomicU64::new(0),
+            shed: AtomicU64::new(0),
         }
     }
 }
@@ -111,6 +121,11 @@ impl PeerControls {
 
     pub fn lost_segments(&self) -> u64 {
         self.lost_segments.load(Ordering::Relaxed)
+    }
+
+    /// Samples of near-silent frames left out to bring a queue back to its lead.
+    pub fn shed(&self) -> u64 {
+        self.shed.load(Ordering::Relaxed)
     }
 }
 
@@ -161,14 +176,22 @@ impl PeerFeed {
     /// Queues a frame pulled on the mixer's demand ([`super::FramePacer`]), which puts it
     /// `ahead` frames ahead of the mixer. The first frame of a peer that starts, or speaks again
     /// after a silence (`resuming`), comes after enough silence to put it there too; a queue
-    /// already `ahead + 2` frames long (an output that takes nothing) takes nothing more. The
-    /// stream position of the frame's first sample, or `None` if it was not queued. `pcm` is at
-    /// the mixer's rate.
+    /// already `ahead + 2` frames long (an output that takes nothing) takes nothing more. A
+    /// queue holding a frame more than `ahead` asks (the mixer played silence for this peer
+    /// while its frame was on the way, and its stream has run that much later since) sheds
+    /// the surplus: a near-silent frame is not queued. The stream position of the frame's first
+    /// sample, or `None` if it was not queued. `pcm` is at the mixer's rate.
     pub fn push_paced(&mut self, pcm: &[i16], ahead: usize, resuming: bool) -> Option<u64> {
         const SILENCE: [i16; MAX_FRAME_SAMPLES] = [0; MAX_FRAME_SAMPLES];
         let frame = self.frame_len();
         let queued = self.queued();
         if queued >= (ahead + 2) * frame {
+            return None;
+        }
+        if !resuming && queued >= ahead * frame && near_silent(pcm) {
+            self.controls
+                .shed
+                .fetch_add(pcm.len() as u64, Ordering::Relaxed);
             return None;
         }
         if resuming {
@@ -794,6 +817,35 @@ mod tests {
         mixer.mix(&mut piece);
         assert_eq!(c.starved(), 480);
         assert!(!mixer.awaits_peer(480));
+    }
+
+    #[test]
+    fn a_queue_left_a_frame_long_by_a_starved_mix_sheds_it_in_a_quiet_frame() {
+        let c = Arc::new(PeerControls::default());
+        let (mut feed, mp, _clock) = peer_channel_at(PeerId(2), 48_000, 48_000, c.clone());
+        let mut mixer = Mixer::at_rate(48_000);
+        mixer.add(mp).unwrap();
+        let mut frame = [0.0f32; 960];
+        feed.push_paced(&[3000; 960], 1, true);
+        mixer.mix(&mut frame);
+        // The puller was held up: the mixer played a frame of silence for this peer, so the
+        // frame pulled now finds the next already queued behind it, a frame more than the lead.
+        mixer.mix(&mut frame);
+        assert_eq!(c.starved(), 960);
+        feed.push_paced(&[3000; 960], 1, false);
+        feed.push_paced(&[3000; 960], 1, false);
+        assert_eq!(feed.queued(), 2 * 960);
+        mixer.mix(&mut frame);
+        // Speech is kept whatever the surplus; the next near-silent frame (codec noise) is shed.
+        assert!(feed.push_paced(&[3000; 960], 1, false).is_some());
+        mixer.mix(&mut frame);
+        let noise: Vec<i16> = (0..960).map(|i| [-30, 20, 40, -10][i % 4]).collect();
+        assert_eq!(feed.push_paced(&noise, 1, false), None);
+        assert_eq!((c.shed(), feed.queued()), (960, 960));
+        // Back at its lead: quiet frames are queued again.
+        mixer.mix(&mut frame);
+        assert!(feed.push_paced(&noise, 1, false).is_some());
+        assert_eq!(c.shed(), 960);
     }
 
     #[test]
