@@ -1,4 +1,5 @@
-//! Per-peer queues at the mixer's rate and the mixer that sums them, 20 ms at a time.
+//! Per-peer queues at the mixer's rate and the mixer that sums them, a piece (10 ms) or a
+//! frame (20 ms) at a time.
 //!
 //! The mixer runs at the output device's rate (48 kHz without a device), so each peer is
 //! resampled once, from its codec's own rate, as its decoded frames are queued
