@@ -7,12 +7,6 @@
 //! a peer heard in the last piece has nothing queued yet, the mixer waits for it as long as the
 //! ring holds more than half its target, then mixes without it: a puller held up costs ring,
 //! not a gap in that peer's stream.
-//!
-//! The ring's target starts at what the engine was configured with (20 ms) and grows by a
-//! piece at each underrun the output reports, up to two and a half times that: a machine that
-//! starves its sound server or this thread gets the ring it needs, a quiet one keeps the short
-//! one. (It does not shrink back: less ring only moves the delay into the jitter buffer, whose
-//! pulls would come that much later, for as long as the stream lasts.)
 
 use std::sync::{Arc, Mutex, PoisonError, mpsc};
 use std::time::Duration;
@@ -44,7 +38,7 @@ pub(super) fn mixer_thread(
     };
     let mut chunk = [0.0f32; MAX_FRAME_SAMPLES];
     let chunk = &mut chunk[..mixer.piece_len()];
-    let mut sink: Option<(rtrb::Producer<f32>, Upsampler, RingTarget, Arc<OutputClock>)> = None;
+    let mut sink: Option<(rtrb::Producer<f32>, Upsampler, usize)> = None;
     loop {
         loop {
             match commands.try_recv() {
@@ -61,9 +55,7 @@ pub(super) fn mixer_thread(
                             rate: clock.rate(),
                             mix_rate: mixer.rate(),
                         });
-                        let most = target_frames * 5 / 2;
-                        let target = RingTarget::new(target_frames, most, clock.underruns());
-                        sink = Some((ring, up, target, clock));
+                        sink = Some((ring, up, target_frames));
                     }
                     Err(e) => {
                         detach(format!("output not attached: {e}"));
@@ -83,11 +75,10 @@ pub(super) fn mixer_thread(
             }
         }
         let mut waiting = false;
-        if let Some((ring, up, target, clock)) = sink.as_mut() {
+        if let Some((ring, up, target)) = sink.as_mut() {
             let cap = ring.buffer().capacity();
-            let target = target.after(clock.underruns(), up.next_len());
-            while cap - ring.slots() < target && ring.slots() >= up.next_len() {
-                if cap - ring.slots() > target / 2 && mixer.awaits_peer(chunk.len()) {
+            while cap - ring.slots() < *target && ring.slots() >= up.next_len() {
+                if cap - ring.slots() > *target / 2 && mixer.awaits_peer(chunk.len()) {
                     waiting = true;
                     break;
                 }
@@ -106,50 +97,5 @@ pub(super) fn mixer_thread(
             }
         }
         std::thread::sleep(Duration::from_millis(if waiting { 1 } else { 4 }));
-    }
-}
-
-/// The output ring's fill the mixer aims at, in device frames: grown by a piece at each
-/// underrun, up to a limit.
-#[derive(Debug, Clone, Copy, PartialEq, Eq)]
-struct RingTarget {
-    frames: usize,
-    most: usize,
-    underruns: u64,
-}
-
-impl RingTarget {
-    fn new(frames: usize, most: usize, underruns: u64) -> Self {
-        Self {
-            frames,
-            most: most.max(frames),
-            underruns,
-        }
-    }
-
-    /// The target, given the output's count of underruns so far and a piece's length.
-    fn after(&mut self, underruns: u64, piece: usize) -> usize {
-        if underruns > self.underruns {
-            let grown = self.frames + piece * (underruns - self.underruns) as usize;
-            self.frames = grown.min(self.most);
-            self.underruns = underruns;
-        }
-        self.frames
-    }
-}
-
-#[cfg(test)]
-mod tests {
-    use super::RingTarget;
-
-    #[test]
-    fn the_ring_grows_a_piece_per_underrun_up_to_its_limit() {
-        // 20 ms at 48 kHz, up to 50 ms, pieces of 10 ms; the output had 3 underruns before.
-        let mut t = RingTarget::new(960, 2400, 3);
-        assert_eq!(t.after(3, 480), 960);
-        assert_eq!(t.after(4, 480), 1440);
-        assert_eq!(t.after(4, 480), 1440);
-        assert_eq!(t.after(6, 480), 2400);
-        assert_eq!(t.after(9, 480), 2400);
     }
 }
