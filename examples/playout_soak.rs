@@ -9,7 +9,8 @@
 //! Each line: the jitter buffer's delay, the peer's queue before the mixer, the output (mixed
 //! but not heard yet: ring, resampler, device), their sum (`total`), the buffer's measured
 //! drift and its corrections (inserted, dropped, of those forced in speech), the device's
-//! underruns, the silence the mixer had to play for the caller (`starved`), and the device's
+//! underruns, the silence the mixer had to play for the caller (`starved`), the near-silent
+//! frames left out to bring its queue back to the pacer's lead after that (`shed`), and the device's
 //! rate against the system clock. At the end: the range of `total` after the first minute and
 //! its trend. Not part of `cargo test`: it takes the minutes it is given.
 use std::net::SocketAddr;
@@ -71,7 +72,7 @@ fn main() -> anyhow::Result<()> {
     };
 
     println!(
-        "{:>6} {:>8} {:>8} {:>8} {:>8} {:>9} {:>5} {:>5} {:>6} {:>9} {:>8} {:>9}",
+        "{:>6} {:>8} {:>8} {:>8} {:>8} {:>9} {:>5} {:>5} {:>6} {:>9} {:>8} {:>8} {:>9}",
         "t_s",
         "jb_ms",
         "queue_ms",
@@ -83,6 +84,7 @@ fn main() -> anyhow::Result<()> {
         "forced",
         "underruns",
         "starved",
+        "shed",
         "dev_ppm"
     );
     let start = Instant::now();
@@ -99,7 +101,7 @@ fn main() -> anyhow::Result<()> {
         s.playback.poll();
         let stats = s.playback.stats();
         let mix_rate = u64::from(s.playback.mix_rate());
-        let mixed = s.playback.mixed().chunks() * mix_rate / 50;
+        let mixed = s.playback.mixed().samples();
         let out_ms = s
             .playback
             .heard_mix_position(now)
@@ -116,10 +118,10 @@ fn main() -> anyhow::Result<()> {
             println!("{t:>6.0} (no peer yet)");
             continue;
         };
-        let starved = s
+        let (starved, shed) = s
             .playback
             .peer_controls(peer.feed)
-            .map_or(0, |c| c.starved());
+            .map_or((0, 0), |c| (c.starved(), c.shed()));
         drop(s);
         let b = peer.buffer;
         let total = b.current_delay_ms + peer.queued_ms + out_ms;
@@ -127,7 +129,7 @@ fn main() -> anyhow::Result<()> {
             totals.push((t, total));
         }
         println!(
-            "{t:>6.0} {:>8.1} {:>8.1} {out_ms:>8.1} {total:>8.1} {:>9.0} {:>5} {:>5} {:>6} {:>9} {:>8} {dev_ppm:>9.0}",
+            "{t:>6.0} {:>8.1} {:>8.1} {out_ms:>8.1} {total:>8.1} {:>9.0} {:>5} {:>5} {:>6} {:>9} {:>8} {shed:>8} {dev_ppm:>9.0}",
             b.current_delay_ms,
             peer.queued_ms,
             b.drift_ppm,

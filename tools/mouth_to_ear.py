@@ -169,6 +169,13 @@ def main():
           + f"  capture+network+polling (the rest) {statistics.median(delays) - told:.1f}")
     print(f"listener's output underruns during the clicks: {underruns}; silence played for the "
           f"talker, its queue empty, over the call: {peer.get('starved_ms', '?')} ms")
+    print(f"listener's weights rows sent {head.get('weights_sent', '?')}, of them late (their audio "
+          f"already heard: the look-ahead not hidden) {head.get('weights_late', '?')}, by "
+          f"{head.get('late_ms', '?')} ms in all")
+    print(f"listener's jitter buffer at the end: target {peer.get('target_ms', '?')} ms, "
+          f"interarrival jitter {peer.get('jitter_ms', '?')} ms, frames inserted "
+          f"{peer.get('stretched', '?')}, dropped {peer.get('dropped', '?')}, late "
+          f"{peer.get('late', '?')}")
     return 0
 
 

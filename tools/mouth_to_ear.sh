@@ -17,6 +17,9 @@ here=$(dirname "$(realpath "$0")")
 work=$(mktemp -d)
 pids=()
 cleanup() {
+    # xvfb-run's children first: an app whose X server went first never reaches its
+    # --quit-after (it quits from its UI loop) and would run on, loading the machine.
+    for p in "${pids[@]}"; do pkill -TERM -P "$p" 2>/dev/null || true; done
     for p in "${pids[@]}"; do kill "$p" 2>/dev/null || true; done
     wait 2>/dev/null || true
     rm -rf "$work" 2>/dev/null || true

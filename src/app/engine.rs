@@ -14,7 +14,7 @@ use std::sync::{Arc, Mutex, MutexGuard};
 use std::thread::JoinHandle;
 use std::time::{Duration, Instant};
 
-use crate::audio::pacer::DEFAULT_LEAD;
+use crate::audio::pacer::PLAYBACK_LEAD;
 use crate::audio::{
     Capture, DeviceChoice, FramePacer, Gate, MicControls, OutputStatus, Playback, PlaybackConfig,
 };
@@ -42,8 +42,8 @@ use super::timing::{RelayWatch, Ticker};
 
 /// The peers' status and the relay's are refreshed every this many ticks (200 ms).
 const STATUS_TICKS: u32 = 10;
-/// How often the worker looks at the mixer's demand: well within a frame, so that the few
-/// frames pulled ahead of the mixer are topped up before it needs them.
+/// How often the worker looks at the mixer's demand at the least (the mixer also wakes it as
+/// it finishes each frame), and at the microphone.
 const POLL: Duration = Duration::from_millis(5);
 
 /// What the engine is asked to do.
@@ -539,12 +539,13 @@ impl Worker {
     /// ticks, as a remote sender would.
     fn run(mut self, stop: &AtomicBool) {
         let mixed = lock(&self.shared).playback.mixed();
-        let mut pacer = FramePacer::new(DEFAULT_LEAD);
+        mixed.wake_me();
+        let mut pacer = FramePacer::new(PLAYBACK_LEAD);
         let mut ticker = Ticker::new(Instant::now());
         let mut frames: Vec<PeerFrame> = Vec::new();
         while !stop.load(Ordering::Relaxed) {
             if let Some(wait) = ticker.due().checked_duration_since(Instant::now()) {
-                std::thread::sleep(wait.min(POLL));
+                std::thread::park_timeout(wait.min(POLL));
             }
             loop {
                 match self.commands.try_recv() {

@@ -278,7 +278,8 @@ impl LipcallApp {
             text += &format!(
                 "peer ssrc={:08x} name={:?} demo={} talking={} animated={} shown={} received={} \
                  codec={} recovered={} unknown_pt={} jitter_buffer_ms={:.1} queue_ms={:.1} \
-                 starved_ms={:.0}\n",
+                 starved_ms={:.0} jitter_ms={:.1} target_ms={:.1} stretched={} dropped={} \
+                 late={}\n",
                 p.ssrc,
                 p.name,
                 p.is_demo,
@@ -292,6 +293,11 @@ impl LipcallApp {
                 p.delay_ms,
                 p.queued_ms,
                 starved_ms.get(i).copied().unwrap_or(0.0),
+                p.jitter_ms,
+                p.buffer.target_delay_ms,
+                p.buffer.stretched,
+                p.buffer.dropped,
+                p.buffer.late,
             );
         }
         let tmp = path.with_extension("tmp");

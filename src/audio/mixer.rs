@@ -1,4 +1,5 @@
-//! Per-peer queues at the mixer's rate and the mixer that sums them, 20 ms at a time.
+//! Per-peer queues at the mixer's rate and the mixer that sums them, a piece (10 ms) or a
+//! frame (20 ms) at a time.
 //!
 //! The mixer runs at the output device's rate (48 kHz without a device), so each peer is
 //! resampled once, from its codec's own rate, as its decoded frames are queued
@@ -40,6 +41,22 @@ pub fn mix_rate_for(device_rate: u32) -> u32 {
 pub fn frame_len(rate: u32) -> usize {
     rate as usize / 50
 }
+
+/// Below -56 dBFS (RMS): a frame whose absence goes unheard.
+fn near_silent(pcm: &[i16]) -> bool {
+    const QUIET: f64 = 50.0;
+    let energy: f64 = pcm.iter().map(|&s| f64::from(s) * f64::from(s)).sum();
+    energy < QUIET * QUIET * pcm.len() as f64
+}
+
+/// Samples in one piece a mixer at `rate` mixes ([`Mixer::piece_len`]).
+pub fn piece_len(rate: u32) -> usize {
+    if rate.is_multiple_of(100) {
+        rate as usize / 100
+    } else {
+        frame_len(rate)
+    }
+}
 /// Peers the mixer holds without growing its table.
 pub const MAX_PEERS: usize = 64;
 
@@ -59,6 +76,8 @@ pub struct PeerControls {
     starved: AtomicU64,
     /// Segments the reader was too slow to take (the lip-sync mapping lost them).
     lost_segments: AtomicU64,
+    /// Samples of near-silent frames not queued, to shed a queue's surplus.
+    shed: AtomicU64,
 }
 
 impl Default for PeerControls {
@@ -69,6 +88,7 @@ impl Default for PeerControls {
             overflow: AtomicU64::new(0),
             starved: AtomicU64::new(0),
             lost_segments: AtomicU64::new(0),
+            shed: AtomicU64::new(0),
         }
     }
 }
@@ -102,6 +122,11 @@ impl PeerControls {
 
     pub fn lost_segments(&self) -> u64 {
         self.lost_segments.load(Ordering::Relaxed)
+    }
+
+    /// Samples of near-silent frames left out to bring a queue back to its lead.
+    pub fn shed(&self) -> u64 {
+        self.shed.load(Ordering::Relaxed)
     }
 }
 
@@ -152,14 +177,22 @@ impl PeerFeed {
     /// Queues a frame pulled on the mixer's demand ([`super::FramePacer`]), which puts it
     /// `ahead` frames ahead of the mixer. The first frame of a peer that starts, or speaks again
     /// after a silence (`resuming`), comes after enough silence to put it there too; a queue
-    /// already `ahead + 2` frames long (an output that takes nothing) takes nothing more. The
-    /// stream position of the frame's first sample, or `None` if it was not queued. `pcm` is at
-    /// the mixer's rate.
+    /// already `ahead + 2` frames long (an output that takes nothing) takes nothing more. A
+    /// queue holding a frame more than `ahead` asks (the mixer played silence for this peer
+    /// while its frame was on the way, and its stream has run that much later since) sheds
+    /// the surplus: a near-silent frame is not queued. The stream position of the frame's first
+    /// sample, or `None` if it was not queued. `pcm` is at the mixer's rate.
     pub fn push_paced(&mut self, pcm: &[i16], ahead: usize, resuming: bool) -> Option<u64> {
         const SILENCE: [i16; MAX_FRAME_SAMPLES] = [0; MAX_FRAME_SAMPLES];
         let frame = self.frame_len();
         let queued = self.queued();
         if queued >= (ahead + 2) * frame {
+            return None;
+        }
+        if !resuming && queued >= ahead * frame && near_silent(pcm) {
+            self.controls
+                .shed
+                .fetch_add(pcm.len() as u64, Ordering::Relaxed);
             return None;
         }
         if resuming {
@@ -235,6 +268,8 @@ pub struct MixerPeer {
     controls: Arc<PeerControls>,
     stream_pos: u64,
     segments: rtrb::Producer<Segment>,
+    /// The last mix took samples from it.
+    fed: bool,
 }
 
 impl MixerPeer {
@@ -278,19 +313,58 @@ pub fn peer_channel_at(
             controls,
             stream_pos: 0,
             segments: seg_tx,
+            fed: false,
         },
         PeerClock::new(Some(seg_rx)),
     )
 }
 
-/// The chunks a mixer has mixed so far, for the thread that feeds its peers: the output's
-/// demand (see [`super::pacer::FramePacer`]). A clone reads the same count.
-#[derive(Debug, Clone, Default)]
-pub struct MixProgress(Arc<AtomicU64>);
+/// What a mixer has mixed so far, for the thread that feeds its peers: the output's demand
+/// (see [`super::pacer::FramePacer`]). A clone reads the same count.
+#[derive(Debug, Clone)]
+pub struct MixProgress(Arc<Progress>);
+
+#[derive(Debug)]
+struct Progress {
+    samples: AtomicU64,
+    frame_len: u64,
+    /// The thread that pulls the peers' frames, woken as each frame is mixed.
+    puller: std::sync::OnceLock<std::thread::Thread>,
+}
 
 impl MixProgress {
+    fn new(frame_len: usize) -> Self {
+        Self(Arc::new(Progress {
+            samples: AtomicU64::new(0),
+            frame_len: frame_len.max(1) as u64,
+            puller: std::sync::OnceLock::new(),
+        }))
+    }
+
+    /// Whole 20 ms frames mixed.
     pub fn chunks(&self) -> u64 {
-        self.0.load(Ordering::Acquire)
+        self.samples() / self.0.frame_len
+    }
+
+    /// Samples mixed, at the mixer's rate.
+    pub fn samples(&self) -> u64 {
+        self.0.samples.load(Ordering::Acquire)
+    }
+
+    /// Unparks the calling thread each time the mixer finishes a frame, so that a puller
+    /// parked between polls ([`std::thread::park_timeout`]) queues the next one at once. The
+    /// first thread to ask is the one woken.
+    pub fn wake_me(&self) {
+        let _ = self.0.puller.set(std::thread::current());
+    }
+
+    fn advance(&self, to: u64) {
+        let before = self.0.samples.swap(to, Ordering::AcqRel);
+        if before / self.0.frame_len != to / self.0.frame_len
+            && let Some(t) = self.0.puller.get()
+        {
+            t.unpark();
+        }
     }
 }
 
@@ -318,15 +392,16 @@ impl Mixer {
     /// A mixer at `rate` (20 ms of it a whole number of samples, at most 48 kHz; others mix at
     /// [`DEFAULT_MIX_RATE`]).
     pub fn at_rate(rate: u32) -> Self {
+        let rate = if crate::vocab::audio::valid_rate(rate) {
+            rate
+        } else {
+            DEFAULT_MIX_RATE
+        };
         Self {
             peers: Vec::with_capacity(MAX_PEERS),
             position: 0,
-            progress: MixProgress::default(),
-            rate: if crate::vocab::audio::valid_rate(rate) {
-                rate
-            } else {
-                DEFAULT_MIX_RATE
-            },
+            progress: MixProgress::new(frame_len(rate)),
+            rate,
         }
     }
 
@@ -339,7 +414,20 @@ impl Mixer {
         frame_len(self.rate)
     }
 
-    /// Its count of chunks mixed, readable from other threads.
+    /// Samples the mixer thread mixes at a time: 10 ms (half a frame) where that is a whole
+    /// number of samples, else 20 ms. Topping the output ring up in halves keeps it shorter.
+    pub fn piece_len(&self) -> usize {
+        piece_len(self.rate)
+    }
+
+    /// True when a peer that was heard in the last piece has less than `len` samples queued:
+    /// its next frame is probably on its way from the puller (mixing now would put a gap in
+    /// its stream), or its talk spurt has ended.
+    pub fn awaits_peer(&self, len: usize) -> bool {
+        self.peers.iter().any(|p| p.fed && p.rx.slots() < len)
+    }
+
+    /// Its count of samples and frames mixed, readable from other threads.
     pub fn progress(&self) -> MixProgress {
         self.progress.clone()
     }
@@ -367,13 +455,11 @@ impl Mixer {
         self.position
     }
 
-    /// Mixes the next chunk into `out` (in -1..=1, clipped; [`Mixer::chunk_len`] samples, or as
-    /// many as `out` holds). Every peer's queue is read even when muted, so its stream keeps
-    /// time with what the others hear.
+    /// Mixes the next `out.len()` samples into `out` (in -1..=1, clipped): a chunk
+    /// ([`Mixer::chunk_len`]) or a piece ([`Mixer::piece_len`]). Every peer's queue is read even
+    /// when muted, so its stream keeps time with what the others hear.
     pub fn mix(&mut self, out: &mut [f32]) {
-        let chunk_len = self.chunk_len();
-        let len = chunk_len.min(out.len());
-        let out = &mut out[..len];
+        let chunk_len = out.len();
         out.fill(0.0);
         let mix_start = self.position;
         for p in &mut self.peers {
@@ -400,6 +486,7 @@ impl Mixer {
                     p.controls.lost_segments.fetch_add(1, Ordering::Relaxed);
                 }
             }
+            p.fed = n > 0;
             if n < chunk_len && p.stream_pos + n as u64 > 0 {
                 p.controls
                     .starved
@@ -411,14 +498,12 @@ impl Mixer {
             *o = o.clamp(-1.0, 1.0);
         }
         self.position += chunk_len as u64;
-        self.progress
-            .0
-            .store(self.position / chunk_len as u64, Ordering::Release);
+        self.progress.advance(self.position);
     }
 }
 
-/// The mixer's rate -> the device's, one chunk (20 ms) at a time, into a buffer allocated once;
-/// a copy where the two are equal.
+/// The mixer's rate -> the device's, one chunk (20 ms, or a piece) at a time, into a buffer
+/// allocated once; a copy where the two are equal.
 pub struct Upsampler {
     resampler: Option<Fft<f32>>,
     out: Vec<f32>,
@@ -440,9 +525,14 @@ impl Upsampler {
         Self::between(SAMPLE_RATE, rate)
     }
 
-    /// From a mix at `from` to a device at `to`.
+    /// From a mix at `from` to a device at `to`, 20 ms at a time.
     pub fn between(from: u32, to: u32) -> Result<Self, AudioError> {
-        let chunk = frame_len(from).max(1);
+        Self::in_pieces(from, to, frame_len(from))
+    }
+
+    /// From a mix at `from` to a device at `to`, `chunk` samples at a time (the mixer's piece).
+    pub fn in_pieces(from: u32, to: u32, chunk: usize) -> Result<Self, AudioError> {
+        let chunk = chunk.max(1);
         let resampler = fft_resampler(from, to, chunk, FixedSync::Input)?;
         let max = resampler.as_ref().map_or(chunk, |r| r.output_frames_max());
         Ok(Self {
@@ -469,8 +559,8 @@ impl Upsampler {
             .map_or(self.chunk, |r| r.output_frames_next())
     }
 
-    /// Resamples one chunk (20 ms at the mixer's rate); the returned slice lives until the next
-    /// call.
+    /// Resamples one chunk (the length it was made for, at the mixer's rate); the returned
+    /// slice lives until the next call.
     pub fn process(&mut self, input: &[f32]) -> Result<&[f32], AudioError> {
         let err = |e: &dyn std::fmt::Display| AudioError::Resampler(e.to_string());
         let chunk = self.chunk;
@@ -693,6 +783,70 @@ mod tests {
                 "{rate} Hz: heard {off_ms:.2} ms after its tag"
             );
         }
+    }
+
+    #[test]
+    fn a_mixer_mixes_half_frames_and_knows_when_a_heard_peer_waits_for_its_next_frame() {
+        let mut mixer = Mixer::at_rate(48_000);
+        assert_eq!((mixer.chunk_len(), mixer.piece_len()), (960, 480));
+        // 22.05 kHz has no whole 10 ms: it mixes whole frames.
+        assert_eq!(Mixer::at_rate(22_050).piece_len(), 441);
+        let progress = mixer.progress();
+        let c = Arc::new(PeerControls::default());
+        let (mut feed, mp, mut clock) = peer_channel_at(PeerId(1), 48_000, 48_000, c.clone());
+        mixer.add(mp).unwrap();
+        let mut piece = [0.0f32; 480];
+        // Never heard: nothing to wait for.
+        assert!(!mixer.awaits_peer(480));
+        assert_eq!(feed.push_paced(&[1000; 960], 1, true), Some(0));
+        mixer.mix(&mut piece);
+        assert_eq!((progress.samples(), progress.chunks()), (480, 0));
+        assert!(!mixer.awaits_peer(480), "half a frame still queued");
+        mixer.mix(&mut piece);
+        assert_eq!((progress.samples(), progress.chunks()), (960, 1));
+        assert!(
+            mixer.awaits_peer(480),
+            "heard, and its next frame not queued"
+        );
+        assert_eq!(feed.push_paced(&[2000; 960], 1, false), Some(960));
+        assert!(!mixer.awaits_peer(480));
+        mixer.mix(&mut piece);
+        assert!(piece.iter().all(|&s| (s - 2000.0 / 32768.0).abs() < 1e-6));
+        assert_eq!(clock.stream_position(960 + 5), Some(965));
+        // Mixed without it (its talk spurt ended): no longer awaited.
+        mixer.mix(&mut piece);
+        mixer.mix(&mut piece);
+        assert_eq!(c.starved(), 480);
+        assert!(!mixer.awaits_peer(480));
+    }
+
+    #[test]
+    fn a_queue_left_a_frame_long_by_a_starved_mix_sheds_it_in_a_quiet_frame() {
+        let c = Arc::new(PeerControls::default());
+        let (mut feed, mp, _clock) = peer_channel_at(PeerId(2), 48_000, 48_000, c.clone());
+        let mut mixer = Mixer::at_rate(48_000);
+        mixer.add(mp).unwrap();
+        let mut frame = [0.0f32; 960];
+        feed.push_paced(&[3000; 960], 1, true);
+        mixer.mix(&mut frame);
+        // The puller was held up: the mixer played a frame of silence for this peer, so the
+        // frame pulled now finds the next already queued behind it, a frame more than the lead.
+        mixer.mix(&mut frame);
+        assert_eq!(c.starved(), 960);
+        feed.push_paced(&[3000; 960], 1, false);
+        feed.push_paced(&[3000; 960], 1, false);
+        assert_eq!(feed.queued(), 2 * 960);
+        mixer.mix(&mut frame);
+        // Speech is kept whatever the surplus; the next near-silent frame (codec noise) is shed.
+        assert!(feed.push_paced(&[3000; 960], 1, false).is_some());
+        mixer.mix(&mut frame);
+        let noise: Vec<i16> = (0..960).map(|i| [-30, 20, 40, -10][i % 4]).collect();
+        assert_eq!(feed.push_paced(&noise, 1, false), None);
+        assert_eq!((c.shed(), feed.queued()), (960, 960));
+        // Back at its lead: quiet frames are queued again.
+        mixer.mix(&mut frame);
+        assert!(feed.push_paced(&noise, 1, false).is_some());
+        assert_eq!(c.shed(), 960);
     }
 
     #[test]

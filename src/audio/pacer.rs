@@ -20,9 +20,13 @@ use std::time::{Duration, Instant};
 
 /// One pull: 20 ms of every peer.
 pub const FRAME: Duration = Duration::from_millis(20);
-/// Frames the pacer keeps pulled ahead of the mixer, by default: the mixer may take two in a
+/// Frames the pacer keeps pulled ahead of a mixer that mixes whole frames: it may take two in a
 /// row (a device period of 40 ms) before the next poll refills.
 pub const DEFAULT_LEAD: u64 = 2;
+/// Frames ahead of the playback engine's mixer, which mixes half frames, wakes the puller as it
+/// finishes each frame and waits for a peer's next frame while its ring allows: one (the frame
+/// it is about to begin, or is halfway through).
+pub const PLAYBACK_LEAD: u64 = 1;
 /// The mixer's count standing still this long means it stopped.
 const STALL: Duration = Duration::from_millis(250);
 /// Frames the mixer has already mixed (as silence, the puller being late) are pulled and

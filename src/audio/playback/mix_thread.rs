@@ -1,6 +1,12 @@
 //! The mixer thread: takes peers and sinks by command and keeps the current sink's ring
-//! filled to its target, mixing 20 ms at a time (and resampling where the sink's rate is not
-//! the mixer's).
+//! filled to its target, mixing a piece (10 ms) at a time (and resampling where the sink's rate
+//! is not the mixer's).
+//!
+//! Its peers' frames are pulled on its demand, one frame ahead ([`crate::audio::pacer`]): the
+//! puller is woken as each frame is mixed and queues the next while the ring still plays. When
+//! a peer heard in the last piece has nothing queued yet, the mixer waits for it as long as the
+//! ring holds more than half its target, then mixes without it: a puller held up costs ring,
+//! not a gap in that peer's stream.
 
 use std::sync::{Arc, Mutex, PoisonError, mpsc};
 use std::time::Duration;
@@ -31,7 +37,7 @@ pub(super) fn mixer_thread(
         *detached.lock().unwrap_or_else(PoisonError::into_inner) = Some(why);
     };
     let mut chunk = [0.0f32; MAX_FRAME_SAMPLES];
-    let chunk = &mut chunk[..mixer.chunk_len()];
+    let chunk = &mut chunk[..mixer.piece_len()];
     let mut sink: Option<(rtrb::Producer<f32>, Upsampler, usize)> = None;
     loop {
         loop {
@@ -40,7 +46,7 @@ pub(super) fn mixer_thread(
                     ring,
                     clock,
                     target_frames,
-                }) => match Upsampler::between(mixer.rate(), clock.rate()) {
+                }) => match Upsampler::in_pieces(mixer.rate(), clock.rate(), chunk.len()) {
                     Ok(up) => {
                         clock.set_mapping(SinkMapping {
                             mix_start: mixer.position(),
@@ -68,9 +74,14 @@ pub(super) fn mixer_thread(
                 Err(mpsc::TryRecvError::Empty) => break,
             }
         }
+        let mut waiting = false;
         if let Some((ring, up, target)) = sink.as_mut() {
             let cap = ring.buffer().capacity();
             while cap - ring.slots() < *target && ring.slots() >= up.next_len() {
+                if cap - ring.slots() > *target / 2 && mixer.awaits_peer(chunk.len()) {
+                    waiting = true;
+                    break;
+                }
                 mixer.mix(chunk);
                 match up.process(chunk) {
                     Ok(out) => {
@@ -85,6 +96,6 @@ pub(super) fn mixer_thread(
                 }
             }
         }
-        std::thread::sleep(Duration::from_millis(4));
+        std::thread::sleep(Duration::from_millis(if waiting { 1 } else { 4 }));
     }
 }

@@ -47,7 +47,7 @@ impl Default for PlaybackConfig {
     fn default() -> Self {
         Self {
             device: DeviceChoice::Default,
-            buffer: Duration::from_millis(30),
+            buffer: Duration::from_millis(20),
             peer_queue: Duration::from_secs(1),
         }
     }
@@ -168,8 +168,9 @@ impl Playback {
         self.mix_rate
     }
 
-    /// The mixer's count of 20 ms chunks mixed: what the output has asked of the peers' queues
-    /// so far. Pull decoded frames by it ([`super::FramePacer`]), not by the system clock.
+    /// The mixer's count of samples and 20 ms frames mixed: what the output has asked of the
+    /// peers' queues so far. Pull decoded frames by it ([`super::FramePacer`]), not by the system
+    /// clock, and park between polls: it wakes the puller ([`MixProgress::wake_me`]).
     pub fn mixed(&self) -> MixProgress {
         self.mixed.clone()
     }
@@ -334,7 +335,7 @@ impl Playback {
     /// the resampler (if any) and the device's own latency. `None` before the first callback.
     pub fn output_delay(&self, now: Instant) -> Option<Duration> {
         let heard = self.heard_mix_position(now)?;
-        let mixed = self.mixed.chunks() * u64::from(self.mix_rate) / 50;
+        let mixed = self.mixed.samples();
         let waiting = mixed.saturating_sub(heard) as f64 / f64::from(self.mix_rate);
         Some(Duration::from_secs_f64(waiting))
     }
@@ -441,6 +442,52 @@ mod tests {
         assert!(pb.stats().frames_played > 0);
         pb.remove_peer(id);
         assert!(pb.heard_position(id, now).is_none());
+    }
+
+    #[test]
+    fn frames_pulled_one_ahead_as_the_mixer_wakes_the_puller_play_without_gaps() {
+        // The engine's way (the app's worker): park between polls, woken by the mixer as it
+        // finishes each frame, one frame ahead. The queue holds little more than that frame, no
+        // silence comes between the frames, and what is mixed waits little for the output.
+        use crate::audio::pacer::{FramePacer, PLAYBACK_LEAD};
+        let mut pb = Playback::start_silent(PlaybackConfig::default()).unwrap();
+        let mut feed = pb.add_peer().unwrap();
+        let id = feed.id();
+        let mixed = pb.mixed();
+        let puller = std::thread::spawn(move || {
+            mixed.wake_me();
+            let mut pacer = FramePacer::new(PLAYBACK_LEAD);
+            let (mut most_queued, mut frames) = (0, 0u64);
+            let start = Instant::now();
+            while start.elapsed() < Duration::from_millis(1500) {
+                std::thread::park_timeout(Duration::from_millis(5));
+                let pulls = pacer.poll(mixed.chunks(), Instant::now());
+                for i in 0..pulls.total() {
+                    if let Some(ahead) = pulls.ahead(i) {
+                        feed.push_paced(&[1000; 960], ahead, frames == 0);
+                        frames += 1;
+                    }
+                    most_queued = most_queued.max(feed.queued());
+                }
+            }
+            (most_queued, frames, feed)
+        });
+        let mut waits = Vec::new();
+        for _ in 0..100 {
+            std::thread::sleep(Duration::from_millis(13));
+            waits.extend(pb.output_delay(Instant::now()));
+        }
+        let (most_queued, frames, _feed) = puller.join().unwrap();
+        let starved = pb.peer_controls(id).unwrap().starved();
+        assert!(frames > 50, "{frames}");
+        // One frame ahead; half a frame more where the peer's first frame came mid-frame.
+        assert!(most_queued <= 960 + 480, "{most_queued}");
+        // (A puller held up for longer than the ring's half would show here.)
+        assert!(starved < 960, "{starved} samples of silence between frames");
+        waits.sort();
+        let median = waits[waits.len() / 2];
+        // The ring: 20 ms, topped up 10 ms at a time (it was 30 ms, 20 at a time: 30-50).
+        assert!(median <= Duration::from_millis(35), "{median:?}");
     }
 
     #[test]

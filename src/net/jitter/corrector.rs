@@ -75,6 +75,9 @@ pub(super) struct Corrector {
     insert_next: bool,
     /// The last pop handed out received audio (which may be dropped).
     handed_audio: bool,
+    /// The fastest relative delay when playout started, less the delay playout started above
+    /// its target and the frames shed since (seconds): see [`Corrector::adapt`].
+    start_base: f64,
 }
 
 impl Corrector {
@@ -91,11 +94,15 @@ impl Corrector {
             quiet_run: 0,
             insert_next: false,
             handed_audio: false,
+            start_base: f64::NAN,
         }
     }
 
-    /// Playout starts (a talk spurt): slack and trend are measured afresh.
-    pub fn start(&mut self) {
+    /// Playout starts (a talk spurt), with `base` the fastest relative delay seen so far and
+    /// `above` the delay it starts with above its target (its oldest packet was older than the
+    /// target asked: a burst): slack and trend are measured afresh.
+    pub fn start(&mut self, base: f64, above: f64) {
+        self.start_base = base + above.max(0.0);
         self.slack.clear();
         self.trend.clear();
         self.shifted = 0.0;
@@ -141,8 +148,20 @@ impl Corrector {
     }
 
     /// What a pop at `now` is to do to the delay; `room` says whether it may grow,
-    /// `can_skip` whether the slot after the next is here to play instead.
-    pub fn adapt(&mut self, now: f64, room: bool, can_skip: impl FnOnce() -> bool) -> Adjust {
+    /// `can_skip` whether the slot after the next is here to play instead. `base` is the
+    /// fastest relative delay now, `pull_jitter` how early the pulls come (delay the slack does
+    /// not show). When playout started on packets that were held up (a sender's capture or
+    /// start-up burst: playout started with more delay than its target, or the fastest packets
+    /// since came faster than those it started on) by a frame or more, that delay is more than
+    /// the start asked for, and a frame of it is shed in a pause as soon as the worst slack
+    /// allows a frame less.
+    pub fn adapt(
+        &mut self,
+        now: f64,
+        room: bool,
+        (base, pull_jitter): (f64, f64),
+        can_skip: impl FnOnce() -> bool,
+    ) -> Adjust {
         self.since_adjust = self.since_adjust.saturating_add(1);
         if std::mem::take(&mut self.insert_next) && room {
             // Asked for after a quiet frame (`played`).
@@ -157,7 +176,11 @@ impl Corrector {
                 .extend(self.slack.iter().map(|&(t, s)| s + drift * (now - t)));
             self.slack_sorted.sort_by(f64::total_cmp);
             let low = self.slack_sorted[self.slack_sorted.len() / 50];
-            let limits = self.limits();
+            let mut limits = self.limits();
+            if self.start_base - base >= FRAME_SECONDS {
+                let spare = limits.grow_quiet + self.margin + pull_jitter + FRAME_SECONDS;
+                limits.shrink_quiet = limits.shrink_quiet.min(spare);
+            }
             let due = self.since_adjust >= self.adapt_interval;
             if low < limits.grow_forced && due && room {
                 return Adjust::ForcedStretch;
@@ -221,6 +244,7 @@ impl Corrector {
     /// A frame was skipped: 20 ms less delay.
     pub fn shrank(&mut self) {
         self.since_adjust = 0;
+        self.start_base -= FRAME_SECONDS;
         self.slack.iter_mut().for_each(|(_, s)| *s -= FRAME_SECONDS);
         self.shifted -= FRAME_SECONDS;
     }

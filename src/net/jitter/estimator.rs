@@ -159,6 +159,11 @@ impl DelayEstimator {
         self.base
     }
 
+    /// How early the pulls come (the 90th percentile, seconds).
+    pub fn pull_jitter(&self) -> f64 {
+        self.pull_jitter
+    }
+
     /// The delay to play at (seconds).
     pub fn target(&self) -> f64 {
         self.target

@@ -498,7 +498,8 @@ impl JitterBuffer {
                 if self.delay_at(now, start) < self.delay.target() - 0.5 * FRAME_SECONDS {
                     return Playout::Silent;
                 }
-                self.corrector.start();
+                let above = self.delay_at(now, start) - self.delay.target();
+                self.corrector.start(self.delay.base(), above);
                 self.start_hint = None;
                 self.state = State::Playing;
                 self.next = start;
@@ -548,7 +549,8 @@ impl JitterBuffer {
         let room = self.delay_at(now, self.next) < self.config.max_delay.as_secs_f64();
         let (entries, timeline, next) = (&self.entries, &self.timeline, self.next);
         let can_skip = || slot_filled(entries, timeline, next + 1);
-        match self.corrector.adapt(now, room, can_skip) {
+        let timing = (self.delay.base(), self.delay.pull_jitter());
+        match self.corrector.adapt(now, room, timing, can_skip) {
             Adjust::Stretch => return self.stretch(now),
             Adjust::ForcedStretch => {
                 self.stats.forced += 1;
