@@ -13,9 +13,10 @@ use lipcall::app::settings::PeerPrefs;
 use lipcall::app::tiles_ui;
 use lipcall::audio::PeerId;
 
-/// The app's window (1280x720) less its left peer list (240) and the call and audio panels
-/// above and below, as the app lays them out with one row each.
-const CENTRAL: egui::Vec2 = egui::vec2(1020.0, 560.0);
+/// The space the app's 1280x720 window leaves for the tiles (screenshot of the real app under
+/// Xvfb): less the peer list (about 212 points), the call bar's two rows and the audio row,
+/// and the panel's margins.
+const CENTRAL: egui::Vec2 = egui::vec2(1050.0, 610.0);
 
 fn peer(i: u32) -> ShownPeer {
     let addr: SocketAddr = format!("127.0.0.1:{}", 40000 + i).parse().unwrap();
