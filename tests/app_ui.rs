@@ -39,7 +39,7 @@ fn animate_now(
 
 fn harness() -> Harness<'static, PeerPrefs> {
     Harness::new_ui_state(
-        |ui: &mut egui::Ui, prefs: &mut PeerPrefs| peer_controls_ui(ui, 7, prefs),
+        |ui: &mut egui::Ui, prefs: &mut PeerPrefs| peer_controls_ui(ui, prefs),
         PeerPrefs::default(),
     )
 }

@@ -416,7 +416,8 @@ impl eframe::App for LipcallApp {
                 if let Some(id) = mumble.as_ref().and_then(|view| channels_ui(ui, view)) {
                     self.engine.send(Command::Channel(id));
                 }
-                peer_list_ui(ui, &peers);
+                // Sixteen peers' rows are taller than the window.
+                egui::ScrollArea::vertical().show(ui, |ui| peer_list_ui(ui, &peers));
             });
         let central = egui::Frame::central_panel(ui.style()).fill(egui::Color32::TRANSPARENT);
         egui::CentralPanel::default().frame(central).show(ui, |ui| {

@@ -80,7 +80,7 @@ fn visemes_label(choice: &str) -> String {
 
 /// One peer's controls: animation, the living face, mute, volume, lipreading view, jaw mode,
 /// viseme set, lip closures.
-pub fn peer_controls_ui(ui: &mut egui::Ui, id: u32, prefs: &mut PeerPrefs) {
+pub fn peer_controls_ui(ui: &mut egui::Ui, prefs: &mut PeerPrefs) {
     ui.horizontal_wrapped(|ui| {
         ui.checkbox(&mut prefs.animate, "Animate");
         ui.add_enabled(
@@ -96,14 +96,14 @@ pub fn peer_controls_ui(ui: &mut egui::Ui, id: u32, prefs: &mut PeerPrefs) {
         );
         ui.checkbox(&mut prefs.lipreading, "Lipreading");
         ui.checkbox(&mut prefs.jaw, "Jaw only");
-        egui::ComboBox::new(("visemes", id), "Visemes")
-            .selected_text(visemes_label(&prefs.visemes))
-            .width(140.0)
-            .show_ui(ui, |ui| {
-                for c in VISEME_CHOICES {
-                    ui.selectable_value(&mut prefs.visemes, c.to_owned(), visemes_label(c));
-                }
-            });
+        // A menu, not a combo box: inside a tile's menu it opens as a submenu (egui keeps one
+        // popup open at a time, and a combo box's popup would close the tile's menu).
+        ui.menu_button("Visemes", |ui| {
+            for c in VISEME_CHOICES {
+                ui.selectable_value(&mut prefs.visemes, c.to_owned(), visemes_label(c));
+            }
+        });
+        ui.weak(visemes_label(&prefs.visemes));
         ui.scope(|ui| {
             // Narrower than the volume slider, so the row fits a third-of-the-window tile.
             ui.spacing_mut().slider_width = 64.0;
@@ -122,7 +122,47 @@ pub fn peer_controls_ui(ui: &mut egui::Ui, id: u32, prefs: &mut PeerPrefs) {
     });
 }
 
-/// A grid of head tiles, each with its controls beneath.
+/// Space between tiles, in points.
+const TILE_GAP: f32 = 8.0;
+/// Height of a tile's header: the peer's name and its compact controls.
+const TILE_HEADER: f32 = 22.0;
+
+/// Columns and rows for `n` tiles in `avail` points, chosen to make the heads largest: a
+/// head's scale is set by the smaller side of the square it must fit (the face is framed by
+/// height and roughly as wide as high); fewer columns win a tie.
+pub fn tile_grid(n: usize, avail: egui::Vec2) -> (usize, usize) {
+    let head_side = |cols: usize| {
+        let rows = n.div_ceil(cols);
+        let w = (avail.x - TILE_GAP * (cols - 1) as f32) / cols as f32;
+        let h = (avail.y - TILE_GAP * (rows - 1) as f32) / rows as f32 - TILE_HEADER;
+        w.min(h)
+    };
+    let cols = (1..=n.max(1))
+        .max_by(|&a, &b| head_side(a).total_cmp(&head_side(b)).then(b.cmp(&a)))
+        .unwrap_or(1);
+    (cols, n.max(1).div_ceil(cols))
+}
+
+/// The rectangles of `n` tiles laid out in `area`, row by row, all inside it and apart.
+pub fn tile_rects(n: usize, area: egui::Rect) -> Vec<egui::Rect> {
+    let (cols, rows) = tile_grid(n, area.size());
+    let cell = egui::vec2(
+        ((area.width() - TILE_GAP * (cols - 1) as f32) / cols as f32).max(1.0),
+        ((area.height() - TILE_GAP * (rows - 1) as f32) / rows as f32).max(1.0),
+    );
+    (0..n)
+        .map(|i| {
+            let (col, row) = (i % cols, i / cols);
+            let min = area.min
+                + egui::vec2(col as f32, row as f32) * (cell + egui::Vec2::splat(TILE_GAP));
+            egui::Rect::from_min_size(min, cell).intersect(area)
+        })
+        .collect()
+}
+
+/// The head tiles in a grid sized from the space there is and the number of peers: each tile
+/// is a header (name, talking dot, mute, and a menu with the peer's other controls) over the
+/// head, which takes the rest, so every face is whole on screen.
 pub fn tiles_ui(ui: &mut egui::Ui, peers: &mut [ShownPeer], mut heads: Option<&mut HeadTiles>) {
     if peers.is_empty() {
         ui.centered_and_justified(|ui| {
@@ -130,69 +170,105 @@ pub fn tiles_ui(ui: &mut egui::Ui, peers: &mut [ShownPeer], mut heads: Option<&m
         });
         return;
     }
-    let n = peers.len();
-    let avail = ui.available_size();
-    let cols = (1..=n)
-        .min_by_key(|&c| {
-            let rows = n.div_ceil(c);
-            let w = avail.x / c as f32;
-            let h = avail.y / rows as f32 - 100.0;
-            // The largest square head that fits.
-            -(w.min(h).max(1.0) as i64)
-        })
-        .unwrap_or(1);
-    let rows = n.div_ceil(cols);
-    let tile_w = (avail.x / cols as f32 - 8.0).max(50.0);
-    let tile_h = (avail.y / rows as f32 - 8.0).max(80.0);
-    egui::Grid::new("tiles").spacing([8.0, 8.0]).show(ui, |ui| {
-        for (i, shown) in peers.iter_mut().enumerate() {
-            let p = &shown.view;
-            ui.allocate_ui(egui::vec2(tile_w, tile_h), |ui| {
-                ui.set_min_size(egui::vec2(tile_w, tile_h));
-                ui.vertical(|ui| {
-                    ui.horizontal(|ui| {
-                        ui.strong(&p.name);
-                        if p.talking {
-                            ui.colored_label(egui::Color32::LIGHT_GREEN, "talking");
-                        }
-                    });
-                    // Room for the name line and up to three rows of controls.
-                    let head_h = (tile_h - 100.0).max(40.0);
-                    let (rect, _) =
-                        ui.allocate_exact_size(egui::vec2(tile_w, head_h), egui::Sense::hover());
-                    let (w, mut pose) = match (shown.prefs.animate, shown.face) {
-                        (true, Some(face)) if shown.prefs.life => {
-                            (VisemeWeights(face.weights), face.pose)
-                        }
-                        (true, Some(face)) => (VisemeWeights(face.weights), FacePose::REST),
-                        _ => (VisemeWeights::neutral(), FacePose::REST),
-                    };
-                    // The lipreading close-up keeps the mouth steady in the frame.
-                    if shown.prefs.lipreading {
-                        pose = pose.without_head_motion();
-                    }
-                    if let Some(heads) = heads.as_deref_mut() {
-                        let tile = HeadTile {
-                            id: u64::from(p.ssrc),
-                            framing: if shown.prefs.lipreading {
-                                Framing::Mouth
-                            } else {
-                                Framing::Face
-                            },
-                            weights: w,
-                            pose,
-                        };
-                        heads.show(ui, rect, tile);
-                    } else {
-                        ui.painter()
-                            .rect_filled(rect, 6.0, egui::Color32::from_gray(38));
-                    }
-                    peer_controls_ui(ui, p.ssrc, &mut shown.prefs);
-                });
+    let area = ui.available_rect_before_wrap();
+    let rects = tile_rects(peers.len(), area);
+    for (shown, cell) in peers.iter_mut().zip(rects) {
+        let mut tile_ui = ui.new_child(
+            egui::UiBuilder::new()
+                .id_salt(("tile", shown.view.ssrc))
+                .max_rect(cell)
+                .layout(egui::Layout::top_down(egui::Align::Min)),
+        );
+        tile_ui.set_clip_rect(cell.intersect(ui.clip_rect()));
+        tile_header_ui(&mut tile_ui, shown);
+        let head = egui::Rect::from_min_max(
+            egui::pos2(cell.min.x, (cell.min.y + TILE_HEADER).min(cell.max.y)),
+            cell.max,
+        );
+        head_ui(&mut tile_ui, head, shown, heads.as_deref_mut());
+    }
+    ui.allocate_rect(area, egui::Sense::hover());
+}
+
+/// A tile's header row: the name (cut short to fit), a dot while talking, and at the right the
+/// mute box and a menu with the rest of the peer's controls.
+fn tile_header_ui(ui: &mut egui::Ui, shown: &mut ShownPeer) {
+    let p = &shown.view;
+    let row = egui::Rect::from_min_size(
+        ui.max_rect().min,
+        egui::vec2(ui.max_rect().width(), TILE_HEADER),
+    );
+    ui.scope_builder(
+        egui::UiBuilder::new()
+            .max_rect(row)
+            .layout(egui::Layout::right_to_left(egui::Align::Center)),
+        |ui| {
+            // Open until a click elsewhere, so several choices can be made in one go.
+            let stay_open = egui::containers::menu::MenuConfig::new()
+                .close_behavior(egui::PopupCloseBehavior::CloseOnClickOutside);
+            egui::containers::menu::MenuButton::new("More")
+                .config(stay_open)
+                .ui(ui, |ui| {
+                    ui.set_max_width(260.0);
+                    ui.label(egui::RichText::new(&p.name).strong());
+                    peer_controls_ui(ui, &mut shown.prefs);
+                })
+                .0
+                .on_hover_text("This peer's controls");
+            ui.checkbox(&mut shown.prefs.muted, "Mute");
+            ui.with_layout(egui::Layout::left_to_right(egui::Align::Center), |ui| {
+                let colour = if p.talking {
+                    egui::Color32::LIGHT_GREEN
+                } else {
+                    egui::Color32::DARK_GRAY
+                };
+                let (dot, _) = ui.allocate_exact_size(egui::vec2(10.0, 10.0), egui::Sense::hover());
+                ui.painter().circle_filled(dot.center(), 4.0, colour);
+                ui.add(egui::Label::new(egui::RichText::new(&p.name).strong()).truncate());
             });
-            if (i + 1) % cols == 0 {
-                ui.end_row();
-            }
-        }
+        },
+    );
+}
+
+/// The peer's head in `rect`: rendered when there is a renderer, a plain panel otherwise;
+/// named for screen readers (and tests) as "NAME's face".
+fn head_ui(ui: &mut egui::Ui, rect: egui::Rect, shown: &ShownPeer, heads: Option<&mut HeadTiles>) {
+    let p = &shown.view;
+    let response = ui.allocate_rect(rect, egui::Sense::hover());
+    response.widget_info(|| {
+        egui::WidgetInfo::labeled(
+            egui::accesskit::Role::Image,
+            true,
+            format!("{}'s face", p.name),
+        )
     });
+    let (w, mut pose) = match (shown.prefs.animate, shown.face) {
+        (true, Some(face)) if shown.prefs.life => (VisemeWeights(face.weights), face.pose),
+        (true, Some(face)) => (VisemeWeights(face.weights), FacePose::REST),
+        _ => (VisemeWeights::neutral(), FacePose::REST),
+    };
+    // The lipreading close-up keeps the mouth steady in the frame.
+    if shown.prefs.lipreading {
+        pose = pose.without_head_motion();
+    }
+    match heads {
+        Some(heads) if rect.height() >= 1.0 => {
+            let tile = HeadTile {
+                id: u64::from(p.ssrc),
+                framing: if shown.prefs.lipreading {
+                    Framing::Mouth
+                } else {
+                    Framing::Face
+                },
+                weights: w,
+                pose,
+            };
+            heads.show(ui, rect, tile);
+        }
+        Some(_) => {}
+        None => {
+            ui.painter()
+                .rect_filled(rect, 6.0, egui::Color32::from_gray(38));
+        }
+    }
 }

@@ -1,0 +1,150 @@
+//! The grid of head tiles, driven through egui_kittest: however many peers (1 to 16), in the
+//! app's default window every face lies whole inside it, no two overlap, and each peer's
+//! controls stay on screen and work.
+
+use std::net::SocketAddr;
+
+use eframe::egui;
+use egui_kittest::Harness;
+use egui_kittest::kittest::Queryable;
+use lipcall::app::ShownPeer;
+use lipcall::app::peer::PeerView;
+use lipcall::app::settings::PeerPrefs;
+use lipcall::app::tiles_ui;
+use lipcall::audio::PeerId;
+
+/// The space the app's 1280x720 window leaves for the tiles (screenshot of the real app under
+/// Xvfb): less the peer list (about 212 points), the call bar's two rows and the audio row,
+/// and the panel's margins.
+const CENTRAL: egui::Vec2 = egui::vec2(1050.0, 610.0);
+
+fn peer(i: u32) -> ShownPeer {
+    let addr: SocketAddr = format!("127.0.0.1:{}", 40000 + i).parse().unwrap();
+    ShownPeer {
+        view: PeerView {
+            ssrc: 1000 + i,
+            name: format!("Peer {i}"),
+            named: true,
+            addr,
+            feed: PeerId(i),
+            is_demo: false,
+            codec: None,
+            talking: i.is_multiple_of(2),
+            loss_percent: 0.0,
+            jitter_ms: 0.0,
+            delay_ms: 0.0,
+            frames_animated: 0,
+            frames_received: 0,
+            frames_recovered: 0,
+            unknown_payload: 0,
+            queued_ms: 0.0,
+            buffer: Default::default(),
+        },
+        face: None,
+        prefs: PeerPrefs::default(),
+        frames_shown: 0,
+    }
+}
+
+fn harness(n: u32, size: egui::Vec2) -> Harness<'static, Vec<ShownPeer>> {
+    let mut h = Harness::builder().with_size(size).build_ui_state(
+        |ui: &mut egui::Ui, peers: &mut Vec<ShownPeer>| tiles_ui(ui, peers, None),
+        (0..n).map(peer).collect(),
+    );
+    h.run();
+    h
+}
+
+fn inside(outer: egui::Rect, inner: egui::Rect) -> bool {
+    outer.expand(0.5).contains_rect(inner)
+}
+
+/// Checks the layout of `n` tiles in a window of `size`; returns the faces' rectangles.
+fn check_layout(n: u32, size: egui::Vec2) -> Vec<egui::Rect> {
+    let h = harness(n, size);
+    let window = egui::Rect::from_min_size(egui::Pos2::ZERO, size);
+    let mutes: Vec<egui::Rect> = h.get_all_by_label("Mute").map(|m| m.rect()).collect();
+    assert_eq!(mutes.len(), n as usize, "{n} peers: mute boxes");
+    for (i, m) in mutes.iter().enumerate() {
+        assert!(
+            inside(window, *m),
+            "{n} peers: mute {i} at {m:?} outside {window:?}"
+        );
+    }
+    let faces: Vec<egui::Rect> = (0..n)
+        .map(|i| h.get_by_label(&format!("Peer {i}'s face")).rect())
+        .collect();
+    for (i, f) in faces.iter().enumerate() {
+        assert!(
+            inside(window, *f),
+            "{n} peers: face {i} at {f:?} outside {window:?}"
+        );
+        for (j, g) in faces.iter().enumerate().skip(i + 1) {
+            let overlap = f.intersect(*g);
+            assert!(
+                overlap.width() <= 0.0 || overlap.height() <= 0.0,
+                "{n} peers: faces {i} {f:?} and {j} {g:?} overlap"
+            );
+        }
+    }
+    faces
+}
+
+fn smallest_side(faces: &[egui::Rect]) -> f32 {
+    faces
+        .iter()
+        .map(|f| f.width().min(f.height()))
+        .fold(f32::INFINITY, f32::min)
+}
+
+#[test]
+fn eight_peers_all_faces_whole_inside_the_window() {
+    let faces = check_layout(8, CENTRAL);
+    // Four columns of two rows: each face about a quarter of the width.
+    assert!(smallest_side(&faces) >= 200.0, "{faces:?}");
+}
+
+#[test]
+fn one_to_sixteen_peers_fit_the_window() {
+    for n in 1..=16 {
+        let faces = check_layout(n, CENTRAL);
+        // Not shrunk more than the count asks: the face's side at least the side of a square
+        // grid's cell, less the header.
+        let cells = (n as f32).sqrt().ceil();
+        let fair = (CENTRAL.y / cells - 40.0).min(CENTRAL.x / cells - 10.0);
+        assert!(
+            smallest_side(&faces) >= fair,
+            "{n} peers: {faces:?} < {fair}"
+        );
+    }
+    // The whole window (no side panel) and a small one.
+    check_layout(16, egui::vec2(1280.0, 720.0));
+    check_layout(8, egui::vec2(640.0, 400.0));
+}
+
+#[test]
+fn each_tiles_menu_reaches_that_peers_controls() {
+    let mut h = harness(8, CENTRAL);
+    h.get_all_by_label("Mute").nth(5).unwrap().click();
+    h.run();
+    assert!(h.state()[5].prefs.muted);
+    assert!(h.state().iter().filter(|p| p.prefs.muted).count() == 1);
+
+    h.get_all_by_label("More").nth(6).unwrap().click();
+    h.run();
+    h.get_by_label("Animate").click();
+    h.run();
+    assert!(!h.state()[6].prefs.animate);
+    h.get_by_label("Lipreading").click();
+    h.run();
+    assert!(h.state()[6].prefs.lipreading);
+    h.get_by_label("Visemes").click();
+    h.run();
+    h.get_by_label("3 visemes").click();
+    h.run();
+    assert_eq!(h.state()[6].prefs.visemes, "3");
+    let others = h.state().iter().enumerate().filter(|(i, _)| *i != 6);
+    for (_, p) in others {
+        assert!(p.prefs.animate && !p.prefs.lipreading && p.prefs.visemes.is_empty());
+    }
+}
