@@ -11,7 +11,7 @@ use lipcall::render::HeadModel;
 use lipcall::render::arkit;
 use lipcall::render::gltf_load::load_head_from_slice;
 use lipcall::render::head::{Material, MorphDelta, TargetSource, Vertex};
-use lipcall::render::offscreen::{FrameOptions, GpuContext, OffscreenRenderer};
+use lipcall::render::offscreen::{FrameOptions, OffscreenRenderer};
 use lipcall::vocab::VisemeWeights;
 
 fn v(name: &str) -> usize {
@@ -243,13 +243,7 @@ fn each_primitive_of_a_mesh_is_drawn_with_its_own_material() {
     let head = load_head_from_slice(&write_meshes(&[face], &materials)).unwrap();
     assert_eq!(head.primitives.len(), 2);
     assert_ne!(head.primitives[0].material, head.primitives[1].material);
-    let ctx = match GpuContext::new_headless() {
-        Ok(ctx) => ctx,
-        Err(e) => {
-            println!("SKIPPED: no GPU adapter for the head renderer: {e}");
-            return;
-        }
-    };
+    let Some(ctx) = common::gpu() else { return };
     let options = FrameOptions {
         width: 64,
         height: 64,
@@ -298,13 +292,7 @@ fn back_faces_are_drawn_only_for_double_sided_materials() {
             .collect(),
         ..p
     };
-    let ctx = match GpuContext::new_headless() {
-        Ok(ctx) => ctx,
-        Err(e) => {
-            println!("SKIPPED: no GPU adapter for the head renderer: {e}");
-            return;
-        }
-    };
+    let Some(ctx) = common::gpu() else { return };
     let red_pixels = |double_sided: bool| {
         let face = mesh(
             "face",

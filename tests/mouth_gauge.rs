@@ -253,14 +253,8 @@ fn in_speech_every_head_parts_its_lips_as_far_as_a_speaker() {
 #[test]
 fn the_rendered_calibrated_avatar_opens_as_far_as_measured() {
     use lipcall::render::head::Vertex;
-    use lipcall::render::{FrameOptions, Framing, GpuContext, OffscreenRenderer};
-    let ctx = match GpuContext::new_headless() {
-        Ok(ctx) => ctx,
-        Err(e) => {
-            println!("SKIPPED: no GPU adapter for the head renderer: {e}");
-            return;
-        }
-    };
+    use lipcall::render::{FrameOptions, Framing, OffscreenRenderer};
+    let Some(ctx) = common::gpu() else { return };
     let head = load_head_from_slice(&weak_viseme_avatar(0.35)).unwrap();
     let gauge = MouthGauge::new(&head).unwrap();
     let options = FrameOptions {

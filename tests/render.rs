@@ -3,6 +3,8 @@
 
 mod common;
 
+use common::gpu;
+
 use std::sync::OnceLock;
 
 use common::glb_write::{glb_container, write_glb};
@@ -20,16 +22,6 @@ use serde_json::json;
 fn default_head() -> &'static HeadModel {
     static HEAD: OnceLock<HeadModel> = OnceLock::new();
     HEAD.get_or_init(|| lipcall::render::default_head().expect("bundled head loads"))
-}
-
-fn gpu() -> Option<GpuContext> {
-    match GpuContext::new_headless() {
-        Ok(ctx) => Some(ctx),
-        Err(e) => {
-            println!("SKIPPED: no GPU adapter for the head renderer: {e}");
-            None
-        }
-    }
 }
 
 fn mouth_renderer(ctx: &GpuContext, model: &HeadModel) -> OffscreenRenderer {

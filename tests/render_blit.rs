@@ -2,6 +2,8 @@
 //! opaque, also when the tile is cut at the window's edge. Runs on whatever adapter wgpu finds
 //! (lavapipe on CI), skipped with a printed reason only when there is none.
 
+mod common;
+
 use lipcall::render::blit::Blit;
 use lipcall::render::offscreen::GpuContext;
 use lipcall::render::renderer::{DEPTH_FORMAT, HeadRenderer};
@@ -52,13 +54,7 @@ fn read(ctx: &GpuContext, texture: &wgpu::Texture) -> Vec<[u8; 4]> {
 
 #[test]
 fn a_head_is_copied_into_the_window_pixel_for_pixel_and_cut_at_its_edge() {
-    let ctx = match GpuContext::new_headless() {
-        Ok(ctx) => ctx,
-        Err(e) => {
-            println!("SKIPPED: no GPU adapter for the head renderer: {e}");
-            return;
-        }
-    };
+    let Some(ctx) = common::gpu() else { return };
     let device = &ctx.device;
     let (w, h) = (64u32, 48u32);
     let renderer = HeadRenderer::new(device, TARGET_FORMAT, Some(DEPTH_FORMAT));

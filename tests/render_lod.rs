@@ -2,11 +2,15 @@
 //! same face a lipreader sees. GPU tests run on whatever adapter wgpu finds (lavapipe on CI) and
 //! are skipped, with a printed reason, only when there is none.
 
+mod common;
+
 use std::sync::OnceLock;
+
+use common::gpu;
 
 use lipcall::render::head::HeadModel;
 use lipcall::render::lod::{DetailLevels, MAX_ERROR_PX};
-use lipcall::render::offscreen::{FrameOptions, GpuContext, OffscreenRenderer};
+use lipcall::render::offscreen::{FrameOptions, OffscreenRenderer};
 use lipcall::render::{Camera, Framing};
 use lipcall::vocab::{VISEME_NAMES, VisemeWeights};
 
@@ -18,16 +22,6 @@ fn default_head() -> &'static HeadModel {
 fn levels() -> &'static DetailLevels {
     static LEVELS: OnceLock<DetailLevels> = OnceLock::new();
     LEVELS.get_or_init(|| DetailLevels::build(default_head()))
-}
-
-fn gpu() -> Option<GpuContext> {
-    match GpuContext::new_headless() {
-        Ok(ctx) => Some(ctx),
-        Err(e) => {
-            println!("SKIPPED: no GPU adapter for the head renderer: {e}");
-            None
-        }
-    }
 }
 
 #[test]

@@ -168,7 +168,6 @@ fn s1_training_clips(root: &Path, limit: usize) -> Result<Vec<LipClip>> {
         .collect())
 }
 
-/// The video half of training, or `None` without `--grid`.
 /// The video half of training and, with `--lip-validation`, the other speakers' lips for
 /// early stopping; `None`s without `--grid`.
 pub fn video_training(

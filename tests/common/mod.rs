@@ -91,6 +91,18 @@ pub fn unavailable(reason: &str) {
     eprintln!("skipped: {reason}");
 }
 
+/// The head renderer's GPU (the software adapter where there is no other), or `None` after
+/// saying why the test skips.
+pub fn gpu() -> Option<lipcall::render::GpuContext> {
+    match lipcall::render::GpuContext::new_headless() {
+        Ok(ctx) => Some(ctx),
+        Err(e) => {
+            println!("SKIPPED: no GPU adapter for the head renderer: {e}");
+            None
+        }
+    }
+}
+
 pub fn pulse_running() -> bool {
     Command::new("pactl")
         .arg("info")
