@@ -29,13 +29,7 @@ pub fn peer_list_ui(ui: &mut egui::Ui, peers: &[ShownPeer]) {
     }
     for p in peers.iter().map(|p| &p.view) {
         ui.horizontal(|ui| {
-            let colour = if p.talking {
-                egui::Color32::LIGHT_GREEN
-            } else {
-                egui::Color32::DARK_GRAY
-            };
-            let (dot, _) = ui.allocate_exact_size(egui::vec2(12.0, 12.0), egui::Sense::hover());
-            ui.painter().circle_filled(dot.center(), 5.0, colour);
+            talking_dot(ui, p.talking, 12.0);
             ui.strong(&p.name);
             if let Some(codec) = p.codec {
                 ui.label(codec_label(codec));
@@ -217,17 +211,23 @@ fn tile_header_ui(ui: &mut egui::Ui, shown: &mut ShownPeer) {
                 .on_hover_text("This peer's controls");
             ui.checkbox(&mut shown.prefs.muted, "Mute");
             ui.with_layout(egui::Layout::left_to_right(egui::Align::Center), |ui| {
-                let colour = if p.talking {
-                    egui::Color32::LIGHT_GREEN
-                } else {
-                    egui::Color32::DARK_GRAY
-                };
-                let (dot, _) = ui.allocate_exact_size(egui::vec2(10.0, 10.0), egui::Sense::hover());
-                ui.painter().circle_filled(dot.center(), 4.0, colour);
+                talking_dot(ui, p.talking, 10.0);
                 ui.add(egui::Label::new(egui::RichText::new(&p.name).strong()).truncate());
             });
         },
     );
+}
+
+/// A `size`-point light, green while the peer talks.
+fn talking_dot(ui: &mut egui::Ui, talking: bool, size: f32) {
+    let colour = if talking {
+        egui::Color32::LIGHT_GREEN
+    } else {
+        egui::Color32::DARK_GRAY
+    };
+    let (dot, _) = ui.allocate_exact_size(egui::vec2(size, size), egui::Sense::hover());
+    ui.painter()
+        .circle_filled(dot.center(), size / 2.0 - 1.0, colour);
 }
 
 /// The peer's head in `rect`: rendered when there is a renderer, a plain panel otherwise;

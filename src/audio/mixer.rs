@@ -19,7 +19,7 @@ use rubato::{Fft, FixedSync, Resampler};
 use super::clock::{PeerClock, Segment};
 use super::error::AudioError;
 use super::resample::{FrameResampler, fft_resampler};
-use crate::vocab::{FRAME_SIZE, FrameAudio, MAX_FRAME_SAMPLES, SAMPLE_RATE};
+use crate::vocab::{FRAME_SIZE, FrameAudio, MAX_FRAME_SAMPLES, SAMPLE_RATE, energy_db};
 
 /// Samples of an 8 kHz mix produced per step (one Speex frame, 20 ms).
 pub const CHUNK: usize = FRAME_SIZE;
@@ -42,11 +42,10 @@ pub fn frame_len(rate: u32) -> usize {
     rate as usize / 50
 }
 
-/// Below -56 dBFS (RMS): a frame whose absence goes unheard.
+/// Below -56 dBFS (an RMS of 50): a frame whose absence goes unheard.
 fn near_silent(pcm: &[i16]) -> bool {
-    const QUIET: f64 = 50.0;
-    let energy: f64 = pcm.iter().map(|&s| f64::from(s) * f64::from(s)).sum();
-    energy < QUIET * QUIET * pcm.len() as f64
+    const QUIET_DB: f32 = -56.33;
+    !pcm.is_empty() && energy_db(pcm) < QUIET_DB
 }
 
 /// Samples in one piece a mixer at `rate` mixes ([`Mixer::piece_len`]).
