@@ -236,22 +236,16 @@ pub fn video_training(
             "early stopping also watches the lips of {} other speakers' clips",
             others.len()
         );
-        Some(VideoTraining {
-            clips: Arc::new(others),
-            frame_weight: args.lip_weight,
-            cue_weights: [recipe::LIP_CUE_WEIGHT; 2],
-        })
+        Some(others)
     } else {
         None
     };
-    Ok((
-        Some(VideoTraining {
-            clips: Arc::new(prepared),
-            frame_weight: args.lip_weight,
-            cue_weights: [recipe::LIP_CUE_WEIGHT; 2],
-        }),
-        validation,
-    ))
+    let training = |clips| VideoTraining {
+        clips: Arc::new(clips),
+        frame_weight: args.lip_weight,
+        cue_weights: [recipe::LIP_CUE_WEIGHT; 2],
+    };
+    Ok((Some(training(prepared)), validation.map(training)))
 }
 
 /// Prints aperture and width r of `model` (and of the jaw baseline) against the measured lips
