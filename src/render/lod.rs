@@ -6,8 +6,9 @@
 //! Each coarser level is simplified (meshoptimizer's edge collapse) from the full mesh within an
 //! error bound in metres that counts the mouth and eye shapes as well as the rest pose, so a
 //! level that is exact to half a pixel at rest stays so when the mouth opens, rounds or spreads.
-//! The mouth is kept whole, and mesh borders (the eyelids' rims, the cut at the neck) keep
-//! every vertex.
+//! The lips and what shows between them (teeth, tongue) are kept whole, the skin around them is
+//! simplified under a tighter measure of shading, and mesh borders (the eyelids' rims, the cut
+//! at the neck) keep every vertex.
 
 use glam::Vec3;
 use meshopt::{SimplifyOptions, VertexDataAdapter};
@@ -19,10 +20,22 @@ use crate::vocab::{VISEME_COUNT, Viseme};
 /// show.
 pub const MAX_ERROR_PX: f32 = 0.5;
 
-/// The mouth is kept whole, out to this many mouth widths from its centre: where teeth, tongue,
-/// lips and the inside of the mouth nearly touch, a fraction of a millimetre changes which of
-/// them shows (a bound on distance is no bound on what covers what).
+/// The parts inside the mouth (teeth, tongue: small parts lying within a mouth width of its
+/// centre) are kept whole out to this many mouth widths: where teeth, tongue, lips and the
+/// inside of the mouth nearly touch, a fraction of a millimetre changes which of them shows (a
+/// bound on distance is no bound on what covers what).
 const MOUTH_KEPT: f32 = 0.6;
+
+/// The face's own surface is kept whole only on the lips: out to [`MOUTH_KEPT`] across and
+/// forward, this far up and down (mouth widths). The chin, the cheeks and under the nose, within
+/// the mouth's reach, are simplified like the rest of the head; about a fifth of a small tile's
+/// triangles, which cost a software adapter more than its pixels do.
+const LIPS_KEPT_HEIGHT: f32 = 0.25;
+
+/// Near the mouth (out to [`EMPHASIS_REACH`] mouth widths) changes of normal and colour count
+/// this many times more: the shading around the lips is what a lipreader reads.
+const MOUTH_EMPHASIS: f32 = 4.0;
+const EMPHASIS_REACH: f32 = 0.72;
 
 /// Error bounds of the coarser levels, in metres (a human head is about 0.2 m high).
 const LEVEL_ERRORS_M: [f32; 5] = [0.000_25, 0.000_5, 0.001, 0.002, 0.004];
@@ -82,8 +95,21 @@ impl DetailLevels {
     pub fn build(model: &HeadModel) -> Self {
         let mut levels = vec![full_level(model)];
         let frame = model.face_frame();
-        let mouth = |v: &Vertex| {
-            Vec3::from(v.position).distance(frame.mouth) <= MOUTH_KEPT * frame.mouth_width
+        // Offset from the mouth's centre in mouth widths.
+        let from_mouth =
+            |v: &Vertex| (Vec3::from(v.position) - frame.mouth) / frame.mouth_width.max(1e-4);
+        let inside_mouth = |p: &Primitive| p.vertices.iter().all(|v| from_mouth(v).length() <= 1.0);
+        let inner_part = |v: &Vertex| from_mouth(v).length() <= MOUTH_KEPT;
+        let lips = |v: &Vertex| {
+            let d = from_mouth(v) / Vec3::new(MOUTH_KEPT, LIPS_KEPT_HEIGHT, MOUTH_KEPT);
+            d.length_squared() <= 1.0
+        };
+        let emphasis = |v: &Vertex| {
+            if from_mouth(v).length() <= EMPHASIS_REACH {
+                MOUTH_EMPHASIS
+            } else {
+                1.0
+            }
         };
         for bound in LEVEL_ERRORS_M {
             let mut error_m = 0.0f32;
@@ -91,7 +117,11 @@ impl DetailLevels {
                 .primitives
                 .iter()
                 .map(|p| {
-                    let (indices, error) = simplify(p, bound, &mouth);
+                    let (indices, error) = if inside_mouth(p) {
+                        simplify(p, bound, &inner_part, &emphasis)
+                    } else {
+                        simplify(p, bound, &lips, &emphasis)
+                    };
                     error_m = error_m.max(error);
                     indices
                 })
@@ -137,8 +167,13 @@ fn full_level(model: &HeadModel) -> DetailLevel {
 }
 
 /// `p`'s triangles simplified within `bound` metres, the vertices for which `keep` holds left in
-/// place, and the error reached.
-fn simplify(p: &Primitive, bound: f32, keep: &impl Fn(&Vertex) -> bool) -> (Vec<u32>, f32) {
+/// place, changes of normal and colour counted `emphasis` times over, and the error reached.
+fn simplify(
+    p: &Primitive,
+    bound: f32,
+    keep: &impl Fn(&Vertex) -> bool,
+    emphasis: &impl Fn(&Vertex) -> f32,
+) -> (Vec<u32>, f32) {
     let bytes: &[u8] = bytemuck::cast_slice(&p.vertices);
     let Ok(adapter) = VertexDataAdapter::new(bytes, std::mem::size_of::<Vertex>(), 0) else {
         return (p.indices.clone(), 0.0);
@@ -150,8 +185,9 @@ fn simplify(p: &Primitive, bound: f32, keep: &impl Fn(&Vertex) -> bool) -> (Vec<
             let d = p.targets.get(slot).and_then(|t| t.get(i)).unwrap_or(&none);
             attributes.extend_from_slice(&d.position);
         }
-        attributes.extend_from_slice(&v.normal);
-        attributes.extend_from_slice(&v.color[..3]);
+        let e = emphasis(v);
+        attributes.extend(v.normal.iter().map(|x| x * e));
+        attributes.extend(v.color[..3].iter().map(|x| x * e));
     }
     // The simplifier measures positions scaled to the part's extent and attributes as given:
     // scaled alike, the weights are in metres.
