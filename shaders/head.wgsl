@@ -33,6 +33,11 @@ struct Material {
 // and lavapipe does not recompile the shader at every draw, as it does for uniform branches.
 override TEXTURED: bool = true;
 
+// Whether lighting is computed per vertex and interpolated, instead of per pixel: for small
+// heads on a software adapter, whose triangles are a few pixels each, so that a vertex's
+// lighting is shared by the pixels around it (see `Shading` in src/render/renderer).
+override VERTEX_LIT: bool = false;
+
 @group(0) @binding(0) var<uniform> view: View;
 @group(0) @binding(1) var<storage, read> weights: Weights;
 @group(0) @binding(2) var<storage, read> deltas: array<f32>;
@@ -54,6 +59,9 @@ struct VertexOut {
     @location(1) normal: vec3<f32>,
     @location(2) uv: vec2<f32>,
     @location(3) color: vec4<f32>,
+    // With VERTEX_LIT: the light that reaches the surface (rgb, multiplies the albedo) and the
+    // specular and rim light added to it (a).
+    @location(4) light: vec4<f32>,
 }
 
 struct Blended {
@@ -91,21 +99,17 @@ fn vs_main(in: VertexIn, @builtin(vertex_index) vid: u32) -> VertexOut {
     out.normal = (view.model * vec4<f32>(b.normal, 0.0)).xyz;
     out.uv = in.uv;
     out.color = in.color;
+    out.light = vec4<f32>(0.0);
+    if (VERTEX_LIT) {
+        out.light = lighting(normalize(out.normal), out.world);
+    }
     return out;
 }
 
-@fragment
-fn fs_main(in: VertexOut, @builtin(front_facing) front: bool) -> @location(0) vec4<f32> {
-    var texel = vec4<f32>(1.0);
-    if (TEXTURED) {
-        texel = textureSample(base_tex, base_sampler, in.uv);
-    }
-    let albedo = material.base_color * in.color * texel;
-    var n = normalize(in.normal);
-    if (!front) {
-        n = -n;
-    }
-    let v = normalize(view.eye.xyz - in.world);
+// Light at a surface point of normal `n` (unit, facing the viewer's side): rgb multiplies the
+// albedo, a is added (specular and rim).
+fn lighting(n: vec3<f32>, world: vec3<f32>) -> vec4<f32> {
+    let v = normalize(view.eye.xyz - world);
     // Key light from above on one side; a weaker, cooler fill from the other side and lower, so
     // the lips' curl and the teeth keep their shape where the key does not reach.
     let key_dir = normalize(-view.light_dir.xyz);
@@ -126,7 +130,25 @@ fn fs_main(in: VertexOut, @builtin(front_facing) front: bool) -> @location(0) ve
     let spec = 0.16 * (k12 * k12) * (k12 * k12) + 0.05 * f16 * f16;
     let edge = 1.0 - max(dot(n, v), 0.0);
     let rim = 0.08 * edge * edge * edge;
-    let lit = albedo.rgb * (ambient + key + fill) + vec3<f32>(spec + rim);
+    return vec4<f32>(ambient + key + fill, spec + rim);
+}
+
+@fragment
+fn fs_main(in: VertexOut, @builtin(front_facing) front: bool) -> @location(0) vec4<f32> {
+    var texel = vec4<f32>(1.0);
+    if (TEXTURED) {
+        texel = textureSample(base_tex, base_sampler, in.uv);
+    }
+    let albedo = material.base_color * in.color * texel;
+    var light = in.light;
+    if (!VERTEX_LIT) {
+        var n = normalize(in.normal);
+        if (!front) {
+            n = -n;
+        }
+        light = lighting(n, in.world);
+    }
+    let lit = albedo.rgb * light.rgb + vec3<f32>(light.a);
     return vec4<f32>(lit, 1.0);
 }
 

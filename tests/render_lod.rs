@@ -11,6 +11,7 @@ use common::gpu;
 use lipcall::render::head::HeadModel;
 use lipcall::render::lod::{DetailLevels, MAX_ERROR_PX};
 use lipcall::render::offscreen::{FrameOptions, OffscreenRenderer};
+use lipcall::render::renderer::Shading;
 use lipcall::render::{Camera, Framing};
 use lipcall::vocab::{VISEME_NAMES, VisemeWeights};
 
@@ -177,5 +178,84 @@ fn a_tile_at_its_level_looks_like_the_full_mesh() {
             "{width}x{height}: at most {:.2} % of the pixels differ",
             100.0 * worst
         );
+    }
+}
+
+/// Lit per vertex, a small head looks as it does lit per pixel: its triangles are a few pixels
+/// across. Compared at the level of detail each size draws, in every viseme, from the largest
+/// head lit per vertex down to a 120-pixel tile.
+#[test]
+fn a_small_tile_lit_per_vertex_looks_lit_per_pixel() {
+    let Some(ctx) = gpu() else { return };
+    let head = default_head();
+    let camera = Camera::framing(&head.face_frame(), Framing::Face);
+    let probe =
+        OffscreenRenderer::with_levels(&ctx, head, levels(), FrameOptions::default(), 1).unwrap();
+    let lit_per_vertex =
+        |height| probe.head().shading_for(camera.pixels_per_metre(height)) == Shading::PerVertex;
+    assert!(!lit_per_vertex(2000), "a large head is lit per pixel");
+    let largest = (120..2000).rev().find(|&h| lit_per_vertex(h)).unwrap();
+    println!("lit per vertex up to {largest} pixels high");
+    assert!(lit_per_vertex(279), "eight peers' tiles are lit per vertex");
+    for (width, height) in [
+        (largest * 4 / 3, largest),
+        (256, 279),
+        (249, 192),
+        (160, 120),
+    ] {
+        let options = FrameOptions {
+            width,
+            height,
+            framing: Framing::Face,
+            ..Default::default()
+        };
+        let mut offscreen =
+            OffscreenRenderer::with_levels(&ctx, head, levels(), options, 1).unwrap();
+        let ppm = offscreen.camera.pixels_per_metre(height);
+        offscreen.set_level(offscreen.head().level_for(ppm));
+        println!("{width}x{height}: {:?}", offscreen.head().shading_for(ppm));
+        let region = (
+            width / 2 - height / 6,
+            height * 13 / 20,
+            width / 2 + height / 6,
+            height * 17 / 20,
+        );
+        let mouth_area = ((region.2 - region.0) * (region.3 - region.1)) as usize;
+        for (v, name) in VISEME_NAMES.iter().enumerate() {
+            let weights = VisemeWeights::one_hot(v);
+            offscreen.set_shading(&ctx.device, Shading::PerPixel);
+            let pixel = offscreen.render(&ctx, &weights).unwrap();
+            offscreen.set_shading(&ctx.device, Shading::PerVertex);
+            let vertex = offscreen.render(&ctx, &weights).unwrap();
+            if let Some(dir) = std::env::var_os("LIPCALL_LOD_SHOTS") {
+                let dir = std::path::Path::new(&dir);
+                pixel
+                    .save(dir.join(format!("{width}_{name}_pixel.png")))
+                    .unwrap();
+                vertex
+                    .save(dir.join(format!("{width}_{name}_vertex.png")))
+                    .unwrap();
+            }
+            let diff = difference(&pixel, &vertex, (0, 0, width, height));
+            let mouth_diff = difference(&pixel, &vertex, region);
+            let (teeth_pixel, teeth_vertex) = (teeth(&pixel, region), teeth(&vertex, region));
+            println!(
+                "{width}x{height} {name}: {diff} pixels differ ({:.2} %), {mouth_diff} of the \
+                 mouth's {mouth_area}; teeth {teeth_pixel} vs {teeth_vertex}",
+                100.0 * diff as f64 / (width * height) as f64
+            );
+            assert!(
+                diff * 200 < (width * height) as usize,
+                "{name}: {diff} pixels differ"
+            );
+            assert!(
+                mouth_diff * 100 <= mouth_area,
+                "{name}: {mouth_diff} of the mouth's {mouth_area} pixels differ"
+            );
+            assert!(
+                teeth_pixel.abs_diff(teeth_vertex) <= 2 + teeth_pixel / 20,
+                "{name}: teeth {teeth_pixel} vs {teeth_vertex} pixels"
+            );
+        }
     }
 }

@@ -108,12 +108,18 @@ impl HeadTiles {
     ) -> anyhow::Result<Self> {
         HeadRenderer::check_adapter(&state.adapter)?;
         let samples = sample_count_for(&state.adapter);
-        let renderer = HeadRenderer::with_samples(
+        let mut renderer = HeadRenderer::with_samples(
             &state.device,
             TARGET_FORMAT,
             Some(crate::render::renderer::DEPTH_FORMAT),
             samples,
         );
+        // A GPU lights every pixel for free; a software adapter pays per pixel, and small heads
+        // look the same lit per vertex (tests/render_lod.rs).
+        let software = state.adapter.get_info().device_type == wgpu::DeviceType::Cpu;
+        if software {
+            renderer.add_vertex_lighting(&state.device);
+        }
         let model = crate::render::default_head()?;
         let levels = DetailLevels::build(&model);
         let head = renderer.upload_with_levels(
@@ -199,7 +205,9 @@ impl HeadTiles {
         let t0 = Instant::now();
         let camera = Camera::framing(head.face_frame(), tile.framing);
         let aspect = size.0 as f32 / size.1 as f32;
-        entry.instance.level = head.level_for(camera.pixels_per_metre(size.1));
+        let pixels_per_metre = camera.pixels_per_metre(size.1);
+        entry.instance.level = head.level_for(pixels_per_metre);
+        entry.instance.shading = head.shading_for(pixels_per_metre);
         renderer.prepare(
             &state.queue,
             &mut entry.instance,

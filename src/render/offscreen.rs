@@ -9,7 +9,7 @@ use super::camera::{Camera, Framing};
 use super::head::HeadModel;
 use super::lod::DetailLevels;
 use super::readback::read_buffer;
-use super::renderer::{DEPTH_FORMAT, GpuHead, HeadInstance, HeadRenderer};
+use super::renderer::{DEPTH_FORMAT, GpuHead, HeadInstance, HeadRenderer, Shading};
 use super::target::{HeadTarget, TARGET_FORMAT, sample_count_for};
 use crate::vocab::{FacePose, VISEME_COUNT, Viseme, VisemeWeights};
 
@@ -222,6 +222,16 @@ impl OffscreenRenderer {
     pub fn set_level(&mut self, level: usize) {
         for instance in &mut self.instances {
             instance.level = level;
+        }
+    }
+
+    /// Lights every head per vertex or per pixel from the next frame on.
+    pub fn set_shading(&mut self, device: &wgpu::Device, shading: Shading) {
+        if shading == Shading::PerVertex {
+            self.renderer.add_vertex_lighting(device);
+        }
+        for instance in &mut self.instances {
+            instance.shading = shading;
         }
     }
 

@@ -7,7 +7,7 @@ use bytemuck::{Pod, Zeroable};
 use glam::{Mat4, Vec3};
 
 use super::GpuHead;
-use super::pipelines::HeadRenderer;
+use super::pipelines::{HeadRenderer, Shading};
 use crate::render::camera::Camera;
 use crate::render::head::{TARGET_COUNT, slot_weights};
 use crate::vocab::{FacePose, VisemeWeights};
@@ -65,6 +65,8 @@ pub struct HeadInstance {
     /// Level of detail drawn (0, the full mesh, unless the head was uploaded with levels; see
     /// [`GpuHead::level_for`]).
     pub level: usize,
+    /// Where lighting is computed ([`GpuHead::shading_for`]).
+    pub shading: Shading,
 }
 
 impl HeadInstance {
@@ -120,6 +122,7 @@ impl HeadRenderer {
             last_weights: None,
             model: Mat4::IDENTITY,
             level: 0,
+            shading: Shading::PerPixel,
         }
     }
 
@@ -175,7 +178,7 @@ impl HeadRenderer {
             if let Some(material) = head.materials.get(draw.material) {
                 if bound != Some(material.pipeline) {
                     bound = Some(material.pipeline);
-                    pass.set_pipeline(&self.pipelines[material.pipeline]);
+                    pass.set_pipeline(self.pipeline(material.pipeline, instance.shading));
                 }
                 pass.set_bind_group(1, &material.bind_group, &[]);
                 pass.draw_indexed(draw.indices.clone(), 0, 0..1);

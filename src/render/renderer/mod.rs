@@ -11,5 +11,5 @@ mod pipelines;
 mod upload;
 
 pub use frame::HeadInstance;
-pub use pipelines::{DEPTH_FORMAT, HeadRenderer, SHADER_SOURCE};
-pub use upload::GpuHead;
+pub use pipelines::{DEPTH_FORMAT, HeadRenderer, SHADER_SOURCE, Shading};
+pub use upload::{GpuHead, VERTEX_LIT_MAX_EDGE_PX};

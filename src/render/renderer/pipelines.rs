@@ -20,13 +20,30 @@ pub(super) fn pipeline_kind(index: usize) -> (bool, bool) {
     (index & 2 != 0, index & 1 != 0)
 }
 
+/// Where a head's lighting is computed.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
+pub enum Shading {
+    /// Per pixel: the full look, at any size.
+    #[default]
+    PerPixel,
+    /// Per vertex, interpolated across each triangle: the same look where triangles are a few
+    /// pixels across (a small head), for a fraction of a software adapter's fragment work.
+    /// Double-sided materials stay lit per pixel (their back faces turn the normal round).
+    PerVertex,
+}
+
 /// Pipeline, layouts and sampler shared by every head drawn into one kind of target.
 pub struct HeadRenderer {
     /// One per kind of material (see [`pipeline_index`]): back faces culled unless the material
     /// is `doubleSided`, as glTF says (half the triangles never reach a software rasteriser), and
     /// the texture sampled only where there is one.
     pub(super) pipelines: [wgpu::RenderPipeline; 4],
+    /// The one-sided kinds again (untextured, textured) with lighting per vertex, when built
+    /// ([`Self::add_vertex_lighting`]) for instances drawn with [`Shading::PerVertex`].
+    pub(super) vertex_lit: Option<[wgpu::RenderPipeline; 2]>,
     pub(super) shader: wgpu::ShaderModule,
+    layout: wgpu::PipelineLayout,
+    samples: u32,
     pub(super) head_layout: wgpu::BindGroupLayout,
     pub(super) material_layout: wgpu::BindGroupLayout,
     pub(super) sampler: wgpu::Sampler,
@@ -154,71 +171,21 @@ impl HeadRenderer {
             bind_group_layouts: &[Some(&head_layout), Some(&material_layout)],
             immediate_size: 0,
         });
-        let attributes = wgpu::vertex_attr_array![
-            0 => Float32x3, 1 => Float32x3, 2 => Float32x2, 3 => Float32x4
-        ];
-        let pipeline = |index: usize| {
-            let (double_sided, textured) = pipeline_kind(index);
-            let constants = [("TEXTURED", f64::from(u8::from(textured)))];
-            device.create_render_pipeline(&wgpu::RenderPipelineDescriptor {
-                label: Some(&format!(
-                    "lipcall head pipeline ({}, {})",
-                    if double_sided {
-                        "double-sided"
-                    } else {
-                        "one-sided"
-                    },
-                    if textured { "textured" } else { "untextured" }
-                )),
-                layout: Some(&layout),
-                vertex: wgpu::VertexState {
-                    module: &shader,
-                    entry_point: Some("vs_main"),
-                    compilation_options: Default::default(),
-                    buffers: &[Some(wgpu::VertexBufferLayout {
-                        array_stride: std::mem::size_of::<Vertex>() as u64,
-                        step_mode: wgpu::VertexStepMode::Vertex,
-                        attributes: &attributes,
-                    })],
-                },
-                primitive: wgpu::PrimitiveState {
-                    topology: wgpu::PrimitiveTopology::TriangleList,
-                    cull_mode: if double_sided {
-                        None
-                    } else {
-                        Some(wgpu::Face::Back)
-                    },
-                    ..Default::default()
-                },
-                depth_stencil: depth_format.map(|format| wgpu::DepthStencilState {
-                    format,
-                    depth_write_enabled: Some(true),
-                    depth_compare: Some(wgpu::CompareFunction::Less),
-                    stencil: Default::default(),
-                    bias: Default::default(),
-                }),
-                multisample: wgpu::MultisampleState {
-                    count: samples.max(1),
-                    ..Default::default()
-                },
-                fragment: Some(wgpu::FragmentState {
-                    module: &shader,
-                    entry_point: Some("fs_main"),
-                    compilation_options: wgpu::PipelineCompilationOptions {
-                        constants: &constants,
-                        ..Default::default()
-                    },
-                    targets: &[Some(wgpu::ColorTargetState {
-                        format: color_format,
-                        blend: None,
-                        write_mask: wgpu::ColorWrites::ALL,
-                    })],
-                }),
-                multiview_mask: None,
-                cache: None,
-            })
+        let target = TargetKind {
+            color_format,
+            depth_format,
+            samples,
         };
-        let pipelines = std::array::from_fn(pipeline);
+        let pipelines = std::array::from_fn(|index| {
+            head_pipeline(
+                device,
+                &shader,
+                &layout,
+                &target,
+                pipeline_kind(index),
+                false,
+            )
+        });
         let sampler = device.create_sampler(&wgpu::SamplerDescriptor {
             label: Some("lipcall head base colour sampler"),
             address_mode_u: wgpu::AddressMode::Repeat,
@@ -229,12 +196,48 @@ impl HeadRenderer {
         });
         Self {
             pipelines,
+            vertex_lit: None,
             shader,
+            layout,
+            samples,
             head_layout,
             material_layout,
             sampler,
             color_format,
             depth_format,
+        }
+    }
+
+    /// Builds the pipelines that light per vertex ([`Shading::PerVertex`]), once; until then
+    /// such instances are lit per pixel. On demand: each pipeline is a shader compile, which a
+    /// software adapter pays for in time.
+    pub fn add_vertex_lighting(&mut self, device: &wgpu::Device) {
+        if self.vertex_lit.is_some() {
+            return;
+        }
+        let target = TargetKind {
+            color_format: self.color_format,
+            depth_format: self.depth_format,
+            samples: self.samples,
+        };
+        self.vertex_lit = Some([false, true].map(|textured| {
+            head_pipeline(
+                device,
+                &self.shader,
+                &self.layout,
+                &target,
+                (false, textured),
+                true,
+            )
+        }));
+    }
+
+    /// The pipeline that draws a material of kind `index` ([`pipeline_index`]) with `shading`.
+    pub(super) fn pipeline(&self, index: usize, shading: Shading) -> &wgpu::RenderPipeline {
+        let (double_sided, textured) = pipeline_kind(index);
+        match (&self.vertex_lit, shading) {
+            (Some(lit), Shading::PerVertex) if !double_sided => &lit[usize::from(textured)],
+            _ => &self.pipelines[index],
         }
     }
 
@@ -245,4 +248,91 @@ impl HeadRenderer {
     pub fn depth_format(&self) -> Option<wgpu::TextureFormat> {
         self.depth_format
     }
+}
+
+/// What a pipeline draws into.
+struct TargetKind {
+    color_format: wgpu::TextureFormat,
+    depth_format: Option<wgpu::TextureFormat>,
+    samples: u32,
+}
+
+/// One head pipeline: back faces culled unless `double_sided`, the base colour texture sampled
+/// if `textured`, lighting per vertex if `vertex_lit`.
+fn head_pipeline(
+    device: &wgpu::Device,
+    shader: &wgpu::ShaderModule,
+    layout: &wgpu::PipelineLayout,
+    target: &TargetKind,
+    (double_sided, textured): (bool, bool),
+    vertex_lit: bool,
+) -> wgpu::RenderPipeline {
+    let constants = [
+        ("TEXTURED", f64::from(u8::from(textured))),
+        ("VERTEX_LIT", f64::from(u8::from(vertex_lit))),
+    ];
+    let attributes = wgpu::vertex_attr_array![
+        0 => Float32x3, 1 => Float32x3, 2 => Float32x2, 3 => Float32x4
+    ];
+    device.create_render_pipeline(&wgpu::RenderPipelineDescriptor {
+        label: Some(&format!(
+            "lipcall head pipeline ({}, {}, lit per {})",
+            if double_sided {
+                "double-sided"
+            } else {
+                "one-sided"
+            },
+            if textured { "textured" } else { "untextured" },
+            if vertex_lit { "vertex" } else { "pixel" }
+        )),
+        layout: Some(layout),
+        vertex: wgpu::VertexState {
+            module: shader,
+            entry_point: Some("vs_main"),
+            compilation_options: wgpu::PipelineCompilationOptions {
+                constants: &constants,
+                ..Default::default()
+            },
+            buffers: &[Some(wgpu::VertexBufferLayout {
+                array_stride: std::mem::size_of::<Vertex>() as u64,
+                step_mode: wgpu::VertexStepMode::Vertex,
+                attributes: &attributes,
+            })],
+        },
+        primitive: wgpu::PrimitiveState {
+            topology: wgpu::PrimitiveTopology::TriangleList,
+            cull_mode: if double_sided {
+                None
+            } else {
+                Some(wgpu::Face::Back)
+            },
+            ..Default::default()
+        },
+        depth_stencil: target.depth_format.map(|format| wgpu::DepthStencilState {
+            format,
+            depth_write_enabled: Some(true),
+            depth_compare: Some(wgpu::CompareFunction::Less),
+            stencil: Default::default(),
+            bias: Default::default(),
+        }),
+        multisample: wgpu::MultisampleState {
+            count: target.samples.max(1),
+            ..Default::default()
+        },
+        fragment: Some(wgpu::FragmentState {
+            module: shader,
+            entry_point: Some("fs_main"),
+            compilation_options: wgpu::PipelineCompilationOptions {
+                constants: &constants,
+                ..Default::default()
+            },
+            targets: &[Some(wgpu::ColorTargetState {
+                format: target.color_format,
+                blend: None,
+                write_mask: wgpu::ColorWrites::ALL,
+            })],
+        }),
+        multiview_mask: None,
+        cache: None,
+    })
 }

@@ -7,7 +7,7 @@ use std::sync::Arc;
 use bytemuck::{Pod, Zeroable};
 use wgpu::util::DeviceExt;
 
-use super::pipelines::{HeadRenderer, pipeline_index};
+use super::pipelines::{HeadRenderer, Shading, pipeline_index};
 use crate::render::RenderError;
 use crate::render::head::{FaceFrame, HeadModel, MorphDelta, TARGET_COUNT, Vertex};
 use crate::render::lod::DetailLevels;
@@ -53,6 +53,31 @@ pub struct GpuHead {
     /// Where each vertex of the model (primitives in order) sits in the GPU vertex buffer.
     pub(super) model_to_gpu: Vec<u32>,
     pub(super) frame: FaceFrame,
+    /// Median length of the full mesh's triangle edges, in metres.
+    median_edge_m: f32,
+}
+
+/// Lighting per vertex pays where a head's typical triangle edge is at most this many pixels:
+/// smaller than the highlights and shadows the lights draw across a face.
+pub const VERTEX_LIT_MAX_EDGE_PX: f32 = 6.0;
+
+/// Median length of `model`'s triangle edges (0 for a head without triangles).
+fn median_edge(model: &HeadModel) -> f32 {
+    let mut edges: Vec<f32> = model
+        .primitives
+        .iter()
+        .flat_map(|p| {
+            p.indices.chunks_exact(3).flat_map(move |t| {
+                let at = |i: u32| glam::Vec3::from(p.vertices[i as usize].position);
+                [(t[0], t[1]), (t[1], t[2]), (t[2], t[0])].map(|(a, b)| at(a).distance(at(b)))
+            })
+        })
+        .collect();
+    if edges.is_empty() {
+        return 0.0;
+    }
+    let middle = edges.len() / 2;
+    *edges.select_nth_unstable_by(middle, f32::total_cmp).1
 }
 
 impl GpuHead {
@@ -87,6 +112,18 @@ impl GpuHead {
     /// [`Camera::pixels_per_metre`]: crate::render::Camera::pixels_per_metre
     pub fn level_for(&self, pixels_per_metre: f32) -> usize {
         crate::render::lod::level_for(self.levels.iter().map(|l| l.error_m), pixels_per_metre)
+    }
+
+    /// How to light the head where a metre at its distance is `pixels_per_metre` pixels: per
+    /// vertex once its typical triangle is at most [`VERTEX_LIT_MAX_EDGE_PX`] pixels across.
+    pub fn shading_for(&self, pixels_per_metre: f32) -> Shading {
+        if pixels_per_metre.is_finite()
+            && self.median_edge_m * pixels_per_metre <= VERTEX_LIT_MAX_EDGE_PX
+        {
+            Shading::PerVertex
+        } else {
+            Shading::PerPixel
+        }
     }
 
     pub(super) fn level(&self, level: usize) -> &GpuLevel {
@@ -238,6 +275,7 @@ impl HeadRenderer {
             vertex_count: vertex_count as u32,
             model_to_gpu,
             frame: model.face_frame(),
+            median_edge_m: median_edge(model),
         }))
     }
 
