@@ -239,6 +239,15 @@ impl HeadRenderer {
             base += p.vertices.len();
         }
 
+        // The largest part (the face's skin) first: the parts it hides (teeth, tongue, the backs
+        // of the eyes) then fail the depth test before they are shaded, where drawn first they
+        // were shaded and then covered. The picture is the same.
+        for level in &mut gpu_levels {
+            level
+                .draws
+                .sort_by_key(|d| std::cmp::Reverse(d.indices.len()));
+        }
+
         let vertex_buffer = device.create_buffer_init(&wgpu::util::BufferInitDescriptor {
             label: Some(&format!("{label} vertices")),
             contents: bytemuck::cast_slice(&vertices),
