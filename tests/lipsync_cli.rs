@@ -575,3 +575,17 @@ fn decompose_grid_prints_table_i_on_tracked_lips() {
     ]);
     assert_eq!(out.status.code(), Some(2));
 }
+
+/// `tools/lip_readout.py` (docs/model.md, "Third round"): its least-squares shape values find
+/// known values again and score r = 1 on lips made through them, and wrong values score less.
+#[test]
+fn lip_readout_tool_recovers_known_shape_values() {
+    let tool = Path::new(env!("CARGO_MANIFEST_DIR")).join("tools/lip_readout.py");
+    let out = Command::new("python3")
+        .arg(tool)
+        .arg("--self-test")
+        .output()
+        .expect("run python3");
+    assert!(out.status.success(), "{}", stderr(&out));
+    assert!(String::from_utf8_lossy(&out.stdout).contains("self-test passed"));
+}
