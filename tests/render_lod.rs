@@ -10,7 +10,7 @@ use common::gpu;
 
 use lipcall::render::head::HeadModel;
 use lipcall::render::lod::{DetailLevels, MAX_ERROR_PX};
-use lipcall::render::offscreen::{FrameOptions, OffscreenRenderer};
+use lipcall::render::offscreen::{FrameOptions, GpuContext, OffscreenRenderer};
 use lipcall::render::renderer::Shading;
 use lipcall::render::{Camera, Framing};
 use lipcall::vocab::{VISEME_NAMES, VisemeWeights};
@@ -87,6 +87,26 @@ fn the_level_follows_the_size_the_head_is_shown_at() {
 
 type Region = (u32, u32, u32, u32);
 
+/// An offscreen renderer of the default head's levels in a `width` x `height` face tile, and
+/// the tile's mouth: about a quarter of the height above the bottom, in the middle.
+fn tile(ctx: &GpuContext, width: u32, height: u32) -> (OffscreenRenderer, Region) {
+    let options = FrameOptions {
+        width,
+        height,
+        framing: Framing::Face,
+        ..Default::default()
+    };
+    let offscreen =
+        OffscreenRenderer::with_levels(ctx, default_head(), levels(), options, 1).unwrap();
+    let region = (
+        width / 2 - height / 6,
+        height * 13 / 20,
+        width / 2 + height / 6,
+        height * 17 / 20,
+    );
+    (offscreen, region)
+}
+
 fn region_pixels(img: &image::RgbaImage, (x0, y0, x1, y1): Region) -> Vec<[i32; 4]> {
     img.enumerate_pixels()
         .filter(|(x, y, _)| (x0..x1).contains(x) && (y0..y1).contains(y))
@@ -116,27 +136,12 @@ fn teeth(img: &image::RgbaImage, region: Region) -> usize {
 #[test]
 fn a_tile_at_its_level_looks_like_the_full_mesh() {
     let Some(ctx) = gpu() else { return };
-    let head = default_head();
     for (width, height) in [(249, 192), (160, 120)] {
-        let options = FrameOptions {
-            width,
-            height,
-            framing: Framing::Face,
-            ..Default::default()
-        };
-        let mut offscreen =
-            OffscreenRenderer::with_levels(&ctx, head, levels(), options, 1).unwrap();
+        let (mut offscreen, region) = tile(&ctx, width, height);
         let level = offscreen
             .head()
             .level_for(offscreen.camera.pixels_per_metre(height));
         assert!(level > 0, "{width}x{height}: level {level}");
-        // The mouth: about a quarter of the height above the bottom, in the middle.
-        let region = (
-            width / 2 - height / 6,
-            height * 13 / 20,
-            width / 2 + height / 6,
-            height * 17 / 20,
-        );
         let whole = (0, 0, width, height);
         let mut worst = 0.0f64;
         for (v, name) in VISEME_NAMES.iter().enumerate() {
@@ -203,23 +208,10 @@ fn a_small_tile_lit_per_vertex_looks_lit_per_pixel() {
         (249, 192),
         (160, 120),
     ] {
-        let options = FrameOptions {
-            width,
-            height,
-            framing: Framing::Face,
-            ..Default::default()
-        };
-        let mut offscreen =
-            OffscreenRenderer::with_levels(&ctx, head, levels(), options, 1).unwrap();
+        let (mut offscreen, region) = tile(&ctx, width, height);
         let ppm = offscreen.camera.pixels_per_metre(height);
         offscreen.set_level(offscreen.head().level_for(ppm));
         println!("{width}x{height}: {:?}", offscreen.head().shading_for(ppm));
-        let region = (
-            width / 2 - height / 6,
-            height * 13 / 20,
-            width / 2 + height / 6,
-            height * 17 / 20,
-        );
         let mouth_area = ((region.2 - region.0) * (region.3 - region.1)) as usize;
         for (v, name) in VISEME_NAMES.iter().enumerate() {
             let weights = VisemeWeights::one_hot(v);

@@ -23,6 +23,10 @@ const ANTICIPATION: f64 = 3.0;
 /// Spare delay, in seconds, beyond what the buffer sheds in pauses, at which it drops a frame
 /// whatever its loudness (a sound that never pauses, from a fast sender).
 const FORCED_SPARE: f64 = 0.2;
+/// Delay a start held up by this much (seconds) or more than it asked for is shed in a pause,
+/// when the worst slack allows a frame less: half a frame, so that a start one frame late less
+/// a few milliseconds of jitter is not kept for the whole call.
+const HELD_UP: f64 = 0.5 * FRAME_SECONDS;
 /// A drift of the slack faster than this (seconds per second, 0.05 %) is a fast sender: the
 /// buffer sheds spare delay in pauses from a lower level than a jitter-free start can show.
 const FAST_DRIFT: f64 = 0.0005;
@@ -152,8 +156,8 @@ impl Corrector {
     /// fastest relative delay now, `pull_jitter` how early the pulls come (delay the slack does
     /// not show). When playout started on packets that were held up (a sender's capture or
     /// start-up burst: playout started with more delay than its target, or the fastest packets
-    /// since came faster than those it started on) by a frame or more, that delay is more than
-    /// the start asked for, and a frame of it is shed in a pause as soon as the worst slack
+    /// since came faster than those it started on) by [`HELD_UP`] or more, that delay is more
+    /// than the start asked for, and a frame of it is shed in a pause as soon as the worst slack
     /// allows a frame less.
     pub fn adapt(
         &mut self,
@@ -177,7 +181,7 @@ impl Corrector {
             self.slack_sorted.sort_by(f64::total_cmp);
             let low = self.slack_sorted[self.slack_sorted.len() / 50];
             let mut limits = self.limits();
-            if self.start_base - base >= FRAME_SECONDS {
+            if self.start_base - base >= HELD_UP {
                 let spare = limits.grow_quiet + self.margin + pull_jitter + FRAME_SECONDS;
                 limits.shrink_quiet = limits.shrink_quiet.min(spare);
             }

@@ -872,9 +872,9 @@ fn stream(n: u32, seq: u16, ts: u32, first_step: u32, from: f64) -> Vec<Sent> {
 fn a_sender_whose_first_packets_were_held_up_sheds_the_delay_they_gave_in_a_pause() {
     // Its first four packets leave together, 50 ms late (a capture or a start-up burst), then
     // every 20 ms on time: playout started on the late ones, so once the fast packets show the
-    // delay is 50 ms more than the start asked for. A frame of it goes in the first pause
-    // (packets 40 to 49 are quiet), not more than the fall; nothing is late or lost. Without
-    // the burst nothing is dropped (the tests above).
+    // delay is 50 ms more than the start asked for. Frames of it go in the first pause
+    // (packets 40 to 49 are quiet), one or two but not more than the fall; nothing is late or
+    // lost. Without the burst nothing is dropped (the tests above).
     for phase_ms in [0, 7, 13] {
         let mut packets = stream(400, 1000, 0, 160, 0.0);
         for p in packets.iter_mut().take(4) {
@@ -889,11 +889,12 @@ fn a_sender_whose_first_packets_were_held_up_sheds_the_delay_they_gave_in_a_paus
         );
         let what = format!("phase {phase_ms} ms: {stats:?}");
         let played = indices(&out);
-        assert_eq!(stats.dropped, 1, "{what}");
+        assert!((1..=2).contains(&stats.dropped), "{what}");
         assert_eq!((stats.late, stats.lost, stats.forced), (0, 0, 0), "{what}");
-        assert_eq!(played.len(), 399, "{what}");
-        let shed = (0..400).find(|i| !played.contains(i)).unwrap();
-        assert!(shed % 50 >= 40, "a loud frame {shed} dropped: {what}");
+        assert_eq!(played.len() as u64, 400 - stats.dropped, "{what}");
+        for shed in (0..400).filter(|i| !played.contains(i)) {
+            assert!(shed % 50 >= 40, "a loud frame {shed} dropped: {what}");
+        }
         assert!(stats.current_delay_ms < 60.0, "{what}");
     }
 }

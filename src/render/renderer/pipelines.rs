@@ -271,6 +271,10 @@ fn head_pipeline(
         ("TEXTURED", f64::from(u8::from(textured))),
         ("VERTEX_LIT", f64::from(u8::from(vertex_lit))),
     ];
+    let compilation_options = wgpu::PipelineCompilationOptions {
+        constants: &constants,
+        ..Default::default()
+    };
     let attributes = wgpu::vertex_attr_array![
         0 => Float32x3, 1 => Float32x3, 2 => Float32x2, 3 => Float32x4
     ];
@@ -289,10 +293,7 @@ fn head_pipeline(
         vertex: wgpu::VertexState {
             module: shader,
             entry_point: Some("vs_main"),
-            compilation_options: wgpu::PipelineCompilationOptions {
-                constants: &constants,
-                ..Default::default()
-            },
+            compilation_options: compilation_options.clone(),
             buffers: &[Some(wgpu::VertexBufferLayout {
                 array_stride: std::mem::size_of::<Vertex>() as u64,
                 step_mode: wgpu::VertexStepMode::Vertex,
@@ -322,10 +323,7 @@ fn head_pipeline(
         fragment: Some(wgpu::FragmentState {
             module: shader,
             entry_point: Some("fs_main"),
-            compilation_options: wgpu::PipelineCompilationOptions {
-                constants: &constants,
-                ..Default::default()
-            },
+            compilation_options: compilation_options.clone(),
             targets: &[Some(wgpu::ColorTargetState {
                 format: target.color_format,
                 blend: None,
