@@ -28,7 +28,7 @@ const MOUTH_KEPT: f32 = 0.6;
 
 /// The face's own surface is kept whole only on the lips: out to [`MOUTH_KEPT`] across and
 /// forward, this far up and down (mouth widths). The chin, the cheeks and under the nose, within
-/// the mouth's reach, are simplified like the rest of the head; about a fifth of a small tile's
+/// the mouth's reach, are simplified like the rest of the head; about a sixth of a small tile's
 /// triangles, which cost a software adapter more than its pixels do.
 const LIPS_KEPT_HEIGHT: f32 = 0.25;
 
