@@ -16,7 +16,7 @@ use eframe::egui_wgpu;
 
 use crate::render::blit::{Blit, BlitImage};
 use crate::render::lod::DetailLevels;
-use crate::render::target::{HeadTarget, TARGET_FORMAT, sample_count_for};
+use crate::render::target::{HeadTarget, TARGET_FORMAT, is_software, sample_count_for};
 use crate::render::{Camera, Framing, GpuHead, HeadInstance, HeadRenderer};
 use crate::vocab::FacePose;
 use crate::vocab::VisemeWeights;
@@ -116,8 +116,7 @@ impl HeadTiles {
         );
         // A GPU lights every pixel for free; a software adapter pays per pixel, and small heads
         // look the same lit per vertex (tests/render_lod.rs).
-        let software = state.adapter.get_info().device_type == wgpu::DeviceType::Cpu;
-        if software {
+        if is_software(&state.adapter) {
             renderer.add_vertex_lighting(&state.device);
         }
         let model = crate::render::default_head()?;

@@ -11,10 +11,16 @@ pub const TARGET_FORMAT: wgpu::TextureFormat = wgpu::TextureFormat::Rgba8UnormSr
 /// The same bytes seen without sRGB decoding: egui samples textures as already gamma-encoded.
 pub const TARGET_VIEW_UNORM: wgpu::TextureFormat = wgpu::TextureFormat::Rgba8Unorm;
 
+/// Whether `adapter` renders on the CPU (lavapipe, llvmpipe), where every pixel and vertex
+/// costs frame rate.
+pub fn is_software(adapter: &wgpu::Adapter) -> bool {
+    adapter.get_info().device_type == wgpu::DeviceType::Cpu
+}
+
 /// Samples per pixel for heads on `adapter`: 4 on GPUs, 1 on software adapters, where 4x
 /// multisampling costs more fragment work than the frame rate allows.
 pub fn sample_count_for(adapter: &wgpu::Adapter) -> u32 {
-    if adapter.get_info().device_type == wgpu::DeviceType::Cpu {
+    if is_software(adapter) {
         return 1;
     }
     let flags = |format| adapter.get_texture_format_features(format).flags;
