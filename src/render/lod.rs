@@ -98,7 +98,12 @@ impl DetailLevels {
         // Offset from the mouth's centre in mouth widths.
         let from_mouth =
             |v: &Vertex| (Vec3::from(v.position) - frame.mouth) / frame.mouth_width.max(1e-4);
-        let inside_mouth = |p: &Primitive| p.vertices.iter().all(|v| from_mouth(v).length() <= 1.0);
+        // Parts lying within a mouth width of its centre: teeth, tongue.
+        let inside_mouth: Vec<bool> = model
+            .primitives
+            .iter()
+            .map(|p| p.vertices.iter().all(|v| from_mouth(v).length() <= 1.0))
+            .collect();
         let inner_part = |v: &Vertex| from_mouth(v).length() <= MOUTH_KEPT;
         let lips = |v: &Vertex| {
             let d = from_mouth(v) / Vec3::new(MOUTH_KEPT, LIPS_KEPT_HEIGHT, MOUTH_KEPT);
@@ -116,8 +121,9 @@ impl DetailLevels {
             let indices = model
                 .primitives
                 .iter()
-                .map(|p| {
-                    let (indices, error) = if inside_mouth(p) {
+                .zip(&inside_mouth)
+                .map(|(p, &inside_mouth)| {
+                    let (indices, error) = if inside_mouth {
                         simplify(p, bound, &inner_part, &emphasis)
                     } else {
                         simplify(p, bound, &lips, &emphasis)
