@@ -11,13 +11,16 @@ struct View {
     light_dir: vec4<f32>,
     // x: vertices with morph deltas (they come first; stride between two visemes' blocks)
     // y: all vertices of the head
+    // z: the first moving vertex that the eye shapes move too (the visemes alone move those
+    //    before it), w: the first that only the eye shapes move
     counts: vec4<u32>,
 }
 
 // Slots blended: 15 visemes + 5 expressions (TARGET_COUNT in src/render/head.rs).
 const TARGET_COUNT: u32 = 20u;
 
-// The slots with weight this frame, compacted: `used.x` of them, `slot[k]` weighted `w[k]`.
+// The slots with weight this frame, compacted: `used.x` of them, `slot[k]` weighted `w[k]`; the
+// first `used.y` are visemes, the rest eye shapes.
 struct Weights {
     used: vec4<u32>,
     slot: array<vec4<u32>, 5>,
@@ -77,7 +80,11 @@ fn blend(vid: u32, position: vec3<f32>, normal: vec3<f32>) -> Blended {
     // not a branch: lavapipe specialises shaders on uniforms that steer branches and loops, and
     // recompiles at every draw that binds them.
     let used = select(min(weights.used.x, TARGET_COUNT), 0u, vid >= count);
-    for (var k = 0u; k < used; k = k + 1u) {
+    // A vertex only the visemes move skips the eye shapes' slots, and the other way round.
+    let visemes = min(weights.used.y, used);
+    let first = select(0u, visemes, vid >= view.counts.w);
+    let last = select(used, visemes, vid < view.counts.z);
+    for (var k = first; k < last; k = k + 1u) {
         let t = weights.slot[k / 4u][k % 4u];
         let w = weights.w[k / 4u][k % 4u];
         let b = (t * count + vid) * 6u;

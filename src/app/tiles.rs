@@ -1,5 +1,6 @@
 //! Head tiles: each peer's head is rendered into its own texture at the size the tile is shown,
-//! only when what it shows changed (weights, framing, size), with the coarsest level of detail
+//! only when what it shows changed (framing, size, or the face moved by a quarter of a pixel:
+//! [`crate::render::renderer::UNSEEN_MOTION_PX`]), with the coarsest level of detail
 //! that is exact to half a pixel at that size, and copied into egui's pass pixel for pixel by a
 //! paint callback ([`Blit`]: opaque texel loads, which a software adapter does many times faster
 //! than egui's filtered, blended image path). The head pass is thus independent of egui's:
@@ -194,17 +195,23 @@ impl HeadTiles {
             entry.image = Arc::new(blit.image(&state.device, &entry.target));
             entry.shown = None;
         }
-        if entry
-            .shown
-            .as_ref()
-            .is_some_and(|(shown, at)| *shown == tile && *at == size)
-        {
+        let camera = Camera::framing(head.face_frame(), tile.framing);
+        let pixels_per_metre = camera.pixels_per_metre(size.1);
+        // Shown again while the face has moved less than a fraction of a pixel since it was
+        // drawn (a listener's drifting head, a settled mouth).
+        if entry.shown.as_ref().is_some_and(|(shown, at)| {
+            *at == size
+                && shown.framing == tile.framing
+                && head.looks_the_same(
+                    (&shown.weights, &shown.pose),
+                    (&tile.weights, &tile.pose),
+                    pixels_per_metre,
+                )
+        }) {
             return entry.image.clone();
         }
         let t0 = Instant::now();
-        let camera = Camera::framing(head.face_frame(), tile.framing);
         let aspect = size.0 as f32 / size.1 as f32;
-        let pixels_per_metre = camera.pixels_per_metre(size.1);
         entry.instance.level = head.level_for(pixels_per_metre);
         entry.instance.shading = head.shading_for(pixels_per_metre);
         renderer.prepare(
@@ -227,10 +234,9 @@ impl HeadTiles {
         state.queue.submit([encoder.finish()]);
         entry.shown = Some((tile, size));
         counters.tiles_drawn.fetch_add(1, Ordering::Relaxed);
-        counters.triangles_drawn.fetch_add(
-            head.triangle_count(entry.instance.level) as u64,
-            Ordering::Relaxed,
-        );
+        counters
+            .triangles_drawn
+            .fetch_add(entry.instance.triangles_drawn() as u64, Ordering::Relaxed);
         counters
             .record_ns
             .fetch_add(t0.elapsed().as_nanos() as u64, Ordering::Relaxed);

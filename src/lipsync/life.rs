@@ -27,6 +27,8 @@ use crate::vocab::FacePose;
 use crate::vocab::FrameFeatures;
 use crate::vocab::{FRAME_SIZE, SAMPLE_RATE};
 
+pub use crate::vocab::pose::HEAD_MAX_RAD;
+
 /// Seconds per frame.
 pub const FRAME_S: f32 = FRAME_SIZE as f32 / SAMPLE_RATE as f32;
 
@@ -48,12 +50,6 @@ const SACCADE_DURATION_S: f32 = 0.04;
 /// head's full look is 20 degrees, so 0.3 is 6 degrees; most jumps are far smaller).
 pub const GAZE_MAX: Vec2 = Vec2::new(0.3, 0.18);
 
-/// Largest head angles (radians): pitch, yaw, roll.
-pub const HEAD_MAX_RAD: [f32; 3] = [
-    5.0 * DEG, // nods
-    4.0 * DEG, // turns
-    3.0 * DEG, // tilts
-];
 const DEG: f32 = std::f32::consts::PI / 180.0;
 
 /// Energy (dB re full scale) where the voice level starts, and the span to full level.

@@ -11,6 +11,7 @@ pub mod arkit;
 pub mod blit;
 pub mod camera;
 mod error;
+pub mod facing;
 pub mod gltf_load;
 pub mod head;
 pub mod lod;

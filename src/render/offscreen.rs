@@ -225,6 +225,19 @@ impl OffscreenRenderer {
         }
     }
 
+    /// Whether to leave out the triangles a frontal camera cannot see, where the camera and
+    /// pose allow ([`crate::render::facing`]; on by default).
+    pub fn set_leave_out_unseen(&mut self, on: bool) {
+        for instance in &mut self.instances {
+            instance.leave_out_unseen = on;
+        }
+    }
+
+    /// Triangles the first head's last frame drew (before culling).
+    pub fn triangles_drawn(&self) -> usize {
+        self.instances[0].triangles_drawn()
+    }
+
     /// Lights every head per vertex or per pixel from the next frame on.
     pub fn set_shading(&mut self, device: &wgpu::Device, shading: Shading) {
         if shading == Shading::PerVertex {

@@ -3,6 +3,16 @@
 
 use glam::{Mat4, Quat, Vec2, Vec3};
 
+const DEG: f32 = std::f32::consts::PI / 180.0;
+
+/// Largest head angles (radians) the living face makes: pitch, yaw, roll. The renderer leaves
+/// out the triangles that cannot face a frontal camera within them (`render::facing`).
+pub const HEAD_MAX_RAD: [f32; 3] = [
+    5.0 * DEG, // nods
+    4.0 * DEG, // turns
+    3.0 * DEG, // tilts
+];
+
 /// What a face does besides its mouth, for one frame: eyelids, gaze and head rotation. The
 /// living face (the living face (`lipsync::life`)) makes one per 20 ms frame; [`FacePose::REST`] is a
 /// still head looking ahead with open eyes.
@@ -39,6 +49,14 @@ impl FacePose {
             roll: 0.0,
             ..self
         }
+    }
+
+    /// True when each head angle is within [`HEAD_MAX_RAD`].
+    pub fn head_within_bounds(&self) -> bool {
+        [self.pitch, self.yaw, self.roll]
+            .iter()
+            .zip(HEAD_MAX_RAD)
+            .all(|(a, max)| a.abs() <= max)
     }
 
     /// True when the head is not rotated (exactly).

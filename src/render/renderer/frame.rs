@@ -10,6 +10,7 @@ use super::GpuHead;
 use super::pipelines::{HeadRenderer, Shading};
 use crate::render::camera::Camera;
 use crate::render::head::{TARGET_COUNT, slot_weights};
+use crate::vocab::VISEME_COUNT;
 use crate::vocab::{FacePose, VisemeWeights};
 
 #[repr(C)]
@@ -26,7 +27,7 @@ struct ViewUniform {
 #[derive(Debug, Clone, Copy, PartialEq, Pod, Zeroable)]
 struct WeightsUniform {
     /// x: how many slots carry weight; the first `x` entries of `slots` and `w` are they, so the
-    /// vertex stage loops over those alone.
+    /// vertex stage loops over those alone. y: how many of them are visemes (they come first).
     active: [u32; 4],
     slots: [u32; TARGET_COUNT],
     w: [f32; TARGET_COUNT],
@@ -41,6 +42,9 @@ impl WeightsUniform {
         };
         let mut n = 0;
         for (slot, w) in slot_weights(weights, pose).into_iter().enumerate() {
+            if slot == VISEME_COUNT {
+                u.active[1] = n as u32;
+            }
             if w != 0.0 {
                 u.slots[n] = slot as u32;
                 u.w[n] = w;
@@ -67,11 +71,26 @@ pub struct HeadInstance {
     pub level: usize,
     /// Where lighting is computed ([`GpuHead::shading_for`]).
     pub shading: Shading,
+    /// Whether to leave out the triangles a frontal camera cannot see
+    /// ([`crate::render::facing`]) where this frame's camera and pose allow (on by default).
+    pub leave_out_unseen: bool,
+    /// Whether this frame's draws are the frontal ones (set by `prepare`).
+    frontal: bool,
 }
 
 impl HeadInstance {
     pub fn head(&self) -> &Arc<GpuHead> {
         &self.head
+    }
+
+    /// Triangles drawn by this frame's `paint` (before culling).
+    pub fn triangles_drawn(&self) -> usize {
+        let level = self.head.level(self.level);
+        if self.frontal {
+            level.frontal_triangles
+        } else {
+            level.triangles
+        }
     }
 }
 
@@ -123,6 +142,8 @@ impl HeadRenderer {
             model: Mat4::IDENTITY,
             level: 0,
             shading: Shading::PerPixel,
+            leave_out_unseen: true,
+            frontal: false,
         }
     }
 
@@ -152,14 +173,23 @@ impl HeadRenderer {
             counts: [
                 instance.head.morph_vertices,
                 instance.head.vertex_count,
-                0,
-                0,
+                instance.head.mouth_and_eyes_from,
+                instance.head.eyes_only_from,
             ],
         };
         if instance.last_view != Some(view) {
             queue.write_buffer(&instance.view_buffer, 0, bytemuck::bytes_of(&view));
             instance.last_view = Some(view);
         }
+        let head = &instance.head;
+        let tolerance = 1e-3 * head.frame.mouth_width.max(1e-4);
+        instance.frontal = instance.leave_out_unseen
+            && instance.model == Mat4::IDENTITY
+            && pose.head_within_bounds()
+            && head
+                .frontal_eyes
+                .iter()
+                .any(|e| e.distance(camera.eye) <= tolerance);
         let w = WeightsUniform::new(weights, pose);
         if instance.last_weights != Some(w) {
             queue.write_buffer(&instance.weights_buffer, 0, bytemuck::bytes_of(&w));
@@ -174,7 +204,13 @@ impl HeadRenderer {
         pass.set_vertex_buffer(0, head.vertex_buffer.slice(..));
         pass.set_index_buffer(head.index_buffer.slice(..), wgpu::IndexFormat::Uint32);
         let mut bound = None;
-        for draw in &head.level(instance.level).draws {
+        let level = head.level(instance.level);
+        let draws = if instance.frontal {
+            &level.frontal_draws
+        } else {
+            &level.draws
+        };
+        for draw in draws {
             if let Some(material) = head.materials.get(draw.material) {
                 if bound != Some(material.pipeline) {
                     bound = Some(material.pipeline);

@@ -7,10 +7,13 @@ use std::sync::Arc;
 use bytemuck::{Pod, Zeroable};
 use wgpu::util::DeviceExt;
 
+use super::motion::MotionReach;
 use super::pipelines::{HeadRenderer, Shading, pipeline_index};
 use crate::render::RenderError;
+use crate::render::facing;
 use crate::render::head::{FaceFrame, HeadModel, MorphDelta, TARGET_COUNT, Vertex};
 use crate::render::lod::DetailLevels;
+use crate::vocab::VISEME_COUNT;
 
 #[repr(C)]
 #[derive(Debug, Clone, Copy, PartialEq, Pod, Zeroable)]
@@ -25,11 +28,14 @@ pub(super) struct DrawRange {
     pub(super) material: usize,
 }
 
-/// One level of detail: its error bound and the draws of its triangles.
+/// One level of detail: its error bound and the draws of its triangles, all of them or only
+/// those a frontal camera can see ([`crate::render::facing`]).
 pub(super) struct GpuLevel {
     pub(super) error_m: f32,
     pub(super) triangles: usize,
     pub(super) draws: Vec<DrawRange>,
+    pub(super) frontal_triangles: usize,
+    pub(super) frontal_draws: Vec<DrawRange>,
 }
 
 pub(super) struct GpuMaterial {
@@ -49,10 +55,18 @@ pub struct GpuHead {
     /// Finest (the full mesh) first.
     pub(super) levels: Vec<GpuLevel>,
     pub(super) morph_vertices: u32,
+    /// The first of the moving vertices that the eye shapes move too, and the first that only
+    /// they move (the visemes move those before).
+    pub(super) mouth_and_eyes_from: u32,
+    pub(super) eyes_only_from: u32,
     pub(super) vertex_count: u32,
     /// Where each vertex of the model (primitives in order) sits in the GPU vertex buffer.
     pub(super) model_to_gpu: Vec<u32>,
     pub(super) frame: FaceFrame,
+    /// Where the frontal framings put the eye ([`crate::render::facing::frontal_eyes`]).
+    pub(super) frontal_eyes: [glam::Vec3; 2],
+    /// How far its shapes and rotation can move its vertices.
+    pub(super) reach: MotionReach,
     /// Median length of the full mesh's triangle edges, in metres.
     median_edge_m: f32,
 }
@@ -169,29 +183,51 @@ impl HeadRenderer {
         }
         let vertex_count = model.vertex_count();
         let index_count: usize = levels.iter().flat_map(|l| &l.indices).map(Vec::len).sum();
+        // Each level's indices are stored twice: all triangles, and the frontal ones.
+        let index_count = 2 * index_count;
         if vertex_count >= u32::MAX as usize / 16 || index_count >= u32::MAX as usize {
             return Err(RenderError::InvalidHead("too many vertices".into()));
         }
         // Vertices that some target moves come first and alone get delta storage: the vertex
-        // stage then blends only them (on a software adapter, most of a frame's time).
-        let moves = |p: &crate::render::head::Primitive, i: usize| {
-            p.targets
-                .iter()
-                .any(|t| t.get(i).is_some_and(|d| *d != MorphDelta::default()))
+        // stage then blends only them (on a software adapter, most of a frame's time). Among
+        // them, those only the visemes move, then those both the visemes and the eye shapes
+        // move, then those only the eye shapes move: each blends only its own kind of slots.
+        let class = |p: &crate::render::head::Primitive, i: usize| {
+            let moved_by = |slots: std::ops::Range<usize>| {
+                p.targets[slots]
+                    .iter()
+                    .any(|t| t.get(i).is_some_and(|d| *d != MorphDelta::default()))
+            };
+            match (
+                moved_by(0..VISEME_COUNT),
+                moved_by(VISEME_COUNT..TARGET_COUNT),
+            ) {
+                (true, false) => 0,
+                (true, true) => 1,
+                (false, true) => 2,
+                (false, false) => 3,
+            }
         };
-        let moving: Vec<bool> = model
+        let classes: Vec<usize> = model
             .primitives
             .iter()
-            .flat_map(|p| (0..p.vertices.len()).map(move |i| moves(p, i)))
+            .flat_map(|p| (0..p.vertices.len()).map(move |i| class(p, i)))
             .collect();
-        let morph_vertices = moving.iter().filter(|&&m| m).count();
-        let (mut next_moving, mut next_still) = (0u32, morph_vertices as u32);
-        let model_to_gpu: Vec<u32> = moving
+        let mut next = [0u32; 4];
+        for &c in &classes {
+            next[c] += 1;
+        }
+        let mut start = 0;
+        for n in &mut next {
+            (*n, start) = (start, start + *n);
+        }
+        let [_, mouth_and_eyes_from, eyes_only_from, morph_vertices] = next;
+        let morph_vertices = morph_vertices as usize;
+        let model_to_gpu: Vec<u32> = classes
             .iter()
-            .map(|&m| {
-                let next = if m { &mut next_moving } else { &mut next_still };
-                *next += 1;
-                *next - 1
+            .map(|&c| {
+                next[c] += 1;
+                next[c] - 1
             })
             .collect();
         let delta_bytes =
@@ -213,8 +249,11 @@ impl HeadRenderer {
                 error_m: l.error_m,
                 triangles: l.triangle_count(),
                 draws: Vec::new(),
+                frontal_triangles: 0,
+                frontal_draws: Vec::new(),
             })
             .collect();
+        let frame = model.face_frame();
         let mut base = 0usize;
         for (k, p) in model.primitives.iter().enumerate() {
             let gpu = &model_to_gpu[base..base + p.vertices.len()];
@@ -228,13 +267,37 @@ impl HeadRenderer {
                     }
                 }
             }
+            let double_sided = model
+                .materials
+                .get(p.material)
+                .is_some_and(|m| m.double_sided);
             for (level, gpu_level) in levels.iter().zip(&mut gpu_levels) {
-                let first = indices.len() as u32;
-                indices.extend(level.indices[k].iter().map(|&i| gpu[i as usize]));
-                gpu_level.draws.push(DrawRange {
-                    indices: first..indices.len() as u32,
-                    material: p.material,
-                });
+                let all = &level.indices[k];
+                // A double-sided part shows its back faces too.
+                let frontal = if double_sided {
+                    all.clone()
+                } else {
+                    facing::frontal_triangles(p, all, &frame)
+                };
+                gpu_level.frontal_triangles += frontal.len() / 3;
+                let mut push = |triangles: &[u32]| {
+                    let first = indices.len() as u32;
+                    // In the order that reuses the most shaded vertices.
+                    let ordered = meshopt::optimize_vertex_cache(triangles, p.vertices.len());
+                    indices.extend(ordered.iter().map(|&i| gpu[i as usize]));
+                    DrawRange {
+                        indices: first..indices.len() as u32,
+                        material: p.material,
+                    }
+                };
+                let draw = push(all);
+                let frontal_draw = if frontal.len() == all.len() {
+                    draw.clone()
+                } else {
+                    push(&frontal)
+                };
+                gpu_level.draws.push(draw);
+                gpu_level.frontal_draws.push(frontal_draw);
             }
             base += p.vertices.len();
         }
@@ -243,9 +306,9 @@ impl HeadRenderer {
         // of the eyes) then fail the depth test before they are shaded, where drawn first they
         // were shaded and then covered. The picture is the same.
         for level in &mut gpu_levels {
-            level
-                .draws
-                .sort_by_key(|d| std::cmp::Reverse(d.indices.len()));
+            for draws in [&mut level.draws, &mut level.frontal_draws] {
+                draws.sort_by_key(|d| std::cmp::Reverse(d.indices.len()));
+            }
         }
 
         let vertex_buffer = device.create_buffer_init(&wgpu::util::BufferInitDescriptor {
@@ -281,9 +344,13 @@ impl HeadRenderer {
             materials,
             levels: gpu_levels,
             morph_vertices: morph_vertices as u32,
+            mouth_and_eyes_from,
+            eyes_only_from,
             vertex_count: vertex_count as u32,
             model_to_gpu,
-            frame: model.face_frame(),
+            frontal_eyes: facing::frontal_eyes(&frame),
+            frame,
+            reach: MotionReach::of(model),
             median_edge_m: median_edge(model),
         }))
     }
