@@ -130,7 +130,12 @@ fn a_redial_on_the_same_ssrc_after_bye_plays() {
         f64::from(first + second),
         "{stderr}"
     );
-    assert_eq!(num(&peer, "played"), f64::from(first + second), "{stderr}");
+    // Every frame is played, but for one the buffer may shed when the second call's start was
+    // held up by half a frame or more (a sender starting on a loaded machine; see `HELD_UP` in
+    // src/net/jitter/corrector.rs).
+    let (played, dropped) = (num(&peer, "played"), num(&peer, "dropped"));
+    assert_eq!(played + dropped, f64::from(first + second), "{stderr}");
+    assert!(dropped <= 1.0, "{stderr}");
     assert_eq!(num(&peer, "lost"), 0.0, "{stderr}");
     assert_eq!(num(&peer, "late"), 0.0, "{stderr}");
 }

@@ -6,7 +6,6 @@
 
 use glam::Vec3;
 
-use super::GpuHead;
 use crate::render::head::{HeadModel, TARGET_COUNT, slot_weights};
 use crate::vocab::{FacePose, VisemeWeights};
 
@@ -45,7 +44,7 @@ impl MotionReach {
 }
 
 impl MotionReach {
-    /// See [`GpuHead::looks_the_same`].
+    /// See [`super::GpuHead::looks_the_same`].
     pub(super) fn looks_the_same(
         &self,
         a: (&VisemeWeights, &FacePose),
@@ -65,20 +64,6 @@ impl MotionReach {
         metres += turn * self.pivot_m;
         let pixels = metres * pixels_per_metre;
         pixels.is_finite() && pixels < UNSEEN_MOTION_PX
-    }
-}
-
-impl GpuHead {
-    /// True when the head drawn with `b` would differ from the head drawn with `a` by less than
-    /// [`UNSEEN_MOTION_PX`] anywhere (every vertex, where a metre spans `pixels_per_metre`
-    /// pixels) and no slot's weight changed by more than a small step.
-    pub fn looks_the_same(
-        &self,
-        a: (&VisemeWeights, &FacePose),
-        b: (&VisemeWeights, &FacePose),
-        pixels_per_metre: f32,
-    ) -> bool {
-        self.reach.looks_the_same(a, b, pixels_per_metre)
     }
 }
 

@@ -13,7 +13,7 @@ use crate::render::RenderError;
 use crate::render::facing;
 use crate::render::head::{FaceFrame, HeadModel, MorphDelta, TARGET_COUNT, Vertex};
 use crate::render::lod::DetailLevels;
-use crate::vocab::VISEME_COUNT;
+use crate::vocab::{FacePose, VISEME_COUNT, VisemeWeights};
 
 #[repr(C)]
 #[derive(Debug, Clone, Copy, PartialEq, Pod, Zeroable)]
@@ -138,6 +138,18 @@ impl GpuHead {
         } else {
             Shading::PerPixel
         }
+    }
+
+    /// True when the head drawn with `b` would differ from the head drawn with `a` by less than
+    /// [`super::UNSEEN_MOTION_PX`] anywhere (every vertex, where a metre spans
+    /// `pixels_per_metre` pixels) and no slot's weight changed by more than a small step.
+    pub fn looks_the_same(
+        &self,
+        a: (&VisemeWeights, &FacePose),
+        b: (&VisemeWeights, &FacePose),
+        pixels_per_metre: f32,
+    ) -> bool {
+        self.reach.looks_the_same(a, b, pixels_per_metre)
     }
 
     pub(super) fn level(&self, level: usize) -> &GpuLevel {
