@@ -165,7 +165,16 @@ fn app_tiles(c: &mut Criterion, ctx: &GpuContext, model: &lipcall::render::HeadM
     let mut group = c.benchmark_group("app_tiles");
     group.sample_size(10);
     group.measurement_time(std::time::Duration::from_secs(8));
-    for (name, level) in [("full", 0), ("detail", detail)] {
+    // `every_triangle`: the same level with the triangles no frontal camera sees drawn too
+    // (render::facing), the reference for leaving them out.
+    for (name, level, leave_out_unseen) in [
+        ("full", 0, true),
+        ("detail", detail, true),
+        ("detail_every_triangle", detail, false),
+    ] {
+        for instance in &mut instances {
+            instance.leave_out_unseen = leave_out_unseen;
+        }
         eprintln!(
             "{name}: level {level}, {} triangles per head",
             head.triangle_count(level)
