@@ -8,10 +8,10 @@ mod common;
 
 use common::gpu;
 
-use lipcall::lipsync::life::HEAD_MAX_RAD;
 use lipcall::render::lod::DetailLevels;
 use lipcall::render::offscreen::{FrameOptions, OffscreenRenderer};
 use lipcall::render::{Camera, Framing};
+use lipcall::vocab::pose::HEAD_MAX_RAD;
 use lipcall::vocab::{FacePose, VISEME_NAMES, Viseme, VisemeWeights};
 
 /// Pixels that differ by more than 24 levels in some channel.

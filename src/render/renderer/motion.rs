@@ -25,9 +25,9 @@ pub(super) struct MotionReach {
 }
 
 impl MotionReach {
-    pub(super) fn of(model: &HeadModel) -> Self {
+    /// The reach of `model`'s shapes, and of its turns about `pivot` (its neck pivot).
+    pub(super) fn of(model: &HeadModel, pivot: Vec3) -> Self {
         let mut reach = Self::default();
-        let pivot = model.face_frame().neck_pivot();
         for p in &model.primitives {
             for (slot, target) in p.targets.iter().enumerate().take(TARGET_COUNT) {
                 for d in target {
@@ -73,7 +73,8 @@ mod tests {
     use crate::vocab::Viseme;
 
     fn reach() -> MotionReach {
-        MotionReach::of(&crate::render::default_head().expect("bundled head"))
+        let model = crate::render::default_head().expect("bundled head");
+        MotionReach::of(&model, model.face_frame().neck_pivot())
     }
 
     fn open(aa: f32) -> VisemeWeights {

@@ -266,6 +266,7 @@ impl HeadRenderer {
             })
             .collect();
         let frame = model.face_frame();
+        let seen_from = facing::FrontalEyes::of(&frame);
         let mut base = 0usize;
         for (k, p) in model.primitives.iter().enumerate() {
             let gpu = &model_to_gpu[base..base + p.vertices.len()];
@@ -289,7 +290,7 @@ impl HeadRenderer {
                 let frontal = if double_sided {
                     all.clone()
                 } else {
-                    facing::frontal_triangles(p, all, &frame)
+                    seen_from.triangles(p, all)
                 };
                 gpu_level.frontal_triangles += frontal.len() / 3;
                 let mut push = |triangles: &[u32]| {
@@ -362,7 +363,7 @@ impl HeadRenderer {
             model_to_gpu,
             frontal_eyes: facing::frontal_eyes(&frame),
             frame,
-            reach: MotionReach::of(model),
+            reach: MotionReach::of(model, frame.neck_pivot()),
             median_edge_m: median_edge(model),
         }))
     }
