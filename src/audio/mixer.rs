@@ -177,10 +177,11 @@ impl PeerFeed {
     /// `ahead` frames ahead of the mixer. The first frame of a peer that starts, or speaks again
     /// after a silence (`resuming`), comes after enough silence to put it there too; a queue
     /// already `ahead + 2` frames long (an output that takes nothing) takes nothing more. A
-    /// queue holding a frame more than `ahead` asks (the mixer played silence for this peer
-    /// while its frame was on the way, and its stream has run that much later since) sheds
-    /// the surplus: a near-silent frame is not queued. The stream position of the frame's first
-    /// sample, or `None` if it was not queued. `pcm` is at the mixer's rate.
+    /// queue holding a piece or a frame more than `ahead` asks (the mixer played silence for
+    /// this peer while its frame was on the way, or the peer started with the mixer half-way
+    /// through a frame, and its stream has run that much later since) sheds the surplus: of a
+    /// near-silent frame only what follows it is queued, or nothing. The stream position of
+    /// the frame's first sample queued, or `None` if none was. `pcm` is at the mixer's rate.
     pub fn push_paced(&mut self, pcm: &[i16], ahead: usize, resuming: bool) -> Option<u64> {
         const SILENCE: [i16; MAX_FRAME_SAMPLES] = [0; MAX_FRAME_SAMPLES];
         let frame = self.frame_len();
@@ -188,11 +189,12 @@ impl PeerFeed {
         if queued >= (ahead + 2) * frame {
             return None;
         }
-        if !resuming && queued >= ahead * frame && near_silent(pcm) {
-            self.controls
-                .shed
-                .fetch_add(pcm.len() as u64, Ordering::Relaxed);
-            return None;
+        let piece = piece_len(self.rate);
+        let surplus = queued.saturating_sub(ahead.saturating_sub(1) * frame);
+        let shed = (surplus.min(frame) / piece * piece).min(pcm.len());
+        if !resuming && shed > 0 && near_silent(pcm) {
+            self.controls.shed.fetch_add(shed as u64, Ordering::Relaxed);
+            return (shed < pcm.len()).then(|| self.push(&pcm[shed..]).0);
         }
         if resuming {
             let mut pad = (ahead.saturating_sub(1) * frame).saturating_sub(queued);
@@ -846,6 +848,34 @@ mod tests {
         mixer.mix(&mut frame);
         assert!(feed.push_paced(&noise, 1, false).is_some());
         assert_eq!(c.shed(), 960);
+    }
+
+    #[test]
+    fn a_peer_that_starts_half_way_through_a_mixed_frame_sheds_the_half_in_a_quiet_frame() {
+        let c = Arc::new(PeerControls::default());
+        let (mut feed, mp, _clock) = peer_channel_at(PeerId(4), 48_000, 48_000, c.clone());
+        let mut mixer = Mixer::at_rate(48_000);
+        mixer.add(mp).unwrap();
+        let mut piece = [0.0f32; 480];
+        mixer.mix(&mut piece);
+        // Its first frame comes with the mixer a piece into its frame: from then on each frame
+        // is pulled with half the last still queued, 10 ms of latency for the whole call.
+        feed.push_paced(&[3000; 960], 1, true);
+        mixer.mix(&mut piece);
+        assert_eq!(feed.push_paced(&[3000; 960], 1, false), Some(960));
+        assert_eq!(feed.queued(), 1440);
+        mixer.mix(&mut piece);
+        mixer.mix(&mut piece);
+        // A near-silent frame: its first half is shed, its second queued where it is heard.
+        let noise: Vec<i16> = (0..960).map(|i| [-30, 20, 40, -10][i % 4]).collect();
+        assert_eq!(feed.push_paced(&noise, 1, false), Some(1920));
+        assert_eq!((c.shed(), feed.queued()), (480, 960));
+        // In step with the mixer again: nothing more is shed.
+        mixer.mix(&mut piece);
+        mixer.mix(&mut piece);
+        assert_eq!(feed.queued(), 0);
+        assert_eq!(feed.push_paced(&noise, 1, false), Some(2400));
+        assert_eq!(c.shed(), 480);
     }
 
     #[test]
