@@ -102,8 +102,8 @@ fn a_head_is_copied_into_the_window_pixel_for_pixel_and_cut_at_its_edge() {
     let blit = Blit::new(device, WINDOW);
     let whole = blit.image(device, &target);
     let cut = blit.image(device, &target);
-    blit.place(&ctx.queue, &whole, [20, 10]);
-    blit.place(&ctx.queue, &cut, [-10, 50]);
+    blit.place(&ctx.queue, &whole, [20, 10], [20, 10, w as i32, h as i32]);
+    blit.place(&ctx.queue, &cut, [-10, 50], [0, 50, w as i32 - 10, 30]);
     let mut encoder = device.create_command_encoder(&Default::default());
     {
         let mut pass = encoder.begin_render_pass(&wgpu::RenderPassDescriptor {

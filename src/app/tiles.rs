@@ -87,7 +87,18 @@ impl egui_wgpu::CallbackTrait for TileImage {
         // Where egui puts the callback's viewport, before cutting it at the window's edges.
         let at = |points: f32| (points * screen.pixels_per_point).round() as i32;
         let origin = [at(self.rect.min.x), at(self.rect.min.y)];
-        self.blit.place(queue, &self.image, origin);
+        let viewport = egui::epaint::ViewportInPixels::from_points(
+            &self.rect,
+            screen.pixels_per_point,
+            screen.size_in_pixels,
+        );
+        let viewport = [
+            viewport.left_px,
+            viewport.top_px,
+            viewport.width_px,
+            viewport.height_px,
+        ];
+        self.blit.place(queue, &self.image, origin, viewport);
         Vec::new()
     }
 

@@ -1,41 +1,56 @@
 //! Puts a rendered head ([`HeadTarget`]) into someone else's render pass (the window's, egui's)
-//! pixel for pixel: one triangle over the pass's viewport (which may be cut at the window's
-//! edge), each fragment the texel at its offset from the image's corner, opaque.
+//! pixel for pixel: a rectangle over the pass's viewport (which may be cut at the window's edge)
+//! whose fragments each take the nearest texel at their offset from the image's corner. The
+//! image is opaque, and is copied as it is stored.
 //! egui's own path for images (filtered sampling, vertex colour, blending) costs a software
-//! adapter tens of nanoseconds a pixel, most of a frame when the tiles fill the window.
+//! adapter tens of nanoseconds a pixel, most of a frame when the tiles fill the window. A
+//! rectangle of two triangles with a plain texture read is what llvmpipe rasterises fastest: in
+//! the app with eight still heads it halved the blits' cost against one large triangle whose
+//! fragments looked up their texel from the pixel position (about 2 of 4 ms a frame).
 
 use super::target::{HeadTarget, TARGET_FORMAT, TARGET_VIEW_UNORM};
 
 const SHADER: &str = r"
 @group(0) @binding(0) var image: texture_2d<f32>;
-// xy: the pass's pixel where the image's top left texel goes.
-@group(0) @binding(1) var<uniform> origin: vec4<f32>;
+@group(0) @binding(1) var texel: sampler;
+// xy: the image coordinates at the viewport's top left corner, zw: their change across it.
+@group(0) @binding(2) var<uniform> span: vec4<f32>;
 
-// One triangle covering the viewport.
+struct Corner {
+    @builtin(position) position: vec4<f32>,
+    @location(0) uv: vec2<f32>,
+}
+
+// Two triangles covering the viewport: a rectangle, which llvmpipe copies on its linear path.
 @vertex
-fn vs_main(@builtin(vertex_index) i: u32) -> @builtin(position) vec4<f32> {
-    let corner = vec2<f32>(f32((i << 1u) & 2u), f32(i & 2u));
-    return vec4<f32>(corner.x * 2.0 - 1.0, 1.0 - corner.y * 2.0, 0.0, 1.0);
+fn vs_main(@builtin(vertex_index) i: u32) -> Corner {
+    let corner = vec2<f32>(f32((0x32u >> i) & 1u), f32((0x2cu >> i) & 1u));
+    var out: Corner;
+    out.position = vec4<f32>(corner.x * 2.0 - 1.0, 1.0 - corner.y * 2.0, 0.0, 1.0);
+    out.uv = span.xy + corner * span.zw;
+    return out;
 }
 
 @fragment
-fn fs_main(@builtin(position) pixel: vec4<f32>) -> @location(0) vec4<f32> {
-    let last = vec2<i32>(textureDimensions(image)) - vec2<i32>(1);
-    let texel = clamp(vec2<i32>(floor(pixel.xy - origin.xy)), vec2<i32>(0), last);
-    return vec4<f32>(textureLoad(image, texel, 0).rgb, 1.0);
+fn fs_main(at: Corner) -> @location(0) vec4<f32> {
+    return textureSample(image, texel, at.uv);
 }
 ";
 
 /// A head image as [`Blit::draw`] binds it, with where it goes.
 pub struct BlitImage {
     bind_group: wgpu::BindGroup,
-    origin: wgpu::Buffer,
+    span: wgpu::Buffer,
+    /// The image's width and height in texels.
+    size: [f32; 2],
 }
 
 /// The pipeline that copies head images into passes of one colour format.
 pub struct Blit {
     pipeline: wgpu::RenderPipeline,
     layout: wgpu::BindGroupLayout,
+    /// Nearest texel, clamped at the image's edges.
+    sampler: wgpu::Sampler,
     /// Whether the passes' format is sRGB (the image is then read decoded, and encoded again on
     /// write); otherwise its stored bytes are copied.
     srgb: bool,
@@ -64,6 +79,12 @@ impl Blit {
                 wgpu::BindGroupLayoutEntry {
                     binding: 1,
                     visibility: wgpu::ShaderStages::FRAGMENT,
+                    ty: wgpu::BindingType::Sampler(wgpu::SamplerBindingType::NonFiltering),
+                    count: None,
+                },
+                wgpu::BindGroupLayoutEntry {
+                    binding: 2,
+                    visibility: wgpu::ShaderStages::VERTEX,
                     ty: wgpu::BindingType::Buffer {
                         ty: wgpu::BufferBindingType::Uniform,
                         has_dynamic_offset: false,
@@ -103,9 +124,14 @@ impl Blit {
             multiview_mask: None,
             cache: None,
         });
+        let sampler = device.create_sampler(&wgpu::SamplerDescriptor {
+            label: Some("lipcall head blit sampler"),
+            ..Default::default()
+        });
         Self {
             pipeline,
             layout,
+            sampler,
             srgb: format.is_srgb(),
         }
     }
@@ -121,8 +147,8 @@ impl Blit {
             }),
             ..Default::default()
         });
-        let origin = device.create_buffer(&wgpu::BufferDescriptor {
-            label: Some("lipcall head blit origin"),
+        let span = device.create_buffer(&wgpu::BufferDescriptor {
+            label: Some("lipcall head blit span"),
             size: 16,
             usage: wgpu::BufferUsages::UNIFORM | wgpu::BufferUsages::COPY_DST,
             mapped_at_creation: false,
@@ -137,18 +163,39 @@ impl Blit {
                 },
                 wgpu::BindGroupEntry {
                     binding: 1,
-                    resource: origin.as_entire_binding(),
+                    resource: wgpu::BindingResource::Sampler(&self.sampler),
+                },
+                wgpu::BindGroupEntry {
+                    binding: 2,
+                    resource: span.as_entire_binding(),
                 },
             ],
         });
-        BlitImage { bind_group, origin }
+        let size = target.texture().size();
+        BlitImage {
+            bind_group,
+            span,
+            size: [size.width as f32, size.height as f32],
+        }
     }
 
-    /// Puts `image`'s top left texel at pixel `origin` of the passes it is drawn into (before
-    /// the pass is recorded).
-    pub fn place(&self, queue: &wgpu::Queue, image: &BlitImage, origin: [i32; 2]) {
-        let origin = [origin[0] as f32, origin[1] as f32, 0.0, 0.0];
-        queue.write_buffer(&image.origin, 0, bytemuck::cast_slice(&origin));
+    /// Puts `image`'s top left texel at pixel `origin` of the passes it is drawn into, whose
+    /// viewport is `viewport` (x, y, width, height in pixels), before the pass is recorded.
+    pub fn place(
+        &self,
+        queue: &wgpu::Queue,
+        image: &BlitImage,
+        origin: [i32; 2],
+        viewport: [i32; 4],
+    ) {
+        let [w, h] = image.size;
+        let span = [
+            (viewport[0] - origin[0]) as f32 / w,
+            (viewport[1] - origin[1]) as f32 / h,
+            viewport[2] as f32 / w,
+            viewport[3] as f32 / h,
+        ];
+        queue.write_buffer(&image.span, 0, bytemuck::cast_slice(&span));
     }
 
     /// Draws `image` where [`Self::place`] put it, over (only) `pass`'s viewport: the image's
@@ -156,6 +203,6 @@ impl Blit {
     pub fn draw(&self, pass: &mut wgpu::RenderPass<'_>, image: &BlitImage) {
         pass.set_pipeline(&self.pipeline);
         pass.set_bind_group(0, &image.bind_group, &[]);
-        pass.draw(0..3, 0..1);
+        pass.draw(0..6, 0..1);
     }
 }
