@@ -4,14 +4,15 @@
 //!   frames per second = 1 / time;
 //! - `app_tiles/8_full`, `app_tiles/8_detail`: eight heads each rendered into its own 249x192
 //!   target (the app's tiles with eight peers in its 1280x720 window), as the full mesh and at the
-//!   level of detail that size picks.
+//!   level of detail that size picks; `app_tiles/8_detail_lit_per_vertex` as the app draws them
+//!   on a software adapter.
 
 use std::hint::black_box;
 
 use criterion::{Criterion, criterion_group, criterion_main};
 use lipcall::render::lod::DetailLevels;
 use lipcall::render::offscreen::{FrameOptions, GpuContext, OffscreenRenderer};
-use lipcall::render::renderer::{DEPTH_FORMAT, HeadRenderer};
+use lipcall::render::renderer::{DEPTH_FORMAT, HeadRenderer, Shading};
 use lipcall::render::target::HeadTarget;
 use lipcall::render::{Camera, Framing};
 use lipcall::vocab::FacePose;
@@ -145,11 +146,12 @@ fn app_tiles(c: &mut Criterion, ctx: &GpuContext, model: &lipcall::render::HeadM
     const TILES: usize = 8;
     let (width, height) = (249, 192);
     let device = &ctx.device;
-    let renderer = HeadRenderer::new(
+    let mut renderer = HeadRenderer::new(
         device,
         lipcall::render::target::TARGET_FORMAT,
         Some(DEPTH_FORMAT),
     );
+    renderer.add_vertex_lighting(device);
     let levels = DetailLevels::build(model);
     let head = renderer
         .upload_with_levels(device, &ctx.queue, model, &levels, "bench head")
@@ -167,13 +169,15 @@ fn app_tiles(c: &mut Criterion, ctx: &GpuContext, model: &lipcall::render::HeadM
     group.measurement_time(std::time::Duration::from_secs(8));
     // `every_triangle`: the same level with the triangles no frontal camera sees drawn too
     // (render::facing), the reference for leaving them out.
-    for (name, level, leave_out_unseen) in [
-        ("full", 0, true),
-        ("detail", detail, true),
-        ("detail_every_triangle", detail, false),
+    for (name, level, leave_out_unseen, shading) in [
+        ("full", 0, true, Shading::PerPixel),
+        ("detail", detail, true, Shading::PerPixel),
+        ("detail_every_triangle", detail, false, Shading::PerPixel),
+        ("detail_lit_per_vertex", detail, true, Shading::PerVertex),
     ] {
         for instance in &mut instances {
             instance.leave_out_unseen = leave_out_unseen;
+            instance.shading = shading;
         }
         eprintln!(
             "{name}: level {level}, {} triangles per head",

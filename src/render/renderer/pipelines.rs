@@ -147,7 +147,8 @@ impl HeadRenderer {
         let material_layout = device.create_bind_group_layout(&wgpu::BindGroupLayoutDescriptor {
             label: Some("lipcall head material bind group layout"),
             entries: &[
-                uniform_entry(0, wgpu::ShaderStages::FRAGMENT),
+                // The vertex stage reads the base colour where it lights per vertex.
+                uniform_entry(0, wgpu::ShaderStages::VERTEX_FRAGMENT),
                 wgpu::BindGroupLayoutEntry {
                     binding: 1,
                     visibility: wgpu::ShaderStages::FRAGMENT,
@@ -267,10 +268,7 @@ fn head_pipeline(
     (double_sided, textured): (bool, bool),
     vertex_lit: bool,
 ) -> wgpu::RenderPipeline {
-    let constants = [
-        ("TEXTURED", f64::from(u8::from(textured))),
-        ("VERTEX_LIT", f64::from(u8::from(vertex_lit))),
-    ];
+    let constants = [("TEXTURED", f64::from(u8::from(textured)))];
     let compilation_options = wgpu::PipelineCompilationOptions {
         constants: &constants,
         ..Default::default()
@@ -292,7 +290,11 @@ fn head_pipeline(
         layout: Some(layout),
         vertex: wgpu::VertexState {
             module: shader,
-            entry_point: Some("vs_main"),
+            entry_point: Some(if vertex_lit {
+                "vs_vertex_lit"
+            } else {
+                "vs_main"
+            }),
             compilation_options: compilation_options.clone(),
             buffers: &[Some(wgpu::VertexBufferLayout {
                 array_stride: std::mem::size_of::<Vertex>() as u64,
@@ -322,7 +324,11 @@ fn head_pipeline(
         },
         fragment: Some(wgpu::FragmentState {
             module: shader,
-            entry_point: Some("fs_main"),
+            entry_point: Some(if vertex_lit {
+                "fs_vertex_lit"
+            } else {
+                "fs_main"
+            }),
             compilation_options: compilation_options.clone(),
             targets: &[Some(wgpu::ColorTargetState {
                 format: target.color_format,
