@@ -821,12 +821,18 @@ mod tests {
         assert!(!mixer.awaits_peer(480));
     }
 
-    #[test]
-    fn a_queue_left_a_frame_long_by_a_starved_mix_sheds_it_in_a_quiet_frame() {
+    /// A 48 kHz mixer with one 48 kHz peer: its feed, the mixer, its controls and its clock.
+    fn one_peer_at_48_khz(id: u32) -> (PeerFeed, Mixer, Arc<PeerControls>, PeerClock) {
         let c = Arc::new(PeerControls::default());
-        let (mut feed, mp, _clock) = peer_channel_at(PeerId(2), 48_000, 48_000, c.clone());
+        let (feed, mp, clock) = peer_channel_at(PeerId(id), 48_000, 48_000, c.clone());
         let mut mixer = Mixer::at_rate(48_000);
         mixer.add(mp).unwrap();
+        (feed, mixer, c, clock)
+    }
+
+    #[test]
+    fn a_queue_left_a_frame_long_by_a_starved_mix_sheds_it_in_a_quiet_frame() {
+        let (mut feed, mut mixer, c, _clock) = one_peer_at_48_khz(2);
         let mut frame = [0.0f32; 960];
         feed.push_paced(&[3000; 960], 1, true);
         mixer.mix(&mut frame);
@@ -852,10 +858,7 @@ mod tests {
 
     #[test]
     fn a_peer_that_starts_half_way_through_a_mixed_frame_sheds_the_half_in_a_quiet_frame() {
-        let c = Arc::new(PeerControls::default());
-        let (mut feed, mp, _clock) = peer_channel_at(PeerId(4), 48_000, 48_000, c.clone());
-        let mut mixer = Mixer::at_rate(48_000);
-        mixer.add(mp).unwrap();
+        let (mut feed, mut mixer, c, _clock) = one_peer_at_48_khz(4);
         let mut piece = [0.0f32; 480];
         mixer.mix(&mut piece);
         // Its first frame comes with the mixer a piece into its frame: from then on each frame

@@ -3,10 +3,10 @@
 //! whose fragments each take the nearest texel at their offset from the image's corner. The
 //! image is opaque, and is copied as it is stored.
 //! egui's own path for images (filtered sampling, vertex colour, blending) costs a software
-//! adapter tens of nanoseconds a pixel, most of a frame when the tiles fill the window. A
-//! rectangle of two triangles with a plain texture read is what llvmpipe rasterises fastest: in
-//! the app with eight still heads it halved the blits' cost against one large triangle whose
-//! fragments looked up their texel from the pixel position (about 2 of 4 ms a frame).
+//! adapter tens of nanoseconds a pixel, most of a frame when the tiles fill the window. Drawn as
+//! a rectangle of two triangles with a plain texture read, the blits of eight still heads cost
+//! llvmpipe half what one large triangle whose fragments looked their texel up from the pixel
+//! position did (about 2 of 4 ms a frame).
 
 use super::target::{HeadTarget, TARGET_FORMAT, TARGET_VIEW_UNORM};
 
@@ -21,7 +21,8 @@ struct Corner {
     @location(0) uv: vec2<f32>,
 }
 
-// Two triangles covering the viewport: a rectangle, which llvmpipe copies on its linear path.
+// Two triangles covering the viewport: a rectangle, cheaper for llvmpipe than one triangle cut
+// to the viewport.
 @vertex
 fn vs_main(@builtin(vertex_index) i: u32) -> Corner {
     let corner = vec2<f32>(f32((0x32u >> i) & 1u), f32((0x2cu >> i) & 1u));
