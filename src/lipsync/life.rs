@@ -25,9 +25,8 @@ use glam::Vec2;
 
 use crate::vocab::FacePose;
 use crate::vocab::FrameFeatures;
-use crate::vocab::{FRAME_SIZE, SAMPLE_RATE};
-
 use crate::vocab::pose::HEAD_MAX_RAD;
+use crate::vocab::{FRAME_SIZE, SAMPLE_RATE};
 
 /// Seconds per frame.
 pub const FRAME_S: f32 = FRAME_SIZE as f32 / SAMPLE_RATE as f32;

@@ -3,7 +3,7 @@
 //! [`HEAD_MAX_RAD`]: about 30 % of a head's triangles (the back of the skull and neck, the far
 //! sides of the teeth, eyeballs and ears) then face away in every frame. Back-face culling
 //! drops them anyway, but a software adapter shades their vertices and sets them up first; left
-//! out of the draws, they cost nothing and no pixel changes (`tests/render_facing.rs`).
+//! out of the draws, they cost nothing and no pixel changes (`tests/render_unseen.rs`).
 
 use glam::Vec3;
 

@@ -41,9 +41,7 @@ impl MotionReach {
         reach.pivot_m += reach.slot_m.iter().fold(0.0f32, |m, &r| m.max(r));
         reach
     }
-}
 
-impl MotionReach {
     /// See [`super::GpuHead::looks_the_same`].
     pub(super) fn looks_the_same(
         &self,
