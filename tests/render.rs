@@ -905,7 +905,7 @@ fn region_pixels(img: &image::RgbaImage, (x0, y0, x1, y1): (u32, u32, u32, u32))
 fn changed(a: &[[u8; 4]], b: &[[u8; 4]]) -> usize {
     a.iter()
         .zip(b)
-        .filter(|(p, q)| (0..3).any(|k| (p[k] as i32 - q[k] as i32).abs() > 24))
+        .filter(|(p, q)| common::visibly_different(**p, **q))
         .count()
 }
 

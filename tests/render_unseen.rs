@@ -18,7 +18,7 @@ use lipcall::vocab::{FacePose, VISEME_NAMES, Viseme, VisemeWeights};
 fn differing(a: &image::RgbaImage, b: &image::RgbaImage) -> usize {
     a.pixels()
         .zip(b.pixels())
-        .filter(|(p, q)| (0..3).any(|k| p.0[k].abs_diff(q.0[k]) > 24))
+        .filter(|(p, q)| common::visibly_different(p.0, q.0))
         .count()
 }
 

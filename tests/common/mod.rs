@@ -91,6 +91,11 @@ pub fn unavailable(reason: &str) {
     eprintln!("skipped: {reason}");
 }
 
+/// Two pixels a viewer tells apart: more than 24 levels apart in some colour channel.
+pub fn visibly_different(p: [u8; 4], q: [u8; 4]) -> bool {
+    (0..3).any(|k| p[k].abs_diff(q[k]) > 24)
+}
+
 /// The head renderer's GPU (the software adapter where there is no other), or `None` after
 /// saying why the test skips.
 pub fn gpu() -> Option<lipcall::render::GpuContext> {
