@@ -576,6 +576,47 @@ fn decompose_grid_prints_table_i_on_tracked_lips() {
     assert_eq!(out.status.code(), Some(2));
 }
 
+/// `evaluate --grid` without `--speakers` scores the lips alone: tuning on lips never glimpses
+/// the TIMIT test speakers by accident. Named speakers are still scored beside the lips.
+#[test]
+fn evaluate_with_grid_scores_timit_speakers_only_when_named() {
+    let dir = tempfile::tempdir().unwrap();
+    let missing = dir.path().join("no-grid");
+    let missing = missing.to_str().unwrap();
+    let out = lipcall(&["evaluate", "--grid", missing]);
+    let text = String::from_utf8_lossy(&out.stdout);
+    assert_eq!(out.status.code(), Some(1), "{}", stderr(&out));
+    assert!(text.contains("model: built-in"), "{text}");
+    assert!(!text.contains("held-out speakers"), "{text}");
+    assert!(stderr(&out).contains("no-grid"), "{}", stderr(&out));
+
+    let csv = dir.path().join("frames.csv");
+    let out = lipcall(&[
+        "evaluate",
+        "--grid",
+        missing,
+        "--per-frame",
+        csv.to_str().unwrap(),
+    ]);
+    assert_clean_failure(&out, "--speakers");
+    assert!(out.stdout.is_empty() && !csv.exists());
+
+    let out = lipcall(&[
+        "evaluate",
+        "--grid",
+        missing,
+        "--speakers",
+        "dr4",
+        "--utterances",
+        "1",
+        "--corpus",
+        corpus().to_str().unwrap(),
+    ]);
+    let text = String::from_utf8_lossy(&out.stdout);
+    assert!(text.contains("held-out speakers: dr4-"), "{text}");
+    assert_eq!(out.status.code(), Some(1), "{}", stderr(&out));
+}
+
 /// `tools/lip_readout.py` (docs/model.md, "Third round"): its least-squares shape values find
 /// known values again and score r = 1 on lips made through them, and wrong values score less.
 #[test]

@@ -176,9 +176,11 @@ pub struct EvaluateArgs {
           value_parser = clap::value_parser!(u32).range(6..=510))]
     pub bitrate: u32,
     /// Which speakers: test (dr5, dr6), validation (dr4), train (dr1-dr3), or a comma list of
-    /// speaker names or their prefixes (e.g. dr2 for a cross-validation fold).
-    #[arg(long, value_name = "SET", default_value = "test")]
-    pub speakers: String,
+    /// speaker names or their prefixes (e.g. dr2 for a cross-validation fold). Default: test,
+    /// except with --grid, which then scores the lips alone (so that tuning on lips never
+    /// glimpses the test speakers by accident).
+    #[arg(long, value_name = "SET")]
+    pub speakers: Option<String>,
     /// Utterances per speaker (all by default).
     #[arg(long, value_name = "N")]
     pub utterances: Option<usize>,
@@ -553,6 +555,14 @@ pub fn load_model(path: Option<&Path>) -> Result<Model> {
 }
 
 pub fn evaluate(args: &EvaluateArgs) -> Result<()> {
+    let speakers = match (&args.speakers, &args.lips.grid) {
+        (Some(set), _) => Some(set.as_str()),
+        (None, None) => Some("test"),
+        (None, Some(_)) if args.per_frame.is_some() => {
+            bail!("--per-frame writes TIMIT frames: with --grid, name them with --speakers")
+        }
+        (None, Some(_)) => None,
+    };
     let mut model = load_model(args.model.as_deref())?;
     let [bitstream, nlsf, analysis] = [
         FeatureFamily::Bitstream,
@@ -562,22 +572,11 @@ pub fn evaluate(args: &EvaluateArgs) -> Result<()> {
     .map(|family| model.closure_snap_with_bias(family, args.closures));
     (model.closure_snap, model.nlsf_snap, model.analysis_snap) =
         (bitstream, Some(nlsf), Some(analysis));
-    let corpus = Corpus::open(&args.corpus)?;
-    let split = SpeakerSplit::standard(&corpus)?;
-    let Some(speakers) = plan::named_speakers(&corpus, &split, &args.speakers) else {
-        bail!(
-            "--speakers {:?} names no speaker of {}",
-            args.speakers,
-            args.corpus.display()
-        );
-    };
-    let speakers = &speakers;
     let config = EncoderConfig {
         quality: args.quality,
         vbr: args.vbr,
         ..EncoderConfig::default()
     };
-    let utts = plan::pick(&corpus, speakers, args.utterances)?;
     let path = match args.codec {
         EvalCodec::Speex => CodecPath::Speex(config),
         EvalCodec::Opus | EvalCodec::OpusNb => CodecPath::Opus {
@@ -591,15 +590,6 @@ pub fn evaluate(args: &EvaluateArgs) -> Result<()> {
         EvalCodec::Pcma => CodecPath::G711(Law::A),
         EvalCodec::G722 => CodecPath::G722,
     };
-    let prepared = plan::prepare_each(
-        &CodecFeatures::new(),
-        &utts,
-        path,
-        &format!("{path} round trips"),
-        true,
-    )?;
-    let report: EvalReport =
-        evaluate_prepared(&model, &prepared, speakers, &VisemeShapes::point_model())?;
     println!(
         "model: {} ({} visemes: {}; {} multiply-adds/frame; sharpness {}; closure snap {}), {}",
         args.model
@@ -612,13 +602,39 @@ pub fn evaluate(args: &EvaluateArgs) -> Result<()> {
         model.closure_snap_of(path.family()),
         path
     );
+    if let Some(set) = speakers {
+        evaluate_speakers(args, &model, set, path)?;
+    }
+    super::grid::evaluate_lips(&args.lips, &model, path)
+}
+
+/// The TIMIT half of `evaluate`: the report on the speakers of `set`, and `--per-frame`.
+fn evaluate_speakers(args: &EvaluateArgs, model: &Model, set: &str, path: CodecPath) -> Result<()> {
+    let corpus = Corpus::open(&args.corpus)?;
+    let split = SpeakerSplit::standard(&corpus)?;
+    let Some(speakers) = plan::named_speakers(&corpus, &split, set) else {
+        bail!(
+            "--speakers {set:?} names no speaker of {}",
+            args.corpus.display()
+        );
+    };
+    let speakers = &speakers;
+    let utts = plan::pick(&corpus, speakers, args.utterances)?;
+    let prepared = plan::prepare_each(
+        &CodecFeatures::new(),
+        &utts,
+        path,
+        &format!("{path} round trips"),
+        true,
+    )?;
+    let report: EvalReport =
+        evaluate_prepared(model, &prepared, speakers, &VisemeShapes::point_model())?;
     print!("{report}");
-    super::grid::evaluate_lips(&args.lips, &model, path)?;
     if let Some(path) = &args.per_frame {
         let file = std::fs::File::create(path)
             .with_context(|| format!("cannot create {}", path.display()))?;
         let mut out = std::io::BufWriter::new(file);
-        write_frames(&mut out, &model, &VisemeShapes::point_model(), &prepared)
+        write_frames(&mut out, model, &VisemeShapes::point_model(), &prepared)
             .and_then(|()| Ok(out.flush()?))
             .with_context(|| format!("cannot write {}", path.display()))?;
         eprintln!("wrote the per-frame values to {}", path.display());
