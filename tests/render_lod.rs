@@ -6,7 +6,7 @@ mod common;
 
 use std::sync::OnceLock;
 
-use common::gpu;
+use common::{gpu, visibly_different};
 
 use lipcall::render::head::HeadModel;
 use lipcall::render::lod::{DetailLevels, MAX_ERROR_PX};
@@ -107,19 +107,19 @@ fn tile(ctx: &GpuContext, width: u32, height: u32) -> (OffscreenRenderer, Region
     (offscreen, region)
 }
 
-fn region_pixels(img: &image::RgbaImage, (x0, y0, x1, y1): Region) -> Vec<[i32; 4]> {
+fn region_pixels(img: &image::RgbaImage, (x0, y0, x1, y1): Region) -> Vec<[u8; 4]> {
     img.enumerate_pixels()
         .filter(|(x, y, _)| (x0..x1).contains(x) && (y0..y1).contains(y))
-        .map(|(_, _, p)| p.0.map(i32::from))
+        .map(|(_, _, p)| p.0)
         .collect()
 }
 
-/// Pixels of `region` that differ by more than 24 levels in some channel.
+/// Pixels of `region` that are visibly different.
 fn difference(a: &image::RgbaImage, b: &image::RgbaImage, region: Region) -> usize {
     region_pixels(a, region)
         .iter()
         .zip(&region_pixels(b, region))
-        .filter(|(p, q)| (0..3).any(|k| (p[k] - q[k]).abs() > 24))
+        .filter(|&(&p, &q)| visibly_different(p, q))
         .count()
 }
 
@@ -127,7 +127,7 @@ fn difference(a: &image::RgbaImage, b: &image::RgbaImage, region: Region) -> usi
 fn teeth(img: &image::RgbaImage, region: Region) -> usize {
     region_pixels(img, region)
         .iter()
-        .filter(|p| p[0].min(p[1]).min(p[2]) > 150 && p[0] - p[2] < 40)
+        .filter(|p| p[0].min(p[1]).min(p[2]) > 150 && i32::from(p[0]) - i32::from(p[2]) < 40)
         .count()
 }
 
