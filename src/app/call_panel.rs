@@ -133,7 +133,8 @@ pub(super) fn call_ui(
                 ),
             engine::Encryption::None => ui.colored_label(warn, "NOT encrypted"),
         };
-        ui.label(&call.state);
+        // Whole on one row: where it does not fit it starts the next row instead of breaking.
+        ui.add(egui::Label::new(&call.state).wrap_mode(egui::TextWrapMode::Extend));
         if call.unknown_payload > 0 {
             ui.colored_label(
                 egui::Color32::from_rgb(230, 160, 60),
