@@ -47,9 +47,13 @@ fn peer(i: u32) -> ShownPeer {
 }
 
 fn harness(n: u32, size: egui::Vec2) -> Harness<'static, Vec<ShownPeer>> {
+    harness_of((0..n).map(peer).collect(), size)
+}
+
+fn harness_of(peers: Vec<ShownPeer>, size: egui::Vec2) -> Harness<'static, Vec<ShownPeer>> {
     let mut h = Harness::builder().with_size(size).build_ui_state(
         |ui: &mut egui::Ui, peers: &mut Vec<ShownPeer>| tiles_ui(ui, peers, None),
-        (0..n).map(peer).collect(),
+        peers,
     );
     h.run();
     h
@@ -147,4 +151,42 @@ fn each_tiles_menu_reaches_that_peers_controls() {
     for (_, p) in others {
         assert!(p.prefs.animate && !p.prefs.lipreading && p.prefs.visemes.is_empty());
     }
+}
+
+/// Sixteen peers in the window: the tiles are narrow, and the name is what tells them apart, so
+/// each is shown whole (as wide as in a tile of its own), the mute box and menu giving up their
+/// words (kept as their accessible names) instead. A tile with room keeps the words.
+#[test]
+fn names_stay_whole_on_sixteen_narrow_tiles() {
+    let named = |n: u32| -> Vec<ShownPeer> {
+        (0..n)
+            .map(|i| {
+                let mut p = peer(i);
+                p.view.name = format!("Caller number {i}");
+                p
+            })
+            .collect()
+    };
+    let alone = harness_of(named(1), CENTRAL);
+    let whole = alone.get_by_label("Caller number 0").rect().width();
+    assert!(alone.query_by_label("Mute").is_some() && alone.query_by_label("More").is_some());
+    assert!(alone.query_by_label("…").is_none());
+
+    let mut h = harness_of(named(16), CENTRAL);
+    for i in 0..16 {
+        let name = h.get_by_label(&format!("Caller number {i}")).rect();
+        assert!(
+            name.width() >= whole - 0.5,
+            "peer {i}'s name is cut short: {} of {whole} points",
+            name.width()
+        );
+    }
+    h.get_all_by_label("Mute").nth(11).unwrap().click();
+    h.run();
+    assert!(h.state()[11].prefs.muted);
+    h.get_all_by_label("More").nth(3).unwrap().click();
+    h.run();
+    h.get_by_label("Lipreading").click();
+    h.run();
+    assert!(h.state()[3].prefs.lipreading);
 }

@@ -185,37 +185,83 @@ pub fn tiles_ui(ui: &mut egui::Ui, peers: &mut [ShownPeer], mut heads: Option<&m
 }
 
 /// A tile's header row: the name (cut short to fit), a dot while talking, and at the right the
-/// mute box and a menu with the rest of the peer's controls.
+/// mute box and a menu with the rest of the peer's controls. On a narrow tile (many peers) the
+/// box and the menu lose their words, keeping them as their accessible names and hover texts,
+/// so that the name has the room.
 fn tile_header_ui(ui: &mut egui::Ui, shown: &mut ShownPeer) {
     let p = &shown.view;
     let row = egui::Rect::from_min_size(
         ui.max_rect().min,
         egui::vec2(ui.max_rect().width(), TILE_HEADER),
     );
+    let compact = row.width() < header_width_with_words(ui, &p.name);
     ui.scope_builder(
         egui::UiBuilder::new()
             .max_rect(row)
             .layout(egui::Layout::right_to_left(egui::Align::Center)),
         |ui| {
+            if compact {
+                ui.spacing_mut().item_spacing.x = 3.0;
+                ui.spacing_mut().button_padding.x = 2.0;
+            }
             // Open until a click elsewhere, so several choices can be made in one go.
             let stay_open = egui::containers::menu::MenuConfig::new()
                 .close_behavior(egui::PopupCloseBehavior::CloseOnClickOutside);
-            egui::containers::menu::MenuButton::new("More")
-                .config(stay_open)
-                .ui(ui, |ui| {
-                    ui.set_max_width(260.0);
-                    ui.label(egui::RichText::new(&p.name).strong());
-                    peer_controls_ui(ui, &mut shown.prefs);
-                })
-                .0
-                .on_hover_text("This peer's controls");
-            ui.checkbox(&mut shown.prefs.muted, "Mute");
+            let menu =
+                egui::containers::menu::MenuButton::new(if compact { "…" } else { "More" })
+                    .config(stay_open)
+                    .ui(ui, |ui| {
+                        ui.set_max_width(260.0);
+                        ui.label(egui::RichText::new(&p.name).strong());
+                        peer_controls_ui(ui, &mut shown.prefs);
+                    })
+                    .0
+                    .on_hover_text(format!("{}'s controls", p.name));
+            let mute = if compact {
+                ui.add(egui::Checkbox::without_text(&mut shown.prefs.muted))
+                    .on_hover_text(format!("Mute {}", p.name))
+            } else {
+                ui.checkbox(&mut shown.prefs.muted, "Mute")
+            };
+            if compact {
+                let muted = shown.prefs.muted;
+                mute.widget_info(|| {
+                    egui::WidgetInfo::selected(egui::accesskit::Role::CheckBox, true, muted, "Mute")
+                });
+                menu.widget_info(|| {
+                    egui::WidgetInfo::labeled(egui::accesskit::Role::Button, true, "More")
+                });
+            }
             ui.with_layout(egui::Layout::left_to_right(egui::Align::Center), |ui| {
                 talking_dot(ui, p.talking, 10.0);
                 ui.add(egui::Label::new(egui::RichText::new(&p.name).strong()).truncate());
             });
         },
     );
+}
+
+/// The width a tile's header needs to show the whole name, the talking dot and the mute box
+/// and the menu with their words.
+fn header_width_with_words(ui: &egui::Ui, name: &str) -> f32 {
+    let width = |text: egui::WidgetText| {
+        text.into_galley(
+            ui,
+            Some(egui::TextWrapMode::Extend),
+            f32::INFINITY,
+            egui::TextStyle::Button,
+        )
+        .size()
+        .x
+    };
+    let s = ui.spacing();
+    width(egui::RichText::new(name).strong().into())
+        + width("Mute".into())
+        + width("More".into())
+        + 10.0
+        + s.icon_width
+        + s.icon_spacing
+        + 2.0 * s.button_padding.x
+        + 4.0 * s.item_spacing.x
 }
 
 /// A `size`-point light, green while the peer talks.
