@@ -2,7 +2,7 @@ use std::path::PathBuf;
 use std::process::ExitCode;
 
 use clap::{Parser, Subcommand};
-use lipcall::commands::{self, animate, audio, codec, grid, janus, lipsync, relay, sip};
+use lipcall::commands::{self, animate, audio, codec, evaluate, grid, janus, lipsync, relay, sip};
 
 /// Voice chat with lip-synced 3D heads, driven by the Speex decoder's own LSPs.
 #[derive(Parser)]
@@ -63,7 +63,7 @@ enum Command {
     Train(lipsync::TrainArgs),
     /// Score a model and the jaw baseline on held-out speakers (Eq. 1, accuracy, openness r,
     /// /p b m/ closures, false closures).
-    Evaluate(lipsync::EvaluateArgs),
+    Evaluate(evaluate::EvaluateArgs),
     /// The paper's Table I (decomposition error for 2..6 visemes), or decompose real marker tracks.
     Decompose(lipsync::DecomposeArgs),
     /// GRID data step: per-20-ms lip targets from the tracked video, and s1's audio-visual lag.
@@ -106,7 +106,7 @@ fn main() -> ExitCode {
         Command::Sip(a) => sip::run(&a),
         Command::Relay(a) => relay::relay(&a.listen, a.seconds),
         Command::Train(a) => lipsync::train(&a),
-        Command::Evaluate(a) => lipsync::evaluate(&a),
+        Command::Evaluate(a) => evaluate::evaluate(&a),
         Command::Decompose(a) => lipsync::decompose(&a),
         Command::Grid(a) => grid::grid(&a),
     };

@@ -4,6 +4,7 @@
 pub mod animate;
 pub mod audio;
 pub mod codec;
+pub mod evaluate;
 pub mod grid;
 pub mod janus;
 pub mod lipsync;
