@@ -217,13 +217,10 @@ fn tile_header_ui(ui: &mut egui::Ui, shown: &mut ShownPeer) {
                     })
                     .0
                     .on_hover_text(format!("{}'s controls", p.name));
-            let mute = if compact {
-                ui.add(egui::Checkbox::without_text(&mut shown.prefs.muted))
-                    .on_hover_text(format!("Mute {}", p.name))
-            } else {
-                ui.checkbox(&mut shown.prefs.muted, "Mute")
-            };
             if compact {
+                let mute = ui
+                    .add(egui::Checkbox::without_text(&mut shown.prefs.muted))
+                    .on_hover_text(format!("Mute {}", p.name));
                 let muted = shown.prefs.muted;
                 mute.widget_info(|| {
                     egui::WidgetInfo::selected(egui::accesskit::Role::CheckBox, true, muted, "Mute")
@@ -231,6 +228,8 @@ fn tile_header_ui(ui: &mut egui::Ui, shown: &mut ShownPeer) {
                 menu.widget_info(|| {
                     egui::WidgetInfo::labeled(egui::accesskit::Role::Button, true, "More")
                 });
+            } else {
+                ui.checkbox(&mut shown.prefs.muted, "Mute");
             }
             ui.with_layout(egui::Layout::left_to_right(egui::Align::Center), |ui| {
                 talking_dot(ui, p.talking, 10.0);
