@@ -19,9 +19,23 @@ pub struct EngineCounters {
     pub weights_fallback: AtomicU64,
     pub weights_late: AtomicU64,
     pub late_us: AtomicU64,
+    /// The longest time between two passes of the worker's loop since it was last taken, in
+    /// microseconds: a pass that blocks (on a peer, a server, a lookup) delays every peer's
+    /// audio and face by as much.
+    pub longest_pass_us: AtomicU64,
 }
 
 impl EngineCounters {
+    /// The longest gap between two passes of the worker's loop since the last call.
+    pub fn take_longest_pass(&self) -> std::time::Duration {
+        std::time::Duration::from_micros(self.longest_pass_us.swap(0, Ordering::Relaxed))
+    }
+
+    pub(crate) fn pass_took(&self, gap: std::time::Duration) {
+        let us = u64::try_from(gap.as_micros()).unwrap_or(u64::MAX);
+        self.longest_pass_us.fetch_max(us, Ordering::Relaxed);
+    }
+
     /// Counts one row of weights for the frame at stream position `pos`, heard up to `heard`
     /// (positions in samples at `rate`).
     pub(crate) fn weights_scheduled(

@@ -35,6 +35,7 @@ pub use super::call_status::{CallStatus, Encryption};
 pub use super::counters::{DEMO_NAME, EngineCounters};
 use super::demo::Demo;
 use super::mumble_call::{MumbleCall, MumbleJoin, MumbleView, follow};
+use super::retire::Retirer;
 use super::roster::Roster;
 use super::settings::DEFAULT_CODEC;
 use super::sip_call::{PhoneCommand, PhoneStatus, SipPhone, is_sip_address};
@@ -223,6 +224,8 @@ struct Worker {
     counters: Arc<EngineCounters>,
     commands: Receiver<Command>,
     link: Box<dyn Link>,
+    /// Hangs up the links the worker is done with, off its loop.
+    retirer: Retirer,
     demo: Option<Demo>,
     mic: Option<Capture>,
     /// The microphone's encoder, for the codec of the current call.
@@ -264,6 +267,7 @@ impl Worker {
         let mut worker = Self {
             encoder: FrameEncoder::new(DEFAULT_CODEC, &EncoderSettings::default())?,
             link,
+            retirer: Retirer::start()?,
             demo: None,
             mic: None,
             in_call: false,
@@ -452,9 +456,9 @@ impl Worker {
 
     /// Hangs up the current link (and the demo) for a call's.
     fn switch_link(&mut self, link: Box<dyn Link>, encoder: FrameEncoder) {
-        self.link.leave();
         self.demo = None;
-        self.link = link;
+        let old = std::mem::replace(&mut self.link, link);
+        self.retirer.retire(old);
         self.encoder = encoder;
         self.in_call = true;
         self.drop_peers();
@@ -492,10 +496,11 @@ impl Worker {
     }
 
     fn leave(&mut self) -> anyhow::Result<()> {
-        self.link.leave();
         self.in_call = false;
         self.drop_peers();
-        self.link = Box::new(idle_session(&self.config)?);
+        let idle = Box::new(idle_session(&self.config)?);
+        let old = std::mem::replace(&mut self.link, idle);
+        self.retirer.retire(old);
         self.set_idle_status();
         Ok(())
     }
@@ -543,7 +548,11 @@ impl Worker {
         let mut pacer = FramePacer::new(PLAYBACK_LEAD);
         let mut ticker = Ticker::new(Instant::now());
         let mut frames: Vec<PeerFrame> = Vec::new();
+        let mut pass_began = Instant::now();
         while !stop.load(Ordering::Relaxed) {
+            let now = Instant::now();
+            self.counters.pass_took(now - pass_began);
+            pass_began = now;
             if let Some(wait) = ticker.due().checked_duration_since(Instant::now()) {
                 std::thread::park_timeout(wait.min(POLL));
             }

@@ -14,6 +14,7 @@ pub mod engine;
 pub mod mumble_call;
 pub mod peer;
 pub mod peer_panel;
+mod retire;
 pub mod roster;
 pub mod settings;
 pub mod sip_call;

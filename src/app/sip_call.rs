@@ -209,7 +209,13 @@ impl SipPhone {
 
     fn stop_listener(&mut self) {
         if let Some(mut listener) = self.listener.take() {
-            listener.leave();
+            // Its unregistering waits on the registrar: not on the engine's worker.
+            let stopping = std::thread::Builder::new()
+                .name("sip-listener-stop".into())
+                .spawn(move || listener.leave());
+            if let Err(e) = stopping {
+                tracing::warn!("cannot stop the SIP listener on its own thread: {e}");
+            }
         }
         self.status.ringing = None;
         self.retry_at = None;
@@ -236,7 +242,13 @@ impl SipPhone {
             self.end_call();
             return;
         }
-        let mut link = lock(call);
+        // The engine hangs a call up on a thread of its own, holding the call while the peer
+        // answers: this pass leaves it be.
+        let mut link = match call.try_lock() {
+            Ok(link) => link,
+            Err(std::sync::TryLockError::Poisoned(e)) => e.into_inner(),
+            Err(std::sync::TryLockError::WouldBlock) => return,
+        };
         link.follow(Duration::ZERO);
         for notice in link.take_notices() {
             tracing::info!("SIP: {notice}");

@@ -167,6 +167,16 @@ impl Janus {
         let _ = self.child.wait();
     }
 
+    /// Freezes the server (SIGSTOP): its sockets stay open and nothing answers, as a server
+    /// that hangs does.
+    pub fn freeze(&self) {
+        let status = Command::new("kill")
+            .args(["-STOP", &self.child.id().to_string()])
+            .status()
+            .expect("kill runs");
+        assert!(status.success(), "kill -STOP janus: {status}");
+    }
+
     /// A fresh Janus on the same port and config, knowing nothing of the old sessions.
     pub fn restart(&mut self) {
         self.stop();

@@ -76,6 +76,9 @@ pub struct Agent {
     thread: Option<JoinHandle<()>>,
     /// The call's end (or failure) was reported.
     last_word: bool,
+    /// The owner already waited for the thread to end ([`Agent::wait`]): dropping the agent
+    /// does not wait again.
+    waited: bool,
 }
 
 impl std::fmt::Debug for Agent {
@@ -109,6 +112,7 @@ impl Agent {
             events,
             thread: Some(thread),
             last_word: false,
+            waited: false,
         })
     }
 
@@ -159,6 +163,7 @@ impl Agent {
 
     /// Waits up to `limit` for the agent to finish (its BYE answered, the binding removed).
     pub fn wait(&mut self, limit: Duration) -> bool {
+        self.waited = true;
         let deadline = std::time::Instant::now() + limit;
         while let Some(thread) = &self.thread {
             if thread.is_finished() {
@@ -181,7 +186,9 @@ impl Drop for Agent {
         self.hang_up();
         // A peer that never answers our BYE must not hold the process: the thread is left
         // to end with it.
-        self.wait(Duration::from_secs(2));
+        if !self.waited {
+            self.wait(Duration::from_secs(2));
+        }
     }
 }
 
