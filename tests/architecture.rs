@@ -1,6 +1,8 @@
-//! Checks of the crate's shape that run with `cargo test`: no import cycles among the files of
-//! `src/`, `main.rs` only parses and dispatches, and no file grows past the size the code style
-//! allows.
+//! Checks of the crate's shape that run with `cargo test`: each file of `src/` imports only from
+//! its own layer and those below it (the layers are the rows of `docs/architecture.md`'s table,
+//! bottom up), no import cycles among the files, `main.rs` only parses and dispatches, and no
+//! file grows past the size the code style allows (its own lines outside `#[cfg(test)]` items;
+//! a `tests.rs` declared by `#[cfg(test)] mod tests;` is all tests).
 //!
 //! What counts as an import: every path in shipped code that names something of this crate.
 //! That is `use` declarations (`pub use` too, grouped trees, `use` inside functions) and paths
