@@ -1,6 +1,8 @@
-//! Checks of the crate's shape that run with `cargo test`: no import cycles among the files of
-//! `src/`, `main.rs` only parses and dispatches, and no file grows past the size the code style
-//! allows.
+//! Checks of the crate's shape that run with `cargo test`: each file of `src/` imports only from
+//! its own layer and those below it (the layers are the rows of `docs/architecture.md`'s table,
+//! bottom up), no import cycles among the files, `main.rs` only parses and dispatches, and no
+//! file grows past the size the code style allows (its own lines outside `#[cfg(test)]` items;
+//! a `tests.rs` declared by `#[cfg(test)] mod tests;` is all tests).
 //!
 //! What counts as an import: every path in shipped code that names something of this crate.
 //! That is `use` declarations (`pub use` too, grouped trees, `use` inside functions) and paths
@@ -43,6 +45,79 @@ fn no_import_cycles_among_src_files() {
     assert!(
         cycles.is_empty(),
         "import cycles among src/ files (each import is `file:line path`):\n{cycles}"
+    );
+}
+
+/// The layers of `docs/architecture.md`, bottom up: the `src/` folder or file each row of its
+/// table names (`src/vocab/` -> `vocab`, `src/input.rs` -> `input`).
+fn documented_layers(doc: &str) -> Vec<String> {
+    doc.lines()
+        .filter_map(|line| line.strip_prefix("| `src/"))
+        .filter_map(|rest| rest.split('`').next())
+        .map(|name| {
+            let name = name.strip_suffix('/').unwrap_or(name);
+            name.strip_suffix(".rs").unwrap_or(name).to_owned()
+        })
+        .collect()
+}
+
+/// The layer a file of `src/` belongs to: its top-level module (`net/sip/sdp.rs` -> `net`).
+fn layer_of(file: &str) -> &str {
+    let top = file.split('/').next().unwrap_or(file);
+    top.strip_suffix(".rs").unwrap_or(top)
+}
+
+/// Each import from a file into a layer above its own, and each file in no documented layer;
+/// `lib.rs` only declares the layers, so it is above them all.
+fn layer_violations(graph: &Graph, layers: &[String]) -> Vec<String> {
+    let rank = |file: &str| match layer_of(file) {
+        "lib" => Some(layers.len()),
+        layer => layers.iter().position(|l| l == layer),
+    };
+    let mut violations = Vec::new();
+    for (from, targets) in graph {
+        let Some(from_rank) = rank(from) else {
+            violations.push(format!(
+                "src/{from} is in no layer of docs/architecture.md's table"
+            ));
+            continue;
+        };
+        for (to, import) in targets {
+            if rank(to).is_some_and(|to_rank| to_rank > from_rank) {
+                violations.push(format!(
+                    "src/{from}:{} {} -> src/{to} ({} imports from {}, a layer above it)",
+                    import.line,
+                    import.path,
+                    layer_of(from),
+                    layer_of(to)
+                ));
+            }
+        }
+    }
+    violations
+}
+
+#[test]
+fn no_file_imports_from_a_layer_above_its_own() {
+    let doc_path = Path::new(env!("CARGO_MANIFEST_DIR")).join("docs/architecture.md");
+    let doc = std::fs::read_to_string(doc_path).expect("read docs/architecture.md");
+    let layers = documented_layers(&doc);
+    let krate = Crate::load(&src_dir());
+    let missing: Vec<&String> = layers
+        .iter()
+        .filter(|layer| !krate.modules.contains_key(std::slice::from_ref(*layer)))
+        .collect();
+    assert!(
+        missing.is_empty(),
+        "docs/architecture.md's table names layers src/ lacks: {missing:?}"
+    );
+    let violations = layer_violations(&krate.import_graph(), &layers);
+    assert!(
+        violations.is_empty(),
+        "imports against the layer order of docs/architecture.md ({}; a file imports only from \
+         its own layer and those below it):\n{}",
+        layers.join(" < "),
+        violations.join("\n")
     );
 }
 
@@ -152,45 +227,77 @@ fn send_and_receive_help_keep_their_flag_order() {
 
 #[test]
 fn no_file_over_the_size_limit() {
-    let src = src_dir();
-    let krate = Crate::load(&src);
-    let mut over = Vec::new();
-    let mut stale = Vec::new();
-    let mut all_files: Vec<String> = krate.files.keys().cloned().collect();
-    all_files.push("main.rs".into());
-    for file in &all_files {
-        let text = std::fs::read_to_string(src.join(file)).expect("read a source file");
-        let lines = non_test_lines(&text);
-        if lines > MAX_NON_TEST_LINES && !DATA_TABLES.contains(&file.as_str()) {
-            over.push(format!("src/{file}: {lines} lines of non-test code"));
-        }
-    }
-    for listed in DATA_TABLES {
-        if !krate.files.contains_key(*listed) {
-            stale.push(listed.to_string());
-        }
-    }
+    let sources = sources(&src_dir());
+    let over = files_over_the_size_limit(&sources);
     assert!(
         over.is_empty(),
         "files over {MAX_NON_TEST_LINES} lines of non-test code (split them by concern):\n{}",
         over.join("\n")
     );
+    let stale: Vec<&str> = DATA_TABLES
+        .iter()
+        .copied()
+        .filter(|listed| !sources.contains_key(*listed))
+        .collect();
     assert!(
         stale.is_empty(),
         "DATA_TABLES names files that are gone; remove them: {stale:?}"
     );
 }
 
+/// `src/main.rs` and every file the library compiles outside tests, with its non-test lines,
+/// where they pass the limit. A `tests.rs` declared by `#[cfg(test)] mod tests;` is compiled
+/// only for tests, so none of it counts.
+fn files_over_the_size_limit(sources: &BTreeMap<String, String>) -> Vec<String> {
+    let krate = Crate::from_sources(sources.clone());
+    let checked = krate.files.keys().map(String::as_str).chain(["main.rs"]);
+    checked
+        .filter(|file| !DATA_TABLES.contains(file))
+        .filter_map(|file| {
+            let lines = non_test_lines(sources.get(file)?);
+            (lines > MAX_NON_TEST_LINES)
+                .then(|| format!("src/{file}: {lines} lines of non-test code"))
+        })
+        .collect()
+}
+
 fn src_dir() -> PathBuf {
     Path::new(env!("CARGO_MANIFEST_DIR")).join("src")
 }
 
-/// Lines before the first `#[cfg(test)]` at the start of a line: the module's tests sit at its
-/// end, after the code they test.
+/// Every `.rs` file under `src`, by path under it, with its text.
+fn sources(src: &Path) -> BTreeMap<String, String> {
+    let mut paths = Vec::new();
+    rust_files(src, src, &mut paths);
+    paths
+        .into_iter()
+        .map(|p| {
+            let text = std::fs::read_to_string(src.join(&p)).expect("read a source file");
+            (p, text)
+        })
+        .collect()
+}
+
+/// Lines of `text` outside the items under `#[cfg(test)]`, wherever those sit: a test module at
+/// the end, a `mod tests;` declaration near the top, a test-only helper inside an `impl`.
 fn non_test_lines(text: &str) -> usize {
-    text.lines()
-        .take_while(|line| !line.starts_with("#[cfg(test)]"))
-        .count()
+    let tokens = tokenize(text);
+    if (0..tokens.len().min(64)).any(|i| is_cfg_test(&tokens, i, true)) {
+        return 0;
+    }
+    let mut test_lines = BTreeSet::new();
+    let mut i = 0;
+    while i < tokens.len() {
+        if is_cfg_test(&tokens, i, false) {
+            let (end, _) = skip_attributed(&tokens, i + 7);
+            let end = end.clamp(i + 7, tokens.len());
+            test_lines.extend(tokens[i].line..=tokens[end - 1].line);
+            i = end;
+        } else {
+            i += 1;
+        }
+    }
+    text.lines().count().saturating_sub(test_lines.len())
 }
 
 // ---- Tokens ------------------------------------------------------------------------------------
@@ -702,16 +809,8 @@ fn rust_files(dir: &Path, root: &Path, out: &mut Vec<String>) {
 
 impl Crate {
     fn load(src: &Path) -> Crate {
-        let mut paths = Vec::new();
-        rust_files(src, src, &mut paths);
-        let sources = paths
-            .into_iter()
-            .filter(|p| p != "main.rs")
-            .map(|p| {
-                let text = std::fs::read_to_string(src.join(&p)).expect("read a source file");
-                (p, text)
-            })
-            .collect();
+        let mut sources = sources(src);
+        sources.remove("main.rs");
         Crate::from_sources(sources)
     }
 
@@ -1147,5 +1246,92 @@ fn cycles_are_found_and_named_file_by_file() {
     assert!(
         text.contains("src/c.rs:1 crate::a::A -> src/a.rs"),
         "{text}"
+    );
+}
+
+// ---- Tests of the size count and the layer order -----------------------------------------------
+
+#[test]
+fn non_test_lines_leave_out_each_cfg_test_item_wherever_it_sits() {
+    let text = "mod a;\n#[cfg(test)]\nmod tests;\n\nfn f() {}\nimpl S {\n    #[cfg(test)]\n    \
+                fn probe(&self) {\n        todo!()\n    }\n    fn kept(&self) {}\n}\n\
+                #[cfg(test)]\nmod more {\n    fn t() {}\n}\n";
+    assert_eq!(text.lines().count(), 16);
+    // Left out: `mod tests;` (2), `probe` (4) and `more` (4).
+    assert_eq!(non_test_lines(text), 6);
+    assert_eq!(non_test_lines("#![cfg(test)]\nfn f() {}\n"), 0);
+}
+
+#[test]
+fn size_limit_counts_a_files_own_code_and_not_its_cfg_test_tests_rs() {
+    let code = "fn f() {}\n".repeat(MAX_NON_TEST_LINES);
+    let sources: BTreeMap<String, String> = [
+        (
+            "lib.rs",
+            "pub mod big; pub mod small; pub mod loose;".to_owned(),
+        ),
+        (
+            "big/mod.rs",
+            format!("#[cfg(test)]\nmod tests;\n{code}fn over() {{}}\n"),
+        ),
+        ("big/tests.rs", code.repeat(3)),
+        (
+            "small/mod.rs",
+            format!("{code}#[cfg(test)]\nmod tests {{\n{code}}}\n"),
+        ),
+        ("loose/mod.rs", "mod tests;\n".to_owned()),
+        ("loose/tests.rs", format!("{code}fn over() {{}}\n")),
+        ("main.rs", "fn main() {}\n".to_owned()),
+    ]
+    .into_iter()
+    .map(|(p, t)| (p.to_owned(), t))
+    .collect();
+    assert_eq!(
+        files_over_the_size_limit(&sources),
+        [
+            "src/big/mod.rs: 701 lines of non-test code",
+            "src/loose/tests.rs: 701 lines of non-test code"
+        ]
+    );
+}
+
+#[test]
+fn layers_come_from_the_table_and_each_upward_import_is_named() {
+    let doc = "| folder | concern |\n|---|---|\n| `src/vocab/` | words |\n\
+               | `src/input.rs` | files |\n| `src/net/` | transport |\n| `src/app/` | the app |\n\
+               | `tests/`, `benches/` | tests |\n";
+    let layers = documented_layers(doc);
+    assert_eq!(layers, ["vocab", "input", "net", "app"]);
+    let krate = tiny_crate(&[
+        (
+            "lib.rs",
+            "pub mod vocab; pub mod input; pub mod net; pub mod app; pub mod stray;",
+        ),
+        (
+            "vocab/mod.rs",
+            "pub struct Word;\npub use crate::app::settings::load;",
+        ),
+        ("input.rs", "use crate::vocab::Word; pub fn read() {}"),
+        ("net/mod.rs", "pub mod peer; pub use crate::vocab::Word;"),
+        (
+            "net/peer.rs",
+            "use super::Word;\nfn f() { crate::app::settings::load(); crate::input::read(); }",
+        ),
+        (
+            "app/mod.rs",
+            "pub mod settings; use crate::net::peer; use crate::vocab::load;",
+        ),
+        ("app/settings.rs", "pub fn load() {}"),
+        ("stray.rs", "use crate::vocab::Word;"),
+    ]);
+    assert_eq!(
+        layer_violations(&krate.import_graph(), &layers),
+        [
+            "src/net/peer.rs:2 crate::app::settings::load -> src/app/settings.rs \
+             (net imports from app, a layer above it)",
+            "src/stray.rs is in no layer of docs/architecture.md's table",
+            "src/vocab/mod.rs:2 crate::app::settings::load -> src/app/settings.rs \
+             (vocab imports from app, a layer above it)",
+        ]
     );
 }

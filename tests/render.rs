@@ -1,5 +1,5 @@
 //! Head renderer tests. GPU tests run on whatever adapter wgpu finds (the software lavapipe /
-//! llvmpipe one on CI) and are skipped, with a printed reason, only when there is none.
+//! llvmpipe one on CI); when there is none they fail under CI and skip, saying why, elsewhere.
 
 mod common;
 
@@ -126,6 +126,41 @@ fn gpu_blend_matches_cpu_reference() {
             assert_ne!(open, shut);
         }
     }
+}
+
+/// Runs this file's `neutral_weights_give_the_base_head` with wgpu asked for a backend this build
+/// lacks (DirectX 12), so that no adapter is found; `CI` set or not.
+fn without_an_adapter(ci: bool) -> (bool, String) {
+    let mut child = std::process::Command::new(std::env::current_exe().unwrap());
+    child
+        .args([
+            "--exact",
+            "neutral_weights_give_the_base_head",
+            "--nocapture",
+        ])
+        .env("WGPU_BACKEND", "dx12");
+    if ci {
+        child.env("CI", "true");
+    } else {
+        child.env_remove("CI");
+    }
+    let out = child.output().unwrap();
+    let said = String::from_utf8_lossy(&out.stdout) + String::from_utf8_lossy(&out.stderr);
+    (out.status.success(), said.into_owned())
+}
+
+#[test]
+fn a_missing_adapter_fails_under_ci_and_skips_elsewhere() {
+    let (passed, said) = without_an_adapter(true);
+    assert!(
+        !passed && said.contains("the head renderer: no GPU adapter") && said.contains("CI must"),
+        "under CI a render test without an adapter must fail, saying why:\n{said}"
+    );
+    let (passed, said) = without_an_adapter(false);
+    assert!(
+        passed && said.contains("skipped: the head renderer: no GPU adapter"),
+        "outside CI a render test without an adapter skips, saying why:\n{said}"
+    );
 }
 
 #[test]

@@ -1,6 +1,6 @@
 //! Levels of detail of the default head: fewer triangles where the head is shown small, and the
-//! same face a lipreader sees. GPU tests run on whatever adapter wgpu finds (lavapipe on CI) and
-//! are skipped, with a printed reason, only when there is none.
+//! same face a lipreader sees. GPU tests run on whatever adapter wgpu finds (lavapipe on CI);
+//! when there is none they fail under CI and skip, saying why, elsewhere.
 
 mod common;
 

@@ -1,8 +1,8 @@
 //! Work the renderer leaves out because it would not show: triangles that cannot face a frontal
 //! camera (`render::facing`), and frames whose face moved by less than a quarter of a pixel
 //! (`GpuHead::looks_the_same`, which the app's tiles ask before drawing). GPU tests run on
-//! whatever adapter wgpu finds (lavapipe on CI) and are skipped, with a printed reason, only
-//! when there is none.
+//! whatever adapter wgpu finds (lavapipe on CI); when there is none they fail under CI and skip,
+//! saying why, elsewhere.
 
 mod common;
 

@@ -80,7 +80,6 @@ pub mod netns;
 pub mod sip;
 pub mod talker;
 
-/// Whether a PulseAudio server answers (the null sink of .ci/pulse-null-sink.sh).
 /// A test's real peer or data is missing: under CI (`CI` set, as `.ci/run` runs) that fails the
 /// test with the reason, since .ci/run installs everything; elsewhere the test says so and skips.
 pub fn unavailable(reason: &str) {
@@ -96,18 +95,20 @@ pub fn visibly_different(p: [u8; 4], q: [u8; 4]) -> bool {
     (0..3).any(|k| p[k].abs_diff(q[k]) > 24)
 }
 
-/// The head renderer's GPU (the software adapter where there is no other), or `None` after
-/// saying why the test skips.
+/// The head renderer's GPU (the software adapter where there is no other). Without one the
+/// test fails under CI, as for any missing peer, and elsewhere gets `None` after saying why it
+/// skips.
 pub fn gpu() -> Option<lipcall::render::GpuContext> {
     match lipcall::render::GpuContext::new_headless() {
         Ok(ctx) => Some(ctx),
         Err(e) => {
-            println!("SKIPPED: no GPU adapter for the head renderer: {e}");
+            unavailable(&format!("the head renderer: {e}"));
             None
         }
     }
 }
 
+/// Whether a PulseAudio server answers (the null sink of .ci/pulse-null-sink.sh).
 pub fn pulse_running() -> bool {
     Command::new("pactl")
         .arg("info")
