@@ -275,6 +275,10 @@ fn a_hostile_answer_is_a_clear_failure() {
         ),
         ("m=audio 0 RTP/AVP 0", "refused"),
         ("m=video [media_port] RTP/AVP 96", "no audio stream"),
+        (
+            "m=audio [media_port] RTP/AVP 0\nc=IN IP4 0.0.0.0",
+            "the peer's media address cannot be used: 0.0.0.0:",
+        ),
     ] {
         let dir = tempfile::tempdir().unwrap();
         let port = free_port(false);

@@ -8,6 +8,8 @@ use std::time::{Duration, Instant};
 use ezk_stun_types::attributes::{ErrorCode, MappedAddress, XorMappedAddress};
 use ezk_stun_types::{Class, Message, MessageBuilder, Method, TransactionId};
 
+use crate::net::addr::{OddAddress, media_target};
+
 /// RFC 8489 6.2.1's first retransmission timeout; each retry doubles it.
 const FIRST_RTO: Duration = Duration::from_millis(250);
 /// How long a call waits for the STUN server before going on with its local address.
@@ -32,6 +34,8 @@ pub enum StunError {
     },
     #[error("STUN server {0} answered without an address")]
     NoAddress(SocketAddr),
+    #[error("STUN server {server} answered an address we cannot be reached at: {why}")]
+    OddAddress { server: SocketAddr, why: OddAddress },
     #[error("STUN on the media socket: {0}")]
     Io(String),
 }
@@ -91,7 +95,11 @@ pub fn read_answer(
                     .and_then(Result::ok)
                     .map(|a| a.0)
             };
-            Some(xor.or_else(plain).ok_or(StunError::NoAddress(server)))
+            let mapped = xor.or_else(plain).ok_or(StunError::NoAddress(server));
+            // The server sees us over its own family: the address must be of it too.
+            Some(mapped.and_then(|mapped| {
+                media_target(mapped, server).map_err(|why| StunError::OddAddress { server, why })
+            }))
         }
         Class::Error => {
             let (code, reason) = match message.attribute::<ErrorCode>() {
@@ -199,6 +207,42 @@ mod tests {
             read_answer(&refused, id, server),
             Some(Err(StunError::Refused { .. }))
         ));
+    }
+
+    #[test]
+    fn a_server_answering_an_odd_address_is_not_believed() {
+        let socket = UdpSocket::bind("127.0.0.1:0").unwrap();
+        let server = UdpSocket::bind("127.0.0.1:0").unwrap();
+        let server_addr = server.local_addr().unwrap();
+        let answering = std::thread::spawn(move || {
+            let mut buf = [0u8; 1500];
+            for mapped in [
+                "0.0.0.0:4000",
+                "224.0.0.1:4000",
+                "[::1]:4000",
+                "127.0.0.1:4000",
+            ] {
+                let (n, from) = server.recv_from(&mut buf).unwrap();
+                let request = Message::parse(buf[..n].to_vec()).unwrap();
+                let reply = answer(
+                    Class::Success,
+                    request.transaction_id(),
+                    Some(mapped.parse().unwrap()),
+                );
+                server.send_to(&reply, from).unwrap();
+            }
+        });
+        let wait = Duration::from_secs(5);
+        for odd in ["0.0.0.0:4000", "224.0.0.1:4000", "[::1]:4000"] {
+            let e = reflexive_address(&socket, server_addr, wait).unwrap_err();
+            assert!(matches!(e, StunError::OddAddress { .. }), "{e:?}");
+            assert!(e.to_string().contains(odd), "{e}");
+        }
+        assert_eq!(
+            reflexive_address(&socket, server_addr, wait),
+            Ok("127.0.0.1:4000".parse().unwrap())
+        );
+        answering.join().unwrap();
     }
 
     #[test]

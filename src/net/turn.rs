@@ -18,6 +18,8 @@ use ezk_stun_types::attributes::{
 };
 use ezk_stun_types::{Class, Message, MessageBuilder, Method, TransactionId};
 
+use crate::net::addr::media_target;
+
 /// RFC 8489's first retransmission timeout, doubled on each retry.
 const FIRST_RTO: Duration = Duration::from_millis(250);
 /// A request unanswered this long has failed.
@@ -175,17 +177,22 @@ impl TurnClient {
             Request::Allocate => {
                 let relayed = message
                     .attribute::<XorRelayedAddress>()
-                    .and_then(Result::ok);
+                    .and_then(Result::ok)
+                    .ok_or_else(|| "no relayed address in its answer".to_owned())
+                    .and_then(|a| {
+                        media_target(a.0, self.config.server)
+                            .map_err(|why| format!("a relayed address peers cannot use: {why}"))
+                    });
                 match relayed {
-                    Some(a) => {
-                        self.relayed = Some(a.0);
+                    Ok(relayed) => {
+                        self.relayed = Some(relayed);
                         self.expires = Some(now + lifetime.unwrap_or(Duration::from_secs(600)));
                     }
-                    None => {
+                    Err(reason) => {
                         self.failed = Some(TurnError::Refused {
                             server: self.config.server,
                             code: 0,
-                            reason: "no relayed address in its answer".into(),
+                            reason,
                         })
                     }
                 }
@@ -465,6 +472,22 @@ pub(crate) mod tests {
             .map(|m| Message::parse(m).unwrap())
             .find(|m| m.method() == Method::Refresh);
         assert!(refresh.is_some());
+    }
+
+    #[test]
+    fn an_odd_relayed_address_fails_the_allocation() {
+        let now = Instant::now();
+        for odd in ["0.0.0.0:50000", "224.0.0.1:50000", "[2001:db8::1]:50000"] {
+            let mut c = client(now);
+            let request = c.poll_transmit().unwrap();
+            let (_, ok) = answer(&request, Class::Success, |b| {
+                b.add_attr(XorRelayedAddress(odd.parse().unwrap()));
+            });
+            c.handle(&ok, now);
+            assert_eq!(c.relayed(), None);
+            let failed = c.failed().map(ToString::to_string).unwrap_or_default();
+            assert!(failed.contains(odd), "{odd}: {failed:?}");
+        }
     }
 
     #[test]

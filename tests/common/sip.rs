@@ -463,6 +463,17 @@ pub fn reversed_8k(dir: &Path) -> PathBuf {
 /// `lipcall sip answer` on 127.0.0.1:`port`, playing the demo speech for up to `seconds` and
 /// writing what it hears to `wav`; returned once its SIP socket is open.
 pub fn lipcall_answering(dir: &Path, port: u16, seconds: &str, wav: &Path) -> Logged {
+    lipcall_answering_with(dir, port, seconds, wav, &[])
+}
+
+/// [`lipcall_answering`] with `extra` flags.
+pub fn lipcall_answering_with(
+    dir: &Path,
+    port: u16,
+    seconds: &str,
+    wav: &Path,
+    extra: &[&str],
+) -> Logged {
     let answer = Peer::spawn_logged(
         "lipcall sip answer",
         super::lipcall()
@@ -471,7 +482,8 @@ pub fn lipcall_answering(dir: &Path, port: u16, seconds: &str, wav: &Path) -> Lo
             .arg(super::demo_8k(dir))
             .args(["--seconds", seconds])
             .arg("--wav")
-            .arg(wav),
+            .arg(wav)
+            .args(extra),
     );
     assert!(
         answer.wait_for("SIP on", Duration::from_secs(10)),
@@ -479,4 +491,21 @@ pub fn lipcall_answering(dir: &Path, port: u16, seconds: &str, wav: &Path) -> Lo
         answer.text()
     );
     answer
+}
+
+/// Waits for the answering lipcall to exit; its status and log.
+pub fn exit_of(mut answer: Logged, limit: Duration) -> (Option<i32>, String) {
+    let mut child = answer.peer.child.take().unwrap();
+    let deadline = Instant::now() + limit;
+    loop {
+        if let Some(status) = child.try_wait().unwrap() {
+            std::thread::sleep(Duration::from_millis(200));
+            return (status.code(), answer.text());
+        }
+        if Instant::now() > deadline {
+            let _ = child.kill();
+            panic!("lipcall did not end: {}", answer.text());
+        }
+        std::thread::sleep(Duration::from_millis(50));
+    }
 }

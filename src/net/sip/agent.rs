@@ -290,6 +290,7 @@ async fn run(
         audio: config.audio.clone(),
         events: events.clone(),
         version: 0,
+        signalling_peer: None,
     };
     let result = match &config.role {
         Role::Call(target) => {
@@ -363,7 +364,7 @@ async fn answer(
     endpoint: &Endpoint,
     incoming: &mut tokio::sync::mpsc::Receiver<IncomingRequest>,
     contact: Contact,
-    media: SdpMedia,
+    mut media: SdpMedia,
     channels: Channels<'_>,
 ) -> Result<(), SipError> {
     let Channels {
@@ -380,6 +381,7 @@ async fn answer(
         return Ok(());
     };
     incoming.close();
+    media.signalling_peer = Some(invite.tp_info.source.ip());
     send(
         events,
         AgentEvent::Incoming(format!("{:?}", invite.base_headers.from.uri.uri)),
@@ -391,8 +393,7 @@ async fn answer(
                 line: String::new(),
                 why: "the offer is not UTF-8",
             })
-            .and_then(sdp::parse)
-            .and_then(|remote| sdp::negotiate(&remote, &media.audio.codecs));
+            .and_then(|offer| sdp::take(offer, &media.audio));
         if let Err(e) = offer {
             refuse(endpoint, invite, StatusCode::NOT_ACCEPTABLE_HERE).await;
             return Err(SipError::Sdp(e));

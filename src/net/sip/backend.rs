@@ -3,7 +3,7 @@
 //! itself is [`super::media`]'s, on the socket whose address the SDP gives.
 
 use std::future::Future;
-use std::net::SocketAddr;
+use std::net::{IpAddr, SocketAddr};
 use std::sync::mpsc;
 
 use bytesstr::BytesStr;
@@ -42,6 +42,8 @@ pub struct SdpMedia {
     pub audio: LocalAudio,
     pub events: mpsc::Sender<AgentEvent>,
     pub version: u64,
+    /// Where the call's SIP messages come from, once known ([`Negotiated::signalling_peer`]).
+    pub signalling_peer: Option<IpAddr>,
 }
 
 impl SdpMedia {
@@ -52,7 +54,8 @@ impl SdpMedia {
         })
     }
 
-    fn agreed(&mut self, negotiated: Negotiated) {
+    fn agreed(&mut self, mut negotiated: Negotiated) {
+        negotiated.signalling_peer = self.signalling_peer;
         let _ = self.events.send(AgentEvent::Media(negotiated));
     }
 
@@ -67,8 +70,7 @@ impl SdpMedia {
 
     /// Takes the peer's answer to our offer.
     pub fn take_answer_text(&mut self, answer: &str) -> Result<(), SdpError> {
-        let remote = sdp::parse(answer)?;
-        let negotiated = sdp::negotiate(&remote, &self.audio.codecs)?;
+        let negotiated = sdp::take(answer, &self.audio)?;
         if self.audio.offer_srtp && negotiated.srtp.is_none() {
             return Err(SdpError::Unencrypted);
         }
@@ -83,8 +85,8 @@ impl SdpMedia {
 
     /// Our answer to the peer's offer, as text.
     pub fn answer_text(&mut self, offer: &str) -> Result<String, SdpError> {
-        let remote = sdp::parse(offer)?;
-        let negotiated = sdp::negotiate(&remote, &self.audio.codecs)?;
+        // A first offer with an odd address was refused (488) before it got here.
+        let negotiated = sdp::take_in_call(offer, &self.audio)?;
         self.version += 1;
         let answer = sdp::answer(&self.audio, &negotiated, self.version);
         Self::description(&answer)?;

@@ -174,6 +174,9 @@ pub async fn dial(
             .send_invite(invite)
             .await
             .map_err(|e| core_error(target, e))?;
+        media.signalling_peer = initiator
+            .transaction()
+            .map(|t| t.request().parts.destination.ip());
         loop {
             let cancel_deadline = async {
                 if cancelled {

@@ -5,6 +5,20 @@
 //!
 //! As the session's and the Janus media's, the rules are a core without I/O ([`SipRtpCore`])
 //! under the shared socket thread ([`Driver`]).
+//!
+//! Where plain RTP may come from. Anyone can send datagrams to our port, and plain RTP proves
+//! nothing about its sender, so the call's media source is latched once and never moved:
+//! before the first packet, only packets from the address the peer's SDP named are taken, or
+//! from any port of the IP its SIP messages come from ([`Negotiated::signalling_peer`]): a
+//! symmetric-RTP peer behind a NAT whose SDP gives its private address sends from the NAT's
+//! address, the same as its SIP, and whoever holds that IP could move the media with a
+//! re-INVITE anyway. The first packet taken fixes the source for the rest of the call (a
+//! re-INVITE naming a new address opens it again); everything else is dropped, counted
+//! (`stray`) and said in a warning naming the source (a new source at most once a second,
+//! the same again after [`STRAY_WARNING_EVERY`]). A peer behind a
+//! NAT reached through a proxy, whose SDP address neither sends nor is the NAT's, is not
+//! heard: that takes a media relay (the PBX's, rtpengine). SRTP calls follow authenticated
+//! packets wherever they come from: only the keyed peer can make one.
 
 use std::collections::VecDeque;
 use std::net::{SocketAddr, UdpSocket};
@@ -30,6 +44,10 @@ const PAUSE_PACKETS: u32 = 5;
 /// A new stream replaces the peer's current one only after the current one has been silent
 /// this long: a stray or echoed second stream on the port never cuts into the call.
 const STREAM_HANDOVER: Duration = Duration::from_millis(200);
+/// RTP from other sources than the call's is said at most once a second, and from the same
+/// source again only after this long.
+const STRAY_WARNING_EVERY: Duration = Duration::from_secs(10);
+const STRAY_WARNING_NEW_SOURCE: Duration = Duration::from_secs(1);
 /// The RFC 4733 volume field (-10 dBm0).
 const EVENT_VOLUME: u8 = 10;
 
@@ -55,6 +73,8 @@ pub struct SipRtpStats {
     pub other_stream: u64,
     /// The peer's media came from another address than its SDP named (we followed it).
     pub latched: Option<SocketAddr>,
+    /// Plain RTP from another source than the call's (dropped, nothing sent there).
+    pub stray: u64,
 }
 
 /// A digit being sent.
@@ -70,7 +90,11 @@ pub struct SipRtpCore {
     negotiated: Negotiated,
     frame_ticks: u32,
     remote: SocketAddr,
-    heard_from: bool,
+    /// The peer's media source is fixed: its first packet was taken.
+    latched: bool,
+    /// When stray RTP was last said and whose, and how many packets came since.
+    stray_said: Option<(Instant, SocketAddr)>,
+    stray_unsaid: u64,
     receiver: PeerReceiver,
     ssrc: Option<u32>,
     /// When the current stream last sent.
@@ -128,7 +152,9 @@ impl SipRtpCore {
             stream,
             frame_ticks,
             remote: negotiated.remote,
-            heard_from: false,
+            latched: false,
+            stray_said: None,
+            stray_unsaid: 0,
             receiver: PeerReceiver::with_payloads(jitter, now, true, negotiated.payloads.clone()),
             ssrc: None,
             last_heard: now,
@@ -164,10 +190,14 @@ impl SipRtpCore {
     }
 
     /// A new offer or answer in the same call (a re-INVITE: hold, resume, another address).
-    pub fn renegotiate(&mut self, negotiated: Negotiated) {
+    pub fn renegotiate(&mut self, mut negotiated: Negotiated) {
+        // An old-style hold (c=0.0.0.0): nothing goes there, and the source stays as it was.
+        if negotiated.remote.ip().is_unspecified() {
+            negotiated.remote = self.negotiated.remote;
+        }
         if negotiated.remote != self.negotiated.remote {
             self.remote = negotiated.remote;
-            self.heard_from = false;
+            self.latched = false;
         }
         if negotiated.payload_type != self.negotiated.payload_type {
             self.frame_ticks = negotiated.codec.frame_ticks();
@@ -317,11 +347,59 @@ impl SipRtpCore {
         }
     }
 
+    /// Whether plain RTP from `from` may be the peer's (the module's documentation says why).
+    fn may_be_the_peer(&self, from: SocketAddr) -> bool {
+        if self.latched {
+            return from == self.remote;
+        }
+        from == self.negotiated.remote || Some(from.ip()) == self.negotiated.signalling_peer
+    }
+
+    /// Counts a stray packet and says it, as often as [`STRAY_WARNING_EVERY`] allows.
+    fn stray(&mut self, from: SocketAddr, now: Instant) {
+        self.stats.stray += 1;
+        self.stray_unsaid += 1;
+        if let Some((said, whose)) = self.stray_said {
+            let quiet = if whose == from {
+                STRAY_WARNING_EVERY
+            } else {
+                STRAY_WARNING_NEW_SOURCE
+            };
+            if now.saturating_duration_since(said) < quiet {
+                return;
+            }
+        }
+        let expected = if self.latched {
+            format!("the call's media comes from {}", self.remote)
+        } else {
+            let signalling = self
+                .negotiated
+                .signalling_peer
+                .map(|ip| format!(" or from its SIP's IP {ip}"))
+                .unwrap_or_default();
+            format!(
+                "the call's media is taken only from the peer's SDP address {}{signalling}",
+                self.remote
+            )
+        };
+        let count = match self.stray_unsaid {
+            1 => String::new(),
+            n => format!(" ({n} packets from other sources since the last warning)"),
+        };
+        tracing::warn!("plain RTP from {from} dropped{count}: {expected}");
+        self.stray_said = Some((now, from));
+        self.stray_unsaid = 0;
+    }
+
     fn handle(&mut self, data: &[u8], from: SocketAddr, now: Instant) {
         self.stats.datagrams += 1;
         // RTCP shares the RTP port where the peer multiplexes it (RFC 5761 4: types 64-95).
         if data.len() >= 2 && (200..=206).contains(&data[1]) {
             self.stats.rtcp += 1;
+            return;
+        }
+        if self.rx_srtp.is_none() && !self.may_be_the_peer(from) {
+            self.stray(from, now);
             return;
         }
         let mut clear;
@@ -361,12 +439,12 @@ impl SipRtpCore {
         }
         self.stats.rtp += 1;
         self.last_heard = now;
-        if !self.heard_from || from != self.remote {
+        if !self.latched || from != self.remote {
             if from != self.negotiated.remote {
                 self.stats.latched = Some(from);
             }
             self.remote = from;
-            self.heard_from = true;
+            self.latched = true;
         }
         if self.ssrc != Some(packet.header.ssrc) {
             if self.ssrc.is_some() {
@@ -462,6 +540,7 @@ mod tests {
             payloads: PayloadMap::default(),
             audio_types: vec![0],
             srtp: None,
+            signalling_peer: Some([10, 0, 0, 1].into()),
         }
     }
 
@@ -531,7 +610,75 @@ mod tests {
     }
 
     #[test]
-    fn media_is_received_from_wherever_it_comes_and_answered_there() {
+    fn plain_rtp_is_taken_from_one_source_only_and_never_sent_elsewhere() {
+        let t0 = Instant::now();
+        let mut core = SipRtpCore::new(negotiated(), &SdesKey([1; 30]), t0).unwrap();
+        let packet = |ssrc: u32, seq: u16| {
+            let mut stream = RtpStream::new(ssrc, seq, 0);
+            stream.set_payload(0, 160);
+            let mut buf = Vec::new();
+            stream.packetize(&[0xff; 160], 1, &mut buf).unwrap();
+            buf
+        };
+        let sent_to = |core: &mut SipRtpCore| {
+            core.send_packet(&[0xff; 160], 160).unwrap();
+            core.poll_transmit().unwrap().to
+        };
+        let sdp: SocketAddr = "127.0.0.1:9000".parse().unwrap();
+        let stranger: SocketAddr = "127.0.0.2:9000".parse().unwrap();
+        // Before the peer's first packet: a stranger is dropped, and our media goes on to the
+        // SDP's address.
+        core.handle_datagram(&packet(7, 1), stranger, t0);
+        assert_eq!(
+            (core.stats().rtp, core.stats().stray, core.ssrc()),
+            (0, 1, None)
+        );
+        assert_eq!(sent_to(&mut core), sdp);
+        // The peer from its SDP address; then the stranger again after 1 s of its silence, on
+        // the SDP's IP with another port too: never taken.
+        core.handle_datagram(&packet(42, 1), sdp, t0);
+        assert_eq!((core.stats().rtp, core.ssrc()), (1, Some(42)));
+        let later = t0 + Duration::from_secs(1);
+        core.handle_datagram(&packet(7, 2), stranger, later);
+        core.handle_datagram(&packet(8, 2), "127.0.0.1:9002".parse().unwrap(), later);
+        assert_eq!(
+            (core.stats().rtp, core.stats().stray, core.ssrc()),
+            (1, 3, Some(42))
+        );
+        assert_eq!(sent_to(&mut core), sdp);
+        assert_eq!(core.stats().latched, None);
+        // A re-INVITE naming another address opens the call to it (and only it).
+        let mut moved = negotiated();
+        moved.remote = "127.0.0.3:7000".parse().unwrap();
+        core.renegotiate(moved.clone());
+        core.handle_datagram(&packet(42, 3), sdp, later);
+        assert_eq!(core.stats().stray, 4);
+        core.handle_datagram(&packet(42, 3), moved.remote, later);
+        assert_eq!(core.stats().rtp, 2);
+        assert_eq!(sent_to(&mut core), moved.remote);
+    }
+
+    #[test]
+    fn an_old_style_hold_sends_nothing_and_keeps_the_source() {
+        let t0 = Instant::now();
+        let mut core = SipRtpCore::new(negotiated(), &SdesKey([1; 30]), t0).unwrap();
+        let mut held = negotiated();
+        held.remote = "0.0.0.0:9000".parse().unwrap();
+        held.direction = Direction::SendOnly;
+        core.renegotiate(held);
+        core.send_packet(&[0xff; 160], 160).unwrap();
+        assert!(core.poll_transmit().is_none());
+        assert_eq!(core.remote(), "127.0.0.1:9000".parse().unwrap());
+        core.renegotiate(negotiated());
+        core.send_packet(&[0xff; 160], 160).unwrap();
+        assert_eq!(
+            core.poll_transmit().unwrap().to,
+            "127.0.0.1:9000".parse().unwrap()
+        );
+    }
+
+    #[test]
+    fn media_from_the_signalling_peers_nat_is_received_and_answered_there() {
         let now = Instant::now();
         let mut core = SipRtpCore::new(negotiated(), &SdesKey([1; 30]), now).unwrap();
         let mut sender = RtpStream::new(42, 1, 0);
@@ -586,6 +733,7 @@ mod srtp_tests {
                 tag: 1,
                 key: key.clone(),
             }),
+            signalling_peer: None,
         };
         let mut a = SipRtpCore::new(towards(&b_key), &a_key, now).unwrap();
         let mut b = SipRtpCore::new(towards(&a_key), &b_key, now).unwrap();

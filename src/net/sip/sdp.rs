@@ -9,6 +9,7 @@
 use std::net::{IpAddr, SocketAddr};
 
 use crate::codec::any::{Codec, PayloadMap};
+use crate::net::addr::{OddAddress, media_target};
 
 /// A description longer than this is refused unread.
 pub const MAX_SDP_BYTES: usize = 16 * 1024;
@@ -97,6 +98,8 @@ pub enum SdpError {
     Encrypted,
     #[error("we asked for SRTP and the peer answered without it")]
     Unencrypted,
+    #[error("the peer's media address cannot be used: {0}")]
+    OddAddress(#[from] OddAddress),
 }
 
 /// Which way media flows, as one side says it (RFC 3264 section 5.1).
@@ -130,6 +133,14 @@ impl Direction {
     /// Whether the side that said it sends.
     pub fn sends(self) -> bool {
         matches!(self, Direction::SendRecv | Direction::SendOnly)
+    }
+
+    /// The same side, receiving nothing.
+    fn deaf(self) -> Self {
+        match self {
+            Direction::SendRecv | Direction::SendOnly => Direction::SendOnly,
+            Direction::RecvOnly | Direction::Inactive => Direction::Inactive,
+        }
     }
 }
 
@@ -183,6 +194,9 @@ pub struct Negotiated {
     pub audio_types: Vec<u8>,
     /// SRTP, with the peer's key (ours is in [`LocalAudio`]).
     pub srtp: Option<Sdes>,
+    /// Where the call's SIP messages come from (the peer, or the proxy it is reached
+    /// through): plain RTP from this IP may open the call's media ([`super::media`]).
+    pub signalling_peer: Option<IpAddr>,
 }
 
 /// The payload types that carry SDP's static formats we know (RFC 3551).
@@ -446,7 +460,32 @@ pub fn negotiate(remote: &RemoteAudio, allowed: &[Codec]) -> Result<Negotiated, 
         payloads,
         audio_types,
         srtp: remote.secure.then(|| remote.crypto.clone()).flatten(),
+        signalling_peer: None,
     })
+}
+
+/// The peer's description (an offer or an answer) read, its media address checked against our
+/// socket's family (`local.addr`) and the codec chosen among `local.codecs`.
+pub fn take(text: &str, local: &LocalAudio) -> Result<Negotiated, SdpError> {
+    let remote = parse(text)?;
+    media_target(remote.addr, local.addr)?;
+    negotiate(&remote, &local.codecs)
+}
+
+/// As [`take`], for an offer within a call, where `c=0.0.0.0` is RFC 2543's hold, which RFC
+/// 3264 (8.4) still asks us to take: the peer receives nothing, and our media keeps the
+/// address it had (`remote` stays unspecified; [`super::media`] sends nothing there).
+pub fn take_in_call(text: &str, local: &LocalAudio) -> Result<Negotiated, SdpError> {
+    let remote = parse(text)?;
+    let held = remote.addr.ip().is_unspecified() && remote.addr.is_ipv4() == local.addr.is_ipv4();
+    if !held {
+        media_target(remote.addr, local.addr)?;
+    }
+    let mut negotiated = negotiate(&remote, &local.codecs)?;
+    if held {
+        negotiated.direction = negotiated.direction.deaf();
+    }
+    Ok(negotiated)
 }
 
 fn header(local: &LocalAudio, version: u64) -> String {
@@ -679,6 +718,27 @@ mod tests {
             parse(&"a=x\r\n".repeat(MAX_SDP_BYTES)),
             Err(SdpError::TooLong(_))
         ));
+    }
+
+    #[test]
+    fn odd_media_addresses_are_refused_by_name() {
+        let described = |c: &str| format!("v=0\r\nc={c}\r\nm=audio 5000 RTP/AVP 0\r\n");
+        assert!(take(&described("IN IP4 127.0.0.1"), &local()).is_ok());
+        for (c, named) in [
+            ("IN IP4 0.0.0.0", "0.0.0.0:5000"),
+            ("IN IP4 255.255.255.255", "255.255.255.255:5000"),
+            ("IN IP4 224.0.0.1/127", "224.0.0.1:5000"),
+            ("IN IP6 ::1", "[::1]:5000"),
+        ] {
+            let e = take(&described(c), &local()).unwrap_err();
+            assert!(matches!(e, SdpError::OddAddress(_)), "{c}: {e:?}");
+            assert!(e.to_string().contains(named), "{e}");
+        }
+        // Within a call, 0.0.0.0 is an old-style hold: taken, and answered recvonly.
+        let held = take_in_call(&described("IN IP4 0.0.0.0"), &local()).unwrap();
+        assert_eq!(held.direction, Direction::SendOnly);
+        assert!(answer(&local(), &held, 2).contains("a=recvonly"));
+        assert!(take_in_call(&described("IN IP4 224.0.0.1"), &local()).is_err());
     }
 
     proptest! {
