@@ -6,7 +6,7 @@
 
 mod sip;
 
-use std::net::{SocketAddr, ToSocketAddrs};
+use std::net::SocketAddr;
 use std::path::PathBuf;
 use std::sync::atomic::{AtomicBool, Ordering};
 use std::sync::mpsc::{Receiver, Sender, TryRecvError};
@@ -23,6 +23,7 @@ use crate::call::link::{Link, LinkEvent};
 use crate::call::mumble::is_mumble_url;
 use crate::codec::any::{Codec, EncoderSettings, FrameEncoder, MAX_FRAME_PAYLOAD};
 use crate::codec::opus::codec::Bandwidth;
+use crate::net::host_port::HostPort;
 use crate::net::janus::candidates::IceServers;
 use crate::net::janus::messages::JanusAuth;
 use crate::net::janus::room::RoomConfig;
@@ -238,13 +239,13 @@ struct Worker {
     phone: SipPhone,
 }
 
+/// A direct call's or relay's address; it has no default port.
 fn resolve(addr: &str) -> anyhow::Result<SocketAddr> {
-    use anyhow::Context;
-    addr.trim()
-        .to_socket_addrs()
-        .with_context(|| format!("cannot resolve {addr:?} (expected HOST:PORT)"))?
-        .next()
-        .with_context(|| format!("{addr} resolves to no address"))
+    let target = HostPort::parse(addr)?;
+    if target.port.is_none() {
+        anyhow::bail!("{addr:?}: give the port too (HOST:PORT)");
+    }
+    Ok(target.resolve(0)?)
 }
 
 fn idle_session(config: &EngineConfig) -> anyhow::Result<Session> {

@@ -13,6 +13,7 @@
 
 pub mod addr;
 pub mod control;
+pub mod host_port;
 pub mod janus;
 pub mod jitter;
 pub mod mumble;

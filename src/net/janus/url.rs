@@ -1,8 +1,9 @@
 //! Where a Janus is: its API's URL, over HTTP(S) or its WebSocket transport (ws, wss).
 
-use std::net::{SocketAddr, ToSocketAddrs};
+use std::net::SocketAddr;
 
 use super::JanusError;
+use crate::net::host_port::HostPort;
 
 /// How the API is reached.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
@@ -53,21 +54,12 @@ impl JanusUrl {
             .split(['/', '?'])
             .next()
             .unwrap_or_default();
-        let (host, port) = match authority.rsplit_once(':') {
-            Some((host, port)) if !host.ends_with(']') || host.starts_with('[') => (
-                host,
-                port.parse().map_err(|_| bad("the port is not a number"))?,
-            ),
-            _ => (authority, *default_port),
-        };
-        let host = host.trim_matches(['[', ']']);
-        if host.is_empty() {
-            return Err(bad("no host"));
-        }
+        let authority = HostPort::parse(authority).map_err(|e| bad(&e.to_string()))?;
+        let port = authority.port_or(*default_port);
         Ok(Self {
             transport: *transport,
             tls: *tls,
-            host: host.to_string(),
+            host: authority.host,
             port,
         })
     }
@@ -76,14 +68,15 @@ impl JanusUrl {
 /// Where the Janus server of an API URL is.
 pub fn server_addr(url: &str) -> Result<SocketAddr, JanusError> {
     let parsed = JanusUrl::parse(url)?;
-    (parsed.host.as_str(), parsed.port)
-        .to_socket_addrs()
-        .ok()
-        .and_then(|mut a| a.next())
-        .ok_or_else(|| JanusError::Http {
-            url: url.to_string(),
-            reason: format!("cannot resolve {}", parsed.host),
-        })
+    HostPort {
+        host: parsed.host,
+        port: Some(parsed.port),
+    }
+    .resolve(parsed.port)
+    .map_err(|e| JanusError::Http {
+        url: url.to_string(),
+        reason: e.to_string(),
+    })
 }
 
 #[cfg(test)]

@@ -1,10 +1,14 @@
 //! Where a SIP address points: the host of a `sip:` URI, its IP address, and the local address
 //! our SIP and RTP sockets take to reach it (what our Contact and SDP then name).
 
-use std::net::{IpAddr, SocketAddr, ToSocketAddrs};
+use std::net::{IpAddr, SocketAddr};
 
 use super::error::SipError;
+use crate::net::host_port::HostPort;
 use crate::net::janus::candidates::local_ip_towards;
+
+/// SIP's port where an address gives none (RFC 3261, UDP and TCP).
+pub const SIP_PORT: u16 = 5060;
 
 /// The `HOST[:PORT]` of `sip:USER@HOST[:PORT];params`.
 pub fn host_port(uri: &str) -> &str {
@@ -15,21 +19,14 @@ pub fn host_port(uri: &str) -> &str {
 
 /// The IP address of `HOST[:PORT]` (SIP's default port when none is given).
 pub fn resolve_host(host: &str) -> Result<IpAddr, SipError> {
-    let with_port = if host.starts_with('[') || host.matches(':').count() == 1 {
-        host.to_owned()
-    } else {
-        format!("{host}:5060")
-    };
     let unreachable = |why: String| SipError::Unresolved {
         host: host.to_owned(),
         why,
     };
-    with_port
-        .to_socket_addrs()
-        .map_err(|e| unreachable(e.to_string()))?
-        .next()
+    HostPort::parse(host)
+        .and_then(|h| h.resolve(SIP_PORT))
         .map(|a| a.ip())
-        .ok_or_else(|| unreachable("no address".into()))
+        .map_err(|e| unreachable(e.to_string()))
 }
 
 /// A free port on the local address that routes to `address` (a registrar's `HOST[:PORT]`, or
