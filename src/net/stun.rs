@@ -2,13 +2,14 @@
 //! socket, for ICE's server-reflexive candidate. Messages are built and read with
 //! `ezk-stun-types`; what is asked, retried and believed is decided here.
 
-use std::net::{SocketAddr, ToSocketAddrs, UdpSocket};
+use std::net::{SocketAddr, UdpSocket};
 use std::time::{Duration, Instant};
 
 use ezk_stun_types::attributes::{ErrorCode, MappedAddress, XorMappedAddress};
 use ezk_stun_types::{Class, Message, MessageBuilder, Method, TransactionId};
 
 use crate::net::addr::{OddAddress, media_target};
+use crate::net::host_port::HostPort;
 
 /// RFC 8489 6.2.1's first retransmission timeout; each retry doubles it.
 const FIRST_RTO: Duration = Duration::from_millis(250);
@@ -17,7 +18,7 @@ pub const ASK_WAIT: Duration = Duration::from_millis(1500);
 
 #[derive(Debug, thiserror::Error, PartialEq, Eq)]
 pub enum StunError {
-    #[error("STUN server {0:?}: give it as HOST:PORT (e.g. stun.example.org:3478)")]
+    #[error("STUN server {0:?}: give it as HOST[:PORT] (e.g. stun.example.org:3478)")]
     BadServer(String),
     #[error("STUN server {0:?} does not resolve to an address of the media socket's family")]
     Unresolved(String),
@@ -40,17 +41,18 @@ pub enum StunError {
     Io(String),
 }
 
-/// Resolves `HOST:PORT` to an address of the family of `like` (the socket it is asked from).
+/// STUN's and TURN's port where a server's address gives none (RFC 8489).
+pub const STUN_PORT: u16 = 3478;
+
+/// Resolves `HOST[:PORT]` (or `stun:HOST[:PORT]`) to an address of the family of `like` (the
+/// socket it is asked from).
 pub fn resolve_server(server: &str, like: SocketAddr) -> Result<SocketAddr, StunError> {
     let server = server.trim();
     let server = server.strip_prefix("stun:").unwrap_or(server);
-    let addrs = server
-        .to_socket_addrs()
-        .map_err(|_| StunError::BadServer(server.to_string()))?;
-    addrs
-        .into_iter()
-        .find(|a| a.is_ipv4() == like.is_ipv4())
-        .ok_or_else(|| StunError::Unresolved(server.to_string()))
+    HostPort::parse(server)
+        .map_err(|_| StunError::BadServer(server.to_string()))?
+        .resolve_like(STUN_PORT, like)
+        .map_err(|_| StunError::Unresolved(server.to_string()))
 }
 
 /// Asks the server named `server` (HOST:PORT) from `socket`, whose address is `local`, what
@@ -271,9 +273,13 @@ mod tests {
     fn bad_server_names_are_said() {
         let like: SocketAddr = "127.0.0.1:1".parse().unwrap();
         assert!(matches!(
-            resolve_server("no port", like),
+            resolve_server("no such:port", like),
             Err(StunError::BadServer(_))
         ));
+        assert_eq!(
+            resolve_server("127.0.0.1", like),
+            Ok("127.0.0.1:3478".parse().unwrap())
+        );
         assert_eq!(
             resolve_server("stun:127.0.0.1:3478", like),
             Ok("127.0.0.1:3478".parse().unwrap())

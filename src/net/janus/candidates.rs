@@ -1,11 +1,12 @@
 //! The addresses we offer Janus's ICE: our host addresses, the one a STUN server sees from
 //! outside a NAT (a server-reflexive candidate), and a TURN server's relay (a relayed one).
 
-use std::net::{IpAddr, SocketAddr, ToSocketAddrs, UdpSocket};
+use std::net::{IpAddr, SocketAddr, UdpSocket};
 use std::time::Instant;
 
 use super::JanusError;
-use crate::net::stun;
+use crate::net::host_port::HostPort;
+use crate::net::stun::{self, STUN_PORT};
 use crate::net::turn::{TurnClient, TurnConfig};
 
 /// The servers that take a call across NATs, as the user gives them.
@@ -47,15 +48,9 @@ pub fn turn_client(
 ) -> Result<(TurnClient, SocketAddr), JanusError> {
     let name = turn.server.trim();
     let name = name.strip_prefix("turn:").unwrap_or(name);
-    let server = name
-        .to_socket_addrs()
-        .ok()
-        .and_then(|mut a| a.find(|a| a.is_ipv4() == family.is_ipv4()))
-        .ok_or_else(|| {
-            JanusError::Media(format!(
-                "TURN server {name:?}: give it as HOST:PORT of this machine's address family"
-            ))
-        })?;
+    let server = HostPort::parse(name)
+        .and_then(|h| h.resolve_like(STUN_PORT, family))
+        .map_err(|e| JanusError::Media(format!("TURN server: {e}")))?;
     let base = SocketAddr::new(local_ip_towards(server.ip())?, port);
     let config = TurnConfig {
         server,
