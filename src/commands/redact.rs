@@ -12,8 +12,11 @@ use tracing_subscriber::fmt::MakeWriter;
 /// What replaces a secret.
 pub const REDACTED: &str = "(redacted)";
 
+/// Whether a byte can be part of a secret's value.
+type ValueByte = fn(&u8) -> bool;
+
 /// The markers a secret follows, each with the bytes its value is made of.
-const SECRETS: [(&str, fn(&u8) -> bool); 2] = [
+const SECRETS: [(&str, ValueByte); 2] = [
     ("inline:", |b| {
         b.is_ascii_alphanumeric() || matches!(*b, b'+' | b'/' | b'=')
     }),
