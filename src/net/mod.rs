@@ -11,6 +11,7 @@
 //! payload type are), and relay control datagrams start with a magic whose version bits are
 //! not 2.
 
+pub mod backoff;
 pub mod control;
 pub mod janus;
 pub mod jitter;
