@@ -9,5 +9,6 @@ pub mod input;
 pub mod lipsync;
 pub mod net;
 pub mod render;
+pub mod secrets;
 pub mod train;
 pub mod vocab;

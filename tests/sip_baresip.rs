@@ -111,16 +111,8 @@ fn lipcall_registers_with_kamailio_calls_baresip_and_hears_it() {
         .arg("--play")
         .arg(&ours)
         .args(["--account", &format!("sip:alice@127.0.0.1:{kam_port}")])
-        .args([
-            "--password",
-            PASSWORD,
-            "--codec",
-            "pcmu",
-            "--dtmf",
-            "1#9",
-            "--seconds",
-            "6",
-        ])
+        .env("LIPCALL_SIP_PASSWORD", PASSWORD)
+        .args(["--codec", "pcmu", "--dtmf", "1#9", "--seconds", "6"])
         .arg("--wav")
         .arg(&heard)
         .arg("--weights")
@@ -260,7 +252,8 @@ fn a_wrong_password_is_refused_clearly() {
         .arg("--play")
         .arg(common::demo_8k(dir.path()))
         .args(["--account", &format!("sip:alice@127.0.0.1:{port}")])
-        .args(["--password", "not-the-password", "--seconds", "20"])
+        .env("LIPCALL_SIP_PASSWORD", "not-the-password")
+        .args(["--seconds", "20"])
         .output()
         .unwrap();
     let log = String::from_utf8_lossy(&out.stderr).into_owned();
@@ -306,7 +299,8 @@ fn sip_answer_registers_with_sha256_refreshes_and_is_reached_through_kamailio() 
             .arg("--play")
             .arg(common::demo_8k(dir.path()))
             .args(["--account", &format!("sip:alice@127.0.0.1:{kam_port}")])
-            .args(["--password", PASSWORD, "--seconds", "60"])
+            .env("LIPCALL_SIP_PASSWORD", PASSWORD)
+            .args(["--seconds", "60"])
             .arg("--wav")
             .arg(&heard),
     );
@@ -372,7 +366,8 @@ fn a_call_cancelled_before_the_answer_stops_baresip_ringing_through_kamailio() {
         .arg("--play")
         .arg(common::demo_8k(dir.path()))
         .args(["--account", &format!("sip:alice@127.0.0.1:{kam_port}")])
-        .args(["--password", PASSWORD, "--seconds", "3"])
+        .env("LIPCALL_SIP_PASSWORD", PASSWORD)
+        .args(["--seconds", "3"])
         .output()
         .unwrap();
     let log = String::from_utf8_lossy(&out.stderr).into_owned();
@@ -427,7 +422,8 @@ fn a_proxy_that_challenges_the_invite_gets_its_answer() {
             .arg("--play")
             .arg(common::demo_8k(dir.path()))
             .args(["--account", &format!("sip:alice@127.0.0.1:{kam_port}")])
-            .args(["--password", password, "--seconds", "3"])
+            .env("LIPCALL_SIP_PASSWORD", password)
+            .args(["--seconds", "3"])
             .output()
             .unwrap()
     };

@@ -298,14 +298,16 @@ fn an_unreachable_registrar_is_a_clear_failure() {
     let dir = tempfile::tempdir().unwrap();
     // Nothing listens there.
     let port = free_port(false);
+    let password = dir.path().join("password");
+    std::fs::write(&password, "secret\n").unwrap();
     let (out, took) = call(
         dir.path(),
         port,
         &[
             "--account",
             &format!("sip:alice@127.0.0.1:{port}"),
-            "--password",
-            "secret",
+            "--password-file",
+            password.to_str().unwrap(),
             "--seconds",
             "20",
         ],

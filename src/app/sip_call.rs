@@ -11,16 +11,20 @@ use std::time::{Duration, Instant};
 use crate::call::link::{Link, LinkEvent};
 use crate::call::sip::{CallState, SipLink};
 use crate::codec::any::{Codec, EncoderSettings, FrameEncoder, MAX_FRAME_PAYLOAD};
+use crate::net::backoff::Backoff;
 use crate::net::session::{PeerFrame, PeerInfo};
 use crate::net::sip::address::bind_towards;
 use crate::net::sip::agent::{Account, Decision, Role, SipError, codecs};
+use crate::secrets::forbid_core_dumps;
 
 /// Our side of a SIP call is silence once the engine has sent nothing for this long (no
 /// microphone).
 const QUIET_AFTER: Duration = Duration::from_millis(60);
 
-/// How long a listener that failed (registrar down, refused password) waits to try again.
+/// How long a listener that failed (registrar down, refused password) waits to try again; each
+/// failure in a row doubles it, up to [`LISTEN_RETRY_MAX`].
 const LISTEN_RETRY: Duration = Duration::from_secs(30);
+const LISTEN_RETRY_MAX: Duration = Duration::from_secs(480);
 
 /// What the user asks of the phone.
 #[derive(Debug, Clone, PartialEq, Eq)]
@@ -111,18 +115,33 @@ pub fn dial_target(address: &str, account: Option<&Account>) -> Result<String, S
 }
 
 /// The phone: the listener while no SIP call runs, the SIP call while one does.
-#[derive(Default)]
 pub struct SipPhone {
     account: Option<Account>,
     listener: Option<SipLink>,
     /// When a failed listener is tried again.
     retry_at: Option<Instant>,
+    retry: Backoff,
     /// The SIP call, shared with the engine's link ([`SharedCall`]).
     call: Option<Arc<Mutex<SipLink>>>,
     /// The codec and SRTP last told to the engine.
     media: Option<(Codec, bool)>,
     established: bool,
     status: PhoneStatus,
+}
+
+impl Default for SipPhone {
+    fn default() -> Self {
+        Self {
+            account: None,
+            listener: None,
+            retry_at: None,
+            retry: Backoff::new(LISTEN_RETRY, LISTEN_RETRY_MAX),
+            call: None,
+            media: None,
+            established: false,
+            status: PhoneStatus::default(),
+        }
+    }
 }
 
 fn lock(call: &Mutex<SipLink>) -> MutexGuard<'_, SipLink> {
@@ -153,7 +172,11 @@ impl SipPhone {
     pub fn command(&mut self, command: PhoneCommand) -> anyhow::Result<Option<PhoneTurn>> {
         match command {
             PhoneCommand::Account(account) => {
+                if account.is_some() {
+                    forbid_core_dumps();
+                }
                 self.stop_listener();
+                self.retry.reset();
                 self.status.account = account.as_ref().map(|a| format!("{}@{}", a.user, a.domain));
                 self.status.registration = match &account {
                     Some(a) => format!("registering with {}…", a.registrar()),
@@ -318,6 +341,7 @@ impl SipPhone {
             tracing::info!("SIP: {notice}");
             if notice.starts_with("registered") {
                 self.status.registration = notice;
+                self.retry.reset();
             }
         }
         if let Some(caller) = listener.ringing().map(str::to_owned) {
@@ -347,9 +371,13 @@ impl SipPhone {
     }
 
     fn listen_failed(&mut self, why: &str, now: Instant) {
+        let wait = self.retry.next_wait();
         tracing::warn!("SIP account: {why}");
-        self.status.registration = format!("not registered: {why} (trying again)");
-        self.retry_at = Some(now + LISTEN_RETRY);
+        self.status.registration = format!(
+            "not registered: {why} (trying again in {} s)",
+            wait.as_secs()
+        );
+        self.retry_at = Some(now + wait);
     }
 }
 

@@ -12,6 +12,7 @@ pub mod mumble;
 pub mod net;
 mod playout;
 mod recording;
+pub mod redact;
 pub mod relay;
 pub mod sip;
 
@@ -90,8 +91,9 @@ pub fn parse_passphrase(arg: &str) -> Result<String, String> {
     Ok(arg.to_owned())
 }
 
-/// Diagnostics (`tracing` events, and the `log` records of wgpu and eframe) go to stderr:
-/// warnings and errors, or what RUST_LOG asks for (`debug`, `lipcall=debug,wgpu=warn`).
+/// Diagnostics (`tracing` events, and the `log` records of wgpu, eframe and ezk) go to stderr:
+/// warnings and errors, or what RUST_LOG asks for (`debug`, `lipcall=debug,wgpu=warn`), with
+/// keys and digests redacted at every level ([`redact`]).
 pub fn install_logging() {
     use std::io::IsTerminal;
     use tracing_subscriber::filter::{LevelFilter, Targets};
@@ -106,7 +108,7 @@ pub fn install_logging() {
         _ => warnings(),
     };
     let layer = tracing_subscriber::fmt::layer()
-        .with_writer(std::io::stderr)
+        .with_writer(redact::RedactedStderr)
         .with_ansi(std::io::stderr().is_terminal());
     let installed = tracing_subscriber::registry()
         .with(layer)

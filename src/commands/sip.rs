@@ -7,6 +7,7 @@ use std::sync::atomic::AtomicBool;
 use std::time::{Duration, Instant};
 
 use anyhow::{Context, Result, bail};
+use zeroize::Zeroizing;
 
 use super::net::{load_packets, parse_codec, print_peer};
 use super::playout::{DIRECT, open_outputs, play};
@@ -19,6 +20,7 @@ use crate::net::janus::candidates::local_ip_towards;
 use crate::net::session::{PeerFrame, PeerInfo};
 use crate::net::sip::address::{bind_towards, host_port, resolve_host};
 use crate::net::sip::agent::{Account, Role, codecs};
+use crate::secrets::{forbid_core_dumps, read_password_file};
 
 /// How often the set-up phase looks at the stop flag and the deadline.
 const SETUP_STEP: Duration = Duration::from_millis(50);
@@ -44,10 +46,13 @@ pub struct SipCommon {
     #[arg(long, value_name = "IN")]
     pub play: PathBuf,
     /// Our SIP account, sip:USER@DOMAIN: registers (digest authentication) before the call.
-    #[arg(long, value_name = "URI", requires = "password")]
+    /// Its password comes from --password-file or the environment variable
+    /// LIPCALL_SIP_PASSWORD, never from the arguments (which every user of the machine sees).
+    #[arg(long, value_name = "URI")]
     pub account: Option<String>,
-    #[arg(long, requires = "account")]
-    pub password: Option<String>,
+    /// A file whose first line is the account's password (instead of LIPCALL_SIP_PASSWORD).
+    #[arg(long, value_name = "FILE", requires = "account")]
+    pub password_file: Option<PathBuf>,
     /// Register with this HOST[:PORT] instead of the account's domain.
     #[arg(long, value_name = "HOST:PORT", requires = "account")]
     pub registrar: Option<String>,
@@ -110,17 +115,41 @@ fn parse_sip_codec(s: &str) -> Result<Codec, String> {
 }
 
 pub fn run(command: &SipCommand) -> Result<()> {
+    // A call holds secrets: our SDES key, and the account's password and digests.
+    forbid_core_dumps();
     match &command.action {
         SipAction::Call(args) => call(args),
         SipAction::Answer(args) => answer(args),
     }
 }
 
+/// Where `--account`'s password is read from without `--password-file`.
+pub const PASSWORD_VARIABLE: &str = "LIPCALL_SIP_PASSWORD";
+
 fn account(common: &SipCommon) -> Result<Option<Account>> {
-    let (Some(uri), Some(password)) = (&common.account, &common.password) else {
+    let Some(uri) = &common.account else {
         return Ok(None);
     };
-    let mut account = Account::parse(uri, password)?;
+    let password = match &common.password_file {
+        Some(path) => {
+            let password = read_password_file(path)?;
+            if password.is_empty() {
+                bail!(
+                    "--password-file {}: its first line is empty",
+                    path.display()
+                );
+            }
+            password
+        }
+        None => Zeroizing::new(std::env::var(PASSWORD_VARIABLE).unwrap_or_default()),
+    };
+    if password.is_empty() {
+        bail!(
+            "--account {uri} needs its password: set {PASSWORD_VARIABLE} or give \
+             --password-file FILE"
+        );
+    }
+    let mut account = Account::parse(uri, &password)?;
     account.registrar = common.registrar.clone();
     Ok(Some(account))
 }

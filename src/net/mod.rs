@@ -12,6 +12,7 @@
 //! not 2.
 
 pub mod addr;
+pub mod backoff;
 pub mod control;
 pub mod host_port;
 pub mod janus;

@@ -30,7 +30,9 @@ use super::backend::{SdpMedia, send};
 use super::dial;
 pub use super::error::SipError;
 pub use super::register::Account;
-use super::register::{Limited, REGISTER_EXPIRY, REGISTER_TIMEOUT, keep_registered, register, uri};
+use super::register::{
+    Home, Limited, REGISTER_EXPIRY, REGISTER_TIMEOUT, keep_registered, register, uri,
+};
 use super::sdp::{self, LocalAudio, SdpError};
 use crate::codec::any::Codec;
 
@@ -256,6 +258,7 @@ async fn run(
 
     let mut stop_registration = None;
     let mut registration_task = None;
+    let mut home = Home::default();
     if let Some(account) = &config.account {
         let registrar_name = account.registrar().to_owned();
         let mut registration = Registration::new(
@@ -264,7 +267,7 @@ async fn run(
             uri(&registrar_name)?,
             REGISTER_EXPIRY,
         );
-        let mut auth = Limited::new(Some(account));
+        let mut auth = Limited::for_registration(account);
         let mut target = TargetTransportInfo::default();
         select! {
             registered = register(&endpoint, &mut registration, &mut auth, &mut target, &registrar_name, false) => registered?,
@@ -274,6 +277,7 @@ async fn run(
             }
         }
         send(events, AgentEvent::Registered(registrar_name.clone()));
+        home = auth.home().clone();
         let (stop, stopped) = tokio::sync::oneshot::channel();
         stop_registration = Some(stop);
         registration_task = Some(tokio::spawn(keep_registered(
@@ -295,7 +299,7 @@ async fn run(
     let result = match &config.role {
         Role::Call(target) => {
             drop(incoming);
-            let auth = Limited::new(config.account.as_ref());
+            let auth = Limited::for_calls(config.account.as_ref(), home);
             call(
                 &endpoint,
                 auth,

@@ -11,7 +11,6 @@ use std::task::Poll;
 use std::time::Duration;
 
 use bytesstr::BytesStr;
-use ezk_sip_auth::{ClientAuthenticator, RequestParts, ResponseParts};
 use ezk_sip_core::transaction::TsxResponse;
 use ezk_sip_core::{Endpoint, Request};
 use ezk_sip_types::header::typed::{CSeq, Contact, ContentType};
@@ -211,12 +210,9 @@ pub async fn dial(
                         let Some(transaction) = initiator.transaction() else {
                             return Err(refused(target, &response));
                         };
-                        let request = &transaction.request().msg;
-                        auth.handle_rejection(
-                            RequestParts { line: &request.line, headers: &request.headers, body: &request.body },
-                            ResponseParts { line: &response.line, headers: &response.headers, body: &response.body },
-                        )
-                        .map_err(|_| SipError::CallAuth(target.to_owned()))?;
+                        // Only the account's own servers and realm get a digest.
+                        auth.answer(transaction.request(), &response)
+                            .map_err(|r| r.error(code, SipError::CallAuth(target.to_owned())))?;
                         continue 'invite;
                     }
                     Response::Session(session, response) => (session, response),

@@ -16,6 +16,29 @@ pub enum SipError {
     RegistrarSilent(String, u64),
     #[error("the registrar {0} refused our credentials: wrong user name or password")]
     BadCredentials(String),
+    #[error(
+        "the registrar {registrar} answered 423 Interval Too Brief again after we asked for \
+         its Min-Expires ({min_expires} s): giving up"
+    )]
+    IntervalLoop { registrar: String, min_expires: u32 },
+    #[error(
+        "the registrar {registrar} demands registrations of at least {min_expires} s (423 \
+         Min-Expires); lipcall takes at most {max} s"
+    )]
+    IntervalTooLong {
+        registrar: String,
+        min_expires: u32,
+        max: u32,
+    },
+    #[error(
+        "{asker} asked for our password in realm {realm:?} ({code}), which is not our account's \
+         registrar or realm: refused, no digest sent"
+    )]
+    ForeignChallenge {
+        asker: String,
+        code: u16,
+        realm: String,
+    },
     #[error("the registrar {registrar} refused the registration: {code} {reason}")]
     RegisterRefused {
         registrar: String,
