@@ -238,17 +238,31 @@ impl TurnClient {
     fn granted(&mut self, seconds: u32, now: Instant) {
         let lifetime = Duration::from_secs(u64::from(seconds));
         if lifetime < MIN_LIFETIME {
-            self.failed = Some(TurnError::ShortLifetime {
+            self.lose(TurnError::ShortLifetime {
                 server: self.config.server,
                 seconds,
             });
-            self.renew_at = None;
             return;
         }
         let lifetime = lifetime.min(MAX_LIFETIME);
         self.expires = Some(now + lifetime);
         self.renew_at = Some(now + lifetime.saturating_sub(RENEW_BEFORE).max(lifetime / 2));
         self.refresh_retry = FIRST_RETRY;
+    }
+
+    /// The allocation is over (said where it was in use: a refused one is said by its asker).
+    fn lose(&mut self, why: TurnError) {
+        if self.relayed().is_some() && self.expires.is_some() {
+            tracing::warn!("{why}: nothing more goes through the relay");
+        }
+        self.failed = Some(why);
+        self.renew_at = None;
+    }
+
+    /// Whether `source` is the relayed address, even of an allocation that has ended: what
+    /// was to leave from it must go through the relay or not at all.
+    pub fn relays_from(&self, source: SocketAddr) -> bool {
+        self.relayed == Some(source)
     }
 
     /// A Refresh was refused or never answered: tried again after a wait that doubles (the
@@ -305,7 +319,7 @@ impl TurnClient {
             }
             // 437: the allocation is gone on the server.
             Request::Refresh { .. } if code == 437 => {
-                self.failed = Some(TurnError::Refused {
+                self.lose(TurnError::Refused {
                     server: self.config.server,
                     code,
                     reason,
@@ -362,9 +376,9 @@ impl TurnClient {
         }
     }
 
-    /// Gives the allocation back (a Refresh with lifetime 0); nothing more is relayed.
+    /// Gives a live allocation back (a Refresh with lifetime 0); nothing more is relayed.
     pub fn close(&mut self, now: Instant) {
-        if self.relayed.take().is_some() {
+        if self.relayed.take().is_some() && self.failed.is_none() {
             self.request(Request::Refresh { lifetime: 0 }, now, false);
             // Sent once, not waited for.
             self.pending.clear();
@@ -413,7 +427,7 @@ impl TurnClient {
             return;
         }
         if self.expires.is_some_and(|e| e <= now) {
-            self.failed = Some(TurnError::Expired(self.config.server));
+            self.lose(TurnError::Expired(self.config.server));
             return;
         }
         if self.renew_at.is_some_and(|at| at <= now) {
