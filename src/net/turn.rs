@@ -628,19 +628,19 @@ pub(crate) mod tests {
         assert!(t <= now + REQUEST_TIMEOUT + Duration::from_millis(1));
     }
 
-    /// Runs `c` for `span` of simulated time from `start`, sending it a datagram for a peer
-    /// every 20 ms when `sending`. Each request it sends is answered at once with what
-    /// `server` makes of it (none: never answered). The requests that went out, by method,
-    /// retransmissions included; a client asking more than 10,000 times is stopped there.
+    /// Runs a client for `seconds` of simulated time, sending a datagram for a peer every
+    /// 20 ms when `sending`. Each request it sends is answered at once with what `server`
+    /// makes of it (none: never answered). The client, and the requests that went out by
+    /// method, retransmissions included; a client asking more than 10,000 times is stopped.
     fn simulate(
-        c: &mut TurnClient,
-        start: Instant,
-        span: Duration,
+        seconds: u64,
         sending: bool,
         mut server: impl FnMut(Method, &[u8]) -> Option<Vec<u8>>,
-    ) -> HashMap<Method, usize> {
+    ) -> (TurnClient, HashMap<Method, usize>) {
+        let start = Instant::now();
+        let mut c = client(start);
         let peer: SocketAddr = "198.51.100.3:4000".parse().unwrap();
-        let end = start + span;
+        let end = start + Duration::from_secs(seconds);
         let mut sent: HashMap<Method, usize> = HashMap::new();
         let (mut now, mut next_send) = (start, start);
         while now < end && sent.values().sum::<usize>() <= 10_000 {
@@ -669,7 +669,7 @@ pub(crate) mod tests {
                 c.handle_timeout(now);
             }
         }
-        sent
+        (c, sent)
     }
 
     fn granted(request: &[u8], seconds: u32) -> Vec<u8> {
@@ -696,9 +696,7 @@ pub(crate) mod tests {
 
     #[test]
     fn a_relay_granted_for_0_s_is_a_failure_not_a_storm_of_refreshes() {
-        let now = Instant::now();
-        let mut c = client(now);
-        let sent = simulate(&mut c, now, Duration::from_secs(3600), true, |method, r| {
+        let (c, sent) = simulate(3600, true, |method, r| {
             Some(match method {
                 Method::Allocate => granted(r, 0),
                 _ => answer(r, Class::Success, |b| b.add_attr(Lifetime(0))).1,
@@ -715,9 +713,7 @@ pub(crate) mod tests {
 
     #[test]
     fn a_refresh_answered_with_0_s_ends_the_relay_after_one_refresh() {
-        let now = Instant::now();
-        let mut c = client(now);
-        let sent = simulate(&mut c, now, Duration::from_secs(3600), true, |method, r| {
+        let (c, sent) = simulate(3600, true, |method, r| {
             Some(match method {
                 Method::Allocate => granted(r, 600),
                 Method::Refresh => answer(r, Class::Success, |b| b.add_attr(Lifetime(0))).1,
@@ -734,20 +730,12 @@ pub(crate) mod tests {
 
     #[test]
     fn a_short_grant_is_refreshed_at_half_its_lifetime() {
-        let now = Instant::now();
-        let mut c = client(now);
-        let sent = simulate(
-            &mut c,
-            now,
-            Duration::from_secs(3600),
-            false,
-            |method, r| {
-                Some(match method {
-                    Method::Allocate => granted(r, 30),
-                    _ => answer(r, Class::Success, |b| b.add_attr(Lifetime(30))).1,
-                })
-            },
-        );
+        let (c, sent) = simulate(3600, false, |method, r| {
+            Some(match method {
+                Method::Allocate => granted(r, 30),
+                _ => answer(r, Class::Success, |b| b.add_attr(Lifetime(30))).1,
+            })
+        });
         // At 15, 30, ... 3585 s, and the relay kept.
         assert_eq!(count(&sent, Method::Refresh), 239, "{sent:?}");
         assert!(c.relayed().is_some(), "{:?}", c.failed());
@@ -756,18 +744,10 @@ pub(crate) mod tests {
     #[test]
     fn refused_or_unanswered_refreshes_back_off_until_the_relay_expires() {
         for answered in [true, false] {
-            let now = Instant::now();
-            let mut c = client(now);
-            let sent = simulate(
-                &mut c,
-                now,
-                Duration::from_secs(3600),
-                false,
-                |method, r| match method {
-                    Method::Allocate => Some(granted(r, 600)),
-                    _ => answered.then(|| refused(r, 500)),
-                },
-            );
+            let (c, sent) = simulate(3600, false, |method, r| match method {
+                Method::Allocate => Some(granted(r, 600)),
+                _ => answered.then(|| refused(r, 500)),
+            });
             // Refused: at 540, 545, 555 and 575 s; unanswered: each retransmitted 6 times
             // in the 8 s it is waited for.
             let most = if answered { 4 } else { 4 * 6 };
@@ -783,9 +763,7 @@ pub(crate) mod tests {
 
     #[test]
     fn a_refused_permission_is_asked_again_after_a_wait_that_doubles() {
-        let now = Instant::now();
-        let mut c = client(now);
-        let sent = simulate(&mut c, now, Duration::from_secs(120), true, |method, r| {
+        let (c, sent) = simulate(120, true, |method, r| {
             Some(match method {
                 Method::Allocate => granted(r, 600),
                 _ => refused(r, 403),
