@@ -5,52 +5,12 @@
 
 mod common;
 
-use std::io::{BufRead, BufReader};
-use std::process::{Child, Command, Stdio};
+use std::process::Command;
 use std::time::{Duration, Instant};
 
-use common::janus::IN_ROOM;
+use common::janus::{IN_ROOM, scripted};
+use common::lipcall;
 use common::net::{spawn, spawn_listening};
-use common::{lipcall, repo_file};
-
-/// The scripted Janus in `mode`, and its API's URL.
-struct Scripted {
-    child: Child,
-    url: String,
-}
-
-impl Drop for Scripted {
-    fn drop(&mut self) {
-        let _ = self.child.kill();
-        let _ = self.child.wait();
-    }
-}
-
-fn scripted(mode: &str) -> Option<Scripted> {
-    let child = Command::new("python3")
-        .arg(repo_file("tests/data/scripted_janus.py"))
-        .arg(mode)
-        .stdout(Stdio::piped())
-        .stderr(Stdio::null())
-        .spawn();
-    let Ok(mut child) = child else {
-        common::unavailable("no python3 for the scripted Janus");
-        return None;
-    };
-    let mut line = String::new();
-    BufReader::new(child.stdout.take().unwrap())
-        .read_line(&mut line)
-        .unwrap();
-    let port = line
-        .trim()
-        .strip_prefix("listening on ")
-        .unwrap()
-        .to_string();
-    Some(Scripted {
-        child,
-        url: format!("http://127.0.0.1:{port}/janus"),
-    })
-}
 
 fn receive(url: &str, seconds: &str) -> Command {
     let mut cmd = lipcall();

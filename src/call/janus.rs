@@ -4,8 +4,9 @@
 //! joins first and hands the room over.
 
 use std::net::SocketAddr;
+use std::sync::atomic::{AtomicBool, Ordering};
 use std::thread::JoinHandle;
-use std::time::Instant;
+use std::time::{Duration, Instant};
 
 use super::link::{Link, LinkEvent};
 use crate::net::janus::JanusError;
@@ -34,6 +35,18 @@ pub enum JoinError {
     Thread(#[from] std::io::Error),
 }
 
+/// How waiting for a join ended.
+#[derive(Debug)]
+pub enum JoinWait {
+    /// In the room: what happened there meanwhile.
+    Joined(Vec<Notice>),
+    Failed(JanusError),
+    /// The stop flag was set first.
+    Stopped,
+    /// The deadline passed first.
+    TimedOut,
+}
+
 /// Our membership of a Janus VideoRoom, from the first request on.
 pub struct JanusLink {
     state: RoomState,
@@ -47,27 +60,22 @@ pub struct JanusLink {
 impl JanusLink {
     /// Starts joining (publishing our microphone, subscribing to everyone else).
     pub fn join(config: RoomConfig) -> Result<Self, JoinError> {
+        Self::start(config, true)
+    }
+
+    /// Starts joining on a thread of its own, publishing when `publish`.
+    pub fn start(config: RoomConfig, publish: bool) -> Result<Self, JoinError> {
         let server = server_addr(config.url.trim())?;
         let place = format!("Janus room {:?} on {}", config.room, config.url);
         let handle = std::thread::Builder::new()
             .name("janus-join".into())
-            .spawn(move || Member::join(config, true))?;
+            .spawn(move || Member::join(config, publish))?;
         Ok(Self {
             state: RoomState::Joining(Some(handle)),
             server,
             place,
             heard: false,
         })
-    }
-
-    /// Around a room already joined (the command line joins before it plays).
-    pub fn joined(member: Member, server: SocketAddr, place: String) -> Self {
-        Self {
-            state: RoomState::In(Box::new(member)),
-            server,
-            place,
-            heard: false,
-        }
     }
 
     /// The room and server, for the call's status.
@@ -79,33 +87,71 @@ impl JanusLink {
     /// session).
     fn follow(&mut self) -> Vec<LinkEvent> {
         match &mut self.state {
-            RoomState::Joining(handle) => {
-                if !handle.as_ref().is_some_and(JoinHandle::is_finished) {
-                    return Vec::new();
+            RoomState::Joining(_) => match self.join_finished() {
+                None => Vec::new(),
+                Some(Ok(notices)) => {
+                    let mut news = vec![LinkEvent::Joined {
+                        place: self.place.clone(),
+                        id: self
+                            .member()
+                            .and_then(Member::id)
+                            .unwrap_or_else(|| "-".into()),
+                    }];
+                    news.extend(notices.into_iter().map(LinkEvent::from));
+                    news
                 }
-                let joined = handle.take().map(JoinHandle::join);
-                match joined {
-                    Some(Ok(Ok((member, notices)))) => {
-                        let mut news = vec![LinkEvent::Joined {
-                            place: self.place.clone(),
-                            id: member.id().unwrap_or_else(|| "-".into()),
-                        }];
-                        news.extend(notices.into_iter().map(LinkEvent::from));
-                        self.state = RoomState::In(Box::new(member));
-                        news
-                    }
-                    Some(Ok(Err(e))) => self.fail(describe_janus_error(&e)),
-                    _ => self.fail("the Janus join stopped unexpectedly".into()),
-                }
-            }
+                Some(Err(e)) => vec![LinkEvent::Failed(describe_janus_error(&e))],
+            },
             RoomState::In(member) => member.poll().into_iter().map(LinkEvent::from).collect(),
             RoomState::Failed => Vec::new(),
         }
     }
 
-    fn fail(&mut self, reason: String) -> Vec<LinkEvent> {
-        self.state = RoomState::Failed;
-        vec![LinkEvent::Failed(reason)]
+    /// The join's outcome once its thread is done (in the room, or failed); none before.
+    fn join_finished(&mut self) -> Option<Result<Vec<Notice>, JanusError>> {
+        let RoomState::Joining(handle) = &mut self.state else {
+            return None;
+        };
+        if !handle.as_ref().is_some_and(JoinHandle::is_finished) {
+            return None;
+        }
+        let joined = match handle.take().map(JoinHandle::join) {
+            Some(Ok(joined)) => joined,
+            _ => Err(JanusError::Protocol("the join stopped unexpectedly".into())),
+        };
+        match joined {
+            Ok((member, notices)) => {
+                self.state = RoomState::In(Box::new(member));
+                Some(Ok(notices))
+            }
+            Err(e) => {
+                self.state = RoomState::Failed;
+                Some(Err(e))
+            }
+        }
+    }
+
+    /// Waits for the join until it is done, `stop` is set or `until` passes, whichever comes
+    /// first: a Janus that never answers holds neither a signal nor a deadline. A join given
+    /// up goes on on its thread; its session times out on the server.
+    pub fn wait_joined(&mut self, stop: &AtomicBool, until: Option<Instant>) -> JoinWait {
+        loop {
+            match self.join_finished() {
+                Some(Ok(notices)) => return JoinWait::Joined(notices),
+                Some(Err(e)) => return JoinWait::Failed(e),
+                None if !matches!(self.state, RoomState::Joining(_)) => {
+                    return JoinWait::Failed(JanusError::Protocol("not joining".into()));
+                }
+                None => {}
+            }
+            if stop.load(Ordering::Relaxed) {
+                return JoinWait::Stopped;
+            }
+            if until.is_some_and(|until| Instant::now() >= until) {
+                return JoinWait::TimedOut;
+            }
+            std::thread::sleep(Duration::from_millis(10));
+        }
     }
 
     /// Our membership, once joined.

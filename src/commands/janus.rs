@@ -5,12 +5,12 @@
 
 use std::time::{Duration, Instant};
 
-use anyhow::{Context, Result, bail};
+use anyhow::{Context, Result, anyhow, bail};
 
 use super::net::{ReceiveArgs, SendArgs, load_packets, print_peer, send_paced};
 use super::playout::{JANUS, ReceiveOutputs, play, print_event};
 use super::recording::stop_flag;
-use crate::call::janus::JanusLink;
+use crate::call::janus::{JanusLink, JoinWait};
 use crate::codec::any::{Codec, EncoderSettings};
 use crate::net::janus::JanusError;
 use crate::net::janus::candidates::{IceServers, TurnServer};
@@ -224,19 +224,38 @@ pub fn receive_with(
     let stop = stop_flag()?;
     let (model, mut recorder) = args.out.open()?;
     let server = server_addr(&args.janus.url)?;
-    let (room, notices) = Member::join(args.janus.config(true, "lipcall-receiver"), false)
-        .map_err(pin_hint)
-        .with_context(|| format!("joining room {:?} on {}", args.janus.room, args.janus.url))?;
+    let joining = || format!("joining room {:?} on {}", args.janus.room, args.janus.url);
+    // The join may take no longer than the whole receive was to last.
+    let seconds = args.out.seconds;
+    let until = seconds.map(|s| Instant::now() + Duration::from_secs_f64(s));
+    let mut link = JanusLink::start(args.janus.config(true, "lipcall-receiver"), false)
+        .map_err(anyhow::Error::new)
+        .with_context(joining)?;
+    let notices = match link.wait_joined(&stop, until) {
+        JoinWait::Joined(notices) => notices,
+        JoinWait::Failed(e) => return Err(pin_hint(e)).with_context(joining),
+        JoinWait::Stopped => {
+            eprintln!("lipcall: stopped by a signal before the room was joined");
+            return recorder.finish();
+        }
+        JoinWait::TimedOut => {
+            let seconds = seconds.unwrap_or_default();
+            return Err(anyhow!(
+                "no answer from Janus in time: not in the room after the {seconds} s of --seconds"
+            ))
+            .with_context(joining);
+        }
+    };
     announce_security();
     eprintln!(
         "lipcall: in room {:?} on {} as {}",
         args.janus.room,
         args.janus.url,
-        room.id().unwrap_or_else(|| "-".into())
+        link.member()
+            .and_then(Member::id)
+            .unwrap_or_else(|| "-".into())
     );
     print_notices(&notices);
-    let place = format!("Janus room {:?} on {}", args.janus.room, args.janus.url);
-    let mut link = JanusLink::joined(room, server, place);
     let played = play(
         &mut link,
         JANUS,

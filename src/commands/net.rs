@@ -2,12 +2,13 @@
 
 use std::net::{SocketAddr, ToSocketAddrs};
 use std::path::{Path, PathBuf};
+use std::sync::atomic::AtomicBool;
 use std::time::{Duration, Instant};
 
 use anyhow::{Context, Result, bail};
 
 use super::playout::{DIRECT, open_outputs, play};
-use super::recording::{TICK, stop_flag};
+use super::recording::{TICK, stop_flag, stopped};
 use crate::call::media::{MediaError, MediaFile, MediaKind, Packets};
 use crate::codec::any::{Codec, EncoderSettings, PayloadMap};
 use crate::codec::opus::codec::Bandwidth;
@@ -195,7 +196,7 @@ pub fn send(args: &SendArgs) -> Result<()> {
     config.payloads = payloads;
     let session = Session::start(config)?;
     if args.room.is_some() {
-        wait_for_relay(&session)?;
+        wait_for_relay(&session, &AtomicBool::new(false), None)?;
     }
     let clock = f64::from(codec.clock_rate());
     let ticks: u64 = packets.iter().map(|(_, t)| u64::from(*t)).sum();
@@ -231,31 +232,40 @@ pub fn send(args: &SendArgs) -> Result<()> {
     Ok(())
 }
 
-/// Until the relay confirms our place in the room (its join handshake runs in the session).
-fn wait_for_relay(session: &Session) -> Result<()> {
-    let deadline = Instant::now() + Duration::from_secs(3);
+/// How long a join waits for the relay to confirm it.
+const RELAY_JOIN_WAIT: Duration = Duration::from_secs(3);
+
+/// Until the relay confirms our place in the room (its join handshake runs in the session),
+/// for at most [`RELAY_JOIN_WAIT`] and never past `until` (the whole receive's end); a signal
+/// (`stop`) ends the wait at once, and the receive then ends as stopped.
+fn wait_for_relay(session: &Session, stop: &AtomicBool, until: Option<Instant>) -> Result<()> {
+    let started = Instant::now();
+    let deadline = until.map_or(started + RELAY_JOIN_WAIT, |until| {
+        until.min(started + RELAY_JOIN_WAIT)
+    });
     while Instant::now() < deadline {
         let stats = session.stats();
         if let Some(why) = stats.relay_refusal {
             bail!("the relay refused to join the room: {why}");
         }
-        if stats.relay_joined {
+        if stats.relay_joined || stopped(stop) {
             return Ok(());
         }
         std::thread::sleep(Duration::from_millis(10));
     }
+    let waited = format!("{:.1} s", started.elapsed().as_secs_f64());
     let stats = session.stats();
     if stats.relay_outdated {
         bail!("the relay speaks another protocol version: update lipcall on both sides");
     }
     if stats.relay_challenges > 0 {
         bail!(
-            "the relay sent a cookie but never confirmed the join within 3 s (are replies from \
-             this address reaching it?)"
+            "the relay sent a cookie but never confirmed the join within {waited} (are replies \
+             from this address reaching it?)"
         );
     }
     bail!(
-        "the relay did not answer the join within 3 s (no relay there, or one of an older \
+        "the relay did not answer the join within {waited} (no relay there, or one of an older \
          lipcall version)"
     )
 }
@@ -329,10 +339,11 @@ pub struct ReceiveArgs {
     pub features: Option<PathBuf>,
     #[command(flatten)]
     pub key: KeyArgs,
-    /// Stop after this many seconds. Without it, the receive ends once everyone who called
-    /// has left: said BYE, or sent nothing for --peer-timeout. Before anyone calls it
-    /// waits. Ctrl-C (SIGINT) or SIGTERM ends it at any time; the files written so far are
-    /// finished and whole either way.
+    /// Stop after this many seconds in the call (joining a relay or Janus room that takes
+    /// longer fails). Without it, the receive ends once everyone who called has left: said
+    /// BYE, or sent nothing for --peer-timeout. Before anyone calls it waits. Ctrl-C (SIGINT)
+    /// or SIGTERM ends it at any time; the files written so far are finished and whole
+    /// either way.
     #[arg(long, allow_hyphen_values = true, value_parser = super::parse_seconds)]
     pub seconds: Option<f64>,
     /// A peer that sent nothing (no RTP, no RTCP) for this many seconds has left (in a
@@ -397,10 +408,13 @@ pub fn receive_with(
         args.weights.as_deref(),
     )?;
     announce_security(&config.key);
+    let until = args
+        .seconds
+        .map(|s| Instant::now() + Duration::from_secs_f64(s));
     let mut session = Session::start(config)?;
     eprintln!("lipcall: listening on {}", session.local_addr()?);
     if args.room.is_some() {
-        wait_for_relay(&session)?;
+        wait_for_relay(&session, &stop, until)?;
     }
     let played = play(
         &mut session,

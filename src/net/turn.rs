@@ -4,6 +4,11 @@
 //! address and what peers sent through the relay come out. Messages are built and checked with
 //! `ezk-stun-types`; long-term credentials (MD5 key, realm and nonce from the 401), refreshes,
 //! permissions and retransmissions are ours.
+//!
+//! Whatever a server answers, the client asks at a bounded pace: a grant shorter than
+//! [`MIN_LIFETIME`] ends the allocation (a server granting 0 s once cost about 48,000
+//! Refreshes a second), refreshes come at least half a lifetime apart, and a refused or
+//! unanswered Refresh or CreatePermission is retried after a wait that doubles.
 
 use std::collections::{HashMap, VecDeque};
 use std::net::{IpAddr, SocketAddr};
@@ -27,6 +32,18 @@ const REQUEST_TIMEOUT: Duration = Duration::from_secs(8);
 /// Permissions last 300 s (RFC 8656 9); renewed this long before.
 const PERMISSION_LIFETIME: Duration = Duration::from_secs(300);
 const RENEW_BEFORE: Duration = Duration::from_secs(60);
+/// A grant shorter than this is a failure: RFC 8656 servers grant 600 s by default.
+pub const MIN_LIFETIME: Duration = Duration::from_secs(30);
+/// Longer grants are taken as this long (refreshed sooner than the server needs).
+const MAX_LIFETIME: Duration = Duration::from_secs(3600);
+/// The lifetime asked for, and assumed where an Allocate's answer gives none.
+const ASKED_LIFETIME: u32 = 600;
+/// The first wait before a failed Refresh or CreatePermission is tried again; doubled on
+/// each failure up to [`LONGEST_RETRY`].
+const FIRST_RETRY: Duration = Duration::from_secs(5);
+const LONGEST_RETRY: Duration = Duration::from_secs(60);
+/// Peers the relay is asked to let through (permissions held and being retried) at most.
+const MOST_PEERS: usize = 32;
 /// IANA's protocol number for UDP, the transport we ask the relay for.
 const UDP: u8 = 17;
 
@@ -49,6 +66,13 @@ pub enum TurnError {
     NoAnswer(SocketAddr),
     #[error("TURN server {0} asked for credentials twice: wrong user name or password")]
     BadCredentials(SocketAddr),
+    #[error(
+        "TURN server {server} granted the relay for {seconds} s, under the {} s it must last",
+        MIN_LIFETIME.as_secs()
+    )]
+    ShortLifetime { server: SocketAddr, seconds: u32 },
+    #[error("TURN server {0} let the relay expire: its refreshes failed")]
+    Expired(SocketAddr),
 }
 
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
@@ -86,9 +110,16 @@ pub struct TurnClient {
     relayed: Option<SocketAddr>,
     /// When the allocation runs out.
     expires: Option<Instant>,
+    /// When the next Refresh goes out (none while one is on its way).
+    renew_at: Option<Instant>,
+    /// The wait before a failed Refresh is tried again.
+    refresh_retry: Duration,
     failed: Option<TurnError>,
     /// Peers the relay lets through, and when each permission runs out.
     permissions: HashMap<IpAddr, Instant>,
+    /// Peers whose permission failed: not asked again before the instant, and the wait that
+    /// led there (doubled on the next failure).
+    permission_retry: HashMap<IpAddr, (Instant, Duration)>,
     pending: Vec<Pending>,
     outbox: VecDeque<Vec<u8>>,
 }
@@ -101,8 +132,11 @@ impl TurnClient {
             credentials: None,
             relayed: None,
             expires: None,
+            renew_at: None,
+            refresh_retry: FIRST_RETRY,
             failed: None,
             permissions: HashMap::new(),
+            permission_retry: HashMap::new(),
             pending: Vec::new(),
             outbox: VecDeque::new(),
         };
@@ -169,10 +203,7 @@ impl TurnClient {
     }
 
     fn succeeded(&mut self, request: Request, message: &mut Message, now: Instant) {
-        let lifetime = message
-            .attribute::<Lifetime>()
-            .and_then(Result::ok)
-            .map(|l| Duration::from_secs(u64::from(l.0)));
+        let lifetime = message.attribute::<Lifetime>().and_then(Result::ok);
         match request {
             Request::Allocate => {
                 let relayed = message
@@ -186,7 +217,7 @@ impl TurnClient {
                 match relayed {
                     Ok(relayed) => {
                         self.relayed = Some(relayed);
-                        self.expires = Some(now + lifetime.unwrap_or(Duration::from_secs(600)));
+                        self.granted(lifetime.map_or(ASKED_LIFETIME, |l| l.0), now);
                     }
                     Err(reason) => {
                         self.failed = Some(TurnError::Refused {
@@ -197,13 +228,64 @@ impl TurnClient {
                     }
                 }
             }
-            Request::Refresh { .. } => {
-                self.expires = lifetime.map(|l| now + l).or(self.expires);
-            }
+            Request::Refresh { .. } => match lifetime {
+                Some(l) => self.granted(l.0, now),
+                // RFC 8656 answers with the lifetime; without it nothing is known: ask later.
+                None => self.refresh_failed(now),
+            },
             Request::Permission(ip) => {
+                self.permission_retry.remove(&ip);
                 self.permissions.insert(ip, now + PERMISSION_LIFETIME);
             }
         }
+    }
+
+    /// The allocation lasts `seconds` from `now`: refreshed a minute before it ends, but no
+    /// sooner than half of it from now; a grant under [`MIN_LIFETIME`] ends it.
+    fn granted(&mut self, seconds: u32, now: Instant) {
+        let lifetime = Duration::from_secs(u64::from(seconds));
+        if lifetime < MIN_LIFETIME {
+            self.lose(TurnError::ShortLifetime {
+                server: self.config.server,
+                seconds,
+            });
+            return;
+        }
+        let lifetime = lifetime.min(MAX_LIFETIME);
+        self.expires = Some(now + lifetime);
+        self.renew_at = Some(now + lifetime.saturating_sub(RENEW_BEFORE).max(lifetime / 2));
+        self.refresh_retry = FIRST_RETRY;
+    }
+
+    /// The allocation is over (said where it was in use: a refused one is said by its asker).
+    fn lose(&mut self, why: TurnError) {
+        if self.relayed().is_some() && self.expires.is_some() {
+            tracing::warn!("{why}: nothing more goes through the relay");
+        }
+        self.failed = Some(why);
+        self.renew_at = None;
+    }
+
+    /// Whether `source` is the relayed address, even of an allocation that has ended: what
+    /// was to leave from it must go through the relay or not at all.
+    pub fn relays_from(&self, source: SocketAddr) -> bool {
+        self.relayed == Some(source)
+    }
+
+    /// A Refresh was refused or never answered: tried again after a wait that doubles (the
+    /// allocation ends when it expires meanwhile).
+    fn refresh_failed(&mut self, now: Instant) {
+        self.renew_at = Some(now + self.refresh_retry);
+        self.refresh_retry = (self.refresh_retry * 2).min(LONGEST_RETRY);
+    }
+
+    /// A permission was refused or never answered: not asked again for a wait that doubles.
+    fn permission_failed(&mut self, ip: IpAddr, now: Instant) {
+        let wait = self
+            .permission_retry
+            .get(&ip)
+            .map_or(FIRST_RETRY, |&(_, last)| (last * 2).min(LONGEST_RETRY));
+        self.permission_retry.insert(ip, (now + wait, wait));
     }
 
     fn refused(&mut self, pending: Pending, message: &mut Message, now: Instant) {
@@ -242,12 +324,24 @@ impl TurnClient {
                     reason,
                 })
             }
+            // 437: the allocation is gone on the server.
+            Request::Refresh { .. } if code == 437 => {
+                self.lose(TurnError::Refused {
+                    server: self.config.server,
+                    code,
+                    reason,
+                });
+            }
             Request::Refresh { .. } | Request::Permission(_) => {
                 tracing::warn!(
                     "TURN server {} refused a {:?}: {code} {reason}",
                     self.config.server,
                     pending.request
                 );
+                match pending.request {
+                    Request::Permission(ip) => self.permission_failed(ip, now),
+                    _ => self.refresh_failed(now),
+                }
             }
         }
     }
@@ -267,7 +361,8 @@ impl TurnClient {
         true
     }
 
-    /// Asks for (or renews) a permission for `ip`, unless one is good or on its way.
+    /// Asks for (or renews) a permission for `ip`, unless one is good or on its way, a
+    /// failed one waits to be tried again, or [`MOST_PEERS`] others are held.
     fn permit(&mut self, ip: IpAddr, now: Instant) {
         let good = self
             .permissions
@@ -277,14 +372,20 @@ impl TurnClient {
             .pending
             .iter()
             .any(|p| p.request == Request::Permission(ip));
-        if !good && !asked {
+        let waiting = self
+            .permission_retry
+            .get(&ip)
+            .is_some_and(|&(at, _)| at > now);
+        let known = self.permissions.contains_key(&ip) || self.permission_retry.contains_key(&ip);
+        let room = known || self.permissions.len() + self.permission_retry.len() < MOST_PEERS;
+        if !good && !asked && !waiting && room {
             self.request(Request::Permission(ip), now, false);
         }
     }
 
-    /// Gives the allocation back (a Refresh with lifetime 0); nothing more is relayed.
+    /// Gives a live allocation back (a Refresh with lifetime 0); nothing more is relayed.
     pub fn close(&mut self, now: Instant) {
-        if self.relayed.take().is_some() {
+        if self.relayed.take().is_some() && self.failed.is_none() {
             self.request(Request::Refresh { lifetime: 0 }, now, false);
             // Sent once, not waited for.
             self.pending.clear();
@@ -299,9 +400,12 @@ impl TurnClient {
     /// When [`Self::handle_timeout`] has something to do.
     pub fn poll_timeout(&self) -> Option<Instant> {
         let retries = self.pending.iter().map(|p| p.next.min(p.deadline));
-        let renew = self.expires.map(|e| e - RENEW_BEFORE);
-        let permissions = self.permissions.values().map(|&until| until - RENEW_BEFORE);
-        retries.chain(renew).chain(permissions).min()
+        let allocation = self
+            .relayed()
+            .and(self.renew_at.into_iter().chain(self.expires).min());
+        // Permissions in use are renewed by sends; the timeout only lets the others lapse.
+        let permissions = self.permissions.values().copied();
+        retries.chain(allocation).chain(permissions).min()
     }
 
     pub fn handle_timeout(&mut self, now: Instant) {
@@ -316,21 +420,33 @@ impl TurnClient {
             }
         }
         self.pending.retain(|p| p.deadline > now);
-        if gave_up.contains(&Request::Allocate) {
-            self.failed = Some(TurnError::NoAnswer(self.config.server));
+        for request in gave_up {
+            match request {
+                Request::Allocate => self.failed = Some(TurnError::NoAnswer(self.config.server)),
+                Request::Refresh { .. } => self.refresh_failed(now),
+                Request::Permission(ip) => self.permission_failed(ip, now),
+            }
         }
+        self.permissions.retain(|_, until| *until > now);
+        self.permission_retry
+            .retain(|_, (at, _)| *at + LONGEST_RETRY > now);
         if self.relayed().is_none() {
             return;
         }
-        let refreshing = self
-            .pending
-            .iter()
-            .any(|p| matches!(p.request, Request::Refresh { .. }));
-        if self.expires.is_some_and(|e| e - RENEW_BEFORE <= now) && !refreshing {
-            self.request(Request::Refresh { lifetime: 600 }, now, false);
+        if self.expires.is_some_and(|e| e <= now) {
+            self.lose(TurnError::Expired(self.config.server));
+            return;
         }
-        // Permissions still in use are renewed by the next send; others lapse.
-        self.permissions.retain(|_, until| *until > now);
+        if self.renew_at.is_some_and(|at| at <= now) {
+            self.renew_at = None;
+            self.request(
+                Request::Refresh {
+                    lifetime: ASKED_LIFETIME,
+                },
+                now,
+                false,
+            );
+        }
     }
 
     /// Sends `request` (with our credentials, once the server has challenged us).
@@ -533,6 +649,152 @@ pub(crate) mod tests {
         );
         assert!(sent >= 4, "{sent}");
         assert!(t <= now + REQUEST_TIMEOUT + Duration::from_millis(1));
+    }
+
+    /// Runs a client for `seconds` of simulated time, sending a datagram for a peer every
+    /// 20 ms when `sending`. Each request it sends is answered at once with what `server`
+    /// makes of it (none: never answered). The client, and the requests that went out by
+    /// method, retransmissions included; a client asking more than 10,000 times is stopped.
+    fn simulate(
+        seconds: u64,
+        sending: bool,
+        mut server: impl FnMut(Method, &[u8]) -> Option<Vec<u8>>,
+    ) -> (TurnClient, HashMap<Method, usize>) {
+        let start = Instant::now();
+        let mut c = client(start);
+        let peer: SocketAddr = "198.51.100.3:4000".parse().unwrap();
+        let end = start + Duration::from_secs(seconds);
+        let mut sent: HashMap<Method, usize> = HashMap::new();
+        let (mut now, mut next_send) = (start, start);
+        while now < end && sent.values().sum::<usize>() <= 10_000 {
+            if sending && next_send <= now {
+                c.send_to(peer, b"rtp", now);
+                next_send = now + Duration::from_millis(20);
+            }
+            while let Some(out) = c.poll_transmit() {
+                let parsed = Message::parse(out.clone()).unwrap();
+                if parsed.class() == Class::Request {
+                    *sent.entry(parsed.method()).or_default() += 1;
+                    if let Some(answer) = server(parsed.method(), &out) {
+                        c.handle(&answer, now);
+                    }
+                }
+            }
+            let due = c.poll_timeout();
+            let next = match (due, sending) {
+                (Some(due), true) => due.min(next_send),
+                (Some(due), false) => due,
+                (None, true) => next_send,
+                (None, false) => end,
+            };
+            now = next.max(now + Duration::from_millis(1)).min(end);
+            if due.is_some_and(|due| due <= now) {
+                c.handle_timeout(now);
+            }
+        }
+        (c, sent)
+    }
+
+    fn granted(request: &[u8], seconds: u32) -> Vec<u8> {
+        answer(request, Class::Success, |b| {
+            b.add_attr(XorRelayedAddress("192.0.2.10:50000".parse().unwrap()));
+            b.add_attr(Lifetime(seconds));
+        })
+        .1
+    }
+
+    fn refused(request: &[u8], number: u32) -> Vec<u8> {
+        answer(request, Class::Error, |b| {
+            b.add_attr(ErrorCode {
+                number,
+                reason: "no",
+            })
+        })
+        .1
+    }
+
+    fn count(sent: &HashMap<Method, usize>, method: Method) -> usize {
+        sent.get(&method).copied().unwrap_or(0)
+    }
+
+    #[test]
+    fn a_relay_granted_for_0_s_is_a_failure_not_a_storm_of_refreshes() {
+        let (c, sent) = simulate(3600, true, |method, r| {
+            Some(match method {
+                Method::Allocate => granted(r, 0),
+                _ => answer(r, Class::Success, |b| b.add_attr(Lifetime(0))).1,
+            })
+        });
+        let server = SERVER.parse().unwrap();
+        assert_eq!(
+            c.failed(),
+            Some(&TurnError::ShortLifetime { server, seconds: 0 })
+        );
+        assert_eq!(c.relayed(), None);
+        assert!(count(&sent, Method::Refresh) < 10, "{sent:?}");
+    }
+
+    #[test]
+    fn a_refresh_answered_with_0_s_ends_the_relay_after_one_refresh() {
+        let (c, sent) = simulate(3600, true, |method, r| {
+            Some(match method {
+                Method::Allocate => granted(r, 600),
+                Method::Refresh => answer(r, Class::Success, |b| b.add_attr(Lifetime(0))).1,
+                _ => answer(r, Class::Success, |_| {}).1,
+            })
+        });
+        assert_eq!(count(&sent, Method::Refresh), 1, "{sent:?}");
+        assert!(
+            matches!(c.failed(), Some(TurnError::ShortLifetime { .. })),
+            "{:?}",
+            c.failed()
+        );
+    }
+
+    #[test]
+    fn a_short_grant_is_refreshed_at_half_its_lifetime() {
+        let (c, sent) = simulate(3600, false, |method, r| {
+            Some(match method {
+                Method::Allocate => granted(r, 30),
+                _ => answer(r, Class::Success, |b| b.add_attr(Lifetime(30))).1,
+            })
+        });
+        // At 15, 30, ... 3585 s, and the relay kept.
+        assert_eq!(count(&sent, Method::Refresh), 239, "{sent:?}");
+        assert!(c.relayed().is_some(), "{:?}", c.failed());
+    }
+
+    #[test]
+    fn refused_or_unanswered_refreshes_back_off_until_the_relay_expires() {
+        for answered in [true, false] {
+            let (c, sent) = simulate(3600, false, |method, r| match method {
+                Method::Allocate => Some(granted(r, 600)),
+                _ => answered.then(|| refused(r, 500)),
+            });
+            // Refused: at 540, 545, 555 and 575 s; unanswered: each retransmitted 6 times
+            // in the 8 s it is waited for.
+            let most = if answered { 4 } else { 4 * 6 };
+            assert!(count(&sent, Method::Refresh) <= most, "{sent:?}");
+            assert_eq!(
+                c.failed(),
+                Some(&TurnError::Expired(SERVER.parse().unwrap())),
+                "answered: {answered}"
+            );
+            assert_eq!(c.relayed(), None);
+        }
+    }
+
+    #[test]
+    fn a_refused_permission_is_asked_again_after_a_wait_that_doubles() {
+        let (c, sent) = simulate(120, true, |method, r| {
+            Some(match method {
+                Method::Allocate => granted(r, 600),
+                _ => refused(r, 403),
+            })
+        });
+        // At 0, 5, 15, 35 and 75 s, where every send (50 a second) used to ask again.
+        assert_eq!(count(&sent, Method::CreatePermission), 5, "{sent:?}");
+        assert!(c.relayed().is_some());
     }
 
     proptest! {

@@ -1,6 +1,8 @@
 //! A real Janus for the tests (Debian's `janus`, started with the repository's config folder,
-//! assets/janus, its HTTP API on a free loopback port), killed when dropped.
+//! assets/janus, its HTTP API on a free loopback port), killed when dropped; and a scripted,
+//! misbehaving one (tests/data/scripted_janus.py).
 
+use std::io::{BufRead, BufReader};
 use std::net::TcpListener;
 use std::path::{Path, PathBuf};
 use std::process::{Child, Command, Stdio};
@@ -225,4 +227,44 @@ fn pearson(pairs: &[(f64, f64)]) -> f64 {
         sbb += (b - mb).powi(2);
     }
     sab / (saa * sbb).sqrt().max(1e-12)
+}
+
+/// The scripted Janus (tests/data/scripted_janus.py) in one of its modes, killed when dropped.
+pub struct Scripted {
+    child: Child,
+    pub url: String,
+}
+
+impl Drop for Scripted {
+    fn drop(&mut self) {
+        let _ = self.child.kill();
+        let _ = self.child.wait();
+    }
+}
+
+/// The scripted Janus in `mode` on 127.0.0.1, once it listens; none (said) without python3.
+pub fn scripted(mode: &str) -> Option<Scripted> {
+    let child = Command::new("python3")
+        .arg(repo_file("tests/data/scripted_janus.py"))
+        .arg(mode)
+        .stdout(Stdio::piped())
+        .stderr(Stdio::null())
+        .spawn();
+    let Ok(mut child) = child else {
+        super::unavailable("no python3 for the scripted Janus");
+        return None;
+    };
+    let mut line = String::new();
+    BufReader::new(child.stdout.take().unwrap())
+        .read_line(&mut line)
+        .unwrap();
+    let port = line
+        .trim()
+        .strip_prefix("listening on ")
+        .unwrap()
+        .to_string();
+    Some(Scripted {
+        child,
+        url: format!("http://127.0.0.1:{port}/janus"),
+    })
 }

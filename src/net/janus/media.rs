@@ -435,7 +435,9 @@ impl MediaCore {
                     return;
                 }
                 Output::Transmit(t) => match &mut self.turn {
-                    Some((turn, _)) if turn.relayed() == Some(t.source) => {
+                    // A relay that has ended drops what was to leave from it: sent from our
+                    // own socket it would tell the peer our address (--turn-only).
+                    Some((turn, _)) if turn.relays_from(t.source) => {
                         turn.send_to(t.destination, &t.contents, self.now);
                     }
                     _ => self.outbox.push_back(Transmit {

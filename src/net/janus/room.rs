@@ -415,8 +415,9 @@ const FOLLOW_EVERY: Duration = Duration::from_millis(20);
 /// Notices not yet read by the owner; past this (a room churning faster than anyone reads)
 /// the newest are dropped, not the memory grown.
 const NOTICES_KEPT: usize = 1024;
-/// How long leaving waits for the signalling thread to hang up.
-const LEAVE_WAIT: Duration = Duration::from_secs(2);
+/// How long leaving waits for the signalling thread to hang up: short, so that a command
+/// ends within a second of `--seconds` or a signal even when Janus does not answer.
+const LEAVE_WAIT: Duration = Duration::from_millis(700);
 
 impl Member {
     /// Joins (and publishes, when `publish`); a first join that fails is an error.
@@ -522,8 +523,8 @@ impl Member {
         while !thread.is_finished() {
             if Instant::now() >= deadline {
                 return Err(JanusError::Timeout(format!(
-                    "Janus did not confirm the leave within {} s",
-                    LEAVE_WAIT.as_secs()
+                    "Janus did not confirm the leave within {} ms",
+                    LEAVE_WAIT.as_millis()
                 )));
             }
             std::thread::sleep(Duration::from_millis(5));

@@ -3,9 +3,11 @@
 //! every event. A thread owns the socket: it writes what the owner queues, sends the session's
 //! keepalive, hands answers back to the request waiting for them and events to the same
 //! channel the HTTP long poll feeds. TLS goes through the system's OpenSSL and certificate
-//! store, as for HTTPS.
+//! store, as for HTTPS. Connecting and the handshake (TLS included) have a deadline, so a
+//! server that accepts and stays silent is an error, not a hang.
 
-use std::net::TcpStream;
+use std::io::{self, Read, Write};
+use std::net::{TcpStream, ToSocketAddrs};
 use std::sync::Arc;
 use std::sync::atomic::{AtomicBool, AtomicU64, Ordering};
 use std::sync::mpsc::{Receiver, RecvTimeoutError, SyncSender, TrySendError, sync_channel};
@@ -14,14 +16,19 @@ use std::time::{Duration, Instant};
 use serde_json::Value;
 use tungstenite::client::IntoClientRequest;
 use tungstenite::stream::MaybeTlsStream;
-use tungstenite::{Message, WebSocket};
+use tungstenite::{HandshakeError, Message, WebSocket};
 
 use super::JanusError;
 use super::events::{KEEPALIVE, Polled, hand_over, transaction};
 use super::messages::{self, JanusAuth};
+use super::url::JanusUrl;
 
-/// How long a request waits for its immediate answer.
+/// How long a request waits for its immediate answer, and a write for the socket to take it.
 const ANSWER_TIMEOUT: Duration = Duration::from_secs(5);
+/// How long connecting and the WebSocket handshake (TLS included) may take together.
+const HANDSHAKE_TIMEOUT: Duration = Duration::from_secs(5);
+/// How long one read or write of the handshake blocks before the deadline is looked at.
+const HANDSHAKE_SLICE: Duration = Duration::from_millis(100);
 /// How long the socket thread blocks in a read before it looks at what to write.
 const READ_SLICE: Duration = Duration::from_millis(10);
 /// Answers nobody waits for (keepalive acks, answers that came too late) kept at most.
@@ -29,7 +36,137 @@ const ANSWERS_KEPT: usize = 64;
 /// Requests queued for writing at most.
 const REQUESTS_QUEUED: usize = 64;
 
-type Socket = WebSocket<MaybeTlsStream<TcpStream>>;
+type Socket = WebSocket<MaybeTlsStream<Deadlined>>;
+
+/// The TCP stream under the WebSocket. While `handshake_until` is set, a read or write that
+/// would block is tried again until then, and then fails as timed out: the handshake never
+/// waits past it, and OpenSSL and tungstenite, whose blocking handshakes take a would-block
+/// for a bug (a panic), never see one. Afterwards a would-block goes up as it is.
+struct Deadlined {
+    stream: TcpStream,
+    handshake_until: Option<Instant>,
+}
+
+impl Deadlined {
+    fn retry<T>(&mut self, mut io: impl FnMut(&mut TcpStream) -> io::Result<T>) -> io::Result<T> {
+        loop {
+            match io(&mut self.stream) {
+                Err(e)
+                    if matches!(
+                        e.kind(),
+                        io::ErrorKind::WouldBlock | io::ErrorKind::TimedOut
+                    ) =>
+                {
+                    match self.handshake_until {
+                        Some(until) if Instant::now() < until => {}
+                        Some(_) => {
+                            return Err(io::Error::new(io::ErrorKind::TimedOut, "no answer"));
+                        }
+                        None => return Err(e),
+                    }
+                }
+                other => return other,
+            }
+        }
+    }
+}
+
+impl Read for Deadlined {
+    fn read(&mut self, buf: &mut [u8]) -> io::Result<usize> {
+        self.retry(|s| s.read(buf))
+    }
+}
+
+impl Write for Deadlined {
+    fn write(&mut self, buf: &[u8]) -> io::Result<usize> {
+        self.retry(|s| s.write(buf))
+    }
+
+    fn flush(&mut self) -> io::Result<()> {
+        self.retry(|s| s.flush())
+    }
+}
+
+/// Connects to `url` and does the WebSocket handshake (TLS first for `wss://`), all within
+/// [`HANDSHAKE_TIMEOUT`].
+fn handshake(
+    url: &str,
+    request: tungstenite::handshake::client::Request,
+) -> Result<Socket, JanusError> {
+    let unreachable = |reason: String| JanusError::Http {
+        url: url.to_string(),
+        reason,
+    };
+    let until = Instant::now() + HANDSHAKE_TIMEOUT;
+    let timed_out = || {
+        JanusError::Timeout(format!(
+            "Janus at {url} did not answer the WebSocket handshake within {} s",
+            HANDSHAKE_TIMEOUT.as_secs()
+        ))
+    };
+    let target = JanusUrl::parse(url)?;
+    let addrs = (target.host.as_str(), target.port)
+        .to_socket_addrs()
+        .map_err(|e| unreachable(e.to_string()))?;
+    let mut refused = None;
+    let mut stream = None;
+    for addr in addrs {
+        let left = until.saturating_duration_since(Instant::now());
+        if left.is_zero() {
+            break;
+        }
+        match TcpStream::connect_timeout(&addr, left) {
+            Ok(s) => {
+                stream = Some(s);
+                break;
+            }
+            Err(e) => refused = Some(e),
+        }
+    }
+    let stream = match (stream, refused) {
+        (Some(s), _) => s,
+        (None, Some(e)) if e.kind() != io::ErrorKind::TimedOut => {
+            return Err(unreachable(e.to_string()));
+        }
+        (None, _) => return Err(timed_out()),
+    };
+    let setup = |s: &TcpStream| {
+        s.set_nodelay(true)?;
+        s.set_read_timeout(Some(HANDSHAKE_SLICE))?;
+        s.set_write_timeout(Some(HANDSHAKE_SLICE))
+    };
+    setup(&stream).map_err(|e| unreachable(e.to_string()))?;
+    let deadlined = Deadlined {
+        stream,
+        handshake_until: Some(until),
+    };
+    let mut socket = match tungstenite::client_tls_with_config(request, deadlined, None, None) {
+        Ok((socket, _)) => socket,
+        Err(HandshakeError::Failure(tungstenite::Error::Http(response))) => {
+            return Err(JanusError::NotJanus {
+                url: url.to_string(),
+                reason: format!("HTTP status {}", response.status()),
+            });
+        }
+        Err(_) if Instant::now() >= until => return Err(timed_out()),
+        Err(HandshakeError::Failure(e)) => return Err(unreachable(e.to_string())),
+        Err(HandshakeError::Interrupted(_)) => {
+            return Err(unreachable("the handshake was interrupted".into()));
+        }
+    };
+    let stream = match socket.get_mut() {
+        MaybeTlsStream::Plain(s) => s,
+        MaybeTlsStream::NativeTls(s) => s.get_mut(),
+        _ => return Err(unreachable("an unexpected stream".into())),
+    };
+    stream.handshake_until = None;
+    let running = |s: &TcpStream| {
+        s.set_read_timeout(Some(READ_SLICE))?;
+        s.set_write_timeout(Some(ANSWER_TIMEOUT))
+    };
+    running(&stream.stream).map_err(|e| unreachable(e.to_string()))?;
+    Ok(socket)
+}
 
 /// The owner's end: requests out, answers in.
 pub(super) struct WsCarrier {
@@ -60,21 +197,7 @@ impl WsCarrier {
             "Sec-WebSocket-Protocol",
             tungstenite::http::HeaderValue::from_static("janus-protocol"),
         );
-        let (socket, _) = tungstenite::connect(request).map_err(|e| match e {
-            tungstenite::Error::Http(response) => JanusError::NotJanus {
-                url: url.to_string(),
-                reason: format!("HTTP status {}", response.status()),
-            },
-            other => unreachable(other.to_string()),
-        })?;
-        let stream = match socket.get_ref() {
-            MaybeTlsStream::Plain(s) => s,
-            MaybeTlsStream::NativeTls(s) => s.get_ref(),
-            _ => return Err(unreachable("an unexpected stream".into())),
-        };
-        stream
-            .set_read_timeout(Some(READ_SLICE))
-            .map_err(|e| unreachable(e.to_string()))?;
+        let socket = handshake(url, request)?;
         let (outgoing, to_write) = sync_channel(REQUESTS_QUEUED);
         let (answer_tx, answers) = sync_channel(ANSWERS_KEPT);
         let session = Arc::new(AtomicU64::new(0));
