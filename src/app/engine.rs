@@ -23,7 +23,7 @@ use crate::call::link::{Link, LinkEvent};
 use crate::call::mumble::is_mumble_url;
 use crate::codec::any::{Codec, EncoderSettings, FrameEncoder, MAX_FRAME_PAYLOAD};
 use crate::codec::opus::codec::Bandwidth;
-use crate::net::host_port::HostPort;
+use crate::net::host_port::resolve_with_port;
 use crate::net::janus::candidates::IceServers;
 use crate::net::janus::messages::JanusAuth;
 use crate::net::janus::room::RoomConfig;
@@ -239,15 +239,6 @@ struct Worker {
     phone: SipPhone,
 }
 
-/// A direct call's or relay's address; it has no default port.
-fn resolve(addr: &str) -> anyhow::Result<SocketAddr> {
-    let target = HostPort::parse(addr)?;
-    if target.port.is_none() {
-        anyhow::bail!("{addr:?}: give the port too (HOST:PORT)");
-    }
-    Ok(target.resolve(0)?)
-}
-
 fn idle_session(config: &EngineConfig) -> anyhow::Result<Session> {
     let bind = config
         .listen
@@ -360,7 +351,7 @@ impl Worker {
         if is_sip_address(&spec.address) {
             return self.dial_sip(spec);
         }
-        let to = resolve(&spec.address)?;
+        let to = resolve_with_port(&spec.address)?;
         let room = spec.room.clone().filter(|r| !r.trim().is_empty());
         let key = spec
             .passphrase

@@ -1,6 +1,6 @@
 //! `lipcall send`, `lipcall receive` and `lipcall relay`: the headless real-time transport.
 
-use std::net::{SocketAddr, ToSocketAddrs};
+use std::net::SocketAddr;
 use std::path::{Path, PathBuf};
 use std::sync::atomic::AtomicBool;
 use std::time::{Duration, Instant};
@@ -12,6 +12,7 @@ use super::recording::{TICK, stop_flag, stopped};
 use crate::call::media::{MediaError, MediaFile, MediaKind, Packets};
 use crate::codec::any::{Codec, EncoderSettings, PayloadMap};
 use crate::codec::opus::codec::Bandwidth;
+use crate::net::host_port::resolve_with_port;
 use crate::net::session::{PeerInfo, Session, SessionConfig};
 use crate::net::srtp::MasterKey;
 use crate::vocab::FrameFeatures;
@@ -41,10 +42,7 @@ impl KeyArgs {
 }
 
 pub(crate) fn resolve(addr: &str) -> Result<SocketAddr> {
-    addr.to_socket_addrs()
-        .with_context(|| format!("cannot resolve {addr}"))?
-        .next()
-        .with_context(|| format!("{addr} resolves to no address"))
+    Ok(resolve_with_port(addr)?)
 }
 
 fn any_port_like(addr: SocketAddr) -> SocketAddr {

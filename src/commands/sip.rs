@@ -1,7 +1,7 @@
 //! `lipcall sip call` and `lipcall sip answer`: a phone call over SIP that plays a file as our
 //! voice and does with the peer's what `receive` does (WAV as played, WEIGHTS.csv, summary).
 
-use std::net::{IpAddr, SocketAddr, ToSocketAddrs};
+use std::net::{IpAddr, SocketAddr};
 use std::path::{Path, PathBuf};
 use std::sync::atomic::AtomicBool;
 use std::time::{Duration, Instant};
@@ -16,6 +16,7 @@ use crate::call::link::{Link, LinkEvent};
 use crate::call::media::Packets;
 use crate::call::sip::{CallState, SipLink};
 use crate::codec::any::{Codec, EncoderSettings};
+use crate::net::host_port::resolve_with_port;
 use crate::net::janus::candidates::local_ip_towards;
 use crate::net::session::{PeerFrame, PeerInfo};
 use crate::net::sip::address::{bind_towards, host_port, resolve_host};
@@ -179,12 +180,8 @@ fn call(args: &SipCallArgs) -> Result<()> {
 
 fn answer(args: &SipAnswerArgs) -> Result<()> {
     let account = account(&args.common)?;
-    let mut listen = args
-        .listen
-        .to_socket_addrs()
-        .with_context(|| format!("--listen {:?}", args.listen))?
-        .next()
-        .with_context(|| format!("--listen {:?} has no address", args.listen))?;
+    let mut listen =
+        resolve_with_port(&args.listen).with_context(|| format!("--listen {:?}", args.listen))?;
     if listen.ip().is_unspecified() {
         // Our Contact and SDP must name an address the peer can reach.
         let towards = match &account {

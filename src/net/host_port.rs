@@ -134,6 +134,19 @@ impl HostPort {
     }
 }
 
+/// The address of `text`, which must name its port (a peer's, a relay's, a port to listen
+/// on: no protocol default applies).
+pub fn resolve_with_port(text: &str) -> Result<SocketAddr, AddressError> {
+    let target = HostPort::parse(text)?;
+    match target.port {
+        Some(port) => target.resolve(port),
+        None => Err(AddressError::Malformed {
+            text: text.to_owned(),
+            why: "no port",
+        }),
+    }
+}
+
 /// As written to be read back: brackets around an IPv6 address.
 impl fmt::Display for HostPort {
     fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
@@ -202,6 +215,16 @@ mod tests {
         assert_eq!(a.resolve(5060).unwrap(), "127.0.0.1:5060".parse().unwrap());
         let b = HostPort::parse("[::1]:7000").unwrap();
         assert_eq!(b.resolve(5060).unwrap(), "[::1]:7000".parse().unwrap());
+        assert!(
+            resolve_with_port("127.0.0.1")
+                .unwrap_err()
+                .to_string()
+                .contains("no port")
+        );
+        assert_eq!(
+            resolve_with_port("localhost:5004").map(|a| a.port()),
+            Ok(5004)
+        );
         let like: SocketAddr = "[::1]:1".parse().unwrap();
         assert!(
             a.resolve_like(5060, like)

@@ -7,7 +7,7 @@
 //! server that accepts and stays silent is an error, not a hang.
 
 use std::io::{self, Read, Write};
-use std::net::{TcpStream, ToSocketAddrs};
+use std::net::TcpStream;
 use std::sync::Arc;
 use std::sync::atomic::{AtomicBool, AtomicU64, Ordering};
 use std::sync::mpsc::{Receiver, RecvTimeoutError, SyncSender, TrySendError, sync_channel};
@@ -22,6 +22,7 @@ use super::JanusError;
 use super::events::{KEEPALIVE, Polled, hand_over, transaction};
 use super::messages::{self, JanusAuth};
 use super::url::JanusUrl;
+use crate::net::host_port::HostPort;
 
 /// How long a request waits for its immediate answer, and a write for the socket to take it.
 const ANSWER_TIMEOUT: Duration = Duration::from_secs(5);
@@ -105,9 +106,12 @@ fn handshake(
         ))
     };
     let target = JanusUrl::parse(url)?;
-    let addrs = (target.host.as_str(), target.port)
-        .to_socket_addrs()
-        .map_err(|e| unreachable(e.to_string()))?;
+    let addrs = HostPort {
+        host: target.host,
+        port: Some(target.port),
+    }
+    .resolve_all(target.port)
+    .map_err(|e| unreachable(e.to_string()))?;
     let mut refused = None;
     let mut stream = None;
     for addr in addrs {
