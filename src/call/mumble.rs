@@ -8,6 +8,7 @@ use std::time::Instant;
 use super::link::{Link, LinkEvent};
 use crate::net::mumble::client::ClientEvent;
 use crate::net::mumble::connection::{Connection, Notice};
+use crate::net::mumble::events::describe_unlisted;
 use crate::net::session::{PeerFrame, PeerInfo};
 
 /// Whether a call address names a Mumble server (`mumble://HOST[:PORT][/CHANNEL]`).
@@ -103,7 +104,7 @@ impl MumbleLink {
                 name,
             },
             Notice::Lost(reason) => LinkEvent::Lost { reason },
-            Notice::RejoinFailed(reason) => LinkEvent::RejoinFailed { reason },
+            Notice::RejoinFailed { reason, .. } => LinkEvent::RejoinFailed { reason },
             Notice::Rejoined(session) => LinkEvent::Rejoined {
                 id: session.to_string(),
             },
@@ -127,6 +128,14 @@ impl MumbleLink {
             }
             Notice::Client(ClientEvent::Text { from, message }) => {
                 self.notes.push(format!("{from} says: {message}"));
+                return None;
+            }
+            Notice::Client(ClientEvent::Unlisted {
+                joined,
+                left,
+                messages,
+            }) => {
+                self.notes.push(describe_unlisted(joined, left, messages));
                 return None;
             }
             Notice::Client(ClientEvent::UdpWorking(working)) => {

@@ -18,6 +18,7 @@ use crate::codec::any::{Codec, EncoderSettings};
 use crate::net::jitter::JitterConfig;
 use crate::net::mumble::client::{ClientConfig, ClientEvent};
 use crate::net::mumble::connection::{ConnectConfig, Connection, Notice};
+use crate::net::mumble::events::describe_unlisted;
 use crate::net::mumble::identity::{self, Trust};
 use crate::net::session::{PeerFrame, PeerInfo};
 
@@ -106,9 +107,15 @@ fn print_notice(notice: &Notice) {
         Notice::Lost(reason) => {
             eprintln!("lipcall: lost the Mumble server ({reason}); reconnecting")
         }
-        Notice::RejoinFailed(reason) => {
-            eprintln!("lipcall: cannot reconnect yet ({reason}); trying every second")
-        }
+        Notice::RejoinFailed { reason, retry } => eprintln!(
+            "lipcall: cannot reconnect yet ({reason}); trying again in {} s, then less often",
+            retry.as_secs()
+        ),
+        Notice::Client(ClientEvent::Unlisted {
+            joined,
+            left,
+            messages,
+        }) => eprintln!("lipcall: {}", describe_unlisted(*joined, *left, *messages)),
         Notice::Rejoined(session) => {
             eprintln!("lipcall: back on the Mumble server as session {session}")
         }
@@ -309,6 +316,10 @@ pub fn receive(args: &MumbleReceiveArgs) -> Result<()> {
     );
     for peer in link.peers() {
         print_peer(&peer);
+    }
+    let unlisted = link.connection().speakers_unlisted();
+    if unlisted > 0 {
+        eprintln!("lipcall: and {unlisted} more speakers who left, not listed");
     }
     link.leave();
     let finished = recorder.finish();

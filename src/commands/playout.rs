@@ -186,7 +186,7 @@ pub(crate) fn print_event(event: &LinkEvent, words: Wording) {
         }
         LinkEvent::Lost { reason } => eprintln!("lipcall: lost {place} ({reason}); {retry}ing"),
         LinkEvent::RejoinFailed { reason } => {
-            eprintln!("lipcall: cannot {retry} yet ({reason}); trying every second")
+            eprintln!("lipcall: cannot {retry} yet ({reason}); trying again")
         }
         LinkEvent::Rejoined { id } => eprintln!("lipcall: {back} {id}"),
     }

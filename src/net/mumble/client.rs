@@ -11,6 +11,11 @@
 //! Each speaker (session id) gets a [`PeerReceiver`], the jitter buffer and Opus decoder every
 //! other transport uses: its voice packets are handed over as RTP on the 48 kHz clock, one
 //! sequence number per packet, the marker on the first packet of a talk spurt.
+//!
+//! Whatever a server can make grow is bounded: users and channels have caps, a removed user
+//! is freed at once (a speaker once their audio played out), who came and went is worked out
+//! when asked ([`ClientCore::report_presence`]) rather than queued per message, news beyond a
+//! budget is counted instead of said, and a server silent for [`SERVER_SILENT`] counts as lost.
 
 use std::collections::{BTreeMap, VecDeque};
 use std::net::SocketAddr;
@@ -18,15 +23,15 @@ use std::time::{Duration, Instant};
 
 use super::MumbleError;
 use super::crypt::CryptState;
-use super::events::describe_reject;
 pub use super::events::{Channel, ClientConfig, ClientEvent, ClientStats};
+use super::events::{News, NewsBudget, describe_reject};
 use super::messages::{
     self, Authenticate, CryptSetup, Deframer, Incoming, MessageType, Ping, UserState, Version,
 };
-use super::speakers::User;
+use super::speakers::{Room, Speaker, Speakers, User};
 use super::voice::{self, ServerPacket};
 use crate::codec::any::PayloadMap;
-use crate::net::peer::{PeerReceiver, ReceiverStats};
+use crate::net::peer::PeerReceiver;
 use crate::net::session::{PeerFrame, Transmit, TransmitKind};
 
 /// What we announce: 1.3.4, so that 1.5 servers answer with the legacy voice format.
@@ -39,6 +44,10 @@ const UDP_FRESH: Duration = Duration::from_secs(12);
 const FIRST_PING_ANSWER: Duration = Duration::from_secs(1);
 /// At most one request for fresh nonces in this.
 const RESYNC_EVERY: Duration = Duration::from_secs(5);
+/// A server that sent nothing for this long (four pings unanswered) counts as lost.
+pub const SERVER_SILENT: Duration = Duration::from_secs(20);
+/// The longest text message or refusal said (in bytes; longer ones are cut).
+const MAX_TEXT: usize = 1000;
 
 /// The protocol state of one server connection (and, after a reconnect, the next).
 pub struct ClientCore {
@@ -53,8 +62,14 @@ pub struct ClientCore {
     connected: bool,
     pub(super) channels: BTreeMap<u32, Channel>,
     pub(super) users: BTreeMap<u32, User>,
-    /// Speakers of earlier connections (for the summary).
-    pub(super) departed: Vec<(u32, String, ReceiverStats)>,
+    pub(super) speakers: Speakers,
+    /// Who in our channel the owner was told of, by session.
+    pub(super) reported: BTreeMap<u32, String>,
+    /// Users or our channel changed since the last report.
+    pub(super) presence_changed: bool,
+    pub(super) news: NewsBudget,
+    /// When the server last sent anything on the TLS stream.
+    heard_server: Instant,
     /// Our self-mute as last asked for (none asked: the server's default, unmuted).
     pub(super) self_mute: Option<bool>,
     /// What the server was last told of it, and when.
@@ -99,7 +114,11 @@ impl ClientCore {
             connected: false,
             channels: BTreeMap::new(),
             users: BTreeMap::new(),
-            departed: Vec::new(),
+            speakers: Speakers::default(),
+            reported: BTreeMap::new(),
+            presence_changed: false,
+            news: NewsBudget::default(),
+            heard_server: now,
             self_mute: None,
             self_mute_told: None,
             crypt: None,
@@ -127,13 +146,12 @@ impl ClientCore {
         self.udp_heard = None;
         self.set_udp(false);
         self.fatal = None;
+        self.heard_server = now;
         self.channels.clear();
         // Session ids start afresh on a restarted server: an old speaker's id may be a new
         // one's. (What was still buffered of the old ones is dropped; the loss cut it anyway.)
-        let spoke = std::mem::take(&mut self.users)
-            .into_iter()
-            .filter_map(|(s, u)| Some((s, u.name.clone(), u.stats()?)));
-        self.departed.extend(spoke);
+        self.forget_users();
+        self.speakers.retire_all();
         self.push(
             MessageType::Version,
             &Version {
@@ -156,14 +174,29 @@ impl ClientCore {
     }
 
     /// The TLS connection is gone.
-    pub fn disconnected(&mut self) {
+    pub fn disconnected(&mut self, now: Instant) {
         self.connected = false;
         self.session = None;
         self.crypt = None;
         self.set_udp(false);
-        for user in self.users.values_mut() {
-            user.gone = true;
+        self.forget_users();
+        self.speakers.leave_all(now);
+    }
+
+    /// Everyone is forgotten; those whose receiver was let go earlier are listed as departed.
+    fn forget_users(&mut self) {
+        for (session, user) in std::mem::take(&mut self.users) {
+            if let Some(heard) = user.heard {
+                self.speakers.depart(session, user.name, *heard);
+            }
         }
+    }
+
+    /// How long the server has been silent, once that is [`SERVER_SILENT`] or more (murmur
+    /// answers every ping, and we ping every [`PING_INTERVAL`]).
+    pub fn server_silent(&self, now: Instant) -> Option<Duration> {
+        let quiet = now.saturating_duration_since(self.heard_server);
+        (self.connected && quiet >= SERVER_SILENT).then_some(quiet)
     }
 
     pub(super) fn push(&mut self, kind: MessageType, message: &impl prost::Message) {
@@ -172,6 +205,9 @@ impl ClientCore {
 
     /// Bytes read from the TLS stream.
     pub fn handle_stream(&mut self, bytes: &[u8], now: Instant) {
+        if !bytes.is_empty() {
+            self.heard_server = now;
+        }
         self.deframer.push(bytes);
         loop {
             match self.deframer.next_frame() {
@@ -207,6 +243,10 @@ impl ClientCore {
                 self.stats.tunnel_received += 1;
                 self.handle_voice(&packet, now);
             }
+            // Said once: a join ends at the first, and nothing comes after our ServerSync.
+            Incoming::Reject(_) | Incoming::ServerSync(_) if self.session.is_some() => {
+                self.stats.malformed += 1;
+            }
             Incoming::Reject(r) => {
                 self.events.push_back(ClientEvent::Rejected(describe_reject(
                     r.r#type,
@@ -223,12 +263,14 @@ impl ClientCore {
             Incoming::UserState(u) => self.user_state(u, now),
             Incoming::UserRemove(u) => match u.session {
                 Some(session) if Some(session) == self.session => {
-                    let reason = u.reason.filter(|r| !r.is_empty());
-                    let why = reason.unwrap_or_else(|| "no reason given".into());
-                    self.kicked = Some(why.clone());
-                    self.events.push_back(ClientEvent::Removed(why));
+                    if self.kicked.is_none() {
+                        let reason = u.reason.filter(|r| !r.is_empty());
+                        let why = shortened(reason.unwrap_or_else(|| "no reason given".into()));
+                        self.kicked = Some(why.clone());
+                        self.events.push_back(ClientEvent::Removed(why));
+                    }
                 }
-                Some(session) => self.user_left(session),
+                Some(session) => self.user_left(session, now),
                 None => self.stats.malformed += 1,
             },
             Incoming::CryptSetup(c) => self.crypt_setup(c),
@@ -237,17 +279,22 @@ impl ClientCore {
                     .reason
                     .or(d.name.map(|n| format!("name {n:?}")))
                     .unwrap_or_else(|| format!("permission {:?}", d.permission));
-                self.events.push_back(ClientEvent::Denied(reason));
+                if self.news.say(News::Message, now) {
+                    self.events
+                        .push_back(ClientEvent::Denied(shortened(reason)));
+                }
             }
             Incoming::TextMessage(t) => {
-                let from = t
-                    .actor
-                    .and_then(|a| self.users.get(&a))
-                    .map_or_else(|| "the server".to_string(), |u| u.name.clone());
-                self.events.push_back(ClientEvent::Text {
-                    from,
-                    message: t.message.unwrap_or_default(),
-                });
+                if self.news.say(News::Message, now) {
+                    let from = t
+                        .actor
+                        .and_then(|a| self.users.get(&a))
+                        .map_or_else(|| "the server".to_string(), |u| u.name.clone());
+                    self.events.push_back(ClientEvent::Text {
+                        from,
+                        message: shortened(t.message.unwrap_or_default()),
+                    });
+                }
             }
             Incoming::Version(_)
             | Incoming::Ping(_)
@@ -263,8 +310,8 @@ impl ClientCore {
             return;
         };
         self.session = Some(session);
-        self.welcome = sync.welcome_text.unwrap_or_default();
-        self.present();
+        self.welcome = shortened(sync.welcome_text.unwrap_or_default());
+        self.presence_changed = true;
         self.tell_self_mute(now, true);
         if let Some(wanted) = self.config.channel.clone() {
             match self.channels.values().find(|c| c.name == wanted) {
@@ -397,15 +444,38 @@ impl ClientCore {
         last: bool,
         now: Instant,
     ) {
-        let Some(user) = self.users.get_mut(&session) else {
-            // Voice from someone the server never described: ignored.
-            self.stats.malformed += 1;
-            return;
-        };
-        let (jitter, epoch) = (self.config.jitter, self.epoch);
-        user.file(session, sequence, frame, last, now, || {
-            PeerReceiver::with_payloads(jitter, epoch, true, PayloadMap::default())
-        });
+        if self.speakers.get_mut(session).is_none() {
+            let Some(name) = self.users.get(&session).map(|u| u.name.clone()) else {
+                // Voice from someone the server never described: ignored.
+                self.stats.malformed += 1;
+                return;
+            };
+            match self.speakers.make_room(now) {
+                Room::Free => {}
+                Room::LetGo(quiet, stats) => {
+                    if let Some(user) = self.users.get_mut(&quiet) {
+                        user.heard = Some(stats);
+                    }
+                }
+                Room::Full => {
+                    self.stats.over_cap += 1;
+                    return;
+                }
+            }
+            if let Some(user) = self.users.get_mut(&session) {
+                user.heard = None;
+            }
+            let receiver = PeerReceiver::with_payloads(
+                self.config.jitter,
+                self.epoch,
+                true,
+                PayloadMap::default(),
+            );
+            self.speakers.insert(session, Speaker::new(name, receiver));
+        }
+        if let Some(speaker) = self.speakers.get_mut(session) {
+            speaker.file(session, sequence, frame, last, now);
+        }
     }
 
     /// Sends one Opus payload of `frames` 20 ms frames (by UDP once it works, else tunnelled).
@@ -449,20 +519,21 @@ impl ClientCore {
 
     /// The next 20 ms of every speaker that is playing.
     pub fn pull(&mut self, now: Instant, out: &mut Vec<PeerFrame>) {
-        for (&session, user) in &mut self.users {
-            if let Some(frame) = user.pull(now) {
-                out.push(PeerFrame {
-                    ssrc: session,
-                    frame,
-                });
-            }
-        }
+        self.speakers.pull(now, out);
     }
+}
 
-    /// Drops users who left without a word (speakers stay for the summary).
-    fn forget_gone(&mut self) {
-        self.users.retain(|_, u| !(u.gone && u.stats().is_none()));
+/// A server's text as said: at most [`MAX_TEXT`] bytes, cut at a character.
+fn shortened(mut text: String) -> String {
+    if text.len() > MAX_TEXT {
+        let mut end = MAX_TEXT;
+        while !text.is_char_boundary(end) {
+            end -= 1;
+        }
+        text.truncate(end);
+        text.push('…');
     }
+    text
 }
 
 impl ClientCore {
@@ -513,7 +584,7 @@ impl ClientCore {
             return;
         }
         self.next_ping = now + PING_INTERVAL;
-        self.forget_gone();
+        self.speakers.expire(now);
         if !self.connected || self.session.is_none() {
             return;
         }

@@ -1,7 +1,10 @@
 //! A Mumble connection's I/O: the TLS stream (its own thread, reading with a short timeout and
 //! writing what the core queued) and the UDP socket (the socket thread every sans-I/O core in
-//! lipcall runs on). When the server goes away the TLS thread says so and reconnects every
-//! second, until it gets back in or the connection is closed.
+//! lipcall runs on). When the server goes away (the stream ends or breaks, or the server says
+//! nothing for [`super::client::SERVER_SILENT`]) the TLS thread says so and reconnects, a
+//! second after the loss and then at doubling intervals up to [`RETRY_MAX`], until it gets back
+//! in or the connection is closed. Every wait has a bound: the TCP connect, the TLS handshake
+//! as a whole, the join up to ServerSync, each write, and the close.
 
 use std::io::{ErrorKind, Read, Write};
 use std::net::{SocketAddr, TcpStream, ToSocketAddrs, UdpSocket};
@@ -11,7 +14,7 @@ use std::sync::{Arc, Mutex};
 use std::thread::JoinHandle;
 use std::time::{Duration, Instant};
 
-use openssl::ssl::{SslConnector, SslMethod, SslStream, SslVerifyMode};
+use openssl::ssl::{HandshakeError, SslConnector, SslMethod, SslStream, SslVerifyMode};
 
 use super::MumbleError;
 use super::client::{Channel, ClientConfig, ClientCore, ClientEvent, ClientStats};
@@ -27,9 +30,22 @@ pub const DEFAULT_PORT: u16 = 64738;
 /// How long a TLS read waits before the thread looks at its queue again.
 const READ_WAIT: Duration = Duration::from_millis(5);
 const CONNECT_TIMEOUT: Duration = Duration::from_secs(5);
+/// How long the TLS handshake may take, all of it.
+const HANDSHAKE_TIMEOUT: Duration = Duration::from_secs(10);
+/// How long a handshake read waits before the deadline and the stop are looked at again.
+const HANDSHAKE_WAIT: Duration = Duration::from_millis(50);
+/// How long a write may block (a server that reads nothing counts as lost).
+const WRITE_TIMEOUT: Duration = Duration::from_secs(10);
 /// How long the server may take from our Authenticate to its ServerSync or Reject.
 const JOIN_TIMEOUT: Duration = Duration::from_secs(10);
+/// The first reconnect comes this long after a loss; each failed one doubles the wait.
 const RETRY: Duration = Duration::from_secs(1);
+const RETRY_MAX: Duration = Duration::from_secs(16);
+/// How often a wait looks at whether the connection was closed.
+const STOP_POLL: Duration = Duration::from_millis(20);
+/// How long a close waits for the TLS thread (it may be in a reconnect's handshake: it ends on
+/// its own, within that handshake's bounds).
+const CLOSE_WAIT: Duration = Duration::from_millis(500);
 /// Bytes of a UDP datagram buffer (Mumble's own limit is 1024).
 const DATAGRAM: usize = 2048;
 /// The UDP thread's longest wait.
@@ -41,8 +57,11 @@ pub enum Notice {
     Client(ClientEvent),
     /// The server went away (`reason`); reconnecting.
     Lost(String),
-    /// A reconnect failed (once per distinct reason).
-    RejoinFailed(String),
+    /// A reconnect failed (once per distinct reason); the next comes after `retry`.
+    RejoinFailed {
+        reason: String,
+        retry: Duration,
+    },
     /// Back in, as `session`.
     Rejoined(u32),
     /// The server came back with another certificate than the one trusted: not the server we
@@ -123,11 +142,13 @@ impl std::fmt::Debug for Connection {
 type Tls = SslStream<TcpStream>;
 
 /// TCP, then TLS with our certificate; the server's certificate checked against the known
-/// ones. Its fingerprint and how it stands come back with the stream.
+/// ones. Its fingerprint and how it stands come back with the stream. The handshake ends by
+/// [`HANDSHAKE_TIMEOUT`], or as soon as `stop` is set.
 fn open_tls(
     server: &str,
     identity: &Identity,
     known: &KnownServers,
+    stop: &AtomicBool,
 ) -> Result<(Tls, SocketAddr, String, Trust), MumbleError> {
     let unreachable = |reason: String| MumbleError::Unreachable {
         server: server.to_string(),
@@ -154,7 +175,8 @@ fn open_tls(
     }
     let (tcp, addr) = tcp.ok_or_else(|| unreachable(last))?;
     tcp.set_nodelay(true)?;
-    tcp.set_read_timeout(Some(JOIN_TIMEOUT))?;
+    tcp.set_read_timeout(Some(HANDSHAKE_WAIT))?;
+    tcp.set_write_timeout(Some(WRITE_TIMEOUT))?;
     let mut builder =
         SslConnector::builder(SslMethod::tls_client()).map_err(|e| tls_error(e.to_string()))?;
     // Mumble servers use self-signed certificates: trust is the known fingerprint, below.
@@ -169,21 +191,45 @@ fn open_tls(
         .map_err(|e| tls_error(e.to_string()))?;
     config.set_verify_hostname(false);
     let host = server.rsplit_once(':').map_or(server, |(h, _)| h);
-    let stream = config
-        .connect(host.trim_matches(['[', ']']), tcp)
-        .map_err(|e| {
-            let reason = e.to_string();
-            if reason.to_ascii_lowercase().contains("unexpected eof") {
-                // murmur drops a connection before TLS when every session slot is taken.
-                MumbleError::Rejected(
-                    "the server closed the connection before TLS: the server is full (or it \
-                     bans this address)"
-                        .into(),
-                )
-            } else {
-                tls_error(reason)
+    let deadline = Instant::now() + HANDSHAKE_TIMEOUT;
+    let mut handshake = config.connect(host.trim_matches(['[', ']']), tcp);
+    let stream = loop {
+        match handshake {
+            Ok(stream) => break stream,
+            Err(HandshakeError::WouldBlock(mid)) => {
+                if stop.load(Ordering::Relaxed) {
+                    return Err(tls_error("closed during the TLS handshake".into()));
+                }
+                if Instant::now() > deadline {
+                    return Err(tls_error(format!(
+                        "no TLS handshake within {} s (not a Mumble server, or a stalled one)",
+                        HANDSHAKE_TIMEOUT.as_secs()
+                    )));
+                }
+                handshake = mid.handshake();
             }
-        })?;
+            Err(e) => {
+                let reset = matches!(&e, HandshakeError::Failure(mid) if mid
+                    .error()
+                    .io_error()
+                    .is_some_and(|io| io.kind() == ErrorKind::ConnectionReset));
+                let reason = e.to_string();
+                return Err(
+                    if reset || reason.to_ascii_lowercase().contains("unexpected eof") {
+                        // murmur drops a connection before TLS when every session slot is taken
+                        // (a reset when our hello was still unread).
+                        MumbleError::Rejected(
+                            "the server closed the connection before TLS: the server is full \
+                             (or it bans this address)"
+                                .into(),
+                        )
+                    } else {
+                        tls_error(reason)
+                    },
+                );
+            }
+        }
+    };
     let certificate = stream
         .ssl()
         .peer_certificate()
@@ -227,6 +273,9 @@ fn join(stream: &mut Tls, shared: &Shared) -> Result<u32, MumbleError> {
     let deadline = Instant::now() + JOIN_TIMEOUT;
     let mut buf = vec![0u8; 16 * 1024];
     loop {
+        if shared.stop.load(Ordering::Relaxed) {
+            return Err(MumbleError::NotConnected);
+        }
         write_queued(stream, shared)?;
         if let Err(reason) = read_some(stream, shared, &mut buf) {
             return Err(MumbleError::Unreachable {
@@ -265,7 +314,8 @@ impl Connection {
         let server = with_port(&config.address);
         let identity = Identity::load_or_create(&config.identity_dir)?;
         let known = KnownServers::new(&config.identity_dir);
-        let (mut stream, addr, print, trust) = open_tls(&server, &identity, &known)?;
+        let (mut stream, addr, print, trust) =
+            open_tls(&server, &identity, &known, &AtomicBool::new(false))?;
         let bind: SocketAddr = if addr.is_ipv4() {
             ([0, 0, 0, 0], 0).into()
         } else {
@@ -304,8 +354,12 @@ impl Connection {
         (&self.fingerprint, &self.trust)
     }
 
-    /// What happened since the last call.
+    /// What happened since the last call (who came and went: since the last call, however
+    /// often it changed in between).
     pub fn poll(&self) -> Vec<Notice> {
+        self.shared
+            .driver
+            .access(|core| core.report_presence(Instant::now()));
         self.shared.drain_events();
         std::mem::take(
             &mut *self
@@ -333,6 +387,11 @@ impl Connection {
     /// Every user who spoke: session, name, reception, whether they left.
     pub fn speakers(&self) -> Vec<(u32, String, ReceiverStats, bool)> {
         self.shared.driver.access(|core| core.speakers())
+    }
+
+    /// Speakers who left and are too many to be listed by [`Self::speakers`].
+    pub fn speakers_unlisted(&self) -> u64 {
+        self.shared.driver.access(|core| core.speakers_unlisted())
     }
 
     pub fn session(&self) -> Option<u32> {
@@ -371,11 +430,18 @@ impl Connection {
         self.shared.driver.access(|core| core.members())
     }
 
-    /// Disconnects (the TLS stream is shut down; the server sees us leave).
+    /// Disconnects (the TLS stream is shut down; the server sees us leave). Waits at most
+    /// [`CLOSE_WAIT`]: a thread still in a reconnect's handshake ends on its own.
     pub fn close(&mut self) {
         self.shared.stop.store(true, Ordering::Relaxed);
         if let Some(t) = self.thread.take() {
-            let _ = t.join();
+            let deadline = Instant::now() + CLOSE_WAIT;
+            while !t.is_finished() && Instant::now() < deadline {
+                std::thread::sleep(READ_WAIT);
+            }
+            if t.is_finished() {
+                let _ = t.join();
+            }
         }
     }
 }
@@ -386,7 +452,19 @@ impl Drop for Connection {
     }
 }
 
-/// The TLS thread: pumps the stream; on loss, reconnects every second.
+/// Sleeps `pause`, or less if the connection is closed meanwhile; `true` if it was.
+fn stopped_during(shared: &Shared, pause: Duration) -> bool {
+    let until = Instant::now() + pause;
+    while Instant::now() < until {
+        if shared.stop.load(Ordering::Relaxed) {
+            return true;
+        }
+        std::thread::sleep(STOP_POLL);
+    }
+    shared.stop.load(Ordering::Relaxed)
+}
+
+/// The TLS thread: pumps the stream; on loss, reconnects (a second later, then backing off).
 fn run(mut stream: Tls, shared: &Shared, server: &str, identity: &Identity, known: &KnownServers) {
     let mut buf = vec![0u8; 16 * 1024];
     loop {
@@ -397,17 +475,28 @@ fn run(mut stream: Tls, shared: &Shared, server: &str, identity: &Identity, know
                 return;
             }
             if let Err(e) = write_queued(&mut stream, shared) {
-                break e.to_string();
+                break format!("writing to the server: {e}");
             }
             if let Err(reason) = read_some(&mut stream, shared, &mut buf) {
                 break reason;
+            }
+            if let Some(quiet) = shared
+                .driver
+                .access(|core| core.server_silent(Instant::now()))
+            {
+                break format!(
+                    "nothing from the server for {} s: our pings went unanswered",
+                    quiet.as_secs()
+                );
             }
             shared.drain_events();
         };
         let kicked = shared
             .driver
             .access(|core| core.kicked().map(str::to_string));
-        shared.driver.access(ClientCore::disconnected);
+        shared
+            .driver
+            .access(|core| core.disconnected(Instant::now()));
         shared.drain_events();
         if kicked.is_some() {
             // Said by the core's Removed event; coming back would only be refused or kick
@@ -416,15 +505,16 @@ fn run(mut stream: Tls, shared: &Shared, server: &str, identity: &Identity, know
         }
         shared.notify(Notice::Lost(lost));
         let mut said: Option<String> = None;
+        let mut retry = RETRY;
         stream = loop {
-            std::thread::sleep(RETRY);
-            if shared.stop.load(Ordering::Relaxed) {
+            if stopped_during(shared, retry) {
                 return;
             }
-            let attempt = open_tls(server, identity, known).and_then(|(mut s, ..)| {
-                let session = join(&mut s, shared)?;
-                Ok((s, session))
-            });
+            let attempt =
+                open_tls(server, identity, known, &shared.stop).and_then(|(mut s, ..)| {
+                    let session = join(&mut s, shared)?;
+                    Ok((s, session))
+                });
             match attempt {
                 Ok((s, session)) => {
                     shared.notify(Notice::Rejoined(session));
@@ -434,10 +524,15 @@ fn run(mut stream: Tls, shared: &Shared, server: &str, identity: &Identity, know
                     shared.notify(Notice::Untrusted(e.to_string()));
                     return;
                 }
+                Err(_) if shared.stop.load(Ordering::Relaxed) => return,
                 Err(e) => {
+                    retry = (retry * 2).min(RETRY_MAX);
                     let reason = e.to_string();
                     if said.as_deref() != Some(reason.as_str()) {
-                        shared.notify(Notice::RejoinFailed(reason.clone()));
+                        shared.notify(Notice::RejoinFailed {
+                            reason: reason.clone(),
+                            retry,
+                        });
                         said = Some(reason);
                     }
                 }

@@ -1,7 +1,16 @@
-//! What a Mumble client is configured with and what it reports.
+//! What a Mumble client is configured with and what it reports, and how much of a server's
+//! news is said one by one.
+
+use std::time::{Duration, Instant};
 
 use super::messages::RejectType;
 use crate::net::jitter::JitterConfig;
+
+/// Pieces of news (someone coming into our channel or leaving it, a message, a refusal) said
+/// one by one in a [`NEWS_WINDOW`]; beyond them a server's news is counted, and the counts said
+/// once a window ([`ClientEvent::Unlisted`]).
+pub const NEWS_PER_WINDOW: u32 = 40;
+pub const NEWS_WINDOW: Duration = Duration::from_secs(10);
 
 #[derive(Debug, Clone)]
 pub struct ClientConfig {
@@ -46,6 +55,88 @@ pub enum ClientEvent {
     },
     /// Voice now goes by UDP (`true`) or through the TLS tunnel.
     UdpWorking(bool),
+    /// News beyond [`NEWS_PER_WINDOW`], not said one by one: how many came into our channel,
+    /// left it, and how many messages and refusals there were, since the last such count.
+    Unlisted {
+        joined: u64,
+        left: u64,
+        messages: u64,
+    },
+}
+
+/// [`ClientEvent::Unlisted`]'s counts in words.
+pub fn describe_unlisted(joined: u64, left: u64, messages: u64) -> String {
+    let parts: Vec<String> = [
+        (joined, "more came into the channel"),
+        (left, "more left it"),
+        (messages, "more messages or refusals"),
+    ]
+    .iter()
+    .filter(|(n, _)| *n > 0)
+    .map(|(n, what)| format!("{n} {what}"))
+    .collect();
+    format!(
+        "the server's news came too fast to list one by one: {}",
+        parts.join(", ")
+    )
+}
+
+/// What kind of news a [`NewsBudget`] is asked about.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub(super) enum News {
+    Joined,
+    Left,
+    Message,
+}
+
+/// How much news is said one by one: [`NEWS_PER_WINDOW`] pieces a window, the rest counted.
+#[derive(Debug, Default)]
+pub(super) struct NewsBudget {
+    window: Option<Instant>,
+    said: u32,
+    summed_up: bool,
+    joined: u64,
+    left: u64,
+    messages: u64,
+}
+
+impl NewsBudget {
+    fn roll(&mut self, now: Instant) {
+        if self.window.is_none_or(|w| now >= w + NEWS_WINDOW) {
+            self.window = Some(now);
+            self.said = 0;
+            self.summed_up = false;
+        }
+    }
+
+    /// Whether a piece of news is said now (else it is counted).
+    pub(super) fn say(&mut self, news: News, now: Instant) -> bool {
+        self.roll(now);
+        if self.said < NEWS_PER_WINDOW {
+            self.said += 1;
+            return true;
+        }
+        match news {
+            News::Joined => self.joined += 1,
+            News::Left => self.left += 1,
+            News::Message => self.messages += 1,
+        }
+        false
+    }
+
+    /// The counts of what was not said, at most once a window.
+    pub(super) fn unlisted(&mut self, now: Instant) -> Option<ClientEvent> {
+        self.roll(now);
+        if self.summed_up || self.joined + self.left + self.messages == 0 {
+            return None;
+        }
+        self.summed_up = true;
+        Some(ClientEvent::Unlisted {
+            joined: std::mem::take(&mut self.joined),
+            left: std::mem::take(&mut self.left),
+            messages: std::mem::take(&mut self.messages),
+        })
+    }
 }
 
 #[derive(Debug, Clone, Copy, Default, PartialEq, Eq)]
@@ -62,6 +153,9 @@ pub struct ClientStats {
     pub other_codec: u64,
     /// Fresh nonces asked of the server.
     pub resyncs: u64,
+    /// Users, channels and speakers beyond the client's caps, not kept (voice of a speaker
+    /// beyond them is dropped).
+    pub over_cap: u64,
 }
 
 /// A channel of the server.

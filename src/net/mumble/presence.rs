@@ -1,16 +1,27 @@
 //! Who is where on the server: its channels, its users (each with the channel they are in and
 //! whether they muted themselves), the events of people coming into and leaving our channel,
 //! and our own state as others see it (our channel, our self-mute).
+//!
+//! The tables have caps ([`MAX_USERS`], [`MAX_CHANNELS`]); a removed user is forgotten at once.
+//! Who came into our channel and who left is not queued per message but worked out when the
+//! owner asks ([`ClientCore::report_presence`]): a server moving us back and forth between two
+//! crowded channels costs one comparison per report, whatever it sent in between.
 
+use std::collections::BTreeMap;
 use std::time::{Duration, Instant};
 
 use super::client::ClientCore;
-use super::events::{Channel, ClientEvent, Member};
+use super::events::{Channel, ClientEvent, Member, News};
 use super::messages::{ChannelState, MessageType, UserState};
+use crate::net::janus::messages::display_name;
 use crate::net::peer::ReceiverStats;
 
 /// The least time between two self-mute changes told to the server.
 pub const SELF_MUTE_EVERY: Duration = Duration::from_millis(1100);
+/// The most users kept (murmur's default is 100 users a server); others are not listed.
+pub const MAX_USERS: usize = 10_000;
+/// The most channels kept.
+pub const MAX_CHANNELS: usize = 10_000;
 
 impl ClientCore {
     pub(super) fn channel_state(&mut self, c: ChannelState) {
@@ -18,13 +29,17 @@ impl ClientCore {
             self.stats.malformed += 1;
             return;
         };
+        if !self.channels.contains_key(&id) && self.channels.len() >= MAX_CHANNELS {
+            self.stats.over_cap += 1;
+            return;
+        }
         let entry = self.channels.entry(id).or_insert(Channel {
             id,
             parent: None,
             name: String::new(),
         });
         if let Some(name) = c.name {
-            entry.name = name;
+            entry.name = display_name(&name);
         }
         if c.parent.is_some() {
             entry.parent = c.parent;
@@ -48,85 +63,76 @@ impl ClientCore {
             self.stats.malformed += 1;
             return;
         };
-        let own = self.own_channel();
-        let is_new = self.users.get(&session).is_none_or(|u| u.gone);
+        let is_new = !self.users.contains_key(&session);
+        if is_new && self.users.len() >= MAX_USERS {
+            self.stats.over_cap += 1;
+            return;
+        }
+        if is_new {
+            self.speakers.reissued(session);
+        }
         let user = self.users.entry(session).or_default();
-        user.gone = false;
-        let was_in = !is_new && user.channel == own;
         if let Some(name) = u.name {
-            user.name = name;
+            user.name = display_name(&name);
         }
         if let Some(channel) = u.channel_id {
             user.channel = channel;
-        } else if is_new {
-            user.channel = 0;
         }
         if let Some(muted) = u.self_mute {
             user.self_mute = muted;
-        } else if is_new {
-            user.self_mute = false;
         }
-        let (name, channel) = (user.name.clone(), user.channel);
-        let Some(ours) = self.session else {
-            // Still joining: who is there is told once we know which user we are.
-            return;
-        };
-        if session == ours {
-            if channel != own {
-                self.moved(own, channel);
-            }
-            return;
-        }
-        let is_in = channel == own;
-        if is_in && !was_in {
-            self.events
-                .push_back(ClientEvent::UserJoined { session, name });
-        } else if was_in && !is_in {
-            self.events
-                .push_back(ClientEvent::UserLeft { session, name });
-        }
+        self.presence_changed = true;
     }
 
-    /// We moved from channel `from` to `to`: those there joined us, those left behind left.
-    fn moved(&mut self, from: u32, to: u32) {
-        let ours = self.session;
-        for (&session, user) in &self.users {
-            if Some(session) == ours || user.gone {
-                continue;
-            }
-            let name = user.name.clone();
-            if user.channel == from {
-                self.events
-                    .push_back(ClientEvent::UserLeft { session, name });
-            } else if user.channel == to {
-                self.events
-                    .push_back(ClientEvent::UserJoined { session, name });
-            }
+    pub(super) fn user_left(&mut self, session: u32, now: Instant) {
+        if self.users.remove(&session).is_some() {
+            self.presence_changed = true;
         }
+        self.speakers.leave(session, now);
     }
 
-    /// Everyone in our channel once we know who we are.
-    pub(super) fn present(&mut self) {
-        let own = self.own_channel();
-        let ours = self.session;
-        for (&session, user) in &self.users {
-            if Some(session) != ours && !user.gone && user.channel == own {
-                self.events.push_back(ClientEvent::UserJoined {
-                    session,
-                    name: user.name.clone(),
-                });
+    /// Who came into our channel and who left it since the last report, as events: the users
+    /// there now against those reported. Beyond the news budget they are counted, and the
+    /// counts said once a window.
+    pub fn report_presence(&mut self, now: Instant) {
+        if self.presence_changed && self.session.is_some() {
+            self.presence_changed = false;
+            let own = self.own_channel();
+            let ours = self.session;
+            let here: BTreeMap<u32, &str> = self
+                .users
+                .iter()
+                .filter(|&(&s, u)| Some(s) != ours && u.channel == own)
+                .map(|(&s, u)| (s, u.name.as_str()))
+                .collect();
+            let left: Vec<u32> = self
+                .reported
+                .keys()
+                .filter(|s| !here.contains_key(s))
+                .copied()
+                .collect();
+            let joined: Vec<(u32, String)> = here
+                .iter()
+                .filter(|(s, _)| !self.reported.contains_key(s))
+                .map(|(&s, &name)| (s, name.to_string()))
+                .collect();
+            for session in left {
+                let name = self.reported.remove(&session).unwrap_or_default();
+                if self.news.say(News::Left, now) {
+                    self.events
+                        .push_back(ClientEvent::UserLeft { session, name });
+                }
+            }
+            for (session, name) in joined {
+                self.reported.insert(session, name.clone());
+                if self.news.say(News::Joined, now) {
+                    self.events
+                        .push_back(ClientEvent::UserJoined { session, name });
+                }
             }
         }
-    }
-
-    pub(super) fn user_left(&mut self, session: u32) {
-        if let Some(user) = self.users.get_mut(&session) {
-            user.gone = true;
-            let name = user.name.clone();
-            if Some(session) != self.session {
-                self.events
-                    .push_back(ClientEvent::UserLeft { session, name });
-            }
+        if let Some(counts) = self.news.unlisted(now) {
+            self.events.push_back(counts);
         }
     }
 
@@ -161,15 +167,25 @@ impl ClientCore {
     /// reception, whether they left.
     pub fn speakers(&self) -> Vec<(u32, String, ReceiverStats, bool)> {
         let own = self.own_channel();
-        let earlier = self
-            .departed
+        let away = |s: u32| self.users.get(&s).is_none_or(|u| u.channel != own);
+        let (departed, _) = self.speakers.departed();
+        let earlier = departed
             .iter()
             .map(|(s, name, stats)| (*s, name.clone(), *stats, true));
-        let now = self.users.iter().filter_map(|(&s, u)| {
-            let stats = u.stats()?;
-            Some((s, u.name.clone(), stats, u.gone || u.channel != own))
+        let live = self.speakers.live().map(|(s, speaker)| {
+            let left = speaker.left.is_some() || away(s);
+            (s, speaker.name.clone(), speaker.stats(), left)
         });
-        earlier.chain(now).collect()
+        let let_go = self.users.iter().filter_map(|(&s, u)| {
+            let heard = u.heard.as_deref()?;
+            Some((s, u.name.clone(), *heard, away(s)))
+        });
+        earlier.chain(live).chain(let_go).collect()
+    }
+
+    /// Speakers who left and are no longer listed by [`Self::speakers`].
+    pub fn speakers_unlisted(&self) -> u64 {
+        self.speakers.departed().1
     }
 
     /// The name of a user we know.
@@ -221,7 +237,6 @@ impl ClientCore {
     pub fn members(&self) -> Vec<Member> {
         self.users
             .iter()
-            .filter(|(_, u)| !u.gone)
             .map(|(&session, u)| Member {
                 session,
                 name: u.name.clone(),

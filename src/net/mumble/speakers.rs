@@ -1,13 +1,16 @@
 //! The users a Mumble client knows, and each speaker's voice handed to its own receiver: the
 //! packets go in as RTP on the 48 kHz clock (one sequence number per packet, the marker on the
 //! first of a talk spurt), so the jitter buffer and Opus decoder every other transport uses
-//! play them.
+//! play them. Receivers are few ([`MAX_SPEAKERS`]) and go once their speaker left and played
+//! out, so that a server cannot make the client keep one per user it ever named.
 
-use std::time::Instant;
+use std::collections::{BTreeMap, VecDeque};
+use std::time::{Duration, Instant};
 
 use crate::codec::any::{Codec, PayloadMap};
 use crate::net::peer::{PeerReceiver, PlayedFrame, ReceiverStats};
 use crate::net::rtp::{Rtp, RtpHeader};
+use crate::net::session::PeerFrame;
 
 /// 48 kHz ticks of Mumble's 10 ms sequence step.
 const TICKS_PER_STEP: u32 = 480;
@@ -57,31 +60,50 @@ impl Timeline {
     }
 }
 
-/// A user of the server.
-#[derive(Default)]
+/// A user of the server, as its presence shows.
+#[derive(Debug, Default)]
 pub struct User {
     pub name: String,
     pub channel: u32,
-    receiver: Option<PeerReceiver>,
-    timeline: Timeline,
-    /// Left the server (its buffered audio still plays out).
-    pub gone: bool,
     /// Muted themselves (Mumble's self-mute).
     pub self_mute: bool,
+    /// Reception of their earlier voice, whose receiver was let go to make room for another
+    /// speaker's.
+    pub heard: Option<Box<ReceiverStats>>,
 }
 
-impl User {
-    /// Files one Opus packet of this user (Mumble sequence `sequence`, `last` of its talk
-    /// spurt); the receiver is made by `receiver` on the first.
-    pub fn file(
-        &mut self,
-        session: u32,
-        sequence: u64,
-        frame: &[u8],
-        last: bool,
-        now: Instant,
-        receiver: impl FnOnce() -> PeerReceiver,
-    ) {
+/// The most speakers with a receiver (a jitter buffer and a decoder) at a time, as a direct
+/// session's peers.
+pub const MAX_SPEAKERS: usize = 32;
+/// The most speakers who left listed for the summary; the others are counted.
+pub const MAX_DEPARTED: usize = 64;
+/// How long a speaker who left keeps their receiver, for their buffered audio to play out.
+const PLAYOUT: Duration = Duration::from_secs(1);
+/// A speaker still there whose receiver may be let go for a new one: quiet this long.
+const QUIET: Duration = Duration::from_secs(5);
+
+/// Someone who spoke: their voice's receiver.
+pub struct Speaker {
+    pub name: String,
+    receiver: PeerReceiver,
+    timeline: Timeline,
+    /// When they left the server (their buffered audio still plays out).
+    pub left: Option<Instant>,
+}
+
+impl Speaker {
+    pub fn new(name: String, receiver: PeerReceiver) -> Self {
+        Self {
+            name,
+            receiver,
+            timeline: Timeline::default(),
+            left: None,
+        }
+    }
+
+    /// Files one Opus packet of this speaker (session `session`, Mumble sequence `sequence`,
+    /// `last` of its talk spurt).
+    pub fn file(&mut self, session: u32, sequence: u64, frame: &[u8], last: bool, now: Instant) {
         if frame.is_empty() {
             self.timeline.ended |= last;
             return;
@@ -92,7 +114,7 @@ impl User {
         let (rtp_sequence, timestamp, marker) = self.timeline.place(sequence, steps, now);
         self.timeline.ended = last;
         let payload_type = PayloadMap::default().payload_type(codec).unwrap_or(96);
-        self.receiver.get_or_insert_with(receiver).insert(
+        self.receiver.insert(
             &Rtp {
                 header: RtpHeader {
                     marker,
@@ -107,21 +129,174 @@ impl User {
         );
     }
 
-    /// The next 20 ms of this user, if it is playing.
+    /// The next 20 ms of this speaker, if they are playing.
     pub fn pull(&mut self, now: Instant) -> Option<PlayedFrame> {
-        self.receiver.as_mut()?.pull(now)
+        self.receiver.pull(now)
     }
 
-    /// Reception, once the user spoke.
-    pub fn stats(&self) -> Option<ReceiverStats> {
-        self.receiver.as_ref().map(PeerReceiver::stats)
+    pub fn stats(&self) -> ReceiverStats {
+        self.receiver.stats()
+    }
+}
+
+/// Where the room for a new speaker came from.
+pub enum Room {
+    Free,
+    /// The receiver of this speaker (still there, quiet) was let go: their reception so far.
+    LetGo(u32, Box<ReceiverStats>),
+    /// None: every receiver is busy.
+    Full,
+}
+
+/// Everyone who spoke: at most [`MAX_SPEAKERS`] with a receiver; those who left, once their
+/// audio played out, as a line of the summary ([`MAX_DEPARTED`] of them, the rest counted).
+#[derive(Default)]
+pub struct Speakers {
+    live: BTreeMap<u32, Speaker>,
+    departed: VecDeque<(u32, String, ReceiverStats)>,
+    unlisted: u64,
+}
+
+impl Speakers {
+    pub fn get_mut(&mut self, session: u32) -> Option<&mut Speaker> {
+        self.live.get_mut(&session)
+    }
+
+    pub fn live(&self) -> impl Iterator<Item = (u32, &Speaker)> {
+        self.live.iter().map(|(&s, speaker)| (s, speaker))
+    }
+
+    /// Those who left, oldest first, with how many more are not listed.
+    pub fn departed(&self) -> (&VecDeque<(u32, String, ReceiverStats)>, u64) {
+        (&self.departed, self.unlisted)
+    }
+
+    /// Makes room for one more receiver if there is none: a speaker who left goes first, else
+    /// the one quiet longest if quiet for [`QUIET`].
+    pub fn make_room(&mut self, now: Instant) -> Room {
+        if self.live.len() < MAX_SPEAKERS {
+            return Room::Free;
+        }
+        if let Some(&gone) = self
+            .live
+            .iter()
+            .find(|(_, s)| s.left.is_some())
+            .map(|(s, _)| s)
+        {
+            self.retire(gone);
+            return Room::Free;
+        }
+        let quietest = self
+            .live
+            .iter()
+            .map(|(&s, speaker)| (speaker.timeline.arrival, s))
+            .min();
+        match quietest {
+            Some((heard, session))
+                if heard.is_none_or(|t| now.saturating_duration_since(t) > QUIET) =>
+            {
+                match self.live.remove(&session) {
+                    Some(speaker) => Room::LetGo(session, Box::new(speaker.stats())),
+                    None => Room::Full,
+                }
+            }
+            _ => Room::Full,
+        }
+    }
+
+    pub fn insert(&mut self, session: u32, speaker: Speaker) {
+        if let Some(old) = self.live.insert(session, speaker) {
+            self.depart(session, old.name, old.receiver.stats());
+        }
+    }
+
+    /// The speaker left the server: their receiver plays out what it holds, then goes.
+    pub fn leave(&mut self, session: u32, now: Instant) {
+        if let Some(speaker) = self.live.get_mut(&session) {
+            speaker.left.get_or_insert(now);
+        }
+    }
+
+    /// A session id the server gave to a newcomer: a speaker who had it and left goes now.
+    pub fn reissued(&mut self, session: u32) {
+        if self.live.get(&session).is_some_and(|s| s.left.is_some()) {
+            self.retire(session);
+        }
+    }
+
+    /// Everyone left (the connection is gone).
+    pub fn leave_all(&mut self, now: Instant) {
+        for speaker in self.live.values_mut() {
+            speaker.left.get_or_insert(now);
+        }
+    }
+
+    /// Everyone's receiver goes (a new connection: its session ids are new).
+    pub fn retire_all(&mut self) {
+        for (session, speaker) in std::mem::take(&mut self.live) {
+            self.depart(session, speaker.name, speaker.receiver.stats());
+        }
+    }
+
+    fn retire(&mut self, session: u32) {
+        if let Some(speaker) = self.live.remove(&session) {
+            self.depart(session, speaker.name, speaker.receiver.stats());
+        }
+    }
+
+    /// Lists one who spoke and has gone.
+    pub fn depart(&mut self, session: u32, name: String, stats: ReceiverStats) {
+        if self.departed.len() == MAX_DEPARTED {
+            self.departed.pop_front();
+            self.unlisted += 1;
+        }
+        self.departed.push_back((session, name, stats));
+    }
+
+    /// The next 20 ms of every speaker playing; those who left and have nothing more to play
+    /// (or left [`PLAYOUT`] ago) go.
+    pub fn pull(&mut self, now: Instant, out: &mut Vec<PeerFrame>) {
+        let mut done = Vec::new();
+        for (&session, speaker) in &mut self.live {
+            let frame = speaker.pull(now);
+            let played_out = speaker
+                .left
+                .is_some_and(|t| frame.is_none() || now.saturating_duration_since(t) > PLAYOUT);
+            if played_out {
+                done.push(session);
+            }
+            if let Some(frame) = frame {
+                out.push(PeerFrame {
+                    ssrc: session,
+                    frame,
+                });
+            }
+        }
+        for session in done {
+            self.retire(session);
+        }
+    }
+
+    /// Those who left more than [`PLAYOUT`] ago go (when nothing pulls their audio).
+    pub fn expire(&mut self, now: Instant) {
+        let done: Vec<u32> = self
+            .live
+            .iter()
+            .filter(|(_, s)| {
+                s.left
+                    .is_some_and(|t| now.saturating_duration_since(t) > PLAYOUT)
+            })
+            .map(|(&session, _)| session)
+            .collect();
+        for session in done {
+            self.retire(session);
+        }
     }
 }
 
 #[cfg(test)]
 mod tests {
     use super::*;
-    use std::time::Duration;
 
     #[test]
     fn packets_of_a_spurt_take_consecutive_sequence_numbers() {

@@ -6,13 +6,15 @@ use std::time::{Duration, Instant};
 
 use proptest::prelude::*;
 
-use super::client::{ClientConfig, ClientCore, ClientEvent};
+use super::client::{ClientConfig, ClientCore, ClientEvent, SERVER_SILENT};
 use super::crypt::CryptState;
+use super::events::{NEWS_PER_WINDOW, NEWS_WINDOW};
 use super::messages::{
     self, ChannelState, CryptSetup, Deframer, Incoming, MessageType, ServerSync, UserRemove,
     UserState,
 };
-use super::presence::SELF_MUTE_EVERY;
+use super::presence::{MAX_USERS, SELF_MUTE_EVERY};
+use super::speakers::{MAX_DEPARTED, MAX_SPEAKERS};
 use super::voice;
 use crate::net::jitter::JitterConfig;
 
@@ -43,7 +45,9 @@ fn sent(core: &mut ClientCore) -> Vec<(u16, Vec<u8>)> {
     std::iter::from_fn(|| d.next_frame().unwrap()).collect()
 }
 
+/// What the client reports, who came and went included.
 fn events(core: &mut ClientCore) -> Vec<ClientEvent> {
+    core.report_presence(Instant::now());
     std::iter::from_fn(|| core.poll_event()).collect()
 }
 
@@ -221,7 +225,7 @@ fn self_mute_is_told_once_per_change_seen_in_others_and_told_again_after_a_recon
     // A move is remembered: after a reconnect we go back there, still muted.
     core.join_channel(1);
     assert_eq!(user_states(&mut core), [(Some(3), Some(1), None)]);
-    core.disconnected();
+    core.disconnected(now);
     core.connected(now);
     sent(&mut core);
     let mut again = Vec::new();
@@ -375,6 +379,186 @@ fn a_reject_is_said_in_words() {
         [ClientEvent::Rejected(why)] => assert!(why.contains("wrong server password"), "{why}"),
         other => panic!("{other:?}"),
     }
+}
+
+fn remove(session: u32) -> Vec<u8> {
+    messages::frame(
+        MessageType::UserRemove,
+        &UserRemove {
+            session: Some(session),
+            ..Default::default()
+        },
+    )
+}
+
+fn move_us(channel: u32) -> Vec<u8> {
+    messages::frame(
+        MessageType::UserState,
+        &UserState {
+            session: Some(3),
+            channel_id: Some(channel),
+            ..Default::default()
+        },
+    )
+}
+
+#[test]
+fn a_move_storm_between_two_reports_is_one_comparison_and_the_news_is_budgeted() {
+    let t0 = Instant::now();
+    let mut core = joined(t0, None, false);
+    let mut crowd = Vec::new();
+    for i in 0..500u32 {
+        crowd.extend(user(100 + i, &format!("u{i}"), i % 2));
+    }
+    core.handle_stream(&crowd, t0);
+    core.report_presence(t0);
+    let first: Vec<ClientEvent> = std::iter::from_fn(|| core.poll_event()).collect();
+    // Bob and 250 more in Root: 40 named, the rest counted.
+    let named = first
+        .iter()
+        .filter(|e| matches!(e, ClientEvent::UserJoined { .. }))
+        .count();
+    assert_eq!(named, NEWS_PER_WINDOW as usize);
+    assert!(first.contains(&ClientEvent::Unlisted {
+        joined: 251 - u64::from(NEWS_PER_WINDOW),
+        left: 0,
+        messages: 0
+    }));
+    // 300 moves back and forth, ending where we were: nothing to say.
+    let mut storm = Vec::new();
+    for m in 0..300u32 {
+        storm.extend(move_us(1 - m % 2));
+    }
+    let later = t0 + NEWS_WINDOW;
+    core.handle_stream(&storm, later);
+    core.report_presence(later);
+    assert_eq!(core.poll_event(), None);
+    // One more move, to Lobby: who is where, once, within the budget and counted beyond it.
+    core.handle_stream(&move_us(1), later);
+    core.report_presence(later);
+    let moved: Vec<ClientEvent> = std::iter::from_fn(|| core.poll_event()).collect();
+    assert_eq!(moved.len(), NEWS_PER_WINDOW as usize + 1, "{moved:?}");
+    match moved.last() {
+        Some(ClientEvent::Unlisted { joined, left, .. }) => {
+            assert_eq!(joined + left + u64::from(NEWS_PER_WINDOW), 251 + 251);
+        }
+        other => panic!("{other:?}"),
+    }
+    // Within the window, further news is counted, not said.
+    core.handle_stream(&move_us(0), later + Duration::from_secs(1));
+    core.report_presence(later + Duration::from_secs(1));
+    assert_eq!(core.poll_event(), None);
+    core.report_presence(later + NEWS_WINDOW);
+    assert!(matches!(
+        core.poll_event(),
+        Some(ClientEvent::Unlisted {
+            joined: 251,
+            left: 251,
+            ..
+        })
+    ));
+}
+
+#[test]
+fn removed_users_are_freed_and_speakers_are_capped() {
+    let t0 = Instant::now();
+    let mut core = joined(t0, None, false);
+    let frame = opus_frame();
+    let mut frames = Vec::new();
+    for i in 0..2000u32 {
+        let session = 100 + i;
+        let at = t0 + Duration::from_millis(u64::from(i));
+        let mut bytes = user(session, &format!("guest{i}"), 0);
+        bytes.extend(messages::tunnel(&voice::server_opus(
+            session, 0, &frame, false,
+        )));
+        bytes.extend(remove(session));
+        core.handle_stream(&bytes, at);
+        core.pull(at, &mut frames);
+        assert!(core.speakers.live().count() <= MAX_SPEAKERS);
+    }
+    // Bob, Cy and us are left; the speakers who left are listed up to a cap, the rest counted.
+    assert_eq!(core.users.len(), 3);
+    core.wake(t0 + Duration::from_secs(10));
+    assert_eq!(core.speakers.live().count(), 0);
+    let listed = core.speakers();
+    assert_eq!(listed.len(), MAX_DEPARTED);
+    assert!(listed.iter().all(|s| s.3));
+    assert_eq!(core.speakers_unlisted(), 2000 - MAX_DEPARTED as u64);
+
+    // Users beyond the cap are not kept.
+    let mut crowd = Vec::new();
+    for i in 0..MAX_USERS as u32 + 10 {
+        crowd.extend(user(100_000 + i, "x", 1));
+    }
+    core.handle_stream(&crowd, t0);
+    assert_eq!(core.users.len(), MAX_USERS);
+    assert_eq!(core.stats.over_cap, 13);
+}
+
+#[test]
+fn a_busy_speaker_keeps_its_receiver_and_a_quiet_one_makes_room() {
+    let t0 = Instant::now();
+    let mut core = joined(t0, None, false);
+    let frame = opus_frame();
+    let mut crowd = Vec::new();
+    for i in 0..=MAX_SPEAKERS as u32 {
+        crowd.extend(user(100 + i, &format!("s{i}"), 0));
+    }
+    core.handle_stream(&crowd, t0);
+    let speak = |core: &mut ClientCore, session: u32, at: Instant| {
+        core.handle_stream(
+            &messages::tunnel(&voice::server_opus(session, 0, &frame, false)),
+            at,
+        );
+    };
+    for i in 0..MAX_SPEAKERS as u32 {
+        speak(&mut core, 100 + i, t0);
+    }
+    // One more, while everyone spoke just now: not heard.
+    let newcomer = 100 + MAX_SPEAKERS as u32;
+    speak(&mut core, newcomer, t0 + Duration::from_secs(1));
+    assert_eq!(core.stats.over_cap, 1);
+    // Later, the quietest lets go of its receiver (its reception is kept in the list).
+    speak(&mut core, newcomer, t0 + Duration::from_secs(10));
+    assert_eq!(core.stats.over_cap, 1);
+    assert_eq!(core.speakers.live().count(), MAX_SPEAKERS);
+    let listed = core.speakers();
+    assert_eq!(listed.len(), MAX_SPEAKERS + 1);
+    assert!(listed.iter().all(|s| !s.3), "all still in our channel");
+}
+
+#[test]
+fn a_silent_server_counts_as_lost_and_repeated_syncs_and_removals_are_said_once() {
+    let t0 = Instant::now();
+    let mut core = joined(t0, None, false);
+    events(&mut core);
+    sent(&mut core);
+    assert_eq!(core.server_silent(t0 + SERVER_SILENT / 2), None);
+    core.handle_stream(&user(5, "Bob", 0), t0 + SERVER_SILENT / 2);
+    assert_eq!(core.server_silent(t0 + SERVER_SILENT), None);
+    let late = t0 + SERVER_SILENT / 2 + SERVER_SILENT;
+    assert_eq!(core.server_silent(late), Some(SERVER_SILENT));
+
+    let mut again = Vec::new();
+    for _ in 0..1000 {
+        again.extend(messages::frame(
+            MessageType::ServerSync,
+            &ServerSync {
+                session: Some(3),
+                ..Default::default()
+            },
+        ));
+        again.extend(remove(3));
+    }
+    core.handle_stream(&again, late);
+    let said = events(&mut core);
+    assert_eq!(said.len(), 1, "{said:?}");
+    assert!(matches!(said[0], ClientEvent::Removed(_)));
+    assert!(
+        sent(&mut core).is_empty(),
+        "no answer to a repeated ServerSync"
+    );
 }
 
 proptest! {
