@@ -143,13 +143,14 @@ impl MumbleCall {
             },
             identity_dir,
         };
+        let shown = with_port(&server)?;
         let handle = std::thread::Builder::new()
             .name("mumble-join".into())
             .spawn(move || Connection::connect(config))?;
         let stage = Arc::new(Mutex::new(Stage::Joining(Some(handle))));
         let call = Self {
             stage: stage.clone(),
-            server: with_port(&server),
+            server: shown,
             fresh: true,
             last_view: None,
             muted: None,

@@ -2,7 +2,7 @@
 //! session id) is a peer with the user's name, received through the same jitter buffer and
 //! Opus decoder as every other transport ([`crate::net::mumble`]).
 
-use std::net::{SocketAddr, ToSocketAddrs};
+use std::net::SocketAddr;
 use std::time::Instant;
 
 use super::link::{Link, LinkEvent};
@@ -53,12 +53,7 @@ pub struct MumbleLink {
 impl MumbleLink {
     /// Around a connection already joined.
     pub fn joined(connection: Connection, place: String) -> Self {
-        let server = connection
-            .server()
-            .to_socket_addrs()
-            .ok()
-            .and_then(|mut a| a.next())
-            .unwrap_or_else(|| SocketAddr::from(([0, 0, 0, 0], 0)));
+        let server = connection.address();
         Self {
             connection,
             server,

@@ -7,7 +7,7 @@
 //! as a whole, the join up to ServerSync, each write, and the close.
 
 use std::io::{ErrorKind, Read, Write};
-use std::net::{SocketAddr, TcpStream, ToSocketAddrs, UdpSocket};
+use std::net::{SocketAddr, TcpStream, UdpSocket};
 use std::path::PathBuf;
 use std::sync::atomic::{AtomicBool, Ordering};
 use std::sync::{Arc, Mutex};
@@ -20,6 +20,7 @@ use super::MumbleError;
 use super::client::{Channel, ClientConfig, ClientCore, ClientEvent, ClientStats};
 use super::events::Member;
 use super::identity::{Identity, KnownServers, Trust, fingerprint};
+use crate::net::host_port::{AddressError, HostPort};
 use crate::net::peer::ReceiverStats;
 use crate::net::session::PeerFrame;
 use crate::net::session::Transmit;
@@ -79,22 +80,11 @@ pub struct ConnectConfig {
     pub identity_dir: PathBuf,
 }
 
-/// `HOST[:PORT]` with the default port, as `host:port` text.
-pub fn with_port(address: &str) -> String {
-    let a = address.trim();
-    let has_port = match a.rsplit_once(':') {
-        Some((host, port)) => {
-            port.parse::<u16>().is_ok() && (!host.contains(':') || host.ends_with(']'))
-        }
-        None => false,
-    };
-    if has_port {
-        a.to_string()
-    } else if a.contains(':') && !a.starts_with('[') {
-        format!("[{a}]:{DEFAULT_PORT}")
-    } else {
-        format!("{a}:{DEFAULT_PORT}")
-    }
+/// `HOST[:PORT]` with Mumble's port where none is given, as `host:port` text.
+pub fn with_port(address: &str) -> Result<String, AddressError> {
+    let mut server = HostPort::parse(address)?;
+    server.port = Some(server.port_or(DEFAULT_PORT));
+    Ok(server.to_string())
 }
 
 struct Shared {
@@ -127,6 +117,8 @@ pub struct Connection {
     shared: Arc<Shared>,
     thread: Option<JoinHandle<()>>,
     server: String,
+    /// The address the server was reached at first.
+    address: SocketAddr,
     fingerprint: String,
     trust: Trust,
 }
@@ -158,10 +150,10 @@ fn open_tls(
         server: server.to_string(),
         reason,
     };
-    let addrs: Vec<SocketAddr> = server
-        .to_socket_addrs()
-        .map_err(|e| unreachable(e.to_string()))?
-        .collect();
+    let target = HostPort::parse(server).map_err(|e| unreachable(e.to_string()))?;
+    let addrs = target
+        .resolve_all(DEFAULT_PORT)
+        .map_err(|e| unreachable(e.to_string()))?;
     let mut last = String::from("no address");
     let mut tcp = None;
     for addr in addrs {
@@ -190,9 +182,8 @@ fn open_tls(
         .configure()
         .map_err(|e| tls_error(e.to_string()))?;
     config.set_verify_hostname(false);
-    let host = server.rsplit_once(':').map_or(server, |(h, _)| h);
     let deadline = Instant::now() + HANDSHAKE_TIMEOUT;
-    let mut handshake = config.connect(host.trim_matches(['[', ']']), tcp);
+    let mut handshake = config.connect(&target.host, tcp);
     let stream = loop {
         match handshake {
             Ok(stream) => break stream,
@@ -311,7 +302,10 @@ fn join(stream: &mut Tls, shared: &Shared) -> Result<u32, MumbleError> {
 impl Connection {
     /// Connects, authenticates and joins; returns once in (or with why not).
     pub fn connect(config: ConnectConfig) -> Result<Self, MumbleError> {
-        let server = with_port(&config.address);
+        let server = with_port(&config.address).map_err(|e| MumbleError::Unreachable {
+            server: config.address.clone(),
+            reason: e.to_string(),
+        })?;
         let identity = Identity::load_or_create(&config.identity_dir)?;
         let known = KnownServers::new(&config.identity_dir);
         let (mut stream, addr, print, trust) =
@@ -339,6 +333,7 @@ impl Connection {
             shared,
             thread: Some(thread),
             server,
+            address: addr,
             fingerprint: print,
             trust,
         })
@@ -347,6 +342,11 @@ impl Connection {
     /// `host:port` of the server.
     pub fn server(&self) -> &str {
         &self.server
+    }
+
+    /// The address the server was reached at (no lookup).
+    pub fn address(&self) -> SocketAddr {
+        self.address
     }
 
     /// The server certificate's SHA-256 fingerprint, and whether it was first seen now.
@@ -574,10 +574,12 @@ mod tests {
 
     #[test]
     fn the_default_port_is_added() {
-        assert_eq!(with_port("127.0.0.1"), "127.0.0.1:64738");
-        assert_eq!(with_port("127.0.0.1:1234"), "127.0.0.1:1234");
-        assert_eq!(with_port("mumble.example"), "mumble.example:64738");
-        assert_eq!(with_port("::1"), "[::1]:64738");
-        assert_eq!(with_port("[::1]:99"), "[::1]:99");
+        let with = |a: &str| with_port(a).unwrap();
+        assert_eq!(with("127.0.0.1"), "127.0.0.1:64738");
+        assert_eq!(with("127.0.0.1:1234"), "127.0.0.1:1234");
+        assert_eq!(with("mumble.example"), "mumble.example:64738");
+        assert_eq!(with("::1"), "[::1]:64738");
+        assert_eq!(with("[::1]:99"), "[::1]:99");
+        assert!(with_port("host:port").is_err());
     }
 }
