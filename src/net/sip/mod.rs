@@ -8,5 +8,6 @@ pub mod backend;
 pub mod dial;
 pub mod error;
 pub mod media;
+pub mod quiet;
 pub mod register;
 pub mod sdp;
