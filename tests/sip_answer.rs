@@ -6,26 +6,9 @@ mod common;
 
 use std::net::UdpSocket;
 use std::process::Command;
-use std::time::{Duration, Instant};
+use std::time::Duration;
 
-use common::sip::{Logged, Peer, best_alignment, free_port, installed, lipcall_answering};
-
-/// Waits for the answering lipcall to exit; its status and log.
-fn exit_of(mut answer: Logged, limit: Duration) -> (Option<i32>, String) {
-    let mut child = answer.peer.child.take().unwrap();
-    let deadline = Instant::now() + limit;
-    loop {
-        if let Some(status) = child.try_wait().unwrap() {
-            std::thread::sleep(Duration::from_millis(200));
-            return (status.code(), answer.text());
-        }
-        if Instant::now() > deadline {
-            let _ = child.kill();
-            panic!("lipcall did not end: {}", answer.text());
-        }
-        std::thread::sleep(Duration::from_millis(50));
-    }
-}
+use common::sip::{Peer, best_alignment, exit_of, free_port, installed, lipcall_answering};
 
 /// What a hostile or broken peer might throw at a SIP port.
 fn garbage() -> Vec<Vec<u8>> {

@@ -480,3 +480,20 @@ pub fn lipcall_answering(dir: &Path, port: u16, seconds: &str, wav: &Path) -> Lo
     );
     answer
 }
+
+/// Waits up to `limit` for `lipcall` to exit; its status and log.
+pub fn exit_of(mut lipcall: Logged, limit: Duration) -> (Option<i32>, String) {
+    let mut child = lipcall.peer.child.take().unwrap();
+    let deadline = Instant::now() + limit;
+    loop {
+        if let Some(status) = child.try_wait().unwrap() {
+            std::thread::sleep(Duration::from_millis(200));
+            return (status.code(), lipcall.text());
+        }
+        if Instant::now() > deadline {
+            let _ = child.kill();
+            panic!("lipcall did not end: {}", lipcall.text());
+        }
+        std::thread::sleep(Duration::from_millis(50));
+    }
+}
