@@ -113,6 +113,7 @@ pub fn install_logging() {
     let installed = tracing_subscriber::registry()
         .with(layer)
         .with(filter)
+        .with(crate::net::sip::quiet::EzkLogLimit::default())
         .try_init();
     if let (Ok(()), Some(why)) = (installed, unreadable) {
         tracing::warn!("{why}");

@@ -493,18 +493,18 @@ pub fn lipcall_answering_with(
     answer
 }
 
-/// Waits for the answering lipcall to exit; its status and log.
-pub fn exit_of(mut answer: Logged, limit: Duration) -> (Option<i32>, String) {
-    let mut child = answer.peer.child.take().unwrap();
+/// Waits up to `limit` for `lipcall` to exit; its status and log.
+pub fn exit_of(mut lipcall: Logged, limit: Duration) -> (Option<i32>, String) {
+    let mut child = lipcall.peer.child.take().unwrap();
     let deadline = Instant::now() + limit;
     loop {
         if let Some(status) = child.try_wait().unwrap() {
             std::thread::sleep(Duration::from_millis(200));
-            return (status.code(), answer.text());
+            return (status.code(), lipcall.text());
         }
         if Instant::now() > deadline {
             let _ = child.kill();
-            panic!("lipcall did not end: {}", answer.text());
+            panic!("lipcall did not end: {}", lipcall.text());
         }
         std::thread::sleep(Duration::from_millis(50));
     }

@@ -21,7 +21,7 @@ use ezk_sip_types::{Method, StatusCode};
 use ezk_sip_ua::dialog::DialogLayer;
 use ezk_sip_ua::invite::InviteLayer;
 use ezk_sip_ua::register::Registration;
-use ezk_sip_ua::{AcceptCallError, Call, CallEvent, InboundCall};
+use ezk_sip_ua::{AcceptCallError, Call, CallError, CallEvent, InboundCall};
 use tokio::select;
 use tokio::sync::mpsc::{UnboundedReceiver, UnboundedSender, unbounded_channel};
 
@@ -29,15 +29,14 @@ pub use super::backend::AgentEvent;
 use super::backend::{SdpMedia, send};
 use super::dial;
 pub use super::error::SipError;
+use super::guard::{Guard, REFUSAL_WAIT, answer_statelessly};
+use super::quiet::Repeated;
 pub use super::register::Account;
 use super::register::{
     Home, Limited, REGISTER_EXPIRY, REGISTER_TIMEOUT, keep_registered, register, uri,
 };
 use super::sdp::{self, LocalAudio, SdpError};
 use crate::codec::any::Codec;
-
-/// How long a refused caller has to acknowledge the refusal.
-const REFUSAL_WAIT: Duration = Duration::from_secs(2);
 
 /// What the agent does.
 #[derive(Debug, Clone, PartialEq, Eq)]
@@ -194,7 +193,9 @@ impl Drop for Agent {
     }
 }
 
-/// Hands the first INVITE outside a dialog to the agent; any other gets 486 Busy Here.
+/// Hands the first INVITE outside a dialog to the agent. What else no layer took is answered
+/// statelessly, so that a flood of them leaves nothing behind: another caller gets 486 Busy
+/// Here, a request for a dialog or transaction we do not have 481.
 struct IncomingLayer {
     calls: tokio::sync::mpsc::Sender<IncomingRequest>,
 }
@@ -206,18 +207,25 @@ impl Layer for IncomingLayer {
     }
 
     async fn receive(&self, endpoint: &Endpoint, request: MayTake<'_, IncomingRequest>) {
-        if request.line.method != Method::INVITE {
-            return;
-        }
-        let invite = request.take();
-        if let Err(refused) = self.calls.try_send(invite) {
-            let mut invite = refused.into_inner();
-            let transaction = endpoint.create_server_inv_tsx(&mut invite);
-            let response = endpoint.create_response(&invite, StatusCode::BUSY_HERE, None);
-            if let Err(e) = transaction.respond_failure(response).await {
-                tracing::debug!("486 to a second caller: {e}");
+        let invite = request.line.method == Method::INVITE;
+        let new_call = invite && request.base_headers.to.tag.is_none();
+        let mut request = request.take();
+        if new_call {
+            match self.calls.try_send(request) {
+                Ok(()) => return,
+                Err(refused) => request = refused.into_inner(),
             }
+        } else if request.base_headers.to.tag.is_some() {
+            endpoint
+                .layer::<Guard>()
+                .matched_no_dialog(&request.line.method);
         }
+        let code = if new_call {
+            StatusCode::BUSY_HERE
+        } else {
+            StatusCode::CALL_OR_TRANSACTION_DOES_NOT_EXIST
+        };
+        answer_statelessly(endpoint, &request, code, None).await;
     }
 }
 
@@ -229,6 +237,7 @@ async fn run(
 ) -> Result<(), SipError> {
     let (calls, mut incoming) = tokio::sync::mpsc::channel(1);
     let mut builder = Endpoint::builder();
+    builder.add_layer(Guard::default());
     builder.add_layer(DialogLayer::default());
     builder.add_layer(InviteLayer::default());
     builder.add_layer(IncomingLayer { calls });
@@ -442,7 +451,7 @@ async fn answer(
         other => SipError::Protocol(other.to_string()),
     })?;
     send(events, AgentEvent::Established);
-    follow(call, events, commands).await
+    follow(call, endpoint, events, commands).await
 }
 
 /// Answers an INVITE with a failure.
@@ -460,29 +469,48 @@ async fn refuse(endpoint: &Endpoint, mut invite: IncomingRequest, code: StatusCo
 /// An established call until either side hangs up.
 async fn follow(
     mut call: Call<SdpMedia>,
+    endpoint: &Endpoint,
     events: &mpsc::Sender<AgentEvent>,
     commands: &mut UnboundedReceiver<()>,
 ) -> Result<(), SipError> {
+    let guard = endpoint.layer::<Guard>();
+    let mut unacknowledged = Repeated::new("a re-INVITE's answer was never acknowledged");
     loop {
         select! {
             event = call.run() => match event.map_err(|e| SipError::Protocol(e.to_string()))? {
-                CallEvent::Internal(internal) => call
-                    .handle_internal_event(internal)
-                    .await
-                    .map_err(|e| SipError::Protocol(e.to_string()))?,
+                CallEvent::Internal(internal) => {
+                    // A re-INVITE's 200 waits 8.5 s for its ACK: a hang-up does not.
+                    let handled = select! {
+                        handled = call.handle_internal_event(internal) => Some(handled),
+                        _ = commands.recv() => None,
+                    };
+                    guard.reinvite_done();
+                    match handled {
+                        None => return hang_up(call, events).await,
+                        Some(Ok(())) => {}
+                        Some(Err(CallError::Core(ezk_sip_core::Error::RequestTimedOut))) => {
+                            unacknowledged.warn("the call goes on");
+                        }
+                        Some(Err(e)) => return Err(SipError::Protocol(e.to_string())),
+                    }
+                }
                 CallEvent::Media(()) => {}
                 CallEvent::Terminated => {
                     send(events, AgentEvent::Ended { by_peer: true });
                     return Ok(());
                 }
             },
-            _ = commands.recv() => {
-                call.terminate().await.map_err(|e| SipError::Protocol(format!("BYE: {e}")))?;
-                send(events, AgentEvent::Ended { by_peer: false });
-                return Ok(());
-            }
+            _ = commands.recv() => return hang_up(call, events).await,
         }
     }
+}
+
+async fn hang_up(call: Call<SdpMedia>, events: &mpsc::Sender<AgentEvent>) -> Result<(), SipError> {
+    call.terminate()
+        .await
+        .map_err(|e| SipError::Protocol(format!("BYE: {e}")))?;
+    send(events, AgentEvent::Ended { by_peer: false });
+    Ok(())
 }
 
 /// The codecs a call offers and accepts: only `chosen`, or every one SIP peers speak.

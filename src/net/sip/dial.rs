@@ -18,17 +18,23 @@ use ezk_sip_types::uri::{NameAddr, SipUri};
 use ezk_sip_types::{Method, Name, StatusCode};
 use ezk_sip_ua::invite::create_ack;
 use ezk_sip_ua::invite::initiator::{Early, EarlyResponse, InviteInitiator, Response};
-use ezk_sip_ua::invite::session::{InviteSession, InviteSessionEvent};
+use ezk_sip_ua::invite::session::{InviteSession, InviteSessionEvent, ReInviteReceived};
 use tokio::select;
 use tokio::sync::mpsc::UnboundedReceiver;
 
 use super::backend::{AgentEvent, SdpMedia, send};
 use super::error::SipError;
+use super::guard::{Guard, REFUSAL_WAIT};
+use super::quiet::Repeated;
 use super::register::{Limited, reason_of};
 use super::sdp::SdpError;
 
 /// How long a cancelled INVITE may take to end (the callee's 487).
 const CANCEL_WAIT: Duration = Duration::from_secs(3);
+/// Early dialogs one call may have (a forking proxy's branches ringing at once). ezk keeps a
+/// dialog and a channel for each To-tag a callee invents until the INVITE ends, so a callee
+/// that opens more is hung up on.
+const MAX_EARLY_DIALOGS: usize = 16;
 
 fn sdp_type() -> ContentType {
     ContentType(BytesStr::from_static("application/sdp"))
@@ -112,6 +118,7 @@ fn take_early(
     media: &mut SdpMedia,
     events: &mpsc::Sender<AgentEvent>,
     early_answer: &mut bool,
+    unusable: &mut Repeated,
 ) {
     if *early_answer || response.line.code != StatusCode::SESSION_PROGRESS {
         return;
@@ -122,9 +129,9 @@ fn take_early(
                 *early_answer = true;
                 send(events, AgentEvent::EarlyMedia);
             }
-            Err(e) => tracing::warn!("early media we cannot take: {e}"),
+            Err(e) => unusable.warn(e),
         },
-        Some(Err(e)) => tracing::warn!("early media we cannot take: {e}"),
+        Some(Err(e)) => unusable.warn(e),
         None => {}
     }
 }
@@ -162,8 +169,10 @@ pub async fn dial(
     initiator.support_100rel = false;
     let mut earlies: Vec<Early> = Vec::new();
     let mut ringing = false;
-    let mut cancelled = false;
+    // When a CANCEL went out, the 487 is waited for until then.
+    let mut cancelled: Option<tokio::time::Instant> = None;
     let mut early_answer = false;
+    let mut unusable = Repeated::new("early media we cannot take");
     'invite: loop {
         let mut invite = initiator.create_invite();
         invite.headers.insert_named(&sdp_type());
@@ -178,21 +187,31 @@ pub async fn dial(
             .map(|t| t.request().parts.destination.ip());
         loop {
             let cancel_deadline = async {
-                if cancelled {
-                    tokio::time::sleep(CANCEL_WAIT).await;
-                } else {
-                    std::future::pending::<()>().await;
+                match cancelled {
+                    Some(deadline) => tokio::time::sleep_until(deadline).await,
+                    None => std::future::pending::<()>().await,
                 }
             };
             let (session, response) = select! {
                 response = initiator.receive() => match response.map_err(|e| core_error(target, e))? {
                     Response::Provisional(response) => {
-                        take_early(&response, media, events, &mut early_answer);
+                        take_early(&response, media, events, &mut early_answer, &mut unusable);
                         continue;
                     }
                     Response::EarlyEvent => continue,
+                    // The INVITE ends here, not at the 487: while it lasts, every To-tag the
+                    // callee invents costs memory.
+                    Response::Early(..) if earlies.len() >= MAX_EARLY_DIALOGS => {
+                        if cancelled.is_some() {
+                            return Ok(None);
+                        }
+                        cancel(endpoint, &initiator).await?;
+                        return Err(SipError::Protocol(format!(
+                            "{target} opened more than {MAX_EARLY_DIALOGS} early dialogs for one call: hung up"
+                        )));
+                    }
                     Response::Early(early, response, _) => {
-                        take_early(&response, media, events, &mut early_answer);
+                        take_early(&response, media, events, &mut early_answer, &mut unusable);
                         earlies.push(early);
                         if !std::mem::replace(&mut ringing, true) {
                             send(events, AgentEvent::Ringing);
@@ -201,7 +220,7 @@ pub async fn dial(
                     }
                     Response::Failure(response) => {
                         let code = response.line.code.into_u16();
-                        if cancelled {
+                        if cancelled.is_some() {
                             return Ok(None);
                         }
                         if code != 401 && code != 407 {
@@ -217,7 +236,7 @@ pub async fn dial(
                     }
                     Response::Session(session, response) => (session, response),
                     Response::Finished => {
-                        if cancelled {
+                        if cancelled.is_some() {
                             return Ok(None);
                         }
                         return Err(SipError::NoAnswer(target.to_owned()));
@@ -230,7 +249,7 @@ pub async fn dial(
                             (session, response)
                         }
                         EarlyResponse::Provisional(response, _) => {
-                            take_early(&response, media, events, &mut early_answer);
+                            take_early(&response, media, events, &mut early_answer, &mut unusable);
                             continue;
                         }
                         EarlyResponse::Terminated => {
@@ -239,9 +258,9 @@ pub async fn dial(
                         }
                     }
                 }
-                _ = commands.recv(), if !cancelled => {
+                _ = commands.recv(), if cancelled.is_none() => {
                     cancel(endpoint, &initiator).await?;
-                    cancelled = true;
+                    cancelled = Some(tokio::time::Instant::now() + CANCEL_WAIT);
                     continue;
                 }
                 () = cancel_deadline => {
@@ -257,7 +276,7 @@ pub async fn dial(
                 response,
                 media,
                 target,
-                cancelled,
+                cancelled.is_some(),
                 early_answer,
             )
             .await
@@ -323,48 +342,45 @@ async fn established(
     Ok(session)
 }
 
+/// What a peer may make go wrong again and again in an answered call: each said once.
+struct Faults {
+    unusable: Repeated,
+    unanswered: Repeated,
+    unrefreshed: Repeated,
+}
+
 /// An answered call until either side hangs up; `true` when the peer did.
 pub async fn follow(
     mut session: InviteSession,
     media: &mut SdpMedia,
     commands: &mut UnboundedReceiver<()>,
 ) -> Result<bool, SipError> {
+    let endpoint = session.endpoint.clone();
+    let guard = endpoint.layer::<Guard>();
+    let mut faults = Faults {
+        unusable: Repeated::new("a re-INVITE we cannot take"),
+        unanswered: Repeated::new("answering a re-INVITE"),
+        unrefreshed: Repeated::new("refreshing the session"),
+    };
     loop {
         select! {
             event = session.run() => match event.map_err(|e| SipError::Protocol(e.to_string()))? {
                 InviteSessionEvent::RefreshNeeded => {
                     if let Err(e) = session.refresh().await {
-                        tracing::warn!("refreshing the session: {e}");
+                        faults.unrefreshed.warn(e);
                     }
                 }
                 InviteSessionEvent::Notify(_) => {}
                 InviteSessionEvent::ReInviteReceived(reinvite) => {
-                    let answer = match sdp_body(&reinvite.invite.headers, &reinvite.invite.body) {
-                        Some(Ok(text)) => media.answer_text(&text),
-                        Some(Err(e)) => Err(e),
-                        // An offerless re-INVITE (a refresh) gets our current offer.
-                        None => media.offer().map(|d| d.to_string()),
+                    // Our 200 waits 8.5 s for its ACK: a hang-up does not.
+                    let answered = select! {
+                        answered = answer_reinvite(&mut session, reinvite, media, &mut faults) => Some(answered),
+                        _ = commands.recv() => None,
                     };
-                    match answer {
-                        Ok(answer) => {
-                            let mut response = session
-                                .dialog
-                                .create_response(&reinvite.invite, StatusCode::OK, None)
-                                .map_err(|e| SipError::Protocol(e.to_string()))?;
-                            response.msg.headers.insert_named(&sdp_type());
-                            response.msg.body = answer.into();
-                            if let Err(e) = session.handle_reinvite_success(reinvite, response).await {
-                                tracing::warn!("answering a re-INVITE: {e}");
-                            }
-                        }
-                        Err(e) => {
-                            tracing::warn!("a re-INVITE we cannot take: {e}");
-                            let response = session
-                                .dialog
-                                .create_response(&reinvite.invite, StatusCode::NOT_ACCEPTABLE_HERE, None)
-                                .map_err(|e| SipError::Protocol(e.to_string()))?;
-                            let _ = reinvite.transaction.respond_failure(response).await;
-                        }
+                    guard.reinvite_done();
+                    match answered {
+                        Some(answered) => answered?,
+                        None => return hang_up(&mut session).await,
                     }
                 }
                 InviteSessionEvent::Bye(bye) => {
@@ -375,13 +391,54 @@ pub async fn follow(
                 }
                 InviteSessionEvent::Terminated => return Ok(true),
             },
-            _ = commands.recv() => {
-                session
-                    .terminate()
-                    .await
-                    .map_err(|e| SipError::Protocol(format!("BYE: {e}")))?;
-                return Ok(false);
-            }
+            _ = commands.recv() => return hang_up(&mut session).await,
         }
     }
+}
+
+async fn hang_up(session: &mut InviteSession) -> Result<bool, SipError> {
+    session
+        .terminate()
+        .await
+        .map_err(|e| SipError::Protocol(format!("BYE: {e}")))?;
+    Ok(false)
+}
+
+/// Answers a re-INVITE through the same SDP: 200 with our answer (our offer to an offerless
+/// one, a refresh), or 488 to an offer we cannot take.
+async fn answer_reinvite(
+    session: &mut InviteSession,
+    reinvite: ReInviteReceived,
+    media: &mut SdpMedia,
+    faults: &mut Faults,
+) -> Result<(), SipError> {
+    let answer = match sdp_body(&reinvite.invite.headers, &reinvite.invite.body) {
+        Some(Ok(text)) => media.answer_text(&text),
+        Some(Err(e)) => Err(e),
+        None => media.offer().map(|d| d.to_string()),
+    };
+    match answer {
+        Ok(answer) => {
+            let mut response = session
+                .dialog
+                .create_response(&reinvite.invite, StatusCode::OK, None)
+                .map_err(|e| SipError::Protocol(e.to_string()))?;
+            response.msg.headers.insert_named(&sdp_type());
+            response.msg.body = answer.into();
+            if let Err(e) = session.handle_reinvite_success(reinvite, response).await {
+                faults.unanswered.warn(e);
+            }
+        }
+        Err(e) => {
+            faults.unusable.warn(e);
+            let response = session
+                .dialog
+                .create_response(&reinvite.invite, StatusCode::NOT_ACCEPTABLE_HERE, None)
+                .map_err(|e| SipError::Protocol(e.to_string()))?;
+            // A peer that never acknowledges the refusal does not hold the call's loop.
+            let refused = reinvite.transaction.respond_failure(response);
+            let _ = tokio::time::timeout(REFUSAL_WAIT, refused).await;
+        }
+    }
+    Ok(())
 }

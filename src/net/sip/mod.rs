@@ -7,6 +7,8 @@ pub mod agent;
 pub mod backend;
 pub mod dial;
 pub mod error;
+pub mod guard;
 pub mod media;
+pub mod quiet;
 pub mod register;
 pub mod sdp;
