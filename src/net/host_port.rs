@@ -1,6 +1,7 @@
 //! `HOST[:PORT]` as users and servers write it, read one way everywhere: a name, an IPv4
 //! address or an IPv6 address (in brackets when a port follows), and an optional port that
-//! each protocol defaults. Looking a name up is a separate, explicit step.
+//! each protocol defaults (0, "any free port", where we listen: the wire's addresses are
+//! checked apart, by `net::addr`). Looking a name up is a separate, explicit step.
 
 use std::fmt;
 use std::net::{IpAddr, Ipv6Addr, SocketAddr, ToSocketAddrs};
@@ -42,7 +43,7 @@ impl HostPort {
                 "" => None,
                 _ => Some(
                     parse_port(after.strip_prefix(':').ok_or(bad("junk after ]"))?)
-                        .ok_or(bad("the port is not a number from 1 to 65535"))?,
+                        .ok_or(bad("the port is not a number from 0 to 65535"))?,
                 ),
             };
             return Ok(Self {
@@ -62,7 +63,7 @@ impl HostPort {
             }
             Some((host, port)) => (
                 host,
-                Some(parse_port(port).ok_or(bad("the port is not a number from 1 to 65535"))?),
+                Some(parse_port(port).ok_or(bad("the port is not a number from 0 to 65535"))?),
             ),
             None => (trimmed, None),
         };
@@ -163,7 +164,7 @@ fn parse_port(text: &str) -> Option<u16> {
     if text.is_empty() || !text.bytes().all(|b| b.is_ascii_digit()) {
         return None;
     }
-    text.parse().ok().filter(|&p| p != 0)
+    text.parse().ok()
 }
 
 #[cfg(test)]
@@ -193,7 +194,6 @@ mod tests {
             ("", "no host"),
             (":5060", "no host"),
             ("host:", "port"),
-            ("host:0", "port"),
             ("host:65536", "port"),
             ("host:+80", "port"),
             ("host:5060x", "port"),
