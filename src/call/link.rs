@@ -1,7 +1,8 @@
 //! A call's transport as the receive side sees it: decoded frames of every remote peer pulled
 //! on the output clock, the peers described, our own frames sent. lipcall's session (a direct
-//! call or a relay room) and a Janus room implement it; the app's worker and `receive` drive
-//! any of them alike.
+//! call or a relay room), a Janus room, a Mumble channel and a SIP call implement it; the app's
+//! worker and `receive` drive any of them alike, and learn what happened from [`Link::poll`]
+//! alone. What only one transport can do is asked of a handle the link gives out.
 
 use std::net::SocketAddr;
 use std::time::Instant;
@@ -45,6 +46,22 @@ pub enum LinkEvent {
     Rejoined {
         id: String,
     },
+    /// Said by the other side, changing nothing (a text message, how voice travels).
+    Note(String),
+    /// A request of ours refused (a channel move, a rejoin); the call goes on.
+    Refusal(String),
+    /// The call, once in, is over for good (removed, the server no longer the one trusted):
+    /// why, as a whole sentence.
+    Over {
+        reason: String,
+    },
+}
+
+impl LinkEvent {
+    /// The call is over: nothing more will come.
+    pub fn ends_call(&self) -> bool {
+        matches!(self, LinkEvent::Failed(_) | LinkEvent::Over { .. })
+    }
 }
 
 /// One call's transport.

@@ -1,0 +1,67 @@
+//! The one route by which a call's news reaches the engine: whatever the transport, its link
+//! says what happened through [`Link::poll`](crate::call::link::Link::poll), and the worker
+//! shows it in the call bar (named by the call's label) or ends the call.
+
+use super::{Worker, lock};
+use crate::app::mumble_call::app_words;
+use crate::call::link::LinkEvent;
+
+impl Worker {
+    /// What the call's link did since the last pass: joined, failed, lost and back, refusals,
+    /// notes; a call over brings the worker back to idle.
+    pub(super) fn follow_link(&mut self) {
+        for news in self.link.poll() {
+            let label = &self.call_label;
+            let mut s = lock(&self.shared);
+            match news {
+                LinkEvent::Joined { place, id } => {
+                    s.call.state = format!("in {place} as {id}, sending {}", self.encoder.codec());
+                }
+                LinkEvent::Failed(reason) => {
+                    let error = format!("{label}: {}", app_words(&reason));
+                    drop(s);
+                    return self.end_call(error);
+                }
+                LinkEvent::Over { reason } => {
+                    drop(s);
+                    return self.end_call(reason);
+                }
+                LinkEvent::Lost { reason } => {
+                    s.call.error = Some(format!("lost the {label} ({reason}); reconnecting"));
+                }
+                LinkEvent::RejoinFailed { reason } => {
+                    s.call.error = Some(format!("cannot reconnect to the {label} yet: {reason}"));
+                }
+                LinkEvent::Rejoined { id } => {
+                    tracing::info!("back in the {label} as {id}");
+                    s.call.error = None;
+                }
+                LinkEvent::Refusal(reason) => s.call.error = Some(format!("{label}: {reason}")),
+                LinkEvent::Note(note) => tracing::info!("{label}: {note}"),
+                LinkEvent::PeerJoined { id, name } => {
+                    tracing::info!("{name:?} ({id}) is in the {label}");
+                }
+                LinkEvent::PeerLeft { id, name } => tracing::info!("{name:?} ({id}) left"),
+                LinkEvent::PeerSkipped { name, reason, .. } => {
+                    tracing::warn!("{name:?} cannot be heard, skipped: {reason}");
+                }
+            }
+        }
+    }
+
+    /// Back to idle, saying why the call ended.
+    fn end_call(&mut self, error: String) {
+        if let Err(e) = self.leave() {
+            tracing::warn!("back to listening: {e:#}");
+        }
+        lock(&self.shared).call.error = Some(error);
+    }
+
+    /// A Mumble call's channels, state line and self-mute, once joined.
+    pub(super) fn refresh_mumble(&mut self) {
+        if let Some(mumble) = &mut self.mumble {
+            let s = &mut *lock(&self.shared);
+            mumble.refresh(&mut s.call, &mut s.mumble, s.mic.as_ref());
+        }
+    }
+}
