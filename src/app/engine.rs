@@ -476,6 +476,7 @@ impl Worker {
 
     /// What the worker kept beside the link it is done with.
     fn forget_call(&mut self) {
+        self.phone.call_left();
         self.call_label = CALL.into();
         self.mumble = None;
         lock(&self.shared).mumble = None;

@@ -7,6 +7,7 @@
 use std::net::SocketAddr;
 use std::time::Instant;
 
+use crate::codec::any::Codec;
 use crate::net::session::{PeerFrame, PeerInfo, Session};
 
 /// What a link did since the last poll, for the caller to show.
@@ -55,12 +56,28 @@ pub enum LinkEvent {
     Over {
         reason: String,
     },
+    /// How the call is getting on while it is set up (dialling, ringing, media agreed): for
+    /// the call's state line.
+    Progress(String),
+    /// What our audio must now be sent in, and whether the media is encrypted (hop by hop:
+    /// SDES keys travel in the signalling).
+    Media {
+        codec: Codec,
+        srtp: bool,
+    },
+    /// The call ended as calls do (a hang-up): said, not an error.
+    Ended {
+        reason: String,
+    },
 }
 
 impl LinkEvent {
     /// The call is over: nothing more will come.
     pub fn ends_call(&self) -> bool {
-        matches!(self, LinkEvent::Failed(_) | LinkEvent::Over { .. })
+        matches!(
+            self,
+            LinkEvent::Failed(_) | LinkEvent::Over { .. } | LinkEvent::Ended { .. }
+        )
     }
 }
 

@@ -189,9 +189,13 @@ pub(crate) fn print_event(event: &LinkEvent, words: Wording) {
             eprintln!("lipcall: cannot {retry} yet ({reason}); trying again")
         }
         LinkEvent::Rejoined { id } => eprintln!("lipcall: {back} {id}"),
-        LinkEvent::Note(said) | LinkEvent::Refusal(said) | LinkEvent::Over { reason: said } => {
-            eprintln!("lipcall: {said}")
-        }
+        LinkEvent::Note(said)
+        | LinkEvent::Refusal(said)
+        | LinkEvent::Progress(said)
+        | LinkEvent::Over { reason: said }
+        | LinkEvent::Ended { reason: said } => eprintln!("lipcall: {said}"),
+        // A progress line names the media agreed.
+        LinkEvent::Media { .. } => {}
     }
 }
 

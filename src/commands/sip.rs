@@ -10,7 +10,7 @@ use anyhow::{Context, Result, bail};
 use zeroize::Zeroizing;
 
 use super::net::{load_packets, parse_codec, print_peer};
-use super::playout::{DIRECT, open_outputs, play};
+use super::playout::{DIRECT, open_outputs, play, print_event};
 use super::recording::{stop_flag, stopped};
 use crate::call::link::{Link, LinkEvent};
 use crate::call::media::Packets;
@@ -317,8 +317,11 @@ fn set_up(
 ) -> Result<()> {
     loop {
         link.follow(SETUP_STEP);
-        for notice in link.take_notices() {
-            eprintln!("lipcall: {notice}");
+        // A failure is said once, as the error below.
+        for event in link.poll() {
+            if !matches!(event, LinkEvent::Failed(_)) {
+                print_event(&event, DIRECT);
+            }
         }
         match link.state() {
             CallState::Established => return Ok(()),
@@ -395,12 +398,7 @@ impl Link for Playing<'_> {
     }
 
     fn poll(&mut self) -> Vec<LinkEvent> {
-        let events = self.link.poll();
-        // Progress during the call too: the answer after early media, a re-INVITE's media.
-        for notice in self.link.take_notices() {
-            eprintln!("lipcall: {notice}");
-        }
-        events
+        self.link.poll()
     }
 
     fn over(&self) -> bool {

@@ -2,9 +2,10 @@
 //! says what happened through [`Link::poll`](crate::call::link::Link::poll), and the worker
 //! shows it in the call bar (named by the call's label) or ends the call.
 
-use super::{Worker, lock};
+use super::{Encryption, Worker, lock};
 use crate::app::mumble_call::app_words;
 use crate::call::link::LinkEvent;
+use crate::codec::any::{EncoderSettings, FrameEncoder};
 
 impl Worker {
     /// What the call's link did since the last pass: joined, failed, lost and back, refusals,
@@ -25,6 +26,33 @@ impl Worker {
                 LinkEvent::Over { reason } => {
                     drop(s);
                     return self.end_call(reason);
+                }
+                LinkEvent::Ended { reason } => {
+                    drop(s);
+                    self.phone.call_over();
+                    if let Err(e) = self.leave() {
+                        tracing::warn!("back to listening: {e:#}");
+                    }
+                    let mut s = lock(&self.shared);
+                    s.call.state = format!("{reason}; {}", s.call.state);
+                    return;
+                }
+                LinkEvent::Progress(line) => {
+                    tracing::info!("{label}: {line}");
+                    s.call.state = line;
+                }
+                LinkEvent::Media { codec, srtp } => {
+                    match FrameEncoder::new(codec, &EncoderSettings::default()) {
+                        Ok(encoder) => self.encoder = encoder,
+                        Err(e) => s.call.error = Some(format!("cannot send {codec}: {e}")),
+                    }
+                    s.call.codec = Some(codec);
+                    // SDES keys travel in the signalling: every proxy on the way has them.
+                    s.call.encryption = if srtp {
+                        Encryption::HopByHop
+                    } else {
+                        Encryption::None
+                    };
                 }
                 LinkEvent::Lost { reason } => {
                     s.call.error = Some(format!("lost the {label} ({reason}); reconnecting"));
@@ -51,6 +79,7 @@ impl Worker {
 
     /// Back to idle, saying why the call ended.
     fn end_call(&mut self, error: String) {
+        self.phone.call_over();
         if let Err(e) = self.leave() {
             tracing::warn!("back to listening: {e:#}");
         }
