@@ -9,6 +9,7 @@ use std::sync::{Arc, Mutex};
 use std::time::{Duration, Instant};
 
 use super::link::{Link, LinkEvent};
+use super::media::Packets;
 use crate::codec::any::{Codec, EncoderSettings, FrameEncoder, MAX_FRAME_PAYLOAD};
 use crate::net::session::{PeerFrame, PeerInfo};
 use crate::net::sip::agent::{Account, Agent, AgentConfig, AgentEvent, Decision, Role, SipError};
@@ -61,6 +62,17 @@ pub struct SipLink {
     quiet: Option<QuietFill>,
     /// The codec and SRTP last told ([`LinkEvent::Media`]).
     media_told: Option<(Codec, bool)>,
+    /// Audio played into the call ([`SipLink::play`]).
+    playing: Option<Playing>,
+}
+
+/// Encoded audio sent in real time from the answer on.
+struct Playing {
+    packets: Packets,
+    next: usize,
+    /// When the first packet went (or would have gone) out.
+    start: Instant,
+    sent_ticks: u64,
 }
 
 /// What the owner of a call asks of it beside [`Link`]: DTMF keys, and whether the keypad
@@ -146,6 +158,7 @@ impl SipLink {
             handle: SipHandle::default(),
             quiet: None,
             media_told: None,
+            playing: None,
         })
     }
 
@@ -228,6 +241,38 @@ impl SipLink {
             encoder: None,
             ours_at: Instant::now(),
         });
+    }
+
+    /// Plays `packets` (in the codec agreed) into the call, in real time from the answer on
+    /// (not while early media plays), as the link is pulled.
+    pub fn play(&mut self, packets: Packets) {
+        self.playing = Some(Playing {
+            packets,
+            next: 0,
+            start: Instant::now(),
+            sent_ticks: 0,
+        });
+    }
+
+    /// The packets of [`SipLink::play`] now due.
+    fn send_due(&mut self) {
+        let (Some(mut playing), Some(codec)) = (self.playing.take(), self.codec()) else {
+            return;
+        };
+        if !self.answered {
+            playing.start = Instant::now();
+        }
+        let clock = f64::from(codec.clock_rate());
+        let elapsed = playing.start.elapsed();
+        while let Some((payload, ticks)) = playing.packets.get(playing.next) {
+            if Duration::from_secs_f64(playing.sent_ticks as f64 / clock) > elapsed {
+                break;
+            }
+            self.send_packet(payload, *ticks);
+            playing.sent_ticks += u64::from(*ticks);
+            playing.next += 1;
+        }
+        self.playing = Some(playing);
     }
 
     fn say(&mut self, line: String) {
@@ -466,6 +511,7 @@ impl Link for SipLink {
         {
             self.send_silence(1);
         }
+        self.send_due();
         let keys = self.handle.take_keys();
         if let Some(rtp) = &self.rtp {
             rtp.with(|core| {
