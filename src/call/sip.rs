@@ -594,3 +594,23 @@ impl Link for SipLink {
         Some(self.local_rtp)
     }
 }
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn the_handle_takes_keys_only_where_the_peer_takes_events_and_queues_a_bounded_few() {
+        let handle = SipHandle::default();
+        assert!(!handle.send_digits("1"), "no telephone-event agreed");
+        handle.0.takes_keys.store(true, Ordering::Relaxed);
+        assert!(!handle.keypad(), "not established yet");
+        assert!(handle.send_digits("12#*"));
+        assert!(!handle.send_digits("1x"), "x is no DTMF key");
+        assert!(!handle.send_digits(&"5".repeat(MAX_QUEUED_KEYS)));
+        assert_eq!(handle.take_keys(), "12#*");
+        assert!(handle.send_digits(&"5".repeat(MAX_QUEUED_KEYS)));
+        handle.0.established.store(true, Ordering::Relaxed);
+        assert!(handle.keypad());
+    }
+}

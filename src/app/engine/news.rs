@@ -21,18 +21,19 @@ impl Worker {
                 LinkEvent::Failed(reason) => {
                     let error = format!("{label}: {}", app_words(&reason));
                     drop(s);
-                    return self.end_call(error);
+                    self.back_to_idle();
+                    lock(&self.shared).call.error = Some(error);
+                    return;
                 }
                 LinkEvent::Over { reason } => {
                     drop(s);
-                    return self.end_call(reason);
+                    self.back_to_idle();
+                    lock(&self.shared).call.error = Some(reason);
+                    return;
                 }
                 LinkEvent::Ended { reason } => {
                     drop(s);
-                    self.phone.call_over();
-                    if let Err(e) = self.leave() {
-                        tracing::warn!("back to listening: {e:#}");
-                    }
+                    self.back_to_idle();
                     let mut s = lock(&self.shared);
                     s.call.state = format!("{reason}; {}", s.call.state);
                     return;
@@ -77,13 +78,12 @@ impl Worker {
         }
     }
 
-    /// Back to idle, saying why the call ended.
-    fn end_call(&mut self, error: String) {
+    /// The call ended by itself (said by the caller): back to idle.
+    fn back_to_idle(&mut self) {
         self.phone.call_over();
         if let Err(e) = self.leave() {
             tracing::warn!("back to listening: {e:#}");
         }
-        lock(&self.shared).call.error = Some(error);
     }
 
     /// A Mumble call's channels, state line and self-mute, once joined.
