@@ -4,6 +4,7 @@
 //! sees it through [`Shared`] (one short lock per UI frame) and steers it with [`Command`]s.
 //! Its SIP phone's hooks are in `engine/sip.rs`.
 
+mod news;
 mod sip;
 
 use std::net::SocketAddr;
@@ -19,7 +20,7 @@ use crate::audio::{
     Capture, DeviceChoice, FramePacer, Gate, MicControls, OutputStatus, Playback, PlaybackConfig,
 };
 use crate::call::janus::{JanusLink, is_janus_url};
-use crate::call::link::{Link, LinkEvent};
+use crate::call::link::Link;
 use crate::call::mumble::is_mumble_url;
 use crate::codec::any::{Codec, EncoderSettings, FrameEncoder, MAX_FRAME_PAYLOAD};
 use crate::codec::opus::codec::Bandwidth;
@@ -35,7 +36,7 @@ use crate::vocab::MAX_FRAME_SAMPLES;
 pub use super::call_status::{CallStatus, Encryption};
 pub use super::counters::{DEMO_NAME, EngineCounters};
 use super::demo::Demo;
-use super::mumble_call::{MumbleCall, MumbleJoin, MumbleView, follow};
+use super::mumble_call::{MumbleCall, MumbleJoin, MumbleView};
 use super::retire::Retirer;
 use super::roster::Roster;
 use super::settings::DEFAULT_CODEC;
@@ -235,9 +236,14 @@ struct Worker {
     in_call: bool,
     /// A relay call's join, until the relay confirms it.
     relay: RelayWatch,
+    /// The call as its news names it: "Janus room", "Mumble server HOST:PORT".
+    call_label: String,
     mumble: Option<MumbleCall>,
     phone: SipPhone,
 }
+
+/// The call's label when nothing names it otherwise.
+const CALL: &str = "call";
 
 fn idle_session(config: &EngineConfig) -> anyhow::Result<Session> {
     let bind = config
@@ -264,6 +270,7 @@ impl Worker {
             mic: None,
             in_call: false,
             relay: RelayWatch::default(),
+            call_label: CALL.into(),
             mumble: None,
             phone: SipPhone::default(),
             config,
@@ -345,6 +352,15 @@ impl Worker {
             };
             let (link, call, encoder) = MumbleCall::join(&spec.address, join)?;
             self.switch_link(link, encoder);
+            self.relay = RelayWatch::default();
+            self.call_label = format!("Mumble server {}", call.server());
+            lock(&self.shared).call = CallStatus {
+                state: format!("joining the Mumble server {}…", call.server()),
+                in_call: true,
+                encryption: Encryption::HopByHop,
+                codec: Some(Codec::Opus),
+                ..CallStatus::default()
+            };
             self.mumble = Some(call);
             return Ok(());
         }
@@ -425,6 +441,7 @@ impl Worker {
         let encoder = FrameEncoder::new(Codec::Opus, &settings)?;
         self.switch_link(Box::new(janus), encoder);
         self.relay = RelayWatch::default();
+        self.call_label = "Janus room".into();
         let mut s = lock(&self.shared);
         s.call = CallStatus {
             state,
@@ -453,42 +470,21 @@ impl Worker {
         self.retirer.retire(old);
         self.encoder = encoder;
         self.in_call = true;
+        self.forget_call();
         self.drop_peers();
     }
 
-    /// What a Janus room did: joined, failed to, publishers and lost sessions.
-    fn follow_room(&mut self) {
-        for news in self.link.poll() {
-            let mut s = lock(&self.shared);
-            match news {
-                LinkEvent::Joined { place, id } => {
-                    s.call.state = format!("in {place} as {id}, sending opus");
-                }
-                LinkEvent::Failed(reason) => {
-                    drop(s);
-                    if let Err(e) = self.leave() {
-                        tracing::warn!("back to listening: {e:#}");
-                    }
-                    lock(&self.shared).call.error = Some(format!("Janus room: {reason}"));
-                    return;
-                }
-                LinkEvent::Lost { reason } => {
-                    s.call.error = Some(format!("lost the Janus room ({reason}); rejoining"));
-                }
-                LinkEvent::RejoinFailed { reason } => {
-                    s.call.error = Some(format!("cannot rejoin the Janus room yet: {reason}"));
-                }
-                LinkEvent::Rejoined { .. } => s.call.error = None,
-                LinkEvent::PeerSkipped { name, reason, .. } => {
-                    tracing::warn!("{name:?} cannot be heard, skipped: {reason}");
-                }
-                LinkEvent::PeerJoined { .. } | LinkEvent::PeerLeft { .. } => {}
-            }
-        }
+    /// What the worker kept beside the link it is done with.
+    fn forget_call(&mut self) {
+        self.phone.call_left();
+        self.call_label = CALL.into();
+        self.mumble = None;
+        lock(&self.shared).mumble = None;
     }
 
     fn leave(&mut self) -> anyhow::Result<()> {
         self.in_call = false;
+        self.forget_call();
         self.drop_peers();
         let idle = Box::new(idle_session(&self.config)?);
         let old = std::mem::replace(&mut self.link, idle);
@@ -556,14 +552,8 @@ impl Worker {
                 }
             }
             self.send_mic();
-            self.follow_room();
-            let over = {
-                let s = &mut *lock(&self.shared);
-                follow(&mut self.mumble, &mut s.call, &mut s.mumble, s.mic.as_ref())
-            };
-            if over && let Err(e) = self.leave() {
-                tracing::warn!("back to listening: {e:#}");
-            }
+            self.follow_link();
+            self.refresh_mumble();
             self.follow_phone();
             if let Some(tick) = ticker.poll(Instant::now()) {
                 if let Some(demo) = &mut self.demo {

@@ -1,34 +1,27 @@
-//! A Mumble server as the app's call (`mumble://HOST[:PORT]/CHANNEL` in the call bar). The join
-//! runs on its own thread (TLS and the server's answer take a moment; the 20 ms tick never
-//! waits for it); the server's news is said in Mumble's words in the call bar; its channels and
-//! users are listed for the UI ([`MumbleView`]) and we move between them on request; and the
-//! microphone's mute and push-to-talk reach the server as Mumble's self-mute, so that the others
-//! see it.
-//!
-//! The worker drives the call's [`Link`] like any other (frames, peers, our voice); the
-//! [`MumbleCall`] it keeps beside it shares the connection for what only Mumble has.
+//! A Mumble server as the app's call (`mumble://HOST[:PORT]/CHANNEL` in the call bar). The
+//! worker drives the call's [`MumbleLink`] like any other (frames, peers, our voice, the
+//! server's news through [`Link::poll`]); the [`MumbleCall`] it keeps beside it holds the
+//! link's [`MumbleHandle`] for what only Mumble has: the channels and users listed for the UI
+//! ([`MumbleView`]), moving between them on request, and the microphone's mute and
+//! push-to-talk told to the server as Mumble's self-mute, so that the others see it.
 
 use std::collections::{BTreeMap, BTreeSet};
 use std::path::{Path, PathBuf};
-use std::sync::{Arc, Mutex, MutexGuard};
-use std::thread::JoinHandle;
 use std::time::{Duration, Instant};
 
 use anyhow::{Context, anyhow};
 
-use super::call_status::{CallStatus, Encryption};
+use super::call_status::CallStatus;
 use crate::audio::MicControls;
-use crate::call::link::{Link, LinkEvent};
-use crate::call::mumble::{MumbleLink, parse_mumble_url};
+use crate::call::link::Link;
+use crate::call::mumble::{MumbleHandle, MumbleLink, parse_mumble_url};
 use crate::codec::any::{Codec, EncoderSettings, FrameEncoder};
 use crate::codec::opus::codec::Bandwidth;
 use crate::net::jitter::JitterConfig;
-use crate::net::mumble::MumbleError;
 use crate::net::mumble::client::{Channel, ClientConfig};
-use crate::net::mumble::connection::{ConnectConfig, Connection, with_port};
+use crate::net::mumble::connection::{ConnectConfig, with_port};
 use crate::net::mumble::events::Member;
 use crate::net::mumble::identity::{self, Trust};
-use crate::net::session::{PeerFrame, PeerInfo};
 
 /// How often the channels and users are refreshed for the UI.
 const VIEW_EVERY: Duration = Duration::from_millis(200);
@@ -71,19 +64,6 @@ impl MumbleView {
     }
 }
 
-type Joining = JoinHandle<Result<Connection, MumbleError>>;
-
-enum Stage {
-    Joining(Option<Joining>),
-    In(Box<MumbleLink>),
-    /// Left, refused or removed: nothing more comes.
-    Over,
-}
-
-fn lock(stage: &Mutex<Stage>) -> MutexGuard<'_, Stage> {
-    stage.lock().unwrap_or_else(|e| e.into_inner())
-}
-
 /// What a Mumble join needs besides the address.
 #[derive(Debug, Clone)]
 pub struct MumbleJoin<'a> {
@@ -95,25 +75,14 @@ pub struct MumbleJoin<'a> {
     pub identity: Option<&'a Path>,
 }
 
-/// The app's side of a Mumble call, beside its [`Link`].
+/// The app's side of a Mumble call, beside its [`Link`] (which says the server's news).
 pub struct MumbleCall {
-    stage: Arc<Mutex<Stage>>,
+    handle: MumbleHandle,
     /// `host:port`.
     server: String,
-    /// The call's status is not said yet.
-    fresh: bool,
     last_view: Option<Instant>,
     /// The self-mute the server was last told.
     muted: Option<bool>,
-}
-
-/// How a call stands after a look at it.
-enum Step {
-    Going,
-    /// The worker left the call (for another, or none).
-    Left,
-    /// The server refused or removed us: the worker should leave.
-    Failed,
 }
 
 impl MumbleCall {
@@ -144,198 +113,89 @@ impl MumbleCall {
             identity_dir,
         };
         let shown = with_port(&server)?;
-        let handle = std::thread::Builder::new()
-            .name("mumble-join".into())
-            .spawn(move || Connection::connect(config))?;
-        let stage = Arc::new(Mutex::new(Stage::Joining(Some(handle))));
+        let link = MumbleLink::join(config, format!("the Mumble server {shown}"))?;
         let call = Self {
-            stage: stage.clone(),
+            handle: link.handle(),
             server: shown,
-            fresh: true,
             last_view: None,
             muted: None,
         };
-        Ok((Box::new(CallLink(stage)), call, encoder))
+        Ok((Box::new(link), call, encoder))
+    }
+
+    /// `host:port`.
+    pub fn server(&self) -> &str {
+        &self.server
     }
 
     /// Moves us to channel `id` of the server.
     pub fn join_channel(&self, id: u32) -> anyhow::Result<()> {
-        match &*lock(&self.stage) {
-            Stage::In(link) => {
-                link.connection().join_channel(id);
-                Ok(())
-            }
-            _ => Err(anyhow!(
-                "not on the Mumble server yet: no channel to move to"
-            )),
-        }
+        let remote = self
+            .handle
+            .remote()
+            .ok_or_else(|| anyhow!("not on the Mumble server yet: no channel to move to"))?;
+        remote.join_channel(id);
+        Ok(())
     }
 
-    fn step(
+    /// The worker's look at its Mumble call once per loop, once joined: the channels (in
+    /// `view`, every [`VIEW_EVERY`]), the channel in the state line, the microphone's state
+    /// told as self-mute.
+    pub fn refresh(
         &mut self,
         status: &mut CallStatus,
         view: &mut Option<MumbleView>,
         mic: Option<&MicControls>,
-    ) -> Step {
-        if std::mem::take(&mut self.fresh) {
-            *status = CallStatus {
-                state: format!("joining the Mumble server {}…", self.server),
-                in_call: true,
-                encryption: Encryption::HopByHop,
-                codec: Some(Codec::Opus),
-                ..CallStatus::default()
-            };
-        }
-        let mut stage = lock(&self.stage);
-        if let Stage::Joining(handle) = &mut *stage {
-            if !handle.as_ref().is_some_and(JoinHandle::is_finished) {
-                return Step::Going;
-            }
-            match handle.take().map(JoinHandle::join) {
-                Some(Ok(Ok(connection))) => {
-                    let (print, trust) = connection.fingerprint();
-                    *view = Some(MumbleView {
-                        server: self.server.clone(),
-                        fingerprint: print.to_string(),
-                        first_visit: *trust == Trust::New,
-                        ..MumbleView::default()
-                    });
-                    let place = format!("the Mumble server {}", self.server);
-                    *stage = Stage::In(Box::new(MumbleLink::joined(connection, place)));
-                    self.last_view = None;
-                }
-                Some(Ok(Err(e))) => {
-                    *stage = Stage::Over;
-                    status.error =
-                        Some(format!("Mumble server {}: {}", self.server, app_words(&e)));
-                    return Step::Failed;
-                }
-                _ => {
-                    *stage = Stage::Over;
-                    status.error = Some("the Mumble join stopped unexpectedly".into());
-                    return Step::Failed;
-                }
-            }
-        }
-        let Stage::In(link) = &mut *stage else {
-            return Step::Left;
+    ) {
+        let (Some(remote), Some((print, trust))) =
+            (self.handle.remote(), self.handle.fingerprint())
+        else {
+            return;
         };
-        if self.hear(link, status) {
-            *stage = Stage::Over;
-            return Step::Failed;
+        if view.is_none() {
+            *view = Some(MumbleView {
+                server: self.server.clone(),
+                fingerprint: print.to_string(),
+                first_visit: *trust == Trust::New,
+                ..MumbleView::default()
+            });
         }
         // No microphone: nothing of ours can be heard, and the others see so.
         let muted = mic.is_none_or(|m| !m.transmitting());
         if self.muted != Some(muted) {
-            link.connection().set_self_mute(muted);
+            remote.set_self_mute(muted);
             self.muted = Some(muted);
         }
         let now = Instant::now();
         if self
             .last_view
-            .is_none_or(|t| now.saturating_duration_since(t) >= VIEW_EVERY)
+            .is_some_and(|t| now.saturating_duration_since(t) < VIEW_EVERY)
         {
-            self.last_view = Some(now);
-            let connection = link.connection();
-            if let Some(v) = view {
-                v.channels = channel_tree(&connection.channels(), connection.members());
-                v.self_muted = muted;
-                v.udp = connection.udp_working();
-            }
-            if let Some(channel) = connection.current_channel() {
-                status.state = format!(
-                    "in channel {channel:?} of the Mumble server {}, sending opus",
-                    self.server
-                );
-            }
+            return;
         }
-        Step::Going
-    }
-
-    /// What the server said, in the call bar; `true` when it removed us.
-    fn hear(&self, link: &mut MumbleLink, status: &mut CallStatus) -> bool {
-        let server = &self.server;
-        for event in link.poll() {
-            match event {
-                LinkEvent::Failed(reason) => {
-                    status.error = Some(reason);
-                    return true;
-                }
-                LinkEvent::Lost { reason } => {
-                    status.state = format!("reconnecting to the Mumble server {server}…");
-                    status.error = Some(format!(
-                        "lost the Mumble server {server} ({reason}); reconnecting"
-                    ));
-                }
-                LinkEvent::RejoinFailed { reason } => {
-                    status.error = Some(format!(
-                        "cannot reconnect to the Mumble server {server}: {reason}"
-                    ));
-                }
-                LinkEvent::Rejoined { id } => {
-                    tracing::info!("back on the Mumble server {server} as session {id}");
-                    status.error = None;
-                }
-                LinkEvent::PeerJoined { id, name } => {
-                    tracing::info!("{name:?} (session {id}) is in the channel");
-                }
-                LinkEvent::PeerLeft { id, name } => {
-                    tracing::info!("{name:?} (session {id}) left the channel");
-                }
-                LinkEvent::PeerSkipped { id, name, reason } => {
-                    tracing::warn!("{name:?} (session {id}) cannot be heard: {reason}");
-                }
-                LinkEvent::Joined { .. } => {}
-            }
+        self.last_view = Some(now);
+        if let Some(v) = view {
+            v.channels = channel_tree(&remote.channels(), remote.members());
+            v.self_muted = muted;
+            v.udp = remote.udp_working();
         }
-        for note in link.take_notes() {
-            if note.starts_with("the server refused") {
-                status.error = Some(format!("Mumble: {note}"));
-            } else {
-                tracing::info!("Mumble: {note}");
-            }
+        if let Some(channel) = remote.current_channel() {
+            status.state = format!(
+                "in channel {channel:?} of the Mumble server {}, sending opus",
+                self.server
+            );
         }
-        false
     }
 }
 
-/// A join's failure as the app says it: the protocol's reasons name the command line's flags.
-fn app_words(e: &MumbleError) -> String {
-    e.to_string()
+/// A Mumble failure as the app says it: the protocol's reasons name the command line's flags.
+pub fn app_words(reason: &str) -> String {
+    reason
         .replace(
             "(give it with --password)",
             "(give it as the server password)",
         )
         .replace("pick another with --name", "pick another name")
-}
-
-/// The worker's look at its Mumble call, if any, once per loop: the join's outcome, the
-/// server's news (in `status`), the channels (in `view`), the microphone's state told as
-/// self-mute. Forgets a call the worker has left. `true`: the call failed (refused, removed);
-/// the worker should leave it.
-pub fn follow(
-    call: &mut Option<MumbleCall>,
-    status: &mut CallStatus,
-    view: &mut Option<MumbleView>,
-    mic: Option<&MicControls>,
-) -> bool {
-    let Some(c) = call else {
-        *view = None;
-        return false;
-    };
-    match c.step(status, view, mic) {
-        Step::Going => false,
-        Step::Left => {
-            *call = None;
-            *view = None;
-            false
-        }
-        Step::Failed => {
-            *call = None;
-            *view = None;
-            true
-        }
-    }
 }
 
 /// The channels in tree order with their members. Parent links that loop or point nowhere
@@ -384,77 +244,6 @@ fn channel_tree(channels: &[Channel], members: Vec<Member>) -> Vec<ChannelRow> {
         }
     }
     rows
-}
-
-/// The call's [`Link`] for the worker: the joined channel's speakers once in, nothing before.
-/// The [`MumbleCall`] beside it says what the server does, so its `poll` says nothing.
-struct CallLink(Arc<Mutex<Stage>>);
-
-impl Link for CallLink {
-    fn pull(&mut self, now: Instant, out: &mut Vec<PeerFrame>) {
-        if let Stage::In(link) = &mut *lock(&self.0) {
-            link.pull(now, out);
-        }
-    }
-
-    fn peers(&self) -> Vec<PeerInfo> {
-        match &*lock(&self.0) {
-            Stage::In(link) => link.peers(),
-            _ => Vec::new(),
-        }
-    }
-
-    fn silent_members(&self) -> Vec<PeerInfo> {
-        match &*lock(&self.0) {
-            Stage::In(link) => link.silent_members(),
-            _ => Vec::new(),
-        }
-    }
-
-    fn all_left(&self) -> bool {
-        match &*lock(&self.0) {
-            Stage::In(link) => link.all_left(),
-            _ => false,
-        }
-    }
-
-    fn send_frames(&mut self, payload: &[u8], frames: u32) {
-        if let Stage::In(link) = &mut *lock(&self.0) {
-            link.send_frames(payload, frames);
-        }
-    }
-
-    fn skip_frames(&mut self, frames: u32) {
-        if let Stage::In(link) = &mut *lock(&self.0) {
-            link.skip_frames(frames);
-        }
-    }
-
-    fn unknown_payload(&self) -> u64 {
-        match &*lock(&self.0) {
-            Stage::In(link) => link.unknown_payload(),
-            _ => 0,
-        }
-    }
-
-    /// Disconnects, on a thread of its own: a connection in the middle of a reconnect takes up
-    /// to a second to stop, which the worker's tick must not wait for. A join still running
-    /// finishes on its own thread, and its connection closes as it is dropped there.
-    fn leave(&mut self) {
-        let stage = std::mem::replace(&mut *lock(&self.0), Stage::Over);
-        if let Stage::In(mut link) = stage {
-            let closing = std::thread::Builder::new()
-                .name("mumble-leave".into())
-                .spawn(move || link.leave());
-            if let Err(e) = closing {
-                tracing::warn!("cannot close the Mumble connection on its own thread: {e}");
-            }
-        }
-    }
-
-    fn over(&self) -> bool {
-        matches!(&*lock(&self.0), Stage::Over)
-    }
 }
 
 #[cfg(test)]

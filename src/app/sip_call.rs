@@ -1,25 +1,20 @@
 //! The app's phone: the SIP account's listener, which registers and rings the user with the
 //! first call that comes (answered, declined with 603, or refused with 486 while another call
 //! runs), the SIP calls dialled from the app (a `sip:` URI, or a number at the account's
-//! domain), and the DTMF keypad. A SIP call becomes the engine's link like any other call; the
-//! engine's hooks apply what [`SipPhone::poll`] and [`SipPhone::command`] say ([`PhoneTurn`]).
+//! domain), and the DTMF keypad. A SIP call becomes the engine's link like any other call
+//! ([`PhoneTurn`]), whose progress and end the engine hears through `Link::poll` as it hears
+//! every link's; the phone keeps the call's [`SipHandle`] for the keypad.
 
 use std::net::SocketAddr;
-use std::sync::{Arc, Mutex, MutexGuard};
 use std::time::{Duration, Instant};
 
 use crate::call::link::{Link, LinkEvent};
-use crate::call::sip::{CallState, SipLink};
-use crate::codec::any::{Codec, EncoderSettings, FrameEncoder, MAX_FRAME_PAYLOAD};
+use crate::call::sip::{CallState, SipHandle, SipLink};
+use crate::codec::any::Codec;
 use crate::net::backoff::Backoff;
-use crate::net::session::{PeerFrame, PeerInfo};
 use crate::net::sip::address::bind_towards;
 use crate::net::sip::agent::{Account, Decision, Role, SipError, codecs};
 use crate::secrets::forbid_core_dumps;
-
-/// Our side of a SIP call is silence once the engine has sent nothing for this long (no
-/// microphone).
-const QUIET_AFTER: Duration = Duration::from_millis(60);
 
 /// How long a listener that failed (registrar down, refused password) waits to try again; each
 /// failure in a row doubles it, up to [`LISTEN_RETRY_MAX`].
@@ -56,23 +51,14 @@ pub struct PhoneStatus {
     pub note: Option<String>,
 }
 
-/// What the engine does for the phone.
-pub enum PhoneTurn {
-    /// This call (dialled, or just answered) becomes the engine's link, sending `codec`
-    /// until SDP agrees one.
-    Switch {
-        link: Box<dyn Link>,
-        codec: Codec,
-        state: String,
-    },
-    /// The SIP call's state line; the codec it sends in now and whether the media is SRTP,
-    /// once SDP agreed them.
-    Status {
-        state: Option<String>,
-        media: Option<(Codec, bool)>,
-    },
-    /// The SIP call is over (hung up by the peer, refused, failed): back to idle, saying this.
-    Over(String),
+/// A SIP call (dialled, or just answered) for the engine to make its link, sending `codec`
+/// until SDP agrees one; once it is, the engine tells the phone ([`SipPhone::in_call`]).
+pub struct PhoneTurn {
+    pub link: Box<dyn Link>,
+    pub handle: SipHandle,
+    pub peer: String,
+    pub codec: Codec,
+    pub state: String,
 }
 
 /// Whether `address` is for the phone: a `sip:` URI or a telephone number.
@@ -121,11 +107,8 @@ pub struct SipPhone {
     /// When a failed listener is tried again.
     retry_at: Option<Instant>,
     retry: Backoff,
-    /// The SIP call, shared with the engine's link ([`SharedCall`]).
-    call: Option<Arc<Mutex<SipLink>>>,
-    /// The codec and SRTP last told to the engine.
-    media: Option<(Codec, bool)>,
-    established: bool,
+    /// The SIP call that is the engine's link, and its peer.
+    call: Option<(SipHandle, String)>,
     status: PhoneStatus,
 }
 
@@ -137,15 +120,9 @@ impl Default for SipPhone {
             retry_at: None,
             retry: Backoff::new(LISTEN_RETRY, LISTEN_RETRY_MAX),
             call: None,
-            media: None,
-            established: false,
             status: PhoneStatus::default(),
         }
     }
-}
-
-fn lock(call: &Mutex<SipLink>) -> MutexGuard<'_, SipLink> {
-    call.lock().unwrap_or_else(|e| e.into_inner())
 }
 
 impl SipPhone {
@@ -201,10 +178,10 @@ impl SipPhone {
                 return Ok(Some(self.take_call(listener, state)));
             }
             PhoneCommand::Keys(keys) => {
-                let Some(call) = &self.call else {
+                let Some((call, _)) = &self.call else {
                     anyhow::bail!("DTMF keys need a SIP call");
                 };
-                if !lock(call).send_digits(&keys) {
+                if !call.send_digits(&keys) {
                     anyhow::bail!("the SIP peer takes no DTMF events (RFC 4733)");
                 }
                 self.status.keys_sent.push_str(&keys);
@@ -213,21 +190,36 @@ impl SipPhone {
         Ok(None)
     }
 
-    fn take_call(&mut self, link: SipLink, state: String) -> PhoneTurn {
-        let call = Arc::new(Mutex::new(link));
-        self.call = Some(Arc::clone(&call));
-        self.media = None;
-        self.established = false;
-        self.status.keys_sent.clear();
-        PhoneTurn::Switch {
-            link: Box::new(SharedCall {
-                call,
-                silence: None,
-                ours_at: Instant::now(),
-            }),
+    fn take_call(&mut self, mut link: SipLink, state: String) -> PhoneTurn {
+        link.keep_stream();
+        PhoneTurn {
+            handle: link.handle(),
+            peer: link.peer().to_owned(),
+            link: Box::new(link),
             codec: codecs(None)[0],
             state,
         }
+    }
+
+    /// The engine made this SIP call its link.
+    pub fn in_call(&mut self, handle: SipHandle, peer: String) {
+        self.call = Some((handle, peer));
+        self.status.keys_sent.clear();
+    }
+
+    /// The engine let go of its link: where that was our call, the user hung up (or called
+    /// elsewhere).
+    pub fn call_left(&mut self) {
+        if let Some((_, peer)) = self.call.take() {
+            self.status.note = Some(format!("the call with {peer} ended"));
+        }
+        self.status.keypad = false;
+    }
+
+    /// The engine heard the call end (a hang-up, a failure): said there, nothing to note.
+    pub fn call_over(&mut self) {
+        self.call = None;
+        self.status.keypad = false;
     }
 
     fn stop_listener(&mut self) {
@@ -244,80 +236,13 @@ impl SipPhone {
         self.retry_at = None;
     }
 
-    /// Follows the SIP call and the listener; `busy`: the engine is in a call, so a caller
-    /// is refused with 486.
-    pub fn poll(&mut self, busy: bool, now: Instant) -> Vec<PhoneTurn> {
-        let mut turns = Vec::new();
-        self.follow_call(&mut turns);
-        if self.call.is_none() {
-            self.follow_listener(busy, now);
+    /// Follows the listener (while no SIP call runs) and the keypad; `busy`: the engine is
+    /// in a call, so a caller is refused with 486.
+    pub fn poll(&mut self, busy: bool, now: Instant) {
+        match &self.call {
+            Some((call, _)) => self.status.keypad = call.keypad(),
+            None => self.follow_listener(busy, now),
         }
-        turns
-    }
-
-    fn follow_call(&mut self, turns: &mut Vec<PhoneTurn>) {
-        let Some(call) = &self.call else { return };
-        if Arc::strong_count(call) == 1 {
-            // The engine let go of the call (the user hung up, or called elsewhere): its
-            // hang-up was done by `Link::leave`.
-            let peer = lock(call).peer().to_owned();
-            self.status.note = Some(format!("the call with {peer} ended"));
-            self.end_call();
-            return;
-        }
-        // The engine hangs a call up on a thread of its own, holding the call while the peer
-        // answers: this pass leaves it be.
-        let mut link = match call.try_lock() {
-            Ok(link) => link,
-            Err(std::sync::TryLockError::Poisoned(e)) => e.into_inner(),
-            Err(std::sync::TryLockError::WouldBlock) => return,
-        };
-        link.follow(Duration::ZERO);
-        for notice in link.take_notices() {
-            tracing::info!("SIP: {notice}");
-            turns.push(PhoneTurn::Status {
-                state: Some(notice),
-                media: None,
-            });
-        }
-        let media = link
-            .negotiated()
-            .map(|n| (n.codec, n.srtp.is_some()))
-            .filter(|_| link.answered());
-        let keypad = link.negotiated().is_some_and(|n| n.events.is_some());
-        let over = match link.state() {
-            CallState::Established if !self.established => {
-                self.established = true;
-                turns.push(PhoneTurn::Status {
-                    state: Some(format!("in a SIP call with {}", link.peer())),
-                    media: None,
-                });
-                None
-            }
-            CallState::Ended { by_peer: true } => Some(format!("{} hung up", link.peer())),
-            CallState::Ended { by_peer: false } => {
-                Some(format!("the call to {} ended", link.peer()))
-            }
-            CallState::Failed(e) => Some(format!("the SIP call failed: {e}")),
-            CallState::Established | CallState::Setting => None,
-        };
-        drop(link);
-        if media.is_some() && media != self.media {
-            self.media = media;
-            turns.push(PhoneTurn::Status { state: None, media });
-        }
-        self.status.keypad = keypad && self.established;
-        if let Some(line) = over {
-            self.end_call();
-            turns.push(PhoneTurn::Over(line));
-        }
-    }
-
-    fn end_call(&mut self) {
-        self.call = None;
-        self.media = None;
-        self.established = false;
-        self.status.keypad = false;
     }
 
     fn follow_listener(&mut self, busy: bool, now: Instant) {
@@ -336,8 +261,10 @@ impl SipPhone {
             }
             return;
         };
-        listener.follow(Duration::ZERO);
-        for notice in listener.take_notices() {
+        for event in listener.poll() {
+            let LinkEvent::Progress(notice) = event else {
+                continue;
+            };
             tracing::info!("SIP: {notice}");
             if notice.starts_with("registered") {
                 self.status.registration = notice;
@@ -392,93 +319,6 @@ fn listen(account: &Account) -> Result<SipLink, SipError> {
         false,
         None,
     )
-}
-
-/// The SIP call as the engine's link, shared with the phone (which follows its state, sends
-/// its keys and hears when the engine lets go of it). Where we have nothing to say (the
-/// microphone's gate closed, or no microphone) it sends silence in the call's codec: phones
-/// expect a steady stream, their jitter buffers hold back the last packets (a DTMF key's end
-/// included) until more come, and the stream keeps a NAT's binding open.
-struct SharedCall {
-    call: Arc<Mutex<SipLink>>,
-    /// The encoder of silence, for the codec the call agreed.
-    silence: Option<FrameEncoder>,
-    /// When the engine last sent (or skipped) a frame of ours.
-    ours_at: Instant,
-}
-
-impl SharedCall {
-    fn send_silence(&mut self, link: &mut SipLink, frames: u32) {
-        let Some(codec) = link.codec().filter(|_| link.answered()) else {
-            return;
-        };
-        if self.silence.as_ref().is_none_or(|e| e.codec() != codec) {
-            self.silence = FrameEncoder::new(codec, &EncoderSettings::default()).ok();
-        }
-        let Some(encoder) = &mut self.silence else {
-            return;
-        };
-        let quiet = vec![0i16; encoder.frame_samples()];
-        let mut payload = [0u8; MAX_FRAME_PAYLOAD];
-        for _ in 0..frames {
-            if let Ok(Some((n, count))) = encoder.encode(&quiet, &mut payload) {
-                link.send_frames(&payload[..n], count);
-            }
-        }
-    }
-}
-
-impl Link for SharedCall {
-    fn pull(&mut self, now: Instant, out: &mut Vec<PeerFrame>) {
-        let call = Arc::clone(&self.call);
-        let mut link = lock(&call);
-        if self.ours_at.elapsed() >= QUIET_AFTER {
-            self.send_silence(&mut link, 1);
-        }
-        link.pull(now, out);
-    }
-
-    fn peers(&self) -> Vec<PeerInfo> {
-        lock(&self.call).peers()
-    }
-
-    fn all_left(&self) -> bool {
-        lock(&self.call).all_left()
-    }
-
-    fn send_frames(&mut self, payload: &[u8], frames: u32) {
-        self.ours_at = Instant::now();
-        lock(&self.call).send_frames(payload, frames);
-    }
-
-    fn skip_frames(&mut self, frames: u32) {
-        self.ours_at = Instant::now();
-        let call = Arc::clone(&self.call);
-        self.send_silence(&mut lock(&call), frames);
-    }
-
-    fn unknown_payload(&self) -> u64 {
-        lock(&self.call).unknown_payload()
-    }
-
-    fn leave(&mut self) {
-        lock(&self.call).leave();
-    }
-
-    /// The phone reports the call's progress and end ([`PhoneTurn`]); the engine's own
-    /// handling of link events is for rooms.
-    fn poll(&mut self) -> Vec<LinkEvent> {
-        drop(lock(&self.call).poll());
-        Vec::new()
-    }
-
-    fn over(&self) -> bool {
-        lock(&self.call).over()
-    }
-
-    fn local_addr(&self) -> Option<SocketAddr> {
-        lock(&self.call).local_addr()
-    }
 }
 
 #[cfg(test)]

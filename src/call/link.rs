@@ -1,11 +1,13 @@
 //! A call's transport as the receive side sees it: decoded frames of every remote peer pulled
 //! on the output clock, the peers described, our own frames sent. lipcall's session (a direct
-//! call or a relay room) and a Janus room implement it; the app's worker and `receive` drive
-//! any of them alike.
+//! call or a relay room), a Janus room, a Mumble channel and a SIP call implement it; the app's
+//! worker and `receive` drive any of them alike, and learn what happened from [`Link::poll`]
+//! alone. What only one transport can do is asked of a handle the link gives out.
 
 use std::net::SocketAddr;
 use std::time::Instant;
 
+use crate::codec::any::Codec;
 use crate::net::session::{PeerFrame, PeerInfo, Session};
 
 /// What a link did since the last poll, for the caller to show.
@@ -45,6 +47,38 @@ pub enum LinkEvent {
     Rejoined {
         id: String,
     },
+    /// Said by the other side, changing nothing (a text message, how voice travels).
+    Note(String),
+    /// A request of ours refused (a channel move, a rejoin); the call goes on.
+    Refusal(String),
+    /// The call, once in, is over for good (removed, the server no longer the one trusted):
+    /// why, as a whole sentence.
+    Over {
+        reason: String,
+    },
+    /// How the call is getting on while it is set up (dialling, ringing, media agreed): for
+    /// the call's state line.
+    Progress(String),
+    /// What our audio must now be sent in, and whether the media is encrypted (hop by hop:
+    /// SDES keys travel in the signalling).
+    Media {
+        codec: Codec,
+        srtp: bool,
+    },
+    /// The call ended as calls do (a hang-up): said, not an error.
+    Ended {
+        reason: String,
+    },
+}
+
+impl LinkEvent {
+    /// The call is over: nothing more will come.
+    pub fn ends_call(&self) -> bool {
+        matches!(
+            self,
+            LinkEvent::Failed(_) | LinkEvent::Over { .. } | LinkEvent::Ended { .. }
+        )
+    }
 }
 
 /// One call's transport.

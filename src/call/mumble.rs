@@ -1,14 +1,19 @@
 //! A channel on a Mumble server as a call's [`Link`]: each user who speaks there (a Mumble
 //! session id) is a peer with the user's name, received through the same jitter buffer and
-//! Opus decoder as every other transport ([`crate::net::mumble`]).
+//! Opus decoder as every other transport ([`crate::net::mumble`]). The app's join runs on a
+//! thread of its own (TLS and the server's answer take a moment; the 20 ms tick never waits
+//! for it); the command line joins first and hands the connection over.
 
-use std::net::SocketAddr;
+use std::sync::{Arc, OnceLock};
+use std::thread::JoinHandle;
 use std::time::Instant;
 
 use super::link::{Link, LinkEvent};
+use crate::net::mumble::MumbleError;
 use crate::net::mumble::client::ClientEvent;
-use crate::net::mumble::connection::{Connection, Notice};
+use crate::net::mumble::connection::{ConnectConfig, Connection, Notice, Remote};
 use crate::net::mumble::events::describe_unlisted;
+use crate::net::mumble::identity::Trust;
 use crate::net::session::{PeerFrame, PeerInfo};
 
 /// Whether a call address names a Mumble server (`mumble://HOST[:PORT][/CHANNEL]`).
@@ -34,58 +39,143 @@ pub fn parse_mumble_url(address: &str) -> Option<(String, Option<String>)> {
     ))
 }
 
-/// Our membership of a Mumble server's channel.
+type Joining = JoinHandle<Result<Connection, MumbleError>>;
+
+enum Stage {
+    Joining(Option<Joining>),
+    In(Box<Connection>),
+    /// The join failed, or we left.
+    Gone,
+}
+
+/// What the app asks of a Mumble call beyond [`Link`]: moving between channels, self-mute,
+/// the channels and users, the certificate. Cheap to clone; empty until joined.
+#[derive(Clone, Default)]
+pub struct MumbleHandle(Arc<OnceLock<Joined>>);
+
+struct Joined {
+    remote: Remote,
+    fingerprint: String,
+    trust: Trust,
+}
+
+impl MumbleHandle {
+    /// On the server yet.
+    pub fn joined(&self) -> bool {
+        self.0.get().is_some()
+    }
+
+    /// The server certificate's SHA-256 fingerprint and how it stands, once joined.
+    pub fn fingerprint(&self) -> Option<(&str, &Trust)> {
+        self.0.get().map(|j| (j.fingerprint.as_str(), &j.trust))
+    }
+
+    /// The connection's remote controls, once joined.
+    pub fn remote(&self) -> Option<&Remote> {
+        self.0.get().map(|j| &j.remote)
+    }
+}
+
+/// Our membership of a Mumble server's channel, from the join on.
 pub struct MumbleLink {
-    connection: Connection,
-    /// The server's address, shown as every speaker's.
-    server: SocketAddr,
+    stage: Stage,
     place: String,
     /// Someone spoke at some point.
     heard: bool,
-    /// What the server said that is no [`LinkEvent`] (refusals, text messages, UDP state).
-    notes: Vec<String>,
-    /// The server removed us: why (the call is over).
-    removed: Option<String>,
-    /// The server came back with another certificate: why (the call is over).
-    untrusted: Option<String>,
+    /// The call is over once in: why (removed, untrusted).
+    ended: Option<String>,
+    handle: MumbleHandle,
 }
 
 impl MumbleLink {
+    /// Starts joining on a thread of its own; [`Link::poll`] says how it went.
+    pub fn join(config: ConnectConfig, place: String) -> std::io::Result<Self> {
+        let thread = std::thread::Builder::new()
+            .name("mumble-join".into())
+            .spawn(move || Connection::connect(config))?;
+        Ok(Self::new(Stage::Joining(Some(thread)), place))
+    }
+
     /// Around a connection already joined.
     pub fn joined(connection: Connection, place: String) -> Self {
-        let server = connection.address();
+        let mut link = Self::new(Stage::Joining(None), place);
+        link.enter(connection);
+        link
+    }
+
+    fn new(stage: Stage, place: String) -> Self {
         Self {
-            connection,
-            server,
+            stage,
             place,
             heard: false,
-            notes: Vec::new(),
-            removed: None,
-            untrusted: None,
+            ended: None,
+            handle: MumbleHandle::default(),
         }
     }
 
-    pub fn connection(&self) -> &Connection {
-        &self.connection
+    fn enter(&mut self, connection: Connection) {
+        let (print, trust) = connection.fingerprint();
+        let joined = Joined {
+            remote: connection.remote(),
+            fingerprint: print.to_string(),
+            trust: trust.clone(),
+        };
+        if self.handle.0.set(joined).is_err() {
+            tracing::debug!("a Mumble link joined twice");
+        }
+        self.stage = Stage::In(Box::new(connection));
+    }
+
+    /// What only Mumble has, for whoever drives this link.
+    pub fn handle(&self) -> MumbleHandle {
+        self.handle.clone()
+    }
+
+    /// The connection, once joined.
+    pub fn connection(&self) -> Option<&Connection> {
+        match &self.stage {
+            Stage::In(connection) => Some(connection),
+            _ => None,
+        }
     }
 
     pub fn place(&self) -> &str {
         &self.place
     }
 
-    /// Why the server removed us, if it did.
-    pub fn removed(&self) -> Option<&str> {
-        self.removed.as_deref()
+    /// Why the call ended once in (removed, the server no longer the one trusted), if it did.
+    pub fn ended(&self) -> Option<&str> {
+        self.ended.as_deref()
     }
 
-    /// Why the call ended on a server that is no longer the one trusted, if it did.
-    pub fn untrusted(&self) -> Option<&str> {
-        self.untrusted.as_deref()
-    }
-
-    /// What the server said since the last call that no [`LinkEvent`] carries.
-    pub fn take_notes(&mut self) -> Vec<String> {
-        std::mem::take(&mut self.notes)
+    /// The join's outcome once its thread is done.
+    fn follow_join(&mut self) -> Option<LinkEvent> {
+        let Stage::Joining(thread) = &mut self.stage else {
+            return None;
+        };
+        if !thread.as_ref().is_some_and(JoinHandle::is_finished) {
+            return None;
+        }
+        match thread.take().map(JoinHandle::join) {
+            Some(Ok(Ok(connection))) => {
+                let id = connection
+                    .session()
+                    .map_or_else(|| "-".into(), |s| s.to_string());
+                self.enter(connection);
+                Some(LinkEvent::Joined {
+                    place: self.place.clone(),
+                    id,
+                })
+            }
+            Some(Ok(Err(e))) => {
+                self.stage = Stage::Gone;
+                Some(LinkEvent::Failed(e.to_string()))
+            }
+            _ => {
+                self.stage = Stage::Gone;
+                Some(LinkEvent::Failed("the join stopped unexpectedly".into()))
+            }
+        }
     }
 
     fn event(&mut self, notice: Notice) -> Option<LinkEvent> {
@@ -104,60 +194,56 @@ impl MumbleLink {
                 id: session.to_string(),
             },
             Notice::Client(ClientEvent::Removed(reason)) => {
-                self.removed = Some(reason.clone());
-                LinkEvent::Failed(format!("the Mumble server removed us: {reason}"))
+                self.end(format!("the Mumble server removed us: {reason}"))
             }
-            Notice::Untrusted(reason) => {
-                let reason = format!("{reason}; not reconnecting");
-                self.untrusted = Some(reason.clone());
-                LinkEvent::Failed(reason)
-            }
+            Notice::Untrusted(reason) => self.end(format!("{reason}; not reconnecting")),
             Notice::Client(ClientEvent::Synced { .. }) => return None,
             Notice::Client(ClientEvent::Rejected(reason)) => {
-                self.notes.push(format!("the server refused us: {reason}"));
-                return None;
+                LinkEvent::Refusal(format!("the server refused us: {reason}"))
             }
             Notice::Client(ClientEvent::Denied(reason)) => {
-                self.notes.push(format!("the server refused: {reason}"));
-                return None;
+                LinkEvent::Refusal(format!("the server refused: {reason}"))
             }
             Notice::Client(ClientEvent::Text { from, message }) => {
-                self.notes.push(format!("{from} says: {message}"));
-                return None;
+                LinkEvent::Note(format!("{from} says: {message}"))
             }
             Notice::Client(ClientEvent::Unlisted {
                 joined,
                 left,
                 messages,
-            }) => {
-                self.notes.push(describe_unlisted(joined, left, messages));
-                return None;
-            }
-            Notice::Client(ClientEvent::UdpWorking(working)) => {
-                self.notes.push(if working {
-                    "voice goes by UDP".into()
-                } else {
-                    "voice goes through the TLS tunnel (UDP not working)".into()
-                });
-                return None;
-            }
+            }) => LinkEvent::Note(describe_unlisted(joined, left, messages)),
+            Notice::Client(ClientEvent::UdpWorking(working)) => LinkEvent::Note(if working {
+                "voice goes by UDP".into()
+            } else {
+                "voice goes through the TLS tunnel (UDP not working)".into()
+            }),
         })
+    }
+
+    fn end(&mut self, reason: String) -> LinkEvent {
+        self.ended = Some(reason.clone());
+        LinkEvent::Over { reason }
     }
 }
 
 impl Link for MumbleLink {
     fn pull(&mut self, now: Instant, out: &mut Vec<PeerFrame>) {
-        self.connection.pull(now, out);
+        if let Some(c) = self.connection() {
+            c.pull(now, out);
+        }
         self.heard |= !out.is_empty();
     }
 
     fn peers(&self) -> Vec<PeerInfo> {
-        self.connection
-            .speakers()
+        let Some(c) = self.connection() else {
+            return Vec::new();
+        };
+        let server = c.address();
+        c.speakers()
             .into_iter()
             .map(|(session, name, receiver, left)| PeerInfo {
                 ssrc: session,
-                addr: self.server,
+                addr: server,
                 cname: None,
                 name: Some(name),
                 receiver,
@@ -170,17 +256,20 @@ impl Link for MumbleLink {
     }
 
     fn silent_members(&self) -> Vec<PeerInfo> {
-        let members = self.connection.members();
+        let Some(c) = self.connection() else {
+            return Vec::new();
+        };
+        let members = c.members();
         let Some(ours) = members.iter().find(|m| m.us).map(|m| m.channel) else {
             return Vec::new();
         };
-        let spoke: Vec<u32> = self.connection.speakers().iter().map(|s| s.0).collect();
+        let spoke: Vec<u32> = c.speakers().iter().map(|s| s.0).collect();
         members
             .into_iter()
             .filter(|m| !m.us && m.channel == ours && !spoke.contains(&m.session))
             .map(|m| PeerInfo {
                 ssrc: m.session,
-                addr: self.server,
+                addr: c.address(),
                 cname: None,
                 name: Some(m.name),
                 receiver: Default::default(),
@@ -192,37 +281,54 @@ impl Link for MumbleLink {
             .collect()
     }
 
-    /// Everyone who spoke has left, or we were removed.
+    /// Everyone who spoke has left, or the call is over.
     fn all_left(&self) -> bool {
-        self.over() || (self.heard && self.connection.speakers().iter().all(|s| s.3))
+        self.over()
+            || (self.heard
+                && self
+                    .connection()
+                    .is_some_and(|c| c.speakers().iter().all(|s| s.3)))
     }
 
-    /// Removed, or the server is no longer the one trusted.
+    /// Removed, the server no longer the one trusted, the join failed, or left.
     fn over(&self) -> bool {
-        self.removed.is_some() || self.untrusted.is_some()
+        self.ended.is_some() || matches!(self.stage, Stage::Gone)
     }
 
     fn send_frames(&mut self, payload: &[u8], frames: u32) {
-        if let Err(e) = self.connection.send_voice(payload, frames) {
+        if let Some(c) = self.connection()
+            && let Err(e) = c.send_voice(payload, frames)
+        {
             tracing::debug!("send to Mumble: {e}");
         }
     }
 
     fn skip_frames(&mut self, frames: u32) {
-        self.connection.skip_frames(frames);
+        if let Some(c) = self.connection() {
+            c.skip_frames(frames);
+        }
     }
 
     fn unknown_payload(&self) -> u64 {
-        self.connection.stats().other_codec
+        self.connection().map_or(0, |c| c.stats().other_codec)
     }
 
+    /// Disconnects. A join still running finishes on its own thread, and its connection
+    /// closes as it is dropped there.
     fn leave(&mut self) {
-        self.connection.close();
+        if let Stage::In(mut connection) = std::mem::replace(&mut self.stage, Stage::Gone) {
+            connection.close();
+        }
     }
 
     fn poll(&mut self) -> Vec<LinkEvent> {
-        let notices = self.connection.poll();
-        notices.into_iter().filter_map(|n| self.event(n)).collect()
+        let mut events: Vec<LinkEvent> = self.follow_join().into_iter().collect();
+        let notices = match self.connection() {
+            Some(c) => c.poll(),
+            None => Vec::new(),
+        };
+        events.extend(notices.into_iter().filter_map(|n| self.event(n)));
+        events
     }
 }
 

@@ -4,18 +4,24 @@
 //! other: its frames come from the same jitter buffer and decoders.
 
 use std::net::{SocketAddr, UdpSocket};
+use std::sync::atomic::{AtomicBool, Ordering};
+use std::sync::{Arc, Mutex};
 use std::time::{Duration, Instant};
 
 use super::link::{Link, LinkEvent};
-use crate::codec::any::Codec;
+use super::media::Packets;
+use crate::codec::any::{Codec, EncoderSettings, FrameEncoder, MAX_FRAME_PAYLOAD};
 use crate::net::session::{PeerFrame, PeerInfo};
 use crate::net::sip::agent::{Account, Agent, AgentConfig, AgentEvent, Decision, Role, SipError};
-use crate::net::sip::media::{SipRtp, SipRtpStats};
+use crate::net::sip::media::{SipRtp, SipRtpStats, event_code};
 use crate::net::sip::sdp::{LocalAudio, Negotiated, SdesKey};
 use crate::net::stun;
 
 /// How long a hang-up waits for the peer to confirm it.
 const HANG_UP_WAIT: Duration = Duration::from_secs(3);
+/// Our side of the call is silence once its owner has sent nothing for this long
+/// ([`SipLink::keep_stream`]).
+const QUIET_AFTER: Duration = Duration::from_millis(60);
 
 /// Where a call stands.
 #[derive(Debug, Clone, PartialEq)]
@@ -48,9 +54,74 @@ pub struct SipLink {
     asks: bool,
     /// The caller whose call rings, waiting for the owner's decision.
     ringing: Option<String>,
-    /// Progress lines for the user (registered, ringing, a caller).
-    notices: Vec<String>,
+    /// What happened since the last poll: progress lines for the user (registered, ringing,
+    /// a caller), the media agreed, the call's start and end.
     events: Vec<LinkEvent>,
+    handle: SipHandle,
+    /// Silence sent where the owner sends nothing ([`SipLink::keep_stream`]).
+    quiet: Option<QuietFill>,
+    /// The codec and SRTP last told ([`LinkEvent::Media`]).
+    media_told: Option<(Codec, bool)>,
+    /// Audio played into the call ([`SipLink::play`]).
+    playing: Option<Playing>,
+}
+
+/// Encoded audio sent in real time from the answer on.
+struct Playing {
+    packets: Packets,
+    next: usize,
+    /// When the first packet went (or would have gone) out.
+    start: Instant,
+    sent_ticks: u64,
+}
+
+/// What the owner of a call asks of it beside [`Link`]: DTMF keys, and whether the keypad
+/// works. Cheap to clone; the call's link sends what was asked as it is pulled.
+#[derive(Clone, Debug, Default)]
+pub struct SipHandle(Arc<HandleShared>);
+
+#[derive(Debug, Default)]
+struct HandleShared {
+    keys: Mutex<String>,
+    takes_keys: AtomicBool,
+    established: AtomicBool,
+}
+
+/// DTMF keys waiting to be sent at most (a key lasts about a tenth of a second).
+const MAX_QUEUED_KEYS: usize = 64;
+
+impl SipHandle {
+    /// Queues DTMF keys; false where the peer agreed no telephone-events, a key is none, or
+    /// too many wait already.
+    pub fn send_digits(&self, keys: &str) -> bool {
+        if !self.0.takes_keys.load(Ordering::Relaxed)
+            || keys.chars().any(|k| event_code(k).is_none())
+        {
+            return false;
+        }
+        let mut queued = self.0.keys.lock().unwrap_or_else(|e| e.into_inner());
+        if queued.len() + keys.len() > MAX_QUEUED_KEYS {
+            return false;
+        }
+        queued.push_str(keys);
+        true
+    }
+
+    /// The call is established and its peer takes DTMF events (RFC 4733).
+    pub fn keypad(&self) -> bool {
+        self.0.established.load(Ordering::Relaxed) && self.0.takes_keys.load(Ordering::Relaxed)
+    }
+
+    fn take_keys(&self) -> String {
+        std::mem::take(&mut *self.0.keys.lock().unwrap_or_else(|e| e.into_inner()))
+    }
+}
+
+/// Silence in the call's codec for the frames nobody sends.
+struct QuietFill {
+    encoder: Option<FrameEncoder>,
+    /// When the owner last sent (or skipped) a frame of ours.
+    ours_at: Instant,
 }
 
 impl std::fmt::Debug for SipLink {
@@ -83,8 +154,11 @@ impl SipLink {
             peer,
             asks,
             ringing: None,
-            notices: Vec::new(),
             events: Vec::new(),
+            handle: SipHandle::default(),
+            quiet: None,
+            media_told: None,
+            playing: None,
         })
     }
 
@@ -153,9 +227,93 @@ impl SipLink {
         self.negotiated.as_ref()
     }
 
-    /// The progress lines since the last call.
-    pub fn take_notices(&mut self) -> Vec<String> {
-        std::mem::take(&mut self.notices)
+    /// What the owner may ask of the call beside [`Link`] ([`SipHandle`]).
+    pub fn handle(&self) -> SipHandle {
+        self.handle.clone()
+    }
+
+    /// Where the owner has nothing to say (its microphone's gate closed, or no microphone),
+    /// silence goes out in the call's codec: phones expect a steady stream, their jitter
+    /// buffers hold back the last packets (a DTMF key's end included) until more come, and
+    /// the stream keeps a NAT's binding open.
+    pub fn keep_stream(&mut self) {
+        self.quiet = Some(QuietFill {
+            encoder: None,
+            ours_at: Instant::now(),
+        });
+    }
+
+    /// Plays `packets` (in the codec agreed) into the call, in real time from the answer on
+    /// (not while early media plays), as the link is pulled.
+    pub fn play(&mut self, packets: Packets) {
+        self.playing = Some(Playing {
+            packets,
+            next: 0,
+            start: Instant::now(),
+            sent_ticks: 0,
+        });
+    }
+
+    /// The packets of [`SipLink::play`] now due.
+    fn send_due(&mut self) {
+        let (Some(mut playing), Some(codec)) = (self.playing.take(), self.codec()) else {
+            return;
+        };
+        if !self.answered {
+            playing.start = Instant::now();
+        }
+        let clock = f64::from(codec.clock_rate());
+        let elapsed = playing.start.elapsed();
+        while let Some((payload, ticks)) = playing.packets.get(playing.next) {
+            if Duration::from_secs_f64(playing.sent_ticks as f64 / clock) > elapsed {
+                break;
+            }
+            self.send_packet(payload, *ticks);
+            playing.sent_ticks += u64::from(*ticks);
+            playing.next += 1;
+        }
+        self.playing = Some(playing);
+    }
+
+    fn say(&mut self, line: String) {
+        self.events.push(LinkEvent::Progress(line));
+    }
+
+    /// The media once answered, when it changed.
+    fn tell_media(&mut self) {
+        let media = self
+            .negotiated
+            .as_ref()
+            .filter(|_| self.answered)
+            .map(|n| (n.codec, n.srtp.is_some()));
+        if let Some((codec, srtp)) = media
+            && media != self.media_told
+        {
+            self.media_told = media;
+            self.events.push(LinkEvent::Media { codec, srtp });
+        }
+    }
+
+    fn send_silence(&mut self, frames: u32) {
+        let Some(codec) = self.codec().filter(|_| self.answered) else {
+            return;
+        };
+        let Some(mut quiet) = self.quiet.take() else {
+            return;
+        };
+        if quiet.encoder.as_ref().is_none_or(|e| e.codec() != codec) {
+            quiet.encoder = FrameEncoder::new(codec, &EncoderSettings::default()).ok();
+        }
+        if let Some(encoder) = &mut quiet.encoder {
+            let silence = vec![0i16; encoder.frame_samples()];
+            let mut payload = [0u8; MAX_FRAME_PAYLOAD];
+            for _ in 0..frames {
+                if let Ok(Some((n, count))) = encoder.encode(&silence, &mut payload) {
+                    self.send_packet(&payload[..n], codec.frame_ticks() * count.max(1));
+                }
+            }
+        }
+        self.quiet = Some(quiet);
     }
 
     pub fn rtp_stats(&self) -> SipRtpStats {
@@ -173,38 +331,39 @@ impl SipLink {
             self.agent.next_event(wait)
         };
         while let Some(event) = next {
-            self.handle(event);
+            self.on_agent_event(event);
             next = self.agent.try_event();
         }
     }
 
-    fn handle(&mut self, event: AgentEvent) {
+    fn on_agent_event(&mut self, event: AgentEvent) {
         match event {
             AgentEvent::Listening(addr) => {
-                self.notices
-                    .push(format!("SIP on {addr} (UDP), RTP on {}", self.local_rtp));
+                self.say(format!("SIP on {addr} (UDP), RTP on {}", self.local_rtp));
             }
             AgentEvent::Registered(registrar) => {
-                self.notices.push(format!("registered with {registrar}"));
+                self.say(format!("registered with {registrar}"));
             }
             AgentEvent::Incoming(from) if self.asks => {
-                self.notices.push(format!("call from {from}"));
+                self.say(format!("call from {from}"));
                 self.peer = from.clone();
                 self.ringing = Some(from);
             }
             AgentEvent::Incoming(from) => {
                 self.peer = from.clone();
-                self.notices.push(format!("call from {from}; answering"));
+                self.say(format!("call from {from}; answering"));
             }
-            AgentEvent::Ringing => self.notices.push(format!("{} is ringing", self.peer)),
-            AgentEvent::EarlyMedia => self
-                .notices
-                .push(format!("{} sends early media before answering", self.peer)),
+            AgentEvent::Ringing => self.say(format!("{} is ringing", self.peer)),
+            AgentEvent::EarlyMedia => {
+                self.say(format!("{} sends early media before answering", self.peer));
+            }
             AgentEvent::Media(negotiated) => self.media(negotiated),
             AgentEvent::Established => {
                 self.ringing = None;
                 self.state = CallState::Established;
                 self.answered = true;
+                self.handle.0.established.store(true, Ordering::Relaxed);
+                self.tell_media();
                 self.events.push(LinkEvent::Joined {
                     place: format!("a SIP call with {}", self.peer),
                     id: self.local_rtp.to_string(),
@@ -218,10 +377,19 @@ impl SipLink {
                         name: self.peer.clone(),
                     });
                 }
+                self.events.push(LinkEvent::Ended {
+                    reason: if by_peer {
+                        format!("{} hung up", self.peer)
+                    } else {
+                        format!("the call to {} ended", self.peer)
+                    },
+                });
+                self.handle.0.established.store(false, Ordering::Relaxed);
                 self.state = CallState::Ended { by_peer };
             }
             AgentEvent::Failed(e) => {
                 self.ringing = None;
+                self.handle.0.established.store(false, Ordering::Relaxed);
                 self.events.push(LinkEvent::Failed(e.to_string()));
                 self.state = CallState::Failed(e);
             }
@@ -229,7 +397,7 @@ impl SipLink {
     }
 
     fn media(&mut self, negotiated: Negotiated) {
-        self.notices.push(format!(
+        self.say(format!(
             "media: {} (payload type {}) with {}{}{}",
             negotiated.codec,
             negotiated.payload_type,
@@ -258,7 +426,12 @@ impl SipLink {
             },
             (None, None) => {}
         }
+        self.handle
+            .0
+            .takes_keys
+            .store(negotiated.events.is_some(), Ordering::Relaxed);
         self.negotiated = Some(negotiated);
+        self.tell_media();
     }
 
     /// The codec our audio must be sent in, once agreed.
@@ -331,8 +504,20 @@ fn media_address(socket: &UdpSocket, server: &str, local: SocketAddr) -> SocketA
 
 impl Link for SipLink {
     fn pull(&mut self, now: Instant, out: &mut Vec<PeerFrame>) {
+        if self
+            .quiet
+            .as_ref()
+            .is_some_and(|q| q.ours_at.elapsed() >= QUIET_AFTER)
+        {
+            self.send_silence(1);
+        }
+        self.send_due();
+        let keys = self.handle.take_keys();
         if let Some(rtp) = &self.rtp {
             rtp.with(|core| {
+                if !keys.is_empty() && !core.queue_digits(&keys) {
+                    tracing::debug!("DTMF {keys:?} not sent: the peer takes no events");
+                }
                 if let Err(e) = core.step_digits() {
                     tracing::debug!("DTMF: {e}");
                 }
@@ -367,12 +552,20 @@ impl Link for SipLink {
     }
 
     fn send_frames(&mut self, payload: &[u8], frames: u32) {
+        if let Some(quiet) = &mut self.quiet {
+            quiet.ours_at = Instant::now();
+        }
         if let Some(codec) = self.codec() {
             self.send_packet(payload, codec.frame_ticks() * frames.max(1));
         }
     }
 
     fn skip_frames(&mut self, frames: u32) {
+        if let Some(quiet) = &mut self.quiet {
+            quiet.ours_at = Instant::now();
+            self.send_silence(frames);
+            return;
+        }
         if let Some(rtp) = &self.rtp {
             rtp.with(|c| c.skip_frames(frames));
         }
@@ -399,5 +592,25 @@ impl Link for SipLink {
 
     fn local_addr(&self) -> Option<SocketAddr> {
         Some(self.local_rtp)
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn the_handle_takes_keys_only_where_the_peer_takes_events_and_queues_a_bounded_few() {
+        let handle = SipHandle::default();
+        assert!(!handle.send_digits("1"), "no telephone-event agreed");
+        handle.0.takes_keys.store(true, Ordering::Relaxed);
+        assert!(!handle.keypad(), "not established yet");
+        assert!(handle.send_digits("12#*"));
+        assert!(!handle.send_digits("1x"), "x is no DTMF key");
+        assert!(!handle.send_digits(&"5".repeat(MAX_QUEUED_KEYS)));
+        assert_eq!(handle.take_keys(), "12#*");
+        assert!(handle.send_digits(&"5".repeat(MAX_QUEUED_KEYS)));
+        handle.0.established.store(true, Ordering::Relaxed);
+        assert!(handle.keypad());
     }
 }

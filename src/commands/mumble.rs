@@ -4,15 +4,14 @@
 //! sync) with the same outputs, one WAV and CSV per speaker.
 
 use std::path::Path;
-use std::sync::atomic::{AtomicBool, Ordering};
 use std::time::{Duration, Instant};
 
 use anyhow::{Context, Result, bail};
 
 use super::net::{load_packets, print_peer, send_paced};
 use super::playout::{MUMBLE, ReceiveOutputs, play};
-use super::recording::{stop_flag, stopped};
-use crate::call::link::{Link, LinkEvent};
+use super::recording::stop_flag;
+use crate::call::link::Link;
 use crate::call::mumble::MumbleLink;
 use crate::codec::any::{Codec, EncoderSettings};
 use crate::net::jitter::JitterConfig;
@@ -20,7 +19,6 @@ use crate::net::mumble::client::{ClientConfig, ClientEvent};
 use crate::net::mumble::connection::{ConnectConfig, Connection, Notice};
 use crate::net::mumble::events::describe_unlisted;
 use crate::net::mumble::identity::{self, Trust};
-use crate::net::session::{PeerFrame, PeerInfo};
 
 /// 48 kHz ticks of a 20 ms Opus frame.
 const TICKS_PER_FRAME: u32 = 960;
@@ -226,51 +224,6 @@ pub fn send(input: &Path, args: &MumbleArgs) -> Result<()> {
     Ok(())
 }
 
-/// A Mumble link whose notes (refusals, text messages, the UDP state) are told as the receive
-/// loop polls it. The loop's stop flag is ours: a signal (the process's flag) sets it, and so
-/// does the server removing us.
-struct Told<'a>(&'a mut MumbleLink, &'a AtomicBool, &'a AtomicBool);
-
-impl Link for Told<'_> {
-    fn pull(&mut self, now: Instant, out: &mut Vec<PeerFrame>) {
-        self.0.pull(now, out);
-    }
-    fn peers(&self) -> Vec<PeerInfo> {
-        self.0.peers()
-    }
-    fn all_left(&self) -> bool {
-        self.0.all_left()
-    }
-    fn send_frames(&mut self, payload: &[u8], frames: u32) {
-        self.0.send_frames(payload, frames);
-    }
-    fn skip_frames(&mut self, frames: u32) {
-        self.0.skip_frames(frames);
-    }
-    fn unknown_payload(&self) -> u64 {
-        self.0.unknown_payload()
-    }
-    fn leave(&mut self) {
-        self.0.leave();
-    }
-    fn over(&self) -> bool {
-        self.0.over()
-    }
-    fn poll(&mut self) -> Vec<LinkEvent> {
-        if stopped(self.1) {
-            self.2.store(true, Ordering::Relaxed);
-        }
-        let events = self.0.poll();
-        if events.iter().any(|e| matches!(e, LinkEvent::Failed(_))) {
-            self.2.store(true, Ordering::Relaxed);
-        }
-        for note in self.0.take_notes() {
-            eprintln!("lipcall: {note}");
-        }
-        events
-    }
-}
-
 #[derive(Debug, Clone)]
 pub struct MumbleReceiveArgs {
     pub mumble: MumbleArgs,
@@ -292,43 +245,41 @@ pub fn receive(args: &MumbleReceiveArgs) -> Result<()> {
         connection.server()
     );
     let mut link = MumbleLink::joined(connection, place);
-    let ended = AtomicBool::new(false);
     let played = play(
-        &mut Told(&mut link, &stop, &ended),
+        &mut link,
         MUMBLE,
         args.out.seconds,
         model.as_ref(),
         &mut |_, _, _| {},
         &mut recorder,
-        &ended,
+        &stop,
     );
-    let stats = link.connection().stats();
-    eprintln!(
-        "lipcall: played {:.2} s; udp={} tunnel={} decrypt_failed={} malformed={} other_codec={} \
-         resyncs={}",
-        recorder.seconds(),
-        stats.udp_received,
-        stats.tunnel_received,
-        stats.decrypt_failed,
-        stats.malformed,
-        stats.other_codec,
-        stats.resyncs
-    );
+    if let Some(connection) = link.connection() {
+        let stats = connection.stats();
+        eprintln!(
+            "lipcall: played {:.2} s; udp={} tunnel={} decrypt_failed={} malformed={} \
+             other_codec={} resyncs={}",
+            recorder.seconds(),
+            stats.udp_received,
+            stats.tunnel_received,
+            stats.decrypt_failed,
+            stats.malformed,
+            stats.other_codec,
+            stats.resyncs
+        );
+    }
     for peer in link.peers() {
         print_peer(&peer);
     }
-    let unlisted = link.connection().speakers_unlisted();
+    let unlisted = link.connection().map_or(0, Connection::speakers_unlisted);
     if unlisted > 0 {
         eprintln!("lipcall: and {unlisted} more speakers who left, not listed");
     }
     link.leave();
     let finished = recorder.finish();
     played.and(finished)?;
-    if let Some(reason) = link.untrusted() {
-        bail!("{reason}");
-    }
-    match link.removed() {
-        Some(reason) => bail!("the Mumble server removed us: {reason}"),
+    match link.ended() {
+        Some(reason) => bail!("{reason}"),
         None => Ok(()),
     }
 }

@@ -189,12 +189,20 @@ pub(crate) fn print_event(event: &LinkEvent, words: Wording) {
             eprintln!("lipcall: cannot {retry} yet ({reason}); trying again")
         }
         LinkEvent::Rejoined { id } => eprintln!("lipcall: {back} {id}"),
+        LinkEvent::Note(said)
+        | LinkEvent::Refusal(said)
+        | LinkEvent::Progress(said)
+        | LinkEvent::Over { reason: said }
+        | LinkEvent::Ended { reason: said } => eprintln!("lipcall: {said}"),
+        // A progress line names the media agreed.
+        LinkEvent::Media { .. } => {}
     }
 }
 
 /// The receive loop: pulls every 20 ms, mixes, runs each peer's pipeline when a model is
 /// given, and streams what it plays to `recorder`. Ends after `seconds`, when every peer has
-/// left (without `seconds`), or when `stop` is set (SIGINT, SIGTERM).
+/// left (without `seconds`), when the link says the call failed or is over, or when `stop` is
+/// set (SIGINT, SIGTERM).
 pub(crate) fn play<'m>(
     link: &mut dyn Link,
     words: Wording,
@@ -225,8 +233,13 @@ pub(crate) fn play<'m>(
             break Ok(());
         }
         frames.clear();
+        let mut ended = false;
         for event in link.poll() {
             print_event(&event, words);
+            ended |= event.ends_call();
+        }
+        if ended {
+            break Ok(());
         }
         link.pull(due, &mut frames);
         if frames.is_empty() && timeline.is_some() && limit.is_none() && link.all_left() {

@@ -10,7 +10,7 @@ use anyhow::{Context, Result, bail};
 use zeroize::Zeroizing;
 
 use super::net::{load_packets, parse_codec, print_peer};
-use super::playout::{DIRECT, open_outputs, play};
+use super::playout::{DIRECT, open_outputs, play, print_event};
 use super::recording::{stop_flag, stopped};
 use crate::call::link::{Link, LinkEvent};
 use crate::call::media::Packets;
@@ -18,7 +18,6 @@ use crate::call::sip::{CallState, SipLink};
 use crate::codec::any::{Codec, EncoderSettings};
 use crate::net::host_port::resolve_with_port;
 use crate::net::janus::candidates::local_ip_towards;
-use crate::net::session::{PeerFrame, PeerInfo};
 use crate::net::sip::address::{bind_towards, host_port, resolve_host};
 use crate::net::sip::agent::{Account, Role, codecs};
 use crate::secrets::{forbid_core_dumps, read_password_file};
@@ -244,18 +243,11 @@ fn run_call(
         eprintln!("lipcall: warning: DTMF {keys:?} not sent: the peer agreed no telephone-events");
     }
     let remaining = limit.map(|l| l.saturating_sub(start.elapsed()).as_secs_f64());
-    let mut playing = Playing {
-        link: &mut link,
-        packets,
-        next: 0,
-        start: Instant::now(),
-        sent_ticks: 0,
-        clock: f64::from(codec.clock_rate()),
-    };
+    link.play(packets);
     let played = match remaining {
         Some(s) if s <= 0.0 => Ok(()),
         _ => play(
-            &mut playing,
+            &mut link,
             DIRECT,
             remaining,
             model.as_ref(),
@@ -317,8 +309,11 @@ fn set_up(
 ) -> Result<()> {
     loop {
         link.follow(SETUP_STEP);
-        for notice in link.take_notices() {
-            eprintln!("lipcall: {notice}");
+        // A failure is said once, as the error below.
+        for event in link.poll() {
+            if !matches!(event, LinkEvent::Failed(_)) {
+                print_event(&event, DIRECT);
+            }
         }
         match link.state() {
             CallState::Established => return Ok(()),
@@ -338,72 +333,5 @@ fn set_up(
             }
             bail!("no answer within {seconds} s; the call was cancelled");
         }
-    }
-}
-
-/// The call with our file played into it: each pull first sends the packets now due.
-struct Playing<'l> {
-    link: &'l mut SipLink,
-    packets: Packets,
-    next: usize,
-    start: Instant,
-    sent_ticks: u64,
-    clock: f64,
-}
-
-impl Link for Playing<'_> {
-    fn pull(&mut self, now: Instant, out: &mut Vec<PeerFrame>) {
-        if !self.link.answered() {
-            // Our file starts when the call is answered, not while early media plays.
-            self.start = Instant::now();
-        }
-        let elapsed = Instant::now().saturating_duration_since(self.start);
-        while let Some((payload, ticks)) = self.packets.get(self.next) {
-            let due = Duration::from_secs_f64(self.sent_ticks as f64 / self.clock);
-            if due > elapsed {
-                break;
-            }
-            self.link.send_packet(payload, *ticks);
-            self.sent_ticks += u64::from(*ticks);
-            self.next += 1;
-        }
-        self.link.pull(now, out);
-    }
-
-    fn peers(&self) -> Vec<PeerInfo> {
-        self.link.peers()
-    }
-
-    fn all_left(&self) -> bool {
-        self.link.all_left()
-    }
-
-    fn send_frames(&mut self, payload: &[u8], frames: u32) {
-        self.link.send_frames(payload, frames);
-    }
-
-    fn skip_frames(&mut self, frames: u32) {
-        self.link.skip_frames(frames);
-    }
-
-    fn unknown_payload(&self) -> u64 {
-        self.link.unknown_payload()
-    }
-
-    fn leave(&mut self) {
-        self.link.leave();
-    }
-
-    fn poll(&mut self) -> Vec<LinkEvent> {
-        let events = self.link.poll();
-        // Progress during the call too: the answer after early media, a re-INVITE's media.
-        for notice in self.link.take_notices() {
-            eprintln!("lipcall: {notice}");
-        }
-        events
-    }
-
-    fn over(&self) -> bool {
-        self.link.over()
     }
 }

@@ -1,10 +1,10 @@
 //! The engine's side of the phone ([`crate::app::sip_call`]): a SIP call dialled or answered
-//! becomes the worker's link, its encoder follows the codec SDP agreed, its progress is the
-//! call's state line, and its end (either side) brings the worker back to idle.
+//! becomes the worker's link; like every link's, its progress, media and end come through the
+//! engine's one route (`engine/news.rs`).
 
 use std::time::Instant;
 
-use super::{CallSpec, CallStatus, Encryption, Worker, lock};
+use super::{CallSpec, CallStatus, Worker, lock};
 use crate::app::sip_call::{PhoneCommand, PhoneTurn};
 use crate::app::timing::RelayWatch;
 use crate::codec::any::{EncoderSettings, FrameEncoder};
@@ -25,13 +25,10 @@ impl Worker {
         }
     }
 
-    /// The SIP call's progress and the listener's callers, each pass of the worker's loop.
+    /// The listener's callers and the keypad, each pass of the worker's loop (the SIP call's
+    /// own news comes by the engine's one route, [`Worker::follow_link`]).
     pub(super) fn follow_phone(&mut self) {
-        for turn in self.phone.poll(self.in_call, Instant::now()) {
-            if let Err(e) = self.apply(turn) {
-                lock(&self.shared).call.error = Some(format!("{e:#}"));
-            }
-        }
+        self.phone.poll(self.in_call, Instant::now());
         self.show_phone();
     }
 
@@ -44,40 +41,24 @@ impl Worker {
     }
 
     fn apply(&mut self, turn: PhoneTurn) -> anyhow::Result<()> {
-        match turn {
-            PhoneTurn::Switch { link, codec, state } => {
-                let encoder = FrameEncoder::new(codec, &EncoderSettings::default())?;
-                self.switch_link(link, encoder);
-                self.relay = RelayWatch::default();
-                lock(&self.shared).call = CallStatus {
-                    state,
-                    in_call: true,
-                    codec: Some(codec),
-                    ..CallStatus::default()
-                };
-            }
-            PhoneTurn::Status { state, media } => {
-                if let Some((codec, srtp)) = media {
-                    self.encoder = FrameEncoder::new(codec, &EncoderSettings::default())?;
-                    let mut s = lock(&self.shared);
-                    s.call.codec = Some(codec);
-                    // SDES keys travel in the SIP messages: every proxy on the way has them.
-                    s.call.encryption = if srtp {
-                        Encryption::HopByHop
-                    } else {
-                        Encryption::None
-                    };
-                }
-                if let Some(state) = state {
-                    lock(&self.shared).call.state = state;
-                }
-            }
-            PhoneTurn::Over(line) => {
-                self.leave()?;
-                let mut s = lock(&self.shared);
-                s.call.state = format!("{line}; {}", s.call.state);
-            }
-        }
+        let PhoneTurn {
+            link,
+            handle,
+            peer,
+            codec,
+            state,
+        } = turn;
+        let encoder = FrameEncoder::new(codec, &EncoderSettings::default())?;
+        self.switch_link(link, encoder);
+        self.phone.in_call(handle, peer);
+        self.relay = RelayWatch::default();
+        self.call_label = "SIP call".into();
+        lock(&self.shared).call = CallStatus {
+            state,
+            in_call: true,
+            codec: Some(codec),
+            ..CallStatus::default()
+        };
         Ok(())
     }
 }

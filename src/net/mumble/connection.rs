@@ -10,7 +10,7 @@ use std::io::{ErrorKind, Read, Write};
 use std::net::{SocketAddr, TcpStream, UdpSocket};
 use std::path::PathBuf;
 use std::sync::atomic::{AtomicBool, Ordering};
-use std::sync::{Arc, Mutex};
+use std::sync::{Arc, Mutex, Weak};
 use std::thread::JoinHandle;
 use std::time::{Duration, Instant};
 
@@ -299,6 +299,43 @@ fn join(stream: &mut Tls, shared: &Shared) -> Result<u32, MumbleError> {
     }
 }
 
+/// What others may ask of a connection while its owner drives it (the app's channel panel,
+/// self-mute): cheap to clone; once the connection is gone it asks nothing and says nothing.
+#[derive(Clone, Debug, Default)]
+pub struct Remote(Weak<Shared>);
+
+impl Remote {
+    fn access<T>(&self, f: impl FnOnce(&mut ClientCore) -> T) -> Option<T> {
+        self.0.upgrade().map(|shared| shared.driver.access(f))
+    }
+
+    pub fn join_channel(&self, id: u32) {
+        self.access(|core| core.join_channel(id));
+    }
+
+    /// Tells the server whether we muted ourselves (others see it).
+    pub fn set_self_mute(&self, muted: bool) {
+        self.access(|core| core.set_self_mute(muted, Instant::now()));
+    }
+
+    pub fn channels(&self) -> Vec<Channel> {
+        self.access(|core| core.channels()).unwrap_or_default()
+    }
+
+    /// Everyone on the server now, ourselves included.
+    pub fn members(&self) -> Vec<Member> {
+        self.access(|core| core.members()).unwrap_or_default()
+    }
+
+    pub fn current_channel(&self) -> Option<String> {
+        self.access(|core| core.current_channel()).flatten()
+    }
+
+    pub fn udp_working(&self) -> bool {
+        self.access(|core| core.udp_working()).unwrap_or(false)
+    }
+}
+
 impl Connection {
     /// Connects, authenticates and joins; returns once in (or with why not).
     pub fn connect(config: ConnectConfig) -> Result<Self, MumbleError> {
@@ -347,6 +384,11 @@ impl Connection {
     /// The address the server was reached at (no lookup).
     pub fn address(&self) -> SocketAddr {
         self.address
+    }
+
+    /// A handle on this connection for others ([`Remote`]).
+    pub fn remote(&self) -> Remote {
+        Remote(Arc::downgrade(&self.shared))
     }
 
     /// The server certificate's SHA-256 fingerprint, and whether it was first seen now.
