@@ -26,20 +26,6 @@ fn receive(url: &str, seconds: &str) -> Command {
     cmd
 }
 
-/// The resident memory of a process, in MB (`None` once it has gone).
-fn rss_mb(pid: u32) -> Option<f64> {
-    let status = std::fs::read_to_string(format!("/proc/{pid}/status")).ok()?;
-    let kb: f64 = status
-        .lines()
-        .find_map(|l| l.strip_prefix("VmRSS:"))?
-        .trim()
-        .trim_end_matches("kB")
-        .trim()
-        .parse()
-        .ok()?;
-    Some(kb / 1024.0)
-}
-
 #[test]
 fn publishers_churning_faster_than_subscriptions_answer_neither_hold_the_call_nor_a_stop() {
     let Some(janus) = scripted("churn") else {
@@ -74,7 +60,7 @@ fn a_flood_of_unsolicited_events_keeps_memory_flat_and_the_join_times_out() {
     let mut peak: f64 = 0.0;
     let started = Instant::now();
     while started.elapsed() < Duration::from_secs(25) {
-        match rss_mb(pid) {
+        match common::rss_mb(pid) {
             Some(mb) => peak = peak.max(mb),
             None => break,
         }

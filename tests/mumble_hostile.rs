@@ -25,7 +25,8 @@ use lipcall::net::mumble::messages::{
 };
 use lipcall::net::mumble::voice;
 
-use common::mumble::{lipcall_as, rss_mb};
+use common::mumble::lipcall_as;
+use common::rss_mb;
 
 type Tls = SslStream<TcpStream>;
 

@@ -21,13 +21,7 @@ const MAX_LOG_LINES: usize = 20;
 /// A field of lipcall's /proc/PID/status in MB (`VmRSS` now, `VmHWM` the peak); `None` once it
 /// has exited.
 fn memory(lipcall: &Logged, field: &str) -> Option<f64> {
-    let pid = lipcall.peer.child.as_ref().expect("running").id();
-    let status = std::fs::read_to_string(format!("/proc/{pid}/status")).ok()?;
-    let kb: f64 = status
-        .lines()
-        .find_map(|l| l.strip_prefix(field)?.strip_prefix(':'))
-        .and_then(|v| v.trim().trim_end_matches("kB").trim().parse().ok())?;
-    Some(kb / 1024.0)
+    common::memory_mb(lipcall.peer.child.as_ref().expect("running").id(), field)
 }
 
 fn memory_mb(lipcall: &Logged, field: &str) -> f64 {

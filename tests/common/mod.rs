@@ -82,6 +82,22 @@ pub mod talker;
 
 /// A test's real peer or data is missing: under CI (`CI` set, as `.ci/run` runs) that fails the
 /// test with the reason, since .ci/run installs everything; elsewhere the test says so and skips.
+/// A memory field of a process's /proc/PID/status in MB (`VmRSS` now, `VmHWM` its peak);
+/// `None` once it has gone.
+pub fn memory_mb(pid: u32, field: &str) -> Option<f64> {
+    let status = std::fs::read_to_string(format!("/proc/{pid}/status")).ok()?;
+    let kb: f64 = status
+        .lines()
+        .find_map(|l| l.strip_prefix(field)?.strip_prefix(':'))
+        .and_then(|v| v.trim().trim_end_matches("kB").trim().parse().ok())?;
+    Some(kb / 1024.0)
+}
+
+/// The resident memory of a process in MB (`None` once it has gone).
+pub fn rss_mb(pid: u32) -> Option<f64> {
+    memory_mb(pid, "VmRSS")
+}
+
 pub fn unavailable(reason: &str) {
     assert!(
         std::env::var_os("CI").is_none(),

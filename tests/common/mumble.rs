@@ -156,17 +156,3 @@ pub fn lipcall_as(dir: &Path, who: &str) -> Command {
     cmd.env("XDG_CONFIG_HOME", dir.join(format!("config-{who}")));
     cmd
 }
-
-/// The resident memory of a process, in MB (`None` once it has gone).
-pub fn rss_mb(pid: u32) -> Option<f64> {
-    let status = std::fs::read_to_string(format!("/proc/{pid}/status")).ok()?;
-    let kb: f64 = status
-        .lines()
-        .find_map(|l| l.strip_prefix("VmRSS:"))?
-        .trim()
-        .trim_end_matches("kB")
-        .trim()
-        .parse()
-        .ok()?;
-    Some(kb / 1024.0)
-}
