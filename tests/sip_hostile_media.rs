@@ -9,7 +9,9 @@ mod common;
 use std::net::{SocketAddr, UdpSocket};
 use std::time::{Duration, Instant};
 
-use common::sip::{exit_of, free_port, lipcall_answering, lipcall_answering_with};
+use common::sip::{
+    exit_of, free_port, lipcall_answering, lipcall_answering_with, stun_binding_success,
+};
 
 /// A caller speaking just enough SIP over one UDP socket for one call.
 struct Caller {
@@ -302,20 +304,13 @@ fn lying_stun_server(mapped: SocketAddr) -> SocketAddr {
     let addr = socket.local_addr().unwrap();
     std::thread::spawn(move || {
         let mut buf = [0u8; 1500];
+        let SocketAddr::V4(mapped) = mapped else {
+            return;
+        };
         while let Ok((n, from)) = socket.recv_from(&mut buf) {
-            if n < 20 {
-                continue;
+            if let Some(reply) = stun_binding_success(&buf[..n], mapped) {
+                let _ = socket.send_to(&reply, from);
             }
-            let SocketAddr::V4(mapped) = mapped else {
-                return;
-            };
-            // Binding success, the request's cookie and transaction, XOR-MAPPED-ADDRESS.
-            let mut reply = vec![0x01, 0x01, 0, 12];
-            reply.extend_from_slice(&buf[4..20]);
-            reply.extend([0x00, 0x20, 0, 8, 0, 1]);
-            reply.extend((mapped.port() ^ 0x2112).to_be_bytes());
-            reply.extend((u32::from(*mapped.ip()) ^ 0x2112_a442).to_be_bytes());
-            let _ = socket.send_to(&reply, from);
         }
     });
     addr

@@ -1,7 +1,9 @@
 //! A SIP phone call as a call's [`Link`]: the user agent ([`crate::net::sip::agent`]) on its
 //! own thread, and once SDP has agreed a codec and an address, the call's RTP
-//! ([`crate::net::sip::media`]) on the socket our SDP named. The caller is one peer like any
-//! other: its frames come from the same jitter buffer and decoders.
+//! ([`crate::net::sip::media`]) on the socket our SDP named, its RTCP on the port above (or
+//! on the same one, where both sides agree to multiplex). The caller is one peer like any
+//! other: its frames come from the same jitter buffer and decoders, its reports tell the loss
+//! it sees of ours.
 
 use std::net::{SocketAddr, UdpSocket};
 use std::sync::atomic::{AtomicBool, Ordering};
@@ -38,9 +40,11 @@ pub enum CallState {
 /// One SIP call.
 pub struct SipLink {
     agent: Agent,
-    /// Our RTP socket until the media starts on it.
+    /// Our RTP and RTCP sockets until the media starts on them.
     socket: Option<UdpSocket>,
+    rtcp_socket: Option<UdpSocket>,
     local_rtp: SocketAddr,
+    local_rtcp: Option<SocketAddr>,
     /// Our SRTP key, used where SDP agrees SRTP.
     key: SdesKey,
     rtp: Option<SipRtp>,
@@ -133,19 +137,28 @@ impl std::fmt::Debug for SipLink {
 }
 
 impl SipLink {
-    /// Starts the user agent; `socket` is the RTP socket whose address `config.audio` gives.
-    pub fn start(config: AgentConfig, socket: UdpSocket, peer: String) -> Result<Self, SipError> {
+    /// Starts the user agent; `socket` is the RTP socket whose address `config.audio` gives,
+    /// `rtcp` the RTCP socket (where it has one of its own).
+    pub fn start(
+        config: AgentConfig,
+        socket: UdpSocket,
+        rtcp: Option<UdpSocket>,
+        peer: String,
+    ) -> Result<Self, SipError> {
         let local_rtp = socket.local_addr().map_err(|e| SipError::Bind {
             addr: config.audio.addr,
             why: e.to_string(),
         })?;
+        let local_rtcp = rtcp.as_ref().and_then(|s| s.local_addr().ok());
         let key = config.audio.key.clone();
         let asks = config.role == Role::Ask;
         let agent = Agent::start(config)?;
         Ok(Self {
             agent,
             socket: Some(socket),
+            rtcp_socket: rtcp,
             local_rtp,
+            local_rtcp,
             key,
             rtp: None,
             negotiated: None,
@@ -162,7 +175,8 @@ impl SipLink {
         })
     }
 
-    /// A call on `bind` (SIP over UDP) with its RTP on a free port of the same address, SDP
+    /// A call on `bind` (SIP over UDP) with its RTP on a free port of the same address (RTCP
+    /// on the port above where it is free, another else), SDP
     /// offering or taking `codecs` (and SRTP with a fresh key where `srtp`); with a `stun`
     /// server (HOST:PORT), the SDP gives the media address that server sees.
     pub fn open(
@@ -180,8 +194,18 @@ impl SipLink {
         };
         let socket = UdpSocket::bind(rtp_bind).map_err(|e| cannot(e.to_string()))?;
         let local = socket.local_addr().map_err(|e| cannot(e.to_string()))?;
+        let rtcp = local
+            .port()
+            .checked_add(1)
+            .and_then(|port| UdpSocket::bind(SocketAddr::new(local.ip(), port)).ok())
+            .map_or_else(|| UdpSocket::bind(rtp_bind), Ok)
+            .map_err(|e| cannot(e.to_string()))?;
+        let local_rtcp = rtcp.local_addr().map_err(|e| cannot(e.to_string()))?;
         let audio = LocalAudio {
             addr: stun.map_or(local, |server| media_address(&socket, server, local)),
+            rtcp: Some(stun.map_or(local_rtcp, |server| {
+                media_address(&rtcp, server, local_rtcp)
+            })),
             codecs,
             session_id: std::time::SystemTime::now()
                 .duration_since(std::time::UNIX_EPOCH)
@@ -199,7 +223,7 @@ impl SipLink {
             audio,
             role,
         };
-        Self::start(config, socket, peer)
+        Self::start(config, socket, Some(rtcp), peer)
     }
 
     /// The caller whose call rings until [`SipLink::decide`] says what to do with it.
@@ -339,7 +363,14 @@ impl SipLink {
     fn on_agent_event(&mut self, event: AgentEvent) {
         match event {
             AgentEvent::Listening(addr) => {
-                self.say(format!("SIP on {addr} (UDP), RTP on {}", self.local_rtp));
+                let rtcp = self
+                    .local_rtcp
+                    .map(|rtcp| format!(", RTCP on {rtcp}"))
+                    .unwrap_or_default();
+                self.say(format!(
+                    "SIP on {addr} (UDP), RTP on {}{rtcp}",
+                    self.local_rtp
+                ));
             }
             AgentEvent::Registered(registrar) => {
                 self.say(format!("registered with {registrar}"));
@@ -357,7 +388,7 @@ impl SipLink {
             AgentEvent::EarlyMedia => {
                 self.say(format!("{} sends early media before answering", self.peer));
             }
-            AgentEvent::Media(negotiated) => self.media(negotiated),
+            AgentEvent::Media(negotiated) => self.media(*negotiated),
             AgentEvent::Established => {
                 self.ringing = None;
                 self.state = CallState::Established;
@@ -371,6 +402,7 @@ impl SipLink {
             }
             AgentEvent::Ended { by_peer } => {
                 self.ringing = None;
+                self.say_bye();
                 if self.state == CallState::Established {
                     self.events.push(LinkEvent::PeerLeft {
                         id: self.peer.clone(),
@@ -398,10 +430,15 @@ impl SipLink {
 
     fn media(&mut self, negotiated: Negotiated) {
         self.say(format!(
-            "media: {} (payload type {}) with {}{}{}",
+            "media: {} (payload type {}) with {} (RTCP {}){}{}",
             negotiated.codec,
             negotiated.payload_type,
             negotiated.remote,
+            if negotiated.rtcp_mux {
+                "multiplexed".to_owned()
+            } else {
+                format!("to {}", negotiated.rtcp)
+            },
             if negotiated.events.is_some() {
                 ", DTMF events"
             } else {
@@ -415,7 +452,12 @@ impl SipLink {
         ));
         match (&self.rtp, self.socket.take()) {
             (Some(rtp), _) => rtp.with(|core| core.renegotiate(negotiated.clone())),
-            (None, Some(socket)) => match SipRtp::start(socket, negotiated.clone(), &self.key) {
+            (None, Some(socket)) => match SipRtp::start(
+                socket,
+                self.rtcp_socket.take(),
+                negotiated.clone(),
+                &self.key,
+            ) {
                 Ok(rtp) => self.rtp = Some(rtp),
                 Err(e) => {
                     let e = SipError::Protocol(format!("cannot start the call's RTP: {e}"));
@@ -470,8 +512,16 @@ impl SipLink {
             .is_none_or(|r| r.with(|c| c.digits_sent()))
     }
 
-    /// Hangs up and waits (a little) for the peer to confirm.
+    /// RTCP's BYE with our last report (once), as the call ends.
+    fn say_bye(&self) {
+        if let Some(rtp) = &self.rtp {
+            rtp.say_bye();
+        }
+    }
+
+    /// Hangs up (our last RTCP report first) and waits (a little) for the peer to confirm.
     pub fn hang_up(&mut self) {
+        self.say_bye();
         self.agent.hang_up();
         if !self.agent.wait(HANG_UP_WAIT) {
             tracing::warn!("the SIP peer did not confirm the hang-up");
@@ -530,18 +580,21 @@ impl Link for SipLink {
         let Some(rtp) = &self.rtp else {
             return Vec::new();
         };
-        let (ssrc, addr, receiver) = rtp.with(|c| (c.ssrc(), c.remote(), c.receiver_stats()));
+        let (ssrc, addr, receiver, heard, cname) = rtp.with(|c| {
+            let cname = c.peer_cname().map(str::to_owned);
+            (c.ssrc(), c.remote(), c.receiver_stats(), c.heard(), cname)
+        });
         let Some(ssrc) = ssrc else {
             return Vec::new();
         };
         vec![PeerInfo {
             ssrc,
             addr,
-            cname: None,
+            cname,
             name: Some(self.peer.clone()),
             receiver,
-            rtt_ms: None,
-            their_loss: None,
+            rtt_ms: heard.rtt_ms,
+            their_loss: heard.their_loss(),
             said_bye: self.ended(),
             ended: self.ended(),
         }]

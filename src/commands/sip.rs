@@ -18,6 +18,7 @@ use crate::call::sip::{CallState, SipLink};
 use crate::codec::any::{Codec, EncoderSettings};
 use crate::net::host_port::resolve_with_port;
 use crate::net::janus::candidates::local_ip_towards;
+use crate::net::rtcp::ReportBlock;
 use crate::net::sip::address::{bind_towards, host_port, resolve_host};
 use crate::net::sip::agent::{Account, Role, codecs};
 use crate::secrets::{forbid_core_dumps, read_password_file};
@@ -259,13 +260,23 @@ fn run_call(
     let digits_sent = link.digits_sent();
     link.leave();
     let stats = link.rtp_stats();
+    let their = |field: fn(&ReportBlock) -> u32| {
+        stats
+            .their_report
+            .map_or_else(|| "-".to_owned(), |b| field(&b).to_string())
+    };
     eprintln!(
-        "lipcall: played {:.2} s; datagrams={} rtp={} rtcp={} malformed={} unknown_pt={} \
+        "lipcall: played {:.2} s; datagrams={} rtp={} rtcp={} rtcp_stray={} sent_rtcp={} \
+         their_lost={} their_jitter={} malformed={} unknown_pt={} \
          auth_failed={} dtmf_in={} sent_rtp={} dtmf_sent={} keepalives={} send_errors={}",
         recorder.seconds(),
         stats.datagrams,
         stats.rtp,
         stats.rtcp,
+        stats.rtcp_stray,
+        stats.sent_rtcp,
+        their(|b| b.cumulative_lost),
+        their(|b| b.jitter),
         stats.malformed,
         stats.unknown_payload,
         stats.auth_failed,

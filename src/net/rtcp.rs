@@ -1,7 +1,12 @@
 //! RTCP (RFC 3550 section 6) through `rtcp-types`: sender and receiver reports with their
-//! report blocks, SDES CNAME and NAME (the peer's display name), and BYE.
+//! report blocks, SDES CNAME and NAME (the peer's display name), and BYE; and what every
+//! sender of reports shares: when the next one is due, the NTP clock they are stamped on, the
+//! block about a stream received, and what a peer's reports said about ours.
 
-use std::time::{SystemTime, UNIX_EPOCH};
+use std::net::SocketAddr;
+use std::time::{Duration, Instant, SystemTime, UNIX_EPOCH};
+
+use crate::net::rtp::RtpStream;
 
 use rtcp_types::{
     Bye, Compound, Packet, ReceiverReport, ReportBlock as RawBlock, RtcpPacketWriter,
@@ -227,6 +232,156 @@ pub fn ntp_now() -> u64 {
 /// The middle 32 bits of an NTP timestamp, as LSR and round-trip arithmetic use them.
 pub fn ntp_middle(ntp: u64) -> u32 {
     (ntp >> 16) as u32
+}
+
+/// `interval` times 0.5 to 1.5 (RFC 3550 6.3.1), by where `draw` falls in `u32`'s range: reports
+/// of many members do not fall into step.
+pub fn spread(interval: Duration, draw: u32) -> Duration {
+    interval.mul_f64(0.5 + f64::from(draw) / f64::from(u32::MAX))
+}
+
+/// The system's randomness (the middle of the range if it fails).
+pub fn system_draw() -> u32 {
+    getrandom::u32().unwrap_or(0x8000_0000)
+}
+
+/// When the next periodic report is due: every `interval`, spread by [`spread`].
+#[derive(Debug, Clone)]
+pub struct ReportTimer {
+    interval: Duration,
+    /// A uniform random draw over `u32`.
+    draw: fn() -> u32,
+    next: Instant,
+}
+
+impl ReportTimer {
+    pub fn new(interval: Duration, now: Instant, draw: fn() -> u32) -> Self {
+        Self {
+            interval,
+            draw,
+            next: now + spread(interval, draw()),
+        }
+    }
+
+    pub fn next(&self) -> Instant {
+        self.next
+    }
+
+    /// Whether a report is due at `now`; if so the next one is scheduled from `now`.
+    pub fn due(&mut self, now: Instant) -> bool {
+        if now < self.next {
+            return false;
+        }
+        self.next = now + spread(self.interval, (self.draw)());
+        true
+    }
+}
+
+/// The wall clock as NTP for a sender's reports, counted from the moment it started: its
+/// stamps never step back when the system's clock is set.
+#[derive(Debug, Clone, Copy)]
+pub struct NtpClock {
+    epoch: Instant,
+    ntp_epoch: u64,
+}
+
+impl NtpClock {
+    pub fn new(now: Instant) -> Self {
+        Self {
+            epoch: now,
+            ntp_epoch: ntp_now(),
+        }
+    }
+
+    /// `at` as NTP.
+    pub fn at(&self, at: Instant) -> u64 {
+        let since = at.saturating_duration_since(self.epoch);
+        let fraction = (u64::from(since.subsec_nanos()) << 32) / 1_000_000_000;
+        self.ntp_epoch
+            .wrapping_add((since.as_secs() << 32) | fraction)
+    }
+}
+
+/// A sender's CNAME: its SSRC and the address it sends from.
+pub fn cname(ssrc: u32, local: SocketAddr) -> String {
+    format!("lipcall-{ssrc:08x}@{local}")
+}
+
+impl SenderInfo {
+    /// What `stream` sent until now, stamped `ntp`.
+    pub fn of(stream: &RtpStream, ntp: u64) -> Self {
+        Self {
+            ntp,
+            rtp_timestamp: stream.next_timestamp(),
+            packets: stream.packets_sent,
+            octets: stream.octets_sent,
+        }
+    }
+}
+
+impl ReportBlock {
+    /// The block about the stream `ssrc` from what its receiver counted (`reception`: fraction
+    /// lost, cumulative lost, highest sequence and jitter, as the jitter buffer reports them)
+    /// and the last SR its sender sent (the SR's middle NTP bits, and when it came).
+    pub fn about(
+        ssrc: u32,
+        reception: (u8, u32, u32, u32),
+        last_sr: Option<(u32, Instant)>,
+        now: Instant,
+    ) -> Self {
+        let (fraction_lost, cumulative_lost, highest_sequence, jitter) = reception;
+        let (last_sr, delay_since_last_sr) = match last_sr {
+            Some((middle, at)) => (
+                middle,
+                (now.saturating_duration_since(at).as_secs_f64() * 65536.0) as u32,
+            ),
+            None => (0, 0),
+        };
+        Self {
+            ssrc,
+            fraction_lost,
+            cumulative_lost,
+            highest_sequence,
+            jitter,
+            last_sr,
+            delay_since_last_sr,
+        }
+    }
+}
+
+/// What one remote sender's reports told us: its last SR (for our blocks' LSR and DLSR), and
+/// its last block about our stream with the round trip it gives.
+#[derive(Debug, Clone, Copy, Default, PartialEq)]
+pub struct HeardReports {
+    pub last_sr: Option<(u32, Instant)>,
+    pub about_us: Option<ReportBlock>,
+    pub rtt_ms: Option<f64>,
+}
+
+impl HeardReports {
+    /// Takes a report from the sender: its sender info if an SR, and its blocks, of which the
+    /// one about `ours` (our SSRC) counts; it came at `arrival` (`arrival_ntp` on our clock).
+    pub fn take(
+        &mut self,
+        sender: Option<&SenderInfo>,
+        blocks: &[ReportBlock],
+        ours: u32,
+        arrival: Instant,
+        arrival_ntp: u64,
+    ) {
+        if let Some(info) = sender {
+            self.last_sr = Some((ntp_middle(info.ntp), arrival));
+        }
+        if let Some(about_us) = blocks.iter().find(|b| b.ssrc == ours) {
+            self.rtt_ms = round_trip(about_us, arrival_ntp).map(|s| s * 1000.0);
+            self.about_us = Some(*about_us);
+        }
+    }
+
+    /// Share of our packets the sender last reported lost (0..1).
+    pub fn their_loss(&self) -> Option<f64> {
+        self.about_us.map(|b| f64::from(b.fraction_lost) / 256.0)
+    }
 }
 
 /// Round trip from a report block about us (RFC 3550 6.4.1), in seconds, if it has one.

@@ -168,6 +168,31 @@ impl RtpStream {
         Ok(header)
     }
 
+    /// Builds a packet of another payload type in this stream (an RFC 4733 event): it takes the
+    /// stream's next sequence number (RFC 4733 2.1) and counts for its reports, at a
+    /// `timestamp` of its own; the stream's timestamp and talk spurt stay as they are.
+    pub fn packetize_other(
+        &mut self,
+        payload_type: u8,
+        marker: bool,
+        timestamp: u32,
+        payload: &[u8],
+        out: &mut Vec<u8>,
+    ) -> Result<RtpHeader, RtpError> {
+        let header = RtpHeader {
+            marker,
+            payload_type,
+            sequence: self.sequence,
+            timestamp,
+            ssrc: self.ssrc,
+        };
+        write(&header, payload, out)?;
+        self.sequence = self.sequence.wrapping_add(1);
+        self.packets_sent = self.packets_sent.wrapping_add(1);
+        self.octets_sent = self.octets_sent.wrapping_add(payload.len() as u32);
+        Ok(header)
+    }
+
     /// Skips `frames` frames of silence that are not sent (DTX, mute): the timestamp moves on
     /// and the next packet starts a new talk spurt.
     pub fn skip(&mut self, frames: u32) {

@@ -2,7 +2,7 @@
 //! temp dir, killed when dropped; and how to tell that a recording holds the speech sent.
 
 use std::io::{Read, Write};
-use std::net::{TcpStream, UdpSocket};
+use std::net::{SocketAddrV4, TcpStream, UdpSocket};
 use std::path::{Path, PathBuf};
 use std::process::{Child, Command, Output, Stdio};
 use std::sync::{Arc, Mutex};
@@ -405,6 +405,18 @@ pub fn kamailio(dir: &Path, port: u16, extra: &str) -> Logged {
 /// baresip with its own config folder: `account` its accounts line, its microphone `source`
 /// (8 kHz mono), what it hears dumped into `dir`/heard by sndfile.
 pub fn baresip(dir: &Path, port: u16, control: u16, account: &str, source: &Path) -> Logged {
+    baresip_with(dir, port, control, account, source, "")
+}
+
+/// [`baresip`] with `extra` lines of config (more modules).
+pub fn baresip_with(
+    dir: &Path,
+    port: u16,
+    control: u16,
+    account: &str,
+    source: &Path,
+    extra: &str,
+) -> Logged {
     let home = dir.join("baresip");
     let heard = dir.join("heard");
     std::fs::create_dir_all(&home).unwrap();
@@ -414,7 +426,7 @@ pub fn baresip(dir: &Path, port: u16, control: u16, account: &str, source: &Path
          audio_player alsa,null\naudio_alert alsa,null\naudio_source aufile,{}\n\
          module_path /usr/lib/baresip/modules\nmodule g711.so\nmodule g722.so\nmodule aufile.so\n\
          module alsa.so\nmodule sndfile.so\nmodule srtp.so\nmodule_app account.so\nmodule_app menu.so\n\
-         module_app ctrl_tcp.so\nctrl_tcp_listen 127.0.0.1:{control}\nsnd_path {}\n",
+         module_app ctrl_tcp.so\nctrl_tcp_listen 127.0.0.1:{control}\nsnd_path {}\n{extra}",
         source.display(),
         heard.display()
     );
@@ -508,4 +520,18 @@ pub fn exit_of(mut lipcall: Logged, limit: Duration) -> (Option<i32>, String) {
         }
         std::thread::sleep(Duration::from_millis(50));
     }
+}
+
+/// A STUN Binding success answering `request` (its cookie and transaction id), giving
+/// `mapped` as XOR-MAPPED-ADDRESS; `None` if `request` is no Binding request.
+pub fn stun_binding_success(request: &[u8], mapped: SocketAddrV4) -> Option<Vec<u8>> {
+    if request.len() < 20 || request[..2] != [0x00, 0x01] {
+        return None;
+    }
+    let mut reply = vec![0x01, 0x01, 0, 12];
+    reply.extend_from_slice(&request[4..20]);
+    reply.extend([0x00, 0x20, 0, 8, 0, 1]);
+    reply.extend((mapped.port() ^ 0x2112).to_be_bytes());
+    reply.extend((u32::from(*mapped.ip()) ^ 0x2112_a442).to_be_bytes());
+    Some(reply)
 }

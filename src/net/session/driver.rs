@@ -1,7 +1,9 @@
 //! The one socket thread under a sans-I/O core: it owns a UDP socket, hands the core each
 //! datagram as it arrives and runs its timeouts when due, and sends what the core queues. The
 //! owner's handle calls the same core (behind the one lock here, never inside the core) and
-//! sends what its call queued at once. The session and the Janus media both run on it.
+//! sends what its call queued at once. The session and the Janus media both run on it. A SIP
+//! call's RTCP may have a socket of its own (RFC 3550: the RTP port + 1): a second thread reads
+//! it into the same core, and RTCP to send goes out through it.
 
 use std::net::{SocketAddr, UdpSocket};
 use std::sync::atomic::{AtomicBool, Ordering};
@@ -48,6 +50,8 @@ pub trait SansIo {
 struct Shared<C> {
     core: Mutex<C>,
     socket: UdpSocket,
+    /// RTCP's own socket, where it has one.
+    rtcp: Option<UdpSocket>,
     stop: AtomicBool,
 }
 
@@ -61,7 +65,11 @@ impl<C: SansIo> Shared<C> {
     /// Sends what the core has to send.
     fn flush(&self, core: &mut C) {
         while let Some(transmit) = core.poll_transmit() {
-            let sent = self.socket.send_to(&transmit.data, transmit.to).is_ok();
+            let socket = match (&self.rtcp, transmit.kind) {
+                (Some(rtcp), TransmitKind::Rtcp) => rtcp,
+                _ => &self.socket,
+            };
+            let sent = socket.send_to(&transmit.data, transmit.to).is_ok();
             core.transmitted(transmit, sent);
         }
     }
@@ -70,32 +78,63 @@ impl<C: SansIo> Shared<C> {
 /// A core driven by its socket thread; the thread stops when this is dropped.
 pub struct Driver<C> {
     shared: Arc<Shared<C>>,
-    thread: Option<JoinHandle<()>>,
+    threads: Vec<JoinHandle<()>>,
 }
 
 impl<C: SansIo + Send + 'static> Driver<C> {
     /// Starts the thread `name` reading `socket` for `core`, waking at least every `poll` (to
     /// see whether to stop). What the core queued before is sent first.
     pub fn start(socket: UdpSocket, core: C, name: &str, poll: Duration) -> std::io::Result<Self> {
+        Self::start_with_rtcp(socket, None, core, name, poll)
+    }
+
+    /// As [`Driver::start`], with RTCP on a socket of its own (`rtcp`, where given): what it
+    /// receives goes to the same core, and [`TransmitKind::Rtcp`] goes out through it.
+    pub fn start_with_rtcp(
+        socket: UdpSocket,
+        rtcp: Option<UdpSocket>,
+        core: C,
+        name: &str,
+        poll: Duration,
+    ) -> std::io::Result<Self> {
         socket.set_read_timeout(Some(poll))?;
         let reader = socket.try_clone()?;
+        let rtcp_reader = match &rtcp {
+            Some(rtcp) => {
+                rtcp.set_read_timeout(Some(poll))?;
+                Some(rtcp.try_clone()?)
+            }
+            None => None,
+        };
         let shared = Arc::new(Shared {
             core: Mutex::new(core),
             socket,
+            rtcp,
             stop: AtomicBool::new(false),
         });
         {
             let mut core = lock(&shared.core);
             shared.flush(&mut core);
         }
-        let thread_shared = Arc::clone(&shared);
-        let thread = std::thread::Builder::new()
-            .name(name.into())
-            .spawn(move || run(&thread_shared, &reader, poll))?;
-        Ok(Self {
+        let mut driver = Self {
             shared,
-            thread: Some(thread),
-        })
+            threads: Vec::new(),
+        };
+        let thread_shared = Arc::clone(&driver.shared);
+        driver.threads.push(
+            std::thread::Builder::new()
+                .name(name.into())
+                .spawn(move || run(&thread_shared, &reader, poll))?,
+        );
+        if let Some(reader) = rtcp_reader {
+            let thread_shared = Arc::clone(&driver.shared);
+            driver.threads.push(
+                std::thread::Builder::new()
+                    .name(format!("{name}-rtcp"))
+                    .spawn(move || read_into(&thread_shared, &reader))?,
+            );
+        }
+        Ok(driver)
     }
 }
 
@@ -120,7 +159,7 @@ impl<C: SansIo> Driver<C> {
     /// Stops the thread (at once if it is waiting, else after the datagram in hand).
     pub fn stop(&mut self) {
         self.shared.stop.store(true, Ordering::Relaxed);
-        if let Some(t) = self.thread.take() {
+        for t in self.threads.drain(..) {
             let _ = t.join();
         }
     }
@@ -129,7 +168,7 @@ impl<C: SansIo> Driver<C> {
 impl<C> Drop for Driver<C> {
     fn drop(&mut self) {
         self.shared.stop.store(true, Ordering::Relaxed);
-        if let Some(t) = self.thread.take() {
+        for t in self.threads.drain(..) {
             let _ = t.join();
         }
     }
@@ -164,6 +203,20 @@ fn run<C: SansIo>(shared: &Shared<C>, socket: &UdpSocket, poll: Duration) {
         if now >= core.poll_timeout() {
             core.handle_timeout(now);
         }
+        shared.flush(&mut core);
+    }
+}
+
+/// A second socket's thread: its datagrams into the core (the first thread runs the timeouts).
+fn read_into<C: SansIo>(shared: &Shared<C>, socket: &UdpSocket) {
+    let mut buf = vec![0u8; C::BUFFER];
+    while !shared.stop.load(Ordering::Relaxed) {
+        let Ok((n, from)) = socket.recv_from(&mut buf) else {
+            continue;
+        };
+        let now = Instant::now();
+        let mut core = lock(&shared.core);
+        core.handle_datagram(&buf[..n.min(buf.len())], from, now);
         shared.flush(&mut core);
     }
 }

@@ -8,7 +8,7 @@ use std::time::Instant;
 use super::protocol::SessionCore;
 use super::remote::{IDLE_EVICT, PENDING_NAMES, PENDING_STARTS, Peer, UNCONFIRMED_TIMEOUT};
 use crate::net::peer::PeerReceiver;
-use crate::net::rtcp::{self, RtcpItem};
+use crate::net::rtcp::{self, HeardReports, RtcpItem};
 use crate::net::rtp::{self, Rtp};
 use crate::net::srtp::{Srtp, SrtpError};
 
@@ -131,9 +131,7 @@ impl SessionCore {
                 last_media: arrival,
                 media: 0,
                 candidate: None,
-                last_sr: None,
-                rtt_ms: None,
-                their_loss: None,
+                reports: HeardReports::default(),
                 said_bye: false,
             },
         );
@@ -231,16 +229,13 @@ impl SessionCore {
                     }
                     peer.last_heard = arrival;
                     if let Some(info) = sender {
-                        peer.last_sr = Some((rtcp::ntp_middle(info.ntp), arrival));
                         end_ts.insert(reporter, info.rtp_timestamp);
                         if info.packets == 0 {
                             peer.receiver.jitter().hint_start(info.rtp_timestamp);
                         }
                     }
-                    if let Some(about_us) = blocks.iter().find(|b| b.ssrc == self.ssrc) {
-                        peer.rtt_ms = rtcp::round_trip(about_us, arrival_ntp).map(|s| s * 1000.0);
-                        peer.their_loss = Some(f64::from(about_us.fraction_lost) / 256.0);
-                    }
+                    peer.reports
+                        .take(sender.as_ref(), &blocks, self.ssrc, arrival, arrival_ntp);
                 }
                 RtcpItem::Names { ssrc, cname, name } => {
                     if ssrc == self.ssrc {

@@ -7,11 +7,11 @@ use std::net::SocketAddr;
 use std::time::{Duration, Instant};
 
 use super::remote::{PENDING_NAMES, PENDING_STARTS, Peer, PendingNames};
-use super::timers::{Due, Timers, system_draw};
+use super::timers::{Due, Timers};
 use super::{PeerFrame, PeerInfo, SessionConfig, SessionStats};
 use super::{Transmit, TransmitKind};
 use crate::net::control::{Control, ControlError, ControlKind, Cookie, RoomId};
-use crate::net::rtcp::{self, Outgoing, ReportBlock, SenderInfo};
+use crate::net::rtcp::{self, NtpClock, Outgoing, ReportBlock, SenderInfo, system_draw};
 use crate::net::rtp::RtpStream;
 use crate::net::srtp::{MasterKey, Srtp};
 use crate::net::{DatagramKind, MAX_DATAGRAM, NetError, classify};
@@ -45,8 +45,8 @@ pub struct SessionCore {
     /// The relay room's id, when the session joins one.
     pub(super) room: Option<RoomId>,
     pub(super) epoch: Instant,
-    /// The wall clock at `epoch`, as NTP: reports stamp `epoch` plus the time passed.
-    ntp_epoch: u64,
+    /// The reports' wall clock, from `epoch`.
+    clock: NtpClock,
     pub(super) ssrc: u32,
     cname: String,
     stream: RtpStream,
@@ -112,10 +112,10 @@ impl SessionCore {
         stream.set_payload(payload_type, config.codec.frame_ticks());
         let ssrc = stream.ssrc;
         let mut core = Self {
-            cname: format!("lipcall-{ssrc:08x}@{local}"),
+            cname: rtcp::cname(ssrc, local),
             ssrc,
             epoch: now,
-            ntp_epoch: rtcp::ntp_now(),
+            clock: NtpClock::new(now),
             stream,
             tx_srtp: srtp(config.key.as_ref(), config.clock_tolerance)?,
             rx_srtp: srtp(config.key.as_ref(), config.clock_tolerance)?,
@@ -138,12 +138,9 @@ impl SessionCore {
         Ok(core)
     }
 
-    /// `at` on the wall clock, as NTP (counted from the epoch: the reports' stamps never step).
+    /// `at` on the reports' wall clock, as NTP.
     pub(super) fn ntp_at(&self, at: Instant) -> u64 {
-        let since = at.saturating_duration_since(self.epoch);
-        let fraction = (u64::from(since.subsec_nanos()) << 32) / 1_000_000_000;
-        self.ntp_epoch
-            .wrapping_add((since.as_secs() << 32) | fraction)
+        self.clock.at(at)
     }
 
     pub fn ssrc(&self) -> u32 {
@@ -326,32 +323,16 @@ impl SessionCore {
         let mut peer_addrs = Vec::new();
         for (&ssrc, peer) in self.peers.iter_mut() {
             peer_addrs.push(peer.addr);
-            let Some((fraction, lost, highest, jitter)) = peer.receiver.jitter().report() else {
-                continue;
-            };
-            let (last_sr, delay) = match peer.last_sr {
-                Some((middle, at)) => (
-                    middle,
-                    (now.saturating_duration_since(at).as_secs_f64() * 65536.0) as u32,
-                ),
-                None => (0, 0),
-            };
-            blocks.push(ReportBlock {
-                ssrc,
-                fraction_lost: fraction,
-                cumulative_lost: lost,
-                highest_sequence: highest,
-                jitter,
-                last_sr,
-                delay_since_last_sr: delay,
-            });
+            if let Some(reception) = peer.receiver.jitter().report() {
+                blocks.push(ReportBlock::about(
+                    ssrc,
+                    reception,
+                    peer.reports.last_sr,
+                    now,
+                ));
+            }
         }
-        let info = SenderInfo {
-            ntp,
-            rtp_timestamp: self.stream.next_timestamp(),
-            packets: self.stream.packets_sent,
-            octets: self.stream.octets_sent,
-        };
+        let info = SenderInfo::of(&self.stream, ntp);
         let sender = match kind {
             ReportKind::Start => Some(info),
             ReportKind::Bye => self.started.then_some(info),

@@ -6,6 +6,7 @@ use std::time::{Duration, Instant};
 
 use super::PeerInfo;
 use crate::net::peer::PeerReceiver;
+use crate::net::rtcp::HeardReports;
 
 /// Packets a peer's media must have brought before it is confirmed.
 pub(super) const CONFIRM_PACKETS: u64 = 5;
@@ -38,9 +39,7 @@ pub(super) struct Peer {
     /// Another address continuing this peer's sequence: (address, its next sequence number,
     /// packets so far).
     pub(super) candidate: Option<(SocketAddr, u16, u32)>,
-    pub(super) last_sr: Option<(u32, Instant)>,
-    pub(super) rtt_ms: Option<f64>,
-    pub(super) their_loss: Option<f64>,
+    pub(super) reports: HeardReports,
     pub(super) said_bye: bool,
 }
 
@@ -79,8 +78,8 @@ impl Peer {
             name: self.name.clone(),
             ended: self.said_bye && receiver.jitter.buffered_frames == 0,
             receiver,
-            rtt_ms: self.rtt_ms,
-            their_loss: self.their_loss,
+            rtt_ms: self.reports.rtt_ms,
+            their_loss: self.reports.their_loss(),
             said_bye: self.said_bye,
         }
     }

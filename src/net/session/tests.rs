@@ -4,13 +4,13 @@
 use std::collections::HashMap;
 
 use super::remote::{CONFIRM_PACKETS, PENDING_NAMES, UNCONFIRMED_TIMEOUT};
-use super::timers::{Due, EXPIRY_INTERVAL, system_draw};
+use super::timers::{Due, EXPIRY_INTERVAL};
 use super::*;
 use crate::codec::any::{EncoderSettings, FrameEncoder, MAX_FRAME_PAYLOAD};
 use crate::codec::g711::ulaw_to_linear;
 use crate::net::control::{Control, ControlKind, Cookie, Refusal};
 use crate::net::peer::{FrameKind, PlayedFrame};
-use crate::net::rtcp::{self, Outgoing, SenderInfo};
+use crate::net::rtcp::{self, Outgoing, SenderInfo, system_draw};
 use crate::net::rtp::RtpStream;
 use crate::vocab::FRAME_SIZE;
 

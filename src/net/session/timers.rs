@@ -5,6 +5,7 @@
 use std::time::{Duration, Instant};
 
 use super::SessionConfig;
+use crate::net::rtcp::ReportTimer;
 
 /// How soon an unanswered relay join is sent again.
 const JOIN_RETRY: Duration = Duration::from_millis(500);
@@ -24,11 +25,8 @@ pub(super) struct Due {
 
 pub(super) struct Timers {
     /// `None` when the session sends no RTCP.
-    rtcp_interval: Option<Duration>,
+    report: Option<ReportTimer>,
     keepalive_interval: Duration,
-    /// A uniform random draw over `u32`, for the reports' spread.
-    draw: fn() -> u32,
-    next_report: Instant,
     next_keepalive: Instant,
     next_expiry: Instant,
 }
@@ -36,12 +34,11 @@ pub(super) struct Timers {
 impl Timers {
     /// The timers of a session starting at `now` (its first join, if any, already sent).
     pub(super) fn new(config: &SessionConfig, now: Instant, draw: fn() -> u32) -> Self {
-        let rtcp_interval = config.send_rtcp.then_some(config.rtcp_interval);
         Self {
-            rtcp_interval,
+            report: config
+                .send_rtcp
+                .then(|| ReportTimer::new(config.rtcp_interval, now, draw)),
             keepalive_interval: config.keepalive_interval,
-            draw,
-            next_report: now + spread(config.rtcp_interval, draw()),
             next_keepalive: now + config.keepalive_interval.min(JOIN_RETRY),
             next_expiry: now + EXPIRY_INTERVAL,
         }
@@ -50,8 +47,8 @@ impl Timers {
     /// When something is next due.
     pub(super) fn next_deadline(&self) -> Instant {
         let deadline = self.next_keepalive.min(self.next_expiry);
-        match self.rtcp_interval {
-            Some(_) => deadline.min(self.next_report),
+        match &self.report {
+            Some(report) => deadline.min(report.next()),
             None => deadline,
         }
     }
@@ -60,13 +57,10 @@ impl Timers {
     /// the relay has yet to confirm or refuse our place (asked only when the keepalive is due):
     /// until it has, the join is retried sooner, a datagram may have been lost.
     pub(super) fn due(&mut self, now: Instant, joining: impl FnOnce() -> bool) -> Due {
-        let mut due = Due::default();
-        if let Some(interval) = self.rtcp_interval
-            && now >= self.next_report
-        {
-            due.report = true;
-            self.next_report = now + spread(interval, (self.draw)());
-        }
+        let mut due = Due {
+            report: self.report.as_mut().is_some_and(|r| r.due(now)),
+            ..Due::default()
+        };
         if now >= self.next_keepalive {
             due.keepalive = true;
             let interval = if joining() {
@@ -82,15 +76,4 @@ impl Timers {
         }
         due
     }
-}
-
-/// `interval` times 0.5 to 1.5 (RFC 3550 6.3.1), by where `draw` falls in `u32`'s range: reports
-/// of many members do not fall into step.
-fn spread(interval: Duration, draw: u32) -> Duration {
-    interval.mul_f64(0.5 + f64::from(draw) / f64::from(u32::MAX))
-}
-
-/// The system's randomness (the middle of the range if it fails).
-pub(super) fn system_draw() -> u32 {
-    getrandom::u32().unwrap_or(0x8000_0000)
 }

@@ -533,6 +533,7 @@ mod tests {
             account: None,
             audio: LocalAudio {
                 addr: "127.0.0.1:4000".parse().unwrap(),
+                rtcp: None,
                 codecs: codecs(None),
                 session_id: 1,
                 key: super::super::sdp::SdesKey([0; 30]),

@@ -23,8 +23,8 @@ pub enum AgentEvent {
     Ringing,
     /// The peer sends media before answering (a 183 with its description).
     EarlyMedia,
-    /// The SDP exchange agreed this (again at a re-INVITE).
-    Media(Negotiated),
+    /// The SDP exchange agreed this (again at a re-INVITE); boxed, the largest by far.
+    Media(Box<Negotiated>),
     Established,
     /// The call is over: hung up by the peer or by us (a CANCEL before the answer included).
     Ended {
@@ -56,7 +56,7 @@ impl SdpMedia {
 
     fn agreed(&mut self, mut negotiated: Negotiated) {
         negotiated.signalling_peer = self.signalling_peer;
-        let _ = self.events.send(AgentEvent::Media(negotiated));
+        let _ = self.events.send(AgentEvent::Media(Box::new(negotiated)));
     }
 
     pub fn offer(&mut self) -> Result<SessionDescription, SdpError> {

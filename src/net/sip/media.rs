@@ -1,7 +1,7 @@
 //! The RTP of one SIP call: the payload types and address SDP agreed, symmetric RTP (we send to
 //! where the peer's media comes from, which is what gets through a NAT), one remote stream
 //! into the same [`PeerReceiver`] (jitter buffer, decoder, features) as every other call, our
-//! own stream out, and RFC 4733 DTMF events.
+//! own stream out, RFC 4733 DTMF events, and RTCP reports both ways (`super::reports`).
 //!
 //! As the session's and the Janus media's, the rules are a core without I/O ([`SipRtpCore`])
 //! under the shared socket thread ([`Driver`]).
@@ -18,21 +18,25 @@
 //! the same again after [`STRAY_WARNING_EVERY`]). A peer behind a
 //! NAT reached through a proxy, whose SDP address neither sends nor is the NAT's, is not
 //! heard: that takes a media relay (the PBX's, rtpengine). SRTP calls follow authenticated
-//! packets wherever they come from: only the keyed peer can make one.
+//! packets wherever they come from: only the keyed peer can make one. RTCP follows the same
+//! rule with its own latch (`super::reports`).
 
 use std::collections::VecDeque;
 use std::net::{SocketAddr, UdpSocket};
 use std::time::{Duration, Instant};
 
+use super::reports::{CallRtcp, Taken};
 use super::sdp::{Negotiated, SdesKey};
 use crate::net::jitter::JitterConfig;
 use crate::net::peer::{PeerReceiver, ReceiverStats};
+use crate::net::rtcp::{HeardReports, ReportBlock, RtcpError};
 use crate::net::rtp::{self, RtpStream};
 use crate::net::session::driver::{Driver, SansIo};
 use crate::net::session::{LARGEST_DATAGRAM, PeerFrame, Transmit, TransmitKind};
-use crate::net::srtp::{MasterKey, Srtp};
+use crate::net::srtp::{MasterKey, Srtp, SrtpError};
 
-/// How long the socket thread waits at most for a datagram.
+/// How long the socket thread waits at most for a datagram, and how often the keepalive and
+/// the reports are looked at.
 const POLL: Duration = Duration::from_millis(10);
 /// A call that sent nothing for this long (on hold, muted, our file played out) sends an empty
 /// datagram, so that a NAT on the way keeps the media's mapping (RFC 6263: 15 s by default).
@@ -56,8 +60,14 @@ pub struct SipRtpStats {
     pub datagrams: u64,
     pub rtp: u64,
     pub malformed: u64,
-    /// RTCP (we send none; reports on the RTP port are counted and dropped).
+    /// RTCP from the call's peer.
     pub rtcp: u64,
+    /// RTCP not believed: from another source than the call's, in another SSRC's name, or
+    /// failing SRTCP's authentication.
+    pub rtcp_stray: u64,
+    pub sent_rtcp: u64,
+    /// The peer's last report about our stream: the loss and jitter it sees.
+    pub their_report: Option<ReportBlock>,
     /// Packets of a payload type SDP did not agree.
     pub unknown_payload: u64,
     /// RFC 4733 event packets received.
@@ -112,6 +122,9 @@ pub struct SipRtpCore {
     /// SRTP (SDES): ours protects what we send, the peer's key what it sends.
     tx_srtp: Option<Srtp>,
     rx_srtp: Option<Srtp>,
+    rtcp: CallRtcp,
+    /// When the keepalive and the reports are next looked at.
+    next_timeout: Instant,
 }
 
 /// Both ends of SDES-keyed SRTP: our key for what we send, the peer's for what we receive.
@@ -141,12 +154,19 @@ pub fn event_code(key: char) -> Option<u8> {
 }
 
 impl SipRtpCore {
-    /// The call's RTP as `negotiated`, our SRTP key `ours` where SRTP was agreed.
-    pub fn new(negotiated: Negotiated, ours: &SdesKey, now: Instant) -> std::io::Result<Self> {
+    /// The call's RTP as `negotiated`, our SRTP key `ours` where SRTP was agreed, sent from
+    /// `local`.
+    pub fn new(
+        negotiated: Negotiated,
+        ours: &SdesKey,
+        local: SocketAddr,
+        now: Instant,
+    ) -> std::io::Result<Self> {
         let (tx_srtp, rx_srtp) = sdes_contexts(&negotiated, ours)?;
         let mut stream = RtpStream::new_random().map_err(std::io::Error::other)?;
         let frame_ticks = negotiated.codec.frame_ticks();
         stream.set_payload(negotiated.payload_type, frame_ticks);
+        let stream_ssrc = stream.ssrc;
         let jitter = JitterConfig::default();
         Ok(Self {
             stream,
@@ -168,6 +188,8 @@ impl SipRtpCore {
             stats: SipRtpStats::default(),
             tx_srtp,
             rx_srtp,
+            rtcp: CallRtcp::new(&negotiated, stream_ssrc, local, now),
+            next_timeout: now + POLL,
             negotiated,
         })
     }
@@ -189,11 +211,30 @@ impl SipRtpCore {
         self.remote
     }
 
+    /// Where our RTCP goes.
+    pub fn rtcp_remote(&self) -> SocketAddr {
+        self.rtcp.remote()
+    }
+
+    /// What the peer's reports said: the loss it sees of our stream, the round trip.
+    pub fn heard(&self) -> HeardReports {
+        self.rtcp.heard()
+    }
+
+    /// The CNAME the peer's SDES gave.
+    pub fn peer_cname(&self) -> Option<&str> {
+        self.rtcp.peer_cname()
+    }
+
     /// A new offer or answer in the same call (a re-INVITE: hold, resume, another address).
     pub fn renegotiate(&mut self, mut negotiated: Negotiated) {
         // An old-style hold (c=0.0.0.0): nothing goes there, and the source stays as it was.
         if negotiated.remote.ip().is_unspecified() {
             negotiated.remote = self.negotiated.remote;
+            negotiated.rtcp = self.negotiated.rtcp;
+        }
+        if negotiated.rtcp != self.negotiated.rtcp {
+            self.rtcp.moved(negotiated.rtcp);
         }
         if negotiated.remote != self.negotiated.remote {
             self.remote = negotiated.remote;
@@ -314,30 +355,12 @@ impl SipRtpCore {
         let duration = self.frame_ticks * (step.min(DIGIT_PACKETS - 1) + 1);
         let [d1, d2] = u16::try_from(duration).unwrap_or(u16::MAX).to_be_bytes();
         let payload = [event, (u8::from(end) << 7) | EVENT_VOLUME, d1, d2];
-        let header = rtp::RtpHeader {
-            marker: step == 0,
-            payload_type: events_pt,
-            sequence: self.stream_sequence(),
-            timestamp,
-            ssrc: self.stream.ssrc,
-        };
         let mut buf = Vec::with_capacity(16);
-        rtp::write(&header, &payload, &mut buf)?;
+        self.stream
+            .packetize_other(events_pt, step == 0, timestamp, &payload, &mut buf)?;
         self.queue(buf);
         self.stats.sent_events += 1;
         Ok(())
-    }
-
-    /// The next sequence number of our stream, taken for an event packet: events and audio
-    /// share one sequence (RFC 4733 2.1). The stream numbers its own packets, so an event
-    /// goes out as a zero-length step of the stream (its timestamp unchanged) and is then
-    /// rewritten with its own header.
-    fn stream_sequence(&mut self) -> u16 {
-        let mut scratch = Vec::with_capacity(16);
-        match self.stream.packetize_ticks(&[0], 0, &mut scratch) {
-            Ok(header) => header.sequence,
-            Err(_) => 0,
-        }
     }
 
     /// The next 20 ms of the peer, if it is playing.
@@ -391,28 +414,113 @@ impl SipRtpCore {
         self.stray_unsaid = 0;
     }
 
+    /// `data` in the clear: decrypted into `clear` by `unprotect` where SRTP was agreed;
+    /// `None` where it fails authentication.
+    fn in_clear<'a>(
+        &mut self,
+        data: &'a [u8],
+        clear: &'a mut Vec<u8>,
+        unprotect: fn(&mut Srtp, &mut Vec<u8>) -> Result<(), SrtpError>,
+    ) -> Option<&'a [u8]> {
+        let Some(srtp) = self.rx_srtp.as_mut() else {
+            return Some(data);
+        };
+        clear.extend_from_slice(data);
+        unprotect(srtp, clear).ok()?;
+        Some(clear.as_slice())
+    }
+
+    fn handle_rtcp(&mut self, data: &[u8], from: SocketAddr, now: Instant) {
+        let rtp_source = self.latched.then_some(self.remote);
+        if self.rx_srtp.is_none()
+            && !self
+                .rtcp
+                .may_be_the_peer(from, &self.negotiated, rtp_source)
+        {
+            tracing::debug!("RTCP from {from} not believed: not the call's peer");
+            self.stats.rtcp_stray += 1;
+            return;
+        }
+        let mut clear = Vec::new();
+        let Some(data) = self.in_clear(data, &mut clear, Srtp::unprotect_rtcp) else {
+            // baresip sends its first APP packet and its BYE in the clear, even under SRTP.
+            tracing::debug!("RTCP from {from} not believed: it fails SRTCP's authentication");
+            self.stats.rtcp_stray += 1;
+            return;
+        };
+        match self.rtcp.take(data, self.stream.ssrc, self.ssrc, now) {
+            Ok(Taken::Peer) => {
+                self.stats.rtcp += 1;
+                self.stats.their_report = self.rtcp.heard().about_us;
+                self.rtcp.latch(from);
+            }
+            Ok(Taken::Nothing) => self.stats.rtcp += 1,
+            Ok(Taken::Stranger) => {
+                tracing::debug!("RTCP from {from} in another source's name (not the call's)");
+                self.stats.rtcp_stray += 1;
+            }
+            Err(_) => self.stats.malformed += 1,
+        }
+    }
+
+    /// The block about the peer's stream, once it sent (a new interval of its loss count:
+    /// only for a report going out).
+    fn reception(&mut self) -> Option<(u32, (u8, u32, u32, u32))> {
+        let ssrc = self.ssrc?;
+        Some((ssrc, self.receiver.jitter().report()?))
+    }
+
+    /// Queues a compound RTCP packet (protected where SRTP was agreed).
+    fn queue_rtcp(&mut self, built: Result<Vec<u8>, RtcpError>) {
+        let Ok(mut data) = built else {
+            self.stats.send_errors += 1;
+            return;
+        };
+        if let Some(srtp) = self.tx_srtp.as_mut()
+            && srtp.protect_rtcp(&mut data).is_err()
+        {
+            self.stats.send_errors += 1;
+            return;
+        }
+        self.outbox.push_back(Transmit {
+            to: self.rtcp.remote(),
+            data,
+            kind: TransmitKind::Rtcp,
+        });
+    }
+
+    fn report_if_due(&mut self, now: Instant) {
+        if self.rtcp.due(now) {
+            let received = self.reception();
+            let built = self.rtcp.report(&self.stream, received, false, now);
+            self.queue_rtcp(built);
+        }
+    }
+
+    /// Our last report with BYE (once), as the call ends.
+    pub fn say_bye(&mut self, now: Instant) {
+        if self.rtcp.bye() {
+            let received = self.reception();
+            let built = self.rtcp.report(&self.stream, received, true, now);
+            self.queue_rtcp(built);
+        }
+    }
+
     fn handle(&mut self, data: &[u8], from: SocketAddr, now: Instant) {
         self.stats.datagrams += 1;
-        // RTCP shares the RTP port where the peer multiplexes it (RFC 5761 4: types 64-95).
+        // RTCP comes on its own socket, or shares the RTP port (RFC 5761 4: types 64-95).
         if data.len() >= 2 && (200..=206).contains(&data[1]) {
-            self.stats.rtcp += 1;
+            self.handle_rtcp(data, from, now);
             return;
         }
         if self.rx_srtp.is_none() && !self.may_be_the_peer(from) {
             self.stray(from, now);
             return;
         }
-        let mut clear;
-        let data = match self.rx_srtp.as_mut() {
-            Some(srtp) => {
-                clear = data.to_vec();
-                if srtp.unprotect_rtp(&mut clear).is_err() {
-                    self.stats.auth_failed += 1;
-                    return;
-                }
-                clear.as_slice()
-            }
-            None => data,
+        let mut clear = Vec::new();
+        let Some(data) = self.in_clear(data, &mut clear, Srtp::unprotect_rtp) else {
+            self.stats.auth_failed += 1;
+            return;
         };
         let packet = match rtp::parse(data, None) {
             Ok(p) => p,
@@ -474,20 +582,24 @@ impl SansIo for SipRtpCore {
     }
 
     fn poll_timeout(&self) -> Instant {
-        Instant::now() + POLL
+        self.next_timeout
     }
 
     fn handle_timeout(&mut self, now: Instant) {
+        self.next_timeout = now + POLL;
         self.keep_alive(now);
+        self.report_if_due(now);
     }
 
     fn poll_transmit(&mut self) -> Option<Transmit> {
         self.outbox.pop_front()
     }
 
-    fn transmitted(&mut self, _transmit: Transmit, sent: bool) {
-        if !sent {
-            self.stats.send_errors += 1;
+    fn transmitted(&mut self, transmit: Transmit, sent: bool) {
+        match (sent, transmit.kind) {
+            (false, _) => self.stats.send_errors += 1,
+            (true, TransmitKind::Rtcp) => self.stats.sent_rtcp += 1,
+            (true, _) => {}
         }
     }
 }
@@ -504,15 +616,24 @@ impl std::fmt::Debug for SipRtp {
 }
 
 impl SipRtp {
-    /// Starts the media on `socket` (the one whose address our SDP gave).
+    /// Starts the media on `socket` (the one whose address our SDP gave), and its RTCP on
+    /// `rtcp` (where the SDP gave one and RTCP is not multiplexed; on `socket` else).
     pub fn start(
         socket: UdpSocket,
+        rtcp: Option<UdpSocket>,
         negotiated: Negotiated,
         ours: &SdesKey,
     ) -> std::io::Result<Self> {
-        let core = SipRtpCore::new(negotiated, ours, Instant::now())?;
-        let driver = Driver::start(socket, core, "lipcall-sip-rtp", POLL)?;
+        let local = socket.local_addr()?;
+        let rtcp = rtcp.filter(|_| !negotiated.rtcp_mux);
+        let core = SipRtpCore::new(negotiated, ours, local, Instant::now())?;
+        let driver = Driver::start_with_rtcp(socket, rtcp, core, "lipcall-sip-rtp", POLL)?;
         Ok(Self { driver })
+    }
+
+    /// Says BYE in RTCP, before the call's SIP BYE.
+    pub fn say_bye(&self) {
+        self.driver.with(|core| core.say_bye(Instant::now()));
     }
 
     pub fn with<T>(&self, f: impl FnOnce(&mut SipRtpCore) -> T) -> T {
@@ -530,9 +651,16 @@ mod tests {
     use crate::codec::any::{Codec, PayloadMap};
     use crate::net::sip::sdp::Direction;
 
-    fn negotiated() -> Negotiated {
+    pub(super) const LOCAL: SocketAddr = SocketAddr::V4(std::net::SocketAddrV4::new(
+        std::net::Ipv4Addr::LOCALHOST,
+        4000,
+    ));
+
+    pub(super) fn negotiated() -> Negotiated {
         Negotiated {
             remote: "127.0.0.1:9000".parse().unwrap(),
+            rtcp: "127.0.0.1:9001".parse().unwrap(),
+            rtcp_mux: false,
             codec: Codec::Pcmu,
             payload_type: 0,
             events: Some(101),
@@ -547,7 +675,7 @@ mod tests {
     #[test]
     fn a_digit_is_five_growing_packets_then_three_ends_on_one_timestamp() {
         let now = Instant::now();
-        let mut core = SipRtpCore::new(negotiated(), &SdesKey([1; 30]), now).unwrap();
+        let mut core = SipRtpCore::new(negotiated(), &SdesKey([1; 30]), LOCAL, now).unwrap();
         assert!(core.queue_digits("1#"));
         assert!(!core.queue_digits("x"));
         let mut packets = Vec::new();
@@ -590,10 +718,13 @@ mod tests {
     #[test]
     fn a_call_that_sends_nothing_for_15_s_sends_an_empty_datagram() {
         let t0 = Instant::now();
-        let mut core = SipRtpCore::new(negotiated(), &SdesKey([1; 30]), t0).unwrap();
+        let mut core = SipRtpCore::new(negotiated(), &SdesKey([1; 30]), LOCAL, t0).unwrap();
+        // RTP only: the call's reports go out meanwhile.
         let sent = |core: &mut SipRtpCore, at: Duration| {
             core.handle_timeout(t0 + at);
-            std::iter::from_fn(|| core.poll_transmit()).collect::<Vec<_>>()
+            std::iter::from_fn(|| core.poll_transmit())
+                .filter(|t| t.kind == TransmitKind::Rtp)
+                .collect::<Vec<_>>()
         };
         assert!(sent(&mut core, Duration::from_secs(14)).is_empty());
         let keepalive = sent(&mut core, KEEPALIVE);
@@ -612,7 +743,7 @@ mod tests {
     #[test]
     fn plain_rtp_is_taken_from_one_source_only_and_never_sent_elsewhere() {
         let t0 = Instant::now();
-        let mut core = SipRtpCore::new(negotiated(), &SdesKey([1; 30]), t0).unwrap();
+        let mut core = SipRtpCore::new(negotiated(), &SdesKey([1; 30]), LOCAL, t0).unwrap();
         let packet = |ssrc: u32, seq: u16| {
             let mut stream = RtpStream::new(ssrc, seq, 0);
             stream.set_payload(0, 160);
@@ -661,7 +792,7 @@ mod tests {
     #[test]
     fn an_old_style_hold_sends_nothing_and_keeps_the_source() {
         let t0 = Instant::now();
-        let mut core = SipRtpCore::new(negotiated(), &SdesKey([1; 30]), t0).unwrap();
+        let mut core = SipRtpCore::new(negotiated(), &SdesKey([1; 30]), LOCAL, t0).unwrap();
         let mut held = negotiated();
         held.remote = "0.0.0.0:9000".parse().unwrap();
         held.direction = Direction::SendOnly;
@@ -680,7 +811,7 @@ mod tests {
     #[test]
     fn media_from_the_signalling_peers_nat_is_received_and_answered_there() {
         let now = Instant::now();
-        let mut core = SipRtpCore::new(negotiated(), &SdesKey([1; 30]), now).unwrap();
+        let mut core = SipRtpCore::new(negotiated(), &SdesKey([1; 30]), LOCAL, now).unwrap();
         let mut sender = RtpStream::new(42, 1, 0);
         sender.set_payload(0, 160);
         let mut buf = Vec::new();
@@ -713,6 +844,7 @@ mod tests {
 
 #[cfg(test)]
 mod srtp_tests {
+    use super::tests::LOCAL;
     use super::*;
     use crate::codec::any::{Codec, PayloadMap};
     use crate::net::sip::sdp::{Direction, Sdes};
@@ -723,6 +855,8 @@ mod srtp_tests {
         let (a_key, b_key) = (SdesKey([1; 30]), SdesKey([2; 30]));
         let towards = |key: &SdesKey| Negotiated {
             remote: "127.0.0.1:9000".parse().unwrap(),
+            rtcp: "127.0.0.1:9001".parse().unwrap(),
+            rtcp_mux: false,
             codec: Codec::Pcmu,
             payload_type: 0,
             events: None,
@@ -735,8 +869,8 @@ mod srtp_tests {
             }),
             signalling_peer: None,
         };
-        let mut a = SipRtpCore::new(towards(&b_key), &a_key, now).unwrap();
-        let mut b = SipRtpCore::new(towards(&a_key), &b_key, now).unwrap();
+        let mut a = SipRtpCore::new(towards(&b_key), &a_key, LOCAL, now).unwrap();
+        let mut b = SipRtpCore::new(towards(&a_key), &b_key, LOCAL, now).unwrap();
         let from: SocketAddr = "127.0.0.1:9001".parse().unwrap();
         a.send_packet(&[0xff; 160], 160).unwrap();
         let sent = a.poll_transmit().unwrap().data;
@@ -750,5 +884,189 @@ mod srtp_tests {
         plain.packetize(&[0xff; 160], 1, &mut buf).unwrap();
         b.handle_datagram(&buf, from, now);
         assert_eq!((b.stats().rtp, b.stats().auth_failed), (1, 1));
+        // Reports are SRTCP: A's BYE reaches B; one in the clear is not believed.
+        a.say_bye(now);
+        let bye = a.poll_transmit().unwrap();
+        assert_eq!(bye.kind, TransmitKind::Rtcp);
+        b.handle_datagram(&bye.data, from, now);
+        assert_eq!((b.stats().rtcp, b.stats().rtcp_stray), (1, 0));
+        let mut clear = Vec::new();
+        let outgoing = crate::net::rtcp::Outgoing {
+            ssrc: a.stream.ssrc,
+            cname: "x",
+            ..Default::default()
+        };
+        crate::net::rtcp::build(&outgoing, &mut clear).unwrap();
+        b.handle_datagram(&clear, from, now);
+        assert_eq!((b.stats().rtcp, b.stats().rtcp_stray), (1, 1));
+    }
+}
+
+#[cfg(test)]
+mod rtcp_tests {
+    use super::tests::{LOCAL, negotiated};
+    use super::*;
+    use crate::net::rtcp::{self, Outgoing, RtcpItem};
+
+    /// Two calls' cores wired back to back, each datagram arriving one 20 ms step after it left
+    /// (RTP from the cores' RTP ports, RTCP from the ports above), `lose` deciding which of A's
+    /// RTP packets (by count) never arrive.
+    struct Wire {
+        a: SipRtpCore,
+        b: SipRtpCore,
+        now: Instant,
+        in_flight: Vec<(bool, Transmit)>,
+        a_rtp_sent: u32,
+    }
+
+    const A_RTP: &str = "127.0.0.1:4000";
+    const B_RTP: &str = "127.0.0.1:9000";
+
+    impl Wire {
+        fn new() -> Self {
+            let now = Instant::now();
+            let mut towards_a = negotiated();
+            towards_a.remote = A_RTP.parse().unwrap();
+            towards_a.rtcp = "127.0.0.1:4001".parse().unwrap();
+            let b_local: SocketAddr = B_RTP.parse().unwrap();
+            Self {
+                a: SipRtpCore::new(negotiated(), &SdesKey([1; 30]), LOCAL, now).unwrap(),
+                b: SipRtpCore::new(towards_a, &SdesKey([1; 30]), b_local, now).unwrap(),
+                now,
+                in_flight: Vec::new(),
+                a_rtp_sent: 0,
+            }
+        }
+
+        fn step(&mut self, lose: impl Fn(u32) -> bool) {
+            self.now += Duration::from_millis(20);
+            for (to_b, t) in std::mem::take(&mut self.in_flight) {
+                let (core, rtp_port) = if to_b {
+                    (&mut self.b, 4000)
+                } else {
+                    (&mut self.a, 9000)
+                };
+                let port = rtp_port + u16::from(t.kind == TransmitKind::Rtcp);
+                core.handle_datagram(&t.data, ([127, 0, 0, 1], port).into(), self.now);
+            }
+            self.a.send_packet(&[0xff; 160], 160).unwrap();
+            self.b.send_packet(&[0xff; 160], 160).unwrap();
+            self.a.handle_timeout(self.now);
+            self.b.handle_timeout(self.now);
+            let mut played = Vec::new();
+            self.a.pull(self.now, &mut played);
+            self.b.pull(self.now, &mut played);
+            while let Some(t) = self.a.poll_transmit() {
+                if t.kind == TransmitKind::Rtp {
+                    self.a_rtp_sent += 1;
+                    if lose(self.a_rtp_sent) {
+                        continue;
+                    }
+                }
+                self.in_flight.push((true, t));
+            }
+            while let Some(t) = self.b.poll_transmit() {
+                self.in_flight.push((false, t));
+            }
+        }
+    }
+
+    #[test]
+    fn each_side_reports_what_it_lost_of_the_other_and_learns_what_the_other_lost() {
+        let mut wire = Wire::new();
+        let mut reports_to = Vec::new();
+        for _ in 0..1000 {
+            wire.step(|n| n % 10 == 0);
+            reports_to.extend(
+                wire.in_flight
+                    .iter()
+                    .filter(|(to_b, t)| *to_b && t.kind == TransmitKind::Rtcp)
+                    .map(|(_, t)| t.to),
+            );
+        }
+        // 20 s at 5 s spread 0.5-1.5x: two to eight reports, to B's RTCP port.
+        assert!((2..=8).contains(&reports_to.len()), "{reports_to:?}");
+        assert!(
+            reports_to
+                .iter()
+                .all(|&to| to == "127.0.0.1:9001".parse().unwrap())
+        );
+        // B lost every tenth of A's packets, and said so; A lost nothing of B's.
+        let said_to_a = wire.a.stats().their_report.expect("B reported");
+        assert_eq!(said_to_a.ssrc, wire.a.stream.ssrc);
+        let fraction = f64::from(said_to_a.fraction_lost) / 256.0;
+        assert!((0.08..=0.12).contains(&fraction), "{said_to_a:?}");
+        assert!(said_to_a.cumulative_lost >= 20, "{said_to_a:?}");
+        let said_to_b = wire.b.stats().their_report.expect("A reported");
+        assert_eq!(said_to_b.cumulative_lost, 0, "{said_to_b:?}");
+        // Both sides sent SRs and heard the other's: the round trip is the two steps' 40 ms.
+        let rtt = wire.a.heard().rtt_ms.expect("a round trip");
+        assert!((35.0..=45.0).contains(&rtt), "{rtt} ms");
+        assert!(
+            wire.a
+                .peer_cname()
+                .is_some_and(|c| c.starts_with("lipcall-"))
+        );
+        assert_eq!(
+            (wire.a.stats().rtcp_stray, wire.b.stats().rtcp_stray),
+            (0, 0)
+        );
+        assert_eq!(wire.a.stats().sent_rtcp, 0, "no socket counted them");
+    }
+
+    #[test]
+    fn reports_from_strangers_are_not_believed_and_bye_is_said_once() {
+        let mut wire = Wire::new();
+        for _ in 0..400 {
+            wire.step(|_| false);
+        }
+        let believed = wire.a.stats().their_report.expect("B reported");
+        let (ours, bs) = (wire.a.stream.ssrc, wire.b.stream.ssrc);
+        let forged = |reporter: u32| {
+            let block = ReportBlock {
+                ssrc: ours,
+                fraction_lost: 255,
+                cumulative_lost: 99_999,
+                ..ReportBlock::default()
+            };
+            let mut out = Vec::new();
+            let outgoing = Outgoing {
+                ssrc: reporter,
+                blocks: &[block],
+                cname: "forger",
+                ..Outgoing::default()
+            };
+            rtcp::build(&outgoing, &mut out).unwrap();
+            out
+        };
+        // In B's name from another host, from B's own IP on another port (its RTCP is latched
+        // now), from the right place in another SSRC's name; then garbage.
+        let now = wire.now;
+        wire.a
+            .handle_datagram(&forged(bs), "127.0.0.2:9001".parse().unwrap(), now);
+        wire.a
+            .handle_datagram(&forged(bs), "127.0.0.1:9555".parse().unwrap(), now);
+        wire.a
+            .handle_datagram(&forged(77), "127.0.0.1:9001".parse().unwrap(), now);
+        assert_eq!(wire.a.stats().rtcp_stray, 3);
+        wire.a
+            .handle_datagram(&[0x80, 201, 0, 9], "127.0.0.1:9001".parse().unwrap(), now);
+        assert_eq!(wire.a.stats().malformed, 1);
+        assert_eq!(wire.a.stats().their_report, Some(believed));
+        // BYE, once: with an SR (A sent since its last report) and its block about B.
+        wire.a.say_bye(now);
+        wire.a.say_bye(now);
+        let sent: Vec<Transmit> = std::iter::from_fn(|| wire.a.poll_transmit()).collect();
+        assert_eq!(sent.len(), 1);
+        let items = rtcp::parse(&sent[0].data).unwrap();
+        assert!(matches!(
+            &items[0],
+            RtcpItem::Report { sender: Some(_), blocks, .. } if blocks[0].ssrc == bs
+        ));
+        assert_eq!(items.last(), Some(&RtcpItem::Bye { ssrcs: vec![ours] }));
+        // No periodic report after it.
+        wire.a.handle_timeout(now + Duration::from_secs(60));
+        let after: Vec<Transmit> = std::iter::from_fn(|| wire.a.poll_transmit()).collect();
+        assert!(after.iter().all(|t| t.kind != TransmitKind::Rtcp));
     }
 }

@@ -1,6 +1,8 @@
 //! SDP offer and answer for one audio stream (RFC 3264, RFC 4566): what lipcall offers (Opus,
 //! PCMU, PCMA and RFC 4733 telephone-event), reading a peer's description (its media address,
-//! formats and direction), and choosing the codec both sides speak.
+//! formats and direction), and choosing the codec both sides speak. RTCP goes where RFC 3550
+//! puts it, the RTP port + 1, unless `a=rtcp` (RFC 3605) names another port, or both sides say
+//! `a=rtcp-mux` (RFC 5761: on the RTP port); we offer both, and take mux where it is offered.
 //!
 //! The SIP stack (ezk) parses SDP into its own types; this module reads the description it
 //! prints back, so that every value a hostile peer controls passes one strict, bounded reader
@@ -157,6 +159,10 @@ pub struct Format {
 #[derive(Debug, Clone, PartialEq, Eq)]
 pub struct RemoteAudio {
     pub addr: SocketAddr,
+    /// Where its RTCP goes: its `a=rtcp`, else the RTP port + 1.
+    pub rtcp: SocketAddr,
+    /// It said `a=rtcp-mux`: RTCP on the RTP port, where both sides say so.
+    pub rtcp_mux: bool,
     pub formats: Vec<Format>,
     pub direction: Direction,
     /// RTP/SAVP: SRTP, keyed by the first crypto attribute of our suite (if any).
@@ -169,6 +175,8 @@ pub struct RemoteAudio {
 pub struct LocalAudio {
     /// Where our RTP socket is reachable.
     pub addr: SocketAddr,
+    /// Where our RTCP socket is reachable (`None`: none of its own, the RTP port + 1).
+    pub rtcp: Option<SocketAddr>,
     /// The codecs we offer or accept, preferred first.
     pub codecs: Vec<Codec>,
     pub session_id: u64,
@@ -183,6 +191,11 @@ pub struct LocalAudio {
 pub struct Negotiated {
     /// Where our RTP goes (until symmetric RTP latches onto where the peer's comes from).
     pub remote: SocketAddr,
+    /// Where our RTCP goes (until the peer's believed RTCP comes from elsewhere): the peer's
+    /// RTCP address, or `remote` where RTCP is multiplexed.
+    pub rtcp: SocketAddr,
+    /// Both sides agreed `a=rtcp-mux`: RTCP shares the RTP socket.
+    pub rtcp_mux: bool,
     pub codec: Codec,
     pub payload_type: u8,
     /// RFC 4733 events: payload type, with the codec's clock.
@@ -242,6 +255,25 @@ fn parse_address(line: &str, value: &str) -> Result<Option<IpAddr>, SdpError> {
     }
 }
 
+/// `a=rtcp:PORT [IN IP4|IP6 ADDRESS]` (RFC 3605).
+fn parse_rtcp(line: &str, value: &str) -> Result<(u16, Option<IpAddr>), SdpError> {
+    let (port, address) = match value.split_once(' ') {
+        Some((port, address)) => (port, Some(address)),
+        None => (value, None),
+    };
+    let port = port
+        .trim()
+        .parse()
+        .ok()
+        .filter(|&p: &u16| p > 0)
+        .ok_or_else(|| malformed(line, "bad RTCP port"))?;
+    let ip = match address {
+        Some(address) => parse_address(line, address.trim())?,
+        None => None,
+    };
+    Ok((port, ip))
+}
+
 fn parse_rtpmap(line: &str, value: &str) -> Result<(u8, String, u32), SdpError> {
     let (pt, rest) = value
         .split_once(' ')
@@ -273,6 +305,8 @@ struct AudioLine {
     direction: Option<Direction>,
     secure: bool,
     crypto: Option<Sdes>,
+    rtcp: Option<(u16, Option<IpAddr>)>,
+    rtcp_mux: bool,
 }
 
 /// Reads the first audio stream of a description.
@@ -337,6 +371,8 @@ pub fn parse(text: &str) -> Result<RemoteAudio, SdpError> {
                     direction: None,
                     secure,
                     crypto: None,
+                    rtcp: None,
+                    rtcp_mux: false,
                 });
                 in_audio = true;
             }
@@ -365,6 +401,10 @@ pub fn parse(text: &str) -> Result<RemoteAudio, SdpError> {
                             if a.crypto.is_none() {
                                 a.crypto = parse_crypto(attr_value);
                             }
+                        } else if name == "rtcp" {
+                            a.rtcp = Some(parse_rtcp(line, attr_value)?);
+                        } else if name == "rtcp-mux" {
+                            a.rtcp_mux = true;
                         } else if name == "rtpmap" {
                             let (pt, encoding, clock) = parse_rtpmap(line, attr_value)?;
                             if let Some(f) = a.formats.iter_mut().find(|f| f.payload_type == pt) {
@@ -392,13 +432,22 @@ pub fn parse(text: &str) -> Result<RemoteAudio, SdpError> {
         direction,
         secure,
         crypto,
+        rtcp,
+        rtcp_mux,
     } = audio.ok_or(SdpError::NoAudio)?;
     if port == 0 {
         return Err(SdpError::Refused);
     }
     let ip = media_addr.or(session_addr).ok_or(SdpError::NoAddress)?;
+    let rtcp = match rtcp {
+        Some((rtcp_port, rtcp_ip)) => SocketAddr::new(rtcp_ip.unwrap_or(ip), rtcp_port),
+        // RTP ports are even: an odd last one has no port above it, and only mux can help.
+        None => SocketAddr::new(ip, port.checked_add(1).unwrap_or(port)),
+    };
     Ok(RemoteAudio {
         addr: SocketAddr::new(ip, port),
+        rtcp,
+        rtcp_mux,
         formats,
         direction: direction.unwrap_or(session_direction),
         secure,
@@ -453,6 +502,12 @@ pub fn negotiate(remote: &RemoteAudio, allowed: &[Codec]) -> Result<Negotiated, 
     };
     Ok(Negotiated {
         remote: remote.addr,
+        rtcp: if remote.rtcp_mux {
+            remote.addr
+        } else {
+            remote.rtcp
+        },
+        rtcp_mux: remote.rtcp_mux,
         codec,
         payload_type,
         events: events_at(remote, codec.clock_rate()),
@@ -469,6 +524,7 @@ pub fn negotiate(remote: &RemoteAudio, allowed: &[Codec]) -> Result<Negotiated, 
 pub fn take(text: &str, local: &LocalAudio) -> Result<Negotiated, SdpError> {
     let remote = parse(text)?;
     media_target(remote.addr, local.addr)?;
+    media_target(remote.rtcp, local.addr)?;
     negotiate(&remote, &local.codecs)
 }
 
@@ -480,6 +536,7 @@ pub fn take_in_call(text: &str, local: &LocalAudio) -> Result<Negotiated, SdpErr
     let held = remote.addr.ip().is_unspecified() && remote.addr.is_ipv4() == local.addr.is_ipv4();
     if !held {
         media_target(remote.addr, local.addr)?;
+        media_target(remote.rtcp, local.addr)?;
     }
     let mut negotiated = negotiate(&remote, &local.codecs)?;
     if held {
@@ -505,6 +562,18 @@ fn rtpmap(codec: Codec, pt: u8) -> String {
             other.encoding_name(),
             other.clock_rate()
         ),
+    }
+}
+
+/// Where our RTCP socket is, as `a=rtcp` says it (the address only where it is not the RTP's).
+fn rtcp_attribute(local: &LocalAudio) -> String {
+    match local.rtcp {
+        Some(rtcp) if rtcp.ip() == local.addr.ip() => format!("a=rtcp:{}\r\n", rtcp.port()),
+        Some(rtcp) => {
+            let family = if rtcp.is_ipv4() { "IP4" } else { "IP6" };
+            format!("a=rtcp:{} IN {family} {}\r\n", rtcp.port(), rtcp.ip())
+        }
+        None => String::new(),
     }
 }
 
@@ -559,7 +628,8 @@ pub fn offer(local: &LocalAudio, version: u64) -> String {
             "a=rtpmap:{EVENT_WIDE_PT} telephone-event/48000\r\na=fmtp:{EVENT_WIDE_PT} 0-16\r\n"
         ));
     }
-    sdp.push_str("a=ptime:20\r\na=sendrecv\r\n");
+    sdp.push_str(&rtcp_attribute(local));
+    sdp.push_str("a=rtcp-mux\r\na=ptime:20\r\na=sendrecv\r\n");
     sdp
 }
 
@@ -594,6 +664,11 @@ pub fn answer(local: &LocalAudio, chosen: &Negotiated, version: u64) -> String {
             chosen.codec.clock_rate()
         ));
     }
+    if chosen.rtcp_mux {
+        sdp.push_str("a=rtcp-mux\r\n");
+    } else {
+        sdp.push_str(&rtcp_attribute(local));
+    }
     sdp.push_str(&format!(
         "a=ptime:20\r\na={}\r\n",
         chosen.direction.reversed().attribute()
@@ -613,6 +688,7 @@ mod tests {
     fn local() -> LocalAudio {
         LocalAudio {
             addr: "127.0.0.1:4000".parse().unwrap(),
+            rtcp: Some("127.0.0.1:4001".parse().unwrap()),
             codecs: vec![Codec::Opus, Codec::Pcmu, Codec::Pcma],
             session_id: 7,
             key: SdesKey([7; SDES_KEY_LEN]),
@@ -691,6 +767,46 @@ mod tests {
             (n.codec, n.payload_type, n.events),
             (Codec::Opus, 111, Some(102))
         );
+    }
+
+    #[test]
+    fn rtcp_goes_to_the_port_above_or_where_a_rtcp_says_or_on_the_rtp_port_with_mux() {
+        // baresip's default: neither attribute, RTCP on the RTP port + 1.
+        let n = take(BARESIP_OFFER, &local()).unwrap();
+        assert_eq!(
+            (n.rtcp, n.rtcp_mux),
+            ("127.0.0.1:10001".parse().unwrap(), false)
+        );
+        let ours_back = answer(&local(), &n, 1);
+        assert!(ours_back.contains("a=rtcp:4001\r\n"), "{ours_back}");
+        assert!(!ours_back.contains("rtcp-mux"), "{ours_back}");
+        // Our offer names our RTCP socket and offers mux; an answer taking mux says it back.
+        let mut ours = local();
+        ours.rtcp = Some("192.0.2.7:5001".parse().unwrap());
+        let offer = offer(&ours, 1);
+        assert!(
+            offer.contains("a=rtcp:5001 IN IP4 192.0.2.7\r\na=rtcp-mux\r\n"),
+            "{offer}"
+        );
+        let remote = parse(&offer).unwrap();
+        assert_eq!(remote.rtcp, "192.0.2.7:5001".parse().unwrap());
+        let muxed = negotiate(&remote, &[Codec::Pcmu]).unwrap();
+        assert_eq!((muxed.rtcp, muxed.rtcp_mux), (remote.addr, true));
+        assert!(answer(&local(), &muxed, 1).contains("a=rtcp-mux\r\n"));
+        // A port alone keeps the media's address; a bad one, or an odd address, is refused.
+        let with = |attr: &str| format!("{}{attr}\r\n", BARESIP_OFFER);
+        let n = take(&with("a=rtcp:7000"), &local()).unwrap();
+        assert_eq!(n.rtcp, "127.0.0.1:7000".parse().unwrap());
+        for bad in ["a=rtcp:0", "a=rtcp:x", "a=rtcp:7000 IN IP4 nowhere"] {
+            assert!(
+                matches!(take(&with(bad), &local()), Err(SdpError::Malformed { .. })),
+                "{bad}"
+            );
+        }
+        assert!(matches!(
+            take(&with("a=rtcp:7000 IN IP4 224.0.0.1"), &local()),
+            Err(SdpError::OddAddress(_))
+        ));
     }
 
     #[test]
