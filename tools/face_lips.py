@@ -26,8 +26,9 @@ src/lipsync/mouth.rs, as `evaluate --grid` and tools/lip_readout.py read them).
 
 Per clip: aperture r and width r, face and weights; per set: the mean of the clips' r and r
 pooled over all their frames, and how closely the face follows its own weights (pooled r of
-the tracked render against the weights' design-table values). Renders are cached per head in WORK (`--work`, default
-target/face_lips): a rerun tracks nothing twice; the PNGs are deleted once tracked.
+the tracked render against the weights' design-table values). Renders are cached per head in
+WORK (`--work`, default target/face_lips): a rerun tracks nothing twice; the PNGs are deleted
+once tracked.
 
     python3 -m venv /tmp/face-venv && /tmp/face-venv/bin/pip install mediapipe==0.10.21
     /tmp/face-venv/bin/python tools/face_lips.py [--head HEAD.glb] [--s1-every 10]

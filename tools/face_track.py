@@ -54,7 +54,8 @@ def track_points(frames, indices, static=True):
 
 def track(frames):
     rows = []
-    for pts in track_points(frames, (UPPER_INNER, LOWER_INNER, MOUTH_LEFT, MOUTH_RIGHT) + EYE_OUTER):
+    used = (UPPER_INNER, LOWER_INNER, MOUTH_LEFT, MOUTH_RIGHT) + EYE_OUTER
+    for pts in track_points(frames, used):
         if pts is None:
             rows.append(None)
             continue
