@@ -33,9 +33,12 @@ def pearson(a, b):
     return float(np.corrcoef(a, b)[0, 1])
 
 
-def track(frames):
+def track_points(frames, indices, static=True):
+    """Per frame, the face mesh landmarks `indices` as (x, y, z) in pixels (z scaled like x, as
+    MediaPipe gives it), or None where no face was found. `static` tracks every frame alone (as
+    `track` does); off, frames are a video (tracking mode, as the GRID tracks were made)."""
     rows = []
-    with mp.solutions.face_mesh.FaceMesh(static_image_mode=True, refine_landmarks=True,
+    with mp.solutions.face_mesh.FaceMesh(static_image_mode=static, refine_landmarks=True,
                                          max_num_faces=1) as mesh:
         for path in frames:
             image = np.asarray(Image.open(path).convert("RGB"))
@@ -45,11 +48,22 @@ def track(frames):
                 rows.append(None)
                 continue
             pts = found[0].landmark
-            p = lambda i: np.array([pts[i].x * w, pts[i].y * h])
-            eye = np.linalg.norm(p(EYE_OUTER[0]) - p(EYE_OUTER[1]))
-            gap = np.linalg.norm(p(UPPER_INNER) - p(LOWER_INNER)) / eye
-            width = np.linalg.norm(p(MOUTH_LEFT) - p(MOUTH_RIGHT)) / eye
-            rows.append((gap, width))
+            rows.append({i: (pts[i].x * w, pts[i].y * h, pts[i].z * w) for i in indices})
+    return rows
+
+
+def track(frames):
+    rows = []
+    used = (UPPER_INNER, LOWER_INNER, MOUTH_LEFT, MOUTH_RIGHT) + EYE_OUTER
+    for pts in track_points(frames, used):
+        if pts is None:
+            rows.append(None)
+            continue
+        p = lambda i: np.array(pts[i][:2])
+        eye = np.linalg.norm(p(EYE_OUTER[0]) - p(EYE_OUTER[1]))
+        gap = np.linalg.norm(p(UPPER_INNER) - p(LOWER_INNER)) / eye
+        width = np.linalg.norm(p(MOUTH_LEFT) - p(MOUTH_RIGHT)) / eye
+        rows.append((gap, width))
     return rows
 
 

@@ -11,6 +11,7 @@ use anyhow::{Context, Result, bail};
 use crate::audio::wav;
 use crate::lipsync::decompose::table_i;
 use crate::lipsync::jaw::JawBaseline;
+use crate::lipsync::lips::LipTargets;
 use crate::lipsync::network::Model;
 use crate::lipsync::{Animator, ModelAnimator, recipe};
 use crate::train::codec_features::{
@@ -291,6 +292,10 @@ pub struct RealLipsArgs {
     /// s1's phone alignments for --grid (tools/align_grid.py).
     #[arg(long, value_name = "DIR", default_value = "tools/alignments/grid-s1")]
     pub phones: PathBuf,
+    /// With --grid: write how each viseme shapes s1's lips (aperture, width, protrusion, lower
+    /// lip; relative to his rest, from his training clips) to OUT.csv, instead of Table I.
+    #[arg(long, value_name = "OUT.csv", requires = "grid")]
+    pub viseme_lips: Option<PathBuf>,
 }
 
 /// `lipcall decompose --grid`: Table I on GRID s1's real lips (see [`grid_shapes`]): key shapes
@@ -304,6 +309,9 @@ pub fn decompose_grid(args: &RealLipsArgs, chosen: Option<&str>) -> Result<()> {
         .context("decompose --grid needs the GRID folder")?;
     let clips = grid_shapes::load_s1(data, phones)?;
     let training: Vec<&ContourClip> = clips.iter().filter(|c| !c.1).map(|c| &c.0).collect();
+    if let Some(out) = &args.viseme_lips {
+        return write_viseme_lips(&training, out);
+    }
     let held_out: Vec<&ContourClip> = clips.iter().filter(|c| c.1).map(|c| &c.0).collect();
     let others = grid_shapes::load_other(data)?;
     let others: Vec<&ContourClip> = others.iter().collect();
@@ -393,6 +401,69 @@ pub fn decompose_grid(args: &RealLipsArgs, chosen: Option<&str>) -> Result<()> {
             e(3)
         );
     }
+    Ok(())
+}
+
+/// `decompose --grid --viseme-lips OUT.csv`: each viseme's lip measures at its phone centres in
+/// s1's training clips, relative to each clip's rest ([`grid_shapes::viseme_lips`]); a first
+/// row `rest` holds his rest shape itself.
+fn write_viseme_lips(training: &[&ContourClip], out: &Path) -> Result<()> {
+    let (rest, rows) = grid_shapes::viseme_lips(training, 0.0, KEY_SHAPE_MIN_CENTRES);
+    let names = LipTargets::NAMES;
+    let mut csv = format!(
+        "viseme,centres,{},{},{}\n",
+        names.join(","),
+        names.map(|n| format!("{n}_sd")).join(","),
+        names.map(|n| format!("{n}_clear")).join(",")
+    );
+    let values = |v: &[f32; 4]| v.map(|x| format!("{x:.5}")).join(",");
+    csv.push_str(&format!(
+        "rest,{},{},{},{}\n",
+        training.len(),
+        values(&rest),
+        values(&[0.0; 4]),
+        values(&rest)
+    ));
+    println!(
+        "s1's lips per viseme at the phone centres of his {} training clips, relative to each \
+         clip's rest (silence centres), eye widths; rest: aperture {:.3} width {:.3} protrusion \
+         {:.3} lower_lip_back {:.3}",
+        training.len(),
+        rest[0],
+        rest[1],
+        rest[2],
+        rest[3]
+    );
+    println!(
+        "viseme  centres  mean (sd) / clearest quarter: {}",
+        names.join(", ")
+    );
+    for row in &rows {
+        csv.push_str(&format!(
+            "{},{},{},{},{}\n",
+            row.viseme.name(),
+            row.centres,
+            values(&row.mean),
+            values(&row.sd),
+            values(&row.clear)
+        ));
+        let cells: Vec<String> = (0..4)
+            .map(|k| {
+                format!(
+                    "{:+.3} ({:.3}) / {:+.3}",
+                    row.mean[k], row.sd[k], row.clear[k]
+                )
+            })
+            .collect();
+        println!(
+            "{:<7} {:>7}  {}",
+            row.viseme.name(),
+            row.centres,
+            cells.join("   ")
+        );
+    }
+    std::fs::write(out, csv).with_context(|| format!("cannot write {}", out.display()))?;
+    println!("-> {}", out.display());
     Ok(())
 }
 

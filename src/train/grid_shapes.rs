@@ -9,8 +9,11 @@
 use std::path::Path;
 
 use super::corpus::{PhoneSegment, read_phones};
-use super::grid::{GridError, VIDEO_FPS, clip_names, format_error, read_tracks, s1_held_out};
+use super::grid::{
+    GridError, VIDEO_FPS, clip_names, format_error, lips_at, parse_track, read_tracks, s1_held_out,
+};
 use crate::lipsync::decompose::{DecomposeError, PointTrack};
+use crate::lipsync::lips::LipTargets;
 use crate::lipsync::lips::landmark::{LEFT_EYE_OUTER, NOSE_TIP, RIGHT_EYE_OUTER};
 use crate::lipsync::mouth::VisemeShapes;
 use crate::lipsync::phones::{PhoneTarget, phone_target};
@@ -28,12 +31,14 @@ pub const CONTOUR_COORDS: usize = 2 * CONTOUR.len();
 /// The phone rate of the alignment files (16 kHz samples).
 pub const PHONE_RATE: f64 = 16_000.0;
 
-/// One clip: its normalised contour per video frame (`None` where untracked) and its phone
-/// centres with their viseme.
+/// One clip: its normalised contour and lip measures per video frame (`None` where untracked)
+/// and its phone centres with their viseme.
 #[derive(Debug, Clone)]
 pub struct ContourClip {
     pub name: String,
     pub contours: Vec<Option<Vec<f32>>>,
+    /// The lip measures of each video frame ([`crate::train::grid::parse_track`]).
+    pub lips: Vec<Option<LipTargets>>,
     pub centres: Vec<(f64, Viseme)>,
 }
 
@@ -144,6 +149,7 @@ pub fn load_s1(data: &Path, phones: &Path) -> Result<Vec<(ContourClip, bool)>, G
         clips.push((
             ContourClip {
                 contours: parse_contours(&text, &path)?,
+                lips: parse_track(&text, &path)?,
                 centres: phone_centres(&segments),
                 name,
             },
@@ -183,6 +189,7 @@ pub fn load_other(data: &Path) -> Result<Vec<ContourClip>, GridError> {
                     .map(|s| s.to_string_lossy().into_owned())
                     .unwrap_or_default(),
                 contours: parse_contours(&text, path)?,
+                lips: parse_track(&text, path)?,
                 centres: Vec::new(),
             })
         })
@@ -219,30 +226,16 @@ pub fn key_shapes(
         }
     }
     let counts: [usize; VISEME_COUNT] = std::array::from_fn(|v| found[v].len());
-    let overall = mean(found.iter().flatten());
+    let overall = mean(found.iter().flatten(), CONTOUR_COORDS);
     let shapes = Viseme::ALL
         .iter()
         .filter(|v| counts[v.index()] >= min_count.max(1))
         .map(|&v| {
             let frames = &found[v.index()];
-            let own = mean(frames.iter());
+            let own = mean(frames.iter(), CONTOUR_COORDS);
             let shape = match rule {
                 KeyRule::Mean => own,
-                KeyRule::ClearestQuarter => {
-                    let direction: Vec<f32> =
-                        own.iter().zip(&overall).map(|(a, b)| a - b).collect();
-                    let along = |f: &Vec<f32>| -> f32 {
-                        f.iter()
-                            .zip(&overall)
-                            .zip(&direction)
-                            .map(|((x, m), d)| (x - m) * d)
-                            .sum()
-                    };
-                    let mut ranked: Vec<(f32, &Vec<f32>)> =
-                        frames.iter().map(|f| (along(f), f)).collect();
-                    ranked.sort_by(|a, b| b.0.total_cmp(&a.0));
-                    mean(ranked.iter().take(frames.len().div_ceil(4)).map(|r| r.1))
-                }
+                KeyRule::ClearestQuarter => clearest_quarter(frames, &own, &overall),
             };
             (v, shape)
         })
@@ -250,8 +243,117 @@ pub fn key_shapes(
     Ok((VisemeShapes::new(2, shapes)?, counts))
 }
 
-fn mean<'a>(frames: impl Iterator<Item = &'a Vec<f32>>) -> Vec<f32> {
-    let mut sum = vec![0.0f64; CONTOUR_COORDS];
+/// The mean of the quarter of `frames` (whose mean is `own`) that lie furthest from `overall`
+/// along `own - overall` ([`KeyRule::ClearestQuarter`]).
+fn clearest_quarter(frames: &[Vec<f32>], own: &[f32], overall: &[f32]) -> Vec<f32> {
+    let direction: Vec<f32> = own.iter().zip(overall).map(|(a, b)| a - b).collect();
+    let along = |f: &Vec<f32>| -> f32 {
+        f.iter()
+            .zip(overall)
+            .zip(&direction)
+            .map(|((x, m), d)| (x - m) * d)
+            .sum()
+    };
+    let mut ranked: Vec<(f32, &Vec<f32>)> = frames.iter().map(|f| (along(f), f)).collect();
+    ranked.sort_by(|a, b| b.0.total_cmp(&a.0));
+    mean(
+        ranked.iter().take(frames.len().div_ceil(4)).map(|r| r.1),
+        own.len(),
+    )
+}
+
+/// How s1's lips stand at the centres of one viseme's phones, relative to his rest shape:
+/// per [`LipTargets::NAMES`] measure (aperture, width, protrusion, lower_lip_back; eye widths).
+#[derive(Debug, Clone, PartialEq)]
+pub struct VisemeLips {
+    pub viseme: Viseme,
+    pub centres: usize,
+    /// The mean over the centres.
+    pub mean: [f32; 4],
+    /// Their standard deviation.
+    pub sd: [f32; 4],
+    /// The mean of the clearest quarter ([`KeyRule::ClearestQuarter`] on the four measures,
+    /// each in units of its spread over all centres).
+    pub clear: [f32; 4],
+}
+
+/// Each viseme's lip measures at its phone centres (`shift_s` later), each less its clip's rest
+/// shape: the mean of the clip's lips at its silence centres (the pauses before and after the
+/// sentence). Clips without a tracked silence centre are left out; visemes with fewer than
+/// `min_count` centres get no row. Also returns the rest shape averaged over the clips used
+/// (absolute, eye widths). Silence itself is the rest, so it has no row.
+pub fn viseme_lips(
+    clips: &[&ContourClip],
+    shift_s: f64,
+    min_count: usize,
+) -> ([f32; 4], Vec<VisemeLips>) {
+    let mut found: Vec<Vec<Vec<f32>>> = vec![Vec::new(); VISEME_COUNT];
+    let mut rests = Vec::new();
+    for clip in clips {
+        let at = |t: f64| lips_at(&clip.lips, t + shift_s).map(|l| l.values());
+        let silent: Vec<[f32; 4]> = clip
+            .centres
+            .iter()
+            .filter(|(_, v)| *v == Viseme::Sil)
+            .filter_map(|&(t, _)| at(t))
+            .collect();
+        if silent.is_empty() {
+            continue;
+        }
+        let rest: [f32; 4] =
+            std::array::from_fn(|k| silent.iter().map(|l| l[k]).sum::<f32>() / silent.len() as f32);
+        rests.push(rest.to_vec());
+        for &(t, viseme) in clip.centres.iter().filter(|(_, v)| *v != Viseme::Sil) {
+            if let Some(l) = at(t) {
+                found[viseme.index()].push((0..4).map(|k| l[k] - rest[k]).collect());
+            }
+        }
+    }
+    let rest = mean4(&rests);
+    let all: Vec<Vec<f32>> = found.iter().flatten().cloned().collect();
+    let overall = mean4(&all);
+    let sd_all = sd4(&all, &overall).map(|s| if s > 0.0 { s } else { 1.0 });
+    let scaled = |f: &[f32]| -> Vec<f32> { (0..4).map(|k| f[k] / sd_all[k]).collect() };
+    let rows = Viseme::ALL
+        .iter()
+        .filter(|v| found[v.index()].len() >= min_count.max(1))
+        .map(|&viseme| {
+            let frames = &found[viseme.index()];
+            let mean = mean4(frames);
+            let standard: Vec<Vec<f32>> = frames.iter().map(|f| scaled(f)).collect();
+            let clear = clearest_quarter(&standard, &scaled(&mean), &scaled(&overall));
+            VisemeLips {
+                viseme,
+                centres: frames.len(),
+                sd: sd4(frames, &mean),
+                clear: std::array::from_fn(|k| clear[k] * sd_all[k]),
+                mean,
+            }
+        })
+        .collect();
+    (rest, rows)
+}
+
+fn mean4(frames: &[Vec<f32>]) -> [f32; 4] {
+    let n = frames.len().max(1) as f64;
+    std::array::from_fn(|k| (frames.iter().map(|f| f64::from(f[k])).sum::<f64>() / n) as f32)
+}
+
+fn sd4(frames: &[Vec<f32>], mean: &[f32; 4]) -> [f32; 4] {
+    let n = frames.len().max(1) as f64;
+    std::array::from_fn(|k| {
+        let var = frames
+            .iter()
+            .map(|f| (f64::from(f[k]) - f64::from(mean[k])).powi(2))
+            .sum::<f64>()
+            / n;
+        var.sqrt() as f32
+    })
+}
+
+/// The mean of `frames` of `dim` coordinates each (zeros when there are none).
+fn mean<'a>(frames: impl Iterator<Item = &'a Vec<f32>>, dim: usize) -> Vec<f32> {
+    let mut sum = vec![0.0f64; dim];
     let mut n = 0usize;
     for f in frames {
         for (s, x) in sum.iter_mut().zip(f) {
@@ -376,6 +478,7 @@ mod tests {
         let clip = ContourClip {
             name: "c".into(),
             contours,
+            lips: Vec::new(),
             centres,
         };
         let (shapes, counts) = key_shapes(&[&clip], 0.0, 1, KeyRule::Mean).unwrap();
@@ -391,6 +494,57 @@ mod tests {
         let (shapes, _) = key_shapes(&[&clip], 0.0, 2, KeyRule::Mean).unwrap();
         assert_eq!(shapes.visemes(), [Viseme::Aa, Viseme::I]);
         assert_eq!(contour_track(&[&clip]).unwrap().len(), 25);
+    }
+
+    #[test]
+    fn viseme_lips_are_measured_from_each_clips_own_rest() {
+        let lips = |a: f32, w: f32| LipTargets {
+            aperture: a,
+            width: w,
+            protrusion: 0.1,
+            lower_lip_back: 0.0,
+        };
+        // Frame i's centre is (i + 0.5) / 25 s: frames 0 and 9 silent, 2-3 aa, 5-6 U, 7 untracked.
+        let clip = |offset: f32| {
+            let mut frames = vec![Some(lips(0.01, 0.6 + offset)); 10];
+            for i in [2, 3] {
+                frames[i] = Some(lips(0.15, 0.62 + offset));
+            }
+            for i in [5, 6] {
+                frames[i] = Some(lips(0.03, 0.52 + offset));
+            }
+            frames[7] = None;
+            ContourClip {
+                name: "c".into(),
+                contours: Vec::new(),
+                lips: frames,
+                centres: vec![
+                    (0.02, Viseme::Sil),
+                    (0.1, Viseme::Aa),
+                    (0.14, Viseme::Aa),
+                    (0.22, Viseme::U),
+                    (0.3, Viseme::U), // untracked next frame: no measure
+                    (0.38, Viseme::Sil),
+                ],
+            }
+        };
+        // A second recording sits 0.1 eye widths wider throughout: the rest takes it out.
+        let (a, b) = (clip(0.0), clip(0.1));
+        let (rest, rows) = viseme_lips(&[&a, &b], 0.0, 1);
+        assert!((rest[1] - 0.65).abs() < 1e-5, "{rest:?}");
+        let names: Vec<&str> = rows.iter().map(|r| r.viseme.name()).collect();
+        assert_eq!(names, ["aa", "U"]);
+        let (aa, u) = (&rows[0], &rows[1]);
+        assert_eq!((aa.centres, u.centres), (4, 2));
+        for (row, want) in [(aa, [0.14, 0.02, 0.0, 0.0]), (u, [0.02, -0.08, 0.0, 0.0])] {
+            for (k, want) in want.iter().enumerate() {
+                assert!((row.mean[k] - want).abs() < 1e-5, "{row:?}");
+                assert!((row.clear[k] - want).abs() < 1e-5, "{row:?}");
+                assert!(row.sd[k] < 1e-5, "{row:?}");
+            }
+        }
+        let (_, few) = viseme_lips(&[&a, &b], 0.0, 3);
+        assert_eq!(few.len(), 1);
     }
 
     proptest::proptest! {
