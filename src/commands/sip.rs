@@ -331,6 +331,8 @@ fn set_up(
             // Early media: played (and animated) while it rings.
             CallState::Setting if link.codec().is_some() => return Ok(()),
             CallState::Failed(e) => bail!("{e}"),
+            // Answered and hung up within one look: the call happened, and ends as any does.
+            CallState::Ended { .. } if link.answered() => return Ok(()),
             CallState::Ended { .. } => bail!("the call ended before it was answered"),
             CallState::Setting => {}
         }

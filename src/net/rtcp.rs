@@ -373,7 +373,11 @@ impl HeardReports {
             self.last_sr = Some((ntp_middle(info.ntp), arrival));
         }
         if let Some(about_us) = blocks.iter().find(|b| b.ssrc == ours) {
-            self.rtt_ms = round_trip(about_us, arrival_ntp).map(|s| s * 1000.0);
+            // A block without our last SR (sent before it reached the peer) measures nothing:
+            // the last round trip measured stands.
+            if let Some(rtt) = round_trip(about_us, arrival_ntp) {
+                self.rtt_ms = Some(rtt * 1000.0);
+            }
             self.about_us = Some(*about_us);
         }
     }
