@@ -14,7 +14,7 @@
 mod glb_write;
 
 use anyhow::Context;
-use glb_write::{MeshOut, PrimitiveOut, write_meshes};
+use glb_write::{MeshOut, write_meshes};
 use lipcall::render::head::{Expression, MorphDelta};
 use lipcall::vocab::{VISEME_COUNT, VISEME_NAMES, Viseme};
 
@@ -62,18 +62,7 @@ fn main() -> anyhow::Result<()> {
                     targets.push(scaled(src, by));
                 }
             }
-            MeshOut {
-                name: p.name.clone(),
-                primitives: vec![PrimitiveOut {
-                    vertices: p.vertices.clone(),
-                    indices: p.indices.clone(),
-                    material: p.material,
-                    targets,
-                    joints: Vec::new(),
-                }],
-                target_names: names,
-                joint_names: Vec::new(),
-            }
+            MeshOut::unskinned(p, names, targets)
         })
         .collect();
     std::fs::write(&out, write_meshes(&meshes, &head.materials))

@@ -10,7 +10,7 @@
 
 mod common;
 
-use common::glb_write::{MeshOut, PrimitiveOut, write_glb, write_meshes};
+use common::glb_write::{MeshOut, write_glb, write_meshes};
 use lipcall::commands::animate::{AnimateArgs, weight_track};
 use lipcall::render::HeadModel;
 use lipcall::render::gltf_load::load_head_from_slice;
@@ -77,18 +77,7 @@ fn weak_arkit_avatar(factor: f32) -> Vec<u8> {
                     targets.push(scaled(slot, by));
                 }
             }
-            MeshOut {
-                name: p.name.clone(),
-                primitives: vec![PrimitiveOut {
-                    vertices: p.vertices.clone(),
-                    indices: p.indices.clone(),
-                    material: p.material,
-                    targets,
-                    joints: Vec::new(),
-                }],
-                target_names: names,
-                joint_names: Vec::new(),
-            }
+            MeshOut::unskinned(p, names, targets)
         })
         .collect();
     write_meshes(&meshes, &head.materials)

@@ -6,7 +6,7 @@
 
 use serde_json::{Value, json};
 
-use lipcall::render::head::{HeadModel, Material, MorphDelta, Vertex, slot_name};
+use lipcall::render::head::{HeadModel, Material, MorphDelta, Primitive, Vertex, slot_name};
 use lipcall::vocab::{VISEME_COUNT, VISEME_NAMES};
 
 const ARRAY_BUFFER: u32 = 34962;
@@ -117,6 +117,24 @@ pub struct MeshOut {
     pub joint_names: Vec<String>,
 }
 
+impl MeshOut {
+    /// `part` of a head as a mesh of its own, unskinned, with these morph targets.
+    pub fn unskinned(part: &Primitive, names: Vec<String>, targets: Vec<Vec<MorphDelta>>) -> Self {
+        Self {
+            name: part.name.clone(),
+            primitives: vec![PrimitiveOut {
+                vertices: part.vertices.clone(),
+                indices: part.indices.clone(),
+                material: part.material,
+                targets,
+                joints: Vec::new(),
+            }],
+            target_names: names,
+            joint_names: Vec::new(),
+        }
+    }
+}
+
 /// One triangle primitive for [`write_meshes`].
 #[derive(Debug, Clone, Default)]
 pub struct PrimitiveOut {
@@ -152,18 +170,7 @@ pub fn write_glb(model: &HeadModel) -> Vec<u8> {
                     targets.push(deltas.clone());
                 }
             }
-            MeshOut {
-                name: p.name.clone(),
-                primitives: vec![PrimitiveOut {
-                    vertices: p.vertices.clone(),
-                    indices: p.indices.clone(),
-                    material: p.material,
-                    targets,
-                    joints: Vec::new(),
-                }],
-                target_names: names,
-                joint_names: Vec::new(),
-            }
+            MeshOut::unskinned(p, names, targets)
         })
         .collect();
     write_meshes(&meshes, &model.materials)
