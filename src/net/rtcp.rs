@@ -388,7 +388,14 @@ impl HeardReports {
     }
 }
 
-/// Round trip from a report block about us (RFC 3550 6.4.1), in seconds, if it has one.
+/// How far below zero a round trip may come out and still be read as none at all (in 1/65536
+/// s): a peer that counts its DLSR on a millisecond timer (baresip's libre) overstates it by up
+/// to a millisecond, more than a round trip on one host takes, so A - LSR - DLSR comes out
+/// slightly negative about half the time there.
+const DLSR_ROUNDING: u32 = 65536 / 100;
+
+/// Round trip from a report block about us (RFC 3550 6.4.1), in seconds, if it has one; one
+/// under zero by less than [`DLSR_ROUNDING`] is zero.
 pub fn round_trip(block: &ReportBlock, arrival_ntp: u64) -> Option<f64> {
     if block.last_sr == 0 {
         return None;
@@ -396,7 +403,11 @@ pub fn round_trip(block: &ReportBlock, arrival_ntp: u64) -> Option<f64> {
     let rtt = ntp_middle(arrival_ntp)
         .wrapping_sub(block.last_sr)
         .wrapping_sub(block.delay_since_last_sr);
-    // A negative round trip (clock steps, bogus reports) shows up as a huge value.
+    // A negative round trip shows up as a huge value: a rounded DLSR when it is small, clock
+    // steps or a bogus report when larger.
+    if rtt.wrapping_neg() <= DLSR_ROUNDING {
+        return Some(0.0);
+    }
     (rtt < 0x8000_0000).then(|| f64::from(rtt) / 65536.0)
 }
 
@@ -482,5 +493,25 @@ mod tests {
         let rtt = round_trip(&block, arrival).unwrap();
         assert!((rtt - 0.5).abs() < 1e-4);
         assert_eq!(round_trip(&ReportBlock::default(), arrival), None);
+    }
+
+    #[test]
+    fn a_dlsr_rounded_up_past_a_tiny_round_trip_reads_as_zero_and_a_bogus_one_as_none() {
+        let sent = 0x0000_1000_0000_0000u64;
+        // A 0.1 ms round trip, the peer's DLSR counted in whole milliseconds: 1 s + 1 ms for
+        // the 1.0006 s it held our SR.
+        let arrival = sent + (1u64 << 32) + (1u64 << 32) * 7 / 10_000;
+        let block = ReportBlock {
+            last_sr: ntp_middle(sent),
+            delay_since_last_sr: 65536 + 65536 / 1000,
+            ..Default::default()
+        };
+        assert_eq!(round_trip(&block, arrival), Some(0.0));
+        // Half a second below zero is no rounding.
+        let block = ReportBlock {
+            delay_since_last_sr: 65536 * 3 / 2,
+            ..block
+        };
+        assert_eq!(round_trip(&block, arrival), None);
     }
 }
