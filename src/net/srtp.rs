@@ -1,6 +1,6 @@
 //! SRTP and SRTCP with AES_CM_128_HMAC_SHA1_80 (RFC 3711), over RustCrypto's AES, HMAC and
-//! SHA-1. The pure-Rust SRTP crates on crates.io either pull in an async runtime or link ring /
-//! aws-lc / OpenSSL, so the transform is written here against the RFC's test vectors.
+//! SHA-1, written against the RFC's test vectors: the project's one SRTP (direct calls, relay
+//! rooms, SIP's SDES). docs/transport.md ("SRTP") says why no crate took its place.
 //!
 //! Two keying schemes share the transform ([`KeyScheme`]):
 //! - RFC 3711 as other stacks speak it (a raw master key): one set of session keys for every
