@@ -6,7 +6,6 @@ use std::future::Future;
 use std::net::{IpAddr, SocketAddr};
 use std::sync::mpsc;
 
-use bytesstr::BytesStr;
 use ezk_sdp_types::SessionDescription;
 use ezk_sip_ua::MediaBackend;
 
@@ -47,13 +46,6 @@ pub struct SdpMedia {
 }
 
 impl SdpMedia {
-    fn description(text: &str) -> Result<SessionDescription, SdpError> {
-        SessionDescription::parse(&BytesStr::from(text)).map_err(|_| SdpError::Malformed {
-            line: text.chars().take(80).collect(),
-            why: "lipcall's own description did not parse",
-        })
-    }
-
     fn agreed(&mut self, mut negotiated: Negotiated) {
         negotiated.signalling_peer = self.signalling_peer;
         let _ = self.events.send(AgentEvent::Media(Box::new(negotiated)));
@@ -61,16 +53,12 @@ impl SdpMedia {
 
     pub fn offer(&mut self) -> Result<SessionDescription, SdpError> {
         self.version += 1;
-        Self::description(&sdp::offer(&self.audio, self.version))
-    }
-
-    pub fn take_answer(&mut self, answer: &SessionDescription) -> Result<(), SdpError> {
-        self.take_answer_text(&answer.to_string())
+        Ok(sdp::offer(&self.audio, self.version))
     }
 
     /// Takes the peer's answer to our offer.
-    pub fn take_answer_text(&mut self, answer: &str) -> Result<(), SdpError> {
-        let negotiated = sdp::take(answer, &self.audio)?;
+    pub fn take_answer(&mut self, answer: &SessionDescription) -> Result<(), SdpError> {
+        let negotiated = sdp::take_description(answer, &self.audio)?;
         if self.audio.offer_srtp && negotiated.srtp.is_none() {
             return Err(SdpError::Unencrypted);
         }
@@ -78,20 +66,24 @@ impl SdpMedia {
         Ok(())
     }
 
-    pub fn answer(&mut self, offer: &SessionDescription) -> Result<SessionDescription, SdpError> {
-        let answer = self.answer_text(&offer.to_string())?;
-        Self::description(&answer)
+    /// [`Self::take_answer`] of an answer that came as text (a response's body).
+    pub fn take_answer_text(&mut self, answer: &str) -> Result<(), SdpError> {
+        self.take_answer(&sdp::parse(answer)?)
     }
 
-    /// Our answer to the peer's offer, as text.
-    pub fn answer_text(&mut self, offer: &str) -> Result<String, SdpError> {
+    /// Our answer to the peer's offer.
+    pub fn answer(&mut self, offer: &SessionDescription) -> Result<SessionDescription, SdpError> {
         // A first offer with an odd address was refused (488) before it got here.
         let negotiated = sdp::take_in_call(offer, &self.audio)?;
         self.version += 1;
         let answer = sdp::answer(&self.audio, &negotiated, self.version);
-        Self::description(&answer)?;
         self.agreed(negotiated);
         Ok(answer)
+    }
+
+    /// Our answer to an offer that came as text (a re-INVITE's body), as text.
+    pub fn answer_text(&mut self, offer: &str) -> Result<String, SdpError> {
+        Ok(self.answer(&sdp::parse(offer)?)?.to_string())
     }
 }
 

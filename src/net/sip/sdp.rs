@@ -1,14 +1,22 @@
-//! SDP offer and answer for one audio stream (RFC 3264, RFC 4566): what lipcall offers (Opus,
+//! SDP offer and answer for one audio stream (RFC 3264, RFC 8866): what lipcall offers (Opus,
 //! PCMU, PCMA and RFC 4733 telephone-event), reading a peer's description (its media address,
 //! formats and direction), and choosing the codec both sides speak. RTCP goes where RFC 3550
 //! puts it, the RTP port + 1, unless `a=rtcp` (RFC 3605) names another port, or both sides say
 //! `a=rtcp-mux` (RFC 5761: on the RTP port); we offer both, and take mux where it is offered.
 //!
-//! The SIP stack (ezk) parses SDP into its own types; this module reads the description it
-//! prints back, so that every value a hostile peer controls passes one strict, bounded reader
-//! with its own errors.
+//! Descriptions are ezk's typed [`SessionDescription`], as the SIP stack hands and takes them:
+//! ours are built as its structs, a peer's read from its fields, and a body that comes as text
+//! (our own INVITE's answer, a re-INVITE) is parsed by ezk once, after a size cap. What ezk
+//! leaves open (payload types over 127, host names, port 0, key lengths) is checked here.
 
 use std::net::{IpAddr, SocketAddr};
+
+use bytesstr::BytesStr;
+use ezk_sdp_types::{
+    Connection, Fmtp, MediaDescription, MediaType, Origin, Rtcp, RtpMap, SessionDescription,
+    SrtpCrypto, SrtpKeyingMaterial, SrtpSuite, TaggedAddress, Time, TransportProtocol,
+    UnknownAttribute,
+};
 
 use crate::codec::any::{Codec, PayloadMap};
 use crate::net::addr::{OddAddress, media_target};
@@ -40,20 +48,24 @@ impl SdesKey {
         Ok(Self(key))
     }
 
-    fn inline(&self) -> String {
+    fn keying(&self) -> SrtpKeyingMaterial {
         use base64::Engine;
-        base64::engine::general_purpose::STANDARD.encode(self.0)
+        SrtpKeyingMaterial {
+            key_and_salt: base64::engine::general_purpose::STANDARD
+                .encode(self.0)
+                .into(),
+            lifetime: None,
+            mki: None,
+        }
     }
 
-    /// `inline:KEY[|LIFETIME][|MKI:LEN]` (RFC 4568 9.1) of our suite; `None` for any other.
-    fn parse(params: &str) -> Option<Self> {
+    /// The key of `inline:KEY[|LIFETIME][|MKI:LEN]` (RFC 4568 9.1); `None` where it is no
+    /// key of our suite's length.
+    fn read(keying: &SrtpKeyingMaterial) -> Option<Self> {
         use base64::Engine;
-        let inline = params
-            .split_ascii_whitespace()
-            .next()?
-            .strip_prefix("inline:")?;
-        let key = inline.split('|').next()?;
-        let bytes = base64::engine::general_purpose::STANDARD.decode(key).ok()?;
+        let bytes = base64::engine::general_purpose::STANDARD
+            .decode(keying.key_and_salt.as_str())
+            .ok()?;
         Some(Self(bytes.try_into().ok()?))
     }
 }
@@ -65,15 +77,13 @@ pub struct Sdes {
     pub key: SdesKey,
 }
 
-fn parse_crypto(value: &str) -> Option<Sdes> {
-    let mut parts = value.splitn(3, ' ');
-    let tag = parts.next()?.parse().ok()?;
-    if parts.next()? != SRTP_SUITE {
+fn read_crypto(crypto: &SrtpCrypto) -> Option<Sdes> {
+    if crypto.suite != SrtpSuite::AES_CM_128_HMAC_SHA1_80 {
         return None;
     }
     Some(Sdes {
-        tag,
-        key: SdesKey::parse(parts.next()?)?,
+        tag: crypto.tag,
+        key: SdesKey::read(crypto.keys.first()?)?,
     })
 }
 
@@ -114,12 +124,21 @@ pub enum Direction {
 }
 
 impl Direction {
-    fn attribute(self) -> &'static str {
+    fn of(sdp: ezk_sdp_types::Direction) -> Self {
+        match sdp {
+            ezk_sdp_types::Direction::SendRecv => Direction::SendRecv,
+            ezk_sdp_types::Direction::SendOnly => Direction::SendOnly,
+            ezk_sdp_types::Direction::RecvOnly => Direction::RecvOnly,
+            ezk_sdp_types::Direction::Inactive => Direction::Inactive,
+        }
+    }
+
+    fn attribute(self) -> ezk_sdp_types::Direction {
         match self {
-            Direction::SendRecv => "sendrecv",
-            Direction::SendOnly => "sendonly",
-            Direction::RecvOnly => "recvonly",
-            Direction::Inactive => "inactive",
+            Direction::SendRecv => ezk_sdp_types::Direction::SendRecv,
+            Direction::SendOnly => ezk_sdp_types::Direction::SendOnly,
+            Direction::RecvOnly => ezk_sdp_types::Direction::RecvOnly,
+            Direction::Inactive => ezk_sdp_types::Direction::Inactive,
         }
     }
 
@@ -145,7 +164,6 @@ impl Direction {
         }
     }
 }
-
 /// One payload format of a media line.
 #[derive(Debug, Clone, PartialEq, Eq)]
 pub struct Format {
@@ -239,222 +257,113 @@ fn malformed(line: &str, why: &'static str) -> SdpError {
     SdpError::Malformed { line, why }
 }
 
-fn parse_address(line: &str, value: &str) -> Result<Option<IpAddr>, SdpError> {
-    let mut parts = value.split_ascii_whitespace();
-    let (Some("IN"), Some(family), Some(addr)) = (parts.next(), parts.next(), parts.next()) else {
-        return Err(malformed(line, "expected IN IP4|IP6 ADDRESS"));
-    };
-    // A multicast address may carry /ttl; a host name is not something we can send to.
-    let addr = addr.split('/').next().unwrap_or(addr);
-    let ip: IpAddr = addr
-        .parse()
-        .map_err(|_| malformed(line, "the address is not an IP address"))?;
-    match (family, ip) {
-        ("IP4", IpAddr::V4(_)) | ("IP6", IpAddr::V6(_)) => Ok(Some(ip)),
-        _ => Err(malformed(line, "the address does not match its family")),
+/// An address of `c=`, `o=` or `a=rtcp`: an IP, never a host name (nothing we could send to).
+fn ip_of(address: &TaggedAddress) -> Result<IpAddr, SdpError> {
+    match address {
+        TaggedAddress::IP4(ip) => Ok(IpAddr::V4(*ip)),
+        TaggedAddress::IP6(ip) => Ok(IpAddr::V6(*ip)),
+        TaggedAddress::IP4FQDN(host) | TaggedAddress::IP6FQDN(host) => {
+            Err(malformed(host.as_str(), "the address is not an IP address"))
+        }
     }
 }
 
-/// `a=rtcp:PORT [IN IP4|IP6 ADDRESS]` (RFC 3605).
-fn parse_rtcp(line: &str, value: &str) -> Result<(u16, Option<IpAddr>), SdpError> {
-    let (port, address) = match value.split_once(' ') {
-        Some((port, address)) => (port, Some(address)),
-        None => (value, None),
-    };
-    let port = port
-        .trim()
-        .parse()
-        .ok()
-        .filter(|&p: &u16| p > 0)
-        .ok_or_else(|| malformed(line, "bad RTCP port"))?;
-    let ip = match address {
-        Some(address) => parse_address(line, address.trim())?,
-        None => None,
-    };
-    Ok((port, ip))
+/// A key lifetime of `2^N` with N of 32 or more: ezk's parser computes it in a `u32`, which
+/// overflows (a panic where overflow is checked).
+fn overflowing_lifetime(text: &str) -> bool {
+    text.match_indices("|2^").any(|(at, m)| {
+        let digits: String = text[at + m.len()..]
+            .chars()
+            .take_while(char::is_ascii_digit)
+            .collect();
+        digits.len() > 2 || digits.parse::<u32>().is_ok_and(|n| n >= 32)
+    })
 }
 
-fn parse_rtpmap(line: &str, value: &str) -> Result<(u8, String, u32), SdpError> {
-    let (pt, rest) = value
-        .split_once(' ')
-        .ok_or_else(|| malformed(line, "expected PT ENCODING/CLOCK"))?;
-    let pt: u8 = pt
-        .trim()
-        .parse()
-        .ok()
-        .filter(|&pt| pt < 128)
-        .ok_or_else(|| malformed(line, "bad payload type"))?;
-    let mut fields = rest.trim().split('/');
-    let encoding = fields.next().unwrap_or_default().to_ascii_uppercase();
-    let clock: u32 = fields
-        .next()
-        .and_then(|c| c.parse().ok())
-        .filter(|&c| c > 0)
-        .ok_or_else(|| malformed(line, "bad clock rate"))?;
-    if encoding.is_empty() || encoding.len() > 32 {
-        return Err(malformed(line, "bad encoding name"));
-    }
-    Ok((pt, encoding, clock))
-}
-
-/// The first audio stream as read so far: its port, formats, own address and direction.
-struct AudioLine {
-    port: u16,
-    formats: Vec<Format>,
-    addr: Option<IpAddr>,
-    direction: Option<Direction>,
-    secure: bool,
-    crypto: Option<Sdes>,
-    rtcp: Option<(u16, Option<IpAddr>)>,
-    rtcp_mux: bool,
-}
-
-/// Reads the first audio stream of a description.
-pub fn parse(text: &str) -> Result<RemoteAudio, SdpError> {
+/// Parses a description that came as text (a SIP body), capped at [`MAX_SDP_BYTES`].
+pub fn parse(text: &str) -> Result<SessionDescription, SdpError> {
     if text.len() > MAX_SDP_BYTES {
         return Err(SdpError::TooLong(text.len()));
     }
-    let mut session_addr = None;
-    let mut session_direction = Direction::SendRecv;
-    let mut audio: Option<AudioLine> = None;
-    let mut in_audio = false;
-    let mut past_audio = false;
-    for line in text.split(['\r', '\n']).filter(|l| !l.is_empty()) {
-        let Some((kind, value)) = line.split_once('=') else {
-            return Err(malformed(line, "expected TYPE=VALUE"));
-        };
-        match kind {
-            "m" => {
-                let seen = audio.is_some();
-                in_audio = false;
-                if seen {
-                    past_audio = true;
-                    continue;
-                }
-                let mut parts = value.split_ascii_whitespace();
-                let (Some(media), Some(port), Some(proto)) =
-                    (parts.next(), parts.next(), parts.next())
-                else {
-                    return Err(malformed(line, "expected MEDIA PORT PROTO FORMATS"));
-                };
-                if media != "audio" {
-                    continue;
-                }
-                let port: u16 = port
-                    .split('/')
-                    .next()
-                    .and_then(|p| p.parse().ok())
-                    .ok_or_else(|| malformed(line, "bad port"))?;
-                let secure = match proto {
-                    "RTP/AVP" | "RTP/AVPF" => false,
-                    "RTP/SAVP" | "RTP/SAVPF" => true,
-                    _ => return Err(malformed(line, "not RTP/AVP audio")),
-                };
-                let mut formats = Vec::new();
-                for pt in parts.take(MAX_FORMATS) {
-                    let pt: u8 = pt
-                        .parse()
-                        .ok()
-                        .filter(|&pt| pt < 128)
-                        .ok_or_else(|| malformed(line, "bad payload type"))?;
-                    let (encoding, clock_rate) = static_format(pt).unwrap_or(("", 0));
-                    formats.push(Format {
-                        payload_type: pt,
-                        encoding: encoding.to_owned(),
-                        clock_rate,
-                    });
-                }
-                audio = Some(AudioLine {
-                    port,
-                    formats,
-                    addr: None,
-                    direction: None,
-                    secure,
-                    crypto: None,
-                    rtcp: None,
-                    rtcp_mux: false,
-                });
-                in_audio = true;
-            }
-            "c" => {
-                let addr = parse_address(line, value)?;
-                match (&mut audio, in_audio) {
-                    (Some(a), true) => a.addr = addr,
-                    (None, _) if !past_audio => session_addr = addr,
-                    _ => {}
-                }
-            }
-            "a" => {
-                let (name, attr_value) = value.split_once(':').unwrap_or((value, ""));
-                let direction = match name {
-                    "sendrecv" => Some(Direction::SendRecv),
-                    "sendonly" => Some(Direction::SendOnly),
-                    "recvonly" => Some(Direction::RecvOnly),
-                    "inactive" => Some(Direction::Inactive),
-                    _ => None,
-                };
-                match (&mut audio, in_audio) {
-                    (Some(a), true) => {
-                        if let Some(d) = direction {
-                            a.direction = Some(d);
-                        } else if name == "crypto" {
-                            if a.crypto.is_none() {
-                                a.crypto = parse_crypto(attr_value);
-                            }
-                        } else if name == "rtcp" {
-                            a.rtcp = Some(parse_rtcp(line, attr_value)?);
-                        } else if name == "rtcp-mux" {
-                            a.rtcp_mux = true;
-                        } else if name == "rtpmap" {
-                            let (pt, encoding, clock) = parse_rtpmap(line, attr_value)?;
-                            if let Some(f) = a.formats.iter_mut().find(|f| f.payload_type == pt) {
-                                f.encoding = encoding;
-                                f.clock_rate = clock;
-                            }
-                        }
-                    }
-                    (None, _) => {
-                        if let Some(d) = direction {
-                            session_direction = d;
-                        }
-                    }
-                    _ => {}
-                }
-            }
-            _ if kind.len() == 1 => {}
-            _ => return Err(malformed(line, "expected a one-letter type")),
-        }
+    if overflowing_lifetime(text) {
+        return Err(malformed(text, "an SRTP key lifetime over 2^31"));
     }
-    let AudioLine {
-        port,
-        formats,
-        addr: media_addr,
-        direction,
-        secure,
-        crypto,
-        rtcp,
-        rtcp_mux,
-    } = audio.ok_or(SdpError::NoAudio)?;
-    if port == 0 {
+    SessionDescription::parse(&BytesStr::from(text))
+        .map_err(|e| malformed(&e.to_string(), "not a session description ezk can read"))
+}
+
+/// A format of the audio line: static ones by RFC 3551, dynamic ones by their rtpmap.
+fn format(pt: u8, audio: &MediaDescription) -> Result<Format, SdpError> {
+    if pt >= 128 {
+        return Err(malformed(&pt.to_string(), "bad payload type"));
+    }
+    if let Some(map) = audio.rtpmap.iter().find(|m| m.payload == pt) {
+        let encoding = map.encoding.as_str().to_ascii_uppercase();
+        if encoding.is_empty() || encoding.len() > 32 || map.clock_rate == 0 {
+            return Err(malformed(&map.to_string(), "bad encoding or clock rate"));
+        }
+        return Ok(Format {
+            payload_type: pt,
+            encoding,
+            clock_rate: map.clock_rate,
+        });
+    }
+    let (encoding, clock_rate) = static_format(pt).unwrap_or(("", 0));
+    Ok(Format {
+        payload_type: pt,
+        encoding: encoding.to_owned(),
+        clock_rate,
+    })
+}
+
+/// Reads the first audio stream of a description.
+pub fn read(description: &SessionDescription) -> Result<RemoteAudio, SdpError> {
+    let audio = description
+        .media_descriptions
+        .iter()
+        .find(|m| m.media.media_type == MediaType::Audio)
+        .ok_or(SdpError::NoAudio)?;
+    let secure = match &audio.media.proto {
+        TransportProtocol::RtpAvp | TransportProtocol::RtpAvpf => false,
+        TransportProtocol::RtpSavp | TransportProtocol::RtpSavpf => true,
+        other => return Err(malformed(&other.to_string(), "not RTP/AVP audio")),
+    };
+    if audio.media.port == 0 {
         return Err(SdpError::Refused);
     }
-    let ip = media_addr.or(session_addr).ok_or(SdpError::NoAddress)?;
-    let rtcp = match rtcp {
-        Some((rtcp_port, rtcp_ip)) => SocketAddr::new(rtcp_ip.unwrap_or(ip), rtcp_port),
+    let formats = audio
+        .media
+        .fmts
+        .iter()
+        .take(MAX_FORMATS)
+        .map(|&pt| format(pt, audio))
+        .collect::<Result<Vec<_>, _>>()?;
+    let connection = audio
+        .connection
+        .as_ref()
+        .or(description.connection.as_ref())
+        .ok_or(SdpError::NoAddress)?;
+    let ip = ip_of(&connection.address)?;
+    let port = audio.media.port;
+    let rtcp = match &audio.rtcp {
+        Some(Rtcp { port: 0, .. }) => return Err(malformed("a=rtcp:0", "bad RTCP port")),
+        Some(Rtcp { port, address }) => {
+            let rtcp_ip = address.as_ref().map(ip_of).transpose()?;
+            SocketAddr::new(rtcp_ip.unwrap_or(ip), *port)
+        }
         // RTP ports are even: an odd last one has no port above it, and only mux can help.
         None => SocketAddr::new(ip, port.checked_add(1).unwrap_or(port)),
     };
     Ok(RemoteAudio {
         addr: SocketAddr::new(ip, port),
         rtcp,
-        rtcp_mux,
+        rtcp_mux: audio.rtcp_mux,
         formats,
-        direction: direction.unwrap_or(session_direction),
+        direction: Direction::of(audio.direction),
         secure,
-        crypto,
+        crypto: audio.crypto.iter().find_map(read_crypto),
     })
 }
-
 /// The telephone-event format of `remote` on `clock`, if it has one.
 fn events_at(remote: &RemoteAudio, clock: u32) -> Option<u8> {
     remote
@@ -521,18 +430,29 @@ pub fn negotiate(remote: &RemoteAudio, allowed: &[Codec]) -> Result<Negotiated, 
 
 /// The peer's description (an offer or an answer) read, its media address checked against our
 /// socket's family (`local.addr`) and the codec chosen among `local.codecs`.
-pub fn take(text: &str, local: &LocalAudio) -> Result<Negotiated, SdpError> {
-    let remote = parse(text)?;
+pub fn take_description(
+    description: &SessionDescription,
+    local: &LocalAudio,
+) -> Result<Negotiated, SdpError> {
+    let remote = read(description)?;
     media_target(remote.addr, local.addr)?;
     media_target(remote.rtcp, local.addr)?;
     negotiate(&remote, &local.codecs)
 }
 
-/// As [`take`], for an offer within a call, where `c=0.0.0.0` is RFC 2543's hold, which RFC
+/// [`take_description`] of a description that came as text.
+pub fn take(text: &str, local: &LocalAudio) -> Result<Negotiated, SdpError> {
+    take_description(&parse(text)?, local)
+}
+
+/// As [`take_description`], for an offer within a call, where `c=0.0.0.0` is RFC 2543's hold, which RFC
 /// 3264 (8.4) still asks us to take: the peer receives nothing, and our media keeps the
 /// address it had (`remote` stays unspecified; [`super::media`] sends nothing there).
-pub fn take_in_call(text: &str, local: &LocalAudio) -> Result<Negotiated, SdpError> {
-    let remote = parse(text)?;
+pub fn take_in_call(
+    description: &SessionDescription,
+    local: &LocalAudio,
+) -> Result<Negotiated, SdpError> {
+    let remote = read(description)?;
     let held = remote.addr.ip().is_unspecified() && remote.addr.is_ipv4() == local.addr.is_ipv4();
     if !held {
         media_target(remote.addr, local.addr)?;
@@ -545,35 +465,112 @@ pub fn take_in_call(text: &str, local: &LocalAudio) -> Result<Negotiated, SdpErr
     Ok(negotiated)
 }
 
-fn header(local: &LocalAudio, version: u64) -> String {
-    let family = if local.addr.is_ipv4() { "IP4" } else { "IP6" };
+/// Our description with its one audio stream `audio`.
+fn ours(local: &LocalAudio, version: u64, audio: MediaDescription) -> SessionDescription {
     let ip = local.addr.ip();
-    format!(
-        "v=0\r\no=lipcall {} {version} IN {family} {ip}\r\ns=lipcall\r\nc=IN {family} {ip}\r\nt=0 0\r\n",
-        local.session_id
-    )
-}
-
-fn rtpmap(codec: Codec, pt: u8) -> String {
-    match codec {
-        Codec::Opus => format!("a=rtpmap:{pt} opus/48000/2\r\na=fmtp:{pt} useinbandfec=1\r\n"),
-        other => format!(
-            "a=rtpmap:{pt} {}/{}\r\n",
-            other.encoding_name(),
-            other.clock_rate()
-        ),
+    SessionDescription {
+        origin: Origin {
+            username: "lipcall".into(),
+            session_id: local.session_id.to_string().into(),
+            session_version: version.to_string().into(),
+            address: ip.into(),
+        },
+        name: "lipcall".into(),
+        connection: Some(Connection {
+            address: ip.into(),
+            ttl: None,
+            num: None,
+        }),
+        bandwidth: Vec::new(),
+        time: Time { start: 0, stop: 0 },
+        direction: ezk_sdp_types::Direction::SendRecv,
+        group: Vec::new(),
+        extmap: Vec::new(),
+        extmap_allow_mixed: false,
+        ice_lite: false,
+        ice_options: Default::default(),
+        ice_ufrag: None,
+        ice_pwd: None,
+        setup: None,
+        fingerprint: Vec::new(),
+        attributes: Vec::new(),
+        media_descriptions: vec![audio],
     }
 }
 
+/// Our audio line on `types`, SRTP (RTP/SAVP) where `secure`, 20 ms packets, `direction`.
+fn audio_line(
+    local: &LocalAudio,
+    types: Vec<u8>,
+    secure: bool,
+    direction: Direction,
+) -> MediaDescription {
+    let mut audio = MediaDescription::rejected(MediaType::Audio);
+    audio.media.port = local.addr.port();
+    audio.media.proto = if secure {
+        TransportProtocol::RtpSavp
+    } else {
+        TransportProtocol::RtpAvp
+    };
+    audio.media.fmts = types;
+    audio.direction = direction.attribute();
+    audio.attributes.push(UnknownAttribute {
+        name: "ptime".into(),
+        value: Some("20".into()),
+    });
+    audio
+}
+
+/// The rtpmap (and Opus's fmtp) of `codec` on `pt`.
+fn map_codec(audio: &mut MediaDescription, codec: Codec, pt: u8) {
+    let (encoding, params) = match codec {
+        Codec::Opus => ("opus", Some("2".into())),
+        other => (other.encoding_name(), None),
+    };
+    audio.rtpmap.push(RtpMap {
+        payload: pt,
+        encoding: encoding.into(),
+        clock_rate: codec.clock_rate(),
+        params,
+    });
+    if codec == Codec::Opus {
+        audio.fmtp.push(Fmtp {
+            format: pt,
+            params: "useinbandfec=1".into(),
+        });
+    }
+}
+
+/// telephone-event (RFC 4733) on `pt` at `clock`, keys 0-16.
+fn map_events(audio: &mut MediaDescription, pt: u8, clock: u32) {
+    audio.rtpmap.push(RtpMap {
+        payload: pt,
+        encoding: "telephone-event".into(),
+        clock_rate: clock,
+        params: None,
+    });
+    audio.fmtp.push(Fmtp {
+        format: pt,
+        params: "0-16".into(),
+    });
+}
+
 /// Where our RTCP socket is, as `a=rtcp` says it (the address only where it is not the RTP's).
-fn rtcp_attribute(local: &LocalAudio) -> String {
-    match local.rtcp {
-        Some(rtcp) if rtcp.ip() == local.addr.ip() => format!("a=rtcp:{}\r\n", rtcp.port()),
-        Some(rtcp) => {
-            let family = if rtcp.is_ipv4() { "IP4" } else { "IP6" };
-            format!("a=rtcp:{} IN {family} {}\r\n", rtcp.port(), rtcp.ip())
-        }
-        None => String::new(),
+fn rtcp_attribute(local: &LocalAudio) -> Option<Rtcp> {
+    let rtcp = local.rtcp?;
+    Some(Rtcp {
+        port: rtcp.port(),
+        address: (rtcp.ip() != local.addr.ip()).then(|| rtcp.ip().into()),
+    })
+}
+
+/// Our SDES key under `tag`.
+fn crypto(local: &LocalAudio, tag: u32) -> SrtpCrypto {
+    SrtpCrypto {
+        tag,
+        suite: SrtpSuite::AES_CM_128_HMAC_SHA1_80,
+        keys: vec![local.key.keying()],
+        params: Vec::new(),
     }
 }
 
@@ -586,7 +583,7 @@ fn offered_type(codec: Codec) -> u8 {
 
 /// Our offer: every allowed codec SIP peers speak, then telephone-event at 8 kHz (and at
 /// 48 kHz beside Opus).
-pub fn offer(local: &LocalAudio, version: u64) -> String {
+pub fn offer(local: &LocalAudio, version: u64) -> SessionDescription {
     let codecs: Vec<Codec> = local
         .codecs
         .iter()
@@ -599,81 +596,46 @@ pub fn offer(local: &LocalAudio, version: u64) -> String {
     if wide {
         types.push(EVENT_WIDE_PT);
     }
-    let list: Vec<String> = types.iter().map(u8::to_string).collect();
-    let mut sdp = header(local, version);
-    sdp.push_str(&format!(
-        "m=audio {} {} {}\r\n",
-        local.addr.port(),
-        if local.offer_srtp {
-            "RTP/SAVP"
-        } else {
-            "RTP/AVP"
-        },
-        list.join(" ")
-    ));
+    let mut audio = audio_line(local, types, local.offer_srtp, Direction::SendRecv);
     if local.offer_srtp {
-        sdp.push_str(&format!(
-            "a=crypto:1 {SRTP_SUITE} inline:{}\r\n",
-            local.key.inline()
-        ));
+        audio.crypto.push(crypto(local, 1));
     }
     for &codec in &codecs {
-        sdp.push_str(&rtpmap(codec, offered_type(codec)));
+        map_codec(&mut audio, codec, offered_type(codec));
     }
-    sdp.push_str(&format!(
-        "a=rtpmap:{EVENT_PT} telephone-event/8000\r\na=fmtp:{EVENT_PT} 0-16\r\n"
-    ));
+    map_events(&mut audio, EVENT_PT, 8000);
     if wide {
-        sdp.push_str(&format!(
-            "a=rtpmap:{EVENT_WIDE_PT} telephone-event/48000\r\na=fmtp:{EVENT_WIDE_PT} 0-16\r\n"
-        ));
+        map_events(&mut audio, EVENT_WIDE_PT, 48000);
     }
-    sdp.push_str(&rtcp_attribute(local));
-    sdp.push_str("a=rtcp-mux\r\na=ptime:20\r\na=sendrecv\r\n");
-    sdp
+    audio.rtcp = rtcp_attribute(local);
+    audio.rtcp_mux = true;
+    ours(local, version, audio)
 }
 
 /// Our answer to an offer that negotiated as `chosen`: its codec and events on the peer's
 /// payload types, the direction mirrored.
-pub fn answer(local: &LocalAudio, chosen: &Negotiated, version: u64) -> String {
+pub fn answer(local: &LocalAudio, chosen: &Negotiated, version: u64) -> SessionDescription {
     let mut types = vec![chosen.payload_type];
     types.extend(chosen.events);
-    let list: Vec<String> = types.iter().map(u8::to_string).collect();
-    let mut sdp = header(local, version);
-    sdp.push_str(&format!(
-        "m=audio {} {} {}\r\n",
-        local.addr.port(),
-        if chosen.srtp.is_some() {
-            "RTP/SAVP"
-        } else {
-            "RTP/AVP"
-        },
-        list.join(" ")
-    ));
+    let mut audio = audio_line(
+        local,
+        types,
+        chosen.srtp.is_some(),
+        chosen.direction.reversed(),
+    );
     if let Some(theirs) = &chosen.srtp {
-        sdp.push_str(&format!(
-            "a=crypto:{} {SRTP_SUITE} inline:{}\r\n",
-            theirs.tag,
-            local.key.inline()
-        ));
+        audio.crypto.push(crypto(local, theirs.tag));
     }
-    sdp.push_str(&rtpmap(chosen.codec, chosen.payload_type));
+    map_codec(&mut audio, chosen.codec, chosen.payload_type);
     if let Some(pt) = chosen.events {
-        sdp.push_str(&format!(
-            "a=rtpmap:{pt} telephone-event/{}\r\na=fmtp:{pt} 0-16\r\n",
-            chosen.codec.clock_rate()
-        ));
+        map_events(&mut audio, pt, chosen.codec.clock_rate());
     }
     if chosen.rtcp_mux {
-        sdp.push_str("a=rtcp-mux\r\n");
+        audio.rtcp_mux = true;
     } else {
-        sdp.push_str(&rtcp_attribute(local));
+        audio.rtcp = rtcp_attribute(local);
     }
-    sdp.push_str(&format!(
-        "a=ptime:20\r\na={}\r\n",
-        chosen.direction.reversed().attribute()
-    ));
-    sdp
+    ours(local, version, audio)
 }
 
 #[cfg(test)]
@@ -684,6 +646,15 @@ mod tests {
     const BARESIP_OFFER: &str = "v=0\r\no=- 123 456 IN IP4 127.0.0.1\r\ns=-\r\nc=IN IP4 127.0.0.1\r\n\
         t=0 0\r\nm=audio 10000 RTP/AVP 96 0 8 101\r\na=rtpmap:96 opus/48000/2\r\n\
         a=fmtp:96 stereo=1\r\na=rtpmap:101 telephone-event/8000\r\na=sendrecv\r\n";
+
+    /// A description of `lines` after the lines RFC 8866 requires.
+    fn described(lines: &str) -> String {
+        format!("v=0\r\no=- 1 1 IN IP4 192.0.2.1\r\ns=-\r\nt=0 0\r\n{lines}")
+    }
+
+    fn remote(text: &str) -> Result<RemoteAudio, SdpError> {
+        read(&parse(text)?)
+    }
 
     fn local() -> LocalAudio {
         LocalAudio {
@@ -700,73 +671,93 @@ mod tests {
     fn sdes_keys_go_both_ways_and_never_print() {
         let mut ours = local();
         ours.offer_srtp = true;
-        let offer = offer(&ours, 1);
+        let offer = offer(&ours, 1).to_string();
         assert!(offer.contains("m=audio 4000 RTP/SAVP "), "{offer}");
         assert!(
             offer.contains("a=crypto:1 AES_CM_128_HMAC_SHA1_80 inline:"),
             "{offer}"
         );
-        let remote = parse(&offer).unwrap();
-        let chosen = negotiate(&remote, &[Codec::Pcmu]).unwrap();
+        let chosen = negotiate(&remote(&offer).unwrap(), &[Codec::Pcmu]).unwrap();
         let theirs = chosen.srtp.clone().expect("SRTP agreed");
         assert_eq!((theirs.tag, &theirs.key), (1, &ours.key));
         assert!(!format!("{chosen:?}").contains("7, 7"));
         // An answer to it gives our key under the offer's tag.
-        let answer = answer(&local(), &chosen, 2);
+        let answer = answer(&local(), &chosen, 2).to_string();
         assert!(
             answer.contains("RTP/SAVP") && answer.contains("a=crypto:1 "),
             "{answer}"
         );
         // SRTP with another suite only, or no key, is refused; a broken key is no key.
-        let other = "v=0\r\nc=IN IP4 1.2.3.4\r\nm=audio 5 RTP/SAVP 0\r\n\
-                     a=crypto:1 AES_256_CM_HMAC_SHA1_80 inline:AAAA\r\n";
+        let other = described(
+            "c=IN IP4 1.2.3.4\r\nm=audio 5 RTP/SAVP 0\r\n\
+             a=crypto:1 AES_256_CM_HMAC_SHA1_80 inline:AAAA\r\n",
+        );
         assert_eq!(
-            negotiate(&parse(other).unwrap(), &[Codec::Pcmu]),
+            negotiate(&remote(&other).unwrap(), &[Codec::Pcmu]),
             Err(SdpError::Encrypted)
         );
-        let short = "v=0\r\nc=IN IP4 1.2.3.4\r\nm=audio 5 RTP/SAVP 0\r\n\
-                     a=crypto:1 AES_CM_128_HMAC_SHA1_80 inline:AAAA\r\n";
+        let short = described(
+            "c=IN IP4 1.2.3.4\r\nm=audio 5 RTP/SAVP 0\r\n\
+             a=crypto:1 AES_CM_128_HMAC_SHA1_80 inline:AAAA\r\n",
+        );
         assert_eq!(
-            negotiate(&parse(short).unwrap(), &[Codec::Pcmu]),
+            negotiate(&remote(&short).unwrap(), &[Codec::Pcmu]),
             Err(SdpError::Encrypted)
         );
+        // A lifetime ezk's parser would overflow on is refused before it reads it.
+        let huge = described(
+            "c=IN IP4 1.2.3.4\r\nm=audio 5 RTP/SAVP 0\r\n\
+             a=crypto:1 AES_CM_128_HMAC_SHA1_80 inline:AAAA|2^40\r\n",
+        );
+        assert!(matches!(remote(&huge), Err(SdpError::Malformed { .. })));
     }
 
     #[test]
     fn a_softphone_offer_negotiates_its_first_codec_and_events() {
-        let remote = parse(BARESIP_OFFER).unwrap();
-        assert_eq!(remote.addr, "127.0.0.1:10000".parse().unwrap());
-        let n = negotiate(&remote, &[Codec::Pcmu, Codec::Opus]).unwrap();
+        let theirs = remote(BARESIP_OFFER).unwrap();
+        assert_eq!(theirs.addr, "127.0.0.1:10000".parse().unwrap());
+        let n = negotiate(&theirs, &[Codec::Pcmu, Codec::Opus]).unwrap();
         assert_eq!((n.codec, n.payload_type), (Codec::Opus, 96));
         assert_eq!(n.payloads.codec(96), Some(Codec::Opus));
         assert_eq!(
             n.events, None,
             "events at 8 kHz do not go with Opus's clock"
         );
-        let n = negotiate(&remote, &[Codec::Pcmu]).unwrap();
+        let n = negotiate(&theirs, &[Codec::Pcmu]).unwrap();
         assert_eq!(
             (n.codec, n.payload_type, n.events),
             (Codec::Pcmu, 0, Some(101))
         );
         let answer = answer(&local(), &n, 1);
-        assert!(
-            answer.contains("m=audio 4000 RTP/AVP 0 101\r\n"),
-            "{answer}"
-        );
-        let back = parse(&answer).unwrap();
+        let text = answer.to_string();
+        assert!(text.contains("m=audio 4000 RTP/AVP 0 101\r\n"), "{text}");
+        let back = read(&answer).unwrap();
         assert_eq!(back.formats[0].encoding, "PCMU");
     }
 
     #[test]
-    fn our_offer_reads_back() {
+    fn our_offer_reads_back_as_struct_and_as_text() {
         let offer = offer(&local(), 1);
-        let remote = parse(&offer).unwrap();
-        assert_eq!(remote.addr, local().addr);
-        let n = negotiate(&remote, &[Codec::Opus]).unwrap();
-        assert_eq!(
-            (n.codec, n.payload_type, n.events),
-            (Codec::Opus, 111, Some(102))
-        );
+        for theirs in [read(&offer).unwrap(), remote(&offer.to_string()).unwrap()] {
+            assert_eq!(theirs.addr, local().addr);
+            let n = negotiate(&theirs, &[Codec::Opus]).unwrap();
+            assert_eq!(
+                (n.codec, n.payload_type, n.events),
+                (Codec::Opus, 111, Some(102))
+            );
+        }
+        let text = offer.to_string();
+        for line in [
+            "o=lipcall 7 1 IN IP4 127.0.0.1\r\n",
+            "c=IN IP4 127.0.0.1\r\n",
+            "a=rtpmap:111 opus/48000/2\r\n",
+            "a=fmtp:111 useinbandfec=1\r\n",
+            "a=rtpmap:101 telephone-event/8000\r\n",
+            "a=ptime:20\r\n",
+            "a=sendrecv\r\n",
+        ] {
+            assert!(text.contains(line), "{line:?} in {text}");
+        }
     }
 
     #[test]
@@ -777,22 +768,27 @@ mod tests {
             (n.rtcp, n.rtcp_mux),
             ("127.0.0.1:10001".parse().unwrap(), false)
         );
-        let ours_back = answer(&local(), &n, 1);
+        let ours_back = answer(&local(), &n, 1).to_string();
         assert!(ours_back.contains("a=rtcp:4001\r\n"), "{ours_back}");
         assert!(!ours_back.contains("rtcp-mux"), "{ours_back}");
         // Our offer names our RTCP socket and offers mux; an answer taking mux says it back.
         let mut ours = local();
         ours.rtcp = Some("192.0.2.7:5001".parse().unwrap());
         let offer = offer(&ours, 1);
+        let text = offer.to_string();
         assert!(
-            offer.contains("a=rtcp:5001 IN IP4 192.0.2.7\r\na=rtcp-mux\r\n"),
-            "{offer}"
+            text.contains("a=rtcp:5001 IN IP4 192.0.2.7\r\na=rtcp-mux\r\n"),
+            "{text}"
         );
-        let remote = parse(&offer).unwrap();
-        assert_eq!(remote.rtcp, "192.0.2.7:5001".parse().unwrap());
-        let muxed = negotiate(&remote, &[Codec::Pcmu]).unwrap();
-        assert_eq!((muxed.rtcp, muxed.rtcp_mux), (remote.addr, true));
-        assert!(answer(&local(), &muxed, 1).contains("a=rtcp-mux\r\n"));
+        let theirs = read(&offer).unwrap();
+        assert_eq!(theirs.rtcp, "192.0.2.7:5001".parse().unwrap());
+        let muxed = negotiate(&theirs, &[Codec::Pcmu]).unwrap();
+        assert_eq!((muxed.rtcp, muxed.rtcp_mux), (theirs.addr, true));
+        assert!(
+            answer(&local(), &muxed, 1)
+                .to_string()
+                .contains("a=rtcp-mux\r\n")
+        );
         // A port alone keeps the media's address; a bad one, or an odd address, is refused.
         let with = |attr: &str| format!("{}{attr}\r\n", BARESIP_OFFER);
         let n = take(&with("a=rtcp:7000"), &local()).unwrap();
@@ -811,50 +807,65 @@ mod tests {
 
     #[test]
     fn hostile_descriptions_are_errors() {
-        assert_eq!(parse("v=0\r\n"), Err(SdpError::NoAudio));
-        assert!(matches!(parse("garbage"), Err(SdpError::Malformed { .. })));
+        assert_eq!(remote(&described("")), Err(SdpError::NoAudio));
+        assert!(matches!(remote("garbage"), Err(SdpError::Malformed { .. })));
+        assert!(matches!(
+            remote("v=0\r\nc=IN IP4 1.2.3.4\r\nm=audio 5 RTP/AVP 0\r\n"),
+            Err(SdpError::Malformed { .. })
+        ));
         assert_eq!(
-            parse("v=0\r\nc=IN IP4 1.2.3.4\r\nm=audio 0 RTP/AVP 0\r\n"),
+            remote(&described("c=IN IP4 1.2.3.4\r\nm=audio 0 RTP/AVP 0\r\n")),
             Err(SdpError::Refused)
         );
         assert_eq!(
-            parse("v=0\r\nm=audio 5 RTP/AVP 0\r\n"),
+            remote(&described("m=audio 5 RTP/AVP 0\r\n")),
             Err(SdpError::NoAddress)
         );
-        assert!(parse("v=0\r\nc=IN IP4 host.example\r\nm=audio 5 RTP/AVP 0\r\n").is_err());
-        assert!(parse("v=0\r\nc=IN IP4 1.2.3.4\r\nm=audio 5 RTP/AVP 300\r\n").is_err());
-        let no_key = parse("v=0\r\nc=IN IP4 1.2.3.4\r\nm=audio 5 RTP/SAVP 0\r\n").unwrap();
+        assert!(
+            remote(&described(
+                "c=IN IP4 host.example\r\nm=audio 5 RTP/AVP 0\r\n"
+            ))
+            .is_err()
+        );
+        assert!(remote(&described("c=IN IP4 1.2.3.4\r\nm=audio 5 RTP/AVP 200\r\n")).is_err());
+        assert!(remote(&described("c=IN IP4 1.2.3.4\r\nm=audio 5 TCP/MSRP *\r\n")).is_err());
+        let no_key = remote(&described("c=IN IP4 1.2.3.4\r\nm=audio 5 RTP/SAVP 0\r\n")).unwrap();
         assert_eq!(negotiate(&no_key, &[Codec::Pcmu]), Err(SdpError::Encrypted));
-        let g729 = parse("v=0\r\nc=IN IP4 1.2.3.4\r\nm=audio 5 RTP/AVP 18\r\n").unwrap();
+        let g729 = remote(&described("c=IN IP4 1.2.3.4\r\nm=audio 5 RTP/AVP 18\r\n")).unwrap();
         assert!(matches!(
             negotiate(&g729, &[Codec::Pcmu]),
             Err(SdpError::NoCommonCodec(_))
         ));
         assert!(matches!(
-            parse(&"a=x\r\n".repeat(MAX_SDP_BYTES)),
+            remote(&"a=x\r\n".repeat(MAX_SDP_BYTES)),
             Err(SdpError::TooLong(_))
         ));
     }
 
     #[test]
     fn odd_media_addresses_are_refused_by_name() {
-        let described = |c: &str| format!("v=0\r\nc={c}\r\nm=audio 5000 RTP/AVP 0\r\n");
-        assert!(take(&described("IN IP4 127.0.0.1"), &local()).is_ok());
+        let with = |c: &str| described(&format!("c={c}\r\nm=audio 5000 RTP/AVP 0\r\n"));
+        assert!(take(&with("IN IP4 127.0.0.1"), &local()).is_ok());
         for (c, named) in [
             ("IN IP4 0.0.0.0", "0.0.0.0:5000"),
             ("IN IP4 255.255.255.255", "255.255.255.255:5000"),
             ("IN IP4 224.0.0.1/127", "224.0.0.1:5000"),
             ("IN IP6 ::1", "[::1]:5000"),
         ] {
-            let e = take(&described(c), &local()).unwrap_err();
+            let e = take(&with(c), &local()).unwrap_err();
             assert!(matches!(e, SdpError::OddAddress(_)), "{c}: {e:?}");
             assert!(e.to_string().contains(named), "{e}");
         }
         // Within a call, 0.0.0.0 is an old-style hold: taken, and answered recvonly.
-        let held = take_in_call(&described("IN IP4 0.0.0.0"), &local()).unwrap();
+        let held = take_in_call(&parse(&with("IN IP4 0.0.0.0")).unwrap(), &local()).unwrap();
         assert_eq!(held.direction, Direction::SendOnly);
-        assert!(answer(&local(), &held, 2).contains("a=recvonly"));
-        assert!(take_in_call(&described("IN IP4 224.0.0.1"), &local()).is_err());
+        assert!(
+            answer(&local(), &held, 2)
+                .to_string()
+                .contains("a=recvonly")
+        );
+        let multicast = parse(&with("IN IP4 224.0.0.1")).unwrap();
+        assert!(take_in_call(&multicast, &local()).is_err());
     }
 
     proptest! {
@@ -862,8 +873,11 @@ mod tests {
 
         #[test]
         fn any_text_parses_or_is_an_error(text in "(([vocmtas]=[ -~]{0,40})?\r\n){0,12}") {
-            if let Ok(remote) = parse(&text) {
-                let _ = negotiate(&remote, &Codec::ALL);
+            if let Ok(theirs) = remote(&text) {
+                let _ = negotiate(&theirs, &Codec::ALL);
+            }
+            if let Ok(theirs) = remote(&described(&text)) {
+                let _ = negotiate(&theirs, &Codec::ALL);
             }
         }
 
@@ -875,14 +889,16 @@ mod tests {
                 bytes[at] = byte;
             }
             let text = String::from_utf8_lossy(&bytes);
-            if let Ok(chosen) = parse(&text).and_then(|r| negotiate(&r, &Codec::ALL)) {
-                // Whatever was agreed, our answer says it back.
-                let back = parse(&answer(&local(), &chosen, 2)).unwrap();
-                let again = negotiate(&back, &Codec::ALL).unwrap();
-                prop_assert_eq!(
-                    (again.codec, again.payload_type, again.events),
-                    (chosen.codec, chosen.payload_type, chosen.events)
-                );
+            if let Ok(chosen) = remote(&text).and_then(|r| negotiate(&r, &Codec::ALL)) {
+                // Whatever was agreed, our answer says it back, as struct and as text.
+                let answer = answer(&local(), &chosen, 2);
+                for back in [read(&answer).unwrap(), remote(&answer.to_string()).unwrap()] {
+                    let again = negotiate(&back, &Codec::ALL).unwrap();
+                    prop_assert_eq!(
+                        (again.codec, again.payload_type, again.events),
+                        (chosen.codec, chosen.payload_type, chosen.events)
+                    );
+                }
             }
         }
     }
