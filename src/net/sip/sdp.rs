@@ -252,9 +252,10 @@ fn codec_of(format: &Format) -> Option<Codec> {
 }
 
 fn malformed(line: &str, why: &'static str) -> SdpError {
-    let mut line = line.to_owned();
-    line.truncate(80);
-    SdpError::Malformed { line, why }
+    SdpError::Malformed {
+        line: line.chars().take(80).collect(),
+        why,
+    }
 }
 
 /// An address of `c=`, `o=` or `a=rtcp`: an IP, never a host name (nothing we could send to).
@@ -839,6 +840,16 @@ mod tests {
         assert!(matches!(
             remote(&"a=x\r\n".repeat(MAX_SDP_BYTES)),
             Err(SdpError::TooLong(_))
+        ));
+        // The error quotes the line cut at a character, not a byte (a panic before).
+        let wide = described(&format!(
+            "c=IN IP4 1.2.3.4\r\nm=audio 5 RTP/AVP x{}\r\n",
+            "é".repeat(99)
+        ));
+        let _ = remote(&wide);
+        assert!(matches!(
+            remote(&described(&format!("a=rtcp:x{}\r\n", "é".repeat(99)))),
+            Err(SdpError::Malformed { .. })
         ));
     }
 
