@@ -27,6 +27,7 @@ use crate::codec::any::Codec;
 
 pub(crate) mod driver;
 mod inbound;
+pub mod latch;
 mod protocol;
 mod remote;
 mod timers;

@@ -32,6 +32,7 @@ use crate::net::peer::{PeerReceiver, ReceiverStats};
 use crate::net::rtcp::{HeardReports, ReportBlock, RtcpError};
 use crate::net::rtp::{self, RtpStream};
 use crate::net::session::driver::{Driver, SansIo};
+use crate::net::session::latch::SourceLatch;
 use crate::net::session::{LARGEST_DATAGRAM, PeerFrame, Transmit, TransmitKind};
 use crate::net::srtp::{MasterKey, Srtp, SrtpError};
 
@@ -99,9 +100,8 @@ pub struct SipRtpCore {
     stream: RtpStream,
     negotiated: Negotiated,
     frame_ticks: u32,
-    remote: SocketAddr,
-    /// The peer's media source is fixed: its first packet was taken.
-    latched: bool,
+    /// Where the peer's media may come from and ours goes: fixed by its first packet taken.
+    source: SourceLatch,
     /// When stray RTP was last said and whose, and how many packets came since.
     stray_said: Option<(Instant, SocketAddr)>,
     stray_unsaid: u64,
@@ -171,8 +171,7 @@ impl SipRtpCore {
         Ok(Self {
             stream,
             frame_ticks,
-            remote: negotiated.remote,
-            latched: false,
+            source: SourceLatch::new(negotiated.remote),
             stray_said: None,
             stray_unsaid: 0,
             receiver: PeerReceiver::with_payloads(jitter, now, true, negotiated.payloads.clone()),
@@ -208,7 +207,7 @@ impl SipRtpCore {
     }
 
     pub fn remote(&self) -> SocketAddr {
-        self.remote
+        self.source.target()
     }
 
     /// Where our RTCP goes.
@@ -237,8 +236,7 @@ impl SipRtpCore {
             self.rtcp.moved(negotiated.rtcp);
         }
         if negotiated.remote != self.negotiated.remote {
-            self.remote = negotiated.remote;
-            self.latched = false;
+            self.source.rename(negotiated.remote);
         }
         if negotiated.payload_type != self.negotiated.payload_type {
             self.frame_ticks = negotiated.codec.frame_ticks();
@@ -257,7 +255,7 @@ impl SipRtpCore {
         }
         self.sent_since = true;
         self.outbox.push_back(Transmit {
-            to: self.remote,
+            to: self.source.target(),
             data,
             kind: TransmitKind::Rtp,
         });
@@ -272,7 +270,7 @@ impl SipRtpCore {
             self.last_sent = now;
             self.stats.keepalives += 1;
             self.outbox.push_back(Transmit {
-                to: self.remote,
+                to: self.source.target(),
                 data: Vec::new(),
                 kind: TransmitKind::Rtp,
             });
@@ -372,10 +370,9 @@ impl SipRtpCore {
 
     /// Whether plain RTP from `from` may be the peer's (the module's documentation says why).
     fn may_be_the_peer(&self, from: SocketAddr) -> bool {
-        if self.latched {
-            return from == self.remote;
-        }
-        from == self.negotiated.remote || Some(from.ip()) == self.negotiated.signalling_peer
+        self.source.admits(from, |from| {
+            Some(from.ip()) == self.negotiated.signalling_peer
+        })
     }
 
     /// Counts a stray packet and says it, as often as [`STRAY_WARNING_EVERY`] allows.
@@ -392,8 +389,8 @@ impl SipRtpCore {
                 return;
             }
         }
-        let expected = if self.latched {
-            format!("the call's media comes from {}", self.remote)
+        let expected = if let Some(source) = self.source.latched() {
+            format!("the call's media comes from {source}")
         } else {
             let signalling = self
                 .negotiated
@@ -402,7 +399,7 @@ impl SipRtpCore {
                 .unwrap_or_default();
             format!(
                 "the call's media is taken only from the peer's SDP address {}{signalling}",
-                self.remote
+                self.source.target()
             )
         };
         let count = match self.stray_unsaid {
@@ -431,7 +428,7 @@ impl SipRtpCore {
     }
 
     fn handle_rtcp(&mut self, data: &[u8], from: SocketAddr, now: Instant) {
-        let rtp_source = self.latched.then_some(self.remote);
+        let rtp_source = self.source.latched();
         if self.rx_srtp.is_none()
             && !self
                 .rtcp
@@ -547,12 +544,11 @@ impl SipRtpCore {
         }
         self.stats.rtp += 1;
         self.last_heard = now;
-        if !self.latched || from != self.remote {
+        if self.source.latched() != Some(from) {
             if from != self.negotiated.remote {
                 self.stats.latched = Some(from);
             }
-            self.remote = from;
-            self.latched = true;
+            self.source.latch(from);
         }
         if self.ssrc != Some(packet.header.ssrc) {
             if self.ssrc.is_some() {

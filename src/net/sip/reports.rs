@@ -17,6 +17,7 @@ use crate::net::rtcp::{
     SenderInfo, system_draw,
 };
 use crate::net::rtp::RtpStream;
+use crate::net::session::latch::SourceLatch;
 
 /// RFC 3550 6.2's minimum interval, which is the interval of a two-party voice call.
 pub const REPORT_INTERVAL: Duration = Duration::from_secs(5);
@@ -25,8 +26,7 @@ pub const REPORT_INTERVAL: Duration = Duration::from_secs(5);
 #[derive(Debug, Clone)]
 pub(super) struct CallRtcp {
     /// Where our reports go: the SDP's RTCP address, then where the peer's come from.
-    remote: SocketAddr,
-    latched: bool,
+    source: SourceLatch,
     timer: ReportTimer,
     clock: NtpClock,
     cname: String,
@@ -53,8 +53,7 @@ impl CallRtcp {
     /// The RTCP of a call whose stream is `ssrc`, sent from `local`, starting at `now`.
     pub(super) fn new(negotiated: &Negotiated, ssrc: u32, local: SocketAddr, now: Instant) -> Self {
         Self {
-            remote: negotiated.rtcp,
-            latched: false,
+            source: SourceLatch::new(negotiated.rtcp),
             timer: ReportTimer::new(REPORT_INTERVAL, now, system_draw),
             clock: NtpClock::new(now),
             cname: rtcp::cname(ssrc, local),
@@ -66,7 +65,7 @@ impl CallRtcp {
     }
 
     pub(super) fn remote(&self) -> SocketAddr {
-        self.remote
+        self.source.target()
     }
 
     pub(super) fn heard(&self) -> HeardReports {
@@ -79,8 +78,7 @@ impl CallRtcp {
 
     /// A new offer or answer naming another RTCP address: it opens the source again.
     pub(super) fn moved(&mut self, to: SocketAddr) {
-        self.remote = to;
-        self.latched = false;
+        self.source.rename(to);
     }
 
     /// Whether RTCP from `from` may be the peer's (the module's documentation says why);
@@ -91,18 +89,15 @@ impl CallRtcp {
         negotiated: &Negotiated,
         rtp_source: Option<SocketAddr>,
     ) -> bool {
-        if self.latched {
-            return from == self.remote;
-        }
-        from == negotiated.rtcp
-            || Some(from.ip()) == negotiated.signalling_peer
-            || rtp_source.is_some_and(|s| s.ip() == from.ip())
+        self.source.admits(from, |from| {
+            Some(from.ip()) == negotiated.signalling_peer
+                || rtp_source.is_some_and(|s| s.ip() == from.ip())
+        })
     }
 
     /// Our reports go where the peer's believed ones come from.
     pub(super) fn latch(&mut self, from: SocketAddr) {
-        self.remote = from;
-        self.latched = true;
+        self.source.latch(from);
     }
 
     /// Reads the peer's compound packet (in the clear), about our stream `ours` and sent by
