@@ -24,6 +24,7 @@ use ezk_stun_types::attributes::{
 use ezk_stun_types::{Class, Message, MessageBuilder, Method, TransactionId};
 
 use crate::net::addr::media_target;
+use crate::net::backoff::Backoff;
 
 /// RFC 8489's first retransmission timeout, doubled on each retry.
 const FIRST_RTO: Duration = Duration::from_millis(250);
@@ -42,6 +43,7 @@ const ASKED_LIFETIME: u32 = 600;
 /// each failure up to [`LONGEST_RETRY`].
 const FIRST_RETRY: Duration = Duration::from_secs(5);
 const LONGEST_RETRY: Duration = Duration::from_secs(60);
+const RETRIES: Backoff = Backoff::new(FIRST_RETRY, LONGEST_RETRY);
 /// Peers the relay is asked to let through (permissions held and being retried) at most.
 const MOST_PEERS: usize = 32;
 /// IANA's protocol number for UDP, the transport we ask the relay for.
@@ -112,14 +114,14 @@ pub struct TurnClient {
     expires: Option<Instant>,
     /// When the next Refresh goes out (none while one is on its way).
     renew_at: Option<Instant>,
-    /// The wait before a failed Refresh is tried again.
-    refresh_retry: Duration,
+    /// The waits before a failed Refresh is tried again.
+    refresh_retry: Backoff,
     failed: Option<TurnError>,
     /// Peers the relay lets through, and when each permission runs out.
     permissions: HashMap<IpAddr, Instant>,
-    /// Peers whose permission failed: not asked again before the instant, and the wait that
-    /// led there (doubled on the next failure).
-    permission_retry: HashMap<IpAddr, (Instant, Duration)>,
+    /// Peers whose permission failed: not asked again before the instant, and the waits
+    /// after their next failures.
+    permission_retry: HashMap<IpAddr, (Instant, Backoff)>,
     pending: Vec<Pending>,
     outbox: VecDeque<Vec<u8>>,
 }
@@ -133,7 +135,7 @@ impl TurnClient {
             relayed: None,
             expires: None,
             renew_at: None,
-            refresh_retry: FIRST_RETRY,
+            refresh_retry: RETRIES,
             failed: None,
             permissions: HashMap::new(),
             permission_retry: HashMap::new(),
@@ -254,7 +256,7 @@ impl TurnClient {
         let lifetime = lifetime.min(MAX_LIFETIME);
         self.expires = Some(now + lifetime);
         self.renew_at = Some(now + lifetime.saturating_sub(RENEW_BEFORE).max(lifetime / 2));
-        self.refresh_retry = FIRST_RETRY;
+        self.refresh_retry.reset();
     }
 
     /// The allocation is over (said where it was in use: a refused one is said by its asker).
@@ -275,17 +277,17 @@ impl TurnClient {
     /// A Refresh was refused or never answered: tried again after a wait that doubles (the
     /// allocation ends when it expires meanwhile).
     fn refresh_failed(&mut self, now: Instant) {
-        self.renew_at = Some(now + self.refresh_retry);
-        self.refresh_retry = (self.refresh_retry * 2).min(LONGEST_RETRY);
+        self.renew_at = Some(now + self.refresh_retry.next_wait());
     }
 
     /// A permission was refused or never answered: not asked again for a wait that doubles.
     fn permission_failed(&mut self, ip: IpAddr, now: Instant) {
-        let wait = self
+        let mut retries = self
             .permission_retry
-            .get(&ip)
-            .map_or(FIRST_RETRY, |&(_, last)| (last * 2).min(LONGEST_RETRY));
-        self.permission_retry.insert(ip, (now + wait, wait));
+            .remove(&ip)
+            .map_or(RETRIES, |(_, retries)| retries);
+        let wait = retries.next_wait();
+        self.permission_retry.insert(ip, (now + wait, retries));
     }
 
     fn refused(&mut self, pending: Pending, message: &mut Message, now: Instant) {
