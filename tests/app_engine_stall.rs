@@ -210,6 +210,7 @@ fn calling_a_host_whose_resolver_never_answers_never_stalls_the_engine() {
         call(&engine, &address, None);
         let looking = longest_pass_within(&engine, Duration::from_secs(1));
         let state = lock(&engine.shared).call.state.clone();
+        eprintln!("{how}: longest pass in its first second {looking:?}; {state}");
         assert!(state.contains(SLOW_NAME), "{how}: {state}");
         // The resolver gives up (2 tries of 2 s); the call fails naming the host.
         wait_for(&engine, "the look-up failed", |e| {
