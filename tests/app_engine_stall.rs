@@ -214,7 +214,8 @@ fn calling_a_host_whose_resolver_never_answers_never_stalls_the_engine() {
         assert!(state.contains(SLOW_NAME), "{how}: {state}");
         // The resolver gives up (2 tries of 2 s); the call fails naming the host.
         wait_for(&engine, "the look-up failed", |e| {
-            lock(&e.shared).call.error.is_some()
+            let s = lock(&e.shared);
+            s.call.error.is_some() && !s.call.state.contains("looking up")
         });
         let failed = engine.counters.take_longest_pass().max(looking);
         let error = lock(&engine.shared).call.error.clone().unwrap();

@@ -37,13 +37,13 @@ use crate::vocab::MAX_FRAME_SAMPLES;
 pub use super::call_status::{CallStatus, Encryption};
 pub use super::counters::{DEMO_NAME, EngineCounters};
 use super::demo::Demo;
+use super::lookup::Lookups;
 use super::mumble_call::{MumbleCall, MumbleJoin, MumbleView};
 use super::retire::Retirer;
 use super::roster::Roster;
 use super::settings::DEFAULT_CODEC;
 use super::sip_call::{PhoneCommand, PhoneStatus, SipPhone, is_sip_address};
 use super::timing::{RelayWatch, Ticker};
-use lookup::{Lookups, Then};
 
 /// The peers' status and the relay's are refreshed every this many ticks (200 ms).
 const STATUS_TICKS: u32 = 10;
@@ -243,7 +243,15 @@ struct Worker {
     mumble: Option<MumbleCall>,
     phone: SipPhone,
     /// The host of a call being placed, being looked up.
-    lookups: Lookups,
+    lookups: Lookups<Then>,
+}
+
+/// What follows a call's host being found ([`Lookups`]).
+enum Then {
+    /// A direct call (or a relay's room) to the address.
+    Direct(Box<CallSpec>),
+    /// A SIP call to `target`, from the local address found.
+    Sip { target: String },
 }
 
 /// The call's label when nothing names it otherwise.

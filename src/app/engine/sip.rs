@@ -5,8 +5,7 @@
 use std::net::SocketAddr;
 use std::time::Instant;
 
-use super::lookup::Then;
-use super::{CallSpec, CallStatus, Worker, lock};
+use super::{CallSpec, CallStatus, Then, Worker, lock};
 use crate::app::sip_call::{PhoneCommand, PhoneTurn};
 use crate::app::timing::RelayWatch;
 use crate::codec::any::{EncoderSettings, FrameEncoder};
