@@ -557,8 +557,8 @@ fn media_addresses(
         }
     };
     let asked = stun::reflexive_addresses(&[rtp, rtcp], server, stun::ASK_WAIT);
-    let outside = |local: SocketAddr, asked: Option<&Result<SocketAddr, stun::StunError>>| {
-        match asked {
+    let outside =
+        |local: SocketAddr, asked: Option<&Result<SocketAddr, stun::StunError>>| match asked {
             Some(Ok(public)) => {
                 tracing::info!("STUN server {server}: our media address outside is {public}");
                 *public
@@ -568,8 +568,7 @@ fn media_addresses(
                 local
             }
             None => local,
-        }
-    };
+        };
     (
         outside(local_rtp, asked.first()),
         outside(local_rtcp, asked.get(1)),

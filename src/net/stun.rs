@@ -189,7 +189,10 @@ impl StunTransaction {
         if self.outcome.is_some() {
             return None;
         }
-        Some(self.resend_at.map_or(self.deadline, |at| at.min(self.deadline)))
+        Some(
+            self.resend_at
+                .map_or(self.deadline, |at| at.min(self.deadline)),
+        )
     }
 
     pub fn handle_timeout(&mut self, now: Instant) {
@@ -354,7 +357,11 @@ mod tests {
         loop {
             while let Some(request) = t.poll_transmit() {
                 let parsed = Message::parse(request.to_vec()).unwrap();
-                assert_eq!(parsed.transaction_id(), t.id, "a retransmission, not a new request");
+                assert_eq!(
+                    parsed.transaction_id(),
+                    t.id,
+                    "a retransmission, not a new request"
+                );
                 sent.push((now - start).as_millis());
             }
             let Some(wake) = t.poll_timeout() else {
@@ -412,7 +419,10 @@ mod tests {
 
         let mut refused = StunTransaction::new(server, now, ASK_WAIT);
         assert!(refused.handle_datagram(&answer(Class::Error, refused.id, None), server));
-        assert!(matches!(refused.outcome(), Some(Err(StunError::Refused { .. }))));
+        assert!(matches!(
+            refused.outcome(),
+            Some(Err(StunError::Refused { .. }))
+        ));
     }
 
     #[test]
