@@ -125,21 +125,66 @@ pub fn read_answer(
     }
 }
 
-/// One Binding request to one server, retransmitted as RFC 8489 6.2.1 says (the timeout
-/// doubling from [`FIRST_RTO`] to [`LONGEST_RTO`], [`MOST_SENDS`] at most) until an answer or
-/// the deadline. An address the answer names that media cannot go to (unspecified,
-/// broadcast, multicast, another family than the server's) is refused, not believed.
+/// When one STUN request (a Binding, a TURN Allocate or Refresh) goes out again, as RFC 8489
+/// 6.2.1 says: the timeout doubling from [`FIRST_RTO`] to [`LONGEST_RTO`], [`MOST_SENDS`]
+/// sends at most, then waiting out the deadline.
+#[derive(Debug, Clone)]
+pub struct Retransmit {
+    deadline: Instant,
+    /// When the request goes out again (none after the last send).
+    resend_at: Option<Instant>,
+    rto: Duration,
+    sends: u32,
+}
+
+impl Retransmit {
+    /// The first send is at `now`; the request has failed at `now + wait`.
+    pub fn new(now: Instant, wait: Duration) -> Self {
+        Self {
+            deadline: now.checked_add(wait).unwrap_or(now + LONGEST_RTO),
+            resend_at: Some(now + FIRST_RTO),
+            rto: FIRST_RTO,
+            sends: 1,
+        }
+    }
+
+    /// The next instant something is due: a resend or the deadline.
+    pub fn wake(&self) -> Instant {
+        self.resend_at
+            .map_or(self.deadline, |at| at.min(self.deadline))
+    }
+
+    pub fn expired(&self, now: Instant) -> bool {
+        now >= self.deadline
+    }
+
+    /// Whether the request is to go out again at `now` (the next resend is then scheduled).
+    pub fn resend(&mut self, now: Instant) -> bool {
+        if self.expired(now) || self.resend_at.is_none_or(|at| at > now) {
+            return false;
+        }
+        self.sends += 1;
+        self.rto = (self.rto * 2).min(LONGEST_RTO);
+        self.resend_at = (self.sends < MOST_SENDS).then(|| now + self.rto);
+        true
+    }
+
+    /// Sends so far, the first included.
+    pub fn sends(&self) -> u32 {
+        self.sends
+    }
+}
+
+/// One Binding request to one server, retransmitted ([`Retransmit`]) until an answer or the
+/// deadline. An address the answer names that media cannot go to (unspecified, broadcast,
+/// multicast, another family than the server's) is refused, not believed.
 #[derive(Debug)]
 pub struct StunTransaction {
     server: SocketAddr,
     id: TransactionId,
     request: Vec<u8>,
     waited: Duration,
-    deadline: Instant,
-    /// When the request goes out again (none after the last send).
-    resend_at: Option<Instant>,
-    rto: Duration,
-    sends: u32,
+    timer: Retransmit,
     /// The request is to go out.
     due: bool,
     outcome: Option<Result<SocketAddr, StunError>>,
@@ -154,10 +199,7 @@ impl StunTransaction {
             id,
             request,
             waited: wait,
-            deadline: now.checked_add(wait).unwrap_or(now + LONGEST_RTO),
-            resend_at: Some(now + FIRST_RTO),
-            rto: FIRST_RTO,
-            sends: 1,
+            timer: Retransmit::new(now, wait),
             due: true,
             outcome: None,
         }
@@ -186,31 +228,20 @@ impl StunTransaction {
 
     /// When [`Self::handle_timeout`] has something to do; none once it is over.
     pub fn poll_timeout(&self) -> Option<Instant> {
-        if self.outcome.is_some() {
-            return None;
-        }
-        Some(
-            self.resend_at
-                .map_or(self.deadline, |at| at.min(self.deadline)),
-        )
+        self.outcome.is_none().then(|| self.timer.wake())
     }
 
     pub fn handle_timeout(&mut self, now: Instant) {
         if self.outcome.is_some() {
             return;
         }
-        if now >= self.deadline {
+        if self.timer.expired(now) {
             let server = self.server;
             let waited = self.waited;
             self.finish(Err(StunError::NoAnswer { server, waited }));
             return;
         }
-        if self.resend_at.is_some_and(|at| at <= now) {
-            self.due = true;
-            self.sends += 1;
-            self.rto = (self.rto * 2).min(LONGEST_RTO);
-            self.resend_at = (self.sends < MOST_SENDS).then(|| now + self.rto);
-        }
+        self.due |= self.timer.resend(now);
     }
 
     /// The address the server saw us at, or why there is none; `None` while it is asking.
@@ -220,13 +251,12 @@ impl StunTransaction {
 
     /// Requests sent so far.
     pub fn sends(&self) -> u32 {
-        self.sends - u32::from(self.due)
+        self.timer.sends() - u32::from(self.due)
     }
 
     fn finish(&mut self, outcome: Result<SocketAddr, StunError>) {
         self.outcome = Some(outcome);
         self.due = false;
-        self.resend_at = None;
     }
 }
 

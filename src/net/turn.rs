@@ -25,10 +25,9 @@ use ezk_stun_types::{Class, Message, MessageBuilder, Method, TransactionId};
 
 use crate::net::addr::media_target;
 use crate::net::backoff::Backoff;
+use crate::net::stun::Retransmit;
 
-/// RFC 8489's first retransmission timeout, doubled on each retry.
-const FIRST_RTO: Duration = Duration::from_millis(250);
-/// A request unanswered this long has failed.
+/// A request unanswered this long has failed (its retransmissions: [`Retransmit`]).
 const REQUEST_TIMEOUT: Duration = Duration::from_secs(8);
 /// Permissions last 300 s (RFC 8656 9); renewed this long before.
 const PERMISSION_LIFETIME: Duration = Duration::from_secs(300);
@@ -89,9 +88,7 @@ struct Pending {
     id: TransactionId,
     request: Request,
     bytes: Vec<u8>,
-    next: Instant,
-    rto: Duration,
-    deadline: Instant,
+    timer: Retransmit,
     /// Sent again with fresh credentials once already (a second 401 means they are wrong).
     authenticated_again: bool,
 }
@@ -401,7 +398,7 @@ impl TurnClient {
 
     /// When [`Self::handle_timeout`] has something to do.
     pub fn poll_timeout(&self) -> Option<Instant> {
-        let retries = self.pending.iter().map(|p| p.next.min(p.deadline));
+        let retries = self.pending.iter().map(|p| p.timer.wake());
         let allocation = self
             .relayed()
             .and(self.renew_at.into_iter().chain(self.expires).min());
@@ -413,15 +410,13 @@ impl TurnClient {
     pub fn handle_timeout(&mut self, now: Instant) {
         let mut gave_up = Vec::new();
         for p in &mut self.pending {
-            if p.deadline <= now {
+            if p.timer.expired(now) {
                 gave_up.push(p.request);
-            } else if p.next <= now {
+            } else if p.timer.resend(now) {
                 self.outbox.push_back(p.bytes.clone());
-                p.rto *= 2;
-                p.next = now + p.rto;
             }
         }
-        self.pending.retain(|p| p.deadline > now);
+        self.pending.retain(|p| !p.timer.expired(now));
         for request in gave_up {
             match request {
                 Request::Allocate => self.failed = Some(TurnError::NoAnswer(self.config.server)),
@@ -479,9 +474,7 @@ impl TurnClient {
             id,
             request,
             bytes,
-            next: now + FIRST_RTO,
-            rto: FIRST_RTO,
-            deadline: now + REQUEST_TIMEOUT,
+            timer: Retransmit::new(now, REQUEST_TIMEOUT),
             authenticated_again: again,
         });
     }
@@ -649,7 +642,8 @@ pub(crate) mod tests {
             c.failed(),
             Some(&TurnError::NoAnswer(SERVER.parse().unwrap()))
         );
-        assert!(sent >= 4, "{sent}");
+        // RFC 8489's Rc: 7 sends, 250 ms apart at first, then doubling to 2 s.
+        assert_eq!(sent, 7);
         assert!(t <= now + REQUEST_TIMEOUT + Duration::from_millis(1));
     }
 
@@ -773,9 +767,9 @@ pub(crate) mod tests {
                 Method::Allocate => Some(granted(r, 600)),
                 _ => answered.then(|| refused(r, 500)),
             });
-            // Refused: at 540, 545, 555 and 575 s; unanswered: each retransmitted 6 times
-            // in the 8 s it is waited for.
-            let most = if answered { 4 } else { 4 * 6 };
+            // Refused: at 540, 545, 555 and 575 s; unanswered: each sent 7 times (RFC 8489's
+            // Rc) in the 8 s it is waited for.
+            let most = if answered { 4 } else { 4 * 7 };
             assert!(count(&sent, Method::Refresh) <= most, "{sent:?}");
             assert_eq!(
                 c.failed(),
