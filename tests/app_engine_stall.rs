@@ -254,3 +254,19 @@ fn calling_a_host_whose_resolver_never_answers_never_stalls_the_engine() {
         "longest passes: {longest:?}"
     );
 }
+
+/// A name the resolver knows at once (the hosts file's `localhost`) takes the same road: the
+/// call is placed when the answer comes back to the worker.
+#[test]
+fn a_direct_call_to_a_name_is_placed_once_the_name_is_found() {
+    let peer = UdpSocket::bind("127.0.0.1:0").unwrap();
+    let port = peer.local_addr().unwrap().port();
+    let engine = common::app::headless_engine("Eve", None);
+    call(&engine, &format!("localhost:{port}"), None);
+    wait_for(&engine, "calling the address found", |e| {
+        lock(&e.shared).call.state.starts_with("calling ")
+    });
+    let status = lock(&engine.shared).call.clone();
+    assert!(status.in_call && status.error.is_none(), "{status:?}");
+    assert!(status.state.contains(&port.to_string()), "{status:?}");
+}
