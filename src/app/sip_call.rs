@@ -9,7 +9,7 @@ use std::net::SocketAddr;
 use std::time::{Duration, Instant};
 
 use crate::call::link::{Link, LinkEvent};
-use crate::call::sip::{CallState, SipHandle, SipLink};
+use crate::call::sip::{CallState, SipHandle, SipLink, SipSecurity};
 use crate::codec::any::Codec;
 use crate::net::backoff::Backoff;
 use crate::net::sip::address::bind_towards;
@@ -141,7 +141,15 @@ impl SipPhone {
             .map_or(target.as_str(), |a| a.registrar());
         let bind = bind_towards(towards)?;
         let role = Role::Call(target.clone());
-        let link = SipLink::open(bind, self.account.clone(), role, codecs(None), false, None)?;
+        let security = SipSecurity::default();
+        let link = SipLink::open(
+            bind,
+            self.account.clone(),
+            role,
+            codecs(None),
+            &security,
+            None,
+        )?;
         Ok(self.take_call(link, format!("calling {target}…")))
     }
 
@@ -316,7 +324,7 @@ fn listen(account: &Account) -> Result<SipLink, SipError> {
         Some(account.clone()),
         Role::Ask,
         codecs(None),
-        false,
+        &SipSecurity::default(),
         None,
     )
 }

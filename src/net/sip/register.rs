@@ -29,6 +29,7 @@ use tokio::select;
 use zeroize::Zeroize;
 
 use super::error::SipError;
+use super::transport::{SipTransport, with_port};
 use crate::net::backoff::Backoff;
 
 /// How long a registrar may take to answer a REGISTER.
@@ -55,6 +56,9 @@ pub struct Account {
     pub domain: String,
     pub password: String,
     pub registrar: Option<String>,
+    /// How its registrar is reached (`sips:` or `;transport=` of the account's URI); calls
+    /// from the account go the same way.
+    pub transport: SipTransport,
 }
 
 impl std::fmt::Debug for Account {
@@ -64,6 +68,7 @@ impl std::fmt::Debug for Account {
             .field("user", &self.user)
             .field("domain", &self.domain)
             .field("registrar", &self.registrar)
+            .field("transport", &self.transport)
             .finish_non_exhaustive()
     }
 }
@@ -75,9 +80,16 @@ impl Drop for Account {
 }
 
 impl Account {
-    /// `sip:USER@DOMAIN` (or `USER@DOMAIN`) with its password.
+    /// `sip:USER@DOMAIN[;transport=tcp|tls]`, `sips:USER@DOMAIN` (or `USER@DOMAIN`) with its
+    /// password.
     pub fn parse(uri: &str, password: &str) -> Result<Self, SipError> {
-        let bare = uri.trim().trim_start_matches("sip:");
+        let transport = SipTransport::of_uri(uri)?;
+        let trimmed = uri.trim();
+        let bare = trimmed
+            .strip_prefix("sips:")
+            .or_else(|| trimmed.strip_prefix("sip:"))
+            .unwrap_or(trimmed);
+        let bare = bare.split([';', '?']).next().unwrap_or(bare);
         let (user, domain) = bare
             .split_once('@')
             .filter(|(u, d)| !u.is_empty() && !d.is_empty())
@@ -87,11 +99,27 @@ impl Account {
             domain: domain.to_owned(),
             password: password.to_owned(),
             registrar: None,
+            transport,
         })
     }
 
+    /// The registrar's `HOST[:PORT]`.
     pub fn registrar(&self) -> &str {
         self.registrar.as_deref().unwrap_or(&self.domain)
+    }
+
+    /// The registrar's `HOST:PORT` (the transport's port where none is given).
+    pub fn registrar_with_port(&self) -> String {
+        with_port(self.registrar(), self.transport)
+    }
+
+    /// The registrar as ezk reaches it: `sip:HOST:PORT` with the transport's parameter.
+    pub fn registrar_uri(&self) -> String {
+        format!(
+            "sip:{}{}",
+            self.registrar_with_port(),
+            self.transport.param()
+        )
     }
 }
 
@@ -107,11 +135,14 @@ pub struct Home {
 
 impl Home {
     fn of(account: &Account) -> Self {
-        let hosts = [account.domain.as_str(), account.registrar()]
-            .into_iter()
-            .filter_map(|host| uri(host).ok())
-            .map(|uri| uri.host_port)
-            .collect();
+        let hosts = [
+            with_port(&account.domain, account.transport),
+            account.registrar_with_port(),
+        ]
+        .into_iter()
+        .filter_map(|host| uri(&host).ok())
+        .map(|uri| uri.host_port)
+        .collect();
         Self {
             hosts,
             ..Self::default()
@@ -463,6 +494,16 @@ mod tests {
         assert!(!format!("{a:?}").contains("s3cret"));
         assert!(Account::parse("sip:nobody", "x").is_err());
         assert!(Account::parse("@host", "x").is_err());
+        let tls = Account::parse("sips:alice@pbx.example", "pw").unwrap();
+        assert_eq!(
+            (tls.domain.as_str(), tls.registrar_uri()),
+            (
+                "pbx.example",
+                "sip:pbx.example:5061;transport=tls".to_owned()
+            )
+        );
+        let tcp = Account::parse("sip:alice@10.0.0.1:5070;transport=tcp", "pw").unwrap();
+        assert_eq!(tcp.registrar_uri(), "sip:10.0.0.1:5070;transport=tcp");
     }
 
     #[test]
