@@ -20,10 +20,10 @@ use ezk_sip_auth::{
 use ezk_sip_core::Endpoint;
 use ezk_sip_core::transaction::TsxResponse;
 use ezk_sip_core::transport::{OutgoingRequest, TargetTransportInfo};
-use ezk_sip_types::header::typed::{AuthChallenge, Contact, Expires, MinExpires};
+use ezk_sip_types::header::typed::{AuthChallenge, CSeq, Contact, Expires, MinExpires};
 use ezk_sip_types::host::{Host, HostPort};
 use ezk_sip_types::uri::SipUri;
-use ezk_sip_types::{Headers, Name, StatusCode};
+use ezk_sip_types::{Headers, Method, Name, StatusCode};
 use ezk_sip_ua::register::Registration;
 use tokio::select;
 use zeroize::Zeroize;
@@ -43,6 +43,9 @@ pub const MAX_MIN_EXPIRES: u32 = 3600;
 /// to [`REFRESH_RETRY_MAX`].
 const REFRESH_RETRY: Duration = Duration::from_secs(10);
 const REFRESH_RETRY_MAX: Duration = Duration::from_secs(300);
+/// How often a registered account on UDP sends OPTIONS to its registrar while it idles: home
+/// routers forget UDP mappings after 30 to 120 s.
+pub const UDP_KEEPALIVE: Duration = Duration::from_secs(25);
 /// Challenges answered for one request before the credentials count as wrong.
 const MAX_CHALLENGES: u32 = 2;
 /// Where a SIP URI without a port is served.
@@ -428,6 +431,34 @@ fn with_granted_expiry(mut response: TsxResponse) -> TsxResponse {
     response
 }
 
+/// Sends OPTIONS to the registrar from the registration's socket: a NAT between us keeps the
+/// mapping that incoming calls arrive through. Its answer, whatever it is, only shows the
+/// path is open.
+async fn ping(
+    endpoint: &Endpoint,
+    registration: &mut Registration,
+    target: &mut TargetTransportInfo,
+) {
+    let mut request = registration.create_register(false);
+    request.line.method = Method::OPTIONS;
+    let cseq = request.headers.get_named::<CSeq>().map_or(1, |c| c.cseq);
+    for name in [Name::CSEQ, Name::EXPIRES, Name::CONTACT] {
+        request.headers.remove(&name);
+    }
+    request
+        .headers
+        .insert_named(&CSeq::new(cseq, Method::OPTIONS));
+    let exchange = async {
+        let mut transaction = endpoint.send_request(request, target).await?;
+        transaction.receive_final().await
+    };
+    match tokio::time::timeout(REGISTER_TIMEOUT, exchange).await {
+        Ok(Ok(response)) => tracing::debug!("keepalive: {}", response.line.code.into_u16()),
+        Ok(Err(e)) => tracing::debug!("keepalive: {e}"),
+        Err(_) => tracing::debug!("keepalive: no answer"),
+    }
+}
+
 /// Keeps the binding fresh until told to stop, then removes it. A refresh that fails is tried
 /// again after [`REFRESH_RETRY`], doubling up to [`REFRESH_RETRY_MAX`], until one succeeds.
 pub async fn keep_registered(
@@ -440,9 +471,17 @@ pub async fn keep_registered(
 ) {
     let mut retry = Backoff::new(REFRESH_RETRY, REFRESH_RETRY_MAX);
     let mut retry_in: Option<Duration> = None;
+    // TCP and TLS connections are pinged with CRLF by ezk itself (RFC 5626 4.4.1).
+    let udp = target.transport.as_ref().is_some_and(|(t, _)| t.is_udp());
+    let mut keepalive =
+        tokio::time::interval_at(tokio::time::Instant::now() + UDP_KEEPALIVE, UDP_KEEPALIVE);
+    keepalive.set_missed_tick_behavior(tokio::time::MissedTickBehavior::Delay);
     loop {
         select! {
             _ = &mut stop => break,
+            _ = keepalive.tick(), if udp => {
+                ping(&endpoint, &mut registration, &mut target).await;
+            }
             () = async {
                 match retry_in {
                     Some(wait) => tokio::time::sleep(wait).await,
