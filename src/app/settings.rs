@@ -179,6 +179,8 @@ pub struct SipSettings {
     /// `HOST[:PORT]` to register with, where it is not the account's domain.
     pub registrar: String,
     pub password: String,
+    /// The local UDP port the phone listens on (0: any free one).
+    pub local_port: u16,
 }
 
 impl std::fmt::Debug for SipSettings {
@@ -186,6 +188,7 @@ impl std::fmt::Debug for SipSettings {
         f.debug_struct("SipSettings")
             .field("account", &self.account)
             .field("registrar", &self.registrar)
+            .field("local_port", &self.local_port)
             .field(
                 "password",
                 &if self.password.is_empty() {

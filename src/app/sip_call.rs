@@ -32,6 +32,17 @@ pub enum PhoneCommand {
     Decline,
     /// DTMF keys into the current SIP call (RFC 4733).
     Keys(String),
+    /// How the phone reaches its registrar and callers from behind a NAT.
+    Network(PhoneNetwork),
+}
+
+/// The phone's NAT settings: a STUN server whose view of our media address the SDP gives
+/// (`HOST:PORT`), and a fixed local port for the listener's SIP socket (a port forwarded or
+/// allowed in a firewall), any free one where `None`.
+#[derive(Debug, Clone, Default, PartialEq, Eq)]
+pub struct PhoneNetwork {
+    pub stun: Option<String>,
+    pub sip_port: Option<u16>,
 }
 
 /// The phone as the UI shows it.
@@ -110,6 +121,7 @@ pub struct SipPhone {
     /// The SIP call that is the engine's link, and its peer.
     call: Option<(SipHandle, String)>,
     status: PhoneStatus,
+    network: PhoneNetwork,
 }
 
 impl Default for SipPhone {
@@ -121,6 +133,7 @@ impl Default for SipPhone {
             retry: Backoff::new(LISTEN_RETRY, LISTEN_RETRY_MAX),
             call: None,
             status: PhoneStatus::default(),
+            network: PhoneNetwork::default(),
         }
     }
 }
@@ -148,7 +161,7 @@ impl SipPhone {
             role,
             codecs(None),
             &security,
-            None,
+            self.network.stun.as_deref(),
         )?;
         Ok(self.take_call(link, format!("calling {target}…")))
     }
@@ -184,6 +197,14 @@ impl SipPhone {
                 listener.decide(Decision::Answer);
                 let state = format!("answering {}…", listener.peer());
                 return Ok(Some(self.take_call(listener, state)));
+            }
+            PhoneCommand::Network(network) => {
+                if network != self.network {
+                    self.network = network;
+                    // The listener takes them when it registers again.
+                    self.stop_listener();
+                    self.retry.reset();
+                }
             }
             PhoneCommand::Keys(keys) => {
                 let Some((call, _)) = &self.call else {
@@ -258,7 +279,7 @@ impl SipPhone {
         let Some(listener) = &mut self.listener else {
             if self.retry_at.is_none_or(|t| now >= t) {
                 self.retry_at = None;
-                match listen(account) {
+                match listen(account, &self.network) {
                     Ok(listener) => {
                         self.status.registration =
                             format!("registering with {}…", account.registrar());
@@ -317,15 +338,18 @@ impl SipPhone {
 }
 
 /// The account's listener: registered, ringing the user with the first call.
-fn listen(account: &Account) -> Result<SipLink, SipError> {
-    let bind: SocketAddr = bind_towards(account.registrar())?;
+fn listen(account: &Account, network: &PhoneNetwork) -> Result<SipLink, SipError> {
+    let mut bind: SocketAddr = bind_towards(account.registrar())?;
+    if let Some(port) = network.sip_port {
+        bind.set_port(port);
+    }
     SipLink::open(
         bind,
         Some(account.clone()),
         Role::Ask,
         codecs(None),
         &SipSecurity::default(),
-        None,
+        network.stun.as_deref(),
     )
 }
 
