@@ -442,12 +442,8 @@ async fn connect(
 /// Where a registered account's call goes first: a callee in the account's own domain is
 /// reached through its registrar (the outbound proxy), not at the domain's port 5060.
 fn next_hop(account: &Account, target: &str) -> Option<SipUri> {
-    let host = host_port(target);
-    let domain_host = |text: &str| {
-        let with = with_port(text, account.transport);
-        with.rsplit_once(':').map(|(h, _)| h.to_ascii_lowercase())
-    };
-    if domain_host(host)? != domain_host(&account.domain)? {
+    let server = |text: &str| with_port(text, account.transport).to_ascii_lowercase();
+    if server(host_port(target)) != server(&account.domain) {
         return None;
     }
     let user = target
