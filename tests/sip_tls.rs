@@ -476,3 +476,88 @@ fn sip_answer_with_srtp_required_refuses_a_plain_offer_with_488() {
         bob.text()
     );
 }
+
+#[test]
+fn the_app_registers_over_tls_and_calls_baresip_with_mandatory_srtp() {
+    use lipcall::app::engine::{CallSpec, Command, Encryption, lock};
+    use lipcall::app::sip_call::{PhoneCommand, PhoneNetwork};
+    use lipcall::net::sip::agent::Account;
+
+    if !have(&["openssl", "kamailio", "baresip", "sox"]) {
+        return;
+    }
+    let dir = tempfile::tempdir().unwrap();
+    let d = dir.path();
+    let ca = authority(d, "ca");
+    server_certificate(d, "ca", "kamailio", "IP:127.0.0.1", Validity::Days(2));
+    let (kam_port, bob_port, control) = (free_port(false), free_port(false), free_port(false));
+    let kamailio = kamailio_tls(d, kam_port, "kamailio");
+    let bob = baresip_with(
+        d,
+        bob_port,
+        control,
+        &format!(
+            "<sip:bob@127.0.0.1:{kam_port};transport=tls>;auth_pass={PASSWORD};answermode=auto;\
+             regint=60;audio_codecs=PCMU;mediaenc=srtp-mand"
+        ),
+        &reversed_8k(d),
+        &format!("sip_cafile {}\n", ca.display()),
+    );
+    assert!(
+        bob.wait_for("200 OK", Duration::from_secs(10)),
+        "baresip did not register over TLS: {}",
+        bob.text()
+    );
+    let engine = common::app::headless_engine("Alice", None);
+    engine.send(Command::Phone(PhoneCommand::Network(PhoneNetwork {
+        ca: Some(std::fs::read(&ca).unwrap()),
+        ..PhoneNetwork::default()
+    })));
+    let account = Account::parse(
+        &format!("sip:alice@127.0.0.1:{kam_port};transport=tls"),
+        PASSWORD,
+    )
+    .unwrap();
+    engine.send(Command::Phone(PhoneCommand::Account(Some(account))));
+    let wait = |what: &str, done: &dyn Fn(&lipcall::app::engine::Shared) -> bool| {
+        let deadline = std::time::Instant::now() + Duration::from_secs(20);
+        loop {
+            {
+                let s = lock(&engine.shared);
+                if done(&s) {
+                    return;
+                }
+                assert!(
+                    std::time::Instant::now() < deadline,
+                    "{what}: call {:?}, phone {:?}\nbaresip: {}\nkamailio: {}",
+                    s.call,
+                    s.phone,
+                    bob.text(),
+                    kamailio.text()
+                );
+            }
+            std::thread::sleep(Duration::from_millis(50));
+        }
+    };
+    wait("registered over TLS", &|s| {
+        s.phone.registration.starts_with("registered with")
+    });
+    engine.send(Command::Call(Box::new(CallSpec {
+        address: format!("sip:bob@127.0.0.1:{kam_port};transport=tls"),
+        name: "Alice".into(),
+        ..CallSpec::default()
+    })));
+    wait("bob is heard over SRTP", &|s| {
+        s.call.encryption == Encryption::HopByHop
+            && s.peers
+                .views()
+                .iter()
+                .any(|p| p.name.contains("bob") && p.frames_received > 50 && p.frames_animated > 50)
+    });
+    engine.send(Command::Leave);
+    assert!(
+        bob.wait_for("session closed", Duration::from_secs(10)),
+        "baresip: {}",
+        bob.text()
+    );
+}

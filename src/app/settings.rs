@@ -181,6 +181,9 @@ pub struct SipSettings {
     pub password: String,
     /// The local UDP port the phone listens on (0: any free one).
     pub local_port: u16,
+    /// A PEM file of the authority that signed a TLS registrar's certificate, trusted beside
+    /// the system's roots; empty: none.
+    pub ca: String,
 }
 
 impl std::fmt::Debug for SipSettings {
@@ -189,6 +192,7 @@ impl std::fmt::Debug for SipSettings {
             .field("account", &self.account)
             .field("registrar", &self.registrar)
             .field("local_port", &self.local_port)
+            .field("ca", &self.ca)
             .field(
                 "password",
                 &if self.password.is_empty() {
@@ -454,6 +458,7 @@ mod tests {
                 account: "sip:alice@pbx.example".into(),
                 registrar: "127.0.0.1:5070".into(),
                 password: "hunter2-secret".into(),
+                ..SipSettings::default()
             },
             ..Settings::default()
         };

@@ -36,13 +36,24 @@ pub enum PhoneCommand {
     Network(PhoneNetwork),
 }
 
-/// The phone's NAT settings: a STUN server whose view of our media address the SDP gives
-/// (`HOST:PORT`), and a fixed local port for the listener's SIP socket (a port forwarded or
-/// allowed in a firewall), any free one where `None`.
+/// How the phone reaches its provider: a STUN server whose view of our media address the SDP
+/// gives (`HOST:PORT`), a fixed local port for the listener's SIP socket (a port forwarded or
+/// allowed in a firewall; any free one where `None`), and the authority a TLS registrar's
+/// certificate may be signed by beside the system's roots (PEM).
 #[derive(Debug, Clone, Default, PartialEq, Eq)]
 pub struct PhoneNetwork {
     pub stun: Option<String>,
     pub sip_port: Option<u16>,
+    pub ca: Option<Vec<u8>>,
+}
+
+impl PhoneNetwork {
+    fn security(&self) -> SipSecurity {
+        SipSecurity {
+            ca: self.ca.clone(),
+            ..SipSecurity::default()
+        }
+    }
 }
 
 /// The phone as the UI shows it.
@@ -154,13 +165,12 @@ impl SipPhone {
             .map_or(target.as_str(), |a| a.registrar());
         let bind = bind_towards(towards)?;
         let role = Role::Call(target.clone());
-        let security = SipSecurity::default();
         let link = SipLink::open(
             bind,
             self.account.clone(),
             role,
             codecs(None),
-            &security,
+            &self.network.security(),
             self.network.stun.as_deref(),
         )?;
         Ok(self.take_call(link, format!("calling {target}…")))
@@ -348,7 +358,7 @@ fn listen(account: &Account, network: &PhoneNetwork) -> Result<SipLink, SipError
         Some(account.clone()),
         Role::Ask,
         codecs(None),
-        &SipSecurity::default(),
+        &network.security(),
         network.stun.as_deref(),
     )
 }

@@ -31,9 +31,16 @@ pub struct SipForm {
 pub fn use_account(settings: &Settings, engine: &Engine) -> Result<(), String> {
     let account = settings.sip.account().map_err(|e| e.to_string())?;
     let stun = settings.nat.stun.trim();
+    let ca = settings.sip.ca.trim();
+    let ca = if ca.is_empty() {
+        None
+    } else {
+        Some(std::fs::read(ca).map_err(|e| format!("CA {ca}: {e}"))?)
+    };
     let network = PhoneNetwork {
         stun: (!stun.is_empty()).then(|| stun.to_owned()),
         sip_port: (settings.sip.local_port != 0).then_some(settings.sip.local_port),
+        ca,
     };
     engine.send(Command::Phone(PhoneCommand::Network(network)));
     engine.send(Command::Phone(PhoneCommand::Account(account)));
@@ -108,6 +115,14 @@ fn account_ui(ui: &mut egui::Ui, form: &mut SipForm, settings: &mut Settings, en
         ui.add(egui::DragValue::new(&mut settings.sip.local_port).range(0..=65535))
             .labelled_by(label.id)
             .on_hover_text("The UDP port SIP listens on (0: any free one)");
+        let label = ui.label("CA");
+        ui.add(
+            egui::TextEdit::singleline(&mut settings.sip.ca)
+                .hint_text("(system roots)")
+                .desired_width(110.0),
+        )
+        .labelled_by(label.id)
+        .on_hover_text("A PEM file of a TLS registrar's own certificate authority");
         let label = ui.label("Password");
         ui.add(
             egui::TextEdit::singleline(&mut settings.sip.password)
