@@ -13,7 +13,7 @@ use std::sync::mpsc;
 use std::thread::JoinHandle;
 use std::time::Duration;
 
-use ezk_sip_core::transport::{TargetTransportInfo, TpHandle};
+use ezk_sip_core::transport::TargetTransportInfo;
 use ezk_sip_core::{Endpoint, IncomingRequest, Layer, MayTake};
 use ezk_sip_types::header::typed::Contact;
 use ezk_sip_types::uri::{NameAddr, SipUri};
@@ -283,7 +283,8 @@ async fn run(
     let mut target = TargetTransportInfo::default();
     let bound = match server_uri(&config, kind)? {
         Some(server) => {
-            let (connection, address) = connect(&endpoint, &server, tls.as_ref(), kind).await?;
+            let (connection, address) =
+                transport::connect(&endpoint, &server, tls.as_ref(), kind).await?;
             let bound = connection.bound();
             target.transport = Some((connection, address));
             bound
@@ -399,44 +400,6 @@ fn server_uri(config: &AgentConfig, kind: SipTransport) -> Result<Option<SipUri>
         (None, Role::Answer | Role::Ask) => return Ok(None),
     };
     uri(&server).map(Some)
-}
-
-/// Opens the TCP or TLS connection to `server`; where TLS fails, says why (the certificate, or
-/// no TLS there).
-async fn connect(
-    endpoint: &Endpoint,
-    server: &SipUri,
-    tls: Option<&native_tls::TlsConnector>,
-    kind: SipTransport,
-) -> Result<(TpHandle, SocketAddr), SipError> {
-    let name = server.host_port.host.to_string();
-    let port = server.host_port.port.unwrap_or(kind.default_port());
-    let shown = format!("{name}:{port}");
-    let connected = tokio::time::timeout(
-        transport::CONNECT_TIMEOUT,
-        endpoint.select_transport(server),
-    )
-    .await;
-    match connected {
-        Ok(Ok(connection)) => Ok(connection),
-        Ok(Err(e)) => {
-            let why = match (tls, crate::net::host_port::resolve_with_port(&shown)) {
-                (Some(tls), Ok(address)) => transport::why_tls_fails(tls, address, &name).await,
-                _ => e.to_string(),
-            };
-            Err(SipError::TlsRefused {
-                server: format!("{} to {shown}", kind.name()),
-                why,
-            })
-        }
-        Err(_) => Err(SipError::TlsRefused {
-            server: format!("{} to {shown}", kind.name()),
-            why: format!(
-                "no connection within {} s",
-                transport::CONNECT_TIMEOUT.as_secs()
-            ),
-        }),
-    }
 }
 
 /// Where a registered account's call goes first: a callee in the account's own domain is
@@ -702,6 +665,21 @@ mod tests {
         agent.last_word = false;
         assert!(matches!(agent.try_event(), Some(AgentEvent::Failed(_))));
         assert_eq!(agent.try_event(), None);
+    }
+
+    #[test]
+    fn a_callee_on_the_accounts_own_server_is_reached_through_its_registrar() {
+        let mut account = Account::parse("sips:alice@voip.example", "pw").unwrap();
+        account.registrar = Some("10.0.0.1:5071".into());
+        let hop = |target| next_hop(&account, target).map(|u| format!("{u:?}"));
+        let through = hop("sip:bob@voip.example;transport=tls").unwrap();
+        assert!(
+            through.contains("10.0.0.1") && through.contains("5071"),
+            "{through}"
+        );
+        assert!(hop("sip:bob@VOIP.example:5061").is_some());
+        assert_eq!(hop("sip:bob@voip.example:5070"), None, "another port");
+        assert_eq!(hop("sip:carol@elsewhere.example"), None, "another domain");
     }
 
     #[test]

@@ -7,6 +7,9 @@
 use std::net::SocketAddr;
 use std::time::Duration;
 
+use ezk_sip_core::Endpoint;
+use ezk_sip_core::transport::TpHandle;
+use ezk_sip_types::uri::SipUri;
 use tokio::net::TcpStream;
 
 use super::error::SipError;
@@ -170,6 +173,37 @@ pub async fn why_tls_fails(
         ),
         Ok(Err(why)) => why,
         Ok(Ok(())) => "the TLS connection was refused after the handshake".to_owned(),
+    }
+}
+
+/// Opens the TCP or TLS connection to `server`; where TLS fails, says why (the certificate, or
+/// no TLS there).
+pub async fn connect(
+    endpoint: &Endpoint,
+    server: &SipUri,
+    tls: Option<&native_tls::TlsConnector>,
+    kind: SipTransport,
+) -> Result<(TpHandle, SocketAddr), SipError> {
+    let name = server.host_port.host.to_string();
+    let port = server.host_port.port.unwrap_or(kind.default_port());
+    let shown = format!("{name}:{port}");
+    let connected = tokio::time::timeout(CONNECT_TIMEOUT, endpoint.select_transport(server)).await;
+    match connected {
+        Ok(Ok(connection)) => Ok(connection),
+        Ok(Err(e)) => {
+            let why = match (tls, crate::net::host_port::resolve_with_port(&shown)) {
+                (Some(tls), Ok(address)) => why_tls_fails(tls, address, &name).await,
+                _ => e.to_string(),
+            };
+            Err(SipError::TlsRefused {
+                server: format!("{} to {shown}", kind.name()),
+                why,
+            })
+        }
+        Err(_) => Err(SipError::TlsRefused {
+            server: format!("{} to {shown}", kind.name()),
+            why: format!("no connection within {} s", CONNECT_TIMEOUT.as_secs()),
+        }),
     }
 }
 
