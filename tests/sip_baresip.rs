@@ -9,40 +9,8 @@ use std::time::Duration;
 
 use common::sip::{
     PASSWORD, Peer, baresip, baresip_heard, best_alignment, free_port, have, kamailio,
-    kamailio_with, lipcall_answering, mulaw_round_trip, reversed_8k, tell_baresip,
+    kamailio_with, lipcall_answering, median_snr, reversed_8k, tell_baresip,
 };
-
-/// The median, over quarter seconds of speech from 1 s to 4 s, of the SNR of `heard` against
-/// `sent` at the lag where each quarter agrees best (the jitter buffer may drop or stretch a
-/// frame now and then, which moves the lag), beside the same for a perfect G.711 round trip.
-fn median_snr(sent: &[i16], heard: &[i16]) -> (f64, f64) {
-    const QUARTER: usize = 2000;
-    let round_trip = mulaw_round_trip(sent);
-    let mut ours = Vec::new();
-    let mut g711 = Vec::new();
-    for from in (8000..32000).step_by(QUARTER) {
-        let piece = &sent[from..from + QUARTER];
-        let power = piece.iter().map(|&s| f64::from(s).powi(2)).sum::<f64>() / QUARTER as f64;
-        if power < 1e4 {
-            // Silence: nothing to compare.
-            continue;
-        }
-        let (lag, _) = best_alignment(sent, heard, from, QUARTER, 1600);
-        let start = usize::try_from(from as isize + lag).unwrap_or(0);
-        ours.push(common::snr_db(piece, &heard[start.min(heard.len())..]));
-        g711.push(common::snr_db(piece, &round_trip[from..]));
-    }
-    assert!(
-        ours.len() >= 6,
-        "too little speech to compare: {}",
-        ours.len()
-    );
-    let median = |v: &mut Vec<f64>| {
-        v.sort_by(f64::total_cmp);
-        v[v.len() / 2]
-    };
-    (median(&mut ours), median(&mut g711))
-}
 
 /// The strongest correlation (in absolute value) between a viseme column of WEIGHTS.csv and
 /// the energy of the frames of `audio` its rows name.

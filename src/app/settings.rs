@@ -179,6 +179,11 @@ pub struct SipSettings {
     /// `HOST[:PORT]` to register with, where it is not the account's domain.
     pub registrar: String,
     pub password: String,
+    /// The local UDP port the phone listens on (0: any free one).
+    pub local_port: u16,
+    /// A PEM file of the authority that signed a TLS registrar's certificate, trusted beside
+    /// the system's roots; empty: none.
+    pub ca: String,
 }
 
 impl std::fmt::Debug for SipSettings {
@@ -186,6 +191,8 @@ impl std::fmt::Debug for SipSettings {
         f.debug_struct("SipSettings")
             .field("account", &self.account)
             .field("registrar", &self.registrar)
+            .field("local_port", &self.local_port)
+            .field("ca", &self.ca)
             .field(
                 "password",
                 &if self.password.is_empty() {
@@ -451,6 +458,7 @@ mod tests {
                 account: "sip:alice@pbx.example".into(),
                 registrar: "127.0.0.1:5070".into(),
                 password: "hunter2-secret".into(),
+                ..SipSettings::default()
             },
             ..Settings::default()
         };

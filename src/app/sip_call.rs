@@ -10,7 +10,7 @@ use std::sync::mpsc::{Receiver, TryRecvError, sync_channel};
 use std::time::{Duration, Instant};
 
 use crate::call::link::{Link, LinkEvent};
-use crate::call::sip::{CallState, SipHandle, SipLink};
+use crate::call::sip::{CallState, SipHandle, SipLink, SipSecurity};
 use crate::codec::any::Codec;
 use crate::net::backoff::Backoff;
 use crate::net::sip::address::{bind_towards, host_port};
@@ -33,6 +33,28 @@ pub enum PhoneCommand {
     Decline,
     /// DTMF keys into the current SIP call (RFC 4733).
     Keys(String),
+    /// How the phone reaches its registrar and callers from behind a NAT.
+    Network(PhoneNetwork),
+}
+
+/// How the phone reaches its provider: a STUN server whose view of our media address the SDP
+/// gives (`HOST:PORT`), a fixed local port for the listener's SIP socket (a port forwarded or
+/// allowed in a firewall; any free one where `None`), and the authority a TLS registrar's
+/// certificate may be signed by beside the system's roots (PEM).
+#[derive(Debug, Clone, Default, PartialEq, Eq)]
+pub struct PhoneNetwork {
+    pub stun: Option<String>,
+    pub sip_port: Option<u16>,
+    pub ca: Option<Vec<u8>>,
+}
+
+impl PhoneNetwork {
+    fn security(&self) -> SipSecurity {
+        SipSecurity {
+            ca: self.ca.clone(),
+            ..SipSecurity::default()
+        }
+    }
 }
 
 /// The phone as the UI shows it.
@@ -113,6 +135,7 @@ pub struct SipPhone {
     /// The SIP call that is the engine's link, and its peer.
     call: Option<(SipHandle, String)>,
     status: PhoneStatus,
+    network: PhoneNetwork,
 }
 
 impl Default for SipPhone {
@@ -125,6 +148,7 @@ impl Default for SipPhone {
             retry: Backoff::new(LISTEN_RETRY, LISTEN_RETRY_MAX),
             call: None,
             status: PhoneStatus::default(),
+            network: PhoneNetwork::default(),
         }
     }
 }
@@ -152,7 +176,14 @@ impl SipPhone {
     pub fn dial_from(&mut self, target: String, bind: SocketAddr) -> anyhow::Result<PhoneTurn> {
         self.stop_listener();
         let role = Role::Call(target.clone());
-        let link = SipLink::open(bind, self.account.clone(), role, codecs(None), false, None)?;
+        let link = SipLink::open(
+            bind,
+            self.account.clone(),
+            role,
+            codecs(None),
+            &self.network.security(),
+            self.network.stun.as_deref(),
+        )?;
         Ok(self.take_call(link, format!("calling {target}…")))
     }
 
@@ -187,6 +218,14 @@ impl SipPhone {
                 listener.decide(Decision::Answer);
                 let state = format!("answering {}…", listener.peer());
                 return Ok(Some(self.take_call(listener, state)));
+            }
+            PhoneCommand::Network(network) => {
+                if network != self.network {
+                    self.network = network;
+                    // The listener takes them when it registers again.
+                    self.stop_listener();
+                    self.retry.reset();
+                }
             }
             PhoneCommand::Keys(keys) => {
                 let Some((call, _)) = &self.call else {
@@ -280,7 +319,7 @@ impl SipPhone {
                 }
             } else if self.retry_at.is_none_or(|t| now >= t) {
                 self.retry_at = None;
-                match open_listener(account.clone()) {
+                match open_listener(account.clone(), self.network.clone()) {
                     Ok(opening) => self.opening = Some(opening),
                     Err(e) => self.listen_failed(&e.to_string(), now),
                 }
@@ -336,27 +375,33 @@ impl SipPhone {
 
 /// Opens the account's listener on a thread of its own: looking up the registrar can take
 /// as long as the resolver does.
-fn open_listener(account: Account) -> Result<Receiver<Result<SipLink, SipError>>, SipError> {
+fn open_listener(
+    account: Account,
+    network: PhoneNetwork,
+) -> Result<Receiver<Result<SipLink, SipError>>, SipError> {
     let (tell, opened) = sync_channel(1);
     std::thread::Builder::new()
         .name("sip-listener-open".into())
         .spawn(move || {
-            let _ = tell.send(listen(&account));
+            let _ = tell.send(listen(&account, &network));
         })
         .map_err(|e| SipError::Thread(e.to_string()))?;
     Ok(opened)
 }
 
 /// The account's listener: registered, ringing the user with the first call.
-fn listen(account: &Account) -> Result<SipLink, SipError> {
-    let bind: SocketAddr = bind_towards(account.registrar())?;
+fn listen(account: &Account, network: &PhoneNetwork) -> Result<SipLink, SipError> {
+    let mut bind: SocketAddr = bind_towards(account.registrar())?;
+    if let Some(port) = network.sip_port {
+        bind.set_port(port);
+    }
     SipLink::open(
         bind,
         Some(account.clone()),
         Role::Ask,
         codecs(None),
-        false,
-        None,
+        &network.security(),
+        network.stun.as_deref(),
     )
 }
 

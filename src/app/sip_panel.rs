@@ -1,4 +1,5 @@
-//! The phone's row under the call bar: the SIP account (URI, registrar, password) and how its
+//! The phone's row under the call bar: the SIP account (URI, registrar, local port, password;
+//! the call bar's STUN server serves the phone too) and how its
 //! registration stands, the banner of a call that rings (Answer, Decline), and the DTMF keypad
 //! while a SIP call takes keys. Calls are dialled in the call bar's address field (a `sip:`
 //! URI or a number).
@@ -7,7 +8,7 @@ use eframe::egui;
 
 use super::engine::{Command, Engine};
 use super::settings::Settings;
-use super::sip_call::{PhoneCommand, PhoneStatus};
+use super::sip_call::{PhoneCommand, PhoneNetwork, PhoneStatus};
 
 /// The keypad's keys, row by row.
 const KEYPAD: [[&str; 3]; 4] = [
@@ -25,9 +26,23 @@ pub struct SipForm {
     pub error: Option<String>,
 }
 
-/// Tells the engine to use the settings' account (none where it is empty).
+/// Tells the engine to use the settings' account (none where it is empty), its local port
+/// and the NAT settings' STUN server.
 pub fn use_account(settings: &Settings, engine: &Engine) -> Result<(), String> {
     let account = settings.sip.account().map_err(|e| e.to_string())?;
+    let stun = settings.nat.stun.trim();
+    let ca = settings.sip.ca.trim();
+    let ca = if ca.is_empty() {
+        None
+    } else {
+        Some(std::fs::read(ca).map_err(|e| format!("CA {ca}: {e}"))?)
+    };
+    let network = PhoneNetwork {
+        stun: (!stun.is_empty()).then(|| stun.to_owned()),
+        sip_port: (settings.sip.local_port != 0).then_some(settings.sip.local_port),
+        ca,
+    };
+    engine.send(Command::Phone(PhoneCommand::Network(network)));
     engine.send(Command::Phone(PhoneCommand::Account(account)));
     Ok(())
 }
@@ -96,6 +111,18 @@ fn account_ui(ui: &mut egui::Ui, form: &mut SipForm, settings: &mut Settings, en
                 .desired_width(130.0),
         )
         .labelled_by(label.id);
+        let label = ui.label("Local port");
+        ui.add(egui::DragValue::new(&mut settings.sip.local_port).range(0..=65535))
+            .labelled_by(label.id)
+            .on_hover_text("The UDP port SIP listens on (0: any free one)");
+        let label = ui.label("CA");
+        ui.add(
+            egui::TextEdit::singleline(&mut settings.sip.ca)
+                .hint_text("(system roots)")
+                .desired_width(110.0),
+        )
+        .labelled_by(label.id)
+        .on_hover_text("A PEM file of a TLS registrar's own certificate authority");
         let label = ui.label("Password");
         ui.add(
             egui::TextEdit::singleline(&mut settings.sip.password)

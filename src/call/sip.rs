@@ -18,6 +18,7 @@ use crate::net::session::{PeerFrame, PeerInfo};
 use crate::net::sip::agent::{Account, Agent, AgentConfig, AgentEvent, Decision, Role, SipError};
 use crate::net::sip::media::{SipRtp, SipRtpStats, event_code};
 use crate::net::sip::sdp::{LocalAudio, Negotiated, SdesKey};
+use crate::net::sip::transport::SrtpPolicy;
 use crate::net::stun;
 
 /// How long a hang-up waits for the peer to confirm it.
@@ -39,6 +40,14 @@ pub enum CallState {
         by_peer: bool,
     },
     Failed(SipError),
+}
+
+/// What protects a call: whether its media is SRTP, and the authority its TLS server's
+/// certificate may be signed by beside the system's roots (PEM).
+#[derive(Debug, Clone, Default)]
+pub struct SipSecurity {
+    pub srtp: SrtpPolicy,
+    pub ca: Option<Vec<u8>>,
 }
 
 /// One SIP call.
@@ -188,7 +197,7 @@ impl SipLink {
         account: Option<Account>,
         role: Role,
         codecs: Vec<Codec>,
-        srtp: bool,
+        security: &SipSecurity,
         stun: Option<&str>,
     ) -> Result<Self, SipError> {
         let rtp_bind = SocketAddr::new(bind.ip(), 0);
@@ -217,18 +226,21 @@ impl SipLink {
                 .duration_since(std::time::UNIX_EPOCH)
                 .map_or(1, |d| d.as_secs()),
             key: SdesKey::random().map_err(|e| cannot(format!("no randomness for a key: {e}")))?,
-            offer_srtp: srtp,
+            offer_srtp: false,
         };
         let peer = match &role {
             Role::Call(target) => target.clone(),
             Role::Answer | Role::Ask => "the caller".to_owned(),
         };
-        let config = AgentConfig {
+        let mut config = AgentConfig {
             bind,
             account,
             audio,
             role,
+            ca: security.ca.clone(),
+            srtp: security.srtp,
         };
+        config.audio.offer_srtp = security.srtp.offers(config.transport()?);
         Self::start(config, socket, Some(rtcp), peer)
     }
 
@@ -368,13 +380,14 @@ impl SipLink {
 
     fn on_agent_event(&mut self, event: AgentEvent) {
         match event {
-            AgentEvent::Listening(addr) => {
+            AgentEvent::Listening(addr, transport) => {
                 let rtcp = self
                     .local_rtcp
                     .map(|rtcp| format!(", RTCP on {rtcp}"))
                     .unwrap_or_default();
                 self.say(format!(
-                    "SIP on {addr} (UDP), RTP on {}{rtcp}",
+                    "SIP on {addr} ({}), RTP on {}{rtcp}",
+                    transport.name(),
                     self.local_rtp
                 ));
             }

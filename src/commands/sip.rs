@@ -14,13 +14,14 @@ use super::playout::{DIRECT, open_outputs, play, print_event};
 use super::recording::{stop_flag, stopped};
 use crate::call::link::{Link, LinkEvent};
 use crate::call::media::Packets;
-use crate::call::sip::{CallState, SipLink};
+use crate::call::sip::{CallState, SipLink, SipSecurity};
 use crate::codec::any::{Codec, EncoderSettings};
 use crate::net::host_port::resolve_with_port;
 use crate::net::janus::candidates::local_ip_towards;
 use crate::net::rtcp::ReportBlock;
 use crate::net::sip::address::{bind_towards, host_port, resolve_host};
 use crate::net::sip::agent::{Account, Role, codecs};
+use crate::net::sip::transport::SrtpPolicy;
 use crate::secrets::{forbid_core_dumps, read_password_file};
 
 /// How often the set-up phase looks at the stop flag and the deadline.
@@ -46,7 +47,8 @@ pub struct SipCommon {
     /// Our voice: any audio file lipcall reads, sent in the agreed codec, paced in real time.
     #[arg(long, value_name = "IN")]
     pub play: PathBuf,
-    /// Our SIP account, sip:USER@DOMAIN: registers (digest authentication) before the call.
+    /// Our SIP account, sip:USER@DOMAIN (;transport=tcp|tls, or sips: for TLS on port 5061 by
+    /// default): registers (digest authentication) before the call.
     /// Its password comes from --password-file or the environment variable
     /// LIPCALL_SIP_PASSWORD, never from the arguments (which every user of the machine sees).
     #[arg(long, value_name = "URI")]
@@ -76,23 +78,39 @@ pub struct SipCommon {
     /// A STUN server, HOST:PORT: the SDP gives the media address it sees (behind a NAT).
     #[arg(long, value_name = "HOST:PORT")]
     pub stun: Option<String>,
+    /// SRTP (AES_CM_128_HMAC_SHA1_80 keyed by SDES, RFC 4568): `optional` (the default)
+    /// offers it where the signalling is TLS and takes it when offered; `required` (or
+    /// `--srtp` alone) offers it always and refuses a call without it (`sip answer`: 488);
+    /// `off` offers plain RTP even over TLS. SDES keys travel in the SIP messages: as safe as
+    /// the path the signalling takes.
+    #[arg(
+        long,
+        value_name = "WHEN",
+        num_args = 0..=1,
+        default_value = "optional",
+        default_missing_value = "required",
+        require_equals = true
+    )]
+    pub srtp: SrtpPolicy,
+    /// A PEM file of the authority that signed the TLS server's certificate, trusted beside
+    /// the system's roots (a PBX's own CA).
+    #[arg(long, value_name = "FILE")]
+    pub ca: Option<PathBuf>,
 }
 
 #[derive(Debug, Clone, clap::Args)]
 pub struct SipCallArgs {
-    /// Whom to call: sip:USER@HOST[:PORT].
+    /// Whom to call: sip:USER@HOST[:PORT], with ;transport=tcp or ;transport=tls (or sips:)
+    /// for those. With --account, a callee of the account's domain is reached through its
+    /// registrar, over the account's transport.
     pub target: String,
     #[command(flatten)]
     pub common: SipCommon,
     /// DTMF keys (0-9 * # A-D) to send as RFC 4733 events once the call is answered.
     #[arg(long, value_name = "DIGITS")]
     pub dtmf: Option<String>,
-    /// Encrypt the media: offer SRTP (AES_CM_128_HMAC_SHA1_80) keyed by SDES (RFC 4568), and
-    /// refuse an answer without it. The keys travel in the SIP messages: as safe as the path
-    /// the signalling takes. (`sip answer` takes SRTP whenever the caller offers it.)
-    #[arg(long)]
-    pub srtp: bool,
-    /// Our SIP socket (UDP); by default a free port on the address towards the peer.
+    /// Our SIP socket (UDP; TCP and TLS connect from its address); by default a free port on
+    /// the address towards the peer.
     #[arg(long, value_name = "HOST:PORT")]
     pub bind: Option<String>,
 }
@@ -168,14 +186,7 @@ fn call(args: &SipCallArgs) -> Result<()> {
         None => bind_towards(towards)?,
     };
     let role = Role::Call(args.target.clone());
-    run_call(
-        &args.common,
-        account,
-        bind,
-        role,
-        args.dtmf.as_deref(),
-        args.srtp,
-    )
+    run_call(&args.common, account, bind, role, args.dtmf.as_deref())
 }
 
 fn answer(args: &SipAnswerArgs) -> Result<()> {
@@ -190,7 +201,7 @@ fn answer(args: &SipAnswerArgs) -> Result<()> {
         };
         listen.set_ip(local_ip_towards(towards)?);
     }
-    run_call(&args.common, account, listen, Role::Answer, None, false)
+    run_call(&args.common, account, listen, Role::Answer, None)
 }
 
 /// Our file, encoded in the agreed codec.
@@ -208,7 +219,6 @@ fn run_call(
     bind: SocketAddr,
     role: Role,
     dtmf: Option<&str>,
-    srtp: bool,
 ) -> Result<()> {
     // A file that cannot be read fails before any call is made.
     voice(&common.play, Codec::Pcmu)?;
@@ -220,12 +230,22 @@ fn run_call(
         common.weights.as_deref(),
     )?;
     let answering = role == Role::Answer;
+    let ca = match &common.ca {
+        Some(path) => {
+            Some(std::fs::read(path).with_context(|| format!("--ca {}", path.display()))?)
+        }
+        None => None,
+    };
+    let security = SipSecurity {
+        srtp: common.srtp,
+        ca,
+    };
     let mut link = SipLink::open(
         bind,
         account,
         role,
         codecs(common.codec),
-        srtp,
+        &security,
         common.stun.as_deref(),
     )?;
     let start = Instant::now();

@@ -12,7 +12,11 @@ pub const SIP_PORT: u16 = 5060;
 
 /// The `HOST[:PORT]` of `sip:USER@HOST[:PORT];params`.
 pub fn host_port(uri: &str) -> &str {
-    let bare = uri.trim().trim_start_matches("sip:");
+    let trimmed = uri.trim();
+    let bare = trimmed
+        .strip_prefix("sips:")
+        .or_else(|| trimmed.strip_prefix("sip:"))
+        .unwrap_or(trimmed);
     let after_user = bare.rsplit_once('@').map_or(bare, |(_, h)| h);
     after_user.split([';', '?']).next().unwrap_or(after_user)
 }
@@ -50,6 +54,10 @@ mod tests {
         assert_eq!(host_port("sip:bob@127.0.0.1:5070"), "127.0.0.1:5070");
         assert_eq!(host_port("bob@pbx.example;transport=udp"), "pbx.example");
         assert_eq!(host_port("sip:127.0.0.1"), "127.0.0.1");
+        assert_eq!(
+            host_port("sips:bob@pbx.example:5061;transport=tls"),
+            "pbx.example:5061"
+        );
         assert!(resolve_host("127.0.0.1").is_ok());
         assert!(resolve_host("127.0.0.1:5070").is_ok());
         assert_eq!(

@@ -25,6 +25,7 @@ use ezk_sip_ua::{AcceptCallError, Call, CallError, CallEvent, InboundCall};
 use tokio::select;
 use tokio::sync::mpsc::{UnboundedReceiver, UnboundedSender, unbounded_channel};
 
+use super::address::host_port;
 pub use super::backend::AgentEvent;
 use super::backend::{SdpMedia, send};
 use super::dial;
@@ -36,6 +37,7 @@ use super::register::{
     Home, Limited, REGISTER_EXPIRY, REGISTER_TIMEOUT, keep_registered, register, uri,
 };
 use super::sdp::{self, LocalAudio, SdpError};
+use super::transport::{self, SipTransport, SrtpPolicy, with_port};
 use crate::codec::any::Codec;
 
 /// What the agent does.
@@ -62,11 +64,27 @@ pub enum Decision {
 
 #[derive(Debug, Clone)]
 pub struct AgentConfig {
-    /// Where the SIP socket listens (UDP).
+    /// Where the SIP socket listens (UDP), and the address TCP and TLS connect from.
     pub bind: SocketAddr,
     pub account: Option<Account>,
     pub audio: LocalAudio,
     pub role: Role,
+    /// PEM certificates of an authority trusted beside the system's roots (TLS).
+    pub ca: Option<Vec<u8>>,
+    /// Whether an offer without SRTP is refused (488).
+    pub srtp: SrtpPolicy,
+}
+
+impl AgentConfig {
+    /// How the signalling goes: the account's transport (calls go through its registrar),
+    /// else the called URI's; an unregistered `sip answer` listens on UDP.
+    pub fn transport(&self) -> Result<SipTransport, SipError> {
+        match (&self.account, &self.role) {
+            (Some(account), _) => Ok(account.transport),
+            (None, Role::Call(target)) => SipTransport::of_uri(target),
+            (None, Role::Answer | Role::Ask) => Ok(SipTransport::Udp),
+        }
+    }
 }
 
 /// The agent's thread and its channels.
@@ -228,25 +246,49 @@ async fn run(
     builder.add_layer(DialogLayer::default());
     builder.add_layer(InviteLayer::default());
     builder.add_layer(IncomingLayer { calls });
-    let transport = builder
+    let kind = config.transport()?;
+    let tls = match kind {
+        SipTransport::Tls => Some(transport::connector(config.ca.as_deref())?),
+        SipTransport::Udp | SipTransport::Tcp => None,
+    };
+    if let Some(tls) = &tls {
+        builder.use_native_tls_connector(tokio_native_tls::TlsConnector::from(tls.clone()));
+    }
+    if kind != SipTransport::Udp && !config.bind.ip().is_unspecified() {
+        builder.set_tcp_connect_bind_address(SocketAddr::new(config.bind.ip(), 0));
+    }
+    let udp = builder
         .bind_udp(config.bind)
         .await
         .map_err(|e| SipError::Bind {
             addr: config.bind,
             why: e.to_string(),
         })?;
-    let bound = transport.bound();
     let endpoint = builder.build();
-    send(events, AgentEvent::Listening(bound));
+    // TCP and TLS: one connection to the registrar (or the callee), kept for the whole call;
+    // ezk pings it with CRLF every 10 s (RFC 5626 4.4.1), which keeps a NAT's mapping.
+    let mut target = TargetTransportInfo::default();
+    let bound = match server_uri(&config, kind)? {
+        Some(server) => {
+            let (connection, address) =
+                transport::connect(&endpoint, &server, tls.as_ref(), kind).await?;
+            let bound = connection.bound();
+            target.transport = Some((connection, address));
+            bound
+        }
+        None => udp.bound(),
+    };
+    send(events, AgentEvent::Listening(bound, kind));
 
     let user = config
         .account
         .as_ref()
         .map_or("lipcall", |a| a.user.as_str())
         .to_owned();
-    let contact = Contact::new(NameAddr::uri(
-        SipUri::new(bound.into()).user(user.clone().into()),
-    ));
+    let contact = Contact::new(NameAddr::uri(uri(&format!(
+        "sip:{user}@{bound}{}",
+        kind.param()
+    ))?));
     let id = match &config.account {
         Some(a) => NameAddr::uri(uri(&format!("{}@{}", a.user, a.domain))?),
         None => NameAddr::uri(SipUri::new(bound.into()).user(user.into())),
@@ -260,11 +302,11 @@ async fn run(
         let mut registration = Registration::new(
             id.clone(),
             contact.clone(),
-            uri(&registrar_name)?,
+            uri(&account.registrar_uri())?,
             REGISTER_EXPIRY,
         );
         let mut auth = Limited::for_registration(account);
-        let mut target = TargetTransportInfo::default();
+        let mut target = target.clone();
         select! {
             registered = register(&endpoint, &mut registration, &mut auth, &mut target, &registrar_name, false) => registered?,
             _ = commands.recv() => {
@@ -296,17 +338,14 @@ async fn run(
         Role::Call(target) => {
             drop(incoming);
             let auth = Limited::for_calls(config.account.as_ref(), home);
-            call(
-                &endpoint,
+            let placed = Placed {
                 auth,
                 id,
                 contact,
                 target,
-                media,
-                events,
-                &mut commands,
-            )
-            .await
+                next_hop: config.account.as_ref().and_then(|a| next_hop(a, target)),
+            };
+            call(&endpoint, placed, media, events, &mut commands).await
         }
         Role::Answer | Role::Ask => {
             let decided = (config.role == Role::Ask).then_some(&mut decided);
@@ -315,7 +354,16 @@ async fn run(
                 commands: &mut commands,
                 decided,
             };
-            answer(&endpoint, &mut incoming, contact, media, channels).await
+            let require_srtp = config.srtp == SrtpPolicy::Required;
+            answer(
+                &endpoint,
+                &mut incoming,
+                contact,
+                media,
+                channels,
+                require_srtp,
+            )
+            .await
         }
     };
 
@@ -326,20 +374,76 @@ async fn run(
     result
 }
 
-#[allow(clippy::too_many_arguments)]
-async fn call(
-    endpoint: &Endpoint,
+/// Where the signalling connection of a TCP or TLS agent goes: the registrar, else the callee.
+fn server_uri(config: &AgentConfig, kind: SipTransport) -> Result<Option<SipUri>, SipError> {
+    if kind == SipTransport::Udp {
+        return Ok(None);
+    }
+    let server = match (&config.account, &config.role) {
+        (Some(account), _) => account.registrar_uri(),
+        (None, Role::Call(target)) => {
+            format!("sip:{}{}", with_port(host_port(target), kind), kind.param())
+        }
+        (None, Role::Answer | Role::Ask) => return Ok(None),
+    };
+    uri(&server).map(Some)
+}
+
+/// Where a registered account's call goes first: a callee in the account's own domain is
+/// reached through its registrar (the outbound proxy), not at the domain's port 5060.
+fn next_hop(account: &Account, target: &str) -> Option<SipUri> {
+    let server = |text: &str| with_port(text, account.transport).to_ascii_lowercase();
+    if server(host_port(target)) != server(&account.domain) {
+        return None;
+    }
+    let user = target
+        .trim()
+        .trim_start_matches("sips:")
+        .trim_start_matches("sip:")
+        .split_once('@')
+        .map(|(user, _)| user)?;
+    uri(&format!(
+        "sip:{user}@{}{}",
+        account.registrar_with_port(),
+        account.transport.param()
+    ))
+    .ok()
+}
+
+/// An outgoing call's identities and route.
+struct Placed<'t> {
     auth: Limited,
     id: NameAddr,
     contact: Contact,
-    target: &str,
+    target: &'t str,
+    /// The Request-URI where it is not the target's ([`next_hop`]).
+    next_hop: Option<SipUri>,
+}
+
+async fn call(
+    endpoint: &Endpoint,
+    placed: Placed<'_>,
     mut media: SdpMedia,
     events: &mpsc::Sender<AgentEvent>,
     commands: &mut UnboundedReceiver<()>,
 ) -> Result<(), SipError> {
+    let Placed {
+        auth,
+        id,
+        contact,
+        target,
+        next_hop,
+    } = placed;
     let target_uri = uri(target)?;
     let session = dial::dial(
-        endpoint, auth, id, contact, target, target_uri, &mut media, events, commands,
+        endpoint,
+        auth,
+        (id, contact),
+        target,
+        (target_uri, next_hop),
+        &mut media,
+        events,
+        commands,
     )
     .await?;
     let Some(session) = session else {
@@ -366,6 +470,7 @@ async fn answer(
     contact: Contact,
     mut media: SdpMedia,
     channels: Channels<'_>,
+    require_srtp: bool,
 ) -> Result<(), SipError> {
     let Channels {
         events,
@@ -394,9 +499,14 @@ async fn answer(
                 why: "the offer is not UTF-8",
             })
             .and_then(|offer| sdp::take(offer, &media.audio));
-        if let Err(e) = offer {
+        let refusal = match offer {
+            Err(e) => Some(SipError::Sdp(e)),
+            Ok(taken) if require_srtp && taken.srtp.is_none() => Some(SipError::PlainOffer),
+            Ok(_) => None,
+        };
+        if let Some(e) = refusal {
             refuse(endpoint, invite, StatusCode::NOT_ACCEPTABLE_HERE).await;
-            return Err(SipError::Sdp(e));
+            return Err(e);
         }
     }
     let inbound = match InboundCall::from_invite(endpoint.clone(), invite, contact) {
@@ -527,6 +637,8 @@ mod tests {
                 offer_srtp: false,
             },
             role: Role::Answer,
+            ca: None,
+            srtp: SrtpPolicy::Optional,
         };
         let mut agent = Agent::start(config).unwrap();
         let event = agent.next_event(Duration::from_secs(5));
@@ -540,6 +652,21 @@ mod tests {
         agent.last_word = false;
         assert!(matches!(agent.try_event(), Some(AgentEvent::Failed(_))));
         assert_eq!(agent.try_event(), None);
+    }
+
+    #[test]
+    fn a_callee_on_the_accounts_own_server_is_reached_through_its_registrar() {
+        let mut account = Account::parse("sips:alice@voip.example", "pw").unwrap();
+        account.registrar = Some("10.0.0.1:5071".into());
+        let hop = |target| next_hop(&account, target).map(|u| format!("{u:?}"));
+        let through = hop("sip:bob@voip.example;transport=tls").unwrap();
+        assert!(
+            through.contains("10.0.0.1") && through.contains("5071"),
+            "{through}"
+        );
+        assert!(hop("sip:bob@VOIP.example:5061").is_some());
+        assert_eq!(hop("sip:bob@voip.example:5070"), None, "another port");
+        assert_eq!(hop("sip:carol@elsewhere.example"), None, "another domain");
     }
 
     #[test]

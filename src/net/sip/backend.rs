@@ -15,7 +15,7 @@ use super::sdp::{self, LocalAudio, Negotiated, SdpError};
 /// What happened, in order.
 #[derive(Debug, Clone, PartialEq)]
 pub enum AgentEvent {
-    Listening(SocketAddr),
+    Listening(SocketAddr, super::transport::SipTransport),
     Registered(String),
     /// A call came in (from whom).
     Incoming(String),

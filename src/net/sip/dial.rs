@@ -154,10 +154,9 @@ async fn next_early(earlies: &mut [Early]) -> (usize, Result<EarlyResponse, ezk_
 pub async fn dial(
     endpoint: &Endpoint,
     mut auth: Limited,
-    id: NameAddr,
-    contact: Contact,
+    (id, contact): (NameAddr, Contact),
     target: &str,
-    target_uri: SipUri,
+    (target_uri, next_hop): (SipUri, Option<SipUri>),
     media: &mut SdpMedia,
     events: &mpsc::Sender<AgentEvent>,
     commands: &mut UnboundedReceiver<()>,
@@ -175,6 +174,10 @@ pub async fn dial(
     let mut unusable = Repeated::new("early media we cannot take");
     'invite: loop {
         let mut invite = initiator.create_invite();
+        if let Some(hop) = &next_hop {
+            // ezk sends where the Request-URI points; the To header keeps the callee.
+            invite.line.uri = hop.clone();
+        }
         invite.headers.insert_named(&sdp_type());
         invite.body = offer.clone().into();
         auth.authorize_request(&mut invite.headers);

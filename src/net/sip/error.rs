@@ -61,6 +61,12 @@ pub enum SipError {
     Protocol(String),
     #[error(transparent)]
     Sdp(#[from] SdpError),
+    #[error("{0}")]
+    Tls(String),
+    #[error("cannot connect over {server}: {why}")]
+    TlsRefused { server: String, why: String },
+    #[error("the caller offered plain RTP and --srtp=required demands SRTP: refused with 488")]
+    PlainOffer,
     #[error("cannot start the SIP thread: {0}")]
     Thread(String),
 }

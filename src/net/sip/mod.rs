@@ -13,3 +13,4 @@ pub mod quiet;
 pub mod register;
 mod reports;
 pub mod sdp;
+pub mod transport;

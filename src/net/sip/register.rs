@@ -20,15 +20,16 @@ use ezk_sip_auth::{
 use ezk_sip_core::Endpoint;
 use ezk_sip_core::transaction::TsxResponse;
 use ezk_sip_core::transport::{OutgoingRequest, TargetTransportInfo};
-use ezk_sip_types::header::typed::{AuthChallenge, Contact, Expires, MinExpires};
+use ezk_sip_types::header::typed::{AuthChallenge, CSeq, Contact, Expires, MinExpires};
 use ezk_sip_types::host::{Host, HostPort};
 use ezk_sip_types::uri::SipUri;
-use ezk_sip_types::{Headers, Name, StatusCode};
+use ezk_sip_types::{Headers, Method, Name, StatusCode};
 use ezk_sip_ua::register::Registration;
 use tokio::select;
 use zeroize::Zeroize;
 
 use super::error::SipError;
+use super::transport::{SipTransport, with_port};
 use crate::net::backoff::Backoff;
 
 /// How long a registrar may take to answer a REGISTER.
@@ -42,6 +43,9 @@ pub const MAX_MIN_EXPIRES: u32 = 3600;
 /// to [`REFRESH_RETRY_MAX`].
 const REFRESH_RETRY: Duration = Duration::from_secs(10);
 const REFRESH_RETRY_MAX: Duration = Duration::from_secs(300);
+/// How often a registered account on UDP sends OPTIONS to its registrar while it idles: home
+/// routers forget UDP mappings after 30 to 120 s.
+pub const UDP_KEEPALIVE: Duration = Duration::from_secs(25);
 /// Challenges answered for one request before the credentials count as wrong.
 const MAX_CHALLENGES: u32 = 2;
 /// Where a SIP URI without a port is served.
@@ -55,6 +59,9 @@ pub struct Account {
     pub domain: String,
     pub password: String,
     pub registrar: Option<String>,
+    /// How its registrar is reached (`sips:` or `;transport=` of the account's URI); calls
+    /// from the account go the same way.
+    pub transport: SipTransport,
 }
 
 impl std::fmt::Debug for Account {
@@ -64,6 +71,7 @@ impl std::fmt::Debug for Account {
             .field("user", &self.user)
             .field("domain", &self.domain)
             .field("registrar", &self.registrar)
+            .field("transport", &self.transport)
             .finish_non_exhaustive()
     }
 }
@@ -75,9 +83,16 @@ impl Drop for Account {
 }
 
 impl Account {
-    /// `sip:USER@DOMAIN` (or `USER@DOMAIN`) with its password.
+    /// `sip:USER@DOMAIN[;transport=tcp|tls]`, `sips:USER@DOMAIN` (or `USER@DOMAIN`) with its
+    /// password.
     pub fn parse(uri: &str, password: &str) -> Result<Self, SipError> {
-        let bare = uri.trim().trim_start_matches("sip:");
+        let transport = SipTransport::of_uri(uri)?;
+        let trimmed = uri.trim();
+        let bare = trimmed
+            .strip_prefix("sips:")
+            .or_else(|| trimmed.strip_prefix("sip:"))
+            .unwrap_or(trimmed);
+        let bare = bare.split([';', '?']).next().unwrap_or(bare);
         let (user, domain) = bare
             .split_once('@')
             .filter(|(u, d)| !u.is_empty() && !d.is_empty())
@@ -87,11 +102,27 @@ impl Account {
             domain: domain.to_owned(),
             password: password.to_owned(),
             registrar: None,
+            transport,
         })
     }
 
+    /// The registrar's `HOST[:PORT]`.
     pub fn registrar(&self) -> &str {
         self.registrar.as_deref().unwrap_or(&self.domain)
+    }
+
+    /// The registrar's `HOST:PORT` (the transport's port where none is given).
+    pub fn registrar_with_port(&self) -> String {
+        with_port(self.registrar(), self.transport)
+    }
+
+    /// The registrar as ezk reaches it: `sip:HOST:PORT` with the transport's parameter.
+    pub fn registrar_uri(&self) -> String {
+        format!(
+            "sip:{}{}",
+            self.registrar_with_port(),
+            self.transport.param()
+        )
     }
 }
 
@@ -107,11 +138,14 @@ pub struct Home {
 
 impl Home {
     fn of(account: &Account) -> Self {
-        let hosts = [account.domain.as_str(), account.registrar()]
-            .into_iter()
-            .filter_map(|host| uri(host).ok())
-            .map(|uri| uri.host_port)
-            .collect();
+        let hosts = [
+            with_port(&account.domain, account.transport),
+            account.registrar_with_port(),
+        ]
+        .into_iter()
+        .filter_map(|host| uri(&host).ok())
+        .map(|uri| uri.host_port)
+        .collect();
         Self {
             hosts,
             ..Self::default()
@@ -397,6 +431,34 @@ fn with_granted_expiry(mut response: TsxResponse) -> TsxResponse {
     response
 }
 
+/// Sends OPTIONS to the registrar from the registration's socket: a NAT between us keeps the
+/// mapping that incoming calls arrive through. Its answer, whatever it is, only shows the
+/// path is open.
+async fn ping(
+    endpoint: &Endpoint,
+    registration: &mut Registration,
+    target: &mut TargetTransportInfo,
+) {
+    let mut request = registration.create_register(false);
+    request.line.method = Method::OPTIONS;
+    let cseq = request.headers.get_named::<CSeq>().map_or(1, |c| c.cseq);
+    for name in [Name::CSEQ, Name::EXPIRES, Name::CONTACT] {
+        request.headers.remove(&name);
+    }
+    request
+        .headers
+        .insert_named(&CSeq::new(cseq, Method::OPTIONS));
+    let exchange = async {
+        let mut transaction = endpoint.send_request(request, target).await?;
+        transaction.receive_final().await
+    };
+    match tokio::time::timeout(REGISTER_TIMEOUT, exchange).await {
+        Ok(Ok(response)) => tracing::debug!("keepalive: {}", response.line.code.into_u16()),
+        Ok(Err(e)) => tracing::debug!("keepalive: {e}"),
+        Err(_) => tracing::debug!("keepalive: no answer"),
+    }
+}
+
 /// Keeps the binding fresh until told to stop, then removes it. A refresh that fails is tried
 /// again after [`REFRESH_RETRY`], doubling up to [`REFRESH_RETRY_MAX`], until one succeeds.
 pub async fn keep_registered(
@@ -409,9 +471,17 @@ pub async fn keep_registered(
 ) {
     let mut retry = Backoff::new(REFRESH_RETRY, REFRESH_RETRY_MAX);
     let mut retry_in: Option<Duration> = None;
+    // TCP and TLS connections are pinged with CRLF by ezk itself (RFC 5626 4.4.1).
+    let udp = target.transport.as_ref().is_some_and(|(t, _)| t.is_udp());
+    let mut keepalive =
+        tokio::time::interval_at(tokio::time::Instant::now() + UDP_KEEPALIVE, UDP_KEEPALIVE);
+    keepalive.set_missed_tick_behavior(tokio::time::MissedTickBehavior::Delay);
     loop {
         select! {
             _ = &mut stop => break,
+            _ = keepalive.tick(), if udp => {
+                ping(&endpoint, &mut registration, &mut target).await;
+            }
             () = async {
                 match retry_in {
                     Some(wait) => tokio::time::sleep(wait).await,
@@ -463,6 +533,16 @@ mod tests {
         assert!(!format!("{a:?}").contains("s3cret"));
         assert!(Account::parse("sip:nobody", "x").is_err());
         assert!(Account::parse("@host", "x").is_err());
+        let tls = Account::parse("sips:alice@pbx.example", "pw").unwrap();
+        assert_eq!(
+            (tls.domain.as_str(), tls.registrar_uri()),
+            (
+                "pbx.example",
+                "sip:pbx.example:5061;transport=tls".to_owned()
+            )
+        );
+        let tcp = Account::parse("sip:alice@10.0.0.1:5070;transport=tcp", "pw").unwrap();
+        assert_eq!(tcp.registrar_uri(), "sip:10.0.0.1:5070;transport=tcp");
     }
 
     #[test]
