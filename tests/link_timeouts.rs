@@ -226,6 +226,9 @@ fn a_turn_server_granting_0_s_costs_no_storm_of_refreshes() {
     };
     let (turn, asked) = lifetime_zero_turn();
     let server = turn.addr.to_string();
+    let dir = tempfile::tempdir().unwrap();
+    let password = dir.path().join("turn-password");
+    std::fs::write(&password, "s3cret\n").unwrap();
     let started = Instant::now();
     let rx = receive(&[
         "--janus",
@@ -238,8 +241,8 @@ fn a_turn_server_granting_0_s_costs_no_storm_of_refreshes() {
         &server,
         "--turn-user",
         "ann",
-        "--turn-password",
-        "s3cret",
+        "--turn-password-file",
+        password.to_str().unwrap(),
     ]);
     let (status, exited, stderr) = exit_within(rx, Duration::from_secs(30));
     drop(turn);
