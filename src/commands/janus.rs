@@ -77,9 +77,9 @@ fn pin_hint(e: JanusError) -> anyhow::Error {
     }
 }
 
-/// Publishes a file's audio in the room, paced in real time, for at most `seconds`.
+/// Publishes a file's audio in the room, paced in real time, for at most `seconds` from the
+/// first packet.
 pub fn send(input: &std::path::Path, janus: &JanusArgs, seconds: Option<f64>) -> Result<()> {
-    let pacing = Pacing::new(seconds)?;
     let settings = EncoderSettings::wideband(crate::codec::opus::codec::Bandwidth::Fullband);
     let (codec, packets) = load_packets(input, Some(Codec::Opus), &settings)?;
     if packets.is_empty() {
@@ -89,6 +89,8 @@ pub fn send(input: &std::path::Path, janus: &JanusArgs, seconds: Option<f64>) ->
         .map_err(pin_hint)
         .with_context(|| format!("publishing in room {:?} on {}", janus.room, janus.url))?;
     announce_security();
+    // From the first packet on (a signal before it ends the join as it always did).
+    let pacing = Pacing::new(seconds)?;
     let clock = f64::from(codec.clock_rate());
     let ticks: u64 = packets.iter().map(|(_, t)| u64::from(*t)).sum();
     eprintln!(

@@ -189,14 +189,16 @@ fn connect(args: &MumbleArgs) -> Result<Connection> {
     Ok(connection)
 }
 
-/// Sends a file's audio to the channel, paced in real time, for at most `seconds`.
+/// Sends a file's audio to the channel, paced in real time, for at most `seconds` from the
+/// first packet.
 pub fn send(input: &Path, args: &MumbleArgs, seconds: Option<f64>) -> Result<()> {
-    let pacing = Pacing::new(seconds)?;
     let (codec, packets) = load_packets(input, Some(Codec::Opus), &EncoderSettings::default())?;
     if packets.is_empty() {
         bail!("{}: no audio to send", input.display());
     }
     let mut connection = connect(args)?;
+    // From the first packet on (a signal before it ends the join as it always did).
+    let pacing = Pacing::new(seconds)?;
     let clock = f64::from(codec.clock_rate());
     let ticks: u64 = packets.iter().map(|(_, t)| u64::from(*t)).sum();
     eprintln!(

@@ -257,8 +257,9 @@ pub struct SendArgs {
     /// Use this SSRC (hex) instead of a random one, for set-ups that need it in advance.
     #[arg(long, value_parser = parse_hex_u32)]
     pub ssrc: Option<u32>,
-    /// Stop after this many seconds (otherwise at the file's end). Ctrl-C (SIGINT) or SIGTERM
-    /// ends the send at any time, saying goodbye to the peers.
+    /// Stop after this many seconds (otherwise at the file's end); with --janus or --mumble,
+    /// counted from the first packet. Ctrl-C (SIGINT) or SIGTERM ends the send at any time,
+    /// saying goodbye to the peers.
     #[arg(long, allow_hyphen_values = true, value_parser = super::parse_seconds)]
     pub seconds: Option<f64>,
 }
