@@ -135,7 +135,10 @@ mod tests {
         assert_eq!(secret.as_str(), "from the file");
         std::fs::write(&path, "\nsecond line").unwrap();
         let why = source.read(Some(&path)).unwrap_err().to_string();
-        assert!(why.contains("--test-secret-file") && why.contains("empty"), "{why}");
+        assert!(
+            why.contains("--test-secret-file") && why.contains("empty"),
+            "{why}"
+        );
         let why = source.read(Some(&dir.path().join("none"))).unwrap_err();
         assert!(why.to_string().starts_with("--test-secret-file"), "{why}");
     }

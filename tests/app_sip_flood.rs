@@ -213,7 +213,10 @@ fn an_idle_registered_phone_outlives_an_invite_flood_and_still_takes_a_call() {
         after - before < MAX_GROWTH_MB,
         "the app grew from {before:.1} to {after:.1} MB"
     );
-    assert!(longest < Duration::from_secs(1), "the engine stalled {longest:?}");
+    assert!(
+        longest < Duration::from_secs(1),
+        "the engine stalled {longest:?}"
+    );
 
     // A flood call left ringing is turned down; a fresh listener registers, free again.
     let registers = registrar.contact.lock().unwrap().1;
@@ -221,7 +224,10 @@ fn an_idle_registered_phone_outlives_an_invite_flood_and_still_takes_a_call() {
         engine.send(Command::Phone(PhoneCommand::Decline));
         let deadline = Instant::now() + limit;
         while registrar.contact.lock().unwrap().1 == registers {
-            assert!(Instant::now() < deadline, "no new REGISTER after the decline");
+            assert!(
+                Instant::now() < deadline,
+                "no new REGISTER after the decline"
+            );
             std::thread::sleep(Duration::from_millis(50));
         }
     }
@@ -249,7 +255,12 @@ fn an_idle_registered_phone_outlives_an_invite_flood_and_still_takes_a_call() {
             text
         })
     };
-    let rings = |s: &Shared| s.phone.ringing.as_deref().is_some_and(|c| !c.contains("flood"));
+    let rings = |s: &Shared| {
+        s.phone
+            .ringing
+            .as_deref()
+            .is_some_and(|c| !c.contains("flood"))
+    };
     let deadline = Instant::now() + limit;
     while !rings(&lock(&engine.shared)) {
         if Instant::now() > deadline || caller.try_wait().unwrap().is_some() {

@@ -538,7 +538,14 @@ fn an_empty_passphrase_is_refused_not_called_encrypted() {
                 "--key-file",
                 key,
             ],
-            vec!["send", "missing.wav", "--to", "127.0.0.1:9", "--key-file", key],
+            vec![
+                "send",
+                "missing.wav",
+                "--to",
+                "127.0.0.1:9",
+                "--key-file",
+                key,
+            ],
         ] {
             let out = run_bounded(&args, d);
             assert_eq!(out.code, Some(1), "{args:?}: {}", out.stderr);

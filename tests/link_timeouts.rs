@@ -327,7 +327,10 @@ fn send_ends_at_its_seconds_and_within_a_second_of_sigterm() {
     let (status, exited, stderr) = ended(child, reader);
     let took = exited - sending;
     eprintln!("--seconds 1.5 took {took:?} from the first packet: {stderr}");
-    assert!(took < Duration::from_millis(2500), "took {took:?}: {stderr}");
+    assert!(
+        took < Duration::from_millis(2500),
+        "took {took:?}: {stderr}"
+    );
     assert!(status.is_some_and(|s| s.success()), "{stderr}");
     assert!(stderr.contains("--seconds is up"), "{stderr}");
 

@@ -162,7 +162,14 @@ fn impaired_call(imp: Impairment, codec: &str) {
     run(lipcall()
         .arg("send")
         .arg(&clip)
-        .args(["--to", &proxy_addr.to_string(), "--name", "Imp", "--codec", codec])
+        .args([
+            "--to",
+            &proxy_addr.to_string(),
+            "--name",
+            "Imp",
+            "--codec",
+            codec,
+        ])
         .env("LIPCALL_KEY", "impaired"));
     // The receiver stops by itself once the sender's BYE has been played out.
     let (_, stderr) = receiver.finish(Duration::from_secs(40), "lipcall receive");

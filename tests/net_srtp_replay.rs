@@ -102,7 +102,13 @@ fn a_recorded_call_replayed_into_a_later_receiver_plays_nothing() {
     // length (3 s) old when it comes again: past a tolerance of 1 s.
     let receiver = spawn_listening(
         lipcall()
-            .args(["receive", "--listen", "127.0.0.1:0", "--clock-tolerance", "1"])
+            .args([
+                "receive",
+                "--listen",
+                "127.0.0.1:0",
+                "--clock-tolerance",
+                "1",
+            ])
             .env("LIPCALL_KEY", key),
         Announce::Lipcall,
     );
@@ -112,7 +118,12 @@ fn a_recorded_call_replayed_into_a_later_receiver_plays_nothing() {
     run(lipcall()
         .arg("send")
         .arg(&three_seconds)
-        .args(["--to", &receiver.addr(), "--ssrc", &format!("{fresh_ssrc:08x}")])
+        .args([
+            "--to",
+            &receiver.addr(),
+            "--ssrc",
+            &format!("{fresh_ssrc:08x}"),
+        ])
         .env("LIPCALL_KEY", key));
     let (_, stderr) = receiver.finish(Duration::from_secs(30), "lipcall receive");
 

@@ -259,7 +259,9 @@ fn a_janus_room_keeps_its_secret_token_pin_and_turn_password_out_of_sight() {
     );
     // ureq logs each long poll's URL, its credentials in the query: they pass the redaction.
     assert!(
-        watched.stderr.contains("apisecret=(redacted)&token=(redacted)"),
+        watched
+            .stderr
+            .contains("apisecret=(redacted)&token=(redacted)"),
         "{}",
         watched.tail()
     );
@@ -289,10 +291,8 @@ fn a_mumble_servers_password_stays_out_of_sight() {
         return;
     }
     let dir = tempfile::tempdir().unwrap();
-    let murmur = common::mumble::Murmur::start(
-        dir.path(),
-        &format!("serverpassword={MUMBLE_PASSWORD}"),
-    );
+    let murmur =
+        common::mumble::Murmur::start(dir.path(), &format!("serverpassword={MUMBLE_PASSWORD}"));
     let speech = repo_file("assets/speech/demo.wav");
     let address = murmur.address();
     let args = [

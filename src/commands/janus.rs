@@ -71,7 +71,8 @@ fn print_notices(notices: &[Notice]) {
 fn pin_hint(e: JanusError) -> anyhow::Error {
     match &e {
         JanusError::Plugin { code, reason } if *code == 433 || reason.contains("pin") => {
-            anyhow::Error::new(e).context("the room has a pin: set LIPCALL_KEY or give --key-file FILE")
+            anyhow::Error::new(e)
+                .context("the room has a pin: set LIPCALL_KEY or give --key-file FILE")
         }
         _ => e.into(),
     }
@@ -205,8 +206,7 @@ impl JanusServerArgs {
         let given = |secret: Option<Zeroizing<String>>| secret.map(|s| s.as_str().to_owned());
         let turn = match &self.turn {
             Some(server) => {
-                let Some(password) = TURN_PASSWORD.read(self.turn_password_file.as_deref())?
-                else {
+                let Some(password) = TURN_PASSWORD.read(self.turn_password_file.as_deref())? else {
                     bail!(
                         "--turn {server} needs its password: {}",
                         TURN_PASSWORD.how_to_give()
@@ -344,21 +344,16 @@ pub fn send_command(command: &SendCommand) -> Result<()> {
         super::mumble::MumbleArgs::from_flags(&command.mumble, call.name.as_deref())?
     {
         if !call.to.is_empty() || call.room.is_some() || call.key.named() {
-            bail!(
-                "--mumble joins a Mumble server: it does not go with --to, --room or a key file"
-            );
+            bail!("--mumble joins a Mumble server: it does not go with --to, --room or a key file");
         }
         return super::mumble::send(&call.input, &mumble, call.seconds);
     }
     match &command.janus {
         Some(url) => send(
             &call.input,
-            &command.server.room_args(
-                url,
-                call.room.as_ref(),
-                call.name.as_ref(),
-                &call.key,
-            )?,
+            &command
+                .server
+                .room_args(url, call.room.as_ref(), call.name.as_ref(), &call.key)?,
             call.seconds,
         ),
         None => super::net::send(call),

@@ -71,9 +71,7 @@ impl KeyArgs {
                 HEX_KEY.how_to_give()
             ),
             (Some(p), None) => Ok(Some(MasterKey::from_passphrase(&p, room.unwrap_or("")))),
-            (None, Some(h)) => Ok(Some(
-                MasterKey::from_hex(h.trim()).context(HEX_KEY.flag)?,
-            )),
+            (None, Some(h)) => Ok(Some(MasterKey::from_hex(h.trim()).context(HEX_KEY.flag)?)),
             (None, None) => Ok(None),
         }
     }

@@ -193,13 +193,24 @@ mod tests {
         );
         let json = r#"{"janus":"message","apisecret":"s3cr3t-api","body":{"request":"join","pin": "my pin","ptype":"publisher"}}"#;
         let shown = redact(json);
-        assert!(!shown.contains("s3cr3t-api") && !shown.contains("my"), "{shown}");
+        assert!(
+            !shown.contains("s3cr3t-api") && !shown.contains("my"),
+            "{shown}"
+        );
         assert!(shown.contains(r#""request":"join""#), "{shown}");
         let debug = r#"Authenticate { username: Some("ann"), password: Some("hunter2"), api_secret: \"x1\" }"#;
         let shown = redact(debug);
-        assert!(!shown.contains("hunter2") && !shown.contains("x1"), "{shown}");
+        assert!(
+            !shown.contains("hunter2") && !shown.contains("x1"),
+            "{shown}"
+        );
         assert!(shown.contains(r#"username: Some("ann")"#), "{shown}");
-        for kept in ["pings: 3", "spin=4", "the token_auth plugin", "secrets.rs:12"] {
+        for kept in [
+            "pings: 3",
+            "spin=4",
+            "the token_auth plugin",
+            "secrets.rs:12",
+        ] {
             assert!(matches!(redact(kept), Cow::Borrowed(_)), "{kept}");
         }
     }
