@@ -263,6 +263,8 @@ pub struct SendArgs {
 }
 
 pub fn send(args: &SendArgs) -> Result<()> {
+    // The key first: core dumps are off from then on.
+    let key = args.key.master_key(args.room.as_deref())?;
     let payloads = payload_map(&args.payload_types)?;
     let mut settings = EncoderSettings::wideband(args.bandwidth);
     settings.speex.quality = args.quality;
@@ -274,7 +276,6 @@ pub fn send(args: &SendArgs) -> Result<()> {
         bail!("no RTP payload type is mapped to {codec} (--pt took it)");
     }
     let to = resolve(&args.to)?;
-    let key = args.key.master_key(args.room.as_deref())?;
     announce_security(&key);
     let mut config = SessionConfig::new(any_port_like(to));
     config.destinations = vec![to];
