@@ -170,10 +170,11 @@ fn a_keyed_direct_call_keeps_its_passphrase_and_hex_key_out_of_sight() {
         move || {
             watch(
                 &config,
-                &["receive", "--listen", &listen, "--seconds", "4"],
+                // It ends once the sender has said BYE.
+                &["receive", "--listen", &listen, "--seconds", "25"],
                 &[("LIPCALL_KEY", ROOM_KEY)],
                 Duration::from_millis(800),
-                Duration::from_secs(30),
+                Duration::from_secs(40),
             )
         }
     });
@@ -236,7 +237,7 @@ fn a_janus_room_keeps_its_secret_token_pin_and_turn_password_out_of_sight() {
             "--room",
             "1234",
             "--seconds",
-            "6",
+            "10",
             "--janus-token-file",
             &token_file,
             "--turn",
