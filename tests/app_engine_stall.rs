@@ -1,11 +1,13 @@
 //! The app's engine never waits on a peer or a server: dialling a SIP host that never answers,
 //! leaving a Janus room whose server hangs, and joining a Mumble server that accepts and says
 //! nothing all happen off the worker, whose every pass comes within 50 ms of the last (a pass
-//! that blocks holds up every peer's audio and face).
+//! that blocks holds up every peer's audio and face). So does looking up the host of a call
+//! when the resolver never answers.
 
 mod common;
 
 use std::net::{TcpListener, UdpSocket};
+use std::process::Command as Process;
 use std::time::{Duration, Instant};
 
 use lipcall::app::engine::{CallSpec, Command, Engine, lock};
@@ -135,4 +137,136 @@ fn leaving_the_room_of_a_hung_janus_never_stalls_the_engine() {
     engine.send(Command::Leave);
     let leaving = longest_pass_within(&engine, Duration::from_secs(4));
     assert!(leaving < STALL, "longest pass while leaving {leaving:?}");
+}
+
+/// Set, to the silent resolver's address, in the run of a test inside a mount namespace whose
+/// `/etc/resolv.conf` names that resolver.
+const SILENT_RESOLVER: &str = "LIPCALL_TEST_SILENT_RESOLVER";
+
+/// A name only DNS could answer (no hosts file or mDNS has it).
+const SLOW_NAME: &str = "slow.lipcall.test";
+
+/// Runs the test `test` again, alone, in a mount namespace of its own whose resolver is a
+/// socket on loopback that never answers (glibc then waits 2 s per try, 2 tries). True when
+/// it ran there and passed: the caller returns; false when this is that run. Needs root (a
+/// mount namespace, port 53): elsewhere the test says why, and fails under CI.
+fn ran_with_a_silent_resolver(test: &str) -> bool {
+    if std::env::var_os(SILENT_RESOLVER).is_some() {
+        return false;
+    }
+    let probe = Process::new("unshare").args(["--mount", "true"]).output();
+    if !probe.is_ok_and(|o| o.status.success()) {
+        common::unavailable("a mount namespace of its own (`unshare --mount`, root)");
+        return true;
+    }
+    // An address of loopback's own for each test process, so that parallel runs never meet.
+    let pid = std::process::id();
+    let resolver = format!("127.83.{}.{}", (pid >> 8) & 0xff, (pid & 0xff).max(1));
+    let dir = tempfile::tempdir().unwrap();
+    let conf = dir.path().join("resolv.conf");
+    std::fs::write(
+        &conf,
+        format!("nameserver {resolver}\noptions timeout:2 attempts:2\n"),
+    )
+    .unwrap();
+    let run = Process::new("unshare")
+        .args(["--mount", "--propagation", "private", "sh", "-c"])
+        .arg(r#"mount --bind "$0" /etc/resolv.conf && exec "$@""#)
+        .arg(&conf)
+        .arg(std::env::current_exe().unwrap())
+        .args(["--exact", test, "--nocapture", "--test-threads=1"])
+        .env(SILENT_RESOLVER, &resolver)
+        .output()
+        .unwrap();
+    eprintln!(
+        "--- in its own mount namespace:\n{}{}",
+        String::from_utf8_lossy(&run.stdout),
+        String::from_utf8_lossy(&run.stderr)
+    );
+    assert!(run.status.success(), "{test} failed with a silent resolver");
+    assert!(
+        String::from_utf8_lossy(&run.stdout).contains("1 passed"),
+        "{test} did not run in its namespace"
+    );
+    true
+}
+
+#[test]
+fn calling_a_host_whose_resolver_never_answers_never_stalls_the_engine() {
+    let test = "calling_a_host_whose_resolver_never_answers_never_stalls_the_engine";
+    if ran_with_a_silent_resolver(test) {
+        return;
+    }
+    let resolver = std::env::var(SILENT_RESOLVER).unwrap();
+    // Takes the queries and never answers (no "port unreachable" either).
+    let _silent = UdpSocket::bind((resolver.as_str(), 53)).expect("port 53 on loopback (root)");
+    let engine = common::app::headless_engine("Eve", None);
+    engine.counters.take_longest_pass();
+    let mut longest = Vec::new();
+    for (address, how) in [
+        (format!("{SLOW_NAME}:4000"), "a direct call"),
+        (format!("sip:bob@{SLOW_NAME}"), "a SIP call"),
+    ] {
+        call(&engine, &address, None);
+        let looking = longest_pass_within(&engine, Duration::from_secs(1));
+        let state = lock(&engine.shared).call.state.clone();
+        eprintln!("{how}: longest pass in its first second {looking:?}; {state}");
+        assert!(state.contains(SLOW_NAME), "{how}: {state}");
+        // The resolver gives up (2 tries of 2 s); the call fails naming the host.
+        wait_for(&engine, "the look-up failed", |e| {
+            let s = lock(&e.shared);
+            s.call.error.is_some() && !s.call.state.contains("looking up")
+        });
+        let failed = engine.counters.take_longest_pass().max(looking);
+        let error = lock(&engine.shared).call.error.clone().unwrap();
+        eprintln!("{how}: longest pass {failed:?}; {error}");
+        assert!(error.contains(SLOW_NAME), "{how}: {error}");
+        longest.push((how, failed));
+    }
+    // An account at a registrar of that name: its listener is opened off the worker too.
+    let account = Account::parse(&format!("sip:eve@{SLOW_NAME}"), "not-a-secret").unwrap();
+    engine.send(Command::Phone(PhoneCommand::Account(Some(account))));
+    wait_for(&engine, "the registration failed", |e| {
+        lock(&e.shared)
+            .phone
+            .registration
+            .starts_with("not registered")
+    });
+    let registering = engine.counters.take_longest_pass();
+    let registration = lock(&engine.shared).phone.registration.clone();
+    eprintln!("an account: longest pass {registering:?}; {registration}");
+    assert!(registration.contains(SLOW_NAME), "{registration}");
+    longest.push(("an account", registering));
+    engine.send(Command::Phone(PhoneCommand::Account(None)));
+    // A look-up forgotten: leaving while it waits ends the call at once; nothing follows.
+    call(&engine, &format!("{SLOW_NAME}:4000"), None);
+    std::thread::sleep(Duration::from_millis(300));
+    engine.send(Command::Leave);
+    let left = longest_pass_within(&engine, Duration::from_secs(6));
+    let s = lock(&engine.shared).call.clone();
+    assert!(
+        s.state.starts_with("not in a call") && s.error.is_none(),
+        "after leaving: {s:?}"
+    );
+    longest.push(("leaving", left));
+    assert!(
+        longest.iter().all(|(_, pass)| *pass < STALL),
+        "longest passes: {longest:?}"
+    );
+}
+
+/// A name the resolver knows at once (the hosts file's `localhost`) takes the same road: the
+/// call is placed when the answer comes back to the worker.
+#[test]
+fn a_direct_call_to_a_name_is_placed_once_the_name_is_found() {
+    let peer = UdpSocket::bind("127.0.0.1:0").unwrap();
+    let port = peer.local_addr().unwrap().port();
+    let engine = common::app::headless_engine("Eve", None);
+    call(&engine, &format!("localhost:{port}"), None);
+    wait_for(&engine, "calling the address found", |e| {
+        lock(&e.shared).call.state.starts_with("calling ")
+    });
+    let status = lock(&engine.shared).call.clone();
+    assert!(status.in_call && status.error.is_none(), "{status:?}");
+    assert!(status.state.contains(&port.to_string()), "{status:?}");
 }

@@ -4,6 +4,7 @@
 //! sees it through [`Shared`] (one short lock per UI frame) and steers it with [`Command`]s.
 //! Its SIP phone's hooks are in `engine/sip.rs`.
 
+mod lookup;
 mod news;
 mod sip;
 
@@ -24,7 +25,7 @@ use crate::call::link::Link;
 use crate::call::mumble::is_mumble_url;
 use crate::codec::any::{Codec, EncoderSettings, FrameEncoder, MAX_FRAME_PAYLOAD};
 use crate::codec::opus::codec::Bandwidth;
-use crate::net::host_port::resolve_with_port;
+use crate::net::host_port::{HostPort, resolve_with_port};
 use crate::net::janus::candidates::IceServers;
 use crate::net::janus::messages::JanusAuth;
 use crate::net::janus::room::RoomConfig;
@@ -36,6 +37,7 @@ use crate::vocab::MAX_FRAME_SAMPLES;
 pub use super::call_status::{CallStatus, Encryption};
 pub use super::counters::{DEMO_NAME, EngineCounters};
 use super::demo::Demo;
+use super::lookup::Lookups;
 use super::mumble_call::{MumbleCall, MumbleJoin, MumbleView};
 use super::retire::Retirer;
 use super::roster::Roster;
@@ -240,6 +242,16 @@ struct Worker {
     call_label: String,
     mumble: Option<MumbleCall>,
     phone: SipPhone,
+    /// The host of a call being placed, being looked up.
+    lookups: Lookups<Then>,
+}
+
+/// What follows a call's host being found ([`Lookups`]).
+enum Then {
+    /// A direct call (or a relay's room) to the address.
+    Direct(Box<CallSpec>),
+    /// A SIP call to `target`, from the local address found.
+    Sip { target: String },
 }
 
 /// The call's label when nothing names it otherwise.
@@ -273,6 +285,7 @@ impl Worker {
             call_label: CALL.into(),
             mumble: None,
             phone: SipPhone::default(),
+            lookups: Lookups::default(),
             config,
             shared,
             counters,
@@ -367,7 +380,20 @@ impl Worker {
         if is_sip_address(&spec.address) {
             return self.dial_sip(spec);
         }
+        let host = HostPort::parse(spec.address.trim())?;
+        if host.ip().is_none() && host.port.is_some() {
+            let address = spec.address.clone();
+            let then = Then::Direct(Box::new(spec.clone()));
+            return self.look_up(&host.host, then, move || {
+                resolve_with_port(&address).map_err(|e| e.to_string())
+            });
+        }
         let to = resolve_with_port(&spec.address)?;
+        self.call_direct(spec, to)
+    }
+
+    /// A call (or a relay's room) at `to`, an address found.
+    fn call_direct(&mut self, spec: &CallSpec, to: SocketAddr) -> anyhow::Result<()> {
         let room = spec.room.clone().filter(|r| !r.trim().is_empty());
         let key = spec
             .passphrase
@@ -500,8 +526,14 @@ impl Worker {
 
     fn handle(&mut self, command: Command) {
         let result = match command {
-            Command::Call(spec) => self.call(&spec),
-            Command::Leave => self.leave(),
+            Command::Call(spec) => {
+                self.lookups.forget();
+                self.call(&spec)
+            }
+            Command::Leave => {
+                self.lookups.forget();
+                self.leave()
+            }
             Command::Channel(id) => self.mumble.as_ref().map_or(Ok(()), |m| m.join_channel(id)),
             Command::Phone(command) => self.phone_command(command),
             Command::SetInput(choice) => {
@@ -552,6 +584,7 @@ impl Worker {
                 }
             }
             self.send_mic();
+            self.follow_lookup();
             self.follow_link();
             self.refresh_mumble();
             self.follow_phone();

@@ -11,6 +11,7 @@ mod channel_panel;
 pub mod counters;
 mod demo;
 pub mod engine;
+mod lookup;
 pub mod mumble_call;
 pub mod peer;
 pub mod peer_panel;

@@ -4,9 +4,10 @@
 
 use std::sync::mpsc::{Receiver, SyncSender, TrySendError, sync_channel};
 use std::thread::JoinHandle;
-use std::time::{Duration, Instant};
+use std::time::Duration;
 
 use crate::call::link::Link;
+use crate::net::join::join_within;
 
 /// Links waiting to be hung up at most; past it the worker hangs up itself (a user who ends
 /// calls faster than servers answer waits, rather than threads or memory growing).
@@ -62,19 +63,8 @@ fn hang_up_each(waiting: &Receiver<Box<dyn Link>>) {
 impl Drop for Retirer {
     fn drop(&mut self) {
         self.links = None;
-        let deadline = Instant::now() + LAST_WORDS;
-        while let Some(thread) = &self.thread {
-            if thread.is_finished() {
-                if let Some(thread) = self.thread.take() {
-                    let _ = thread.join();
-                }
-                return;
-            }
-            if Instant::now() >= deadline {
-                tracing::warn!("calls still hanging up at exit: left to end with the process");
-                return;
-            }
-            std::thread::sleep(Duration::from_millis(10));
+        if !join_within(&mut self.thread, LAST_WORDS) {
+            tracing::warn!("calls still hanging up at exit: left to end with the process");
         }
     }
 }

@@ -6,13 +6,14 @@
 //! every link's; the phone keeps the call's [`SipHandle`] for the keypad.
 
 use std::net::SocketAddr;
+use std::sync::mpsc::{Receiver, TryRecvError, sync_channel};
 use std::time::{Duration, Instant};
 
 use crate::call::link::{Link, LinkEvent};
 use crate::call::sip::{CallState, SipHandle, SipLink};
 use crate::codec::any::Codec;
 use crate::net::backoff::Backoff;
-use crate::net::sip::address::bind_towards;
+use crate::net::sip::address::{bind_towards, host_port};
 use crate::net::sip::agent::{Account, Decision, Role, SipError, codecs};
 use crate::secrets::forbid_core_dumps;
 
@@ -104,6 +105,8 @@ pub fn dial_target(address: &str, account: Option<&Account>) -> Result<String, S
 pub struct SipPhone {
     account: Option<Account>,
     listener: Option<SipLink>,
+    /// A listener being opened off the engine's worker (the registrar's name looked up).
+    opening: Option<Receiver<Result<SipLink, SipError>>>,
     /// When a failed listener is tried again.
     retry_at: Option<Instant>,
     retry: Backoff,
@@ -117,6 +120,7 @@ impl Default for SipPhone {
         Self {
             account: None,
             listener: None,
+            opening: None,
             retry_at: None,
             retry: Backoff::new(LISTEN_RETRY, LISTEN_RETRY_MAX),
             call: None,
@@ -130,16 +134,23 @@ impl SipPhone {
         &self.status
     }
 
-    /// A SIP call to `address`; the listener stops while it runs (the call's own agent
-    /// registers the account and refuses other callers).
-    pub fn dial(&mut self, address: &str) -> anyhow::Result<PhoneTurn> {
+    /// Where a SIP call to `address` goes: the target URI, and the `HOST[:PORT]` whose route
+    /// the call's sockets take (the account's registrar, or the callee's host), to be looked up.
+    pub fn dial_plan(&self, address: &str) -> anyhow::Result<(String, String)> {
         let target = dial_target(address, self.account.as_ref()).map_err(anyhow::Error::msg)?;
-        self.stop_listener();
         let towards = self
             .account
             .as_ref()
             .map_or(target.as_str(), |a| a.registrar());
-        let bind = bind_towards(towards)?;
+        let towards = host_port(towards).to_owned();
+        Ok((target, towards))
+    }
+
+    /// A SIP call to `target` from `bind` (the local address towards its host); the listener
+    /// stops while it runs (the call's own agent registers the account and refuses other
+    /// callers).
+    pub fn dial_from(&mut self, target: String, bind: SocketAddr) -> anyhow::Result<PhoneTurn> {
+        self.stop_listener();
         let role = Role::Call(target.clone());
         let link = SipLink::open(bind, self.account.clone(), role, codecs(None), false, None)?;
         Ok(self.take_call(link, format!("calling {target}…")))
@@ -223,6 +234,8 @@ impl SipPhone {
     }
 
     fn stop_listener(&mut self) {
+        // One still opening is dropped on its thread, once its answer finds no one to take it.
+        self.opening = None;
         if let Some(mut listener) = self.listener.take() {
             // Its unregistering waits on the registrar: not on the engine's worker.
             let stopping = std::thread::Builder::new()
@@ -248,14 +261,27 @@ impl SipPhone {
     fn follow_listener(&mut self, busy: bool, now: Instant) {
         let Some(account) = &self.account else { return };
         let Some(listener) = &mut self.listener else {
-            if self.retry_at.is_none_or(|t| now >= t) {
-                self.retry_at = None;
-                match listen(account) {
+            if let Some(opening) = &self.opening {
+                let opened = match opening.try_recv() {
+                    Ok(opened) => opened,
+                    Err(TryRecvError::Empty) => return,
+                    Err(TryRecvError::Disconnected) => Err(SipError::Thread(
+                        "the SIP listener stopped while opening".into(),
+                    )),
+                };
+                self.opening = None;
+                match opened {
                     Ok(listener) => {
                         self.status.registration =
                             format!("registering with {}…", account.registrar());
                         self.listener = Some(listener);
                     }
+                    Err(e) => self.listen_failed(&e.to_string(), now),
+                }
+            } else if self.retry_at.is_none_or(|t| now >= t) {
+                self.retry_at = None;
+                match open_listener(account.clone()) {
+                    Ok(opening) => self.opening = Some(opening),
                     Err(e) => self.listen_failed(&e.to_string(), now),
                 }
             }
@@ -306,6 +332,19 @@ impl SipPhone {
         );
         self.retry_at = Some(now + wait);
     }
+}
+
+/// Opens the account's listener on a thread of its own: looking up the registrar can take
+/// as long as the resolver does.
+fn open_listener(account: Account) -> Result<Receiver<Result<SipLink, SipError>>, SipError> {
+    let (tell, opened) = sync_channel(1);
+    std::thread::Builder::new()
+        .name("sip-listener-open".into())
+        .spawn(move || {
+            let _ = tell.send(listen(&account));
+        })
+        .map_err(|e| SipError::Thread(e.to_string()))?;
+    Ok(opened)
 }
 
 /// The account's listener: registered, ringing the user with the first call.

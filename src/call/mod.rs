@@ -3,6 +3,7 @@
 //! poses, the one opener of media files, and the CSV formats.
 
 pub mod csv;
+pub mod events;
 pub mod janus;
 pub mod link;
 pub mod media;

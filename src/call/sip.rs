@@ -10,6 +10,7 @@ use std::sync::atomic::{AtomicBool, Ordering};
 use std::sync::{Arc, Mutex};
 use std::time::{Duration, Instant};
 
+use super::events::LinkEvents;
 use super::link::{Link, LinkEvent};
 use super::media::Packets;
 use crate::codec::any::{Codec, EncoderSettings, FrameEncoder, MAX_FRAME_PAYLOAD};
@@ -21,6 +22,9 @@ use crate::net::stun;
 
 /// How long a hang-up waits for the peer to confirm it.
 const HANG_UP_WAIT: Duration = Duration::from_secs(3);
+/// Events waiting for a poll at most (a peer's flood of provisional answers or re-INVITEs
+/// between two polls drops the oldest progress lines, never the call's start or end).
+const MOST_EVENTS: usize = 64;
 /// Our side of the call is silence once its owner has sent nothing for this long
 /// ([`SipLink::keep_stream`]).
 const QUIET_AFTER: Duration = Duration::from_millis(60);
@@ -60,7 +64,7 @@ pub struct SipLink {
     ringing: Option<String>,
     /// What happened since the last poll: progress lines for the user (registered, ringing,
     /// a caller), the media agreed, the call's start and end.
-    events: Vec<LinkEvent>,
+    events: LinkEvents,
     handle: SipHandle,
     /// Silence sent where the owner sends nothing ([`SipLink::keep_stream`]).
     quiet: Option<QuietFill>,
@@ -167,7 +171,7 @@ impl SipLink {
             peer,
             asks,
             ringing: None,
-            events: Vec::new(),
+            events: LinkEvents::new(MOST_EVENTS),
             handle: SipHandle::default(),
             quiet: None,
             media_told: None,
@@ -201,11 +205,13 @@ impl SipLink {
             .map_or_else(|| UdpSocket::bind(rtp_bind), Ok)
             .map_err(|e| cannot(e.to_string()))?;
         let local_rtcp = rtcp.local_addr().map_err(|e| cannot(e.to_string()))?;
+        let (addr, rtcp_addr) = match stun {
+            Some(server) => media_addresses([(&socket, local), (&rtcp, local_rtcp)], server),
+            None => (local, local_rtcp),
+        };
         let audio = LocalAudio {
-            addr: stun.map_or(local, |server| media_address(&socket, server, local)),
-            rtcp: Some(stun.map_or(local_rtcp, |server| {
-                media_address(&rtcp, server, local_rtcp)
-            })),
+            addr,
+            rtcp: Some(rtcp_addr),
             codecs,
             session_id: std::time::SystemTime::now()
                 .duration_since(std::time::UNIX_EPOCH)
@@ -537,19 +543,36 @@ impl SipLink {
     }
 }
 
-/// Where peers are to send our media: the address `server` (STUN) sees our RTP socket at,
-/// behind a NAT; the socket's own address when it cannot tell.
-fn media_address(socket: &UdpSocket, server: &str, local: SocketAddr) -> SocketAddr {
-    match stun::ask(socket, server, local) {
-        Ok((server, public)) => {
-            tracing::info!("STUN server {server}: our media address outside is {public}");
-            public
-        }
+/// Where peers are to send our media (RTP, RTCP): the addresses `server` (STUN) sees our
+/// sockets at, behind a NAT, both asked at once; a socket's own address where it cannot tell.
+fn media_addresses(
+    [(rtp, local_rtp), (rtcp, local_rtcp)]: [(&UdpSocket, SocketAddr); 2],
+    server: &str,
+) -> (SocketAddr, SocketAddr) {
+    let server = match stun::resolve_server(server, local_rtp) {
+        Ok(server) => server,
         Err(e) => {
             tracing::warn!("{e}: the SDP gives the local media address");
-            local
+            return (local_rtp, local_rtcp);
         }
-    }
+    };
+    let asked = stun::reflexive_addresses(&[rtp, rtcp], server, stun::ASK_WAIT);
+    let outside =
+        |local: SocketAddr, asked: Option<&Result<SocketAddr, stun::StunError>>| match asked {
+            Some(Ok(public)) => {
+                tracing::info!("STUN server {server}: our media address outside is {public}");
+                *public
+            }
+            Some(Err(e)) => {
+                tracing::warn!("{e}: the SDP gives the local media address");
+                local
+            }
+            None => local,
+        };
+    (
+        outside(local_rtp, asked.first()),
+        outside(local_rtcp, asked.get(1)),
+    )
 }
 
 impl Link for SipLink {
@@ -636,7 +659,7 @@ impl Link for SipLink {
 
     fn poll(&mut self) -> Vec<LinkEvent> {
         self.follow(Duration::ZERO);
-        std::mem::take(&mut self.events)
+        self.events.take()
     }
 
     fn over(&self) -> bool {

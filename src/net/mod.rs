@@ -17,6 +17,7 @@ pub mod control;
 pub mod host_port;
 pub mod janus;
 pub mod jitter;
+pub mod join;
 pub mod mumble;
 pub mod peer;
 pub mod relay;

@@ -24,10 +24,10 @@ use ezk_stun_types::attributes::{
 use ezk_stun_types::{Class, Message, MessageBuilder, Method, TransactionId};
 
 use crate::net::addr::media_target;
+use crate::net::backoff::Backoff;
+use crate::net::stun::Retransmit;
 
-/// RFC 8489's first retransmission timeout, doubled on each retry.
-const FIRST_RTO: Duration = Duration::from_millis(250);
-/// A request unanswered this long has failed.
+/// A request unanswered this long has failed (its retransmissions: [`Retransmit`]).
 const REQUEST_TIMEOUT: Duration = Duration::from_secs(8);
 /// Permissions last 300 s (RFC 8656 9); renewed this long before.
 const PERMISSION_LIFETIME: Duration = Duration::from_secs(300);
@@ -42,6 +42,7 @@ const ASKED_LIFETIME: u32 = 600;
 /// each failure up to [`LONGEST_RETRY`].
 const FIRST_RETRY: Duration = Duration::from_secs(5);
 const LONGEST_RETRY: Duration = Duration::from_secs(60);
+const RETRIES: Backoff = Backoff::new(FIRST_RETRY, LONGEST_RETRY);
 /// Peers the relay is asked to let through (permissions held and being retried) at most.
 const MOST_PEERS: usize = 32;
 /// IANA's protocol number for UDP, the transport we ask the relay for.
@@ -87,9 +88,7 @@ struct Pending {
     id: TransactionId,
     request: Request,
     bytes: Vec<u8>,
-    next: Instant,
-    rto: Duration,
-    deadline: Instant,
+    timer: Retransmit,
     /// Sent again with fresh credentials once already (a second 401 means they are wrong).
     authenticated_again: bool,
 }
@@ -112,14 +111,14 @@ pub struct TurnClient {
     expires: Option<Instant>,
     /// When the next Refresh goes out (none while one is on its way).
     renew_at: Option<Instant>,
-    /// The wait before a failed Refresh is tried again.
-    refresh_retry: Duration,
+    /// The waits before a failed Refresh is tried again.
+    refresh_retry: Backoff,
     failed: Option<TurnError>,
     /// Peers the relay lets through, and when each permission runs out.
     permissions: HashMap<IpAddr, Instant>,
-    /// Peers whose permission failed: not asked again before the instant, and the wait that
-    /// led there (doubled on the next failure).
-    permission_retry: HashMap<IpAddr, (Instant, Duration)>,
+    /// Peers whose permission failed: not asked again before the instant, and the waits
+    /// after their next failures.
+    permission_retry: HashMap<IpAddr, (Instant, Backoff)>,
     pending: Vec<Pending>,
     outbox: VecDeque<Vec<u8>>,
 }
@@ -133,7 +132,7 @@ impl TurnClient {
             relayed: None,
             expires: None,
             renew_at: None,
-            refresh_retry: FIRST_RETRY,
+            refresh_retry: RETRIES,
             failed: None,
             permissions: HashMap::new(),
             permission_retry: HashMap::new(),
@@ -254,7 +253,7 @@ impl TurnClient {
         let lifetime = lifetime.min(MAX_LIFETIME);
         self.expires = Some(now + lifetime);
         self.renew_at = Some(now + lifetime.saturating_sub(RENEW_BEFORE).max(lifetime / 2));
-        self.refresh_retry = FIRST_RETRY;
+        self.refresh_retry.reset();
     }
 
     /// The allocation is over (said where it was in use: a refused one is said by its asker).
@@ -275,17 +274,17 @@ impl TurnClient {
     /// A Refresh was refused or never answered: tried again after a wait that doubles (the
     /// allocation ends when it expires meanwhile).
     fn refresh_failed(&mut self, now: Instant) {
-        self.renew_at = Some(now + self.refresh_retry);
-        self.refresh_retry = (self.refresh_retry * 2).min(LONGEST_RETRY);
+        self.renew_at = Some(now + self.refresh_retry.next_wait());
     }
 
     /// A permission was refused or never answered: not asked again for a wait that doubles.
     fn permission_failed(&mut self, ip: IpAddr, now: Instant) {
-        let wait = self
+        let mut retries = self
             .permission_retry
-            .get(&ip)
-            .map_or(FIRST_RETRY, |&(_, last)| (last * 2).min(LONGEST_RETRY));
-        self.permission_retry.insert(ip, (now + wait, wait));
+            .remove(&ip)
+            .map_or(RETRIES, |(_, retries)| retries);
+        let wait = retries.next_wait();
+        self.permission_retry.insert(ip, (now + wait, retries));
     }
 
     fn refused(&mut self, pending: Pending, message: &mut Message, now: Instant) {
@@ -399,7 +398,7 @@ impl TurnClient {
 
     /// When [`Self::handle_timeout`] has something to do.
     pub fn poll_timeout(&self) -> Option<Instant> {
-        let retries = self.pending.iter().map(|p| p.next.min(p.deadline));
+        let retries = self.pending.iter().map(|p| p.timer.wake());
         let allocation = self
             .relayed()
             .and(self.renew_at.into_iter().chain(self.expires).min());
@@ -411,15 +410,13 @@ impl TurnClient {
     pub fn handle_timeout(&mut self, now: Instant) {
         let mut gave_up = Vec::new();
         for p in &mut self.pending {
-            if p.deadline <= now {
+            if p.timer.expired(now) {
                 gave_up.push(p.request);
-            } else if p.next <= now {
+            } else if p.timer.resend(now) {
                 self.outbox.push_back(p.bytes.clone());
-                p.rto *= 2;
-                p.next = now + p.rto;
             }
         }
-        self.pending.retain(|p| p.deadline > now);
+        self.pending.retain(|p| !p.timer.expired(now));
         for request in gave_up {
             match request {
                 Request::Allocate => self.failed = Some(TurnError::NoAnswer(self.config.server)),
@@ -477,9 +474,7 @@ impl TurnClient {
             id,
             request,
             bytes,
-            next: now + FIRST_RTO,
-            rto: FIRST_RTO,
-            deadline: now + REQUEST_TIMEOUT,
+            timer: Retransmit::new(now, REQUEST_TIMEOUT),
             authenticated_again: again,
         });
     }
@@ -647,7 +642,8 @@ pub(crate) mod tests {
             c.failed(),
             Some(&TurnError::NoAnswer(SERVER.parse().unwrap()))
         );
-        assert!(sent >= 4, "{sent}");
+        // RFC 8489's Rc: 7 sends, 250 ms apart at first, then doubling to 2 s.
+        assert_eq!(sent, 7);
         assert!(t <= now + REQUEST_TIMEOUT + Duration::from_millis(1));
     }
 
@@ -771,9 +767,9 @@ pub(crate) mod tests {
                 Method::Allocate => Some(granted(r, 600)),
                 _ => answered.then(|| refused(r, 500)),
             });
-            // Refused: at 540, 545, 555 and 575 s; unanswered: each retransmitted 6 times
-            // in the 8 s it is waited for.
-            let most = if answered { 4 } else { 4 * 6 };
+            // Refused: at 540, 545, 555 and 575 s; unanswered: each sent 7 times (RFC 8489's
+            // Rc) in the 8 s it is waited for.
+            let most = if answered { 4 } else { 4 * 7 };
             assert!(count(&sent, Method::Refresh) <= most, "{sent:?}");
             assert_eq!(
                 c.failed(),

@@ -2,16 +2,33 @@
 //! becomes the worker's link; like every link's, its progress, media and end come through the
 //! engine's one route (`engine/news.rs`).
 
+use std::net::SocketAddr;
 use std::time::Instant;
 
-use super::{CallSpec, CallStatus, Worker, lock};
+use super::{CallSpec, CallStatus, Then, Worker, lock};
 use crate::app::sip_call::{PhoneCommand, PhoneTurn};
 use crate::app::timing::RelayWatch;
 use crate::codec::any::{EncoderSettings, FrameEncoder};
+use crate::net::host_port::HostPort;
+use crate::net::sip::address::bind_towards;
 
 impl Worker {
+    /// A SIP call: its host is looked up off the worker, then [`Worker::dial_from`].
     pub(super) fn dial_sip(&mut self, spec: &CallSpec) -> anyhow::Result<()> {
-        let turn = self.phone.dial(&spec.address);
+        let (target, towards) = self.phone.dial_plan(&spec.address)?;
+        if HostPort::parse(&towards).is_ok_and(|h| h.ip().is_some()) {
+            let bind = bind_towards(&towards)?;
+            return self.dial_from(target, bind);
+        }
+        let host = towards.clone();
+        self.look_up(&host, Then::Sip { target }, move || {
+            bind_towards(&towards).map_err(|e| e.to_string())
+        })
+    }
+
+    /// A SIP call to `target` from `bind`, the local address towards its host.
+    pub(super) fn dial_from(&mut self, target: String, bind: SocketAddr) -> anyhow::Result<()> {
+        let turn = self.phone.dial_from(target, bind);
         self.show_phone();
         self.apply(turn?)
     }

@@ -516,21 +516,13 @@ impl Member {
     /// left to finish on its own (Janus then times the session out).
     pub fn leave(mut self) -> Result<(), JanusError> {
         self.stop.store(true, Ordering::Relaxed);
-        let Some(thread) = self.signalling.take() else {
+        if crate::net::join::join_within(&mut self.signalling, LEAVE_WAIT) {
             return Ok(());
-        };
-        let deadline = Instant::now() + LEAVE_WAIT;
-        while !thread.is_finished() {
-            if Instant::now() >= deadline {
-                return Err(JanusError::Timeout(format!(
-                    "Janus did not confirm the leave within {} ms",
-                    LEAVE_WAIT.as_millis()
-                )));
-            }
-            std::thread::sleep(Duration::from_millis(5));
         }
-        let _ = thread.join();
-        Ok(())
+        Err(JanusError::Timeout(format!(
+            "Janus did not confirm the leave within {} ms",
+            LEAVE_WAIT.as_millis()
+        )))
     }
 }
 

@@ -20,6 +20,7 @@ use super::MumbleError;
 use super::client::{Channel, ClientConfig, ClientCore, ClientEvent, ClientStats};
 use super::events::Member;
 use super::identity::{Identity, KnownServers, Trust, fingerprint};
+use crate::net::backoff::Backoff;
 use crate::net::host_port::{AddressError, HostPort};
 use crate::net::peer::ReceiverStats;
 use crate::net::session::PeerFrame;
@@ -476,15 +477,7 @@ impl Connection {
     /// [`CLOSE_WAIT`]: a thread still in a reconnect's handshake ends on its own.
     pub fn close(&mut self) {
         self.shared.stop.store(true, Ordering::Relaxed);
-        if let Some(t) = self.thread.take() {
-            let deadline = Instant::now() + CLOSE_WAIT;
-            while !t.is_finished() && Instant::now() < deadline {
-                std::thread::sleep(READ_WAIT);
-            }
-            if t.is_finished() {
-                let _ = t.join();
-            }
-        }
+        crate::net::join::join_within(&mut self.thread, CLOSE_WAIT);
     }
 }
 
@@ -547,7 +540,8 @@ fn run(mut stream: Tls, shared: &Shared, server: &str, identity: &Identity, know
         }
         shared.notify(Notice::Lost(lost));
         let mut said: Option<String> = None;
-        let mut retry = RETRY;
+        let mut retries = Backoff::new(RETRY, RETRY_MAX);
+        let mut retry = retries.next_wait();
         stream = loop {
             if stopped_during(shared, retry) {
                 return;
@@ -568,7 +562,7 @@ fn run(mut stream: Tls, shared: &Shared, server: &str, identity: &Identity, know
                 }
                 Err(_) if shared.stop.load(Ordering::Relaxed) => return,
                 Err(e) => {
-                    retry = (retry * 2).min(RETRY_MAX);
+                    retry = retries.next_wait();
                     let reason = e.to_string();
                     if said.as_deref() != Some(reason.as_str()) {
                         shared.notify(Notice::RejoinFailed {

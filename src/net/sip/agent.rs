@@ -165,20 +165,7 @@ impl Agent {
     /// Waits up to `limit` for the agent to finish (its BYE answered, the binding removed).
     pub fn wait(&mut self, limit: Duration) -> bool {
         self.waited = true;
-        let deadline = std::time::Instant::now() + limit;
-        while let Some(thread) = &self.thread {
-            if thread.is_finished() {
-                if let Some(thread) = self.thread.take() {
-                    let _ = thread.join();
-                }
-                return true;
-            }
-            if std::time::Instant::now() >= deadline {
-                return false;
-            }
-            std::thread::sleep(Duration::from_millis(10));
-        }
-        true
+        crate::net::join::join_within(&mut self.thread, limit)
     }
 }
 
