@@ -28,8 +28,8 @@ fn header<'m>(message: &'m str, name: &str) -> Option<&'m str> {
     })
 }
 
-/// A registrar that takes every REGISTER (and answers OPTIONS), and keeps the last Contact's
-/// HOST:PORT: where the phone listens.
+/// A registrar that takes every REGISTER (and answers OPTIONS), and keeps the last registered
+/// Contact's HOST:PORT: where the phone listens.
 struct Registrar {
     addr: SocketAddr,
     /// The last Contact and how many REGISTERs carried one.
@@ -67,7 +67,11 @@ impl Registrar {
                         .filter_map(|h| Some(format!("{h}: {}\r\n", header(&request, h)?)))
                         .collect();
                     let to = header(&request, "To").unwrap_or("");
+                    // A listener that leaves unregisters (expires 0): that Contact is gone.
+                    let leaving = header(&request, "Expires").is_some_and(|e| e == "0")
+                        || header(&request, "Contact").is_some_and(|c| c.contains("expires=0"));
                     if method == "REGISTER"
+                        && !leaving
                         && let Some(at) = header(&request, "Contact")
                             .and_then(|c| c.split('@').nth(1))
                             .and_then(|c| c.split(['>', ';']).next())
