@@ -28,12 +28,16 @@ fn the_engine_joins_an_encrypted_room_and_animates_a_sender() {
         assert!(Instant::now() < deadline, "{:?}", lock(&engine.shared).call);
         std::thread::sleep(Duration::from_millis(20));
     }
+    // The sender's passphrase from a file, as the command line takes it.
+    let dir = tempfile::tempdir().unwrap();
+    let key = dir.path().join("key");
+    std::fs::write(&key, "open sesame\n").unwrap();
     let args = SendArgs {
         input: concat!(env!("CARGO_MANIFEST_DIR"), "/assets/speech/demo.wav").into(),
         to: relay_addr,
         key: KeyArgs {
-            passphrase: Some("open sesame".into()),
-            hex: None,
+            passphrase_file: Some(key),
+            hex_file: None,
         },
         name: Some("Mallory".into()),
         room: Some("lab".into()),
@@ -43,6 +47,7 @@ fn the_engine_joins_an_encrypted_room_and_animates_a_sender() {
         ssrc: None,
         codec: Some(Codec::Opus),
         payload_types: Vec::new(),
+        seconds: None,
     };
     std::thread::spawn(move || send(&args));
     let deadline = Instant::now() + Duration::from_secs(20);

@@ -75,10 +75,7 @@ fn engine_plays_a_sender() {
     let args = SendArgs {
         input: file.into(),
         to: to.to_string(),
-        key: KeyArgs {
-            passphrase: None,
-            hex: None,
-        },
+        key: KeyArgs::default(),
         name: Some("Talker".into()),
         room: None,
         quality: 8,
@@ -87,6 +84,7 @@ fn engine_plays_a_sender() {
         ssrc: None,
         codec: Some(codec),
         payload_types: Vec::new(),
+        seconds: None,
     };
     let sender = std::thread::spawn(move || send(&args));
     // The peer as last seen before it said goodbye (and was forgotten).

@@ -33,7 +33,8 @@ fn two_lipcalls_in_a_janus_room_hear_each_other_and_the_receiver_animates() {
         lipcall()
             .arg("send")
             .arg(&speech)
-            .args(["--janus", &janus.url, "--room", room, "--key", pin])
+            .args(["--janus", &janus.url, "--room", room])
+            .env("LIPCALL_KEY", pin)
             .args(["--name", "Ann"]),
     );
     let (_, sent) = finish(sender, Duration::from_secs(30), "lipcall send --janus");
@@ -150,7 +151,8 @@ fn a_wrong_pin_and_an_unreachable_janus_fail_at_once_with_janus_s_reason() {
     let owner = spawn_listening(
         lipcall()
             .args(["receive", "--janus", &janus.url, "--room", "pinned"])
-            .args(["--key", "right", "--seconds", "3"]),
+            .args(["--seconds", "3"])
+            .env("LIPCALL_KEY", "right"),
         IN_ROOM,
     );
     for key in [Some("wrong"), None] {
@@ -159,7 +161,7 @@ fn a_wrong_pin_and_an_unreachable_janus_fail_at_once_with_janus_s_reason() {
         cmd.args(["receive", "--janus", &janus.url, "--room", "pinned"])
             .args(["--seconds", "2"]);
         if let Some(key) = key {
-            cmd.args(["--key", key]);
+            cmd.env("LIPCALL_KEY", key);
         }
         let out = cmd.output().unwrap();
         let stderr = String::from_utf8_lossy(&out.stderr);

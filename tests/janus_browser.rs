@@ -270,7 +270,8 @@ fn a_browser_and_lipcall_hear_each_other_in_a_janus_room() {
         lipcall()
             .arg("send")
             .arg(&speech)
-            .args(["--janus", &janus.url, "--room", room, "--key", pin])
+            .args(["--janus", &janus.url, "--room", room])
+            .env("LIPCALL_KEY", pin)
             .args(["--name", "Ann"]),
     );
     let (_, sent) = finish(sender, Duration::from_secs(30), "lipcall send --janus");

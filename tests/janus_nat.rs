@@ -99,13 +99,15 @@ fn a_call_relayed_only_through_turn_is_heard() {
         return;
     };
     let server = coturn.addr.to_string();
+    let password = dir.path().join("turn-password");
+    std::fs::write(&password, "s3cret\n").unwrap();
     let turn = [
         "--turn",
         &server,
         "--turn-user",
         "ann",
-        "--turn-password",
-        "s3cret",
+        "--turn-password-file",
+        password.to_str().unwrap(),
     ];
     let (received, r) = call_with(dir.path(), &[&turn[..], &["--turn-only"]].concat(), "4323");
     assert!(
@@ -144,7 +146,8 @@ fn wrong_turn_credentials_are_said_and_a_relay_only_call_refused() {
             "5",
         ])
         .args(["--turn", &coturn.addr.to_string(), "--turn-user", "ann"])
-        .args(["--turn-password", "wrong", "--turn-only"])
+        .arg("--turn-only")
+        .env("LIPCALL_TURN_PASSWORD", "wrong")
         .output()
         .unwrap();
     let stderr = String::from_utf8_lossy(&out.stderr);

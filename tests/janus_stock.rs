@@ -40,7 +40,8 @@ fn a_stock_janus_numbering_its_rooms_carries_a_call() {
         lipcall()
             .arg("send")
             .arg(&speech)
-            .args(["--janus", &janus.url, "--room", "4321", "--key", "pin 4321"])
+            .args(["--janus", &janus.url, "--room", "4321"])
+            .env("LIPCALL_KEY", "pin 4321")
             .args(["--name", "Ann"]),
     );
     let (_, sent) = finish(sender, Duration::from_secs(30), "lipcall send --janus");

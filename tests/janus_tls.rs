@@ -102,18 +102,23 @@ fn call_through(dir: &Path, url: &str, cert: &str, room: &str) -> f64 {
         lipcall()
             .env("SSL_CERT_FILE", cert)
             .args(["receive", "--janus", url, "--room", room])
-            .args(["--janus-secret", SECRET, "--name", "Bob", "--seconds", "13"])
+            .env("LIPCALL_JANUS_SECRET", SECRET)
+            .args(["--name", "Bob", "--seconds", "13"])
             .arg("--wav")
             .arg(&wav),
         IN_ROOM,
     );
+    let secret = dir.join(format!("{room}.secret"));
+    std::fs::write(&secret, format!("{SECRET}\n")).unwrap();
     let sender = spawn(
         lipcall()
             .env("SSL_CERT_FILE", cert)
             .arg("send")
             .arg(&speech)
             .args(["--janus", url, "--room", room])
-            .args(["--janus-secret", SECRET, "--name", "Ann"]),
+            .arg("--janus-secret-file")
+            .arg(&secret)
+            .args(["--name", "Ann"]),
     );
     let (_, sent) = finish(sender, Duration::from_secs(30), "lipcall send --janus");
     let (_, received) = receiver.finish(Duration::from_secs(30), "lipcall receive --janus");
@@ -175,7 +180,7 @@ fn a_janus_over_https_with_an_api_secret_carries_a_call() {
             "--seconds",
             "2",
         ])
-        .args(["--janus-secret", SECRET])
+        .env("LIPCALL_JANUS_SECRET", SECRET)
         .output()
         .unwrap();
     let stderr = String::from_utf8_lossy(&out.stderr);

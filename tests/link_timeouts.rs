@@ -2,7 +2,8 @@
 //! 127.0.0.1: a Janus (WebSocket or HTTP) that accepts the connection and stays silent, a
 //! relay that never confirms a join, and a TURN server that grants its relay for 0 s. The
 //! receive ends by its `--seconds` with a clear error, within a second of a SIGTERM, and asks
-//! the TURN server no more than a few times.
+//! the TURN server no more than a few times. `send` and `relay` end at their `--seconds` and
+//! within a second of SIGTERM or SIGINT, with their summaries.
 
 mod common;
 
@@ -226,6 +227,9 @@ fn a_turn_server_granting_0_s_costs_no_storm_of_refreshes() {
     };
     let (turn, asked) = lifetime_zero_turn();
     let server = turn.addr.to_string();
+    let dir = tempfile::tempdir().unwrap();
+    let password = dir.path().join("turn-password");
+    std::fs::write(&password, "s3cret\n").unwrap();
     let started = Instant::now();
     let rx = receive(&[
         "--janus",
@@ -238,8 +242,8 @@ fn a_turn_server_granting_0_s_costs_no_storm_of_refreshes() {
         &server,
         "--turn-user",
         "ann",
-        "--turn-password",
-        "s3cret",
+        "--turn-password-file",
+        password.to_str().unwrap(),
     ]);
     let (status, exited, stderr) = exit_within(rx, Duration::from_secs(30));
     drop(turn);
@@ -254,4 +258,134 @@ fn a_turn_server_granting_0_s_costs_no_storm_of_refreshes() {
     assert_eq!(asked.get(&Method::Allocate), Some(&1), "{asked:?}");
     assert!(stderr.contains("granted the relay for 0 s"), "{stderr}");
     assert!(status.is_some_and(|s| s.success()), "{stderr}");
+}
+
+/// Spawns `cmd` and waits (up to 60 s) until its stderr has a line with `said`: the child, when
+/// that line came, and a thread that returns the whole stderr once the child ends.
+fn started_saying(cmd: &mut Command, said: &str) -> (Child, Instant, JoinHandle<String>) {
+    use std::io::BufRead;
+    let mut child = cmd
+        .stdout(std::process::Stdio::null())
+        .stderr(std::process::Stdio::piped())
+        .spawn()
+        .unwrap();
+    let stderr = child.stderr.take().unwrap();
+    let (tx, seen) = std::sync::mpsc::channel();
+    let said = said.to_owned();
+    let reader = std::thread::spawn(move || {
+        let mut text = String::new();
+        for line in std::io::BufReader::new(stderr).lines() {
+            let Ok(line) = line else { break };
+            if line.contains(&said) {
+                let _ = tx.send(Instant::now());
+            }
+            text.push_str(&line);
+            text.push('\n');
+        }
+        text
+    });
+    let Ok(at) = seen.recv_timeout(Duration::from_secs(60)) else {
+        let _ = child.kill();
+        let _ = child.wait();
+        panic!("never said it: {}", reader.join().unwrap());
+    };
+    (child, at, reader)
+}
+
+/// Waits up to 20 s for `child` to end (killed past that): its status, when it ended, and its
+/// stderr.
+fn ended(mut child: Child, reader: JoinHandle<String>) -> (Option<ExitStatus>, Instant, String) {
+    let deadline = Instant::now() + Duration::from_secs(20);
+    let status = loop {
+        if let Some(status) = child.try_wait().unwrap() {
+            break Some(status);
+        }
+        if Instant::now() > deadline {
+            let _ = child.kill();
+            let _ = child.wait();
+            break None;
+        }
+        std::thread::sleep(Duration::from_millis(5));
+    };
+    (status, Instant::now(), reader.join().unwrap())
+}
+
+#[test]
+fn send_ends_at_its_seconds_and_within_a_second_of_sigterm() {
+    // Nobody listens there; the demo speech lasts 8.8 s.
+    let sink = UdpSocket::bind("127.0.0.1:0").unwrap();
+    let to = sink.local_addr().unwrap().to_string();
+    let speech = common::repo_file("assets/speech/demo.wav");
+    let send = || {
+        let mut cmd = lipcall();
+        cmd.arg("send").arg(&speech).args(["--to", &to]);
+        cmd
+    };
+
+    let (child, sending, reader) =
+        started_saying(send().args(["--seconds", "1.5"]), "lipcall: sending");
+    let (status, exited, stderr) = ended(child, reader);
+    let took = exited - sending;
+    eprintln!("--seconds 1.5 took {took:?} from the first packet: {stderr}");
+    assert!(
+        took < Duration::from_millis(2500),
+        "took {took:?}: {stderr}"
+    );
+    assert!(status.is_some_and(|s| s.success()), "{stderr}");
+    assert!(stderr.contains("--seconds is up"), "{stderr}");
+
+    let (child, sending, reader) = started_saying(&mut send(), "lipcall: sending");
+    std::thread::sleep(Duration::from_secs(1).saturating_sub(sending.elapsed()));
+    let asked = Instant::now();
+    sigterm(&child);
+    let (status, exited, stderr) = ended(child, reader);
+    let took = exited - asked;
+    eprintln!("SIGTERM took {took:?}: {stderr}");
+    assert!(took < Duration::from_secs(1), "took {took:?}: {stderr}");
+    assert!(status.is_some_and(|s| s.success()), "{stderr}");
+    assert!(stderr.contains("stopped by a signal"), "{stderr}");
+    let sent: u32 = stderr
+        .lines()
+        .find_map(|l| l.strip_prefix("lipcall: sent "))
+        .and_then(|l| l.split_whitespace().next()?.parse().ok())
+        .unwrap_or_else(|| panic!("no summary: {stderr}"));
+    // A second of 20 ms packets, not the file's 440.
+    assert!((20..200).contains(&sent), "{sent} packets: {stderr}");
+}
+
+#[test]
+fn relay_ends_at_its_seconds_and_within_a_second_of_sigterm() {
+    let relay = || {
+        let mut cmd = lipcall();
+        cmd.args(["relay", "--listen", "127.0.0.1:0"]);
+        cmd
+    };
+    let (child, listening, reader) = started_saying(
+        relay().args(["--seconds", "1"]),
+        "lipcall: relay listening on",
+    );
+    let (status, exited, stderr) = ended(child, reader);
+    let took = exited - listening;
+    eprintln!("--seconds 1 took {took:?}: {stderr}");
+    assert!(took < Duration::from_secs(2), "took {took:?}: {stderr}");
+    assert!(status.is_some_and(|s| s.success()), "{stderr}");
+    assert!(stderr.contains("relay rooms=0"), "{stderr}");
+
+    for signal in ["-TERM", "-INT"] {
+        let (child, _, reader) = started_saying(&mut relay(), "lipcall: relay listening on");
+        std::thread::sleep(Duration::from_millis(300));
+        let asked = Instant::now();
+        let sent = Command::new("kill")
+            .args([signal, &child.id().to_string()])
+            .status()
+            .unwrap();
+        assert!(sent.success());
+        let (status, exited, stderr) = ended(child, reader);
+        let took = exited - asked;
+        eprintln!("kill {signal} took {took:?}: {stderr}");
+        assert!(took < Duration::from_secs(1), "took {took:?}: {stderr}");
+        assert!(status.is_some_and(|s| s.success()), "{signal}: {stderr}");
+        assert!(stderr.contains("stopped by a signal"), "{stderr}");
+        assert!(stderr.contains("relay rooms=0"), "the summary: {stderr}");
+    }
 }

@@ -78,7 +78,10 @@ fn a_wrong_server_password_is_refused_clearly() {
     let murmur = Murmur::start(dir.path(), "serverpassword=open sesame");
     let without = refused(dir.path(), "a", &murmur, "Ann", &[]);
     assert!(without.contains("wrong server password"), "{without}");
-    let wrong = refused(dir.path(), "a", &murmur, "Ann", &["--password", "guess"]);
+    let guess = dir.path().join("guess");
+    std::fs::write(&guess, "guess\n").unwrap();
+    let guess = guess.to_str().unwrap();
+    let wrong = refused(dir.path(), "a", &murmur, "Ann", &["--password-file", guess]);
     assert!(wrong.contains("wrong server password"), "{wrong}");
 }
 

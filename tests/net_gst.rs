@@ -72,7 +72,7 @@ fn gst_to_lipcall(srtp: bool) {
         .arg(&features)
         .args(["--seconds", "6"]);
     if srtp {
-        receive.args(["--key-hex", &key]);
+        receive.env("LIPCALL_KEY_HEX", &key);
     }
     let receiver = spawn_listening(&mut receive, Announce::Lipcall);
     run(&mut gst_send(
@@ -132,7 +132,7 @@ fn gstreamer_rtpspeexpay_into_lipcall_receive() {
     gst_to_lipcall(false);
 }
 
-/// The same through GStreamer's srtpenc (libsrtp) into `lipcall receive --key-hex`.
+/// The same through GStreamer's srtpenc (libsrtp) into `lipcall receive` with LIPCALL_KEY_HEX.
 #[test]
 fn gstreamer_srtpenc_into_lipcall_receive() {
     let _serial = serial();
@@ -178,7 +178,7 @@ fn lipcall_to_gst(srtp: bool) {
         .args(["--to", &gst.addr(), "--no-rtcp"])
         .args(["--ssrc", &format!("{ssrc:x}")]);
     if srtp {
-        send.args(["--key-hex", &key]);
+        send.env("LIPCALL_KEY_HEX", &key);
     }
     run(&mut send);
     stop_udpsrc(gst);
@@ -205,7 +205,7 @@ fn lipcall_send_into_gstreamer_rtpspeexdepay() {
     lipcall_to_gst(false);
 }
 
-/// `lipcall send --key-hex` into GStreamer's srtpdec (libsrtp).
+/// `lipcall send` with LIPCALL_KEY_HEX into GStreamer's srtpdec (libsrtp).
 #[test]
 fn lipcall_send_into_gstreamer_srtpdec() {
     let _serial = serial();

@@ -144,7 +144,8 @@ fn impaired_call(imp: Impairment, codec: &str) {
             .arg(&features)
             .arg("--weights")
             .arg(&weights)
-            .args(["--key", "impaired", "--seconds", "15"])
+            .args(["--seconds", "15"])
+            .env("LIPCALL_KEY", "impaired")
             // Compared with the 8 kHz source whatever the codec's own rate.
             .args(["--rate", "8000"]),
         Announce::Lipcall,
@@ -158,16 +159,18 @@ fn impaired_call(imp: Impairment, codec: &str) {
         std::thread::spawn(move || proxy(proxy_socket, receiver_addr, imp, stop))
     };
 
-    run(lipcall().arg("send").arg(&clip).args([
-        "--to",
-        &proxy_addr.to_string(),
-        "--key",
-        "impaired",
-        "--name",
-        "Imp",
-        "--codec",
-        codec,
-    ]));
+    run(lipcall()
+        .arg("send")
+        .arg(&clip)
+        .args([
+            "--to",
+            &proxy_addr.to_string(),
+            "--name",
+            "Imp",
+            "--codec",
+            codec,
+        ])
+        .env("LIPCALL_KEY", "impaired"));
     // The receiver stops by itself once the sender's BYE has been played out.
     let (_, stderr) = receiver.finish(Duration::from_secs(40), "lipcall receive");
     stop.store(true, Ordering::Relaxed);

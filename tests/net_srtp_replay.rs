@@ -1,5 +1,5 @@
-//! Encrypted calls replayed: a recording of an earlier `send --key` call replayed into a later
-//! `receive --key` plays nothing while a fresh caller plays (the master key comes from
+//! Encrypted calls replayed: a recording of an earlier `send` call keyed by LIPCALL_KEY replayed into a later
+//! `receive` with the same key plays nothing while a fresh caller plays (the master key comes from
 //! passphrase and room alone, and such a recording used to play in full); and within one
 //! receiver, a caller's packets replayed after its peer expired are refused (the replay window
 //! used to go with the peer). Loopback only.
@@ -82,12 +82,13 @@ fn a_recorded_call_replayed_into_a_later_receiver_plays_nothing() {
 
     // The call as an eavesdropper on the path records it.
     let tap = UdpSocket::bind("127.0.0.1:0").unwrap();
-    let mut sender = spawn(lipcall().arg("send").arg(&three_seconds).args([
-        "--to",
-        &tap.local_addr().unwrap().to_string(),
-        "--key",
-        key,
-    ]));
+    let mut sender = spawn(
+        lipcall()
+            .arg("send")
+            .arg(&three_seconds)
+            .args(["--to", &tap.local_addr().unwrap().to_string()])
+            .env("LIPCALL_KEY", key),
+    );
     let recording = record(&tap, || sender.try_wait().unwrap().is_some());
     assert!(sender.wait().unwrap().success());
     let media = recording
@@ -100,28 +101,30 @@ fn a_recorded_call_replayed_into_a_later_receiver_plays_nothing() {
     // A later receiver, a new process. Every recorded packet is at least the recording's
     // length (3 s) old when it comes again: past a tolerance of 1 s.
     let receiver = spawn_listening(
-        lipcall().args([
-            "receive",
-            "--listen",
-            "127.0.0.1:0",
-            "--key",
-            key,
-            "--clock-tolerance",
-            "1",
-        ]),
+        lipcall()
+            .args([
+                "receive",
+                "--listen",
+                "127.0.0.1:0",
+                "--clock-tolerance",
+                "1",
+            ])
+            .env("LIPCALL_KEY", key),
         Announce::Lipcall,
     );
     replay(&recording, receiver.socket_addr());
     // Then a caller who is really there; the receive ends once it has left.
     let fresh_ssrc = replayed_ssrc ^ 1;
-    run(lipcall().arg("send").arg(&three_seconds).args([
-        "--to",
-        &receiver.addr(),
-        "--key",
-        key,
-        "--ssrc",
-        &format!("{fresh_ssrc:08x}"),
-    ]));
+    run(lipcall()
+        .arg("send")
+        .arg(&three_seconds)
+        .args([
+            "--to",
+            &receiver.addr(),
+            "--ssrc",
+            &format!("{fresh_ssrc:08x}"),
+        ])
+        .env("LIPCALL_KEY", key));
     let (_, stderr) = receiver.finish(Duration::from_secs(30), "lipcall receive");
 
     let peers: Vec<HashMap<String, String>> = stderr

@@ -155,14 +155,15 @@ def peer_totals(stderr):
 
 def run_room(server, publishers, subscribers, lipcall, speech, workdir, event_loops):
     """One room of `publishers` x `subscribers` on `server` ('janus' or 'relay')."""
-    key = "scale-test"
+    # The room's passphrase goes to every lipcall through its environment, never its arguments.
+    os.environ["LIPCALL_KEY"] = "scale-test"
     room = f"scale-{publishers}x{subscribers}"
     children = []
     try:
         if server == "janus":
             srv, url = start_janus(workdir, event_loops)
             children.append(srv)
-            join = ["--janus", url, "--room", room, "--key", key]
+            join = ["--janus", url, "--room", room]
             receive_args = lambda i: ["receive", *join, "--name", f"r{i}"]  # noqa: E731
             ready = r"lipcall: in room "
             send_args = lambda i: ["send", speech, *join, "--name", f"p{i}"]  # noqa: E731
@@ -173,11 +174,11 @@ def run_room(server, publishers, subscribers, lipcall, speech, workdir, event_lo
             port = int(srv.wait_line(r"relay listening on .*:(\d+)$").group(1))
             receive_args = lambda i: [  # noqa: E731
                 "receive", "--listen", f"127.0.1.{i + 1}:0",
-                "--relay", f"127.0.0.1:{port}", "--room", room, "--key", key, "--name", f"r{i}",
+                "--relay", f"127.0.0.1:{port}", "--room", room, "--name", f"r{i}",
             ]
             ready = r"lipcall: listening on "
             send_args = lambda i: [  # noqa: E731
-                "send", speech, "--codec", "opus", "--room", room, "--key", key,
+                "send", speech, "--codec", "opus", "--room", room,
                 "--to", f"127.0.0.1:{port}" if i < RELAY_PER_SOURCE else f"[::1]:{port}",
                 "--name", f"p{i}",
             ]

@@ -79,9 +79,8 @@ pub fn run(options: AppOptions) -> anyhow::Result<()> {
         Some(p) => Settings::load(p),
         None => (Settings::default(), None),
     };
-    if !settings.sip.password.is_empty() {
-        crate::secrets::forbid_core_dumps();
-    }
+    // The settings may hold passwords, and the call form takes passphrases at any time.
+    crate::secrets::forbid_core_dumps();
     let choice = |id: &str| DeviceChoice::from_option((!id.is_empty()).then_some(id));
     let engine = Engine::start(EngineConfig {
         listen,

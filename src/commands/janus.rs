@@ -3,11 +3,15 @@
 //! received audio takes the same path as a direct call's (jitter buffer, decoder, features,
 //! lip sync) and the same outputs.
 
+use std::path::PathBuf;
 use std::time::{Duration, Instant};
 
 use anyhow::{Context, Result, anyhow, bail};
+use zeroize::Zeroizing;
 
-use super::net::{ReceiveArgs, SendArgs, load_packets, print_peer, send_paced};
+use super::net::{
+    KeyArgs, Paced, Pacing, ReceiveArgs, SendArgs, load_packets, print_peer, send_paced,
+};
 use super::playout::{JANUS, ReceiveOutputs, play, print_event};
 use super::recording::stop_flag;
 use crate::call::janus::{JanusLink, JoinWait};
@@ -17,6 +21,7 @@ use crate::net::janus::candidates::{IceServers, TurnServer};
 use crate::net::janus::messages::JanusAuth;
 use crate::net::janus::room::{Member, Notice, RoomConfig, server_addr};
 use crate::net::jitter::JitterConfig;
+use crate::secrets::SecretSource;
 use crate::vocab::FrameFeatures;
 
 #[derive(Debug, Clone)]
@@ -66,14 +71,16 @@ fn print_notices(notices: &[Notice]) {
 fn pin_hint(e: JanusError) -> anyhow::Error {
     match &e {
         JanusError::Plugin { code, reason } if *code == 433 || reason.contains("pin") => {
-            anyhow::Error::new(e).context("the room has a pin: give it with --key")
+            anyhow::Error::new(e)
+                .context("the room has a pin: set LIPCALL_KEY or give --key-file FILE")
         }
         _ => e.into(),
     }
 }
 
-/// Publishes a file's audio in the room, paced in real time.
-pub fn send(input: &std::path::Path, janus: &JanusArgs) -> Result<()> {
+/// Publishes a file's audio in the room, paced in real time, for at most `seconds` from the
+/// first packet.
+pub fn send(input: &std::path::Path, janus: &JanusArgs, seconds: Option<f64>) -> Result<()> {
     let settings = EncoderSettings::wideband(crate::codec::opus::codec::Bandwidth::Fullband);
     let (codec, packets) = load_packets(input, Some(Codec::Opus), &settings)?;
     if packets.is_empty() {
@@ -83,6 +90,8 @@ pub fn send(input: &std::path::Path, janus: &JanusArgs) -> Result<()> {
         .map_err(pin_hint)
         .with_context(|| format!("publishing in room {:?} on {}", janus.room, janus.url))?;
     announce_security();
+    // From the first packet on (a signal before it ends the join as it always did).
+    let pacing = Pacing::new(seconds)?;
     let clock = f64::from(codec.clock_rate());
     let ticks: u64 = packets.iter().map(|(_, t)| u64::from(*t)).sum();
     eprintln!(
@@ -93,14 +102,17 @@ pub fn send(input: &std::path::Path, janus: &JanusArgs) -> Result<()> {
         room.id().unwrap_or_else(|| "-".into())
     );
     let start = Instant::now();
-    send_paced(&packets, codec, |payload, duration| {
+    let paced = send_paced(&packets, codec, &pacing, |payload, duration| {
         room.send(payload, duration)?;
         // Janus's events are read while sending; a restarted Janus is rejoined.
         print_notices(&room.poll());
         Ok(())
     })?;
-    // The last packets leave str0m's pacer, then Janus forwards them before we hang up.
-    std::thread::sleep(Duration::from_millis(200));
+    paced.announce();
+    if paced == Paced::Whole {
+        // The last packets leave str0m's pacer, then Janus forwards them before we hang up.
+        std::thread::sleep(Duration::from_millis(200));
+    }
     let stats = room.media_stats();
     eprintln!(
         "lipcall: sent {} packets in {:.2} s; datagrams_sent={} send_errors={}",
@@ -114,14 +126,14 @@ pub fn send(input: &std::path::Path, janus: &JanusArgs) -> Result<()> {
 }
 
 /// `lipcall send`'s flags: a direct or relayed call, or with `--janus` a Janus room (`--room`
-/// and `--key` then name the room and its pin).
+/// and the room passphrase then name the room and its pin).
 #[derive(Debug, Clone, clap::Args)]
 pub struct SendCommand {
     #[command(flatten)]
     pub call: SendArgs,
     /// Publish in a room (--room) of this Janus server instead, http://HOST:PORT/janus;
-    /// --key is the room's pin. Sent as Opus over WebRTC.
-    // Listed right after --to (display order 1 sorts before --key's by name).
+    /// the room passphrase is its pin. Sent as Opus over WebRTC.
+    // Listed right after --to (display order 1 sorts before the others by name).
     #[arg(long, value_name = "URL", conflicts_with_all = ["to", "key_hex", "codec", "ssrc"],
           requires = "room", display_order = 1)]
     pub janus: Option<String>,
@@ -132,32 +144,55 @@ pub struct SendCommand {
 }
 
 /// What a Janus deployment may ask of us: the credentials of a restricted API, and a STUN
-/// server for peers behind a NAT.
+/// server for peers behind a NAT. Every secret comes from a file or the environment.
 #[derive(Debug, Clone, Default, clap::Args)]
 pub struct JanusServerArgs {
-    /// The Janus server's api_secret (its janus.jcfg), sent with every request.
-    #[arg(long, value_name = "SECRET", requires = "janus")]
-    pub janus_secret: Option<String>,
-    /// A token the Janus admin stored for us (token_auth), sent with every request.
-    #[arg(long, value_name = "TOKEN", requires = "janus")]
-    pub janus_token: Option<String>,
+    /// A file whose first line is the Janus server's api_secret (its janus.jcfg), sent with
+    /// every request (otherwise the variable LIPCALL_JANUS_SECRET).
+    #[arg(long, value_name = "FILE", requires = "janus")]
+    pub janus_secret_file: Option<PathBuf>,
+    /// A file whose first line is a token the Janus admin stored for us (token_auth), sent
+    /// with every request (otherwise the variable LIPCALL_JANUS_TOKEN).
+    #[arg(long, value_name = "FILE", requires = "janus")]
+    pub janus_token_file: Option<PathBuf>,
     /// A STUN server, HOST:PORT, asked for our public address, which WebRTC then offers
     /// beside the local ones (behind a NAT; see docs/janus.md).
     #[arg(long, value_name = "HOST:PORT", requires = "janus")]
     pub stun: Option<String>,
     /// A TURN server, HOST:PORT, whose relay WebRTC offers too (symmetric NATs, UDP let out
-    /// only to the relay); with --turn-user and --turn-password.
-    #[arg(long, value_name = "HOST:PORT", requires_all = ["janus", "turn_user", "turn_password"])]
+    /// only to the relay); with --turn-user, and the password in LIPCALL_TURN_PASSWORD or
+    /// --turn-password-file.
+    #[arg(long, value_name = "HOST:PORT", requires_all = ["janus", "turn_user"])]
     pub turn: Option<String>,
     #[arg(long, value_name = "USER", requires = "turn")]
     pub turn_user: Option<String>,
-    #[arg(long, value_name = "PASSWORD", requires = "turn")]
-    pub turn_password: Option<String>,
+    /// A file whose first line is the TURN password (otherwise the variable
+    /// LIPCALL_TURN_PASSWORD).
+    #[arg(long, value_name = "FILE", requires = "turn")]
+    pub turn_password_file: Option<PathBuf>,
     /// Send and receive through the TURN relay only: Janus never learns this machine's own
     /// addresses.
     #[arg(long, requires = "turn")]
     pub turn_only: bool,
 }
+
+/// Where a Janus's api_secret is read from.
+pub const JANUS_SECRET: SecretSource = SecretSource {
+    flag: "--janus-secret-file",
+    variable: "LIPCALL_JANUS_SECRET",
+};
+
+/// Where a Janus token is read from.
+pub const JANUS_TOKEN: SecretSource = SecretSource {
+    flag: "--janus-token-file",
+    variable: "LIPCALL_JANUS_TOKEN",
+};
+
+/// Where the TURN server's password is read from.
+pub const TURN_PASSWORD: SecretSource = SecretSource {
+    flag: "--turn-password-file",
+    variable: "LIPCALL_TURN_PASSWORD",
+};
 
 impl JanusServerArgs {
     /// The Janus room of `url` that `call`'s flags name.
@@ -166,27 +201,40 @@ impl JanusServerArgs {
         url: &str,
         room: Option<&String>,
         name: Option<&String>,
-        pin: Option<&String>,
-    ) -> JanusArgs {
-        JanusArgs {
+        key: &KeyArgs,
+    ) -> Result<JanusArgs> {
+        let given = |secret: Option<Zeroizing<String>>| secret.map(|s| s.as_str().to_owned());
+        let turn = match &self.turn {
+            Some(server) => {
+                let Some(password) = TURN_PASSWORD.read(self.turn_password_file.as_deref())? else {
+                    bail!(
+                        "--turn {server} needs its password: {}",
+                        TURN_PASSWORD.how_to_give()
+                    );
+                };
+                Some(TurnServer {
+                    server: server.clone(),
+                    username: self.turn_user.clone().unwrap_or_default(),
+                    password: password.as_str().to_owned(),
+                })
+            }
+            None => None,
+        };
+        Ok(JanusArgs {
             url: url.to_string(),
             auth: JanusAuth {
-                api_secret: self.janus_secret.clone(),
-                token: self.janus_token.clone(),
+                api_secret: given(JANUS_SECRET.read(self.janus_secret_file.as_deref())?),
+                token: given(JANUS_TOKEN.read(self.janus_token_file.as_deref())?),
             },
             room: room.cloned().unwrap_or_default(),
             name: name.cloned(),
-            pin: pin.cloned(),
+            pin: given(key.passphrase()?),
             ice: IceServers {
                 stun: self.stun.clone(),
-                turn: self.turn.as_ref().map(|server| TurnServer {
-                    server: server.clone(),
-                    username: self.turn_user.clone().unwrap_or_default(),
-                    password: self.turn_password.clone().unwrap_or_default(),
-                }),
+                turn,
                 relay_only: self.turn_only,
             },
-        }
+        })
     }
 }
 
@@ -196,7 +244,7 @@ pub struct ReceiveCommand {
     #[command(flatten)]
     pub call: ReceiveArgs,
     /// Join a room (--room) of this Janus server instead, http://HOST:PORT/janus, and
-    /// receive every publisher there; --key is the room's pin.
+    /// receive every publisher there; the room passphrase is its pin.
     // Listed right after --listen (display order 1 sorts before --wav's by name).
     #[arg(long, value_name = "URL", conflicts_with_all = ["listen", "relay", "key_hex"],
           requires = "room", display_order = 1)]
@@ -293,23 +341,20 @@ pub fn receive_with(
 pub fn send_command(command: &SendCommand) -> Result<()> {
     let call = &command.call;
     if let Some(mumble) =
-        super::mumble::MumbleArgs::from_flags(&command.mumble, call.name.as_deref())
+        super::mumble::MumbleArgs::from_flags(&command.mumble, call.name.as_deref())?
     {
-        let others = !call.to.is_empty() || call.room.is_some() || call.key.passphrase.is_some();
-        if others || call.key.hex.is_some() {
-            bail!("--mumble joins a Mumble server: it does not go with --to, --room or --key");
+        if !call.to.is_empty() || call.room.is_some() || call.key.named() {
+            bail!("--mumble joins a Mumble server: it does not go with --to, --room or a key file");
         }
-        return super::mumble::send(&call.input, &mumble);
+        return super::mumble::send(&call.input, &mumble, call.seconds);
     }
     match &command.janus {
         Some(url) => send(
             &call.input,
-            &command.server.room_args(
-                url,
-                call.room.as_ref(),
-                call.name.as_ref(),
-                call.key.passphrase.as_ref(),
-            ),
+            &command
+                .server
+                .room_args(url, call.room.as_ref(), call.name.as_ref(), &call.key)?,
+            call.seconds,
         ),
         None => super::net::send(call),
     }
@@ -326,13 +371,13 @@ pub fn receive_command(command: &ReceiveCommand) -> Result<()> {
         seconds: call.seconds,
     };
     if let Some(mumble) =
-        super::mumble::MumbleArgs::from_flags(&command.mumble, call.name.as_deref())
+        super::mumble::MumbleArgs::from_flags(&command.mumble, call.name.as_deref())?
     {
         let others = !call.listen.is_empty() || call.relay.is_some() || call.room.is_some();
-        if others || call.key.passphrase.is_some() || call.key.hex.is_some() {
+        if others || call.key.named() {
             bail!(
                 "--mumble joins a Mumble server: it does not go with --listen, --relay, --room or \
-                 --key"
+                 a key file"
             );
         }
         return super::mumble::receive(&super::mumble::MumbleReceiveArgs { mumble, out });
@@ -343,8 +388,8 @@ pub fn receive_command(command: &ReceiveCommand) -> Result<()> {
                 url,
                 call.room.as_ref(),
                 call.name.as_ref(),
-                call.key.passphrase.as_ref(),
-            ),
+                &call.key,
+            )?,
             out,
         }),
         None => super::net::receive(call),

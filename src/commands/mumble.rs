@@ -3,12 +3,12 @@
 //! received through the same path as a direct call (jitter buffer, decoder, features, lip
 //! sync) with the same outputs, one WAV and CSV per speaker.
 
-use std::path::Path;
+use std::path::{Path, PathBuf};
 use std::time::{Duration, Instant};
 
 use anyhow::{Context, Result, bail};
 
-use super::net::{load_packets, print_peer, send_paced};
+use super::net::{Paced, Pacing, load_packets, print_peer, send_paced};
 use super::playout::{MUMBLE, ReceiveOutputs, play};
 use super::recording::stop_flag;
 use crate::call::link::Link;
@@ -19,6 +19,7 @@ use crate::net::mumble::client::{ClientConfig, ClientEvent};
 use crate::net::mumble::connection::{ConnectConfig, Connection, Notice};
 use crate::net::mumble::events::describe_unlisted;
 use crate::net::mumble::identity::{self, Trust};
+use crate::secrets::SecretSource;
 
 /// 48 kHz ticks of a 20 ms Opus frame.
 const TICKS_PER_FRAME: u32 = 960;
@@ -43,14 +44,21 @@ pub struct MumbleFlags {
     /// With --mumble: the channel to join (the server's default channel otherwise).
     #[arg(long, requires = "mumble", display_order = 91)]
     pub channel: Option<String>,
-    /// With --mumble: the server's password.
-    #[arg(long, requires = "mumble", display_order = 92)]
-    pub password: Option<String>,
+    /// With --mumble: a file whose first line is the server's password (otherwise the
+    /// variable LIPCALL_MUMBLE_PASSWORD, if set).
+    #[arg(long, value_name = "FILE", requires = "mumble", display_order = 92)]
+    pub password_file: Option<PathBuf>,
     /// With --mumble: voice through the TLS connection only, never UDP (for networks that
     /// block UDP; Mumble's own TCP tunnel).
     #[arg(long, requires = "mumble", display_order = 93)]
     pub tcp_only: bool,
 }
+
+/// Where a Mumble server's password is read from.
+pub const MUMBLE_PASSWORD: SecretSource = SecretSource {
+    flag: "--password-file",
+    variable: "LIPCALL_MUMBLE_PASSWORD",
+};
 
 /// A Mumble join as the commands ask for it.
 #[derive(Debug, Clone)]
@@ -64,14 +72,18 @@ pub struct MumbleArgs {
 
 impl MumbleArgs {
     /// From the flags (`None` without --mumble); `name` is --name.
-    pub fn from_flags(flags: &MumbleFlags, name: Option<&str>) -> Option<Self> {
-        Some(Self {
-            server: flags.mumble.clone()?,
+    pub fn from_flags(flags: &MumbleFlags, name: Option<&str>) -> Result<Option<Self>> {
+        let Some(server) = flags.mumble.clone() else {
+            return Ok(None);
+        };
+        let password = MUMBLE_PASSWORD.read(flags.password_file.as_deref())?;
+        Ok(Some(Self {
+            server,
             name: name.unwrap_or("lipcall").to_string(),
             channel: flags.channel.clone(),
-            password: flags.password.clone(),
+            password: password.map(|p| p.as_str().to_owned()),
             tcp_only: flags.tcp_only,
-        })
+        }))
     }
 }
 
@@ -177,13 +189,16 @@ fn connect(args: &MumbleArgs) -> Result<Connection> {
     Ok(connection)
 }
 
-/// Sends a file's audio to the channel, paced in real time.
-pub fn send(input: &Path, args: &MumbleArgs) -> Result<()> {
+/// Sends a file's audio to the channel, paced in real time, for at most `seconds` from the
+/// first packet.
+pub fn send(input: &Path, args: &MumbleArgs, seconds: Option<f64>) -> Result<()> {
     let (codec, packets) = load_packets(input, Some(Codec::Opus), &EncoderSettings::default())?;
     if packets.is_empty() {
         bail!("{}: no audio to send", input.display());
     }
     let mut connection = connect(args)?;
+    // From the first packet on (a signal before it ends the join as it always did).
+    let pacing = Pacing::new(seconds)?;
     let clock = f64::from(codec.clock_rate());
     let ticks: u64 = packets.iter().map(|(_, t)| u64::from(*t)).sum();
     eprintln!(
@@ -194,7 +209,7 @@ pub fn send(input: &Path, args: &MumbleArgs) -> Result<()> {
         args.name
     );
     let start = Instant::now();
-    send_paced(&packets, codec, |payload, duration| {
+    let paced = send_paced(&packets, codec, &pacing, |payload, duration| {
         // While the server is away (a restart) the audio is dropped; the call goes on.
         if let Err(e) = connection.send_voice(payload, duration.div_ceil(TICKS_PER_FRAME)) {
             tracing::debug!("Mumble: {e}");
@@ -211,8 +226,11 @@ pub fn send(input: &Path, args: &MumbleArgs) -> Result<()> {
         }
         Ok(())
     })?;
-    // The last packets reach the server before we leave.
-    std::thread::sleep(Duration::from_millis(300));
+    paced.announce();
+    if paced == Paced::Whole {
+        // The last packets reach the server before we leave.
+        std::thread::sleep(Duration::from_millis(300));
+    }
     let stats = connection.stats();
     eprintln!(
         "lipcall: sent {:.2} s; udp_sent={} tunnel_sent={}",

@@ -2,10 +2,12 @@
 
 use std::net::SocketAddr;
 use std::path::{Path, PathBuf};
+use std::sync::Arc;
 use std::sync::atomic::AtomicBool;
 use std::time::{Duration, Instant};
 
 use anyhow::{Context, Result, bail};
+use zeroize::Zeroizing;
 
 use super::playout::{DIRECT, open_outputs, play};
 use super::recording::{TICK, stop_flag, stopped};
@@ -15,27 +17,61 @@ use crate::codec::opus::codec::Bandwidth;
 use crate::net::host_port::resolve_with_port;
 use crate::net::session::{PeerInfo, Session, SessionConfig};
 use crate::net::srtp::MasterKey;
+use crate::secrets::SecretSource;
 use crate::vocab::FrameFeatures;
 
-/// How the call is keyed (`--key`, `--key-hex`). The passphrase keys the room by PBKDF2 over
-/// passphrase and room name; the hex key is a raw 30-byte SRTP master key + salt.
+/// How the call is keyed: a room passphrase (PBKDF2 over passphrase and room name) or a raw
+/// 30-byte SRTP master key + salt, each from a file or the environment, never the arguments.
 #[derive(Debug, Clone, Default, clap::Args)]
 pub struct KeyArgs {
-    /// Room passphrase: encrypts and authenticates media with SRTP. Without it (or
-    /// --key-hex) the call is plain RTP.
-    #[arg(long = "key", value_name = "PASSPHRASE", value_parser = super::parse_passphrase)]
-    pub passphrase: Option<String>,
-    /// Raw SRTP master key + salt (60 hex digits), e.g. to talk to GStreamer's srtpenc.
-    #[arg(id = "key_hex", long = "key-hex", value_name = "HEX")]
-    pub hex: Option<String>,
+    /// A file whose first line is the room passphrase (otherwise the variable LIPCALL_KEY):
+    /// media is encrypted and authenticated with SRTP. Without either (or a hex key) the call
+    /// is plain RTP.
+    #[arg(long = "key-file", value_name = "FILE")]
+    pub passphrase_file: Option<PathBuf>,
+    /// A file whose first line is a raw SRTP master key + salt, 60 hex digits (otherwise the
+    /// variable LIPCALL_KEY_HEX), e.g. to talk to GStreamer's srtpenc.
+    #[arg(id = "key_hex", long = "key-hex-file", value_name = "FILE")]
+    pub hex_file: Option<PathBuf>,
 }
 
+/// Where the room passphrase is read from.
+pub const PASSPHRASE: SecretSource = SecretSource {
+    flag: "--key-file",
+    variable: "LIPCALL_KEY",
+};
+
+/// Where a raw SRTP master key + salt is read from.
+pub const HEX_KEY: SecretSource = SecretSource {
+    flag: "--key-hex-file",
+    variable: "LIPCALL_KEY_HEX",
+};
+
 impl KeyArgs {
+    /// The room passphrase (a Janus room's pin), if one is given.
+    pub(crate) fn passphrase(&self) -> Result<Option<Zeroizing<String>>> {
+        let passphrase = PASSPHRASE.read(self.passphrase_file.as_deref())?;
+        if let Some(p) = &passphrase {
+            super::parse_passphrase(p).map_err(anyhow::Error::msg)?;
+        }
+        Ok(passphrase)
+    }
+
+    /// Whether a key file is named (a variable in the environment is not asked for).
+    pub(crate) fn named(&self) -> bool {
+        self.passphrase_file.is_some() || self.hex_file.is_some()
+    }
+
     fn master_key(&self, room: Option<&str>) -> Result<Option<MasterKey>> {
-        match (&self.passphrase, &self.hex) {
-            (Some(_), Some(_)) => bail!("give either --key or --key-hex, not both"),
-            (Some(p), None) => Ok(Some(MasterKey::from_passphrase(p, room.unwrap_or("")))),
-            (None, Some(h)) => Ok(Some(MasterKey::from_hex(h).context("--key-hex")?)),
+        let hex = HEX_KEY.read(self.hex_file.as_deref())?;
+        match (self.passphrase()?, hex) {
+            (Some(_), Some(_)) => bail!(
+                "give either a passphrase ({}) or a hex key ({}), not both",
+                PASSPHRASE.how_to_give(),
+                HEX_KEY.how_to_give()
+            ),
+            (Some(p), None) => Ok(Some(MasterKey::from_passphrase(&p, room.unwrap_or("")))),
+            (None, Some(h)) => Ok(Some(MasterKey::from_hex(h.trim()).context(HEX_KEY.flag)?)),
             (None, None) => Ok(None),
         }
     }
@@ -59,29 +95,81 @@ fn announce_security(key: &Option<MasterKey>) {
     if key.is_some() {
         eprintln!("lipcall: media encrypted and authenticated (SRTP AES_CM_128_HMAC_SHA1_80)");
     } else {
-        eprintln!("lipcall: warning: the call is NOT encrypted (plain RTP); use --key to encrypt");
+        eprintln!(
+            "lipcall: warning: the call is NOT encrypted (plain RTP); set LIPCALL_KEY or give \
+             --key-file to encrypt"
+        );
     }
 }
 
+/// When a send ends before its file does: `--seconds` after the start, or a signal.
+pub(crate) struct Pacing {
+    pub stop: Arc<AtomicBool>,
+    pub until: Option<Instant>,
+}
+
+impl Pacing {
+    /// From now on for `seconds` (to the file's end without it), and until SIGINT or SIGTERM.
+    pub(crate) fn new(seconds: Option<f64>) -> Result<Self> {
+        Ok(Self {
+            stop: stop_flag()?,
+            until: seconds.map(|s| Instant::now() + Duration::from_secs_f64(s)),
+        })
+    }
+}
+
+/// How a paced send ended.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub(crate) enum Paced {
+    Whole,
+    TimeUp,
+    Stopped,
+}
+
+impl Paced {
+    /// Says why the send ended early, if it did.
+    pub(crate) fn announce(self) {
+        match self {
+            Self::Whole => {}
+            Self::TimeUp => eprintln!("lipcall: --seconds is up; stopped sending"),
+            Self::Stopped => eprintln!("lipcall: stopped by a signal"),
+        }
+    }
+}
+
+/// Longest sleep between two looks at the stop flag and the deadline.
+const STOP_LOOK: Duration = Duration::from_millis(20);
+
 /// Sends `packets` (payload, duration in RTP ticks of `codec`) each at its time from now, as a
-/// live source would.
+/// live source would, until the last one, `pacing`'s deadline or a signal.
 pub(crate) fn send_paced(
     packets: &[(Vec<u8>, u32)],
     codec: Codec,
+    pacing: &Pacing,
     mut send: impl FnMut(&[u8], u32) -> Result<()>,
-) -> Result<()> {
+) -> Result<Paced> {
     let clock = f64::from(codec.clock_rate());
     let start = Instant::now();
     let mut at = 0u64;
     for (payload, duration) in packets {
         let due = start + Duration::from_secs_f64(at as f64 / clock);
-        if let Some(wait) = due.checked_duration_since(Instant::now()) {
-            std::thread::sleep(wait);
+        loop {
+            if stopped(&pacing.stop) {
+                return Ok(Paced::Stopped);
+            }
+            let now = Instant::now();
+            if pacing.until.is_some_and(|until| now >= until) {
+                return Ok(Paced::TimeUp);
+            }
+            match due.checked_duration_since(now) {
+                Some(wait) if !wait.is_zero() => std::thread::sleep(wait.min(STOP_LOOK)),
+                _ => break,
+            }
         }
         send(payload, *duration)?;
         at += u64::from(*duration);
     }
-    Ok(())
+    Ok(Paced::Whole)
 }
 
 /// What `send` sends ([`MediaFile::packets`]). A name of no known type whose content tells
@@ -167,9 +255,16 @@ pub struct SendArgs {
     /// Use this SSRC (hex) instead of a random one, for set-ups that need it in advance.
     #[arg(long, value_parser = parse_hex_u32)]
     pub ssrc: Option<u32>,
+    /// Stop after this many seconds (otherwise at the file's end); with --janus or --mumble,
+    /// counted from the first packet. Ctrl-C (SIGINT) or SIGTERM ends the send at any time,
+    /// saying goodbye to the peers.
+    #[arg(long, allow_hyphen_values = true, value_parser = super::parse_seconds)]
+    pub seconds: Option<f64>,
 }
 
 pub fn send(args: &SendArgs) -> Result<()> {
+    // The key first: core dumps are off from then on.
+    let key = args.key.master_key(args.room.as_deref())?;
     let payloads = payload_map(&args.payload_types)?;
     let mut settings = EncoderSettings::wideband(args.bandwidth);
     settings.speex.quality = args.quality;
@@ -181,7 +276,6 @@ pub fn send(args: &SendArgs) -> Result<()> {
         bail!("no RTP payload type is mapped to {codec} (--pt took it)");
     }
     let to = resolve(&args.to)?;
-    let key = args.key.master_key(args.room.as_deref())?;
     announce_security(&key);
     let mut config = SessionConfig::new(any_port_like(to));
     config.destinations = vec![to];
@@ -192,9 +286,10 @@ pub fn send(args: &SendArgs) -> Result<()> {
     config.ssrc = args.ssrc;
     config.codec = codec;
     config.payloads = payloads;
+    let pacing = Pacing::new(args.seconds)?;
     let session = Session::start(config)?;
     if args.room.is_some() {
-        wait_for_relay(&session, &AtomicBool::new(false), None)?;
+        wait_for_relay(&session, &pacing.stop, pacing.until)?;
     }
     let clock = f64::from(codec.clock_rate());
     let ticks: u64 = packets.iter().map(|(_, t)| u64::from(*t)).sum();
@@ -205,11 +300,14 @@ pub fn send(args: &SendArgs) -> Result<()> {
         session.ssrc()
     );
     let start = Instant::now();
-    send_paced(&packets, codec, |payload, duration| {
+    let paced = send_paced(&packets, codec, &pacing, |payload, duration| {
         Ok(session.send_packet(payload, duration)?)
     })?;
-    // Let the last packet's slot pass before saying BYE.
-    std::thread::sleep(TICK);
+    paced.announce();
+    if paced == Paced::Whole {
+        // Let the last packet's slot pass before saying BYE.
+        std::thread::sleep(TICK);
+    }
     session.leave();
     let stats = session.stats();
     eprintln!(

@@ -15,34 +15,85 @@ pub const REDACTED: &str = "(redacted)";
 /// Whether a byte can be part of a secret's value.
 type ValueByte = fn(&u8) -> bool;
 
-/// The markers a secret follows, each with the bytes its value is made of.
-const SECRETS: [(&str, ValueByte); 2] = [
+/// A named field's value in JSON, a URL's query or `Debug` output: up to its quote, `&`, `,`,
+/// a closing bracket or a space.
+fn field_byte(b: &u8) -> bool {
+    !(b.is_ascii_whitespace() || matches!(*b, b'"' | b'\\' | b'&' | b',' | b';' | b'}' | b')'))
+}
+
+/// The markers a secret follows (with their separator), each with the bytes its value is
+/// made of.
+const MARKED: [(&str, ValueByte); 2] = [
     ("inline:", |b| {
         b.is_ascii_alphanumeric() || matches!(*b, b'+' | b'/' | b'=')
     }),
     ("response=", u8::is_ascii_alphanumeric),
 ];
 
-/// `text` with the value after each secret's marker (case aside, quoted or not, its quotes
-/// printed escaped or not) replaced by [`REDACTED`].
+/// Field names whose value is a secret wherever a `:` or `=` follows them (the value quoted,
+/// or unquoted right after the separator):
+/// Janus's `apisecret`, `token` and room `pin` in its requests and long-poll URLs (ureq logs
+/// both), and any password or passphrase.
+const FIELDS: [&str; 6] = [
+    "apisecret",
+    "secret",
+    "token",
+    "pin",
+    "password",
+    "passphrase",
+];
+
+/// `text` with the value after each secret's marker or field name (case aside, quoted or not,
+/// its quotes printed escaped or not) replaced by [`REDACTED`].
 pub fn redact(text: &str) -> Cow<'_, str> {
     // ASCII lowercasing keeps every byte where it was.
     let lower = text.to_ascii_lowercase();
     let bytes = text.as_bytes();
     let mut spans = Vec::new();
-    for (marker, in_value) in SECRETS {
+    let quotes = |at: usize| {
+        bytes[at..]
+            .iter()
+            .take_while(|b| matches!(**b, b'"' | b'\\'))
+            .count()
+    };
+    let mut value = |start: usize, in_value: ValueByte| {
+        let start = start + quotes(start);
+        let end = start + bytes[start..].iter().take_while(|b| in_value(b)).count();
+        if end > start {
+            spans.push((start, end));
+        }
+        end
+    };
+    for (marker, in_value) in MARKED {
         let mut from = 0;
         while let Some(at) = lower[from..].find(marker) {
-            let mut start = from + at + marker.len();
-            start += bytes[start..]
-                .iter()
-                .take_while(|b| matches!(**b, b'"' | b'\\'))
-                .count();
-            let end = start + bytes[start..].iter().take_while(|b| in_value(b)).count();
-            if end > start {
-                spans.push((start, end));
+            from = value(from + at + marker.len(), in_value);
+        }
+    }
+    for name in FIELDS {
+        let mut from = 0;
+        while let Some(at) = lower[from..].find(name) {
+            let begin = from + at;
+            let mut next = begin + name.len();
+            from = next;
+            // A whole word: `spin=` and `pings:` are no pin.
+            if begin > 0 && bytes[begin - 1].is_ascii_alphanumeric() {
+                continue;
             }
-            from = end;
+            next += quotes(next);
+            if !matches!(bytes.get(next), Some(b':' | b'=')) {
+                continue;
+            }
+            next += 1;
+            let spaces = bytes[next..].iter().take_while(|b| **b == b' ').count();
+            next += spaces;
+            if lower[next..].starts_with("some(") {
+                next += "some(".len();
+            } else if spaces > 0 && quotes(next) == 0 {
+                // Prose (`the secret: …`), not a field.
+                continue;
+            }
+            from = value(next, field_byte);
         }
     }
     if spans.is_empty() {
@@ -130,6 +181,38 @@ mod tests {
             redact("nothing secret: inline: response=\"\""),
             Cow::Borrowed(_)
         ));
+    }
+
+    #[test]
+    fn janus_credentials_pins_and_passwords_are_replaced() {
+        let url = "GET http://h:8088/janus/7?maxev=10&apisecret=s3cr3t-api&token=t0ken-abc HTTP";
+        let shown = redact(url);
+        assert_eq!(
+            shown,
+            "GET http://h:8088/janus/7?maxev=10&apisecret=(redacted)&token=(redacted) HTTP"
+        );
+        let json = r#"{"janus":"message","apisecret":"s3cr3t-api","body":{"request":"join","pin": "my pin","ptype":"publisher"}}"#;
+        let shown = redact(json);
+        assert!(
+            !shown.contains("s3cr3t-api") && !shown.contains("my"),
+            "{shown}"
+        );
+        assert!(shown.contains(r#""request":"join""#), "{shown}");
+        let debug = r#"Authenticate { username: Some("ann"), password: Some("hunter2"), api_secret: \"x1\" }"#;
+        let shown = redact(debug);
+        assert!(
+            !shown.contains("hunter2") && !shown.contains("x1"),
+            "{shown}"
+        );
+        assert!(shown.contains(r#"username: Some("ann")"#), "{shown}");
+        for kept in [
+            "pings: 3",
+            "spin=4",
+            "the token_auth plugin",
+            "secrets.rs:12",
+        ] {
+            assert!(matches!(redact(kept), Cow::Borrowed(_)), "{kept}");
+        }
     }
 
     proptest! {

@@ -5,6 +5,7 @@ use std::time::{Duration, Instant};
 use anyhow::Result;
 
 use super::net::resolve;
+use super::recording::{stop_flag, stopped};
 use crate::net::relay::{Relay, RelayConfig};
 
 /// `lipcall relay`.
@@ -14,21 +15,33 @@ pub struct RelayArgs {
     /// says the address: `lipcall: relay listening on IP:PORT` (a stable format).
     #[arg(long, value_name = "HOST:PORT")]
     pub listen: String,
-    /// Stop after this many seconds (otherwise run until killed).
+    /// Stop after this many seconds (otherwise until Ctrl-C (SIGINT) or SIGTERM, which end it
+    /// at any time).
     #[arg(long, allow_hyphen_values = true, value_parser = super::parse_seconds)]
     pub seconds: Option<f64>,
 }
 
+/// How often the relay's loop looks at the clock and the stop flag.
+const LOOK: Duration = Duration::from_millis(20);
+
 pub fn relay(listen: &str, seconds: Option<f64>) -> Result<()> {
+    let stop = stop_flag()?;
     let relay = Relay::start(resolve(listen)?, RelayConfig::default())?;
     eprintln!("lipcall: relay listening on {}", relay.local_addr());
     let start = Instant::now();
+    let until = seconds.map(|s| start + Duration::from_secs_f64(s));
     let mut next_report = start + Duration::from_secs(10);
     loop {
-        std::thread::sleep(Duration::from_millis(100));
-        if seconds.is_some_and(|s| start.elapsed().as_secs_f64() >= s) {
+        let now = Instant::now();
+        if until.is_some_and(|until| now >= until) {
             break;
         }
+        if stopped(&stop) {
+            eprintln!("lipcall: stopped by a signal");
+            break;
+        }
+        let wake = until.map_or(now + LOOK, |until| until.min(now + LOOK));
+        std::thread::sleep(wake.saturating_duration_since(now));
         if Instant::now() >= next_report {
             print_relay(&relay);
             next_report += Duration::from_secs(10);

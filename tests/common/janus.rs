@@ -26,9 +26,8 @@ pub fn receive_in_room(
 ) -> Listening {
     spawn_listening(
         super::lipcall()
-            .args([
-                "receive", "--janus", &janus.url, "--room", room, "--key", pin,
-            ])
+            .args(["receive", "--janus", &janus.url, "--room", room])
+            .env("LIPCALL_KEY", pin)
             .args(["--name", "Bob", "--seconds", seconds])
             // Compared with 8 kHz sources (the Opus stream itself is decoded at 48 kHz).
             .args(["--rate", "8000"])

@@ -168,7 +168,9 @@ pub struct Channel {
 
 pub(super) fn describe_reject(kind: Option<i32>, reason: Option<&str>) -> String {
     let what = match kind.and_then(|k| RejectType::try_from(k).ok()) {
-        Some(RejectType::WrongServerPw) => "wrong server password (give it with --password)",
+        Some(RejectType::WrongServerPw) => {
+            "wrong server password (set LIPCALL_MUMBLE_PASSWORD or give --password-file)"
+        }
         Some(RejectType::WrongUserPw) => "wrong password for this registered name",
         Some(RejectType::UsernameInUse) => "the name is in use: pick another with --name",
         Some(RejectType::InvalidUsername) => "the server does not accept this name",
