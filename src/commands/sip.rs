@@ -7,7 +7,6 @@ use std::sync::atomic::AtomicBool;
 use std::time::{Duration, Instant};
 
 use anyhow::{Context, Result, bail};
-use zeroize::Zeroizing;
 
 use super::net::{load_packets, parse_codec, print_peer};
 use super::playout::{DIRECT, open_outputs, play, print_event};
@@ -22,7 +21,7 @@ use crate::net::rtcp::ReportBlock;
 use crate::net::sip::address::{bind_towards, host_port, resolve_host};
 use crate::net::sip::agent::{Account, Role, codecs};
 use crate::net::sip::transport::SrtpPolicy;
-use crate::secrets::{forbid_core_dumps, read_password_file};
+use crate::secrets::{SecretSource, forbid_core_dumps};
 
 /// How often the set-up phase looks at the stop flag and the deadline.
 const SETUP_STEP: Duration = Duration::from_millis(50);
@@ -142,32 +141,22 @@ pub fn run(command: &SipCommand) -> Result<()> {
     }
 }
 
-/// Where `--account`'s password is read from without `--password-file`.
-pub const PASSWORD_VARIABLE: &str = "LIPCALL_SIP_PASSWORD";
+/// Where `--account`'s password is read from.
+pub const SIP_PASSWORD: SecretSource = SecretSource {
+    flag: "--password-file",
+    variable: "LIPCALL_SIP_PASSWORD",
+};
 
 fn account(common: &SipCommon) -> Result<Option<Account>> {
     let Some(uri) = &common.account else {
         return Ok(None);
     };
-    let password = match &common.password_file {
-        Some(path) => {
-            let password = read_password_file(path)?;
-            if password.is_empty() {
-                bail!(
-                    "--password-file {}: its first line is empty",
-                    path.display()
-                );
-            }
-            password
-        }
-        None => Zeroizing::new(std::env::var(PASSWORD_VARIABLE).unwrap_or_default()),
-    };
-    if password.is_empty() {
+    let Some(password) = SIP_PASSWORD.read(common.password_file.as_deref())? else {
         bail!(
-            "--account {uri} needs its password: set {PASSWORD_VARIABLE} or give \
-             --password-file FILE"
+            "--account {uri} needs its password: {}",
+            SIP_PASSWORD.how_to_give()
         );
-    }
+    };
     let mut account = Account::parse(uri, &password)?;
     account.registrar = common.registrar.clone();
     Ok(Some(account))
