@@ -109,6 +109,13 @@ impl JitterBuffer {
     /// Files a received packet.
     pub fn file(&mut self, packet: Arrival<'_>) {
         let now = self.seconds(packet.at);
+        self.latest_arrival = self.latest_arrival.max(now);
+        tracing::trace!(
+            seq = packet.sequence,
+            ts = packet.timestamp,
+            at = now,
+            "jitter arrival"
+        );
         if (self.ending || self.state == State::Ended) && !self.of_ending_stream(&packet) {
             self.restart();
         }
@@ -228,6 +235,11 @@ impl JitterBuffer {
     /// A packet for slot `index` arrived at `now` while playing: how early it came.
     fn note_slack(&mut self, index: i64, now: f64) {
         let slack = self.slot_time(index) - now;
-        self.corrector.note_slack(now, slack);
+        // A packet filed before its slot was pulled came in time, whatever its stamp says: a
+        // stamp after the slot's tick is the puller running late, a busy machine (the receiving
+        // thread stamps what the same starvation held up), not a packet to grow the delay for
+        // at once.
+        let in_time = index >= self.next || self.state != State::Playing;
+        self.corrector.note_slack(now, slack, in_time);
     }
 }
