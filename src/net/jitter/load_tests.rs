@@ -233,3 +233,30 @@ fn a_starved_receive_thread_alone_is_jitter_and_the_target_comes_back_down() {
     assert!(out.targets[22] < 45.0, "{what}");
     assert!(out.stats.forced <= 5, "{what}");
 }
+
+#[test]
+fn a_stream_that_resumes_after_a_stall_plays_on_not_dropped_as_late() {
+    // The sender (or its path) stalls for 220 ms twice, in speech: the packets of the stall
+    // come together after it. The buffer has played what it had, concealed a frame or two,
+    // then paused; the packets that follow play on from there, none dropped as late.
+    let packets = 800;
+    let held = |i: u32, from: u32| (from..from + 11).contains(&i);
+    let out = run(
+        packets,
+        |i| {
+            if held(i, 105) {
+                sent(105) + 0.22
+            } else if held(i, 407) {
+                sent(407) + 0.22
+            } else {
+                sent(i) + 0.002
+            }
+        },
+        |k| 0.02 * f64::from(k),
+    );
+    let what = format!("{:?}", out.stats);
+    all_played(&out, packets, &what);
+    assert_eq!((out.stats.late, out.stats.resumed), (0, 2), "{what}");
+    // What was concealed was before the stall's packets came, a frame or two at most.
+    assert!(out.concealed.len() <= 4, "{what}: {:?}", out.concealed);
+}
