@@ -181,7 +181,7 @@ fn speech_through_a_stock_janus_scores_as_the_direct_path_quiet_and_busy() {
         let (wav, said) = listener_first(dir.path(), &janus.url, &joining, &name);
         let runs = [(name, wav, said), {
             let name = format!("publisher-first-{condition}");
-            let (wav, said) = publisher_first(dir.path(), &janus.url, &padded, &name);
+            let (wav, said) = publisher_first(dir.path(), &janus.url, &waiting, &name);
             (name, wav, said)
         }];
         for (name, wav, said) in runs {

@@ -127,6 +127,15 @@ impl Corrector {
         self.trend.clear();
     }
 
+    /// The delay played at is a frame or more below the target the packets' spread asks for
+    /// (it rose since playout started: a path that got busier): grow in the next pause,
+    /// before its late packets are concealed.
+    pub fn below_target(&mut self) {
+        if self.want == Want::Nothing && self.since_adjust >= QUIET_INTERVAL {
+            self.want = Want::Grow;
+        }
+    }
+
     /// A pop begins: nothing asked for, nothing handed out yet.
     pub fn begin_pop(&mut self) {
         self.want = Want::Nothing;

@@ -384,7 +384,11 @@ impl JitterBuffer {
                 self.stats.forced += 1;
                 self.skip(pulled);
             }
-            Adjust::None => {}
+            Adjust::None => {
+                if room && self.delay_at(now, self.next) < self.delay.target() - FRAME_SECONDS {
+                    self.corrector.below_target();
+                }
+            }
         }
         let lo = self.next * step;
         let mut pieces = Vec::new();
