@@ -38,6 +38,14 @@
 //! Packets arriving after their slot was played are `late` and dropped; repeated sequence
 //! numbers are `duplicates`.
 //!
+//! Starts, stalls and a busy machine. A stream that stalls with nothing buffered in the first
+//! frames of a talk spurt is waited for (a subscription whose first packet came through ahead
+//! of the rest), and packets that come after a stall, following the last one played, resume
+//! the stream from where it stopped instead of being dropped as late. A packet filed before
+//! its slot is pulled came in time even when stamped after the slot's tick (a puller held up
+//! by a busy machine): it asks for delay in a pause, never a frame inserted in speech. Drift
+//! comes from a robust fit that leaves a stall's blocks out (`trend`).
+//!
 //! New streams on the same SSRC. After BYE, a packet that is not a straggler of the old stream
 //! starts a new one (a redial with the same SSRC): sequence state starts over and the packet is
 //! placed where it arrives, after what of the old stream is still to play. Without
