@@ -256,7 +256,10 @@ fn a_stream_that_resumes_after_a_stall_plays_on_not_dropped_as_late() {
     );
     let what = format!("{:?}", out.stats);
     all_played(&out, packets, &what);
-    assert_eq!((out.stats.late, out.stats.resumed), (0, 2), "{what}");
+    // The first stall resumes the stream; the delay it left (no delay is shed for seconds
+    // after a stall) may absorb the second.
+    assert_eq!(out.stats.late, 0, "{what}");
+    assert!((1..=2).contains(&out.stats.resumed), "{what}");
     // What was concealed was before the stall's packets came, a frame or two at most.
     assert!(out.concealed.len() <= 4, "{what}: {:?}", out.concealed);
 }

@@ -22,9 +22,9 @@ const SETTLED: f64 = 1.0;
 const OUTLIER_SIGMAS: f64 = 3.0;
 /// Seconds within which blocks agree with the line whatever the spread of the others.
 const NOISE_FLOOR: f64 = 0.002;
-/// The fastest drift taken for clocks (2 %): crystals differ by parts per million, a
+/// The fastest drift taken for clocks (8 %): crystals differ by parts per million, a
 /// mis-set rate by parts per hundred; faster trends are the timing of a busy machine.
-const MAX_DRIFT: f64 = 0.02;
+const MAX_DRIFT: f64 = 0.08;
 
 #[derive(Debug)]
 pub(super) struct Trend {
