@@ -186,7 +186,7 @@ impl JitterBuffer {
             // since its last packet was concealment and pauses, nothing is buffered, and this
             // packet follows that one. Play on from it rather than drop it and what follows as
             // late: the stall's length goes into the delay, shed in the next pauses.
-            self.resume_at(index, now);
+            self.resume_at(index);
         }
         if self.state == State::Idle && self.stream_played && index < self.next {
             // A straggler of a talk spurt already over (or held up longer than it lasts).
@@ -252,9 +252,8 @@ impl JitterBuffer {
     }
 
     /// Plays on from slot `index` at the time the next slot was to play.
-    fn resume_at(&mut self, index: i64, now: f64) {
+    fn resume_at(&mut self, index: i64) {
         let at = self.slot_time(self.next);
-        self.corrector.resumed(now);
         for _ in index..self.next {
             self.corrector.grew();
         }

@@ -27,10 +27,6 @@ const FORCED_SPARE: f64 = 0.2;
 /// when the worst slack allows a frame less: half a frame, so that a start one frame late less
 /// a few milliseconds of jitter is not kept for the whole call.
 const HELD_UP: f64 = 0.5 * FRAME_SECONDS;
-/// Seconds after a packet came too late (or a stream resumed after a stall) in which the
-/// buffer sheds no delay: a path that stalls once a second or two would otherwise lose a frame
-/// to each stall and shed it again in the pause after.
-const CALM: f64 = 8.0;
 /// A drift of the slack faster than this (seconds per second, 0.05 %) is a fast sender: the
 /// buffer sheds spare delay in pauses from a lower level than a jitter-free start can show.
 const FAST_DRIFT: f64 = 0.0005;
@@ -87,8 +83,6 @@ pub(super) struct Corrector {
     /// The fastest relative delay when playout started, less the delay playout started above
     /// its target and the frames shed since (seconds): see [`Corrector::adapt`].
     start_base: f64,
-    /// When a packet last came too late, or the stream resumed after a stall (seconds).
-    late_at: f64,
 }
 
 impl Corrector {
@@ -106,7 +100,6 @@ impl Corrector {
             insert_next: false,
             handed_audio: false,
             start_base: f64::NAN,
-            late_at: f64::NEG_INFINITY,
         }
     }
 
@@ -134,13 +127,6 @@ impl Corrector {
         self.trend.clear();
     }
 
-    /// The stream resumed after a stall at `now`: the delay it added is needed, not surplus a
-    /// held-up start gave.
-    pub fn resumed(&mut self, now: f64) {
-        self.late_at = now;
-        self.start_base = f64::NEG_INFINITY;
-    }
-
     /// The delay played at is a frame or more below the target the packets' spread asks for
     /// (it rose since playout started: a path that got busier): grow in the next pause,
     /// before its late packets are concealed.
@@ -163,9 +149,6 @@ impl Corrector {
 
     /// A packet arrived at `now` while playing, `slack` seconds before its slot's playout.
     pub fn note_slack(&mut self, now: f64, slack: f64, in_time: bool) {
-        if !in_time {
-            self.late_at = now;
-        }
         if self.slack.len() == SLACK_WINDOW {
             self.slack.pop_front();
         }
@@ -235,10 +218,7 @@ impl Corrector {
             }
             if low < limits.grow_quiet && room {
                 self.want = Want::Grow;
-            } else if self.slack.len() >= SLACK_WINDOW / 2
-                && low > limits.shrink_quiet
-                && now - self.late_at >= CALM
-            {
+            } else if self.slack.len() >= SLACK_WINDOW / 2 && low > limits.shrink_quiet {
                 // Shrinking waits for a fuller picture: start-up bursts look like spare delay.
                 self.want = Want::Shrink;
                 if due && low > limits.shrink_forced && can_skip() {
