@@ -202,12 +202,12 @@ impl Corrector {
             self.slack_sorted.sort_by(f64::total_cmp);
             let worst = self.slack_sorted.len() / 50;
             let low = self.slack_sorted[worst];
+            let mut limits = self.limits();
             let forcing = self
                 .slack
                 .iter()
-                .filter(|&&(t, s, held)| !held && s + drift * (now - t) < self.grow_forced())
+                .filter(|&&(t, s, held)| !held && s + drift * (now - t) < limits.grow_forced)
                 .count();
-            let mut limits = self.limits();
             if self.start_base - base >= HELD_UP {
                 let spare = limits.grow_quiet + self.margin + pull_jitter + FRAME_SECONDS;
                 limits.shrink_quiet = limits.shrink_quiet.min(spare);
