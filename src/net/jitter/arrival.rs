@@ -256,6 +256,7 @@ impl JitterBuffer {
         let at = self.slot_time(self.next);
         for _ in index..self.next {
             self.corrector.grew();
+            self.stats.stretched += 1;
         }
         self.next = index;
         self.play_ref = (index, at);

@@ -494,7 +494,7 @@ impl JitterBuffer {
             // came too late has not stopped; otherwise conceal for as long as the buffer's
             // delay would wait for a late packet, then rest.
             // At a spurt's start the stream's next packets are held up rather than lost: wait
-            // for them (play nothing, the slot stays next), up to the largest delay.
+            // for them (a frame inserted, the slot stays next), up to the largest delay.
             (None, Some(_))
                 if self.spurt_frames < START_FRAMES && self.start_waits < START_WAIT =>
             {
@@ -502,8 +502,8 @@ impl JitterBuffer {
                 self.next = index;
                 self.play_ref.1 += FRAME_SECONDS;
                 self.corrector.grew();
-                self.stats.paused += 1;
-                return Playout::Pause;
+                self.stats.stretched += 1;
+                return Playout::Stretch;
             }
             (None, last) => {
                 let hold = (self.delay.target() / FRAME_SECONDS).ceil().max(1.0) as u32;
