@@ -114,6 +114,8 @@ impl Namespace {
             .args(["netns", "exec", &self.name])
             .arg(&exe)
             .args(["--exact", test, "--nocapture", "--test-threads=1"])
+            // A test run by name with --ignored runs in its namespace too.
+            .arg("--include-ignored")
             .env(ENV, &self.name)
             .stdin(Stdio::null())
             .stdout(Stdio::piped())

@@ -109,6 +109,13 @@ impl JitterBuffer {
     /// Files a received packet.
     pub fn file(&mut self, packet: Arrival<'_>) {
         let now = self.seconds(packet.at);
+        self.latest_arrival = self.latest_arrival.max(now);
+        tracing::trace!(
+            seq = packet.sequence,
+            ts = packet.timestamp,
+            at = now,
+            "jitter arrival"
+        );
         if (self.ending || self.state == State::Ended) && !self.of_ending_stream(&packet) {
             self.restart();
         }
@@ -174,6 +181,13 @@ impl JitterBuffer {
             off = on_grid(raw, step);
             index = self.timeline.slot_of(off);
         }
+        if index < self.next && self.resumes(ext_seq, index) {
+            // The stream resumes after a stall (its sender's, or a path's): what was played
+            // since its last packet was concealment and pauses, nothing is buffered, and this
+            // packet follows that one. Play on from it rather than drop it and what follows as
+            // late: the stall's length goes into the delay, shed in the next pauses.
+            self.resume_at(index);
+        }
         if self.state == State::Idle && self.stream_played && index < self.next {
             // A straggler of a talk spurt already over (or held up longer than it lasts).
             self.stats.late += 1;
@@ -225,9 +239,39 @@ impl JitterBuffer {
         );
     }
 
+    /// Whether the packet `seq` for slot `index`, behind the next slot to play, continues the
+    /// stream after a stall: it follows the last packet handed out, nothing is buffered, and
+    /// the delay it adds stays within the largest.
+    fn resumes(&self, seq: i64, index: i64) -> bool {
+        let most = (self.config.max_delay.as_secs_f64() / FRAME_SECONDS) as i64;
+        self.stream_played
+            && self.entries.is_empty()
+            && self.last_out_seq == Some(seq - 1)
+            && self.next - index <= most
+            && self.covered <= index * self.timeline.step
+    }
+
+    /// Plays on from slot `index` at the time the next slot was to play.
+    fn resume_at(&mut self, index: i64) {
+        let at = self.slot_time(self.next);
+        for _ in index..self.next {
+            self.corrector.grew();
+            self.stats.stretched += 1;
+        }
+        self.next = index;
+        self.play_ref = (index, at);
+        self.holes = 0;
+        self.stats.resumed += 1;
+    }
+
     /// A packet for slot `index` arrived at `now` while playing: how early it came.
     fn note_slack(&mut self, index: i64, now: f64) {
         let slack = self.slot_time(index) - now;
-        self.corrector.note_slack(now, slack);
+        // A packet filed before its slot was pulled came in time, whatever its stamp says: a
+        // stamp after the slot's tick is the puller running late, a busy machine (the receiving
+        // thread stamps what the same starvation held up), not a packet to grow the delay for
+        // at once.
+        let in_time = index >= self.next || self.state != State::Playing;
+        self.corrector.note_slack(now, slack, in_time);
     }
 }

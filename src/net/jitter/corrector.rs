@@ -6,8 +6,8 @@
 
 use std::collections::VecDeque;
 
-use super::estimator::Trend;
 use super::packets::FRAME_SECONDS;
+use super::trend::Trend;
 use super::{Correction, JitterConfig, Loudness};
 
 /// Packets whose slack steers the delay while playing.
@@ -63,8 +63,9 @@ struct Limits {
 pub(super) struct Corrector {
     margin: f64,
     adapt_interval: u32,
-    /// How early each recent packet arrived before its playout slot, and when, in seconds.
-    slack: VecDeque<(f64, f64)>,
+    /// How early each recent packet arrived before its playout slot, and when, in seconds; and
+    /// whether it came after its slot's tick yet before the slot was pulled (a puller held up).
+    slack: VecDeque<(f64, f64, bool)>,
     slack_sorted: Vec<f64>,
     /// The delay the corrections added since playout started (seconds): the slack trend
     /// measures without it.
@@ -92,7 +93,7 @@ impl Corrector {
             slack: VecDeque::with_capacity(SLACK_WINDOW),
             slack_sorted: Vec::with_capacity(SLACK_WINDOW),
             shifted: 0.0,
-            trend: Trend::new(),
+            trend: Trend::of_slack(),
             since_adjust: 0,
             want: Want::Nothing,
             quiet_run: 0,
@@ -126,6 +127,15 @@ impl Corrector {
         self.trend.clear();
     }
 
+    /// The delay played at is a frame or more below the target the packets' spread asks for
+    /// (it rose since playout started: a path that got busier): grow in the next pause,
+    /// before its late packets are concealed.
+    pub fn below_target(&mut self) {
+        if self.want == Want::Nothing && self.since_adjust >= QUIET_INTERVAL {
+            self.want = Want::Grow;
+        }
+    }
+
     /// A pop begins: nothing asked for, nothing handed out yet.
     pub fn begin_pop(&mut self) {
         self.want = Want::Nothing;
@@ -138,11 +148,11 @@ impl Corrector {
     }
 
     /// A packet arrived at `now` while playing, `slack` seconds before its slot's playout.
-    pub fn note_slack(&mut self, now: f64, slack: f64) {
+    pub fn note_slack(&mut self, now: f64, slack: f64, in_time: bool) {
         if self.slack.len() == SLACK_WINDOW {
             self.slack.pop_front();
         }
-        self.slack.push_back((now, slack));
+        self.slack.push_back((now, slack, in_time && slack < 0.0));
         self.trend.note(now, slack - self.shifted);
     }
 
@@ -176,17 +186,34 @@ impl Corrector {
             // drifting sender the oldest packets' slack is no longer what the buffer keeps.
             let drift = self.trend.drift();
             self.slack_sorted.clear();
+            // A packet that came after its slot's tick but before the slot was pulled (the
+            // puller held up by a busy machine, the packet's stamp held up alike) counts as
+            // one just in time: it asks for more delay in the next pause, never a frame
+            // inserted in speech.
+            let just_in_time = 0.5 * self.grow_forced();
             self.slack_sorted
-                .extend(self.slack.iter().map(|&(t, s)| s + drift * (now - t)));
+                .extend(self.slack.iter().map(|&(t, s, held)| {
+                    if held {
+                        just_in_time
+                    } else {
+                        s + drift * (now - t)
+                    }
+                }));
             self.slack_sorted.sort_by(f64::total_cmp);
-            let low = self.slack_sorted[self.slack_sorted.len() / 50];
+            let worst = self.slack_sorted.len() / 50;
+            let low = self.slack_sorted[worst];
             let mut limits = self.limits();
+            let forcing = self
+                .slack
+                .iter()
+                .filter(|&&(t, s, held)| !held && s + drift * (now - t) < limits.grow_forced)
+                .count();
             if self.start_base - base >= HELD_UP {
                 let spare = limits.grow_quiet + self.margin + pull_jitter + FRAME_SECONDS;
                 limits.shrink_quiet = limits.shrink_quiet.min(spare);
             }
             let due = self.since_adjust >= self.adapt_interval;
-            if low < limits.grow_forced && due && room {
+            if forcing > worst && due && room {
                 return Adjust::ForcedStretch;
             }
             if low < limits.grow_quiet && room {
@@ -202,6 +229,11 @@ impl Corrector {
         Adjust::None
     }
 
+    /// The worst slack below which the buffer inserts a frame whatever the audio.
+    fn grow_forced(&self) -> f64 {
+        0.25 * self.margin
+    }
+
     /// Where the buffer corrects its delay, by the worst slack (seconds): below `grow_forced`
     /// it inserts a frame at once, below `grow_quiet` in the next pause; above `shrink_quiet`
     /// it drops a quiet frame, above `shrink_forced` any frame.
@@ -213,7 +245,7 @@ impl Corrector {
             .fit()
             .filter(|&(slope, error)| slope.abs() > 3.0 * error)
             .map_or(0.0, |(slope, _)| slope);
-        let grow_forced = 0.25 * margin;
+        let grow_forced = self.grow_forced();
         // Against a slow sender: the delay the drift eats before the next pause is likely (and
         // some, however slow it is, so that there is a pause to grow in before the limit).
         let grow_quiet = if drift < 0.0 {
@@ -241,7 +273,9 @@ impl Corrector {
     /// A frame was inserted: 20 ms more delay.
     pub fn grew(&mut self) {
         self.since_adjust = 0;
-        self.slack.iter_mut().for_each(|(_, s)| *s += FRAME_SECONDS);
+        self.slack
+            .iter_mut()
+            .for_each(|(_, s, _)| *s += FRAME_SECONDS);
         self.shifted += FRAME_SECONDS;
     }
 
@@ -249,7 +283,9 @@ impl Corrector {
     pub fn shrank(&mut self) {
         self.since_adjust = 0;
         self.start_base -= FRAME_SECONDS;
-        self.slack.iter_mut().for_each(|(_, s)| *s -= FRAME_SECONDS);
+        self.slack
+            .iter_mut()
+            .for_each(|(_, s, _)| *s -= FRAME_SECONDS);
         self.shifted -= FRAME_SECONDS;
     }
 

@@ -1,103 +1,16 @@
 //! The delay estimator: how much delay the buffer needs. Each packet's relative delay
 //! (arrival less its RTP time) is noted; the fastest over a window is the `base`, the spread
 //! above it the network's jitter, and the pull clock's own jitter adds to it. A sender's clock
-//! drifting against ours shows as a steady trend ([`Trend`]), which is no jitter.
+//! drifting against ours shows as a steady trend (`Trend`), which is no jitter.
 
 use std::collections::VecDeque;
 
 use super::JitterConfig;
 use super::packets::FRAME_SECONDS;
+use super::trend::Trend;
 
 /// Pulls whose timing gives the pull clock's jitter.
 const PULL_WINDOW: usize = 50;
-
-/// Seconds of arrivals one block of the slack trend spans.
-const TREND_BLOCK: f64 = 0.25;
-/// Blocks the trend is fitted over (12 s), and the fewest that give one (1 s).
-const TREND_BLOCKS: usize = 48;
-const TREND_MIN_BLOCKS: usize = 4;
-
-/// The trend of a per-packet time over the last seconds: per block of arrivals its smallest
-/// value (jitter only adds to it), a least-squares line through the blocks. Of the packets'
-/// slack (corrected for the frames the buffer inserted and dropped), the slope is the drift
-/// between the sender's clock and the playout clock; of their transit, between the sender's
-/// and the system clock the arrivals are timed by.
-#[derive(Debug)]
-pub(super) struct Trend {
-    block_start: f64,
-    block_min: f64,
-    blocks: VecDeque<(f64, f64)>,
-}
-
-impl Trend {
-    pub fn new() -> Self {
-        Self {
-            block_start: f64::NAN,
-            block_min: f64::INFINITY,
-            blocks: VecDeque::with_capacity(TREND_BLOCKS),
-        }
-    }
-
-    pub fn clear(&mut self) {
-        self.block_start = f64::NAN;
-        self.block_min = f64::INFINITY;
-        self.blocks.clear();
-    }
-
-    /// A packet arriving at `now` (seconds) with `value`.
-    pub fn note(&mut self, now: f64, value: f64) {
-        if self.block_start.is_nan() {
-            self.block_start = now;
-        }
-        if now - self.block_start >= TREND_BLOCK {
-            if self.blocks.len() == TREND_BLOCKS {
-                self.blocks.pop_front();
-            }
-            self.blocks.push_back((self.block_start, self.block_min));
-            self.block_start = now;
-            self.block_min = f64::INFINITY;
-        }
-        self.block_min = self.block_min.min(value);
-    }
-
-    /// Seconds gained per second, and its standard error. Of the slack: negative when the
-    /// sender's clock is slower than the playout clock (packets come later and later),
-    /// positive when it is faster.
-    pub fn fit(&self) -> Option<(f64, f64)> {
-        let n = self.blocks.len();
-        if n < TREND_MIN_BLOCKS {
-            return None;
-        }
-        let (st, sm) = self
-            .blocks
-            .iter()
-            .fold((0.0, 0.0), |(st, sm), &(t, m)| (st + t, sm + m));
-        let (t_mean, m_mean) = (st / n as f64, sm / n as f64);
-        let (mut num, mut den) = (0.0, 0.0);
-        for &(t, m) in &self.blocks {
-            num += (t - t_mean) * (m - m_mean);
-            den += (t - t_mean) * (t - t_mean);
-        }
-        if den <= 0.0 {
-            return None;
-        }
-        let slope = num / den;
-        let residual: f64 = self
-            .blocks
-            .iter()
-            .map(|&(t, m)| (m - m_mean - slope * (t - t_mean)).powi(2))
-            .sum();
-        Some((slope, (residual / (n - 2) as f64 / den).sqrt()))
-    }
-
-    /// The drift as far as it is certain: the slope less twice its standard error (0 when
-    /// that leaves nothing), so that jitter is not taken for drift.
-    pub fn drift(&self) -> f64 {
-        self.fit().map_or(0.0, |(slope, error)| {
-            slope.signum() * (slope.abs() - 2.0 * error).max(0.0)
-        })
-    }
-}
 
 /// The delay the buffer aims at, from the packets' delays and the pulls' timing (seconds).
 #[derive(Debug)]

@@ -38,6 +38,14 @@
 //! Packets arriving after their slot was played are `late` and dropped; repeated sequence
 //! numbers are `duplicates`.
 //!
+//! Starts, stalls and a busy machine. A stream that stalls with nothing buffered in the first
+//! frames of a talk spurt is waited for (a subscription whose first packet came through ahead
+//! of the rest), and packets that come after a stall, following the last one played, resume
+//! the stream from where it stopped instead of being dropped as late. A packet filed before
+//! its slot is pulled came in time even when stamped after the slot's tick (a puller held up
+//! by a busy machine): it asks for delay in a pause, never a frame inserted in speech. Drift
+//! comes from a robust fit that leaves a stall's blocks out (`trend`).
+//!
 //! New streams on the same SSRC. After BYE, a packet that is not a straggler of the old stream
 //! starts a new one (a redial with the same SSRC): sequence state starts over and the packet is
 //! placed where it arrives, after what of the old stream is still to play. Without
@@ -52,7 +60,10 @@ mod estimator;
 mod packets;
 mod stats;
 mod timeline;
+mod trend;
 
+#[cfg(test)]
+mod load_tests;
 #[cfg(test)]
 mod tests;
 
@@ -71,6 +82,12 @@ use timeline::{Sequence, Timeline};
 pub const DEFAULT_CLOCK: u32 = 8000;
 /// A packet lasts at most this many frames (longer claims are cut).
 const MAX_PACKET_FRAMES: u32 = 64;
+/// Frames at the start of a talk spurt in which a stream that stalls with nothing buffered is
+/// waited for rather than concealed: its next packets are held up (a subscription or a
+/// re-join whose first packet came through ahead of the rest), not lost.
+const START_FRAMES: u32 = 4;
+/// The most frames a start waits for in all.
+const START_WAIT: u32 = 20;
 
 #[derive(Debug)]
 struct Entry {
@@ -106,6 +123,9 @@ pub struct JitterBuffer {
     covered: i64,
     /// Output time at which slot `play_ref.0` is (or was) played.
     play_ref: (i64, f64),
+    /// The latest arrival filed (seconds): a pull that finds the packet cannot have come
+    /// before it, whatever time it was asked for (a pulling thread starved behind its ticks).
+    latest_arrival: f64,
     empty_since: Option<f64>,
     /// Where the sender said its stream starts and ends, in ticks from the origin.
     start_hint: Option<i64>,
@@ -120,6 +140,9 @@ pub struct JitterBuffer {
     last_out_seq: Option<i64>,
     /// Frames concealed in a row with nothing buffered.
     holes: u32,
+    /// Frames handed out since the talk spurt started, and frames waited for in it.
+    spurt_frames: u32,
+    start_waits: u32,
     /// The sender said BYE (a packet not continuing its stream starts a new one).
     ending: bool,
     stats: JitterStats,
@@ -146,6 +169,7 @@ impl JitterBuffer {
             next: 0,
             covered: 0,
             play_ref: (0, 0.0),
+            latest_arrival: f64::NEG_INFINITY,
             empty_since: None,
             start_hint: None,
             end_hint: None,
@@ -154,6 +178,8 @@ impl JitterBuffer {
             newest: None,
             last_out_seq: None,
             holes: 0,
+            spurt_frames: 0,
+            start_waits: 0,
             ending: false,
             stats: JitterStats::default(),
         }
@@ -260,7 +286,29 @@ impl JitterBuffer {
 
     /// What to play for the 20 ms of output starting at `now` (on the output clock).
     pub fn pop(&mut self, now: Instant) -> Playout {
-        let now = self.seconds(now);
+        let out = self.pop_at(self.seconds(now));
+        if tracing::enabled!(tracing::Level::TRACE) {
+            let kind = match &out {
+                Playout::Packet(_) | Playout::Pieces(_) => "audio",
+                Playout::NextFrame => "next",
+                Playout::Lost => "lost",
+                Playout::Pause => "pause",
+                Playout::Stretch => "stretch",
+                Playout::Silent => "silent",
+            };
+            tracing::trace!(
+                at = self.seconds(now),
+                next = self.next,
+                kind,
+                base = self.delay.base(),
+                target = self.delay.target(),
+                "jitter pop"
+            );
+        }
+        out
+    }
+
+    fn pop_at(&mut self, now: f64) -> Playout {
         self.delay.note_pull(now);
         self.corrector.begin_pop();
         match self.state {
@@ -285,6 +333,8 @@ impl JitterBuffer {
                 self.covered = start * self.timeline.step;
                 self.empty_since = None;
                 self.holes = 0;
+                self.spurt_frames = 0;
+                self.start_waits = 0;
                 self.stats.spurts += 1;
                 self.stream_played = true;
             }
@@ -323,23 +373,30 @@ impl JitterBuffer {
         } else {
             self.empty_since = None;
         }
-        self.play_ref = (self.next, now);
+        // A pull asked for a tick its thread reached late finds packets that came after that
+        // tick: they were in time, and the slots after it are played that much later.
+        let pulled = now.max(self.latest_arrival);
+        self.play_ref = (self.next, pulled);
         self.stats.current_delay_ms = self.delay_at(now, self.next) * 1000.0;
         let room = self.delay_at(now, self.next) < self.config.max_delay.as_secs_f64();
         let (entries, timeline, next) = (&self.entries, &self.timeline, self.next);
         let can_skip = || slot_filled(entries, timeline, next + 1);
         let timing = (self.delay.base(), self.delay.pull_jitter());
         match self.corrector.adapt(now, room, timing, can_skip) {
-            Adjust::Stretch => return self.stretch(now),
+            Adjust::Stretch => return self.stretch(pulled),
             Adjust::ForcedStretch => {
                 self.stats.forced += 1;
-                return self.stretch(now);
+                return self.stretch(pulled);
             }
             Adjust::ForcedSkip => {
                 self.stats.forced += 1;
-                self.skip(now);
+                self.skip(pulled);
             }
-            Adjust::None => {}
+            Adjust::None => {
+                if room && self.delay_at(now, self.next) < self.delay.target() - FRAME_SECONDS {
+                    self.corrector.below_target();
+                }
+            }
         }
         let lo = self.next * step;
         let mut pieces = Vec::new();
@@ -364,6 +421,7 @@ impl JitterBuffer {
             return self.missing(self.next - 1);
         }
         self.holes = 0;
+        self.spurt_frames = self.spurt_frames.saturating_add(1);
         self.stats.played += 1;
         self.corrector.handed_audio();
         match pieces.len() {
@@ -435,6 +493,18 @@ impl JitterBuffer {
             // still due before the end the sender announced, and a sender whose newer packets
             // came too late has not stopped; otherwise conceal for as long as the buffer's
             // delay would wait for a late packet, then rest.
+            // At a spurt's start the stream's next packets are held up rather than lost: wait
+            // for them (a frame inserted, the slot stays next), up to the largest delay.
+            (None, Some(_))
+                if self.spurt_frames < START_FRAMES && self.start_waits < START_WAIT =>
+            {
+                self.start_waits += 1;
+                self.next = index;
+                self.play_ref.1 += FRAME_SECONDS;
+                self.corrector.grew();
+                self.stats.stretched += 1;
+                return Playout::Stretch;
+            }
             (None, last) => {
                 let hold = (self.delay.target() / FRAME_SECONDS).ceil().max(1.0) as u32;
                 self.holes += 1;

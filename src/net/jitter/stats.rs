@@ -35,6 +35,9 @@ pub struct JitterStats {
     pub restarts: u64,
     /// Timelines re-anchored at a timestamp discontinuity.
     pub rebased: u64,
+    /// Streams that resumed after a stall, played on from where they stopped rather than
+    /// dropped as late.
+    pub resumed: u64,
     /// Packets held back while a far sequence number waits for its successor (RFC 3550 A.1).
     pub probation: u64,
     /// RFC 3550 interarrival jitter in ms.
