@@ -3,7 +3,7 @@
 
 use eframe::egui;
 
-use super::engine::{self, CallSpec, Command, Engine};
+use super::engine::{self, CallPhase, CallSpec, Command, Engine};
 use super::settings::{NatSettings, Settings};
 use crate::call::janus::is_janus_url;
 use crate::call::mumble::is_mumble_url;
@@ -133,8 +133,7 @@ pub(super) fn call_ui(
                 ),
             engine::Encryption::None => ui.colored_label(warn, "NOT encrypted"),
         };
-        // Whole on one row: where it does not fit it starts the next row instead of breaking.
-        ui.add(egui::Label::new(&call.state).wrap_mode(egui::TextWrapMode::Extend));
+        phase_ui(ui, call);
         if call.unknown_payload > 0 {
             ui.colored_label(
                 egui::Color32::from_rgb(230, 160, 60),
@@ -148,6 +147,23 @@ pub(super) fn call_ui(
             ui.colored_label(egui::Color32::LIGHT_RED, e);
         }
     });
+}
+
+/// The call's phase, in red when it failed, and the link's own account of it beside.
+fn phase_ui(ui: &mut egui::Ui, call: &engine::CallStatus) {
+    let phase = call.phase.describe(std::time::Instant::now());
+    let colour = match call.phase {
+        CallPhase::Failed { .. } => egui::Color32::LIGHT_RED,
+        CallPhase::Ringing { .. } => egui::Color32::from_rgb(240, 200, 60),
+        CallPhase::InCall { .. } => egui::Color32::LIGHT_GREEN,
+        _ => ui.visuals().text_color(),
+    };
+    // Whole on one row: where it does not fit it starts the next row instead of breaking.
+    let extend = egui::TextWrapMode::Extend;
+    ui.add(egui::Label::new(egui::RichText::new(phase).color(colour).strong()).wrap_mode(extend));
+    if !call.state.is_empty() {
+        ui.add(egui::Label::new(egui::RichText::new(&call.state).weak()).wrap_mode(extend));
+    }
 }
 
 /// The codec we send in the next call (a call in progress keeps its own).

@@ -11,6 +11,7 @@ mod channel_panel;
 pub mod counters;
 mod demo;
 pub mod engine;
+pub mod listen;
 mod lookup;
 pub mod mumble_call;
 pub mod peer;
@@ -75,9 +76,13 @@ pub fn run(options: AppOptions) -> anyhow::Result<()> {
         None => None,
     };
     let settings_path = options.settings.clone().or_else(settings::default_path);
-    let (settings, settings_note) = match &settings_path {
+    let (mut settings, settings_note) = match &settings_path {
         Some(p) => Settings::load(p),
         None => (Settings::default(), None),
+    };
+    let listen = match listen {
+        Some(a) => Some(a),
+        None => Some(keep_listen_port(&mut settings, settings_path.as_deref())?),
     };
     if !settings.sip.password.is_empty() {
         crate::secrets::forbid_core_dumps();
@@ -92,7 +97,11 @@ pub fn run(options: AppOptions) -> anyhow::Result<()> {
         no_audio: options.no_audio,
     })?;
     if let Some(addr) = engine::lock(&engine.shared).call.local_addr {
-        eprintln!("lipcall: listening on {addr}");
+        let dial: Vec<String> = listen::dialable(addr)
+            .iter()
+            .map(|a| a.to_string())
+            .collect();
+        eprintln!("lipcall: listening on {addr} (dial {})", dial.join(" or "));
     }
     if let Some(address) = &options.call {
         engine.send(engine::Command::Call(Box::new(engine::CallSpec {
@@ -153,6 +162,26 @@ pub fn run(options: AppOptions) -> anyhow::Result<()> {
         }),
     );
     result.map_err(|e| anyhow::anyhow!("the window failed: {e}"))
+}
+
+/// All interfaces at the settings' port, or the next free one while it is taken; a fresh
+/// settings file keeps the port first chosen, so that it stays across restarts.
+fn keep_listen_port(
+    settings: &mut Settings,
+    path: Option<&std::path::Path>,
+) -> anyhow::Result<SocketAddr> {
+    let preferred = settings.listen_port.unwrap_or(listen::DEFAULT_PORT);
+    let port = listen::free_port_from(preferred)
+        .with_context(|| format!("no free UDP port from {preferred} to listen on"))?;
+    if settings.listen_port.is_none() {
+        settings.listen_port = Some(port);
+        if let Some(p) = path
+            && let Err(e) = settings.save(p)
+        {
+            eprintln!("lipcall: cannot save settings to {}: {e}", p.display());
+        }
+    }
+    Ok(SocketAddr::from(([0, 0, 0, 0], port)))
 }
 
 pub struct LipcallApp {
@@ -233,7 +262,7 @@ impl LipcallApp {
     }
 
     /// `listening`: the call's local address (so a script can call an app started on port 0).
-    fn write_status(&self, peers: &[ShownPeer], listening: Option<SocketAddr>) {
+    fn write_status(&self, peers: &[ShownPeer], listening: Option<SocketAddr>, call_word: &str) {
         let Some(path) = &self.options.status else {
             return;
         };
@@ -256,7 +285,7 @@ impl LipcallApp {
         let mut text = format!(
             "time_s={:.2} ui_frames={} network_ms={:.1} frames_animated={} record_ms={:.1} \
              tiles_drawn={} tiles_shown={} triangles_drawn={} weights_sent={} weights_fallback={} weights_late={} late_ms={:.1} \
-             output_ms={output_ms:.1} underruns={underruns} listening={}\n",
+             output_ms={output_ms:.1} underruns={underruns} listening={} call={}\n",
             self.started.elapsed().as_secs_f64(),
             self.frames,
             c.network_ns.load(Ordering::Relaxed) as f64 / 1e6,
@@ -270,6 +299,7 @@ impl LipcallApp {
             c.weights_late.load(Ordering::Relaxed),
             c.late_us.load(Ordering::Relaxed) as f64 / 1000.0,
             listening.map_or("-".to_owned(), |a| a.to_string()),
+            call_word,
         );
         for (
             i,
@@ -449,7 +479,7 @@ impl eframe::App for LipcallApp {
 
         if self.last_status.elapsed() >= Duration::from_millis(500) {
             self.last_status = Instant::now();
-            self.write_status(&peers, call.local_addr);
+            self.write_status(&peers, call.local_addr, call.phase.word());
         }
         if self.last_save.elapsed() >= Duration::from_secs(5) {
             self.last_save = Instant::now();
@@ -460,7 +490,7 @@ impl eframe::App for LipcallApp {
             .quit_after
             .is_some_and(|s| self.started.elapsed().as_secs_f64() >= s)
         {
-            self.write_status(&peers, call.local_addr);
+            self.write_status(&peers, call.local_addr, call.phase.word());
             ctx.send_viewport_cmd(egui::ViewportCommand::Close);
         }
         ctx.request_repaint_after(Duration::from_millis(20));
