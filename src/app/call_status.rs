@@ -2,7 +2,7 @@
 //! error, and its phase ([`CallPhase`]). Written by the engine's worker and the transports' follow-ups, read by the UI.
 
 use std::net::SocketAddr;
-use std::time::Instant;
+use std::time::{Duration, Instant};
 
 use crate::codec::any::Codec;
 
@@ -35,6 +35,9 @@ pub struct CallStatus {
     /// RTP packets of payload types no codec is mapped to, dropped (from anyone).
     pub unknown_payload: u64,
 }
+
+/// How long a direct call waits to hear anyone before it has failed.
+pub const DIRECT_ANSWER_WAIT: Duration = Duration::from_secs(15);
 
 /// Where the call stands, the one account the call bar and the `--status` file both read.
 /// A message that belongs to a phase (a reason, who hung up) lives in it, so it goes with it.

@@ -33,7 +33,7 @@ use crate::net::janus::messages::JanusAuth;
 use crate::net::session::{PeerFrame, PeerInfo, Session, SessionConfig};
 use crate::vocab::MAX_FRAME_SAMPLES;
 
-pub use super::call_status::{CallPhase, CallStatus, Encryption};
+pub use super::call_status::{CallPhase, CallStatus, DIRECT_ANSWER_WAIT, Encryption};
 pub use super::counters::{DEMO_NAME, EngineCounters};
 use super::demo::Demo;
 use super::listen::dialable;
@@ -44,7 +44,6 @@ use super::roster::Roster;
 use super::settings::DEFAULT_CODEC;
 use super::sip_call::{PhoneCommand, PhoneStatus, SipPhone, is_sip_address};
 use super::timing::{RelayWatch, Ticker};
-pub use phase::DIRECT_ANSWER_WAIT;
 
 /// The peers' status and the relay's are refreshed every this many ticks (200 ms).
 const STATUS_TICKS: u32 = 10;

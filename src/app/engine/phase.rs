@@ -1,14 +1,11 @@
 //! The call's phase ([`CallPhase`]), kept by the worker from every link's news, the direct
 //! session's peers and the phone's ringing: what the call bar and the `--status` file show.
 
-use std::time::{Duration, Instant};
+use std::time::Instant;
 
-use super::{CallPhase, Worker, lock};
+use super::{CallPhase, DIRECT_ANSWER_WAIT, Worker, lock};
 use crate::app::counters::DEMO_NAME;
 use crate::net::session::PeerInfo;
-
-/// How long a direct call waits to hear anyone before it has failed.
-pub const DIRECT_ANSWER_WAIT: Duration = Duration::from_secs(15);
 
 impl Worker {
     pub(super) fn set_phase(&self, phase: CallPhase) {
