@@ -143,7 +143,9 @@ pub(super) fn call_ui(
                 ),
             );
         }
-        if let Some(e) = &call.error {
+        // A failed call's reason is its phase's, shown once.
+        let said = matches!(&call.phase, CallPhase::Failed { reason } if Some(reason) == call.error.as_ref());
+        if let Some(e) = call.error.as_ref().filter(|_| !said) {
             ui.colored_label(egui::Color32::LIGHT_RED, e);
         }
     });

@@ -469,10 +469,13 @@ impl Worker {
                 self.lookups.forget();
                 let was = lock(&self.shared).call.phase.clone();
                 let left = self.leave();
-                if was.is_active() {
-                    self.set_phase(CallPhase::Ended {
-                        by: "you hung up".into(),
-                    });
+                let by = match was {
+                    CallPhase::InCall { .. } => "you hung up",
+                    CallPhase::Calling { .. } => "you cancelled it",
+                    _ => "",
+                };
+                if !by.is_empty() {
+                    self.set_phase(CallPhase::Ended { by: by.into() });
                 }
                 left
             }

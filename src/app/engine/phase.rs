@@ -22,11 +22,12 @@ impl Worker {
         };
     }
 
-    /// The call could not be placed or was lost: back to listening, saying why.
+    /// The call could not be placed or was lost: back to listening, saying why (the error
+    /// is the phase's reason, and goes with it at the next call).
     pub(super) fn fail(&mut self, reason: String) {
         self.hang_up();
         let mut s = lock(&self.shared);
-        s.call.error = None;
+        s.call.error = Some(reason.clone());
         s.call.phase = CallPhase::Failed { reason };
     }
 
@@ -38,9 +39,9 @@ impl Worker {
 
     fn hang_up(&mut self) {
         self.phone.call_over();
-        if self.in_call
-            && let Err(e) = self.leave()
-        {
+        if !self.in_call {
+            self.set_idle_status();
+        } else if let Err(e) = self.leave() {
             tracing::warn!("back to listening: {e:#}");
         }
     }
