@@ -80,22 +80,40 @@ pub fn run(options: AppOptions) -> anyhow::Result<()> {
         Some(p) => Settings::load(p),
         None => (Settings::default(), None),
     };
-    let listen = match listen {
-        Some(a) => Some(a),
-        None => Some(keep_listen_port(&mut settings, settings_path.as_deref())?),
+    let chosen = listen.is_none();
+    let mut listen = match listen {
+        Some(a) => a,
+        None => keep_listen_port(&mut settings, settings_path.as_deref())?,
     };
     if !settings.sip.password.is_empty() {
         crate::secrets::forbid_core_dumps();
     }
     let choice = |id: &str| DeviceChoice::from_option((!id.is_empty()).then_some(id));
-    let engine = Engine::start(EngineConfig {
-        listen,
-        demo: !options.no_demo,
-        name: settings.name.clone(),
-        input: choice(&settings.input_device),
-        output: choice(&settings.output_device),
-        no_audio: options.no_audio,
-    })?;
+    let start = |listen: SocketAddr| {
+        Engine::start(EngineConfig {
+            listen: Some(listen),
+            demo: !options.no_demo,
+            name: settings.name.clone(),
+            input: choice(&settings.input_device),
+            output: choice(&settings.output_device),
+            no_audio: options.no_audio,
+        })
+    };
+    // A port found free can be taken before the engine binds it (another app starting):
+    // then the next free one, a few times.
+    let mut tries = 0;
+    let engine = loop {
+        match start(listen) {
+            Ok(engine) => break engine,
+            Err(e) if chosen && tries < 3 => {
+                tries += 1;
+                let next = listen.port().saturating_add(1);
+                tracing::warn!("cannot listen on {listen} ({e:#}); trying from port {next}");
+                listen.set_port(listen::free_port_from(next)?);
+            }
+            Err(e) => return Err(e),
+        }
+    };
     if let Some(addr) = engine::lock(&engine.shared).call.local_addr {
         let dial: Vec<String> = listen::dialable(addr)
             .iter()
