@@ -98,10 +98,9 @@ impl Worker {
     pub(super) fn follow_ringing(&self, ringing: Option<&str>) {
         let mut s = lock(&self.shared);
         match (ringing, &s.call.phase) {
+            (Some(from), CallPhase::Ringing { from: f }) if f == from => {}
             (Some(from), phase) if !phase.is_active() => {
-                if !matches!(phase, CallPhase::Ringing { from: f } if f == from) {
-                    s.call.phase = CallPhase::Ringing { from: from.into() };
-                }
+                s.call.phase = CallPhase::Ringing { from: from.into() };
             }
             (None, CallPhase::Ringing { .. }) => s.call.phase = CallPhase::Idle,
             _ => {}
