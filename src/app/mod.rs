@@ -188,10 +188,12 @@ fn keep_listen_port(
     settings: &mut Settings,
     path: Option<&std::path::Path>,
 ) -> anyhow::Result<SocketAddr> {
-    let preferred = settings.listen_port.unwrap_or(listen::DEFAULT_PORT);
+    // Port 0 would be a new port at every start: not one to keep.
+    let kept = settings.listen_port.filter(|&p| p != 0);
+    let preferred = kept.unwrap_or(listen::DEFAULT_PORT);
     let port = listen::free_port_from(preferred)
         .with_context(|| format!("no free UDP port from {preferred} to listen on"))?;
-    if settings.listen_port.is_none() {
+    if kept.is_none() {
         settings.listen_port = Some(port);
         if let Some(p) = path
             && let Err(e) = settings.save(p)

@@ -109,6 +109,7 @@ pub struct Settings {
     pub sip: SipSettings,
     /// The port direct calls reach us on, on all interfaces (none: the first start picks one,
     /// [`crate::app::listen`]).
+    #[serde(skip_serializing_if = "Option::is_none")]
     pub listen_port: Option<u16>,
 }
 
