@@ -173,3 +173,53 @@ fn the_listening_port_stays_across_starts_and_moves_up_while_taken() {
     assert!(kept.contains(&format!("\"listen_port\": {port}")), "{kept}");
     assert_eq!(listening_port(&settings), port, "back once it is free");
 }
+
+/// The call bar, as the window draws it.
+struct Bar {
+    form: lipcall::app::CallForm,
+    settings: lipcall::app::settings::Settings,
+    engine: Engine,
+}
+
+#[test]
+fn enter_in_the_address_field_calls_and_the_bar_shows_the_phase() {
+    use eframe::egui;
+    use egui_kittest::Harness;
+    use egui_kittest::kittest::Queryable;
+
+    let bar = Bar {
+        form: lipcall::app::CallForm::default(),
+        settings: lipcall::app::settings::Settings::default(),
+        engine: common::app::headless_engine("Alice", Some("127.0.0.1:0")),
+    };
+    let mut h = Harness::new_ui_state(
+        |ui: &mut egui::Ui, bar: &mut Bar| {
+            let call = lock(&bar.engine.shared).call.clone();
+            lipcall::app::call_ui(ui, &mut bar.form, &mut bar.settings, &call, &bar.engine);
+        },
+        bar,
+    );
+    h.run();
+    assert!(h.query_by_label_contains("not in a call").is_some());
+    let dead = format!("127.0.0.1:{}", dead_port());
+    h.get_by_label("Address").focus();
+    h.run();
+    h.get_by_label("Address").type_text(&dead);
+    h.run();
+    h.key_press(egui::Key::Enter);
+    h.run();
+    let deadline = Instant::now() + Duration::from_secs(10);
+    loop {
+        h.run();
+        if h.query_by_label_contains("calling 127.0.0.1").is_some() {
+            break;
+        }
+        assert!(
+            Instant::now() < deadline,
+            "no calling after Enter: {:?}",
+            lock(&h.state().engine.shared).call
+        );
+        std::thread::sleep(Duration::from_millis(50));
+    }
+    assert_eq!(lock(&h.state().engine.shared).call.phase.word(), "calling");
+}

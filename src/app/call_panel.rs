@@ -25,7 +25,7 @@ pub struct CallForm {
 }
 
 /// Join a room on a relay or call a peer directly; leave; the encryption indicator.
-pub(super) fn call_ui(
+pub fn call_ui(
     ui: &mut egui::Ui,
     form: &mut CallForm,
     settings: &mut Settings,
@@ -35,14 +35,19 @@ pub(super) fn call_ui(
     ui.horizontal_wrapped(|ui| {
         ui.strong("lipcall");
         ui.separator();
-        ui.label("Name");
-        ui.add(egui::TextEdit::singleline(&mut settings.name).desired_width(90.0));
-        ui.label("Address");
-        ui.add(
+        let name = ui.label("Name");
+        ui.add(egui::TextEdit::singleline(&mut settings.name).desired_width(90.0))
+            .labelled_by(name.id);
+        let address_label = ui.label("Address");
+        let address = ui.add(
             egui::TextEdit::singleline(&mut form.address)
                 .hint_text("host:port, Janus URL, mumble://host/channel, sip: or number")
                 .desired_width(150.0),
         );
+        let address = address.labelled_by(address_label.id);
+        // Enter in the address field connects, as the button does.
+        let entered =
+            address.lost_focus() && ui.input(|i| i.key_pressed(egui::Key::Enter));
         let mumble = is_mumble_url(&form.address);
         if !mumble {
             ui.label("Room");
@@ -52,7 +57,7 @@ pub(super) fn call_ui(
                     .desired_width(90.0),
             );
         }
-        ui.label(if mumble {
+        let passphrase = ui.label(if mumble {
             "Server password"
         } else {
             "Passphrase"
@@ -61,7 +66,8 @@ pub(super) fn call_ui(
             egui::TextEdit::singleline(&mut form.passphrase)
                 .password(true)
                 .desired_width(90.0),
-        );
+        )
+        .labelled_by(passphrase.id);
         if is_janus_url(&form.address) {
             nat_menu_ui(ui, &mut settings.nat);
             ui.label("API secret");
@@ -90,10 +96,10 @@ pub(super) fn call_ui(
         } else {
             "Join room"
         };
-        if ui
+        let connect = ui
             .add_enabled(!form.address.trim().is_empty(), egui::Button::new(label))
-            .clicked()
-        {
+            .clicked();
+        if (connect || entered) && !form.address.trim().is_empty() {
             settings.last_address = form.address.clone();
             settings.last_room = form.room.clone();
             engine.send(Command::Call(Box::new(CallSpec {

@@ -38,7 +38,7 @@ use crate::audio::{DeviceChoice, DeviceInfo};
 use crate::codec::any::Codec;
 use audio_panel::audio_ui;
 pub use call_panel::CallForm;
-use call_panel::call_ui;
+pub use call_panel::call_ui;
 pub use channel_panel::channels_ui;
 use engine::{Command, Engine, EngineConfig};
 pub use peer_panel::{ShownPeer, peer_controls_ui, peer_list_ui, tiles_ui};
