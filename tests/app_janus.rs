@@ -109,6 +109,7 @@ fn app_animates_a_publisher(url: &str, room: &str, ice: IceServers) {
         let s = lock(&app.shared);
         assert_eq!(s.call.encryption, Encryption::HopByHop);
         assert!(s.call.in_call);
+        assert_eq!(s.call.phase.word(), "in_call", "{:?}", s.call);
         assert!(s.call.error.is_none(), "{:?}", s.call.error);
     }
 

@@ -80,6 +80,7 @@ fn the_app_joins_a_mumble_server_hears_a_speaker_switches_channel_and_shows_self
     {
         let s = lock(&app.shared);
         assert!(s.call.in_call && s.call.error.is_none(), "{:?}", s.call);
+        assert_eq!(s.call.phase.word(), "in_call", "{:?}", s.call);
         assert_eq!(s.call.encryption, Encryption::HopByHop);
         let v = s.mumble.as_ref().unwrap();
         assert!(v.first_visit, "{v:?}");

@@ -14,7 +14,7 @@ use common::sip::{PASSWORD, baresip, free_port, have, kamailio, reversed_8k, tel
 use eframe::egui;
 use egui_kittest::Harness;
 use egui_kittest::kittest::Queryable;
-use lipcall::app::engine::{CallSpec, Command, Engine, Shared, lock};
+use lipcall::app::engine::{CallPhase, CallSpec, Command, Engine, Shared, lock};
 use lipcall::app::settings::Settings;
 use lipcall::app::sip_call::PhoneCommand;
 use lipcall::app::{SipForm, sip_ui};
@@ -94,6 +94,7 @@ fn the_app_dials_baresip_hears_it_sends_keys_and_idles_when_baresip_hangs_up() {
         let s = lock(&engine.shared);
         assert!(s.call.in_call && s.call.error.is_none(), "{:?}", s.call);
         assert!(s.call.state.contains("in a SIP call with"), "{:?}", s.call);
+        assert_eq!(s.call.phase.word(), "in_call", "{:?}", s.call);
         assert_eq!(s.call.codec, Some(Codec::Pcmu));
     }
     wait_for(&engine, "the keypad", limit, |s| s.phone.keypad);
@@ -115,13 +116,14 @@ fn the_app_dials_baresip_hears_it_sends_keys_and_idles_when_baresip_hangs_up() {
     wait_for(&engine, "back to idle on baresip's BYE", limit, |s| {
         !s.call.in_call && s.peers.views().is_empty() && !s.phone.keypad
     });
-    let state = lock(&engine.shared).call.state.clone();
-    assert!(
-        state.starts_with(&format!(
-            "sip:bob@127.0.0.1:{bob_port} hung up; not in a call"
-        )),
-        "{state}"
+    let phase = lock(&engine.shared).call.phase.clone();
+    assert_eq!(
+        phase,
+        CallPhase::Ended {
+            by: format!("sip:bob@127.0.0.1:{bob_port} hung up")
+        }
     );
+    assert_eq!(phase.word(), "idle");
 }
 
 #[test]
@@ -200,7 +202,11 @@ fn the_app_registers_declines_answers_and_is_busy_in_another_call() {
     wait_for(&engine, "the call rings", limit, |s| {
         s.phone.ringing.is_some()
     });
-    assert!(!lock(&engine.shared).call.in_call);
+    {
+        let s = lock(&engine.shared);
+        assert!(!s.call.in_call);
+        assert_eq!(s.call.phase.word(), "ringing", "{:?}", s.call);
+    }
     engine.send(Command::Phone(PhoneCommand::Decline));
     closed(1);
     assert!(
@@ -222,13 +228,23 @@ fn the_app_registers_declines_answers_and_is_busy_in_another_call() {
     wait_for(&engine, "the caller is heard and animated", limit, |s| {
         s.call.in_call && s.phone.ringing.is_none() && heard(s, "bob")
     });
-    assert!(lock(&engine.shared).call.state.contains("in a SIP call"));
+    {
+        let s = lock(&engine.shared);
+        assert!(s.call.state.contains("in a SIP call"));
+        assert_eq!(s.call.phase.word(), "in_call", "{:?}", s.call);
+    }
     // Our hang-up ends baresip's call too.
     engine.send(Command::Leave);
     closed(2);
     wait_for(&engine, "idle after our hang-up", limit, |s| {
         !s.call.in_call && s.peers.views().is_empty()
     });
+    assert_eq!(
+        lock(&engine.shared).call.phase,
+        CallPhase::Ended {
+            by: "you hung up".into()
+        }
+    );
 
     // In a call on a relay, a SIP caller is refused busy.
     wait_for(&engine, "registered after the call", limit, registered);

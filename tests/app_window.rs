@@ -90,6 +90,47 @@ fn shots(dir: &Path, n: usize) -> Vec<PathBuf> {
 }
 
 #[test]
+fn a_direct_call_to_a_dead_address_is_calling_then_failed_in_the_status_file() {
+    if !xvfb_available() {
+        return;
+    }
+    let dir = tempfile::tempdir().unwrap();
+    let dead = std::net::UdpSocket::bind("127.0.0.1:0").unwrap();
+    let dead = dead.local_addr().unwrap();
+    let script = format!(
+        r#"
+        "$LIPCALL" --no-audio --no-demo --listen 127.0.0.1:0 --call {dead} --quit-after 60 \
+            --status status.txt --settings s.json 2>app.log &
+        pid=$!
+        call() {{ sed -n 's/.* call=\([a-z_]*\).*/\1/p' status.txt 2>/dev/null | head -1; }}
+        i=0
+        while [ $i -lt 250 ] && [ "$(call)" != failed ]; do
+            call >> seen.txt
+            sleep 0.1; i=$((i+1))
+        done
+        cp status.txt final.txt
+        kill $pid; wait $pid
+        true
+        "#
+    );
+    let started = Instant::now();
+    under_xvfb(dir.path(), &script);
+    let read = |n: &str| std::fs::read_to_string(dir.path().join(n)).unwrap_or_default();
+    let (seen, last) = (read("seen.txt"), read("final.txt"));
+    assert!(
+        seen.lines().any(|l| l == "calling"),
+        "never calling: {seen}"
+    );
+    let first = last.lines().next().unwrap_or_default();
+    assert!(
+        first.contains(" call=failed"),
+        "{first}\n{}",
+        read("app.log")
+    );
+    assert!(started.elapsed() < Duration::from_secs(60));
+}
+
+#[test]
 fn demo_peer_talks_and_its_mouth_moves() {
     if !xvfb_available() {
         return;
@@ -189,6 +230,9 @@ fn a_sender_into_the_app_is_shown_and_animated() {
     let (a0, _) = animated(&early).unwrap_or_else(|| panic!("no Alice in {early}\n{log}"));
     let (a1, s1) = animated(&late).unwrap_or_else(|| panic!("no Alice in {late}\n{log}"));
     assert!(!early.contains("demo=true"), "demo peer with --no-demo");
+    // A caller into the listening app is a call, in the status line's first line.
+    let first = early.lines().next().unwrap_or_default();
+    assert!(first.contains(" call=in_call"), "{first}");
     assert!(
         a1 > a0 && a0 > 0,
         "animation frames do not advance: {a0} -> {a1}"

@@ -3,7 +3,7 @@
 
 use eframe::egui;
 
-use super::engine::{self, CallSpec, Command, Engine};
+use super::engine::{self, CallPhase, CallSpec, Command, Engine};
 use super::settings::{NatSettings, Settings};
 use crate::call::janus::is_janus_url;
 use crate::call::mumble::is_mumble_url;
@@ -25,7 +25,7 @@ pub struct CallForm {
 }
 
 /// Join a room on a relay or call a peer directly; leave; the encryption indicator.
-pub(super) fn call_ui(
+pub fn call_ui(
     ui: &mut egui::Ui,
     form: &mut CallForm,
     settings: &mut Settings,
@@ -35,14 +35,19 @@ pub(super) fn call_ui(
     ui.horizontal_wrapped(|ui| {
         ui.strong("lipcall");
         ui.separator();
-        ui.label("Name");
-        ui.add(egui::TextEdit::singleline(&mut settings.name).desired_width(90.0));
-        ui.label("Address");
-        ui.add(
+        let name = ui.label("Name");
+        ui.add(egui::TextEdit::singleline(&mut settings.name).desired_width(90.0))
+            .labelled_by(name.id);
+        let address_label = ui.label("Address");
+        let address = ui.add(
             egui::TextEdit::singleline(&mut form.address)
                 .hint_text("host:port, Janus URL, mumble://host/channel, sip: or number")
                 .desired_width(150.0),
         );
+        let address = address.labelled_by(address_label.id);
+        // Enter in the address field connects, as the button does.
+        let entered =
+            address.lost_focus() && ui.input(|i| i.key_pressed(egui::Key::Enter));
         let mumble = is_mumble_url(&form.address);
         if !mumble {
             ui.label("Room");
@@ -52,7 +57,7 @@ pub(super) fn call_ui(
                     .desired_width(90.0),
             );
         }
-        ui.label(if mumble {
+        let passphrase = ui.label(if mumble {
             "Server password"
         } else {
             "Passphrase"
@@ -61,7 +66,8 @@ pub(super) fn call_ui(
             egui::TextEdit::singleline(&mut form.passphrase)
                 .password(true)
                 .desired_width(90.0),
-        );
+        )
+        .labelled_by(passphrase.id);
         if is_janus_url(&form.address) {
             nat_menu_ui(ui, &mut settings.nat);
             ui.label("API secret");
@@ -90,10 +96,10 @@ pub(super) fn call_ui(
         } else {
             "Join room"
         };
-        if ui
+        let connect = ui
             .add_enabled(!form.address.trim().is_empty(), egui::Button::new(label))
-            .clicked()
-        {
+            .clicked();
+        if (connect || entered) && !form.address.trim().is_empty() {
             settings.last_address = form.address.clone();
             settings.last_room = form.room.clone();
             engine.send(Command::Call(Box::new(CallSpec {
@@ -133,8 +139,7 @@ pub(super) fn call_ui(
                 ),
             engine::Encryption::None => ui.colored_label(warn, "NOT encrypted"),
         };
-        // Whole on one row: where it does not fit it starts the next row instead of breaking.
-        ui.add(egui::Label::new(&call.state).wrap_mode(egui::TextWrapMode::Extend));
+        phase_ui(ui, call);
         if call.unknown_payload > 0 {
             ui.colored_label(
                 egui::Color32::from_rgb(230, 160, 60),
@@ -144,10 +149,29 @@ pub(super) fn call_ui(
                 ),
             );
         }
-        if let Some(e) = &call.error {
+        // A failed call's reason is its phase's, shown once.
+        let said = matches!(&call.phase, CallPhase::Failed { reason } if Some(reason) == call.error.as_ref());
+        if let Some(e) = call.error.as_ref().filter(|_| !said) {
             ui.colored_label(egui::Color32::LIGHT_RED, e);
         }
     });
+}
+
+/// The call's phase, in red when it failed, and the link's own account of it beside.
+fn phase_ui(ui: &mut egui::Ui, call: &engine::CallStatus) {
+    let phase = call.phase.describe(std::time::Instant::now());
+    let colour = match call.phase {
+        CallPhase::Failed { .. } => egui::Color32::LIGHT_RED,
+        CallPhase::Ringing { .. } => egui::Color32::from_rgb(240, 200, 60),
+        CallPhase::InCall { .. } => egui::Color32::LIGHT_GREEN,
+        _ => ui.visuals().text_color(),
+    };
+    // Whole on one row: where it does not fit it starts the next row instead of breaking.
+    let extend = egui::TextWrapMode::Extend;
+    ui.add(egui::Label::new(egui::RichText::new(phase).color(colour).strong()).wrap_mode(extend));
+    if !call.state.is_empty() {
+        ui.add(egui::Label::new(egui::RichText::new(&call.state).weak()).wrap_mode(extend));
+    }
 }
 
 /// The codec we send in the next call (a call in progress keeps its own).

@@ -1,7 +1,8 @@
 //! What the call bar shows of the call: its state, who can hear it, the codec sent, the last
-//! error. Written by the engine's worker and the transports' follow-ups, read by the UI.
+//! error, and its phase ([`CallPhase`]). Written by the engine's worker and the transports' follow-ups, read by the UI.
 
 use std::net::SocketAddr;
+use std::time::{Duration, Instant};
 
 use crate::codec::any::Codec;
 
@@ -21,6 +22,8 @@ pub enum Encryption {
 /// The call as the UI shows it.
 #[derive(Debug, Clone, Default)]
 pub struct CallStatus {
+    /// Where the call stands (idle, calling, ringing, in a call, failed, ended).
+    pub phase: CallPhase,
     /// Human-readable state ("idle, listening on ..", "in call with ..").
     pub state: String,
     pub in_call: bool,
@@ -31,4 +34,71 @@ pub struct CallStatus {
     pub error: Option<String>,
     /// RTP packets of payload types no codec is mapped to, dropped (from anyone).
     pub unknown_payload: u64,
+}
+
+/// How long a direct call waits to hear anyone before it has failed.
+pub const DIRECT_ANSWER_WAIT: Duration = Duration::from_secs(15);
+
+/// Where the call stands, the one account the call bar and the `--status` file both read.
+/// A message that belongs to a phase (a reason, who hung up) lives in it, so it goes with it.
+#[derive(Debug, Clone, Default, PartialEq, Eq)]
+pub enum CallPhase {
+    #[default]
+    Idle,
+    /// Placing a call to `to`; a direct call that hears nobody by `deadline` has failed
+    /// (other links have their own timeouts, which end in [`CallPhase::Failed`]).
+    Calling {
+        to: String,
+        deadline: Option<Instant>,
+    },
+    /// A caller waits for Answer or Decline.
+    Ringing {
+        from: String,
+    },
+    InCall {
+        with: String,
+        since: Instant,
+    },
+    /// The last call failed, and why (shown in red until the next call).
+    Failed {
+        reason: String,
+    },
+    /// The last call ended: who hung up, or how it ended.
+    Ended {
+        by: String,
+    },
+}
+
+impl CallPhase {
+    /// The word the `--status` file carries: `idle|calling|ringing|in_call|failed` (a call
+    /// that ended is idle again).
+    pub fn word(&self) -> &'static str {
+        match self {
+            Self::Idle | Self::Ended { .. } => "idle",
+            Self::Calling { .. } => "calling",
+            Self::Ringing { .. } => "ringing",
+            Self::InCall { .. } => "in_call",
+            Self::Failed { .. } => "failed",
+        }
+    }
+
+    /// What the call bar says of it, `now` for a call's length.
+    pub fn describe(&self, now: Instant) -> String {
+        match self {
+            Self::Idle => "not in a call".into(),
+            Self::Calling { to, .. } => format!("calling {to}…"),
+            Self::Ringing { from } => format!("{from} is calling you"),
+            Self::InCall { with, since } => {
+                let secs = now.saturating_duration_since(*since).as_secs();
+                format!("in a call with {with} ({}:{:02})", secs / 60, secs % 60)
+            }
+            Self::Failed { reason } => format!("call failed: {reason}"),
+            Self::Ended { by } => format!("call ended: {by}"),
+        }
+    }
+
+    /// Whether a call is being placed or held (ringing, idle, failed and ended are not).
+    pub fn is_active(&self) -> bool {
+        matches!(self, Self::Calling { .. } | Self::InCall { .. })
+    }
 }

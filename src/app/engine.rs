@@ -6,6 +6,8 @@
 
 mod lookup;
 mod news;
+mod phase;
+mod place;
 mod sip;
 
 use std::net::SocketAddr;
@@ -20,7 +22,7 @@ use crate::audio::pacer::PLAYBACK_LEAD;
 use crate::audio::{
     Capture, DeviceChoice, FramePacer, Gate, MicControls, OutputStatus, Playback, PlaybackConfig,
 };
-use crate::call::janus::{JanusLink, is_janus_url};
+use crate::call::janus::is_janus_url;
 use crate::call::link::Link;
 use crate::call::mumble::is_mumble_url;
 use crate::codec::any::{Codec, EncoderSettings, FrameEncoder, MAX_FRAME_PAYLOAD};
@@ -28,15 +30,13 @@ use crate::codec::opus::codec::Bandwidth;
 use crate::net::host_port::{HostPort, resolve_with_port};
 use crate::net::janus::candidates::IceServers;
 use crate::net::janus::messages::JanusAuth;
-use crate::net::janus::room::RoomConfig;
-use crate::net::jitter::JitterConfig;
 use crate::net::session::{PeerFrame, PeerInfo, Session, SessionConfig};
-use crate::net::srtp::MasterKey;
 use crate::vocab::MAX_FRAME_SAMPLES;
 
-pub use super::call_status::{CallStatus, Encryption};
+pub use super::call_status::{CallPhase, CallStatus, DIRECT_ANSWER_WAIT, Encryption};
 pub use super::counters::{DEMO_NAME, EngineCounters};
 use super::demo::Demo;
+use super::listen::dialable;
 use super::lookup::Lookups;
 use super::mumble_call::{MumbleCall, MumbleJoin, MumbleView};
 use super::retire::Retirer;
@@ -218,7 +218,15 @@ impl Drop for Engine {
 pub fn describe_output(status: &OutputStatus) -> String {
     match status {
         OutputStatus::Silent { reason } => format!("no audio output ({reason}): playing silently"),
-        other => format!("{other:?}"),
+        OutputStatus::Playing {
+            device,
+            rate,
+            channels,
+        } => format!(
+            "speaker: {device} ({} kHz, {})",
+            f64::from(*rate) / 1000.0,
+            if *channels == 1 { "mono" } else { "stereo" }
+        ),
     }
 }
 
@@ -256,6 +264,8 @@ enum Then {
 
 /// The call's label when nothing names it otherwise.
 const CALL: &str = "call";
+/// The start of a relay room's call label.
+const ROOM: &str = "relay room";
 
 fn idle_session(config: &EngineConfig) -> anyhow::Result<Session> {
     let bind = config
@@ -340,7 +350,10 @@ impl Worker {
         let mut s = lock(&self.shared);
         s.call = CallStatus {
             state: match addr {
-                Some(a) => format!("not in a call; listening on {a}"),
+                Some(a) => {
+                    let dial: Vec<String> = dialable(a).iter().map(|a| a.to_string()).collect();
+                    format!("others can call you at {}", dial.join(" or "))
+                }
                 None => "not in a call".into(),
             },
             in_call: false,
@@ -349,6 +362,10 @@ impl Worker {
             local_addr: addr,
             error: s.call.error.take(),
             unknown_payload: 0,
+            phase: match s.call.phase.clone() {
+                p @ (CallPhase::Failed { .. } | CallPhase::Ended { .. }) => p,
+                _ => CallPhase::Idle,
+            },
         };
     }
 
@@ -367,13 +384,16 @@ impl Worker {
             self.switch_link(link, encoder);
             self.relay = RelayWatch::default();
             self.call_label = format!("Mumble server {}", call.server());
-            lock(&self.shared).call = CallStatus {
+            let mut s = lock(&self.shared);
+            s.call = CallStatus {
                 state: format!("joining the Mumble server {}…", call.server()),
                 in_call: true,
                 encryption: Encryption::HopByHop,
                 codec: Some(Codec::Opus),
+                phase: s.call.phase.clone(),
                 ..CallStatus::default()
             };
+            drop(s);
             self.mumble = Some(call);
             return Ok(());
         }
@@ -390,95 +410,6 @@ impl Worker {
         }
         let to = resolve_with_port(&spec.address)?;
         self.call_direct(spec, to)
-    }
-
-    /// A call (or a relay's room) at `to`, an address found.
-    fn call_direct(&mut self, spec: &CallSpec, to: SocketAddr) -> anyhow::Result<()> {
-        let room = spec.room.clone().filter(|r| !r.trim().is_empty());
-        let key = spec
-            .passphrase
-            .as_deref()
-            .filter(|p| !p.is_empty())
-            .map(|p| MasterKey::from_passphrase(p, room.as_deref().unwrap_or("")));
-        // A fresh port: the listening session still holds its own until replaced.
-        let bind = if to.ip().is_loopback() {
-            SocketAddr::new(to.ip(), 0)
-        } else if to.is_ipv4() {
-            SocketAddr::from(([0, 0, 0, 0], 0))
-        } else {
-            SocketAddr::from((std::net::Ipv6Addr::UNSPECIFIED, 0))
-        };
-        let settings = EncoderSettings::wideband(spec.bandwidth);
-        let encoder = FrameEncoder::new(spec.codec, &settings)?;
-        let mut sc = SessionConfig::new(bind);
-        sc.destinations = vec![to];
-        sc.room = room.clone();
-        sc.key = key;
-        sc.codec = spec.codec;
-        sc.name = Some(self.call_name(spec));
-        let session = Session::start(sc)?;
-        let encryption = if session.encrypted() {
-            Encryption::EndToEnd
-        } else {
-            Encryption::None
-        };
-        let local_addr = session.local_addr().ok();
-        self.switch_link(Box::new(session), encoder);
-        self.relay = match room {
-            Some(_) => RelayWatch::joining(Instant::now()),
-            None => RelayWatch::default(),
-        };
-        let mut s = lock(&self.shared);
-        s.call = CallStatus {
-            state: match &room {
-                Some(r) => format!("in room {r:?} on relay {to}, sending {}", spec.codec),
-                None => format!("calling {to}, sending {}", spec.codec),
-            },
-            in_call: true,
-            encryption,
-            codec: Some(spec.codec),
-            local_addr,
-            error: None,
-            unknown_payload: 0,
-        };
-        Ok(())
-    }
-
-    /// A room on a Janus server: WebRTC speaks Opus, whatever the settings' codec.
-    fn join_janus(&mut self, spec: &CallSpec) -> anyhow::Result<()> {
-        let room = spec
-            .room
-            .clone()
-            .filter(|r| !r.trim().is_empty())
-            .ok_or_else(|| anyhow::anyhow!("a Janus server needs a room name"))?;
-        let config = RoomConfig {
-            url: spec.address.trim().to_owned(),
-            auth: spec.janus_auth.clone(),
-            room,
-            name: self.call_name(spec),
-            pin: spec.passphrase.clone().filter(|p| !p.is_empty()),
-            subscribe: true,
-            jitter: JitterConfig::default(),
-            ice: spec.ice.clone(),
-        };
-        let janus = JanusLink::join(config)?;
-        let state = format!("joining {}…", janus.place());
-        let settings = EncoderSettings::wideband(spec.bandwidth);
-        let encoder = FrameEncoder::new(Codec::Opus, &settings)?;
-        self.switch_link(Box::new(janus), encoder);
-        self.relay = RelayWatch::default();
-        self.call_label = "Janus room".into();
-        let mut s = lock(&self.shared);
-        s.call = CallStatus {
-            state,
-            in_call: true,
-            encryption: Encryption::HopByHop,
-            codec: Some(Codec::Opus),
-            local_addr: None,
-            error: None,
-            unknown_payload: 0,
-        };
-        Ok(())
     }
 
     fn call_name(&self, spec: &CallSpec) -> String {
@@ -528,11 +459,25 @@ impl Worker {
         let result = match command {
             Command::Call(spec) => {
                 self.lookups.forget();
-                self.call(&spec)
+                self.start_calling(&spec.address);
+                if let Err(e) = self.call(&spec) {
+                    self.fail(format!("{e:#}"));
+                }
+                Ok(())
             }
             Command::Leave => {
                 self.lookups.forget();
-                self.leave()
+                let was = lock(&self.shared).call.phase.clone();
+                let left = self.leave();
+                let by = match was {
+                    CallPhase::InCall { .. } => "you hung up",
+                    CallPhase::Calling { .. } => "you cancelled it",
+                    _ => "",
+                };
+                if !by.is_empty() {
+                    self.set_phase(CallPhase::Ended { by: by.into() });
+                }
+                left
             }
             Command::Channel(id) => self.mumble.as_ref().map_or(Ok(()), |m| m.join_channel(id)),
             Command::Phone(command) => self.phone_command(command),
@@ -681,6 +626,7 @@ impl Worker {
             s.peers.seat(&mut s.playback, &silent);
             s.peers.describe(&mut s.playback, &everyone, Instant::now());
         }
+        self.follow_peers(infos, Instant::now());
         let real_peer = infos
             .iter()
             .any(|i| i.name.as_deref() != Some(DEMO_NAME) && !i.ended);

@@ -11,6 +11,7 @@ mod channel_panel;
 pub mod counters;
 mod demo;
 pub mod engine;
+pub mod listen;
 mod lookup;
 pub mod mumble_call;
 pub mod peer;
@@ -37,7 +38,7 @@ use crate::audio::{DeviceChoice, DeviceInfo};
 use crate::codec::any::Codec;
 use audio_panel::audio_ui;
 pub use call_panel::CallForm;
-use call_panel::call_ui;
+pub use call_panel::call_ui;
 pub use channel_panel::channels_ui;
 use engine::{Command, Engine, EngineConfig};
 pub use peer_panel::{ShownPeer, peer_controls_ui, peer_list_ui, tiles_ui};
@@ -75,23 +76,49 @@ pub fn run(options: AppOptions) -> anyhow::Result<()> {
         None => None,
     };
     let settings_path = options.settings.clone().or_else(settings::default_path);
-    let (settings, settings_note) = match &settings_path {
+    let (mut settings, settings_note) = match &settings_path {
         Some(p) => Settings::load(p),
         None => (Settings::default(), None),
     };
     // The settings may hold passwords, and the call form takes passphrases at any time.
     crate::secrets::forbid_core_dumps();
+    let chosen = listen.is_none();
+    let mut listen = match listen {
+        Some(a) => a,
+        None => keep_listen_port(&mut settings, settings_path.as_deref())?,
+    };
     let choice = |id: &str| DeviceChoice::from_option((!id.is_empty()).then_some(id));
-    let engine = Engine::start(EngineConfig {
-        listen,
-        demo: !options.no_demo,
-        name: settings.name.clone(),
-        input: choice(&settings.input_device),
-        output: choice(&settings.output_device),
-        no_audio: options.no_audio,
-    })?;
+    let start = |listen: SocketAddr| {
+        Engine::start(EngineConfig {
+            listen: Some(listen),
+            demo: !options.no_demo,
+            name: settings.name.clone(),
+            input: choice(&settings.input_device),
+            output: choice(&settings.output_device),
+            no_audio: options.no_audio,
+        })
+    };
+    // A port found free can be taken before the engine binds it (another app starting):
+    // then the next free one, a few times.
+    let mut tries = 0;
+    let engine = loop {
+        match start(listen) {
+            Ok(engine) => break engine,
+            Err(e) if chosen && tries < 3 => {
+                tries += 1;
+                let next = listen.port().saturating_add(1);
+                tracing::warn!("cannot listen on {listen} ({e:#}); trying from port {next}");
+                listen.set_port(listen::free_port_from(next)?);
+            }
+            Err(e) => return Err(e),
+        }
+    };
     if let Some(addr) = engine::lock(&engine.shared).call.local_addr {
-        eprintln!("lipcall: listening on {addr}");
+        let dial: Vec<String> = listen::dialable(addr)
+            .iter()
+            .map(|a| a.to_string())
+            .collect();
+        eprintln!("lipcall: listening on {addr} (dial {})", dial.join(" or "));
     }
     if let Some(address) = &options.call {
         engine.send(engine::Command::Call(Box::new(engine::CallSpec {
@@ -152,6 +179,28 @@ pub fn run(options: AppOptions) -> anyhow::Result<()> {
         }),
     );
     result.map_err(|e| anyhow::anyhow!("the window failed: {e}"))
+}
+
+/// All interfaces at the settings' port, or the next free one while it is taken; a fresh
+/// settings file keeps the port first chosen, so that it stays across restarts.
+fn keep_listen_port(
+    settings: &mut Settings,
+    path: Option<&std::path::Path>,
+) -> anyhow::Result<SocketAddr> {
+    // Port 0 would be a new port at every start: not one to keep.
+    let kept = settings.listen_port.filter(|&p| p != 0);
+    let preferred = kept.unwrap_or(listen::DEFAULT_PORT);
+    let port = listen::free_port_from(preferred)
+        .with_context(|| format!("no free UDP port from {preferred} to listen on"))?;
+    if kept.is_none() {
+        settings.listen_port = Some(port);
+        if let Some(p) = path
+            && let Err(e) = settings.save(p)
+        {
+            eprintln!("lipcall: cannot save settings to {}: {e}", p.display());
+        }
+    }
+    Ok(SocketAddr::from(([0, 0, 0, 0], port)))
 }
 
 pub struct LipcallApp {
@@ -232,7 +281,7 @@ impl LipcallApp {
     }
 
     /// `listening`: the call's local address (so a script can call an app started on port 0).
-    fn write_status(&self, peers: &[ShownPeer], listening: Option<SocketAddr>) {
+    fn write_status(&self, peers: &[ShownPeer], listening: Option<SocketAddr>, call_word: &str) {
         let Some(path) = &self.options.status else {
             return;
         };
@@ -255,7 +304,7 @@ impl LipcallApp {
         let mut text = format!(
             "time_s={:.2} ui_frames={} network_ms={:.1} frames_animated={} record_ms={:.1} \
              tiles_drawn={} tiles_shown={} triangles_drawn={} weights_sent={} weights_fallback={} weights_late={} late_ms={:.1} \
-             output_ms={output_ms:.1} underruns={underruns} listening={}\n",
+             output_ms={output_ms:.1} underruns={underruns} listening={} call={}\n",
             self.started.elapsed().as_secs_f64(),
             self.frames,
             c.network_ns.load(Ordering::Relaxed) as f64 / 1e6,
@@ -269,6 +318,7 @@ impl LipcallApp {
             c.weights_late.load(Ordering::Relaxed),
             c.late_us.load(Ordering::Relaxed) as f64 / 1000.0,
             listening.map_or("-".to_owned(), |a| a.to_string()),
+            call_word,
         );
         for (
             i,
@@ -448,7 +498,7 @@ impl eframe::App for LipcallApp {
 
         if self.last_status.elapsed() >= Duration::from_millis(500) {
             self.last_status = Instant::now();
-            self.write_status(&peers, call.local_addr);
+            self.write_status(&peers, call.local_addr, call.phase.word());
         }
         if self.last_save.elapsed() >= Duration::from_secs(5) {
             self.last_save = Instant::now();
@@ -459,7 +509,7 @@ impl eframe::App for LipcallApp {
             .quit_after
             .is_some_and(|s| self.started.elapsed().as_secs_f64() >= s)
         {
-            self.write_status(&peers, call.local_addr);
+            self.write_status(&peers, call.local_addr, call.phase.word());
             ctx.send_viewport_cmd(egui::ViewportCommand::Close);
         }
         ctx.request_repaint_after(Duration::from_millis(20));

@@ -107,6 +107,10 @@ pub struct Settings {
     pub janus: JanusCredentials,
     /// The SIP account the app registers with and takes phone calls on.
     pub sip: SipSettings,
+    /// The port direct calls reach us on, on all interfaces (none: the first start picks one,
+    /// [`crate::app::listen`]).
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub listen_port: Option<u16>,
 }
 
 /// A Janus's `api_secret` and the token its admin stored for us (kept in the settings file,
@@ -233,6 +237,7 @@ impl Default for Settings {
             nat: NatSettings::default(),
             janus: JanusCredentials::default(),
             sip: SipSettings::default(),
+            listen_port: None,
         }
     }
 }

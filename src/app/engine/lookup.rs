@@ -31,10 +31,7 @@ impl Worker {
             Then::Sip { target } => self.dial_from(target, at),
         });
         if let Err(e) = placed {
-            if !self.in_call {
-                self.set_idle_status();
-            }
-            lock(&self.shared).call.error = Some(format!("{e:#}"));
+            self.fail(format!("{e:#}"));
         }
     }
 }

@@ -2,7 +2,9 @@
 //! says what happened through [`Link::poll`](crate::call::link::Link::poll), and the worker
 //! shows it in the call bar (named by the call's label) or ends the call.
 
-use super::{Encryption, Worker, lock};
+use std::time::Instant;
+
+use super::{CallPhase, Encryption, Worker, lock};
 use crate::app::mumble_call::app_words;
 use crate::call::link::LinkEvent;
 use crate::codec::any::{EncoderSettings, FrameEncoder};
@@ -17,25 +19,27 @@ impl Worker {
             match news {
                 LinkEvent::Joined { place, id } => {
                     s.call.state = format!("in {place} as {id}, sending {}", self.encoder.codec());
+                    if !matches!(s.call.phase, CallPhase::InCall { .. }) {
+                        s.call.phase = CallPhase::InCall {
+                            with: place,
+                            since: Instant::now(),
+                        };
+                    }
                 }
                 LinkEvent::Failed(reason) => {
                     let error = format!("{label}: {}", app_words(&reason));
                     drop(s);
-                    self.back_to_idle();
-                    lock(&self.shared).call.error = Some(error);
+                    self.fail(error);
                     return;
                 }
                 LinkEvent::Over { reason } => {
                     drop(s);
-                    self.back_to_idle();
-                    lock(&self.shared).call.error = Some(reason);
+                    self.fail(reason);
                     return;
                 }
                 LinkEvent::Ended { reason } => {
                     drop(s);
-                    self.back_to_idle();
-                    let mut s = lock(&self.shared);
-                    s.call.state = format!("{reason}; {}", s.call.state);
+                    self.ended(reason);
                     return;
                 }
                 LinkEvent::Progress(line) => {
@@ -75,14 +79,6 @@ impl Worker {
                     tracing::warn!("{name:?} cannot be heard, skipped: {reason}");
                 }
             }
-        }
-    }
-
-    /// The call ended by itself (said by the caller): back to idle.
-    fn back_to_idle(&mut self) {
-        self.phone.call_over();
-        if let Err(e) = self.leave() {
-            tracing::warn!("back to listening: {e:#}");
         }
     }
 

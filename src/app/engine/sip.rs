@@ -5,7 +5,7 @@
 use std::net::SocketAddr;
 use std::time::Instant;
 
-use super::{CallSpec, CallStatus, Then, Worker, lock};
+use super::{CallPhase, CallSpec, CallStatus, Then, Worker, lock};
 use crate::app::sip_call::{PhoneCommand, PhoneTurn};
 use crate::app::timing::RelayWatch;
 use crate::codec::any::{EncoderSettings, FrameEncoder};
@@ -34,12 +34,14 @@ impl Worker {
     }
 
     pub(super) fn phone_command(&mut self, command: PhoneCommand) -> anyhow::Result<()> {
-        let turn = self.phone.command(command);
+        // A call answered becomes the link while its ringing is still the phase.
+        let applied = match self.phone.command(command) {
+            Ok(Some(turn)) => self.apply(turn),
+            Ok(None) => Ok(()),
+            Err(e) => Err(e),
+        };
         self.show_phone();
-        match turn? {
-            Some(turn) => self.apply(turn),
-            None => Ok(()),
-        }
+        applied
     }
 
     /// The listener's callers and the keypad, each pass of the worker's loop (the SIP call's
@@ -51,6 +53,7 @@ impl Worker {
 
     fn show_phone(&self) {
         let status = self.phone.status();
+        self.follow_ringing(status.ringing.as_deref());
         let mut s = lock(&self.shared);
         if s.phone != *status {
             s.phone = status.clone();
@@ -66,6 +69,17 @@ impl Worker {
             state,
         } = turn;
         let encoder = FrameEncoder::new(codec, &EncoderSettings::default())?;
+        // A call that rang here was answered; any other was dialled.
+        let phase = match lock(&self.shared).call.phase {
+            CallPhase::Ringing { .. } => CallPhase::InCall {
+                with: peer.clone(),
+                since: Instant::now(),
+            },
+            _ => CallPhase::Calling {
+                to: peer.clone(),
+                deadline: None,
+            },
+        };
         self.switch_link(link, encoder);
         self.phone.in_call(handle, peer);
         self.relay = RelayWatch::default();
@@ -74,6 +88,7 @@ impl Worker {
             state,
             in_call: true,
             codec: Some(codec),
+            phase,
             ..CallStatus::default()
         };
         Ok(())

@@ -1,0 +1,116 @@
+//! The call's phase ([`CallPhase`]), kept by the worker from every link's news, the direct
+//! session's peers and the phone's ringing: what the call bar and the `--status` file show.
+
+use std::time::Instant;
+
+use super::{CallPhase, DIRECT_ANSWER_WAIT, Worker, lock};
+use crate::app::counters::DEMO_NAME;
+use crate::net::session::PeerInfo;
+
+impl Worker {
+    pub(super) fn set_phase(&self, phase: CallPhase) {
+        lock(&self.shared).call.phase = phase;
+    }
+
+    /// A new call is being placed: the last call's messages go with its phase.
+    pub(super) fn start_calling(&self, to: &str) {
+        let mut s = lock(&self.shared);
+        s.call.error = None;
+        s.call.phase = CallPhase::Calling {
+            to: to.trim().to_owned(),
+            deadline: None,
+        };
+    }
+
+    /// The call could not be placed or was lost: back to listening, saying why (the error
+    /// is the phase's reason, and goes with it at the next call).
+    pub(super) fn fail(&mut self, reason: String) {
+        self.hang_up();
+        let mut s = lock(&self.shared);
+        s.call.error = Some(reason.clone());
+        s.call.phase = CallPhase::Failed { reason };
+    }
+
+    /// The call ended: back to listening, saying who or what ended it.
+    pub(super) fn ended(&mut self, by: String) {
+        self.hang_up();
+        self.set_phase(CallPhase::Ended { by });
+    }
+
+    fn hang_up(&mut self) {
+        self.phone.call_over();
+        if !self.in_call {
+            self.set_idle_status();
+        } else if let Err(e) = self.leave() {
+            tracing::warn!("back to listening: {e:#}");
+        }
+    }
+
+    /// A lipcall session's peers (a direct call, or callers of the listening session) move
+    /// the phase: heard means in a call; a direct call nobody answers fails at its deadline;
+    /// a caller who said goodbye or went away ends it.
+    pub(super) fn follow_peers(&mut self, infos: &[PeerInfo], now: Instant) {
+        if self.link.session().is_none() || self.call_label.starts_with(super::ROOM) {
+            return;
+        }
+        let real = |i: &&PeerInfo| i.name.as_deref() != Some(DEMO_NAME);
+        let heard = infos.iter().filter(real).find(|i| !i.ended);
+        let gone = infos.iter().filter(real).find(|i| i.ended);
+        let phase = lock(&self.shared).call.phase.clone();
+        match (phase, heard) {
+            (CallPhase::Calling { .. }, Some(peer)) => self.set_phase(CallPhase::InCall {
+                with: peer_name(peer),
+                since: now,
+            }),
+            (CallPhase::Calling { to, deadline }, None) if deadline.is_some_and(|d| now >= d) => {
+                self.fail(format!(
+                    "nobody answered from {to} within {} s",
+                    DIRECT_ANSWER_WAIT.as_secs()
+                ));
+            }
+            (CallPhase::InCall { .. }, None) if self.in_call => {
+                if let Some(peer) = gone {
+                    self.ended(format!("{} hung up", peer_name(peer)));
+                }
+            }
+            (CallPhase::InCall { with, .. }, None) => {
+                let by = match gone {
+                    Some(peer) => format!("{} hung up", peer_name(peer)),
+                    None => format!("{with} went quiet and was dropped"),
+                };
+                self.set_phase(CallPhase::Ended { by });
+            }
+            (CallPhase::Idle | CallPhase::Ended { .. } | CallPhase::Failed { .. }, Some(peer))
+                if !self.in_call =>
+            {
+                let mut s = lock(&self.shared);
+                s.call.error = None;
+                s.call.phase = CallPhase::InCall {
+                    with: peer_name(peer),
+                    since: now,
+                };
+            }
+            _ => {}
+        }
+    }
+
+    /// The phone's ringing, while no other call is placed or held.
+    pub(super) fn follow_ringing(&self, ringing: Option<&str>) {
+        let mut s = lock(&self.shared);
+        match (ringing, &s.call.phase) {
+            (Some(from), CallPhase::Ringing { from: f }) if f == from => {}
+            (Some(from), phase) if !phase.is_active() => {
+                s.call.phase = CallPhase::Ringing { from: from.into() };
+            }
+            (None, CallPhase::Ringing { .. }) => s.call.phase = CallPhase::Idle,
+            _ => {}
+        }
+    }
+}
+
+fn peer_name(peer: &PeerInfo) -> String {
+    peer.name
+        .clone()
+        .filter(|n| !n.trim().is_empty())
+        .unwrap_or_else(|| peer.addr.to_string())
+}
