@@ -211,7 +211,10 @@ fn enter_in_the_address_field_calls_and_the_bar_shows_the_phase() {
     let deadline = Instant::now() + Duration::from_secs(10);
     loop {
         h.run();
-        if h.query_by_label_contains("calling 127.0.0.1").is_some() {
+        if h.query_all_by_label_contains("calling 127.0.0.1")
+            .next()
+            .is_some()
+        {
             break;
         }
         assert!(

@@ -211,6 +211,9 @@ impl SessionCore {
                         self.stats.own += 1;
                         continue;
                     }
+                    if blocks.iter().any(|b| b.ssrc == self.ssrc) {
+                        self.stats.reports_about_us += 1;
+                    }
                     let Some(peer) = self.peers.get_mut(&reporter) else {
                         // Not a peer (until its media comes): only where its stream will start
                         // is worth keeping, a few at most.

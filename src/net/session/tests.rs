@@ -878,3 +878,32 @@ fn the_socket_thread_joins_the_relay_and_retries_until_answered() {
         assert_eq!(control.kind, ControlKind::Join);
     }
 }
+
+#[test]
+fn a_pure_receivers_report_about_our_stream_says_someone_hears_us() {
+    let (us, them) = (addr(5000), addr(6000));
+    let mut listener = session(8);
+    let mut config = SessionConfig::new(LOCAL);
+    config.ssrc = Some(7);
+    let mut caller = SessionCore::new(config, us, Instant::now()).unwrap();
+    let mut voice = Caller::new(7, 100, 1000);
+    let mut played = HashMap::new();
+    drive(
+        &mut listener,
+        0..10,
+        |_| vec![(us, voice.packet())],
+        &mut played,
+    );
+    // A report naming someone else's stream says nothing about ours.
+    caller.handle_datagram(&rtcp_from(9, None, false), them, caller.epoch);
+    assert_eq!(caller.stats().reports_about_us, 0);
+    listener.send_periodic_report(listener.epoch + FRAME * 10);
+    let mut reports = 0;
+    while let Some(t) = listener.poll_transmit() {
+        assert_eq!(t.to, us, "a pure receiver reports back to its sender");
+        caller.handle_datagram(&t.data, them, caller.epoch);
+        reports += 1;
+    }
+    assert_eq!(reports, 1);
+    assert_eq!(caller.stats().reports_about_us, 1);
+}

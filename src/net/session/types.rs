@@ -96,6 +96,8 @@ pub struct SessionStats {
     pub moved: u64,
     /// Our own packets coming back (a relay or multicast echo).
     pub own: u64,
+    /// Reports naming our stream: someone hears us, even a pure receiver that never sends.
+    pub reports_about_us: u64,
     pub sent_rtp: u64,
     pub sent_rtcp: u64,
     pub send_errors: u64,
