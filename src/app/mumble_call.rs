@@ -192,7 +192,7 @@ impl MumbleCall {
 pub fn app_words(reason: &str) -> String {
     reason
         .replace(
-            "(give it with --password)",
+            "(set LIPCALL_MUMBLE_PASSWORD or give --password-file)",
             "(give it as the server password)",
         )
         .replace("pick another with --name", "pick another name")
