@@ -125,18 +125,11 @@ pub fn call_ui(
         }
         ui.separator();
         let warn = egui::Color32::from_rgb(230, 160, 60);
-        // Without a call there is nothing to encrypt: saying "NOT encrypted" then only alarms.
-        let shown = if call.phase.is_active() {
-            Some(call.encryption)
-        } else {
-            None
-        };
-        match shown {
-            None => ui.label(""),
-            Some(engine::Encryption::EndToEnd) => {
+        match call.encryption {
+            engine::Encryption::EndToEnd => {
                 ui.colored_label(egui::Color32::LIGHT_GREEN, "encrypted end to end (SRTP)")
             }
-            Some(engine::Encryption::HopByHop) => ui
+            engine::Encryption::HopByHop => ui
                 .colored_label(warn, "encrypted hop by hop: the server can hear the call")
                 .on_hover_text(
                     "Each link is encrypted (WebRTC's DTLS-SRTP to Janus; TLS and OCB2-AES128 \
@@ -144,7 +137,7 @@ pub fn call_ui(
                      SRTP keys travel in its SIP messages, which every proxy on the way reads. \
                      Only lipcall's own rooms with a passphrase are end to end.",
                 ),
-            Some(engine::Encryption::None) => ui.colored_label(warn, "NOT encrypted"),
+            engine::Encryption::None => ui.colored_label(warn, "NOT encrypted"),
         };
         phase_ui(ui, call);
         if call.unknown_payload > 0 {
