@@ -12,17 +12,7 @@ use lipcall::app::engine::{CallPhase, CallSpec, Command, Engine, lock};
 use lipcall::net::session::{Session, SessionConfig};
 
 fn wait_for_phase(engine: &Engine, what: &str, limit: Duration, done: impl Fn(&CallPhase) -> bool) {
-    let deadline = Instant::now() + limit;
-    loop {
-        {
-            let s = lock(&engine.shared);
-            if done(&s.call.phase) {
-                return;
-            }
-            assert!(Instant::now() < deadline, "{what}: {:?}", s.call);
-        }
-        std::thread::sleep(Duration::from_millis(50));
-    }
+    common::app::wait_for(engine, what, limit, |s| done(&s.call.phase));
 }
 
 fn call(engine: &Engine, address: &str) {

@@ -26,27 +26,6 @@ fn engine() -> Engine {
     common::app::headless_engine("Alice", None)
 }
 
-/// Waits up to `limit` for `done` to hold of the engine's shared state.
-fn wait_for(engine: &Engine, what: &str, limit: Duration, done: impl Fn(&Shared) -> bool) {
-    let deadline = Instant::now() + limit;
-    loop {
-        {
-            let s = lock(&engine.shared);
-            if done(&s) {
-                return;
-            }
-            assert!(
-                Instant::now() < deadline,
-                "{what}: call {:?}, phone {:?}, peers {:?}",
-                s.call,
-                s.phone,
-                s.peers.views()
-            );
-        }
-        std::thread::sleep(Duration::from_millis(50));
-    }
-}
-
 /// A peer whose name contains `name` was heard and animated for a second and more, in PCMU.
 fn heard(s: &Shared, name: &str) -> bool {
     heard_in(s, name, Codec::Pcmu)
@@ -87,7 +66,7 @@ fn the_app_dials_baresip_hears_it_sends_keys_and_idles_when_baresip_hangs_up() {
     let engine = engine();
     call(&engine, &format!("sip:bob@127.0.0.1:{bob_port}"));
     let limit = Duration::from_secs(15);
-    wait_for(&engine, "bob is heard and animated", limit, |s| {
+    common::app::wait_for(&engine, "bob is heard and animated", limit, |s| {
         heard(s, "bob")
     });
     {
@@ -97,7 +76,7 @@ fn the_app_dials_baresip_hears_it_sends_keys_and_idles_when_baresip_hangs_up() {
         assert_eq!(s.call.phase.word(), "in_call", "{:?}", s.call);
         assert_eq!(s.call.codec, Some(Codec::Pcmu));
     }
-    wait_for(&engine, "the keypad", limit, |s| s.phone.keypad);
+    common::app::wait_for(&engine, "the keypad", limit, |s| s.phone.keypad);
     for key in ["4", "#"] {
         engine.send(Command::Phone(PhoneCommand::Keys(key.into())));
     }
@@ -108,12 +87,12 @@ fn the_app_dials_baresip_hears_it_sends_keys_and_idles_when_baresip_hangs_up() {
             bob.text()
         );
     }
-    wait_for(&engine, "the keys shown as sent", limit, |s| {
+    common::app::wait_for(&engine, "the keys shown as sent", limit, |s| {
         s.phone.keys_sent == "4#"
     });
 
     tell_baresip(control, "hangup", "");
-    wait_for(&engine, "back to idle on baresip's BYE", limit, |s| {
+    common::app::wait_for(&engine, "back to idle on baresip's BYE", limit, |s| {
         !s.call.in_call && s.peers.views().is_empty() && !s.phone.keypad
     });
     let phase = lock(&engine.shared).call.phase.clone();
@@ -150,7 +129,7 @@ fn the_app_calls_a_wideband_baresip_in_g722() {
     );
     let engine = engine();
     call(&engine, &format!("sip:bob@127.0.0.1:{bob_port}"));
-    wait_for(
+    common::app::wait_for(
         &engine,
         "bob heard in G.722",
         Duration::from_secs(15),
@@ -162,7 +141,7 @@ fn the_app_calls_a_wideband_baresip_in_g722() {
         bob.text()
     );
     engine.send(Command::Leave);
-    wait_for(&engine, "idle", Duration::from_secs(10), |s| {
+    common::app::wait_for(&engine, "idle", Duration::from_secs(10), |s| {
         !s.call.in_call
     });
 }
@@ -187,7 +166,7 @@ fn the_app_registers_declines_answers_and_is_busy_in_another_call() {
     engine.send(Command::Phone(PhoneCommand::Account(Some(account))));
     let limit = Duration::from_secs(15);
     let registered = |s: &Shared| s.phone.registration.starts_with("registered with");
-    wait_for(&engine, "registered", limit, registered);
+    common::app::wait_for(&engine, "registered", limit, registered);
     let alice = format!("sip:alice@127.0.0.1:{kam_port}");
     let closed = |n: usize| {
         let deadline = Instant::now() + limit;
@@ -199,7 +178,7 @@ fn the_app_registers_declines_answers_and_is_busy_in_another_call() {
 
     // Declined: baresip hears 603.
     tell_baresip(control, "dial", &alice);
-    wait_for(&engine, "the call rings", limit, |s| {
+    common::app::wait_for(&engine, "the call rings", limit, |s| {
         s.phone.ringing.is_some()
     });
     {
@@ -216,16 +195,16 @@ fn the_app_registers_declines_answers_and_is_busy_in_another_call() {
     );
 
     // A fresh listener registers; the next call is answered and heard.
-    wait_for(&engine, "registered again", limit, registered);
+    common::app::wait_for(&engine, "registered again", limit, registered);
     tell_baresip(control, "dial", &alice);
-    wait_for(&engine, "the call rings again", limit, |s| {
+    common::app::wait_for(&engine, "the call rings again", limit, |s| {
         s.phone
             .ringing
             .as_deref()
             .is_some_and(|c| c.contains("bob"))
     });
     engine.send(Command::Phone(PhoneCommand::Answer));
-    wait_for(&engine, "the caller is heard and animated", limit, |s| {
+    common::app::wait_for(&engine, "the caller is heard and animated", limit, |s| {
         s.call.in_call && s.phone.ringing.is_none() && heard(s, "bob")
     });
     {
@@ -236,7 +215,7 @@ fn the_app_registers_declines_answers_and_is_busy_in_another_call() {
     // Our hang-up ends baresip's call too.
     engine.send(Command::Leave);
     closed(2);
-    wait_for(&engine, "idle after our hang-up", limit, |s| {
+    common::app::wait_for(&engine, "idle after our hang-up", limit, |s| {
         !s.call.in_call && s.peers.views().is_empty()
     });
     assert_eq!(
@@ -247,7 +226,7 @@ fn the_app_registers_declines_answers_and_is_busy_in_another_call() {
     );
 
     // In a call on a relay, a SIP caller is refused busy.
-    wait_for(&engine, "registered after the call", limit, registered);
+    common::app::wait_for(&engine, "registered after the call", limit, registered);
     let relay = Relay::start("127.0.0.1:0".parse().unwrap(), RelayConfig::default()).unwrap();
     engine.send(Command::Call(Box::new(CallSpec {
         address: relay.local_addr().to_string(),
@@ -255,7 +234,7 @@ fn the_app_registers_declines_answers_and_is_busy_in_another_call() {
         name: "Alice".into(),
         ..CallSpec::default()
     })));
-    wait_for(&engine, "in the relay's room", limit, |s| s.call.in_call);
+    common::app::wait_for(&engine, "in the relay's room", limit, |s| s.call.in_call);
     tell_baresip(control, "dial", &alice);
     closed(3);
     assert!(

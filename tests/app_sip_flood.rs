@@ -14,7 +14,7 @@ use std::thread::JoinHandle;
 use std::time::{Duration, Instant};
 
 use common::memory_mb;
-use lipcall::app::engine::{Command, Engine, Shared, lock};
+use lipcall::app::engine::{Command, Shared, lock};
 use lipcall::app::sip_call::PhoneCommand;
 use lipcall::net::sip::agent::Account;
 
@@ -106,25 +106,6 @@ impl Drop for Registrar {
     }
 }
 
-fn wait_for(engine: &Engine, what: &str, limit: Duration, done: impl Fn(&Shared) -> bool) {
-    let deadline = Instant::now() + limit;
-    loop {
-        {
-            let s = lock(&engine.shared);
-            if done(&s) {
-                return;
-            }
-            assert!(
-                Instant::now() < deadline,
-                "{what}: call {:?}, phone {:?}",
-                s.call,
-                s.phone
-            );
-        }
-        std::thread::sleep(Duration::from_millis(50));
-    }
-}
-
 /// Sends `INVITES` INVITEs to `to`, 200 at most unanswered at a time (each never ACKed): how
 /// many got a final answer.
 fn flood_invites(to: SocketAddr) -> usize {
@@ -181,7 +162,7 @@ fn an_idle_registered_phone_outlives_an_invite_flood_and_still_takes_a_call() {
     engine.send(Command::Phone(PhoneCommand::Account(Some(account))));
     let limit = Duration::from_secs(20);
     let registered = |s: &Shared| s.phone.registration.starts_with("registered with");
-    wait_for(&engine, "registered", limit, registered);
+    common::app::wait_for(&engine, "registered", limit, registered);
     let phone = registrar.contact.lock().unwrap().0.expect("a Contact");
     std::thread::sleep(Duration::from_secs(1));
     let me = std::process::id();
@@ -235,7 +216,7 @@ fn an_idle_registered_phone_outlives_an_invite_flood_and_still_takes_a_call() {
             std::thread::sleep(Duration::from_millis(50));
         }
     }
-    wait_for(&engine, "registered and idle", limit, |s| {
+    common::app::wait_for(&engine, "registered and idle", limit, |s| {
         registered(s) && s.phone.ringing.is_none() && !s.call.in_call
     });
     let phone = registrar.contact.lock().unwrap().0.expect("a Contact");
@@ -279,7 +260,7 @@ fn an_idle_registered_phone_outlives_an_invite_flood_and_still_takes_a_call() {
         std::thread::sleep(Duration::from_millis(50));
     }
     engine.send(Command::Phone(PhoneCommand::Answer));
-    wait_for(&engine, "the caller is heard", limit, |s| {
+    common::app::wait_for(&engine, "the caller is heard", limit, |s| {
         s.call.in_call
             && s.peers
                 .views()

@@ -7,12 +7,12 @@ mod common;
 use std::net::{SocketAddr, SocketAddrV4, UdpSocket};
 use std::sync::Arc;
 use std::sync::atomic::{AtomicUsize, Ordering};
-use std::time::{Duration, Instant};
+use std::time::Duration;
 
 use common::sip::{
     PASSWORD, baresip, free_port, have, kamailio, reversed_8k, stun_binding_success, tell_baresip,
 };
-use lipcall::app::engine::{Command, Shared, lock};
+use lipcall::app::engine::Command;
 use lipcall::app::sip_call::{PhoneCommand, PhoneNetwork};
 use lipcall::net::sip::agent::Account;
 
@@ -35,20 +35,6 @@ fn stun_server() -> (u16, Arc<AtomicUsize>) {
         }
     });
     (port, asked)
-}
-
-fn wait_for(engine: &lipcall::app::engine::Engine, what: &str, done: impl Fn(&Shared) -> bool) {
-    let deadline = Instant::now() + Duration::from_secs(15);
-    loop {
-        {
-            let s = lock(&engine.shared);
-            if done(&s) {
-                return;
-            }
-            assert!(Instant::now() < deadline, "{what}: phone {:?}", s.phone);
-        }
-        std::thread::sleep(Duration::from_millis(20));
-    }
 }
 
 #[test]
@@ -80,7 +66,7 @@ fn the_phone_listens_on_its_fixed_port_and_asks_stun() {
     })));
     let account = Account::parse(&format!("sip:alice@127.0.0.1:{kam_port}"), PASSWORD).unwrap();
     engine.send(Command::Phone(PhoneCommand::Account(Some(account))));
-    wait_for(&engine, "registered", |s| {
+    common::app::wait_for(&engine, "registered", Duration::from_secs(15), |s| {
         s.phone.registration.starts_with("registered with")
     });
     // The listener's RTP and RTCP sockets each asked where the NAT maps them.
@@ -88,7 +74,9 @@ fn the_phone_listens_on_its_fixed_port_and_asks_stun() {
 
     // A caller that knows the port reaches the phone there, not through the registrar.
     tell_baresip(control, "dial", &format!("sip:alice@127.0.0.1:{sip_port}"));
-    wait_for(&engine, "the call rings", |s| s.phone.ringing.is_some());
+    common::app::wait_for(&engine, "the call rings", Duration::from_secs(15), |s| {
+        s.phone.ringing.is_some()
+    });
     engine.send(Command::Phone(PhoneCommand::Decline));
     assert!(
         bob.wait_for("603 Decline", Duration::from_secs(10)),

@@ -1,6 +1,8 @@
 //! The app's engine without a window or audio devices, as the app tests drive it.
 
-use lipcall::app::engine::{Engine, EngineConfig};
+use std::time::{Duration, Instant};
+
+use lipcall::app::engine::{Engine, EngineConfig, lock};
 use lipcall::audio::DeviceChoice;
 
 /// An engine named `name` with silent playback and no microphone, listening for direct calls
@@ -15,4 +17,31 @@ pub fn headless_engine(name: &str, listen: Option<&str>) -> Engine {
         no_audio: true,
     })
     .expect("the engine starts")
+}
+
+/// Waits up to `limit` for `done` to hold of the engine's shared state; past it, fails naming
+/// `what` with the call, the phone and the peers as they were.
+pub fn wait_for(
+    engine: &Engine,
+    what: &str,
+    limit: Duration,
+    done: impl Fn(&lipcall::app::engine::Shared) -> bool,
+) {
+    let deadline = Instant::now() + limit;
+    loop {
+        {
+            let s = lock(&engine.shared);
+            if done(&s) {
+                return;
+            }
+            assert!(
+                Instant::now() < deadline,
+                "{what}: call {:?}, phone {:?}, peers {:?}",
+                s.call,
+                s.phone,
+                s.peers.views()
+            );
+        }
+        std::thread::sleep(Duration::from_millis(20));
+    }
 }
