@@ -8,8 +8,8 @@ mod common;
 use std::time::Duration;
 
 use common::sip::{
-    PASSWORD, Peer, baresip, baresip_heard, best_alignment, free_port, have, kamailio,
-    kamailio_with, lipcall_answering, median_snr, reversed_8k, tell_baresip,
+    PASSWORD, Peer, baresip, baresip_heard, best_alignment, bob_registered, free_port, have,
+    kamailio, kamailio_with, lipcall_answering, median_snr, reversed_8k, tell_baresip,
 };
 
 /// The strongest correlation (in absolute value) between a viseme column of WEIGHTS.csv and
@@ -54,23 +54,10 @@ fn lipcall_registers_with_kamailio_calls_baresip_and_hears_it() {
         return;
     }
     let dir = tempfile::tempdir().unwrap();
-    let (kam_port, bob_port, control) = (free_port(false), free_port(false), free_port(false));
+    let kam_port = free_port(false);
     let _kamailio = kamailio(dir.path(), kam_port, "");
     let bob_speech = reversed_8k(dir.path());
-    let bob = baresip(
-        dir.path(),
-        bob_port,
-        control,
-        &format!(
-            "<sip:bob@127.0.0.1:{kam_port}>;auth_pass={PASSWORD};answermode=auto;regint=60;audio_codecs=PCMU"
-        ),
-        &bob_speech,
-    );
-    assert!(
-        bob.wait_for("200 OK", Duration::from_secs(10)),
-        "baresip did not register: {}",
-        bob.text()
-    );
+    let bob = bob_registered(dir.path(), kam_port, "auto", &bob_speech);
     let heard = dir.path().join("lipcall-heard.wav");
     let weights = dir.path().join("weights.csv");
     let ours = common::demo_8k(dir.path());
@@ -312,22 +299,9 @@ fn a_call_cancelled_before_the_answer_stops_baresip_ringing_through_kamailio() {
         return;
     }
     let dir = tempfile::tempdir().unwrap();
-    let (kam_port, bob_port, control) = (free_port(false), free_port(false), free_port(false));
+    let kam_port = free_port(false);
     let _kamailio = kamailio(dir.path(), kam_port, "");
-    let bob = baresip(
-        dir.path(),
-        bob_port,
-        control,
-        &format!(
-            "<sip:bob@127.0.0.1:{kam_port}>;auth_pass={PASSWORD};answermode=manual;regint=60;audio_codecs=PCMU"
-        ),
-        &reversed_8k(dir.path()),
-    );
-    assert!(
-        bob.wait_for("200 OK", Duration::from_secs(10)),
-        "{}",
-        bob.text()
-    );
+    let bob = bob_registered(dir.path(), kam_port, "manual", &reversed_8k(dir.path()));
     let started = std::time::Instant::now();
     let out = common::lipcall()
         .args(["sip", "call", &format!("sip:bob@127.0.0.1:{kam_port}")])
@@ -364,26 +338,13 @@ fn a_proxy_that_challenges_the_invite_gets_its_answer() {
         return;
     }
     let dir = tempfile::tempdir().unwrap();
-    let (kam_port, bob_port, control) = (free_port(false), free_port(false), free_port(false));
+    let kam_port = free_port(false);
     // Calls from our domain must answer a 407 first.
     let challenge = format!(
         "if (is_method(\"INVITE\") && !pv_proxy_authenticate(\"$fd\", \"{PASSWORD}\", \"0\")) {{ proxy_challenge(\"$fd\", \"0\"); exit; }}"
     );
     let kamailio = kamailio_with(dir.path(), kam_port, "", &challenge);
-    let bob = baresip(
-        dir.path(),
-        bob_port,
-        control,
-        &format!(
-            "<sip:bob@127.0.0.1:{kam_port}>;auth_pass={PASSWORD};answermode=auto;regint=60;audio_codecs=PCMU"
-        ),
-        &reversed_8k(dir.path()),
-    );
-    assert!(
-        bob.wait_for("200 OK", Duration::from_secs(10)),
-        "{}",
-        bob.text()
-    );
+    let bob = bob_registered(dir.path(), kam_port, "auto", &reversed_8k(dir.path()));
     let call = |password: &str| {
         common::lipcall()
             .args(["sip", "call", &format!("sip:bob@127.0.0.1:{kam_port}")])

@@ -10,7 +10,7 @@ use std::sync::atomic::{AtomicUsize, Ordering};
 use std::sync::{Arc, Mutex};
 use std::time::Duration;
 
-use common::sip::{PASSWORD, baresip, exit_of, free_port, have, kamailio, reversed_8k};
+use common::sip::{PASSWORD, bob_registered, exit_of, free_port, have, kamailio, reversed_8k};
 
 /// What a registrar of the test saw.
 #[derive(Default)]
@@ -187,22 +187,9 @@ fn a_call_to_the_accounts_domain_goes_through_its_registrar() {
     // The domain does not resolve: only the registrar can take the call.
     let domain = "lipcall-test.invalid";
     let dir = tempfile::tempdir().unwrap();
-    let (kam_port, bob_port, control) = (free_port(false), free_port(false), free_port(false));
+    let kam_port = free_port(false);
     let _kamailio = kamailio(dir.path(), kam_port, "");
-    let bob = baresip(
-        dir.path(),
-        bob_port,
-        control,
-        &format!(
-            "<sip:bob@127.0.0.1:{kam_port}>;auth_pass={PASSWORD};answermode=auto;regint=60;audio_codecs=PCMU"
-        ),
-        &reversed_8k(dir.path()),
-    );
-    assert!(
-        bob.wait_for("200 OK", Duration::from_secs(10)),
-        "baresip did not register: {}",
-        bob.text()
-    );
+    let bob = bob_registered(dir.path(), kam_port, "auto", &reversed_8k(dir.path()));
     let out = common::lipcall()
         .args(["sip", "call", &format!("sip:bob@{domain}")])
         .args(["--account", &format!("sip:alice@{domain}")])

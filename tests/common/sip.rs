@@ -434,6 +434,28 @@ pub fn kamailio(dir: &Path, port: u16, extra: &str) -> Logged {
     kamailio_with(dir, port, extra, "")
 }
 
+/// baresip as bob at the kamailio on `kam_port` (digest for [`PASSWORD`]), answering by
+/// `answermode` (`auto` or `manual`) in PCMU, its microphone `source`: returned once
+/// registered.
+pub fn bob_registered(dir: &Path, kam_port: u16, answermode: &str, source: &Path) -> Logged {
+    let (port, control) = (free_port(false), free_port(false));
+    let bob = baresip(
+        dir,
+        port,
+        control,
+        &format!(
+            "<sip:bob@127.0.0.1:{kam_port}>;auth_pass={PASSWORD};answermode={answermode};regint=60;audio_codecs=PCMU"
+        ),
+        source,
+    );
+    assert!(
+        bob.wait_for("200 OK", Duration::from_secs(10)),
+        "baresip did not register: {}",
+        bob.text()
+    );
+    bob
+}
+
 /// baresip with its own config folder: `account` its accounts line, its microphone `source`
 /// (8 kHz mono), what it hears dumped into `dir`/heard by sndfile.
 pub fn baresip(dir: &Path, port: u16, control: u16, account: &str, source: &Path) -> Logged {
