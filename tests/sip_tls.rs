@@ -345,6 +345,37 @@ onreply_route[ALIAS] {{
     kamailio
 }
 
+/// baresip as bob registered over TLS at the kamailio on `kam_port` (trusting `ca`), SRTP
+/// mandatory, answering at once, its microphone `source`: returned once registered.
+fn tls_bob(
+    d: &Path,
+    port: u16,
+    control: u16,
+    kam_port: u16,
+    ca: &Path,
+    source: &Path,
+    kamailio: &common::sip::Logged,
+) -> common::sip::Logged {
+    let bob = baresip_with(
+        d,
+        port,
+        control,
+        &format!(
+            "<sip:bob@127.0.0.1:{kam_port};transport=tls>;auth_pass={PASSWORD};answermode=auto;\
+             regint=60;audio_codecs=PCMU;mediaenc=srtp-mand"
+        ),
+        source,
+        &format!("sip_cafile {}\n", ca.display()),
+    );
+    assert!(
+        bob.wait_for("200 OK", Duration::from_secs(10)),
+        "baresip did not register over TLS: {}\nkamailio: {}",
+        bob.text(),
+        kamailio.text()
+    );
+    bob
+}
+
 /// Waits until something accepts TCP connections on 127.0.0.1:`port`.
 fn wait_listening(port: u16, limit: Duration) -> bool {
     let deadline = std::time::Instant::now() + limit;
@@ -369,23 +400,7 @@ fn lipcall_registers_over_tls_and_calls_baresip_with_mandatory_srtp() {
     let (kam_port, bob_port, control) = (free_port(false), free_port(false), free_port(false));
     let kamailio = kamailio_tls(d, kam_port, "kamailio");
     let bob_speech = reversed_8k(d);
-    let bob = baresip_with(
-        d,
-        bob_port,
-        control,
-        &format!(
-            "<sip:bob@127.0.0.1:{kam_port};transport=tls>;auth_pass={PASSWORD};answermode=auto;\
-             regint=60;audio_codecs=PCMU;mediaenc=srtp-mand"
-        ),
-        &bob_speech,
-        &format!("sip_cafile {}\n", ca.display()),
-    );
-    assert!(
-        bob.wait_for("200 OK", Duration::from_secs(10)),
-        "baresip did not register over TLS: {}\nkamailio: {}",
-        bob.text(),
-        kamailio.text()
-    );
+    let bob = tls_bob(d, bob_port, control, kam_port, &ca, &bob_speech, &kamailio);
     let heard = d.join("lipcall-heard.wav");
     let ours = common::demo_8k(d);
     let out = common::lipcall()
@@ -492,21 +507,14 @@ fn the_app_registers_over_tls_and_calls_baresip_with_mandatory_srtp() {
     server_certificate(d, "ca", "kamailio", "IP:127.0.0.1", Validity::Days(2));
     let (kam_port, bob_port, control) = (free_port(false), free_port(false), free_port(false));
     let kamailio = kamailio_tls(d, kam_port, "kamailio");
-    let bob = baresip_with(
+    let bob = tls_bob(
         d,
         bob_port,
         control,
-        &format!(
-            "<sip:bob@127.0.0.1:{kam_port};transport=tls>;auth_pass={PASSWORD};answermode=auto;\
-             regint=60;audio_codecs=PCMU;mediaenc=srtp-mand"
-        ),
+        kam_port,
+        &ca,
         &reversed_8k(d),
-        &format!("sip_cafile {}\n", ca.display()),
-    );
-    assert!(
-        bob.wait_for("200 OK", Duration::from_secs(10)),
-        "baresip did not register over TLS: {}",
-        bob.text()
+        &kamailio,
     );
     let engine = common::app::headless_engine("Alice", None);
     engine.send(Command::Phone(PhoneCommand::Network(PhoneNetwork {
