@@ -6,7 +6,6 @@
 
 mod common;
 
-use std::collections::HashSet;
 use std::net::{SocketAddr, UdpSocket};
 use std::sync::atomic::{AtomicBool, Ordering};
 use std::sync::{Arc, Mutex};
@@ -14,19 +13,13 @@ use std::thread::JoinHandle;
 use std::time::{Duration, Instant};
 
 use common::memory_mb;
+use common::sip::{flood, header};
 use lipcall::app::engine::{Command, Shared, lock};
 use lipcall::app::sip_call::PhoneCommand;
 use lipcall::net::sip::agent::Account;
 
 const INVITES: usize = 40_000;
 const MAX_GROWTH_MB: f64 = 50.0;
-
-fn header<'m>(message: &'m str, name: &str) -> Option<&'m str> {
-    message.lines().find_map(|line| {
-        let (n, value) = line.split_once(':')?;
-        n.trim().eq_ignore_ascii_case(name).then(|| value.trim())
-    })
-}
 
 /// A registrar that takes every REGISTER (and answers OPTIONS), and keeps the last registered
 /// Contact's HOST:PORT: where the phone listens.
@@ -110,9 +103,6 @@ impl Drop for Registrar {
 /// many got a final answer.
 fn flood_invites(to: SocketAddr) -> usize {
     let socket = UdpSocket::bind("127.0.0.1:0").unwrap();
-    socket
-        .set_read_timeout(Some(Duration::from_millis(300)))
-        .unwrap();
     let me = socket.local_addr().unwrap();
     let offer = "v=0\r\no=flood 1 1 IN IP4 127.0.0.1\r\ns=-\r\nc=IN IP4 127.0.0.1\r\nt=0 0\r\n\
                  m=audio 9 RTP/AVP 0\r\na=rtpmap:0 PCMU/8000\r\n";
@@ -125,33 +115,22 @@ fn flood_invites(to: SocketAddr) -> usize {
             offer.len()
         )
     };
-    let mut answered = HashSet::new();
-    let (mut sent, mut written_off) = (0, 0);
-    let deadline = Instant::now() + Duration::from_secs(60);
-    let mut buf = [0u8; 65536];
-    while sent < INVITES && Instant::now() < deadline {
-        while sent < INVITES && sent.saturating_sub(answered.len() + written_off) < 200 {
-            socket.send_to(invite(sent).as_bytes(), to).unwrap();
-            sent += 1;
-        }
-        match socket.recv_from(&mut buf) {
-            Ok((n, _)) => {
-                let response = String::from_utf8_lossy(&buf[..n]);
-                let code: u16 = response
-                    .strip_prefix("SIP/2.0 ")
-                    .and_then(|r| r.get(..3)?.parse().ok())
-                    .unwrap_or(0);
-                if code >= 200
-                    && let Some(n) = header(&response, "Call-ID")
-                        .and_then(|c| c.strip_prefix("flood-")?.parse::<usize>().ok())
-                {
-                    answered.insert(n);
-                }
-            }
-            Err(_) => written_off = sent.saturating_sub(answered.len()),
-        }
-    }
-    answered.len()
+    let number = |response: &str| {
+        header(response, "Call-ID")?
+            .strip_prefix("flood-")?
+            .parse::<usize>()
+            .ok()
+    };
+    flood(
+        &socket,
+        to,
+        INVITES,
+        200,
+        Duration::from_secs(60),
+        invite,
+        number,
+    )
+    .len()
 }
 
 #[test]

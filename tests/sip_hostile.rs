@@ -7,11 +7,12 @@
 
 mod common;
 
-use std::collections::HashSet;
 use std::net::{SocketAddr, UdpSocket};
 use std::time::{Duration, Instant};
 
-use common::sip::{Logged, Peer, exit_of, free_port, lipcall_answering};
+use common::sip::{
+    Logged, Peer, exit_of, flood, free_port, header, lipcall_answering, receive, status,
+};
 
 /// What lipcall may keep for a flood, at its peak, over what it held before it.
 const MAX_GROWTH_MB: f64 = 50.0;
@@ -26,25 +27,6 @@ fn memory(lipcall: &Logged, field: &str) -> Option<f64> {
 
 fn memory_mb(lipcall: &Logged, field: &str) -> f64 {
     memory(lipcall, field).unwrap_or_else(|| panic!("lipcall has exited: {}", lipcall.text()))
-}
-
-/// The value of the first header `name` of a SIP message.
-fn header<'m>(message: &'m str, name: &str) -> Option<&'m str> {
-    message.lines().find_map(|line| {
-        let (n, value) = line.split_once(':')?;
-        n.trim().eq_ignore_ascii_case(name).then(|| value.trim())
-    })
-}
-
-/// The status code of a response (`None` for a request).
-fn status(message: &str) -> Option<u16> {
-    message.strip_prefix("SIP/2.0 ")?.get(..3)?.parse().ok()
-}
-
-fn receive(socket: &UdpSocket) -> Option<(String, SocketAddr)> {
-    let mut buf = [0u8; 65536];
-    let (n, from) = socket.recv_from(&mut buf).ok()?;
-    Some((String::from_utf8_lossy(&buf[..n]).into_owned(), from))
 }
 
 /// An offer of PCMU on `media`.
@@ -136,50 +118,6 @@ fn hang_up(call: &Dialog, cseq: u32, lipcall: Logged) -> String {
 fn assert_said_little(log: &str) {
     let lines = log.lines().count();
     assert!(lines <= MAX_LOG_LINES, "{lines} log lines:\n{log}");
-}
-
-/// Sends `count` requests made by `make` (by number), no more than `window` unanswered at a time
-/// so that lipcall's socket buffer does not drop them, within `limit`; the numbers answered with
-/// a final response, each counted once, by `number` (the request's number in a response).
-fn flood(
-    socket: &UdpSocket,
-    to: SocketAddr,
-    count: usize,
-    window: usize,
-    limit: Duration,
-    make: impl Fn(usize) -> String,
-    number: impl Fn(&str) -> Option<usize>,
-) -> HashSet<usize> {
-    socket
-        .set_read_timeout(Some(Duration::from_millis(300)))
-        .unwrap();
-    let mut answered = HashSet::new();
-    let mut written_off = 0;
-    let mut sent = 0;
-    let outstanding = |sent: usize, answered: &HashSet<usize>, written_off: usize| {
-        sent.saturating_sub(answered.len() + written_off)
-    };
-    let deadline = Instant::now() + limit;
-    while (sent < count || outstanding(sent, &answered, written_off) > 0)
-        && Instant::now() < deadline
-    {
-        while sent < count && outstanding(sent, &answered, written_off) < window {
-            socket.send_to(make(sent).as_bytes(), to).unwrap();
-            sent += 1;
-        }
-        match receive(socket) {
-            Some((message, _)) => {
-                if status(&message).is_some_and(|code| code >= 200)
-                    && let Some(n) = number(&message)
-                {
-                    answered.insert(n);
-                }
-            }
-            // Lost or never to be answered: the window moves on.
-            None => written_off = sent.saturating_sub(answered.len()),
-        }
-    }
-    answered
 }
 
 /// Calls `sip answer` on `port` from a raw socket: the dialog once lipcall's 200 is ACKed.

@@ -1,8 +1,9 @@
 //! SIP test peers (SIPp, kamailio, baresip) started on free loopback ports with configs in a
 //! temp dir, killed when dropped; and how to tell that a recording holds the speech sent.
 
+use std::collections::HashSet;
 use std::io::{Read, Write};
-use std::net::{SocketAddrV4, TcpStream, UdpSocket};
+use std::net::{SocketAddr, SocketAddrV4, TcpStream, UdpSocket};
 use std::path::{Path, PathBuf};
 use std::process::{Child, Command, Output, Stdio};
 use std::sync::{Arc, Mutex};
@@ -588,4 +589,67 @@ pub fn stun_binding_success(request: &[u8], mapped: SocketAddrV4) -> Option<Vec<
     reply.extend((mapped.port() ^ 0x2112).to_be_bytes());
     reply.extend((u32::from(*mapped.ip()) ^ 0x2112_a442).to_be_bytes());
     Some(reply)
+}
+
+/// The value of the first header `name` of a SIP message.
+pub fn header<'m>(message: &'m str, name: &str) -> Option<&'m str> {
+    message.lines().find_map(|line| {
+        let (n, value) = line.split_once(':')?;
+        n.trim().eq_ignore_ascii_case(name).then(|| value.trim())
+    })
+}
+
+/// The status code of a response (`None` for a request).
+pub fn status(message: &str) -> Option<u16> {
+    message.strip_prefix("SIP/2.0 ")?.get(..3)?.parse().ok()
+}
+
+pub fn receive(socket: &UdpSocket) -> Option<(String, SocketAddr)> {
+    let mut buf = [0u8; 65536];
+    let (n, from) = socket.recv_from(&mut buf).ok()?;
+    Some((String::from_utf8_lossy(&buf[..n]).into_owned(), from))
+}
+
+/// Sends `count` requests made by `make` (by number), no more than `window` unanswered at a time
+/// so that lipcall's socket buffer does not drop them, within `limit`; the numbers answered with
+/// a final response, each counted once, by `number` (the request's number in a response).
+pub fn flood(
+    socket: &UdpSocket,
+    to: SocketAddr,
+    count: usize,
+    window: usize,
+    limit: Duration,
+    make: impl Fn(usize) -> String,
+    number: impl Fn(&str) -> Option<usize>,
+) -> HashSet<usize> {
+    socket
+        .set_read_timeout(Some(Duration::from_millis(300)))
+        .unwrap();
+    let mut answered = HashSet::new();
+    let mut written_off = 0;
+    let mut sent = 0;
+    let outstanding = |sent: usize, answered: &HashSet<usize>, written_off: usize| {
+        sent.saturating_sub(answered.len() + written_off)
+    };
+    let deadline = Instant::now() + limit;
+    while (sent < count || outstanding(sent, &answered, written_off) > 0)
+        && Instant::now() < deadline
+    {
+        while sent < count && outstanding(sent, &answered, written_off) < window {
+            socket.send_to(make(sent).as_bytes(), to).unwrap();
+            sent += 1;
+        }
+        match receive(socket) {
+            Some((message, _)) => {
+                if status(&message).is_some_and(|code| code >= 200)
+                    && let Some(n) = number(&message)
+                {
+                    answered.insert(n);
+                }
+            }
+            // Lost or never to be answered: the window moves on.
+            None => written_off = sent.saturating_sub(answered.len()),
+        }
+    }
+    answered
 }
