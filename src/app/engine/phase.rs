@@ -56,18 +56,19 @@ impl Worker {
         let real = |i: &&PeerInfo| i.name.as_deref() != Some(DEMO_NAME);
         let heard = infos.iter().filter(real).find(|i| !i.ended);
         let gone = infos.iter().filter(real).find(|i| i.ended);
-        // A peer that only listens sends no media, but its reports name our stream.
-        let heard_by_someone = self
-            .link
-            .session()
-            .is_some_and(|s| s.stats().reports_about_us > 0);
         let phase = lock(&self.shared).call.phase.clone();
         match (phase, heard) {
             (CallPhase::Calling { .. }, Some(peer)) => self.set_phase(CallPhase::InCall {
                 with: peer_name(peer),
                 since: now,
             }),
-            (CallPhase::Calling { to, .. }, None) if heard_by_someone => {
+            // A peer that only listens sends no media, but its reports name our stream.
+            (CallPhase::Calling { to, .. }, None)
+                if self
+                    .link
+                    .session()
+                    .is_some_and(|s| s.stats().reports_about_us > 0) =>
+            {
                 self.set_phase(CallPhase::InCall {
                     with: to,
                     since: now,
