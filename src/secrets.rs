@@ -29,7 +29,7 @@ pub fn forbid_core_dumps() {
 }
 
 /// A password kept in a file: its first line (a trailing newline is not part of it).
-pub fn read_password_file(path: &Path) -> Result<Zeroizing<String>, InputError> {
+fn read_password_file(path: &Path) -> Result<Zeroizing<String>, InputError> {
     let mut text = Zeroizing::new(input::read_to_string(path, MAX_SECRET_BYTES)?);
     let line = text.lines().next().unwrap_or("").len();
     text.truncate(line);
