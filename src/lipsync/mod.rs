@@ -4,6 +4,7 @@
 pub mod animator;
 pub mod builtin;
 pub mod coarticulation;
+pub mod controls;
 pub mod decompose;
 pub mod jaw;
 pub mod life;
