@@ -437,7 +437,9 @@ impl Capture {
         let channels = opened.config.channels();
         let format = opened.config.sample_format();
         let mut config: cpal::StreamConfig = opened.config.config();
-        if let Some(period) = devices::period(opened.config.buffer_size(), rate) {
+        if let Some(period) =
+            devices::period(opened.config.buffer_size(), rate, Duration::from_millis(10))
+        {
             config.buffer_size = cpal::BufferSize::Fixed(period);
         }
         let (feeder, reader) = capture_pipeline(rate, channels, Duration::from_millis(500))?;

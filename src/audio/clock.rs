@@ -64,6 +64,8 @@ pub struct OutputClock {
     /// Callbacks that found the ring short (once it had started delivering).
     underruns: AtomicU64,
     mapping: MappingCell,
+    /// The thread that refills the ring (the mixer), woken after every buffer played.
+    refiller: OnceLock<std::thread::Thread>,
 }
 
 impl OutputClock {
@@ -81,7 +83,15 @@ impl OutputClock {
             underrun_frames: AtomicU64::new(0),
             underruns: AtomicU64::new(0),
             mapping: MappingCell::default(),
+            refiller: OnceLock::new(),
         }
+    }
+
+    /// Unparks the calling thread after every buffer the output plays, so that a refiller
+    /// parked between looks ([`std::thread::park_timeout`]) tops the ring up as soon as there
+    /// is room, not a sleep later. The first thread to ask is the one woken.
+    pub fn wake_me(&self) {
+        let _ = self.refiller.set(std::thread::current());
     }
 
     /// Device rate in frames per second.
@@ -119,6 +129,10 @@ impl OutputClock {
         if short > 0 && ring_end > 0 {
             self.underrun_frames.fetch_add(short, Ordering::Relaxed);
             self.underruns.fetch_add(1, Ordering::Relaxed);
+        }
+        // An atomic swap and at most a futex wake: no lock, no allocation.
+        if let Some(t) = self.refiller.get() {
+            t.unpark();
         }
     }
 
@@ -447,6 +461,38 @@ impl<W> Schedule<W> {
 mod tests {
     use super::*;
     use crate::vocab::SAMPLE_RATE;
+    use std::sync::Arc;
+
+    #[test]
+    fn each_buffer_played_wakes_the_refiller() {
+        // The mixer parks between looks; the output's callback unparks it, so it refills the
+        // ring as soon as a buffer is taken instead of a sleep later.
+        let clock = Arc::new(OutputClock::new(48_000));
+        let (ready_tx, ready_rx) = std::sync::mpsc::channel();
+        let c = clock.clone();
+        let refiller = std::thread::spawn(move || {
+            c.wake_me();
+            ready_tx.send(()).unwrap();
+            let mut woken = 0;
+            let began = Instant::now();
+            while woken < 3 && began.elapsed() < Duration::from_secs(60) {
+                std::thread::park_timeout(Duration::from_secs(60));
+                woken += 1;
+            }
+            (woken, began.elapsed())
+        });
+        ready_rx.recv().unwrap();
+        for i in 0..3u64 {
+            std::thread::sleep(Duration::from_millis(20));
+            clock.publish(i * 480, (i + 1) * 480, 480, Instant::now(), Duration::ZERO);
+        }
+        let (woken, took) = refiller.join().unwrap();
+        assert_eq!(woken, 3);
+        assert!(
+            took < Duration::from_secs(30),
+            "parked to the timeout: {took:?}"
+        );
+    }
 
     #[test]
     fn heard_frame_follows_the_anchor_and_stops_at_the_ring_end() {

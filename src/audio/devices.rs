@@ -77,10 +77,15 @@ fn device_name(device: &cpal::Device) -> String {
         .unwrap_or_else(|_| device.to_string())
 }
 
-/// The device buffer to ask for, in frames: 10 ms where the device says it can (its default is
-/// often several times that, all of it heard, or captured, as delay), else its default (`None`).
-pub(crate) fn period(supported: &cpal::SupportedBufferSize, rate: u32) -> Option<u32> {
-    let wanted = rate / 100;
+/// The device buffer to ask for, in frames: `period` where the device says it can (its default
+/// is often several times that, all of it heard, or captured, as delay), else its default
+/// (`None`).
+pub(crate) fn period(
+    supported: &cpal::SupportedBufferSize,
+    rate: u32,
+    period: std::time::Duration,
+) -> Option<u32> {
+    let wanted = (period.as_secs_f64() * f64::from(rate)).round() as u32;
     match *supported {
         cpal::SupportedBufferSize::Range { min, max } if min <= max => Some(wanted.clamp(min, max)),
         _ => None,

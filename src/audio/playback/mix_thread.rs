@@ -2,15 +2,20 @@
 //! filled to its target, mixing a piece (10 ms) at a time (and resampling where the sink's rate
 //! is not the mixer's).
 //!
+//! It parks between looks and the output wakes it after each buffer it plays
+//! ([`OutputClock::wake_me`]), so the ring is topped up at once and can be kept at one device
+//! period plus a margin.
+//!
 //! Its peers' frames are pulled on its demand, one frame ahead ([`crate::audio::pacer`]): the
 //! puller is woken as each frame is mixed and queues the next while the ring still plays. When
 //! a peer heard in the last piece has nothing queued yet, the mixer waits for it as long as the
-//! ring holds more than half its target, then mixes without it: a puller held up costs ring,
+//! ring holds more than the device's next callback takes, then mixes without it: a puller held up costs ring,
 //! not a gap in that peer's stream.
 
 use std::sync::{Arc, Mutex, PoisonError, mpsc};
 use std::time::Duration;
 
+use super::sink::RingTarget;
 use crate::audio::clock::{OutputClock, SinkMapping};
 use crate::audio::mixer::{Mixer, MixerPeer, PeerId, Upsampler};
 use crate::vocab::MAX_FRAME_SAMPLES;
@@ -19,7 +24,7 @@ pub(super) enum Command {
     Attach {
         ring: rtrb::Producer<f32>,
         clock: Arc<OutputClock>,
-        target_frames: usize,
+        target: RingTarget,
     },
     Add(MixerPeer),
     Remove(PeerId),
@@ -38,16 +43,17 @@ pub(super) fn mixer_thread(
     };
     let mut chunk = [0.0f32; MAX_FRAME_SAMPLES];
     let chunk = &mut chunk[..mixer.piece_len()];
-    let mut sink: Option<(rtrb::Producer<f32>, Upsampler, usize)> = None;
+    let mut sink: Option<(rtrb::Producer<f32>, Upsampler, RingTarget)> = None;
     loop {
         loop {
             match commands.try_recv() {
                 Ok(Command::Attach {
                     ring,
                     clock,
-                    target_frames,
+                    target,
                 }) => match Upsampler::in_pieces(mixer.rate(), clock.rate(), chunk.len()) {
                     Ok(up) => {
+                        clock.wake_me();
                         clock.set_mapping(SinkMapping {
                             mix_start: mixer.position(),
                             ring_start: 0,
@@ -55,7 +61,7 @@ pub(super) fn mixer_thread(
                             rate: clock.rate(),
                             mix_rate: mixer.rate(),
                         });
-                        sink = Some((ring, up, target_frames));
+                        sink = Some((ring, up, target));
                     }
                     Err(e) => {
                         detach(format!("output not attached: {e}"));
@@ -77,8 +83,9 @@ pub(super) fn mixer_thread(
         let mut waiting = false;
         if let Some((ring, up, target)) = sink.as_mut() {
             let cap = ring.buffer().capacity();
-            while cap - ring.slots() < *target && ring.slots() >= up.next_len() {
-                if cap - ring.slots() > *target / 2 && mixer.awaits_peer(chunk.len()) {
+            while cap - ring.slots() < target.fill && ring.slots() >= up.next_len() {
+                // Safe while the next callback still finds a period in the ring.
+                if cap - ring.slots() > target.period && mixer.awaits_peer(chunk.len()) {
                     waiting = true;
                     break;
                 }
@@ -96,6 +103,8 @@ pub(super) fn mixer_thread(
                 }
             }
         }
-        std::thread::sleep(Duration::from_millis(if waiting { 1 } else { 4 }));
+        // Woken by the output as it takes each buffer; the timeout serves commands and a
+        // waited-for peer.
+        std::thread::park_timeout(Duration::from_millis(if waiting { 1 } else { 5 }));
     }
 }

@@ -27,17 +27,21 @@ use super::mixer::{
 };
 use mix_thread::{Command, mixer_thread};
 pub use sink::OutputStatus;
-use sink::{Sink, device_sink, virtual_sink};
+use sink::{RingTarget, Sink, device_sink, virtual_sink};
 
 #[cfg(test)]
 pub(crate) use sink::test_output_state;
+
+/// The output ring's margin above one device period (see docs/audio.md for the numbers).
+pub const DEFAULT_OUTPUT_MARGIN: Duration = Duration::from_millis(5);
 
 /// How the engine runs.
 #[derive(Debug, Clone, PartialEq, Eq)]
 pub struct PlaybackConfig {
     pub device: DeviceChoice,
-    /// Audio the mixer keeps queued for the output callback. More survives a busier machine,
-    /// less answers sooner; the lip-sync clock accounts for it either way.
+    /// Audio the mixer keeps queued for the output callback beyond the device period (10 ms)
+    /// each callback takes. More survives a busier machine, less answers sooner; the lip-sync
+    /// clock accounts for it either way.
     pub buffer: Duration,
     /// Capacity of each peer's queue.
     pub peer_queue: Duration,
@@ -47,7 +51,7 @@ impl Default for PlaybackConfig {
     fn default() -> Self {
         Self {
             device: DeviceChoice::Default,
-            buffer: Duration::from_millis(20),
+            buffer: DEFAULT_OUTPUT_MARGIN,
             peer_queue: Duration::from_secs(1),
         }
     }
@@ -129,7 +133,7 @@ impl Playback {
         config: PlaybackConfig,
         sink: Sink,
         ring: rtrb::Producer<f32>,
-        target_frames: usize,
+        target: RingTarget,
         status: OutputStatus,
     ) -> Result<Self, AudioError> {
         let (tx, rx) = mpsc::channel();
@@ -145,7 +149,7 @@ impl Playback {
         tx.send(Command::Attach {
             ring,
             clock: sink.clock().clone(),
-            target_frames,
+            target,
         })
         .map_err(|_| AudioError::MixerStopped)?;
         Ok(Self {
@@ -285,13 +289,13 @@ impl Playback {
         &mut self,
         sink: Sink,
         ring: rtrb::Producer<f32>,
-        target_frames: usize,
+        target: RingTarget,
     ) -> Result<Sink, AudioError> {
         self.commands
             .send(Command::Attach {
                 ring,
                 clock: sink.clock().clone(),
-                target_frames,
+                target,
             })
             .map_err(|_| AudioError::MixerStopped)?;
         Ok(std::mem::replace(&mut self.sink, sink))
@@ -398,7 +402,7 @@ impl Drop for Playback {
 pub struct OpenedOutput {
     sink: Sink,
     ring: rtrb::Producer<f32>,
-    target: usize,
+    target: RingTarget,
     status: OutputStatus,
 }
 

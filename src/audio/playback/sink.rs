@@ -103,10 +103,36 @@ impl OutputState {
     }
 }
 
-fn ring_capacity(rate: u32, buffer: Duration, chunk_out: usize) -> (usize, usize) {
-    let target = (buffer.as_secs_f64() * f64::from(rate)).ceil() as usize;
-    let target = target.max(chunk_out);
-    (target, 2 * target + 2 * chunk_out)
+/// The period asked of an output device, and the virtual sink's.
+pub(super) const PERIOD: Duration = Duration::from_millis(10);
+/// The period assumed of a device that does not say what it supports.
+const UNKNOWN_PERIOD: Duration = Duration::from_millis(20);
+
+/// The ring's target fill and capacity, in device frames: one device period (what a callback
+/// takes at once) plus `margin`. The mixer, woken by each callback, tops it up at once, so a
+/// callback finds it short only when the mixer could not run for a whole period.
+fn ring_capacity(
+    rate: u32,
+    period: usize,
+    margin: Duration,
+    chunk_out: usize,
+) -> (RingTarget, usize) {
+    let fill = period + (margin.as_secs_f64() * f64::from(rate)).ceil() as usize;
+    let fill = fill.max(1);
+    (RingTarget { fill, period }, 2 * fill + 2 * chunk_out)
+}
+
+/// How full the mixer keeps a sink's ring, in device frames.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub(super) struct RingTarget {
+    /// Topped up to this.
+    pub(super) fill: usize,
+    /// What one callback takes: a ring holding more may wait for a peer's frame.
+    pub(super) period: usize,
+}
+
+fn frames_in(d: Duration, rate: u32) -> usize {
+    (d.as_secs_f64() * f64::from(rate)).round() as usize
 }
 
 /// Device frames one 20 ms chunk of the mix can come to, whatever the mixer's rate.
@@ -147,20 +173,24 @@ where
 }
 
 /// Opens the device, builds and starts its stream. Returns the sink, its ring's producer, the
-/// target fill, and the status line.
+/// target fill (a device period plus `margin`), and the status line.
 pub(super) fn device_sink(
     choice: &DeviceChoice,
-    buffer: Duration,
-) -> Result<(Sink, rtrb::Producer<f32>, usize, OutputStatus), AudioError> {
+    margin: Duration,
+) -> Result<(Sink, rtrb::Producer<f32>, RingTarget, OutputStatus), AudioError> {
     let opened = devices::open(choice, Direction::Output)?;
     let rate = opened.config.sample_rate();
     let channels = opened.config.channels();
     let format = opened.config.sample_format();
     let mut config: cpal::StreamConfig = opened.config.config();
-    if let Some(period) = devices::period(opened.config.buffer_size(), rate) {
-        config.buffer_size = cpal::BufferSize::Fixed(period);
-    }
-    let (target, cap) = ring_capacity(rate, buffer, chunk_out_len(rate));
+    let period = match devices::period(opened.config.buffer_size(), rate, PERIOD) {
+        Some(period) => {
+            config.buffer_size = cpal::BufferSize::Fixed(period);
+            period as usize
+        }
+        None => frames_in(UNKNOWN_PERIOD, rate),
+    };
+    let (target, cap) = ring_capacity(rate, period, margin, chunk_out_len(rate));
     let (tx, rx) = rtrb::RingBuffer::new(cap);
     let clock = Arc::new(OutputClock::new(rate));
     let fault = Arc::new(Fault::default());
@@ -206,12 +236,12 @@ pub(super) fn device_sink(
 }
 
 /// A sink that plays nothing at real-time pace: at `rate` (the mixer's), 10 ms periods, timed by
-/// the system clock.
-pub(super) fn virtual_sink(rate: u32, buffer: Duration) -> (Sink, rtrb::Producer<f32>, usize) {
+/// the system clock; its ring's target a period plus `margin`.
+pub(super) fn virtual_sink(rate: u32, margin: Duration) -> (Sink, rtrb::Producer<f32>, RingTarget) {
     const MAX_PERIOD: usize = crate::vocab::MAX_AUDIO_RATE as usize / 100;
     let rate = rate.clamp(100, crate::vocab::MAX_AUDIO_RATE);
-    let period = rate as usize / 100;
-    let (target, cap) = ring_capacity(rate, buffer, chunk_out_len(rate));
+    let period = frames_in(PERIOD, rate);
+    let (target, cap) = ring_capacity(rate, period, margin, chunk_out_len(rate));
     let (tx, rx) = rtrb::RingBuffer::new(cap);
     let clock = Arc::new(OutputClock::new(rate));
     let stop = Arc::new(AtomicBool::new(false));
