@@ -38,6 +38,10 @@ struct AppFlags {
     /// App: call HOST:PORT at start (with the settings' codec).
     #[arg(long, value_name = "HOST:PORT")]
     call: Option<String>,
+    /// App: audio kept queued for the output beyond one device period, in ms (default: the
+    /// settings', 5): less answers sooner, more survives a busier machine.
+    #[arg(long, value_name = "MS", value_parser = clap::value_parser!(u32).range(0..=200))]
+    output_margin_ms: Option<u32>,
 }
 
 #[derive(Subcommand)]
@@ -91,6 +95,7 @@ fn main() -> ExitCode {
             no_audio: a.no_audio,
             settings: a.settings,
             call: a.call,
+            output_margin_ms: a.output_margin_ms,
         }));
     };
     let result = match command {

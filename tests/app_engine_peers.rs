@@ -99,6 +99,7 @@ fn switching_the_output_leaves_the_ui_lock_free() {
         input: DeviceChoice::Default,
         output: DeviceChoice::Default,
         no_audio: false,
+        output_margin: lipcall::audio::DEFAULT_OUTPUT_MARGIN,
     })
     .unwrap();
     let before = lock(&engine.shared).output_status.clone();

@@ -62,6 +62,7 @@ fn engine_plays_a_sender() {
         input: DeviceChoice::Default,
         output: DeviceChoice::Default,
         no_audio: false,
+        output_margin: lipcall::audio::DEFAULT_OUTPUT_MARGIN,
     })
     .unwrap();
     let to = lock(&engine.shared).call.local_addr.expect("listening");

@@ -8,6 +8,7 @@
 # plays, and pairs the clicks (tools/mouth_to_ear.py): median and spread, and the listener's
 # breakdown (jitter buffer, queue, output).
 #   tools/mouth_to_ear.sh [CLICKS=60] [LIPCALL=target/debug/lipcall]
+# EAR_ARGS adds flags to the listener's command line (EAR_ARGS="--output-margin-ms 20").
 # Needs pulseaudio, pulseaudio-utils, xvfb, xauth, python3. A busy machine makes the numbers
 # pessimistic: compare runs made in the same conditions.
 set -euo pipefail
@@ -41,7 +42,7 @@ seconds=$((clicks + 30))
 # The listener: plays into "ear"; its microphone (not sent: it only listens) is the talker's
 # output's monitor, silent.
 PULSE_SINK=ear PULSE_SOURCE=talker_out.monitor xvfb-run -a "$lipcall" --listen 127.0.0.1:$port \
-    --no-demo --settings "$work/ear.json" --status "$work/ear.status" --quit-after $seconds \
+    --no-demo --settings "$work/ear.json" --status "$work/ear.status" --quit-after $seconds ${EAR_ARGS:-} \
     >"$work/ear.log" 2>&1 &
 pids+=($!)
 sleep 3

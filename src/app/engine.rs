@@ -109,6 +109,9 @@ pub struct EngineConfig {
     pub output: DeviceChoice,
     /// Run without any audio device (tests): silent playback, no microphone.
     pub no_audio: bool,
+    /// The output ring's margin above one device period: latency traded for robustness
+    /// ([`PlaybackConfig::buffer`]).
+    pub output_margin: Duration,
 }
 
 /// State both threads touch; the engine holds the lock only briefly each tick.
@@ -143,6 +146,7 @@ impl Engine {
     pub fn start(config: EngineConfig) -> anyhow::Result<Self> {
         let playback_config = PlaybackConfig {
             device: config.output.clone(),
+            buffer: config.output_margin,
             ..Default::default()
         };
         let playback = if config.no_audio {

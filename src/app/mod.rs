@@ -64,6 +64,8 @@ pub struct AppOptions {
     /// Call this address (HOST:PORT, or a relay or Janus address) at start, with the settings'
     /// codec and band: two apps then talk unattended.
     pub call: Option<String>,
+    /// The output ring's margin above a device period, in ms, instead of the settings'.
+    pub output_margin_ms: Option<u32>,
 }
 
 /// Opens the window and runs until it is closed.
@@ -96,6 +98,11 @@ pub fn run(options: AppOptions) -> anyhow::Result<()> {
             input: choice(&settings.input_device),
             output: choice(&settings.output_device),
             no_audio: options.no_audio,
+            output_margin: settings::output_margin(
+                options
+                    .output_margin_ms
+                    .unwrap_or(settings.output_margin_ms),
+            ),
         })
     };
     // A port found free can be taken before the engine binds it (another app starting):

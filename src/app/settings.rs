@@ -111,6 +111,17 @@ pub struct Settings {
     /// [`crate::app::listen`]).
     #[serde(skip_serializing_if = "Option::is_none")]
     pub listen_port: Option<u16>,
+    /// Audio kept queued for the output beyond one device period, in ms: less answers
+    /// sooner, more survives a busier machine (docs/audio.md has the numbers).
+    pub output_margin_ms: u32,
+}
+
+/// The longest output margin taken from the settings or the command line.
+pub const MAX_OUTPUT_MARGIN_MS: u32 = 200;
+
+/// An output margin in ms as the playback takes it, capped at [`MAX_OUTPUT_MARGIN_MS`].
+pub fn output_margin(ms: u32) -> std::time::Duration {
+    std::time::Duration::from_millis(u64::from(ms.min(MAX_OUTPUT_MARGIN_MS)))
 }
 
 /// A Janus's `api_secret` and the token its admin stored for us (kept in the settings file,
@@ -238,6 +249,7 @@ impl Default for Settings {
             janus: JanusCredentials::default(),
             sip: SipSettings::default(),
             listen_port: None,
+            output_margin_ms: crate::audio::DEFAULT_OUTPUT_MARGIN.as_millis() as u32,
         }
     }
 }
@@ -423,6 +435,23 @@ mod tests {
             assert_eq!(std::fs::read_to_string(&aside).unwrap(), content);
             assert_eq!(Settings::load(&path), (Settings::default(), None));
         }
+    }
+
+    #[test]
+    fn the_output_margin_defaults_for_an_older_file_and_is_capped() {
+        let dir = tempfile::tempdir().unwrap();
+        let path = dir.path().join("settings.json");
+        std::fs::write(&path, r#"{"name": "Ada"}"#).unwrap();
+        let (s, why) = Settings::load(&path);
+        assert!(why.is_none(), "{why:?}");
+        assert_eq!(s.output_margin_ms, 5);
+        std::fs::write(&path, r#"{"output_margin_ms": 40}"#).unwrap();
+        assert_eq!(Settings::load(&path).0.output_margin_ms, 40);
+        assert_eq!(output_margin(40), std::time::Duration::from_millis(40));
+        assert_eq!(
+            output_margin(u32::MAX),
+            std::time::Duration::from_millis(200)
+        );
     }
 
     #[test]

@@ -57,7 +57,8 @@ pub use error::AudioError;
 pub use mixer::{MixProgress, PeerControls, PeerFeed, PeerId};
 pub use pacer::{FramePacer, Pulls};
 pub use playback::{
-    OpenedOutput, OutputStatus, Playback, PlaybackConfig, PlaybackStats, RetiredOutput,
+    DEFAULT_OUTPUT_MARGIN, OpenedOutput, OutputStatus, Playback, PlaybackConfig, PlaybackStats,
+    RetiredOutput,
 };
 pub use resample::FrameResampler;
 

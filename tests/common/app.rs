@@ -15,6 +15,7 @@ pub fn headless_engine(name: &str, listen: Option<&str>) -> Engine {
         input: DeviceChoice::Default,
         output: DeviceChoice::Default,
         no_audio: true,
+        output_margin: lipcall::audio::DEFAULT_OUTPUT_MARGIN,
     })
     .expect("the engine starts")
 }
