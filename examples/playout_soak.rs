@@ -44,6 +44,7 @@ fn main() -> anyhow::Result<()> {
         input: DeviceChoice::Default,
         output: DeviceChoice::Default,
         no_audio: false,
+        output_margin: lipcall::audio::DEFAULT_OUTPUT_MARGIN,
     })?;
     let (to, device_rate) = {
         let s = lock(&engine.shared);
