@@ -489,6 +489,23 @@ fn gstreamer_rtpopuspay_into_lipcall_receive() {
     assert!(num(&fields(&r.stderr, "peer "), "received") >= 140.0);
 }
 
+/// GStreamer's Opus in 10 ms frames (`opusenc frame-size=10`: a packet every 10 ms) into
+/// `lipcall receive`: it plays as GStreamer's own decode does, and animates one weights row
+/// per 20 ms (two packets a feature step, the network's step).
+#[test]
+fn gstreamer_opus_in_10_ms_frames_into_lipcall_receive() {
+    let _serial = serial();
+    let r = gst_into_receive_at(
+        &["opusenc bitrate=16000 frame-size=10"],
+        "rtpopuspay",
+        &["rtpopusdepay", "opusdec"],
+        &[],
+        48_000,
+    );
+    check_against_gstreamer(&r, "opus");
+    assert!(num(&fields(&r.stderr, "peer "), "received") >= 280.0);
+}
+
 /// Fullband Opus from GStreamer (`opusenc` at 48 kHz, up to 20 kHz) into `lipcall receive
 /// --wav`: a 48 kHz WAV as good as GStreamer's own 48 kHz decode, with the same energy from
 /// 4 to 20 kHz.
