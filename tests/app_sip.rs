@@ -261,6 +261,8 @@ struct Row {
     form: SipForm,
     settings: Settings,
     engine: Engine,
+    /// The settings window, open once the row's Account… was clicked.
+    call_form: lipcall::app::CallForm,
 }
 
 #[test]
@@ -285,11 +287,22 @@ fn the_banner_answers_and_the_keypad_sends_keys_through_the_ui() {
         form: SipForm::default(),
         settings,
         engine: engine(),
+        call_form: lipcall::app::CallForm::default(),
     };
     let mut h = Harness::new_ui_state(
         |ui: &mut egui::Ui, row: &mut Row| {
             let phone = lock(&row.engine.shared).phone.clone();
-            sip_ui(ui, &mut row.form, &mut row.settings, &phone, &row.engine);
+            sip_ui(ui, &mut row.form, &phone, &row.engine);
+            if row.form.editing {
+                let parts = lipcall::app::SettingsParts {
+                    form: &mut row.call_form,
+                    sip_form: &mut row.form,
+                    inputs: &[],
+                    outputs: &[],
+                    engine: &row.engine,
+                };
+                lipcall::app::settings_ui(ui, &mut row.settings, parts);
+            }
         },
         row,
     );

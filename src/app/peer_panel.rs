@@ -4,7 +4,7 @@
 use eframe::egui;
 
 use super::call_panel::codec_label;
-use super::peer::{FaceRow, PeerView};
+use super::peer::{FaceRow, LEVEL_FLOOR_DB, PeerView};
 use super::settings::PeerPrefs;
 use super::tiles::{HeadTile, HeadTiles};
 use crate::render::Framing;
@@ -21,6 +21,72 @@ pub struct ShownPeer {
     pub frames_shown: u64,
 }
 
+/// The order peers are shown in, in the list and the tiles: as they joined, then by name
+/// (never by SSRC, which is random).
+pub fn join_order(peers: &mut [ShownPeer]) {
+    peers.sort_by(|a, b| (a.view.joined, &a.view.name).cmp(&(b.view.joined, &b.view.name)));
+}
+
+/// A peer's colour, chosen from its name (the same name, the same colour, in every call): the
+/// background behind its head, and its mark in the list. One bundled head serves everyone; the
+/// colour tells them apart.
+pub fn peer_colour(name: &str) -> egui::Color32 {
+    // FNV-1a: stable across runs and platforms, unlike the standard hasher.
+    let hash = name.bytes().fold(0x811c_9dc5_u32, |h, b| {
+        (h ^ u32::from(b)).wrapping_mul(0x0100_0193)
+    });
+    PEER_COLOURS[hash as usize % PEER_COLOURS.len()]
+}
+
+/// Dark, distinct hues, so that the face stays the brightest thing in its tile.
+const PEER_COLOURS: [egui::Color32; 10] = [
+    egui::Color32::from_rgb(58, 38, 38),
+    egui::Color32::from_rgb(38, 52, 64),
+    egui::Color32::from_rgb(36, 56, 40),
+    egui::Color32::from_rgb(60, 50, 30),
+    egui::Color32::from_rgb(50, 36, 62),
+    egui::Color32::from_rgb(30, 56, 58),
+    egui::Color32::from_rgb(64, 40, 54),
+    egui::Color32::from_rgb(44, 48, 30),
+    egui::Color32::from_rgb(34, 40, 66),
+    egui::Color32::from_rgb(62, 44, 34),
+];
+
+/// How long a peer has been in the call: `m:ss`, or `h:mm:ss` past an hour.
+pub fn call_time(since: std::time::Duration) -> String {
+    let s = since.as_secs();
+    if s >= 3600 {
+        format!("{}:{:02}:{:02}", s / 3600, s / 60 % 60, s % 60)
+    } else {
+        format!("{}:{:02}", s / 60, s % 60)
+    }
+}
+
+/// "NAME left" for each peer who left lately, on a row of fixed height (empty without), so
+/// that the tiles below do not move when it comes and goes.
+pub fn left_notice_ui(ui: &mut egui::Ui, left: &[String]) {
+    let height = ui.spacing().interact_size.y;
+    let width = ui.available_width();
+    ui.allocate_ui_with_layout(
+        egui::vec2(width, height),
+        egui::Layout::left_to_right(egui::Align::Center),
+        |ui| {
+            ui.set_min_size(egui::vec2(width, height));
+            let text = left
+                .iter()
+                .map(|name| format!("{name} left"))
+                .collect::<Vec<_>>()
+                .join(" · ");
+            ui.add(
+                egui::Label::new(
+                    egui::RichText::new(text).color(egui::Color32::from_rgb(240, 200, 120)),
+                )
+                .truncate(),
+            );
+        },
+    );
+}
+
 /// Names, talking indicators and link statistics.
 pub fn peer_list_ui(ui: &mut egui::Ui, peers: &[ShownPeer]) {
     ui.heading("Peers");
@@ -30,6 +96,9 @@ pub fn peer_list_ui(ui: &mut egui::Ui, peers: &[ShownPeer]) {
     for p in peers.iter().map(|p| &p.view) {
         ui.horizontal(|ui| {
             talking_dot(ui, p.talking, 12.0);
+            let (mark, _) = ui.allocate_exact_size(egui::vec2(10.0, 10.0), egui::Sense::hover());
+            ui.painter()
+                .rect_filled(mark, 2.0, peer_colour(&p.name).gamma_multiply(2.0));
             ui.strong(&p.name);
             if let Some(codec) = p.codec {
                 ui.label(codec_label(codec));
@@ -164,6 +233,7 @@ pub fn tiles_ui(ui: &mut egui::Ui, peers: &mut [ShownPeer], mut heads: Option<&m
         });
         return;
     }
+    join_order(peers);
     let area = ui.available_rect_before_wrap();
     let rects = tile_rects(peers.len(), area);
     for (shown, cell) in peers.iter_mut().zip(rects) {
@@ -231,6 +301,15 @@ fn tile_header_ui(ui: &mut egui::Ui, shown: &mut ShownPeer) {
             } else {
                 ui.checkbox(&mut shown.prefs.muted, "Mute");
             }
+            let in_call = call_time(p.joined.elapsed());
+            // A narrow tile keeps the name whole: the meter thinner, the time on hover.
+            let meter = level_meter_ui(ui, p, compact);
+            if compact {
+                meter.on_hover_text(format!("{} in the call for {in_call}", p.name));
+            } else {
+                ui.weak(in_call)
+                    .on_hover_text(format!("{} has been in the call this long", p.name));
+            }
             ui.with_layout(egui::Layout::left_to_right(egui::Align::Center), |ui| {
                 talking_dot(ui, p.talking, 10.0);
                 ui.add(egui::Label::new(egui::RichText::new(&p.name).strong()).truncate());
@@ -256,11 +335,44 @@ fn header_width_with_words(ui: &egui::Ui, name: &str) -> f32 {
     width(egui::RichText::new(name).strong().into())
         + width("Mute".into())
         + width("More".into())
+        + width("00:00".into())
+        + LEVEL_METER_WIDTH
         + 10.0
         + s.icon_width
         + s.icon_spacing
         + 2.0 * s.button_padding.x
-        + 4.0 * s.item_spacing.x
+        + 6.0 * s.item_spacing.x
+}
+
+/// The width of a tile's level meter.
+const LEVEL_METER_WIDTH: f32 = 28.0;
+
+/// A small bar of the peer's voice level (upright and thin on a narrow tile), named for
+/// screen readers.
+fn level_meter_ui(ui: &mut egui::Ui, p: &PeerView, upright: bool) -> egui::Response {
+    let fill = ((p.level_db - LEVEL_FLOOR_DB) / -LEVEL_FLOOR_DB).clamp(0.0, 1.0);
+    let size = if upright {
+        egui::vec2(5.0, 14.0)
+    } else {
+        egui::vec2(LEVEL_METER_WIDTH, 8.0)
+    };
+    let (rect, response) = ui.allocate_exact_size(size, egui::Sense::hover());
+    let painter = ui.painter();
+    painter.rect_filled(rect, 1.0, egui::Color32::from_gray(50));
+    let lit = if upright {
+        egui::Rect::from_min_max(
+            egui::pos2(rect.min.x, rect.max.y - rect.height() * fill),
+            rect.max,
+        )
+    } else {
+        egui::Rect::from_min_size(rect.min, egui::vec2(rect.width() * fill, rect.height()))
+    };
+    painter.rect_filled(lit, 1.0, egui::Color32::LIGHT_GREEN);
+    let name = format!("{}'s level", p.name);
+    response.widget_info(|| {
+        egui::WidgetInfo::labeled(egui::accesskit::Role::Meter, true, name.clone())
+    });
+    response
 }
 
 /// A `size`-point light, green while the peer talks.
@@ -307,13 +419,19 @@ fn head_ui(ui: &mut egui::Ui, rect: egui::Rect, shown: &ShownPeer, heads: Option
                 },
                 weights: w,
                 pose,
+                background: linear(peer_colour(&p.name)),
             };
             heads.show(ui, rect, tile);
         }
         Some(_) => {}
         None => {
-            ui.painter()
-                .rect_filled(rect, 6.0, egui::Color32::from_gray(38));
+            ui.painter().rect_filled(rect, 6.0, peer_colour(&p.name));
         }
     }
+}
+
+/// An sRGB colour as the linear RGB a head's target clears to.
+fn linear(colour: egui::Color32) -> [f64; 3] {
+    let [r, g, b, _] = egui::Rgba::from(colour).to_array();
+    [f64::from(r), f64::from(g), f64::from(b)]
 }
