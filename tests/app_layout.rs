@@ -436,3 +436,30 @@ fn each_peer_has_a_colour_of_its_own_from_its_name() {
         "the same every time"
     );
 }
+
+/// What the call's phase says of `address` once the engine has tried it.
+fn failure_of(address: &str) -> String {
+    use lipcall::app::engine::{CallPhase, CallSpec, Command};
+    let engine = common::app::headless_engine("Alice", None);
+    engine.send(Command::Call(Box::new(CallSpec {
+        address: address.into(),
+        ..CallSpec::default()
+    })));
+    common::app::wait_for(&engine, address, Duration::from_secs(10), |s| {
+        matches!(s.call.phase, CallPhase::Failed { .. })
+    });
+    let phase = lock(&engine.shared).call.phase.clone();
+    match phase {
+        CallPhase::Failed { reason } => reason,
+        other => panic!("{other:?}"),
+    }
+}
+
+#[test]
+fn an_address_without_a_port_or_host_is_told_in_a_sentence() {
+    assert_eq!(failure_of("127.0.0.1"), "give the port: 127.0.0.1:5004");
+    assert_eq!(
+        failure_of("sip:bob@"),
+        "sip:bob@ has no host (expected sip:USER@HOST)"
+    );
+}
