@@ -27,30 +27,49 @@ pub fn join_order(peers: &mut [ShownPeer]) {
     peers.sort_by(|a, b| (a.view.joined, &a.view.name).cmp(&(b.view.joined, &b.view.name)));
 }
 
-/// A peer's colour, chosen from its name (the same name, the same colour, in every call): the
-/// background behind its head, and its mark in the list. One bundled head serves everyone; the
-/// colour tells them apart.
-pub fn peer_colour(name: &str) -> egui::Color32 {
-    // FNV-1a: stable across runs and platforms, unlike the standard hasher.
-    let hash = name.bytes().fold(0x811c_9dc5_u32, |h, b| {
-        (h ^ u32::from(b)).wrapping_mul(0x0100_0193)
-    });
-    PEER_COLOURS[hash as usize % PEER_COLOURS.len()]
+/// Each peer's colour, in the order given: the one its name hashes to (the same name, the same
+/// colour, call after call), or the next one free where another peer of the call has that one,
+/// so that up to [`PEER_COLOURS`] peers all differ. The background behind the head and the mark
+/// in the list: one bundled head serves everyone, the colour tells them apart.
+pub fn peer_colours<'a>(names: impl IntoIterator<Item = &'a str>) -> Vec<egui::Color32> {
+    let mut used = [false; PEER_COLOURS];
+    names
+        .into_iter()
+        .map(|name| {
+            let start = colour_index(name);
+            let free = (0..PEER_COLOURS)
+                .map(|k| (start + k) % PEER_COLOURS)
+                .find(|&i| !used[i]);
+            let i = free.unwrap_or(start);
+            used[i] = true;
+            palette(i)
+        })
+        .collect()
 }
 
-/// Dark, distinct hues, so that the face stays the brightest thing in its tile.
-const PEER_COLOURS: [egui::Color32; 10] = [
-    egui::Color32::from_rgb(58, 38, 38),
-    egui::Color32::from_rgb(38, 52, 64),
-    egui::Color32::from_rgb(36, 56, 40),
-    egui::Color32::from_rgb(60, 50, 30),
-    egui::Color32::from_rgb(50, 36, 62),
-    egui::Color32::from_rgb(30, 56, 58),
-    egui::Color32::from_rgb(64, 40, 54),
-    egui::Color32::from_rgb(44, 48, 30),
-    egui::Color32::from_rgb(34, 40, 66),
-    egui::Color32::from_rgb(62, 44, 34),
-];
+/// Colours to tell peers apart by.
+pub const PEER_COLOURS: usize = 16;
+
+/// FNV-1a, then murmur3's finaliser (FNV's own bits are poor for names that differ in their
+/// last letter): stable across runs and platforms, unlike the standard hasher.
+fn colour_index(name: &str) -> usize {
+    let mut h = name.bytes().fold(0x811c_9dc5_u32, |h, b| {
+        (h ^ u32::from(b)).wrapping_mul(0x0100_0193)
+    });
+    h ^= h >> 16;
+    h = h.wrapping_mul(0x85eb_ca6b);
+    h ^= h >> 13;
+    h = h.wrapping_mul(0xc2b2_ae35);
+    h ^= h >> 16;
+    h as usize % PEER_COLOURS
+}
+
+/// Dark hues (the face stays the brightest thing in its tile), neighbours far apart on the
+/// colour wheel.
+fn palette(i: usize) -> egui::Color32 {
+    let hue = (i * 7 % PEER_COLOURS) as f32 / PEER_COLOURS as f32;
+    egui::ecolor::Hsva::new(hue, 0.5, 0.3, 1.0).into()
+}
 
 /// How long a peer has been in the call: `m:ss`, or `h:mm:ss` past an hour.
 pub fn call_time(since: std::time::Duration) -> String {
@@ -93,12 +112,12 @@ pub fn peer_list_ui(ui: &mut egui::Ui, peers: &[ShownPeer]) {
     if peers.is_empty() {
         ui.label("Nobody here yet.");
     }
-    for p in peers.iter().map(|p| &p.view) {
+    let colours = peer_colours(peers.iter().map(|p| p.view.name.as_str()));
+    for (p, colour) in peers.iter().map(|p| &p.view).zip(colours) {
         ui.horizontal(|ui| {
             talking_dot(ui, p.talking, 12.0);
             let (mark, _) = ui.allocate_exact_size(egui::vec2(10.0, 10.0), egui::Sense::hover());
-            ui.painter()
-                .rect_filled(mark, 2.0, peer_colour(&p.name).gamma_multiply(2.0));
+            ui.painter().rect_filled(mark, 2.0, colour);
             ui.strong(&p.name);
             if let Some(codec) = p.codec {
                 ui.label(codec_label(codec));
@@ -236,7 +255,8 @@ pub fn tiles_ui(ui: &mut egui::Ui, peers: &mut [ShownPeer], mut heads: Option<&m
     join_order(peers);
     let area = ui.available_rect_before_wrap();
     let rects = tile_rects(peers.len(), area);
-    for (shown, cell) in peers.iter_mut().zip(rects) {
+    let colours = peer_colours(peers.iter().map(|p| p.view.name.as_str()));
+    for ((shown, cell), colour) in peers.iter_mut().zip(rects).zip(colours) {
         let mut tile_ui = ui.new_child(
             egui::UiBuilder::new()
                 .id_salt(("tile", shown.view.ssrc))
@@ -249,7 +269,7 @@ pub fn tiles_ui(ui: &mut egui::Ui, peers: &mut [ShownPeer], mut heads: Option<&m
             egui::pos2(cell.min.x, (cell.min.y + TILE_HEADER).min(cell.max.y)),
             cell.max,
         );
-        head_ui(&mut tile_ui, head, shown, heads.as_deref_mut());
+        head_ui(&mut tile_ui, head, shown, colour, heads.as_deref_mut());
     }
     ui.allocate_rect(area, egui::Sense::hover());
 }
@@ -389,7 +409,13 @@ fn talking_dot(ui: &mut egui::Ui, talking: bool, size: f32) {
 
 /// The peer's head in `rect`: rendered when there is a renderer, a plain panel otherwise;
 /// named for screen readers (and tests) as "NAME's face".
-fn head_ui(ui: &mut egui::Ui, rect: egui::Rect, shown: &ShownPeer, heads: Option<&mut HeadTiles>) {
+fn head_ui(
+    ui: &mut egui::Ui,
+    rect: egui::Rect,
+    shown: &ShownPeer,
+    colour: egui::Color32,
+    heads: Option<&mut HeadTiles>,
+) {
     let p = &shown.view;
     let response = ui.allocate_rect(rect, egui::Sense::hover());
     response.widget_info(|| {
@@ -419,13 +445,13 @@ fn head_ui(ui: &mut egui::Ui, rect: egui::Rect, shown: &ShownPeer, heads: Option
                 },
                 weights: w,
                 pose,
-                background: linear(peer_colour(&p.name)),
+                background: linear(colour),
             };
             heads.show(ui, rect, tile);
         }
         Some(_) => {}
         None => {
-            ui.painter().rect_filled(rect, 6.0, peer_colour(&p.name));
+            ui.painter().rect_filled(rect, 6.0, colour);
         }
     }
 }
