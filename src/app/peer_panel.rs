@@ -68,7 +68,7 @@ fn colour_index(name: &str) -> usize {
 /// colour wheel.
 fn palette(i: usize) -> egui::Color32 {
     let hue = (i * 7 % PEER_COLOURS) as f32 / PEER_COLOURS as f32;
-    egui::ecolor::Hsva::new(hue, 0.5, 0.3, 1.0).into()
+    egui::ecolor::Hsva::new(hue, 0.6, 0.05, 1.0).into()
 }
 
 /// How long a peer has been in the call: `m:ss`, or `h:mm:ss` past an hour.
@@ -117,7 +117,10 @@ pub fn peer_list_ui(ui: &mut egui::Ui, peers: &[ShownPeer]) {
         ui.horizontal(|ui| {
             talking_dot(ui, p.talking, 12.0);
             let (mark, _) = ui.allocate_exact_size(egui::vec2(10.0, 10.0), egui::Sense::hover());
-            ui.painter().rect_filled(mark, 2.0, colour);
+            // The tile's colour, brighter: a small mark on the panel's dark grey.
+            let mut bright = egui::ecolor::Hsva::from(colour);
+            bright.v = (bright.v * 8.0).min(1.0);
+            ui.painter().rect_filled(mark, 2.0, bright);
             ui.strong(&p.name);
             if let Some(codec) = p.codec {
                 ui.label(codec_label(codec));
