@@ -70,7 +70,7 @@ fn engine_plays_a_sender() {
     eprintln!("output: {status}; mixer at {} Hz", {
         lock(&engine.shared).playback.mix_rate()
     });
-    assert!(status.starts_with("speaker: "), "{status}");
+    assert!(status.starts_with("Playing on "), "{status}");
     // An idle null sink may take a while to start consuming a new stream.
     std::thread::sleep(Duration::from_secs(1));
     let args = SendArgs {

@@ -18,6 +18,10 @@ use lipcall::audio::PeerId;
 /// and the panel's margins.
 const CENTRAL: egui::Vec2 = egui::vec2(1050.0, 610.0);
 
+/// When the first peer joined: each next one a millisecond later.
+static START: std::sync::LazyLock<std::time::Instant> =
+    std::sync::LazyLock::new(std::time::Instant::now);
+
 fn peer(i: u32) -> ShownPeer {
     let addr: SocketAddr = format!("127.0.0.1:{}", 40000 + i).parse().unwrap();
     ShownPeer {
@@ -30,6 +34,8 @@ fn peer(i: u32) -> ShownPeer {
             is_demo: false,
             codec: None,
             talking: i.is_multiple_of(2),
+            level_db: -30.0,
+            joined: *START + std::time::Duration::from_millis(u64::from(i)),
             loss_percent: 0.0,
             jitter_ms: 0.0,
             delay_ms: 0.0,

@@ -221,13 +221,13 @@ impl Drop for Engine {
 /// The output line the UI shows for a playback status.
 pub fn describe_output(status: &OutputStatus) -> String {
     match status {
-        OutputStatus::Silent { reason } => format!("no audio output ({reason}): playing silently"),
+        OutputStatus::Silent { reason } => format!("No sound output ({reason}): playing silently"),
         OutputStatus::Playing {
             device,
             rate,
             channels,
         } => format!(
-            "speaker: {device} ({} kHz, {})",
+            "Playing on {device} ({} kHz, {})",
             f64::from(*rate) / 1000.0,
             if *channels == 1 { "mono" } else { "stereo" }
         ),
@@ -405,7 +405,10 @@ impl Worker {
             return self.dial_sip(spec);
         }
         let host = HostPort::parse(spec.address.trim())?;
-        if host.ip().is_none() && host.port.is_some() {
+        if host.port.is_none() {
+            anyhow::bail!(super::listen::give_the_port(&host));
+        }
+        if host.ip().is_none() {
             let address = spec.address.clone();
             let then = Then::Direct(Box::new(spec.clone()));
             return self.look_up(&host.host, then, move || {
@@ -637,5 +640,29 @@ impl Worker {
         if real_peer && let Some(d) = self.demo.take() {
             d.leave();
         }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn the_output_is_described_in_words() {
+        let playing = OutputStatus::Playing {
+            device: "Default Audio Device".into(),
+            rate: 48_000,
+            channels: 2,
+        };
+        assert_eq!(
+            describe_output(&playing),
+            "Playing on Default Audio Device (48 kHz, stereo)"
+        );
+        let mono = OutputStatus::Playing {
+            device: "USB".into(),
+            rate: 44_100,
+            channels: 1,
+        };
+        assert_eq!(describe_output(&mono), "Playing on USB (44.1 kHz, mono)");
     }
 }

@@ -4,6 +4,8 @@
 
 use std::net::{IpAddr, Ipv4Addr, SocketAddr, UdpSocket};
 
+use crate::net::host_port::HostPort;
+
 /// RTP's customary port (RFC 3551): the first choice of a fresh install.
 pub const DEFAULT_PORT: u16 = 5004;
 /// How many ports above the preferred one are tried while it is taken.
@@ -35,6 +37,16 @@ pub fn dialable(local: SocketAddr) -> Vec<SocketAddr> {
     addrs
 }
 
+/// What a direct call to `host` written without a port is told: the address as it would
+/// work, at the port lipcall listens on by default.
+pub fn give_the_port(host: &HostPort) -> String {
+    let with_port = HostPort {
+        host: host.host.clone(),
+        port: Some(DEFAULT_PORT),
+    };
+    format!("give the port: {with_port}")
+}
+
 /// Connecting a UDP socket sends nothing: it only asks the routing table for the source
 /// address towards a documentation address (RFC 5737).
 fn outward_ip() -> Option<IpAddr> {
@@ -47,6 +59,14 @@ fn outward_ip() -> Option<IpAddr> {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn an_address_without_a_port_is_shown_with_one() {
+        let v4 = HostPort::parse("127.0.0.1").unwrap();
+        assert_eq!(give_the_port(&v4), "give the port: 127.0.0.1:5004");
+        let v6 = HostPort::parse("::1").unwrap();
+        assert_eq!(give_the_port(&v6), "give the port: [::1]:5004");
+    }
 
     #[test]
     fn a_taken_port_moves_to_a_free_one_above_it() {

@@ -5,7 +5,7 @@
 //! the sessions, the microphone and the per-peer animation at 20 ms.
 
 mod audio_panel;
-mod call_panel;
+pub mod call_panel;
 pub mod call_status;
 mod channel_panel;
 pub mod counters;
@@ -19,6 +19,7 @@ pub mod peer_panel;
 mod retire;
 pub mod roster;
 pub mod settings;
+mod settings_window;
 pub mod sip_call;
 mod sip_panel;
 pub mod tiles;
@@ -36,13 +37,14 @@ use eframe::egui;
 
 use crate::audio::{DeviceChoice, DeviceInfo};
 use crate::codec::any::Codec;
-use audio_panel::audio_ui;
+pub use audio_panel::{MicKeys, audio_ui};
 pub use call_panel::CallForm;
 pub use call_panel::call_ui;
 pub use channel_panel::channels_ui;
 use engine::{Command, Engine, EngineConfig};
-pub use peer_panel::{ShownPeer, peer_controls_ui, peer_list_ui, tiles_ui};
+pub use peer_panel::{ShownPeer, left_notice_ui, peer_controls_ui, peer_list_ui, tiles_ui};
 use settings::Settings;
+pub use settings_window::{SettingsParts, settings_ui, settings_window};
 pub use sip_panel::{SipForm, sip_ui};
 use tiles::{HeadTiles, RenderCounters};
 
@@ -228,6 +230,7 @@ pub struct LipcallApp {
     frames: u64,
     inputs: Vec<DeviceInfo>,
     outputs: Vec<DeviceInfo>,
+    mic_keys: MicKeys,
 }
 
 impl LipcallApp {
@@ -276,6 +279,7 @@ impl LipcallApp {
             frames: 0,
             inputs,
             outputs,
+            mic_keys: MicKeys::default(),
         }
     }
 
@@ -369,19 +373,6 @@ impl LipcallApp {
             eprintln!("lipcall: cannot write {}: {e}", path.display());
         }
     }
-
-    /// Keyboard shortcuts: M toggles the microphone's mute; Space talks in push-to-talk mode.
-    fn shortcuts(&mut self, ctx: &egui::Context) {
-        let typing = ctx.egui_wants_keyboard_input();
-        let (m, space) = ctx.input(|i| (i.key_pressed(egui::Key::M), i.key_down(egui::Key::Space)));
-        let s = engine::lock(&self.engine.shared);
-        if let Some(mic) = &s.mic {
-            if m && !typing {
-                mic.set_muted(!mic.muted());
-            }
-            mic.set_talk_pressed(space && !typing);
-        }
-    }
 }
 
 impl eframe::App for LipcallApp {
@@ -392,11 +383,12 @@ impl eframe::App for LipcallApp {
     fn ui(&mut self, ui: &mut egui::Ui, _frame: &mut eframe::Frame) {
         let ctx = ui.ctx().clone();
         self.frames += 1;
-        self.shortcuts(&ctx);
+        let mic_now = engine::lock(&self.engine.shared).mic.clone();
+        self.mic_keys.handle(&ctx, mic_now.as_ref());
         let now = Instant::now();
 
         // One lock: the snapshot, each peer's choices, and its weights for the audio heard now.
-        let (mut peers, call, output_status, input_status, mic, mumble, phone) = {
+        let (mut peers, left, call, output_status, input_status, mic, mumble, phone) = {
             let mut guard = engine::lock(&self.engine.shared);
             let s = &mut *guard;
             if let Some(status) = s.playback.poll() {
@@ -428,8 +420,10 @@ impl eframe::App for LipcallApp {
                     frames_shown: peer.frames_shown,
                 });
             }
+            peer_panel::join_order(&mut peers);
             (
                 peers,
+                s.peers.left(now),
                 s.call.clone(),
                 s.output_status.clone(),
                 s.input_status.clone(),
@@ -445,24 +439,33 @@ impl eframe::App for LipcallApp {
         let side = egui::Frame::side_top_panel(ui.style()).fill(egui::Color32::TRANSPARENT);
         egui::Panel::top("call").frame(side).show(ui, |ui| {
             call_ui(ui, &mut self.form, &mut self.settings, &call, &self.engine);
-            sip_ui(
-                ui,
-                &mut self.sip_form,
-                &mut self.settings,
-                &phone,
-                &self.engine,
-            );
+            sip_ui(ui, &mut self.sip_form, &phone, &self.engine);
         });
+        if std::mem::take(&mut self.sip_form.editing) {
+            self.form.settings_open = true;
+        }
+        let mut open = self.form.settings_open;
+        settings_window(
+            &ctx,
+            &mut open,
+            &mut self.settings,
+            SettingsParts {
+                form: &mut self.form,
+                sip_form: &mut self.sip_form,
+                inputs: &self.inputs,
+                outputs: &self.outputs,
+                engine: &self.engine,
+            },
+        );
+        self.form.settings_open &= open;
         egui::Panel::bottom("audio").frame(side).show(ui, |ui| {
             audio_ui(
                 ui,
+                &self.mic_keys,
                 &mut self.settings,
                 mic.as_ref(),
                 &output_status,
                 &input_status,
-                &self.inputs,
-                &self.outputs,
-                &self.engine,
             );
             for n in &self.notes {
                 ui.colored_label(egui::Color32::YELLOW, n);
@@ -482,6 +485,7 @@ impl eframe::App for LipcallApp {
             });
         let central = egui::Frame::central_panel(ui.style()).fill(egui::Color32::TRANSPARENT);
         egui::CentralPanel::default().frame(central).show(ui, |ui| {
+            left_notice_ui(ui, &left);
             tiles_ui(ui, &mut peers, self.heads.as_mut());
         });
         if let Some(heads) = &mut self.heads {

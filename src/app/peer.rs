@@ -36,6 +36,10 @@ pub struct RemotePeer {
     pub(super) weights: ScheduleSender<FaceRow>,
     pub(super) animation: PeerAnimation,
     pub(super) last_voice: Option<Instant>,
+    /// Its voice's level now: each frame's energy, falling back slowly (dBFS).
+    pub(super) level_db: f32,
+    /// When it was first heard or seated: tiles are shown in this order.
+    pub(super) joined: Instant,
     pub(super) frames_received: u64,
     /// It had a frame in the last pull (its audio runs on in its queue).
     pub(super) playing: bool,
@@ -57,6 +61,8 @@ impl RemotePeer {
             feed,
             weights,
             last_voice: None,
+            level_db: LEVEL_FLOOR_DB,
+            joined: Instant::now(),
             frames_received: 0,
             playing: false,
         }
@@ -67,6 +73,9 @@ impl RemotePeer {
         self.feed.id()
     }
 }
+
+/// What a peer's level meter reads in silence (dBFS).
+pub const LEVEL_FLOOR_DB: f32 = -60.0;
 
 /// One remote peer as the UI shows it.
 #[derive(Debug, Clone)]
@@ -82,6 +91,10 @@ pub struct PeerView {
     /// The codec of its last packet.
     pub codec: Option<Codec>,
     pub talking: bool,
+    /// Its voice's level now (dBFS; [`LEVEL_FLOOR_DB`] in silence).
+    pub level_db: f32,
+    /// When it joined the call: the order of the tiles, and its time in the call.
+    pub joined: Instant,
     pub loss_percent: f64,
     pub jitter_ms: f64,
     pub delay_ms: f64,

@@ -4,7 +4,7 @@
 use eframe::egui;
 
 use super::call_panel::codec_label;
-use super::peer::{FaceRow, PeerView};
+use super::peer::{FaceRow, LEVEL_FLOOR_DB, PeerView};
 use super::settings::PeerPrefs;
 use super::tiles::{HeadTile, HeadTiles};
 use crate::render::Framing;
@@ -21,15 +21,106 @@ pub struct ShownPeer {
     pub frames_shown: u64,
 }
 
+/// The order peers are shown in, in the list and the tiles: as they joined, then by name
+/// (never by SSRC, which is random).
+pub fn join_order(peers: &mut [ShownPeer]) {
+    peers.sort_by(|a, b| (a.view.joined, &a.view.name).cmp(&(b.view.joined, &b.view.name)));
+}
+
+/// Each peer's colour, in the order given: the one its name hashes to (the same name, the same
+/// colour, call after call), or the next one free where another peer of the call has that one,
+/// so that up to [`PEER_COLOURS`] peers all differ. The background behind the head and the mark
+/// in the list: one bundled head serves everyone, the colour tells them apart.
+pub fn peer_colours<'a>(names: impl IntoIterator<Item = &'a str>) -> Vec<egui::Color32> {
+    let mut used = [false; PEER_COLOURS];
+    names
+        .into_iter()
+        .map(|name| {
+            let start = colour_index(name);
+            let free = (0..PEER_COLOURS)
+                .map(|k| (start + k) % PEER_COLOURS)
+                .find(|&i| !used[i]);
+            let i = free.unwrap_or(start);
+            used[i] = true;
+            palette(i)
+        })
+        .collect()
+}
+
+/// Colours to tell peers apart by.
+pub const PEER_COLOURS: usize = 16;
+
+/// FNV-1a, then murmur3's finaliser (FNV's own bits are poor for names that differ in their
+/// last letter): stable across runs and platforms, unlike the standard hasher.
+fn colour_index(name: &str) -> usize {
+    let mut h = name.bytes().fold(0x811c_9dc5_u32, |h, b| {
+        (h ^ u32::from(b)).wrapping_mul(0x0100_0193)
+    });
+    h ^= h >> 16;
+    h = h.wrapping_mul(0x85eb_ca6b);
+    h ^= h >> 13;
+    h = h.wrapping_mul(0xc2b2_ae35);
+    h ^= h >> 16;
+    h as usize % PEER_COLOURS
+}
+
+/// Dark hues (the face stays the brightest thing in its tile), neighbours far apart on the
+/// colour wheel.
+fn palette(i: usize) -> egui::Color32 {
+    let hue = (i * 7 % PEER_COLOURS) as f32 / PEER_COLOURS as f32;
+    egui::ecolor::Hsva::new(hue, 0.6, 0.05, 1.0).into()
+}
+
+/// How long a peer has been in the call: `m:ss`, or `h:mm:ss` past an hour.
+pub fn call_time(since: std::time::Duration) -> String {
+    let s = since.as_secs();
+    if s >= 3600 {
+        format!("{}:{:02}:{:02}", s / 3600, s / 60 % 60, s % 60)
+    } else {
+        format!("{}:{:02}", s / 60, s % 60)
+    }
+}
+
+/// "NAME left" for each peer who left lately, on a row of fixed height (empty without), so
+/// that the tiles below do not move when it comes and goes.
+pub fn left_notice_ui(ui: &mut egui::Ui, left: &[String]) {
+    let height = ui.spacing().interact_size.y;
+    let width = ui.available_width();
+    ui.allocate_ui_with_layout(
+        egui::vec2(width, height),
+        egui::Layout::left_to_right(egui::Align::Center),
+        |ui| {
+            ui.set_min_size(egui::vec2(width, height));
+            let text = left
+                .iter()
+                .map(|name| format!("{name} left"))
+                .collect::<Vec<_>>()
+                .join(" · ");
+            ui.add(
+                egui::Label::new(
+                    egui::RichText::new(text).color(egui::Color32::from_rgb(240, 200, 120)),
+                )
+                .truncate(),
+            );
+        },
+    );
+}
+
 /// Names, talking indicators and link statistics.
 pub fn peer_list_ui(ui: &mut egui::Ui, peers: &[ShownPeer]) {
     ui.heading("Peers");
     if peers.is_empty() {
         ui.label("Nobody here yet.");
     }
-    for p in peers.iter().map(|p| &p.view) {
+    let colours = peer_colours(peers.iter().map(|p| p.view.name.as_str()));
+    for (p, colour) in peers.iter().map(|p| &p.view).zip(colours) {
         ui.horizontal(|ui| {
             talking_dot(ui, p.talking, 12.0);
+            let (mark, _) = ui.allocate_exact_size(egui::vec2(10.0, 10.0), egui::Sense::hover());
+            // The tile's colour, brighter: a small mark on the panel's dark grey.
+            let mut bright = egui::ecolor::Hsva::from(colour);
+            bright.v = (bright.v * 8.0).min(1.0);
+            ui.painter().rect_filled(mark, 2.0, bright);
             ui.strong(&p.name);
             if let Some(codec) = p.codec {
                 ui.label(codec_label(codec));
@@ -164,9 +255,11 @@ pub fn tiles_ui(ui: &mut egui::Ui, peers: &mut [ShownPeer], mut heads: Option<&m
         });
         return;
     }
+    join_order(peers);
     let area = ui.available_rect_before_wrap();
     let rects = tile_rects(peers.len(), area);
-    for (shown, cell) in peers.iter_mut().zip(rects) {
+    let colours = peer_colours(peers.iter().map(|p| p.view.name.as_str()));
+    for ((shown, cell), colour) in peers.iter_mut().zip(rects).zip(colours) {
         let mut tile_ui = ui.new_child(
             egui::UiBuilder::new()
                 .id_salt(("tile", shown.view.ssrc))
@@ -179,7 +272,7 @@ pub fn tiles_ui(ui: &mut egui::Ui, peers: &mut [ShownPeer], mut heads: Option<&m
             egui::pos2(cell.min.x, (cell.min.y + TILE_HEADER).min(cell.max.y)),
             cell.max,
         );
-        head_ui(&mut tile_ui, head, shown, heads.as_deref_mut());
+        head_ui(&mut tile_ui, head, shown, colour, heads.as_deref_mut());
     }
     ui.allocate_rect(area, egui::Sense::hover());
 }
@@ -231,6 +324,15 @@ fn tile_header_ui(ui: &mut egui::Ui, shown: &mut ShownPeer) {
             } else {
                 ui.checkbox(&mut shown.prefs.muted, "Mute");
             }
+            let in_call = call_time(p.joined.elapsed());
+            // A narrow tile keeps the name whole: the meter thinner, the time on hover.
+            let meter = level_meter_ui(ui, p, compact);
+            if compact {
+                meter.on_hover_text(format!("{} in the call for {in_call}", p.name));
+            } else {
+                ui.weak(in_call)
+                    .on_hover_text(format!("{} has been in the call this long", p.name));
+            }
             ui.with_layout(egui::Layout::left_to_right(egui::Align::Center), |ui| {
                 talking_dot(ui, p.talking, 10.0);
                 ui.add(egui::Label::new(egui::RichText::new(&p.name).strong()).truncate());
@@ -256,11 +358,44 @@ fn header_width_with_words(ui: &egui::Ui, name: &str) -> f32 {
     width(egui::RichText::new(name).strong().into())
         + width("Mute".into())
         + width("More".into())
+        + width("00:00".into())
+        + LEVEL_METER_WIDTH
         + 10.0
         + s.icon_width
         + s.icon_spacing
         + 2.0 * s.button_padding.x
-        + 4.0 * s.item_spacing.x
+        + 6.0 * s.item_spacing.x
+}
+
+/// The width of a tile's level meter.
+const LEVEL_METER_WIDTH: f32 = 28.0;
+
+/// A small bar of the peer's voice level (upright and thin on a narrow tile), named for
+/// screen readers.
+fn level_meter_ui(ui: &mut egui::Ui, p: &PeerView, upright: bool) -> egui::Response {
+    let fill = ((p.level_db - LEVEL_FLOOR_DB) / -LEVEL_FLOOR_DB).clamp(0.0, 1.0);
+    let size = if upright {
+        egui::vec2(5.0, 14.0)
+    } else {
+        egui::vec2(LEVEL_METER_WIDTH, 8.0)
+    };
+    let (rect, response) = ui.allocate_exact_size(size, egui::Sense::hover());
+    let painter = ui.painter();
+    painter.rect_filled(rect, 1.0, egui::Color32::from_gray(50));
+    let lit = if upright {
+        egui::Rect::from_min_max(
+            egui::pos2(rect.min.x, rect.max.y - rect.height() * fill),
+            rect.max,
+        )
+    } else {
+        egui::Rect::from_min_size(rect.min, egui::vec2(rect.width() * fill, rect.height()))
+    };
+    painter.rect_filled(lit, 1.0, egui::Color32::LIGHT_GREEN);
+    let name = format!("{}'s level", p.name);
+    response.widget_info(|| {
+        egui::WidgetInfo::labeled(egui::accesskit::Role::Meter, true, name.clone())
+    });
+    response
 }
 
 /// A `size`-point light, green while the peer talks.
@@ -277,7 +412,13 @@ fn talking_dot(ui: &mut egui::Ui, talking: bool, size: f32) {
 
 /// The peer's head in `rect`: rendered when there is a renderer, a plain panel otherwise;
 /// named for screen readers (and tests) as "NAME's face".
-fn head_ui(ui: &mut egui::Ui, rect: egui::Rect, shown: &ShownPeer, heads: Option<&mut HeadTiles>) {
+fn head_ui(
+    ui: &mut egui::Ui,
+    rect: egui::Rect,
+    shown: &ShownPeer,
+    colour: egui::Color32,
+    heads: Option<&mut HeadTiles>,
+) {
     let p = &shown.view;
     let response = ui.allocate_rect(rect, egui::Sense::hover());
     response.widget_info(|| {
@@ -307,13 +448,19 @@ fn head_ui(ui: &mut egui::Ui, rect: egui::Rect, shown: &ShownPeer, heads: Option
                 },
                 weights: w,
                 pose,
+                background: linear(colour),
             };
             heads.show(ui, rect, tile);
         }
         Some(_) => {}
         None => {
-            ui.painter()
-                .rect_filled(rect, 6.0, egui::Color32::from_gray(38));
+            ui.painter().rect_filled(rect, 6.0, colour);
         }
     }
+}
+
+/// An sRGB colour as the linear RGB a head's target clears to.
+fn linear(colour: egui::Color32) -> [f64; 3] {
+    let [r, g, b, _] = egui::Rgba::from(colour).to_array();
+    [f64::from(r), f64::from(g), f64::from(b)]
 }

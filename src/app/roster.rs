@@ -2,7 +2,7 @@
 //! described for the UI from what the link reports, and forgotten in one place, with its mixer
 //! slot, when it leaves or the call ends.
 
-use std::collections::BTreeMap;
+use std::collections::{BTreeMap, VecDeque};
 use std::sync::atomic::Ordering;
 use std::time::{Duration, Instant};
 
@@ -11,16 +11,25 @@ use crate::net::peer::FrameKind;
 use crate::net::session::{PeerFrame, PeerInfo};
 
 use super::counters::{DEMO_NAME, EngineCounters};
-use super::peer::{PeerView, RemotePeer};
+use super::peer::{LEVEL_FLOOR_DB, PeerView, RemotePeer};
 
 /// A peer whose last voiced frame is this recent is talking.
 const TALKING_HOLD: Duration = Duration::from_millis(300);
 /// Decoded frames above this energy are voice, for the talking indicator (dBFS).
 const VOICE_DB: f32 = -45.0;
 
+/// How long "NAME left" stays on screen.
+pub const LEFT_NOTICE_STAYS: Duration = Duration::from_secs(6);
+/// Notices of peers who left kept at most (a room emptying at once).
+const LEFT_NOTICES_KEPT: usize = 8;
+/// How fast a level meter falls back after a loud frame, per 20 ms frame (dB).
+const LEVEL_FALL_DB: f32 = 3.0;
+
 #[derive(Default)]
 pub struct Roster {
     peers: BTreeMap<u32, RemotePeer>,
+    /// The names of peers who left the call going on, and when.
+    left: VecDeque<(String, Instant)>,
 }
 
 impl Roster {
@@ -44,9 +53,21 @@ impl Roster {
         self.peers.is_empty()
     }
 
-    /// The peers as the UI shows them (those the link has described), in SSRC order.
+    /// The peers as the UI shows them (those the link has described), in the order they
+    /// joined, then by name.
     pub fn views(&self) -> Vec<PeerView> {
-        self.peers.values().filter_map(|p| p.view.clone()).collect()
+        let mut views: Vec<PeerView> = self.peers.values().filter_map(|p| p.view.clone()).collect();
+        views.sort_by(|a, b| (a.joined, &a.name).cmp(&(b.joined, &b.name)));
+        views
+    }
+
+    /// The names of the peers who left within [`LEFT_NOTICE_STAYS`] of `now`, first first.
+    pub fn left(&self, now: Instant) -> Vec<String> {
+        self.left
+            .iter()
+            .filter(|(_, at)| now.saturating_duration_since(*at) < LEFT_NOTICE_STAYS)
+            .map(|(name, _)| name.clone())
+            .collect()
     }
 
     /// One pull's frames: into each peer's queue for the mixer, and through its animation.
@@ -87,9 +108,13 @@ impl Roster {
             let Some(pos) = queued else {
                 continue;
             };
-            if f.frame.kind == FrameKind::Decoded && f.frame.features.energy_db > VOICE_DB {
+            let energy = f.frame.features.energy_db;
+            if f.frame.kind == FrameKind::Decoded && energy > VOICE_DB {
                 peer.last_voice = Some(now);
             }
+            peer.level_db = energy
+                .max(peer.level_db - LEVEL_FALL_DB)
+                .max(LEVEL_FLOOR_DB);
             let t0 = Instant::now();
             let animated = peer.animation.frames_animated;
             let out = peer
@@ -112,6 +137,7 @@ impl Roster {
                 continue;
             }
             peer.playing = false;
+            peer.level_db = (peer.level_db - LEVEL_FALL_DB).max(LEVEL_FLOOR_DB);
             if let Some((pos, row)) = peer.animation.flush() {
                 let heard = playback.heard_position(peer.feed.id(), now);
                 counters.weights_scheduled(pos, heard, peer.feed.rate(), true);
@@ -130,7 +156,7 @@ impl Roster {
             .filter(|ssrc| !infos.iter().any(|i| i.ssrc == *ssrc && !i.ended))
             .collect();
         for ssrc in gone {
-            self.forget(playback, ssrc);
+            self.forget(playback, ssrc, now);
         }
         for info in infos {
             let Some(peer) = self.peers.get_mut(&info.ssrc) else {
@@ -155,18 +181,71 @@ impl Roster {
         }
     }
 
-    /// Forgets every peer (the call ended or changed).
+    /// Forgets every peer (the call ended or changed: the call's phase says so, not a
+    /// notice per peer).
     pub(super) fn clear(&mut self, playback: &mut Playback) {
         for (_, peer) in std::mem::take(&mut self.peers) {
             playback.remove_peer(peer.feed.id());
         }
+        self.left.clear();
     }
 
-    fn forget(&mut self, playback: &mut Playback, ssrc: u32) {
-        if let Some(peer) = self.peers.remove(&ssrc) {
-            playback.remove_peer(peer.feed.id());
+    /// Lets a peer go; one that was shown leaves a notice with its name.
+    fn forget(&mut self, playback: &mut Playback, ssrc: u32, now: Instant) {
+        let Some(peer) = self.peers.remove(&ssrc) else {
+            return;
+        };
+        playback.remove_peer(peer.feed.id());
+        if let Some(view) = peer.view {
+            self.left
+                .retain(|(_, at)| now.saturating_duration_since(*at) < LEFT_NOTICE_STAYS);
+            if self.left.len() >= LEFT_NOTICES_KEPT {
+                self.left.pop_front();
+            }
+            self.left.push_back((view.name, now));
         }
     }
+}
+
+/// The name a peer gave (a SIP URI's display name, or its user), else its CNAME, else its
+/// SSRC: an id only where nothing better exists.
+pub fn shown_name(info: &PeerInfo) -> String {
+    if let Some(name) = info
+        .name
+        .as_deref()
+        .map(str::trim)
+        .filter(|n| !n.is_empty())
+    {
+        return sip_display(name).unwrap_or(name).to_owned();
+    }
+    info.cname
+        .clone()
+        .filter(|c| !c.trim().is_empty())
+        .unwrap_or_else(|| format!("peer {:08x}", info.ssrc))
+}
+
+/// `"Bob" <sip:bob@host>` as Bob, `sip:bob@host` as bob; `None` for what is no SIP address.
+fn sip_display(name: &str) -> Option<&str> {
+    if let Some((display, rest)) = name.split_once('<')
+        && rest.trim_start().to_ascii_lowercase().starts_with("sip")
+    {
+        let display = display.trim().trim_matches('"').trim();
+        if !display.is_empty() {
+            return Some(display);
+        }
+        return sip_display(rest.trim_end_matches('>'));
+    }
+    let lower = name.to_ascii_lowercase();
+    let bare = if lower.starts_with("sips:") {
+        &name[5..]
+    } else if lower.starts_with("sip:") {
+        &name[4..]
+    } else {
+        return None;
+    };
+    let user = bare.split_once('@').map_or(bare, |(user, _)| user);
+    let user = user.split([';', ':']).next().unwrap_or(user);
+    Some(if user.is_empty() { bare } else { user })
 }
 
 fn view_of(peer: &RemotePeer, info: &PeerInfo, now: Instant) -> PeerView {
@@ -174,16 +253,14 @@ fn view_of(peer: &RemotePeer, info: &PeerInfo, now: Instant) -> PeerView {
     let expected = jitter.played + jitter.lost;
     PeerView {
         ssrc: info.ssrc,
-        name: info
-            .name
-            .clone()
-            .or_else(|| info.cname.clone())
-            .unwrap_or_else(|| format!("{:08x}", info.ssrc)),
-        named: info.name.is_some(),
+        name: shown_name(info),
+        named: info.name.as_deref().is_some_and(|n| !n.trim().is_empty()),
         addr: info.addr,
         feed: peer.feed.id(),
         is_demo: info.name.as_deref() == Some(DEMO_NAME),
         codec: info.receiver.codec,
+        level_db: peer.level_db,
+        joined: peer.joined,
         talking: peer
             .last_voice
             .is_some_and(|t| now.saturating_duration_since(t) < TALKING_HOLD),
@@ -470,5 +547,73 @@ mod tests {
         for feed in feeds {
             assert!(call.playback.peer_controls(feed).is_none());
         }
+    }
+
+    #[test]
+    fn peers_keep_their_join_order_and_one_who_leaves_leaves_a_notice() {
+        let mut call = Call::new();
+        call.pull(0, &[voiced(900)]);
+        call.pull(20, &[voiced(900), voiced(5)]);
+        call.pull(40, &[voiced(900), voiced(5), voiced(77)]);
+        call.report(200, &[info(900, "Zed"), info(5, "Amy"), info(77, "Bob")]);
+        let names = |call: &Call| -> Vec<String> {
+            call.roster.views().into_iter().map(|v| v.name).collect()
+        };
+        assert_eq!(
+            names(&call),
+            ["Zed", "Amy", "Bob"],
+            "by join time, not SSRC"
+        );
+        assert!(call.roster.left(call.at(200)).is_empty());
+
+        call.report(400, &[info(900, "Zed"), info(77, "Bob")]);
+        assert_eq!(names(&call), ["Zed", "Bob"], "the others keep their places");
+        assert_eq!(call.roster.left(call.at(400)), ["Amy"]);
+        let later = call.at(400) + LEFT_NOTICE_STAYS - Duration::from_millis(100);
+        assert_eq!(call.roster.left(later), ["Amy"], "the notice stays a while");
+        assert!(
+            call.roster
+                .left(call.at(400) + LEFT_NOTICE_STAYS)
+                .is_empty()
+        );
+
+        // The call's end says so itself: no notice per peer.
+        call.roster.clear(&mut call.playback);
+        assert!(call.roster.left(call.at(400)).is_empty());
+    }
+
+    #[test]
+    fn a_level_rises_with_the_voice_and_falls_back_in_silence() {
+        let mut call = Call::new();
+        call.pull(0, &[voiced(7)]);
+        call.report(20, &[info(7, "Ann")]);
+        let level = |call: &Call| call.roster.views()[0].level_db;
+        assert!(level(&call) > -30.0, "{}", level(&call));
+        for i in 0..40 {
+            call.pull(40 + i * 20, &[]);
+        }
+        call.report(900, &[info(7, "Ann")]);
+        assert_eq!(level(&call), LEVEL_FLOOR_DB);
+    }
+
+    #[test]
+    fn names_people_gave_are_shown_before_ids() {
+        let with = |name: Option<&str>, cname: Option<&str>| PeerInfo {
+            name: name.map(str::to_owned),
+            cname: cname.map(str::to_owned),
+            ..info(0x1234abcd, "x")
+        };
+        assert_eq!(shown_name(&with(Some("Ann"), Some("ann@h"))), "Ann");
+        assert_eq!(
+            shown_name(&with(Some("sip:bob@127.0.0.1:5080"), None)),
+            "bob"
+        );
+        assert_eq!(
+            shown_name(&with(Some("\"Bob Smith\" <sip:bob@pbx>"), None)),
+            "Bob Smith"
+        );
+        assert_eq!(shown_name(&with(Some("<sip:+46812@pbx>"), None)), "+46812");
+        assert_eq!(shown_name(&with(Some("  "), Some("ann@h"))), "ann@h");
+        assert_eq!(shown_name(&with(None, None)), "peer 1234abcd");
     }
 }

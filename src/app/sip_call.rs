@@ -94,6 +94,10 @@ pub fn is_sip_address(address: &str) -> bool {
 
 /// The digits (and a leading `+`, `*` or `#`) of a number as people write it: `+46 8-123 45`.
 fn telephone_number(text: &str) -> Option<String> {
+    // 127.0.0.1 is an address without its port, not a number with dots.
+    if text.parse::<std::net::Ipv4Addr>().is_ok() {
+        return None;
+    }
     let kept: String = text
         .chars()
         .filter(|c| !matches!(c, ' ' | '-' | '.' | '(' | ')'))
@@ -118,6 +122,9 @@ pub fn dial_target(address: &str, account: Option<&Account>) -> Result<String, S
         };
     }
     if is_sip_address(a) {
+        if host_port(a).trim().is_empty() {
+            return Err(format!("{a} has no host (expected sip:USER@HOST)"));
+        }
         return Ok(a.to_owned());
     }
     Err(format!("{a:?} is neither a sip: address nor a number"))
@@ -446,7 +453,18 @@ mod tests {
                 .unwrap_err()
                 .contains("set an account")
         );
-        for other in ["127.0.0.1:5000", "http://janus/janus", "", "+", "12a"] {
+        assert_eq!(
+            dial_target("sip:bob@", Some(&account)),
+            Err("sip:bob@ has no host (expected sip:USER@HOST)".to_owned())
+        );
+        for other in [
+            "127.0.0.1:5000",
+            "127.0.0.1",
+            "http://janus/janus",
+            "",
+            "+",
+            "12a",
+        ] {
             assert!(!is_sip_address(other), "{other}");
             assert!(dial_target(other, Some(&account)).is_err(), "{other}");
         }

@@ -21,6 +21,7 @@ const KEYPAD: [[&str; 3]; 4] = [
 /// The account form's state.
 #[derive(Debug, Clone, Default)]
 pub struct SipForm {
+    /// The account was asked for: the settings window opens at it.
     pub editing: bool,
     /// Why the account given cannot be used.
     pub error: Option<String>,
@@ -47,13 +48,7 @@ pub fn use_account(settings: &Settings, engine: &Engine) -> Result<(), String> {
     Ok(())
 }
 
-pub fn sip_ui(
-    ui: &mut egui::Ui,
-    form: &mut SipForm,
-    settings: &mut Settings,
-    phone: &PhoneStatus,
-    engine: &Engine,
-) {
+pub fn sip_ui(ui: &mut egui::Ui, form: &mut SipForm, phone: &PhoneStatus, engine: &Engine) {
     ui.horizontal_wrapped(|ui| {
         ui.label("Phone (SIP)");
         match &phone.account {
@@ -65,17 +60,17 @@ pub fn sip_ui(
                 ui.weak("no account: sip: addresses can still be called directly");
             }
         }
-        let label = if form.editing { "Close" } else { "Account…" };
-        if ui.button(label).clicked() {
-            form.editing = !form.editing;
+        if ui
+            .button("Account…")
+            .on_hover_text("The SIP account, in the settings")
+            .clicked()
+        {
+            form.editing = true;
         }
         if let Some(note) = &phone.note {
             ui.weak(note);
         }
     });
-    if form.editing {
-        account_ui(ui, form, settings, engine);
-    }
     if let Some(caller) = &phone.ringing {
         ui.horizontal_wrapped(|ui| {
             ui.colored_label(
@@ -95,41 +90,51 @@ pub fn sip_ui(
     }
 }
 
-fn account_ui(ui: &mut egui::Ui, form: &mut SipForm, settings: &mut Settings, engine: &Engine) {
-    ui.horizontal_wrapped(|ui| {
-        let label = ui.label("Account");
-        ui.add(
-            egui::TextEdit::singleline(&mut settings.sip.account)
-                .hint_text("sip:user@provider")
-                .desired_width(170.0),
-        )
-        .labelled_by(label.id);
-        let label = ui.label("Registrar");
-        ui.add(
-            egui::TextEdit::singleline(&mut settings.sip.registrar)
-                .hint_text("(the account's domain)")
-                .desired_width(130.0),
-        )
-        .labelled_by(label.id);
-        let label = ui.label("Local port");
-        ui.add(egui::DragValue::new(&mut settings.sip.local_port).range(0..=65535))
+/// The account's fields and Register, in the settings window.
+pub fn account_ui(ui: &mut egui::Ui, form: &mut SipForm, settings: &mut Settings, engine: &Engine) {
+    egui::Grid::new("sip account")
+        .num_columns(2)
+        .show(ui, |ui| {
+            let label = ui.label("Account");
+            ui.add(
+                egui::TextEdit::singleline(&mut settings.sip.account)
+                    .hint_text("sip:user@provider")
+                    .desired_width(170.0),
+            )
+            .labelled_by(label.id);
+            ui.end_row();
+            let label = ui.label("Registrar");
+            ui.add(
+                egui::TextEdit::singleline(&mut settings.sip.registrar)
+                    .hint_text("(the account's domain)")
+                    .desired_width(170.0),
+            )
+            .labelled_by(label.id);
+            ui.end_row();
+            let label = ui.label("Local port");
+            ui.add(egui::DragValue::new(&mut settings.sip.local_port).range(0..=65535))
+                .labelled_by(label.id)
+                .on_hover_text("The UDP port SIP listens on (0: any free one)");
+            ui.end_row();
+            let label = ui.label("CA");
+            ui.add(
+                egui::TextEdit::singleline(&mut settings.sip.ca)
+                    .hint_text("(system roots)")
+                    .desired_width(170.0),
+            )
             .labelled_by(label.id)
-            .on_hover_text("The UDP port SIP listens on (0: any free one)");
-        let label = ui.label("CA");
-        ui.add(
-            egui::TextEdit::singleline(&mut settings.sip.ca)
-                .hint_text("(system roots)")
-                .desired_width(110.0),
-        )
-        .labelled_by(label.id)
-        .on_hover_text("A PEM file of a TLS registrar's own certificate authority");
-        let label = ui.label("Password");
-        ui.add(
-            egui::TextEdit::singleline(&mut settings.sip.password)
-                .password(true)
-                .desired_width(100.0),
-        )
-        .labelled_by(label.id);
+            .on_hover_text("A PEM file of a TLS registrar's own certificate authority");
+            ui.end_row();
+            let label = ui.label("Password");
+            ui.add(
+                egui::TextEdit::singleline(&mut settings.sip.password)
+                    .password(true)
+                    .desired_width(170.0),
+            )
+            .labelled_by(label.id);
+            ui.end_row();
+        });
+    ui.horizontal_wrapped(|ui| {
         if ui
             .button("Register")
             .on_hover_text(
@@ -139,7 +144,6 @@ fn account_ui(ui: &mut egui::Ui, form: &mut SipForm, settings: &mut Settings, en
             .clicked()
         {
             form.error = use_account(settings, engine).err();
-            form.editing = form.error.is_some();
         }
         if let Some(e) = &form.error {
             ui.colored_label(egui::Color32::LIGHT_RED, e);

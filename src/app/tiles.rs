@@ -22,9 +22,6 @@ use crate::render::{Camera, Framing, GpuHead, HeadInstance, HeadRenderer};
 use crate::vocab::FacePose;
 use crate::vocab::VisemeWeights;
 
-/// Clear colour of a head tile (linear RGB): the grey of the tile frame.
-const BACKGROUND: [f64; 3] = [0.019, 0.019, 0.019];
-
 /// Render work of the head tiles, for the status report.
 #[derive(Debug, Default)]
 pub struct RenderCounters {
@@ -45,6 +42,8 @@ pub struct HeadTile {
     pub framing: Framing,
     pub weights: VisemeWeights,
     pub pose: FacePose,
+    /// Linear RGB behind the head (each peer's own).
+    pub background: [f64; 3],
 }
 
 struct Tile {
@@ -213,6 +212,7 @@ impl HeadTiles {
         if entry.shown.as_ref().is_some_and(|(shown, at)| {
             *at == size
                 && shown.framing == tile.framing
+                && shown.background == tile.background
                 && head.looks_the_same(
                     (&shown.weights, &shown.pose),
                     (&tile.weights, &tile.pose),
@@ -239,7 +239,7 @@ impl HeadTiles {
                 label: Some("lipcall head tile"),
             });
         {
-            let mut pass = entry.target.begin_pass(&mut encoder, BACKGROUND);
+            let mut pass = entry.target.begin_pass(&mut encoder, tile.background);
             renderer.paint(&mut pass, &entry.instance);
         }
         state.queue.submit([encoder.finish()]);

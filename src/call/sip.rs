@@ -381,14 +381,16 @@ impl SipLink {
     fn on_agent_event(&mut self, event: AgentEvent) {
         match event {
             AgentEvent::Listening(addr, transport) => {
-                let rtcp = self
-                    .local_rtcp
-                    .map(|rtcp| format!(", RTCP on {rtcp}"))
-                    .unwrap_or_default();
-                self.say(format!(
-                    "SIP on {addr} ({}), RTP on {}{rtcp}",
+                tracing::info!(
+                    "SIP on {addr} ({}), RTP on {}, RTCP on {:?}",
                     transport.name(),
-                    self.local_rtp
+                    self.local_rtp,
+                    self.local_rtcp
+                );
+                self.say(format!(
+                    "using SIP on {addr} over {}, sound on port {}",
+                    transport.name(),
+                    self.local_rtp.port()
                 ));
             }
             AgentEvent::Registered(registrar) => {

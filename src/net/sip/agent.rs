@@ -489,7 +489,7 @@ async fn answer(
     media.signalling_peer = Some(invite.tp_info.source.ip());
     send(
         events,
-        AgentEvent::Incoming(format!("{:?}", invite.base_headers.from.uri.uri)),
+        AgentEvent::Incoming(caller(&invite.base_headers.from.uri)),
     );
     // An offer we cannot take is refused as RFC 3264 says (488), before ezk would answer it.
     if !invite.body.is_empty() {
@@ -617,6 +617,26 @@ pub fn codecs(chosen: Option<Codec>) -> Vec<Codec> {
         None => vec![Codec::Opus, Codec::G722, Codec::Pcmu, Codec::Pcma],
     }
 }
+
+/// The caller as people read it: `"Bob" <sip:bob@host>` where its From names it (the name's
+/// control characters dropped, at most [`CALLER_NAME_CHARS`] kept), else the bare URI.
+fn caller(from: &NameAddr) -> String {
+    let name: String = from
+        .name
+        .as_deref()
+        .unwrap_or("")
+        .chars()
+        .filter(|c| !c.is_control() && *c != '"' && *c != '<')
+        .take(CALLER_NAME_CHARS)
+        .collect();
+    match name.trim() {
+        "" => format!("{:?}", from.uri),
+        name => format!("\"{name}\" <{:?}>", from.uri),
+    }
+}
+
+/// The longest caller's name kept.
+const CALLER_NAME_CHARS: usize = 64;
 
 #[cfg(test)]
 mod tests {
