@@ -52,6 +52,26 @@ pub enum Role {
     Ask,
 }
 
+/// Longest display name shown of a caller; the rest is cut.
+const CALLER_NAME_CHARS: usize = 64;
+
+/// Who calls, as the user knows them: From's display name where it has one (printable
+/// characters only, at most [`CALLER_NAME_CHARS`]), else its URI.
+fn caller_name(from: &NameAddr) -> String {
+    let name: String = from
+        .name
+        .as_deref()
+        .unwrap_or_default()
+        .chars()
+        .filter(|c| !c.is_control())
+        .take(CALLER_NAME_CHARS)
+        .collect();
+    match name.trim() {
+        "" => format!("{:?}", from.uri),
+        name => name.to_owned(),
+    }
+}
+
 /// What to do with a ringing call ([`Role::Ask`]).
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 pub enum Decision {
@@ -489,7 +509,7 @@ async fn answer(
     media.signalling_peer = Some(invite.tp_info.source.ip());
     send(
         events,
-        AgentEvent::Incoming(format!("{:?}", invite.base_headers.from.uri.uri)),
+        AgentEvent::Incoming(caller_name(&invite.base_headers.from.uri)),
     );
     // An offer we cannot take is refused as RFC 3264 says (488), before ezk would answer it.
     if !invite.body.is_empty() {
