@@ -15,7 +15,7 @@ use std::process::{Child, Command, Stdio};
 use std::sync::{Arc, Mutex};
 use std::time::{Duration, Instant};
 
-use common::sip::{PASSWORD, Peer, baresip, free_port, have, kamailio, tell_baresip};
+use common::sip::{Logged, PASSWORD, Peer, baresip, free_port, have, kamailio, tell_baresip};
 use lipcall::app::settings::Settings;
 use lipcall::audio::ringtone::{RING_LEVEL, RING_TONES_HZ};
 
@@ -163,8 +163,9 @@ struct NullSink {
 }
 
 impl NullSink {
-    fn load() -> Self {
-        let name = format!("lipcall_ring_{}", std::process::id());
+    /// `tag`: which case's, as the cases run at once.
+    fn load(tag: &str) -> Self {
+        let name = format!("lipcall_ring_{tag}_{}", std::process::id());
         let out = Command::new("pactl")
             .args(["load-module", "module-null-sink"])
             .arg(format!("sink_name={name}"))
@@ -286,6 +287,60 @@ fn wait_until(what: &str, limit: Duration, log: &dyn Fn() -> String, done: &dyn 
     }
 }
 
+/// The app (its window on an Xvfb of its own, both stopped when dropped) with the settings in
+/// `settings`, its notifications on `bus`, its sound in `sink`, its status in `status`.
+fn app(bus: &Bus, sink: &NullSink, settings: &Path, status: &Path) -> (Logged, Logged) {
+    let xvfb = Peer::spawn_logged(
+        "Xvfb",
+        Command::new("Xvfb").args(["-displayfd", "1", "-screen", "0", "1280x720x24"]),
+    );
+    let display_limit = Instant::now() + Duration::from_secs(20);
+    let display = loop {
+        if let Some(n) = xvfb
+            .text()
+            .lines()
+            .find_map(|l| l.trim().parse::<u32>().ok())
+        {
+            break n;
+        }
+        assert!(Instant::now() < display_limit, "Xvfb: {}", xvfb.text());
+        std::thread::sleep(Duration::from_millis(50));
+    };
+    let app = Peer::spawn_logged(
+        "lipcall",
+        common::lipcall()
+            .args([
+                "--no-demo",
+                "--quit-after",
+                "240",
+                "--listen",
+                "127.0.0.1:0",
+            ])
+            .arg("--status")
+            .arg(status)
+            .arg("--settings")
+            .arg(settings)
+            .env("DISPLAY", format!(":{display}"))
+            .env("DBUS_SESSION_BUS_ADDRESS", &bus.address)
+            .env("PULSE_SINK", &sink.name)
+            .env("RUST_LOG", "lipcall=info"),
+    );
+    (xvfb, app)
+}
+
+/// The tools every case needs; under CI a missing one fails.
+fn have_all(more: &[&str]) -> bool {
+    let every = ["dbus-daemon", "Xvfb", "parec", "pactl"];
+    if !have(&every) || !have(more) {
+        return false;
+    }
+    if !common::pulse_running() {
+        common::unavailable("no PulseAudio server (start .ci/pulse-null-sink.sh): not run");
+        return false;
+    }
+    true
+}
+
 #[test]
 fn an_incoming_sip_call_rings_sounds_notifies_and_is_answered_from_the_notification() {
     if !have(&[
@@ -341,44 +396,10 @@ fn an_incoming_sip_call_rings_sounds_notifies_and_is_answered_from_the_notificat
     let settings_file = dir.path().join("settings.json");
     settings.save(&settings_file).unwrap();
 
-    let sink = NullSink::load();
+    let sink = NullSink::load("sip");
     let recording = Recording::start(&sink.name);
-    let xvfb = Peer::spawn_logged(
-        "Xvfb",
-        Command::new("Xvfb").args(["-displayfd", "1", "-screen", "0", "1280x720x24"]),
-    );
-    let display_limit = Instant::now() + Duration::from_secs(20);
-    let display = loop {
-        if let Some(n) = xvfb
-            .text()
-            .lines()
-            .find_map(|l| l.trim().parse::<u32>().ok())
-        {
-            break n;
-        }
-        assert!(Instant::now() < display_limit, "Xvfb: {}", xvfb.text());
-        std::thread::sleep(Duration::from_millis(50));
-    };
     let status = dir.path().join("status.txt");
-    let app = Peer::spawn_logged(
-        "lipcall",
-        common::lipcall()
-            .args([
-                "--no-demo",
-                "--quit-after",
-                "240",
-                "--listen",
-                "127.0.0.1:0",
-            ])
-            .arg("--status")
-            .arg(&status)
-            .arg("--settings")
-            .arg(&settings_file)
-            .env("DISPLAY", format!(":{display}"))
-            .env("DBUS_SESSION_BUS_ADDRESS", &bus.address)
-            .env("PULSE_SINK", &sink.name)
-            .env("RUST_LOG", "lipcall=info"),
-    );
+    let (_xvfb, app) = app(&bus, &sink, &settings_file, &status);
     let log = || app.text();
     let limit = Duration::from_secs(60);
     wait_until("registered", limit, &log, &|| {
@@ -453,4 +474,86 @@ fn an_incoming_sip_call_rings_sounds_notifies_and_is_answered_from_the_notificat
     }
     assert_eq!(record.lock().unwrap().notified.len(), 1, "one notification");
     assert!(!app.text().contains("panicked"), "{}", app.text());
+}
+
+/// The `listening=` address of the status file's first line.
+fn listening(status: &Path) -> Option<String> {
+    let text = std::fs::read_to_string(status).ok()?;
+    let first = text.lines().next()?.to_owned();
+    first
+        .split_whitespace()
+        .find_map(|w| w.strip_prefix("listening="))
+        .filter(|a| *a != "-")
+        .map(str::to_owned)
+}
+
+#[test]
+fn a_direct_caller_is_connected_and_notified_without_a_decline_or_a_ringtone() {
+    if !have_all(&[]) {
+        return;
+    }
+    let dir = tempfile::tempdir().unwrap();
+    let bus = Bus::start(dir.path());
+    let record = Arc::new(Mutex::new(Record::default()));
+    let _emit = serve(bus.address.clone(), Arc::clone(&record));
+    let settings_file = dir.path().join("settings.json");
+    Settings {
+        name: "Alice".into(),
+        ..Settings::default()
+    }
+    .save(&settings_file)
+    .unwrap();
+    let sink = NullSink::load("direct");
+    let recording = Recording::start(&sink.name);
+    let status = dir.path().join("status.txt");
+    let (_xvfb, app) = app(&bus, &sink, &settings_file, &status);
+    let log = || app.text();
+    let limit = Duration::from_secs(60);
+    wait_until("listening", limit, &log, &|| listening(&status).is_some());
+    let to = listening(&status).unwrap();
+    let start = recording.len();
+    let _ann = Peer::spawn_logged(
+        "lipcall send",
+        common::lipcall()
+            .arg("send")
+            .arg(common::repo_file("assets/speech/demo.wav"))
+            .args(["--to", &to, "--name", "Ann"]),
+    );
+    wait_until("call=in_call", limit, &log, &|| {
+        call_word(&status) == "in_call"
+    });
+    wait_until("the notification", limit, &log, &|| {
+        !record.lock().unwrap().notified.is_empty()
+    });
+    let notified = record.lock().unwrap().notified[0].clone();
+    assert_eq!(notified.summary, "Ann is calling", "{notified:?}");
+    assert!(
+        notified.actions.iter().any(|a| a == "default"),
+        "{notified:?}"
+    );
+    assert!(
+        !notified
+            .actions
+            .iter()
+            .any(|a| a == "decline" || a == "answer"),
+        "a direct call cannot be declined: {notified:?}"
+    );
+    // Her speech is heard; no ringtone over it (the tone would hold 440 Hz steady for a second:
+    // speech does not, at the tone's level).
+    wait_until("3 s recorded", limit, &log, &|| {
+        recording.len() >= start + 3 * RATE as usize
+    });
+    let heard = recording.since(start);
+    let steady = |hz: f64| {
+        heard
+            .chunks_exact(RATE as usize / 2)
+            .map(|c| amplitude_at(c, hz))
+            .fold(0.0, f64::max)
+    };
+    let expected = f64::from(RING_LEVEL) * 32768.0;
+    for hz in RING_TONES_HZ {
+        let level = steady(f64::from(hz));
+        eprintln!("direct call: {hz} Hz held at {level:.0} over half a second");
+        assert!(level < expected * 0.5, "a ringtone at {hz} Hz: {level:.0}");
+    }
 }

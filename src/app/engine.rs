@@ -41,6 +41,7 @@ use super::listen::dialable;
 use super::lookup::Lookups;
 use super::mumble_call::{MumbleCall, MumbleJoin, MumbleView};
 use super::retire::Retirer;
+use super::ring_notice::RingNotice;
 use super::roster::Roster;
 use super::settings::DEFAULT_CODEC;
 use super::sip_call::{PhoneCommand, PhoneStatus, SipPhone, is_sip_address};
@@ -257,7 +258,7 @@ struct Worker {
     /// The host of a call being placed, being looked up.
     lookups: Lookups<Then>,
     /// The desktop notification of the call that rings.
-    posted: Option<ring::Posted>,
+    posted: Option<RingNotice>,
 }
 
 /// What follows a call's host being found ([`Lookups`]).

@@ -61,6 +61,8 @@ pub enum NoticeAction {
 /// A notice on the desktop while it lives; dropping it closes the notice (off the caller's
 /// thread: the drop only signals).
 pub struct RingNotice {
+    /// The caller it names, and whether it offers Decline.
+    about: (String, bool),
     stop: Option<oneshot::Sender<()>>,
     actions: Receiver<NoticeAction>,
     _thread: Option<JoinHandle<()>>,
@@ -79,10 +81,16 @@ impl RingNotice {
             .map_err(|e| tracing::warn!("no desktop notification: no thread for it: {e}"))
             .ok();
         Self {
+            about: (caller.to_owned(), can_decline),
             stop: Some(stop),
             actions,
             _thread: thread,
         }
+    }
+
+    /// Whether it names `caller`, offering Decline or not.
+    pub fn is_about(&self, caller: &str, can_decline: bool) -> bool {
+        self.about.0 == caller && self.about.1 == can_decline
     }
 
     /// The action the user picked since the last look, if any.

@@ -7,13 +7,6 @@ use super::{CallPhase, Worker, lock};
 use crate::app::ring_notice::{NoticeAction, RingNotice};
 use crate::app::sip_call::PhoneCommand;
 
-/// The desktop notification posted, and for which call.
-pub(super) struct Posted {
-    notice: RingNotice,
-    /// The caller it names, and whether it can be declined (a SIP call that rings).
-    about: (String, bool),
-}
-
 impl Worker {
     /// Each pass: the ringtone and the notification follow the phase.
     pub(super) fn follow_ring(&mut self) {
@@ -33,17 +26,12 @@ impl Worker {
             about
         };
         match (about, &self.posted) {
-            (Some(about), Some(p)) if p.about == about => {}
-            (Some(about), _) => {
-                self.posted = Some(Posted {
-                    notice: RingNotice::post(&about.0, about.1),
-                    about,
-                });
-            }
+            (Some((caller, sip)), Some(p)) if p.is_about(&caller, sip) => {}
+            (Some((caller, sip)), _) => self.posted = Some(RingNotice::post(&caller, sip)),
             (None, Some(_)) => self.posted = None,
             (None, None) => {}
         }
-        let Some(action) = self.posted.as_ref().and_then(|p| p.notice.action()) else {
+        let Some(action) = self.posted.as_ref().and_then(RingNotice::action) else {
             return;
         };
         tracing::info!("the call's notification: {action:?}");
