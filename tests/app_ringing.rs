@@ -289,7 +289,7 @@ fn wait_until(what: &str, limit: Duration, log: &dyn Fn() -> String, done: &dyn 
 
 /// The app (its window on an Xvfb of its own, both stopped when dropped) with the settings in
 /// `settings`, its notifications on `bus`, its sound in `sink`, its status in `status`.
-fn app(bus: &Bus, sink: &NullSink, settings: &Path, status: &Path) -> (Logged, Logged) {
+fn app(bus: &Bus, sink: &NullSink, settings: &Path, status: &Path) -> (Logged, Logged, String) {
     let xvfb = Peer::spawn_logged(
         "Xvfb",
         Command::new("Xvfb").args(["-displayfd", "1", "-screen", "0", "1280x720x24"]),
@@ -325,12 +325,37 @@ fn app(bus: &Bus, sink: &NullSink, settings: &Path, status: &Path) -> (Logged, L
             .env("PULSE_SINK", &sink.name)
             .env("RUST_LOG", "lipcall=info"),
     );
-    (xvfb, app)
+    (xvfb, app, format!(":{display}"))
+}
+
+/// The window as it is on `display` now; copied into `LIPCALL_SHOTS` (a folder) as `name` where
+/// that is set (docs/states/ringing.png is taken so).
+fn screenshot(dir: &Path, display: &str, name: &str) -> image::RgbImage {
+    let path = dir.join(name);
+    common::run(
+        Command::new("import")
+            .args(["-display", display, "-window", "root"])
+            .arg(&path),
+    );
+    if let Some(shots) = std::env::var_os("LIPCALL_SHOTS") {
+        std::fs::copy(&path, Path::new(&shots).join(name)).unwrap();
+    }
+    image::open(&path).unwrap().to_rgb8()
+}
+
+/// Pixels of the ringing banner's blue (at any point of its pulse).
+fn banner_pixels(img: &image::RgbImage) -> usize {
+    img.pixels()
+        .filter(|p| {
+            let [r, g, b] = p.0;
+            (15..=45).contains(&r) && (55..=135).contains(&g) && (105..=225).contains(&b)
+        })
+        .count()
 }
 
 /// The tools every case needs; under CI a missing one fails.
 fn have_all(more: &[&str]) -> bool {
-    let every = ["dbus-daemon", "Xvfb", "parec", "pactl"];
+    let every = ["dbus-daemon", "Xvfb", "parec", "pactl", "import"];
     if !have(&every) || !have(more) {
         return false;
     }
@@ -399,7 +424,7 @@ fn an_incoming_sip_call_rings_sounds_notifies_and_is_answered_from_the_notificat
     let sink = NullSink::load("sip");
     let recording = Recording::start(&sink.name);
     let status = dir.path().join("status.txt");
-    let (_xvfb, app) = app(&bus, &sink, &settings_file, &status);
+    let (_xvfb, app, display) = app(&bus, &sink, &settings_file, &status);
     let log = || app.text();
     let limit = Duration::from_secs(60);
     wait_until("registered", limit, &log, &|| {
@@ -429,6 +454,10 @@ fn an_incoming_sip_call_rings_sounds_notifies_and_is_answered_from_the_notificat
         recording.len() >= rang + 4 * RATE as usize
     });
     assert_eq!(call_word(&status), "ringing", "still ringing");
+    // The banner: across the window, a good 50 pixels high.
+    let shot = screenshot(dir.path(), &display, "ringing.png");
+    let banner = banner_pixels(&shot);
+    assert!(banner > 1280 * 50, "the banner's blue: {banner} pixels");
     let ringing = recording.since(rang);
     let expected = f64::from(RING_LEVEL) * 32768.0;
     for hz in RING_TONES_HZ {
@@ -474,6 +503,12 @@ fn an_incoming_sip_call_rings_sounds_notifies_and_is_answered_from_the_notificat
     }
     assert_eq!(record.lock().unwrap().notified.len(), 1, "one notification");
     assert!(!app.text().contains("panicked"), "{}", app.text());
+    // The banner went with the ringing.
+    let shot = screenshot(dir.path(), &display, "answered.png");
+    assert!(
+        banner_pixels(&shot) < 1280 * 5,
+        "the banner stayed after answering"
+    );
 }
 
 /// The `listening=` address of the status file's first line.
@@ -506,7 +541,7 @@ fn a_direct_caller_is_connected_and_notified_without_a_decline_or_a_ringtone() {
     let sink = NullSink::load("direct");
     let recording = Recording::start(&sink.name);
     let status = dir.path().join("status.txt");
-    let (_xvfb, app) = app(&bus, &sink, &settings_file, &status);
+    let (_xvfb, app, display) = app(&bus, &sink, &settings_file, &status);
     let log = || app.text();
     let limit = Duration::from_secs(60);
     wait_until("listening", limit, &log, &|| listening(&status).is_some());
@@ -543,6 +578,11 @@ fn a_direct_caller_is_connected_and_notified_without_a_decline_or_a_ringtone() {
     wait_until("3 s recorded", limit, &log, &|| {
         recording.len() >= start + 3 * RATE as usize
     });
+    let shot = screenshot(dir.path(), &display, "direct_caller.png");
+    assert!(
+        banner_pixels(&shot) > 1280 * 50,
+        "the banner says who came in"
+    );
     let heard = recording.since(start);
     let steady = |hz: f64| {
         heard

@@ -8,7 +8,7 @@
 //! log line and the rest of the ringing goes on.
 
 use std::collections::HashMap;
-use std::sync::mpsc::{Receiver, Sender, TryRecvError, channel};
+use std::sync::mpsc::{Receiver, Sender, channel};
 use std::thread::JoinHandle;
 use std::time::Duration;
 
@@ -95,10 +95,7 @@ impl RingNotice {
 
     /// The action the user picked since the last look, if any.
     pub fn action(&self) -> Option<NoticeAction> {
-        match self.actions.try_recv() {
-            Ok(a) => Some(a),
-            Err(TryRecvError::Empty | TryRecvError::Disconnected) => None,
-        }
+        self.actions.try_recv().ok()
     }
 }
 
