@@ -643,6 +643,18 @@ mod tests {
     use super::*;
 
     #[test]
+    fn a_caller_is_named_by_a_printable_display_name_else_by_uri() {
+        let uri = || "sip:bob@127.0.0.1".parse::<SipUri>().unwrap();
+        let named = |name: &str| caller_name(&NameAddr::new(name.to_owned(), uri()));
+        assert_eq!(named("Bob Builder"), "Bob Builder");
+        assert_eq!(named("Bob\r\n\u{7}Builder"), "BobBuilder");
+        assert_eq!(named(&"x".repeat(500)).chars().count(), CALLER_NAME_CHARS);
+        let by_uri = named(" \t ");
+        assert!(by_uri.contains("bob@127.0.0.1"), "{by_uri}");
+        assert_eq!(caller_name(&NameAddr::uri(uri())), by_uri);
+    }
+
+    #[test]
     fn a_failure_is_the_last_word_and_a_silent_end_is_one() {
         let taken = std::net::UdpSocket::bind("127.0.0.1:0").unwrap();
         let config = AgentConfig {
