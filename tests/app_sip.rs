@@ -17,7 +17,7 @@ use egui_kittest::kittest::Queryable;
 use lipcall::app::engine::{CallPhase, CallSpec, Command, Engine, Shared, lock};
 use lipcall::app::settings::Settings;
 use lipcall::app::sip_call::PhoneCommand;
-use lipcall::app::{SipForm, sip_ui};
+use lipcall::app::{RingingBanner, SipForm, sip_ui};
 use lipcall::codec::any::Codec;
 use lipcall::net::relay::{Relay, RelayConfig};
 use lipcall::net::sip::agent::Account;
@@ -258,6 +258,7 @@ fn the_app_registers_declines_answers_and_is_busy_in_another_call() {
 
 /// What the phone's row is drawn from, as the app keeps it.
 struct Row {
+    banner: RingingBanner,
     form: SipForm,
     settings: Settings,
     engine: Engine,
@@ -284,17 +285,22 @@ fn the_banner_answers_and_the_keypad_sends_keys_through_the_ui() {
     settings.sip.account = format!("sip:alice@127.0.0.1:{kam_port}");
     settings.sip.password = PASSWORD.into();
     let row = Row {
+        banner: RingingBanner::default(),
         form: SipForm::default(),
         settings,
         engine: engine(),
         call_form: lipcall::app::CallForm::default(),
     };
-    // Tall enough for the settings' account fields under the row.
+    // Tall enough for the banner and the settings' account fields under the row.
     let mut h = Harness::builder()
         .with_size(egui::vec2(800.0, 1200.0))
         .build_ui_state(
             |ui: &mut egui::Ui, row: &mut Row| {
-                let phone = lock(&row.engine.shared).phone.clone();
+                let (call, phone) = {
+                    let s = lock(&row.engine.shared);
+                    (s.call.clone(), s.phone.clone())
+                };
+                row.banner.show(ui, &call, &row.engine);
                 sip_ui(ui, &mut row.form, &phone, &row.engine);
                 if row.form.editing {
                     let parts = lipcall::app::SettingsParts {
@@ -336,7 +342,7 @@ fn the_banner_answers_and_the_keypad_sends_keys_through_the_ui() {
     tell_baresip(control, "dial", &format!("sip:alice@127.0.0.1:{kam_port}"));
     wait(&mut h, "the banner", &|s| s.phone.ringing.is_some());
     h.run();
-    assert!(h.query_by_label_contains("Incoming call from").is_some());
+    assert!(h.query_by_label_contains("is calling").is_some());
     h.get_by_label("Answer").click();
     wait(&mut h, "the caller heard", &|s| heard(s, "bob"));
     wait(&mut h, "the keypad", &|s| s.phone.keypad);

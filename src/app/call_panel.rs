@@ -108,7 +108,10 @@ pub fn call_ui(
             })));
         }
         if ui
-            .add_enabled(call.in_call, egui::Button::new("Leave"))
+            .add_enabled(
+                call.in_call || call.phase.is_active(),
+                egui::Button::new("Leave"),
+            )
             .clicked()
         {
             engine.send(Command::Leave);
@@ -165,10 +168,13 @@ fn status_ui(ui: &mut egui::Ui, call: &engine::CallStatus) {
 
 /// The call's phase, in red when it failed, and the link's own account of it beside.
 fn phase_ui(ui: &mut egui::Ui, call: &engine::CallStatus) {
+    // A ringing call is said once, by the banner above (`ringing.rs`).
+    if matches!(call.phase, CallPhase::Ringing { .. }) {
+        return;
+    }
     let phase = call.phase.describe(std::time::Instant::now());
     let colour = match call.phase {
         CallPhase::Failed { .. } => egui::Color32::LIGHT_RED,
-        CallPhase::Ringing { .. } => egui::Color32::from_rgb(240, 200, 60),
         CallPhase::InCall { .. } => egui::Color32::LIGHT_GREEN,
         _ => ui.visuals().text_color(),
     };

@@ -34,6 +34,22 @@ pub struct CallStatus {
     pub error: Option<String>,
     /// RTP packets of payload types no codec is mapped to, dropped (from anyone).
     pub unknown_payload: u64,
+    /// When a direct caller was heard and so connected, unasked: the window says so for a
+    /// while ([`DIRECT_CALLER_NOTICE`]).
+    pub arrived: Option<Instant>,
+}
+
+/// How long the window and the desktop say that a direct caller has come in.
+pub const DIRECT_CALLER_NOTICE: Duration = Duration::from_secs(20);
+
+impl CallStatus {
+    /// A direct caller came in, unasked, a moment ago.
+    pub fn just_arrived(&self) -> bool {
+        matches!(self.phase, CallPhase::InCall { .. })
+            && self
+                .arrived
+                .is_some_and(|t| t.elapsed() < DIRECT_CALLER_NOTICE)
+    }
 }
 
 /// How long a direct call waits to hear anyone before it has failed.

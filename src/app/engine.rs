@@ -8,6 +8,7 @@ mod lookup;
 mod news;
 mod phase;
 mod place;
+mod ring;
 mod sip;
 
 use std::net::SocketAddr;
@@ -40,6 +41,7 @@ use super::listen::dialable;
 use super::lookup::Lookups;
 use super::mumble_call::{MumbleCall, MumbleJoin, MumbleView};
 use super::retire::Retirer;
+use super::ring_notice::RingNotice;
 use super::roster::Roster;
 use super::settings::DEFAULT_CODEC;
 use super::sip_call::{PhoneCommand, PhoneStatus, SipPhone, is_sip_address};
@@ -127,6 +129,8 @@ pub struct Shared {
     /// The Mumble server we are on: its channels and users.
     pub mumble: Option<MumbleView>,
     pub phone: PhoneStatus,
+    /// Someone asked to see the window (a notification's Answer or Show): the UI takes it.
+    pub show_window: bool,
 }
 
 pub struct Engine {
@@ -164,6 +168,7 @@ impl Engine {
             mic: None,
             mumble: None,
             phone: PhoneStatus::default(),
+            show_window: false,
         }));
         let counters = Arc::new(EngineCounters::default());
         let stop = Arc::new(AtomicBool::new(false));
@@ -256,6 +261,8 @@ struct Worker {
     phone: SipPhone,
     /// The host of a call being placed, being looked up.
     lookups: Lookups<Then>,
+    /// The desktop notification of the call that rings.
+    posted: Option<RingNotice>,
 }
 
 /// What follows a call's host being found ([`Lookups`]).
@@ -300,6 +307,7 @@ impl Worker {
             mumble: None,
             phone: SipPhone::default(),
             lookups: Lookups::default(),
+            posted: None,
             config,
             shared,
             counters,
@@ -366,6 +374,7 @@ impl Worker {
             local_addr: addr,
             error: s.call.error.take(),
             unknown_payload: 0,
+            arrived: None,
             phase: match s.call.phase.clone() {
                 p @ (CallPhase::Failed { .. } | CallPhase::Ended { .. }) => p,
                 _ => CallPhase::Idle,
@@ -540,6 +549,7 @@ impl Worker {
             self.follow_link();
             self.refresh_mumble();
             self.follow_phone();
+            self.follow_ring();
             if let Some(tick) = ticker.poll(Instant::now()) {
                 if let Some(demo) = &mut self.demo {
                     demo.tick();

@@ -17,6 +17,8 @@ pub mod mumble_call;
 pub mod peer;
 pub mod peer_panel;
 mod retire;
+pub mod ring_notice;
+mod ringing;
 pub mod roster;
 pub mod settings;
 mod settings_window;
@@ -43,6 +45,7 @@ pub use call_panel::call_ui;
 pub use channel_panel::channels_ui;
 use engine::{Command, Engine, EngineConfig};
 pub use peer_panel::{ShownPeer, left_notice_ui, peer_controls_ui, peer_list_ui, tiles_ui};
+pub use ringing::RingingBanner;
 use settings::Settings;
 pub use settings_window::{SettingsParts, settings_ui, settings_window};
 pub use sip_panel::{SipForm, sip_ui};
@@ -219,6 +222,7 @@ pub struct LipcallApp {
     options: AppOptions,
     form: CallForm,
     sip_form: SipForm,
+    ringing: ringing::RingingBanner,
     notes: Vec<String>,
     started: Instant,
     last_status: Instant,
@@ -270,6 +274,7 @@ impl LipcallApp {
             options,
             form,
             sip_form,
+            ringing: ringing::RingingBanner::default(),
             notes,
             started: Instant::now(),
             last_status: Instant::now(),
@@ -437,6 +442,7 @@ impl eframe::App for LipcallApp {
         // Panels are the window's clear colour (see `clear_color`) rather than filled rectangles:
         // on a software adapter every pixel egui fills costs.
         let side = egui::Frame::side_top_panel(ui.style()).fill(egui::Color32::TRANSPARENT);
+        self.ringing.show(ui, &call, &self.engine);
         egui::Panel::top("call").frame(side).show(ui, |ui| {
             call_ui(ui, &mut self.form, &mut self.settings, &call, &self.engine);
             sip_ui(ui, &mut self.sip_form, &phone, &self.engine);

@@ -1,7 +1,7 @@
 //! The phone's row under the call bar: the SIP account (URI, registrar, local port, password;
 //! the call bar's STUN server serves the phone too) and how its
-//! registration stands, the banner of a call that rings (Answer, Decline), and the DTMF keypad
-//! while a SIP call takes keys. Calls are dialled in the call bar's address field (a `sip:`
+//! registration stands, and the DTMF keypad while a SIP call takes keys (a call that rings has
+//! the window's banner, `ringing.rs`). Calls are dialled in the call bar's address field (a `sip:`
 //! URI or a number).
 
 use eframe::egui;
@@ -71,20 +71,6 @@ pub fn sip_ui(ui: &mut egui::Ui, form: &mut SipForm, phone: &PhoneStatus, engine
             ui.weak(note);
         }
     });
-    if let Some(caller) = &phone.ringing {
-        ui.horizontal_wrapped(|ui| {
-            ui.colored_label(
-                egui::Color32::from_rgb(120, 200, 255),
-                format!("Incoming call from {caller}"),
-            );
-            if ui.button("Answer").clicked() {
-                engine.send(Command::Phone(PhoneCommand::Answer));
-            }
-            if ui.button("Decline").clicked() {
-                engine.send(Command::Phone(PhoneCommand::Decline));
-            }
-        });
-    }
     if phone.keypad {
         keypad_ui(ui, phone, engine);
     }

@@ -19,6 +19,7 @@ use rubato::{Fft, FixedSync, Resampler};
 use super::clock::{PeerClock, Segment};
 use super::error::AudioError;
 use super::resample::{FrameResampler, fft_resampler};
+use super::ringtone::{RingSwitch, Ringtone};
 use crate::vocab::{FRAME_SIZE, FrameAudio, MAX_FRAME_SAMPLES, SAMPLE_RATE, energy_db};
 
 /// Samples of an 8 kHz mix produced per step (one Speex frame, 20 ms).
@@ -376,6 +377,9 @@ pub struct Mixer {
     position: u64,
     progress: MixProgress,
     rate: u32,
+    /// Added to the mix while its switch is on (a call rings).
+    ringtone: Ringtone,
+    ring: RingSwitch,
 }
 
 impl Default for Mixer {
@@ -398,12 +402,20 @@ impl Mixer {
         } else {
             DEFAULT_MIX_RATE
         };
+        let ring = RingSwitch::default();
         Self {
             peers: Vec::with_capacity(MAX_PEERS),
             position: 0,
             progress: MixProgress::new(frame_len(rate)),
             rate,
+            ringtone: Ringtone::new(rate, ring.clone()),
+            ring,
         }
+    }
+
+    /// Turns its ringtone on and off from another thread.
+    pub fn ring_switch(&self) -> RingSwitch {
+        self.ring.clone()
     }
 
     pub fn rate(&self) -> u32 {
@@ -495,6 +507,7 @@ impl Mixer {
             }
             p.stream_pos += n as u64;
         }
+        self.ringtone.add_to(out);
         for o in out.iter_mut() {
             *o = o.clamp(-1.0, 1.0);
         }

@@ -48,6 +48,7 @@ pub mod mixer;
 pub mod pacer;
 pub mod playback;
 mod resample;
+pub mod ringtone;
 pub mod wav;
 
 pub use capture::{Capture, FrameReader, Gate, InputFeeder, Level, MicControls};

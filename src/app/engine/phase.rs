@@ -9,13 +9,16 @@ use crate::net::session::PeerInfo;
 
 impl Worker {
     pub(super) fn set_phase(&self, phase: CallPhase) {
-        lock(&self.shared).call.phase = phase;
+        let mut s = lock(&self.shared);
+        s.call.phase = phase;
+        s.call.arrived = None;
     }
 
     /// A new call is being placed: the last call's messages go with its phase.
     pub(super) fn start_calling(&self, to: &str) {
         let mut s = lock(&self.shared);
         s.call.error = None;
+        s.call.arrived = None;
         s.call.phase = CallPhase::Calling {
             to: to.trim().to_owned(),
             deadline: None,
@@ -97,6 +100,7 @@ impl Worker {
             {
                 let mut s = lock(&self.shared);
                 s.call.error = None;
+                s.call.arrived = Some(now);
                 s.call.phase = CallPhase::InCall {
                     with: peer_name(peer),
                     since: now,

@@ -77,6 +77,7 @@ impl Worker {
             local_addr,
             error: None,
             unknown_payload: 0,
+            arrived: None,
         };
         Ok(())
     }
@@ -114,6 +115,7 @@ impl Worker {
             local_addr: None,
             error: None,
             unknown_payload: 0,
+            arrived: None,
             phase: s.call.phase.clone(),
         };
         Ok(())

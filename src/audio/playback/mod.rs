@@ -25,6 +25,7 @@ use super::error::AudioError;
 use super::mixer::{
     DEFAULT_MIX_RATE, MAX_PEERS, MixProgress, Mixer, PeerControls, PeerFeed, PeerId, mix_rate_for,
 };
+use super::ringtone::RingSwitch;
 use mix_thread::{Command, mixer_thread};
 pub use sink::OutputStatus;
 use sink::{RingTarget, Sink, device_sink, virtual_sink};
@@ -92,6 +93,7 @@ pub struct Playback {
     mixed: MixProgress,
     /// The mixer's rate, fixed for the engine's life: the first output's (48 kHz without one).
     mix_rate: u32,
+    ringtone: RingSwitch,
 }
 
 /// A device that has played nothing for this long while reporting errors is taken as gone:
@@ -142,6 +144,7 @@ impl Playback {
         let mix = Mixer::at_rate(mix_rate_for(sink.clock().rate()));
         let mix_rate = mix.rate();
         let mixed = mix.progress();
+        let ringtone = mix.ring_switch();
         let mixer = std::thread::Builder::new()
             .name("lipcall-mixer".into())
             .spawn(move || mixer_thread(mix, rx, &detached2))
@@ -164,7 +167,18 @@ impl Playback {
             detached,
             mixed,
             mix_rate,
+            ringtone,
         })
+    }
+
+    /// Plays the ringtone ([`super::ringtone`]) over the peers while `ringing`; it stops within
+    /// the output's buffer of being switched off.
+    pub fn set_ringing(&self, ringing: bool) {
+        self.ringtone.set(ringing);
+    }
+
+    pub fn is_ringing(&self) -> bool {
+        self.ringtone.is_on()
     }
 
     /// The mixer's rate: what [`PeerFeed`]s queue and stream positions count in.

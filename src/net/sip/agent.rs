@@ -52,6 +52,26 @@ pub enum Role {
     Ask,
 }
 
+/// Longest display name shown of a caller; the rest is cut.
+const CALLER_NAME_CHARS: usize = 64;
+
+/// Who calls, as the user knows them: From's display name where it has one (printable
+/// characters only, at most [`CALLER_NAME_CHARS`]), else its URI.
+fn caller_name(from: &NameAddr) -> String {
+    let name: String = from
+        .name
+        .as_deref()
+        .unwrap_or_default()
+        .chars()
+        .filter(|c| !c.is_control())
+        .take(CALLER_NAME_CHARS)
+        .collect();
+    match name.trim() {
+        "" => format!("{:?}", from.uri),
+        name => name.to_owned(),
+    }
+}
+
 /// What to do with a ringing call ([`Role::Ask`]).
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 pub enum Decision {
@@ -489,7 +509,7 @@ async fn answer(
     media.signalling_peer = Some(invite.tp_info.source.ip());
     send(
         events,
-        AgentEvent::Incoming(caller(&invite.base_headers.from.uri)),
+        AgentEvent::Incoming(caller_name(&invite.base_headers.from.uri)),
     );
     // An offer we cannot take is refused as RFC 3264 says (488), before ezk would answer it.
     if !invite.body.is_empty() {
@@ -618,29 +638,22 @@ pub fn codecs(chosen: Option<Codec>) -> Vec<Codec> {
     }
 }
 
-/// The caller as people read it: `"Bob" <sip:bob@host>` where its From names it (the name's
-/// control characters dropped, at most [`CALLER_NAME_CHARS`] kept), else the bare URI.
-fn caller(from: &NameAddr) -> String {
-    let name: String = from
-        .name
-        .as_deref()
-        .unwrap_or("")
-        .chars()
-        .filter(|c| !c.is_control() && *c != '"' && *c != '<')
-        .take(CALLER_NAME_CHARS)
-        .collect();
-    match name.trim() {
-        "" => format!("{:?}", from.uri),
-        name => format!("\"{name}\" <{:?}>", from.uri),
-    }
-}
-
-/// The longest caller's name kept.
-const CALLER_NAME_CHARS: usize = 64;
 
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn a_caller_is_named_by_a_printable_display_name_else_by_uri() {
+        let uri = || "sip:bob@127.0.0.1".parse::<SipUri>().unwrap();
+        let named = |name: &str| caller_name(&NameAddr::new(name.to_owned(), uri()));
+        assert_eq!(named("Bob Builder"), "Bob Builder");
+        assert_eq!(named("Bob\r\n\u{7}Builder"), "BobBuilder");
+        assert_eq!(named(&"x".repeat(500)).chars().count(), CALLER_NAME_CHARS);
+        let by_uri = named(" \t ");
+        assert!(by_uri.contains("bob@127.0.0.1"), "{by_uri}");
+        assert_eq!(caller_name(&NameAddr::uri(uri())), by_uri);
+    }
 
     #[test]
     fn a_failure_is_the_last_word_and_a_silent_end_is_one() {
