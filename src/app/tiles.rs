@@ -15,9 +15,7 @@ use std::time::Instant;
 use eframe::egui;
 use eframe::egui_wgpu;
 
-use crate::lipsync::viseme_controls::controls_of_visemes;
 use crate::render::blit::{Blit, BlitImage};
-use crate::render::drive::HeadDrive;
 use crate::render::lod::DetailLevels;
 use crate::render::target::{HeadTarget, TARGET_FORMAT, is_software, sample_count_for};
 use crate::render::{Camera, Framing, GpuHead, HeadInstance, HeadRenderer};
@@ -68,8 +66,6 @@ pub struct HeadTiles {
     samples: u32,
     tiles: HashMap<u64, Tile>,
     counters: Arc<RenderCounters>,
-    /// The head's drive: a tile's weights reach the head through their controls.
-    drive: Option<HeadDrive>,
 }
 
 /// egui's paint callback for one tile: the blit of its image into `rect`.
@@ -137,7 +133,6 @@ impl HeadTiles {
         }
         let model = crate::render::default_head()?;
         let levels = DetailLevels::build(&model);
-        let drive = HeadDrive::new(&model);
         let head = renderer.upload_with_levels(
             &state.device,
             &state.queue,
@@ -153,15 +148,11 @@ impl HeadTiles {
             samples,
             tiles: HashMap::new(),
             counters,
-            drive,
         })
     }
 
     /// Shows `tile` in `rect`, rendering it first if its face or size changed.
-    pub fn show(&mut self, ui: &mut egui::Ui, rect: egui::Rect, mut tile: HeadTile) {
-        if let Some(drive) = &self.drive {
-            tile.weights = drive.weights(&controls_of_visemes(&tile.weights));
-        }
+    pub fn show(&mut self, ui: &mut egui::Ui, rect: egui::Rect, tile: HeadTile) {
         let ppp = ui.ctx().pixels_per_point();
         let max = self.state.device.limits().max_texture_dimension_2d;
         let px = |points: f32| ((points * ppp).round() as u32).clamp(1, max);
@@ -194,7 +185,6 @@ impl HeadTiles {
             samples,
             tiles,
             counters,
-            drive: _,
         } = self;
         let entry = tiles.entry(tile.id).or_insert_with(|| {
             let target = HeadTarget::new(&state.device, size.0, size.1, *samples, "head tile");

@@ -65,20 +65,22 @@ pub struct AnimateArgs {
     /// give the same frames).
     #[arg(long, value_name = "N", default_value_t = crate::lipsync::life::DEFAULT_SEED)]
     pub seed: u64,
-    /// How the frames' head is driven: `controls` (the frame's articulatory controls fitted to
-    /// the head's own measured shapes, `render::drive`) or `visemes` (the weights as they are).
-    #[arg(long = "drive", value_enum, default_value_t = Drive::Controls)]
+    /// How the frames' head is driven: `visemes` (the weights as they are) or `controls` (the
+    /// frame's articulatory controls fitted to the head's own measured shapes, `render::drive`;
+    /// with today's network its controls come from its weights, and that reads worse through the
+    /// face: docs/rendering.md).
+    #[arg(long = "drive", value_enum, default_value_t = Drive::Visemes)]
     pub drive: Drive,
 }
 
 /// How a rendered head is driven by a frame's mouth.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Default, clap::ValueEnum)]
 pub enum Drive {
-    /// Through the frame's controls and the head's [`render::drive::HeadDrive`].
-    #[default]
-    Controls,
     /// The frame's viseme weights straight onto the head's visemes.
+    #[default]
     Visemes,
+    /// Through the frame's controls and the head's [`render::drive::HeadDrive`].
+    Controls,
 }
 
 /// Viseme weights for every 20 ms frame of a stream, with the audio they belong to.
