@@ -53,6 +53,7 @@ fn evaluate_scores_the_weights_animate_writes() {
         closure_bias: 0.0,
         life: false,
         seed: 0,
+        drive: Default::default(),
     };
     let animated = weight_track(&args).unwrap();
     let (_, _, features) = receiver_features(&args.input).unwrap();

@@ -977,6 +977,7 @@ fn animate_frames(
         closure_bias: 0.0,
         life,
         seed: lipcall::lipsync::life::DEFAULT_SEED,
+        drive: Default::default(),
     })
     .expect("animate --frames");
     let mut frames = Vec::new();

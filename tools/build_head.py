@@ -28,7 +28,8 @@ What the script makes of them:
 - the 15 viseme targets `viseme_sil` .. `viseme_U`: each a mix of ARKit shapes and lipcall's
   own jaw, lip and tongue shapes (the table `VISEMES` below; `sil` is the neutral face), and
   the ARKit eye shapes `eyeBlinkLeft/Right` and `eyeLook{Up,Down,In,Out}{Left,Right}` under
-  their ARKit names. The teeth and eyeballs follow each ARKit shape rigidly (a rotation fitted
+  their ARKit names, and beside them the ARKit mouth shapes `MOUTH_TARGETS` (jaw, closure,
+  funnel, pucker, stretch, rolls, lips off the teeth) that lip-sync v4's controls drive. The teeth and eyeballs follow each ARKit shape rigidly (a rotation fitted
   to the helper geometry); the eyeLook shapes turn the eyeballs by `EYE_LOOK_DEG`.
 - `--arkit-only OUT.glb` writes the same head with the 52 ARKit shapes and no viseme targets,
   to test and tune the ARKit recipe in `src/render/arkit.rs` (keep it out of the repository).
@@ -102,6 +103,15 @@ ARKIT_NAMES = [
 ]
 
 # The eye shapes the default head carries besides the visemes (ARKit names).
+# The ARKit mouth shapes written beside the visemes, under their ARKit names: the articulatory
+# controls of lip-sync v4 (`src/lipsync/controls.rs`) drive a head through these (jaw, closure,
+# rounding, spread, lips rolled in, lips off the teeth), shapes that spread, round and protrude
+# without opening, which no mix of the visemes gives.
+MOUTH_TARGETS = [
+    "jawOpen", "mouthClose", "mouthFunnel", "mouthPucker", "mouthStretchLeft", "mouthStretchRight",
+    "mouthRollLower", "mouthRollUpper", "mouthLowerDownLeft", "mouthLowerDownRight",
+    "mouthUpperUpLeft", "mouthUpperUpRight",
+]
 EYE_TARGETS = [
     "eyeBlinkLeft", "eyeBlinkRight", "eyeLookUpLeft", "eyeLookUpRight", "eyeLookDownLeft",
     "eyeLookDownRight", "eyeLookInLeft", "eyeLookInRight", "eyeLookOutLeft", "eyeLookOutRight",
@@ -970,6 +980,11 @@ class Shapes:
             d += w * self.component(part, component)
         return d * smoothstep(MOUTH_REGION_TOP, MOUTH_REGION_TOP - 0.01, part.pos[:, 1])[:, None]
 
+    def mouth(self, part, name):
+        """An ARKit mouth shape, kept to the lower face as the visemes are."""
+        return self.arkit(part, name) * smoothstep(MOUTH_REGION_TOP, MOUTH_REGION_TOP - 0.01,
+                                                   part.pos[:, 1])[:, None]
+
     def eye(self, part, name):
         """An ARKit eye shape, kept to the eyes and brows (the Face Units blinks also stir the
         cheeks a little)."""
@@ -1130,6 +1145,10 @@ def main():
             lst = [(n, shapes.arkit(part, n)) for n in ARKIT_NAMES]
         else:
             lst = [(f"viseme_{n}", shapes.viseme(part, n)) for n in VISEME_NAMES]
+            # Only on parts the visemes move: a part with ARKit shapes and no viseme of its own
+            # would take its visemes from the loader's ARKit recipe instead.
+            if any(np.abs(d).max() > 1e-7 for _, d in lst):
+                lst += [(n, shapes.mouth(part, n)) for n in MOUTH_TARGETS]
             lst += [(n, shapes.eye(part, n)) for n in EYE_TARGETS]
         # The skin lists every viseme (sil too, all zeros); other parts only what moves them.
         targets[part.name] = [(n, d) for n, d in lst

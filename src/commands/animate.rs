@@ -11,12 +11,14 @@ use crate::call::csv;
 use crate::call::media::MediaFile;
 use crate::call::pipeline::{PeerPipeline, Track, stream_track};
 use crate::lipsync::LipSyncOptions;
+use crate::lipsync::viseme_controls::controls_of_visemes;
 use crate::render::head::Expression;
 use crate::render::{self, FrameOptions, Framing, HeadModel};
 use crate::vocab::FRAME_SIZE;
 use crate::vocab::FacePose;
 use crate::vocab::FrameFeatures;
 use crate::vocab::VisemeSet;
+use crate::vocab::{VISEME_NAMES, VisemeWeights};
 
 /// `lipcall animate`'s flags. `baseline_jaw` replaces the network by the jaw baseline;
 /// `closure_bias` is [`crate::lipsync::ModelAnimator::with_closure_bias`]'s; `life` off keeps
@@ -63,6 +65,22 @@ pub struct AnimateArgs {
     /// give the same frames).
     #[arg(long, value_name = "N", default_value_t = crate::lipsync::life::DEFAULT_SEED)]
     pub seed: u64,
+    /// How the frames' head is driven: `visemes` (the weights as they are) or `controls` (the
+    /// frame's articulatory controls fitted to the head's own measured shapes, `render::drive`;
+    /// with today's network its controls come from its weights, and that reads worse through the
+    /// face: docs/rendering.md).
+    #[arg(long = "drive", value_enum, default_value_t = Drive::Visemes)]
+    pub drive: Drive,
+}
+
+/// How a rendered head is driven by a frame's mouth.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default, clap::ValueEnum)]
+pub enum Drive {
+    /// The frame's viseme weights straight onto the head's visemes.
+    #[default]
+    Visemes,
+    /// Through the frame's controls and the head's [`render::drive::HeadDrive`].
+    Controls,
 }
 
 /// Viseme weights for every 20 ms frame of a stream, with the audio they belong to.
@@ -162,13 +180,30 @@ fn render_frames(
             missing.join(", ")
         );
     }
-    let names: Vec<&str> = track.visemes.members().iter().map(|v| v.name()).collect();
-    let rows: Vec<(f64, Vec<f32>)> = track
+    let mut names: Vec<&str> = track.visemes.members().iter().map(|v| v.name()).collect();
+    let mut rows: Vec<(f64, Vec<f32>)> = track
         .rows
         .iter()
         .enumerate()
         .map(|(n, w)| ((n * FRAME_SIZE) as f64 / f64::from(track.rate), w.clone()))
         .collect();
+    let drive = match args.drive {
+        Drive::Controls => render::drive::HeadDrive::new(head).or_else(|| {
+            eprintln!(
+                "note: the head's mouth cannot be measured (no I and U shapes to find its \
+                 corners): its visemes are driven by the weights as they are"
+            );
+            None
+        }),
+        Drive::Visemes => None,
+    };
+    if let Some(drive) = drive {
+        for (_, row) in &mut rows {
+            let weights = VisemeWeights(track.visemes.to_full(row));
+            *row = drive.weights(&controls_of_visemes(&weights)).0.to_vec();
+        }
+        names = VISEME_NAMES.to_vec();
+    }
     let mut weights = render::offscreen::WeightTrack::from_columns(&names, &rows)?;
     if !track.poses.is_empty() {
         weights.set_poses(track.poses.clone())?;

@@ -10,6 +10,7 @@
 pub mod arkit;
 pub mod blit;
 pub mod camera;
+pub mod drive;
 mod error;
 pub mod facing;
 pub mod gltf_load;
