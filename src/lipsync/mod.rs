@@ -16,6 +16,7 @@ pub mod phones;
 pub mod receiver;
 pub mod recipe;
 pub mod reproject;
+pub mod viseme_controls;
 
 pub use animator::{Animator, ModelAnimator, parse_closure_bias};
 pub use builtin::default_model;
