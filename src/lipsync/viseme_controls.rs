@@ -38,9 +38,9 @@ const S1_LIPS: [(f32, f32); VISEME_COUNT] = [
 pub const FULL_JAW_APERTURE: f32 = 0.14;
 
 /// How far each control typically moves in speech (the spread of the phone-derived targets over
-/// TIMIT's training speakers, rounded): the unit each control's error is measured in, in the
-/// decomposition as in training.
-pub const CONTROL_SPREAD: [f32; CONTROL_COUNT] = [0.035, 0.009, 0.25, 0.25, 0.3, 0.2];
+/// TIMIT's six standard training speakers, rounded): the unit each control's error is measured
+/// in, in the decomposition as in training.
+pub const CONTROL_SPREAD: [f32; CONTROL_COUNT] = [0.028, 0.008, 0.2, 0.23, 0.24, 0.14];
 
 /// The jaw activation a lip aperture shows (0 at rest or closed, 1 at [`FULL_JAW_APERTURE`]).
 pub fn jaw_from_aperture(aperture: f32) -> f32 {

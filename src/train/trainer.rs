@@ -820,7 +820,7 @@ mod tests {
         // A video clip: lips known (aperture, width, jaw), the activations not (no phones).
         let features = validation[0].features.clone();
         let lips: Vec<Option<[f32; 2]>> = (0..features.len())
-            .map(|n| (n % 9 != 0).then(|| [0.02 + 0.01 * (n % 7) as f32, 0.6]))
+            .map(|n| (n % 9 != 0).then_some([0.02 + 0.01 * (n % 7) as f32, 0.6]))
             .collect();
         let video = ControlVideo {
             clips: std::sync::Arc::new(vec![ControlClip {
