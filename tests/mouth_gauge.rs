@@ -282,7 +282,7 @@ fn the_rendered_calibrated_avatar_opens_as_far_as_measured() {
 #[test]
 fn every_head_shows_the_controls_it_is_driven_by() {
     use lipcall::lipsync::controls::Controls;
-    use lipcall::lipsync::viseme_controls::viseme_controls;
+    use lipcall::lipsync::viseme_controls;
     use lipcall::render::drive::HeadDrive;
     let heads = [
         ("bundled head", default_head()),
@@ -306,7 +306,7 @@ fn every_head_shows_the_controls_it_is_driven_by() {
         // Every viseme's controls as s1 shows them.
         let mut worst = (0.0f32, 0.0f32);
         for v in Viseme::ALL {
-            let c = viseme_controls(v);
+            let c = viseme_controls::of(v);
             let (gap, width) = shown(&c);
             println!(
                 "{name}: {:3} asked {:+.3} {:+.3}, shown {gap:+.3} {width:+.3}",

@@ -5,6 +5,7 @@
 //! belong to. The app, `receive`, `animate` and evaluation all run this one pipeline: real-time
 //! callers push frames as they are decoded, offline ones hand a whole stream to [`run_stream`].
 
+use crate::lipsync::controls::Controls;
 use crate::lipsync::life::{DEFAULT_SEED, LifeGenerator};
 use crate::lipsync::network::{MAX_LOOKAHEAD, Model};
 use crate::lipsync::reproject::ReprojectError;
@@ -20,6 +21,9 @@ const POSE_RING: usize = MAX_LOOKAHEAD + 4;
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct FaceRow {
     pub weights: FullWeights,
+    /// The same frame's articulatory controls ([`LipSync::controls`]), for heads driven by
+    /// controls rather than visemes.
+    pub controls: Controls,
     pub pose: FacePose,
 }
 
@@ -28,6 +32,7 @@ pub struct FaceRow {
 pub struct Animated<'a> {
     pub tag: u64,
     pub weights: &'a [f32],
+    pub controls: Controls,
     pub pose: FacePose,
 }
 
@@ -157,10 +162,11 @@ impl<'m, A: Animator + ?Sized> PeerPipeline<'m, A> {
         pcm: &[i16],
     ) -> Option<Animated<'_>> {
         self.life.step(tag, features, pcm);
-        let (tag, weights) = self.lipsync.push(tag, features)?;
+        let (tag, weights, controls) = self.lipsync.push_with_controls(tag, features)?;
         Some(Animated {
             tag,
             weights,
+            controls,
             pose: self.life.pose(tag),
         })
     }
@@ -168,10 +174,11 @@ impl<'m, A: Animator + ?Sized> PeerPipeline<'m, A> {
     /// The oldest frame still waiting for its look-ahead, now: the next frame did not come in
     /// time (loss, the end of a talk spurt, the jitter buffer at its floor, the stream's end).
     pub fn flush(&mut self) -> Option<Animated<'_>> {
-        let (tag, weights) = self.lipsync.flush()?;
+        let (tag, weights, controls) = self.lipsync.flush_with_controls()?;
         Some(Animated {
             tag,
             weights,
+            controls,
             pose: self.life.pose(tag),
         })
     }
@@ -197,6 +204,7 @@ impl<'m, A: Animator + ?Sized> PeerPipeline<'m, A> {
     fn face(&self, tag: u64, weights: FullWeights) -> FaceRow {
         FaceRow {
             weights,
+            controls: self.lipsync.controls(),
             pose: self.life.pose(tag),
         }
     }

@@ -11,14 +11,14 @@ use crate::call::csv;
 use crate::call::media::MediaFile;
 use crate::call::pipeline::{PeerPipeline, Track, stream_track};
 use crate::lipsync::LipSyncOptions;
-use crate::lipsync::viseme_controls::controls_of_visemes;
+use crate::lipsync::viseme_controls::from_full;
 use crate::render::head::Expression;
 use crate::render::{self, FrameOptions, Framing, HeadModel};
 use crate::vocab::FRAME_SIZE;
 use crate::vocab::FacePose;
 use crate::vocab::FrameFeatures;
 use crate::vocab::VisemeSet;
-use crate::vocab::{VISEME_NAMES, VisemeWeights};
+use crate::vocab::VISEME_NAMES;
 
 /// `lipcall animate`'s flags. `baseline_jaw` replaces the network by the jaw baseline;
 /// `closure_bias` is [`crate::lipsync::ModelAnimator::with_closure_bias`]'s; `life` off keeps
@@ -199,8 +199,7 @@ fn render_frames(
     };
     if let Some(drive) = drive {
         for (_, row) in &mut rows {
-            let weights = VisemeWeights(track.visemes.to_full(row));
-            *row = drive.weights(&controls_of_visemes(&weights)).0.to_vec();
+            *row = drive.weights(&from_full(&track.visemes.to_full(row))).0.to_vec();
         }
         names = VISEME_NAMES.to_vec();
     }

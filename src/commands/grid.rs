@@ -17,6 +17,7 @@ use crate::lipsync::{Animator, ModelAnimator, recipe};
 use crate::train::codec_features::{
     CodecFeatures, CodecPath, EVALUATION_QUALITY, augmentation_settings, quality,
 };
+use crate::train::control_targets::{ControlVideo, control_clips};
 use crate::train::grid::{self, AUDIO_FRAME_S, LipClip};
 use crate::train::grid_shapes::{self, ContourClip, KeyRule};
 use crate::train::lag::{self, ClipSeries};
@@ -147,6 +148,10 @@ pub struct LipTrainArgs {
     /// not what the voice says).
     #[arg(long)]
     pub lip_centre: bool,
+    /// s1's phone alignments (NAME.phn): with `train --controls`, the rounding, closure and
+    /// lower-lip targets of his video frames, and the rest his lips are measured from.
+    #[arg(long, value_name = "DIR", default_value = "tools/alignments/grid-s1")]
+    pub lip_alignments: PathBuf,
 }
 
 /// `evaluate`'s options for measured lips.
@@ -247,6 +252,42 @@ pub fn video_training(
         cue_weights: [recipe::LIP_CUE_WEIGHT; 2],
     };
     Ok((Some(training(prepared)), validation.map(training)))
+}
+
+/// A control network's video half (`train --controls --grid DIR`): s1's training clips through
+/// the codec paths, their lips as measured (each clip above its own rest), his phones for the
+/// other controls; `None` without `--grid`.
+pub fn control_video(args: &LipTrainArgs, codec: &CodecFeatures) -> Result<Option<ControlVideo>> {
+    let Some(root) = &args.grid else {
+        return Ok(None);
+    };
+    if !(args.lip_weight.is_finite() && args.lip_weight >= 0.0) {
+        bail!("--lip-weight must be a finite number of 0 or more");
+    }
+    if !args.lip_shift_ms.is_multiple_of(20) || args.lip_shift_ms > 100 {
+        bail!("--lip-shift-ms must be a multiple of 20 ms up to 100");
+    }
+    let clips = s1_training_clips(root, args.lip_clips)?;
+    let shift = -((args.lip_shift_ms / 20) as i32);
+    let prepared = prepare_clips(
+        codec,
+        &clips,
+        &augmentation_settings(),
+        args.lip_versions,
+        shift,
+    )?;
+    let clips = control_clips(&prepared, Some(&args.lip_alignments))?;
+    let frames = clips.iter().flat_map(|c| &c.targets).flatten().count();
+    eprintln!(
+        "measured lips as control targets: {} clip versions of s1's training clips, {frames} \
+         tracked frames, weight {}",
+        clips.len(),
+        args.lip_weight
+    );
+    Ok(Some(ControlVideo {
+        clips: Arc::new(clips),
+        frame_weight: args.lip_weight,
+    }))
 }
 
 /// Prints aperture and width r of `model` (and of the jaw baseline) against the measured lips

@@ -117,9 +117,13 @@ pub struct TrainArgs {
     /// Learning curves as a PNG plot.
     #[arg(long, value_name = "PNG")]
     pub plot: Option<PathBuf>,
-    /// Accept a network over the 400 multiply-add budget.
+    /// Accept a network over the multiply-add budget (400; 2,000 with --controls).
     #[arg(long)]
     pub allow_over_budget: bool,
+    /// The network outputs the articulatory controls (lip-sync v4, model file version 4),
+    /// decomposed onto --visemes in the receiver; with --grid, s1's lips are control targets.
+    #[arg(long)]
+    pub controls: bool,
     /// Hold out each dialect region of the non-test speakers in turn, report the pooled
     /// held-out scores, then train the model on all of them for the folds' median best epoch.
     #[arg(long)]
@@ -272,8 +276,19 @@ fn train_config(args: &TrainArgs, split: &SpeakerSplit, snap: Option<f32>) -> Re
         show_progress: !args.quiet,
         allow_over_budget: args.allow_over_budget,
         nested_fold_epochs: args.nested_epochs,
+        controls: args.controls,
         ..TrainConfig::default()
     })
+}
+
+/// The video half of training: measured lips through the viseme shapes, or as control targets.
+fn set_video(config: &mut TrainConfig, args: &TrainArgs, codec: &CodecFeatures) -> Result<()> {
+    if args.controls {
+        config.control_video = super::grid::control_video(&args.lips, codec)?;
+    } else {
+        (config.video, config.lip_validation) = super::grid::video_training(&args.lips, codec)?;
+    }
+    Ok(())
 }
 
 pub fn train(args: &TrainArgs) -> Result<()> {
@@ -285,8 +300,7 @@ pub fn train(args: &TrainArgs) -> Result<()> {
     let corpus = Corpus::open(&args.corpus)?;
     let split = SpeakerSplit::standard(&corpus)?;
     let mut config = train_config(args, &split, snap)?;
-    (config.video, config.lip_validation) =
-        super::grid::video_training(&args.lips, &CodecFeatures::new())?;
+    set_video(&mut config, args, &CodecFeatures::new())?;
     eprintln!(
         "Training the viseme network ({}) on the Speex-decoded features of {} \
          (training speakers {}; validation speakers {} steer early stopping; the test speakers {} \
@@ -376,7 +390,7 @@ fn train_cross_validated(args: &TrainArgs) -> Result<()> {
     );
     let codec = CodecFeatures::new();
     let mut config = config;
-    (config.video, config.lip_validation) = super::grid::video_training(&args.lips, &codec)?;
+    set_video(&mut config, args, &codec)?;
     let (mut groups, region_utts) =
         plan::region_groups(&corpus, &regions, &codec, args.versions, &config)?;
     if let Some(aligned) = an4 {

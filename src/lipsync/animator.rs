@@ -1,7 +1,11 @@
 //! What turns a stream of decoded frames into convex viseme weights: the [`Animator`] trait and
 //! the trained network behind it, with its closure snap per feature family.
 
+use std::sync::Arc;
+
+use super::controls::{CONTROL_COUNT, Controls};
 use super::network::{InferenceState, Model};
+use super::viseme_controls::ControlDecomposer;
 use crate::vocab::FeatureFamily;
 use crate::vocab::FrameFeatures;
 use crate::vocab::VisemeSet;
@@ -24,6 +28,11 @@ pub trait Animator {
     fn peek(&mut self, extra: usize, weights: &mut [f32]) {
         let _ = (extra, weights);
     }
+    /// The articulatory controls behind the weights last written (by `animate` or `peek`),
+    /// where the animator has them (a network with control outputs).
+    fn controls(&self) -> Option<Controls> {
+        None
+    }
 }
 
 /// A trained model with its per-stream state.
@@ -36,6 +45,11 @@ pub struct ModelAnimator<'a> {
     last: FrameFeatures,
     /// The closure snap per [`FeatureFamily`] of the newest row.
     closure_snaps: [f32; 3],
+    /// A network with control outputs: the decomposition onto its viseme set, the controls
+    /// last shown and the weights last written (the next frame's warm start).
+    decomposer: Option<Arc<ControlDecomposer>>,
+    controls: [f32; CONTROL_COUNT],
+    previous: Vec<f32>,
 }
 
 const FAMILIES: [FeatureFamily; 3] = [
@@ -64,12 +78,37 @@ impl<'a> ModelAnimator<'a> {
 
     fn with_snaps(model: &'a Model, closure_snaps: [f32; 3]) -> Self {
         let state = model.new_state();
+        let decomposer = model
+            .has_control_outputs()
+            .then(|| ControlDecomposer::new(&model.visemes).ok().map(Arc::new))
+            .flatten();
+        let mut previous = vec![0.0; model.visemes.len()];
+        if let Some(first) = previous.first_mut() {
+            *first = 1.0;
+        }
         Self {
             model,
             scratch: state.clone(),
             state,
             last: FrameFeatures::silent(),
             closure_snaps,
+            decomposer,
+            controls: [0.0; CONTROL_COUNT],
+            previous,
+        }
+    }
+
+    /// Convex weights over the model's set from the controls just computed, warm-started from
+    /// the last frame's (kept for the next when `keep`).
+    fn decompose(&mut self, weights: &mut [f32], keep: bool) {
+        let Some(decomposer) = &self.decomposer else {
+            weights.copy_from_slice(&self.previous);
+            return;
+        };
+        weights.copy_from_slice(&self.previous);
+        decomposer.fit(&Controls::from_array(self.controls), weights);
+        if keep {
+            self.previous.copy_from_slice(weights);
         }
     }
 
@@ -103,13 +142,30 @@ impl Animator for ModelAnimator<'_> {
     fn reset(&mut self) {
         self.model.reset(&mut self.state);
         self.last = FrameFeatures::silent();
+        self.controls = [0.0; CONTROL_COUNT];
+        self.previous.fill(0.0);
+        if let Some(first) = self.previous.first_mut() {
+            *first = 1.0;
+        }
     }
 
     fn animate(&mut self, features: &FrameFeatures, weights: &mut [f32]) {
         self.last = *features;
+        if self.model.has_control_outputs() {
+            self.model
+                .step_with_snap(&mut self.state, features, &mut self.controls, 0.0);
+            self.decompose(weights, true);
+            return;
+        }
         let snap = self.closure_snap(features.family);
         self.model
             .step_with_snap(&mut self.state, features, weights, snap);
+    }
+
+    fn controls(&self) -> Option<Controls> {
+        self.model
+            .has_control_outputs()
+            .then(|| Controls::from_array(self.controls))
     }
 
     fn lookahead(&self) -> usize {
@@ -120,6 +176,11 @@ impl Animator for ModelAnimator<'_> {
         self.scratch.copy_from(&self.state);
         for _ in 0..extra {
             self.model.push_frame(&mut self.scratch, &self.last);
+        }
+        if self.model.has_control_outputs() {
+            self.model.infer(&mut self.scratch, &mut self.controls, 0.0);
+            self.decompose(weights, false);
+            return;
         }
         let snap = self.closure_snap(self.last.family);
         self.model.infer(&mut self.scratch, weights, snap);

@@ -186,6 +186,7 @@ pub fn eq1_error(
 /// deviation-normalised distance (the smooth counterpart of Eq. 1) along that line, clipped so
 /// no weight goes negative. The distance is kept as a quadratic form over the weights (Gram
 /// matrix of the shapes), so a step costs O(shapes), not O(coordinates).
+#[derive(Debug, Clone)]
 pub struct Decomposer {
     shapes: Vec<Vec<f64>>,
     coordinate_weight: Vec<f64>,

@@ -14,9 +14,11 @@
 use std::marker::PhantomData;
 
 use super::animator::{Animator, ModelAnimator};
+use super::controls::Controls;
 use super::jaw::JawBaseline;
 use super::network::{MAX_LOOKAHEAD, Model};
 use super::reproject::{ReprojectError, Reprojector};
+use super::viseme_controls;
 use crate::lipsync::mouth::VisemeShapes;
 use crate::vocab::FrameFeatures;
 use crate::vocab::{FullWeights, Viseme, VisemeSet};
@@ -60,6 +62,8 @@ pub struct LipSync<'m, A: Animator + ?Sized = dyn Animator + Send + 'm> {
     raw: Vec<f32>,
     out: Vec<f32>,
     rest: Vec<f32>,
+    /// The controls of the frame last given out (the network's, or its weights' measured ones).
+    controls: Controls,
     model: PhantomData<&'m ()>,
 }
 
@@ -131,6 +135,7 @@ impl<'m, A: Animator + ?Sized> LipSync<'m, A> {
             pending: [(0, false); MAX_LOOKAHEAD + 1],
             pending_len: 0,
             flushed: 0,
+            controls: Controls::default(),
             model: PhantomData,
         })
     }
@@ -192,6 +197,22 @@ impl<'m, A: Animator + ?Sized> LipSync<'m, A> {
         Some((tag, self.finish(silent)))
     }
 
+    /// [`LipSync::push`] with the frame's controls ([`LipSync::controls`]).
+    pub fn push_with_controls(
+        &mut self,
+        tag: u64,
+        features: &FrameFeatures,
+    ) -> Option<(u64, &[f32], Controls)> {
+        let (tag, _) = self.push(tag, features)?;
+        Some((tag, &self.out, self.controls))
+    }
+
+    /// [`LipSync::flush`] with the frame's controls.
+    pub fn flush_with_controls(&mut self) -> Option<(u64, &[f32], Controls)> {
+        let (tag, _) = self.flush()?;
+        Some((tag, &self.out, self.controls))
+    }
+
     /// [`LipSync::push`] with the weights spread over all 15 visemes (what a head takes).
     pub fn push_full(&mut self, tag: u64, features: &FrameFeatures) -> Option<(u64, FullWeights)> {
         let (tag, _) = self.push(tag, features)?;
@@ -208,11 +229,22 @@ impl<'m, A: Animator + ?Sized> LipSync<'m, A> {
         self.reprojector.target().to_full(&self.out)
     }
 
+    /// The articulatory controls of the frame last given out: a control network's own, else
+    /// the controls of the weights shown (each viseme's measured ones, blended); rest in
+    /// silence. What a head that takes controls is driven by.
+    pub fn controls(&self) -> Controls {
+        self.controls
+    }
+
     fn finish(&mut self, silent: bool) -> &[f32] {
         if silent {
             self.out.copy_from_slice(&self.rest);
+            self.controls = viseme_controls::from_weights(self.reprojector.target(), &self.out);
         } else {
             self.reprojector.project(&self.raw, &mut self.out);
+            self.controls = self.animator.controls().unwrap_or_else(|| {
+                viseme_controls::from_weights(self.reprojector.target(), &self.out)
+            });
         }
         &self.out
     }
@@ -256,6 +288,69 @@ mod tests {
         model.w1[0] = 2.0;
         model.w2[0] = 4.0;
         model
+    }
+
+    /// A control network over PP FF aa I U whose aperture follows the first LSP (0.1 opens
+    /// it to s1's /aa/, -0.1 shuts it) and whose closure is set by the second.
+    fn control_model() -> Model {
+        let set = VisemeSet::parse("PP,FF,aa,I,U").unwrap();
+        let mut scaling = InputScaling::new(-1.0, 1.0);
+        scaling.offset[..2].fill(0.0);
+        scaling.scale[..2].fill(1.0);
+        let mut model = Model::zeros(set, scaling, 0, 2).with_control_outputs();
+        let inputs = model.inputs();
+        model.w1[0] = 1.0;
+        model.w1[inputs + 1] = 1.0;
+        let aa = crate::lipsync::viseme_controls::of(Viseme::Aa);
+        // Output rows: aperture, width, jaw, rounding, closure, tuck (hidden units 0 and 1).
+        model.w2[0] = aa.aperture / 0.1f32.tanh();
+        let logit = |p: f32| (p / (1.0 - p)).ln();
+        model.w2[2 * 2] = (logit(aa.jaw) + 6.0) / 0.1f32.tanh();
+        model.b2[2] = -6.0;
+        model.b2[3] = -6.0;
+        model.w2[4 * 2 + 1] = 40.0;
+        model.b2[4] = -20.0;
+        model.b2[5] = -6.0;
+        model
+    }
+
+    #[test]
+    fn a_control_network_shows_its_controls_and_the_visemes_that_make_them() {
+        let model = control_model();
+        let mut lipsync = LipSync::new(&model, &LipSyncOptions::default()).unwrap();
+        let aa = lipsync.visemes().position(Viseme::Aa).unwrap();
+        let mut open = loud(0.1);
+        open.lsp[1] = 0.0;
+        let (_, w, controls) = lipsync.push_with_controls(0, &open).unwrap();
+        assert!(w[aa] > 0.5, "{w:?}");
+        assert!((w.iter().sum::<f32>() - 1.0).abs() < 1e-4);
+        assert!(
+            controls.aperture > 0.08 && controls.closure < 0.01,
+            "{controls:?}"
+        );
+        let mut pressed = loud(0.0);
+        pressed.lsp[1] = 1.0;
+        let (_, w, controls) = lipsync.push_with_controls(1, &pressed).unwrap();
+        assert!(controls.closure > 0.99, "{controls:?}");
+        assert!(w[0] > 0.5, "PP leads a closure: {w:?}");
+        // Digital silence: the rest, and the controls of the rest.
+        let mut silent = loud(0.1);
+        silent.energy_db = -90.0;
+        lipsync.push(2, &silent).unwrap();
+        assert_eq!(
+            lipsync.controls().aperture,
+            crate::lipsync::viseme_controls::of(Viseme::PP).aperture
+        );
+    }
+
+    #[test]
+    fn a_viseme_network_shows_the_controls_of_its_weights() {
+        let model = probe_model(0);
+        let mut lipsync = LipSync::new(&model, &LipSyncOptions::default()).unwrap();
+        let (_, w, controls) = lipsync.push_with_controls(0, &loud(0.3)).unwrap();
+        let expected = crate::lipsync::viseme_controls::from_weights(&model.visemes, w);
+        assert_eq!(controls, expected);
+        assert!(controls.aperture > 0.0);
     }
 
     #[test]

@@ -15,7 +15,7 @@
 use super::head::HeadModel;
 use super::mouth_gauge::MouthGauge;
 use crate::lipsync::controls::{CONTROL_COUNT, Controls};
-use crate::lipsync::viseme_controls::viseme_controls;
+use crate::lipsync::viseme_controls;
 use crate::vocab::{VISEME_COUNT, Viseme, VisemeWeights};
 
 /// The visemes the fit weighs: all but `sil`, the rest pose.
@@ -56,7 +56,7 @@ impl HeadDrive {
             if v == 0 || !moves {
                 return [0.0; CONTROL_COUNT];
             }
-            let mut s = viseme_controls(Viseme::ALL[v]);
+            let mut s = viseme_controls::of(Viseme::ALL[v]);
             s.aperture = opening[v].gap - rest.gap;
             s.width = opening[v].width - rest.width;
             s.to_array()
@@ -170,11 +170,11 @@ fn project_to_capped_simplex(v: [f32; DRIVEN]) -> [f32; DRIVEN] {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::lipsync::viseme_controls::controls_of_visemes;
+    use crate::lipsync::viseme_controls::from_full;
 
     fn s1_drive() -> HeadDrive {
         HeadDrive::from_signatures(std::array::from_fn(|v| {
-            viseme_controls(Viseme::ALL[v]).to_array()
+            viseme_controls::of(Viseme::ALL[v]).to_array()
         }))
     }
 
@@ -184,7 +184,7 @@ mod tests {
         // same, so what is checked is what the weights show.
         let drive = s1_drive();
         for v in 1..VISEME_COUNT {
-            let wanted = controls_of_visemes(&VisemeWeights::one_hot(v));
+            let wanted = from_full(&VisemeWeights::one_hot(v).0);
             let w = drive.weights(&wanted);
             assert!((w.0.iter().sum::<f32>() - 1.0).abs() < 1e-4);
             let shown = drive.controls_of(&w);
@@ -199,7 +199,7 @@ mod tests {
         mix[Viseme::from_name("E").unwrap().index()] = 0.6;
         mix[Viseme::from_name("PP").unwrap().index()] = 0.3;
         mix[0] = 0.1;
-        let wanted = controls_of_visemes(&VisemeWeights(mix));
+        let wanted = from_full(&mix);
         let shown = drive.controls_of(&drive.weights(&wanted));
         // The gap and width closely; the activations, weighed less, within a few hundredths.
         for (k, (a, b)) in shown.to_array().iter().zip(wanted.to_array()).enumerate() {
@@ -213,12 +213,12 @@ mod tests {
         // A head whose I spreads three times s1's and opens half as far: it reaches s1's I width
         // with less of its I, and makes up the gap with an opener viseme.
         let mut signatures: [[f32; CONTROL_COUNT]; VISEME_COUNT] =
-            std::array::from_fn(|v| viseme_controls(Viseme::ALL[v]).to_array());
+            std::array::from_fn(|v| viseme_controls::of(Viseme::ALL[v]).to_array());
         let i = Viseme::from_name("I").unwrap().index();
         signatures[i][1] *= 3.0;
         signatures[i][0] *= 0.5;
         let drive = HeadDrive::from_signatures(signatures);
-        let wanted = controls_of_visemes(&VisemeWeights::one_hot(i));
+        let wanted = from_full(&VisemeWeights::one_hot(i).0);
         let w = drive.weights(&wanted);
         assert!(w.0[i] < 0.8, "{:?}", w.0);
         let shown = drive.controls_of(&w);

@@ -2,8 +2,9 @@
 //! articulatory terms, through the one hidden layer by backpropagation; Adam's parameter shapes.
 
 use super::dataset::Dataset;
+use crate::lipsync::controls::CONTROL_COUNT;
 use crate::lipsync::mouth::CUE_COUNT;
-use crate::lipsync::network::Model;
+use crate::lipsync::network::{LINEAR_CONTROLS, Model};
 use crate::train::video::LIP_CUES;
 
 /// Gradients (or Adam moments) shaped like the model's parameters.
@@ -47,6 +48,9 @@ pub(crate) fn loss_and_gradient(
     frames: &[usize],
     mut grad: Option<&mut Params>,
 ) -> f64 {
+    if model.has_control_outputs() {
+        return control_loss_and_gradient(model, data, frames, grad);
+    }
     let (hidden_len, outputs) = (model.hidden, model.outputs());
     let mut hidden = vec![0.0; hidden_len];
     let mut probs = vec![0.0; outputs];
@@ -102,6 +106,52 @@ pub(crate) fn loss_and_gradient(
             *d = weight as f32 * (p - t + cue_term);
         }
         backprop(model, x, &hidden, &delta_out, &mut delta_hidden, grad);
+    }
+    loss
+}
+
+/// A control network's loss: per frame, the squared error of each known control in units of
+/// its spread (`data.control_scale`), weighted mean over `frames`; adds its gradient into
+/// `grad` when given.
+fn control_loss_and_gradient(
+    model: &Model,
+    data: &Dataset,
+    frames: &[usize],
+    mut grad: Option<&mut Params>,
+) -> f64 {
+    let mut hidden = vec![0.0; model.hidden];
+    let mut out = [0.0f32; CONTROL_COUNT];
+    let mut delta_out = [0.0f32; CONTROL_COUNT];
+    let mut delta_hidden = vec![0.0; model.hidden];
+    let total_weight: f64 = frames.iter().map(|&n| data.weights[n] as f64).sum();
+    if total_weight <= 0.0 {
+        return 0.0;
+    }
+    let mut loss = 0.0f64;
+    for &n in frames {
+        let weight = data.weights[n] as f64 / total_weight;
+        if weight == 0.0 {
+            continue;
+        }
+        let (x, t) = (data.input(n), data.target(n));
+        model.forward(x, &mut hidden, &mut out);
+        let mut frame_loss = 0.0f32;
+        for c in 0..CONTROL_COUNT {
+            let scale = data.known[n][c] * data.control_scale[c];
+            let error = out[c] - t[c];
+            frame_loss += scale * error * error;
+            // Through the logistic of the bounded controls: d out / d z = out (1 - out).
+            let slope = if c < LINEAR_CONTROLS {
+                1.0
+            } else {
+                out[c] * (1.0 - out[c])
+            };
+            delta_out[c] = weight as f32 * 2.0 * scale * error * slope;
+        }
+        loss += weight * frame_loss as f64;
+        if let Some(grad) = grad.as_deref_mut() {
+            backprop(model, x, &hidden, &delta_out, &mut delta_hidden, grad);
+        }
     }
     loss
 }

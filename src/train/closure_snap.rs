@@ -2,8 +2,10 @@
 //! scored at every candidate threshold.
 
 use super::dataset::Dataset;
+use crate::lipsync::controls::{CONTROL_COUNT, Controls};
 use crate::lipsync::mouth::VisemeShapes;
 use crate::lipsync::network::{MIN_CLOSURE_SNAP, Model};
+use crate::lipsync::viseme_controls::ControlDecomposer;
 use crate::train::corpus::PreparedUtterance;
 use crate::train::error::TrainError;
 use crate::train::eval::{Scores, score};
@@ -63,7 +65,7 @@ impl HeldOutPredictions {
 
     /// The scores with the closure snap at `snap`.
     pub fn scores(&self, snap: f32, shapes: &VisemeShapes) -> Result<Scores, TrainError> {
-        let k = self.model.outputs();
+        let k = self.model.visemes.len();
         let snapped: Vec<Vec<f32>> = self
             .unsnapped
             .iter()
@@ -108,15 +110,33 @@ pub fn best_snap(curve: &[(f32, Scores)]) -> f32 {
 pub(super) fn predictions(model: &Model, data: &Dataset) -> Vec<Vec<f32>> {
     let mut hidden = vec![0.0; model.hidden];
     let mut out = vec![0.0; model.outputs()];
+    // A control network's weights: its controls decomposed onto its set, frame after frame.
+    let decomposer = model
+        .has_control_outputs()
+        .then(|| ControlDecomposer::new(&model.visemes).ok())
+        .flatten();
+    let mut weights = vec![0.0; model.visemes.len()];
     let mut start = 0;
     data.lengths
         .iter()
         .map(|&len| {
-            let mut utt = Vec::with_capacity(len * out.len());
+            let mut utt = Vec::with_capacity(len * weights.len());
+            let even = 1.0 / weights.len() as f32;
+            weights.fill(even);
             for n in start..start + len {
                 model.output(data.input(n), &mut hidden, &mut out);
-                model.snap(&mut out);
-                utt.extend_from_slice(&out);
+                match &decomposer {
+                    Some(d) => {
+                        let controls: [f32; CONTROL_COUNT] =
+                            std::array::from_fn(|c| out.get(c).copied().unwrap_or(0.0));
+                        d.fit(&Controls::from_array(controls), &mut weights);
+                        utt.extend_from_slice(&weights);
+                    }
+                    None => {
+                        model.snap(&mut out);
+                        utt.extend_from_slice(&out);
+                    }
+                }
             }
             start += len;
             utt

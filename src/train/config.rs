@@ -5,6 +5,7 @@ use std::path::PathBuf;
 
 use crate::lipsync::mouth::VisemeShapes;
 use crate::lipsync::network::Dynamics;
+use crate::train::control_targets::ControlVideo;
 use crate::train::corpus::SpeakerSplit;
 use crate::train::video::VideoTraining;
 use crate::vocab::VisemeSet;
@@ -78,6 +79,11 @@ pub struct TrainConfig {
     /// Other speakers' measured lips, never trained on: early stopping watches their loss
     /// (times their frame weight) beside the held-out phones'.
     pub lip_validation: Option<VideoTraining>,
+    /// The network outputs the articulatory controls (lip-sync v4) instead of viseme weights;
+    /// `visemes` is then the set they are decomposed onto.
+    pub controls: bool,
+    /// For a control network: s1's measured lips as control targets beside the phones'.
+    pub control_video: Option<ControlVideo>,
 }
 
 impl Default for TrainConfig {
@@ -115,6 +121,8 @@ impl Default for TrainConfig {
             nested_fold_epochs: false,
             video: None,
             lip_validation: None,
+            controls: false,
+            control_video: None,
         }
     }
 }

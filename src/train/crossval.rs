@@ -140,6 +140,12 @@ pub fn cross_validate(
         .map(|(r, g)| HeldOutPredictions::new(&r.model, &g.held_out))
         .collect();
     let pooled = HeldOutPredictions::pool(&held_out)?;
+    // A control network's closures and sharpness are its own outputs': nothing to tune.
+    let (snap, sharpness) = if config.controls {
+        (Some(0.0), Some(1.0))
+    } else {
+        (snap, sharpness)
+    };
     let calibration = calibrate(&pooled, snap, sharpness, &config.shapes)?;
     let closure_snap = calibration.closure_snap;
     let folds = held_out

@@ -1,10 +1,12 @@
 //! The training frames in the network's layout: scaled inputs, targets over the model's set and
 //! loss weights.
 
+use crate::lipsync::controls::CONTROL_COUNT;
 use crate::lipsync::mouth::{Articulation, CUE_COUNT, cues};
 use crate::lipsync::network::Model;
 use crate::lipsync::phones::CueClass;
 use crate::train::augment::{Rng, warp_frames};
+use crate::train::control_targets::ControlVideo;
 use crate::train::corpus::PreparedUtterance;
 use crate::train::video::{LIP_CUES, VideoTraining, head_lips};
 use crate::vocab::{Viseme, VisemeSet};
@@ -32,6 +34,10 @@ pub(crate) struct Dataset {
     /// Aperture and width of each output viseme, and the weights of their squared errors.
     pub(super) video_keys: Vec<[f32; LIP_CUES]>,
     pub(super) video_cue_weights: [f32; LIP_CUES],
+    /// For a control network: per frame, which controls the target knows (1) or not (0), and
+    /// each control's loss scale (1 / its spread squared over the training targets).
+    pub(super) known: Vec<[f32; CONTROL_COUNT]>,
+    pub(super) control_scale: [f32; CONTROL_COUNT],
     pub(super) input_len: usize,
     pub(super) outputs: usize,
 }
@@ -75,18 +81,20 @@ pub(crate) fn build_dataset(
         target_cues: Vec::new(),
         cue_weights: [0.0; CUE_COUNT],
         video: Vec::new(),
-        video_keys: (0..outputs)
+        video_keys: (0..model.visemes.len())
             .map(|k| {
-                let mut one_hot = vec![0.0; outputs];
+                let mut one_hot = vec![0.0; model.visemes.len()];
                 one_hot[k] = 1.0;
                 head_lips(&model.visemes, &one_hot)
             })
             .collect(),
         video_cue_weights: [0.0; LIP_CUES],
+        known: Vec::new(),
+        control_scale: [1.0; CONTROL_COUNT],
         input_len,
         outputs,
     };
-    let closed = model.visemes.position(Viseme::PP);
+    let closed = model.closed_index().and(model.visemes.position(Viseme::PP));
     let full = VisemeSet::full();
     let silence = crate::vocab::FrameFeatures::silent();
     let mut state = model.new_state();
@@ -116,6 +124,7 @@ pub(crate) fn build_dataset(
             data.inputs.extend_from_slice(state.input());
             data.target_cues.push(cues(&full, &utt.targets.weights[n]));
             data.video.push(None);
+            data.known.push([1.0; CONTROL_COUNT]);
             let in_closure = utt.targets.in_bilabial(n);
             data.weights
                 .push(utt.weight * if in_closure { closure_weight } else { 1.0 });
@@ -180,6 +189,48 @@ pub(crate) fn append_video(data: &mut Dataset, model: &Model, training: &VideoTr
                 0.0
             });
             data.video.push(Some(lips.unwrap_or_default()));
+            data.known.push([0.0; CONTROL_COUNT]);
+        }
+        data.lengths.push(clip.features.len());
+    }
+}
+
+/// Appends the frames of clips with control targets (a control network's video half): their
+/// targets where tracked, the controls they know, each tracked frame weighing `frame_weight`.
+pub(crate) fn append_control_video(data: &mut Dataset, model: &Model, video: &ControlVideo) {
+    let mut state = model.new_state();
+    let silence = crate::vocab::FrameFeatures::silent();
+    let mut speaker: Option<&str> = None;
+    for clip in video.clips.iter() {
+        if speaker != Some(clip.speaker.as_str()) {
+            model.reset(&mut state);
+            speaker = Some(clip.speaker.as_str());
+        }
+        let fed = clip.features.iter().chain(std::iter::repeat_n(
+            clip.features.last().unwrap_or(&silence),
+            model.lookahead,
+        ));
+        for (m, features) in fed.enumerate() {
+            model.push_frame(&mut state, features);
+            let Some(n) = m.checked_sub(model.lookahead) else {
+                continue;
+            };
+            if n >= clip.features.len() {
+                break;
+            }
+            data.inputs.extend_from_slice(state.input());
+            let target = clip.targets.get(n).copied().flatten();
+            data.targets
+                .extend(target.map_or([0.0; CONTROL_COUNT], |t| t.values));
+            data.known
+                .push(target.map_or([0.0; CONTROL_COUNT], |t| t.known));
+            data.target_cues.push([0.0; CUE_COUNT]);
+            data.video.push(None);
+            data.weights.push(if target.is_some() {
+                video.frame_weight
+            } else {
+                0.0
+            });
         }
         data.lengths.push(clip.features.len());
     }

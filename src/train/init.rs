@@ -74,6 +74,9 @@ pub(super) fn initial_model(
         config.dynamics,
         config.hidden,
     );
+    if config.controls {
+        model = model.with_control_outputs();
+    }
     model.lookahead = config.lookahead;
     model.speaker_norm = config.speaker_norm_frames.map(|frames| SpeakerNorm {
         frames,

@@ -7,6 +7,7 @@ pub mod card;
 mod closure_snap;
 pub mod codec_features;
 pub mod config;
+pub mod control_targets;
 pub mod corpus;
 pub mod crossval;
 mod dataset;

@@ -37,7 +37,7 @@ impl HeldOutPredictions {
     /// The same predictions with the outputs sharpened by `sharpness` in `form` (on top of
     /// the model's own, which is taken to be 1).
     pub fn sharpened(&self, sharpness: f32, form: Form) -> Self {
-        let k = self.model.outputs();
+        let k = self.model.visemes.len();
         let mut out = self.clone();
         out.model.sharpness = sharpness;
         out.model.sharpen_open_shapes_only = form == Form::OpenShapes;

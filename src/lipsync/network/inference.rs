@@ -200,6 +200,10 @@ impl Model {
     /// model's sharpness.
     pub fn output(&self, input: &[f32], hidden: &mut [f32], weights: &mut [f32]) {
         self.logits(input, hidden, weights);
+        if self.has_control_outputs() {
+            activate_controls(weights);
+            return;
+        }
         if self.sharpness == 1.0 {
             softmax_in_place(weights);
             return;
@@ -281,7 +285,11 @@ impl Model {
     /// rule).
     pub fn forward(&self, input: &[f32], hidden: &mut [f32], weights: &mut [f32]) {
         self.logits(input, hidden, weights);
-        softmax_in_place(weights);
+        if self.has_control_outputs() {
+            activate_controls(weights);
+        } else {
+            softmax_in_place(weights);
+        }
     }
 
     fn logits(&self, input: &[f32], hidden: &mut [f32], weights: &mut [f32]) {
@@ -302,6 +310,17 @@ impl Model {
         }
     }
 }
+
+/// The output layer of articulatory outputs: aperture and width (the first two) stay linear,
+/// the activations pass a logistic into 0..1.
+pub fn activate_controls(values: &mut [f32]) {
+    for v in values.iter_mut().skip(LINEAR_CONTROLS) {
+        *v = 1.0 / (1.0 + (-*v).exp());
+    }
+}
+
+/// Aperture and width, in eye widths: unbounded.
+pub const LINEAR_CONTROLS: usize = 2;
 
 /// Convex weights sharpened as [`Model::output`] does it on the logits, for outputs already
 /// computed: each raised to `sharpness` and the whole renormalised (the same as the logits
@@ -421,6 +440,21 @@ mod tests {
         model.step(&mut state, &frame(-20.0), &mut second);
         assert_eq!(first, second);
         assert_eq!(model.multiply_adds(), 33 * 4 + 4 * 3);
+    }
+
+    #[test]
+    fn control_outputs_bound_the_activations_and_never_snap() {
+        let mut model = sample_model().with_control_outputs();
+        model.closure_snap = 0.5;
+        model.sharpness = 2.0;
+        model.b2 = vec![-0.3, 0.02, 30.0, -30.0, 0.0, 1.0];
+        model.w2.fill(0.0);
+        let mut state = model.new_state();
+        let mut out = vec![0.0; model.outputs()];
+        model.step(&mut state, &frame(-30.0), &mut out);
+        assert_eq!(out[..2], [-0.3, 0.02]);
+        assert!(out[2] > 0.999 && out[3] < 0.001 && (out[4] - 0.5).abs() < 1e-6);
+        assert!(out.iter().all(|v| v.is_finite()));
     }
 
     #[test]

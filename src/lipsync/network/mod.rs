@@ -19,10 +19,13 @@ mod model_file;
 mod normalise;
 
 pub use inference::{
-    CLOSURE_BIAS_SPAN, InferenceState, MAX_SHARPNESS, MAX_SMOOTHING, MIN_CLOSURE_SNAP,
-    MIN_SHARPNESS, sharpen,
+    CLOSURE_BIAS_SPAN, InferenceState, LINEAR_CONTROLS, MAX_SHARPNESS, MAX_SMOOTHING,
+    MIN_CLOSURE_SNAP, MIN_SHARPNESS, activate_controls, sharpen,
 };
-pub use model::{MAX_LOOKAHEAD, MULTIPLY_ADD_BUDGET, Model, input_count, multiply_adds};
+pub use model::{
+    CONTROL_MULTIPLY_ADD_BUDGET, MAX_LOOKAHEAD, MULTIPLY_ADD_BUDGET, Model, OutputKind,
+    input_count, multiply_adds,
+};
 pub use model_file::ModelError;
 pub use normalise::{
     Dynamics, FEATURES_PER_FRAME, InputScaling, PEAK_FLOOR_DB, SpeakerNorm, frame_width,

@@ -1,10 +1,26 @@
 //! The network's shape: [`Model`], its size and budget.
 
 use super::normalise::{Dynamics, FEATURES_PER_FRAME, InputScaling, SpeakerNorm, frame_width};
+use crate::lipsync::controls::CONTROL_COUNT;
 use crate::vocab::{Viseme, VisemeSet};
 
 /// Multiply-adds per frame the paper budgets for the network (Section III.D).
 pub const MULTIPLY_ADD_BUDGET: usize = 400;
+
+/// Multiply-adds per frame issue 47 allows a network with articulatory outputs.
+pub const CONTROL_MULTIPLY_ADD_BUDGET: usize = 2000;
+
+/// What the output layer gives.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
+pub enum OutputKind {
+    /// Convex weights over the model's viseme set (a softmax), lip-sync v2.
+    #[default]
+    Visemes,
+    /// The articulatory [`Controls`](crate::lipsync::controls::Controls) (lip-sync v4):
+    /// aperture and width linear, the activations bounded to 0..1 by a logistic; the receiver
+    /// turns them into weights over the viseme set by the paper's decomposition.
+    Controls,
+}
 
 /// Look-ahead frames a model may use: each costs 20 ms that the receiver's buffers must hide.
 pub const MAX_LOOKAHEAD: usize = 2;
@@ -12,7 +28,9 @@ pub const MAX_LOOKAHEAD: usize = 2;
 /// A one-hidden-layer network from decoder features to convex viseme weights.
 #[derive(Debug, Clone, PartialEq)]
 pub struct Model {
+    /// The shapes the output drives: the softmax's, or those the controls are decomposed onto.
     pub visemes: VisemeSet,
+    pub output_kind: OutputKind,
     pub scaling: InputScaling,
     /// Frames fed besides the newest one.
     pub context: usize,
@@ -71,6 +89,7 @@ impl Model {
         let outputs = visemes.len();
         Self {
             visemes,
+            output_kind: OutputKind::Visemes,
             scaling,
             context,
             lookahead: 0,
@@ -91,12 +110,35 @@ impl Model {
         }
     }
 
+    /// The same network with articulatory outputs (zero output weights), for the same set.
+    pub fn with_control_outputs(mut self) -> Self {
+        self.output_kind = OutputKind::Controls;
+        self.w2 = vec![0.0; CONTROL_COUNT * self.hidden];
+        self.b2 = vec![0.0; CONTROL_COUNT];
+        self
+    }
+
+    pub fn has_control_outputs(&self) -> bool {
+        self.output_kind == OutputKind::Controls
+    }
+
+    /// The most multiply-adds a network of this kind may cost.
+    pub fn budget(&self) -> usize {
+        match self.output_kind {
+            OutputKind::Visemes => MULTIPLY_ADD_BUDGET,
+            OutputKind::Controls => CONTROL_MULTIPLY_ADD_BUDGET,
+        }
+    }
+
     pub fn inputs(&self) -> usize {
         input_count(self.context, self.dynamics)
     }
 
     pub fn outputs(&self) -> usize {
-        self.visemes.len()
+        match self.output_kind {
+            OutputKind::Visemes => self.visemes.len(),
+            OutputKind::Controls => CONTROL_COUNT,
+        }
     }
 
     /// Multiply-adds of one frame through both layers.
@@ -110,8 +152,12 @@ impl Model {
         self.visemes.members().iter().map(|v| v.name()).collect()
     }
 
-    /// Output index of the closed shape (PP, else sil) that `closure_snap` drives.
+    /// Output index of the closed shape (PP, else sil) that `closure_snap` drives; none for
+    /// articulatory outputs (their closure is a control of its own).
     pub fn closed_index(&self) -> Option<usize> {
+        if self.has_control_outputs() {
+            return None;
+        }
         self.visemes
             .position(Viseme::PP)
             .or_else(|| self.visemes.position(Viseme::Sil))

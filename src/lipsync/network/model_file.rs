@@ -1,9 +1,13 @@
-//! The model file: text, UTF-8, fit for `include_str!`; version 3 written, 1 to 3 read.
+//! The model file: text, UTF-8, fit for `include_str!`; version 3 written for viseme outputs,
+//! 4 for articulatory ones; 1 to 4 read.
 //!
 //! ```text
 //! # any number of comment lines (kept as notes), e.g. what the weights were trained on
 //! lipcall-viseme-mlp 3
-//! visemes PP aa I O E FF        names from the 15, in output order
+//! visemes PP aa I O E FF        names from the 15, in output order (version 4: the shapes the
+//!                               controls are decomposed onto)
+//! outputs controls              (version 4 only) the output layer gives the 6 controls
+//!                               (lipsync::controls order) instead of the softmax over visemes
 //! context 2                     frames fed besides the newest one
 //! lookahead 1                   (version 3) of those frames, how many lie after the frame the
 //!                               output describes (0: the output describes the newest frame)
@@ -45,13 +49,17 @@ use std::path::Path;
 use super::normalise::{MAX_ENERGY_CONTEXT, MAX_NORM_FRAMES};
 use super::{
     Dynamics, FEATURES_PER_FRAME, InputScaling, MAX_LOOKAHEAD, MAX_SHARPNESS, MAX_SMOOTHING,
-    MIN_SHARPNESS, Model, SpeakerNorm, input_count,
+    MIN_SHARPNESS, Model, OutputKind, SpeakerNorm, input_count,
 };
+use crate::lipsync::controls::CONTROL_COUNT;
 use crate::vocab::LSP_COUNT;
 use crate::vocab::{VisemeError, VisemeSet};
 
 const MAGIC: &str = "lipcall-viseme-mlp";
 const VERSION: &str = "3";
+/// Articulatory outputs (lip-sync v4).
+const VERSION_FOUR: &str = "4";
+const CONTROL_OUTPUTS: &str = "controls";
 const VERSION_TWO: &str = "2";
 const OLD_VERSION: &str = "1";
 /// The largest weight, bias or scale a model file may hold.
@@ -69,8 +77,14 @@ impl Model {
         for note in &self.notes {
             let _ = writeln!(text, "# {note}");
         }
-        let _ = writeln!(text, "{MAGIC} {VERSION}");
-        let _ = writeln!(text, "visemes {}", self.viseme_names().join(" "));
+        if self.has_control_outputs() {
+            let _ = writeln!(text, "{MAGIC} {VERSION_FOUR}");
+            let _ = writeln!(text, "visemes {}", self.viseme_names().join(" "));
+            let _ = writeln!(text, "outputs {CONTROL_OUTPUTS}");
+        } else {
+            let _ = writeln!(text, "{MAGIC} {VERSION}");
+            let _ = writeln!(text, "visemes {}", self.viseme_names().join(" "));
+        }
         let _ = writeln!(text, "context {}", self.context);
         let _ = writeln!(text, "lookahead {}", self.lookahead);
         match &self.speaker_norm {
@@ -125,7 +139,7 @@ impl Model {
         text
     }
 
-    /// Parses the text file format (versions 1 to 3).
+    /// Parses the text file format (versions 1 to 4).
     pub fn from_text(text: &str) -> Result<Self, ModelError> {
         let mut lines = KeyedLines::new(text);
         let mut next = |key| lines.next(key);
@@ -134,8 +148,9 @@ impl Model {
             ModelError::UnexpectedKey { .. } | ModelError::Truncated(_) => ModelError::NotAModel,
             other => other,
         })?;
+        let version_four = version[..] == [VERSION_FOUR];
         let (version_two, version_three) = match version[..] {
-            [v] if v == VERSION => (true, true),
+            [v] if v == VERSION || v == VERSION_FOUR => (true, true),
             [v] if v == VERSION_TWO => (true, false),
             [v] if v == OLD_VERSION => (false, false),
             _ => {
@@ -148,6 +163,19 @@ impl Model {
         let (line, names) = next("visemes")?;
         let visemes = VisemeSet::parse(&names.join(","))
             .map_err(|error| ModelError::Visemes { line, error })?;
+        let output_kind = if version_four {
+            let (line, words) = next("outputs")?;
+            if words[..] != [CONTROL_OUTPUTS] {
+                return Err(ModelError::BadNumber {
+                    line,
+                    key: "outputs",
+                    text: words.join(" "),
+                });
+            }
+            OutputKind::Controls
+        } else {
+            OutputKind::Visemes
+        };
         let context = parse_size(next("context")?, "context", MAX_CONTEXT)?;
         let lookahead = if version_three {
             let (line, words) = next("lookahead")?;
@@ -266,7 +294,10 @@ impl Model {
         let mut next = |key| lines.next(key);
         let hidden = parse_size(next("hidden")?, "hidden", MAX_HIDDEN)?;
         let inputs = input_count(context, dynamics);
-        let outputs = visemes.len();
+        let outputs = match output_kind {
+            OutputKind::Visemes => visemes.len(),
+            OutputKind::Controls => CONTROL_COUNT,
+        };
         let offset = parse_floats(next("input_offset")?, "input_offset", FEATURES_PER_FRAME)?;
         let scale = parse_floats(next("input_scale")?, "input_scale", FEATURES_PER_FRAME)?;
         let w1 = parse_floats(next("w1")?, "w1", hidden * inputs)?;
@@ -285,6 +316,7 @@ impl Model {
         scaling.scale.copy_from_slice(&scale);
         Ok(Self {
             visemes,
+            output_kind,
             scaling,
             context,
             lookahead,
@@ -498,7 +530,9 @@ fn parse_floats(
 pub enum ModelError {
     #[error("not a lipcall viseme model (the first line must be `{MAGIC} {VERSION}`)")]
     NotAModel,
-    #[error("line {line}: unsupported model version {found:?} (this build reads 1 to {VERSION})")]
+    #[error(
+        "line {line}: unsupported model version {found:?} (this build reads 1 to {VERSION_FOUR})"
+    )]
     Version { line: usize, found: String },
     #[error("model file ends early: `{0}` is missing")]
     Truncated(&'static str),
@@ -656,6 +690,25 @@ mod tests {
         assert_eq!(families.closure_snap_of(FeatureFamily::Analysis), 0.5);
         families.analysis_snap = None;
         assert_eq!(families.closure_snap_of(FeatureFamily::Analysis), 0.6);
+    }
+
+    #[test]
+    fn control_models_are_version_four_and_viseme_models_stay_version_three() {
+        let mut controls = sample_model().with_control_outputs();
+        for (i, w) in controls.w2.iter_mut().enumerate() {
+            *w = (i as f32 * 0.37).sin();
+        }
+        let text = controls.to_text();
+        assert!(text.contains("lipcall-viseme-mlp 4\nvisemes PP aa I\noutputs controls\n"));
+        let loaded = Model::from_text(&text).unwrap();
+        assert_eq!(loaded, controls);
+        assert_eq!(loaded.outputs(), CONTROL_COUNT);
+        // Version 3 has no outputs line; version 4 needs a known one.
+        assert!(Model::from_text(&text.replace(" 4\n", " 3\n")).is_err());
+        assert!(Model::from_text(&text.replace("outputs controls", "outputs weights")).is_err());
+        assert!(sample_model().to_text().contains("lipcall-viseme-mlp 3\n"));
+        // The shipped v2 network still loads and is a viseme network.
+        assert!(!crate::lipsync::default_model().has_control_outputs());
     }
 
     #[test]
