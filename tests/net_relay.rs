@@ -15,8 +15,9 @@ use lipcall::codec::speex::codec::{Encoder, EncoderConfig, MAX_PACKET_BYTES};
 use lipcall::net::control::{self, Control, ControlKind, Cookie, Refusal, RoomId};
 use lipcall::net::peer::FrameKind;
 use lipcall::net::relay::{Relay, RelayConfig};
-use lipcall::net::session::{PeerFrame, Session, SessionConfig};
+use lipcall::net::session::{Session, SessionConfig};
 use lipcall::net::srtp::MasterKey;
+use lipcall::net::transport::PeerFrame;
 use lipcall::vocab::FRAME_SIZE;
 
 const FRAMES: u32 = 100; // 2 s

@@ -15,8 +15,9 @@ use std::time::{Duration, Instant};
 use common::net::{Announce, fields, num, spawn, spawn_listening, talk};
 use common::{lipcall, run};
 use lipcall::net::peer::FrameKind;
-use lipcall::net::session::{PeerFrame, Session, SessionConfig};
+use lipcall::net::session::{Session, SessionConfig};
 use lipcall::net::srtp::MasterKey;
+use lipcall::net::transport::PeerFrame;
 
 /// Datagrams as they came, each with its time since the first.
 type Recording = Vec<(Duration, Vec<u8>)>;

@@ -30,7 +30,8 @@ use crate::codec::opus::codec::Bandwidth;
 use crate::net::host_port::{HostPort, resolve_with_port};
 use crate::net::janus::candidates::IceServers;
 use crate::net::janus::messages::JanusAuth;
-use crate::net::session::{PeerFrame, PeerInfo, Session, SessionConfig};
+use crate::net::session::{Session, SessionConfig};
+use crate::net::transport::{PeerFrame, PeerInfo};
 use crate::vocab::MAX_FRAME_SAMPLES;
 
 pub use super::call_status::{CallPhase, CallStatus, DIRECT_ANSWER_WAIT, Encryption};

@@ -8,7 +8,7 @@ use std::time::{Duration, Instant};
 
 use crate::audio::Playback;
 use crate::net::peer::FrameKind;
-use crate::net::session::{PeerFrame, PeerInfo};
+use crate::net::transport::{PeerFrame, PeerInfo};
 
 use super::counters::{DEMO_NAME, EngineCounters};
 use super::peer::{PeerView, RemotePeer};

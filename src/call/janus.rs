@@ -11,7 +11,7 @@ use std::time::{Duration, Instant};
 use super::link::{Link, LinkEvent};
 use crate::net::janus::JanusError;
 use crate::net::janus::room::{Member, Notice, RoomConfig, server_addr};
-use crate::net::session::{PeerFrame, PeerInfo};
+use crate::net::transport::{PeerFrame, PeerInfo};
 
 /// RTP ticks of one 20 ms frame on WebRTC's 48 kHz Opus clock.
 const OPUS_TICKS_PER_FRAME: u32 = 960;

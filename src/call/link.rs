@@ -8,7 +8,8 @@ use std::net::SocketAddr;
 use std::time::Instant;
 
 use crate::codec::any::Codec;
-use crate::net::session::{PeerFrame, PeerInfo, Session};
+use crate::net::session::Session;
+use crate::net::transport::{PeerFrame, PeerInfo};
 
 /// What a link did since the last poll, for the caller to show.
 #[derive(Debug, Clone, PartialEq)]

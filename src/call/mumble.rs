@@ -14,7 +14,7 @@ use crate::net::mumble::client::ClientEvent;
 use crate::net::mumble::connection::{ConnectConfig, Connection, Notice, Remote};
 use crate::net::mumble::events::describe_unlisted;
 use crate::net::mumble::identity::Trust;
-use crate::net::session::{PeerFrame, PeerInfo};
+use crate::net::transport::{PeerFrame, PeerInfo};
 
 /// Whether a call address names a Mumble server (`mumble://HOST[:PORT][/CHANNEL]`).
 pub fn is_mumble_url(address: &str) -> bool {

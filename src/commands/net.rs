@@ -15,8 +15,9 @@ use crate::call::media::{MediaError, MediaFile, MediaKind, Packets};
 use crate::codec::any::{Codec, EncoderSettings, PayloadMap};
 use crate::codec::opus::codec::Bandwidth;
 use crate::net::host_port::resolve_with_port;
-use crate::net::session::{PeerInfo, Session, SessionConfig};
+use crate::net::session::{Session, SessionConfig};
 use crate::net::srtp::MasterKey;
+use crate::net::transport::PeerInfo;
 use crate::secrets::SecretSource;
 use crate::vocab::FrameFeatures;
 

@@ -15,7 +15,7 @@ use crate::call::link::{Link, LinkEvent};
 use crate::call::pipeline::{Animated, PeerPipeline};
 use crate::lipsync::network::Model;
 use crate::lipsync::{self, LipSync, LipSyncOptions};
-use crate::net::session::PeerFrame;
+use crate::net::transport::PeerFrame;
 use crate::vocab::FrameFeatures;
 
 /// What the receiver keeps per remote speaker: with `--weights`, its pipeline and the output

@@ -3,7 +3,7 @@
 use std::net::SocketAddr;
 
 use crate::net::peer::{PeerReceiver, ReceiverStats};
-use crate::net::session::PeerInfo;
+use crate::net::transport::PeerInfo;
 
 /// What the owner knows of one subscribed publisher.
 #[derive(Debug, Clone, PartialEq)]

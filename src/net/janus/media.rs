@@ -27,8 +27,7 @@ use crate::codec::any::PayloadMap;
 use crate::net::jitter::JitterConfig;
 use crate::net::peer::PeerReceiver;
 use crate::net::rtp::{Rtp, RtpHeader};
-use crate::net::session::driver::{Driver, SansIo};
-use crate::net::session::{PeerFrame, Transmit, TransmitKind};
+use crate::net::transport::{Driver, PeerFrame, SansIo, Transmit, TransmitKind};
 use crate::net::turn::TurnClient;
 
 /// How long the socket thread waits at most for a datagram: a connection's timeout that an

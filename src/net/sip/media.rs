@@ -31,10 +31,10 @@ use crate::net::jitter::JitterConfig;
 use crate::net::peer::{PeerReceiver, ReceiverStats};
 use crate::net::rtcp::{HeardReports, ReportBlock, RtcpError};
 use crate::net::rtp::{self, RtpStream};
-use crate::net::session::driver::{Driver, SansIo};
+use crate::net::session::LARGEST_DATAGRAM;
 use crate::net::session::latch::SourceLatch;
-use crate::net::session::{LARGEST_DATAGRAM, PeerFrame, Transmit, TransmitKind};
 use crate::net::srtp::{MasterKey, Srtp, SrtpError};
+use crate::net::transport::{Driver, PeerFrame, SansIo, Transmit, TransmitKind};
 
 /// How long the socket thread waits at most for a datagram, and how often the keepalive and
 /// the reports are looked at.
