@@ -114,9 +114,14 @@ impl Pacing {
     pub(crate) fn new(seconds: Option<f64>) -> Result<Self> {
         Ok(Self {
             stop: stop_flag()?,
-            until: seconds.map(|s| Instant::now() + Duration::from_secs_f64(s)),
+            until: deadline(seconds),
         })
     }
+}
+
+/// `seconds` from now, where given (and representable).
+pub(crate) fn deadline(seconds: Option<f64>) -> Option<Instant> {
+    seconds.and_then(|s| Instant::now().checked_add(Duration::from_secs_f64(s)))
 }
 
 /// How a paced send ended.
@@ -257,7 +262,7 @@ pub struct SendArgs {
     #[arg(long, value_parser = parse_hex_u32)]
     pub ssrc: Option<u32>,
     /// Stop after this many seconds (otherwise at the file's end); with --janus or --mumble,
-    /// counted from the first packet. Ctrl-C (SIGINT) or SIGTERM ends the send at any time,
+    /// counted from the first packet (joining that takes longer fails). Ctrl-C (SIGINT) or SIGTERM ends the send at any time,
     /// saying goodbye to the peers.
     #[arg(long, allow_hyphen_values = true, value_parser = super::parse_seconds)]
     pub seconds: Option<f64>,
