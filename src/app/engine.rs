@@ -6,6 +6,7 @@
 
 mod lookup;
 mod news;
+mod output;
 mod phase;
 mod place;
 mod sip;
@@ -40,6 +41,7 @@ use super::demo::Demo;
 use super::listen::dialable;
 use super::lookup::Lookups;
 use super::mumble_call::{MumbleCall, MumbleJoin, MumbleView};
+use super::output::OutputOpener;
 use super::retire::Retirer;
 use super::roster::Roster;
 use super::settings::DEFAULT_CODEC;
@@ -253,6 +255,8 @@ struct Worker {
     phone: SipPhone,
     /// The host of a call being placed, being looked up.
     lookups: Lookups<Then>,
+    /// The output device chosen, opening.
+    outputs: OutputOpener,
 }
 
 /// What follows a call's host being found ([`Lookups`]).
@@ -297,6 +301,7 @@ impl Worker {
             mumble: None,
             phone: SipPhone::default(),
             lookups: Lookups::default(),
+            outputs: OutputOpener::default(),
             config,
             shared,
             counters,
@@ -486,19 +491,7 @@ impl Worker {
                 self.open_mic(&choice);
                 Ok(())
             }
-            Command::SetOutput(choice) => {
-                // Opening a device can take 2 s (PulseAudio): not under the lock the UI takes
-                // every frame.
-                let buffer = lock(&self.shared).playback.buffer();
-                let opened = Playback::open_output(&choice, buffer);
-                let mut s = lock(&self.shared);
-                let r = opened.and_then(|o| s.playback.use_output(choice, o));
-                let status = describe_output(s.playback.status());
-                s.output_status = status;
-                drop(s);
-                // The device replaced closes here, outside the lock too.
-                r.map(drop).map_err(Into::into)
-            }
+            Command::SetOutput(choice) => self.open_output(choice),
         };
         if let Err(e) = result {
             lock(&self.shared).call.error = Some(format!("{e:#}"));
@@ -531,6 +524,7 @@ impl Worker {
             }
             self.send_mic();
             self.follow_lookup();
+            self.follow_output();
             self.follow_link();
             self.refresh_mumble();
             self.follow_phone();

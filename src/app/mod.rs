@@ -14,6 +14,7 @@ pub mod engine;
 pub mod listen;
 mod lookup;
 pub mod mumble_call;
+mod output;
 pub mod peer;
 pub mod peer_panel;
 mod retire;
