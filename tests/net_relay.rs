@@ -91,9 +91,9 @@ fn call(talkers: &[(&Session, Vec<Vec<u8>>)], listeners: &[&Session]) -> Vec<Hea
             listener.pull(due, &mut frames);
             for f in &frames {
                 if f.frame.kind == FrameKind::Decoded {
-                    *h.decoded.entry(f.ssrc).or_default() += 1;
+                    *h.decoded.entry(f.peer.number()).or_default() += 1;
                     h.pcm
-                        .entry(f.ssrc)
+                        .entry(f.peer.number())
                         .or_default()
                         .extend_from_slice(&f.frame.pcm);
                 }

@@ -331,11 +331,11 @@ impl LipcallApp {
         ) in peers.iter().enumerate()
         {
             text += &format!(
-                "peer ssrc={:08x} name={:?} demo={} talking={} animated={} shown={} received={} \
+                "peer {} name={:?} demo={} talking={} animated={} shown={} received={} \
                  codec={} recovered={} unknown_pt={} jitter_buffer_ms={:.1} queue_ms={:.1} \
                  starved_ms={:.0} jitter_ms={:.1} target_ms={:.1} stretched={} dropped={} \
                  late={}\n",
-                p.ssrc,
+                p.peer,
                 p.name,
                 p.is_demo,
                 p.talking,
@@ -488,7 +488,7 @@ impl eframe::App for LipcallApp {
                 view: p, prefs: pr, ..
             } in &peers
             {
-                if let Some(peer) = s.peers.get_mut(p.ssrc) {
+                if let Some(peer) = s.peers.get_mut(p.peer) {
                     peer.prefs = pr.clone();
                 }
                 if !p.is_demo && p.named {

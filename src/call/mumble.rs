@@ -15,7 +15,7 @@ use crate::net::mumble::client::ClientEvent;
 use crate::net::mumble::connection::{ConnectConfig, Connection, Notice, Remote};
 use crate::net::mumble::events::describe_unlisted;
 use crate::net::mumble::identity::Trust;
-use crate::net::transport::{PeerFrame, PeerInfo};
+use crate::net::transport::{PeerFrame, PeerId, PeerInfo};
 
 /// Whether a call address names a Mumble server (`mumble://HOST[:PORT][/CHANNEL]`).
 pub fn is_mumble_url(address: &str) -> bool {
@@ -275,7 +275,7 @@ impl Link for MumbleLink {
         c.speakers()
             .into_iter()
             .map(|(session, name, receiver, left)| PeerInfo {
-                ssrc: session,
+                id: PeerId::Mumble(session),
                 addr: server,
                 cname: None,
                 name: Some(name),
@@ -301,7 +301,7 @@ impl Link for MumbleLink {
             .into_iter()
             .filter(|m| !m.us && m.channel == ours && !spoke.contains(&m.session))
             .map(|m| PeerInfo {
-                ssrc: m.session,
+                id: PeerId::Mumble(m.session),
                 addr: c.address(),
                 cname: None,
                 name: Some(m.name),

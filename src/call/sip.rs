@@ -19,7 +19,7 @@ use crate::net::sip::media::{SipRtp, SipRtpStats, event_code};
 use crate::net::sip::sdp::{LocalAudio, Negotiated, SdesKey};
 use crate::net::sip::transport::SrtpPolicy;
 use crate::net::stun;
-use crate::net::transport::{PeerFrame, PeerInfo};
+use crate::net::transport::{PeerFrame, PeerId, PeerInfo};
 
 /// How long a hang-up waits for the peer to confirm it.
 const HANG_UP_WAIT: Duration = Duration::from_secs(3);
@@ -624,7 +624,7 @@ impl Link for SipLink {
             return Vec::new();
         };
         vec![PeerInfo {
-            ssrc,
+            id: PeerId::Ssrc(ssrc),
             addr,
             cname,
             name: Some(self.peer.clone()),

@@ -377,11 +377,11 @@ pub(crate) fn print_peer(peer: &PeerInfo) {
     let opt = |v: Option<f64>| v.map_or_else(|| "-".to_string(), |v| format!("{v:.1}"));
     let codec = peer.receiver.codec.map_or("-", Codec::name);
     eprintln!(
-        "peer ssrc={:08x} name={:?} addr={} codec={codec} received={} played={} lost={} late={} \
+        "peer {} name={:?} addr={} codec={codec} received={} played={} lost={} late={} \
          duplicates={} reordered={} concealed={} recovered={} stretched={} dropped={} forced={} \
          overflow={} flushed={} drift_ppm={:.0} unknown_pt={} decode_errors={} jitter_ms={:.1} target_ms={:.1} \
          delay_ms={:.1} rtt_ms={} their_loss={} bye={}",
-        peer.ssrc,
+        peer.id,
         peer.name.as_deref().unwrap_or(""),
         peer.addr,
         j.received,

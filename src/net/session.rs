@@ -35,7 +35,7 @@ mod types;
 pub use protocol::{LARGEST_DATAGRAM, SessionCore};
 pub use types::{SessionConfig, SessionStats};
 
-use super::transport::{Driver, PeerFrame, PeerInfo, SansIo, Transmit, TransmitKind};
+use super::transport::{Driver, PeerFrame, PeerId, PeerInfo, SansIo, Transmit, TransmitKind};
 
 /// How long the socket thread waits at most for a datagram before it looks at whether to stop.
 const POLL: Duration = Duration::from_millis(10);
