@@ -10,6 +10,7 @@ use std::time::{Duration, Instant};
 use lipcall::app::engine::{Engine, EngineConfig, lock};
 use lipcall::audio::DeviceChoice;
 use lipcall::net::session::{Session, SessionConfig};
+use lipcall::net::transport::PeerId;
 
 fn wait_for(what: &str, engine: &Engine, mut done: impl FnMut(&Engine) -> bool) {
     let deadline = Instant::now() + Duration::from_secs(15);
@@ -65,7 +66,7 @@ fn a_peer_that_leaves_leaves_no_state_behind() {
             s.peers.is_empty(),
             "round {round}: the peer's state is kept"
         );
-        assert!(s.peers.get(ssrc).is_none());
+        assert!(s.peers.get(PeerId::Ssrc(ssrc)).is_none());
         assert!(
             s.playback.peer_controls(feed).is_none(),
             "round {round}: its mixer slot is kept"

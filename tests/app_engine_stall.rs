@@ -2,7 +2,7 @@
 //! leaving a Janus room whose server hangs, and joining a Mumble server that accepts and says
 //! nothing all happen off the worker, whose every pass comes within 50 ms of the last (a pass
 //! that blocks holds up every peer's audio and face). So does looking up the host of a call
-//! when the resolver never answers.
+//! when the resolver never answers, and opening an output device (the PulseAudio null sink).
 
 mod common;
 
@@ -269,4 +269,34 @@ fn a_direct_call_to_a_name_is_placed_once_the_name_is_found() {
     let status = lock(&engine.shared).call.clone();
     assert!(status.in_call && status.error.is_none(), "{status:?}");
     assert!(status.state.contains(&port.to_string()), "{status:?}");
+}
+
+#[test]
+fn choosing_an_output_device_never_stalls_the_engine() {
+    if !common::pulse_running() {
+        common::unavailable("PulseAudio (bash .ci/pulse-null-sink.sh)");
+        return;
+    }
+    // Opened on the worker, the null sink held it for 0.5 s; a loaded machine's passes may
+    // pass STALL without any device in them.
+    const OPENING_STALL: Duration = Duration::from_millis(200);
+    let engine = common::app::headless_engine("Eve", None);
+    longest_pass_within(&engine, Duration::from_millis(500));
+    engine.send(Command::SetOutput(lipcall::audio::DeviceChoice::Default));
+    let opening = longest_pass_within(&engine, Duration::from_secs(3));
+    wait_for(&engine, "the speaker open", |e| {
+        lock(&e.shared).output_status.starts_with("speaker:")
+    });
+    // And again, replacing the device just opened (which closes off the worker too).
+    engine.counters.take_longest_pass();
+    engine.send(Command::SetOutput(lipcall::audio::DeviceChoice::Default));
+    let replacing = longest_pass_within(&engine, Duration::from_secs(3));
+    let status = lock(&engine.shared).output_status.clone();
+    eprintln!("longest pass opening {opening:?}, replacing {replacing:?}: {status}");
+    assert!(
+        opening < OPENING_STALL && replacing < OPENING_STALL,
+        "longest pass opening {opening:?}, replacing {replacing:?}"
+    );
+    assert!(status.starts_with("speaker:"), "{status}");
+    assert!(lock(&engine.shared).call.error.is_none());
 }

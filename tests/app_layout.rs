@@ -323,7 +323,7 @@ static START: std::sync::LazyLock<Instant> = std::sync::LazyLock::new(Instant::n
 fn peer(name: &str, ssrc: u32, joined_ms: u64) -> ShownPeer {
     ShownPeer {
         view: PeerView {
-            ssrc,
+            peer: lipcall::net::transport::PeerId::Ssrc(ssrc),
             name: name.into(),
             named: true,
             addr: "127.0.0.1:5004".parse().unwrap(),

@@ -26,7 +26,7 @@ fn peer(i: u32) -> ShownPeer {
     let addr: SocketAddr = format!("127.0.0.1:{}", 40000 + i).parse().unwrap();
     ShownPeer {
         view: PeerView {
-            ssrc: 1000 + i,
+            peer: lipcall::net::transport::PeerId::Ssrc(1000 + i),
             name: format!("Peer {i}"),
             named: true,
             addr,

@@ -3,7 +3,8 @@
 //! relay that never confirms a join, and a TURN server that grants its relay for 0 s. The
 //! receive ends by its `--seconds` with a clear error, within a second of a SIGTERM, and asks
 //! the TURN server no more than a few times. `send` and `relay` end at their `--seconds` and
-//! within a second of SIGTERM or SIGINT, with their summaries.
+//! within a second of SIGTERM or SIGINT, with their summaries; a `send` to a silent Janus or
+//! Mumble server ends by its `--seconds` even while it is still joining.
 
 mod common;
 
@@ -388,4 +389,78 @@ fn relay_ends_at_its_seconds_and_within_a_second_of_sigterm() {
         assert!(stderr.contains("stopped by a signal"), "{stderr}");
         assert!(stderr.contains("relay rooms=0"), "the summary: {stderr}");
     }
+}
+
+/// Half a second of a tone, quick to encode: the join, not the file, is what is timed.
+fn short_tone(dir: &std::path::Path) -> std::path::PathBuf {
+    let path = dir.join("tone.wav");
+    let spec = hound::WavSpec {
+        channels: 1,
+        sample_rate: 48_000,
+        bits_per_sample: 16,
+        sample_format: hound::SampleFormat::Int,
+    };
+    let mut wav = hound::WavWriter::create(&path, spec).unwrap();
+    for n in 0..24_000 {
+        let phase = f64::from(n) * 440.0 * std::f64::consts::TAU / 48_000.0;
+        wav.write_sample((phase.sin() * 8000.0) as i16).unwrap();
+    }
+    wav.finalize().unwrap();
+    path
+}
+
+/// `send --seconds 3` to a server that accepts and never answers ends by 4 s from its start
+/// with a clear error (the join used to wait for the server's own timeouts, or for ever), and
+/// within a second of a SIGTERM while it is still joining.
+fn a_silent_server_holds_a_send_neither_past_seconds_nor_sigterm(server: &[&str], said: &str) {
+    let dir = tempfile::tempdir().unwrap();
+    let tone = short_tone(dir.path());
+    let send = || {
+        let mut cmd = lipcall();
+        cmd.arg("send")
+            .arg(&tone)
+            .args(server)
+            .env("XDG_CONFIG_HOME", dir.path());
+        cmd
+    };
+    let started = Instant::now();
+    let tx = spawn(send().args(["--seconds", "3"]));
+    let (status, exited, stderr) = exit_within(tx, Duration::from_secs(20));
+    let took = exited - started;
+    eprintln!("--seconds 3 took {took:?}: {stderr}");
+    assert!(took < Duration::from_secs(4), "took {took:?}: {stderr}");
+    assert_eq!(status.and_then(|s| s.code()), Some(1), "{stderr}");
+    assert!(stderr.contains(said), "{stderr}");
+    assert!(stderr.contains("--seconds"), "{stderr}");
+
+    let tx = spawn(send().args(["--seconds", "60"]));
+    std::thread::sleep(Duration::from_millis(1500));
+    let asked = Instant::now();
+    sigterm(&tx);
+    let (status, exited, stderr) = exit_within(tx, Duration::from_secs(20));
+    let took = exited - asked;
+    eprintln!("SIGTERM took {took:?}: {stderr}");
+    assert!(took < Duration::from_secs(1), "took {took:?}: {stderr}");
+    assert!(status.is_some_and(|s| s.success()), "{stderr}");
+    assert!(stderr.contains("stopped by a signal before"), "{stderr}");
+}
+
+#[test]
+fn a_silent_janus_holds_a_send_neither_past_seconds_nor_sigterm() {
+    let server = silent_tcp();
+    let url = format!("http://{}/janus", server.addr);
+    a_silent_server_holds_a_send_neither_past_seconds_nor_sigterm(
+        &["--janus", &url, "--room", "1234"],
+        "no answer from Janus in time",
+    );
+}
+
+#[test]
+fn a_silent_mumble_server_holds_a_send_neither_past_seconds_nor_sigterm() {
+    let server = silent_tcp();
+    let address = server.addr.to_string();
+    a_silent_server_holds_a_send_neither_past_seconds_nor_sigterm(
+        &["--mumble", &address, "--name", "bot"],
+        "no answer from the Mumble server in time",
+    );
 }

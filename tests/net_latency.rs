@@ -6,7 +6,8 @@ use std::time::{Duration, Instant};
 use lipcall::codec::speex::codec::{
     Decoder, Encoder, EncoderConfig, FrameOutcome, MAX_PACKET_BYTES,
 };
-use lipcall::net::session::{PeerFrame, Session, SessionConfig};
+use lipcall::net::session::{Session, SessionConfig};
+use lipcall::net::transport::PeerFrame;
 use lipcall::vocab::FRAME_SIZE;
 
 const ONSET_FRAME: usize = 60;

@@ -15,8 +15,9 @@ use lipcall::codec::speex::codec::{Encoder, EncoderConfig, MAX_PACKET_BYTES};
 use lipcall::net::control::{self, Control, ControlKind, Cookie, Refusal, RoomId};
 use lipcall::net::peer::FrameKind;
 use lipcall::net::relay::{Relay, RelayConfig};
-use lipcall::net::session::{PeerFrame, Session, SessionConfig};
+use lipcall::net::session::{Session, SessionConfig};
 use lipcall::net::srtp::MasterKey;
+use lipcall::net::transport::PeerFrame;
 use lipcall::vocab::FRAME_SIZE;
 
 const FRAMES: u32 = 100; // 2 s
@@ -90,9 +91,9 @@ fn call(talkers: &[(&Session, Vec<Vec<u8>>)], listeners: &[&Session]) -> Vec<Hea
             listener.pull(due, &mut frames);
             for f in &frames {
                 if f.frame.kind == FrameKind::Decoded {
-                    *h.decoded.entry(f.ssrc).or_default() += 1;
+                    *h.decoded.entry(f.peer.number()).or_default() += 1;
                     h.pcm
-                        .entry(f.ssrc)
+                        .entry(f.peer.number())
                         .or_default()
                         .extend_from_slice(&f.frame.pcm);
                 }

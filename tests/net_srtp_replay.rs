@@ -15,8 +15,9 @@ use std::time::{Duration, Instant};
 use common::net::{Announce, fields, num, spawn, spawn_listening, talk};
 use common::{lipcall, run};
 use lipcall::net::peer::FrameKind;
-use lipcall::net::session::{PeerFrame, Session, SessionConfig};
+use lipcall::net::session::{Session, SessionConfig};
 use lipcall::net::srtp::MasterKey;
+use lipcall::net::transport::{PeerFrame, PeerId};
 
 /// Datagrams as they came, each with its time since the first.
 type Recording = Vec<(Duration, Vec<u8>)>;
@@ -162,7 +163,7 @@ fn play_out(session: &Session, stop: &AtomicBool) -> HashMap<u32, u32> {
         session.pull(due, &mut frames);
         for f in &frames {
             if f.frame.kind == FrameKind::Decoded {
-                *decoded.entry(f.ssrc).or_insert(0) += 1;
+                *decoded.entry(f.peer.number()).or_insert(0) += 1;
             }
         }
     }
@@ -213,7 +214,7 @@ fn a_callers_packets_replayed_after_its_peer_expired_are_not_played_again() {
         });
         // Its peer expires (after playing out).
         wait_until("the caller's peer expires", || {
-            receiver.peers().iter().all(|p| p.ssrc != ssrc)
+            receiver.peers().iter().all(|p| p.id != PeerId::Ssrc(ssrc))
         });
         // Its recording comes again, then a fresh caller talks.
         replay(&recording, to);
@@ -223,7 +224,10 @@ fn a_callers_packets_replayed_after_its_peer_expired_are_not_played_again() {
         drop(fresh);
         // Once its peer has expired too, everything it sent has played.
         wait_until("the fresh caller's peer expires", || {
-            receiver.peers().iter().all(|p| p.ssrc != fresh_ssrc)
+            receiver
+                .peers()
+                .iter()
+                .all(|p| p.id != PeerId::Ssrc(fresh_ssrc))
         });
         stop.store(true, Ordering::Relaxed);
         let decoded = player.join().unwrap();
@@ -231,7 +235,7 @@ fn a_callers_packets_replayed_after_its_peer_expired_are_not_played_again() {
         assert_eq!(decoded.get(&fresh_ssrc), Some(&frames), "{decoded:?}");
         // Played once, when it was live; not a frame of the replay.
         assert_eq!(decoded.get(&ssrc), Some(&frames), "{decoded:?}");
-        assert!(receiver.peers().iter().all(|p| p.ssrc != ssrc));
+        assert!(receiver.peers().iter().all(|p| p.id != PeerId::Ssrc(ssrc)));
         let stats = receiver.stats();
         let media = recording
             .iter()

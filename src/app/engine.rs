@@ -6,6 +6,7 @@
 
 mod lookup;
 mod news;
+mod output;
 mod phase;
 mod place;
 mod ring;
@@ -31,7 +32,8 @@ use crate::codec::opus::codec::Bandwidth;
 use crate::net::host_port::{HostPort, resolve_with_port};
 use crate::net::janus::candidates::IceServers;
 use crate::net::janus::messages::JanusAuth;
-use crate::net::session::{PeerFrame, PeerInfo, Session, SessionConfig};
+use crate::net::session::{Session, SessionConfig};
+use crate::net::transport::{PeerFrame, PeerInfo};
 use crate::vocab::MAX_FRAME_SAMPLES;
 
 pub use super::call_status::{CallPhase, CallStatus, DIRECT_ANSWER_WAIT, Encryption};
@@ -40,6 +42,7 @@ use super::demo::Demo;
 use super::listen::dialable;
 use super::lookup::Lookups;
 use super::mumble_call::{MumbleCall, MumbleJoin, MumbleView};
+use super::output::OutputOpener;
 use super::retire::Retirer;
 use super::ring_notice::RingNotice;
 use super::roster::Roster;
@@ -263,6 +266,8 @@ struct Worker {
     lookups: Lookups<Then>,
     /// The desktop notification of the call that rings.
     posted: Option<RingNotice>,
+    /// The output device chosen, opening.
+    outputs: OutputOpener,
 }
 
 /// What follows a call's host being found ([`Lookups`]).
@@ -308,6 +313,7 @@ impl Worker {
             phone: SipPhone::default(),
             lookups: Lookups::default(),
             posted: None,
+            outputs: OutputOpener::default(),
             config,
             shared,
             counters,
@@ -501,19 +507,7 @@ impl Worker {
                 self.open_mic(&choice);
                 Ok(())
             }
-            Command::SetOutput(choice) => {
-                // Opening a device can take 2 s (PulseAudio): not under the lock the UI takes
-                // every frame.
-                let buffer = lock(&self.shared).playback.buffer();
-                let opened = Playback::open_output(&choice, buffer);
-                let mut s = lock(&self.shared);
-                let r = opened.and_then(|o| s.playback.use_output(choice, o));
-                let status = describe_output(s.playback.status());
-                s.output_status = status;
-                drop(s);
-                // The device replaced closes here, outside the lock too.
-                r.map(drop).map_err(Into::into)
-            }
+            Command::SetOutput(choice) => self.open_output(choice),
         };
         if let Err(e) = result {
             lock(&self.shared).call.error = Some(format!("{e:#}"));
@@ -546,6 +540,7 @@ impl Worker {
             }
             self.send_mic();
             self.follow_lookup();
+            self.follow_output();
             self.follow_link();
             self.refresh_mumble();
             self.follow_phone();

@@ -14,6 +14,7 @@ pub mod engine;
 pub mod listen;
 mod lookup;
 pub mod mumble_call;
+mod output;
 pub mod peer;
 pub mod peer_panel;
 mod retire;
@@ -346,11 +347,11 @@ impl LipcallApp {
         ) in peers.iter().enumerate()
         {
             text += &format!(
-                "peer ssrc={:08x} name={:?} demo={} talking={} animated={} shown={} received={} \
+                "peer {} name={:?} demo={} talking={} animated={} shown={} received={} \
                  codec={} recovered={} unknown_pt={} jitter_buffer_ms={:.1} queue_ms={:.1} \
                  starved_ms={:.0} jitter_ms={:.1} target_ms={:.1} stretched={} dropped={} \
                  late={}\n",
-                p.ssrc,
+                p.peer,
                 p.name,
                 p.is_demo,
                 p.talking,
@@ -504,7 +505,7 @@ impl eframe::App for LipcallApp {
                 view: p, prefs: pr, ..
             } in &peers
             {
-                if let Some(peer) = s.peers.get_mut(p.ssrc) {
+                if let Some(peer) = s.peers.get_mut(p.peer) {
                     peer.prefs = pr.clone();
                 }
                 if !p.is_demo && p.named {

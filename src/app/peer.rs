@@ -12,6 +12,7 @@ use crate::codec::any::Codec;
 use crate::lipsync::LipSyncOptions;
 use crate::lipsync::life::DEFAULT_SEED;
 use crate::net::jitter::JitterStats;
+use crate::net::transport;
 use crate::vocab::{FrameFeatures, VisemeSet};
 
 use super::settings::PeerPrefs;
@@ -47,13 +48,13 @@ pub struct RemotePeer {
 
 impl RemotePeer {
     /// A peer heard for the first time, with its mixer slot; its living face is seeded by its
-    /// SSRC, so two peers do not blink together.
-    pub(super) fn new(ssrc: u32, feed: PeerFeed) -> Self {
+    /// id, so two peers do not blink together.
+    pub(super) fn new(id: transport::PeerId, feed: PeerFeed) -> Self {
         let prefs = PeerPrefs::default();
         let (weights, schedule) = Schedule::channel_with_rows(SCHEDULE_ROWS, feed.frame_len());
         Self {
             view: None,
-            animation: PeerAnimation::with_seed(&prefs, u64::from(ssrc)),
+            animation: PeerAnimation::with_seed(&prefs, u64::from(id.number())),
             prefs,
             saved_prefs_applied: false,
             frames_shown: 0,
@@ -80,7 +81,7 @@ pub const LEVEL_FLOOR_DB: f32 = -60.0;
 /// One remote peer as the UI shows it.
 #[derive(Debug, Clone)]
 pub struct PeerView {
-    pub ssrc: u32,
+    pub peer: transport::PeerId,
     pub name: String,
     /// `name` is the peer's own (SDES NAME), not its CNAME or SSRC, which change with every
     /// run: only a named peer's choices are saved.
@@ -148,7 +149,7 @@ impl PeerAnimation {
         Self::with_seed(prefs, DEFAULT_SEED)
     }
 
-    /// With the living face seeded by `seed` (the app uses the peer's SSRC, so two peers do not
+    /// With the living face seeded by `seed` (the app uses the peer's id, so two peers do not
     /// blink together).
     pub fn with_seed(prefs: &PeerPrefs, seed: u64) -> Self {
         let model = crate::lipsync::builtin::shipped();

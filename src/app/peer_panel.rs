@@ -262,7 +262,7 @@ pub fn tiles_ui(ui: &mut egui::Ui, peers: &mut [ShownPeer], mut heads: Option<&m
     for ((shown, cell), colour) in peers.iter_mut().zip(rects).zip(colours) {
         let mut tile_ui = ui.new_child(
             egui::UiBuilder::new()
-                .id_salt(("tile", shown.view.ssrc))
+                .id_salt(("tile", shown.view.peer))
                 .max_rect(cell)
                 .layout(egui::Layout::top_down(egui::Align::Min)),
         );
@@ -440,7 +440,7 @@ fn head_ui(
     match heads {
         Some(heads) if rect.height() >= 1.0 => {
             let tile = HeadTile {
-                id: u64::from(p.ssrc),
+                id: u64::from(p.peer.number()),
                 framing: if shown.prefs.lipreading {
                     Framing::Mouth
                 } else {

@@ -1,6 +1,6 @@
-//! The call's remote peers by SSRC: each admitted on its first frame, animated frame by frame,
-//! described for the UI from what the link reports, and forgotten in one place, with its mixer
-//! slot, when it leaves or the call ends.
+//! The call's remote peers by their link's [`PeerId`]: each admitted on its first frame,
+//! animated frame by frame, described for the UI from what the link reports, and forgotten in
+//! one place, with its mixer slot, when it leaves or the call ends.
 
 use std::collections::{BTreeMap, VecDeque};
 use std::sync::atomic::Ordering;
@@ -8,7 +8,7 @@ use std::time::{Duration, Instant};
 
 use crate::audio::Playback;
 use crate::net::peer::FrameKind;
-use crate::net::session::{PeerFrame, PeerInfo};
+use crate::net::transport::{PeerFrame, PeerId, PeerInfo};
 
 use super::counters::{DEMO_NAME, EngineCounters};
 use super::peer::{LEVEL_FLOOR_DB, PeerView, RemotePeer};
@@ -27,18 +27,18 @@ const LEVEL_FALL_DB: f32 = 3.0;
 
 #[derive(Default)]
 pub struct Roster {
-    peers: BTreeMap<u32, RemotePeer>,
+    peers: BTreeMap<PeerId, RemotePeer>,
     /// The names of peers who left the call going on, and when.
     left: VecDeque<(String, Instant)>,
 }
 
 impl Roster {
-    pub fn get(&self, ssrc: u32) -> Option<&RemotePeer> {
-        self.peers.get(&ssrc)
+    pub fn get(&self, peer: PeerId) -> Option<&RemotePeer> {
+        self.peers.get(&peer)
     }
 
-    pub fn get_mut(&mut self, ssrc: u32) -> Option<&mut RemotePeer> {
-        self.peers.get_mut(&ssrc)
+    pub fn get_mut(&mut self, peer: PeerId) -> Option<&mut RemotePeer> {
+        self.peers.get_mut(&peer)
     }
 
     pub fn iter_mut(&mut self) -> impl Iterator<Item = &mut RemotePeer> {
@@ -83,12 +83,12 @@ impl Roster {
         counters: &EngineCounters,
     ) {
         for f in frames {
-            let peer = match self.peers.entry(f.ssrc) {
+            let peer = match self.peers.entry(f.peer) {
                 std::collections::btree_map::Entry::Occupied(e) => e.into_mut(),
                 std::collections::btree_map::Entry::Vacant(e) => match playback.add_peer() {
-                    Ok(feed) => e.insert(RemotePeer::new(f.ssrc, feed)),
+                    Ok(feed) => e.insert(RemotePeer::new(f.peer, feed)),
                     Err(err) => {
-                        tracing::debug!("peer {:08x} not played: {err}", f.ssrc);
+                        tracing::debug!("peer {} not played: {err}", f.peer);
                         continue;
                     }
                 },
@@ -132,8 +132,8 @@ impl Roster {
                 peer.weights.send(pos, row);
             }
         }
-        for (ssrc, peer) in &mut self.peers {
-            if frames.iter().any(|f| f.ssrc == *ssrc) {
+        for (id, peer) in &mut self.peers {
+            if frames.iter().any(|f| f.peer == *id) {
                 continue;
             }
             peer.playing = false;
@@ -149,17 +149,17 @@ impl Roster {
     /// Takes the link's account of its peers: describes those it knows for the UI and forgets
     /// those it no longer knows or that said goodbye and went quiet.
     pub(super) fn describe(&mut self, playback: &mut Playback, infos: &[PeerInfo], now: Instant) {
-        let gone: Vec<u32> = self
+        let gone: Vec<PeerId> = self
             .peers
             .keys()
             .copied()
-            .filter(|ssrc| !infos.iter().any(|i| i.ssrc == *ssrc && !i.ended))
+            .filter(|id| !infos.iter().any(|i| i.id == *id && !i.ended))
             .collect();
-        for ssrc in gone {
-            self.forget(playback, ssrc, now);
+        for id in gone {
+            self.forget(playback, id, now);
         }
         for info in infos {
-            let Some(peer) = self.peers.get_mut(&info.ssrc) else {
+            let Some(peer) = self.peers.get_mut(&info.id) else {
                 continue;
             };
             peer.view = Some(view_of(peer, info, now));
@@ -170,12 +170,12 @@ impl Roster {
     /// speak, and their controls.
     pub(super) fn seat(&mut self, playback: &mut Playback, members: &[PeerInfo]) {
         for m in members {
-            if let std::collections::btree_map::Entry::Vacant(e) = self.peers.entry(m.ssrc) {
+            if let std::collections::btree_map::Entry::Vacant(e) = self.peers.entry(m.id) {
                 match playback.add_peer() {
                     Ok(feed) => {
-                        e.insert(RemotePeer::new(m.ssrc, feed));
+                        e.insert(RemotePeer::new(m.id, feed));
                     }
-                    Err(err) => tracing::debug!("member {:08x} not shown: {err}", m.ssrc),
+                    Err(err) => tracing::debug!("member {} not shown: {err}", m.id),
                 }
             }
         }
@@ -191,8 +191,8 @@ impl Roster {
     }
 
     /// Lets a peer go; one that was shown leaves a notice with its name.
-    fn forget(&mut self, playback: &mut Playback, ssrc: u32, now: Instant) {
-        let Some(peer) = self.peers.remove(&ssrc) else {
+    fn forget(&mut self, playback: &mut Playback, id: PeerId, now: Instant) {
+        let Some(peer) = self.peers.remove(&id) else {
             return;
         };
         playback.remove_peer(peer.feed.id());
@@ -208,7 +208,7 @@ impl Roster {
 }
 
 /// The name a peer gave (a SIP URI's display name, or its user), else its CNAME, else its
-/// SSRC: an id only where nothing better exists.
+/// id: an id only where nothing better exists.
 pub fn shown_name(info: &PeerInfo) -> String {
     if let Some(name) = info
         .name
@@ -221,7 +221,7 @@ pub fn shown_name(info: &PeerInfo) -> String {
     info.cname
         .clone()
         .filter(|c| !c.trim().is_empty())
-        .unwrap_or_else(|| format!("peer {:08x}", info.ssrc))
+        .unwrap_or_else(|| info.id.to_string())
 }
 
 /// `"Bob" <sip:bob@host>` as Bob, `sip:bob@host` as bob; `None` for what is no SIP address.
@@ -252,7 +252,7 @@ fn view_of(peer: &RemotePeer, info: &PeerInfo, now: Instant) -> PeerView {
     let jitter = &info.receiver.jitter;
     let expected = jitter.played + jitter.lost;
     PeerView {
-        ssrc: info.ssrc,
+        peer: info.id,
         name: shown_name(info),
         named: info.name.as_deref().is_some_and(|n| !n.trim().is_empty()),
         addr: info.addr,
@@ -341,7 +341,7 @@ mod tests {
     fn frame(ssrc: u32, energy_db: f32) -> PeerFrame {
         let amplitude = if energy_db > -90.0 { 3000.0 } else { 0.0 };
         PeerFrame {
-            ssrc,
+            peer: PeerId::Ssrc(ssrc),
             frame: PlayedFrame::narrowband(
                 std::array::from_fn(|i| (amplitude * (i as f32 * 0.3).sin()) as i16),
                 FrameFeatures {
@@ -361,7 +361,7 @@ mod tests {
 
     fn info(ssrc: u32, name: &str) -> PeerInfo {
         PeerInfo {
-            ssrc,
+            id: PeerId::Ssrc(ssrc),
             addr: SocketAddr::from(([127, 0, 0, 1], 5004)),
             cname: Some(format!("{name}@127.0.0.1")),
             name: Some(name.to_owned()),
@@ -379,13 +379,16 @@ mod tests {
         call.pull(0, &[voiced(7)]);
         assert_eq!(call.roster.len(), 1);
         assert!(call.roster.views().is_empty(), "not described yet");
-        let feed = call.roster.get(7).unwrap().feed();
+        let feed = call.roster.get(PeerId::Ssrc(7)).unwrap().feed();
         assert!(call.playback.peer_controls(feed).is_some(), "a mixer slot");
 
         call.report(200, &[info(7, "Ann"), info(9, "Bob")]);
         let views = call.roster.views();
         assert_eq!(views.len(), 1, "Bob has sent no frame: nothing to show");
-        assert_eq!((views[0].ssrc, views[0].name.as_str()), (7, "Ann"));
+        assert_eq!(
+            (views[0].peer, views[0].name.as_str()),
+            (PeerId::Ssrc(7), "Ann")
+        );
         assert!(views[0].named);
         assert_eq!(views[0].feed, feed);
         assert_eq!(views[0].frames_received, 1);
@@ -418,18 +421,21 @@ mod tests {
     fn a_peer_that_leaves_is_forgotten_with_its_mixer_slot_and_choices() {
         let mut call = Call::new();
         call.pull(0, &[voiced(7), voiced(8)]);
-        call.roster.get_mut(7).unwrap().prefs.muted = true;
+        call.roster.get_mut(PeerId::Ssrc(7)).unwrap().prefs.muted = true;
         let (feed7, feed8) = (
-            call.roster.get(7).unwrap().feed(),
-            call.roster.get(8).unwrap().feed(),
+            call.roster.get(PeerId::Ssrc(7)).unwrap().feed(),
+            call.roster.get(PeerId::Ssrc(8)).unwrap().feed(),
         );
         let mut ended = info(8, "Bob");
         ended.ended = true;
         call.report(200, &[info(7, "Ann"), ended]);
-        assert!(call.roster.get(8).is_none(), "said goodbye and went quiet");
+        assert!(
+            call.roster.get(PeerId::Ssrc(8)).is_none(),
+            "said goodbye and went quiet"
+        );
         assert!(call.playback.peer_controls(feed8).is_none());
         assert!(
-            call.roster.get(7).unwrap().prefs.muted,
+            call.roster.get(PeerId::Ssrc(7)).unwrap().prefs.muted,
             "Ann's choice stays"
         );
 
@@ -439,7 +445,7 @@ mod tests {
 
         call.pull(420, &[voiced(7)]);
         assert!(
-            !call.roster.get(7).unwrap().prefs.muted,
+            !call.roster.get(PeerId::Ssrc(7)).unwrap().prefs.muted,
             "back after leaving: a new peer with default choices"
         );
     }
@@ -465,7 +471,7 @@ mod tests {
     fn the_mixer_follows_a_peers_mute_and_volume() {
         let mut call = Call::new();
         call.pull(0, &[voiced(7)]);
-        let peer = call.roster.get_mut(7).unwrap();
+        let peer = call.roster.get_mut(PeerId::Ssrc(7)).unwrap();
         peer.prefs.muted = true;
         peer.prefs.volume = 0.5;
         let feed = peer.feed();
@@ -496,7 +502,7 @@ mod tests {
         // 8 kHz frames were resampled to it), and none elsewhere.
         let frame = call.playback.mix_rate() as usize / 50;
         assert_eq!(frame, 960);
-        let schedule = &mut call.roster.get_mut(7).unwrap().schedule;
+        let schedule = &mut call.roster.get_mut(PeerId::Ssrc(7)).unwrap().schedule;
         let covered = (0..40 * frame as u64)
             .filter(|&pos| schedule.at(pos).is_some())
             .count();
@@ -510,7 +516,7 @@ mod tests {
         call.pull(20, &[]);
         assert_eq!(call.count(&call.counters.frames_animated), 1);
         assert_eq!(call.count(&call.counters.weights_sent), 1);
-        call.roster.get_mut(7).unwrap().prefs.animate = false;
+        call.roster.get_mut(PeerId::Ssrc(7)).unwrap().prefs.animate = false;
         for i in 2..11 {
             call.pull(20 * i, &[voiced(7)]);
         }
@@ -540,7 +546,7 @@ mod tests {
         call.pull(0, &frames);
         let feeds: Vec<_> = ssrcs
             .iter()
-            .map(|&s| call.roster.get(s).unwrap().feed())
+            .map(|&s| call.roster.get(PeerId::Ssrc(s)).unwrap().feed())
             .collect();
         call.roster.clear(&mut call.playback);
         assert!(call.roster.is_empty());

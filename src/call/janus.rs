@@ -1,17 +1,17 @@
 //! A room on a Janus server as a call's [`Link`]: VideoRoom signalling and WebRTC media
 //! ([`crate::net::janus`]). The app's join (HTTP signalling, ICE and DTLS take a second or
 //! more) runs on its own thread so that the 20 ms tick never waits for it; the command line
-//! joins first and hands the room over.
+//! waits for it by its deadline.
 
 use std::net::SocketAddr;
-use std::sync::atomic::{AtomicBool, Ordering};
+use std::sync::atomic::AtomicBool;
 use std::thread::JoinHandle;
-use std::time::{Duration, Instant};
+use std::time::Instant;
 
-use super::link::{Link, LinkEvent};
+use super::link::{JoinWait, Link, LinkEvent, wait_for_join};
 use crate::net::janus::JanusError;
 use crate::net::janus::room::{Member, Notice, RoomConfig, server_addr};
-use crate::net::session::{PeerFrame, PeerInfo};
+use crate::net::transport::{PeerFrame, PeerInfo};
 
 /// RTP ticks of one 20 ms frame on WebRTC's 48 kHz Opus clock.
 const OPUS_TICKS_PER_FRAME: u32 = 960;
@@ -35,17 +35,8 @@ pub enum JoinError {
     Thread(#[from] std::io::Error),
 }
 
-/// How waiting for a join ended.
-#[derive(Debug)]
-pub enum JoinWait {
-    /// In the room: what happened there meanwhile.
-    Joined(Vec<Notice>),
-    Failed(JanusError),
-    /// The stop flag was set first.
-    Stopped,
-    /// The deadline passed first.
-    TimedOut,
-}
+/// How waiting for a Janus join ended.
+pub type JanusJoinWait = JoinWait<Vec<Notice>, JanusError>;
 
 /// Our membership of a Janus VideoRoom, from the first request on.
 pub struct JanusLink {
@@ -134,23 +125,20 @@ impl JanusLink {
     /// Waits for the join until it is done, `stop` is set or `until` passes, whichever comes
     /// first: a Janus that never answers holds neither a signal nor a deadline. A join given
     /// up goes on on its thread; its session times out on the server.
-    pub fn wait_joined(&mut self, stop: &AtomicBool, until: Option<Instant>) -> JoinWait {
-        loop {
-            match self.join_finished() {
-                Some(Ok(notices)) => return JoinWait::Joined(notices),
-                Some(Err(e)) => return JoinWait::Failed(e),
-                None if !matches!(self.state, RoomState::Joining(_)) => {
-                    return JoinWait::Failed(JanusError::Protocol("not joining".into()));
-                }
-                None => {}
+    pub fn wait_joined(&mut self, stop: &AtomicBool, until: Option<Instant>) -> JanusJoinWait {
+        wait_for_join(stop, until, || match self.join_finished() {
+            None if !matches!(self.state, RoomState::Joining(_)) => {
+                Some(Err(JanusError::Protocol("not joining".into())))
             }
-            if stop.load(Ordering::Relaxed) {
-                return JoinWait::Stopped;
-            }
-            if until.is_some_and(|until| Instant::now() >= until) {
-                return JoinWait::TimedOut;
-            }
-            std::thread::sleep(Duration::from_millis(10));
+            finished => finished,
+        })
+    }
+
+    /// Our membership once joined, taken out of the link (the command line's send).
+    pub fn into_member(self) -> Option<Member> {
+        match self.state {
+            RoomState::In(member) => Some(*member),
+            _ => None,
         }
     }
 

@@ -5,10 +5,12 @@
 //! alone. What only one transport can do is asked of a handle the link gives out.
 
 use std::net::SocketAddr;
-use std::time::Instant;
+use std::sync::atomic::{AtomicBool, Ordering};
+use std::time::{Duration, Instant};
 
 use crate::codec::any::Codec;
-use crate::net::session::{PeerFrame, PeerInfo, Session};
+use crate::net::session::Session;
+use crate::net::transport::{PeerFrame, PeerInfo};
 
 /// What a link did since the last poll, for the caller to show.
 #[derive(Debug, Clone, PartialEq)]
@@ -78,6 +80,46 @@ impl LinkEvent {
             self,
             LinkEvent::Failed(_) | LinkEvent::Over { .. } | LinkEvent::Ended { .. }
         )
+    }
+}
+
+/// How waiting for a link's join (on its own thread) ended.
+#[derive(Debug)]
+pub enum JoinWait<T, E> {
+    /// Joined: what the join has to tell.
+    Joined(T),
+    Failed(E),
+    /// The stop flag was set first.
+    Stopped,
+    /// The deadline passed first.
+    TimedOut,
+}
+
+/// How often a join's end, the stop flag and the deadline are looked at.
+const JOIN_LOOK: Duration = Duration::from_millis(10);
+
+/// Asks `finished` until it has the join's outcome, `stop` is set or `until` passes, whichever
+/// comes first: a server that never answers holds neither a signal nor a deadline.
+pub fn wait_for_join<T, E>(
+    stop: &AtomicBool,
+    until: Option<Instant>,
+    mut finished: impl FnMut() -> Option<Result<T, E>>,
+) -> JoinWait<T, E> {
+    loop {
+        match finished() {
+            Some(Ok(joined)) => return JoinWait::Joined(joined),
+            Some(Err(e)) => return JoinWait::Failed(e),
+            None => {}
+        }
+        if stop.load(Ordering::Relaxed) {
+            return JoinWait::Stopped;
+        }
+        let now = Instant::now();
+        match until {
+            Some(until) if now >= until => return JoinWait::TimedOut,
+            Some(until) => std::thread::sleep(JOIN_LOOK.min(until - now)),
+            None => std::thread::sleep(JOIN_LOOK),
+        }
     }
 }
 

@@ -2,19 +2,20 @@
 //! session id) is a peer with the user's name, received through the same jitter buffer and
 //! Opus decoder as every other transport ([`crate::net::mumble`]). The app's join runs on a
 //! thread of its own (TLS and the server's answer take a moment; the 20 ms tick never waits
-//! for it); the command line joins first and hands the connection over.
+//! for it); the command line waits for it by its deadline and takes the connection over.
 
+use std::sync::atomic::AtomicBool;
 use std::sync::{Arc, OnceLock};
 use std::thread::JoinHandle;
 use std::time::Instant;
 
-use super::link::{Link, LinkEvent};
+use super::link::{JoinWait, Link, LinkEvent, wait_for_join};
 use crate::net::mumble::MumbleError;
 use crate::net::mumble::client::ClientEvent;
 use crate::net::mumble::connection::{ConnectConfig, Connection, Notice, Remote};
 use crate::net::mumble::events::describe_unlisted;
 use crate::net::mumble::identity::Trust;
-use crate::net::session::{PeerFrame, PeerInfo};
+use crate::net::transport::{PeerFrame, PeerId, PeerInfo};
 
 /// Whether a call address names a Mumble server (`mumble://HOST[:PORT][/CHANNEL]`).
 pub fn is_mumble_url(address: &str) -> bool {
@@ -148,33 +149,65 @@ impl MumbleLink {
         self.ended.as_deref()
     }
 
-    /// The join's outcome once its thread is done.
-    fn follow_join(&mut self) -> Option<LinkEvent> {
+    /// The join's outcome once its thread is done (in, or gone); none before.
+    fn join_finished(&mut self) -> Option<Result<(), MumbleError>> {
         let Stage::Joining(thread) = &mut self.stage else {
             return None;
         };
         if !thread.as_ref().is_some_and(JoinHandle::is_finished) {
             return None;
         }
-        match thread.take().map(JoinHandle::join) {
-            Some(Ok(Ok(connection))) => {
-                let id = connection
-                    .session()
-                    .map_or_else(|| "-".into(), |s| s.to_string());
+        let joined = match thread.take().map(JoinHandle::join) {
+            Some(Ok(joined)) => joined,
+            _ => Err(MumbleError::Io(std::io::Error::other(
+                "the join stopped unexpectedly",
+            ))),
+        };
+        Some(match joined {
+            Ok(connection) => {
                 self.enter(connection);
-                Some(LinkEvent::Joined {
-                    place: self.place.clone(),
-                    id,
-                })
+                Ok(())
             }
-            Some(Ok(Err(e))) => {
+            Err(e) => {
                 self.stage = Stage::Gone;
-                Some(LinkEvent::Failed(e.to_string()))
+                Err(e)
             }
-            _ => {
-                self.stage = Stage::Gone;
-                Some(LinkEvent::Failed("the join stopped unexpectedly".into()))
-            }
+        })
+    }
+
+    /// The join's outcome once its thread is done, as news.
+    fn follow_join(&mut self) -> Option<LinkEvent> {
+        Some(match self.join_finished()? {
+            Ok(()) => LinkEvent::Joined {
+                place: self.place.clone(),
+                id: self
+                    .connection()
+                    .and_then(Connection::session)
+                    .map_or_else(|| "-".into(), |s| s.to_string()),
+            },
+            Err(e) => LinkEvent::Failed(e.to_string()),
+        })
+    }
+
+    /// Waits for the join until it is done, `stop` is set or `until` passes, whichever comes
+    /// first. A join given up goes on on its thread until its own timeouts end it.
+    pub fn wait_joined(
+        &mut self,
+        stop: &AtomicBool,
+        until: Option<Instant>,
+    ) -> JoinWait<(), MumbleError> {
+        wait_for_join(stop, until, || match self.stage {
+            Stage::Joining(_) => self.join_finished(),
+            Stage::In(_) => Some(Ok(())),
+            Stage::Gone => Some(Err(MumbleError::NotConnected)),
+        })
+    }
+
+    /// The connection once joined, taken out of the link (the command line's send).
+    pub fn into_connection(self) -> Option<Connection> {
+        match self.stage {
+            Stage::In(connection) => Some(*connection),
+            _ => None,
         }
     }
 
@@ -242,7 +275,7 @@ impl Link for MumbleLink {
         c.speakers()
             .into_iter()
             .map(|(session, name, receiver, left)| PeerInfo {
-                ssrc: session,
+                id: PeerId::Mumble(session),
                 addr: server,
                 cname: None,
                 name: Some(name),
@@ -268,7 +301,7 @@ impl Link for MumbleLink {
             .into_iter()
             .filter(|m| !m.us && m.channel == ours && !spoke.contains(&m.session))
             .map(|m| PeerInfo {
-                ssrc: m.session,
+                id: PeerId::Mumble(m.session),
                 addr: c.address(),
                 cname: None,
                 name: Some(m.name),

@@ -14,12 +14,12 @@ use super::events::LinkEvents;
 use super::link::{Link, LinkEvent};
 use super::media::Packets;
 use crate::codec::any::{Codec, EncoderSettings, FrameEncoder, MAX_FRAME_PAYLOAD};
-use crate::net::session::{PeerFrame, PeerInfo};
 use crate::net::sip::agent::{Account, Agent, AgentConfig, AgentEvent, Decision, Role, SipError};
 use crate::net::sip::media::{SipRtp, SipRtpStats, event_code};
 use crate::net::sip::sdp::{LocalAudio, Negotiated, SdesKey};
 use crate::net::sip::transport::SrtpPolicy;
 use crate::net::stun;
+use crate::net::transport::{PeerFrame, PeerId, PeerInfo};
 
 /// How long a hang-up waits for the peer to confirm it.
 const HANG_UP_WAIT: Duration = Duration::from_secs(3);
@@ -626,7 +626,7 @@ impl Link for SipLink {
             return Vec::new();
         };
         vec![PeerInfo {
-            ssrc,
+            id: PeerId::Ssrc(ssrc),
             addr,
             cname,
             name: Some(self.peer.clone()),

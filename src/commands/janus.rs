@@ -10,11 +10,12 @@ use anyhow::{Context, Result, anyhow, bail};
 use zeroize::Zeroizing;
 
 use super::net::{
-    KeyArgs, Paced, Pacing, ReceiveArgs, SendArgs, load_packets, print_peer, send_paced,
+    KeyArgs, Paced, Pacing, ReceiveArgs, SendArgs, deadline, load_packets, print_peer, send_paced,
 };
 use super::playout::{JANUS, ReceiveOutputs, play, print_event};
 use super::recording::stop_flag;
-use crate::call::janus::{JanusLink, JoinWait};
+use crate::call::janus::JanusLink;
+use crate::call::link::JoinWait;
 use crate::codec::any::{Codec, EncoderSettings};
 use crate::net::janus::JanusError;
 use crate::net::janus::candidates::{IceServers, TurnServer};
@@ -78,19 +79,39 @@ fn pin_hint(e: JanusError) -> anyhow::Error {
     }
 }
 
+fn no_answer_in_time(seconds: Option<f64>) -> anyhow::Error {
+    let seconds = seconds.unwrap_or_default();
+    anyhow!("no answer from Janus in time: not in the room after the {seconds} s of --seconds")
+}
+
 /// Publishes a file's audio in the room, paced in real time, for at most `seconds` from the
-/// first packet.
+/// first packet; the join too may take no longer than `seconds`.
 pub fn send(input: &std::path::Path, janus: &JanusArgs, seconds: Option<f64>) -> Result<()> {
     let settings = EncoderSettings::wideband(crate::codec::opus::codec::Bandwidth::Fullband);
     let (codec, packets) = load_packets(input, Some(Codec::Opus), &settings)?;
     if packets.is_empty() {
         bail!("{}: no audio to send", input.display());
     }
-    let (mut room, _) = Member::join(janus.config(false, "lipcall"), true)
-        .map_err(pin_hint)
-        .with_context(|| format!("publishing in room {:?} on {}", janus.room, janus.url))?;
+    let stop = stop_flag()?;
+    let joining = || format!("publishing in room {:?} on {}", janus.room, janus.url);
+    let mut link = JanusLink::start(janus.config(false, "lipcall"), true)
+        .map_err(anyhow::Error::new)
+        .with_context(joining)?;
+    let notices = match link.wait_joined(&stop, deadline(seconds)) {
+        JoinWait::Joined(notices) => notices,
+        JoinWait::Failed(e) => return Err(pin_hint(e)).with_context(joining),
+        JoinWait::Stopped => {
+            eprintln!("lipcall: stopped by a signal before the room was joined");
+            return Ok(());
+        }
+        JoinWait::TimedOut => return Err(no_answer_in_time(seconds)).with_context(joining),
+    };
+    let mut room = link
+        .into_member()
+        .ok_or_else(|| anyhow!("joined, yet not in the room"))?;
     announce_security();
-    // From the first packet on (a signal before it ends the join as it always did).
+    print_notices(&notices);
+    // From the first packet on.
     let pacing = Pacing::new(seconds)?;
     let clock = f64::from(codec.clock_rate());
     let ticks: u64 = packets.iter().map(|(_, t)| u64::from(*t)).sum();
@@ -275,24 +296,17 @@ pub fn receive_with(
     let joining = || format!("joining room {:?} on {}", args.janus.room, args.janus.url);
     // The join may take no longer than the whole receive was to last.
     let seconds = args.out.seconds;
-    let until = seconds.map(|s| Instant::now() + Duration::from_secs_f64(s));
     let mut link = JanusLink::start(args.janus.config(true, "lipcall-receiver"), false)
         .map_err(anyhow::Error::new)
         .with_context(joining)?;
-    let notices = match link.wait_joined(&stop, until) {
+    let notices = match link.wait_joined(&stop, deadline(seconds)) {
         JoinWait::Joined(notices) => notices,
         JoinWait::Failed(e) => return Err(pin_hint(e)).with_context(joining),
         JoinWait::Stopped => {
             eprintln!("lipcall: stopped by a signal before the room was joined");
             return recorder.finish();
         }
-        JoinWait::TimedOut => {
-            let seconds = seconds.unwrap_or_default();
-            return Err(anyhow!(
-                "no answer from Janus in time: not in the room after the {seconds} s of --seconds"
-            ))
-            .with_context(joining);
-        }
+        JoinWait::TimedOut => return Err(no_answer_in_time(seconds)).with_context(joining),
     };
     announce_security();
     eprintln!(

@@ -4,14 +4,15 @@
 //! sync) with the same outputs, one WAV and CSV per speaker.
 
 use std::path::{Path, PathBuf};
+use std::sync::atomic::AtomicBool;
 use std::time::{Duration, Instant};
 
-use anyhow::{Context, Result, bail};
+use anyhow::{Context, Result, anyhow, bail};
 
-use super::net::{Paced, Pacing, load_packets, print_peer, send_paced};
+use super::net::{Paced, Pacing, deadline, load_packets, print_peer, send_paced};
 use super::playout::{MUMBLE, ReceiveOutputs, play};
-use super::recording::stop_flag;
-use crate::call::link::Link;
+use super::recording::{stop_flag, stopped};
+use crate::call::link::{JoinWait, Link};
 use crate::call::mumble::MumbleLink;
 use crate::codec::any::{Codec, EncoderSettings};
 use crate::net::jitter::JitterConfig;
@@ -133,8 +134,14 @@ fn print_notice(notice: &Notice) {
     }
 }
 
-/// Connects and joins (the channel asked for, if any); says whose certificate we trust.
-fn connect(args: &MumbleArgs) -> Result<Connection> {
+/// Connects and joins (the channel asked for, if any) within `seconds` (where given); says
+/// whose certificate we trust. None when a signal came first.
+fn connect(
+    args: &MumbleArgs,
+    stop: &AtomicBool,
+    seconds: Option<f64>,
+) -> Result<Option<Connection>> {
+    let until = deadline(seconds);
     let dir = identity::default_dir()
         .context("no folder for the client certificate: set HOME or XDG_CONFIG_HOME")?;
     let config = ConnectConfig {
@@ -148,12 +155,28 @@ fn connect(args: &MumbleArgs) -> Result<Connection> {
         },
         identity_dir: dir,
     };
-    let connection = Connection::connect(config).with_context(|| {
+    let joining = || {
         format!(
             "joining the Mumble server {} as {:?}",
             args.server, args.name
         )
-    })?;
+    };
+    let mut link = MumbleLink::join(config, args.server.clone())
+        .context("cannot start the join's thread")
+        .with_context(joining)?;
+    match link.wait_joined(stop, until) {
+        JoinWait::Joined(()) => {}
+        JoinWait::Failed(e) => return Err(e).with_context(joining),
+        JoinWait::Stopped => {
+            eprintln!("lipcall: stopped by a signal before the server was joined");
+            return Ok(None);
+        }
+        JoinWait::TimedOut => return Err(no_answer_in_time(seconds)).with_context(joining),
+    }
+    let connection = link
+        .into_connection()
+        .ok_or_else(|| anyhow!("joined, yet not connected"))
+        .with_context(joining)?;
     let (print, trust) = connection.fingerprint();
     match trust {
         Trust::New => eprintln!(
@@ -169,7 +192,7 @@ fn connect(args: &MumbleArgs) -> Result<Connection> {
         "lipcall: media encrypted hop by hop (TLS, OCB2-AES128): the Mumble server can hear it"
     );
     if let Some(channel) = &args.channel {
-        let deadline = Instant::now() + MOVE_WAIT;
+        let moved_by = Instant::now() + MOVE_WAIT;
         loop {
             for notice in connection.poll() {
                 print_notice(&notice);
@@ -180,24 +203,43 @@ fn connect(args: &MumbleArgs) -> Result<Connection> {
             if connection.current_channel().as_deref() == Some(channel.as_str()) {
                 break;
             }
-            if Instant::now() > deadline {
+            if stopped(stop) {
+                eprintln!("lipcall: stopped by a signal before the channel was joined");
+                return Ok(None);
+            }
+            let now = Instant::now();
+            if until.is_some_and(|until| now >= until) {
+                return Err(no_answer_in_time(seconds))
+                    .with_context(|| format!("moving to channel {channel:?}"));
+            }
+            if now > moved_by {
                 bail!("the Mumble server did not move us to channel {channel:?}");
             }
             std::thread::sleep(Duration::from_millis(10));
         }
     }
-    Ok(connection)
+    Ok(Some(connection))
+}
+
+fn no_answer_in_time(seconds: Option<f64>) -> anyhow::Error {
+    let seconds = seconds.unwrap_or_default();
+    anyhow!(
+        "no answer from the Mumble server in time: not joined after the {seconds} s of --seconds"
+    )
 }
 
 /// Sends a file's audio to the channel, paced in real time, for at most `seconds` from the
-/// first packet.
+/// first packet; the join too may take no longer than `seconds`.
 pub fn send(input: &Path, args: &MumbleArgs, seconds: Option<f64>) -> Result<()> {
     let (codec, packets) = load_packets(input, Some(Codec::Opus), &EncoderSettings::default())?;
     if packets.is_empty() {
         bail!("{}: no audio to send", input.display());
     }
-    let mut connection = connect(args)?;
-    // From the first packet on (a signal before it ends the join as it always did).
+    let stop = stop_flag()?;
+    let Some(mut connection) = connect(args, &stop, seconds)? else {
+        return Ok(());
+    };
+    // From the first packet on.
     let pacing = Pacing::new(seconds)?;
     let clock = f64::from(codec.clock_rate());
     let ticks: u64 = packets.iter().map(|(_, t)| u64::from(*t)).sum();
@@ -253,7 +295,9 @@ pub struct MumbleReceiveArgs {
 pub fn receive(args: &MumbleReceiveArgs) -> Result<()> {
     let stop = stop_flag()?;
     let (model, mut recorder) = args.out.open()?;
-    let connection = connect(&args.mumble)?;
+    let Some(connection) = connect(&args.mumble, &stop, args.out.seconds)? else {
+        return recorder.finish();
+    };
     for notice in connection.poll() {
         print_notice(&notice);
     }

@@ -15,8 +15,9 @@ use crate::call::media::{MediaError, MediaFile, MediaKind, Packets};
 use crate::codec::any::{Codec, EncoderSettings, PayloadMap};
 use crate::codec::opus::codec::Bandwidth;
 use crate::net::host_port::resolve_with_port;
-use crate::net::session::{PeerInfo, Session, SessionConfig};
+use crate::net::session::{Session, SessionConfig};
 use crate::net::srtp::MasterKey;
+use crate::net::transport::PeerInfo;
 use crate::secrets::SecretSource;
 use crate::vocab::FrameFeatures;
 
@@ -113,9 +114,14 @@ impl Pacing {
     pub(crate) fn new(seconds: Option<f64>) -> Result<Self> {
         Ok(Self {
             stop: stop_flag()?,
-            until: seconds.map(|s| Instant::now() + Duration::from_secs_f64(s)),
+            until: deadline(seconds),
         })
     }
+}
+
+/// `seconds` from now, where given (and representable).
+pub(crate) fn deadline(seconds: Option<f64>) -> Option<Instant> {
+    seconds.and_then(|s| Instant::now().checked_add(Duration::from_secs_f64(s)))
 }
 
 /// How a paced send ended.
@@ -256,7 +262,7 @@ pub struct SendArgs {
     #[arg(long, value_parser = parse_hex_u32)]
     pub ssrc: Option<u32>,
     /// Stop after this many seconds (otherwise at the file's end); with --janus or --mumble,
-    /// counted from the first packet. Ctrl-C (SIGINT) or SIGTERM ends the send at any time,
+    /// counted from the first packet (joining that takes longer fails). Ctrl-C (SIGINT) or SIGTERM ends the send at any time,
     /// saying goodbye to the peers.
     #[arg(long, allow_hyphen_values = true, value_parser = super::parse_seconds)]
     pub seconds: Option<f64>,
@@ -371,11 +377,11 @@ pub(crate) fn print_peer(peer: &PeerInfo) {
     let opt = |v: Option<f64>| v.map_or_else(|| "-".to_string(), |v| format!("{v:.1}"));
     let codec = peer.receiver.codec.map_or("-", Codec::name);
     eprintln!(
-        "peer ssrc={:08x} name={:?} addr={} codec={codec} received={} played={} lost={} late={} \
+        "peer {} name={:?} addr={} codec={codec} received={} played={} lost={} late={} \
          duplicates={} reordered={} concealed={} recovered={} stretched={} dropped={} forced={} \
          overflow={} flushed={} drift_ppm={:.0} unknown_pt={} decode_errors={} jitter_ms={:.1} target_ms={:.1} \
          delay_ms={:.1} rtt_ms={} their_loss={} bye={}",
-        peer.ssrc,
+        peer.id,
         peer.name.as_deref().unwrap_or(""),
         peer.addr,
         j.received,

@@ -15,13 +15,13 @@ use crate::call::link::{Link, LinkEvent};
 use crate::call::pipeline::{Animated, PeerPipeline};
 use crate::lipsync::network::Model;
 use crate::lipsync::{self, LipSync, LipSyncOptions};
-use crate::net::session::PeerFrame;
+use crate::net::transport::{PeerFrame, PeerId};
 use crate::vocab::FrameFeatures;
 
 /// What the receiver keeps per remote speaker: with `--weights`, its pipeline and the output
 /// ticks of the frames whose weights have not come out yet.
 struct PeerTrack<'m> {
-    ssrc: u32,
+    peer: PeerId,
     pipeline: Option<PeerPipeline<'m>>,
     /// The next frame's tag (frames fed to the lip sync, counted).
     next_tag: u64,
@@ -35,7 +35,7 @@ impl PeerTrack<'_> {
     /// Weights the lip sync gave out (for the frame tagged `tag`) go to WEIGHTS.csv.
     fn store(
         waiting: &mut VecDeque<(u64, usize)>,
-        ssrc: u32,
+        peer: PeerId,
         out: Option<Animated<'_>>,
         recorder: &mut Recorder,
     ) -> Result<()> {
@@ -50,7 +50,7 @@ impl PeerTrack<'_> {
                 break;
             }
             waiting.pop_front();
-            recorder.weights(ssrc, frame, if t == tag { w } else { &[] })?;
+            recorder.weights(peer.number(), frame, if t == tag { w } else { &[] })?;
         }
         Ok(())
     }
@@ -60,7 +60,7 @@ impl PeerTrack<'_> {
     fn flush(&mut self, all: bool, recorder: &mut Recorder) -> Result<()> {
         if let Some(pipeline) = &mut self.pipeline {
             while let Some(out) = pipeline.flush() {
-                Self::store(&mut self.waiting, self.ssrc, Some(out), recorder)?;
+                Self::store(&mut self.waiting, self.peer, Some(out), recorder)?;
                 if !all {
                     break;
                 }
@@ -68,7 +68,7 @@ impl PeerTrack<'_> {
         }
         if all {
             for (_, frame) in self.waiting.drain(..) {
-                recorder.weights(self.ssrc, frame, &[])?;
+                recorder.weights(self.peer.number(), frame, &[])?;
             }
         }
         Ok(())
@@ -279,14 +279,14 @@ fn release_departed(
     tracks: &mut Vec<PeerTrack<'_>>,
     recorder: &mut Recorder,
 ) -> Result<()> {
-    let present: HashSet<u32> = link.peers().iter().map(|p| p.ssrc).collect();
+    let present: HashSet<PeerId> = link.peers().iter().map(|p| p.id).collect();
     let mut kept = Vec::with_capacity(tracks.len());
     for mut track in tracks.drain(..) {
-        if present.contains(&track.ssrc) || frames.iter().any(|f| f.ssrc == track.ssrc) {
+        if present.contains(&track.peer) || frames.iter().any(|f| f.peer == track.peer) {
             kept.push(track);
         } else {
             track.flush(true, recorder)?;
-            recorder.release(track.ssrc)?;
+            recorder.release(track.peer.number())?;
         }
     }
     *tracks = kept;
@@ -310,21 +310,21 @@ fn play_tick<'m>(
     let mut mix = vec![0i32; mix_rate.map_or(0, |r| r as usize / 50)];
     for f in frames {
         let time = index as f64 * TICK.as_secs_f64();
-        on_frame(f.ssrc, time, &f.frame.features);
-        let slot = match tracks.iter().position(|t| t.ssrc == f.ssrc) {
+        on_frame(f.peer.number(), time, &f.frame.features);
+        let slot = match tracks.iter().position(|t| t.peer == f.peer) {
             Some(i) => i,
             None => {
                 let pipeline = match model {
                     Some(model) => Some(PeerPipeline::new(
                         model,
                         &LipSyncOptions::default(),
-                        u64::from(f.ssrc),
+                        u64::from(f.peer.number()),
                         false,
                     )?),
                     None => None,
                 };
                 tracks.push(PeerTrack {
-                    ssrc: f.ssrc,
+                    peer: f.peer,
                     pipeline,
                     next_tag: 0,
                     waiting: VecDeque::new(),
@@ -342,17 +342,17 @@ fn play_tick<'m>(
             };
             resampler.add_into(f.frame.audio.samples(), &mut mix)?;
         }
-        recorder.features(f.ssrc, index, &f.frame.features)?;
+        recorder.features(f.peer.number(), index, &f.frame.features)?;
         if let Some(pipeline) = &mut track.pipeline {
             let tag = track.next_tag;
             track.next_tag += 1;
             track.waiting.push_back((tag, index));
             let out = pipeline.push(tag, &f.frame.features, &f.frame.pcm);
-            PeerTrack::store(&mut track.waiting, f.ssrc, out, recorder)?;
+            PeerTrack::store(&mut track.waiting, f.peer, out, recorder)?;
         }
     }
     for track in tracks.iter_mut() {
-        if !frames.iter().any(|f| f.ssrc == track.ssrc) {
+        if !frames.iter().any(|f| f.peer == track.peer) {
             track.flush(false, recorder)?;
         }
     }

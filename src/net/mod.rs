@@ -27,6 +27,7 @@ pub mod session;
 pub mod sip;
 pub mod srtp;
 pub mod stun;
+pub mod transport;
 pub mod turn;
 
 /// Largest datagram we read or forward.

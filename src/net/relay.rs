@@ -13,18 +13,16 @@
 //! joins per second per source IP, and packets per second per member (token buckets).
 //! Anything else is dropped and counted.
 
-use std::collections::HashMap;
+use std::collections::{HashMap, VecDeque};
 use std::hash::{BuildHasher, Hasher};
 use std::net::{IpAddr, SocketAddr, UdpSocket};
-use std::sync::atomic::{AtomicBool, Ordering};
-use std::sync::{Arc, Mutex};
-use std::thread::JoinHandle;
 use std::time::{Duration, Instant};
 
 use hmac::{Hmac, KeyInit, Mac};
 use sha2::Sha256;
 
 use super::control::{self, Control, ControlError, ControlKind, Cookie, Refusal, RoomId};
+use super::transport::{Driver, SansIo, Transmit, TransmitKind};
 use super::{DatagramKind, MAX_DATAGRAM, NetError, classify};
 
 /// A cookie is valid for the period it was issued in and the next one.
@@ -485,12 +483,74 @@ impl RelayCore {
     }
 }
 
-/// A relay serving on its own thread until stopped or dropped.
+/// How often members whose keepalives stopped are looked for.
+const EXPIRE_EVERY: Duration = Duration::from_secs(1);
+/// How long the socket thread waits at most for a datagram before it looks at whether to stop.
+const POLL: Duration = Duration::from_millis(50);
+
+/// The core as the socket [`Driver`] runs it: what it sends queued for the socket, its members'
+/// expiry as its timeout.
+struct Driven {
+    core: RelayCore,
+    outbox: VecDeque<Transmit>,
+    next_expiry: Instant,
+}
+
+impl SansIo for Driven {
+    // One byte over the largest datagram forwarded: one that fills the buffer was cut short
+    // by the socket and is dropped, not forwarded or parsed truncated.
+    const BUFFER: usize = MAX_DATAGRAM + 1;
+
+    fn handle_datagram(&mut self, data: &[u8], from: SocketAddr, now: Instant) {
+        if data.len() > MAX_DATAGRAM {
+            self.core.stats.datagrams += 1;
+            self.core.stats.malformed += 1;
+            return;
+        }
+        let outbox = &mut self.outbox;
+        // Counted as sent here; [`SansIo::transmitted`] takes back those the socket refused.
+        self.core.handle(data, from, now, |data, to| {
+            let kind = match classify(data) {
+                DatagramKind::Control => TransmitKind::Control,
+                DatagramKind::Rtcp => TransmitKind::Rtcp,
+                DatagramKind::Rtp | DatagramKind::Unknown => TransmitKind::Rtp,
+            };
+            outbox.push_back(Transmit {
+                to,
+                data: data.to_vec(),
+                kind,
+            });
+            true
+        });
+    }
+
+    fn poll_timeout(&self) -> Instant {
+        self.next_expiry
+    }
+
+    fn handle_timeout(&mut self, now: Instant) {
+        self.core.expire(now);
+        self.next_expiry = now + EXPIRE_EVERY;
+    }
+
+    fn poll_transmit(&mut self) -> Option<Transmit> {
+        self.outbox.pop_front()
+    }
+
+    fn transmitted(&mut self, transmit: Transmit, sent: bool) {
+        if !sent {
+            if transmit.kind != TransmitKind::Control {
+                self.core.stats.copies = self.core.stats.copies.saturating_sub(1);
+            }
+            self.core.stats.send_errors += 1;
+        }
+    }
+}
+
+/// A relay serving on its socket thread (the [`Driver`] every link stands on) until dropped.
 pub struct Relay {
     addr: SocketAddr,
-    stats: Arc<Mutex<RelayStats>>,
-    stop: Arc<AtomicBool>,
-    thread: Option<JoinHandle<()>>,
+    driver: Driver<Driven>,
 }
 
 impl std::fmt::Debug for Relay {
@@ -503,28 +563,18 @@ impl Relay {
     pub fn start(bind: SocketAddr, config: RelayConfig) -> Result<Self, NetError> {
         let socket = UdpSocket::bind(bind)
             .map_err(|e| NetError::io(format!("cannot listen on {bind}"), e))?;
-        socket
-            .set_read_timeout(Some(Duration::from_millis(50)))
-            .map_err(|e| NetError::io("socket timeout", e))?;
         let addr = socket
             .local_addr()
             .map_err(|e| NetError::io("local address", e))?;
-        let stats = Arc::new(Mutex::new(RelayStats::default()));
-        let stop = Arc::new(AtomicBool::new(false));
-        let thread = {
-            let stats = Arc::clone(&stats);
-            let stop = Arc::clone(&stop);
-            std::thread::Builder::new()
-                .name("lipcall-relay".into())
-                .spawn(move || relay_loop(&socket, config, &stats, &stop))
-                .map_err(|e| NetError::io("cannot start the relay thread", e))?
+        let now = Instant::now();
+        let driven = Driven {
+            core: RelayCore::new(config, now),
+            outbox: VecDeque::new(),
+            next_expiry: now + EXPIRE_EVERY,
         };
-        Ok(Self {
-            addr,
-            stats,
-            stop,
-            thread: Some(thread),
-        })
+        let driver = Driver::start(socket, driven, "lipcall-relay", POLL)
+            .map_err(|e| NetError::io("cannot start the relay thread", e))?;
+        Ok(Self { addr, driver })
     }
 
     pub fn local_addr(&self) -> SocketAddr {
@@ -532,53 +582,8 @@ impl Relay {
     }
 
     pub fn stats(&self) -> RelayStats {
-        *self.stats.lock().unwrap_or_else(|p| p.into_inner())
+        self.driver.access(|driven| driven.core.stats())
     }
-}
-
-impl Drop for Relay {
-    fn drop(&mut self) {
-        self.stop.store(true, Ordering::Relaxed);
-        if let Some(t) = self.thread.take() {
-            let _ = t.join();
-        }
-    }
-}
-
-fn relay_loop(
-    socket: &UdpSocket,
-    config: RelayConfig,
-    stats: &Mutex<RelayStats>,
-    stop: &AtomicBool,
-) {
-    let mut core = RelayCore::new(config, Instant::now());
-    // One byte over the largest datagram forwarded: one that fills the buffer was cut short
-    // by the socket and is dropped, not forwarded or parsed truncated.
-    let mut buf = vec![0u8; MAX_DATAGRAM + 1];
-    let mut next_expiry = Instant::now() + Duration::from_secs(1);
-    let mut next_publish = Instant::now();
-    while !stop.load(Ordering::Relaxed) {
-        match socket.recv_from(&mut buf) {
-            Ok((n, _)) if n > MAX_DATAGRAM => {
-                core.stats.datagrams += 1;
-                core.stats.malformed += 1;
-            }
-            Ok((n, from)) => core.handle(&buf[..n], from, Instant::now(), |data, to| {
-                socket.send_to(data, to).is_ok()
-            }),
-            Err(_) => {}
-        }
-        let now = Instant::now();
-        if now >= next_expiry {
-            core.expire(now);
-            next_expiry = now + Duration::from_secs(1);
-        }
-        if now >= next_publish {
-            *stats.lock().unwrap_or_else(|p| p.into_inner()) = core.stats();
-            next_publish = now + Duration::from_millis(20);
-        }
-    }
-    *stats.lock().unwrap_or_else(|p| p.into_inner()) = core.stats();
 }
 
 #[cfg(test)]

@@ -25,7 +25,6 @@ use std::time::{Duration, Instant};
 use super::NetError;
 use crate::codec::any::Codec;
 
-pub(crate) mod driver;
 mod inbound;
 pub mod latch;
 mod protocol;
@@ -33,10 +32,10 @@ mod remote;
 mod timers;
 mod types;
 
-use driver::{Driver, SansIo};
-pub use driver::{Transmit, TransmitKind};
 pub use protocol::{LARGEST_DATAGRAM, SessionCore};
-pub use types::{PeerFrame, PeerInfo, SessionConfig, SessionStats};
+pub use types::{SessionConfig, SessionStats};
+
+use super::transport::{Driver, PeerFrame, PeerId, PeerInfo, SansIo, Transmit, TransmitKind};
 
 /// How long the socket thread waits at most for a datagram before it looks at whether to stop.
 const POLL: Duration = Duration::from_millis(10);

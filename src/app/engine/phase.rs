@@ -5,7 +5,7 @@ use std::time::Instant;
 
 use super::{CallPhase, DIRECT_ANSWER_WAIT, Worker, lock};
 use crate::app::counters::DEMO_NAME;
-use crate::net::session::PeerInfo;
+use crate::net::transport::PeerInfo;
 
 impl Worker {
     pub(super) fn set_phase(&self, phase: CallPhase) {

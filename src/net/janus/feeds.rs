@@ -3,7 +3,7 @@
 use std::net::SocketAddr;
 
 use crate::net::peer::{PeerReceiver, ReceiverStats};
-use crate::net::session::PeerInfo;
+use crate::net::transport::{PeerId, PeerInfo};
 
 /// What the owner knows of one subscribed publisher.
 #[derive(Debug, Clone, PartialEq)]
@@ -23,7 +23,7 @@ impl FeedInfo {
     /// comes from the Janus `server`); `None` before its first packet.
     pub fn peer_info(&self, server: SocketAddr) -> Option<PeerInfo> {
         Some(PeerInfo {
-            ssrc: self.ssrc?,
+            id: PeerId::Janus(self.ssrc?),
             addr: server,
             cname: None,
             name: Some(self.name.clone()),

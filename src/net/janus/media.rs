@@ -27,8 +27,7 @@ use crate::codec::any::PayloadMap;
 use crate::net::jitter::JitterConfig;
 use crate::net::peer::PeerReceiver;
 use crate::net::rtp::{Rtp, RtpHeader};
-use crate::net::session::driver::{Driver, SansIo};
-use crate::net::session::{PeerFrame, Transmit, TransmitKind};
+use crate::net::transport::{Driver, PeerFrame, PeerId, SansIo, Transmit, TransmitKind};
 use crate::net::turn::TurnClient;
 
 /// How long the socket thread waits at most for a datagram: a connection's timeout that an
@@ -665,9 +664,10 @@ impl MediaCore {
         let mut played_out = Vec::new();
         for (id, feed) in &mut self.feeds {
             let frame = feed.ssrc.and_then(|ssrc| {
-                feed.receiver
-                    .pull(now)
-                    .map(|frame| PeerFrame { ssrc, frame })
+                feed.receiver.pull(now).map(|frame| PeerFrame {
+                    peer: PeerId::Janus(ssrc),
+                    frame,
+                })
             });
             match frame {
                 Some(frame) => out.push(frame),

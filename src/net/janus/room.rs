@@ -26,7 +26,7 @@ use super::messages::{
 };
 pub use super::url::server_addr;
 use crate::net::jitter::JitterConfig;
-use crate::net::session::PeerFrame;
+use crate::net::transport::PeerFrame;
 
 #[derive(Debug, Clone)]
 pub struct RoomConfig {

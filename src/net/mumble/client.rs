@@ -32,7 +32,7 @@ use super::speakers::{Room, Speaker, Speakers, User};
 use super::voice::{self, ServerPacket};
 use crate::codec::any::PayloadMap;
 use crate::net::peer::PeerReceiver;
-use crate::net::session::{PeerFrame, Transmit, TransmitKind};
+use crate::net::transport::{PeerFrame, Transmit, TransmitKind};
 
 /// What we announce: 1.3.4, so that 1.5 servers answer with the legacy voice format.
 pub const ANNOUNCED_VERSION: u32 = messages::version(1, 3, 4);

@@ -23,9 +23,7 @@ use super::identity::{Identity, KnownServers, Trust, fingerprint};
 use crate::net::backoff::Backoff;
 use crate::net::host_port::{AddressError, HostPort};
 use crate::net::peer::ReceiverStats;
-use crate::net::session::PeerFrame;
-use crate::net::session::Transmit;
-use crate::net::session::driver::{Driver, SansIo};
+use crate::net::transport::{Driver, PeerFrame, SansIo, Transmit};
 
 /// The port Mumble servers listen on unless told otherwise.
 pub const DEFAULT_PORT: u16 = 64738;

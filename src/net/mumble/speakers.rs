@@ -10,7 +10,7 @@ use std::time::{Duration, Instant};
 use crate::codec::any::{Codec, PayloadMap};
 use crate::net::peer::{PeerReceiver, PlayedFrame, ReceiverStats};
 use crate::net::rtp::{Rtp, RtpHeader};
-use crate::net::session::PeerFrame;
+use crate::net::transport::{PeerFrame, PeerId};
 
 /// 48 kHz ticks of Mumble's 10 ms sequence step.
 const TICKS_PER_STEP: u32 = 480;
@@ -267,7 +267,7 @@ impl Speakers {
             }
             if let Some(frame) = frame {
                 out.push(PeerFrame {
-                    ssrc: session,
+                    peer: PeerId::Mumble(session),
                     frame,
                 });
             }

@@ -17,6 +17,7 @@ use super::presence::{MAX_USERS, SELF_MUTE_EVERY};
 use super::speakers::{MAX_DEPARTED, MAX_SPEAKERS};
 use super::voice;
 use crate::net::jitter::JitterConfig;
+use crate::net::transport::PeerId;
 
 const KEY: [u8; 16] = [7; 16];
 const OURS: [u8; 16] = [1; 16];
@@ -288,7 +289,7 @@ fn voice_by_udp_and_through_the_tunnel_reaches_each_speakers_receiver() {
             &mut frames,
         );
     }
-    assert!(frames.iter().all(|f| f.ssrc == 5));
+    assert!(frames.iter().all(|f| f.peer == PeerId::Mumble(5)));
     assert!(frames.len() >= 8, "{} frames", frames.len());
     let speakers = core.speakers();
     assert_eq!(speakers.len(), 1);

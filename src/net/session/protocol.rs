@@ -8,7 +8,7 @@ use std::time::{Duration, Instant};
 
 use super::remote::{PENDING_NAMES, PENDING_STARTS, Peer, PendingNames};
 use super::timers::{Due, Timers};
-use super::{PeerFrame, PeerInfo, SessionConfig, SessionStats};
+use super::{PeerFrame, PeerId, PeerInfo, SessionConfig, SessionStats};
 use super::{Transmit, TransmitKind};
 use crate::net::control::{Control, ControlError, ControlKind, Cookie, RoomId};
 use crate::net::rtcp::{self, NtpClock, Outgoing, ReportBlock, SenderInfo, system_draw};
@@ -162,7 +162,7 @@ impl SessionCore {
 
     pub fn peers(&self) -> Vec<PeerInfo> {
         let mut peers: Vec<PeerInfo> = self.peers.iter().map(|(&s, p)| p.info(s)).collect();
-        peers.sort_by_key(|p| p.ssrc);
+        peers.sort_by_key(|p| p.id);
         peers
     }
 
@@ -244,7 +244,10 @@ impl SessionCore {
     pub fn pull(&mut self, now: Instant, out: &mut Vec<PeerFrame>) {
         for (&ssrc, peer) in self.peers.iter_mut() {
             if let Some(frame) = peer.receiver.pull(now) {
-                out.push(PeerFrame { ssrc, frame });
+                out.push(PeerFrame {
+                    peer: PeerId::Ssrc(ssrc),
+                    frame,
+                });
             }
         }
     }

@@ -4,7 +4,7 @@
 use std::net::SocketAddr;
 use std::time::{Duration, Instant};
 
-use super::PeerInfo;
+use super::{PeerId, PeerInfo};
 use crate::net::peer::PeerReceiver;
 use crate::net::rtcp::HeardReports;
 
@@ -72,7 +72,7 @@ impl Peer {
     pub(super) fn info(&self, ssrc: u32) -> PeerInfo {
         let receiver = self.receiver.stats();
         PeerInfo {
-            ssrc,
+            id: PeerId::Ssrc(ssrc),
             addr: self.addr,
             cname: self.cname.clone(),
             name: self.name.clone(),

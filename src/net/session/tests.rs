@@ -115,7 +115,10 @@ fn drive(
         }
         core.pull(now, &mut out);
         for f in out.drain(..) {
-            played.entry(f.ssrc).or_default().push(f.frame.kind);
+            played
+                .entry(f.peer.number())
+                .or_default()
+                .push(f.frame.kind);
         }
         if k % 50 == 0 {
             core.expire(now);
@@ -257,7 +260,7 @@ fn a_socket_churning_new_ssrcs_never_locks_a_new_caller_out() {
         core.pull(tick + FRAME, &mut out);
         heard += out
             .drain(..)
-            .filter(|f| f.ssrc == 7 && f.frame.kind == FrameKind::Decoded)
+            .filter(|f| f.peer == PeerId::Ssrc(7) && f.frame.kind == FrameKind::Decoded)
             .count();
         if k % 50 == 0 {
             core.expire(tick);
@@ -502,8 +505,11 @@ impl Sim {
                 self.arrive(from, data);
             }
             self.core.pull(self.now, &mut out);
-            for PeerFrame { ssrc, frame } in out.drain(..) {
-                self.played.entry(ssrc).or_default().push((k, frame));
+            for PeerFrame { peer, frame } in out.drain(..) {
+                self.played
+                    .entry(peer.number())
+                    .or_default()
+                    .push((k, frame));
             }
         }
     }
@@ -524,7 +530,7 @@ impl Sim {
     }
 
     fn peers(&self) -> Vec<u32> {
-        self.core.peers().iter().map(|p| p.ssrc).collect()
+        self.core.peers().iter().map(|p| p.id.number()).collect()
     }
 }
 
@@ -834,7 +840,7 @@ fn the_socket_thread_carries_media_between_two_sessions() {
     assert_eq!(sender.stats().sent_rtp, 10);
     let peers = receiver.peers();
     assert_eq!(peers.len(), 1);
-    assert_eq!(peers[0].ssrc, sender.ssrc());
+    assert_eq!(peers[0].id, PeerId::Ssrc(sender.ssrc()));
     assert_eq!(peers[0].addr, sender.local_addr().unwrap());
     let mut frames = Vec::new();
     receiver.pull(Instant::now() + Duration::from_millis(100), &mut frames);

@@ -7,7 +7,6 @@ use std::time::Duration;
 use crate::codec::any::{Codec, PayloadMap};
 use crate::net::control::Refusal;
 use crate::net::jitter::JitterConfig;
-use crate::net::peer::{PlayedFrame, ReceiverStats};
 use crate::net::srtp::{DEFAULT_CLOCK_TOLERANCE, MasterKey};
 
 #[derive(Debug, Clone)]
@@ -109,27 +108,4 @@ pub struct SessionStats {
     pub relay_challenges: u64,
     /// The relay speaks another protocol version (an outdated lipcall on one side).
     pub relay_outdated: bool,
-}
-
-/// What the session knows about one remote peer.
-#[derive(Debug, Clone, PartialEq)]
-pub struct PeerInfo {
-    pub ssrc: u32,
-    pub addr: SocketAddr,
-    pub cname: Option<String>,
-    pub name: Option<String>,
-    pub receiver: ReceiverStats,
-    /// Round trip from the peer's last report about us.
-    pub rtt_ms: Option<f64>,
-    /// Share of our packets the peer reported lost (last report, 0..1).
-    pub their_loss: Option<f64>,
-    pub said_bye: bool,
-    pub ended: bool,
-}
-
-/// One peer's frame in a pull.
-#[derive(Debug, Clone, PartialEq)]
-pub struct PeerFrame {
-    pub ssrc: u32,
-    pub frame: PlayedFrame,
 }

@@ -31,10 +31,10 @@ use crate::net::jitter::JitterConfig;
 use crate::net::peer::{PeerReceiver, ReceiverStats};
 use crate::net::rtcp::{HeardReports, ReportBlock, RtcpError};
 use crate::net::rtp::{self, RtpStream};
-use crate::net::session::driver::{Driver, SansIo};
+use crate::net::session::LARGEST_DATAGRAM;
 use crate::net::session::latch::SourceLatch;
-use crate::net::session::{LARGEST_DATAGRAM, PeerFrame, Transmit, TransmitKind};
 use crate::net::srtp::{MasterKey, Srtp, SrtpError};
+use crate::net::transport::{Driver, PeerFrame, PeerId, SansIo, Transmit, TransmitKind};
 
 /// How long the socket thread waits at most for a datagram, and how often the keepalive and
 /// the reports are looked at.
@@ -364,7 +364,10 @@ impl SipRtpCore {
     /// The next 20 ms of the peer, if it is playing.
     pub fn pull(&mut self, now: Instant, out: &mut Vec<PeerFrame>) {
         if let (Some(ssrc), Some(frame)) = (self.ssrc, self.receiver.pull(now)) {
-            out.push(PeerFrame { ssrc, frame });
+            out.push(PeerFrame {
+                peer: PeerId::Ssrc(ssrc),
+                frame,
+            });
         }
     }
 
