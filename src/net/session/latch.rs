@@ -5,7 +5,7 @@
 //! source, ours go there, and no later packet moves it. Only the peer naming a new address (a
 //! re-INVITE) opens it again. The SIP call's RTP and its RTCP each keep one.
 
-use std::net::SocketAddr;
+use std::net::{IpAddr, SocketAddr};
 
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 pub struct SourceLatch {
@@ -50,6 +50,100 @@ impl SourceLatch {
     pub fn rename(&mut self, named: SocketAddr) {
         self.named = named;
         self.latched = None;
+    }
+}
+
+/// Where a session's peers may send from, and whether they may move.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
+pub enum Latch {
+    /// lipcall's own calls: any source may become a peer, each peer is pinned to the address
+    /// its media came from, and it moves after a few packets continuing its sequence from a
+    /// new address while the old one is quiet (a NAT rebinding, a roaming device).
+    #[default]
+    Rebinding,
+    /// A negotiated two-party call (SIP): before the first packet only the addresses its
+    /// description named; then the first source is kept for the call and nothing moves it
+    /// (only the peer naming new addresses). Everything else is counted and dropped.
+    Fixed(Named),
+}
+
+/// What a negotiated call's description named: where its RTP and RTCP come from and ours go,
+/// and the IP its signalling comes from, whose every port is vouched for until the first
+/// packet (a symmetric-RTP peer behind a NAT whose description gives its private address).
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub struct Named {
+    pub rtp: SocketAddr,
+    pub rtcp: SocketAddr,
+    pub signalling: Option<IpAddr>,
+}
+
+/// The [`Latch::Fixed`] rule of one call: a [`SourceLatch`] for its RTP and one for its RTCP.
+#[derive(Debug, Clone)]
+pub(crate) struct FixedSources {
+    pub(crate) rtp: SourceLatch,
+    pub(crate) rtcp: SourceLatch,
+    signalling: Option<IpAddr>,
+    /// Whether the one warning about another source was said.
+    warned: bool,
+}
+
+impl FixedSources {
+    pub(crate) fn new(named: Named) -> Self {
+        Self {
+            rtp: SourceLatch::new(named.rtp),
+            rtcp: SourceLatch::new(named.rtcp),
+            signalling: named.signalling,
+            warned: false,
+        }
+    }
+
+    /// Whether RTP from `from` may be the peer's. An `authenticated` call (SRTP) takes its
+    /// first packet from anywhere: only the keyed peer can make one.
+    pub(crate) fn admits_rtp(&self, from: SocketAddr, authenticated: bool) -> bool {
+        let signalling = self.signalling;
+        self.rtp.admits(from, |from| {
+            authenticated || Some(from.ip()) == signalling
+        })
+    }
+
+    /// Whether RTCP from `from` may be the peer's: as RTP, and before its first report also
+    /// from the IP its RTP is latched to.
+    pub(crate) fn admits_rtcp(&self, from: SocketAddr, authenticated: bool) -> bool {
+        let (signalling, rtp) = (self.signalling, self.rtp.latched());
+        self.rtcp.admits(from, |from| {
+            authenticated
+                || Some(from.ip()) == signalling
+                || rtp.is_some_and(|s| s.ip() == from.ip())
+        })
+    }
+
+    /// The peer named new addresses (a re-INVITE): each one changed is open again.
+    pub(crate) fn rename(&mut self, named: Named) {
+        if named.rtp != self.rtp.named {
+            self.rtp.rename(named.rtp);
+        }
+        if named.rtcp != self.rtcp.named {
+            self.rtcp.rename(named.rtcp);
+        }
+        self.signalling = named.signalling;
+    }
+
+    /// A datagram from another source than the call's: said once a call, in one line.
+    pub(crate) fn warn_once(&mut self, what: &str, from: SocketAddr) {
+        if std::mem::replace(&mut self.warned, true) {
+            return;
+        }
+        let expected = match self.rtp.latched() {
+            Some(source) => format!("the call's media comes from {source}"),
+            None => format!(
+                "the call's media is taken only from the address its description named, {}",
+                self.rtp.target()
+            ),
+        };
+        tracing::warn!(
+            "{what} from {from} dropped, and any more from other sources (counted as foreign): \
+             {expected}"
+        );
     }
 }
 
