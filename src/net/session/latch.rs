@@ -101,9 +101,8 @@ impl FixedSources {
     /// first packet from anywhere: only the keyed peer can make one.
     pub(crate) fn admits_rtp(&self, from: SocketAddr, authenticated: bool) -> bool {
         let signalling = self.signalling;
-        self.rtp.admits(from, |from| {
-            authenticated || Some(from.ip()) == signalling
-        })
+        self.rtp
+            .admits(from, |from| authenticated || Some(from.ip()) == signalling)
     }
 
     /// Whether RTCP from `from` may be the peer's: as RTP, and before its first report also

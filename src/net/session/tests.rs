@@ -3,9 +3,9 @@
 
 use std::collections::HashMap;
 
+use super::latch::{Latch, Named};
 use super::remote::{CONFIRM_PACKETS, PENDING_NAMES, UNCONFIRMED_TIMEOUT};
 use super::timers::{Due, EXPIRY_INTERVAL};
-use super::latch::{Latch, Named};
 use super::*;
 use crate::codec::any::{EncoderSettings, FrameEncoder, MAX_FRAME_PAYLOAD};
 use crate::codec::g711::ulaw_to_linear;
@@ -950,7 +950,12 @@ fn a_fixed_call_takes_only_its_named_address_then_keeps_its_first_source_for_goo
     let mut stranger = Caller::new(9, 1, 0);
     // Before the peer's first packet: another port of its IP makes no peer, and ours go to
     // the named addresses.
-    drive(&mut core, 0..10, talks(&mut stranger, addr(6000), 0, 10), &mut played);
+    drive(
+        &mut core,
+        0..10,
+        talks(&mut stranger, addr(6000), 0, 10),
+        &mut played,
+    );
     assert!(core.peers().is_empty());
     assert_eq!((core.stats().foreign, core.latched()), (10, None));
     core.send_packet(&[0; 20], 160, core.epoch).unwrap();
@@ -1032,7 +1037,12 @@ fn a_fixed_call_takes_its_first_packet_from_the_signalling_ip_and_is_answered_th
     );
     let mut caller = Caller::new(7, 100, 5000);
     let mut played = HashMap::new();
-    drive(&mut core, 0..20, talks(&mut caller, nat, 0, 20), &mut played);
+    drive(
+        &mut core,
+        0..20,
+        talks(&mut caller, nat, 0, 20),
+        &mut played,
+    );
     let received = core.peers()[0].receiver.jitter.received;
     assert_eq!((core.latched(), received), (Some(nat), 20));
     // Now the named address is a stranger; the peer's RTCP comes from the NAT's next port.
@@ -1048,8 +1058,7 @@ fn a_fixed_call_takes_its_first_packet_from_the_signalling_ip_and_is_answered_th
 }
 
 #[test]
-fn each_direction_has_its_own_srtp_key_and_a_keyed_fixed_call_latches_the_first_authentic_packet()
-{
+fn each_direction_has_its_own_srtp_key_and_a_keyed_fixed_call_latches_the_first_authentic_packet() {
     let (a_key, b_key) = (
         MasterKey::from_bytes(&[1; 30]).unwrap(),
         MasterKey::from_bytes(&[2; 30]).unwrap(),
