@@ -142,7 +142,7 @@ impl SessionCore {
 
     /// Whether a [`super::latch::Latch::Fixed`] call takes RTP (or RTCP) from `from`; what it
     /// does not take is counted and said once.
-    fn fixed_admits(&mut self, from: SocketAddr, rtcp: bool) -> bool {
+    fn fixed_admits(&mut self, from: SocketAddr, rtcp: bool, now: Instant) -> bool {
         let authenticated = self.rx_srtp.is_some();
         let Some(fixed) = self.fixed.as_mut() else {
             return true;
@@ -154,13 +154,18 @@ impl SessionCore {
         };
         if !admitted {
             self.stats.foreign += 1;
-            fixed.warn_once(if rtcp { "RTCP" } else { "RTP" }, from);
+            if rtcp {
+                tracing::debug!("RTCP from {from} not believed: not the call's peer");
+            } else {
+                let what = if authenticated { "SRTP" } else { "plain RTP" };
+                fixed.stray(what, from, now);
+            }
         }
         admitted
     }
 
     pub(super) fn handle_rtp(&mut self, data: &mut Vec<u8>, from: SocketAddr, arrival: Instant) {
-        if !self.fixed_admits(from, false) || !self.unprotect(data, Srtp::unprotect_rtp) {
+        if !self.fixed_admits(from, false, arrival) || !self.unprotect(data, Srtp::unprotect_rtp) {
             return;
         }
         let packet = match rtp::parse(data, None) {
@@ -213,7 +218,7 @@ impl SessionCore {
     }
 
     pub(super) fn handle_rtcp(&mut self, data: &mut Vec<u8>, from: SocketAddr, arrival: Instant) {
-        if !self.fixed_admits(from, true) || !self.unprotect(data, Srtp::unprotect_rtcp) {
+        if !self.fixed_admits(from, true, arrival) || !self.unprotect(data, Srtp::unprotect_rtcp) {
             return;
         }
         let items = match rtcp::parse(data) {

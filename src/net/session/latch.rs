@@ -6,6 +6,12 @@
 //! re-INVITE) opens it again. The SIP call's RTP and its RTCP each keep one.
 
 use std::net::{IpAddr, SocketAddr};
+use std::time::{Duration, Instant};
+
+/// RTP from other sources than a fixed call's is said at most once a second, and from the
+/// same source again only after this long.
+const STRAY_WARNING_EVERY: Duration = Duration::from_secs(10);
+const STRAY_WARNING_NEW_SOURCE: Duration = Duration::from_secs(1);
 
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 pub struct SourceLatch {
@@ -83,8 +89,9 @@ pub(crate) struct FixedSources {
     pub(crate) rtp: SourceLatch,
     pub(crate) rtcp: SourceLatch,
     signalling: Option<IpAddr>,
-    /// Whether the one warning about another source was said.
-    warned: bool,
+    /// When stray RTP was last said and whose, and how many packets came since.
+    stray_said: Option<(Instant, SocketAddr)>,
+    stray_unsaid: u64,
 }
 
 impl FixedSources {
@@ -93,7 +100,8 @@ impl FixedSources {
             rtp: SourceLatch::new(named.rtp),
             rtcp: SourceLatch::new(named.rtcp),
             signalling: named.signalling,
-            warned: false,
+            stray_said: None,
+            stray_unsaid: 0,
         }
     }
 
@@ -127,22 +135,39 @@ impl FixedSources {
         self.signalling = named.signalling;
     }
 
-    /// A datagram from another source than the call's: said once a call, in one line.
-    pub(crate) fn warn_once(&mut self, what: &str, from: SocketAddr) {
-        if std::mem::replace(&mut self.warned, true) {
-            return;
+    /// RTP from another source than the call's, dropped: said in a warning naming the source,
+    /// a new source at most once a second, the same again after [`STRAY_WARNING_EVERY`].
+    pub(crate) fn stray(&mut self, what: &str, from: SocketAddr, now: Instant) {
+        self.stray_unsaid += 1;
+        if let Some((said, whose)) = self.stray_said {
+            let quiet = if whose == from {
+                STRAY_WARNING_EVERY
+            } else {
+                STRAY_WARNING_NEW_SOURCE
+            };
+            if now.saturating_duration_since(said) < quiet {
+                return;
+            }
         }
-        let expected = match self.rtp.latched() {
-            Some(source) => format!("the call's media comes from {source}"),
-            None => format!(
-                "the call's media is taken only from the address its description named, {}",
+        let expected = if let Some(source) = self.rtp.latched() {
+            format!("the call's media comes from {source}")
+        } else {
+            let signalling = self
+                .signalling
+                .map(|ip| format!(" or from its signalling's IP {ip}"))
+                .unwrap_or_default();
+            format!(
+                "the call's media is taken only from the address its description named, {}{signalling}",
                 self.rtp.target()
-            ),
+            )
         };
-        tracing::warn!(
-            "{what} from {from} dropped, and any more from other sources (counted as foreign): \
-             {expected}"
-        );
+        let count = match self.stray_unsaid {
+            1 => String::new(),
+            n => format!(" ({n} packets from other sources since the last warning)"),
+        };
+        tracing::warn!("{what} from {from} dropped{count}: {expected}");
+        self.stray_said = Some((now, from));
+        self.stray_unsaid = 0;
     }
 }
 
