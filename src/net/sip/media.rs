@@ -824,6 +824,13 @@ mod srtp_tests {
         assert_eq!(sent.len(), 12 + 160 + 10, "authenticated");
         b.handle_datagram(&sent, from, now);
         assert_eq!((b.stats().rtp, b.stats().auth_failed), (1, 0));
+        // The first authenticated packet fixed the source: A's next one from elsewhere (a
+        // replay or a rebinding alike) is dropped before decryption, and ours stay there.
+        a.send_packet(&[0xff; 160], 160).unwrap();
+        let next = a.poll_transmit().unwrap().data;
+        b.handle_datagram(&next, "127.0.0.5:9001".parse().unwrap(), now);
+        assert_eq!((b.stats().rtp, b.stats().stray), (1, 1));
+        assert_eq!(b.remote(), from);
         // Plain RTP (or a wrong key) into a keyed call is dropped.
         let mut plain = RtpStream::new(5, 1, 0);
         plain.set_payload(0, 160);
