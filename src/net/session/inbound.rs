@@ -95,6 +95,8 @@ impl SessionCore {
             return false;
         }
         let ssrc = packet.header.ssrc;
+        // A fixed call's reports come from a port of their own, admitted as the call's.
+        let fixed = self.fixed.is_some();
         let mut receiver = PeerReceiver::with_payloads(
             self.config.jitter,
             self.epoch,
@@ -104,7 +106,7 @@ impl SessionCore {
         if let Some(i) = self
             .pending_starts
             .iter()
-            .position(|&(s, _, addr, _)| s == ssrc && addr == from)
+            .position(|&(s, _, addr, _)| s == ssrc && (addr == from || fixed))
         {
             let (_, ts, _, _) = self.pending_starts.swap_remove(i);
             receiver.jitter().hint_start(ts);
@@ -112,7 +114,7 @@ impl SessionCore {
         let (cname, name) = match self
             .pending_names
             .iter()
-            .position(|(s, addr, ..)| *s == ssrc && *addr == from)
+            .position(|(s, addr, ..)| *s == ssrc && (*addr == from || fixed))
         {
             Some(i) => {
                 let (_, _, cname, name, _) = self.pending_names.swap_remove(i);
@@ -138,8 +140,32 @@ impl SessionCore {
         true
     }
 
+    /// Whether a [`super::latch::Latch::Fixed`] call takes RTP (or RTCP) from `from`; what it
+    /// does not take is counted and said once.
+    fn fixed_admits(&mut self, from: SocketAddr, rtcp: bool, now: Instant) -> bool {
+        let authenticated = self.rx_srtp.is_some();
+        let Some(fixed) = self.fixed.as_mut() else {
+            return true;
+        };
+        let admitted = if rtcp {
+            fixed.admits_rtcp(from, authenticated)
+        } else {
+            fixed.admits_rtp(from, authenticated)
+        };
+        if !admitted {
+            self.stats.foreign += 1;
+            if rtcp {
+                tracing::debug!("RTCP from {from} not believed: not the call's peer");
+            } else {
+                let what = if authenticated { "SRTP" } else { "plain RTP" };
+                fixed.stray(what, from, now);
+            }
+        }
+        admitted
+    }
+
     pub(super) fn handle_rtp(&mut self, data: &mut Vec<u8>, from: SocketAddr, arrival: Instant) {
-        if !self.unprotect(data, Srtp::unprotect_rtp) {
+        if !self.fixed_admits(from, false, arrival) || !self.unprotect(data, Srtp::unprotect_rtp) {
             return;
         }
         let packet = match rtp::parse(data, None) {
@@ -161,7 +187,11 @@ impl SessionCore {
         let Some(peer) = self.peers.get_mut(&ssrc) else {
             return;
         };
-        if peer.addr == from {
+        if let Some(fixed) = self.fixed.as_mut() {
+            // Admitted above: the call's source, or its first packet, which fixes it.
+            fixed.rtp.latch(from);
+            peer.addr = from;
+        } else if peer.addr == from {
             peer.candidate = None;
         } else if peer.said_bye {
             // A redial may come from anywhere; a straggler of the old stream changes nothing.
@@ -188,7 +218,7 @@ impl SessionCore {
     }
 
     pub(super) fn handle_rtcp(&mut self, data: &mut Vec<u8>, from: SocketAddr, arrival: Instant) {
-        if !self.unprotect(data, Srtp::unprotect_rtcp) {
+        if !self.fixed_admits(from, true, arrival) || !self.unprotect(data, Srtp::unprotect_rtcp) {
             return;
         }
         let items = match rtcp::parse(data) {
@@ -199,6 +229,9 @@ impl SessionCore {
             }
         };
         let arrival_ntp = self.ntp_at(arrival);
+        // A fixed call's RTCP comes from a port of its own, admitted above.
+        let fixed = self.fixed.is_some();
+        let mut believed = false;
         let mut end_ts: HashMap<u32, u32> = HashMap::new();
         for item in items {
             match item {
@@ -226,10 +259,11 @@ impl SessionCore {
                         }
                         continue;
                     };
-                    if peer.addr != from {
+                    if !fixed && peer.addr != from {
                         self.stats.foreign += 1;
                         continue;
                     }
+                    believed = true;
                     peer.last_heard = arrival;
                     if let Some(info) = sender {
                         end_ts.insert(reporter, info.rtp_timestamp);
@@ -245,7 +279,8 @@ impl SessionCore {
                         continue;
                     }
                     match self.peers.get_mut(&ssrc) {
-                        Some(peer) if peer.addr == from => {
+                        Some(peer) if fixed || peer.addr == from => {
+                            believed = true;
                             if cname.is_some() {
                                 peer.cname = cname;
                             }
@@ -271,7 +306,7 @@ impl SessionCore {
                         let Some(peer) = self.peers.get_mut(&ssrc) else {
                             continue;
                         };
-                        if peer.addr != from {
+                        if !fixed && peer.addr != from {
                             self.stats.foreign += 1;
                             continue;
                         }
@@ -283,6 +318,10 @@ impl SessionCore {
                     }
                 }
             }
+        }
+        if let Some(fixed) = self.fixed.as_mut().filter(|_| believed) {
+            // Our reports go where the peer's believed ones come from (RFC 4961).
+            fixed.rtcp.latch(from);
         }
     }
 

@@ -5,7 +5,13 @@
 //! source, ours go there, and no later packet moves it. Only the peer naming a new address (a
 //! re-INVITE) opens it again. The SIP call's RTP and its RTCP each keep one.
 
-use std::net::SocketAddr;
+use std::net::{IpAddr, SocketAddr};
+use std::time::{Duration, Instant};
+
+/// RTP from other sources than a fixed call's is said at most once a second, and from the
+/// same source again only after this long.
+const STRAY_WARNING_EVERY: Duration = Duration::from_secs(10);
+const STRAY_WARNING_NEW_SOURCE: Duration = Duration::from_secs(1);
 
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 pub struct SourceLatch {
@@ -50,6 +56,118 @@ impl SourceLatch {
     pub fn rename(&mut self, named: SocketAddr) {
         self.named = named;
         self.latched = None;
+    }
+}
+
+/// Where a session's peers may send from, and whether they may move.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
+pub enum Latch {
+    /// lipcall's own calls: any source may become a peer, each peer is pinned to the address
+    /// its media came from, and it moves after a few packets continuing its sequence from a
+    /// new address while the old one is quiet (a NAT rebinding, a roaming device).
+    #[default]
+    Rebinding,
+    /// A negotiated two-party call (SIP): before the first packet only the addresses its
+    /// description named; then the first source is kept for the call and nothing moves it
+    /// (only the peer naming new addresses). Everything else is counted and dropped.
+    Fixed(Named),
+}
+
+/// What a negotiated call's description named: where its RTP and RTCP come from and ours go,
+/// and the IP its signalling comes from, whose every port is vouched for until the first
+/// packet (a symmetric-RTP peer behind a NAT whose description gives its private address).
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub struct Named {
+    pub rtp: SocketAddr,
+    pub rtcp: SocketAddr,
+    pub signalling: Option<IpAddr>,
+}
+
+/// The [`Latch::Fixed`] rule of one call: a [`SourceLatch`] for its RTP and one for its RTCP.
+#[derive(Debug, Clone)]
+pub(crate) struct FixedSources {
+    pub(crate) rtp: SourceLatch,
+    pub(crate) rtcp: SourceLatch,
+    signalling: Option<IpAddr>,
+    /// When stray RTP was last said and whose, and how many packets came since.
+    stray_said: Option<(Instant, SocketAddr)>,
+    stray_unsaid: u64,
+}
+
+impl FixedSources {
+    pub(crate) fn new(named: Named) -> Self {
+        Self {
+            rtp: SourceLatch::new(named.rtp),
+            rtcp: SourceLatch::new(named.rtcp),
+            signalling: named.signalling,
+            stray_said: None,
+            stray_unsaid: 0,
+        }
+    }
+
+    /// Whether RTP from `from` may be the peer's. An `authenticated` call (SRTP) takes its
+    /// first packet from anywhere: only the keyed peer can make one.
+    pub(crate) fn admits_rtp(&self, from: SocketAddr, authenticated: bool) -> bool {
+        let signalling = self.signalling;
+        self.rtp
+            .admits(from, |from| authenticated || Some(from.ip()) == signalling)
+    }
+
+    /// Whether RTCP from `from` may be the peer's: as RTP, and before its first report also
+    /// from the IP its RTP is latched to.
+    pub(crate) fn admits_rtcp(&self, from: SocketAddr, authenticated: bool) -> bool {
+        let (signalling, rtp) = (self.signalling, self.rtp.latched());
+        self.rtcp.admits(from, |from| {
+            authenticated
+                || Some(from.ip()) == signalling
+                || rtp.is_some_and(|s| s.ip() == from.ip())
+        })
+    }
+
+    /// The peer named new addresses (a re-INVITE): each one changed is open again.
+    pub(crate) fn rename(&mut self, named: Named) {
+        if named.rtp != self.rtp.named {
+            self.rtp.rename(named.rtp);
+        }
+        if named.rtcp != self.rtcp.named {
+            self.rtcp.rename(named.rtcp);
+        }
+        self.signalling = named.signalling;
+    }
+
+    /// RTP from another source than the call's, dropped: said in a warning naming the source,
+    /// a new source at most once a second, the same again after [`STRAY_WARNING_EVERY`].
+    pub(crate) fn stray(&mut self, what: &str, from: SocketAddr, now: Instant) {
+        self.stray_unsaid += 1;
+        if let Some((said, whose)) = self.stray_said {
+            let quiet = if whose == from {
+                STRAY_WARNING_EVERY
+            } else {
+                STRAY_WARNING_NEW_SOURCE
+            };
+            if now.saturating_duration_since(said) < quiet {
+                return;
+            }
+        }
+        let expected = if let Some(source) = self.rtp.latched() {
+            format!("the call's media comes from {source}")
+        } else {
+            let signalling = self
+                .signalling
+                .map(|ip| format!(" or from its signalling's IP {ip}"))
+                .unwrap_or_default();
+            format!(
+                "the call's media is taken only from the address its description named, {}{signalling}",
+                self.rtp.target()
+            )
+        };
+        let count = match self.stray_unsaid {
+            1 => String::new(),
+            n => format!(" ({n} packets from other sources since the last warning)"),
+        };
+        tracing::warn!("{what} from {from} dropped{count}: {expected}");
+        self.stray_said = Some((now, from));
+        self.stray_unsaid = 0;
     }
 }
 

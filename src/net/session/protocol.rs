@@ -6,6 +6,7 @@ use std::collections::{HashMap, VecDeque};
 use std::net::SocketAddr;
 use std::time::{Duration, Instant};
 
+use super::latch::{FixedSources, Latch, Named};
 use super::remote::{PENDING_NAMES, PENDING_STARTS, Peer, PendingNames};
 use super::timers::{Due, Timers};
 use super::{PeerFrame, PeerId, PeerInfo, SessionConfig, SessionStats};
@@ -52,6 +53,8 @@ pub struct SessionCore {
     stream: RtpStream,
     tx_srtp: Option<Srtp>,
     pub(super) rx_srtp: Option<Srtp>,
+    /// The sources of a [`Latch::Fixed`] call.
+    pub(super) fixed: Option<FixedSources>,
     sent_since_report: bool,
     started: bool,
     left: bool,
@@ -118,7 +121,14 @@ impl SessionCore {
             clock: NtpClock::new(now),
             stream,
             tx_srtp: srtp(config.key.as_ref(), config.clock_tolerance)?,
-            rx_srtp: srtp(config.key.as_ref(), config.clock_tolerance)?,
+            rx_srtp: srtp(
+                config.peer_key.as_ref().or(config.key.as_ref()),
+                config.clock_tolerance,
+            )?,
+            fixed: match config.latch {
+                Latch::Rebinding => None,
+                Latch::Fixed(named) => Some(FixedSources::new(named)),
+            },
             sent_since_report: false,
             started: false,
             left: false,
@@ -269,6 +279,14 @@ impl SessionCore {
 
     /// Queues `data` to every destination.
     fn send_all(&mut self, data: Vec<u8>, kind: TransmitKind) {
+        if let Some(fixed) = &self.fixed {
+            let to = match kind {
+                TransmitKind::Rtcp => fixed.rtcp.target(),
+                _ => fixed.rtp.target(),
+            };
+            self.outbox.push_back(Transmit { to, data, kind });
+            return;
+        }
         let Some((&last, others)) = self.config.destinations.split_last() else {
             self.spare.push(data);
             return;
@@ -313,6 +331,19 @@ impl SessionCore {
             None => Control::new(ControlKind::Join, room, Cookie::NONE),
         };
         self.send_to_relay(request);
+    }
+
+    /// The peer of a [`Latch::Fixed`] call named new addresses (a re-INVITE): each one changed
+    /// is open to its first packet again. Nothing in a session of another latch.
+    pub fn rename_peer(&mut self, named: Named) {
+        if let Some(fixed) = self.fixed.as_mut() {
+            fixed.rename(named);
+        }
+    }
+
+    /// Where the media of a [`Latch::Fixed`] call comes from, once its first packet came.
+    pub fn latched(&self) -> Option<SocketAddr> {
+        self.fixed.as_ref().and_then(|f| f.rtp.latched())
     }
 
     /// Sends a report now (normally the timers do so every `rtcp_interval`).
@@ -365,7 +396,7 @@ impl SessionCore {
             self.spare.push(buf);
             return;
         }
-        if self.config.destinations.is_empty() {
+        if self.config.destinations.is_empty() && self.fixed.is_none() {
             // A pure receiver reports back to where its peers send from.
             let mut done: Vec<SocketAddr> = Vec::new();
             for to in peer_addrs {

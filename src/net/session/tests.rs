@@ -3,6 +3,7 @@
 
 use std::collections::HashMap;
 
+use super::latch::{Latch, Named};
 use super::remote::{CONFIRM_PACKETS, PENDING_NAMES, UNCONFIRMED_TIMEOUT};
 use super::timers::{Due, EXPIRY_INTERVAL};
 use super::*;
@@ -11,7 +12,8 @@ use crate::codec::g711::ulaw_to_linear;
 use crate::net::control::{Control, ControlKind, Cookie, Refusal};
 use crate::net::peer::{FrameKind, PlayedFrame};
 use crate::net::rtcp::{self, Outgoing, SenderInfo, system_draw};
-use crate::net::rtp::RtpStream;
+use crate::net::rtp::{self, RtpStream};
+use crate::net::srtp::MasterKey;
 use crate::vocab::FRAME_SIZE;
 
 const FRAME: Duration = Duration::from_millis(20);
@@ -912,4 +914,190 @@ fn a_pure_receivers_report_about_our_stream_says_someone_hears_us() {
     }
     assert_eq!(reports, 1);
     assert_eq!(caller.stats().reports_about_us, 1);
+}
+
+fn fixed_session(named: Named, key: Option<(MasterKey, MasterKey)>, ssrc: u32) -> SessionCore {
+    let mut config = SessionConfig::new(LOCAL);
+    config.ssrc = Some(ssrc);
+    config.latch = Latch::Fixed(named);
+    if let Some((ours, theirs)) = key {
+        config.key = Some(ours);
+        config.peer_key = Some(theirs);
+    }
+    SessionCore::new(config, LOCAL, Instant::now()).unwrap()
+}
+
+/// Where what the core queued went: (RTP, RTCP) destinations, each once.
+fn sent_to(core: &mut SessionCore) -> (Vec<SocketAddr>, Vec<SocketAddr>) {
+    let (mut rtp, mut rtcp) = (Vec::new(), Vec::new());
+    while let Some(t) = core.poll_transmit() {
+        let to = if t.kind == TransmitKind::Rtcp {
+            &mut rtcp
+        } else {
+            &mut rtp
+        };
+        if !to.contains(&t.to) {
+            to.push(t.to);
+        }
+    }
+    (rtp, rtcp)
+}
+
+#[test]
+fn a_fixed_call_takes_only_its_named_address_then_keeps_its_first_source_for_good() {
+    let named = Named {
+        rtp: addr(5000),
+        rtcp: addr(5001),
+        signalling: None,
+    };
+    let mut core = fixed_session(named, None, 1);
+    let mut played = HashMap::new();
+    let mut caller = Caller::new(7, 65_500, 5000);
+    let mut stranger = Caller::new(9, 1, 0);
+    // Before the peer's first packet: another port of its IP makes no peer, and ours go to
+    // the named addresses.
+    drive(
+        &mut core,
+        0..10,
+        talks(&mut stranger, addr(6000), 0, 10),
+        &mut played,
+    );
+    assert!(core.peers().is_empty());
+    assert_eq!((core.stats().foreign, core.latched()), (10, None));
+    core.send_packet(&[0; 20], 160, core.epoch).unwrap();
+    assert_eq!(sent_to(&mut core), (vec![addr(5000)], vec![addr(5001)]));
+    // The peer from the named address; then its stream goes on from another port while the
+    // named one is quiet (what a Rebinding session follows): never taken.
+    drive(
+        &mut core,
+        10..130,
+        |k| match k {
+            10..60 => vec![(addr(5000), caller.packet())],
+            60..120 => vec![(addr(5002), caller.packet())],
+            _ => Vec::new(),
+        },
+        &mut played,
+    );
+    assert_eq!(peer_addr(&core, 7), Some(addr(5000)));
+    assert_eq!(decoded(&played, 7), 50);
+    let stats = core.stats();
+    assert_eq!((stats.foreign, stats.moved), (70, 0), "{stats:?}");
+    assert_eq!(core.latched(), Some(addr(5000)));
+    // Its RTCP is believed from the RTCP address it named (or its RTP's IP), not from
+    // elsewhere.
+    let at = core.epoch + FRAME * 130;
+    let elsewhere: SocketAddr = "127.0.0.9:5001".parse().unwrap();
+    core.handle_datagram(&names_from(7, "Mallory"), elsewhere, at);
+    core.handle_datagram(&names_from(7, "Bob"), addr(5001), at);
+    assert_eq!(core.peers()[0].name.as_deref(), Some("Bob"));
+    assert_eq!(core.stats().foreign, 71);
+    core.send_packet(&[0; 20], 160, at).unwrap();
+    core.send_periodic_report(at);
+    assert_eq!(sent_to(&mut core), (vec![addr(5000)], vec![addr(5001)]));
+    // A re-INVITE naming another address opens the call to it, and only to it.
+    core.rename_peer(Named {
+        rtp: addr(5010),
+        ..named
+    });
+    drive(
+        &mut core,
+        131..141,
+        |_| {
+            let packet = caller.packet();
+            vec![(addr(5000), packet.clone()), (addr(5010), packet)]
+        },
+        &mut played,
+    );
+    assert_eq!(peer_addr(&core, 7), Some(addr(5010)));
+    assert_eq!(core.stats().foreign, 81);
+    core.send_packet(&[0; 20], 160, at).unwrap();
+    assert_eq!(sent_to(&mut core).0, vec![addr(5010)]);
+
+    // The same stream into a Rebinding session moves with it.
+    let mut rebinding = session(32);
+    let mut caller = Caller::new(7, 65_500, 5000);
+    drive(
+        &mut rebinding,
+        0..120,
+        |k| match k {
+            0..50 => vec![(addr(5000), caller.packet())],
+            _ => vec![(addr(5002), caller.packet())],
+        },
+        &mut HashMap::new(),
+    );
+    assert_eq!(peer_addr(&rebinding, 7), Some(addr(5002)));
+    assert_eq!(rebinding.stats().moved, 1);
+}
+
+#[test]
+fn a_fixed_call_takes_its_first_packet_from_the_signalling_ip_and_is_answered_there() {
+    let nat: SocketAddr = "127.0.0.2:40000".parse().unwrap();
+    let mut core = fixed_session(
+        Named {
+            rtp: addr(5000),
+            rtcp: addr(5001),
+            signalling: Some(nat.ip()),
+        },
+        None,
+        1,
+    );
+    let mut caller = Caller::new(7, 100, 5000);
+    let mut played = HashMap::new();
+    drive(
+        &mut core,
+        0..20,
+        talks(&mut caller, nat, 0, 20),
+        &mut played,
+    );
+    let received = core.peers()[0].receiver.jitter.received;
+    assert_eq!((core.latched(), received), (Some(nat), 20));
+    // Now the named address is a stranger; the peer's RTCP comes from the NAT's next port.
+    let at = core.epoch + FRAME * 20;
+    core.handle_datagram(&caller.packet(), addr(5000), at);
+    assert_eq!(core.stats().foreign, 1);
+    let rtcp_from_nat: SocketAddr = "127.0.0.2:40001".parse().unwrap();
+    core.handle_datagram(&names_from(7, "Bob"), rtcp_from_nat, at);
+    assert_eq!(core.peers()[0].name.as_deref(), Some("Bob"));
+    core.send_packet(&[0; 20], 160, at).unwrap();
+    core.send_periodic_report(at);
+    assert_eq!(sent_to(&mut core), (vec![nat], vec![rtcp_from_nat]));
+}
+
+#[test]
+fn each_direction_has_its_own_srtp_key_and_a_keyed_fixed_call_latches_the_first_authentic_packet() {
+    let (a_key, b_key) = (
+        MasterKey::from_bytes(&[1; 30]).unwrap(),
+        MasterKey::from_bytes(&[2; 30]).unwrap(),
+    );
+    let named = Named {
+        rtp: addr(5000),
+        rtcp: addr(5001),
+        signalling: None,
+    };
+    let mut a = fixed_session(named, Some((a_key.clone(), b_key.clone())), 1);
+    let mut b = fixed_session(named, Some((b_key.clone(), a_key.clone())), 2);
+    // B reads what A sends under A's key; B's key both ways (one key a session) reads nothing.
+    let mut one_key = fixed_session(named, Some((b_key.clone(), b_key)), 3);
+    let mut speaker = Caller::new(7, 100, 0);
+    let payload = |packet: Vec<u8>| rtp::parse(&packet, None).unwrap().payload.to_vec();
+    let nat = addr(7000);
+    for k in 0..10 {
+        let now = a.epoch + FRAME * k;
+        a.send_packet(&payload(speaker.packet()), 160, now).unwrap();
+        while let Some(t) = a.poll_transmit() {
+            if t.kind == TransmitKind::Rtp {
+                b.handle_datagram(&t.data, nat, now);
+                one_key.handle_datagram(&t.data, nat, now);
+            }
+        }
+    }
+    // Authenticated, A's first packet fixed B's source wherever it came from.
+    assert_eq!((b.stats().rtp, b.stats().auth_failed), (10, 0));
+    assert_eq!(b.latched(), Some(nat));
+    assert_eq!(one_key.stats().auth_failed, 10);
+    assert!(one_key.peers().is_empty());
+    // Now plain or replayed packets from elsewhere are dropped before decryption.
+    let mut plain = Caller::new(7, 200, 0);
+    b.handle_datagram(&plain.packet(), addr(5000), b.epoch);
+    assert_eq!((b.stats().foreign, b.stats().auth_failed), (1, 0));
 }

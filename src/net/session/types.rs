@@ -7,6 +7,7 @@ use std::time::Duration;
 use crate::codec::any::{Codec, PayloadMap};
 use crate::net::control::Refusal;
 use crate::net::jitter::JitterConfig;
+use crate::net::session::latch::Latch;
 use crate::net::srtp::{DEFAULT_CLOCK_TOLERANCE, MasterKey};
 
 #[derive(Debug, Clone)]
@@ -18,6 +19,11 @@ pub struct SessionConfig {
     pub room: Option<String>,
     /// SRTP master key; `None` sends plain RTP.
     pub key: Option<MasterKey>,
+    /// The key the peer's SRTP is made with where it is not `key` (SDES: each side sends
+    /// under a key of its own); `None`: `key` both ways.
+    pub peer_key: Option<MasterKey>,
+    /// Where peers may send from, and whether they may move.
+    pub latch: Latch,
     /// How far a new SRTP stream's sender clock may be from ours (per-session keys: a stream
     /// stamped further off is a replay of an earlier call, or a clock that is wrong).
     pub clock_tolerance: Duration,
@@ -48,6 +54,8 @@ impl SessionConfig {
             destinations: Vec::new(),
             room: None,
             key: None,
+            peer_key: None,
+            latch: Latch::Rebinding,
             clock_tolerance: Duration::from_secs(u64::from(DEFAULT_CLOCK_TOLERANCE)),
             name: None,
             jitter: JitterConfig::default(),

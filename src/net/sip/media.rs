@@ -6,20 +6,20 @@
 //! As the session's and the Janus media's, the rules are a core without I/O ([`SipRtpCore`])
 //! under the shared socket thread ([`Driver`]).
 //!
-//! Where plain RTP may come from. Anyone can send datagrams to our port, and plain RTP proves
-//! nothing about its sender, so the call's media source is latched once and never moved:
-//! before the first packet, only packets from the address the peer's SDP named are taken, or
-//! from any port of the IP its SIP messages come from ([`Negotiated::signalling_peer`]): a
-//! symmetric-RTP peer behind a NAT whose SDP gives its private address sends from the NAT's
-//! address, the same as its SIP, and whoever holds that IP could move the media with a
-//! re-INVITE anyway. The first packet taken fixes the source for the rest of the call (a
-//! re-INVITE naming a new address opens it again); everything else is dropped, counted
-//! (`stray`) and said in a warning naming the source (a new source at most once a second,
-//! the same again after [`STRAY_WARNING_EVERY`]). A peer behind a
-//! NAT reached through a proxy, whose SDP address neither sends nor is the NAT's, is not
-//! heard: that takes a media relay (the PBX's, rtpengine). SRTP calls follow authenticated
-//! packets wherever they come from: only the keyed peer can make one. RTCP follows the same
-//! rule with its own latch (`super::reports`).
+//! Where RTP and RTCP may come from is the session's [`Latch::Fixed`] rule
+//! ([`FixedSources`], `net::session::latch`): anyone can send datagrams to our port, and plain
+//! RTP proves nothing about its sender, so before the peer's first packet only those from the
+//! address its SDP named are taken, or from any port of the IP its SIP messages come from
+//! ([`Negotiated::signalling_peer`]: a symmetric-RTP peer behind a NAT whose SDP gives its
+//! private address sends from the NAT's address, the same as its SIP, and whoever holds that IP
+//! could move the media with a re-INVITE anyway); under SRTP any authenticated one. The first
+//! packet taken fixes the source for the rest of the call (a re-INVITE naming a new address
+//! opens it again); everything else is dropped, counted (`stray`) and said in a warning naming
+//! the source, rate-limited. A peer behind a NAT reached through a proxy, whose SDP address
+//! neither sends nor is the NAT's, is not heard: that takes a media relay (the PBX's,
+//! rtpengine). RTCP has a latch of its own in the same rule (`super::reports`).
+//!
+//! [`Latch::Fixed`]: crate::net::session::latch::Latch::Fixed
 
 use std::collections::VecDeque;
 use std::net::{SocketAddr, UdpSocket};
@@ -32,7 +32,7 @@ use crate::net::peer::{PeerReceiver, ReceiverStats};
 use crate::net::rtcp::{HeardReports, ReportBlock, RtcpError};
 use crate::net::rtp::{self, RtpStream};
 use crate::net::session::LARGEST_DATAGRAM;
-use crate::net::session::latch::SourceLatch;
+use crate::net::session::latch::{FixedSources, Named};
 use crate::net::srtp::{MasterKey, Srtp, SrtpError};
 use crate::net::transport::{Driver, PeerFrame, PeerId, SansIo, Transmit, TransmitKind};
 
@@ -49,10 +49,6 @@ const PAUSE_PACKETS: u32 = 5;
 /// A new stream replaces the peer's current one only after the current one has been silent
 /// this long: a stray or echoed second stream on the port never cuts into the call.
 const STREAM_HANDOVER: Duration = Duration::from_millis(200);
-/// RTP from other sources than the call's is said at most once a second, and from the same
-/// source again only after this long.
-const STRAY_WARNING_EVERY: Duration = Duration::from_secs(10);
-const STRAY_WARNING_NEW_SOURCE: Duration = Duration::from_secs(1);
 /// The RFC 4733 volume field (-10 dBm0).
 const EVENT_VOLUME: u8 = 10;
 
@@ -100,11 +96,9 @@ pub struct SipRtpCore {
     stream: RtpStream,
     negotiated: Negotiated,
     frame_ticks: u32,
-    /// Where the peer's media may come from and ours goes: fixed by its first packet taken.
-    source: SourceLatch,
-    /// When stray RTP was last said and whose, and how many packets came since.
-    stray_said: Option<(Instant, SocketAddr)>,
-    stray_unsaid: u64,
+    /// Where the peer's RTP and RTCP may come from and ours go: fixed by the first packet of
+    /// each taken (the session's [`crate::net::session::latch::Latch::Fixed`] rule).
+    sources: FixedSources,
     receiver: PeerReceiver,
     ssrc: Option<u32>,
     /// When the current stream last sent.
@@ -142,6 +136,15 @@ fn sdes_contexts(
     Ok((Some(context(ours)?), Some(context(&theirs.key)?)))
 }
 
+/// The addresses a call's description named.
+fn named(negotiated: &Negotiated) -> Named {
+    Named {
+        rtp: negotiated.remote,
+        rtcp: negotiated.rtcp,
+        signalling: negotiated.signalling_peer,
+    }
+}
+
 /// The RFC 4733 event code of a DTMF key.
 pub fn event_code(key: char) -> Option<u8> {
     match key.to_ascii_uppercase() {
@@ -171,9 +174,7 @@ impl SipRtpCore {
         Ok(Self {
             stream,
             frame_ticks,
-            source: SourceLatch::new(negotiated.remote),
-            stray_said: None,
-            stray_unsaid: 0,
+            sources: FixedSources::new(named(&negotiated)),
             receiver: PeerReceiver::with_payloads(jitter, now, true, negotiated.payloads.clone()),
             ssrc: None,
             last_heard: now,
@@ -187,7 +188,7 @@ impl SipRtpCore {
             stats: SipRtpStats::default(),
             tx_srtp,
             rx_srtp,
-            rtcp: CallRtcp::new(&negotiated, stream_ssrc, local, now),
+            rtcp: CallRtcp::new(stream_ssrc, local, now),
             next_timeout: now + POLL,
             negotiated,
         })
@@ -207,12 +208,12 @@ impl SipRtpCore {
     }
 
     pub fn remote(&self) -> SocketAddr {
-        self.source.target()
+        self.sources.rtp.target()
     }
 
     /// Where our RTCP goes.
     pub fn rtcp_remote(&self) -> SocketAddr {
-        self.rtcp.remote()
+        self.sources.rtcp.target()
     }
 
     /// What the peer's reports said: the loss it sees of our stream, the round trip.
@@ -232,12 +233,7 @@ impl SipRtpCore {
             negotiated.remote = self.negotiated.remote;
             negotiated.rtcp = self.negotiated.rtcp;
         }
-        if negotiated.rtcp != self.negotiated.rtcp {
-            self.rtcp.moved(negotiated.rtcp);
-        }
-        if negotiated.remote != self.negotiated.remote {
-            self.source.rename(negotiated.remote);
-        }
+        self.sources.rename(named(&negotiated));
         if negotiated.payload_type != self.negotiated.payload_type {
             self.frame_ticks = negotiated.codec.frame_ticks();
             self.stream
@@ -255,7 +251,7 @@ impl SipRtpCore {
         }
         self.sent_since = true;
         self.outbox.push_back(Transmit {
-            to: self.source.target(),
+            to: self.sources.rtp.target(),
             data,
             kind: TransmitKind::Rtp,
         });
@@ -270,7 +266,7 @@ impl SipRtpCore {
             self.last_sent = now;
             self.stats.keepalives += 1;
             self.outbox.push_back(Transmit {
-                to: self.source.target(),
+                to: self.sources.rtp.target(),
                 data: Vec::new(),
                 kind: TransmitKind::Rtp,
             });
@@ -371,49 +367,6 @@ impl SipRtpCore {
         }
     }
 
-    /// Whether plain RTP from `from` may be the peer's (the module's documentation says why).
-    fn may_be_the_peer(&self, from: SocketAddr) -> bool {
-        self.source.admits(from, |from| {
-            Some(from.ip()) == self.negotiated.signalling_peer
-        })
-    }
-
-    /// Counts a stray packet and says it, as often as [`STRAY_WARNING_EVERY`] allows.
-    fn stray(&mut self, from: SocketAddr, now: Instant) {
-        self.stats.stray += 1;
-        self.stray_unsaid += 1;
-        if let Some((said, whose)) = self.stray_said {
-            let quiet = if whose == from {
-                STRAY_WARNING_EVERY
-            } else {
-                STRAY_WARNING_NEW_SOURCE
-            };
-            if now.saturating_duration_since(said) < quiet {
-                return;
-            }
-        }
-        let expected = if let Some(source) = self.source.latched() {
-            format!("the call's media comes from {source}")
-        } else {
-            let signalling = self
-                .negotiated
-                .signalling_peer
-                .map(|ip| format!(" or from its SIP's IP {ip}"))
-                .unwrap_or_default();
-            format!(
-                "the call's media is taken only from the peer's SDP address {}{signalling}",
-                self.source.target()
-            )
-        };
-        let count = match self.stray_unsaid {
-            1 => String::new(),
-            n => format!(" ({n} packets from other sources since the last warning)"),
-        };
-        tracing::warn!("plain RTP from {from} dropped{count}: {expected}");
-        self.stray_said = Some((now, from));
-        self.stray_unsaid = 0;
-    }
-
     /// `data` in the clear: decrypted into `clear` by `unprotect` where SRTP was agreed;
     /// `None` where it fails authentication.
     fn in_clear<'a>(
@@ -431,12 +384,7 @@ impl SipRtpCore {
     }
 
     fn handle_rtcp(&mut self, data: &[u8], from: SocketAddr, now: Instant) {
-        let rtp_source = self.source.latched();
-        if self.rx_srtp.is_none()
-            && !self
-                .rtcp
-                .may_be_the_peer(from, &self.negotiated, rtp_source)
-        {
+        if !self.sources.admits_rtcp(from, self.rx_srtp.is_some()) {
             tracing::debug!("RTCP from {from} not believed: not the call's peer");
             self.stats.rtcp_stray += 1;
             return;
@@ -452,7 +400,7 @@ impl SipRtpCore {
             Ok(Taken::Peer) => {
                 self.stats.rtcp += 1;
                 self.stats.their_report = self.rtcp.heard().about_us;
-                self.rtcp.latch(from);
+                self.sources.rtcp.latch(from);
             }
             Ok(Taken::Nothing) => self.stats.rtcp += 1,
             Ok(Taken::Stranger) => {
@@ -483,7 +431,7 @@ impl SipRtpCore {
             return;
         }
         self.outbox.push_back(Transmit {
-            to: self.rtcp.remote(),
+            to: self.sources.rtcp.target(),
             data,
             kind: TransmitKind::Rtcp,
         });
@@ -513,8 +461,11 @@ impl SipRtpCore {
             self.handle_rtcp(data, from, now);
             return;
         }
-        if self.rx_srtp.is_none() && !self.may_be_the_peer(from) {
-            self.stray(from, now);
+        let authenticated = self.rx_srtp.is_some();
+        if !self.sources.admits_rtp(from, authenticated) {
+            self.stats.stray += 1;
+            let what = if authenticated { "SRTP" } else { "plain RTP" };
+            self.sources.stray(what, from, now);
             return;
         }
         let mut clear = Vec::new();
@@ -547,11 +498,11 @@ impl SipRtpCore {
         }
         self.stats.rtp += 1;
         self.last_heard = now;
-        if self.source.latched() != Some(from) {
+        if self.sources.rtp.latched() != Some(from) {
             if from != self.negotiated.remote {
                 self.stats.latched = Some(from);
             }
-            self.source.latch(from);
+            self.sources.rtp.latch(from);
         }
         if self.ssrc != Some(packet.header.ssrc) {
             if self.ssrc.is_some() {
@@ -876,6 +827,13 @@ mod srtp_tests {
         assert_eq!(sent.len(), 12 + 160 + 10, "authenticated");
         b.handle_datagram(&sent, from, now);
         assert_eq!((b.stats().rtp, b.stats().auth_failed), (1, 0));
+        // The first authenticated packet fixed the source: A's next one from elsewhere (a
+        // replay or a rebinding alike) is dropped before decryption, and ours stay there.
+        a.send_packet(&[0xff; 160], 160).unwrap();
+        let next = a.poll_transmit().unwrap().data;
+        b.handle_datagram(&next, "127.0.0.5:9001".parse().unwrap(), now);
+        assert_eq!((b.stats().rtp, b.stats().stray), (1, 1));
+        assert_eq!(b.remote(), from);
         // Plain RTP (or a wrong key) into a keyed call is dropped.
         let mut plain = RtpStream::new(5, 1, 0);
         plain.set_payload(0, 160);

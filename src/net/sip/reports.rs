@@ -3,21 +3,20 @@
 //! peer's stream and our SDES CNAME, every 5 s spread 0.5-1.5x, and BYE at the end; and the
 //! peer's reports, which tell the loss and jitter it sees of our stream and the round trip.
 //!
-//! Where RTCP may come from follows the RTP's rule ([`super::media`]): until the peer's first
-//! report is believed, only from the RTCP address its SDP gave, from the IP its SIP comes from,
-//! or from the IP the call's RTP was latched to; that report fixes where ours go (symmetric
-//! RTCP, RFC 4961). Reports by another SSRC than the peer's stream are not taken.
+//! Where RTCP may come from is the call's [`crate::net::session::latch::FixedSources`] rule
+//! (`super::media`): until the peer's first report is believed, only from the RTCP address its
+//! SDP gave, from the IP its SIP comes from, or from the IP the call's RTP was latched to; that
+//! report fixes where ours go (symmetric RTCP, RFC 4961). Reports by another SSRC than the
+//! peer's stream are not taken.
 
 use std::net::SocketAddr;
 use std::time::{Duration, Instant};
 
-use super::sdp::Negotiated;
 use crate::net::rtcp::{
     self, HeardReports, NtpClock, Outgoing, ReportBlock, ReportTimer, RtcpError, RtcpItem,
     SenderInfo, system_draw,
 };
 use crate::net::rtp::RtpStream;
-use crate::net::session::latch::SourceLatch;
 
 /// RFC 3550 6.2's minimum interval, which is the interval of a two-party voice call.
 pub const REPORT_INTERVAL: Duration = Duration::from_secs(5);
@@ -25,8 +24,6 @@ pub const REPORT_INTERVAL: Duration = Duration::from_secs(5);
 /// Our side of a call's RTCP, and what the peer's reports said.
 #[derive(Debug, Clone)]
 pub(super) struct CallRtcp {
-    /// Where our reports go: the SDP's RTCP address, then where the peer's come from.
-    source: SourceLatch,
     timer: ReportTimer,
     clock: NtpClock,
     cname: String,
@@ -51,9 +48,8 @@ pub(super) enum Taken {
 
 impl CallRtcp {
     /// The RTCP of a call whose stream is `ssrc`, sent from `local`, starting at `now`.
-    pub(super) fn new(negotiated: &Negotiated, ssrc: u32, local: SocketAddr, now: Instant) -> Self {
+    pub(super) fn new(ssrc: u32, local: SocketAddr, now: Instant) -> Self {
         Self {
-            source: SourceLatch::new(negotiated.rtcp),
             timer: ReportTimer::new(REPORT_INTERVAL, now, system_draw),
             clock: NtpClock::new(now),
             cname: rtcp::cname(ssrc, local),
@@ -64,40 +60,12 @@ impl CallRtcp {
         }
     }
 
-    pub(super) fn remote(&self) -> SocketAddr {
-        self.source.target()
-    }
-
     pub(super) fn heard(&self) -> HeardReports {
         self.heard
     }
 
     pub(super) fn peer_cname(&self) -> Option<&str> {
         self.peer_cname.as_deref()
-    }
-
-    /// A new offer or answer naming another RTCP address: it opens the source again.
-    pub(super) fn moved(&mut self, to: SocketAddr) {
-        self.source.rename(to);
-    }
-
-    /// Whether RTCP from `from` may be the peer's (the module's documentation says why);
-    /// `rtp_source` is where the call's RTP is latched, once it is.
-    pub(super) fn may_be_the_peer(
-        &self,
-        from: SocketAddr,
-        negotiated: &Negotiated,
-        rtp_source: Option<SocketAddr>,
-    ) -> bool {
-        self.source.admits(from, |from| {
-            Some(from.ip()) == negotiated.signalling_peer
-                || rtp_source.is_some_and(|s| s.ip() == from.ip())
-        })
-    }
-
-    /// Our reports go where the peer's believed ones come from.
-    pub(super) fn latch(&mut self, from: SocketAddr) {
-        self.source.latch(from);
     }
 
     /// Reads the peer's compound packet (in the clear), about our stream `ours` and sent by
