@@ -17,8 +17,8 @@ use crate::render::{self, FrameOptions, Framing, HeadModel};
 use crate::vocab::FRAME_SIZE;
 use crate::vocab::FacePose;
 use crate::vocab::FrameFeatures;
-use crate::vocab::VisemeSet;
 use crate::vocab::VISEME_NAMES;
+use crate::vocab::VisemeSet;
 
 /// `lipcall animate`'s flags. `baseline_jaw` replaces the network by the jaw baseline;
 /// `closure_bias` is [`crate::lipsync::ModelAnimator::with_closure_bias`]'s; `life` off keeps
@@ -199,7 +199,10 @@ fn render_frames(
     };
     if let Some(drive) = drive {
         for (_, row) in &mut rows {
-            *row = drive.weights(&from_full(&track.visemes.to_full(row))).0.to_vec();
+            *row = drive
+                .weights(&from_full(&track.visemes.to_full(row)))
+                .0
+                .to_vec();
         }
         names = VISEME_NAMES.to_vec();
     }

@@ -638,7 +638,6 @@ pub fn codecs(chosen: Option<Codec>) -> Vec<Codec> {
     }
 }
 
-
 #[cfg(test)]
 mod tests {
     use super::*;
