@@ -451,7 +451,9 @@ fn a_server_gone_silent_is_noticed_and_a_reconnect_stuck_in_its_handshake_keeps_
 fn a_dribbled_tls_handshake_times_out_with_a_clear_error() {
     let server = Hostile::start(|_, mut tcp, _| dribble(&mut tcp));
     let dir = tempfile::tempdir().unwrap();
-    let mut rx = Receive::start(dir.path(), &server.address(), 5);
+    // --seconds bounds a join too: longer than the handshake's own 10 s, so that it is the
+    // handshake's timeout that ends this one.
+    let mut rx = Receive::start(dir.path(), &server.address(), 25);
     let (_, ended) = rx.watch(Duration::from_secs(30));
     let took = rx.started.elapsed();
     let log = rx.log.lock().unwrap();

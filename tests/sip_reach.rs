@@ -144,7 +144,7 @@ fn an_idle_account_on_tcp_pings_its_registrar_with_crlf() {
         &format!("sip:alice@127.0.0.1:{port};transport=tcp"),
         "23",
     );
-    assert!(log.contains("(TCP)"), "{log}");
+    assert!(log.contains("over TCP"), "{log}");
     assert!(log.contains("registered with"), "{log}");
     let pings = seen.pings.load(Ordering::Relaxed);
     eprintln!("CRLF pings in 23 s registered: {pings}");

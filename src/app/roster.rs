@@ -221,7 +221,10 @@ pub fn shown_name(info: &PeerInfo) -> String {
     info.cname
         .clone()
         .filter(|c| !c.trim().is_empty())
-        .unwrap_or_else(|| info.id.to_string())
+        .unwrap_or_else(|| match info.id {
+            PeerId::Ssrc(id) | PeerId::Janus(id) => format!("peer {id:08x}"),
+            PeerId::Mumble(session) => format!("user {session}"),
+        })
 }
 
 /// `"Bob" <sip:bob@host>` as Bob, `sip:bob@host` as bob; `None` for what is no SIP address.
