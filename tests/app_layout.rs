@@ -13,7 +13,7 @@ use egui::accesskit::Role;
 use egui_kittest::Harness;
 use egui_kittest::kittest::{NodeT, Queryable, by};
 use lipcall::app::call_panel::connect_plan;
-use lipcall::app::engine::{Engine, lock};
+use lipcall::app::engine::{CallPhase, Engine, lock};
 use lipcall::app::peer::PeerView;
 use lipcall::app::peer_panel::peer_colours;
 use lipcall::app::settings::{PeerPrefs, Settings};
@@ -461,4 +461,52 @@ fn an_address_without_a_port_or_host_is_told_in_a_sentence() {
         failure_of("sip:bob@"),
         "sip:bob@ has no host (expected sip:USER@HOST)"
     );
+}
+
+#[test]
+fn the_settings_speaker_test_rings_for_a_moment_and_stops() {
+    let window = Window {
+        settings: Settings::default(),
+        form: CallForm::default(),
+        sip: SipForm::default(),
+        engine: common::app::headless_engine("Alice", None),
+    };
+    let mut h = Harness::builder()
+        .with_size(egui::vec2(520.0, 900.0))
+        .build_ui_state(
+            |ui: &mut egui::Ui, w: &mut Window| {
+                let parts = SettingsParts {
+                    form: &mut w.form,
+                    sip_form: &mut w.sip,
+                    inputs: &[],
+                    outputs: &[],
+                    engine: &w.engine,
+                };
+                settings_ui(ui, &mut w.settings, parts);
+            },
+            window,
+        );
+    h.run();
+    let ringing = |h: &Harness<'_, Window>| lock(&h.state().engine.shared).playback.is_ringing();
+    assert!(!ringing(&h));
+    h.get_by_label("Test speaker").click();
+    h.run();
+    let clicked = Instant::now();
+    while !ringing(&h) {
+        assert!(
+            clicked.elapsed() < Duration::from_secs(2),
+            "the test never rang"
+        );
+        std::thread::sleep(Duration::from_millis(10));
+    }
+    while ringing(&h) {
+        assert!(
+            clicked.elapsed() < Duration::from_secs(10),
+            "the test rang on past its 2 s"
+        );
+        std::thread::sleep(Duration::from_millis(20));
+    }
+    assert!(clicked.elapsed() >= Duration::from_millis(1500));
+    let call = lock(&h.state().engine.shared).call.clone();
+    assert!(matches!(call.phase, CallPhase::Idle), "{call:?}");
 }

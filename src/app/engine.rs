@@ -55,6 +55,8 @@ const STATUS_TICKS: u32 = 10;
 /// How often the worker looks at the mixer's demand at the least (the mixer also wakes it as
 /// it finishes each frame), and at the microphone.
 const POLL: Duration = Duration::from_millis(5);
+/// How long the settings' speaker test rings.
+pub const SPEAKER_TEST: Duration = Duration::from_secs(2);
 
 /// What the engine is asked to do.
 #[derive(Debug, Clone)]
@@ -63,6 +65,8 @@ pub enum Command {
     Leave,
     SetInput(DeviceChoice),
     SetOutput(DeviceChoice),
+    /// Play the ringtone for [`SPEAKER_TEST`] on the output chosen: the settings' speaker test.
+    TestSpeaker,
     /// Move to this channel of the Mumble server we are on.
     Channel(u32),
     Phone(PhoneCommand),
@@ -266,6 +270,8 @@ struct Worker {
     lookups: Lookups<Then>,
     /// The desktop notification of the call that rings.
     posted: Option<RingNotice>,
+    /// Until when the speaker test rings.
+    speaker_test_until: Option<Instant>,
     /// The output device chosen, opening.
     outputs: OutputOpener,
 }
@@ -313,6 +319,7 @@ impl Worker {
             phone: SipPhone::default(),
             lookups: Lookups::default(),
             posted: None,
+            speaker_test_until: None,
             outputs: OutputOpener::default(),
             config,
             shared,
@@ -508,6 +515,10 @@ impl Worker {
                 Ok(())
             }
             Command::SetOutput(choice) => self.open_output(choice),
+            Command::TestSpeaker => {
+                self.speaker_test_until = Some(Instant::now() + SPEAKER_TEST);
+                Ok(())
+            }
         };
         if let Err(e) = result {
             lock(&self.shared).call.error = Some(format!("{e:#}"));

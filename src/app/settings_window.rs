@@ -75,6 +75,15 @@ pub fn settings_ui(ui: &mut egui::Ui, settings: &mut Settings, parts: SettingsPa
             engine.send(Command::SetOutput(choice(&settings.output_device)));
         }
         ui.end_row();
+        ui.label("");
+        if ui
+            .button("Test speaker")
+            .on_hover_text("Plays the ringtone for 2 s on the speaker chosen")
+            .clicked()
+        {
+            engine.send(Command::TestSpeaker);
+        }
+        ui.end_row();
         ui.label("Send");
         ui.horizontal(|ui| {
             codec_picker_ui(ui, &mut settings.codec);

@@ -3,6 +3,8 @@
 //! go where the window's buttons go. An incoming direct call, connected as soon as it is
 //! heard, gets a notification too, whose only action shows the window.
 
+use std::time::Instant;
+
 use super::{CallPhase, Worker, lock};
 use crate::app::ring_notice::{NoticeAction, RingNotice};
 use crate::app::sip_call::PhoneCommand;
@@ -19,7 +21,13 @@ impl Worker {
                 }
                 _ => None,
             };
-            let ringing = about.as_ref().is_some_and(|(_, sip)| *sip);
+            let testing = self
+                .speaker_test_until
+                .is_some_and(|until| Instant::now() < until);
+            if !testing {
+                self.speaker_test_until = None;
+            }
+            let ringing = testing || about.as_ref().is_some_and(|(_, sip)| *sip);
             if s.playback.is_ringing() != ringing {
                 s.playback.set_ringing(ringing);
             }
