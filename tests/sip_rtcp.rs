@@ -32,9 +32,11 @@ struct Counts {
     dropped_to_lipcall: AtomicU64,
 }
 
-/// A NAT with one public port for lipcall's RTP, running until `stop`: the first STUN
-/// request's source is lipcall's RTP socket, given the NAT's address; a later one (its RTCP
-/// socket) is given its own address, as a NAT that keeps ports would.
+/// A NAT with one public port for lipcall's RTP, running until `stop`. lipcall asks STUN for
+/// its RTP and RTCP sockets at once, so either request may come first: none is answered until
+/// both sources have asked (an unanswered one is sent again); then the lower port (RTP; its RTCP
+/// socket is the next one up) is given the NAT's address, the other its own, as a NAT that keeps
+/// ports would.
 fn lossy_nat(counts: Arc<Counts>, stop: Arc<AtomicBool>) -> SocketAddr {
     let socket = UdpSocket::bind("127.0.0.1:0").unwrap();
     socket
@@ -46,6 +48,7 @@ fn lossy_nat(counts: Arc<Counts>, stop: Arc<AtomicBool>) -> SocketAddr {
             return;
         };
         let mut lipcall: Option<SocketAddr> = None;
+        let mut asked: Vec<SocketAddr> = Vec::new();
         let mut baresip: Option<SocketAddr> = None;
         let mut buf = [0u8; 2048];
         while !stop.load(Ordering::Relaxed) {
@@ -56,13 +59,21 @@ fn lossy_nat(counts: Arc<Counts>, stop: Arc<AtomicBool>) -> SocketAddr {
             let SocketAddr::V4(from_v4) = from else {
                 continue;
             };
-            let mapped = if lipcall.is_none_or(|l| l == from) {
+            if lipcall.is_none() && stun_binding_success(data, from_v4).is_some() {
+                if !asked.contains(&from) {
+                    asked.push(from);
+                }
+                if asked.len() < 2 {
+                    continue;
+                }
+                lipcall = asked.iter().min_by_key(|a| a.port()).copied();
+            }
+            let mapped = if lipcall == Some(from) {
                 public_v4
             } else {
                 from_v4
             };
             if let Some(reply) = stun_binding_success(data, mapped) {
-                lipcall.get_or_insert(from);
                 let _ = socket.send_to(&reply, from);
                 continue;
             }
