@@ -3,13 +3,13 @@
 
 use crate::lipsync::controls::CONTROL_COUNT;
 use crate::lipsync::mouth::{Articulation, CUE_COUNT, cues};
-use crate::lipsync::network::Model;
+use crate::lipsync::network::{InferenceState, Model};
 use crate::lipsync::phones::CueClass;
 use crate::train::augment::{Rng, warp_frames};
 use crate::train::control_targets::ControlVideo;
 use crate::train::corpus::PreparedUtterance;
 use crate::train::video::{LIP_CUES, VideoTraining, head_lips};
-use crate::vocab::{Viseme, VisemeSet};
+use crate::vocab::{FrameFeatures, Viseme, VisemeSet};
 
 /// Scaled network inputs, targets over the model's set and loss weights, frame by frame.
 #[derive(Debug, Clone)]
@@ -96,7 +96,6 @@ pub(crate) fn build_dataset(
     };
     let closed = model.closed_index().and(model.visemes.position(Viseme::PP));
     let full = VisemeSet::full();
-    let silence = crate::vocab::FrameFeatures::silent();
     let mut state = model.new_state();
     let mut start = 0;
     let mut speaker: Option<&str> = None;
@@ -107,21 +106,8 @@ pub(crate) fn build_dataset(
             model.reset(&mut state);
             speaker = Some(utt.speaker.as_str());
         }
-        // Frame n is described once frame n + lookahead is fed; past the end, the receiver's
-        // fallback repeats the last frame.
-        let fed = utt.features.iter().chain(std::iter::repeat_n(
-            utt.features.last().unwrap_or(&silence),
-            model.lookahead,
-        ));
-        for (m, features) in fed.enumerate() {
-            model.push_frame(&mut state, features);
-            let Some(n) = m.checked_sub(model.lookahead) else {
-                continue;
-            };
-            if n >= utt.features.len() {
-                break;
-            }
-            data.inputs.extend_from_slice(state.input());
+        feed_clip(model, &mut state, &utt.features, |n, input| {
+            data.inputs.extend_from_slice(input);
             data.target_cues.push(cues(&full, &utt.targets.weights[n]));
             data.video.push(None);
             data.known.push([1.0; CONTROL_COUNT]);
@@ -133,7 +119,7 @@ pub(crate) fn build_dataset(
                 target.fill(0.0);
                 target[closed] = 1.0;
             }
-        }
+        });
         data.segments.extend(
             utt.targets
                 .bilabial_segments
@@ -160,26 +146,14 @@ pub(crate) fn build_dataset(
 pub(crate) fn append_video(data: &mut Dataset, model: &Model, training: &VideoTraining) {
     data.video_cue_weights = training.cue_weights;
     let mut state = model.new_state();
-    let silence = crate::vocab::FrameFeatures::silent();
     let mut speaker: Option<&str> = None;
     for clip in training.clips.iter() {
         if speaker != Some(clip.speaker.as_str()) {
             model.reset(&mut state);
             speaker = Some(clip.speaker.as_str());
         }
-        let fed = clip.features.iter().chain(std::iter::repeat_n(
-            clip.features.last().unwrap_or(&silence),
-            model.lookahead,
-        ));
-        for (m, features) in fed.enumerate() {
-            model.push_frame(&mut state, features);
-            let Some(n) = m.checked_sub(model.lookahead) else {
-                continue;
-            };
-            if n >= clip.features.len() {
-                break;
-            }
-            data.inputs.extend_from_slice(state.input());
+        feed_clip(model, &mut state, &clip.features, |n, input| {
+            data.inputs.extend_from_slice(input);
             data.targets.extend(std::iter::repeat_n(0.0, data.outputs));
             data.target_cues.push([0.0; CUE_COUNT]);
             let lips = clip.lips.get(n).copied().flatten();
@@ -190,7 +164,7 @@ pub(crate) fn append_video(data: &mut Dataset, model: &Model, training: &VideoTr
             });
             data.video.push(Some(lips.unwrap_or_default()));
             data.known.push([0.0; CONTROL_COUNT]);
-        }
+        });
         data.lengths.push(clip.features.len());
     }
 }
@@ -199,26 +173,14 @@ pub(crate) fn append_video(data: &mut Dataset, model: &Model, training: &VideoTr
 /// targets where tracked, the controls they know, each tracked frame weighing `frame_weight`.
 pub(crate) fn append_control_video(data: &mut Dataset, model: &Model, video: &ControlVideo) {
     let mut state = model.new_state();
-    let silence = crate::vocab::FrameFeatures::silent();
     let mut speaker: Option<&str> = None;
     for clip in video.clips.iter() {
         if speaker != Some(clip.speaker.as_str()) {
             model.reset(&mut state);
             speaker = Some(clip.speaker.as_str());
         }
-        let fed = clip.features.iter().chain(std::iter::repeat_n(
-            clip.features.last().unwrap_or(&silence),
-            model.lookahead,
-        ));
-        for (m, features) in fed.enumerate() {
-            model.push_frame(&mut state, features);
-            let Some(n) = m.checked_sub(model.lookahead) else {
-                continue;
-            };
-            if n >= clip.features.len() {
-                break;
-            }
-            data.inputs.extend_from_slice(state.input());
+        feed_clip(model, &mut state, &clip.features, |n, input| {
+            data.inputs.extend_from_slice(input);
             let target = clip.targets.get(n).copied().flatten();
             data.targets
                 .extend(target.map_or([0.0; CONTROL_COUNT], |t| t.values));
@@ -231,8 +193,35 @@ pub(crate) fn append_control_video(data: &mut Dataset, model: &Model, video: &Co
             } else {
                 0.0
             });
-        }
+        });
         data.lengths.push(clip.features.len());
+    }
+}
+
+/// Feeds one clip through the model as the receiver would and hands `frame` each frame's index
+/// and the network's input: frame n is described once frame n + lookahead is fed; past the end,
+/// the receiver's fallback repeats the last frame. The state carries over from the clip before
+/// (one speaker's clips follow each other as in one call).
+fn feed_clip(
+    model: &Model,
+    state: &mut InferenceState,
+    features: &[FrameFeatures],
+    mut frame: impl FnMut(usize, &[f32]),
+) {
+    let silence = FrameFeatures::silent();
+    let fed = features.iter().chain(std::iter::repeat_n(
+        features.last().unwrap_or(&silence),
+        model.lookahead,
+    ));
+    for (m, row) in fed.enumerate() {
+        model.push_frame(state, row);
+        let Some(n) = m.checked_sub(model.lookahead) else {
+            continue;
+        };
+        if n >= features.len() {
+            break;
+        }
+        frame(n, state.input());
     }
 }
 
