@@ -13,6 +13,7 @@ use std::path::Path;
 use std::process::{Command, Stdio};
 use std::time::{Duration, Instant};
 
+use common::pulse::NullSink;
 use common::{band_db, pulse_running, run};
 use lipcall::app::engine::{Engine, EngineConfig, lock};
 use lipcall::audio::DeviceChoice;
@@ -149,39 +150,6 @@ fn play_through_the_engine(sink: &str, codec: &str, file: &Path) -> Vec<i16> {
         .collect()
 }
 
-/// A null sink of this test's own, unloaded when dropped.
-struct NullSink {
-    name: String,
-    module: String,
-}
-
-impl NullSink {
-    fn load() -> Self {
-        let name = format!("lipcall_hd_{}", std::process::id());
-        let out = Command::new("pactl")
-            .args(["load-module", "module-null-sink"])
-            .arg(format!("sink_name={name}"))
-            .arg(format!("rate={RATE}"))
-            .output()
-            .expect("pactl runs");
-        assert!(
-            out.status.success(),
-            "{}",
-            String::from_utf8_lossy(&out.stderr)
-        );
-        let module = String::from_utf8_lossy(&out.stdout).trim().to_owned();
-        Self { name, module }
-    }
-}
-
-impl Drop for NullSink {
-    fn drop(&mut self) {
-        let _ = Command::new("pactl")
-            .args(["unload-module", &self.module])
-            .status();
-    }
-}
-
 #[test]
 fn the_app_plays_each_peer_at_its_own_band() {
     if !pulse_running() {
@@ -201,7 +169,7 @@ fn the_app_plays_each_peer_at_its_own_band() {
         )
     };
     let source_share = shares(&source_pcm);
-    let sink = NullSink::load();
+    let sink = NullSink::load("hd", RATE);
     let started = Instant::now();
     let mut heard_shares = Vec::new();
     for codec in ["opus", "speex"] {

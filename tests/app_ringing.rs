@@ -15,6 +15,7 @@ use std::process::{Child, Command, Stdio};
 use std::sync::{Arc, Mutex};
 use std::time::{Duration, Instant};
 
+use common::pulse::NullSink;
 use common::sip::{Logged, PASSWORD, Peer, baresip, free_port, have, kamailio, tell_baresip};
 use lipcall::app::settings::Settings;
 use lipcall::audio::ringtone::{RING_LEVEL, RING_TONES_HZ};
@@ -154,40 +155,6 @@ fn serve(
         .expect("the notification server started")
         .expect("the notification server owns its name");
     emit
-}
-
-/// A null sink of this test's own, unloaded when dropped.
-struct NullSink {
-    name: String,
-    module: String,
-}
-
-impl NullSink {
-    /// `tag`: which case's, as the cases run at once.
-    fn load(tag: &str) -> Self {
-        let name = format!("lipcall_ring_{tag}_{}", std::process::id());
-        let out = Command::new("pactl")
-            .args(["load-module", "module-null-sink"])
-            .arg(format!("sink_name={name}"))
-            .arg(format!("rate={RATE}"))
-            .output()
-            .expect("pactl runs");
-        assert!(
-            out.status.success(),
-            "{}",
-            String::from_utf8_lossy(&out.stderr)
-        );
-        let module = String::from_utf8_lossy(&out.stdout).trim().to_owned();
-        Self { name, module }
-    }
-}
-
-impl Drop for NullSink {
-    fn drop(&mut self) {
-        let _ = Command::new("pactl")
-            .args(["unload-module", &self.module])
-            .status();
-    }
 }
 
 /// The sink's monitor as it is recorded, sample by sample (48 kHz mono).
@@ -421,7 +388,7 @@ fn an_incoming_sip_call_rings_sounds_notifies_and_is_answered_from_the_notificat
     let settings_file = dir.path().join("settings.json");
     settings.save(&settings_file).unwrap();
 
-    let sink = NullSink::load("sip");
+    let sink = NullSink::load("ring_sip", RATE);
     let recording = Recording::start(&sink.name);
     let status = dir.path().join("status.txt");
     let (_xvfb, app, display) = app(&bus, &sink, &settings_file, &status);
@@ -538,7 +505,7 @@ fn a_direct_caller_is_connected_and_notified_without_a_decline_or_a_ringtone() {
     }
     .save(&settings_file)
     .unwrap();
-    let sink = NullSink::load("direct");
+    let sink = NullSink::load("ring_direct", RATE);
     let recording = Recording::start(&sink.name);
     let status = dir.path().join("status.txt");
     let (_xvfb, app, display) = app(&bus, &sink, &settings_file, &status);

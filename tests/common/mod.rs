@@ -77,6 +77,7 @@ pub mod mumble;
 pub mod nat;
 pub mod net;
 pub mod netns;
+pub mod pulse;
 pub mod sip;
 pub mod talker;
 
