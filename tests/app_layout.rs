@@ -257,18 +257,9 @@ struct Window {
     engine: Engine,
 }
 
-#[test]
-fn the_settings_window_holds_each_server_s_fields_and_names_them() {
-    let window = Window {
-        settings: Settings {
-            name: String::new(),
-            ..Settings::default()
-        },
-        form: CallForm::default(),
-        sip: SipForm::default(),
-        engine: common::app::headless_engine("Alice", None),
-    };
-    let mut h = Harness::builder()
+/// The settings window's contents drawn from `window`, tall enough for all of them.
+fn settings_harness(window: Window) -> Harness<'static, Window> {
+    Harness::builder()
         .with_size(egui::vec2(520.0, 900.0))
         .build_ui_state(
             |ui: &mut egui::Ui, w: &mut Window| {
@@ -282,7 +273,21 @@ fn the_settings_window_holds_each_server_s_fields_and_names_them() {
                 settings_ui(ui, &mut w.settings, parts);
             },
             window,
-        );
+        )
+}
+
+#[test]
+fn the_settings_window_holds_each_server_s_fields_and_names_them() {
+    let window = Window {
+        settings: Settings {
+            name: String::new(),
+            ..Settings::default()
+        },
+        form: CallForm::default(),
+        sip: SipForm::default(),
+        engine: common::app::headless_engine("Alice", None),
+    };
+    let mut h = settings_harness(window);
     h.run();
     for field in [
         "Name",
@@ -471,21 +476,7 @@ fn the_settings_speaker_test_rings_for_a_moment_and_stops() {
         sip: SipForm::default(),
         engine: common::app::headless_engine("Alice", None),
     };
-    let mut h = Harness::builder()
-        .with_size(egui::vec2(520.0, 900.0))
-        .build_ui_state(
-            |ui: &mut egui::Ui, w: &mut Window| {
-                let parts = SettingsParts {
-                    form: &mut w.form,
-                    sip_form: &mut w.sip,
-                    inputs: &[],
-                    outputs: &[],
-                    engine: &w.engine,
-                };
-                settings_ui(ui, &mut w.settings, parts);
-            },
-            window,
-        );
+    let mut h = settings_harness(window);
     h.run();
     let ringing = |h: &Harness<'_, Window>| lock(&h.state().engine.shared).playback.is_ringing();
     assert!(!ringing(&h));
