@@ -14,14 +14,13 @@ use egui_kittest::Harness;
 use egui_kittest::kittest::{NodeT, Queryable, by};
 use lipcall::app::call_panel::connect_plan;
 use lipcall::app::engine::{CallPhase, Engine, lock};
-use lipcall::app::peer::PeerView;
 use lipcall::app::peer_panel::peer_colours;
-use lipcall::app::settings::{PeerPrefs, Settings};
+use lipcall::app::settings::Settings;
 use lipcall::app::{
     CallForm, MicKeys, SettingsParts, ShownPeer, SipForm, audio_ui, call_ui, left_notice_ui,
     settings_ui, tiles_ui,
 };
-use lipcall::audio::{MicControls, PeerId};
+use lipcall::audio::MicControls;
 
 /// The audio bar with the keyboard's hold on a microphone (none: no device).
 struct AudioBar {
@@ -323,35 +322,8 @@ struct Tiles {
     left: Vec<String>,
 }
 
-static START: std::sync::LazyLock<Instant> = std::sync::LazyLock::new(Instant::now);
-
 fn peer(name: &str, ssrc: u32, joined_ms: u64) -> ShownPeer {
-    ShownPeer {
-        view: PeerView {
-            peer: lipcall::net::transport::PeerId::Ssrc(ssrc),
-            name: name.into(),
-            named: true,
-            addr: "127.0.0.1:5004".parse().unwrap(),
-            feed: PeerId(ssrc),
-            is_demo: false,
-            codec: None,
-            talking: false,
-            level_db: -30.0,
-            joined: *START + Duration::from_millis(joined_ms),
-            loss_percent: 0.0,
-            jitter_ms: 0.0,
-            delay_ms: 0.0,
-            frames_animated: 0,
-            frames_received: 0,
-            frames_recovered: 0,
-            unknown_payload: 0,
-            queued_ms: 0.0,
-            buffer: Default::default(),
-        },
-        face: None,
-        prefs: PeerPrefs::default(),
-        frames_shown: 0,
-    }
+    common::app::shown_peer(name, ssrc, "127.0.0.1:5004".parse().unwrap(), joined_ms)
 }
 
 fn tiles(peers: Vec<ShownPeer>) -> Harness<'static, Tiles> {

@@ -2,14 +2,14 @@
 //! app's default window every face lies whole inside it, no two overlap, and each peer's
 //! controls stay on screen and work.
 
+mod common;
+
 use std::net::SocketAddr;
 
 use eframe::egui;
 use egui_kittest::Harness;
 use egui_kittest::kittest::Queryable;
 use lipcall::app::ShownPeer;
-use lipcall::app::peer::PeerView;
-use lipcall::app::settings::PeerPrefs;
 use lipcall::app::tiles_ui;
 use lipcall::audio::PeerId;
 
@@ -19,37 +19,12 @@ use lipcall::audio::PeerId;
 const CENTRAL: egui::Vec2 = egui::vec2(1050.0, 610.0);
 
 /// When the first peer joined: each next one a millisecond later.
-static START: std::sync::LazyLock<std::time::Instant> =
-    std::sync::LazyLock::new(std::time::Instant::now);
-
 fn peer(i: u32) -> ShownPeer {
     let addr: SocketAddr = format!("127.0.0.1:{}", 40000 + i).parse().unwrap();
-    ShownPeer {
-        view: PeerView {
-            peer: lipcall::net::transport::PeerId::Ssrc(1000 + i),
-            name: format!("Peer {i}"),
-            named: true,
-            addr,
-            feed: PeerId(i),
-            is_demo: false,
-            codec: None,
-            talking: i.is_multiple_of(2),
-            level_db: -30.0,
-            joined: *START + std::time::Duration::from_millis(u64::from(i)),
-            loss_percent: 0.0,
-            jitter_ms: 0.0,
-            delay_ms: 0.0,
-            frames_animated: 0,
-            frames_received: 0,
-            frames_recovered: 0,
-            unknown_payload: 0,
-            queued_ms: 0.0,
-            buffer: Default::default(),
-        },
-        face: None,
-        prefs: PeerPrefs::default(),
-        frames_shown: 0,
-    }
+    let mut peer = common::app::shown_peer(&format!("Peer {i}"), 1000 + i, addr, u64::from(i));
+    peer.view.feed = PeerId(i);
+    peer.view.talking = i.is_multiple_of(2);
+    peer
 }
 
 fn harness(n: u32, size: egui::Vec2) -> Harness<'static, Vec<ShownPeer>> {

@@ -46,3 +46,42 @@ pub fn wait_for(
         std::thread::sleep(Duration::from_millis(20));
     }
 }
+
+static SHOWN_SINCE: std::sync::LazyLock<std::time::Instant> =
+    std::sync::LazyLock::new(std::time::Instant::now);
+
+/// A peer as the tiles and the list are drawn from: named `name`, SSRC `ssrc` (its mixer feed
+/// too), at `addr`, in the call since `joined_ms` after the first one; quiet, nothing lost.
+pub fn shown_peer(
+    name: &str,
+    ssrc: u32,
+    addr: std::net::SocketAddr,
+    joined_ms: u64,
+) -> lipcall::app::ShownPeer {
+    lipcall::app::ShownPeer {
+        view: lipcall::app::peer::PeerView {
+            peer: lipcall::net::transport::PeerId::Ssrc(ssrc),
+            name: name.into(),
+            named: true,
+            addr,
+            feed: lipcall::audio::PeerId(ssrc),
+            is_demo: false,
+            codec: None,
+            talking: false,
+            level_db: -30.0,
+            joined: *SHOWN_SINCE + std::time::Duration::from_millis(joined_ms),
+            loss_percent: 0.0,
+            jitter_ms: 0.0,
+            delay_ms: 0.0,
+            frames_animated: 0,
+            frames_received: 0,
+            frames_recovered: 0,
+            unknown_payload: 0,
+            queued_ms: 0.0,
+            buffer: Default::default(),
+        },
+        face: None,
+        prefs: lipcall::app::settings::PeerPrefs::default(),
+        frames_shown: 0,
+    }
+}
