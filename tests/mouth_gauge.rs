@@ -83,6 +83,22 @@ fn weak_arkit_avatar(factor: f32) -> Vec<u8> {
     write_meshes(&meshes, &head.materials)
 }
 
+/// The bundled head and the two weak avatars (visemes at 0.35 of their motion; ARKit shapes
+/// only), named; the ARKit-only one last.
+fn bundled_and_weak_heads() -> [(&'static str, HeadModel); 3] {
+    [
+        ("bundled head", default_head()),
+        (
+            "weak viseme_* avatar",
+            load_head_from_slice(&weak_viseme_avatar(0.35)).unwrap(),
+        ),
+        (
+            "weak ARKit-only avatar",
+            load_head_from_slice(&weak_arkit_avatar(0.35)).unwrap(),
+        ),
+    ]
+}
+
 /// The lip gap over the frames of the shipped network on the demo speech, in eye widths.
 fn speech_gaps(head: &HeadModel) -> Vec<f32> {
     let args = AnimateArgs {
@@ -196,17 +212,7 @@ fn a_weak_viseme_avatar_is_opened_to_a_speakers_range_at_load() {
 
 #[test]
 fn in_speech_every_head_parts_its_lips_as_far_as_a_speaker() {
-    let heads = [
-        ("bundled head", default_head()),
-        (
-            "weak viseme_* avatar",
-            load_head_from_slice(&weak_viseme_avatar(0.35)).unwrap(),
-        ),
-        (
-            "weak ARKit-only avatar",
-            load_head_from_slice(&weak_arkit_avatar(0.35)).unwrap(),
-        ),
-    ];
+    let heads = bundled_and_weak_heads();
     assert_eq!(heads[2].1.source, TargetSource::Arkit);
     // The weak avatar as written, without the loader's calibration, stays short of a speaker.
     let mut uncalibrated = default_head();
@@ -284,17 +290,7 @@ fn every_head_shows_the_controls_it_is_driven_by() {
     use lipcall::lipsync::controls::Controls;
     use lipcall::lipsync::viseme_controls;
     use lipcall::render::drive::HeadDrive;
-    let heads = [
-        ("bundled head", default_head()),
-        (
-            "weak viseme_* avatar",
-            load_head_from_slice(&weak_viseme_avatar(0.35)).unwrap(),
-        ),
-        (
-            "weak ARKit-only avatar",
-            load_head_from_slice(&weak_arkit_avatar(0.35)).unwrap(),
-        ),
-    ];
+    let heads = bundled_and_weak_heads();
     for (name, head) in &heads {
         let gauge = MouthGauge::new(head).expect("measurable");
         let drive = HeadDrive::new(head).expect("a drive");
