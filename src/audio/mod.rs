@@ -242,4 +242,33 @@ mod realtime_tests {
             assert_eq!(n, 0, "{:?}: the receiver allocated", options.visemes);
         }
     }
+
+    /// A head driven by controls fits its visemes to them per frame on the same thread.
+    #[test]
+    fn fitting_visemes_to_controls_does_not_allocate() {
+        use crate::lipsync::controls::Controls;
+        use crate::lipsync::viseme_controls::ControlDecomposer;
+        use crate::vocab::VisemeSet;
+
+        for set in [VisemeSet::full(), VisemeSet::reduced(3).unwrap()] {
+            let decomposer = ControlDecomposer::new(&set).unwrap();
+            let mut weights = vec![1.0 / set.len() as f32; set.len()];
+            let n = allocations(|| {
+                for k in 0..50 {
+                    let x = k as f32 / 50.0;
+                    let controls = Controls {
+                        aperture: 0.2 * x,
+                        width: 0.1 - 0.2 * x,
+                        jaw: x,
+                        rounding: 1.0 - x,
+                        closure: if k % 9 == 0 { 1.0 } else { 0.0 },
+                        lower_lip_tuck: 0.0,
+                    };
+                    decomposer.fit(&controls, &mut weights);
+                }
+            });
+            assert_eq!(n, 0, "{} visemes: fitting allocated", set.len());
+            assert!((weights.iter().sum::<f32>() - 1.0).abs() < 1e-4);
+        }
+    }
 }

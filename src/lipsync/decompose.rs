@@ -5,7 +5,7 @@
 use std::fmt;
 
 use super::mouth::{ShapeError, VisemeShapes};
-use crate::vocab::{VisemeError, VisemeSet};
+use crate::vocab::{VISEME_COUNT, VisemeError, VisemeSet};
 
 /// Frames of feature points, each frame flattened (`points * point_dim` coordinates).
 #[derive(Debug, Clone, PartialEq)]
@@ -245,32 +245,47 @@ impl Decomposer {
         if !target.iter().all(|x| x.is_finite()) {
             return;
         }
-        let target: Vec<f64> = target.iter().map(|&x| x as f64).collect();
-        let toward: Vec<f64> = self
-            .shapes
-            .iter()
-            .map(|shape| weighted_dot(&self.coordinate_weight, shape, &target))
-            .collect();
+        // A viseme set has at most VISEME_COUNT shapes: the per-shape state lives on the stack,
+        // so a frame's fit allocates nothing (it runs on the receiver's step).
+        let n = self.shapes.len();
+        if weights.len() != n {
+            return;
+        }
+        let mut toward = [0.0f64; VISEME_COUNT];
+        let toward = &mut toward[..n];
+        for (t, shape) in toward.iter_mut().zip(&self.shapes) {
+            *t = weighted_dot_f32(&self.coordinate_weight, shape, target);
+        }
         // Each step moves along `e_k - w`, which keeps the sum at 1 only if it starts there, and
         // a start handed back in f32 misses 1 by rounding.
-        let mut w: Vec<f64> = weights.iter().map(|&x| x as f64).collect();
+        let mut w = [0.0f64; VISEME_COUNT];
+        let w = &mut w[..n];
+        for (x, &given) in w.iter_mut().zip(weights.iter()) {
+            *x = f64::from(given);
+        }
         let start_total: f64 = w.iter().sum();
         w.iter_mut().for_each(|x| *x /= start_total);
         // gram_w = H w, kept up to date through every step.
-        let mut gram_w: Vec<f64> = self
-            .gram
-            .iter()
-            .map(|row| row.iter().zip(&w).map(|(h, x)| h * x).sum())
-            .collect();
-        let scale = 1.0 + weighted_dot(&self.coordinate_weight, &target, &target);
+        let mut gram_w = [0.0f64; VISEME_COUNT];
+        let gram_w = &mut gram_w[..n];
+        for (g, row) in gram_w.iter_mut().zip(&self.gram) {
+            *g = row.iter().zip(w.iter()).map(|(h, x)| h * x).sum();
+        }
+        let scale = 1.0
+            + self
+                .coordinate_weight
+                .iter()
+                .zip(target)
+                .map(|(c, &x)| c * f64::from(x) * f64::from(x))
+                .sum::<f64>();
         for _ in 0..self.max_sweeps {
             let mut decrease = 0.0f64;
             for k in 0..w.len() {
                 if w[k] >= 1.0 {
                     continue;
                 }
-                let w_gram_w: f64 = w.iter().zip(&gram_w).map(|(a, b)| a * b).sum();
-                let w_toward: f64 = w.iter().zip(&toward).map(|(a, b)| a * b).sum();
+                let w_gram_w: f64 = w.iter().zip(gram_w.iter()).map(|(a, b)| a * b).sum();
+                let w_toward: f64 = w.iter().zip(toward.iter()).map(|(a, b)| a * b).sum();
                 let curvature = self.gram[k][k] - 2.0 * gram_w[k] + w_gram_w;
                 // Below this the curvature is rounding noise (w is at shape k already), and a
                 // step of noise over noise runs to the bound and zeroes every weight.
@@ -297,10 +312,19 @@ impl Decomposer {
         if !(total > 0.0 && total.is_finite()) {
             return;
         }
-        for (out, x) in weights.iter_mut().zip(&w) {
+        for (out, x) in weights.iter_mut().zip(w.iter()) {
             *out = (x.max(0.0) / total) as f32;
         }
     }
+}
+
+fn weighted_dot_f32(weight: &[f64], a: &[f64], b: &[f32]) -> f64 {
+    weight
+        .iter()
+        .zip(a)
+        .zip(b)
+        .map(|((w, x), &y)| w * x * f64::from(y))
+        .sum()
 }
 
 fn weighted_dot(weight: &[f64], a: &[f64], b: &[f64]) -> f64 {
