@@ -162,7 +162,7 @@ impl Engine {
             ..Default::default()
         };
         let playback = if config.no_audio {
-            Playback::start_silent(playback_config)?
+            Playback::start_silent_because(playback_config, NO_AUDIO.into())?
         } else {
             Playback::start(playback_config)?
         };
@@ -231,10 +231,16 @@ impl Drop for Engine {
     }
 }
 
+/// Why the app has neither sound nor microphone, when it was asked for none.
+const NO_AUDIO: &str = "started with --no-audio";
+
 /// The output line the UI shows for a playback status.
 pub fn describe_output(status: &OutputStatus) -> String {
     match status {
-        OutputStatus::Silent { reason } => format!("No sound output ({reason}): playing silently"),
+        OutputStatus::Silent { reason } => {
+            let reason = reason.strip_suffix(": playing nothing").unwrap_or(reason);
+            format!("No sound: {reason}")
+        }
         OutputStatus::Playing {
             device,
             rate,
@@ -357,10 +363,7 @@ impl Worker {
     fn open_mic(&mut self, choice: &DeviceChoice) {
         self.mic = None;
         let (mic, status) = if self.config.no_audio {
-            (
-                None,
-                "no microphone (audio disabled): receive-only".to_owned(),
-            )
+            (None, format!("No microphone: {NO_AUDIO}"))
         } else {
             match Capture::start(choice) {
                 Ok(c) => {
@@ -699,5 +702,16 @@ mod tests {
             channels: 1,
         };
         assert_eq!(describe_output(&mono), "Playing on USB (44.1 kHz, mono)");
+        let asked = OutputStatus::Silent {
+            reason: NO_AUDIO.into(),
+        };
+        assert_eq!(describe_output(&asked), "No sound: started with --no-audio");
+        let gone = OutputStatus::Silent {
+            reason: "the output device disappeared: playing nothing".into(),
+        };
+        assert_eq!(
+            describe_output(&gone),
+            "No sound: the output device disappeared"
+        );
     }
 }
