@@ -83,9 +83,14 @@ impl Worker {
                     DIRECT_ANSWER_WAIT.as_secs()
                 ));
             }
-            (CallPhase::InCall { .. }, None) if self.in_call => {
+            (CallPhase::InCall { with, .. }, None) if self.in_call => {
                 if let Some(peer) = gone {
                     self.ended(format!("{} hung up", peer_name(peer)));
+                } else if self.link.session().is_some_and(|s| s.stats().rtp > 0) {
+                    // Its media was heard and it was forgotten after its silence (gone
+                    // without a BYE: its app or network died); a peer that only listens
+                    // sends none and stays.
+                    self.ended(format!("{with} went quiet and was dropped"));
                 }
             }
             (CallPhase::InCall { with, .. }, None) => {
