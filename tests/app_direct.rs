@@ -227,3 +227,33 @@ fn leave_on_a_sender_holds_while_it_keeps_sending_until_the_user_calls_it() {
     );
     assert_eq!(lock(&engine.shared).call.local_addr, Some(listen));
 }
+
+#[test]
+fn a_call_whose_peer_dies_without_a_word_ends_after_its_silence() {
+    let engine = common::app::headless_engine("Bob", None);
+    // Where Bob calls: a socket of the test's, which never answers.
+    let quiet = UdpSocket::bind("127.0.0.1:0").unwrap();
+    call(&engine, &quiet.local_addr().unwrap().to_string(), "Bob");
+    common::app::wait_for(&engine, "calling", LIMIT, |s| {
+        s.call.phase.word() == "calling" && s.call.local_addr.is_some()
+    });
+    let bob_at = lock(&engine.shared).call.local_addr.unwrap();
+    // A sender that reaches Bob's call, then dies without a BYE.
+    let dir = tempfile::tempdir().unwrap();
+    let mut sender = Killed(sender(dir.path(), bob_at));
+    common::app::wait_for(
+        &engine,
+        "in a call with the sender",
+        LIMIT,
+        |s| matches!(&s.call.phase, CallPhase::InCall { with, .. } if with == "Sender"),
+    );
+    sender.0.kill().unwrap();
+    // Forgotten after the session's 30 s of silence: the phase says so, not "in a call".
+    common::app::wait_for(
+        &engine,
+        "the call ended",
+        Duration::from_secs(60),
+        |s| matches!(&s.call.phase, CallPhase::Ended { by } if by == "Sender went quiet and was dropped"),
+    );
+    assert!(!lock(&engine.shared).call.in_call);
+}
