@@ -671,7 +671,7 @@ impl Worker {
             s.peers.describe(&mut s.playback, &everyone, Instant::now());
         }
         self.follow_peers(infos, Instant::now());
-        self.answer_callers(infos);
+        self.answer_callers();
         let real_peer = infos
             .iter()
             .any(|i| i.name.as_deref() != Some(DEMO_NAME) && !i.ended);

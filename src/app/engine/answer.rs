@@ -37,7 +37,7 @@ pub(super) fn callers(infos: &[PeerInfo]) -> (Vec<SocketAddr>, Option<Codec>) {
 impl Worker {
     /// Sends the microphone to the listening session's callers (none while a call is placed:
     /// that call's session has its destinations).
-    pub(super) fn answer_callers(&mut self, infos: &[PeerInfo]) {
+    pub(super) fn answer_callers(&mut self) {
         if self.in_call {
             self.answered.clear();
             return;
@@ -45,7 +45,8 @@ impl Worker {
         let Some(session) = self.link.session() else {
             return;
         };
-        let (to, codec) = callers(infos);
+        // Its own peers: the link may have changed since the caller's look (a call ended).
+        let (to, codec) = callers(&session.peers());
         if to == self.answered {
             return;
         }
