@@ -4,6 +4,7 @@
 //! sees it through [`Shared`] (one short lock per UI frame) and steers it with [`Command`]s.
 //! Its SIP phone's hooks are in `engine/sip.rs`.
 
+mod answer;
 mod lookup;
 mod news;
 mod output;
@@ -32,7 +33,7 @@ use crate::codec::opus::codec::Bandwidth;
 use crate::net::host_port::{HostPort, resolve_with_port};
 use crate::net::janus::candidates::IceServers;
 use crate::net::janus::messages::JanusAuth;
-use crate::net::session::{Session, SessionConfig};
+use crate::net::session::{Blocked, Session, SessionConfig};
 use crate::net::transport::{PeerFrame, PeerInfo};
 use crate::vocab::MAX_FRAME_SAMPLES;
 
@@ -161,7 +162,7 @@ impl Engine {
             ..Default::default()
         };
         let playback = if config.no_audio {
-            Playback::start_silent(playback_config)?
+            Playback::start_silent_because(playback_config, NO_AUDIO.into())?
         } else {
             Playback::start(playback_config)?
         };
@@ -230,10 +231,16 @@ impl Drop for Engine {
     }
 }
 
+/// Why the app has neither sound nor microphone, when it was asked for none.
+const NO_AUDIO: &str = "started with --no-audio";
+
 /// The output line the UI shows for a playback status.
 pub fn describe_output(status: &OutputStatus) -> String {
     match status {
-        OutputStatus::Silent { reason } => format!("No sound output ({reason}): playing silently"),
+        OutputStatus::Silent { reason } => {
+            let reason = reason.strip_suffix(": playing nothing").unwrap_or(reason);
+            format!("No sound: {reason}")
+        }
         OutputStatus::Playing {
             device,
             rate,
@@ -260,6 +267,10 @@ struct Worker {
     encoder: FrameEncoder,
     /// The session has destinations: the microphone is sent.
     in_call: bool,
+    /// The listening session's callers it sends the microphone back to.
+    answered: Vec<SocketAddr>,
+    /// Callers the user hung up on, kept out by the next listening session.
+    blocked: Blocked,
     /// A relay call's join, until the relay confirms it.
     relay: RelayWatch,
     /// The call as its news names it: "Janus room", "Mumble server HOST:PORT".
@@ -313,6 +324,8 @@ impl Worker {
             demo: None,
             mic: None,
             in_call: false,
+            answered: Vec::new(),
+            blocked: Blocked::default(),
             relay: RelayWatch::default(),
             call_label: CALL.into(),
             mumble: None,
@@ -350,10 +363,7 @@ impl Worker {
     fn open_mic(&mut self, choice: &DeviceChoice) {
         self.mic = None;
         let (mic, status) = if self.config.no_audio {
-            (
-                None,
-                "no microphone (audio disabled): receive-only".to_owned(),
-            )
+            (None, format!("No microphone: {NO_AUDIO}"))
         } else {
             match Capture::start(choice) {
                 Ok(c) => {
@@ -451,6 +461,8 @@ impl Worker {
 
     /// Hangs up the current link (and the demo) for a call's.
     fn switch_link(&mut self, link: Box<dyn Link>, encoder: FrameEncoder) {
+        self.keep_blocks_but(None);
+        self.answered.clear();
         self.demo = None;
         let old = std::mem::replace(&mut self.link, link);
         self.retirer.retire(old);
@@ -475,6 +487,7 @@ impl Worker {
         let idle = Box::new(idle_session(&self.config)?);
         let old = std::mem::replace(&mut self.link, idle);
         self.retirer.retire(old);
+        self.hand_on_blocks();
         self.set_idle_status();
         Ok(())
     }
@@ -497,7 +510,15 @@ impl Worker {
             Command::Leave => {
                 self.lookups.forget();
                 let was = lock(&self.shared).call.phase.clone();
-                let left = self.leave();
+                let left = if self.in_call {
+                    self.leave()
+                } else {
+                    // The listening session stays (its port, and whom it keeps out).
+                    self.hang_up_on_callers();
+                    self.drop_peers();
+                    self.set_idle_status();
+                    Ok(())
+                };
                 let by = match was {
                     CallPhase::InCall { .. } => "you hung up",
                     CallPhase::Calling { .. } => "you cancelled it",
@@ -592,7 +613,7 @@ impl Worker {
 
     fn send_mic(&mut self) {
         let Some(mic) = &mut self.mic else { return };
-        let in_call = self.in_call;
+        let in_call = self.in_call || !self.answered.is_empty();
         // The microphone resampled once, straight to the rate the encoder takes.
         if let Err(e) = mic.set_rate(self.encoder.input_rate()) {
             tracing::debug!(
@@ -650,6 +671,7 @@ impl Worker {
             s.peers.describe(&mut s.playback, &everyone, Instant::now());
         }
         self.follow_peers(infos, Instant::now());
+        self.answer_callers();
         let real_peer = infos
             .iter()
             .any(|i| i.name.as_deref() != Some(DEMO_NAME) && !i.ended);
@@ -680,5 +702,16 @@ mod tests {
             channels: 1,
         };
         assert_eq!(describe_output(&mono), "Playing on USB (44.1 kHz, mono)");
+        let asked = OutputStatus::Silent {
+            reason: NO_AUDIO.into(),
+        };
+        assert_eq!(describe_output(&asked), "No sound: started with --no-audio");
+        let gone = OutputStatus::Silent {
+            reason: "the output device disappeared: playing nothing".into(),
+        };
+        assert_eq!(
+            describe_output(&gone),
+            "No sound: the output device disappeared"
+        );
     }
 }

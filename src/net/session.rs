@@ -25,6 +25,7 @@ use std::time::{Duration, Instant};
 use super::NetError;
 use crate::codec::any::Codec;
 
+mod blocked;
 mod inbound;
 pub mod latch;
 mod protocol;
@@ -32,7 +33,8 @@ mod remote;
 mod timers;
 mod types;
 
-pub use protocol::{LARGEST_DATAGRAM, SessionCore};
+pub use blocked::{BLOCK_LONGEST, BLOCK_QUIET, BLOCKS_KEPT, Blocked};
+pub use protocol::{LARGEST_DATAGRAM, MAX_ANSWERED, SessionCore};
 pub use types::{SessionConfig, SessionStats};
 
 use super::transport::{Driver, PeerFrame, PeerId, PeerInfo, SansIo, Transmit, TransmitKind};
@@ -72,7 +74,6 @@ pub struct Session {
     ssrc: u32,
     epoch: Instant,
     encrypted: bool,
-    codec: Codec,
 }
 
 impl std::fmt::Debug for Session {
@@ -90,7 +91,7 @@ impl Session {
         let local = socket
             .local_addr()
             .map_err(|e| NetError::io("local address", e))?;
-        let (encrypted, codec) = (config.key.is_some(), config.codec);
+        let encrypted = config.key.is_some();
         let core = SessionCore::new(config, local, Instant::now())?;
         let (ssrc, epoch) = (core.ssrc(), core.epoch());
         let driver = Driver::start(socket, core, "lipcall-net", POLL)
@@ -100,7 +101,6 @@ impl Session {
             ssrc,
             epoch,
             encrypted,
-            codec,
         })
     }
 
@@ -126,14 +126,16 @@ impl Session {
 
     /// The codec this session sends.
     pub fn codec(&self) -> Codec {
-        self.codec
+        self.driver.access(|core| core.config().codec)
     }
 
     /// Sends one payload of the session's codec holding `frames` 20 ms frames to every
     /// destination.
     pub fn send_frames(&self, payload: &[u8], frames: u32) -> Result<(), NetError> {
-        let ticks = self.codec.frame_ticks() * frames.max(1);
-        self.send_packet(payload, ticks)
+        self.driver.with(|core| {
+            let ticks = core.config().codec.frame_ticks() * frames.max(1);
+            core.send_packet(payload, ticks, Instant::now())
+        })
     }
 
     /// Sends one payload of the session's codec lasting `ticks` of its RTP clock (an Opus
@@ -161,6 +163,28 @@ impl Session {
 
     pub fn peers(&self) -> Vec<PeerInfo> {
         self.driver.access(|core| core.peers())
+    }
+
+    /// A listening session sends to the callers `to` as well, in `codec` where it can
+    /// ([`SessionCore::answer`]); says the codec it sends.
+    pub fn answer(&self, to: &[SocketAddr], codec: Codec) -> Codec {
+        self.driver.access(|core| core.answer(to, codec))
+    }
+
+    /// The user hung up on the caller at `addr` ([`SessionCore::hang_up_on`]).
+    pub fn hang_up_on(&self, addr: SocketAddr) {
+        self.driver
+            .with(|core| core.hang_up_on(addr, Instant::now()));
+    }
+
+    /// The callers kept out ([`Blocked`]).
+    pub fn blocked(&self) -> Blocked {
+        self.driver.access(|core| core.blocked().clone())
+    }
+
+    /// Keeps out those `blocked` keeps out (the session before's).
+    pub fn keep_blocked(&self, blocked: Blocked) {
+        self.driver.access(|core| core.keep_blocked(blocked));
     }
 
     /// Sends a report now (normally the network thread does so every `rtcp_interval`).

@@ -83,9 +83,14 @@ impl Worker {
                     DIRECT_ANSWER_WAIT.as_secs()
                 ));
             }
-            (CallPhase::InCall { .. }, None) if self.in_call => {
+            (CallPhase::InCall { with, .. }, None) if self.in_call => {
                 if let Some(peer) = gone {
                     self.ended(format!("{} hung up", peer_name(peer)));
+                } else if self.link.session().is_some_and(|s| s.stats().rtp > 0) {
+                    // Its media was heard and it was forgotten after its silence (gone
+                    // without a BYE: its app or network died); a peer that only listens
+                    // sends none and stays.
+                    self.ended(format!("{with} went quiet and was dropped"));
                 }
             }
             (CallPhase::InCall { with, .. }, None) => {
@@ -94,6 +99,19 @@ impl Worker {
                     None => format!("{with} went quiet and was dropped"),
                 };
                 self.set_phase(CallPhase::Ended { by });
+            }
+            // The phase names whom the call is with now: a peer who left is not, a name heard
+            // late replaces an address.
+            (CallPhase::InCall { with, since }, Some(_)) => {
+                let names: Vec<String> = infos
+                    .iter()
+                    .filter(real)
+                    .filter(|i| !i.ended)
+                    .map(peer_name)
+                    .collect();
+                if let Some(with) = in_call_with(&with, &names) {
+                    lock(&self.shared).call.phase = CallPhase::InCall { with, since };
+                }
             }
             (CallPhase::Idle | CallPhase::Ended { .. } | CallPhase::Failed { .. }, Some(peer))
                 if !self.in_call =>
@@ -124,9 +142,65 @@ impl Worker {
     }
 }
 
+/// Whom a call that is with `with` is with now that `heard` are heard (by name, in join
+/// order): `None` while `with` is still among them or nobody is heard.
+fn in_call_with(with: &str, heard: &[String]) -> Option<String> {
+    if heard.iter().any(|h| h == with) {
+        return None;
+    }
+    let now = match heard {
+        [one] => one.clone(),
+        [one, two] => format!("{one} and {two}"),
+        [one, two, rest @ ..] => format!("{one}, {two} and {} more", rest.len()),
+        [] => return None,
+    };
+    (now != with).then_some(now)
+}
+
 fn peer_name(peer: &PeerInfo) -> String {
     peer.name
         .clone()
         .filter(|n| !n.trim().is_empty())
         .unwrap_or_else(|| peer.addr.to_string())
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn names(list: &[&str]) -> Vec<String> {
+        list.iter().map(|n| n.to_string()).collect()
+    }
+
+    #[test]
+    fn the_phase_names_whom_the_call_is_with_after_a_peer_leaves() {
+        assert_eq!(in_call_with("Bob", &names(&["Bob", "Carol"])), None);
+        assert_eq!(
+            in_call_with("Bob", &names(&["Carol"])).as_deref(),
+            Some("Carol"),
+            "Bob left, Carol stays"
+        );
+        assert_eq!(
+            in_call_with("Bob", &names(&["Carol", "Dan"])).as_deref(),
+            Some("Carol and Dan")
+        );
+        assert_eq!(
+            in_call_with("Carol and Dan", &names(&["Carol", "Dan"])),
+            None
+        );
+        assert_eq!(
+            in_call_with("Bob", &names(&["Carol", "Dan", "Eve", "Fay"])).as_deref(),
+            Some("Carol, Dan and 2 more")
+        );
+        assert_eq!(
+            in_call_with("127.0.0.1:5004", &names(&["Bob"])).as_deref(),
+            Some("Bob"),
+            "a name heard late replaces the address"
+        );
+        assert_eq!(
+            in_call_with("Bob", &[]),
+            None,
+            "nobody heard: the call's end says it"
+        );
+    }
 }

@@ -46,6 +46,7 @@ impl Worker {
         };
         let local_addr = session.local_addr().ok();
         self.switch_link(Box::new(session), encoder);
+        self.blocked.lift(to);
         self.relay = match room {
             Some(_) => RelayWatch::joining(Instant::now()),
             None => RelayWatch::default(),

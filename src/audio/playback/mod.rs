@@ -126,7 +126,11 @@ impl Playback {
         Self::start_silent_because(config, "no output device chosen: playing nothing".into())
     }
 
-    fn start_silent_because(config: PlaybackConfig, reason: String) -> Result<Self, AudioError> {
+    /// Starts without any device, for `reason` (what [`OutputStatus::Silent`] says).
+    pub fn start_silent_because(
+        config: PlaybackConfig,
+        reason: String,
+    ) -> Result<Self, AudioError> {
         let (sink, ring, target) = virtual_sink(DEFAULT_MIX_RATE, config.buffer);
         Self::with_sink(config, sink, ring, target, OutputStatus::Silent { reason })
     }

@@ -328,6 +328,7 @@ impl SessionCore {
     /// Forgets silent peers and stale hints.
     pub(super) fn expire(&mut self, now: Instant) {
         let timeout = self.config.peer_timeout;
+        self.blocked.expire(now);
         self.pending_starts
             .retain(|&(_, _, _, at)| now.saturating_duration_since(at) < UNCONFIRMED_TIMEOUT);
         self.pending_names

@@ -6,11 +6,13 @@ use std::collections::{HashMap, VecDeque};
 use std::net::SocketAddr;
 use std::time::{Duration, Instant};
 
+use super::blocked::Blocked;
 use super::latch::{FixedSources, Latch, Named};
 use super::remote::{PENDING_NAMES, PENDING_STARTS, Peer, PendingNames};
 use super::timers::{Due, Timers};
 use super::{PeerFrame, PeerId, PeerInfo, SessionConfig, SessionStats};
 use super::{Transmit, TransmitKind};
+use crate::codec::any::Codec;
 use crate::net::control::{Control, ControlError, ControlKind, Cookie, RoomId};
 use crate::net::rtcp::{self, NtpClock, Outgoing, ReportBlock, SenderInfo, system_draw};
 use crate::net::rtp::RtpStream;
@@ -19,6 +21,8 @@ use crate::net::{DatagramKind, MAX_DATAGRAM, NetError, classify};
 
 /// The longest datagram the session reads; a longer one was cut short by the socket.
 pub const LARGEST_DATAGRAM: usize = MAX_DATAGRAM + 64;
+/// Callers a listening session sends back to at most ([`SessionCore::answer`]).
+pub const MAX_ANSWERED: usize = 8;
 
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 pub(super) enum ReportKind {
@@ -65,6 +69,10 @@ pub struct SessionCore {
     pub(super) pending_starts: Vec<(u32, u32, SocketAddr, Instant)>,
     pub(super) pending_names: Vec<PendingNames>,
     relay: RelayLink,
+    /// A listening session's callers it sends back to (it has no destinations of its own).
+    answering: Vec<SocketAddr>,
+    /// Callers the user hung up on, kept out for a while.
+    pub(super) blocked: Blocked,
     timers: Timers,
     outbox: VecDeque<Transmit>,
     /// Buffers of datagrams sent, for the next ones.
@@ -137,6 +145,8 @@ impl SessionCore {
             pending_starts: Vec::with_capacity(PENDING_STARTS),
             pending_names: Vec::with_capacity(PENDING_NAMES),
             relay: RelayLink::default(),
+            answering: Vec::new(),
+            blocked: Blocked::default(),
             timers: Timers::new(&config, now, draw),
             outbox: VecDeque::new(),
             spare: Vec::new(),
@@ -287,7 +297,12 @@ impl SessionCore {
             self.outbox.push_back(Transmit { to, data, kind });
             return;
         }
-        let Some((&last, others)) = self.config.destinations.split_last() else {
+        let targets = if self.config.destinations.is_empty() {
+            &self.answering
+        } else {
+            &self.config.destinations
+        };
+        let Some((&last, others)) = targets.split_last() else {
             self.spare.push(data);
             return;
         };
@@ -352,11 +367,40 @@ impl SessionCore {
     }
 
     fn send_report(&mut self, kind: ReportKind, now: Instant) {
+        let mut peer_addrs: Vec<SocketAddr> = self.peers.values().map(|p| p.addr).collect();
+        let Some(buf) = self.report(kind, now) else {
+            return;
+        };
+        if self.config.destinations.is_empty() && self.fixed.is_none() {
+            // A pure receiver reports back to where its peers send from (those it answers
+            // get theirs with its media).
+            peer_addrs.retain(|a| !self.answering.contains(a));
+            peer_addrs.sort_unstable();
+            peer_addrs.dedup();
+            for to in peer_addrs {
+                self.send_copy(&buf, to);
+            }
+        }
+        self.send_all(buf, TransmitKind::Rtcp);
+    }
+
+    /// Queues a copy of the report `buf` to `to` alone.
+    fn send_copy(&mut self, buf: &[u8], to: SocketAddr) {
+        let mut copy = self.spare.pop().unwrap_or_default();
+        copy.clear();
+        copy.extend_from_slice(buf);
+        self.outbox.push_back(Transmit {
+            to,
+            data: copy,
+            kind: TransmitKind::Rtcp,
+        });
+    }
+
+    /// A report of `kind` as it goes on the wire, if it could be made.
+    fn report(&mut self, kind: ReportKind, now: Instant) -> Option<Vec<u8>> {
         let ntp = self.ntp_at(now);
         let mut blocks = Vec::new();
-        let mut peer_addrs = Vec::new();
         for (&ssrc, peer) in self.peers.iter_mut() {
-            peer_addrs.push(peer.addr);
             if let Some(reception) = peer.receiver.jitter().report() {
                 blocks.push(ReportBlock::about(
                     ssrc,
@@ -388,37 +432,71 @@ impl SessionCore {
         );
         if built.is_err() {
             self.spare.push(buf);
-            return;
+            return None;
         }
         if let Some(srtp) = self.tx_srtp.as_mut()
             && srtp.protect_rtcp(&mut buf).is_err()
         {
             self.spare.push(buf);
-            return;
+            return None;
         }
+        Some(buf)
+    }
+
+    /// A listening session (no destinations of its own) sends its media and reports to `to`
+    /// as well, the callers it hears (at most [`MAX_ANSWERED`]), in `codec` where a payload
+    /// type is mapped to it; says which codec it sends. Empty: it only listens again.
+    pub fn answer(&mut self, to: &[SocketAddr], codec: Codec) -> Codec {
         if self.config.destinations.is_empty() && self.fixed.is_none() {
-            // A pure receiver reports back to where its peers send from.
-            let mut done: Vec<SocketAddr> = Vec::new();
-            for to in peer_addrs {
-                if !done.contains(&to) {
-                    done.push(to);
-                    let mut copy = self.spare.pop().unwrap_or_default();
-                    copy.clear();
-                    copy.extend_from_slice(&buf);
-                    self.outbox.push_back(Transmit {
-                        to,
-                        data: copy,
-                        kind: TransmitKind::Rtcp,
-                    });
-                }
-            }
+            self.answering = to.iter().copied().take(MAX_ANSWERED).collect();
         }
-        self.send_all(buf, TransmitKind::Rtcp);
+        if codec != self.config.codec
+            && let Some(payload_type) = self.config.payloads.payload_type(codec)
+        {
+            self.stream.set_payload(payload_type, codec.frame_ticks());
+            self.config.codec = codec;
+        }
+        self.config.codec
+    }
+
+    /// The callers a listening session sends back to.
+    pub fn answering(&self) -> &[SocketAddr] {
+        &self.answering
+    }
+
+    /// The user hung up on the caller at `addr`: it hears our BYE, is forgotten, and what it
+    /// sends is kept out for a while ([`Blocked`]).
+    pub fn hang_up_on(&mut self, addr: SocketAddr, now: Instant) {
+        self.blocked.block(addr, now);
+        self.peers.retain(|_, p| p.addr != addr);
+        self.answering.retain(|&a| a != addr);
+        if self.config.send_rtcp
+            && let Some(bye) = self.report(ReportKind::Bye, now)
+        {
+            // Twice, as at the session's end: a lost BYE leaves the caller waiting.
+            self.send_copy(&bye, addr);
+            self.send_copy(&bye, addr);
+            self.spare.push(bye);
+        }
+    }
+
+    /// The callers kept out, to be kept by the session that follows this one.
+    pub fn blocked(&self) -> &Blocked {
+        &self.blocked
+    }
+
+    /// Keeps out the callers `blocked` keeps out (those of the session before).
+    pub fn keep_blocked(&mut self, blocked: Blocked) {
+        self.blocked = blocked;
     }
 
     /// Handles a datagram that arrived from `from` at `now`.
     pub fn handle_datagram(&mut self, data: &[u8], from: SocketAddr, now: Instant) {
         self.stats.datagrams += 1;
+        if !self.blocked.admits(from, now) {
+            self.stats.blocked += 1;
+            return;
+        }
         if data.len() > LARGEST_DATAGRAM {
             // Cut short by the socket: whatever it was, it cannot be read.
             self.stats.malformed += 1;

@@ -1101,3 +1101,112 @@ fn each_direction_has_its_own_srtp_key_and_a_keyed_fixed_call_latches_the_first_
     b.handle_datagram(&plain.packet(), addr(5000), b.epoch);
     assert_eq!((b.stats().foreign, b.stats().auth_failed), (1, 0));
 }
+
+/// What the core queued since the last look: (to, kind, whether an RTCP packet says BYE).
+fn queued(core: &mut SessionCore) -> Vec<(SocketAddr, TransmitKind, bool)> {
+    let mut out = Vec::new();
+    while let Some(t) = core.poll_transmit() {
+        let bye = t.kind == TransmitKind::Rtcp
+            && rtcp::parse(&t.data).is_ok_and(|items| {
+                items
+                    .iter()
+                    .any(|i| matches!(i, rtcp::RtcpItem::Bye { .. }))
+            });
+        out.push((t.to, t.kind, bye));
+        core.transmitted(t, true);
+    }
+    out
+}
+
+#[test]
+fn a_listening_session_answers_its_callers_in_their_codec_and_reports_to_each_once() {
+    let mut core = session(8);
+    let (bob, carol) = (addr(6001), addr(6002));
+    let mut caller = Caller::new(7, 100, 0);
+    for k in 0..10 {
+        core.handle_datagram(&caller.packet(), bob, core.epoch + FRAME * k);
+    }
+    let now = core.epoch + FRAME * 10;
+    core.send_packet(&[1, 2, 3], 160, now).unwrap();
+    assert!(
+        queued(&mut core)
+            .iter()
+            .all(|(_, kind, _)| *kind != TransmitKind::Rtp),
+        "a listening session that answers nobody sends no media"
+    );
+    assert_eq!(core.answer(&[bob, carol], Codec::Pcmu), Codec::Pcmu);
+    core.send_packet(&[0x55; 160], 160, now).unwrap();
+    core.send_periodic_report(now);
+    let sent = queued(&mut core);
+    for to in [bob, carol] {
+        let rtp = sent
+            .iter()
+            .filter(|(t, kind, _)| *t == to && *kind == TransmitKind::Rtp)
+            .count();
+        let rtcp = sent
+            .iter()
+            .filter(|(t, kind, _)| *t == to && *kind == TransmitKind::Rtcp)
+            .count();
+        assert_eq!((rtp, rtcp), (1, 1), "to {to}: {sent:?}");
+    }
+    let answers: Vec<SocketAddr> = (0..MAX_ANSWERED as u16 * 2)
+        .map(|p| addr(7000 + p))
+        .collect();
+    core.answer(&answers, Codec::Pcmu);
+    assert_eq!(core.answering().len(), MAX_ANSWERED, "capped");
+    core.answer(&[], Codec::Pcmu);
+    core.send_packet(&[0x55; 160], 160, now).unwrap();
+    assert!(
+        queued(&mut core)
+            .iter()
+            .all(|(_, kind, _)| *kind != TransmitKind::Rtp),
+        "answering nobody again"
+    );
+}
+
+#[test]
+fn a_caller_hung_up_on_hears_bye_and_stays_out_while_it_keeps_sending() {
+    let mut core = session(8);
+    let (bob, carol) = (addr(6001), addr(6002));
+    let mut bob_says = Caller::new(7, 100, 0);
+    for k in 0..10 {
+        core.handle_datagram(&bob_says.packet(), bob, core.epoch + FRAME * k);
+    }
+    core.answer(&[bob], Codec::Speex);
+    let now = core.epoch + FRAME * 10;
+    core.hang_up_on(bob, now);
+    let sent = queued(&mut core);
+    assert!(
+        sent.iter().any(|&(to, _, bye)| to == bob && bye),
+        "{sent:?}"
+    );
+    assert!(core.peers().is_empty() && core.answering().is_empty());
+    // Bob goes on sending for 30 s: never a peer again.
+    let mut played = HashMap::new();
+    drive(
+        &mut core,
+        11..1500,
+        |_| vec![(bob, bob_says.packet())],
+        &mut played,
+    );
+    assert!(core.peers().is_empty(), "{:?}", core.peers());
+    assert!(core.stats().blocked > 1000);
+    // Carol may call meanwhile.
+    let mut carol_says = Caller::new(9, 100, 0);
+    drive(
+        &mut core,
+        1500..1510,
+        |_| vec![(carol, carol_says.packet())],
+        &mut played,
+    );
+    assert_eq!(core.peers().len(), 1);
+    // Bob quiet for the block's quiet time, then heard again.
+    let back = 1510 + (BLOCK_QUIET.as_millis() / 20) as u32 + 1;
+    drive(
+        &mut core,
+        back..back + 10,
+        |_| vec![(bob, bob_says.packet())],
+        &mut played,
+    );
+    assert!(peer_addr(&core, 7) == Some(bob), "{:?}", core.peers());
+}

@@ -101,6 +101,8 @@ pub struct SessionStats {
     pub foreign: u64,
     /// Peers that moved to a new address (their stream continued from it).
     pub moved: u64,
+    /// Datagrams from callers the user hung up on, kept out.
+    pub blocked: u64,
     /// Our own packets coming back (a relay or multicast echo).
     pub own: u64,
     /// Reports naming our stream: someone hears us, even a pure receiver that never sends.
