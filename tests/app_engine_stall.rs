@@ -2,7 +2,7 @@
 //! leaving a Janus room whose server hangs, and joining a Mumble server that accepts and says
 //! nothing all happen off the worker, whose every pass comes within 50 ms of the last (a pass
 //! that blocks holds up every peer's audio and face). So does looking up the host of a call
-//! when the resolver never answers, and opening an output device or a microphone (the
+//! (direct, SIP, a Janus room) when the resolver never answers, and opening an output device or a microphone (the
 //! PulseAudio null sink and its monitor).
 
 mod common;
@@ -205,11 +205,16 @@ fn calling_a_host_whose_resolver_never_answers_never_stalls_the_engine() {
     let engine = common::app::headless_engine("Eve", None);
     engine.counters.take_longest_pass();
     let mut longest = Vec::new();
-    for (address, how) in [
-        (format!("{SLOW_NAME}:4000"), "a direct call"),
-        (format!("sip:bob@{SLOW_NAME}"), "a SIP call"),
+    for (address, room, how) in [
+        (format!("{SLOW_NAME}:4000"), None, "a direct call"),
+        (format!("sip:bob@{SLOW_NAME}"), None, "a SIP call"),
+        (
+            format!("http://{SLOW_NAME}:8088/janus"),
+            Some("stall-room"),
+            "a Janus room",
+        ),
     ] {
-        call(&engine, &address, None);
+        call(&engine, &address, room);
         let looking = longest_pass_within(&engine, Duration::from_secs(1));
         let state = lock(&engine.shared).call.state.clone();
         eprintln!("{how}: longest pass in its first second {looking:?}; {state}");

@@ -289,6 +289,8 @@ enum Then {
     Direct(Box<CallSpec>),
     /// A SIP call to `target`, from the local address found.
     Sip { target: String },
+    /// A Janus room on the server found.
+    Janus(Box<CallSpec>),
 }
 
 /// The call's label when nothing names it otherwise.
