@@ -2,7 +2,8 @@
 //! leaving a Janus room whose server hangs, and joining a Mumble server that accepts and says
 //! nothing all happen off the worker, whose every pass comes within 50 ms of the last (a pass
 //! that blocks holds up every peer's audio and face). So does looking up the host of a call
-//! when the resolver never answers, and opening an output device (the PulseAudio null sink).
+//! (direct, SIP, a Janus room) when the resolver never answers, and opening an output device or a microphone (the
+//! PulseAudio null sink and its monitor).
 
 mod common;
 
@@ -10,8 +11,9 @@ use std::net::{TcpListener, UdpSocket};
 use std::process::Command as Process;
 use std::time::{Duration, Instant};
 
-use lipcall::app::engine::{CallSpec, Command, Engine, lock};
+use lipcall::app::engine::{CallSpec, Command, Engine, EngineConfig, lock};
 use lipcall::app::sip_call::PhoneCommand;
+use lipcall::audio::DeviceChoice;
 use lipcall::codec::any::Codec;
 use lipcall::net::sip::register::Account;
 
@@ -203,11 +205,16 @@ fn calling_a_host_whose_resolver_never_answers_never_stalls_the_engine() {
     let engine = common::app::headless_engine("Eve", None);
     engine.counters.take_longest_pass();
     let mut longest = Vec::new();
-    for (address, how) in [
-        (format!("{SLOW_NAME}:4000"), "a direct call"),
-        (format!("sip:bob@{SLOW_NAME}"), "a SIP call"),
+    for (address, room, how) in [
+        (format!("{SLOW_NAME}:4000"), None, "a direct call"),
+        (format!("sip:bob@{SLOW_NAME}"), None, "a SIP call"),
+        (
+            format!("http://{SLOW_NAME}:8088/janus"),
+            Some("stall-room"),
+            "a Janus room",
+        ),
     ] {
-        call(&engine, &address, None);
+        call(&engine, &address, room);
         let looking = longest_pass_within(&engine, Duration::from_secs(1));
         let state = lock(&engine.shared).call.state.clone();
         eprintln!("{how}: longest pass in its first second {looking:?}; {state}");
@@ -277,19 +284,16 @@ fn choosing_an_output_device_never_stalls_the_engine() {
         common::unavailable("PulseAudio (bash .ci/pulse-null-sink.sh)");
         return;
     }
-    // Opened on the worker, the null sink held it for 0.5 s; a loaded machine's passes may
-    // pass STALL without any device in them.
-    const OPENING_STALL: Duration = Duration::from_millis(200);
     let engine = common::app::headless_engine("Eve", None);
     longest_pass_within(&engine, Duration::from_millis(500));
-    engine.send(Command::SetOutput(lipcall::audio::DeviceChoice::Default));
+    engine.send(Command::SetOutput(DeviceChoice::Default));
     let opening = longest_pass_within(&engine, Duration::from_secs(3));
     wait_for(&engine, "the speaker open", |e| {
         lock(&e.shared).output_status.starts_with("Playing on ")
     });
     // And again, replacing the device just opened (which closes off the worker too).
     engine.counters.take_longest_pass();
-    engine.send(Command::SetOutput(lipcall::audio::DeviceChoice::Default));
+    engine.send(Command::SetOutput(DeviceChoice::Default));
     let replacing = longest_pass_within(&engine, Duration::from_secs(3));
     let status = lock(&engine.shared).output_status.clone();
     eprintln!("longest pass opening {opening:?}, replacing {replacing:?}: {status}");
@@ -299,4 +303,176 @@ fn choosing_an_output_device_never_stalls_the_engine() {
     );
     assert!(status.starts_with("Playing on "), "{status}");
     assert!(lock(&engine.shared).call.error.is_none());
+}
+
+/// Opened on the worker, a PulseAudio output held it for about 0.5 s; a loaded machine's
+/// passes may pass [`STALL`] without any device in them.
+const OPENING_STALL: Duration = Duration::from_millis(200);
+
+/// An engine with real devices: the null sink, and its monitor (PulseAudio's default source)
+/// for a microphone.
+fn engine_with_audio() -> Engine {
+    Engine::start(EngineConfig {
+        listen: None,
+        demo: false,
+        name: "Eve".into(),
+        input: DeviceChoice::Default,
+        output: DeviceChoice::Default,
+        no_audio: false,
+        output_margin: lipcall::audio::DEFAULT_OUTPUT_MARGIN,
+    })
+    .unwrap()
+}
+
+fn microphone_open(engine: &Engine) -> bool {
+    let s = lock(&engine.shared);
+    s.input_status.starts_with("microphone: ") && s.mic.is_some()
+}
+
+#[test]
+fn choosing_a_microphone_never_stalls_the_engine() {
+    if !common::pulse_running() {
+        common::unavailable("PulseAudio (bash .ci/pulse-null-sink.sh)");
+        return;
+    }
+    let engine = engine_with_audio();
+    wait_for(&engine, "the microphone open", microphone_open);
+    let first = lock(&engine.shared).mic.clone().unwrap();
+    first.set_muted(true);
+    first.set_push_to_talk(true);
+    longest_pass_within(&engine, Duration::from_millis(500));
+
+    engine.send(Command::SetInput(DeviceChoice::Default));
+    let reopening = longest_pass_within(&engine, Duration::from_secs(3));
+    eprintln!("longest pass reopening {reopening:?}");
+    wait_for(&engine, "the microphone open again", microphone_open);
+    // The new device's controls keep the user's mute and push-to-talk.
+    let second = lock(&engine.shared).mic.clone().unwrap();
+    assert!(
+        second.muted() && second.push_to_talk(),
+        "mute or push-to-talk lost"
+    );
+
+    // An unknown device: a clear line and receive-only, soon, the worker never waiting.
+    engine.counters.take_longest_pass();
+    engine.send(Command::SetInput(DeviceChoice::Id(
+        "no-such-microphone".into(),
+    )));
+    wait_for(&engine, "the unknown device refused", |e| {
+        lock(&e.shared).input_status.contains("no-such-microphone")
+    });
+    let refusing = engine.counters.take_longest_pass();
+    eprintln!("longest pass refusing {refusing:?}");
+    let status = lock(&engine.shared).input_status.clone();
+    assert!(status.contains("receive-only"), "{status}");
+    assert!(lock(&engine.shared).mic.is_none(), "{status}");
+
+    // A choice made while another opens replaces it: the last one is the microphone.
+    engine.send(Command::SetInput(DeviceChoice::Default));
+    engine.send(Command::SetInput(DeviceChoice::Id(
+        "no-such-microphone".into(),
+    )));
+    engine.send(Command::SetInput(DeviceChoice::Default));
+    let replacing = longest_pass_within(&engine, Duration::from_secs(3));
+    wait_for(&engine, "the last choice open", microphone_open);
+    eprintln!("longest pass replacing {replacing:?}");
+    assert!(
+        reopening < OPENING_STALL && refusing < OPENING_STALL && replacing < OPENING_STALL,
+        "longest pass reopening {reopening:?}, refusing {refusing:?}, replacing {replacing:?}"
+    );
+    assert!(lock(&engine.shared).call.error.is_none());
+}
+
+/// Set, to a FIFO's path, in the run of a test whose ALSA configuration has [`SLOW_MIC`].
+const SLOW_MIC_FIFO: &str = "LIPCALL_TEST_SLOW_MIC";
+
+/// An ALSA capture device that reads the FIFO: opening it waits until a writer opens the
+/// FIFO, as a device slow to wake does; reading it waits for the writer's bytes.
+const SLOW_MIC: &str = "alsa:lipcall_slow_mic";
+
+/// Runs the test `test` again, alone, with an ALSA configuration that adds [`SLOW_MIC`] (ALSA
+/// reads it once a process). True when it ran there and passed: the caller returns; false
+/// when this is that run.
+fn ran_with_a_slow_microphone(test: &str) -> bool {
+    if std::env::var_os(SLOW_MIC_FIFO).is_some() {
+        return false;
+    }
+    let dir = tempfile::tempdir().unwrap();
+    let fifo = dir.path().join("mic.fifo");
+    let made = Process::new("mkfifo").arg(&fifo).status().unwrap();
+    assert!(made.success(), "mkfifo failed");
+    let conf = dir.path().join("asound.conf");
+    let name = SLOW_MIC.trim_start_matches("alsa:");
+    std::fs::write(
+        &conf,
+        format!(
+            "</usr/share/alsa/alsa.conf>\n\
+             pcm.{name} {{ type file slave.pcm \"null\" file \"/dev/null\" \
+             infile \"{}\" format \"raw\" }}\n",
+            fifo.display()
+        ),
+    )
+    .unwrap();
+    let run = Process::new(std::env::current_exe().unwrap())
+        .args(["--exact", test, "--nocapture", "--test-threads=1"])
+        .env("ALSA_CONFIG_PATH", &conf)
+        .env(SLOW_MIC_FIFO, &fifo)
+        .output()
+        .unwrap();
+    eprintln!(
+        "--- with a slow microphone:\n{}{}",
+        String::from_utf8_lossy(&run.stdout),
+        String::from_utf8_lossy(&run.stderr)
+    );
+    assert!(run.status.success(), "{test} failed with a slow microphone");
+    assert!(
+        String::from_utf8_lossy(&run.stdout).contains("1 passed"),
+        "{test} did not run with a slow microphone"
+    );
+    true
+}
+
+#[test]
+fn choosing_a_microphone_slow_to_open_never_stalls_the_engine() {
+    let test = "choosing_a_microphone_slow_to_open_never_stalls_the_engine";
+    if !common::pulse_running() {
+        common::unavailable("PulseAudio (bash .ci/pulse-null-sink.sh)");
+        return;
+    }
+    if ran_with_a_slow_microphone(test) {
+        return;
+    }
+    let fifo = std::env::var(SLOW_MIC_FIFO).unwrap();
+    let engine = engine_with_audio();
+    wait_for(&engine, "the first microphone open", microphone_open);
+    engine.counters.take_longest_pass();
+    engine.send(Command::SetInput(DeviceChoice::Id(SLOW_MIC.into())));
+    // The device opens once the FIFO has a writer: a second from now (the open waits on a
+    // thread of the test's, which a device never opened leaves waiting).
+    std::thread::sleep(Duration::from_secs(1));
+    let (opened, writer) = std::sync::mpsc::channel();
+    std::thread::spawn(move || {
+        let _ = opened.send(std::fs::OpenOptions::new().write(true).open(&fifo));
+    });
+    let writer = writer
+        .recv_timeout(Duration::from_secs(20))
+        .expect("the slow microphone was never opened")
+        .unwrap();
+    wait_for(&engine, "the slow microphone open", |e| {
+        microphone_open(e) && lock(&e.shared).input_status.contains("slow_mic")
+    });
+    let opening = engine.counters.take_longest_pass();
+    eprintln!("longest pass opening a microphone that took 1 s: {opening:?}");
+    // Replaced, it closes once its reader stops waiting on the FIFO: when the writer goes.
+    engine.send(Command::SetInput(DeviceChoice::Default));
+    wait_for(&engine, "the default microphone back", |e| {
+        microphone_open(e) && !lock(&e.shared).input_status.contains("slow_mic")
+    });
+    let replacing = longest_pass_within(&engine, Duration::from_millis(500));
+    drop(writer);
+    eprintln!("longest pass replacing it: {replacing:?}");
+    assert!(
+        opening < OPENING_STALL && replacing < OPENING_STALL,
+        "longest pass opening {opening:?}, replacing {replacing:?}"
+    );
 }

@@ -5,6 +5,7 @@
 //! Its SIP phone's hooks are in `engine/sip.rs`.
 
 mod answer;
+mod input;
 mod lookup;
 mod news;
 mod output;
@@ -23,7 +24,8 @@ use std::time::{Duration, Instant};
 
 use crate::audio::pacer::PLAYBACK_LEAD;
 use crate::audio::{
-    Capture, DeviceChoice, FramePacer, Gate, MicControls, OutputStatus, Playback, PlaybackConfig,
+    Capture, DeviceChoice, FramePacer, Gate, MicControls, OpenedOutput, OutputStatus, Playback,
+    PlaybackConfig,
 };
 use crate::call::janus::is_janus_url;
 use crate::call::link::Link;
@@ -40,10 +42,10 @@ use crate::vocab::MAX_FRAME_SAMPLES;
 pub use super::call_status::{CallPhase, CallStatus, DIRECT_ANSWER_WAIT, Encryption};
 pub use super::counters::{DEMO_NAME, EngineCounters};
 use super::demo::Demo;
+use super::device_opener::DeviceOpener;
 use super::listen::dialable;
 use super::lookup::Lookups;
 use super::mumble_call::{MumbleCall, MumbleJoin, MumbleView};
-use super::output::OutputOpener;
 use super::retire::Retirer;
 use super::ring_notice::RingNotice;
 use super::roster::Roster;
@@ -284,7 +286,12 @@ struct Worker {
     /// Until when the speaker test rings.
     speaker_test_until: Option<Instant>,
     /// The output device chosen, opening.
-    outputs: OutputOpener,
+    outputs: DeviceOpener<OpenedOutput>,
+    /// The microphone chosen, opening.
+    inputs: DeviceOpener<Capture>,
+    /// The controls last handed to the UI: the next microphone keeps their mute and
+    /// push-to-talk.
+    mic_controls: Option<MicControls>,
 }
 
 /// What follows a call's host being found ([`Lookups`]).
@@ -293,6 +300,8 @@ enum Then {
     Direct(Box<CallSpec>),
     /// A SIP call to `target`, from the local address found.
     Sip { target: String },
+    /// A Janus room on the server found.
+    Janus(Box<CallSpec>),
 }
 
 /// The call's label when nothing names it otherwise.
@@ -333,7 +342,9 @@ impl Worker {
             lookups: Lookups::default(),
             posted: None,
             speaker_test_until: None,
-            outputs: OutputOpener::default(),
+            outputs: DeviceOpener::new("output device"),
+            inputs: DeviceOpener::new("microphone"),
+            mic_controls: None,
             config,
             shared,
             counters,
@@ -343,8 +354,7 @@ impl Worker {
         if worker.config.demo {
             worker.start_demo();
         }
-        let input = worker.config.input.clone();
-        worker.open_mic(&input);
+        worker.open_first_mic();
         Ok(worker)
     }
 
@@ -358,26 +368,6 @@ impl Worker {
             Ok(d) => self.demo = Some(d),
             Err(e) => lock(&self.shared).call.error = Some(format!("demo peer: {e:#}")),
         }
-    }
-
-    fn open_mic(&mut self, choice: &DeviceChoice) {
-        self.mic = None;
-        let (mic, status) = if self.config.no_audio {
-            (None, format!("No microphone: {NO_AUDIO}"))
-        } else {
-            match Capture::start(choice) {
-                Ok(c) => {
-                    let s = format!("microphone: {}", c.device_name());
-                    (Some(c), s)
-                }
-                Err(e) => (None, format!("no microphone ({e}): receive-only")),
-            }
-        };
-        let controls = mic.as_ref().map(Capture::controls);
-        self.mic = mic;
-        let mut s = lock(&self.shared);
-        s.input_status = status;
-        s.mic = controls;
     }
 
     fn set_idle_status(&self) {
@@ -531,10 +521,7 @@ impl Worker {
             }
             Command::Channel(id) => self.mumble.as_ref().map_or(Ok(()), |m| m.join_channel(id)),
             Command::Phone(command) => self.phone_command(command),
-            Command::SetInput(choice) => {
-                self.open_mic(&choice);
-                Ok(())
-            }
+            Command::SetInput(choice) => self.open_input(choice),
             Command::SetOutput(choice) => self.open_output(choice),
             Command::TestSpeaker => {
                 self.speaker_test_until = Some(Instant::now() + SPEAKER_TEST);
@@ -573,6 +560,7 @@ impl Worker {
             self.send_mic();
             self.follow_lookup();
             self.follow_output();
+            self.follow_input();
             self.follow_link();
             self.refresh_mumble();
             self.follow_phone();

@@ -54,9 +54,20 @@ impl JanusLink {
         Self::start(config, true)
     }
 
-    /// Starts joining on a thread of its own, publishing when `publish`.
+    /// Starts joining on a thread of its own, publishing when `publish`. The server's host is
+    /// looked up here first, which takes as long as the resolver does: the app's engine looks
+    /// it up off its worker and calls [`JanusLink::start_at`].
     pub fn start(config: RoomConfig, publish: bool) -> Result<Self, JoinError> {
         let server = server_addr(config.url.trim())?;
+        Self::start_at(config, publish, server)
+    }
+
+    /// [`JanusLink::start`] with the server's address already found.
+    pub fn start_at(
+        config: RoomConfig,
+        publish: bool,
+        server: SocketAddr,
+    ) -> Result<Self, JoinError> {
         let place = format!("Janus room {:?} on {}", config.room, config.url);
         let handle = std::thread::Builder::new()
             .name("janus-join".into())

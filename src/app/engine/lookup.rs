@@ -29,6 +29,7 @@ impl Worker {
         let placed = found.map_err(anyhow::Error::msg).and_then(|at| match then {
             Then::Direct(spec) => self.call_direct(&spec, at),
             Then::Sip { target } => self.dial_from(target, at),
+            Then::Janus(spec) => self.join_janus_at(&spec, at),
         });
         if let Err(e) = placed {
             self.fail(format!("{e:#}"));

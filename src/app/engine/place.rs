@@ -4,11 +4,15 @@
 use std::net::SocketAddr;
 use std::time::Instant;
 
-use super::{CallPhase, CallSpec, CallStatus, DIRECT_ANSWER_WAIT, Encryption, ROOM, Worker, lock};
+use super::{
+    CallPhase, CallSpec, CallStatus, DIRECT_ANSWER_WAIT, Encryption, ROOM, Then, Worker, lock,
+};
 use crate::app::timing::RelayWatch;
 use crate::call::janus::JanusLink;
 use crate::codec::any::{Codec, EncoderSettings, FrameEncoder};
-use crate::net::janus::room::RoomConfig;
+use crate::net::host_port::HostPort;
+use crate::net::janus::room::{RoomConfig, server_addr};
+use crate::net::janus::url::JanusUrl;
 use crate::net::jitter::JitterConfig;
 use crate::net::session::{Session, SessionConfig};
 use crate::net::srtp::MasterKey;
@@ -83,13 +87,31 @@ impl Worker {
         Ok(())
     }
 
-    /// A room on a Janus server: WebRTC speaks Opus, whatever the settings' codec.
+    /// A room on a Janus server, once its host is found (off the worker where it has a name).
     pub(super) fn join_janus(&mut self, spec: &CallSpec) -> anyhow::Result<()> {
-        let room = spec
-            .room
-            .clone()
-            .filter(|r| !r.trim().is_empty())
-            .ok_or_else(|| anyhow::anyhow!("a Janus server needs a room name"))?;
+        janus_room(spec)?;
+        let url = spec.address.trim().to_owned();
+        let parsed = JanusUrl::parse(&url)?;
+        let host = HostPort {
+            host: parsed.host,
+            port: Some(parsed.port),
+        };
+        if host.ip().is_none() {
+            let then = Then::Janus(Box::new(spec.clone()));
+            return self.look_up(&host.host, then, move || {
+                server_addr(&url).map_err(|e| e.to_string())
+            });
+        }
+        self.join_janus_at(spec, server_addr(&url)?)
+    }
+
+    /// A room on the Janus server at `server`: WebRTC speaks Opus, whatever the settings' codec.
+    pub(super) fn join_janus_at(
+        &mut self,
+        spec: &CallSpec,
+        server: SocketAddr,
+    ) -> anyhow::Result<()> {
+        let room = janus_room(spec)?;
         let config = RoomConfig {
             url: spec.address.trim().to_owned(),
             auth: spec.janus_auth.clone(),
@@ -100,7 +122,7 @@ impl Worker {
             jitter: JitterConfig::default(),
             ice: spec.ice.clone(),
         };
-        let janus = JanusLink::join(config)?;
+        let janus = JanusLink::start_at(config, true, server)?;
         let state = format!("joining {}…", janus.place());
         let settings = EncoderSettings::wideband(spec.bandwidth);
         let encoder = FrameEncoder::new(Codec::Opus, &settings)?;
@@ -121,4 +143,11 @@ impl Worker {
         };
         Ok(())
     }
+}
+
+fn janus_room(spec: &CallSpec) -> anyhow::Result<String> {
+    spec.room
+        .clone()
+        .filter(|r| !r.trim().is_empty())
+        .ok_or_else(|| anyhow::anyhow!("a Janus server needs a room name"))
 }
