@@ -2,7 +2,8 @@
 //! leaving a Janus room whose server hangs, and joining a Mumble server that accepts and says
 //! nothing all happen off the worker, whose every pass comes within 50 ms of the last (a pass
 //! that blocks holds up every peer's audio and face). So does looking up the host of a call
-//! (direct, SIP, a Janus room) when the resolver never answers, and opening an output device or a microphone (the
+//! (direct, SIP, a Janus room) when the resolver never answers, deriving a passphrase's room key,
+//! and opening an output device or a microphone (the
 //! PulseAudio null sink and its monitor).
 
 mod common;
@@ -474,5 +475,36 @@ fn choosing_a_microphone_slow_to_open_never_stalls_the_engine() {
     assert!(
         opening < OPENING_STALL && replacing < OPENING_STALL,
         "longest pass opening {opening:?}, replacing {replacing:?}"
+    );
+}
+
+/// A passphrase's room key takes 100,000 PBKDF2 rounds (about 0.6 s here): derived off the
+/// worker, and the call is placed, encrypted, once it is.
+#[test]
+fn calling_with_a_passphrase_never_stalls_the_engine() {
+    let peer = UdpSocket::bind("127.0.0.1:0").unwrap();
+    let port = peer.local_addr().unwrap().port();
+    let engine = common::app::headless_engine("Eve", None);
+    longest_pass_within(&engine, Duration::from_millis(500));
+    engine.send(Command::Call(Box::new(CallSpec {
+        address: format!("127.0.0.1:{port}"),
+        name: "Eve".into(),
+        codec: Codec::Opus,
+        passphrase: Some("correct horse battery staple".into()),
+        ..CallSpec::default()
+    })));
+    let calling = longest_pass_within(&engine, Duration::from_secs(3));
+    let status = lock(&engine.shared).call.clone();
+    assert!(calling < STALL, "longest pass while calling {calling:?}");
+    assert!(
+        status.in_call && status.error.is_none() && status.state.starts_with("calling "),
+        "{status:?}"
+    );
+    assert!(
+        matches!(
+            status.encryption,
+            lipcall::app::engine::Encryption::EndToEnd
+        ),
+        "{status:?}"
     );
 }

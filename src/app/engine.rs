@@ -32,7 +32,6 @@ use crate::call::link::Link;
 use crate::call::mumble::is_mumble_url;
 use crate::codec::any::{Codec, EncoderSettings, FrameEncoder, MAX_FRAME_PAYLOAD};
 use crate::codec::opus::codec::Bandwidth;
-use crate::net::host_port::{HostPort, resolve_with_port};
 use crate::net::janus::candidates::IceServers;
 use crate::net::janus::messages::JanusAuth;
 use crate::net::session::{Blocked, Session, SessionConfig};
@@ -296,8 +295,8 @@ struct Worker {
 
 /// What follows a call's host being found ([`Lookups`]).
 enum Then {
-    /// A direct call (or a relay's room) to the address.
-    Direct(Box<CallSpec>),
+    /// A direct call (or a relay's room) to the address, with the room key derived beside it.
+    Direct(Box<CallSpec>, place::KeySlot),
     /// A SIP call to `target`, from the local address found.
     Sip { target: String },
     /// A Janus room on the server found.
@@ -426,19 +425,7 @@ impl Worker {
         if is_sip_address(&spec.address) {
             return self.dial_sip(spec);
         }
-        let host = HostPort::parse(spec.address.trim())?;
-        if host.port.is_none() {
-            anyhow::bail!(super::listen::give_the_port(&host));
-        }
-        if host.ip().is_none() {
-            let address = spec.address.clone();
-            let then = Then::Direct(Box::new(spec.clone()));
-            return self.look_up(&host.host, then, move || {
-                resolve_with_port(&address).map_err(|e| e.to_string())
-            });
-        }
-        let to = resolve_with_port(&spec.address)?;
-        self.call_direct(spec, to)
+        self.place_direct(spec)
     }
 
     fn call_name(&self, spec: &CallSpec) -> String {

@@ -27,7 +27,7 @@ impl Worker {
             return;
         };
         let placed = found.map_err(anyhow::Error::msg).and_then(|at| match then {
-            Then::Direct(spec) => self.call_direct(&spec, at),
+            Then::Direct(spec, key) => self.call_direct(&spec, at, key.get().cloned()),
             Then::Sip { target } => self.dial_from(target, at),
             Then::Janus(spec) => self.join_janus_at(&spec, at),
         });

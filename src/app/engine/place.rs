@@ -2,6 +2,7 @@
 //! the worker's link.
 
 use std::net::SocketAddr;
+use std::sync::{Arc, OnceLock};
 use std::time::Instant;
 
 use super::{
@@ -10,22 +11,59 @@ use super::{
 use crate::app::timing::RelayWatch;
 use crate::call::janus::JanusLink;
 use crate::codec::any::{Codec, EncoderSettings, FrameEncoder};
-use crate::net::host_port::HostPort;
+use crate::net::host_port::{HostPort, resolve_with_port};
 use crate::net::janus::room::{RoomConfig, server_addr};
 use crate::net::janus::url::JanusUrl;
 use crate::net::jitter::JitterConfig;
 use crate::net::session::{Session, SessionConfig};
 use crate::net::srtp::MasterKey;
 
+/// A direct call's room key, derived on the look-up's thread.
+pub(super) type KeySlot = Arc<OnceLock<MasterKey>>;
+
 impl Worker {
-    /// A call (or a relay's room) at `to`, an address found.
-    pub(super) fn call_direct(&mut self, spec: &CallSpec, to: SocketAddr) -> anyhow::Result<()> {
+    /// A direct call (or a relay's room) to `spec.address`. Its host is looked up, and a
+    /// passphrase's room key derived (100,000 PBKDF2 rounds: half a second on a slow machine),
+    /// off the worker; an address without either is called at once.
+    pub(super) fn place_direct(&mut self, spec: &CallSpec) -> anyhow::Result<()> {
+        let host = HostPort::parse(spec.address.trim())?;
+        if host.port.is_none() {
+            anyhow::bail!(crate::app::listen::give_the_port(&host));
+        }
+        let passphrase = spec.passphrase.clone().filter(|p| !p.is_empty());
+        if host.ip().is_some() && passphrase.is_none() {
+            let to = resolve_with_port(&spec.address)?;
+            return self.call_direct(spec, to, None);
+        }
+        let address = spec.address.clone();
         let room = spec.room.clone().filter(|r| !r.trim().is_empty());
-        let key = spec
-            .passphrase
-            .as_deref()
-            .filter(|p| !p.is_empty())
-            .map(|p| MasterKey::from_passphrase(p, room.as_deref().unwrap_or("")));
+        let key = KeySlot::default();
+        let then = Then::Direct(Box::new(spec.clone()), Arc::clone(&key));
+        let named = host.ip().is_none();
+        self.look_up(&host.host, then, move || {
+            let at = resolve_with_port(&address).map_err(|e| e.to_string())?;
+            if let Some(p) = passphrase {
+                key.get_or_init(|| MasterKey::from_passphrase(&p, room.as_deref().unwrap_or("")));
+            }
+            Ok(at)
+        })?;
+        if !named {
+            lock(&self.shared).call.state = "deriving the room key…".into();
+        }
+        Ok(())
+    }
+
+    /// A call (or a relay's room) at `to`, an address found.
+    pub(super) fn call_direct(
+        &mut self,
+        spec: &CallSpec,
+        to: SocketAddr,
+        key: Option<MasterKey>,
+    ) -> anyhow::Result<()> {
+        let room = spec.room.clone().filter(|r| !r.trim().is_empty());
+        if key.is_none() && spec.passphrase.as_deref().is_some_and(|p| !p.is_empty()) {
+            anyhow::bail!("the room key was not derived");
+        }
         // A fresh port: the listening session still holds its own until replaced.
         let bind = if to.ip().is_loopback() {
             SocketAddr::new(to.ip(), 0)
