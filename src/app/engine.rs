@@ -297,8 +297,11 @@ struct Worker {
 enum Then {
     /// A direct call (or a relay's room) to the address, with the room key derived beside it.
     Direct(Box<CallSpec>, place::KeySlot),
-    /// A SIP call to `target`, from the local address found.
-    Sip { target: String },
+    /// A SIP call to `target`, from the local address found, on the media sockets bound there.
+    Sip {
+        target: String,
+        media: sip::MediaSlot,
+    },
     /// A Janus room on the server found.
     Janus(Box<CallSpec>),
 }

@@ -10,7 +10,7 @@ use std::sync::mpsc::{Receiver, TryRecvError, sync_channel};
 use std::time::{Duration, Instant};
 
 use crate::call::link::{Link, LinkEvent};
-use crate::call::sip::{CallState, SipHandle, SipLink, SipSecurity};
+use crate::call::sip::{CallState, MediaSockets, SipHandle, SipLink, SipSecurity};
 use crate::codec::any::Codec;
 use crate::net::backoff::Backoff;
 use crate::net::sip::address::{bind_towards, host_port};
@@ -180,16 +180,26 @@ impl SipPhone {
     /// A SIP call to `target` from `bind` (the local address towards its host); the listener
     /// stops while it runs (the call's own agent registers the account and refuses other
     /// callers).
-    pub fn dial_from(&mut self, target: String, bind: SocketAddr) -> anyhow::Result<PhoneTurn> {
+    /// The STUN server (HOST:PORT) whose view of our media address SDP gives, if any.
+    pub fn stun(&self) -> Option<String> {
+        self.network.stun.clone()
+    }
+
+    pub fn dial_from(
+        &mut self,
+        target: String,
+        bind: SocketAddr,
+        media: MediaSockets,
+    ) -> anyhow::Result<PhoneTurn> {
         self.stop_listener();
         let role = Role::Call(target.clone());
-        let link = SipLink::open(
+        let link = SipLink::open_with(
             bind,
             self.account.clone(),
             role,
             codecs(None),
             &self.network.security(),
-            self.network.stun.as_deref(),
+            media,
         )?;
         Ok(self.take_call(link, format!("calling {target}…")))
     }

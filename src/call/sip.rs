@@ -188,10 +188,11 @@ impl SipLink {
         })
     }
 
-    /// A call on `bind` (SIP over UDP) with its RTP on a free port of the same address (RTCP
-    /// on the port above where it is free, another else), SDP
+    /// A call on `bind` (SIP over UDP) with its media on [`bind_media`]'s sockets, SDP
     /// offering or taking `codecs` (and SRTP with a fresh key where `srtp`); with a `stun`
-    /// server (HOST:PORT), the SDP gives the media address that server sees.
+    /// server (HOST:PORT), the SDP gives the media address that server sees. Asking STUN
+    /// blocks (up to 1.5 s): the app binds with [`bind_media`] off its worker and calls
+    /// [`SipLink::open_with`].
     pub fn open(
         bind: SocketAddr,
         account: Option<Account>,
@@ -200,24 +201,26 @@ impl SipLink {
         security: &SipSecurity,
         stun: Option<&str>,
     ) -> Result<Self, SipError> {
-        let rtp_bind = SocketAddr::new(bind.ip(), 0);
-        let cannot = |why: String| SipError::Bind {
-            addr: rtp_bind,
-            why,
-        };
-        let socket = UdpSocket::bind(rtp_bind).map_err(|e| cannot(e.to_string()))?;
-        let local = socket.local_addr().map_err(|e| cannot(e.to_string()))?;
-        let rtcp = local
-            .port()
-            .checked_add(1)
-            .and_then(|port| UdpSocket::bind(SocketAddr::new(local.ip(), port)).ok())
-            .map_or_else(|| UdpSocket::bind(rtp_bind), Ok)
-            .map_err(|e| cannot(e.to_string()))?;
-        let local_rtcp = rtcp.local_addr().map_err(|e| cannot(e.to_string()))?;
-        let (addr, rtcp_addr) = match stun {
-            Some(server) => media_addresses([(&socket, local), (&rtcp, local_rtcp)], server),
-            None => (local, local_rtcp),
-        };
+        let media = bind_media(bind, stun)?;
+        Self::open_with(bind, account, role, codecs, security, media)
+    }
+
+    /// [`SipLink::open`] on media sockets already bound.
+    pub fn open_with(
+        bind: SocketAddr,
+        account: Option<Account>,
+        role: Role,
+        codecs: Vec<Codec>,
+        security: &SipSecurity,
+        media: MediaSockets,
+    ) -> Result<Self, SipError> {
+        let MediaSockets {
+            rtp: socket,
+            rtcp,
+            addr,
+            rtcp_addr,
+        } = media;
+        let cannot = |why: String| SipError::Bind { addr, why };
         let audio = LocalAudio {
             addr,
             rtcp: Some(rtcp_addr),
@@ -556,6 +559,45 @@ impl SipLink {
     fn ended(&self) -> bool {
         matches!(self.state, CallState::Ended { .. } | CallState::Failed(_))
     }
+}
+
+/// A call's RTP and RTCP sockets, and the addresses its SDP gives for them.
+#[derive(Debug)]
+pub struct MediaSockets {
+    rtp: UdpSocket,
+    rtcp: UdpSocket,
+    addr: SocketAddr,
+    rtcp_addr: SocketAddr,
+}
+
+/// RTP on a free port of `bind`'s address (RTCP on the port above where it is free, another
+/// else), and with a `stun` server (HOST:PORT) the addresses it sees them at: blocks while
+/// STUN is asked (its DNS, then up to [`stun::ASK_WAIT`]).
+pub fn bind_media(bind: SocketAddr, stun: Option<&str>) -> Result<MediaSockets, SipError> {
+    let rtp_bind = SocketAddr::new(bind.ip(), 0);
+    let cannot = |why: String| SipError::Bind {
+        addr: rtp_bind,
+        why,
+    };
+    let rtp = UdpSocket::bind(rtp_bind).map_err(|e| cannot(e.to_string()))?;
+    let local = rtp.local_addr().map_err(|e| cannot(e.to_string()))?;
+    let rtcp = local
+        .port()
+        .checked_add(1)
+        .and_then(|port| UdpSocket::bind(SocketAddr::new(local.ip(), port)).ok())
+        .map_or_else(|| UdpSocket::bind(rtp_bind), Ok)
+        .map_err(|e| cannot(e.to_string()))?;
+    let local_rtcp = rtcp.local_addr().map_err(|e| cannot(e.to_string()))?;
+    let (addr, rtcp_addr) = match stun {
+        Some(server) => media_addresses([(&rtp, local), (&rtcp, local_rtcp)], server),
+        None => (local, local_rtcp),
+    };
+    Ok(MediaSockets {
+        rtp,
+        rtcp,
+        addr,
+        rtcp_addr,
+    })
 }
 
 /// Where peers are to send our media (RTP, RTCP): the addresses `server` (STUN) sees our

@@ -2,6 +2,7 @@
 //! the name is found, off the worker.
 
 use std::net::SocketAddr;
+use std::sync::PoisonError;
 use std::time::Instant;
 
 use super::{Then, Worker, lock};
@@ -28,7 +29,12 @@ impl Worker {
         };
         let placed = found.map_err(anyhow::Error::msg).and_then(|at| match then {
             Then::Direct(spec, key) => self.call_direct(&spec, at, key.get().cloned()),
-            Then::Sip { target } => self.dial_from(target, at),
+            Then::Sip { target, media } => {
+                match media.lock().unwrap_or_else(PoisonError::into_inner).take() {
+                    Some(media) => self.dial_from(target, at, media),
+                    None => Err(anyhow::anyhow!("the call's media sockets were not bound")),
+                }
+            }
             Then::Janus(spec) => self.join_janus_at(&spec, at),
         });
         if let Err(e) = placed {

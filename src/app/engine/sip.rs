@@ -3,32 +3,59 @@
 //! engine's one route (`engine/news.rs`).
 
 use std::net::SocketAddr;
+use std::sync::{Arc, Mutex, PoisonError};
 use std::time::Instant;
 
 use super::{CallPhase, CallSpec, CallStatus, Then, Worker, lock};
 use crate::app::sip_call::{PhoneCommand, PhoneTurn};
 use crate::app::timing::RelayWatch;
+use crate::call::sip::{MediaSockets, bind_media};
 use crate::codec::any::{EncoderSettings, FrameEncoder};
 use crate::net::host_port::HostPort;
 use crate::net::sip::address::bind_towards;
+
+/// A SIP call's media sockets, bound (and STUN asked) on the look-up's thread.
+pub(super) type MediaSlot = Arc<Mutex<Option<MediaSockets>>>;
 
 impl Worker {
     /// A SIP call: its host is looked up off the worker, then [`Worker::dial_from`].
     pub(super) fn dial_sip(&mut self, spec: &CallSpec) -> anyhow::Result<()> {
         let (target, towards) = self.phone.dial_plan(&spec.address)?;
-        if HostPort::parse(&towards).is_ok_and(|h| h.ip().is_some()) {
+        let stun = self.phone.stun();
+        let literal = HostPort::parse(&towards).is_ok_and(|h| h.ip().is_some());
+        if literal && stun.is_none() {
+            // Binding towards an address is a socket's connect: nothing is asked or waited on.
             let bind = bind_towards(&towards)?;
-            return self.dial_from(target, bind);
+            let media = bind_media(bind, None)?;
+            return self.dial_from(target, bind, media);
         }
         let host = towards.clone();
-        self.look_up(&host, Then::Sip { target }, move || {
-            bind_towards(&towards).map_err(|e| e.to_string())
-        })
+        let media = MediaSlot::default();
+        let then = Then::Sip {
+            target,
+            media: Arc::clone(&media),
+        };
+        self.look_up(&host, then, move || {
+            let bind = bind_towards(&towards).map_err(|e| e.to_string())?;
+            let bound = bind_media(bind, stun.as_deref()).map_err(|e| e.to_string())?;
+            *media.lock().unwrap_or_else(PoisonError::into_inner) = Some(bound);
+            Ok(bind)
+        })?;
+        if literal {
+            lock(&self.shared).call.state = "asking the STUN server for our media address…".into();
+        }
+        Ok(())
     }
 
-    /// A SIP call to `target` from `bind`, the local address towards its host.
-    pub(super) fn dial_from(&mut self, target: String, bind: SocketAddr) -> anyhow::Result<()> {
-        let turn = self.phone.dial_from(target, bind);
+    /// A SIP call to `target` from `bind`, the local address towards its host, with its media
+    /// on `media`.
+    pub(super) fn dial_from(
+        &mut self,
+        target: String,
+        bind: SocketAddr,
+        media: MediaSockets,
+    ) -> anyhow::Result<()> {
+        let turn = self.phone.dial_from(target, bind, media);
         self.show_phone();
         self.apply(turn?)
     }
