@@ -606,8 +606,12 @@ impl Worker {
         loop {
             match mic.read_frame(frame) {
                 Ok(Some(Gate::Open)) if in_call => {
-                    if let Ok(Some((n, frames))) = self.encoder.encode(frame, &mut payload) {
-                        self.link.send_frames(&payload[..n], frames);
+                    // A 20 ms frame of the microphone is two packets at Opus's 10 ms frames.
+                    let step = self.encoder.frame_samples().clamp(1, frame.len());
+                    for part in frame.chunks_exact(step) {
+                        if let Ok(Some((n, ticks))) = self.encoder.encode(part, &mut payload) {
+                            self.link.send_audio(&payload[..n], ticks);
+                        }
                     }
                 }
                 Ok(Some(_)) => {

@@ -350,8 +350,8 @@ impl SipLink {
             let silence = vec![0i16; encoder.frame_samples()];
             let mut payload = [0u8; MAX_FRAME_PAYLOAD];
             for _ in 0..frames {
-                if let Ok(Some((n, count))) = encoder.encode(&silence, &mut payload) {
-                    self.send_packet(&payload[..n], codec.frame_ticks() * count.max(1));
+                if let Ok(Some((n, ticks))) = encoder.encode(&silence, &mut payload) {
+                    self.send_packet(&payload[..n], ticks);
                 }
             }
         }
@@ -642,12 +642,12 @@ impl Link for SipLink {
         self.ended()
     }
 
-    fn send_frames(&mut self, payload: &[u8], frames: u32) {
+    fn send_audio(&mut self, payload: &[u8], ticks: u32) {
         if let Some(quiet) = &mut self.quiet {
             quiet.ours_at = Instant::now();
         }
-        if let Some(codec) = self.codec() {
-            self.send_packet(payload, codec.frame_ticks() * frames.max(1));
+        if self.codec().is_some() {
+            self.send_packet(payload, ticks);
         }
     }
 
