@@ -85,6 +85,8 @@ pub struct CallSpec {
     pub janus_auth: JanusAuth,
     /// The band Opus codes (the microphone is read at 48 kHz for it).
     pub bandwidth: Bandwidth,
+    /// Opus's frame length, ms: 20, or 10 (the settings' choice; docs/audio.md).
+    pub frame_ms: u8,
     /// Our Mumble certificate and the servers we trust (the user's config folder if none).
     pub mumble_identity: Option<PathBuf>,
     /// STUN and TURN servers for a Janus room's media.
@@ -101,6 +103,7 @@ impl Default for CallSpec {
             codec: DEFAULT_CODEC,
             janus_auth: JanusAuth::default(),
             bandwidth: Bandwidth::Fullband,
+            frame_ms: 20,
             mumble_identity: None,
             ice: IceServers::default(),
         }
@@ -403,7 +406,7 @@ impl Worker {
             let join = MumbleJoin {
                 name: self.call_name(spec),
                 password: spec.passphrase.as_deref(),
-                bandwidth: spec.bandwidth,
+                encoder: spec.encoder_settings(),
                 identity: spec.mumble_identity.as_deref(),
             };
             let (link, call, encoder) = MumbleCall::join(&spec.address, join)?;
