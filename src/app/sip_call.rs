@@ -188,6 +188,7 @@ impl SipPhone {
             self.account.clone(),
             role,
             codecs(None),
+            20,
             &self.network.security(),
             self.network.stun.as_deref(),
         )?;
@@ -407,6 +408,7 @@ fn listen(account: &Account, network: &PhoneNetwork) -> Result<SipLink, SipError
         Some(account.clone()),
         Role::Ask,
         codecs(None),
+        20,
         &network.security(),
         network.stun.as_deref(),
     )

@@ -197,6 +197,7 @@ impl SipLink {
         account: Option<Account>,
         role: Role,
         codecs: Vec<Codec>,
+        frame_ms: u8,
         security: &SipSecurity,
         stun: Option<&str>,
     ) -> Result<Self, SipError> {
@@ -227,6 +228,7 @@ impl SipLink {
                 .map_or(1, |d| d.as_secs()),
             key: SdesKey::random().map_err(|e| cannot(format!("no randomness for a key: {e}")))?,
             offer_srtp: false,
+            frame_ms,
         };
         let peer = match &role {
             Role::Call(target) => target.clone(),
