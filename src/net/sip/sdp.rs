@@ -18,6 +18,7 @@ use ezk_sdp_types::{
     UnknownAttribute,
 };
 
+use super::ptime::{ms_attribute, send_frame_ms};
 use crate::codec::any::{Codec, PayloadMap};
 use crate::net::addr::{OddAddress, media_target};
 
@@ -235,41 +236,8 @@ pub struct Negotiated {
     /// through): plain RTP from this IP may open the call's media ([`super::media`]).
     pub signalling_peer: Option<IpAddr>,
     /// The length of the frames we send, ms: 20, or 10 for Opus where we asked and the peer
-    /// takes them ([`send_frame_ms`]).
+    /// takes them ([`super::ptime::send_frame_ms`]).
     pub frame_ms: u8,
-}
-
-/// The frame length we send `codec` in: 10 ms for Opus where `wanted` and the peer neither
-/// asks for longer packets (`ptime` above 10) nor takes none that short (`maxptime` below 10),
-/// or where its `maxptime` is below 20; else 20.
-pub fn send_frame_ms(remote: &RemoteAudio, codec: Codec, wanted: u8) -> u8 {
-    if codec != Codec::Opus {
-        return 20;
-    }
-    let takes_10 = remote.maxptime.is_none_or(|max| max >= 10);
-    let takes_20 = remote.maxptime.is_none_or(|max| max >= 20);
-    let asks_longer = remote.ptime.is_some_and(|p| p > 10);
-    if takes_10 && (!takes_20 || (wanted == 10 && !asks_longer)) {
-        10
-    } else {
-        20
-    }
-}
-
-/// A whole number of ms an attribute of the audio line (or the session) gives, e.g. `ptime`.
-fn ms_attribute(
-    description: &SessionDescription,
-    audio: &MediaDescription,
-    name: &str,
-) -> Option<u32> {
-    audio
-        .attributes
-        .iter()
-        .chain(&description.attributes)
-        .find(|a| a.name.as_str().eq_ignore_ascii_case(name))
-        .and_then(|a| a.value.as_ref()?.as_str().trim().parse::<f64>().ok())
-        .filter(|ms| ms.is_finite() && *ms > 0.0 && *ms <= 10_000.0)
-        .map(|ms| ms.round() as u32)
 }
 
 /// The payload types that carry SDP's static formats we know (RFC 3551).
@@ -470,7 +438,7 @@ pub fn negotiate(remote: &RemoteAudio, allowed: &[Codec]) -> Result<Negotiated, 
         audio_types,
         srtp: remote.secure.then(|| remote.crypto.clone()).flatten(),
         signalling_peer: None,
-        frame_ms: send_frame_ms(remote, codec, 20),
+        frame_ms: send_frame_ms(codec, remote.ptime, remote.maxptime, 20),
     })
 }
 
@@ -484,7 +452,12 @@ pub fn take_description(
     media_target(remote.addr, local.addr)?;
     media_target(remote.rtcp, local.addr)?;
     let mut negotiated = negotiate(&remote, &local.codecs)?;
-    negotiated.frame_ms = send_frame_ms(&remote, negotiated.codec, local.frame_ms);
+    negotiated.frame_ms = send_frame_ms(
+        negotiated.codec,
+        remote.ptime,
+        remote.maxptime,
+        local.frame_ms,
+    );
     Ok(negotiated)
 }
 
@@ -507,7 +480,12 @@ pub fn take_in_call(
         media_target(remote.rtcp, local.addr)?;
     }
     let mut negotiated = negotiate(&remote, &local.codecs)?;
-    negotiated.frame_ms = send_frame_ms(&remote, negotiated.codec, local.frame_ms);
+    negotiated.frame_ms = send_frame_ms(
+        negotiated.codec,
+        remote.ptime,
+        remote.maxptime,
+        local.frame_ms,
+    );
     if held {
         negotiated.direction = negotiated.direction.deaf();
     }
