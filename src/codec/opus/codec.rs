@@ -494,7 +494,7 @@ mod tests {
             frame_ms: 10,
             ..Default::default()
         };
-        let mut enc = Encoder::new(config).unwrap();
+        let enc = Encoder::new(config).unwrap();
         assert_eq!((enc.frame_samples(), enc.frame_ticks()), (480, 480));
         let packets = encode_all(config, &buzz(48_000, 48_000));
         assert_eq!(packets.len(), 100);
