@@ -3,8 +3,6 @@
 
 mod common;
 
-use std::time::Duration;
-
 use common::net::{fields, num};
 use common::sip::{Logged, free_port, lipcall_answering_with};
 
