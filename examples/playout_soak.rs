@@ -219,8 +219,8 @@ fn send(to: SocketAddr, period: Duration, stop: &AtomicBool) -> anyhow::Result<(
         }
         let frame: [i16; FRAME_SIZE] = std::array::from_fn(|i| speech[(at + i) % speech.len()]);
         at = (at + FRAME_SIZE) % speech.len();
-        if let Some((n, frames)) = encoder.encode(&frame, &mut payload)? {
-            session.send_frames(&payload[..n], frames)?;
+        if let Some((n, ticks)) = encoder.encode(&frame, &mut payload)? {
+            session.send_packet(&payload[..n], ticks)?;
         }
     }
     session.leave();

@@ -43,6 +43,7 @@ fn the_engine_joins_an_encrypted_room_and_animates_a_sender() {
         room: Some("lab".into()),
         quality: 8,
         bandwidth: lipcall::codec::opus::codec::Bandwidth::Fullband,
+        frame_ms: 20,
         no_rtcp: false,
         ssrc: None,
         codec: Some(Codec::Opus),

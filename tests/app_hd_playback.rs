@@ -82,6 +82,7 @@ fn engine_plays_a_sender() {
         room: None,
         quality: 8,
         bandwidth: Bandwidth::Fullband,
+        frame_ms: 20,
         no_rtcp: false,
         ssrc: None,
         codec: Some(codec),

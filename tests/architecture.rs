@@ -176,6 +176,7 @@ fn send_and_receive_help_keep_their_flag_order() {
             "room",
             "codec",
             "bandwidth",
+            "frame-ms",
             "quality",
             "pt",
             "no-rtcp",

@@ -147,6 +147,40 @@ fn two_lipcalls_on_murmur_hear_each_other_and_the_receiver_animates() {
     assert!(again.contains("trusted before"), "{again}");
 }
 
+/// `send --mumble --frame-ms 10`: twice the voice packets (Mumble clients send 10 ms frames
+/// natively; the sequence counts 10 ms), the whole speech played, a weights row per 20 ms.
+#[test]
+fn ten_ms_frames_through_murmur_play_whole_and_animate() {
+    if !runs_here("ten_ms_frames_through_murmur_play_whole_and_animate") {
+        return;
+    }
+    let dir = tempfile::tempdir().unwrap();
+    let murmur = Murmur::start(dir.path(), "");
+    let source = read_wav_i16(&demo_8k(dir.path())).1;
+    let rx = receiver(dir.path(), &murmur, &[]);
+    finish(
+        sender(dir.path(), &murmur, &["--frame-ms", "10"]),
+        Duration::from_secs(40),
+        "lipcall send --mumble --frame-ms 10",
+    );
+    let (_, received) = finish(rx, Duration::from_secs(40), "lipcall receive --mumble");
+    // 8.8 s: 440 packets of 20 ms, 880 of 10.
+    assert!(field(&received, "udp") >= 800, "{received}");
+    assert_eq!(field(&received, "decode_errors"), 0, "{received}");
+    let got = read_wav_i16(&dir.path().join("rx.wav")).1;
+    assert!(
+        got.len() as f64 >= source.len() as f64 * 0.97,
+        "{} samples",
+        got.len()
+    );
+    let rows = std::fs::read_to_string(dir.path().join("rx.csv"))
+        .unwrap()
+        .lines()
+        .count()
+        - 1;
+    assert_eq!(rows * 160, got.len(), "a row per 20 ms played");
+}
+
 #[test]
 fn with_udp_blocked_the_tls_tunnel_carries_the_call() {
     if !runs_here("with_udp_blocked_the_tls_tunnel_carries_the_call") {

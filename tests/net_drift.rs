@@ -41,8 +41,8 @@ fn a_sender_five_percent_fast_loses_no_loud_frame() {
         if let Some(wait) = (start + period * k as u32).checked_duration_since(Instant::now()) {
             std::thread::sleep(wait);
         }
-        let (n, count) = encoder.encode(&talker(k).0, &mut payload).unwrap().unwrap();
-        session.send_frames(&payload[..n], count).unwrap();
+        let (n, ticks) = encoder.encode(&talker(k).0, &mut payload).unwrap().unwrap();
+        session.send_packet(&payload[..n], ticks).unwrap();
     }
     session.leave();
     let (_, stderr) = receiver.finish(Duration::from_secs(60), "lipcall receive");

@@ -58,8 +58,8 @@ fn send(
         }
         during(k);
         if talking(k) {
-            let (n, count) = encoder.encode(&voice(k), &mut payload).unwrap().unwrap();
-            session.send_frames(&payload[..n], count).unwrap();
+            let (n, ticks) = encoder.encode(&voice(k), &mut payload).unwrap().unwrap();
+            session.send_packet(&payload[..n], ticks).unwrap();
             sent += 1;
         } else {
             session.skip_frames(1);

@@ -70,8 +70,8 @@ fn call_with_stall(
     let payloads: Vec<(Vec<u8>, u32)> = (0..100)
         .map(|k| {
             let mut out = [0u8; MAX_FRAME_PAYLOAD];
-            let (n, frames) = encoder.encode(&talker(k).0, &mut out).unwrap().unwrap();
-            (out[..n].to_vec(), frames)
+            let (n, ticks) = encoder.encode(&talker(k).0, &mut out).unwrap().unwrap();
+            (out[..n].to_vec(), ticks)
         })
         .collect();
     let mut stream = RtpStream::new(0x5eed, 1, 1000);
@@ -129,8 +129,10 @@ fn call_with_stall(
         let now = t0 + Duration::from_millis(ms);
         // The sender, on the system clock; 3 ms to arrive.
         while sent < FRAMES && (sent as u64 * FRAME_MS + 3) <= ms {
-            let (payload, frames) = &payloads[sent % 100];
-            stream.packetize(payload, *frames, &mut datagram).unwrap();
+            let (payload, ticks) = &payloads[sent % 100];
+            stream
+                .packetize_ticks(payload, *ticks, &mut datagram)
+                .unwrap();
             rx.insert(&rtp::parse(&datagram, None).unwrap(), now);
             run.loud_sent += usize::from(talker(sent).1);
             sent += 1;

@@ -8,7 +8,8 @@
 # plays, and pairs the clicks (tools/mouth_to_ear.py): median and spread, and the listener's
 # breakdown (jitter buffer, queue, output).
 #   tools/mouth_to_ear.sh [CLICKS=60] [LIPCALL=target/debug/lipcall]
-# EAR_ARGS adds flags to the listener's command line (EAR_ARGS="--output-margin-ms 20").
+# EAR_ARGS adds flags to the listener's command line (EAR_ARGS="--output-margin-ms 20");
+# TALKER_FRAME_MS=10 has the talker send Opus in 10 ms frames (its settings file says so).
 # Needs pulseaudio, pulseaudio-utils, xvfb, xauth, python3. A busy machine makes the numbers
 # pessimistic: compare runs made in the same conditions.
 set -euo pipefail
@@ -47,6 +48,9 @@ PULSE_SINK=ear PULSE_SOURCE=talker_out.monitor xvfb-run -a "$lipcall" --listen 1
 pids+=($!)
 sleep 3
 # The talker: its microphone is the "mouth" sink's monitor.
+if [ -n "${TALKER_FRAME_MS:-}" ]; then
+    printf '{"frame_ms": %d}\n' "$TALKER_FRAME_MS" >"$work/talker.json"
+fi
 PULSE_SINK=talker_out PULSE_SOURCE=mouth.monitor xvfb-run -a "$lipcall" --call 127.0.0.1:$port \
     --no-demo --settings "$work/talker.json" --status "$work/talker.status" \
     --quit-after $seconds >"$work/talker.log" 2>&1 &

@@ -103,6 +103,7 @@ pub fn call_ui(
                     token: non_empty(&settings.janus.token),
                 },
                 bandwidth: settings.bandwidth,
+                frame_ms: settings.frame_ms,
                 ice: settings.nat.ice(),
                 mumble_identity: None,
             })));

@@ -87,6 +87,8 @@ pub struct CallSpec {
     pub janus_auth: JanusAuth,
     /// The band Opus codes (the microphone is read at 48 kHz for it).
     pub bandwidth: Bandwidth,
+    /// Opus's frame length, ms: 20, or 10 (the settings' choice; docs/audio.md).
+    pub frame_ms: u8,
     /// Our Mumble certificate and the servers we trust (the user's config folder if none).
     pub mumble_identity: Option<PathBuf>,
     /// STUN and TURN servers for a Janus room's media.
@@ -103,6 +105,7 @@ impl Default for CallSpec {
             codec: DEFAULT_CODEC,
             janus_auth: JanusAuth::default(),
             bandwidth: Bandwidth::Fullband,
+            frame_ms: 20,
             mumble_identity: None,
             ice: IceServers::default(),
         }
@@ -405,7 +408,7 @@ impl Worker {
             let join = MumbleJoin {
                 name: self.call_name(spec),
                 password: spec.passphrase.as_deref(),
-                bandwidth: spec.bandwidth,
+                encoder: spec.encoder_settings(),
                 identity: spec.mumble_identity.as_deref(),
             };
             let (link, call, encoder) = MumbleCall::join(&spec.address, join)?;
@@ -605,8 +608,12 @@ impl Worker {
         loop {
             match mic.read_frame(frame) {
                 Ok(Some(Gate::Open)) if in_call => {
-                    if let Ok(Some((n, frames))) = self.encoder.encode(frame, &mut payload) {
-                        self.link.send_frames(&payload[..n], frames);
+                    // A 20 ms frame of the microphone is two packets at Opus's 10 ms frames.
+                    let step = self.encoder.frame_samples().clamp(1, frame.len());
+                    for part in frame.chunks_exact(step) {
+                        if let Ok(Some((n, ticks))) = self.encoder.encode(part, &mut payload) {
+                            self.link.send_audio(&payload[..n], ticks);
+                        }
                     }
                 }
                 Ok(Some(_)) => {

@@ -139,6 +139,7 @@ pub fn run(options: AppOptions) -> anyhow::Result<()> {
             name: settings.name.clone(),
             codec: settings.codec,
             bandwidth: settings.bandwidth,
+            frame_ms: settings.frame_ms,
             ..engine::CallSpec::default()
         })));
     }

@@ -16,7 +16,6 @@ use crate::audio::MicControls;
 use crate::call::link::Link;
 use crate::call::mumble::{MumbleHandle, MumbleLink, parse_mumble_url};
 use crate::codec::any::{Codec, EncoderSettings, FrameEncoder};
-use crate::codec::opus::codec::Bandwidth;
 use crate::net::jitter::JitterConfig;
 use crate::net::mumble::client::{Channel, ClientConfig};
 use crate::net::mumble::connection::{ConnectConfig, with_port};
@@ -70,7 +69,8 @@ pub struct MumbleJoin<'a> {
     pub name: String,
     /// The server's password.
     pub password: Option<&'a str>,
-    pub bandwidth: Bandwidth,
+    /// Opus's band and frame length.
+    pub encoder: EncoderSettings,
     /// Our certificate and the servers we trust ([`identity::default_dir`] if none).
     pub identity: Option<&'a Path>,
 }
@@ -100,7 +100,7 @@ impl MumbleCall {
             None => identity::default_dir()
                 .context("no folder for the client certificate: set HOME or XDG_CONFIG_HOME")?,
         };
-        let encoder = FrameEncoder::new(Codec::Opus, &EncoderSettings::wideband(join.bandwidth))?;
+        let encoder = FrameEncoder::new(Codec::Opus, &join.encoder)?;
         let config = ConnectConfig {
             address: server.clone(),
             client: ClientConfig {

@@ -99,6 +99,9 @@ pub struct Settings {
     pub codec: Codec,
     /// The band Opus codes in new calls (fullband: up to 20 kHz).
     pub bandwidth: Bandwidth,
+    /// Opus's frame length in new calls, ms: 20, or 10 (10 ms less delay, twice the packets;
+    /// docs/audio.md argues the default).
+    pub frame_ms: u8,
     /// Per-peer choices by display name (SSRCs change every call).
     pub peers: BTreeMap<String, PeerPrefs>,
     /// STUN and TURN servers for Janus rooms behind a NAT.
@@ -244,6 +247,7 @@ impl Default for Settings {
             push_to_talk: false,
             codec: DEFAULT_CODEC,
             bandwidth: Bandwidth::Fullband,
+            frame_ms: 20,
             peers: BTreeMap::new(),
             nat: NatSettings::default(),
             janus: JanusCredentials::default(),
@@ -435,6 +439,27 @@ mod tests {
             assert_eq!(std::fs::read_to_string(&aside).unwrap(), content);
             assert_eq!(Settings::load(&path), (Settings::default(), None));
         }
+    }
+
+    #[test]
+    fn the_frame_length_is_kept_and_defaults_to_20_ms() {
+        let dir = tempfile::tempdir().unwrap();
+        let path = dir.path().join("settings.json");
+        std::fs::write(&path, r#"{"name": "Ada"}"#).unwrap();
+        assert_eq!(Settings::load(&path).0.frame_ms, 20);
+        let ten = Settings {
+            frame_ms: 10,
+            ..Settings::default()
+        };
+        ten.save(&path).unwrap();
+        assert_eq!(Settings::load(&path).0.frame_ms, 10);
+        let spec = |frame_ms| crate::app::engine::CallSpec {
+            frame_ms,
+            ..Default::default()
+        };
+        assert_eq!(spec(10).encoder_settings().opus.frame_ms, 10);
+        // A length the encoder does not take (an edited file) sends 20 ms frames.
+        assert_eq!(spec(15).encoder_settings().opus.frame_ms, 20);
     }
 
     #[test]

@@ -198,6 +198,7 @@ impl SipPhone {
             self.account.clone(),
             role,
             codecs(None),
+            20,
             &self.network.security(),
             media,
         )?;
@@ -417,6 +418,7 @@ fn listen(account: &Account, network: &PhoneNetwork) -> Result<SipLink, SipError
         Some(account.clone()),
         Role::Ask,
         codecs(None),
+        20,
         &network.security(),
         network.stun.as_deref(),
     )

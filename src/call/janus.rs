@@ -210,9 +210,9 @@ impl Link for JanusLink {
             .is_some_and(|m| self.heard && m.in_room() && m.feeds().iter().all(|f| f.left))
     }
 
-    fn send_frames(&mut self, payload: &[u8], frames: u32) {
+    fn send_audio(&mut self, payload: &[u8], ticks: u32) {
         if let Some(m) = self.member()
-            && let Err(e) = m.send(payload, frames * OPUS_TICKS_PER_FRAME)
+            && let Err(e) = m.send(payload, ticks)
         {
             tracing::debug!("send to Janus: {e}");
         }

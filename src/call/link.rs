@@ -140,8 +140,9 @@ pub trait Link: Send {
     /// Every peer that came has left (asked once someone played): a receive ends there.
     fn all_left(&self) -> bool;
 
-    /// Sends one encoded payload of `frames` 20 ms frames of our own audio.
-    fn send_frames(&mut self, payload: &[u8], frames: u32);
+    /// Sends one encoded payload of our own audio lasting `ticks` of its codec's RTP clock
+    /// (what [`crate::codec::any::FrameEncoder::encode`] says).
+    fn send_audio(&mut self, payload: &[u8], ticks: u32);
 
     /// Frames not sent (the microphone gate was closed): our stream's clock moves on.
     fn skip_frames(&mut self, frames: u32);
@@ -190,8 +191,8 @@ impl Link for Session {
         Session::peers(self).iter().all(|p| p.said_bye)
     }
 
-    fn send_frames(&mut self, payload: &[u8], frames: u32) {
-        if let Err(e) = Session::send_frames(self, payload, frames) {
+    fn send_audio(&mut self, payload: &[u8], ticks: u32) {
+        if let Err(e) = Session::send_packet(self, payload, ticks) {
             tracing::debug!("send: {e}");
         }
     }

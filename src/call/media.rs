@@ -215,7 +215,7 @@ impl MediaFile {
 
     /// What `send` sends: a coded file as it is (Ogg Speex split into frames, Ogg Opus packets
     /// with their durations), or its audio encoded here in `codec` (a WAV, or a coded file
-    /// when `codec` names another). Without `codec`, a WAV goes as Speex, the reference path.
+    /// when `codec` names another, or Opus in 10 ms frames). Without `codec`, a WAV goes as Speex, the reference path.
     pub fn packets(
         &self,
         codec: Option<Codec>,
@@ -224,7 +224,9 @@ impl MediaFile {
         match self.kind {
             Some(MediaKind::OggOpus) => {
                 let decoded = self.opus()?;
-                if let Some(codec) = codec.filter(|&c| c != Codec::Opus) {
+                // Re-encoded where another codec or Opus's 10 ms frames are asked for.
+                let reframed = settings.opus.frame_ms != 20;
+                if let Some(codec) = codec.filter(|&c| c != Codec::Opus || reframed) {
                     return Ok((
                         codec,
                         encode_pcm(&decoded.pcm, decoded.rate, codec, settings)?,
@@ -283,8 +285,8 @@ impl From<speex::stream::Decoded> for Heard {
     }
 }
 
-/// Encodes audio at `rate` in 20 ms frames (the last padded with silence), resampled first to
-/// the encoder's rate where it takes another.
+/// Encodes audio at `rate` in the encoder's frames (20 ms; Opus's may be 10), the last padded
+/// with silence, resampled first to the encoder's rate where it takes another.
 pub fn encode_pcm(
     pcm: &[i16],
     rate: u32,
@@ -311,8 +313,8 @@ pub fn encode_pcm(
     for chunk in pcm.chunks(frame_samples) {
         frame.fill(0);
         frame[..chunk.len()].copy_from_slice(chunk);
-        if let Some((n, frames)) = encoder.encode(&frame, &mut payload)? {
-            out.push((payload[..n].to_vec(), frames * codec.frame_ticks()));
+        if let Some((n, ticks)) = encoder.encode(&frame, &mut payload)? {
+            out.push((payload[..n].to_vec(), ticks));
         }
     }
     Ok(out)

@@ -328,9 +328,9 @@ impl Link for MumbleLink {
         self.ended.is_some() || matches!(self.stage, Stage::Gone)
     }
 
-    fn send_frames(&mut self, payload: &[u8], frames: u32) {
+    fn send_audio(&mut self, payload: &[u8], ticks: u32) {
         if let Some(c) = self.connection()
-            && let Err(e) = c.send_voice(payload, frames)
+            && let Err(e) = c.send_voice(payload, ticks)
         {
             tracing::debug!("send to Mumble: {e}");
         }

@@ -198,11 +198,12 @@ impl SipLink {
         account: Option<Account>,
         role: Role,
         codecs: Vec<Codec>,
+        frame_ms: u8,
         security: &SipSecurity,
         stun: Option<&str>,
     ) -> Result<Self, SipError> {
         let media = bind_media(bind, stun)?;
-        Self::open_with(bind, account, role, codecs, security, media)
+        Self::open_with(bind, account, role, codecs, frame_ms, security, media)
     }
 
     /// [`SipLink::open`] on media sockets already bound.
@@ -211,6 +212,7 @@ impl SipLink {
         account: Option<Account>,
         role: Role,
         codecs: Vec<Codec>,
+        frame_ms: u8,
         security: &SipSecurity,
         media: MediaSockets,
     ) -> Result<Self, SipError> {
@@ -230,6 +232,7 @@ impl SipLink {
                 .map_or(1, |d| d.as_secs()),
             key: SdesKey::random().map_err(|e| cannot(format!("no randomness for a key: {e}")))?,
             offer_srtp: false,
+            frame_ms,
         };
         let peer = match &role {
             Role::Call(target) => target.clone(),
@@ -353,8 +356,8 @@ impl SipLink {
             let silence = vec![0i16; encoder.frame_samples()];
             let mut payload = [0u8; MAX_FRAME_PAYLOAD];
             for _ in 0..frames {
-                if let Ok(Some((n, count))) = encoder.encode(&silence, &mut payload) {
-                    self.send_packet(&payload[..n], codec.frame_ticks() * count.max(1));
+                if let Ok(Some((n, ticks))) = encoder.encode(&silence, &mut payload) {
+                    self.send_packet(&payload[..n], ticks);
                 }
             }
         }
@@ -684,12 +687,12 @@ impl Link for SipLink {
         self.ended()
     }
 
-    fn send_frames(&mut self, payload: &[u8], frames: u32) {
+    fn send_audio(&mut self, payload: &[u8], ticks: u32) {
         if let Some(quiet) = &mut self.quiet {
             quiet.ours_at = Instant::now();
         }
-        if let Some(codec) = self.codec() {
-            self.send_packet(payload, codec.frame_ticks() * frames.max(1));
+        if self.codec().is_some() {
+            self.send_packet(payload, ticks);
         }
     }
 

@@ -351,7 +351,7 @@ pub enum EncodeError {
     Speex(#[from] speex::codec::CodecError),
     #[error(transparent)]
     Opus(#[from] opus::codec::CodecError),
-    #[error("{codec} takes 20 ms frames of {expected} samples, not {got}")]
+    #[error("{codec} takes frames of {expected} samples, not {got}")]
     FrameLength {
         codec: Codec,
         got: usize,
@@ -359,7 +359,7 @@ pub enum EncodeError {
     },
 }
 
-/// A sender's encoder: 20 ms frames at its input rate in, payloads out.
+/// A sender's encoder: frames at its input rate in (20 ms; Opus's may be 10), payloads out.
 pub enum FrameEncoder {
     Speex(speex::codec::Encoder),
     Opus(opus::codec::Encoder),
@@ -396,9 +396,20 @@ impl FrameEncoder {
         }
     }
 
-    /// Samples in one 20 ms input frame.
+    /// Samples in one input frame: 20 ms, or Opus's own frame length (10 ms when asked).
     pub fn frame_samples(&self) -> usize {
-        self.input_rate() as usize / 50
+        match self {
+            FrameEncoder::Opus(enc) => enc.frame_samples(),
+            _ => self.input_rate() as usize / 50,
+        }
+    }
+
+    /// The length of one input frame, ms.
+    pub fn frame_ms(&self) -> u8 {
+        match self {
+            FrameEncoder::Opus(enc) => enc.config().frame_ms,
+            _ => 20,
+        }
     }
 
     pub fn codec(&self) -> Codec {
@@ -414,9 +425,10 @@ impl FrameEncoder {
         }
     }
 
-    /// Encodes one 20 ms frame at [`FrameEncoder::input_rate`] into `out`. Returns the
-    /// payload's length and the frames it holds, or `None` while the codec holds frames back
-    /// (Speex with several frames per packet).
+    /// Encodes one frame of [`FrameEncoder::frame_samples`] at [`FrameEncoder::input_rate`]
+    /// into `out`. Returns the payload's length and how long it lasts in ticks of the codec's
+    /// RTP clock (Opus: 960 a 20 ms frame, 480 a 10 ms one), or `None` while the codec holds
+    /// frames back (Speex with several frames per packet).
     pub fn encode(
         &mut self,
         frame: &[i16],
@@ -430,23 +442,27 @@ impl FrameEncoder {
                 expected,
             });
         }
+        let frame_ticks = self.codec().frame_ticks();
         match self {
             FrameEncoder::Speex(enc) => {
                 let mut packet = [0u8; speex::codec::MAX_PACKET_BYTES];
-                let frames = enc.config().frames_per_packet as u32;
+                let ticks = enc.config().frames_per_packet as u32 * frame_ticks;
                 Ok(enc.encode_samples(frame, &mut packet)?.map(|n| {
                     out[..n].copy_from_slice(&packet[..n]);
-                    (n, frames)
+                    (n, ticks)
                 }))
             }
-            FrameEncoder::Opus(enc) => Ok(Some((enc.encode_frame(frame, out)?, 1))),
-            FrameEncoder::G711(law) => Ok(Some((law.encode_into(frame, out), 1))),
+            FrameEncoder::Opus(enc) => {
+                let ticks = enc.frame_ticks();
+                Ok(Some((enc.encode_frame(frame, out)?, ticks)))
+            }
+            FrameEncoder::G711(law) => Ok(Some((law.encode_into(frame, out), frame_ticks))),
             FrameEncoder::G722(enc) => {
                 let frame: &[i16; g722::WIDEBAND_FRAME] =
                     frame.try_into().unwrap_or(&[0; g722::WIDEBAND_FRAME]);
                 let payload = enc.encode_frame(frame);
                 out[..payload.len()].copy_from_slice(&payload);
-                Ok(Some((payload.len(), 1)))
+                Ok(Some((payload.len(), frame_ticks)))
             }
         }
     }
@@ -521,8 +537,8 @@ mod tests {
                 enc.encode(&frame[1..], &mut out),
                 Err(EncodeError::FrameLength { .. })
             ));
-            let (n, frames) = enc.encode(&frame, &mut out).unwrap().unwrap();
-            assert_eq!(frames, 1);
+            let (n, ticks) = enc.encode(&frame, &mut out).unwrap().unwrap();
+            assert_eq!(ticks, codec.frame_ticks());
             assert_eq!(
                 codec.payload_duration(&out[..n]),
                 Some(codec.frame_ticks()),
@@ -530,6 +546,14 @@ mod tests {
             );
             assert_eq!(codec.ticks_to_samples(codec.frame_ticks()), FRAME_SIZE);
         }
+        // Opus in 10 ms frames: half the samples in, 480 ticks out.
+        let mut settings = EncoderSettings::wideband(opus::codec::Bandwidth::Fullband);
+        settings.opus.frame_ms = 10;
+        let mut enc = FrameEncoder::new(Codec::Opus, &settings).unwrap();
+        assert_eq!((enc.frame_samples(), enc.frame_ms()), (480, 10));
+        let (n, ticks) = enc.encode(&[0; 480], &mut out).unwrap().unwrap();
+        assert_eq!(ticks, 480);
+        assert_eq!(Codec::Opus.payload_duration(&out[..n]), Some(480));
         assert_eq!(Codec::Pcmu.payload_duration(&[0; 80]), Some(80));
         assert_eq!(Codec::Pcma.payload_duration(&[]), None);
         assert_eq!(Codec::Opus.payload_duration(&[]), None);

@@ -86,8 +86,14 @@ fn no_answer_in_time(seconds: Option<f64>) -> anyhow::Error {
 
 /// Publishes a file's audio in the room, paced in real time, for at most `seconds` from the
 /// first packet; the join too may take no longer than `seconds`.
-pub fn send(input: &std::path::Path, janus: &JanusArgs, seconds: Option<f64>) -> Result<()> {
-    let settings = EncoderSettings::wideband(crate::codec::opus::codec::Bandwidth::Fullband);
+pub fn send(
+    input: &std::path::Path,
+    janus: &JanusArgs,
+    seconds: Option<f64>,
+    frame_ms: u8,
+) -> Result<()> {
+    let mut settings = EncoderSettings::wideband(crate::codec::opus::codec::Bandwidth::Fullband);
+    settings.opus.frame_ms = frame_ms;
     let (codec, packets) = load_packets(input, Some(Codec::Opus), &settings)?;
     if packets.is_empty() {
         bail!("{}: no audio to send", input.display());
@@ -360,7 +366,7 @@ pub fn send_command(command: &SendCommand) -> Result<()> {
         if !call.to.is_empty() || call.room.is_some() || call.key.named() {
             bail!("--mumble joins a Mumble server: it does not go with --to, --room or a key file");
         }
-        return super::mumble::send(&call.input, &mumble, call.seconds);
+        return super::mumble::send(&call.input, &mumble, call.seconds, call.frame_ms);
     }
     match &command.janus {
         Some(url) => send(
@@ -369,6 +375,7 @@ pub fn send_command(command: &SendCommand) -> Result<()> {
                 .server
                 .room_args(url, call.room.as_ref(), call.name.as_ref(), &call.key)?,
             call.seconds,
+            call.frame_ms,
         ),
         None => super::net::send(call),
     }

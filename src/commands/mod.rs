@@ -54,6 +54,24 @@ pub fn parse_bandwidth(arg: &str) -> Result<crate::codec::opus::codec::Bandwidth
     arg.parse()
 }
 
+/// `--frame-ms` (clap value parser): Opus's frame length, 10 or 20 ms.
+pub fn parse_frame_ms(arg: &str) -> Result<u8, String> {
+    match arg.trim().parse::<u8>() {
+        Ok(ms) if crate::codec::opus::codec::FRAME_MS.contains(&ms) => Ok(ms),
+        _ => Err(format!("{arg:?}: Opus goes in frames of 10 or 20 ms")),
+    }
+}
+
+/// Opus's frame length `frame_ms` for `codec`: only Opus sends other than 20 ms frames.
+pub fn check_frame_ms(codec: crate::codec::any::Codec, frame_ms: u8) -> anyhow::Result<()> {
+    if frame_ms != 20 && codec != crate::codec::any::Codec::Opus {
+        anyhow::bail!(
+            "--frame-ms {frame_ms}: only Opus goes in frames other than 20 ms, not {codec}"
+        );
+    }
+    Ok(())
+}
+
 /// A sample rate a 20 ms frame holds whole, 8 to 48 kHz (`receive --rate`).
 pub fn parse_frame_rate(arg: &str) -> Result<u32, String> {
     let rate: u32 = arg.trim().parse().map_err(|e| format!("{e}"))?;

@@ -22,8 +22,6 @@ use crate::net::mumble::events::describe_unlisted;
 use crate::net::mumble::identity::{self, Trust};
 use crate::secrets::SecretSource;
 
-/// 48 kHz ticks of a 20 ms Opus frame.
-const TICKS_PER_FRAME: u32 = 960;
 /// How long a channel move may take to be confirmed or refused.
 const MOVE_WAIT: Duration = Duration::from_secs(2);
 
@@ -230,8 +228,10 @@ fn no_answer_in_time(seconds: Option<f64>) -> anyhow::Error {
 
 /// Sends a file's audio to the channel, paced in real time, for at most `seconds` from the
 /// first packet; the join too may take no longer than `seconds`.
-pub fn send(input: &Path, args: &MumbleArgs, seconds: Option<f64>) -> Result<()> {
-    let (codec, packets) = load_packets(input, Some(Codec::Opus), &EncoderSettings::default())?;
+pub fn send(input: &Path, args: &MumbleArgs, seconds: Option<f64>, frame_ms: u8) -> Result<()> {
+    let mut settings = EncoderSettings::default();
+    settings.opus.frame_ms = frame_ms;
+    let (codec, packets) = load_packets(input, Some(Codec::Opus), &settings)?;
     if packets.is_empty() {
         bail!("{}: no audio to send", input.display());
     }
@@ -253,7 +253,7 @@ pub fn send(input: &Path, args: &MumbleArgs, seconds: Option<f64>) -> Result<()>
     let start = Instant::now();
     let paced = send_paced(&packets, codec, &pacing, |payload, duration| {
         // While the server is away (a restart) the audio is dropped; the call goes on.
-        if let Err(e) = connection.send_voice(payload, duration.div_ceil(TICKS_PER_FRAME)) {
+        if let Err(e) = connection.send_voice(payload, duration) {
             tracing::debug!("Mumble: {e}");
         }
         for notice in connection.poll() {

@@ -248,6 +248,10 @@ pub struct SendArgs {
     /// or auto (libopus picks by bitrate: 20 kb/s for nb and mb, 24 for wb, 32 above).
     #[arg(long, default_value = "fb", value_parser = super::parse_bandwidth)]
     pub bandwidth: Bandwidth,
+    /// Opus's frame length, ms: 20, or 10 (10 ms less framing delay, twice the packets; see
+    /// docs/audio.md). A .opus file is re-encoded for 10. Other codecs go in 20 ms frames.
+    #[arg(long, default_value_t = 20, value_parser = super::parse_frame_ms)]
+    pub frame_ms: u8,
     /// Speex quality for .wav input, 0 to 10.
     #[arg(long, default_value_t = 8, value_parser = clap::value_parser!(u8).range(0..=10))]
     pub quality: u8,
@@ -274,7 +278,12 @@ pub fn send(args: &SendArgs) -> Result<()> {
     let payloads = payload_map(&args.payload_types)?;
     let mut settings = EncoderSettings::wideband(args.bandwidth);
     settings.speex.quality = args.quality;
+    settings.opus.frame_ms = args.frame_ms;
+    if let Some(codec) = args.codec {
+        super::check_frame_ms(codec, args.frame_ms)?;
+    }
     let (codec, packets) = load_packets(&args.input, args.codec, &settings)?;
+    super::check_frame_ms(codec, args.frame_ms)?;
     if packets.is_empty() {
         bail!("{}: no audio to send", args.input.display());
     }

@@ -74,6 +74,11 @@ pub struct SipCommon {
     /// Offer or accept only this codec (otherwise Opus, G.722, PCMU and PCMA, in that order).
     #[arg(long, value_parser = parse_sip_codec)]
     pub codec: Option<Codec>,
+    /// Opus's frame length, ms: 10 asks for 10 ms packets (`a=ptime:10`) and sends them where
+    /// the peer takes them (no `a=ptime` above 10); 20 (the default) sends 20 unless the
+    /// peer's `a=maxptime` is below 20. Other codecs go in 20 ms frames.
+    #[arg(long, default_value_t = 20, value_parser = super::parse_frame_ms)]
+    pub frame_ms: u8,
     /// A STUN server, HOST:PORT: the SDP gives the media address it sees (behind a NAT).
     #[arg(long, value_name = "HOST:PORT")]
     pub stun: Option<String>,
@@ -193,9 +198,11 @@ fn answer(args: &SipAnswerArgs) -> Result<()> {
     run_call(&args.common, account, listen, Role::Answer, None)
 }
 
-/// Our file, encoded in the agreed codec.
-fn voice(path: &Path, codec: Codec) -> Result<Packets> {
-    let (_, packets) = load_packets(path, Some(codec), &EncoderSettings::default())?;
+/// Our file, encoded in the agreed codec and frame length.
+fn voice(path: &Path, codec: Codec, frame_ms: u8) -> Result<Packets> {
+    let mut settings = EncoderSettings::default();
+    settings.opus.frame_ms = frame_ms;
+    let (_, packets) = load_packets(path, Some(codec), &settings)?;
     if packets.is_empty() {
         bail!("{}: no audio to send", path.display());
     }
@@ -210,7 +217,10 @@ fn run_call(
     dtmf: Option<&str>,
 ) -> Result<()> {
     // A file that cannot be read fails before any call is made.
-    voice(&common.play, Codec::Pcmu)?;
+    voice(&common.play, Codec::Pcmu, 20)?;
+    if let Some(codec) = common.codec {
+        super::check_frame_ms(codec, common.frame_ms)?;
+    }
     let stop = stop_flag()?;
     let (model, mut recorder) = open_outputs(
         common.wav.as_deref(),
@@ -234,6 +244,7 @@ fn run_call(
         account,
         role,
         codecs(common.codec),
+        common.frame_ms,
         &security,
         common.stun.as_deref(),
     )?;
@@ -243,10 +254,14 @@ fn run_call(
         link.hang_up();
         return Err(e);
     }
-    let codec = link
-        .codec()
+    let (codec, frame_ms) = link
+        .negotiated()
+        .map(|n| (n.codec, n.frame_ms))
         .context("the call was answered without media")?;
-    let packets = voice(&common.play, codec)?;
+    if frame_ms != 20 || common.frame_ms != 20 {
+        eprintln!("lipcall: sending {codec} in {frame_ms} ms frames");
+    }
+    let packets = voice(&common.play, codec, frame_ms)?;
     if let Some(keys) = dtmf
         && !link.send_digits(keys)
     {

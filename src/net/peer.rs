@@ -415,9 +415,9 @@ mod tests {
 
         fn packet(&mut self, k: usize) -> Vec<u8> {
             let mut out = [0u8; MAX_FRAME_PAYLOAD];
-            let (n, frames) = self.encoder.encode(&voice(k), &mut out).unwrap().unwrap();
+            let (n, ticks) = self.encoder.encode(&voice(k), &mut out).unwrap().unwrap();
             self.stream
-                .packetize(&out[..n], frames, &mut self.buf)
+                .packetize_ticks(&out[..n], ticks, &mut self.buf)
                 .unwrap();
             self.buf.clone()
         }
@@ -486,10 +486,10 @@ mod tests {
             while next < frames && send_at(next) <= now {
                 let pcm = talk_with_pauses(next).unwrap_or_else(|| faint_noise(next));
                 let mut out = [0u8; MAX_FRAME_PAYLOAD];
-                let (n, count) = sender.encoder.encode(&pcm, &mut out).unwrap().unwrap();
+                let (n, ticks) = sender.encoder.encode(&pcm, &mut out).unwrap().unwrap();
                 sender
                     .stream
-                    .packetize(&out[..n], count, &mut sender.buf)
+                    .packetize_ticks(&out[..n], ticks, &mut sender.buf)
                     .unwrap();
                 let packet = rtp::parse(&sender.buf, None).unwrap();
                 rx.insert(&packet, send_at(next));

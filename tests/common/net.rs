@@ -394,8 +394,8 @@ pub fn talk(session: &lipcall::net::session::Session, frames: u32) {
         }
         let frame: [i16; FRAME_SIZE] =
             std::array::from_fn(|i| ((i as f32 * 0.3).sin() * 8000.0) as i16);
-        let (n, count) = encoder.encode(&frame, &mut payload).unwrap().unwrap();
-        session.send_frames(&payload[..n], count).unwrap();
+        let (n, ticks) = encoder.encode(&frame, &mut payload).unwrap().unwrap();
+        session.send_packet(&payload[..n], ticks).unwrap();
     }
 }
 

@@ -72,7 +72,7 @@ impl Worker {
         } else {
             SocketAddr::from((std::net::Ipv6Addr::UNSPECIFIED, 0))
         };
-        let settings = EncoderSettings::wideband(spec.bandwidth);
+        let settings = spec.encoder_settings();
         let encoder = FrameEncoder::new(spec.codec, &settings)?;
         let mut sc = SessionConfig::new(bind);
         sc.destinations = vec![to];
@@ -162,7 +162,7 @@ impl Worker {
         };
         let janus = JanusLink::start_at(config, true, server)?;
         let state = format!("joining {}…", janus.place());
-        let settings = EncoderSettings::wideband(spec.bandwidth);
+        let settings = spec.encoder_settings();
         let encoder = FrameEncoder::new(Codec::Opus, &settings)?;
         self.switch_link(Box::new(janus), encoder);
         self.relay = RelayWatch::default();
@@ -188,4 +188,14 @@ fn janus_room(spec: &CallSpec) -> anyhow::Result<String> {
         .clone()
         .filter(|r| !r.trim().is_empty())
         .ok_or_else(|| anyhow::anyhow!("a Janus server needs a room name"))
+}
+
+impl CallSpec {
+    /// Our encoder's settings in this call: Opus's band and frame length (any length but 10
+    /// is 20).
+    pub fn encoder_settings(&self) -> EncoderSettings {
+        let mut settings = EncoderSettings::wideband(self.bandwidth);
+        settings.opus.frame_ms = if self.frame_ms == 10 { 10 } else { 20 };
+        settings
+    }
 }

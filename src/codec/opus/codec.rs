@@ -1,5 +1,6 @@
-//! A small wrapper over libopus for mono 20 ms frames: the encoder a sender runs and the decoder
-//! a receiver runs, with loss concealment and in-band forward error correction.
+//! A small wrapper over libopus for mono frames of 20 ms (or 10, sent when asked): the encoder a
+//! sender runs and the decoder a receiver runs, with loss concealment and in-band forward error
+//! correction.
 //!
 //! libopus comes through the `opus` crate (safe Rust) over `opusic-sys`, which builds its
 //! vendored libopus statically; this file needs no `unsafe`.
@@ -22,6 +23,9 @@ pub const OPUS_CLOCK_RATE: u32 = 48_000;
 pub const MAX_PACKET_SAMPLES: usize = SAMPLE_RATE as usize * MAX_PACKET_MS / 1000;
 
 pub const RATES: [u32; 5] = [8000, 12_000, 16_000, 24_000, 48_000];
+
+/// The frame lengths lipcall sends, in ms: 20 by default, 10 for lower latency.
+pub const FRAME_MS: [u8; 2] = [10, 20];
 
 /// The audio band an encoder codes (RFC 6716 2: narrowband 4 kHz up to fullband 20 kHz).
 #[derive(
@@ -116,8 +120,10 @@ pub enum CodecError {
     LossPercent(u8),
     #[error("Opus works at 8, 12, 16, 24 or 48 kHz, not {0} Hz")]
     Rate(u32),
-    #[error("a frame of {got} samples where 20 ms is {expected}")]
+    #[error("a frame of {got} samples where one frame is {expected}")]
     FrameLength { got: usize, expected: usize },
+    #[error("frames of {0} ms: lipcall sends Opus in frames of 10 or 20 ms")]
+    FrameMs(u8),
     #[error("{0} samples is not a whole number of 2.5 ms steps up to 120 ms")]
     Duration(usize),
     #[error("corrupted Opus packet")]
@@ -168,6 +174,9 @@ pub struct EncoderConfig {
     pub input_rate: u32,
     /// The band coded (libopus's choice by default).
     pub bandwidth: Bandwidth,
+    /// The length of each frame and packet, ms: 20, or 10 (half the framing delay, twice the
+    /// packets; see docs/audio.md).
+    pub frame_ms: u8,
 }
 
 impl Default for EncoderConfig {
@@ -181,6 +190,7 @@ impl Default for EncoderConfig {
             loss_percent: 0,
             input_rate: SAMPLE_RATE,
             bandwidth: Bandwidth::Auto,
+            frame_ms: 20,
         }
     }
 }
@@ -197,11 +207,14 @@ impl EncoderConfig {
             return Err(CodecError::LossPercent(self.loss_percent));
         }
         check_rate(self.input_rate)?;
+        if !FRAME_MS.contains(&self.frame_ms) {
+            return Err(CodecError::FrameMs(self.frame_ms));
+        }
         Ok(())
     }
 }
 
-/// A mono Opus encoder (VoIP application) producing one packet per 20 ms frame.
+/// A mono Opus encoder (VoIP application) producing one packet per frame (20 or 10 ms).
 pub struct Encoder {
     inner: opus::Encoder,
     config: EncoderConfig,
@@ -227,9 +240,14 @@ impl Encoder {
         self.config
     }
 
-    /// Samples in one 20 ms input frame.
+    /// Samples in one input frame (20 or 10 ms at the input rate).
     pub fn frame_samples(&self) -> usize {
-        self.config.input_rate as usize / 50
+        self.config.input_rate as usize * usize::from(self.config.frame_ms) / 1000
+    }
+
+    /// Ticks of the 48 kHz RTP clock one packet lasts: 960, or 480 at 10 ms.
+    pub fn frame_ticks(&self) -> u32 {
+        OPUS_CLOCK_RATE / 1000 * u32::from(self.config.frame_ms)
     }
 
     /// Samples (at the input rate) the encoder delays its input by; Ogg Opus's pre-skip is this
@@ -239,7 +257,7 @@ impl Encoder {
         Ok(usize::try_from(v).unwrap_or(0))
     }
 
-    /// Encodes one 20 ms frame into `packet` and returns its length. With DTX on, a packet of
+    /// Encodes one frame into `packet` and returns its length. With DTX on, a packet of
     /// 1 or 2 bytes means silence: it may be left unsent.
     pub fn encode_frame(
         &mut self,
@@ -465,6 +483,40 @@ mod tests {
         let mut out = [0i16; MAX_PACKET_SAMPLES];
         for p in &packets {
             assert_eq!(dec.decode(p, &mut out).unwrap(), 160);
+        }
+    }
+
+    #[test]
+    fn frames_of_10_ms_are_packets_of_10_ms() {
+        let config = EncoderConfig {
+            input_rate: 48_000,
+            bitrate: 24_000,
+            frame_ms: 10,
+            ..Default::default()
+        };
+        let enc = Encoder::new(config).unwrap();
+        assert_eq!((enc.frame_samples(), enc.frame_ticks()), (480, 480));
+        let packets = encode_all(config, &buzz(48_000, 48_000));
+        assert_eq!(packets.len(), 100);
+        let mut dec = Decoder::new().unwrap();
+        let mut out = [0i16; MAX_PACKET_SAMPLES];
+        for p in &packets {
+            assert_eq!(packet_samples(p, 48_000), Ok(480));
+            assert_eq!(dec.decode(p, &mut out).unwrap(), 80);
+        }
+        // 20 ms frames by default; nothing but 10 and 20.
+        assert_eq!(
+            Encoder::new(EncoderConfig::default())
+                .unwrap()
+                .frame_ticks(),
+            960
+        );
+        for ms in [0, 5, 15, 40] {
+            let config = EncoderConfig {
+                frame_ms: ms,
+                ..Default::default()
+            };
+            assert_eq!(Encoder::new(config).err(), Some(CodecError::FrameMs(ms)));
         }
     }
 

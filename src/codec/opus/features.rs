@@ -158,7 +158,10 @@ pub fn frame_span(frame: &Frame, rate: u32) -> (Option<([f32; LSP_COUNT], u8)>, 
 }
 
 /// The coded spans of a stream, in order, and their assignment to 20 ms rows: a row takes what
-/// the span covering most of its samples codes (the earliest of equals). The receiver pushes
+/// the span covering most of its samples codes; of equals, the later: a row of two 10 ms SILK
+/// frames takes the second's NLSFs, as a 20 ms frame's code its second half (its first is
+/// interpolated from the frame before), which keeps 10 ms streams' weights nearer 20 ms ones'
+/// (docs/audio.md). The receiver pushes
 /// each payload's frames as it decodes them and takes a row per frame played
 /// ([`crate::codec::decoder`]); [`stream_features`] does the same over a whole file. Adjacent
 /// spans coding the same thing are one; at most `capacity` spans are kept (a full queue
@@ -228,7 +231,7 @@ impl<T: Copy + PartialEq> CodedRuns<T> {
             };
             let n = front.1.min(samples);
             if let Some(coded) = front.0
-                && best.is_none_or(|(_, most)| n > most)
+                && best.is_none_or(|(_, most)| n >= most)
             {
                 best = Some((coded, n));
             }

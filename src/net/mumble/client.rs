@@ -478,13 +478,15 @@ impl ClientCore {
         }
     }
 
-    /// Sends one Opus payload of `frames` 20 ms frames (by UDP once it works, else tunnelled).
-    pub fn send_voice(&mut self, payload: &[u8], frames: u32) -> Result<(), MumbleError> {
+    /// Sends one Opus payload lasting `ticks` of the 48 kHz clock (by UDP once it works, else
+    /// tunnelled).
+    pub fn send_voice(&mut self, payload: &[u8], ticks: u32) -> Result<(), MumbleError> {
         if self.session.is_none() {
             return Err(MumbleError::NotConnected);
         }
         let packet = voice::client_opus(self.send_sequence, payload, false)?;
-        self.send_sequence += 2 * u64::from(frames.max(1));
+        // Mumble's sequence counts 10 ms (480 ticks of Opus's 48 kHz clock).
+        self.send_sequence += u64::from((ticks / 480).max(1));
         if self.udp_working && !self.config.tcp_only && self.send_datagram(&packet) {
             self.stats.udp_sent += 1;
         } else {

@@ -411,10 +411,10 @@ impl Connection {
         )
     }
 
-    pub fn send_voice(&self, payload: &[u8], frames: u32) -> Result<(), MumbleError> {
+    pub fn send_voice(&self, payload: &[u8], ticks: u32) -> Result<(), MumbleError> {
         self.shared
             .driver
-            .with(|core| core.send_voice(payload, frames))
+            .with(|core| core.send_voice(payload, ticks))
     }
 
     pub fn skip_frames(&self, frames: u32) {

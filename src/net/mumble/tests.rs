@@ -298,7 +298,7 @@ fn voice_by_udp_and_through_the_tunnel_reaches_each_speakers_receiver() {
 
     // Our voice goes by UDP now that UDP works, and decrypts at the server (after the UDP
     // ping of the join).
-    core.send_voice(&frame, 1).unwrap();
+    core.send_voice(&frame, 960).unwrap();
     let mut server_rx = CryptState::new(&KEY, THEIRS, OURS);
     let plain: Vec<Vec<u8>> = std::iter::from_fn(|| core.next_transmit())
         .map(|t| server_rx.decrypt(&t.data).unwrap())
@@ -314,7 +314,7 @@ fn tcp_only_sends_everything_through_the_tunnel() {
     let now = Instant::now();
     let mut core = joined(now, None, true);
     sent(&mut core);
-    core.send_voice(&opus_frame(), 1).unwrap();
+    core.send_voice(&opus_frame(), 960).unwrap();
     assert!(core.next_transmit().is_none());
     let tunnelled = sent(&mut core);
     assert_eq!(tunnelled.len(), 1);

@@ -61,14 +61,16 @@ impl Caller {
 
     fn packet(&mut self) -> Vec<u8> {
         let mut out = [0u8; MAX_FRAME_PAYLOAD];
-        let (n, frames) = self
+        let (n, ticks) = self
             .encoder
             .encode(&voice(self.frame), &mut out)
             .unwrap()
             .unwrap();
         self.frame += 1;
         let mut buf = Vec::new();
-        self.stream.packetize(&out[..n], frames, &mut buf).unwrap();
+        self.stream
+            .packetize_ticks(&out[..n], ticks, &mut buf)
+            .unwrap();
         buf
     }
 

@@ -667,6 +667,7 @@ mod tests {
                 session_id: 1,
                 key: super::super::sdp::SdesKey([0; 30]),
                 offer_srtp: false,
+                frame_ms: 20,
             },
             role: Role::Answer,
             ca: None,

@@ -619,6 +619,7 @@ mod tests {
             audio_types: vec![0],
             srtp: None,
             signalling_peer: Some([10, 0, 0, 1].into()),
+            frame_ms: 20,
         }
     }
 
@@ -818,6 +819,7 @@ mod srtp_tests {
                 key: key.clone(),
             }),
             signalling_peer: None,
+            frame_ms: 20,
         };
         let mut a = SipRtpCore::new(towards(&b_key), &a_key, LOCAL, now).unwrap();
         let mut b = SipRtpCore::new(towards(&a_key), &b_key, LOCAL, now).unwrap();

@@ -9,6 +9,7 @@ pub mod dial;
 pub mod error;
 pub mod guard;
 pub mod media;
+pub mod ptime;
 pub mod quiet;
 pub mod register;
 mod reports;

@@ -18,6 +18,7 @@ use ezk_sdp_types::{
     UnknownAttribute,
 };
 
+use super::ptime::{ms_attribute, send_frame_ms};
 use crate::codec::any::{Codec, PayloadMap};
 use crate::net::addr::{OddAddress, media_target};
 
@@ -186,6 +187,10 @@ pub struct RemoteAudio {
     /// RTP/SAVP: SRTP, keyed by the first crypto attribute of our suite (if any).
     pub secure: bool,
     pub crypto: Option<Sdes>,
+    /// The packet length it asks to receive (`a=ptime`) and the longest it takes
+    /// (`a=maxptime`), ms (RFC 4566 6).
+    pub ptime: Option<u32>,
+    pub maxptime: Option<u32>,
 }
 
 /// What we describe of our side.
@@ -202,6 +207,8 @@ pub struct LocalAudio {
     /// offer of SRTP.
     pub key: SdesKey,
     pub offer_srtp: bool,
+    /// The Opus frame length we ask for and send where the peer takes it, ms (10 or 20).
+    pub frame_ms: u8,
 }
 
 /// The outcome of an offer and its answer.
@@ -228,6 +235,9 @@ pub struct Negotiated {
     /// Where the call's SIP messages come from (the peer, or the proxy it is reached
     /// through): plain RTP from this IP may open the call's media ([`super::media`]).
     pub signalling_peer: Option<IpAddr>,
+    /// The length of the frames we send, ms: 20, or 10 for Opus where we asked and the peer
+    /// takes them ([`super::ptime::send_frame_ms`]).
+    pub frame_ms: u8,
 }
 
 /// The payload types that carry SDP's static formats we know (RFC 3551).
@@ -363,6 +373,8 @@ pub fn read(description: &SessionDescription) -> Result<RemoteAudio, SdpError> {
         direction: Direction::of(audio.direction),
         secure,
         crypto: audio.crypto.iter().find_map(read_crypto),
+        ptime: ms_attribute(description, audio, "ptime"),
+        maxptime: ms_attribute(description, audio, "maxptime"),
     })
 }
 /// The telephone-event format of `remote` on `clock`, if it has one.
@@ -426,6 +438,7 @@ pub fn negotiate(remote: &RemoteAudio, allowed: &[Codec]) -> Result<Negotiated, 
         audio_types,
         srtp: remote.secure.then(|| remote.crypto.clone()).flatten(),
         signalling_peer: None,
+        frame_ms: send_frame_ms(codec, remote.ptime, remote.maxptime, 20),
     })
 }
 
@@ -438,7 +451,14 @@ pub fn take_description(
     let remote = read(description)?;
     media_target(remote.addr, local.addr)?;
     media_target(remote.rtcp, local.addr)?;
-    negotiate(&remote, &local.codecs)
+    let mut negotiated = negotiate(&remote, &local.codecs)?;
+    negotiated.frame_ms = send_frame_ms(
+        negotiated.codec,
+        remote.ptime,
+        remote.maxptime,
+        local.frame_ms,
+    );
+    Ok(negotiated)
 }
 
 /// [`take_description`] of a description that came as text.
@@ -460,6 +480,12 @@ pub fn take_in_call(
         media_target(remote.rtcp, local.addr)?;
     }
     let mut negotiated = negotiate(&remote, &local.codecs)?;
+    negotiated.frame_ms = send_frame_ms(
+        negotiated.codec,
+        remote.ptime,
+        remote.maxptime,
+        local.frame_ms,
+    );
     if held {
         negotiated.direction = negotiated.direction.deaf();
     }
@@ -499,12 +525,14 @@ fn ours(local: &LocalAudio, version: u64, audio: MediaDescription) -> SessionDes
     }
 }
 
-/// Our audio line on `types`, SRTP (RTP/SAVP) where `secure`, 20 ms packets, `direction`.
+/// Our audio line on `types`, SRTP (RTP/SAVP) where `secure`, packets of `ptime` ms,
+/// `direction`.
 fn audio_line(
     local: &LocalAudio,
     types: Vec<u8>,
     secure: bool,
     direction: Direction,
+    ptime: u8,
 ) -> MediaDescription {
     let mut audio = MediaDescription::rejected(MediaType::Audio);
     audio.media.port = local.addr.port();
@@ -517,7 +545,7 @@ fn audio_line(
     audio.direction = direction.attribute();
     audio.attributes.push(UnknownAttribute {
         name: "ptime".into(),
-        value: Some("20".into()),
+        value: Some(ptime.to_string().into()),
     });
     audio
 }
@@ -597,7 +625,9 @@ pub fn offer(local: &LocalAudio, version: u64) -> SessionDescription {
     if wide {
         types.push(EVENT_WIDE_PT);
     }
-    let mut audio = audio_line(local, types, local.offer_srtp, Direction::SendRecv);
+    // 10 ms asked for only where Opus is offered: the other codecs go in 20 ms frames.
+    let ptime = if wide { local.frame_ms } else { 20 };
+    let mut audio = audio_line(local, types, local.offer_srtp, Direction::SendRecv, ptime);
     if local.offer_srtp {
         audio.crypto.push(crypto(local, 1));
     }
@@ -623,6 +653,11 @@ pub fn answer(local: &LocalAudio, chosen: &Negotiated, version: u64) -> SessionD
         types,
         chosen.srtp.is_some(),
         chosen.direction.reversed(),
+        if chosen.codec == Codec::Opus {
+            local.frame_ms
+        } else {
+            20
+        },
     );
     if let Some(theirs) = &chosen.srtp {
         audio.crypto.push(crypto(local, theirs.tag));
@@ -665,6 +700,7 @@ mod tests {
             session_id: 7,
             key: SdesKey([7; SDES_KEY_LEN]),
             offer_srtp: false,
+            frame_ms: 20,
         }
     }
 
@@ -711,6 +747,63 @@ mod tests {
              a=crypto:1 AES_CM_128_HMAC_SHA1_80 inline:AAAA|2^40\r\n",
         );
         assert!(matches!(remote(&huge), Err(SdpError::Malformed { .. })));
+    }
+
+    #[test]
+    fn ptime_asks_for_10_ms_opus_and_a_peer_s_ptime_and_maxptime_are_honoured() {
+        let ten = LocalAudio {
+            frame_ms: 10,
+            ..local()
+        };
+        let text = offer(&ten, 1).to_string();
+        assert!(text.contains("a=ptime:10\r\n"), "{text}");
+        let pcmu_only = LocalAudio {
+            codecs: vec![Codec::Pcmu],
+            ..ten.clone()
+        };
+        let text = offer(&pcmu_only, 1).to_string();
+        assert!(text.contains("a=ptime:20\r\n"), "{text}");
+        // What we send, by what the peer's Opus offer says.
+        let opus = |attributes: &str| {
+            described(&format!(
+                "c=IN IP4 127.0.0.1\r\nm=audio 5000 RTP/AVP 96 0\r\n\
+                 a=rtpmap:96 opus/48000/2\r\n{attributes}"
+            ))
+        };
+        let sent = |attributes: &str, ours: &LocalAudio| take(&opus(attributes), ours).unwrap();
+        for (attributes, wanted, expected) in [
+            ("", 10, 10),
+            ("a=ptime:10\r\n", 10, 10),
+            ("a=ptime:20\r\n", 10, 20),
+            ("a=ptime:20\r\na=maxptime:120\r\n", 10, 20),
+            ("a=maxptime:10\r\n", 20, 10),
+            ("a=maxptime:5\r\n", 10, 20),
+            ("a=ptime:nonsense\r\n", 10, 10),
+            ("a=ptime:10\r\n", 20, 20),
+            ("", 20, 20),
+        ] {
+            let ours = LocalAudio {
+                frame_ms: wanted,
+                ..local()
+            };
+            let n = sent(attributes, &ours);
+            assert_eq!(n.codec, Codec::Opus);
+            assert_eq!(n.frame_ms, expected, "{attributes:?}, we want {wanted}");
+        }
+        let theirs = remote(&opus("a=ptime:20\r\na=maxptime:40\r\n")).unwrap();
+        assert_eq!((theirs.ptime, theirs.maxptime), (Some(20), Some(40)));
+        // A session-level ptime counts too.
+        let session = described(
+            "a=ptime:20\r\nc=IN IP4 127.0.0.1\r\nm=audio 5000 RTP/AVP 96\r\n\
+             a=rtpmap:96 opus/48000/2\r\n",
+        );
+        assert_eq!(take(&session, &ten).unwrap().frame_ms, 20);
+        // Other codecs go in 20 ms frames, and our answer asks for what we take.
+        let n = take(&opus(""), &pcmu_only).unwrap();
+        assert_eq!((n.codec, n.frame_ms), (Codec::Pcmu, 20));
+        assert!(answer(&ten, &n, 2).to_string().contains("a=ptime:20\r\n"));
+        let n = take(&opus(""), &ten).unwrap();
+        assert!(answer(&ten, &n, 2).to_string().contains("a=ptime:10\r\n"));
     }
 
     #[test]
