@@ -164,3 +164,34 @@ fn an_offer_lipcall_cannot_take_is_refused_with_488() {
     assert!(log.contains("no codec in common"), "{log}");
     assert!(!log.contains("panicked"), "{log}");
 }
+
+/// lipcall calling lipcall: the caller's BYE ends the answerer's call. (ezk's ACK took a CSeq
+/// number the caller never sent, and the answerer held the BYE that came after the gap until
+/// its own `--seconds`.)
+#[test]
+fn lipcall_answering_lipcall_ends_on_the_callers_bye() {
+    let dir = tempfile::tempdir().unwrap();
+    let port = free_port(false);
+    let heard = dir.path().join("heard.wav");
+    let answer = lipcall_answering(dir.path(), port, "30", &heard);
+    let caller = common::run(
+        common::lipcall()
+            .args(["sip", "call", &format!("sip:lipcall@127.0.0.1:{port}")])
+            .arg("--play")
+            .arg(common::demo_8k(dir.path()))
+            .args(["--seconds", "3", "--codec", "opus"]),
+    );
+    assert!(
+        caller.status.success(),
+        "{}",
+        String::from_utf8_lossy(&caller.stderr)
+    );
+    let ended = answer.wait_for("the peer hung up", Duration::from_secs(5));
+    let said = answer.text();
+    assert!(ended, "the answerer did not end on the BYE:\n{said}");
+    assert!(
+        !String::from_utf8_lossy(&caller.stderr).contains("did not confirm the hang-up"),
+        "{}",
+        String::from_utf8_lossy(&caller.stderr)
+    );
+}

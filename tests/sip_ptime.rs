@@ -7,9 +7,6 @@ use common::net::{fields, num};
 use common::sip::{Logged, free_port, lipcall_answering_with};
 
 /// The caller's log (its summary of the answerer's stream) and the answerer's, of a 4 s call.
-/// (The answerer is stopped here: lipcall's own answer to lipcall's INVITE comes without a
-/// To-tag, which the caller's ezk ignores, so the caller's BYE never reaches it; the caller's
-/// summary is what is read.)
 fn call(caller_args: &[&str], answer_args: &[&str]) -> (String, String) {
     let dir = tempfile::tempdir().unwrap();
     let port = free_port(false);
@@ -23,6 +20,8 @@ fn call(caller_args: &[&str], answer_args: &[&str]) -> (String, String) {
             .args(["--seconds", "4", "--codec", "opus"])
             .args(caller_args),
     );
+    // The caller's BYE ends the answerer, which then prints its summary.
+    answer.wait_for("the peer hung up", std::time::Duration::from_secs(5));
     let answered = answer.text();
     drop(answer);
     (String::from_utf8_lossy(&out.stderr).into_owned(), answered)

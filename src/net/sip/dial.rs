@@ -6,6 +6,7 @@
 //! too (re-INVITEs answered through the same SDP, BYE either way).
 
 use std::future::poll_fn;
+use std::sync::atomic::Ordering;
 use std::sync::mpsc;
 use std::task::Poll;
 use std::time::Duration;
@@ -305,9 +306,18 @@ async fn established(
     for early in earlies {
         tokio::spawn(early.cancel());
     }
+    // ezk's `create_ack` draws a number from the dialog's CSeq although an ACK carries its
+    // INVITE's: given back, or our next request (the BYE) skips one, and a peer that takes a
+    // dialog's requests in CSeq order (ezk's dialog layer: lipcall answering) holds that BYE
+    // for ever, waiting for the number never sent.
+    let next_cseq = session.dialog.local_cseq.load(Ordering::Relaxed);
     let mut ack = create_ack(&session.dialog, response.base_headers.cseq.cseq)
         .await
         .map_err(|e| core_error(target, e))?;
+    session
+        .dialog
+        .local_cseq
+        .store(next_cseq, Ordering::Relaxed);
     endpoint
         .send_outgoing_request(&mut ack)
         .await
