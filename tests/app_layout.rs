@@ -14,7 +14,8 @@ use egui_kittest::Harness;
 use egui_kittest::kittest::{NodeT, Queryable, by};
 use lipcall::app::call_panel::connect_plan;
 use lipcall::app::engine::{CallPhase, Engine, lock};
-use lipcall::app::peer_panel::peer_colours;
+use lipcall::app::peer_panel::{peer_colours, peer_heads};
+use lipcall::render::VARIANTS;
 use lipcall::app::settings::Settings;
 use lipcall::app::{
     CallForm, MicKeys, SettingsParts, ShownPeer, SipForm, audio_ui, call_ui, left_notice_ui,
@@ -411,6 +412,35 @@ fn each_peer_has_a_colour_of_its_own_from_its_name() {
     // A name keeps its colour from call to call while no one else in the call has it.
     assert_eq!(peer_colours(["Ann"]), peer_colours(["Ann"]));
     assert_eq!(peer_colours(["Bob", "Ann"])[1], peer_colours(["Ann"])[0]);
+}
+
+#[test]
+fn each_peer_has_a_head_of_its_own_from_its_name_unless_one_is_picked() {
+    let names: Vec<String> = (0..16).map(|i| format!("Peer {i}")).collect();
+    let automatic = |names: &[String]| peer_heads(names.iter().map(|n| (n.as_str(), "")));
+    let heads = automatic(&names);
+    let n = VARIANTS.len();
+    let first: std::collections::BTreeSet<&str> = heads[..n].iter().map(|v| v.name).collect();
+    assert_eq!(first.len(), n, "the first {n} peers of a call share no head: {heads:?}");
+    // Past that, heads repeat, each still one of the set.
+    assert!(heads.iter().all(|h| VARIANTS.contains(h)));
+    // A name keeps its head from call to call while no one else in the call has it.
+    let ann = peer_heads([("Ann", "")])[0];
+    assert_eq!(peer_heads([("Ann", "")]), [ann]);
+    let bob = peer_heads([("Bob", "")])[0];
+    if bob != ann {
+        assert_eq!(peer_heads([("Bob", ""), ("Ann", "")])[1], ann);
+    }
+    // A head picked is kept, and the automatic ones go round it.
+    let pick = VARIANTS.iter().find(|v| **v != ann).unwrap();
+    let picked = peer_heads([("Bob", pick.name), ("Ann", "")]);
+    assert_eq!(picked[0], *pick);
+    assert_eq!(picked[1], ann);
+    let picked = peer_heads([("Bob", ann.name), ("Ann", "")]);
+    assert_eq!(picked[0], ann);
+    assert_ne!(picked[1], ann, "Ann's own head is taken by Bob's pick");
+    // An unknown name is the automatic choice.
+    assert_eq!(peer_heads([("Ann", "no such head")]), [ann]);
 }
 
 /// What the call's phase says of `address` once the engine has tried it.
