@@ -478,9 +478,12 @@ fn an_address_without_a_port_or_host_is_told_in_a_sentence() {
 #[test]
 fn the_settings_window_shows_the_microphone_s_level() {
     let engine = common::app::headless_engine("Alice", None);
-    common::app::wait_for(&engine, "the microphone tried", Duration::from_secs(10), |s| {
-        !s.input_status.is_empty()
-    });
+    common::app::wait_for(
+        &engine,
+        "the microphone tried",
+        Duration::from_secs(10),
+        |s| !s.input_status.is_empty(),
+    );
     let window = Window {
         settings: Settings::default(),
         form: CallForm::default(),
