@@ -110,7 +110,7 @@ fn shaped(position: vec3<f32>, b: Blended) -> Blended {
 
 // The variant's colours on the skin material's albedo. Skin, cheeks, hair and brows share one
 // hue (green about half of red) and differ in brightness: such a colour is read as skin and hair
-// mixed by its luminance, plus a little else (cheeks, a texture's detail) that follows the skin.
+// mixed by its luminance, plus a little else (the cheeks' red) that follows the skin.
 // Its skin part takes the skin's factor and its hair part the new hair colour; a redder colour
 // bright enough is lips (the inside of the mouth, darker, keeps its colour).
 fn recolour(albedo: vec3<f32>) -> vec3<f32> {
@@ -120,6 +120,16 @@ fn recolour(albedo: vec3<f32>) -> vec3<f32> {
     let lips = (1.0 - hue) * smoothstep(0.06, 0.10, l);
     let change = hue * (albedo * view.skin.rgb + hair * view.hair.rgb) + lips * albedo * view.lips.rgb;
     return max(albedo + change * material.recolour.x, vec3<f32>(0.0));
+}
+
+// A vertex colour recoloured as its albedo would be (the fragment stage multiplies by the base
+// colour factor and any texture after): per vertex, not per pixel, a fraction of the work on a
+// software adapter. A texture's own colours are left as they are.
+fn recolour_vertex(color: vec4<f32>) -> vec4<f32> {
+    let base = material.base_color.rgb;
+    let albedo = base * color.rgb;
+    let change = (recolour(albedo) - albedo) / max(base, vec3<f32>(1e-4));
+    return vec4<f32>(color.rgb + change, color.a);
 }
 
 @vertex
@@ -133,7 +143,7 @@ fn vs_main(in: VertexIn, @builtin(vertex_index) vid: u32) -> VertexOut {
     // so it transforms normals too (the face shape's scale is applied to them in `shaped`).
     out.normal = (view.model * vec4<f32>(b.normal, 0.0)).xyz;
     out.uv = in.uv;
-    out.color = in.color;
+    out.color = recolour_vertex(in.color);
     return out;
 }
 
@@ -170,8 +180,7 @@ fn fs_main(in: VertexOut, @builtin(front_facing) front: bool) -> @location(0) ve
     if (TEXTURED) {
         texel = textureSample(base_tex, base_sampler, in.uv);
     }
-    let base = material.base_color * in.color * texel;
-    let albedo = vec4<f32>(recolour(base.rgb), base.a);
+    let albedo = material.base_color * in.color * texel;
     var n = normalize(in.normal);
     if (!front) {
         n = -n;

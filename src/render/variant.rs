@@ -9,8 +9,9 @@
 //! skin and hair (the hairline, the brows) or something else (lips, the inside of the mouth),
 //! told apart in the shader by its hue and brightness. Only materials named like skin are
 //! recoloured (`skin` in the name: the bundled head's, Ready Player Me's `Wolf3D_Skin`); eyes,
-//! teeth, tongue and lashes are materials of their own and keep their colours. On a head coloured
-//! unlike the bundled one, the recolouring is approximate.
+//! teeth, tongue and lashes are materials of their own and keep their colours. The vertex stage
+//! recolours the vertex colours (a texture's own colours are kept); on a head coloured unlike the
+//! bundled one, the recolouring is approximate.
 
 use bytemuck::{Pod, Zeroable};
 use glam::Vec3;
