@@ -14,6 +14,17 @@ struct View {
     // z: the first moving vertex that the eye shapes move too (the visemes alone move those
     //    before it), w: the first that only the eye shapes move
     counts: vec4<u32>,
+    // The head variant (src/render/variant.rs), all changes zero for the head as modelled so that
+    // `c + change` leaves it exact: the skin's colour factor minus one (a: the bundled skin's
+    // luminance), what the bundled hair colour gains beyond that (a: its luminance), the lips'
+    // factor minus one; the face shape's scale minus one (xyz) and the morph motion's (w); the
+    // normals' scale; the pivot it scales about.
+    skin: vec4<f32>,
+    hair: vec4<f32>,
+    lips: vec4<f32>,
+    shape: vec4<f32>,
+    normal_scale: vec4<f32>,
+    pivot: vec4<f32>,
 }
 
 // Slots blended: 15 visemes + 5 expressions (TARGET_COUNT in src/render/head.rs).
@@ -29,6 +40,8 @@ struct Weights {
 
 struct Material {
     base_color: vec4<f32>,
+    // x: 1 where the variant recolours this material (the skin), else 0.
+    recolour: vec4<f32>,
 }
 
 // Whether the material has a base colour texture. A pipeline constant rather than a uniform:
@@ -86,18 +99,51 @@ fn blend(vid: u32, position: vec3<f32>, normal: vec3<f32>) -> Blended {
     return Blended(p, n);
 }
 
+// The variant's face shape: the head scaled about its pivot, its morph motion scaled uniformly
+// (by the sideways scale, so a mouth opens as far in eye widths as its calibration says). Written
+// as offsets times (scale - 1), so the unchanged head's positions come out exact.
+fn shaped(position: vec3<f32>, b: Blended) -> Blended {
+    let p = b.position + (position - view.pivot.xyz) * view.shape.xyz
+        + (b.position - position) * view.shape.w;
+    return Blended(p, b.normal * view.normal_scale.xyz);
+}
+
+// The variant's colours on the skin material's albedo. Skin, cheeks, hair and brows share one
+// hue (green about half of red) and differ in brightness: such a colour is read as skin and hair
+// mixed by its luminance, plus a little else (the cheeks' red) that follows the skin.
+// Its skin part takes the skin's factor and its hair part the new hair colour; a redder colour
+// bright enough is lips (the inside of the mouth, darker, keeps its colour).
+fn recolour(albedo: vec3<f32>) -> vec3<f32> {
+    let l = dot(albedo, vec3<f32>(0.2126, 0.7152, 0.0722));
+    let hue = smoothstep(0.30, 0.40, albedo.g / max(albedo.r, 1e-4));
+    let hair = clamp((view.skin.a - l) / (view.skin.a - view.hair.a), 0.0, 1.0);
+    let lips = (1.0 - hue) * smoothstep(0.06, 0.10, l);
+    let change = hue * (albedo * view.skin.rgb + hair * view.hair.rgb) + lips * albedo * view.lips.rgb;
+    return max(albedo + change * material.recolour.x, vec3<f32>(0.0));
+}
+
+// A vertex colour recoloured as its albedo would be (the fragment stage multiplies by the base
+// colour factor and any texture after): per vertex, not per pixel, a fraction of the work on a
+// software adapter. A texture's own colours are left as they are.
+fn recolour_vertex(color: vec4<f32>) -> vec4<f32> {
+    let base = material.base_color.rgb;
+    let albedo = base * color.rgb;
+    let change = (recolour(albedo) - albedo) / max(base, vec3<f32>(1e-4));
+    return vec4<f32>(color.rgb + change, color.a);
+}
+
 @vertex
 fn vs_main(in: VertexIn, @builtin(vertex_index) vid: u32) -> VertexOut {
-    let b = blend(vid, in.position, in.normal);
+    let b = shaped(in.position, blend(vid, in.position, in.normal));
     let world = view.model * vec4<f32>(b.position, 1.0);
     var out: VertexOut;
     out.clip = view.view_proj * world;
     out.world = world.xyz;
     // The model matrix (placement times head motion) is a rotation + uniform scale + translation,
-    // so it transforms normals too.
+    // so it transforms normals too (the face shape's scale is applied to them in `shaped`).
     out.normal = (view.model * vec4<f32>(b.normal, 0.0)).xyz;
     out.uv = in.uv;
-    out.color = in.color;
+    out.color = recolour_vertex(in.color);
     return out;
 }
 
@@ -158,12 +204,12 @@ struct LitOut {
 
 @vertex
 fn vs_vertex_lit(in: VertexIn, @builtin(vertex_index) vid: u32) -> LitOut {
-    let b = blend(vid, in.position, in.normal);
+    let b = shaped(in.position, blend(vid, in.position, in.normal));
     let world = view.model * vec4<f32>(b.position, 1.0);
     let light = lighting(normalize((view.model * vec4<f32>(b.normal, 0.0)).xyz), world.xyz);
     var out: LitOut;
     out.clip = view.view_proj * world;
-    out.tint = vec4<f32>((material.base_color * in.color).rgb * light.rgb, light.a);
+    out.tint = vec4<f32>(recolour((material.base_color * in.color).rgb) * light.rgb, light.a);
     out.uv = in.uv;
     return out;
 }

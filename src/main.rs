@@ -42,6 +42,9 @@ struct AppFlags {
     /// settings', 5): less answers sooner, more survives a busier machine.
     #[arg(long, value_name = "MS", value_parser = clap::value_parser!(u32).range(0..=200))]
     output_margin_ms: Option<u32>,
+    /// App: open the settings window at start.
+    #[arg(long)]
+    open_settings: bool,
 }
 
 #[derive(Subcommand)]
@@ -96,6 +99,7 @@ fn main() -> ExitCode {
             settings: a.settings,
             call: a.call,
             output_margin_ms: a.output_margin_ms,
+            open_settings: a.open_settings,
         }));
     };
     let result = match command {

@@ -14,13 +14,15 @@ use egui_kittest::Harness;
 use egui_kittest::kittest::{NodeT, Queryable, by};
 use lipcall::app::call_panel::connect_plan;
 use lipcall::app::engine::{CallPhase, Engine, lock};
-use lipcall::app::peer_panel::peer_colours;
+use lipcall::app::peer_panel::{peer_colours, peer_heads};
 use lipcall::app::settings::Settings;
 use lipcall::app::{
     CallForm, MicKeys, SettingsParts, ShownPeer, SipForm, audio_ui, call_ui, left_notice_ui,
     settings_ui, tiles_ui,
 };
 use lipcall::audio::MicControls;
+use lipcall::audio::capture::capture_pipeline;
+use lipcall::render::VARIANTS;
 
 /// The audio bar with the keyboard's hold on a microphone (none: no device).
 struct AudioBar {
@@ -413,6 +415,39 @@ fn each_peer_has_a_colour_of_its_own_from_its_name() {
     assert_eq!(peer_colours(["Bob", "Ann"])[1], peer_colours(["Ann"])[0]);
 }
 
+#[test]
+fn each_peer_has_a_head_of_its_own_from_its_name_unless_one_is_picked() {
+    let names: Vec<String> = (0..16).map(|i| format!("Peer {i}")).collect();
+    let automatic = |names: &[String]| peer_heads(names.iter().map(|n| (n.as_str(), "")));
+    let heads = automatic(&names);
+    let n = VARIANTS.len();
+    let first: std::collections::BTreeSet<&str> = heads[..n].iter().map(|v| v.name).collect();
+    assert_eq!(
+        first.len(),
+        n,
+        "the first {n} peers of a call share no head: {heads:?}"
+    );
+    // Past that, heads repeat, each still one of the set.
+    assert!(heads.iter().all(|h| VARIANTS.contains(h)));
+    // A name keeps its head from call to call while no one else in the call has it.
+    let ann = peer_heads([("Ann", "")])[0];
+    assert_eq!(peer_heads([("Ann", "")]), [ann]);
+    let bob = peer_heads([("Bob", "")])[0];
+    if bob != ann {
+        assert_eq!(peer_heads([("Bob", ""), ("Ann", "")])[1], ann);
+    }
+    // A head picked is kept, and the automatic ones go round it.
+    let pick = VARIANTS.iter().find(|v| **v != ann).unwrap();
+    let picked = peer_heads([("Bob", pick.name), ("Ann", "")]);
+    assert_eq!(picked[0], *pick);
+    assert_eq!(picked[1], ann);
+    let picked = peer_heads([("Bob", ann.name), ("Ann", "")]);
+    assert_eq!(picked[0], ann);
+    assert_ne!(picked[1], ann, "Ann's own head is taken by Bob's pick");
+    // An unknown name is the automatic choice.
+    assert_eq!(peer_heads([("Ann", "no such head")]), [ann]);
+}
+
 /// What the call's phase says of `address` once the engine has tried it.
 fn failure_of(address: &str) -> String {
     use lipcall::app::engine::{CallPhase, CallSpec, Command};
@@ -437,6 +472,46 @@ fn an_address_without_a_port_or_host_is_told_in_a_sentence() {
     assert_eq!(
         failure_of("sip:bob@"),
         "sip:bob@ has no host (expected sip:USER@HOST)"
+    );
+}
+
+#[test]
+fn the_settings_window_shows_the_microphone_s_level() {
+    let engine = common::app::headless_engine("Alice", None);
+    common::app::wait_for(
+        &engine,
+        "the microphone tried",
+        Duration::from_secs(10),
+        |s| !s.input_status.is_empty(),
+    );
+    let window = Window {
+        settings: Settings::default(),
+        form: CallForm::default(),
+        sip: SipForm::default(),
+        engine,
+    };
+    let mut h = settings_harness(window);
+    h.run();
+    // Without a microphone the settings say why, where the meter would be.
+    assert!(h.query_by_label("Microphone level").is_none());
+    assert!(h.query_by_label_contains("no microphone").is_some());
+    // With one, its meter, moving with what it hears (the audio bar's data and widget).
+    let (mut feeder, reader) = capture_pipeline(48_000, 1, Duration::from_secs(1)).unwrap();
+    lock(&h.state().engine.shared).mic = Some(reader.controls().clone());
+    h.run();
+    let level = |h: &Harness<'_, Window>| {
+        h.get_by_label("Microphone level")
+            .accesskit_node()
+            .numeric_value()
+            .expect("the meter's value")
+    };
+    let silent = level(&h);
+    feeder.feed(&[0.5_f32; 960]);
+    h.run();
+    let heard = level(&h);
+    assert!(
+        silent < 0.05 && heard > 0.8,
+        "meter {silent} in silence, {heard} at -6 dBFS"
     );
 }
 

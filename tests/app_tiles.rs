@@ -12,6 +12,7 @@ use egui_kittest::kittest::Queryable;
 use lipcall::app::ShownPeer;
 use lipcall::app::tiles_ui;
 use lipcall::audio::PeerId;
+use lipcall::render::VARIANTS;
 
 /// The space the app's 1280x720 window leaves for the tiles (screenshot of the real app under
 /// Xvfb): less the peer list (about 212 points), the call bar's two rows and the audio row,
@@ -170,4 +171,35 @@ fn names_stay_whole_on_sixteen_narrow_tiles() {
     h.get_by_label("Lipreading").click();
     h.run();
     assert!(h.state()[3].prefs.lipreading);
+}
+
+#[test]
+fn a_tiles_menu_picks_that_peers_head() {
+    let mut h = harness(4, CENTRAL);
+    h.get_all_by_label("More").nth(2).unwrap().click();
+    h.run();
+    assert!(h.query_by_label("automatic head").is_some());
+    h.get_by_label("Head").click();
+    h.run();
+    assert!(h.query_by_label("Automatic").is_some());
+    h.get_by_label(VARIANTS[3].name).click();
+    h.run();
+    assert_eq!(h.state()[2].prefs.head, VARIANTS[3].name);
+    // The menu says the head chosen beside the choice.
+    assert!(h.query_all_by_label(VARIANTS[3].name).count() >= 1);
+    assert!(h.query_by_label("automatic head").is_none());
+    assert!(
+        h.state()
+            .iter()
+            .enumerate()
+            .all(|(i, p)| i == 2 || p.prefs.head.is_empty())
+    );
+    // Back to the automatic choice (the submenu may have stayed open).
+    if h.query_by_label("Automatic").is_none() {
+        h.get_by_label("Head").click();
+        h.run();
+    }
+    h.get_by_label("Automatic").click();
+    h.run();
+    assert!(h.state()[2].prefs.head.is_empty());
 }

@@ -82,6 +82,25 @@ impl MicKeys {
     }
 }
 
+/// The microphone's peak level, 60 dB up to full scale, named "Microphone level" for screen
+/// readers (the audio bar's and the settings window's).
+pub fn mic_meter_ui(ui: &mut egui::Ui, mic: &MicControls) -> egui::Response {
+    let level = mic.level();
+    let fill = ((level.peak_dbfs + 60.0) / 60.0).clamp(0.0, 1.0);
+    let response = ui.add(
+        egui::ProgressBar::new(fill)
+            .desired_width(120.0)
+            .text(format!("{:.0} dBFS", level.peak_dbfs.max(-99.0))),
+    );
+    response.widget_info(|| {
+        let mut info =
+            egui::WidgetInfo::labeled(egui::accesskit::Role::Meter, true, "Microphone level");
+        info.value = Some(f64::from(fill));
+        info
+    });
+    response
+}
+
 /// The mic level meter, mute, push-to-talk, the microphone's state and the output's (the
 /// devices are chosen in the settings).
 pub fn audio_ui(
@@ -95,13 +114,7 @@ pub fn audio_ui(
     ui.horizontal_wrapped(|ui| {
         match mic {
             Some(mic) => {
-                let level = mic.level();
-                let fill = ((level.peak_dbfs + 60.0) / 60.0).clamp(0.0, 1.0);
-                ui.add(
-                    egui::ProgressBar::new(fill)
-                        .desired_width(120.0)
-                        .text(format!("{:.0} dBFS", level.peak_dbfs.max(-99.0))),
-                );
+                mic_meter_ui(ui, mic);
                 let mut muted = mic.muted();
                 if ui.checkbox(&mut muted, "Mute (M)").changed() {
                     mic.set_muted(muted);

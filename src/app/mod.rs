@@ -72,6 +72,8 @@ pub struct AppOptions {
     pub call: Option<String>,
     /// The output ring's margin above a device period, in ms, instead of the settings'.
     pub output_margin_ms: Option<u32>,
+    /// Open the settings window at start (screenshots, a first run's set-up).
+    pub open_settings: bool,
 }
 
 /// Opens the window and runs until it is closed.
@@ -252,6 +254,7 @@ impl LipcallApp {
         let form = CallForm {
             address: settings.last_address.clone(),
             room: settings.last_room.clone(),
+            settings_open: options.open_settings,
             ..CallForm::default()
         };
         let (inputs, outputs) = if options.no_audio {

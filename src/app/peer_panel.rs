@@ -7,7 +7,7 @@ use super::call_panel::codec_label;
 use super::peer::{FaceRow, LEVEL_FLOOR_DB, PeerView};
 use super::settings::PeerPrefs;
 use super::tiles::{HeadTile, HeadTiles};
-use crate::render::Framing;
+use crate::render::{Framing, HeadVariant, VARIANTS};
 use crate::vocab::{FacePose, VisemeWeights};
 
 /// One peer as a UI frame shows it: what the engine says of it, its face for the audio heard
@@ -30,19 +30,61 @@ pub fn join_order(peers: &mut [ShownPeer]) {
 /// Each peer's colour, in the order given: the one its name hashes to (the same name, the same
 /// colour, call after call), or the next one free where another peer of the call has that one,
 /// so that up to [`PEER_COLOURS`] peers all differ. The background behind the head and the mark
-/// in the list: one bundled head serves everyone, the colour tells them apart.
+/// in the list.
 pub fn peer_colours<'a>(names: impl IntoIterator<Item = &'a str>) -> Vec<egui::Color32> {
-    let mut used = [false; PEER_COLOURS];
-    names
+    let starts = names
         .into_iter()
-        .map(|name| {
-            let start = colour_index(name);
-            let free = (0..PEER_COLOURS)
-                .map(|k| (start + k) % PEER_COLOURS)
-                .find(|&i| !used[i]);
-            let i = free.unwrap_or(start);
+        .map(|name| Some(name_hash(name) as usize % PEER_COLOURS));
+    spread(starts, [false; PEER_COLOURS])
+        .into_iter()
+        .flatten()
+        .map(palette)
+        .collect()
+}
+
+/// Each peer's head, in the order given as (name, the peer's `head` choice): the variant picked,
+/// or where the choice is automatic (empty) the one its name hashes to, or the next one that no
+/// other peer of the call has, so that the first [`VARIANTS`]`.len()` peers all differ.
+pub fn peer_heads<'a>(peers: impl IntoIterator<Item = (&'a str, &'a str)>) -> Vec<HeadVariant> {
+    let peers: Vec<(&str, Option<usize>)> = peers
+        .into_iter()
+        .map(|(name, head)| (name, VARIANTS.iter().position(|v| v.name == head)))
+        .collect();
+    let mut picked = [false; VARIANTS.len()];
+    for i in peers.iter().filter_map(|(_, p)| *p) {
+        picked[i] = true;
+    }
+    // Picked heads are kept as picked; the automatic ones spread over the rest.
+    let automatic = spread(
+        peers.iter().map(|(name, p)| {
+            p.is_none()
+                .then(|| (name_hash(name) >> 8) as usize % VARIANTS.len())
+        }),
+        picked,
+    );
+    peers
+        .iter()
+        .zip(automatic)
+        .map(|((_, p), auto)| VARIANTS[p.or(auto).unwrap_or(0)])
+        .collect()
+}
+
+/// For each start, the first of the `N` indices from it on (round the end) not yet `used`, which
+/// it then uses (the start itself where all are); `None` (an entry fixed otherwise) takes none.
+fn spread<const N: usize>(
+    starts: impl IntoIterator<Item = Option<usize>>,
+    mut used: [bool; N],
+) -> Vec<Option<usize>> {
+    starts
+        .into_iter()
+        .map(|start| {
+            let start = start?;
+            let i = (0..N)
+                .map(|k| (start + k) % N)
+                .find(|&i| !used[i])
+                .unwrap_or(start);
             used[i] = true;
-            palette(i)
+            Some(i)
         })
         .collect()
 }
@@ -52,7 +94,7 @@ pub const PEER_COLOURS: usize = 16;
 
 /// FNV-1a, then murmur3's finaliser (FNV's own bits are poor for names that differ in their
 /// last letter): stable across runs and platforms, unlike the standard hasher.
-fn colour_index(name: &str) -> usize {
+fn name_hash(name: &str) -> u32 {
     let mut h = name.bytes().fold(0x811c_9dc5_u32, |h, b| {
         (h ^ u32::from(b)).wrapping_mul(0x0100_0193)
     });
@@ -61,7 +103,7 @@ fn colour_index(name: &str) -> usize {
     h ^= h >> 13;
     h = h.wrapping_mul(0xc2b2_ae35);
     h ^= h >> 16;
-    h as usize % PEER_COLOURS
+    h
 }
 
 /// Dark hues (the face stays the brightest thing in its tile), neighbours far apart on the
@@ -164,7 +206,7 @@ fn visemes_label(choice: &str) -> String {
 }
 
 /// One peer's controls: animation, the living face, mute, volume, lipreading view, jaw mode,
-/// viseme set, lip closures.
+/// viseme set, head, lip closures.
 pub fn peer_controls_ui(ui: &mut egui::Ui, prefs: &mut PeerPrefs) {
     ui.horizontal_wrapped(|ui| {
         ui.checkbox(&mut prefs.animate, "Animate");
@@ -189,6 +231,18 @@ pub fn peer_controls_ui(ui: &mut egui::Ui, prefs: &mut PeerPrefs) {
             }
         });
         ui.weak(visemes_label(&prefs.visemes));
+        ui.menu_button("Head", |ui| {
+            ui.selectable_value(&mut prefs.head, String::new(), "Automatic")
+                .on_hover_text("Chosen by the name, unlike the other peers' heads");
+            for v in &VARIANTS {
+                ui.selectable_value(&mut prefs.head, v.name.to_owned(), v.name);
+            }
+        });
+        ui.weak(if prefs.head.is_empty() {
+            "automatic head"
+        } else {
+            prefs.head.as_str()
+        });
         ui.scope(|ui| {
             // Narrower than the volume slider, so the row fits a third-of-the-window tile.
             ui.spacing_mut().slider_width = 64.0;
@@ -259,7 +313,12 @@ pub fn tiles_ui(ui: &mut egui::Ui, peers: &mut [ShownPeer], mut heads: Option<&m
     let area = ui.available_rect_before_wrap();
     let rects = tile_rects(peers.len(), area);
     let colours = peer_colours(peers.iter().map(|p| p.view.name.as_str()));
-    for ((shown, cell), colour) in peers.iter_mut().zip(rects).zip(colours) {
+    let looks = peer_heads(
+        peers
+            .iter()
+            .map(|p| (p.view.name.as_str(), p.prefs.head.as_str())),
+    );
+    for (((shown, cell), colour), look) in peers.iter_mut().zip(rects).zip(colours).zip(looks) {
         let mut tile_ui = ui.new_child(
             egui::UiBuilder::new()
                 .id_salt(("tile", shown.view.peer))
@@ -272,7 +331,13 @@ pub fn tiles_ui(ui: &mut egui::Ui, peers: &mut [ShownPeer], mut heads: Option<&m
             egui::pos2(cell.min.x, (cell.min.y + TILE_HEADER).min(cell.max.y)),
             cell.max,
         );
-        head_ui(&mut tile_ui, head, shown, colour, heads.as_deref_mut());
+        head_ui(
+            &mut tile_ui,
+            head,
+            shown,
+            (colour, look),
+            heads.as_deref_mut(),
+        );
     }
     ui.allocate_rect(area, egui::Sense::hover());
 }
@@ -416,7 +481,7 @@ fn head_ui(
     ui: &mut egui::Ui,
     rect: egui::Rect,
     shown: &ShownPeer,
-    colour: egui::Color32,
+    (colour, variant): (egui::Color32, HeadVariant),
     heads: Option<&mut HeadTiles>,
 ) {
     let p = &shown.view;
@@ -449,6 +514,7 @@ fn head_ui(
                 weights: w,
                 pose,
                 background: linear(colour),
+                variant,
             };
             heads.show(ui, rect, tile);
         }

@@ -10,6 +10,7 @@ use crate::codec::any::Codec;
 use crate::codec::opus::codec::Bandwidth;
 use crate::net::janus::candidates::{IceServers, TurnServer};
 use crate::net::sip::agent::{Account, SipError};
+use crate::render::HeadVariant;
 
 /// The codec new calls send unless the settings say otherwise: Opus. It is what the VoIP world
 /// speaks today (WebRTC, SIP phones, Mumble, Discord), and it carries in-band FEC, so a lost
@@ -41,6 +42,9 @@ pub struct PeerPrefs {
     /// The living face: blinks, glances and head motion with the voice (off: eyes and head
     /// still; the mouth keeps moving).
     pub life: bool,
+    /// The head's look: a variant's name ([`crate::render::VARIANTS`]); empty: chosen by the
+    /// peer's name.
+    pub head: String,
 }
 
 impl Default for PeerPrefs {
@@ -54,6 +58,7 @@ impl Default for PeerPrefs {
             jaw: false,
             closures: 0.0,
             life: true,
+            head: String::new(),
         }
     }
 }
@@ -73,6 +78,10 @@ impl PeerPrefs {
         Self {
             volume: within(self.volume, 0.0, 2.0, default.volume),
             closures: within(self.closures, -1.0, 1.0, default.closures),
+            // A name no variant has (an older or hand-edited file) is the automatic choice.
+            head: HeadVariant::by_name(&self.head)
+                .map(|v| v.name.to_owned())
+                .unwrap_or_default(),
             ..self
         }
     }
@@ -486,7 +495,8 @@ mod tests {
         std::fs::write(
             &path,
             r#"{"name": "Ada", "peers": {"Bob": {"volume": 1e39, "closures": -7, "muted": true},
-                "Cy": {"volume": null, "closures": 0.5}, "Di": {"volume": -3}}}"#,
+                "Cy": {"volume": null, "closures": 0.5, "head": "fair, BLOND"},
+                "Di": {"volume": -3, "head": "Nobody's head"}}}"#,
         )
         .unwrap();
         let (s, why) = Settings::load(&path);
@@ -499,6 +509,9 @@ mod tests {
         );
         assert_eq!((s.peers["Cy"].volume, s.peers["Cy"].closures), (1.0, 0.5));
         assert_eq!(s.peers["Di"].volume, 0.0);
+        // A head by any case is the variant's name; one no variant has is the automatic one.
+        assert_eq!(s.peers["Cy"].head, "Fair, blond");
+        assert_eq!(s.peers["Di"].head, "");
         // Saved and loaded again: the same, every other setting kept.
         s.save(&path).unwrap();
         assert!(!std::fs::read_to_string(&path).unwrap().contains("null"));

@@ -5,8 +5,9 @@
 
 use eframe::egui;
 
+use super::audio_panel::mic_meter_ui;
 use super::call_panel::{CallForm, codec_label};
-use super::engine::{Command, Engine};
+use super::engine::{Command, Engine, lock};
 use super::settings::{NatSettings, Settings};
 use super::sip_panel::{SipForm, account_ui};
 use crate::audio::{DeviceChoice, DeviceInfo};
@@ -69,6 +70,22 @@ pub fn settings_ui(ui: &mut egui::Ui, settings: &mut Settings, parts: SettingsPa
     egui::Grid::new("sound").num_columns(2).show(ui, |ui| {
         if device_picker_ui(ui, "Microphone", &mut settings.input_device, inputs) {
             engine.send(Command::SetInput(choice(&settings.input_device)));
+        }
+        ui.end_row();
+        // The level of the microphone open now, to check the one chosen hears you.
+        ui.label("Level");
+        let (mic, input_status) = {
+            let shared = lock(&engine.shared);
+            (shared.mic.clone(), shared.input_status.clone())
+        };
+        match &mic {
+            Some(mic) => {
+                mic_meter_ui(ui, mic)
+                    .on_hover_text("The microphone's level now: speak to see it move");
+            }
+            None => {
+                ui.weak(input_status);
+            }
         }
         ui.end_row();
         if device_picker_ui(ui, "Speaker", &mut settings.output_device, outputs) {

@@ -18,7 +18,7 @@ use eframe::egui_wgpu;
 use crate::render::blit::{Blit, BlitImage};
 use crate::render::lod::DetailLevels;
 use crate::render::target::{HeadTarget, TARGET_FORMAT, is_software, sample_count_for};
-use crate::render::{Camera, Framing, GpuHead, HeadInstance, HeadRenderer};
+use crate::render::{Camera, Framing, GpuHead, HeadInstance, HeadRenderer, HeadVariant};
 use crate::vocab::FacePose;
 use crate::vocab::VisemeWeights;
 
@@ -44,6 +44,8 @@ pub struct HeadTile {
     pub pose: FacePose,
     /// Linear RGB behind the head (each peer's own).
     pub background: [f64; 3],
+    /// The head's look (each peer's own).
+    pub variant: HeadVariant,
 }
 
 struct Tile {
@@ -213,6 +215,7 @@ impl HeadTiles {
             *at == size
                 && shown.framing == tile.framing
                 && shown.background == tile.background
+                && shown.variant == tile.variant
                 && head.looks_the_same(
                     (&shown.weights, &shown.pose),
                     (&tile.weights, &tile.pose),
@@ -225,6 +228,7 @@ impl HeadTiles {
         let aspect = size.0 as f32 / size.1 as f32;
         entry.instance.level = head.level_for(pixels_per_metre);
         entry.instance.shading = head.shading_for(pixels_per_metre);
+        entry.instance.variant = tile.variant;
         renderer.prepare(
             &state.queue,
             &mut entry.instance,

@@ -21,6 +21,7 @@ pub mod offscreen;
 mod readback;
 pub mod renderer;
 pub mod target;
+pub mod variant;
 
 pub use camera::{Camera, Framing};
 pub use error::RenderError;
@@ -28,3 +29,4 @@ pub use gltf_load::{DEFAULT_HEAD_PATH, default_head, load_head_or_default};
 pub use head::HeadModel;
 pub use offscreen::{FrameOptions, GpuContext, OffscreenRenderer, WeightTrack, render_frames};
 pub use renderer::{GpuHead, HeadInstance, HeadRenderer};
+pub use variant::{HeadVariant, VARIANTS};

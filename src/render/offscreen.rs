@@ -11,6 +11,7 @@ use super::lod::DetailLevels;
 use super::readback::read_buffer;
 use super::renderer::{DEPTH_FORMAT, GpuHead, HeadInstance, HeadRenderer, Shading};
 use super::target::{HeadTarget, TARGET_FORMAT, sample_count_for};
+use super::variant::HeadVariant;
 use crate::vocab::{FacePose, VISEME_COUNT, Viseme, VisemeWeights};
 
 /// A device and queue made without a window.
@@ -230,6 +231,13 @@ impl OffscreenRenderer {
     pub fn set_leave_out_unseen(&mut self, on: bool) {
         for instance in &mut self.instances {
             instance.leave_out_unseen = on;
+        }
+    }
+
+    /// Draws every head as `variant` from the next frame on.
+    pub fn set_variant(&mut self, variant: HeadVariant) {
+        for instance in &mut self.instances {
+            instance.variant = variant;
         }
     }
 

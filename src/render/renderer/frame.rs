@@ -1,5 +1,5 @@
-//! Per frame: each head instance's uniforms (camera, placement, the 20 slots' weights) written
-//! only when they change, and its draws recorded into a render pass.
+//! Per frame: each head instance's uniforms (camera, placement, look, the 20 slots' weights)
+//! written only when they change, and its draws recorded into a render pass.
 
 use std::sync::Arc;
 
@@ -10,6 +10,7 @@ use super::GpuHead;
 use super::pipelines::{HeadRenderer, Shading};
 use crate::render::camera::Camera;
 use crate::render::head::{TARGET_COUNT, slot_weights};
+use crate::render::variant::{HeadVariant, LookUniform};
 use crate::vocab::VISEME_COUNT;
 use crate::vocab::{FacePose, VisemeWeights};
 
@@ -21,6 +22,7 @@ struct ViewUniform {
     eye: [f32; 4],
     light_dir: [f32; 4],
     counts: [u32; 4],
+    look: LookUniform,
 }
 
 #[repr(C)]
@@ -76,6 +78,8 @@ pub struct HeadInstance {
     pub leave_out_unseen: bool,
     /// Whether this frame's draws are the frontal ones (set by `prepare`).
     frontal: bool,
+    /// The look drawn: skin, hair and face shape ([`HeadVariant::DEFAULT`]: the head as it is).
+    pub variant: HeadVariant,
 }
 
 impl HeadInstance {
@@ -144,6 +148,7 @@ impl HeadRenderer {
             shading: Shading::PerPixel,
             leave_out_unseen: true,
             frontal: false,
+            variant: HeadVariant::DEFAULT,
         }
     }
 
@@ -176,6 +181,7 @@ impl HeadRenderer {
                 instance.head.mouth_and_eyes_from,
                 instance.head.eyes_only_from,
             ],
+            look: instance.variant.look(instance.head.frame.neck_pivot()),
         };
         if instance.last_view != Some(view) {
             queue.write_buffer(&instance.view_buffer, 0, bytemuck::bytes_of(&view));

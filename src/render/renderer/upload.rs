@@ -13,12 +13,15 @@ use crate::render::RenderError;
 use crate::render::facing;
 use crate::render::head::{FaceFrame, HeadModel, MorphDelta, TARGET_COUNT, Vertex};
 use crate::render::lod::DetailLevels;
+use crate::render::variant::is_skin_material;
 use crate::vocab::{FacePose, VISEME_COUNT, VisemeWeights};
 
 #[repr(C)]
 #[derive(Debug, Clone, Copy, PartialEq, Pod, Zeroable)]
 struct MaterialUniform {
     base_color: [f32; 4],
+    /// x: 1 where a head variant recolours this material (its skin), else 0.
+    recolour: [f32; 4],
 }
 
 /// A draw call of one primitive.
@@ -379,6 +382,12 @@ impl HeadRenderer {
             label: Some(&format!("{label} uniform")),
             contents: bytemuck::bytes_of(&MaterialUniform {
                 base_color: material.base_color,
+                recolour: [
+                    f32::from(u8::from(is_skin_material(&material.name))),
+                    0.0,
+                    0.0,
+                    0.0,
+                ],
             }),
             usage: wgpu::BufferUsages::UNIFORM,
         });
