@@ -203,3 +203,60 @@ fn a_tiles_menu_picks_that_peers_head() {
     h.run();
     assert!(h.state()[2].prefs.head.is_empty());
 }
+
+/// The keyboard alone: Tab reaches each tile's mute box and menu, Enter opens the menu, and its
+/// controls are reached and changed with Tab and Space.
+#[test]
+fn the_keyboard_alone_reaches_and_works_a_tiles_menu() {
+    use egui_kittest::kittest::{NodeT, by};
+    let focused_label = |h: &Harness<'static, Vec<ShownPeer>>| {
+        h.query_all(by())
+            .find(|n| n.is_focused())
+            .map(|n| n.accesskit_node().label().unwrap_or_default())
+    };
+    let mut h = harness(2, CENTRAL);
+    let mut reached = Vec::new();
+    for _ in 0..4 {
+        h.key_press(egui::Key::Tab);
+        h.run();
+        let at = h
+            .query_all(by())
+            .find(|n| n.is_focused())
+            .map(|n| n.rect().min.x);
+        reached.push((focused_label(&h).unwrap_or_default(), at));
+    }
+    // Each tile's menu and mute box, the first tile's and then the second's.
+    let labels: Vec<&str> = reached.iter().map(|(l, _)| l.as_str()).collect();
+    assert_eq!(labels, ["More", "Mute", "More", "Mute"], "{reached:?}");
+    assert!(reached[2].1 > reached[0].1, "{reached:?}");
+    let mut h = harness(2, CENTRAL);
+    for _ in 0..6 {
+        h.key_press(egui::Key::Tab);
+        h.run();
+        if focused_label(&h).as_deref() == Some("More") {
+            break;
+        }
+    }
+    assert_eq!(focused_label(&h).as_deref(), Some("More"));
+    h.key_press(egui::Key::Enter);
+    h.run();
+    let mut in_menu = Vec::new();
+    for _ in 0..12 {
+        h.key_press(egui::Key::Tab);
+        h.run();
+        let now = focused_label(&h).unwrap_or_default();
+        in_menu.push(now.clone());
+        if now == "Animate" {
+            break;
+        }
+    }
+    assert_eq!(
+        in_menu.last().map(String::as_str),
+        Some("Animate"),
+        "{in_menu:?}"
+    );
+    h.key_press(egui::Key::Space);
+    h.run();
+    let changed: Vec<bool> = h.state().iter().map(|p| p.prefs.animate).collect();
+    assert_eq!(changed.iter().filter(|a| !**a).count(), 1, "{changed:?}");
+}

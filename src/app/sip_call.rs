@@ -177,14 +177,14 @@ impl SipPhone {
         Ok((target, towards))
     }
 
-    /// A SIP call to `target` from `bind` (the local address towards its host); the listener
-    /// stops while it runs (the call's own agent registers the account and refuses other
-    /// callers).
     /// The STUN server (HOST:PORT) whose view of our media address SDP gives, if any.
     pub fn stun(&self) -> Option<String> {
         self.network.stun.clone()
     }
 
+    /// A SIP call to `target` from `bind` (the local address towards its host), its media on
+    /// `media` ([`crate::call::sip::bind_media`]); the listener stops while it runs (the call's
+    /// own agent registers the account and refuses other callers).
     pub fn dial_from(
         &mut self,
         target: String,

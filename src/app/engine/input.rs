@@ -40,7 +40,11 @@ impl Worker {
     fn use_mic(&mut self, opened: Result<Capture, String>) {
         let status = match &opened {
             Ok(mic) => format!("microphone: {}", mic.device_name()),
-            Err(e) => format!("no microphone ({e}): receive-only"),
+            // The device layer's own line may already say what follows.
+            Err(e) => format!(
+                "no microphone ({}): receive-only",
+                e.strip_suffix(": receive-only").unwrap_or(e)
+            ),
         };
         let mic = opened.ok();
         let controls = mic.as_ref().map(Capture::controls);
