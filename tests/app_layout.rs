@@ -494,7 +494,7 @@ fn the_settings_window_shows_the_microphone_s_level() {
     h.run();
     // Without a microphone the settings say why, where the meter would be.
     assert!(h.query_by_label("Microphone level").is_none());
-    assert!(h.query_by_label_contains("no microphone").is_some());
+    assert!(h.query_by_label_contains("No microphone").is_some());
     // With one, its meter, moving with what it hears (the audio bar's data and widget).
     let (mut feeder, reader) = capture_pipeline(48_000, 1, Duration::from_secs(1)).unwrap();
     lock(&h.state().engine.shared).mic = Some(reader.controls().clone());

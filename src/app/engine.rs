@@ -18,7 +18,7 @@ use std::net::SocketAddr;
 use std::path::PathBuf;
 use std::sync::atomic::{AtomicBool, Ordering};
 use std::sync::mpsc::{Receiver, Sender, TryRecvError};
-use std::sync::{Arc, Mutex, MutexGuard};
+use std::sync::{Arc, Mutex, MutexGuard, OnceLock};
 use std::thread::JoinHandle;
 use std::time::{Duration, Instant};
 
@@ -30,11 +30,13 @@ use crate::audio::{
 use crate::call::janus::is_janus_url;
 use crate::call::link::Link;
 use crate::call::mumble::is_mumble_url;
+use crate::call::sip_sockets::MediaSockets;
 use crate::codec::any::{Codec, EncoderSettings, FrameEncoder, MAX_FRAME_PAYLOAD};
 use crate::codec::opus::codec::Bandwidth;
 use crate::net::janus::candidates::IceServers;
 use crate::net::janus::messages::JanusAuth;
 use crate::net::session::{Blocked, Session, SessionConfig};
+use crate::net::srtp::MasterKey;
 use crate::net::transport::{PeerFrame, PeerInfo};
 use crate::vocab::MAX_FRAME_SAMPLES;
 
@@ -296,15 +298,17 @@ struct Worker {
     mic_controls: Option<MicControls>,
 }
 
+/// A direct call's room key, derived on the look-up's thread.
+type KeySlot = Arc<OnceLock<MasterKey>>;
+/// A SIP call's media sockets, bound (and STUN asked) on the look-up's thread.
+type MediaSlot = Arc<Mutex<Option<MediaSockets>>>;
+
 /// What follows a call's host being found ([`Lookups`]).
 enum Then {
     /// A direct call (or a relay's room) to the address, with the room key derived beside it.
-    Direct(Box<CallSpec>, place::KeySlot),
+    Direct(Box<CallSpec>, KeySlot),
     /// A SIP call to `target`, from the local address found, on the media sockets bound there.
-    Sip {
-        target: String,
-        media: sip::MediaSlot,
-    },
+    Sip { target: String, media: MediaSlot },
     /// A Janus room on the server found.
     Janus(Box<CallSpec>),
 }

@@ -10,7 +10,8 @@ use std::sync::mpsc::{Receiver, TryRecvError, sync_channel};
 use std::time::{Duration, Instant};
 
 use crate::call::link::{Link, LinkEvent};
-use crate::call::sip::{CallState, MediaSockets, SipHandle, SipLink, SipSecurity};
+use crate::call::sip::{CallState, SipHandle, SipLink, SipSecurity};
+use crate::call::sip_sockets::MediaSockets;
 use crate::codec::any::Codec;
 use crate::net::backoff::Backoff;
 use crate::net::sip::address::{bind_towards, host_port};
@@ -183,7 +184,7 @@ impl SipPhone {
     }
 
     /// A SIP call to `target` from `bind` (the local address towards its host), its media on
-    /// `media` ([`crate::call::sip::bind_media`]); the listener stops while it runs (the call's
+    /// `media` ([`crate::call::sip_sockets::bind_media`]); the listener stops while it runs (the call's
     /// own agent registers the account and refuses other callers).
     pub fn dial_from(
         &mut self,

@@ -10,3 +10,4 @@ pub mod media;
 pub mod mumble;
 pub mod pipeline;
 pub mod sip;
+pub mod sip_sockets;

@@ -2,11 +2,12 @@
 //! the worker's link.
 
 use std::net::SocketAddr;
-use std::sync::{Arc, OnceLock};
+use std::sync::Arc;
 use std::time::Instant;
 
 use super::{
-    CallPhase, CallSpec, CallStatus, DIRECT_ANSWER_WAIT, Encryption, ROOM, Then, Worker, lock,
+    CallPhase, CallSpec, CallStatus, DIRECT_ANSWER_WAIT, Encryption, KeySlot, ROOM, Then, Worker,
+    lock,
 };
 use crate::app::timing::RelayWatch;
 use crate::call::janus::JanusLink;
@@ -17,9 +18,6 @@ use crate::net::janus::url::JanusUrl;
 use crate::net::jitter::JitterConfig;
 use crate::net::session::{Session, SessionConfig};
 use crate::net::srtp::MasterKey;
-
-/// A direct call's room key, derived on the look-up's thread.
-pub(super) type KeySlot = Arc<OnceLock<MasterKey>>;
 
 impl Worker {
     /// A direct call (or a relay's room) to `spec.address`. Its host is looked up, and a

@@ -3,19 +3,16 @@
 //! engine's one route (`engine/news.rs`).
 
 use std::net::SocketAddr;
-use std::sync::{Arc, Mutex, PoisonError};
+use std::sync::{Arc, PoisonError};
 use std::time::Instant;
 
-use super::{CallPhase, CallSpec, CallStatus, Then, Worker, lock};
+use super::{CallPhase, CallSpec, CallStatus, MediaSlot, Then, Worker, lock};
 use crate::app::sip_call::{PhoneCommand, PhoneTurn};
 use crate::app::timing::RelayWatch;
-use crate::call::sip::{MediaSockets, bind_media};
+use crate::call::sip_sockets::{MediaSockets, bind_media};
 use crate::codec::any::{EncoderSettings, FrameEncoder};
 use crate::net::host_port::HostPort;
 use crate::net::sip::address::bind_towards;
-
-/// A SIP call's media sockets, bound (and STUN asked) on the look-up's thread.
-pub(super) type MediaSlot = Arc<Mutex<Option<MediaSockets>>>;
 
 impl Worker {
     /// A SIP call: its host is looked up off the worker, then [`Worker::dial_from`].
