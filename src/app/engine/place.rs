@@ -120,7 +120,6 @@ impl Worker {
             local_addr,
             error: None,
             unknown_payload: 0,
-            arrived: None,
         };
         Ok(())
     }
@@ -176,7 +175,6 @@ impl Worker {
             local_addr: None,
             error: None,
             unknown_payload: 0,
-            arrived: None,
             phase: s.call.phase.clone(),
         };
         Ok(())
