@@ -59,7 +59,7 @@ fn a_direct_call_to_a_dead_address_fails_and_the_next_call_forgets_why() {
 }
 
 #[test]
-fn a_caller_into_the_listening_app_is_in_a_call_until_it_hangs_up() {
+fn a_caller_into_the_listening_app_rings_and_once_answered_is_in_a_call_until_it_hangs_up() {
     let engine = common::app::headless_engine("Alice", Some("127.0.0.1:0"));
     let listening = lock(&engine.shared).call.local_addr.expect("listening");
     assert_eq!(lock(&engine.shared).call.phase, CallPhase::Idle);
@@ -71,6 +71,17 @@ fn a_caller_into_the_listening_app_is_in_a_call_until_it_hangs_up() {
         common::net::talk(&bob, 150);
         bob
     });
+    wait_for_phase(
+        &engine,
+        "Bob rings",
+        Duration::from_secs(10),
+        |p| matches!(p, CallPhase::Ringing { from, caller: Some(_) } if from == "Bob"),
+    );
+    let bob_at = match lock(&engine.shared).call.phase.clone() {
+        CallPhase::Ringing { caller, .. } => caller.unwrap(),
+        other => panic!("{other:?}"),
+    };
+    engine.send(Command::AnswerCaller(bob_at));
     wait_for_phase(
         &engine,
         "in a call with Bob",

@@ -3,7 +3,8 @@
 //! ringtone's two tones reach a PulseAudio null sink of the test's own, and a notification
 //! with Answer and Decline reaches the freedesktop Notifications server this test serves on a
 //! private session bus (`dbus-daemon`); the server's ActionInvoked "answer" answers the call,
-//! which stops the tone and closes the notification.
+//! which stops the tone and closes the notification. A direct caller (`lipcall send`) rings the
+//! same, and is answered from the notification the same way.
 
 mod common;
 
@@ -490,14 +491,14 @@ fn listening(status: &Path) -> Option<String> {
 }
 
 #[test]
-fn a_direct_caller_is_connected_and_notified_without_a_decline_or_a_ringtone() {
-    if !have_all(&[]) {
+fn a_direct_caller_rings_sounds_notifies_and_is_answered_from_the_notification() {
+    if !have_all(&["sox"]) {
         return;
     }
     let dir = tempfile::tempdir().unwrap();
     let bus = Bus::start(dir.path());
     let record = Arc::new(Mutex::new(Record::default()));
-    let _emit = serve(bus.address.clone(), Arc::clone(&record));
+    let emit = serve(bus.address.clone(), Arc::clone(&record));
     let settings_file = dir.path().join("settings.json");
     Settings {
         name: "Alice".into(),
@@ -505,6 +506,14 @@ fn a_direct_caller_is_connected_and_notified_without_a_decline_or_a_ringtone() {
     }
     .save(&settings_file)
     .unwrap();
+    // Ann sends a 300 Hz tone, long enough to ring through: far from the ringtone's.
+    let wav = dir.path().join("ann.wav");
+    common::run(
+        Command::new("sox")
+            .args(["-n", "-D", "-b", "16", "-c", "1", "-r", "16000"])
+            .arg(&wav)
+            .args(["synth", "90", "sine", "300", "gain", "-12"]),
+    );
     let sink = NullSink::load("ring_direct", RATE);
     let recording = Recording::start(&sink.name);
     let status = dir.path().join("status.txt");
@@ -513,54 +522,59 @@ fn a_direct_caller_is_connected_and_notified_without_a_decline_or_a_ringtone() {
     let limit = Duration::from_secs(60);
     wait_until("listening", limit, &log, &|| listening(&status).is_some());
     let to = listening(&status).unwrap();
-    let start = recording.len();
     let _ann = Peer::spawn_logged(
         "lipcall send",
         common::lipcall()
             .arg("send")
-            .arg(common::repo_file("assets/speech/demo.wav"))
+            .arg(&wav)
             .args(["--to", &to, "--name", "Ann"]),
     );
-    wait_until("call=in_call", limit, &log, &|| {
-        call_word(&status) == "in_call"
+    wait_until("call=ringing", limit, &log, &|| {
+        call_word(&status) == "ringing"
     });
+    let rang = recording.len();
     wait_until("the notification", limit, &log, &|| {
         !record.lock().unwrap().notified.is_empty()
     });
     let notified = record.lock().unwrap().notified[0].clone();
     assert_eq!(notified.summary, "Ann is calling", "{notified:?}");
-    assert!(
-        notified.actions.iter().any(|a| a == "default"),
-        "{notified:?}"
-    );
-    assert!(
-        !notified
-            .actions
-            .iter()
-            .any(|a| a == "decline" || a == "answer"),
-        "a direct call cannot be declined: {notified:?}"
-    );
-    // Her speech is heard; no ringtone over it (the tone would hold 440 Hz steady for a second:
-    // speech does not, at the tone's level).
-    wait_until("3 s recorded", limit, &log, &|| {
-        recording.len() >= start + 3 * RATE as usize
+    for action in ["answer", "Answer", "decline", "Decline"] {
+        assert!(notified.actions.iter().any(|a| a == action), "{notified:?}");
+    }
+    wait_until("4 s recorded while ringing", limit, &log, &|| {
+        recording.len() >= rang + 4 * RATE as usize
     });
+    assert_eq!(call_word(&status), "ringing", "rings while she sends");
     let shot = screenshot(dir.path(), &display, "direct_caller.png");
     assert!(
         banner_pixels(&shot) > 1280 * 50,
-        "the banner says who came in"
+        "the banner says who is calling"
     );
-    let heard = recording.since(start);
-    let steady = |hz: f64| {
-        heard
-            .chunks_exact(RATE as usize / 2)
-            .map(|c| amplitude_at(c, hz))
-            .fold(0.0, f64::max)
-    };
+    let ringing = recording.since(rang);
     let expected = f64::from(RING_LEVEL) * 32768.0;
     for hz in RING_TONES_HZ {
-        let level = steady(f64::from(hz));
-        eprintln!("direct call: {hz} Hz held at {level:.0} over half a second");
-        assert!(level < expected * 0.5, "a ringtone at {hz} Hz: {level:.0}");
+        let heard = loudest_at(&ringing, f64::from(hz));
+        eprintln!("direct caller ringing: {hz} Hz at {heard:.0} (the tone's {expected:.0})");
+        assert!(
+            heard > expected * 0.5,
+            "{hz} Hz: {heard:.0} of {expected:.0}"
+        );
     }
+    assert!(
+        loudest_at(&ringing, 300.0) > expected * 0.1,
+        "the caller is heard while it rings"
+    );
+    emit.send((notified.id, "answer".into())).unwrap();
+    wait_until("call=in_call", limit, &log, &|| {
+        call_word(&status) == "in_call"
+    });
+    wait_until("the notification closed", limit, &log, &|| {
+        record.lock().unwrap().closed.contains(&notified.id)
+    });
+    assert!(
+        app.text().contains("the user answered"),
+        "{}",
+        app.text()
+    );
+    assert!(!app.text().contains("panicked"), "{}", app.text());
 }
