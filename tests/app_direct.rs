@@ -69,9 +69,7 @@ fn two_engines_call() {
     }
     let to = lock(&alice.shared).call.local_addr.expect("listening");
     call(&bob, &to.to_string(), "Bob");
-    let ringing = |s: &Shared| {
-        matches!(&s.call.phase, CallPhase::Ringing { from, caller: Some(_) } if from == "Bob")
-    };
+    let ringing = |s: &Shared| matches!(&s.call.phase, CallPhase::Ringing { from, caller: Some(_) } if from == "Bob");
     common::app::wait_for(&alice, "Bob rings at Alice", LIMIT, ringing);
     assert_eq!(lock(&alice.shared).call.phase.word(), "ringing");
     // Not answered: for 5 s Bob gets nothing of Alice's microphone, while she hears him.
@@ -213,9 +211,7 @@ fn decline_and_leave_on_a_sender_hold_while_it_keeps_sending_until_the_user_call
     let engine = common::app::headless_engine("Alice", Some(&listen.to_string()));
     let dir = tempfile::tempdir().unwrap();
     let _sender = Killed(sender(dir.path(), listen));
-    let sender_rings = |s: &Shared| {
-        matches!(&s.call.phase, CallPhase::Ringing { from, caller: Some(_) } if from == "Sender")
-    };
+    let sender_rings = |s: &Shared| matches!(&s.call.phase, CallPhase::Ringing { from, caller: Some(_) } if from == "Sender");
     common::app::wait_for(&engine, "the sender rings", LIMIT, |s| {
         sender_rings(s) && peer(&s.peers.views(), "Sender").is_some()
     });
@@ -223,15 +219,10 @@ fn decline_and_leave_on_a_sender_hold_while_it_keeps_sending_until_the_user_call
         .expect("shown")
         .addr;
     engine.send(EngineCommand::DeclineCaller(from));
-    common::app::wait_for(
-        &engine,
-        "declined, its tile gone",
-        LIMIT,
-        |s| {
-            matches!(&s.call.phase, CallPhase::Ended { by } if by == "you declined Sender")
-                && s.peers.views().is_empty()
-        },
-    );
+    common::app::wait_for(&engine, "declined, its tile gone", LIMIT, |s| {
+        matches!(&s.call.phase, CallPhase::Ended { by } if by == "you declined Sender")
+            && s.peers.views().is_empty()
+    });
     assert_held_out(&engine);
     assert!(lock(&engine.shared).call.error.is_none());
     // A second sender from another address rings; answered, it is in the call; Leave holds it.

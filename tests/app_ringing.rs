@@ -571,10 +571,6 @@ fn a_direct_caller_rings_sounds_notifies_and_is_answered_from_the_notification()
     wait_until("the notification closed", limit, &log, &|| {
         record.lock().unwrap().closed.contains(&notified.id)
     });
-    assert!(
-        app.text().contains("the user answered"),
-        "{}",
-        app.text()
-    );
+    assert!(app.text().contains("the user answered"), "{}", app.text());
     assert!(!app.text().contains("panicked"), "{}", app.text());
 }

@@ -106,11 +106,7 @@ impl Drop for RingNotice {
     }
 }
 
-fn run(
-    summary: &str,
-    stopped: oneshot::Receiver<()>,
-    tell: &Sender<NoticeAction>,
-) {
+fn run(summary: &str, stopped: oneshot::Receiver<()>, tell: &Sender<NoticeAction>) {
     let runtime = match tokio::runtime::Builder::new_current_thread()
         .enable_all()
         .build()

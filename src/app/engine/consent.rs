@@ -126,7 +126,10 @@ mod tests {
         for c in &callers[..MAX_ANSWERED] {
             assert!(consent.answer(c.addr));
         }
-        assert!(consent.answer(callers[0].addr), "answered again: no room taken");
+        assert!(
+            consent.answer(callers[0].addr),
+            "answered again: no room taken"
+        );
         assert!(!consent.answer(callers[MAX_ANSWERED].addr), "capped");
         assert!(!consent.is_answered(callers[MAX_ANSWERED].addr));
         consent.keep_heard(&callers[1..3]);
