@@ -10,7 +10,6 @@ use std::net::SocketAddr;
 use std::time::Instant;
 
 use super::CallPhase;
-use super::phase::in_call_with;
 use crate::net::session::MAX_ANSWERED;
 
 /// The direct callers the user answered, at most [`MAX_ANSWERED`]; forgotten when the caller
@@ -104,6 +103,21 @@ impl Consent {
             _ => None,
         }
     }
+}
+
+/// Whom a call that is with `with` is with now that `heard` are heard (by name, in join
+/// order): `None` while `with` is still among them or nobody is heard.
+pub(super) fn in_call_with(with: &str, heard: &[String]) -> Option<String> {
+    if heard.iter().any(|h| h == with) {
+        return None;
+    }
+    let now = match heard {
+        [one] => one.clone(),
+        [one, two] => format!("{one} and {two}"),
+        [one, two, rest @ ..] => format!("{one}, {two} and {} more", rest.len()),
+        [] => return None,
+    };
+    (now != with).then_some(now)
 }
 
 #[cfg(test)]

@@ -3,7 +3,7 @@
 
 use std::time::Instant;
 
-use super::consent::Caller;
+use super::consent::{Caller, in_call_with};
 use super::{CallPhase, DIRECT_ANSWER_WAIT, Worker, lock};
 use crate::app::counters::DEMO_NAME;
 use crate::net::transport::PeerInfo;
@@ -153,21 +153,6 @@ impl Worker {
             _ => {}
         }
     }
-}
-
-/// Whom a call that is with `with` is with now that `heard` are heard (by name, in join
-/// order): `None` while `with` is still among them or nobody is heard.
-pub(super) fn in_call_with(with: &str, heard: &[String]) -> Option<String> {
-    if heard.iter().any(|h| h == with) {
-        return None;
-    }
-    let now = match heard {
-        [one] => one.clone(),
-        [one, two] => format!("{one} and {two}"),
-        [one, two, rest @ ..] => format!("{one}, {two} and {} more", rest.len()),
-        [] => return None,
-    };
-    (now != with).then_some(now)
 }
 
 fn peer_name(peer: &PeerInfo) -> String {
