@@ -1,7 +1,8 @@
 //! Direct calls between apps, both ways: a caller rings at the listening app, which sends
 //! nothing of its microphone until the user answers; then it sends it back to the caller,
-//! from its listening socket to where the caller's packets come from. Decline and Leave on a
-//! caller hold (a sender that keeps sending stays out) until the user calls it.
+//! from its listening socket to where the caller's packets come from. One that stops first is
+//! a missed call. Decline and Leave on a caller hold (a sender that keeps sending stays out)
+//! until the user calls it.
 //!
 //! The two-way case runs two engines with real microphones in a child process of this test
 //! binary (its `#[ignore]`d `two_engines_call`), whose PulseAudio source is a null sink's
@@ -179,11 +180,16 @@ fn free_port() -> u16 {
 
 /// `lipcall send` of a long tone to `to`, named Sender: it keeps sending.
 fn sender(dir: &std::path::Path, to: SocketAddr) -> std::process::Child {
-    let wav = dir.join("long.wav");
+    sender_for(dir, to, 120)
+}
+
+/// `lipcall send` of a tone `seconds` long to `to`, named Sender; it says BYE at its end.
+fn sender_for(dir: &std::path::Path, to: SocketAddr, seconds: u32) -> std::process::Child {
+    let wav = dir.join("tone.wav");
     run(Command::new("sox")
         .args(["-n", "-D", "-b", "16", "-c", "1", "-r", "16000"])
         .arg(&wav)
-        .args(["synth", "120", "sine", "300", "gain", "-12"]));
+        .args(["synth", &seconds.to_string(), "sine", "300", "gain", "-12"]));
     common::lipcall()
         .arg("send")
         .arg(&wav)
@@ -312,4 +318,30 @@ fn a_call_whose_peer_dies_without_a_word_ends_after_its_silence() {
         |s| matches!(&s.call.phase, CallPhase::Ended { by } if by == "Sender went quiet and was dropped"),
     );
     assert!(!lock(&engine.shared).call.in_call);
+}
+
+#[test]
+fn a_caller_that_stops_before_it_is_answered_is_a_missed_call() {
+    let engine = common::app::headless_engine("Alice", Some("127.0.0.1:0"));
+    let listen = lock(&engine.shared).call.local_addr.expect("listening");
+    let dir = tempfile::tempdir().unwrap();
+    let _sender = Killed(sender_for(dir.path(), listen, 3));
+    common::app::wait_for(
+        &engine,
+        "the sender rings",
+        LIMIT,
+        |s| matches!(&s.call.phase, CallPhase::Ringing { from, .. } if from == "Sender"),
+    );
+    common::app::wait_for(
+        &engine,
+        "a missed call once it stops",
+        LIMIT,
+        |s| matches!(&s.call.phase, CallPhase::Missed { from } if from == "Sender"),
+    );
+    let s = lock(&engine.shared);
+    assert_eq!(s.call.phase.word(), "idle");
+    assert_eq!(
+        s.call.phase.describe(Instant::now()),
+        "missed call from Sender"
+    );
 }
