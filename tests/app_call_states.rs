@@ -1,6 +1,7 @@
 //! The call's phase, as the call bar and the `--status` file show it: a direct call nobody
-//! answers fails; a caller into the listening app is a call until it hangs up; a SIP call
-//! rings out as "calling"; the app's listening port stays across starts.
+//! answers fails; a caller into the listening app rings, and once answered is a call until it
+//! hangs up; the demo peer never rings; a SIP call rings out as "calling"; the app's listening
+//! port stays across starts.
 
 mod common;
 
@@ -8,7 +9,8 @@ use std::net::{SocketAddr, UdpSocket};
 use std::process::Stdio;
 use std::time::{Duration, Instant};
 
-use lipcall::app::engine::{CallPhase, CallSpec, Command, Engine, lock};
+use lipcall::app::engine::{CallPhase, CallSpec, Command, DEMO_NAME, Engine, EngineConfig, lock};
+use lipcall::audio::DeviceChoice;
 use lipcall::net::session::{Session, SessionConfig};
 
 fn wait_for_phase(engine: &Engine, what: &str, limit: Duration, done: impl Fn(&CallPhase) -> bool) {
@@ -59,7 +61,7 @@ fn a_direct_call_to_a_dead_address_fails_and_the_next_call_forgets_why() {
 }
 
 #[test]
-fn a_caller_into_the_listening_app_is_in_a_call_until_it_hangs_up() {
+fn a_caller_into_the_listening_app_rings_and_once_answered_is_in_a_call_until_it_hangs_up() {
     let engine = common::app::headless_engine("Alice", Some("127.0.0.1:0"));
     let listening = lock(&engine.shared).call.local_addr.expect("listening");
     assert_eq!(lock(&engine.shared).call.phase, CallPhase::Idle);
@@ -71,6 +73,17 @@ fn a_caller_into_the_listening_app_is_in_a_call_until_it_hangs_up() {
         common::net::talk(&bob, 150);
         bob
     });
+    wait_for_phase(
+        &engine,
+        "Bob rings",
+        Duration::from_secs(10),
+        |p| matches!(p, CallPhase::Ringing { from, caller: Some(_) } if from == "Bob"),
+    );
+    let bob_at = match lock(&engine.shared).call.phase.clone() {
+        CallPhase::Ringing { caller, .. } => caller.unwrap(),
+        other => panic!("{other:?}"),
+    };
+    engine.send(Command::AnswerCaller(bob_at));
     wait_for_phase(
         &engine,
         "in a call with Bob",
@@ -215,4 +228,33 @@ fn enter_in_the_address_field_calls_and_the_bar_shows_the_phase() {
         std::thread::sleep(Duration::from_millis(50));
     }
     assert_eq!(lock(&h.state().engine.shared).call.phase.word(), "calling");
+}
+
+#[test]
+fn the_demo_peer_talks_into_the_listening_app_without_ringing() {
+    let engine = Engine::start(EngineConfig {
+        listen: Some("127.0.0.1:0".parse().unwrap()),
+        demo: true,
+        name: "Alice".into(),
+        input: DeviceChoice::Default,
+        output: DeviceChoice::Default,
+        no_audio: true,
+        output_margin: lipcall::audio::DEFAULT_OUTPUT_MARGIN,
+    })
+    .expect("the engine starts");
+    let watched = Instant::now();
+    let mut demo_heard = false;
+    while watched.elapsed() < Duration::from_secs(6) {
+        {
+            let s = lock(&engine.shared);
+            assert_eq!(s.call.phase, CallPhase::Idle, "{:?}", s.call);
+            demo_heard |= s
+                .peers
+                .views()
+                .iter()
+                .any(|p| p.name == DEMO_NAME && p.frames_received > 0);
+        }
+        std::thread::sleep(Duration::from_millis(20));
+    }
+    assert!(demo_heard, "the demo peer was never heard");
 }

@@ -1,6 +1,8 @@
-//! Direct calls between apps, both ways: the listening app sends its microphone back to the
-//! caller, from its listening socket to where the caller's packets come from; Leave on a
-//! caller holds (a sender that keeps sending stays out) until the user calls it.
+//! Direct calls between apps, both ways: a caller rings at the listening app, which sends
+//! nothing of its microphone until the user answers; then it sends it back to the caller,
+//! from its listening socket to where the caller's packets come from. One that stops first is
+//! a missed call. Decline and Leave on a caller hold (a sender that keeps sending stays out)
+//! until the user calls it.
 //!
 //! The two-way case runs two engines with real microphones in a child process of this test
 //! binary (its `#[ignore]`d `two_engines_call`), whose PulseAudio source is a null sink's
@@ -51,8 +53,9 @@ fn engine_with_mic(name: &str) -> Engine {
     .expect("the engine starts")
 }
 
-/// The child: Alice listens, Bob calls her; each hears the other's microphone; Alice muted
-/// is heard no more; Alice's Leave ends Bob's call with her name.
+/// The child: Alice listens, Bob calls her and rings: Bob hears nothing of her until she
+/// answers; then each hears the other's microphone; Alice muted is heard no more; Alice's
+/// Leave ends Bob's call with her name.
 #[test]
 #[ignore = "run by two_apps_in_a_direct_call_hear_each_other in a child process"]
 fn two_engines_call() {
@@ -67,7 +70,31 @@ fn two_engines_call() {
     }
     let to = lock(&alice.shared).call.local_addr.expect("listening");
     call(&bob, &to.to_string(), "Bob");
-    common::app::wait_for(&alice, "Alice hears Bob", LIMIT, |s| hears(s, "Bob"));
+    let ringing = |s: &Shared| matches!(&s.call.phase, CallPhase::Ringing { from, caller: Some(_) } if from == "Bob");
+    common::app::wait_for(&alice, "Bob rings at Alice", LIMIT, ringing);
+    assert_eq!(lock(&alice.shared).call.phase.word(), "ringing");
+    // Not answered: for 5 s Bob gets nothing of Alice's microphone, while she hears him.
+    let asked = Instant::now();
+    while asked.elapsed() < Duration::from_secs(5) {
+        {
+            let (a, b) = (lock(&alice.shared), lock(&bob.shared));
+            assert!(ringing(&a), "Alice: {:?}", a.call.phase);
+            let alice_seen = peer(&b.peers.views(), "Alice").map(|p| p.frames_received);
+            assert!(
+                alice_seen.is_none_or(|frames| frames == 0),
+                "Bob got {alice_seen:?} frames of Alice before she answered"
+            );
+        }
+        std::thread::sleep(Duration::from_millis(100));
+    }
+    common::app::wait_for(&alice, "Alice hears Bob ringing", LIMIT, |s| {
+        hears(s, "Bob")
+    });
+    let bob_at = match &lock(&alice.shared).call.phase {
+        CallPhase::Ringing { caller, .. } => caller.expect("a direct caller"),
+        other => panic!("not ringing: {other:?}"),
+    };
+    alice.send(EngineCommand::AnswerCaller(bob_at));
     common::app::wait_for(&bob, "Bob hears Alice", LIMIT, |s| hears(s, "Alice"));
     {
         let (a, b) = (lock(&alice.shared), lock(&bob.shared));
@@ -153,11 +180,16 @@ fn free_port() -> u16 {
 
 /// `lipcall send` of a long tone to `to`, named Sender: it keeps sending.
 fn sender(dir: &std::path::Path, to: SocketAddr) -> std::process::Child {
-    let wav = dir.join("long.wav");
+    sender_for(dir, to, 120)
+}
+
+/// `lipcall send` of a tone `seconds` long to `to`, named Sender; it says BYE at its end.
+fn sender_for(dir: &std::path::Path, to: SocketAddr, seconds: u32) -> std::process::Child {
+    let wav = dir.join("tone.wav");
     run(Command::new("sox")
         .args(["-n", "-D", "-b", "16", "-c", "1", "-r", "16000"])
         .arg(&wav)
-        .args(["synth", "120", "sine", "300", "gain", "-12"]));
+        .args(["synth", &seconds.to_string(), "sine", "300", "gain", "-12"]));
     common::lipcall()
         .arg("send")
         .arg(&wav)
@@ -177,20 +209,44 @@ impl Drop for Killed {
     }
 }
 
+/// Decline on a ringing sender holds it out while it keeps sending; answered, it is in the
+/// call and Leave holds it out the same; calling it lifts that.
 #[test]
-fn leave_on_a_sender_holds_while_it_keeps_sending_until_the_user_calls_it() {
+fn decline_and_leave_on_a_sender_hold_while_it_keeps_sending_until_the_user_calls_it() {
     let listen: SocketAddr = format!("127.0.0.1:{}", free_port()).parse().unwrap();
     let engine = common::app::headless_engine("Alice", Some(&listen.to_string()));
     let dir = tempfile::tempdir().unwrap();
     let _sender = Killed(sender(dir.path(), listen));
-    let in_call_with_sender =
-        |s: &Shared| matches!(&s.call.phase, CallPhase::InCall { with, .. } if with == "Sender");
-    common::app::wait_for(&engine, "the sender is heard", LIMIT, |s| {
-        in_call_with_sender(s) && peer(&s.peers.views(), "Sender").is_some()
+    let sender_rings = |s: &Shared| matches!(&s.call.phase, CallPhase::Ringing { from, caller: Some(_) } if from == "Sender");
+    common::app::wait_for(&engine, "the sender rings", LIMIT, |s| {
+        sender_rings(s) && peer(&s.peers.views(), "Sender").is_some()
     });
     let from = peer(&lock(&engine.shared).peers.views(), "Sender")
         .expect("shown")
         .addr;
+    engine.send(EngineCommand::DeclineCaller(from));
+    common::app::wait_for(&engine, "declined, its tile gone", LIMIT, |s| {
+        matches!(&s.call.phase, CallPhase::Ended { by } if by == "you declined Sender")
+            && s.peers.views().is_empty()
+    });
+    assert_held_out(&engine);
+    assert!(lock(&engine.shared).call.error.is_none());
+    // A second sender from another address rings; answered, it is in the call; Leave holds it.
+    let dir2 = tempfile::tempdir().unwrap();
+    let _second = Killed(sender(dir2.path(), listen));
+    common::app::wait_for(&engine, "the second sender rings", LIMIT, sender_rings);
+    let second = match &lock(&engine.shared).call.phase {
+        CallPhase::Ringing { caller, .. } => caller.expect("a direct caller"),
+        other => panic!("not ringing: {other:?}"),
+    };
+    assert_ne!(second, from, "the declined one stays out");
+    engine.send(EngineCommand::AnswerCaller(second));
+    common::app::wait_for(
+        &engine,
+        "answered",
+        LIMIT,
+        |s| matches!(&s.call.phase, CallPhase::InCall { with, .. } if with == "Sender"),
+    );
     engine.send(EngineCommand::Leave);
     common::app::wait_for(
         &engine,
@@ -198,20 +254,7 @@ fn leave_on_a_sender_holds_while_it_keeps_sending_until_the_user_calls_it() {
         LIMIT,
         |s| matches!(&s.call.phase, CallPhase::Ended { by } if by == "you hung up"),
     );
-    // The sender goes on; for 8 s (within the block's minute) it is not in the call again.
-    let held = Instant::now();
-    while held.elapsed() < Duration::from_secs(8) {
-        {
-            let s = lock(&engine.shared);
-            assert!(
-                s.peers.views().is_empty() && !s.call.phase.is_active(),
-                "back after {:?}: {:?}",
-                held.elapsed(),
-                s.call
-            );
-        }
-        std::thread::sleep(Duration::from_millis(100));
-    }
+    assert_held_out(&engine);
     // The user calls it: the block is lifted; once that call is cancelled the listening
     // port hears the sender again.
     call(&engine, &from.to_string(), "Alice");
@@ -221,11 +264,30 @@ fn leave_on_a_sender_holds_while_it_keeps_sending_until_the_user_calls_it() {
     engine.send(EngineCommand::Leave);
     common::app::wait_for(
         &engine,
-        "the sender is heard after the call",
+        "the sender rings again after the call",
         LIMIT,
-        in_call_with_sender,
+        sender_rings,
     );
     assert_eq!(lock(&engine.shared).call.local_addr, Some(listen));
+}
+
+/// The senders go on; for 6 s (within the block's minute) none is heard or rings again.
+fn assert_held_out(engine: &Engine) {
+    let held = Instant::now();
+    while held.elapsed() < Duration::from_secs(6) {
+        {
+            let s = lock(&engine.shared);
+            assert!(
+                s.peers.views().is_empty()
+                    && !s.call.phase.is_active()
+                    && s.call.phase.word() != "ringing",
+                "back after {:?}: {:?}",
+                held.elapsed(),
+                s.call
+            );
+        }
+        std::thread::sleep(Duration::from_millis(100));
+    }
 }
 
 #[test]
@@ -256,4 +318,30 @@ fn a_call_whose_peer_dies_without_a_word_ends_after_its_silence() {
         |s| matches!(&s.call.phase, CallPhase::Ended { by } if by == "Sender went quiet and was dropped"),
     );
     assert!(!lock(&engine.shared).call.in_call);
+}
+
+#[test]
+fn a_caller_that_stops_before_it_is_answered_is_a_missed_call() {
+    let engine = common::app::headless_engine("Alice", Some("127.0.0.1:0"));
+    let listen = lock(&engine.shared).call.local_addr.expect("listening");
+    let dir = tempfile::tempdir().unwrap();
+    let _sender = Killed(sender_for(dir.path(), listen, 3));
+    common::app::wait_for(
+        &engine,
+        "the sender rings",
+        LIMIT,
+        |s| matches!(&s.call.phase, CallPhase::Ringing { from, .. } if from == "Sender"),
+    );
+    common::app::wait_for(
+        &engine,
+        "a missed call once it stops",
+        LIMIT,
+        |s| matches!(&s.call.phase, CallPhase::Missed { from } if from == "Sender"),
+    );
+    let s = lock(&engine.shared);
+    assert_eq!(s.call.phase.word(), "idle");
+    assert_eq!(
+        s.call.phase.describe(Instant::now()),
+        "missed call from Sender"
+    );
 }

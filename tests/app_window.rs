@@ -230,9 +230,9 @@ fn a_sender_into_the_app_is_shown_and_animated() {
     let (a0, _) = animated(&early).unwrap_or_else(|| panic!("no Alice in {early}\n{log}"));
     let (a1, s1) = animated(&late).unwrap_or_else(|| panic!("no Alice in {late}\n{log}"));
     assert!(!early.contains("demo=true"), "demo peer with --no-demo");
-    // A caller into the listening app is a call, in the status line's first line.
+    // A caller into the listening app rings until answered, in the status file's first line.
     let first = early.lines().next().unwrap_or_default();
-    assert!(first.contains(" call=in_call"), "{first}");
+    assert!(first.contains(" call=ringing"), "{first}");
     assert!(
         a1 > a0 && a0 > 0,
         "animation frames do not advance: {a0} -> {a1}"

@@ -34,22 +34,6 @@ pub struct CallStatus {
     pub error: Option<String>,
     /// RTP packets of payload types no codec is mapped to, dropped (from anyone).
     pub unknown_payload: u64,
-    /// When a direct caller was heard and so connected, unasked: the window says so for a
-    /// while ([`DIRECT_CALLER_NOTICE`]).
-    pub arrived: Option<Instant>,
-}
-
-/// How long the window and the desktop say that a direct caller has come in.
-pub const DIRECT_CALLER_NOTICE: Duration = Duration::from_secs(20);
-
-impl CallStatus {
-    /// A direct caller came in, unasked, a moment ago.
-    pub fn just_arrived(&self) -> bool {
-        matches!(self.phase, CallPhase::InCall { .. })
-            && self
-                .arrived
-                .is_some_and(|t| t.elapsed() < DIRECT_CALLER_NOTICE)
-    }
 }
 
 /// How long a direct call waits to hear anyone before it has failed.
@@ -67,9 +51,11 @@ pub enum CallPhase {
         to: String,
         deadline: Option<Instant>,
     },
-    /// A caller waits for Answer or Decline.
+    /// A caller waits for Answer or Decline: the phone's SIP call, or a direct caller of the
+    /// listening session at `caller` (heard, not yet sent our microphone).
     Ringing {
         from: String,
+        caller: Option<SocketAddr>,
     },
     InCall {
         with: String,
@@ -83,6 +69,10 @@ pub enum CallPhase {
     Ended {
         by: String,
     },
+    /// A direct caller rang and stopped before it was answered.
+    Missed {
+        from: String,
+    },
 }
 
 impl CallPhase {
@@ -90,7 +80,7 @@ impl CallPhase {
     /// that ended is idle again).
     pub fn word(&self) -> &'static str {
         match self {
-            Self::Idle | Self::Ended { .. } => "idle",
+            Self::Idle | Self::Ended { .. } | Self::Missed { .. } => "idle",
             Self::Calling { .. } => "calling",
             Self::Ringing { .. } => "ringing",
             Self::InCall { .. } => "in_call",
@@ -103,13 +93,14 @@ impl CallPhase {
         match self {
             Self::Idle => "not in a call".into(),
             Self::Calling { to, .. } => format!("calling {to}…"),
-            Self::Ringing { from } => format!("{from} is calling you"),
+            Self::Ringing { from, .. } => format!("{from} is calling you"),
             Self::InCall { with, since } => {
                 let secs = now.saturating_duration_since(*since).as_secs();
                 format!("in a call with {with} ({}:{:02})", secs / 60, secs % 60)
             }
             Self::Failed { reason } => format!("call failed: {reason}"),
             Self::Ended { by } => format!("call ended: {by}"),
+            Self::Missed { from } => format!("missed call from {from}"),
         }
     }
 

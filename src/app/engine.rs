@@ -5,6 +5,7 @@
 //! Its SIP phone's hooks are in `engine/sip.rs`.
 
 mod answer;
+mod consent;
 mod input;
 mod lookup;
 mod news;
@@ -74,6 +75,10 @@ pub enum Command {
     /// Move to this channel of the Mumble server we are on.
     Channel(u32),
     Phone(PhoneCommand),
+    /// Send our microphone to the listening session's direct caller at this address.
+    AnswerCaller(SocketAddr),
+    /// Hang up on that direct caller and keep it out for a while.
+    DeclineCaller(SocketAddr),
 }
 
 /// A call: a peer's (or relay's) address, with a room for a relay, and the codec we send in
@@ -275,6 +280,8 @@ struct Worker {
     in_call: bool,
     /// The listening session's callers it sends the microphone back to.
     answered: Vec<SocketAddr>,
+    /// The direct callers the user answered.
+    consent: consent::Consent,
     /// Callers the user hung up on, kept out by the next listening session.
     blocked: Blocked,
     /// A relay call's join, until the relay confirms it.
@@ -343,6 +350,7 @@ impl Worker {
             mic: None,
             in_call: false,
             answered: Vec::new(),
+            consent: consent::Consent::default(),
             blocked: Blocked::default(),
             relay: RelayWatch::default(),
             call_label: CALL.into(),
@@ -396,9 +404,10 @@ impl Worker {
             local_addr: addr,
             error: s.call.error.take(),
             unknown_payload: 0,
-            arrived: None,
             phase: match s.call.phase.clone() {
-                p @ (CallPhase::Failed { .. } | CallPhase::Ended { .. }) => p,
+                p @ (CallPhase::Failed { .. }
+                | CallPhase::Ended { .. }
+                | CallPhase::Missed { .. }) => p,
                 _ => CallPhase::Idle,
             },
         };
@@ -450,6 +459,7 @@ impl Worker {
     fn switch_link(&mut self, link: Box<dyn Link>, encoder: FrameEncoder) {
         self.keep_blocks_but(None);
         self.answered.clear();
+        self.consent.clear();
         self.demo = None;
         let old = std::mem::replace(&mut self.link, link);
         self.retirer.retire(old);
@@ -488,6 +498,8 @@ impl Worker {
         let result = match command {
             Command::Call(spec) => {
                 self.lookups.forget();
+                self.consent.clear();
+                self.answer_callers();
                 self.start_calling(&spec.address);
                 if let Err(e) = self.call(&spec) {
                     self.fail(format!("{e:#}"));
@@ -518,6 +530,11 @@ impl Worker {
             }
             Command::Channel(id) => self.mumble.as_ref().map_or(Ok(()), |m| m.join_channel(id)),
             Command::Phone(command) => self.phone_command(command),
+            Command::AnswerCaller(addr) => self.answer_caller(addr),
+            Command::DeclineCaller(addr) => {
+                self.decline_caller(addr);
+                Ok(())
+            }
             Command::SetInput(choice) => self.open_input(choice),
             Command::SetOutput(choice) => self.open_output(choice),
             Command::TestSpeaker => {

@@ -1,5 +1,5 @@
-//! The desktop notification of a call that rings: the freedesktop Notifications interface over
-//! the session bus, with *Answer* and *Decline* actions.
+//! The desktop notification of a call that rings (a SIP call or a direct caller alike): the
+//! freedesktop Notifications interface over the session bus, with *Answer* and *Decline*.
 //!
 //! Each notice runs on a thread of its own (the bus may be slow or absent: never the engine's
 //! worker or the UI thread), every call on the bus under a timeout. It is closed when the
@@ -61,36 +61,35 @@ pub enum NoticeAction {
 /// A notice on the desktop while it lives; dropping it closes the notice (off the caller's
 /// thread: the drop only signals).
 pub struct RingNotice {
-    /// The caller it names, and whether it offers Decline.
-    about: (String, bool),
+    /// The caller it names.
+    about: String,
     stop: Option<oneshot::Sender<()>>,
     actions: Receiver<NoticeAction>,
     _thread: Option<JoinHandle<()>>,
 }
 
 impl RingNotice {
-    /// Posts "`caller` is calling" with Answer and Decline where `can_decline`, else with
-    /// Show only (a direct call, which is connected as soon as it is heard).
-    pub fn post(caller: &str, can_decline: bool) -> Self {
+    /// Posts "`caller` is calling" with Answer and Decline.
+    pub fn post(caller: &str) -> Self {
         let (stop, stopped) = oneshot::channel();
         let (tell, actions) = channel();
         let summary = format!("{caller} is calling");
         let thread = std::thread::Builder::new()
             .name("lipcall-notice".into())
-            .spawn(move || run(&summary, can_decline, stopped, &tell))
+            .spawn(move || run(&summary, stopped, &tell))
             .map_err(|e| tracing::warn!("no desktop notification: no thread for it: {e}"))
             .ok();
         Self {
-            about: (caller.to_owned(), can_decline),
+            about: caller.to_owned(),
             stop: Some(stop),
             actions,
             _thread: thread,
         }
     }
 
-    /// Whether it names `caller`, offering Decline or not.
-    pub fn is_about(&self, caller: &str, can_decline: bool) -> bool {
-        self.about.0 == caller && self.about.1 == can_decline
+    /// Whether it names `caller`.
+    pub fn is_about(&self, caller: &str) -> bool {
+        self.about == caller
     }
 
     /// The action the user picked since the last look, if any.
@@ -107,12 +106,7 @@ impl Drop for RingNotice {
     }
 }
 
-fn run(
-    summary: &str,
-    can_decline: bool,
-    stopped: oneshot::Receiver<()>,
-    tell: &Sender<NoticeAction>,
-) {
+fn run(summary: &str, stopped: oneshot::Receiver<()>, tell: &Sender<NoticeAction>) {
     let runtime = match tokio::runtime::Builder::new_current_thread()
         .enable_all()
         .build()
@@ -123,7 +117,7 @@ fn run(
             return;
         }
     };
-    if let Err(e) = runtime.block_on(notice(summary, can_decline, stopped, tell)) {
+    if let Err(e) = runtime.block_on(notice(summary, stopped, tell)) {
         tracing::warn!("no desktop notification of the call: {e}");
     }
 }
@@ -138,7 +132,6 @@ async fn within<T>(what: &str, f: impl Future<Output = zbus::Result<T>>) -> Resu
 
 async fn notice(
     summary: &str,
-    can_decline: bool,
     mut stopped: oneshot::Receiver<()>,
     tell: &Sender<NoticeAction>,
 ) -> Result<(), String> {
@@ -147,21 +140,13 @@ async fn notice(
     // Listening before posting, so that no action comes before we hear.
     let mut invoked = within("its actions", proxy.receive_action_invoked()).await?;
     let mut closed = within("its closing", proxy.receive_notification_closed()).await?;
-    let actions: &[&str] = if can_decline {
-        &["default", "Show", ANSWER, "Answer", DECLINE, "Decline"]
-    } else {
-        &["default", "Show"]
-    };
+    let actions: &[&str] = &["default", "Show", ANSWER, "Answer", DECLINE, "Decline"];
     let hints = HashMap::from([
         ("urgency", zbus::Variant::from(2u8)),
         ("category", zbus::Variant::from("call.incoming")),
         ("resident", zbus::Variant::from(true)),
     ]);
-    let body = if can_decline {
-        "Answer or decline it here or in lipcall"
-    } else {
-        "Connected: lipcall shows who it is"
-    };
+    let body = "Answer or decline it here or in lipcall";
     let post = proxy.notify("lipcall", 0, "call-start", summary, body, actions, hints, 0);
     let id = within("posting it", post).await?;
     tracing::info!("desktop notification {id}: {summary}");

@@ -1,14 +1,13 @@
-//! Direct callers of the listening session, both ways: each caller heard is sent the
-//! microphone back, from the listening socket to the address its packets come from (so a
-//! caller behind a NAT hears us too), in the codec it sends; Leave hangs up on them and keeps
-//! them out for a while ([`crate::net::session::Blocked`]), across the sessions that follow, until the user calls one.
-//!
-//! Every caller heard is answered, up to [`MAX_ANSWERED`]: the listening app already plays
-//! them all and shows them all as in the call, so each of them hears the one they called.
+//! Direct callers of the listening session, both ways: each caller the user answered
+//! ([`Consent`]) is sent the microphone back, from the listening socket to the address its
+//! packets come from (so a caller behind a NAT hears us too), in the codec it sends; Decline
+//! and Leave hang up on them and keep them out for a while ([`crate::net::session::Blocked`]),
+//! across the sessions that follow, until the user calls one.
 
 use std::net::SocketAddr;
 
-use super::{DEMO_NAME, Worker};
+use super::consent::Consent;
+use super::{CallPhase, DEMO_NAME, Worker, lock};
 use crate::codec::any::{Codec, EncoderSettings, FrameEncoder};
 use crate::codec::opus::codec::Bandwidth;
 use crate::net::session::MAX_ANSWERED;
@@ -18,20 +17,21 @@ use crate::net::transport::PeerInfo;
 /// caller's; every band is decoded at the other end).
 const ANSWER_BAND: Bandwidth = Bandwidth::Fullband;
 
-/// The callers of a listening session to send back to: heard, not gone, not the demo; the
-/// codec of the first one.
-pub(super) fn callers(infos: &[PeerInfo]) -> (Vec<SocketAddr>, Option<Codec>) {
-    let heard: Vec<&PeerInfo> = infos
+/// The callers of a listening session to send back to: heard, not gone, not the demo, and
+/// answered by the user; the codec of the first one.
+pub(super) fn callers(infos: &[PeerInfo], consent: &Consent) -> (Vec<SocketAddr>, Option<Codec>) {
+    let answered: Vec<&PeerInfo> = infos
         .iter()
         .filter(|i| i.name.as_deref() != Some(DEMO_NAME) && !i.ended && !i.said_bye)
+        .filter(|i| consent.is_answered(i.addr))
         .collect();
     let mut to: Vec<SocketAddr> = Vec::with_capacity(MAX_ANSWERED);
-    for info in &heard {
+    for info in &answered {
         if to.len() < MAX_ANSWERED && !to.contains(&info.addr) {
             to.push(info.addr);
         }
     }
-    (to, heard.first().and_then(|i| i.receiver.codec))
+    (to, answered.first().and_then(|i| i.receiver.codec))
 }
 
 impl Worker {
@@ -40,13 +40,14 @@ impl Worker {
     pub(super) fn answer_callers(&mut self) {
         if self.in_call {
             self.answered.clear();
+            self.consent.clear();
             return;
         }
         let Some(session) = self.link.session() else {
             return;
         };
         // Its own peers: the link may have changed since the caller's look (a call ended).
-        let (to, codec) = callers(&session.peers());
+        let (to, codec) = callers(&session.peers(), &self.consent);
         if to == self.answered {
             return;
         }
@@ -92,6 +93,42 @@ impl Worker {
             session.answer(&[], session.codec());
         }
         self.answered.clear();
+        self.consent.clear();
+    }
+
+    /// The user answers the direct caller at `addr`: our microphone goes to it from now on.
+    pub(super) fn answer_caller(&mut self, addr: SocketAddr) -> anyhow::Result<()> {
+        if self.in_call {
+            anyhow::bail!("{addr} cannot be answered during another call");
+        }
+        if !self.consent.answer(addr) {
+            anyhow::bail!("{addr} not answered: {MAX_ANSWERED} callers already are");
+        }
+        tracing::info!("the user answered {addr}");
+        self.answer_callers();
+        Ok(())
+    }
+
+    /// The user declines the direct caller at `addr`: told BYE and kept out for a while, as
+    /// Leave does to every caller.
+    pub(super) fn decline_caller(&mut self, addr: SocketAddr) {
+        self.consent.forget(addr);
+        if self.in_call {
+            return;
+        }
+        if let Some(session) = self.link.session() {
+            tracing::info!("declined {addr}: kept out for a while");
+            session.hang_up_on(addr);
+        }
+        self.answer_callers();
+        let mut s = lock(&self.shared);
+        if let CallPhase::Ringing { from, caller } = &s.call.phase
+            && *caller == Some(addr)
+        {
+            s.call.phase = CallPhase::Ended {
+                by: format!("you declined {from}"),
+            };
+        }
     }
 
     /// The callers kept out by the listening session that a call replaces, but `to`, the

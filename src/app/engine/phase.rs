@@ -3,6 +3,7 @@
 
 use std::time::Instant;
 
+use super::consent::{Caller, in_call_with};
 use super::{CallPhase, DIRECT_ANSWER_WAIT, Worker, lock};
 use crate::app::counters::DEMO_NAME;
 use crate::net::transport::PeerInfo;
@@ -11,14 +12,12 @@ impl Worker {
     pub(super) fn set_phase(&self, phase: CallPhase) {
         let mut s = lock(&self.shared);
         s.call.phase = phase;
-        s.call.arrived = None;
     }
 
     /// A new call is being placed: the last call's messages go with its phase.
     pub(super) fn start_calling(&self, to: &str) {
         let mut s = lock(&self.shared);
         s.call.error = None;
-        s.call.arrived = None;
         s.call.phase = CallPhase::Calling {
             to: to.trim().to_owned(),
             deadline: None,
@@ -49,14 +48,36 @@ impl Worker {
         }
     }
 
-    /// A lipcall session's peers (a direct call, or callers of the listening session) move
-    /// the phase: heard means in a call; a direct call nobody answers fails at its deadline;
-    /// a caller who said goodbye or went away ends it.
+    /// A lipcall session's peers move the phase: a direct call's (heard means in a call; one
+    /// nobody answers fails at its deadline; a peer who said goodbye or went away ends it), or
+    /// the listening session's callers ([`Consent::phase`]).
     pub(super) fn follow_peers(&mut self, infos: &[PeerInfo], now: Instant) {
         if self.link.session().is_none() || self.call_label.starts_with(super::ROOM) {
             return;
         }
         let real = |i: &&PeerInfo| i.name.as_deref() != Some(DEMO_NAME);
+        if !self.in_call {
+            let heard: Vec<Caller> = infos
+                .iter()
+                .filter(real)
+                .filter(|i| !i.ended && !i.said_bye)
+                .map(|i| Caller {
+                    addr: i.addr,
+                    name: peer_name(i),
+                })
+                .collect();
+            self.consent.keep_heard(&heard);
+            let gone = infos.iter().filter(real).find(|i| i.ended).map(peer_name);
+            let phase = lock(&self.shared).call.phase.clone();
+            if let Some(next) = self.consent.phase(&phase, &heard, gone.as_deref(), now) {
+                let mut s = lock(&self.shared);
+                if next.is_active() || matches!(next, CallPhase::Ringing { .. }) {
+                    s.call.error = None;
+                }
+                s.call.phase = next;
+            }
+            return;
+        }
         let heard = infos.iter().filter(real).find(|i| !i.ended);
         let gone = infos.iter().filter(real).find(|i| i.ended);
         let phase = lock(&self.shared).call.phase.clone();
@@ -83,7 +104,7 @@ impl Worker {
                     DIRECT_ANSWER_WAIT.as_secs()
                 ));
             }
-            (CallPhase::InCall { with, .. }, None) if self.in_call => {
+            (CallPhase::InCall { with, .. }, None) => {
                 if let Some(peer) = gone {
                     self.ended(format!("{} hung up", peer_name(peer)));
                 } else if self.link.session().is_some_and(|s| s.stats().rtp > 0) {
@@ -92,13 +113,6 @@ impl Worker {
                     // sends none and stays.
                     self.ended(format!("{with} went quiet and was dropped"));
                 }
-            }
-            (CallPhase::InCall { with, .. }, None) => {
-                let by = match gone {
-                    Some(peer) => format!("{} hung up", peer_name(peer)),
-                    None => format!("{with} went quiet and was dropped"),
-                };
-                self.set_phase(CallPhase::Ended { by });
             }
             // The phase names whom the call is with now: a peer who left is not, a name heard
             // late replaces an address.
@@ -113,17 +127,6 @@ impl Worker {
                     lock(&self.shared).call.phase = CallPhase::InCall { with, since };
                 }
             }
-            (CallPhase::Idle | CallPhase::Ended { .. } | CallPhase::Failed { .. }, Some(peer))
-                if !self.in_call =>
-            {
-                let mut s = lock(&self.shared);
-                s.call.error = None;
-                s.call.arrived = Some(now);
-                s.call.phase = CallPhase::InCall {
-                    with: peer_name(peer),
-                    since: now,
-                };
-            }
             _ => {}
         }
     }
@@ -132,29 +135,24 @@ impl Worker {
     pub(super) fn follow_ringing(&self, ringing: Option<&str>) {
         let mut s = lock(&self.shared);
         match (ringing, &s.call.phase) {
-            (Some(from), CallPhase::Ringing { from: f }) if f == from => {}
+            (
+                Some(from),
+                CallPhase::Ringing {
+                    from: f,
+                    caller: None,
+                },
+            ) if f == from => {}
+            // The phone's call rings over a direct caller's (who rings again once it is over).
             (Some(from), phase) if !phase.is_active() => {
-                s.call.phase = CallPhase::Ringing { from: from.into() };
+                s.call.phase = CallPhase::Ringing {
+                    from: from.into(),
+                    caller: None,
+                };
             }
-            (None, CallPhase::Ringing { .. }) => s.call.phase = CallPhase::Idle,
+            (None, CallPhase::Ringing { caller: None, .. }) => s.call.phase = CallPhase::Idle,
             _ => {}
         }
     }
-}
-
-/// Whom a call that is with `with` is with now that `heard` are heard (by name, in join
-/// order): `None` while `with` is still among them or nobody is heard.
-fn in_call_with(with: &str, heard: &[String]) -> Option<String> {
-    if heard.iter().any(|h| h == with) {
-        return None;
-    }
-    let now = match heard {
-        [one] => one.clone(),
-        [one, two] => format!("{one} and {two}"),
-        [one, two, rest @ ..] => format!("{one}, {two} and {} more", rest.len()),
-        [] => return None,
-    };
-    (now != with).then_some(now)
 }
 
 fn peer_name(peer: &PeerInfo) -> String {

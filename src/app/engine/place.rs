@@ -118,7 +118,6 @@ impl Worker {
             local_addr,
             error: None,
             unknown_payload: 0,
-            arrived: None,
         };
         Ok(())
     }
@@ -174,7 +173,6 @@ impl Worker {
             local_addr: None,
             error: None,
             unknown_payload: 0,
-            arrived: None,
             phase: s.call.phase.clone(),
         };
         Ok(())

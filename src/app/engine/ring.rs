@@ -1,7 +1,7 @@
 //! A call that rings, noticed: the ringtone in the mix and the desktop notification while the
 //! phase is ringing, both stopped the pass it is not; the notification's Answer and Decline
-//! go where the window's buttons go. An incoming direct call, connected as soon as it is
-//! heard, gets a notification too, whose only action shows the window.
+//! go where the window's buttons go: the phone's for a SIP call, the consent's
+//! (`engine/consent.rs`) for a direct caller.
 
 use std::time::Instant;
 
@@ -15,10 +15,7 @@ impl Worker {
         let about = {
             let s = lock(&self.shared);
             let about = match &s.call.phase {
-                CallPhase::Ringing { from } => Some((from.clone(), true)),
-                CallPhase::InCall { with, .. } if s.call.just_arrived() => {
-                    Some((with.clone(), false))
-                }
+                CallPhase::Ringing { from, caller } => Some((from.clone(), *caller)),
                 _ => None,
             };
             let testing = self
@@ -27,15 +24,15 @@ impl Worker {
             if !testing {
                 self.speaker_test_until = None;
             }
-            let ringing = testing || about.as_ref().is_some_and(|(_, sip)| *sip);
+            let ringing = testing || about.is_some();
             if s.playback.is_ringing() != ringing {
                 s.playback.set_ringing(ringing);
             }
             about
         };
-        match (about, &self.posted) {
-            (Some((caller, sip)), Some(p)) if p.is_about(&caller, sip) => {}
-            (Some((caller, sip)), _) => self.posted = Some(RingNotice::post(&caller, sip)),
+        match (&about, &self.posted) {
+            (Some((from, _)), Some(p)) if p.is_about(from) => {}
+            (Some((from, _)), _) => self.posted = Some(RingNotice::post(from)),
             (None, Some(_)) => self.posted = None,
             (None, None) => {}
         }
@@ -43,18 +40,21 @@ impl Worker {
             return;
         };
         tracing::info!("the call's notification: {action:?}");
-        let command = match action {
-            NoticeAction::Answer => PhoneCommand::Answer,
-            NoticeAction::Decline => PhoneCommand::Decline,
-            NoticeAction::Show => {
-                lock(&self.shared).show_window = true;
-                return;
-            }
-        };
-        if command == PhoneCommand::Answer {
+        if matches!(action, NoticeAction::Answer | NoticeAction::Show) {
             lock(&self.shared).show_window = true;
         }
-        if let Err(e) = self.phone_command(command) {
+        let direct = about.and_then(|(_, caller)| caller);
+        let result = match (action, direct) {
+            (NoticeAction::Show, _) => Ok(()),
+            (NoticeAction::Answer, Some(addr)) => self.answer_caller(addr),
+            (NoticeAction::Decline, Some(addr)) => {
+                self.decline_caller(addr);
+                Ok(())
+            }
+            (NoticeAction::Answer, None) => self.phone_command(PhoneCommand::Answer),
+            (NoticeAction::Decline, None) => self.phone_command(PhoneCommand::Decline),
+        };
+        if let Err(e) = result {
             lock(&self.shared).call.error = Some(format!("{e:#}"));
         }
     }
