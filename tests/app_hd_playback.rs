@@ -15,7 +15,7 @@ use std::time::{Duration, Instant};
 
 use common::pulse::NullSink;
 use common::{band_db, pulse_running, run};
-use lipcall::app::engine::{Engine, EngineConfig, lock};
+use lipcall::app::engine::{CallPhase, Command as EngineCommand, Engine, EngineConfig, lock};
 use lipcall::audio::DeviceChoice;
 use lipcall::codec::any::Codec;
 use lipcall::codec::opus::codec::Bandwidth;
@@ -93,10 +93,19 @@ fn engine_plays_a_sender() {
     // The peer as last seen before it said goodbye (and was forgotten).
     let mut seen = None;
     while !sender.is_finished() {
+        // A direct caller rings (and the ringtone plays) until answered: answered at once, so
+        // what the sink hears is the peer.
+        let ringing = match &lock(&engine.shared).call.phase {
+            CallPhase::Ringing { caller, .. } => *caller,
+            _ => None,
+        };
+        if let Some(caller) = ringing {
+            engine.send(EngineCommand::AnswerCaller(caller));
+        }
         if let Some(p) = lock(&engine.shared).peers.views().into_iter().next() {
             seen = Some(p);
         }
-        std::thread::sleep(Duration::from_millis(50));
+        std::thread::sleep(Duration::from_millis(10));
     }
     sender.join().unwrap().expect("sent");
     std::thread::sleep(Duration::from_millis(500));

@@ -52,31 +52,58 @@ impl Ringtone {
     }
 
     /// Adds the next `out.len()` samples of the tone to `out` while the switch is on; each
-    /// ringing starts with a burst.
+    /// ringing starts with a burst, and stops (a call answered mid-burst) with a fade, not a
+    /// click.
+    #[inline]
     pub fn add_to(&mut self, out: &mut [f32]) {
-        if !self.switch.is_on() {
-            self.since = None;
-            return;
+        if self.switch.is_on() {
+            self.ring(out);
+        } else if self.since.is_some() {
+            self.fade_out(out);
         }
+    }
+
+    // Out of line and cold: inlined into the mixer, the tone's loops changed how its
+    // per-peer sum compiled.
+    #[cold]
+    #[inline(never)]
+    fn ring(&mut self, out: &mut [f32]) {
+        let start = self.since.unwrap_or(0);
+        for (i, o) in out.iter_mut().enumerate() {
+            *o += self.sample(start + i as u64);
+        }
+        self.since = Some(start + out.len() as u64);
+    }
+
+    #[cold]
+    #[inline(never)]
+    fn fade_out(&mut self, out: &mut [f32]) {
+        let Some(start) = self.since.take() else {
+            return;
+        };
+        let ramp = ((RAMP_MS * u64::from(self.rate) / 1000).max(1) as usize).min(out.len());
+        for (i, o) in out.iter_mut().take(ramp).enumerate() {
+            let fade = 1.0 - (i + 1) as f32 / ramp as f32;
+            *o += self.sample(start + i as u64) * fade;
+        }
+    }
+
+    /// The tone's sample `n` of a ringing (bursts with faded edges, silence between).
+    fn sample(&self, n: u64) -> f32 {
         let rate = u64::from(self.rate);
         let on = RING_ON_MS * rate / 1000;
         let period = (RING_ON_MS + RING_OFF_MS) * rate / 1000;
         let ramp = (RAMP_MS * rate / 1000).max(1);
-        let start = self.since.unwrap_or(0);
-        for (i, o) in out.iter_mut().enumerate() {
-            let n = start + i as u64;
-            let t = n % period;
-            if t >= on {
-                continue;
-            }
-            let envelope = (t.min(on - 1 - t) as f32 / ramp as f32).min(1.0);
-            // The phase from the sample count within one second, so it stays exact however
-            // long the call rings.
-            let secs = (n % rate) as f32 / self.rate as f32;
-            let tone: f32 = RING_TONES_HZ.iter().map(|f| (TAU * f * secs).sin()).sum();
-            *o += tone * RING_LEVEL * envelope;
+        let t = n % period;
+        if t >= on {
+            return 0.0;
         }
-        self.since = Some(start + out.len() as u64);
+        let envelope = (t.min(on - 1 - t) as f32 / ramp as f32).min(1.0);
+        // The phase from the sample count within one second, so it stays exact however long
+        // the call rings.
+        let secs = (n % rate) as f32 / self.rate as f32;
+        let tone: f32 = RING_TONES_HZ.iter().map(|f| (TAU * f * secs).sin()).sum();
+        tone * RING_LEVEL * envelope
     }
 }
 
@@ -123,9 +150,31 @@ mod tests {
         );
         assert!(burst[0].abs() < 1e-3, "fades in");
 
-        // Switched off mid-burst, then on again: the next ringing starts with a burst.
-        let mut again = vec![0.0f32; 480];
+        // Switched off mid-burst: the tone fades out over the next piece instead of stopping
+        // with a click, and is silent after; then on again: the next ringing starts with a burst.
+        let mut tone = Ringtone::new(rate, switch.clone());
+        let mut ringing = vec![0.0f32; 4800];
+        tone.add_to(&mut ringing);
         switch.set(false);
+        let mut fading = vec![0.0f32; 480];
+        tone.add_to(&mut fading);
+        let last = ringing[ringing.len() - 1];
+        let loud = |x: &[f32]| x.iter().fold(0.0f32, |m, &s| m.max(s.abs()));
+        assert!(loud(&ringing[ringing.len() - 48..]) > 0.05, "mid-burst");
+        assert!(
+            loud(&fading[..48]) > 0.05,
+            "the fade starts at the tone's level"
+        );
+        assert!(
+            (fading[0] - last).abs() < 0.03,
+            "{} after {last}: no step",
+            fading[0]
+        );
+        assert!(
+            fading[479].abs() < 1e-6 && fading[240].abs() < 0.11,
+            "{fading:?}"
+        );
+        let mut again = vec![0.0f32; 480];
         tone.add_to(&mut again);
         assert!(again.iter().all(|&s| s == 0.0));
         switch.set(true);
