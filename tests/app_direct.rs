@@ -15,12 +15,12 @@ use std::net::{SocketAddr, UdpSocket};
 use std::process::{Command, Stdio};
 use std::time::{Duration, Instant};
 
+use common::app::engine_with_audio;
 use common::pulse::NullSink;
 use common::{pulse_running, run};
-use lipcall::app::engine::{CallPhase, CallSpec, Command as EngineCommand, Engine, EngineConfig};
+use lipcall::app::engine::{CallPhase, CallSpec, Command as EngineCommand, Engine};
 use lipcall::app::engine::{Shared, lock};
 use lipcall::app::peer::PeerView;
-use lipcall::audio::DeviceChoice;
 
 const LIMIT: Duration = Duration::from_secs(30);
 
@@ -40,19 +40,6 @@ fn hears(s: &Shared, name: &str) -> bool {
     peer(&s.peers.views(), name).is_some_and(|p| p.frames_received > 100 && p.level_db > -40.0)
 }
 
-fn engine_with_mic(name: &str) -> Engine {
-    Engine::start(EngineConfig {
-        listen: Some("127.0.0.1:0".parse().unwrap()),
-        demo: false,
-        name: name.into(),
-        input: DeviceChoice::Default,
-        output: DeviceChoice::Default,
-        no_audio: false,
-        output_margin: lipcall::audio::DEFAULT_OUTPUT_MARGIN,
-    })
-    .expect("the engine starts")
-}
-
 /// The child: Alice listens, Bob calls her and rings: Bob hears nothing of her until she
 /// answers; then each hears the other's microphone; Alice muted is heard no more; Alice's
 /// Leave ends Bob's call with her name.
@@ -62,8 +49,8 @@ fn two_engines_call() {
     if std::env::var_os("LIPCALL_DIRECT_CHILD").is_none() {
         return;
     }
-    let alice = engine_with_mic("Alice");
-    let bob = engine_with_mic("Bob");
+    let alice = engine_with_audio("Alice", Some("127.0.0.1:0"));
+    let bob = engine_with_audio("Bob", Some("127.0.0.1:0"));
     for e in [&alice, &bob] {
         let s = lock(&e.shared);
         assert!(s.mic.is_some(), "a microphone: {}", s.input_status);

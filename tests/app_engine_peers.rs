@@ -7,7 +7,7 @@ mod common;
 
 use std::time::{Duration, Instant};
 
-use lipcall::app::engine::{Engine, EngineConfig, lock};
+use lipcall::app::engine::{Engine, lock};
 use lipcall::audio::DeviceChoice;
 use lipcall::net::session::{Session, SessionConfig};
 use lipcall::net::transport::PeerId;
@@ -93,16 +93,7 @@ fn switching_the_output_leaves_the_ui_lock_free() {
         );
         return;
     }
-    let engine = Engine::start(EngineConfig {
-        listen: None,
-        demo: false,
-        name: "Eve".into(),
-        input: DeviceChoice::Default,
-        output: DeviceChoice::Default,
-        no_audio: false,
-        output_margin: lipcall::audio::DEFAULT_OUTPUT_MARGIN,
-    })
-    .unwrap();
+    let engine = common::app::engine_with_audio("Eve", None);
     let before = lock(&engine.shared).output_status.clone();
     lock(&engine.shared).output_status = "switching".into();
     let started = Instant::now();

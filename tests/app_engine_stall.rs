@@ -12,7 +12,7 @@ use std::net::{TcpListener, UdpSocket};
 use std::process::Command as Process;
 use std::time::{Duration, Instant};
 
-use lipcall::app::engine::{CallSpec, Command, Engine, EngineConfig, lock};
+use lipcall::app::engine::{CallSpec, Command, Engine, lock};
 use lipcall::app::sip_call::{PhoneCommand, PhoneNetwork};
 use lipcall::audio::DeviceChoice;
 use lipcall::codec::any::Codec;
@@ -344,21 +344,6 @@ fn choosing_an_output_device_never_stalls_the_engine() {
 /// passes may pass [`STALL`] without any device in them.
 const OPENING_STALL: Duration = Duration::from_millis(200);
 
-/// An engine with real devices: the null sink, and its monitor (PulseAudio's default source)
-/// for a microphone.
-fn engine_with_audio() -> Engine {
-    Engine::start(EngineConfig {
-        listen: None,
-        demo: false,
-        name: "Eve".into(),
-        input: DeviceChoice::Default,
-        output: DeviceChoice::Default,
-        no_audio: false,
-        output_margin: lipcall::audio::DEFAULT_OUTPUT_MARGIN,
-    })
-    .unwrap()
-}
-
 fn microphone_open(engine: &Engine) -> bool {
     let s = lock(&engine.shared);
     s.input_status.starts_with("microphone: ") && s.mic.is_some()
@@ -370,7 +355,7 @@ fn choosing_a_microphone_never_stalls_the_engine() {
         common::unavailable("PulseAudio (bash .ci/pulse-null-sink.sh)");
         return;
     }
-    let engine = engine_with_audio();
+    let engine = common::app::engine_with_audio("Eve", None);
     wait_for(&engine, "the microphone open", microphone_open);
     let first = lock(&engine.shared).mic.clone().unwrap();
     first.set_muted(true);
@@ -478,7 +463,7 @@ fn choosing_a_microphone_slow_to_open_never_stalls_the_engine() {
         return;
     }
     let fifo = std::env::var(SLOW_MIC_FIFO).unwrap();
-    let engine = engine_with_audio();
+    let engine = common::app::engine_with_audio("Eve", None);
     wait_for(&engine, "the first microphone open", microphone_open);
     engine.counters.take_longest_pass();
     engine.send(Command::SetInput(DeviceChoice::Id(SLOW_MIC.into())));

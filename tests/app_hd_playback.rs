@@ -15,8 +15,7 @@ use std::time::{Duration, Instant};
 
 use common::pulse::NullSink;
 use common::{band_db, pulse_running, run};
-use lipcall::app::engine::{CallPhase, Command as EngineCommand, Engine, EngineConfig, lock};
-use lipcall::audio::DeviceChoice;
+use lipcall::app::engine::{CallPhase, Command as EngineCommand, lock};
 use lipcall::codec::any::Codec;
 use lipcall::codec::opus::codec::Bandwidth;
 use lipcall::commands::net::{KeyArgs, SendArgs, send};
@@ -56,16 +55,7 @@ fn engine_plays_a_sender() {
     };
     let (codec, file) = spec.split_once(' ').expect("CODEC FILE");
     let codec: Codec = codec.parse().expect("a codec");
-    let engine = Engine::start(EngineConfig {
-        listen: Some("127.0.0.1:0".parse().unwrap()),
-        demo: false,
-        name: "Ear".into(),
-        input: DeviceChoice::Default,
-        output: DeviceChoice::Default,
-        no_audio: false,
-        output_margin: lipcall::audio::DEFAULT_OUTPUT_MARGIN,
-    })
-    .unwrap();
+    let engine = common::app::engine_with_audio("Ear", Some("127.0.0.1:0"));
     let to = lock(&engine.shared).call.local_addr.expect("listening");
     let status = lock(&engine.shared).output_status.clone();
     eprintln!("output: {status}; mixer at {} Hz", {

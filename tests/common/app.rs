@@ -8,13 +8,23 @@ use lipcall::audio::DeviceChoice;
 /// An engine named `name` with silent playback and no microphone, listening for direct calls
 /// on `listen` (none: it only places calls).
 pub fn headless_engine(name: &str, listen: Option<&str>) -> Engine {
+    engine(name, listen, true)
+}
+
+/// [`headless_engine`] with real devices: PulseAudio's default sink (a test's null sink
+/// through `PULSE_SINK`) and default source (the null sink's monitor) as its microphone.
+pub fn engine_with_audio(name: &str, listen: Option<&str>) -> Engine {
+    engine(name, listen, false)
+}
+
+fn engine(name: &str, listen: Option<&str>, no_audio: bool) -> Engine {
     Engine::start(EngineConfig {
         listen: listen.map(|a| a.parse().expect("a socket address")),
         demo: false,
         name: name.into(),
         input: DeviceChoice::Default,
         output: DeviceChoice::Default,
-        no_audio: true,
+        no_audio,
         output_margin: lipcall::audio::DEFAULT_OUTPUT_MARGIN,
     })
     .expect("the engine starts")
