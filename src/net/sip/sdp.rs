@@ -451,7 +451,13 @@ pub fn take_description(
     let remote = read(description)?;
     media_target(remote.addr, local.addr)?;
     media_target(remote.rtcp, local.addr)?;
-    let mut negotiated = negotiate(&remote, &local.codecs)?;
+    agree(&remote, local)
+}
+
+/// [`negotiate`] with our codecs, then the packet length we send in the codec chosen: our own
+/// where the peer's `ptime`/`maxptime` take it.
+fn agree(remote: &RemoteAudio, local: &LocalAudio) -> Result<Negotiated, SdpError> {
+    let mut negotiated = negotiate(remote, &local.codecs)?;
     negotiated.frame_ms = send_frame_ms(
         negotiated.codec,
         remote.ptime,
@@ -479,13 +485,7 @@ pub fn take_in_call(
         media_target(remote.addr, local.addr)?;
         media_target(remote.rtcp, local.addr)?;
     }
-    let mut negotiated = negotiate(&remote, &local.codecs)?;
-    negotiated.frame_ms = send_frame_ms(
-        negotiated.codec,
-        remote.ptime,
-        remote.maxptime,
-        local.frame_ms,
-    );
+    let mut negotiated = agree(&remote, local)?;
     if held {
         negotiated.direction = negotiated.direction.deaf();
     }
