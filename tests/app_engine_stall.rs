@@ -215,17 +215,26 @@ fn ran_with_a_silent_resolver(test: &str) -> bool {
         .env(SILENT_RESOLVER, &resolver)
         .output()
         .unwrap();
+    passed_rerun(
+        &run,
+        test,
+        "with a silent resolver (in its own mount namespace)",
+    );
+    true
+}
+
+/// The test `test`, rerun in a child process `with` something, ran there and passed.
+fn passed_rerun(run: &std::process::Output, test: &str, with: &str) {
     eprintln!(
-        "--- in its own mount namespace:\n{}{}",
+        "--- {with}:\n{}{}",
         String::from_utf8_lossy(&run.stdout),
         String::from_utf8_lossy(&run.stderr)
     );
-    assert!(run.status.success(), "{test} failed with a silent resolver");
+    assert!(run.status.success(), "{test} failed {with}");
     assert!(
         String::from_utf8_lossy(&run.stdout).contains("1 passed"),
-        "{test} did not run in its namespace"
+        "{test} did not run {with}"
     );
-    true
 }
 
 #[test]
@@ -439,16 +448,7 @@ fn ran_with_a_slow_microphone(test: &str) -> bool {
         .env(SLOW_MIC_FIFO, &fifo)
         .output()
         .unwrap();
-    eprintln!(
-        "--- with a slow microphone:\n{}{}",
-        String::from_utf8_lossy(&run.stdout),
-        String::from_utf8_lossy(&run.stderr)
-    );
-    assert!(run.status.success(), "{test} failed with a slow microphone");
-    assert!(
-        String::from_utf8_lossy(&run.stdout).contains("1 passed"),
-        "{test} did not run with a slow microphone"
-    );
+    passed_rerun(&run, test, "with a slow microphone");
     true
 }
 
