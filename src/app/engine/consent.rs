@@ -207,6 +207,7 @@ mod tests {
         let calling = CallPhase::Calling {
             to: "bob.example".into(),
             deadline: None,
+            ringing: false,
         };
         assert_eq!(consent.phase(&calling, &heard, None, now), None);
         let sip = CallPhase::Ringing {

@@ -1022,7 +1022,13 @@ mod rtcp_tests {
             &items[0],
             RtcpItem::Report { sender: Some(_), blocks, .. } if blocks[0].ssrc == bs
         ));
-        assert_eq!(items.last(), Some(&RtcpItem::Bye { ssrcs: vec![ours] }));
+        assert_eq!(
+            items.last(),
+            Some(&RtcpItem::Bye {
+                ssrcs: vec![ours],
+                reason: None
+            })
+        );
         // No periodic report after it.
         wire.a.handle_timeout(now + Duration::from_secs(60));
         let after: Vec<Transmit> = std::iter::from_fn(|| wire.a.poll_transmit()).collect();

@@ -152,7 +152,9 @@ impl CallRtcp {
                 blocks: block.as_slice(),
                 cname: &self.cname,
                 name: None,
+                note: None,
                 bye,
+                bye_reason: None,
             },
             &mut out,
         )?;
