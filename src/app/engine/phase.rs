@@ -1,6 +1,7 @@
 //! The call's phase ([`CallPhase`]), kept by the worker from every link's news, the direct
 //! session's peers and the phone's ringing: what the call bar and the `--status` file show.
 
+use std::net::SocketAddr;
 use std::time::Instant;
 
 use super::consent::{Caller, in_call_with};
@@ -69,6 +70,12 @@ impl Worker {
                 })
                 .collect();
             self.consent.keep_heard(&heard);
+            let ringing: Vec<SocketAddr> = heard
+                .iter()
+                .map(|c| c.addr)
+                .filter(|a| !self.consent.is_answered(*a))
+                .collect();
+            lock(&self.shared).peers.ringing_at(&ringing, now);
             let gone = infos.iter().filter(real).find(|i| i.ended).map(peer_name);
             let phase = lock(&self.shared).call.phase.clone();
             if let Some(next) = self.consent.phase(&phase, &heard, gone.as_deref(), now) {
