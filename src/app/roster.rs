@@ -62,6 +62,15 @@ impl Roster {
         views
     }
 
+    /// When the peer at `addr` was first heard, if it is shown: the order callers are named in.
+    pub(super) fn joined_at(&self, addr: SocketAddr) -> Option<Instant> {
+        self.peers
+            .values()
+            .filter_map(|p| p.view.as_ref())
+            .find(|v| v.addr == addr)
+            .map(|v| v.joined)
+    }
+
     /// The names of the peers who left within [`LEFT_NOTICE_STAYS`] of `now`, first first.
     pub fn left(&self, now: Instant) -> Vec<String> {
         self.left

@@ -60,7 +60,7 @@ impl Worker {
         }
         let real = |i: &&PeerInfo| i.name.as_deref() != Some(DEMO_NAME);
         if !self.in_call {
-            let heard: Vec<Caller> = infos
+            let mut heard: Vec<Caller> = infos
                 .iter()
                 .filter(real)
                 .filter(|i| !i.ended && !i.said_bye)
@@ -69,6 +69,16 @@ impl Worker {
                     name: peer_name(i),
                 })
                 .collect();
+            // In the order they called (as their tiles): the first rings, the bar names them so.
+            {
+                let s = lock(&self.shared);
+                heard.sort_by_key(|c| {
+                    (
+                        s.peers.joined_at(c.addr).is_none(),
+                        s.peers.joined_at(c.addr),
+                    )
+                });
+            }
             self.consent.keep_heard(&heard);
             let ringing: Vec<SocketAddr> = heard
                 .iter()
