@@ -318,8 +318,9 @@ fn a_call_whose_peer_dies_without_a_word_ends_after_its_silence() {
     // Where Bob calls: a socket of the test's, which never answers.
     let quiet = UdpSocket::bind("127.0.0.1:0").unwrap();
     call(&engine, &quiet.local_addr().unwrap().to_string(), "Bob");
+    // Placed: the call's own socket (until then the address is the listening session's).
     common::app::wait_for(&engine, "calling", LIMIT, |s| {
-        s.call.phase.word() == "calling" && s.call.local_addr.is_some()
+        s.call.phase.word() == "calling" && s.call.in_call && s.call.local_addr.is_some()
     });
     let bob_at = lock(&engine.shared).call.local_addr.unwrap();
     // A sender that reaches Bob's call, then dies without a BYE.
