@@ -1,6 +1,9 @@
-//! An output that disappears mid-call (the sound server drops our stream): the engine says
-//! so and goes on silently, peers and clock included. Needs the PulseAudio null sink; without
-//! a server (and outside CI) there is nothing to lose and the test only says so.
+//! An output that disappears mid-call (the sound server drops our stream): the playback says
+//! so and goes on silently, peers and clock included; the app's engine opens the device again
+//! and plays on. Needs the PulseAudio null sink; without a server (and outside CI) there is
+//! nothing to lose and the test only says so.
+
+mod common;
 
 use std::process::{Command, Stdio};
 use std::time::{Duration, Instant};
@@ -16,6 +19,37 @@ fn pactl(args: &[&str]) -> Option<String> {
     out.status
         .success()
         .then(|| String::from_utf8_lossy(&out.stdout).into_owned())
+}
+
+/// One case at a time: each drops every stream of this process.
+static ONE_AT_A_TIME: std::sync::Mutex<()> = std::sync::Mutex::new(());
+
+/// No PulseAudio server: a failure under CI, else said and skipped.
+fn no_server() -> bool {
+    if pactl(&["info"]).is_some() {
+        return false;
+    }
+    assert!(
+        std::env::var_os("CI").is_none(),
+        "no PulseAudio server: CI must provide it (.ci/pulse-null-sink.sh)"
+    );
+    eprintln!("skipped: no PulseAudio server: nothing to lose");
+    true
+}
+
+/// Drops this process's playback streams, as a sound server that restarts does.
+fn kill_our_streams() {
+    let inputs = our_sink_inputs();
+    assert!(!inputs.is_empty(), "our stream is not listed");
+    for i in &inputs {
+        // pactl has no kill-sink-input; pacmd has.
+        let ok = Command::new("pacmd")
+            .args(["kill-sink-input", i])
+            .stdout(Stdio::null())
+            .status()
+            .is_ok_and(|s| s.success());
+        assert!(ok, "pacmd kill-sink-input {i}");
+    }
 }
 
 /// Indices of the sink inputs (playback streams) this process owns.
@@ -38,12 +72,8 @@ fn our_sink_inputs() -> Vec<String> {
 
 #[test]
 fn losing_the_output_goes_silent_and_keeps_time() {
-    if pactl(&["info"]).is_none() {
-        assert!(
-            std::env::var_os("CI").is_none(),
-            "no PulseAudio server: CI must provide it (.ci/pulse-null-sink.sh)"
-        );
-        eprintln!("skipped: no PulseAudio server: nothing to lose");
+    let _turn = ONE_AT_A_TIME.lock().unwrap_or_else(|e| e.into_inner());
+    if no_server() {
         return;
     }
     let mut pb = Playback::start(PlaybackConfig::default()).unwrap();
@@ -66,17 +96,7 @@ fn losing_the_output_goes_silent_and_keeps_time() {
     let before = pb.stats().frames_played;
     assert!(before >= 4800, "the device is playing: {before} frames");
     assert!(pb.poll().is_none());
-    let inputs = our_sink_inputs();
-    assert!(!inputs.is_empty(), "our stream is not listed");
-    for i in &inputs {
-        // pactl has no kill-sink-input; pacmd has.
-        let ok = Command::new("pacmd")
-            .args(["kill-sink-input", i])
-            .stdout(Stdio::null())
-            .status()
-            .is_ok_and(|s| s.success());
-        assert!(ok, "pacmd kill-sink-input {i}");
-    }
+    kill_our_streams();
     let deadline = Instant::now() + Duration::from_secs(5);
     let mut switched = None;
     while Instant::now() < deadline {
@@ -98,4 +118,32 @@ fn losing_the_output_goes_silent_and_keeps_time() {
     std::thread::sleep(Duration::from_millis(200));
     let b = pb.heard_position(id, Instant::now());
     assert!(matches!((a, b), (Some(a), Some(b)) if b > a), "{a:?} {b:?}");
+}
+
+#[test]
+fn the_app_opens_a_lost_output_again_and_plays_on() {
+    let _turn = ONE_AT_A_TIME.lock().unwrap_or_else(|e| e.into_inner());
+    if no_server() {
+        return;
+    }
+    let engine = common::app::engine_with_audio("Ann", None);
+    let limit = Duration::from_secs(30);
+    let playing = |s: &lipcall::app::engine::Shared| s.output_status.starts_with("Playing on");
+    common::app::wait_for(&engine, "playing", limit, playing);
+    // The stream is listed once the server has it.
+    let deadline = Instant::now() + limit;
+    while our_sink_inputs().is_empty() {
+        assert!(Instant::now() < deadline, "our stream is never listed");
+        std::thread::sleep(Duration::from_millis(50));
+    }
+    kill_our_streams();
+    common::app::wait_for(&engine, "the loss said", limit, |s| {
+        s.output_status.contains("disappeared")
+    });
+    common::app::wait_for(&engine, "playing again", limit, playing);
+    let deadline = Instant::now() + limit;
+    while our_sink_inputs().is_empty() {
+        assert!(Instant::now() < deadline, "no stream of ours again");
+        std::thread::sleep(Duration::from_millis(50));
+    }
 }

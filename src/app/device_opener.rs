@@ -93,6 +93,11 @@ impl<T: Send + 'static> DeviceOpener<T> {
         Ok(())
     }
 
+    /// A device is opening (not yet taken by [`DeviceOpener::opened`]).
+    pub fn is_opening(&self) -> bool {
+        self.pending.is_some()
+    }
+
     /// The opening device, once it opened or failed to (or waited too long), with its choice.
     pub fn opened(&mut self, now: Instant) -> Option<(DeviceChoice, Opened<T>)> {
         let opening = self.pending.as_ref()?;

@@ -56,6 +56,7 @@ use super::roster::Roster;
 use super::settings::DEFAULT_CODEC;
 use super::sip_call::{PhoneCommand, PhoneStatus, SipPhone, is_sip_address};
 use super::timing::{RelayWatch, Ticker};
+use output::OutputRevival;
 
 /// The peers' status and the relay's are refreshed every this many ticks (200 ms).
 const STATUS_TICKS: u32 = 10;
@@ -300,6 +301,8 @@ struct Worker {
     speaker_test_until: Option<Instant>,
     /// The output device chosen, opening.
     outputs: DeviceOpener<OpenedOutput>,
+    /// A lost output opened again: when next, and how long after a failure.
+    revival: OutputRevival,
     /// The microphone chosen, opening.
     inputs: DeviceOpener<Capture>,
     /// The controls last handed to the UI: the next microphone keeps their mute and
@@ -363,6 +366,7 @@ impl Worker {
             lookups: Lookups::default(),
             posted: None,
             speaker_test_until: None,
+            revival: OutputRevival::default(),
             outputs: DeviceOpener::new("output device"),
             inputs: DeviceOpener::new("microphone"),
             mic_controls: None,
@@ -578,6 +582,7 @@ impl Worker {
             self.send_mic();
             self.follow_lookup();
             self.follow_output();
+            self.revive_output(Instant::now());
             self.follow_input();
             self.follow_link();
             self.refresh_mumble();

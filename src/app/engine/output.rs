@@ -1,14 +1,44 @@
 //! The engine's side of [`crate::app::output`]: the output device chosen opens off the
-//! worker and is swapped in once open.
+//! worker and is swapped in once open; one that was lost (the sound server restarted, the
+//! device stalled on a starved machine) is opened again, 2 s after the loss, then less and
+//! less often.
 
-use std::time::Instant;
+use std::time::{Duration, Instant};
 
 use super::{Worker, describe_output, lock};
 use crate::audio::{DeviceChoice, Playback};
+use crate::net::backoff::Backoff;
+
+/// The first try to open a lost output again, and the longest wait between tries.
+const REVIVAL_FLOOR: Duration = Duration::from_secs(2);
+const REVIVAL_CEILING: Duration = Duration::from_secs(30);
+
+#[derive(Debug)]
+pub(super) struct OutputRevival {
+    backoff: Backoff,
+    next: Option<Instant>,
+    /// The device opening is a revival: a failure waits for the next try, quietly.
+    opening: bool,
+}
+
+impl Default for OutputRevival {
+    fn default() -> Self {
+        Self {
+            backoff: Backoff::new(REVIVAL_FLOOR, REVIVAL_CEILING),
+            next: None,
+            opening: false,
+        }
+    }
+}
 
 impl Worker {
     /// Opens `choice` off the worker ([`Worker::follow_output`] swaps it in).
     pub(super) fn open_output(&mut self, choice: DeviceChoice) -> anyhow::Result<()> {
+        self.revival.opening = false;
+        self.start_output(choice)
+    }
+
+    fn start_output(&mut self, choice: DeviceChoice) -> anyhow::Result<()> {
         let buffer = lock(&self.shared).playback.buffer();
         self.outputs.start(choice, move |choice| {
             Playback::open_output(choice, buffer).map_err(|e| e.to_string())
@@ -21,6 +51,7 @@ impl Worker {
         let Some((choice, opened)) = self.outputs.opened(Instant::now()) else {
             return;
         };
+        let revived = std::mem::take(&mut self.revival.opening);
         let mut s = lock(&self.shared);
         let swapped =
             opened.and_then(|o| s.playback.use_output(choice, o).map_err(|e| e.to_string()));
@@ -28,9 +59,46 @@ impl Worker {
         match swapped {
             Ok(retired) => {
                 drop(s);
+                self.revival.backoff.reset();
+                if revived {
+                    tracing::info!("the output device is back");
+                }
                 self.outputs.close(retired);
             }
+            Err(e) if revived => tracing::debug!("the lost output device: {e}"),
             Err(e) => s.call.error = Some(e),
+        }
+    }
+
+    /// Notices an output lost (the UI's look does too) and opens its choice again when the
+    /// wait is up, unless the user's own choice is opening.
+    pub(super) fn revive_output(&mut self, now: Instant) {
+        let lost = {
+            let mut s = lock(&self.shared);
+            if let Some(status) = s.playback.poll() {
+                s.output_status = describe_output(status);
+            }
+            s.playback.lost_output().cloned()
+        };
+        let Some(choice) = lost else {
+            self.revival.next = None;
+            return;
+        };
+        if self.outputs.is_opening() {
+            return;
+        }
+        let next = *self
+            .revival
+            .next
+            .get_or_insert_with(|| now + self.revival.backoff.next_wait());
+        if now < next {
+            return;
+        }
+        self.revival.next = None;
+        self.revival.opening = true;
+        if let Err(e) = self.start_output(choice) {
+            self.revival.opening = false;
+            tracing::debug!("the lost output device: {e}");
         }
     }
 }

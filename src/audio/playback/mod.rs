@@ -82,6 +82,8 @@ pub struct Playback {
     config: PlaybackConfig,
     sink: Sink,
     status: OutputStatus,
+    /// The device was lost (gone, or stalled with errors): the choice is worth opening again.
+    lost: bool,
     commands: mpsc::Sender<Command>,
     mixer: Option<JoinHandle<()>>,
     peers: HashMap<PeerId, PeerEntry>,
@@ -163,6 +165,7 @@ impl Playback {
             config,
             sink,
             status,
+            lost: false,
             commands: tx,
             mixer: Some(mixer),
             peers: HashMap::new(),
@@ -201,6 +204,12 @@ impl Playback {
         &self.status
     }
 
+    /// The device chosen, where it was lost (gone, or stalled): one to open again, as a
+    /// sound server that restarts or a machine that was starved gives it back.
+    pub fn lost_output(&self) -> Option<&DeviceChoice> {
+        self.lost.then_some(&self.config.device)
+    }
+
     /// Call regularly (each UI frame): keeps the peers' clocks current and, when the device
     /// has gone, switches to the silent sink and returns the status line to show.
     pub fn poll(&mut self) -> Option<&OutputStatus> {
@@ -228,6 +237,7 @@ impl Playback {
                 let (sink, ring, target) = virtual_sink(self.mix_rate, self.config.buffer);
                 self.attach(sink, ring, target).ok()?;
                 self.progress = (0, 0, Instant::now());
+                self.lost = true;
             }
             self.status = OutputStatus::Silent {
                 reason: format!("{why}: playing nothing"),
@@ -249,6 +259,7 @@ impl Playback {
         let (sink, ring, target) = virtual_sink(self.mix_rate, self.config.buffer);
         self.attach(sink, ring, target).ok()?;
         self.progress = (0, 0, Instant::now());
+        self.lost = true;
         self.status = OutputStatus::Silent {
             reason: "the output device disappeared: playing nothing".into(),
         };
@@ -298,6 +309,7 @@ impl Playback {
         let old = self.attach(sink, ring, target)?;
         self.config.device = choice;
         self.status = status;
+        self.lost = false;
         self.progress = (0, 0, Instant::now());
         Ok(RetiredOutput { _sink: old })
     }
