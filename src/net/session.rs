@@ -26,6 +26,8 @@ use super::NetError;
 use crate::codec::any::Codec;
 
 mod blocked;
+mod call;
+mod dtmf;
 mod inbound;
 pub mod latch;
 mod protocol;
@@ -34,8 +36,10 @@ mod timers;
 mod types;
 
 pub use blocked::{BLOCK_LONGEST, BLOCK_QUIET, BLOCKS_KEPT, Blocked};
+pub use call::{CALL_KEEPALIVE, STREAM_HANDOVER};
+pub use dtmf::event_code;
 pub use protocol::{LARGEST_DATAGRAM, MAX_ANSWERED, SessionCore};
-pub use types::{SessionConfig, SessionStats};
+pub use types::{NegotiatedCall, SessionConfig, SessionStats};
 
 use super::transport::{Driver, PeerFrame, PeerId, PeerInfo, SansIo, Transmit, TransmitKind};
 

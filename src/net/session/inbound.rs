@@ -155,6 +155,7 @@ impl SessionCore {
         if !admitted {
             self.stats.foreign += 1;
             if rtcp {
+                self.stats.foreign_rtcp += 1;
                 tracing::debug!("RTCP from {from} not believed: not the call's peer");
             } else {
                 let what = if authenticated { "SRTP" } else { "plain RTP" };
@@ -176,8 +177,12 @@ impl SessionCore {
             }
         };
         let ssrc = packet.header.ssrc;
-        if ssrc == self.ssrc {
+        // A negotiated call's one peer may echo our own stream back (SIPp's echo does).
+        if ssrc == self.ssrc && self.call.is_none() {
             self.stats.own += 1;
+            return;
+        }
+        if !self.call_takes(&packet, arrival) {
             return;
         }
         self.stats.rtp += 1;
