@@ -5,12 +5,12 @@
 //! [`super::latch::Latch::Fixed`] rule, its RTCP goes to the port the description named (or
 //! where the peer's believed reports come from).
 
-use std::collections::VecDeque;
 use std::time::{Duration, Instant};
 
 use super::NegotiatedCall;
 use super::TransmitKind;
 use super::latch::Named;
+use super::negotiated::CallMedia;
 use super::protocol::SessionCore;
 use crate::codec::any::{Codec, PayloadMap};
 use crate::net::rtcp::HeardReports;
@@ -21,33 +21,6 @@ use crate::net::rtp::Rtp;
 pub const STREAM_HANDOVER: Duration = Duration::from_millis(200);
 /// RFC 6263's default: a call that sent nothing for this long sends an empty datagram.
 pub const CALL_KEEPALIVE: Duration = Duration::from_secs(15);
-
-/// A digit being sent (`super::dtmf`).
-pub(super) struct Digit {
-    pub(super) event: u8,
-    pub(super) timestamp: u32,
-    pub(super) step: u32,
-}
-
-/// A negotiated call's state beside the session's.
-pub(super) struct CallMedia {
-    pub(super) config: NegotiatedCall,
-    /// When we last sent media (or a keepalive).
-    pub(super) last_sent: Instant,
-    pub(super) digits: VecDeque<u8>,
-    pub(super) digit: Option<Digit>,
-}
-
-impl CallMedia {
-    pub(super) fn new(config: NegotiatedCall, now: Instant) -> Self {
-        Self {
-            config,
-            last_sent: now,
-            digits: VecDeque::new(),
-            digit: None,
-        }
-    }
-}
 
 impl SessionCore {
     /// Whether a negotiated call takes the media `packet` (always, in other sessions): of an

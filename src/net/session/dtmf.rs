@@ -3,7 +3,7 @@
 
 use std::time::Instant;
 
-use super::call::Digit;
+use super::negotiated::Digit;
 use super::protocol::SessionCore;
 use crate::net::NetError;
 

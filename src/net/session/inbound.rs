@@ -223,7 +223,12 @@ impl SessionCore {
     }
 
     pub(super) fn handle_rtcp(&mut self, data: &mut Vec<u8>, from: SocketAddr, arrival: Instant) {
-        if !self.fixed_admits(from, true, arrival) || !self.unprotect(data, Srtp::unprotect_rtcp) {
+        if !self.fixed_admits(from, true, arrival) {
+            return;
+        }
+        let failed = self.stats.auth_failed;
+        if !self.unprotect(data, Srtp::unprotect_rtcp) {
+            self.stats.rtcp_auth_failed += self.stats.auth_failed - failed;
             return;
         }
         let items = match rtcp::parse(data) {

@@ -7,8 +7,8 @@ use std::net::SocketAddr;
 use std::time::{Duration, Instant};
 
 use super::blocked::Blocked;
-use super::call::CallMedia;
 use super::latch::{FixedSources, Latch, Named};
+use super::negotiated::CallMedia;
 use super::remote::{PENDING_NAMES, PENDING_STARTS, Peer, PendingNames};
 use super::timers::{Due, Timers};
 use super::{PeerFrame, PeerId, PeerInfo, SessionConfig, SessionStats};
@@ -300,9 +300,13 @@ impl SessionCore {
             return;
         }
         if self.config.send_rtcp {
-            // Twice: a lost BYE would leave receivers concealing until their timeout.
             self.send_report(ReportKind::Bye, now);
-            self.send_report(ReportKind::Bye, now);
+            // Twice: a lost BYE would leave receivers concealing until their timeout. Not
+            // to a negotiated call's peer: baresip forgets what it received of a stream on
+            // its first BYE, and counts nothing of it at the second.
+            if self.call.is_none() {
+                self.send_report(ReportKind::Bye, now);
+            }
         }
         if let (Some(room), Some(cookie)) = (self.room, self.relay.cookie) {
             self.send_to_relay(Control::new(ControlKind::Leave, room, cookie));

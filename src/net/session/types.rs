@@ -132,6 +132,9 @@ pub struct SessionStats {
     pub reports_about_us: u64,
     /// RTCP not believed: the part of `foreign` that is reports (a fixed call's only).
     pub foreign_rtcp: u64,
+    /// The part of `auth_failed` that is SRTCP (baresip sends its first report and its BYE
+    /// in the clear even under SRTP).
+    pub rtcp_auth_failed: u64,
     /// A negotiated call's packets of a second stream while its current one still sends.
     pub other_stream: u64,
     /// RFC 4733 event packets received (a negotiated call's).
