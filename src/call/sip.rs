@@ -1,7 +1,8 @@
 //! A SIP phone call as a call's [`Link`]: the user agent ([`crate::net::sip::agent`]) on its
-//! own thread, and once SDP has agreed a codec and an address, the call's RTP
-//! ([`crate::net::sip::media`]) on the socket our SDP named, its RTCP on the port above (or
-//! on the same one, where both sides agree to multiplex). The caller is one peer like any
+//! own thread, and once SDP has agreed a codec and an address, the call's RTP: a session
+//! configured for the negotiated call ([`crate::net::sip::media`]) on the socket our SDP
+//! named, its RTCP on the port above (or on the same one, where both sides agree to
+//! multiplex). The caller is one peer like any
 //! other: its frames come from the same jitter buffer and decoders, its reports tell the loss
 //! it sees of ours.
 
@@ -15,11 +16,13 @@ use super::link::{Link, LinkEvent};
 use super::media::Packets;
 use super::sip_sockets::{MediaSockets, bind_media};
 use crate::codec::any::{Codec, EncoderSettings, FrameEncoder, MAX_FRAME_PAYLOAD};
+use crate::net::rtcp::HeardReports;
+use crate::net::session::{Session, SessionStats, event_code};
 use crate::net::sip::agent::{Account, Agent, AgentConfig, AgentEvent, Decision, Role, SipError};
-use crate::net::sip::media::{SipRtp, SipRtpStats, event_code};
+use crate::net::sip::media;
 use crate::net::sip::sdp::{LocalAudio, Negotiated, SdesKey};
 use crate::net::sip::transport::SrtpPolicy;
-use crate::net::transport::{PeerFrame, PeerId, PeerInfo};
+use crate::net::transport::{PeerFrame, PeerInfo};
 
 /// How long a hang-up waits for the peer to confirm it.
 const HANG_UP_WAIT: Duration = Duration::from_secs(3);
@@ -60,7 +63,7 @@ pub struct SipLink {
     local_rtcp: Option<SocketAddr>,
     /// Our SRTP key, used where SDP agrees SRTP.
     key: SdesKey,
-    rtp: Option<SipRtp>,
+    rtp: Option<Session>,
     negotiated: Option<Negotiated>,
     state: CallState,
     /// Who the peer is (the dialled URI, or the caller).
@@ -364,10 +367,15 @@ impl SipLink {
         self.quiet = Some(quiet);
     }
 
-    pub fn rtp_stats(&self) -> SipRtpStats {
+    pub fn rtp_stats(&self) -> SessionStats {
+        self.rtp.as_ref().map(Session::stats).unwrap_or_default()
+    }
+
+    /// What the peer's reports said: the loss it sees of our stream, the round trip.
+    pub fn heard(&self) -> HeardReports {
         self.rtp
             .as_ref()
-            .map(|r| r.with(|c| c.stats()))
+            .map(|r| r.with(|c| c.heard()))
             .unwrap_or_default()
     }
 
@@ -481,21 +489,21 @@ impl SipLink {
             }
         ));
         match (&self.rtp, self.socket.take()) {
-            (Some(rtp), _) => rtp.with(|core| core.renegotiate(negotiated.clone())),
-            (None, Some(socket)) => match SipRtp::start(
-                socket,
-                self.rtcp_socket.take(),
-                negotiated.clone(),
-                &self.key,
-            ) {
-                Ok(rtp) => self.rtp = Some(rtp),
-                Err(e) => {
-                    let e = SipError::Protocol(format!("cannot start the call's RTP: {e}"));
-                    self.events.push(LinkEvent::Failed(e.to_string()));
-                    self.state = CallState::Failed(e);
-                    self.agent.hang_up();
+            (Some(rtp), _) => {
+                let previous = self.negotiated.as_ref().unwrap_or(&negotiated);
+                rtp.with(|core| media::renegotiate(core, previous, &negotiated));
+            }
+            (None, Some(socket)) => {
+                match media::start(socket, self.rtcp_socket.take(), &negotiated, &self.key) {
+                    Ok(rtp) => self.rtp = Some(rtp),
+                    Err(e) => {
+                        let e = SipError::Protocol(format!("cannot start the call's RTP: {e}"));
+                        self.events.push(LinkEvent::Failed(e.to_string()));
+                        self.state = CallState::Failed(e);
+                        self.agent.hang_up();
+                    }
                 }
-            },
+            }
             (None, None) => {}
         }
         self.handle
@@ -523,7 +531,7 @@ impl SipLink {
             return;
         }
         if let Some(rtp) = &self.rtp
-            && let Err(e) = rtp.with(|c| c.send_packet(payload, ticks))
+            && let Err(e) = rtp.send_packet(payload, ticks)
         {
             tracing::debug!("SIP RTP: {e}");
         }
@@ -545,7 +553,7 @@ impl SipLink {
     /// RTCP's BYE with our last report (once), as the call ends.
     fn say_bye(&self) {
         if let Some(rtp) = &self.rtp {
-            rtp.say_bye();
+            rtp.leave();
         }
     }
 
@@ -583,7 +591,7 @@ impl Link for SipLink {
                 if !keys.is_empty() && !core.queue_digits(&keys) {
                     tracing::debug!("DTMF {keys:?} not sent: the peer takes no events");
                 }
-                if let Err(e) = core.step_digits() {
+                if let Err(e) = core.step_digits(Instant::now()) {
                     tracing::debug!("DTMF: {e}");
                 }
                 core.pull(now, out);
@@ -595,24 +603,13 @@ impl Link for SipLink {
         let Some(rtp) = &self.rtp else {
             return Vec::new();
         };
-        let (ssrc, addr, receiver, heard, cname) = rtp.with(|c| {
-            let cname = c.peer_cname().map(str::to_owned);
-            (c.ssrc(), c.remote(), c.receiver_stats(), c.heard(), cname)
-        });
-        let Some(ssrc) = ssrc else {
-            return Vec::new();
-        };
-        vec![PeerInfo {
-            id: PeerId::Ssrc(ssrc),
-            addr,
-            cname,
-            name: Some(self.peer.clone()),
-            receiver,
-            rtt_ms: heard.rtt_ms,
-            their_loss: heard.their_loss(),
-            said_bye: self.ended(),
-            ended: self.ended(),
-        }]
+        let mut peers = rtp.peers();
+        for peer in &mut peers {
+            peer.name = Some(self.peer.clone());
+            peer.said_bye = self.ended();
+            peer.ended = self.ended();
+        }
+        peers
     }
 
     fn all_left(&self) -> bool {
@@ -635,7 +632,7 @@ impl Link for SipLink {
             return;
         }
         if let Some(rtp) = &self.rtp {
-            rtp.with(|c| c.skip_frames(frames));
+            rtp.skip_frames(frames);
         }
     }
 

@@ -284,10 +284,9 @@ fn run_call(
     let digits_sent = link.digits_sent();
     link.leave();
     let stats = link.rtp_stats();
+    let their_report = link.heard().about_us;
     let their = |field: fn(&ReportBlock) -> u32| {
-        stats
-            .their_report
-            .map_or_else(|| "-".to_owned(), |b| field(&b).to_string())
+        their_report.map_or_else(|| "-".to_owned(), |b| field(&b).to_string())
     };
     eprintln!(
         "lipcall: played {:.2} s; datagrams={} rtp={} rtcp={} rtcp_stray={} sent_rtcp={} \
@@ -297,13 +296,13 @@ fn run_call(
         stats.datagrams,
         stats.rtp,
         stats.rtcp,
-        stats.rtcp_stray,
+        stats.foreign_rtcp + stats.rtcp_auth_failed,
         stats.sent_rtcp,
         their(|b| b.cumulative_lost),
         their(|b| b.jitter),
         stats.malformed,
         stats.unknown_payload,
-        stats.auth_failed,
+        stats.auth_failed - stats.rtcp_auth_failed,
         stats.events_in,
         stats.sent_rtp,
         stats.sent_events,

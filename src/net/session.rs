@@ -26,16 +26,21 @@ use super::NetError;
 use crate::codec::any::Codec;
 
 mod blocked;
+mod call;
+mod dtmf;
 mod inbound;
 pub mod latch;
+mod negotiated;
 mod protocol;
 mod remote;
 mod timers;
 mod types;
 
 pub use blocked::{BLOCK_LONGEST, BLOCK_QUIET, BLOCKS_KEPT, Blocked};
+pub use call::{CALL_KEEPALIVE, STREAM_HANDOVER};
+pub use dtmf::event_code;
 pub use protocol::{LARGEST_DATAGRAM, MAX_ANSWERED, SessionCore};
-pub use types::{SessionConfig, SessionStats};
+pub use types::{NegotiatedCall, SessionConfig, SessionStats};
 
 use super::transport::{Driver, PeerFrame, PeerId, PeerInfo, SansIo, Transmit, TransmitKind};
 
@@ -88,13 +93,23 @@ impl Session {
     pub fn start(config: SessionConfig) -> Result<Self, NetError> {
         let socket = UdpSocket::bind(config.bind)
             .map_err(|e| NetError::io(format!("cannot listen on {}", config.bind), e))?;
+        Self::on_sockets(socket, None, config)
+    }
+
+    /// A session on `socket` already bound (`config.bind` unused), its RTCP on `rtcp` where
+    /// it has a port of its own (a negotiated call's).
+    pub fn on_sockets(
+        socket: UdpSocket,
+        rtcp: Option<UdpSocket>,
+        config: SessionConfig,
+    ) -> Result<Self, NetError> {
         let local = socket
             .local_addr()
             .map_err(|e| NetError::io("local address", e))?;
         let encrypted = config.key.is_some();
         let core = SessionCore::new(config, local, Instant::now())?;
         let (ssrc, epoch) = (core.ssrc(), core.epoch());
-        let driver = Driver::start(socket, core, "lipcall-net", POLL)
+        let driver = Driver::start_with_rtcp(socket, rtcp, core, "lipcall-net", POLL)
             .map_err(|e| NetError::io("cannot start the network thread", e))?;
         Ok(Self {
             driver,
@@ -196,6 +211,17 @@ impl Session {
     /// Says BYE (with a final SR marking where the stream ends) and leaves the relay room.
     pub fn leave(&self) {
         self.driver.with(|core| core.leave(Instant::now()));
+    }
+
+    /// Runs `f` on the core, then sends what it queued (what only some sessions use: a
+    /// negotiated call's DTMF, renegotiation, reports heard).
+    pub fn with<T>(&self, f: impl FnOnce(&mut SessionCore) -> T) -> T {
+        self.driver.with(f)
+    }
+
+    /// Stops the socket thread (after [`Self::leave`]); the core's figures stay readable.
+    pub fn stop(&mut self) {
+        self.driver.stop();
     }
 }
 

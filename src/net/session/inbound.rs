@@ -155,6 +155,7 @@ impl SessionCore {
         if !admitted {
             self.stats.foreign += 1;
             if rtcp {
+                self.stats.foreign_rtcp += 1;
                 tracing::debug!("RTCP from {from} not believed: not the call's peer");
             } else {
                 let what = if authenticated { "SRTP" } else { "plain RTP" };
@@ -176,8 +177,12 @@ impl SessionCore {
             }
         };
         let ssrc = packet.header.ssrc;
-        if ssrc == self.ssrc {
+        // A negotiated call's one peer may echo our own stream back (SIPp's echo does).
+        if ssrc == self.ssrc && self.call.is_none() {
             self.stats.own += 1;
+            return;
+        }
+        if !self.call_takes(&packet, arrival) {
             return;
         }
         self.stats.rtp += 1;
@@ -218,7 +223,12 @@ impl SessionCore {
     }
 
     pub(super) fn handle_rtcp(&mut self, data: &mut Vec<u8>, from: SocketAddr, arrival: Instant) {
-        if !self.fixed_admits(from, true, arrival) || !self.unprotect(data, Srtp::unprotect_rtcp) {
+        if !self.fixed_admits(from, true, arrival) {
+            return;
+        }
+        let failed = self.stats.auth_failed;
+        if !self.unprotect(data, Srtp::unprotect_rtcp) {
+            self.stats.rtcp_auth_failed += self.stats.auth_failed - failed;
             return;
         }
         let items = match rtcp::parse(data) {

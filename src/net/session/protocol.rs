@@ -8,6 +8,7 @@ use std::time::{Duration, Instant};
 
 use super::blocked::Blocked;
 use super::latch::{FixedSources, Latch, Named};
+use super::negotiated::CallMedia;
 use super::remote::{PENDING_NAMES, PENDING_STARTS, Peer, PendingNames};
 use super::timers::{Due, Timers};
 use super::{PeerFrame, PeerId, PeerInfo, SessionConfig, SessionStats};
@@ -62,14 +63,18 @@ pub struct SessionCore {
     clock: NtpClock,
     pub(super) ssrc: u32,
     cname: String,
-    stream: RtpStream,
+    pub(super) stream: RtpStream,
     tx_srtp: Option<Srtp>,
     pub(super) rx_srtp: Option<Srtp>,
     /// The sources of a [`Latch::Fixed`] call.
     pub(super) fixed: Option<FixedSources>,
-    sent_since_report: bool,
+    /// Our stream's packet count at the report before the last and at the last: more since
+    /// the first makes the next periodic report an SR (RFC 3550 6.4).
+    packets_at_reports: [u32; 2],
     started: bool,
-    left: bool,
+    pub(super) left: bool,
+    /// What a negotiated call (SIP) adds: one stream, hold, keepalive, DTMF.
+    pub(super) call: Option<CallMedia>,
     pub(super) peers: HashMap<u32, Peer>,
     pub(super) stats: SessionStats,
     /// SRs with no packets sent yet (where a stream will start), by SSRC, from senders not yet
@@ -84,7 +89,7 @@ pub struct SessionCore {
     timers: Timers,
     outbox: VecDeque<Transmit>,
     /// Buffers of datagrams sent, for the next ones.
-    spare: Vec<Vec<u8>>,
+    pub(super) spare: Vec<Vec<u8>>,
     /// The datagram being handled (decrypted in place).
     scratch: Vec<u8>,
 }
@@ -145,8 +150,9 @@ impl SessionCore {
                 Latch::Rebinding => None,
                 Latch::Fixed(named) => Some(FixedSources::new(named)),
             },
-            sent_since_report: false,
+            packets_at_reports: [0; 2],
             started: false,
+            call: config.call.clone().map(|c| CallMedia::new(c, now)),
             left: false,
             peers: HashMap::new(),
             stats: SessionStats::default(),
@@ -203,6 +209,8 @@ impl SessionCore {
     pub fn transmitted(&mut self, transmit: Transmit, sent: bool) {
         match (transmit.kind, sent) {
             (TransmitKind::Control | TransmitKind::WebRtc, _) => {}
+            // An empty one is a keepalive, counted as such.
+            (TransmitKind::Rtp, true) if transmit.data.is_empty() => {}
             (TransmitKind::Rtp, true) => self.stats.sent_rtp += 1,
             (TransmitKind::Rtcp, true) => self.stats.sent_rtcp += 1,
             (_, false) => self.stats.send_errors += 1,
@@ -226,7 +234,7 @@ impl SessionCore {
     pub(super) fn run_timers(&mut self, now: Instant) -> Due {
         let joining = !self.stats.relay_joined && self.stats.relay_refusal.is_none();
         let due = self.timers.due(now, || joining);
-        if due.report {
+        if due.report && !self.left {
             self.send_report(ReportKind::Periodic, now);
         }
         if due.keepalive && !self.left {
@@ -234,6 +242,7 @@ impl SessionCore {
         }
         if due.expiry {
             self.expire(now);
+            self.keep_call_alive(now);
         }
         due
     }
@@ -246,6 +255,12 @@ impl SessionCore {
         ticks: u32,
         now: Instant,
     ) -> Result<(), NetError> {
+        if self.call.as_ref().is_some_and(|c| c.config.held) {
+            // The peer said it receives nothing: the stream's clock moves on regardless.
+            let frame_ticks = self.config.codec.frame_ticks().max(1);
+            self.stream.skip(ticks / frame_ticks);
+            return Ok(());
+        }
         if !self.started && self.config.send_rtcp {
             // Tells receivers where the stream starts, in case its first packet is lost.
             self.send_report(ReportKind::Start, now);
@@ -253,10 +268,17 @@ impl SessionCore {
         self.started = true;
         let mut buf = self.spare.pop().unwrap_or_default();
         self.stream.packetize_ticks(payload, ticks, &mut buf)?;
+        self.send_media(buf, now)
+    }
+
+    /// Protects and sends a media packet `buf` made by our stream.
+    pub(super) fn send_media(&mut self, mut buf: Vec<u8>, now: Instant) -> Result<(), NetError> {
         if let Some(srtp) = self.tx_srtp.as_mut() {
             srtp.protect_rtp(&mut buf)?;
         }
-        self.sent_since_report = true;
+        if let Some(call) = self.call.as_mut() {
+            call.last_sent = now;
+        }
         self.send_all(buf, TransmitKind::Rtp);
         Ok(())
     }
@@ -286,9 +308,13 @@ impl SessionCore {
             return;
         }
         if self.config.send_rtcp {
-            // Twice: a lost BYE would leave receivers concealing until their timeout.
             self.send_report(ReportKind::Bye, now);
-            self.send_report(ReportKind::Bye, now);
+            // Twice: a lost BYE would leave receivers concealing until their timeout. Not
+            // to a negotiated call's peer: baresip forgets what it received of a stream on
+            // its first BYE, and counts nothing of it at the second.
+            if self.call.is_none() {
+                self.send_report(ReportKind::Bye, now);
+            }
         }
         if let (Some(room), Some(cookie)) = (self.room, self.relay.cookie) {
             self.send_to_relay(Control::new(ControlKind::Leave, room, cookie));
@@ -296,7 +322,7 @@ impl SessionCore {
     }
 
     /// Queues `data` to every destination.
-    fn send_all(&mut self, data: Vec<u8>, kind: TransmitKind) {
+    pub(super) fn send_all(&mut self, data: Vec<u8>, kind: TransmitKind) {
         if let Some(fixed) = &self.fixed {
             let to = match kind {
                 TransmitKind::Rtcp => fixed.rtcp.target(),
@@ -376,7 +402,8 @@ impl SessionCore {
 
     fn send_report(&mut self, kind: ReportKind, now: Instant) {
         let mut peer_addrs: Vec<SocketAddr> = self.peers.values().map(|p| p.addr).collect();
-        let Some(buf) = self.report(kind, now, Told::Nothing) else {
+        let (sender, blocks) = self.report_contents(kind, now);
+        let Some(buf) = self.compose(kind, Told::Nothing, sender, &blocks) else {
             return;
         };
         if self.config.destinations.is_empty() && self.fixed.is_none() {
@@ -386,7 +413,7 @@ impl SessionCore {
             peer_addrs.sort_unstable();
             peer_addrs.dedup();
             let ringing = if self.config.rings_for_callers && !peer_addrs.is_empty() {
-                self.report(kind, now, Told::Ringing)
+                self.compose(kind, Told::Ringing, sender, &blocks)
             } else {
                 None
             };
@@ -415,6 +442,17 @@ impl SessionCore {
     /// A report of `kind` as it goes on the wire, if it could be made, telling the callers it
     /// goes to what became of their call.
     fn report(&mut self, kind: ReportKind, now: Instant, told: Told) -> Option<Vec<u8>> {
+        let (sender, blocks) = self.report_contents(kind, now);
+        self.compose(kind, told, sender, &blocks)
+    }
+
+    /// What the next report says: our sending, and a block per stream heard (taking them
+    /// moves the counts "since the last report" on, so one report's copies share them).
+    fn report_contents(
+        &mut self,
+        kind: ReportKind,
+        now: Instant,
+    ) -> (Option<SenderInfo>, Vec<ReportBlock>) {
         let ntp = self.ntp_at(now);
         let mut blocks = Vec::new();
         for (&ssrc, peer) in self.peers.iter_mut() {
@@ -431,16 +469,29 @@ impl SessionCore {
         let sender = match kind {
             ReportKind::Start => Some(info),
             ReportKind::Bye => self.started.then_some(info),
-            ReportKind::Periodic => self.sent_since_report.then_some(info),
+            ReportKind::Periodic => {
+                (self.stream.packets_sent != self.packets_at_reports[0]).then_some(info)
+            }
         };
-        self.sent_since_report = false;
+        self.packets_at_reports = [self.packets_at_reports[1], self.stream.packets_sent];
+        (sender, blocks)
+    }
+
+    /// One copy of a report on the wire.
+    fn compose(
+        &mut self,
+        kind: ReportKind,
+        told: Told,
+        sender: Option<SenderInfo>,
+        blocks: &[ReportBlock],
+    ) -> Option<Vec<u8>> {
         let mut buf = self.spare.pop().unwrap_or_default();
         buf.clear();
         let built = rtcp::build(
             &Outgoing {
                 ssrc: self.ssrc,
                 sender,
-                blocks: &blocks,
+                blocks,
                 cname: &self.cname,
                 name: self.config.name.as_deref(),
                 note: (told != Told::Nothing).then_some(rtcp::RINGING_NOTE),

@@ -1291,3 +1291,292 @@ fn a_caller_hung_up_on_hears_bye_and_stays_out_while_it_keeps_sending() {
     );
     assert!(peer_addr(&core, 7) == Some(bob), "{:?}", core.peers());
 }
+
+/// A negotiated call (as SIP's SDP makes one): Speex (110) and events (101) agreed, its peer
+/// named at 5000 (RTP) and 5001 (RTCP), keepalive after [`CALL_KEEPALIVE`].
+fn negotiated_session(ssrc: u32) -> SessionCore {
+    let mut config = SessionConfig::new(LOCAL);
+    config.ssrc = Some(ssrc);
+    config.latch = Latch::Fixed(Named {
+        rtp: addr(5000),
+        rtcp: addr(5001),
+        signalling: None,
+    });
+    config.call = Some(negotiated_call(false));
+    SessionCore::with_draw(config, LOCAL, Instant::now(), middle).unwrap()
+}
+
+fn negotiated_call(held: bool) -> NegotiatedCall {
+    NegotiatedCall {
+        audio_types: vec![110],
+        events: Some(101),
+        held,
+        keepalive: Some(CALL_KEEPALIVE),
+    }
+}
+
+/// The media the core queued: (to, payload type, empty) of each RTP datagram.
+fn media_sent(core: &mut SessionCore) -> Vec<(SocketAddr, Option<u8>)> {
+    std::iter::from_fn(|| core.poll_transmit())
+        .filter(|t| t.kind == TransmitKind::Rtp)
+        .map(|t| {
+            let pt = rtp::parse(&t.data, None)
+                .ok()
+                .map(|p| p.header.payload_type);
+            (t.to, pt)
+        })
+        .collect()
+}
+
+#[test]
+fn a_negotiated_call_keeps_one_stream_and_a_second_takes_over_only_after_200_ms_of_silence() {
+    let mut core = negotiated_session(1);
+    let mut played = HashMap::new();
+    let (mut first, mut second) = (Caller::new(7, 100, 0), Caller::new(8, 900, 70_000));
+    // Both from the call's address: the second, interleaved while the first talks, is dropped.
+    drive(
+        &mut core,
+        0..50,
+        |k| {
+            let mut arriving = vec![(addr(5000), first.packet())];
+            if k >= 20 {
+                arriving.push((addr(5000), second.packet()));
+            }
+            arriving
+        },
+        &mut played,
+    );
+    assert_eq!(core.stats().other_stream, 30);
+    // All but the jitter buffer's few frames of delay.
+    assert!(decoded(&played, 7) >= 45, "{}", decoded(&played, 7));
+    assert_eq!(decoded(&played, 8), 0);
+    // The first falls silent: within 200 ms the second is still dropped, then it takes over
+    // and is the call's one peer.
+    drive(
+        &mut core,
+        50..60,
+        talks(&mut second, addr(5000), 50, 10),
+        &mut played,
+    );
+    assert_eq!(core.stats().other_stream, 39);
+    let peers: Vec<PeerId> = core.peers().iter().map(|p| p.id).collect();
+    assert_eq!(peers, vec![PeerId::Ssrc(8)]);
+    drive(
+        &mut core,
+        60..120,
+        talks(&mut second, addr(5000), 60, 60),
+        &mut played,
+    );
+    assert!(decoded(&played, 8) >= 50, "{:?}", decoded(&played, 8));
+    assert_eq!(core.peers().len(), 1);
+}
+
+#[test]
+fn a_negotiated_call_takes_only_its_agreed_types_counts_events_and_plays_its_own_echo() {
+    let mut core = negotiated_session(1);
+    let mut played = HashMap::new();
+    let mut pcmu = RtpStream::new(7, 1, 0);
+    pcmu.set_payload(0, 160);
+    let mut event = Vec::new();
+    RtpStream::new(7, 1, 0)
+        .packetize_other(101, true, 0, &[1, 10, 0, 160], &mut event)
+        .unwrap();
+    drive(
+        &mut core,
+        0..10,
+        |_| {
+            let mut packet = Vec::new();
+            pcmu.packetize(&[0xff; 160], 1, &mut packet).unwrap();
+            vec![(addr(5000), packet), (addr(5000), event.clone())]
+        },
+        &mut played,
+    );
+    // PCMU is a codec lipcall reads, but not one this call agreed.
+    let stats = core.stats();
+    assert_eq!(
+        (stats.unknown_payload, stats.events_in, stats.rtp),
+        (10, 10, 0)
+    );
+    assert!(core.peers().is_empty() && core.latched().is_none());
+    // Our own stream echoed back by the peer (SIPp's echo) is the call's stream, played.
+    let mut echo = Caller::new(1, 100, 0);
+    drive(
+        &mut core,
+        10..40,
+        talks(&mut echo, addr(5000), 10, 30),
+        &mut played,
+    );
+    assert_eq!(core.stats().own, 0);
+    assert!(decoded(&played, 1) >= 25, "{}", decoded(&played, 1));
+    // In a session of lipcall's own, the same is an echo, dropped.
+    let mut own = session(8);
+    let mut echo = Caller::new(1, 100, 0);
+    drive(
+        &mut own,
+        0..10,
+        talks(&mut echo, addr(5000), 0, 10),
+        &mut played,
+    );
+    assert_eq!((own.stats().own, own.peers().len()), (10, 0));
+}
+
+#[test]
+fn a_held_negotiated_call_sends_nothing_and_its_clock_moves_on() {
+    let mut core = negotiated_session(1);
+    let t0 = core.epoch;
+    core.send_packet(&[0; 20], 160, t0).unwrap();
+    assert_eq!(media_sent(&mut core), vec![(addr(5000), Some(110))]);
+    let named = Named {
+        rtp: addr(5000),
+        rtcp: addr(5001),
+        signalling: None,
+    };
+    core.renegotiate(
+        named,
+        negotiated_call(true),
+        Codec::Speex,
+        Default::default(),
+    );
+    for _ in 0..10 {
+        core.send_packet(&[0; 20], 160, t0).unwrap();
+    }
+    assert!(media_sent(&mut core).is_empty());
+    core.renegotiate(
+        named,
+        negotiated_call(false),
+        Codec::Speex,
+        Default::default(),
+    );
+    core.send_packet(&[0; 20], 160, t0).unwrap();
+    let t = core.poll_transmit().unwrap();
+    let header = rtp::parse(&t.data, None).unwrap().header;
+    assert_eq!(
+        header.timestamp.wrapping_sub(core.stream.first_timestamp()),
+        11 * 160
+    );
+}
+
+#[test]
+fn a_negotiated_call_silent_for_15_s_sends_an_empty_datagram_to_its_rtp_address() {
+    let mut core = negotiated_session(1);
+    let t0 = core.epoch;
+    let keepalives = |core: &mut SessionCore, secs: u64| {
+        core.handle_timeout(t0 + Duration::from_secs(secs));
+        std::iter::from_fn(|| core.poll_transmit())
+            .filter(|t| t.kind == TransmitKind::Rtp && t.data.is_empty())
+            .map(|t| t.to)
+            .collect::<Vec<_>>()
+    };
+    for secs in 1..15 {
+        assert!(keepalives(&mut core, secs).is_empty(), "at {secs} s");
+    }
+    assert_eq!(keepalives(&mut core, 15), vec![addr(5000)]);
+    assert!(keepalives(&mut core, 16).is_empty());
+    // Audio at 20 s: the next one is due 15 s after it.
+    core.send_packet(&[0; 20], 160, t0 + Duration::from_secs(20))
+        .unwrap();
+    for secs in 21..35 {
+        assert!(keepalives(&mut core, secs).is_empty(), "at {secs} s");
+    }
+    assert_eq!(keepalives(&mut core, 35).len(), 1);
+    let stats = core.stats();
+    assert_eq!(stats.keepalives, 2);
+    // A keepalive that went out is no RTP packet sent.
+    core.transmitted(
+        Transmit {
+            to: addr(5000),
+            data: Vec::new(),
+            kind: TransmitKind::Rtp,
+        },
+        true,
+    );
+    assert_eq!(core.stats().sent_rtp, 0);
+    // None once the call said BYE.
+    core.leave(t0 + Duration::from_secs(36));
+    assert!(keepalives(&mut core, 60).is_empty());
+}
+
+#[test]
+fn a_negotiated_calls_reports_go_to_its_rtcp_port_sr_by_rfc_3550s_rule_none_after_bye() {
+    let mut core = negotiated_session(1);
+    let t0 = core.epoch;
+    let reports = |core: &mut SessionCore| {
+        std::iter::from_fn(|| core.poll_transmit())
+            .filter(|t| t.kind == TransmitKind::Rtcp)
+            .map(|t| match &rtcp::parse(&t.data).unwrap()[0] {
+                rtcp::RtcpItem::Report { sender, .. } => (t.to, sender.is_some()),
+                other => panic!("{other:?}"),
+            })
+            .collect::<Vec<_>>()
+    };
+    core.send_packet(&[0; 20], 160, t0).unwrap();
+    // The start SR, then reports each `rtcp_interval` (5 s, drawn in the middle).
+    assert_eq!(reports(&mut core), vec![(addr(5001), true)]);
+    let mut kinds = Vec::new();
+    for secs in 1..=20 {
+        core.handle_timeout(t0 + Duration::from_secs(secs));
+        kinds.extend(reports(&mut core).into_iter().map(|(to, sr)| {
+            assert_eq!(to, addr(5001));
+            sr
+        }));
+    }
+    // Sent before the first periodic one only: an SR while we sent since the report before
+    // the last (RFC 3550 6.4: in the last two intervals), then receiver reports.
+    assert_eq!(kinds, vec![true, true, false]);
+    core.leave(t0 + Duration::from_secs(21));
+    assert_eq!(
+        reports(&mut core).len(),
+        1,
+        "BYE, once to a negotiated call's peer"
+    );
+    core.handle_timeout(t0 + Duration::from_secs(60));
+    assert!(reports(&mut core).is_empty(), "nothing after BYE");
+}
+
+#[test]
+fn a_digit_is_five_growing_event_packets_then_three_ends_on_one_timestamp() {
+    let mut core = negotiated_session(1);
+    let now = core.epoch;
+    assert!(core.queue_digits("1#"));
+    assert!(!core.queue_digits("x"));
+    assert!(!session(8).queue_digits("1"), "no negotiated call");
+    let mut packets = Vec::new();
+    for _ in 0..13 {
+        core.step_digits(now).unwrap();
+        packets.extend(
+            std::iter::from_fn(|| core.poll_transmit())
+                .filter(|t| t.kind == TransmitKind::Rtp)
+                .map(|t| t.data),
+        );
+    }
+    assert_eq!(packets.len(), 8);
+    let parsed: Vec<_> = packets
+        .iter()
+        .map(|p| rtp::parse(p, None).unwrap())
+        .collect();
+    assert!(parsed[0].header.marker && !parsed[1].header.marker);
+    assert!(parsed.iter().all(|p| p.header.payload_type == 101));
+    assert!(
+        parsed
+            .iter()
+            .all(|p| p.header.timestamp == parsed[0].header.timestamp)
+    );
+    assert_eq!(parsed[0].payload, &[1, 10, 0, 160]);
+    assert_eq!(parsed[7].payload, &[1, 128 | 10, 3, 32]);
+    let seqs: Vec<u16> = parsed.iter().map(|p| p.header.sequence).collect();
+    assert!(
+        seqs.windows(2).all(|w| w[1] == w[0].wrapping_add(1)),
+        "{seqs:?}"
+    );
+    assert!(!core.digits_sent());
+    core.step_digits(now).unwrap();
+    let data = core.poll_transmit().unwrap().data;
+    let next = rtp::parse(&data, None).unwrap();
+    assert_eq!(next.payload[0], 11, "then #");
+    // No audio went out between them: # starts at a timestamp of its own.
+    assert_eq!(
+        next.header.timestamp,
+        parsed[0].header.timestamp.wrapping_add(13 * 160)
+    );
+    assert_eq!(core.stats().sent_events, 9);
+}

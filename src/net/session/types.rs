@@ -49,6 +49,28 @@ pub struct SessionConfig {
     pub rings_for_callers: bool,
     /// Which codec each payload type carries, received and sent.
     pub payloads: PayloadMap,
+    /// A call whose media a description negotiated (SIP): one remote stream, the agreed
+    /// payload types only, hold and a keepalive ([`NegotiatedCall`]).
+    pub call: Option<NegotiatedCall>,
+}
+
+/// What a negotiated two-party call (SIP's SDP) adds to a session's rules. The session keeps
+/// one remote stream: a second SSRC replaces it only after the current one has been silent
+/// for [`super::STREAM_HANDOVER`], so a stray or echoed stream never cuts into the call.
+#[derive(Debug, Clone, PartialEq, Eq)]
+pub struct NegotiatedCall {
+    /// The audio payload types the description agreed; media of any other is counted
+    /// (`unknown_payload`) and dropped.
+    pub audio_types: Vec<u8>,
+    /// The RFC 4733 events' payload type, if agreed: received ones are counted, and
+    /// [`super::SessionCore::queue_digits`] sends DTMF.
+    pub events: Option<u8>,
+    /// The peer receives nothing (it holds the call, or is send-only): nothing is sent,
+    /// the stream's clock moves on.
+    pub held: bool,
+    /// A call that sent nothing for this long sends an empty datagram, so that a NAT on the
+    /// way keeps the media's mapping (RFC 6263); `None`: never.
+    pub keepalive: Option<Duration>,
 }
 
 impl SessionConfig {
@@ -73,6 +95,7 @@ impl SessionConfig {
             codec: Codec::Speex,
             payloads: PayloadMap::default(),
             rings_for_callers: false,
+            call: None,
         }
     }
 }
@@ -116,6 +139,18 @@ pub struct SessionStats {
     pub ringing_reports: u64,
     /// Goodbyes from where we call that said our call was declined.
     pub declined: u64,
+    /// RTCP not believed: the part of `foreign` that is reports (a fixed call's only).
+    pub foreign_rtcp: u64,
+    /// The part of `auth_failed` that is SRTCP (baresip sends its first report and its BYE
+    /// in the clear even under SRTP).
+    pub rtcp_auth_failed: u64,
+    /// A negotiated call's packets of a second stream while its current one still sends.
+    pub other_stream: u64,
+    /// RFC 4733 event packets received (a negotiated call's).
+    pub events_in: u64,
+    pub sent_events: u64,
+    /// Empty datagrams sent to keep a NAT's mapping open ([`NegotiatedCall::keepalive`]).
+    pub keepalives: u64,
     pub sent_rtp: u64,
     pub sent_rtcp: u64,
     pub send_errors: u64,

@@ -1,6 +1,6 @@
 //! Phone calls over SIP (RFC 3261): a user agent on the ezk stack ([`agent`]) that registers
-//! ([`register`]), SDP offer and answer ([`sdp`]), and the call's RTP through the same
-//! per-peer receiver as every call ([`media`]), with its RTCP (`reports`).
+//! ([`register`]), SDP offer and answer ([`sdp`]), and the call's RTP: a session configured
+//! for what SDP negotiated ([`media`]).
 
 pub mod address;
 pub mod agent;
@@ -12,6 +12,5 @@ pub mod media;
 pub mod ptime;
 pub mod quiet;
 pub mod register;
-mod reports;
 pub mod sdp;
 pub mod transport;
