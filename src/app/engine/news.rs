@@ -46,8 +46,14 @@ impl Worker {
                     tracing::info!("{label}: {line}");
                     s.call.state = line;
                 }
-                LinkEvent::Media { codec, srtp } => {
-                    match FrameEncoder::new(codec, &EncoderSettings::default()) {
+                LinkEvent::Media {
+                    codec,
+                    frame_ms,
+                    srtp,
+                } => {
+                    let mut settings = EncoderSettings::default();
+                    settings.opus.frame_ms = frame_ms;
+                    match FrameEncoder::new(codec, &settings) {
                         Ok(encoder) => self.encoder = encoder,
                         Err(e) => s.call.error = Some(format!("cannot send {codec}: {e}")),
                     }
