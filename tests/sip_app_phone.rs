@@ -63,6 +63,7 @@ fn the_phone_listens_on_its_fixed_port_and_asks_stun() {
         stun: Some(format!("127.0.0.1:{stun_port}")),
         sip_port: Some(sip_port),
         ca: None,
+        frame_ms: 20,
     })));
     let account = Account::parse(&format!("sip:alice@127.0.0.1:{kam_port}"), PASSWORD).unwrap();
     engine.send(Command::Phone(PhoneCommand::Account(Some(account))));

@@ -13,6 +13,7 @@ mod output;
 mod phase;
 mod place;
 mod ring;
+mod send;
 mod sip;
 
 use std::net::SocketAddr;
@@ -25,21 +26,20 @@ use std::time::{Duration, Instant};
 
 use crate::audio::pacer::PLAYBACK_LEAD;
 use crate::audio::{
-    Capture, DeviceChoice, FramePacer, Gate, MicControls, OpenedOutput, OutputStatus, Playback,
+    Capture, DeviceChoice, FramePacer, MicControls, OpenedOutput, OutputStatus, Playback,
     PlaybackConfig,
 };
 use crate::call::janus::is_janus_url;
 use crate::call::link::Link;
 use crate::call::mumble::is_mumble_url;
 use crate::call::sip_sockets::MediaSockets;
-use crate::codec::any::{Codec, EncoderSettings, FrameEncoder, MAX_FRAME_PAYLOAD};
+use crate::codec::any::{Codec, EncoderSettings, FrameEncoder};
 use crate::codec::opus::codec::Bandwidth;
 use crate::net::janus::candidates::IceServers;
 use crate::net::janus::messages::JanusAuth;
 use crate::net::session::{Blocked, Session, SessionConfig};
 use crate::net::srtp::MasterKey;
 use crate::net::transport::{PeerFrame, PeerInfo};
-use crate::vocab::MAX_FRAME_SAMPLES;
 
 pub use super::call_status::{
     CallPhase, CallStatus, DIRECT_ANSWER_WAIT, Encryption, RINGING_ANSWER_WAIT,
@@ -60,8 +60,8 @@ use output::OutputRevival;
 
 /// The peers' status and the relay's are refreshed every this many ticks (200 ms).
 const STATUS_TICKS: u32 = 10;
-/// How often the worker looks at the mixer's demand at the least (the mixer also wakes it as
-/// it finishes each frame), and at the microphone.
+/// How often the worker looks at the mixer's demand and the microphone at the least (the mixer
+/// wakes it as it finishes each frame, the microphone after each buffer it delivers).
 const POLL: Duration = Duration::from_millis(5);
 /// How long the settings' speaker test rings.
 pub const SPEAKER_TEST: Duration = Duration::from_secs(2);
@@ -308,6 +308,8 @@ struct Worker {
     /// The controls last handed to the UI: the next microphone keeps their mute and
     /// push-to-talk.
     mic_controls: Option<MicControls>,
+    /// Closed microphone frames not yet skipped on the link (which skips whole 20 ms), ms.
+    mic_skipped_ms: u8,
 }
 
 /// A direct call's room key, derived on the look-up's thread.
@@ -370,6 +372,7 @@ impl Worker {
             outputs: DeviceOpener::new("output device"),
             inputs: DeviceOpener::new("microphone"),
             mic_controls: None,
+            mic_skipped_ms: 0,
             config,
             shared,
             counters,
@@ -472,6 +475,7 @@ impl Worker {
         let old = std::mem::replace(&mut self.link, link);
         self.retirer.retire(old);
         self.encoder = encoder;
+        self.mic_skipped_ms = 0;
         self.in_call = true;
         self.forget_call();
         self.drop_peers();
@@ -619,47 +623,6 @@ impl Worker {
         };
         if let Some(error) = self.relay.check(&session.stats(), Instant::now()) {
             s.call.error = Some(error);
-        }
-    }
-
-    fn send_mic(&mut self) {
-        let Some(mic) = &mut self.mic else { return };
-        let in_call = self.in_call || !self.answered.is_empty();
-        // The microphone resampled once, straight to the rate the encoder takes.
-        if let Err(e) = mic.set_rate(self.encoder.input_rate()) {
-            tracing::debug!(
-                "microphone kept at {} samples a frame: {e}",
-                mic.frame_samples()
-            );
-        }
-        let mut frame = [0i16; MAX_FRAME_SAMPLES];
-        let frame = &mut frame[..mic.frame_samples()];
-        let mut payload = [0u8; MAX_FRAME_PAYLOAD];
-        loop {
-            match mic.read_frame(frame) {
-                Ok(Some(Gate::Open)) if in_call => {
-                    // A 20 ms frame of the microphone is two packets at Opus's 10 ms frames.
-                    let step = self.encoder.frame_samples().clamp(1, frame.len());
-                    for part in frame.chunks_exact(step) {
-                        if let Ok(Some((n, ticks))) = self.encoder.encode(part, &mut payload) {
-                            self.link.send_audio(&payload[..n], ticks);
-                        }
-                    }
-                }
-                Ok(Some(_)) => {
-                    if in_call {
-                        self.link.skip_frames(1);
-                    }
-                }
-                Ok(None) => break,
-                Err(e) => {
-                    self.mic = None;
-                    let mut s = lock(&self.shared);
-                    s.input_status = format!("microphone lost ({e}): receive-only");
-                    s.mic = None;
-                    break;
-                }
-            }
         }
     }
 

@@ -47,9 +47,16 @@ pub struct PhoneNetwork {
     pub stun: Option<String>,
     pub sip_port: Option<u16>,
     pub ca: Option<Vec<u8>>,
+    /// Opus's frame length the phone offers (`a=ptime`) and sends where the peer takes it,
+    /// ms: the settings' choice, 10, else 20.
+    pub frame_ms: u8,
 }
 
 impl PhoneNetwork {
+    fn frame_ms(&self) -> u8 {
+        if self.frame_ms == 10 { 10 } else { 20 }
+    }
+
     fn security(&self) -> SipSecurity {
         SipSecurity {
             ca: self.ca.clone(),
@@ -178,6 +185,12 @@ impl SipPhone {
         Ok((target, towards))
     }
 
+    /// The frame length a call dialled now offers (the call's own choice, which may be newer
+    /// than the listener's); the listener keeps the one it registered with.
+    pub fn offer_frame_ms(&mut self, frame_ms: u8) {
+        self.network.frame_ms = frame_ms;
+    }
+
     /// The STUN server (HOST:PORT) whose view of our media address SDP gives, if any.
     pub fn stun(&self) -> Option<String> {
         self.network.stun.clone()
@@ -199,7 +212,7 @@ impl SipPhone {
             self.account.clone(),
             role,
             codecs(None),
-            20,
+            self.network.frame_ms(),
             &self.network.security(),
             media,
         )?;
@@ -419,7 +432,7 @@ fn listen(account: &Account, network: &PhoneNetwork) -> Result<SipLink, SipError
         Some(account.clone()),
         Role::Ask,
         codecs(None),
-        20,
+        network.frame_ms(),
         &network.security(),
         network.stun.as_deref(),
     )

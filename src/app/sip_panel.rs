@@ -42,6 +42,7 @@ pub fn use_account(settings: &Settings, engine: &Engine) -> Result<(), String> {
         stun: (!stun.is_empty()).then(|| stun.to_owned()),
         sip_port: (settings.sip.local_port != 0).then_some(settings.sip.local_port),
         ca,
+        frame_ms: settings.frame_ms,
     };
     engine.send(Command::Phone(PhoneCommand::Network(network)));
     engine.send(Command::Phone(PhoneCommand::Account(account)));

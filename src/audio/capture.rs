@@ -1,13 +1,16 @@
-//! Microphone capture: device callback -> ring -> 20 ms frames at the encoder's rate (48 kHz
-//! for Opus, 16 kHz for G.722 and Speex wideband, 8 kHz for the narrowband codecs).
+//! Microphone capture: device callback -> ring -> frames at the encoder's rate (48 kHz for
+//! Opus, 16 kHz for G.722 and Speex wideband, 8 kHz for the narrowband codecs) and of the
+//! encoder's length (20 ms, or Opus's 10 ms).
 //!
 //! The callback ([`InputFeeder`]) converts whatever the device delivers to f32 mono, updates the
-//! level meter (atomics) and pushes into an rtrb ring; on a full ring it drops and counts. The
-//! encoder thread's side ([`FrameReader`]) resamples in one step to the encoder's rate with
-//! buffers allocated once and hands out 20 ms frames, gated by mute and push-to-talk.
+//! level meter (atomics), pushes into an rtrb ring (on a full ring it drops and counts) and
+//! wakes the reader's thread. The encoder thread's side ([`FrameReader`]) resamples in one step
+//! to the encoder's rate with buffers allocated once and hands out frames of the length the
+//! encoder takes, each gated by mute and push-to-talk: a 10 ms packet leaves as soon as its
+//! 10 ms are in, not with the next one.
 
-use std::sync::Arc;
 use std::sync::atomic::{AtomicBool, AtomicU32, AtomicU64, Ordering};
+use std::sync::{Arc, OnceLock};
 use std::time::Duration;
 
 use cpal::traits::{DeviceTrait, StreamTrait};
@@ -19,6 +22,9 @@ use super::devices::{self, DeviceChoice, Direction};
 use super::error::AudioError;
 use super::resample::fft_resampler;
 use crate::vocab::{FRAME_SIZE, SAMPLE_RATE};
+
+/// The frame lengths the reader hands out, ms: the 20 ms of every codec, Opus's 10.
+const FRAME_MS: [u8; 2] = [10, 20];
 
 /// Level floor: what silence reads as.
 pub const LEVEL_FLOOR_DBFS: f32 = -100.0;
@@ -33,6 +39,8 @@ struct MicShared {
     dropped: AtomicU64,
     lost: AtomicBool,
     errors: AtomicU64,
+    /// The thread that reads frames, woken after every device buffer.
+    reader: OnceLock<std::thread::Thread>,
 }
 
 impl Default for MicShared {
@@ -46,6 +54,7 @@ impl Default for MicShared {
             dropped: AtomicU64::new(0),
             lost: AtomicBool::new(false),
             errors: AtomicU64::new(0),
+            reader: OnceLock::new(),
         }
     }
 }
@@ -161,11 +170,15 @@ impl InputFeeder {
                 .dropped
                 .fetch_add((frames - n) as u64, Ordering::Relaxed);
         }
+        // An atomic swap and at most a futex wake: no lock, no allocation.
+        if let Some(t) = self.shared.reader.get() {
+            t.unpark();
+        }
     }
 }
 
-/// Device rate -> the encoder's rate (8 kHz unless told another), one 20 ms frame at a time,
-/// buffers allocated once.
+/// Device rate -> the encoder's rate (8 kHz unless told another), one frame (20 ms unless told
+/// 10) at a time, buffers allocated once.
 pub struct Downsampler {
     resampler: Option<Fft<f32>>,
     input: Vec<f32>,
@@ -188,12 +201,17 @@ impl Downsampler {
 
     /// From the device's `rate` to 20 ms frames at `out` (8 kHz to 48 kHz).
     pub fn to_rate(rate: u32, out: u32) -> Result<Self, AudioError> {
-        if !crate::vocab::audio::valid_rate(out) {
+        Self::framed(rate, out, 20)
+    }
+
+    /// From the device's `rate` to frames of `frame_ms` (10 or 20) at `out` (8 kHz to 48 kHz).
+    pub fn framed(rate: u32, out: u32, frame_ms: u8) -> Result<Self, AudioError> {
+        if !crate::vocab::audio::valid_rate(out) || !FRAME_MS.contains(&frame_ms) {
             return Err(AudioError::Resampler(format!(
-                "no 20 ms frames at {out} Hz"
+                "no {frame_ms} ms frames at {out} Hz"
             )));
         }
-        let frame = out as usize / 50;
+        let frame = out as usize * usize::from(frame_ms) / 1000;
         let resampler = fft_resampler(rate, out, frame, FixedSync::Output)?;
         let (imax, omax) = resampler.as_ref().map_or((frame, frame), |r| {
             (r.input_frames_max(), r.output_frames_max())
@@ -210,6 +228,11 @@ impl Downsampler {
     /// The rate of the frames it gives.
     pub fn rate(&self) -> u32 {
         self.rate
+    }
+
+    /// The length of the frames it gives, ms.
+    pub fn frame_ms(&self) -> u8 {
+        (self.frame * 1000 / self.rate as usize) as u8
     }
 
     /// Device samples the next frame needs.
@@ -249,8 +272,9 @@ impl Downsampler {
         let err = |e: &dyn std::fmt::Display| AudioError::Resampler(e.to_string());
         if out.len() != self.frame {
             return Err(AudioError::Resampler(format!(
-                "a frame of {} samples where 20 ms at {} Hz is {}",
+                "a frame of {} samples where {} ms at {} Hz is {}",
                 out.len(),
+                self.frame_ms(),
                 self.rate,
                 self.frame
             )));
@@ -295,8 +319,8 @@ pub enum Gate {
     Closed,
 }
 
-/// The encoder thread's end: 20 ms frames out of the ring, at 8 kHz or the rate the encoder
-/// takes ([`FrameReader::set_rate`]).
+/// The encoder thread's end: frames out of the ring, 20 ms at 8 kHz until told the encoder's
+/// rate and frame length ([`FrameReader::set_format`]).
 #[derive(Debug)]
 pub struct FrameReader {
     ring: rtrb::Consumer<f32>,
@@ -307,12 +331,19 @@ pub struct FrameReader {
 }
 
 impl FrameReader {
-    /// Frames at `rate` from now on (Opus's 48 kHz, G.722's 16 kHz, ...). On an error the
-    /// rate stays as it was.
+    /// Frames at `rate` from now on (Opus's 48 kHz, G.722's 16 kHz, ...), of the length they
+    /// had. On an error the rate stays as it was.
     pub fn set_rate(&mut self, rate: u32) -> Result<(), AudioError> {
-        if rate != self.down.rate() {
-            self.down = Downsampler::to_rate(self.device_rate, rate)?;
-            self.frame = vec![0.0; rate as usize / 50];
+        self.set_format(rate, self.frame_ms())
+    }
+
+    /// Frames of `frame_ms` (10 or 20) at `rate` from now on: what the encoder takes. On an
+    /// error the format stays as it was. What the ring holds is kept (the new frames start
+    /// where the old ones stopped), but a resampler's history is not.
+    pub fn set_format(&mut self, rate: u32, frame_ms: u8) -> Result<(), AudioError> {
+        if rate != self.down.rate() || frame_ms != self.down.frame_ms() {
+            self.down = Downsampler::framed(self.device_rate, rate, frame_ms)?;
+            self.frame = vec![0.0; rate as usize * usize::from(frame_ms) / 1000];
         }
         Ok(())
     }
@@ -322,19 +353,32 @@ impl FrameReader {
         self.down.rate()
     }
 
+    /// The length of the frames it gives, ms.
+    pub fn frame_ms(&self) -> u8 {
+        self.down.frame_ms()
+    }
+
+    /// Has the device's callback wake the calling thread after every buffer it delivers, so
+    /// that a reader parked between looks ([`std::thread::park_timeout`]) takes each frame as
+    /// it completes. The first thread to ask is the one woken.
+    pub fn wake_me(&self) {
+        self.controls.0.reader.get_or_init(std::thread::current);
+    }
+
     /// Samples in one of its frames.
     pub fn frame_samples(&self) -> usize {
         self.frame.len()
     }
 
-    /// The next 20 ms frame into `out` ([`FrameReader::frame_samples`] long), `None` until
-    /// the device has delivered enough. Never blocks: poll it every few milliseconds, or after
-    /// each 20 ms tick, and take frames while it yields.
+    /// The next frame into `out` ([`FrameReader::frame_samples`] long), `None` until the
+    /// device has delivered enough. Never blocks: poll it every few milliseconds, or when woken
+    /// ([`FrameReader::wake_me`]), and take frames while it yields.
     pub fn read_frame(&mut self, out: &mut [i16]) -> Result<Option<Gate>, AudioError> {
         if out.len() != self.frame.len() {
             return Err(AudioError::Resampler(format!(
-                "a frame of {} samples where 20 ms is {}",
+                "a frame of {} samples where {} ms is {}",
                 out.len(),
+                self.frame_ms(),
                 self.frame.len()
             )));
         }
@@ -480,9 +524,24 @@ impl Capture {
         self.reader.set_rate(rate)
     }
 
+    /// See [`FrameReader::set_format`].
+    pub fn set_format(&mut self, rate: u32, frame_ms: u8) -> Result<(), AudioError> {
+        self.reader.set_format(rate, frame_ms)
+    }
+
+    /// See [`FrameReader::wake_me`].
+    pub fn wake_me(&self) {
+        self.reader.wake_me();
+    }
+
     /// Samples in one of its frames.
     pub fn frame_samples(&self) -> usize {
         self.reader.frame_samples()
+    }
+
+    /// The length of one of its frames, ms.
+    pub fn frame_ms(&self) -> u8 {
+        self.reader.frame_ms()
     }
 
     pub fn controls(&self) -> MicControls {
@@ -602,6 +661,56 @@ mod tests {
         // Silence reads as the floor.
         feeder.feed(&[0i16; 64]);
         assert_eq!(controls.level().peak_dbfs, LEVEL_FLOOR_DBFS);
+    }
+
+    #[test]
+    fn ten_ms_frames_come_as_each_10_ms_is_delivered() {
+        // Opus's 10 ms frames from a 48 kHz microphone delivering 10 ms a callback: each
+        // callback completes one frame; at 20 ms, every second one does.
+        let (mut feeder, mut reader) = capture_pipeline(48_000, 1, Duration::from_secs(1)).unwrap();
+        reader.set_format(48_000, 10).unwrap();
+        assert_eq!((reader.frame_samples(), reader.frame_ms()), (480, 10));
+        let mut frame = vec![0i16; 480];
+        for k in 0..10 {
+            feeder.feed(&tone(48_000, 440.0, 0.5, 480, 480 * k));
+            assert_eq!(reader.read_frame(&mut frame).unwrap(), Some(Gate::Open));
+            assert_eq!(reader.read_frame(&mut frame).unwrap(), None, "callback {k}");
+        }
+        // Back to 20 ms (a 20 ms encoder): a frame every second callback; a 16 kHz 10 ms frame
+        // through a resampler comes too. Frame lengths other than 10 and 20 ms are refused.
+        reader.set_format(48_000, 20).unwrap();
+        let mut frame = vec![0i16; 960];
+        let mut got = 0;
+        for k in 0..10 {
+            feeder.feed(&tone(48_000, 440.0, 0.5, 480, 480 * k));
+            while reader.read_frame(&mut frame).unwrap().is_some() {
+                got += 1;
+            }
+        }
+        assert_eq!(got, 5);
+        reader.set_format(16_000, 10).unwrap();
+        assert_eq!(reader.frame_samples(), 160);
+        assert!(reader.set_format(16_000, 15).is_err());
+        assert_eq!((reader.rate(), reader.frame_ms()), (16_000, 10));
+    }
+
+    #[test]
+    fn each_delivery_wakes_the_reader() {
+        // The encoder's thread parks between looks; a callback's delivery unparks it.
+        let (mut feeder, reader) = capture_pipeline(48_000, 1, Duration::from_secs(1)).unwrap();
+        let (tx, rx) = std::sync::mpsc::channel();
+        let parked = std::thread::spawn(move || {
+            reader.wake_me();
+            tx.send(()).unwrap();
+            let began = std::time::Instant::now();
+            std::thread::park_timeout(Duration::from_secs(60));
+            began.elapsed()
+        });
+        rx.recv().unwrap();
+        std::thread::sleep(Duration::from_millis(50));
+        feeder.feed(&[0.1f32; 480]);
+        let waited = parked.join().unwrap();
+        assert!(waited < Duration::from_secs(30), "woke after {waited:?}");
     }
 
     #[test]

@@ -67,6 +67,8 @@ pub enum LinkEvent {
     /// SDES keys travel in the signalling).
     Media {
         codec: Codec,
+        /// The frame length the peer takes (its `ptime`), ms: what we send in.
+        frame_ms: u8,
         srtp: bool,
     },
     /// The call ended as calls do (a hang-up): said, not an error.

@@ -80,8 +80,8 @@ pub struct SipLink {
     handle: SipHandle,
     /// Silence sent where the owner sends nothing ([`SipLink::keep_stream`]).
     quiet: Option<QuietFill>,
-    /// The codec and SRTP last told ([`LinkEvent::Media`]).
-    media_told: Option<(Codec, bool)>,
+    /// The codec, frame length and SRTP last told ([`LinkEvent::Media`]).
+    media_told: Option<(Codec, u8, bool)>,
     /// Audio played into the call ([`SipLink::play`]).
     playing: Option<Playing>,
 }
@@ -336,12 +336,16 @@ impl SipLink {
             .negotiated
             .as_ref()
             .filter(|_| self.answered)
-            .map(|n| (n.codec, n.srtp.is_some()));
-        if let Some((codec, srtp)) = media
+            .map(|n| (n.codec, n.frame_ms, n.srtp.is_some()));
+        if let Some((codec, frame_ms, srtp)) = media
             && media != self.media_told
         {
             self.media_told = media;
-            self.events.push(LinkEvent::Media { codec, srtp });
+            self.events.push(LinkEvent::Media {
+                codec,
+                frame_ms,
+                srtp,
+            });
         }
     }
 

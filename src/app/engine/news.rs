@@ -55,8 +55,14 @@ impl Worker {
                         };
                     }
                 }
-                LinkEvent::Media { codec, srtp } => {
-                    match FrameEncoder::new(codec, &EncoderSettings::default()) {
+                LinkEvent::Media {
+                    codec,
+                    frame_ms,
+                    srtp,
+                } => {
+                    let mut settings = EncoderSettings::default();
+                    settings.opus.frame_ms = frame_ms;
+                    match FrameEncoder::new(codec, &settings) {
                         Ok(encoder) => self.encoder = encoder,
                         Err(e) => s.call.error = Some(format!("cannot send {codec}: {e}")),
                     }

@@ -18,6 +18,7 @@ impl Worker {
     /// A SIP call: its host is looked up off the worker, then [`Worker::dial_from`].
     pub(super) fn dial_sip(&mut self, spec: &CallSpec) -> anyhow::Result<()> {
         let (target, towards) = self.phone.dial_plan(&spec.address)?;
+        self.phone.offer_frame_ms(spec.frame_ms);
         let stun = self.phone.stun();
         let literal = HostPort::parse(&towards).is_ok_and(|h| h.ip().is_some());
         if literal && stun.is_none() {
