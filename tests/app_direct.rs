@@ -77,6 +77,12 @@ fn two_engines_call() {
     common::app::wait_for(&alice, "Alice hears Bob ringing", LIMIT, |s| {
         hears(s, "Bob")
     });
+    // Bob's app says where his call stands: it rings at Alice's (her reports say so), and
+    // it is no call yet.
+    common::app::wait_for(&bob, "Bob's call rings there", LIMIT, |s| {
+        matches!(&s.call.phase, CallPhase::Calling { ringing: true, .. })
+    });
+    assert_eq!(lock(&bob.shared).call.phase.word(), "calling");
     let bob_at = match &lock(&alice.shared).call.phase {
         CallPhase::Ringing { caller, .. } => caller.expect("a direct caller"),
         other => panic!("not ringing: {other:?}"),
@@ -101,6 +107,35 @@ fn two_engines_call() {
     });
     lock(&alice.shared).mic.as_ref().unwrap().set_muted(false);
     common::app::wait_for(&bob, "Alice unmuted", LIMIT, |s| hears(s, "Alice"));
+    // Carol calls Alice during the call and rings; Alice declines, and Carol's app says so.
+    let carol = engine_with_audio("Carol", Some("127.0.0.1:0"));
+    call(&carol, &to.to_string(), "Carol");
+    common::app::wait_for(
+        &alice,
+        "Carol rings at Alice",
+        LIMIT,
+        |s| matches!(&s.call.phase, CallPhase::Ringing { from, .. } if from == "Carol"),
+    );
+    common::app::wait_for(&carol, "Carol's call rings there", LIMIT, |s| {
+        matches!(&s.call.phase, CallPhase::Calling { ringing: true, .. })
+    });
+    let carol_at = match &lock(&alice.shared).call.phase {
+        CallPhase::Ringing { caller, .. } => caller.expect("a direct caller"),
+        other => panic!("not ringing: {other:?}"),
+    };
+    alice.send(EngineCommand::DeclineCaller(carol_at));
+    common::app::wait_for(
+        &carol,
+        "Carol hears she was declined",
+        LIMIT,
+        |s| matches!(&s.call.phase, CallPhase::Failed { reason } if reason.ends_with("declined the call")),
+    );
+    common::app::wait_for(
+        &alice,
+        "Alice back in her call with Bob",
+        LIMIT,
+        |s| matches!(&s.call.phase, CallPhase::InCall { with, .. } if with == "Bob"),
+    );
     alice.send(EngineCommand::Leave);
     common::app::wait_for(
         &bob,
@@ -283,8 +318,9 @@ fn a_call_whose_peer_dies_without_a_word_ends_after_its_silence() {
     // Where Bob calls: a socket of the test's, which never answers.
     let quiet = UdpSocket::bind("127.0.0.1:0").unwrap();
     call(&engine, &quiet.local_addr().unwrap().to_string(), "Bob");
+    // Placed: the call's own socket (until then the address is the listening session's).
     common::app::wait_for(&engine, "calling", LIMIT, |s| {
-        s.call.phase.word() == "calling" && s.call.local_addr.is_some()
+        s.call.phase.word() == "calling" && s.call.in_call && s.call.local_addr.is_some()
     });
     let bob_at = lock(&engine.shared).call.local_addr.unwrap();
     // A sender that reaches Bob's call, then dies without a BYE.

@@ -597,5 +597,59 @@ fn a_direct_caller_rings_sounds_notifies_and_is_answered_from_the_notification()
         record.lock().unwrap().closed.contains(&notified.id)
     });
     assert!(app.text().contains("the user answered"), "{}", app.text());
+    // In the call with Ann (docs/states/in_call.png): her tile, a few seconds on its timer.
+    wait_until("Ann's tile shown", limit, &log, &|| {
+        shown_peers(&status) >= 1
+    });
+    std::thread::sleep(Duration::from_secs(3));
+    screenshot(dir.path(), &display, "in_call.png");
+    // Bob and Carol call during it: each rings over the call and is answered from its own
+    // notification (docs/states/peers.png: the three of them).
+    let mut callers = Vec::new();
+    for name in ["Bob", "Carol"] {
+        let before = record.lock().unwrap().notified.len();
+        callers.push(Peer::spawn_logged(
+            "lipcall send",
+            common::lipcall()
+                .arg("send")
+                .arg(&wav)
+                .args(["--to", &to, "--name", name]),
+        ));
+        wait_until(&format!("{name}'s notification"), limit, &log, &|| {
+            record.lock().unwrap().notified.len() > before
+        });
+        let notified = record.lock().unwrap().notified[before].clone();
+        assert_eq!(
+            notified.summary,
+            format!("{name} is calling"),
+            "{notified:?}"
+        );
+        wait_until(&format!("{name} rings over the call"), limit, &log, &|| {
+            call_word(&status) == "ringing"
+        });
+        emit.send((notified.id, "answer".into())).unwrap();
+        wait_until(&format!("{name} answered"), limit, &log, &|| {
+            call_word(&status) == "in_call"
+        });
+    }
+    wait_until("three tiles shown", limit, &log, &|| {
+        shown_peers(&status) == 3
+    });
+    std::thread::sleep(Duration::from_secs(2));
+    screenshot(dir.path(), &display, "peers.png");
     assert!(!app.text().contains("panicked"), "{}", app.text());
+}
+
+/// Peers the status file says have a tile drawn.
+fn shown_peers(status: &Path) -> usize {
+    let text = std::fs::read_to_string(status).unwrap_or_default();
+    text.lines()
+        .filter(|l| l.starts_with("peer "))
+        .filter(|l| {
+            l.split_whitespace()
+                .find_map(|w| w.strip_prefix("shown="))
+                .and_then(|n| n.parse::<u64>().ok())
+                .is_some_and(|n| n > 0)
+        })
+        .count()
 }

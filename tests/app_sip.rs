@@ -124,11 +124,28 @@ fn the_app_calls_a_wideband_baresip_in_g722() {
         dir.path(),
         bob_port,
         control,
-        "<sip:bob@127.0.0.1>;regint=0;answermode=auto;audio_codecs=G722/16000/1",
+        "<sip:bob@127.0.0.1>;regint=0;answermode=manual;audio_codecs=G722/16000/1",
         &speech,
     );
     let engine = engine();
     call(&engine, &format!("sip:bob@127.0.0.1:{bob_port}"));
+    // Bob's phone rings (his 180) before he answers: the app says so, still calling.
+    common::app::wait_for(&engine, "ringing bob", Duration::from_secs(15), |s| {
+        matches!(s.call.phase, CallPhase::Calling { ringing: true, .. })
+    });
+    {
+        let s = lock(&engine.shared);
+        assert_eq!(s.call.phase.word(), "calling", "{:?}", s.call);
+        assert!(
+            s.call
+                .phase
+                .describe(std::time::Instant::now())
+                .starts_with("ringing sip:bob@"),
+            "{:?}",
+            s.call
+        );
+    }
+    tell_baresip(control, "accept", "");
     common::app::wait_for(
         &engine,
         "bob heard in G.722",

@@ -29,7 +29,9 @@ fn valid_rtcp() -> Vec<u8> {
             blocks: &[rtcp::ReportBlock::default()],
             cname: "c",
             name: Some("n"),
+            note: Some("ringing"),
             bye: true,
+            bye_reason: Some("declined"),
         },
         &mut out,
     )

@@ -38,6 +38,9 @@ pub struct CallStatus {
 
 /// How long a direct call waits to hear anyone before it has failed.
 pub const DIRECT_ANSWER_WAIT: Duration = Duration::from_secs(15);
+/// How long a direct call rings at the called app before nobody answered: half a minute, as
+/// a softphone rings before it gives up (Linphone's default for an incoming call).
+pub const RINGING_ANSWER_WAIT: Duration = Duration::from_secs(30);
 
 /// Where the call stands, the one account the call bar and the `--status` file both read.
 /// A message that belongs to a phase (a reason, who hung up) lives in it, so it goes with it.
@@ -46,10 +49,12 @@ pub enum CallPhase {
     #[default]
     Idle,
     /// Placing a call to `to`; a direct call that hears nobody by `deadline` has failed
-    /// (other links have their own timeouts, which end in [`CallPhase::Failed`]).
+    /// (other links have their own timeouts, which end in [`CallPhase::Failed`]); `ringing`
+    /// once the called app says it rings there.
     Calling {
         to: String,
         deadline: Option<Instant>,
+        ringing: bool,
     },
     /// A caller waits for Answer or Decline: the phone's SIP call, or a direct caller of the
     /// listening session at `caller` (heard, not yet sent our microphone).
@@ -92,6 +97,9 @@ impl CallPhase {
     pub fn describe(&self, now: Instant) -> String {
         match self {
             Self::Idle => "not in a call".into(),
+            Self::Calling {
+                to, ringing: true, ..
+            } => format!("ringing {to}…"),
             Self::Calling { to, .. } => format!("calling {to}…"),
             Self::Ringing { from, .. } => format!("{from} is calling you"),
             Self::InCall { with, since } => {

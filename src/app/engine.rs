@@ -41,7 +41,9 @@ use crate::net::srtp::MasterKey;
 use crate::net::transport::{PeerFrame, PeerInfo};
 use crate::vocab::MAX_FRAME_SAMPLES;
 
-pub use super::call_status::{CallPhase, CallStatus, DIRECT_ANSWER_WAIT, Encryption};
+pub use super::call_status::{
+    CallPhase, CallStatus, DIRECT_ANSWER_WAIT, Encryption, RINGING_ANSWER_WAIT,
+};
 pub use super::counters::{DEMO_NAME, EngineCounters};
 use super::demo::Demo;
 use super::device_opener::DeviceOpener;
@@ -331,6 +333,8 @@ fn idle_session(config: &EngineConfig) -> anyhow::Result<Session> {
         .unwrap_or_else(|| SocketAddr::from(([127, 0, 0, 1], 0)));
     let mut sc = SessionConfig::new(bind);
     sc.name = Some(config.name.clone());
+    // Callers wait for the user's answer, and their apps are told so.
+    sc.rings_for_callers = true;
     Ok(Session::start(sc)?)
 }
 

@@ -41,6 +41,8 @@ pub struct RemotePeer {
     pub(super) level_db: f32,
     /// When it was first heard or seated: tiles are shown in this order.
     pub(super) joined: Instant,
+    /// Since when it is in the call: `None` for a direct caller still ringing.
+    pub(super) in_call_since: Option<Instant>,
     pub(super) frames_received: u64,
     /// It had a frame in the last pull (its audio runs on in its queue).
     pub(super) playing: bool,
@@ -64,6 +66,7 @@ impl RemotePeer {
             last_voice: None,
             level_db: LEVEL_FLOOR_DB,
             joined: Instant::now(),
+            in_call_since: Some(Instant::now()),
             frames_received: 0,
             playing: false,
         }
@@ -94,8 +97,10 @@ pub struct PeerView {
     pub talking: bool,
     /// Its voice's level now (dBFS; [`LEVEL_FLOOR_DB`] in silence).
     pub level_db: f32,
-    /// When it joined the call: the order of the tiles, and its time in the call.
+    /// When it was first heard: the order of the tiles.
     pub joined: Instant,
+    /// Since when it is in the call (its tile's timer): `None` while a direct caller rings.
+    pub in_call_since: Option<Instant>,
     pub loss_percent: f64,
     pub jitter_ms: f64,
     pub delay_ms: f64,

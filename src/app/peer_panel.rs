@@ -389,14 +389,25 @@ fn tile_header_ui(ui: &mut egui::Ui, shown: &mut ShownPeer) {
             } else {
                 ui.checkbox(&mut shown.prefs.muted, "Mute");
             }
-            let in_call = call_time(p.joined.elapsed());
             // A narrow tile keeps the name whole: the meter thinner, the time on hover.
             let meter = level_meter_ui(ui, p, compact);
-            if compact {
-                meter.on_hover_text(format!("{} in the call for {in_call}", p.name));
-            } else {
-                ui.weak(in_call)
-                    .on_hover_text(format!("{} has been in the call this long", p.name));
+            match p.in_call_since {
+                Some(since) => {
+                    let in_call = call_time(since.elapsed());
+                    if compact {
+                        meter.on_hover_text(format!("{} in the call for {in_call}", p.name));
+                    } else {
+                        ui.weak(in_call)
+                            .on_hover_text(format!("{} has been in the call this long", p.name));
+                    }
+                }
+                None if compact => {
+                    meter.on_hover_text(format!("{} is calling you", p.name));
+                }
+                None => {
+                    ui.weak("ringing")
+                        .on_hover_text(format!("{} is calling you: not answered yet", p.name));
+                }
             }
             ui.with_layout(egui::Layout::left_to_right(egui::Align::Center), |ui| {
                 talking_dot(ui, p.talking, 10.0);

@@ -3,6 +3,7 @@
 //! one place, with its mixer slot, when it leaves or the call ends.
 
 use std::collections::{BTreeMap, VecDeque};
+use std::net::SocketAddr;
 use std::sync::atomic::Ordering;
 use std::time::{Duration, Instant};
 
@@ -59,6 +60,15 @@ impl Roster {
         let mut views: Vec<PeerView> = self.peers.values().filter_map(|p| p.view.clone()).collect();
         views.sort_by(|a, b| (a.joined, &a.name).cmp(&(b.joined, &b.name)));
         views
+    }
+
+    /// When the peer at `addr` was first heard, if it is shown: the order callers are named in.
+    pub(super) fn joined_at(&self, addr: SocketAddr) -> Option<Instant> {
+        self.peers
+            .values()
+            .filter_map(|p| p.view.as_ref())
+            .find(|v| v.addr == addr)
+            .map(|v| v.joined)
     }
 
     /// The names of the peers who left within [`LEFT_NOTICE_STAYS`] of `now`, first first.
@@ -166,6 +176,22 @@ impl Roster {
         }
     }
 
+    /// The direct callers at `ringing` wait for an answer; every other peer is in the call,
+    /// from now where it was not before (an answered caller's timer starts at the answer).
+    pub(super) fn ringing_at(&mut self, ringing: &[SocketAddr], now: Instant) {
+        for peer in self.peers.values_mut() {
+            let Some(view) = peer.view.as_mut() else {
+                continue;
+            };
+            peer.in_call_since = if ringing.contains(&view.addr) {
+                None
+            } else {
+                Some(peer.in_call_since.unwrap_or(now))
+            };
+            view.in_call_since = peer.in_call_since;
+        }
+    }
+
     /// Gives each of `members` (in the call, silent so far) a place: a head, still until they
     /// speak, and their controls.
     pub(super) fn seat(&mut self, playback: &mut Playback, members: &[PeerInfo]) {
@@ -264,6 +290,7 @@ fn view_of(peer: &RemotePeer, info: &PeerInfo, now: Instant) -> PeerView {
         codec: info.receiver.codec,
         level_db: peer.level_db,
         joined: peer.joined,
+        in_call_since: peer.in_call_since,
         talking: peer
             .last_voice
             .is_some_and(|t| now.saturating_duration_since(t) < TALKING_HOLD),
@@ -395,6 +422,23 @@ mod tests {
         assert!(views[0].named);
         assert_eq!(views[0].feed, feed);
         assert_eq!(views[0].frames_received, 1);
+    }
+
+    #[test]
+    fn a_ringing_callers_time_in_the_call_starts_when_it_is_answered() {
+        let mut call = Call::new();
+        call.pull(0, &[voiced(7)]);
+        call.report(20, &[info(7, "Ann")]);
+        let at = SocketAddr::from(([127, 0, 0, 1], 5004));
+        call.roster.ringing_at(&[at], call.at(20));
+        assert_eq!(call.roster.views()[0].in_call_since, None, "ringing");
+        call.report(5000, &[info(7, "Ann")]);
+        assert_eq!(call.roster.views()[0].in_call_since, None, "still ringing");
+        call.roster.ringing_at(&[], call.at(6000));
+        call.roster.ringing_at(&[], call.at(7000));
+        call.report(7020, &[info(7, "Ann")]);
+        let view = &call.roster.views()[0];
+        assert_eq!(view.in_call_since, Some(call.at(6000)), "answered at 6 s");
     }
 
     #[test]

@@ -61,6 +61,8 @@ pub enum LinkEvent {
     /// How the call is getting on while it is set up (dialling, ringing, media agreed): for
     /// the call's state line.
     Progress(String),
+    /// The called party's phone rings (a SIP 180): the call is not answered yet.
+    Ringing,
     /// What our audio must now be sent in, and whether the media is encrypted (hop by hop:
     /// SDES keys travel in the signalling).
     Media {

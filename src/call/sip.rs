@@ -419,7 +419,10 @@ impl SipLink {
                 self.peer = from.clone();
                 self.say(format!("call from {from}; answering"));
             }
-            AgentEvent::Ringing => self.say(format!("{} is ringing", self.peer)),
+            AgentEvent::Ringing => {
+                self.say(format!("{} is ringing", self.peer));
+                self.events.push(LinkEvent::Ringing);
+            }
             AgentEvent::EarlyMedia => {
                 self.say(format!("{} sends early media before answering", self.peer));
             }

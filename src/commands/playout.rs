@@ -194,8 +194,8 @@ pub(crate) fn print_event(event: &LinkEvent, words: Wording) {
         | LinkEvent::Progress(said)
         | LinkEvent::Over { reason: said }
         | LinkEvent::Ended { reason: said } => eprintln!("lipcall: {said}"),
-        // A progress line names the media agreed.
-        LinkEvent::Media { .. } => {}
+        // A progress line names the media agreed, and the ringing.
+        LinkEvent::Media { .. } | LinkEvent::Ringing => {}
     }
 }
 

@@ -1,5 +1,6 @@
 //! RTCP (RFC 3550 section 6) through `rtcp-types`: sender and receiver reports with their
-//! report blocks, SDES CNAME and NAME (the peer's display name), and BYE; and what every
+//! report blocks, SDES CNAME, NAME (the peer's display name) and NOTE (a state such as
+//! [`RINGING_NOTE`]), and BYE with its reason; and what every
 //! sender of reports shares: when the next one is due, the NTP clock they are stamped on, the
 //! block about a stream received, and what a peer's reports said about ours.
 
@@ -59,11 +60,19 @@ pub enum RtcpItem {
         ssrc: u32,
         cname: Option<String>,
         name: Option<String>,
+        note: Option<String>,
     },
     Bye {
         ssrcs: Vec<u32>,
+        reason: Option<String>,
     },
 }
+
+/// The SDES NOTE (RFC 3550 6.5.7) of an app that rings for the caller it reports to: the
+/// caller's reports are heard, its call is not answered yet.
+pub const RINGING_NOTE: &str = "ringing";
+/// The BYE reason (RFC 3550 6.6) of an app whose user declined the caller it says it to.
+pub const DECLINED_REASON: &str = "declined";
 
 /// Parses a compound packet; unknown packet types inside it are skipped.
 pub fn parse(data: &[u8]) -> Result<Vec<RtcpItem>, RtcpError> {
@@ -117,11 +126,13 @@ fn names<'a>(sdes: &'a Sdes<'a>, items: &mut Vec<RtcpItem>) {
     for chunk in sdes.chunks() {
         let mut cname = None;
         let mut name = None;
+        let mut note = None;
         for item in chunk.items() {
             let text = || Some(clean_name(&String::from_utf8_lossy(item.value())));
             match item.type_() {
                 SdesItem::CNAME => cname = text(),
                 SdesItem::NAME => name = text(),
+                SdesItem::NOTE => note = text(),
                 _ => {}
             }
         }
@@ -129,6 +140,7 @@ fn names<'a>(sdes: &'a Sdes<'a>, items: &mut Vec<RtcpItem>) {
             ssrc: chunk.ssrc(),
             cname,
             name,
+            note,
         });
     }
 }
@@ -148,6 +160,9 @@ pub fn clean_name(raw: &str) -> String {
 fn bye_item(bye: &Bye<'_>) -> RtcpItem {
     RtcpItem::Bye {
         ssrcs: bye.ssrcs().collect(),
+        reason: bye
+            .reason()
+            .map(|r| clean_name(&String::from_utf8_lossy(r))),
     }
 }
 
@@ -161,13 +176,18 @@ pub struct Outgoing<'a> {
     pub blocks: &'a [ReportBlock],
     pub cname: &'a str,
     pub name: Option<&'a str>,
+    /// An SDES NOTE: where the sender is (ringing, say), for the one it reports to.
+    pub note: Option<&'a str>,
     pub bye: bool,
+    /// Why the sender says BYE, where `bye` is set.
+    pub bye_reason: Option<&'a str>,
 }
 
 /// Builds the compound packet (SR or RR, then SDES, then an optional BYE) into `out`.
 pub fn build(outgoing: &Outgoing<'_>, out: &mut Vec<u8>) -> Result<(), RtcpError> {
     let cname = clean_name(outgoing.cname);
     let name = outgoing.name.map(clean_name);
+    let note = outgoing.note.map(clean_name);
     let blocks = outgoing.blocks.iter().take(31).map(|b| {
         RawBlock::builder(b.ssrc)
             .fraction_lost(b.fraction_lost)
@@ -203,9 +223,16 @@ pub fn build(outgoing: &Outgoing<'_>, out: &mut Vec<u8>) -> Result<(), RtcpError
     if let Some(name) = &name {
         chunk = chunk.add_item(SdesItem::builder(SdesItem::NAME, name));
     }
+    if let Some(note) = &note {
+        chunk = chunk.add_item(SdesItem::builder(SdesItem::NOTE, note));
+    }
     compound = compound.add_packet(Sdes::builder().add_chunk(chunk));
     if outgoing.bye {
-        compound = compound.add_packet(Bye::builder().add_source(outgoing.ssrc));
+        let mut bye = Bye::builder().add_source(outgoing.ssrc);
+        if let Some(reason) = outgoing.bye_reason {
+            bye = bye.reason_owned(clean_name(reason));
+        }
+        compound = compound.add_packet(bye);
     }
     let size = compound
         .calculate_size()
@@ -440,7 +467,9 @@ mod tests {
                 blocks: &blocks,
                 cname: "lipcall@host",
                 name: Some("Ann\u{7}e"),
+                note: Some(RINGING_NOTE),
                 bye: true,
+                bye_reason: Some(DECLINED_REASON),
             },
             &mut out,
         )
@@ -458,9 +487,13 @@ mod tests {
                 RtcpItem::Names {
                     ssrc: 42,
                     cname: Some("lipcall@host".into()),
-                    name: Some("Anne".into())
+                    name: Some("Anne".into()),
+                    note: Some(RINGING_NOTE.into()),
                 },
-                RtcpItem::Bye { ssrcs: vec![42] },
+                RtcpItem::Bye {
+                    ssrcs: vec![42],
+                    reason: Some(DECLINED_REASON.into()),
+                },
             ]
         );
     }

@@ -80,6 +80,7 @@ pub fn shown_peer(
             talking: false,
             level_db: -30.0,
             joined: *SHOWN_SINCE + std::time::Duration::from_millis(joined_ms),
+            in_call_since: Some(*SHOWN_SINCE + std::time::Duration::from_millis(joined_ms)),
             loss_percent: 0.0,
             jitter_ms: 0.0,
             delay_ms: 0.0,

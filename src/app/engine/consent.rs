@@ -17,6 +17,9 @@ use crate::net::session::MAX_ANSWERED;
 #[derive(Debug, Default)]
 pub(super) struct Consent {
     answered: Vec<SocketAddr>,
+    /// When the call with the answered callers began: a caller ringing over the call and
+    /// answered too does not start its clock again.
+    since: Option<Instant>,
 }
 
 /// A direct caller heard now, by address and the name the call bar gives it.
@@ -41,10 +44,18 @@ impl Consent {
 
     pub fn forget(&mut self, addr: SocketAddr) {
         self.answered.retain(|a| *a != addr);
+        self.over_when_empty();
     }
 
     pub fn clear(&mut self) {
         self.answered.clear();
+        self.since = None;
+    }
+
+    fn over_when_empty(&mut self) {
+        if self.answered.is_empty() {
+            self.since = None;
+        }
     }
 
     pub fn is_answered(&self, addr: SocketAddr) -> bool {
@@ -54,6 +65,7 @@ impl Consent {
     /// Forgets the callers no longer heard: one that comes back rings again.
     pub fn keep_heard(&mut self, heard: &[Caller]) {
         self.answered.retain(|a| heard.iter().any(|c| c.addr == *a));
+        self.over_when_empty();
     }
 
     /// The phase the listening session's callers give, where it changes: the first caller not
@@ -61,7 +73,7 @@ impl Consent {
     /// missed call, an answered one gone ends the call (`gone` names who said goodbye). A call
     /// being placed and the phone's ringing are left as they are.
     pub fn phase(
-        &self,
+        &mut self,
         phase: &CallPhase,
         heard: &[Caller],
         gone: Option<&str>,
@@ -89,7 +101,10 @@ impl Consent {
                         since: *since,
                     })
                 }
-                _ => in_call_with("", &names).map(|with| CallPhase::InCall { with, since: now }),
+                _ => {
+                    let since = *self.since.get_or_insert(now);
+                    in_call_with("", &names).map(|with| CallPhase::InCall { with, since })
+                }
             };
         }
         match phase {
@@ -114,6 +129,7 @@ pub(super) fn in_call_with(with: &str, heard: &[String]) -> Option<String> {
     let now = match heard {
         [one] => one.clone(),
         [one, two] => format!("{one} and {two}"),
+        [one, two, three] => format!("{one}, {two} and {three}"),
         [one, two, rest @ ..] => format!("{one}, {two} and {} more", rest.len()),
         [] => return None,
     };
@@ -191,6 +207,20 @@ mod tests {
             consent.phase(&in_call, &[ann.clone(), bob.clone()], None, now),
             Some(CallPhase::Ringing { from, .. }) if from == "Bob"
         ));
+        // Bob answered too: the call's clock runs on from Ann's answer.
+        consent.answer(bob.addr);
+        let later = now + std::time::Duration::from_secs(9);
+        let bob_ringing = CallPhase::Ringing {
+            from: "Bob".into(),
+            caller: Some(bob.addr),
+        };
+        assert_eq!(
+            consent.phase(&bob_ringing, &[ann.clone(), bob.clone()], None, later),
+            Some(CallPhase::InCall {
+                with: "Ann and Bob".into(),
+                since: now
+            })
+        );
         assert_eq!(
             consent.phase(&in_call, &[], Some("Ann"), now),
             Some(CallPhase::Ended {
@@ -201,12 +231,13 @@ mod tests {
 
     #[test]
     fn a_call_being_placed_and_the_phone_ringing_are_left_alone() {
-        let consent = Consent::default();
+        let mut consent = Consent::default();
         let heard = [caller(5000, "Ann")];
         let now = Instant::now();
         let calling = CallPhase::Calling {
             to: "bob.example".into(),
             deadline: None,
+            ringing: false,
         };
         assert_eq!(consent.phase(&calling, &heard, None, now), None);
         let sip = CallPhase::Ringing {

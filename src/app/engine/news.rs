@@ -46,6 +46,15 @@ impl Worker {
                     tracing::info!("{label}: {line}");
                     s.call.state = line;
                 }
+                LinkEvent::Ringing => {
+                    if let CallPhase::Calling { to, deadline, .. } = &s.call.phase {
+                        s.call.phase = CallPhase::Calling {
+                            to: to.clone(),
+                            deadline: *deadline,
+                            ringing: true,
+                        };
+                    }
+                }
                 LinkEvent::Media { codec, srtp } => {
                     match FrameEncoder::new(codec, &EncoderSettings::default()) {
                         Ok(encoder) => self.encoder = encoder,

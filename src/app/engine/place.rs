@@ -103,6 +103,7 @@ impl Worker {
             None => CallPhase::Calling {
                 to: to.to_string(),
                 deadline: Some(now + DIRECT_ANSWER_WAIT),
+                ringing: false,
             },
         };
         let mut s = lock(&self.shared);

@@ -102,6 +102,7 @@ impl Worker {
             _ => CallPhase::Calling {
                 to: peer.clone(),
                 deadline: None,
+                ringing: false,
             },
         };
         self.switch_link(link, encoder);

@@ -241,6 +241,19 @@ impl SessionCore {
         let arrival_ntp = self.ntp_at(arrival);
         // A fixed call's RTCP comes from a port of its own, admitted above.
         let fixed = self.fixed.is_some();
+        // Where we call says how our call stands there: ringing, or declined.
+        let callee = self.config.destinations.contains(&from);
+        let rings: Vec<u32> = items
+            .iter()
+            .filter_map(|item| match item {
+                RtcpItem::Names {
+                    ssrc,
+                    note: Some(note),
+                    ..
+                } if callee && note == rtcp::RINGING_NOTE => Some(*ssrc),
+                _ => None,
+            })
+            .collect();
         let mut believed = false;
         let mut end_ts: HashMap<u32, u32> = HashMap::new();
         for item in items {
@@ -256,6 +269,9 @@ impl SessionCore {
                     }
                     if blocks.iter().any(|b| b.ssrc == self.ssrc) {
                         self.stats.reports_about_us += 1;
+                        if rings.contains(&reporter) {
+                            self.stats.ringing_reports += 1;
+                        }
                     }
                     let Some(peer) = self.peers.get_mut(&reporter) else {
                         // Not a peer (until its media comes): only where its stream will start
@@ -284,7 +300,9 @@ impl SessionCore {
                     peer.reports
                         .take(sender.as_ref(), &blocks, self.ssrc, arrival, arrival_ntp);
                 }
-                RtcpItem::Names { ssrc, cname, name } => {
+                RtcpItem::Names {
+                    ssrc, cname, name, ..
+                } => {
                     if ssrc == self.ssrc {
                         continue;
                     }
@@ -311,7 +329,10 @@ impl SessionCore {
                         }
                     }
                 }
-                RtcpItem::Bye { ssrcs } => {
+                RtcpItem::Bye { ssrcs, reason } => {
+                    if callee && reason.as_deref() == Some(rtcp::DECLINED_REASON) {
+                        self.stats.declined += 1;
+                    }
                     for ssrc in ssrcs {
                         let Some(peer) = self.peers.get_mut(&ssrc) else {
                             continue;

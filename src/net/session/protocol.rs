@@ -34,6 +34,14 @@ pub(super) enum ReportKind {
     Bye,
 }
 
+/// What a listening session's report tells a caller of its call ([`SessionConfig::rings_for_callers`]).
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub(super) enum Told {
+    Nothing,
+    Ringing,
+    Declined,
+}
+
 /// Our side of the relay's join handshake (see [`crate::net::control`]).
 #[derive(Default)]
 struct RelayLink {
@@ -394,7 +402,7 @@ impl SessionCore {
 
     fn send_report(&mut self, kind: ReportKind, now: Instant) {
         let mut peer_addrs: Vec<SocketAddr> = self.peers.values().map(|p| p.addr).collect();
-        let Some(buf) = self.report(kind, now) else {
+        let Some(buf) = self.report(kind, now, Told::Nothing) else {
             return;
         };
         if self.config.destinations.is_empty() && self.fixed.is_none() {
@@ -403,8 +411,16 @@ impl SessionCore {
             peer_addrs.retain(|a| !self.answering.contains(a));
             peer_addrs.sort_unstable();
             peer_addrs.dedup();
+            let ringing = if self.config.rings_for_callers && !peer_addrs.is_empty() {
+                self.report(kind, now, Told::Ringing)
+            } else {
+                None
+            };
             for to in peer_addrs {
-                self.send_copy(&buf, to);
+                self.send_copy(ringing.as_deref().unwrap_or(&buf), to);
+            }
+            if let Some(ringing) = ringing {
+                self.spare.push(ringing);
             }
         }
         self.send_all(buf, TransmitKind::Rtcp);
@@ -422,8 +438,9 @@ impl SessionCore {
         });
     }
 
-    /// A report of `kind` as it goes on the wire, if it could be made.
-    fn report(&mut self, kind: ReportKind, now: Instant) -> Option<Vec<u8>> {
+    /// A report of `kind` as it goes on the wire, if it could be made, telling the callers it
+    /// goes to what became of their call.
+    fn report(&mut self, kind: ReportKind, now: Instant, told: Told) -> Option<Vec<u8>> {
         let ntp = self.ntp_at(now);
         let mut blocks = Vec::new();
         for (&ssrc, peer) in self.peers.iter_mut() {
@@ -454,7 +471,9 @@ impl SessionCore {
                 blocks: &blocks,
                 cname: &self.cname,
                 name: self.config.name.as_deref(),
+                note: (told != Told::Nothing).then_some(rtcp::RINGING_NOTE),
                 bye: kind == ReportKind::Bye,
+                bye_reason: (told == Told::Declined).then_some(rtcp::DECLINED_REASON),
             },
             &mut buf,
         );
@@ -497,9 +516,14 @@ impl SessionCore {
     pub fn hang_up_on(&mut self, addr: SocketAddr, now: Instant) {
         self.blocked.block(addr, now);
         self.peers.retain(|_, p| p.addr != addr);
+        let told = if self.config.rings_for_callers && !self.answering.contains(&addr) {
+            Told::Declined
+        } else {
+            Told::Nothing
+        };
         self.answering.retain(|&a| a != addr);
         if self.config.send_rtcp
-            && let Some(bye) = self.report(ReportKind::Bye, now)
+            && let Some(bye) = self.report(ReportKind::Bye, now, told)
         {
             // Twice, as at the session's end: a lost BYE leaves the caller waiting.
             self.send_copy(&bye, addr);

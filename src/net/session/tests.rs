@@ -96,6 +96,7 @@ fn rtcp_from(ssrc: u32, sender: Option<SenderInfo>, bye: bool) -> Vec<u8> {
             cname: "spoof",
             name: None,
             bye,
+            ..Default::default()
         },
         &mut buf,
     )
@@ -149,7 +150,7 @@ fn names_from(ssrc: u32, name: &str) -> Vec<u8> {
             blocks: &[],
             cname: "caller@host",
             name: Some(name),
-            bye: false,
+            ..Default::default()
         },
         &mut buf,
     )
@@ -916,6 +917,84 @@ fn a_pure_receivers_report_about_our_stream_says_someone_hears_us() {
     }
     assert_eq!(reports, 1);
     assert_eq!(caller.stats().reports_about_us, 1);
+}
+
+/// A caller session (SSRC 7, at `us`) that calls `them`, heard by a listening session that
+/// rings for its callers.
+fn ringing_call(us: SocketAddr, them: SocketAddr) -> (SessionCore, SessionCore) {
+    let mut listener = session(8);
+    listener.config.rings_for_callers = true;
+    let mut config = SessionConfig::new(LOCAL);
+    config.ssrc = Some(7);
+    config.destinations = vec![them];
+    let caller = SessionCore::new(config, us, Instant::now()).unwrap();
+    let mut voice = Caller::new(7, 100, 1000);
+    drive(
+        &mut listener,
+        0..10,
+        |_| vec![(us, voice.packet())],
+        &mut HashMap::new(),
+    );
+    (listener, caller)
+}
+
+/// Hands what `listener` sends to `caller`, as if from `from`; how many went.
+fn deliver(listener: &mut SessionCore, caller: &mut SessionCore, from: SocketAddr) -> usize {
+    let mut sent = 0;
+    while let Some(t) = listener.poll_transmit() {
+        caller.handle_datagram(&t.data, from, caller.epoch);
+        sent += 1;
+    }
+    sent
+}
+
+#[test]
+fn a_listener_that_rings_tells_its_caller_until_the_answer() {
+    let (us, them) = (addr(5000), addr(6000));
+    let (mut listener, mut caller) = ringing_call(us, them);
+    listener.send_periodic_report(listener.epoch + FRAME * 10);
+    assert_eq!(deliver(&mut listener, &mut caller, them), 1);
+    let s = caller.stats();
+    assert_eq!((s.reports_about_us, s.ringing_reports), (1, 1), "{s:?}");
+    // The same report from anywhere but where we call says nothing of our call.
+    listener.send_periodic_report(listener.epoch + FRAME * 11);
+    deliver(&mut listener, &mut caller, addr(6001));
+    let s = caller.stats();
+    assert_eq!((s.reports_about_us, s.ringing_reports), (2, 1), "{s:?}");
+    let codec = listener.config.codec;
+    listener.answer(&[us], codec);
+    listener.send_periodic_report(listener.epoch + FRAME * 12);
+    assert_eq!(deliver(&mut listener, &mut caller, them), 1);
+    let s = caller.stats();
+    assert_eq!(
+        (s.reports_about_us, s.ringing_reports),
+        (3, 1),
+        "answered: {s:?}"
+    );
+    listener.hang_up_on(us, listener.epoch + FRAME * 13);
+    deliver(&mut listener, &mut caller, them);
+    assert_eq!(caller.stats().declined, 0, "hung up on after the answer");
+}
+
+#[test]
+fn a_caller_hung_up_on_before_the_answer_hears_it_was_declined() {
+    let (us, them) = (addr(5000), addr(6000));
+    let (mut listener, mut caller) = ringing_call(us, them);
+    listener.hang_up_on(us, listener.epoch + FRAME * 10);
+    assert_eq!(deliver(&mut listener, &mut caller, them), 2, "BYE, twice");
+    assert_eq!(caller.stats().declined, 2);
+    // A listener that does not ring (`lipcall receive`) neither rings nor declines.
+    let (mut listener, mut caller) = ringing_call(us, them);
+    listener.config.rings_for_callers = false;
+    listener.send_periodic_report(listener.epoch + FRAME * 10);
+    listener.hang_up_on(us, listener.epoch + FRAME * 11);
+    deliver(&mut listener, &mut caller, them);
+    let s = caller.stats();
+    assert_eq!(
+        (s.reports_about_us, s.ringing_reports, s.declined),
+        (1, 0, 0),
+        "{s:?}"
+    );
 }
 
 fn fixed_session(named: Named, key: Option<(MasterKey, MasterKey)>, ssrc: u32) -> SessionCore {

@@ -43,6 +43,10 @@ pub struct SessionConfig {
     pub ssrc: Option<u32>,
     /// The codec this session sends.
     pub codec: Codec,
+    /// A listening session whose callers wait for the user's answer: the reports to a caller
+    /// not answered say it rings ([`crate::net::rtcp::RINGING_NOTE`]), and one hung up on
+    /// before its answer hears it was declined.
+    pub rings_for_callers: bool,
     /// Which codec each payload type carries, received and sent.
     pub payloads: PayloadMap,
     /// A call whose media a description negotiated (SIP): one remote stream, the agreed
@@ -91,6 +95,7 @@ impl SessionConfig {
             codec: Codec::Speex,
             payloads: PayloadMap::default(),
             call: None,
+            rings_for_callers: false,
         }
     }
 }
@@ -130,6 +135,10 @@ pub struct SessionStats {
     pub own: u64,
     /// Reports naming our stream: someone hears us, even a pure receiver that never sends.
     pub reports_about_us: u64,
+    /// Those of them from where we call, whose sender said it rings for us (not answered yet).
+    pub ringing_reports: u64,
+    /// Goodbyes from where we call that said our call was declined.
+    pub declined: u64,
     /// RTCP not believed: the part of `foreign` that is reports (a fixed call's only).
     pub foreign_rtcp: u64,
     /// The part of `auth_failed` that is SRTCP (baresip sends its first report and its BYE
