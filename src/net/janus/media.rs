@@ -248,6 +248,8 @@ struct MediaCore {
     jitter: JitterConfig,
     /// The latest time the core was given.
     now: Instant,
+    /// When the datagram being handled arrived (the kernel's stamp), for its RTP packets.
+    arrived: Option<Instant>,
     conns: Vec<Conn>,
     feeds: HashMap<String, Feed>,
     /// Publishers gone and played out, oldest first.
@@ -259,9 +261,13 @@ struct MediaCore {
 impl SansIo for MediaCore {
     const BUFFER: usize = 2000;
 
-    fn handle_datagram(&mut self, data: &[u8], source: SocketAddr, now: Instant) {
-        self.now = now;
-        self.datagram(data, source, now);
+    fn handle_datagram(&mut self, data: &[u8], source: SocketAddr, arrived: Instant) {
+        // str0m's clock only moves on; the jitter buffers get the kernel's arrival stamp,
+        // which a burst read after a stall has from before the last timeout handled.
+        self.now = self.now.max(arrived);
+        self.arrived = Some(arrived);
+        self.datagram(data, source, self.now);
+        self.arrived = None;
         self.conns.retain(|c| c.alive);
     }
 
@@ -318,6 +324,7 @@ impl MediaCore {
             epoch: now,
             jitter,
             now,
+            arrived: None,
             conns: Vec::new(),
             feeds: HashMap::new(),
             departed: VecDeque::new(),
@@ -477,7 +484,7 @@ impl MediaCore {
                             header,
                             payload: &p.payload,
                         },
-                        p.timestamp,
+                        self.arrived.unwrap_or(p.timestamp),
                     );
                 }
             }
