@@ -186,7 +186,7 @@ impl Media {
 
     /// The next 20 ms of every subscribed publisher that is playing.
     pub fn pull(&self, now: Instant, out: &mut Vec<PeerFrame>) {
-        self.driver.access(|core| core.pull(now, out));
+        self.driver.with_waiting(|core| core.pull(now, out));
     }
 
     pub fn feeds(&self) -> Vec<FeedInfo> {

@@ -50,6 +50,9 @@ pub trait SansIo {
     fn transmitted(&mut self, transmit: Transmit, sent: bool);
 }
 
+/// The most waiting datagrams [`Driver::with_waiting`] reads.
+const WAITING_MOST: usize = 64;
+
 struct Shared<C> {
     core: Mutex<C>,
     socket: UdpSocket,
@@ -155,6 +158,24 @@ impl<C: SansIo> Driver<C> {
     /// Runs `f` on the core, sending nothing (for calls that queue nothing).
     pub fn access<T>(&self, f: impl FnOnce(&mut C) -> T) -> T {
         f(&mut lock(&self.shared.core))
+    }
+
+    /// Hands the core the datagrams waiting on the socket (the socket thread held up: a busy
+    /// machine), then runs `f` on it and sends what both queued. A puller that plays from the
+    /// core calls this, so that what arrived in time is played, whichever thread ran.
+    pub fn with_waiting<T>(&self, f: impl FnOnce(&mut C) -> T) -> T {
+        let mut core = lock(&self.shared.core);
+        let mut buf = vec![0u8; C::BUFFER];
+        // At most a socket buffer's worth: a flood is left to the socket thread.
+        for _ in 0..WAITING_MOST {
+            let Ok((n, from, arrived)) = stamp::recv_waiting(&self.shared.socket, &mut buf) else {
+                break;
+            };
+            core.handle_datagram(&buf[..n.min(buf.len())], from, arrived);
+        }
+        let out = f(&mut core);
+        self.shared.flush(&mut core);
+        out
     }
 
     pub fn socket(&self) -> &UdpSocket {

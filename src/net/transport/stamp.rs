@@ -34,7 +34,7 @@ pub fn recv_from(
 ) -> std::io::Result<(usize, SocketAddr, Instant)> {
     #[cfg(target_os = "linux")]
     {
-        linux::recv_from(socket, buf)
+        linux::recv_from(socket, buf, false)
     }
     #[cfg(not(target_os = "linux"))]
     {
@@ -52,6 +52,23 @@ fn arrival(stamp: SystemTime, read: Instant, wall: SystemTime) -> Instant {
     }
 }
 
+/// As [`recv_from`] for a datagram already waiting; `WouldBlock` when none is (where the
+/// kernel cannot be asked for one without waiting: always).
+pub fn recv_waiting(
+    socket: &UdpSocket,
+    buf: &mut [u8],
+) -> std::io::Result<(usize, SocketAddr, Instant)> {
+    #[cfg(target_os = "linux")]
+    {
+        linux::recv_from(socket, buf, true)
+    }
+    #[cfg(not(target_os = "linux"))]
+    {
+        let _ = (socket, buf);
+        Err(std::io::ErrorKind::WouldBlock.into())
+    }
+}
+
 #[cfg(target_os = "linux")]
 mod linux {
     use std::io::IoSliceMut;
@@ -64,16 +81,18 @@ mod linux {
     pub fn recv_from(
         socket: &UdpSocket,
         buf: &mut [u8],
+        waiting_only: bool,
     ) -> std::io::Result<(usize, SocketAddr, Instant)> {
+        let flags = if waiting_only {
+            MsgFlags::MSG_DONTWAIT
+        } else {
+            MsgFlags::empty()
+        };
         let mut control = nix::cmsg_space!(nix::sys::time::TimeSpec);
         let mut iov = [IoSliceMut::new(buf)];
-        let msg = recvmsg::<SockaddrStorage>(
-            socket.as_raw_fd(),
-            &mut iov,
-            Some(&mut control),
-            MsgFlags::empty(),
-        )
-        .map_err(std::io::Error::from)?;
+        let msg =
+            recvmsg::<SockaddrStorage>(socket.as_raw_fd(), &mut iov, Some(&mut control), flags)
+                .map_err(std::io::Error::from)?;
         let (read, wall) = (Instant::now(), SystemTime::now());
         let from = msg
             .address
