@@ -22,12 +22,12 @@ use str0m::{Candidate, Event, IceConnectionState, Input, Output, Rtc};
 
 use super::JanusError;
 use super::candidates::{self, IceServers};
-use super::feeds::{Feed, FeedInfo, MediaStats};
+use super::feeds::{self, Feed, FeedInfo, MediaStats};
 use crate::codec::any::PayloadMap;
 use crate::net::jitter::JitterConfig;
 use crate::net::peer::PeerReceiver;
 use crate::net::rtp::{Rtp, RtpHeader};
-use crate::net::transport::{Driver, PeerFrame, PeerId, SansIo, Transmit, TransmitKind};
+use crate::net::transport::{Driver, PeerFrame, SansIo, Transmit, TransmitKind};
 use crate::net::turn::TurnClient;
 
 /// How long the socket thread waits at most for a datagram: a connection's timeout that an
@@ -37,9 +37,6 @@ const POLL: Duration = Duration::from_millis(2);
 const IDLE: Duration = Duration::from_secs(1);
 /// How long a join waits for a TURN allocation.
 const TURN_WAIT: Duration = Duration::from_secs(4);
-/// Publishers that left and played out, kept (without their decoders) for the summary; the
-/// oldest go first, so that a room of churning publishers holds no more than this.
-const DEPARTED_KEPT: usize = 64;
 
 /// The media side of a room: shared by the room's signalling and the receive tick, its thread
 /// stops when the last owner drops it.
@@ -675,40 +672,11 @@ impl MediaCore {
 
     /// The next 20 ms of every subscribed publisher that is playing.
     fn pull(&mut self, now: Instant, out: &mut Vec<PeerFrame>) {
-        let mut played_out = Vec::new();
-        for (id, feed) in &mut self.feeds {
-            let frame = feed.ssrc.and_then(|ssrc| {
-                feed.receiver.pull(now).map(|frame| PeerFrame {
-                    peer: PeerId::Janus(ssrc),
-                    frame,
-                })
-            });
-            match frame {
-                Some(frame) => out.push(frame),
-                None if feed.left => played_out.push(id.clone()),
-                None => {}
-            }
-        }
-        for id in played_out {
-            if let Some(feed) = self.feeds.remove(&id) {
-                if self.departed.len() == DEPARTED_KEPT {
-                    self.departed.pop_front();
-                }
-                self.departed.push_back(feed.info(id));
-            }
-        }
+        feeds::pull(&mut self.feeds, &mut self.departed, now, out);
     }
 
-    /// Every publisher playing, then those gone (the last [`DEPARTED_KEPT`]).
     fn feeds(&self) -> Vec<FeedInfo> {
-        let mut out: Vec<FeedInfo> = self
-            .feeds
-            .iter()
-            .map(|(id, f)| f.info(id.clone()))
-            .collect();
-        out.sort_by(|a, b| a.feed.cmp(&b.feed));
-        out.extend(self.departed.iter().cloned());
-        out
+        feeds::infos(&self.feeds, &self.departed)
     }
 }
 
