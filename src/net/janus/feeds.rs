@@ -1,9 +1,11 @@
 //! What the media side knows of each subscribed publisher (a feed), and its counters.
 
+use std::collections::{HashMap, VecDeque};
 use std::net::SocketAddr;
+use std::time::Instant;
 
 use crate::net::peer::{PeerReceiver, ReceiverStats};
-use crate::net::transport::{PeerId, PeerInfo};
+use crate::net::transport::{PeerFrame, PeerId, PeerInfo};
 
 /// What the owner knows of one subscribed publisher.
 #[derive(Debug, Clone, PartialEq)]
@@ -51,6 +53,10 @@ pub struct MediaStats {
     pub failed: Option<&'static str>,
 }
 
+/// Publishers that left and played out, kept (without their decoders) for the summary; the
+/// oldest go first, so that a room of churning publishers holds no more than this.
+const DEPARTED_KEPT: usize = 64;
+
 pub(super) struct Feed {
     pub name: String,
     pub receiver: PeerReceiver,
@@ -70,4 +76,44 @@ impl Feed {
             receiver: self.receiver.stats(),
         }
     }
+}
+
+/// The next 20 ms of every feed in `feeds` that is playing; those that left and played out go
+/// to `departed`.
+pub(super) fn pull(
+    feeds: &mut HashMap<String, Feed>,
+    departed: &mut VecDeque<FeedInfo>,
+    now: Instant,
+    out: &mut Vec<PeerFrame>,
+) {
+    let mut played_out = Vec::new();
+    for (id, feed) in feeds.iter_mut() {
+        let frame = feed.ssrc.and_then(|ssrc| {
+            feed.receiver.pull(now).map(|frame| PeerFrame {
+                peer: PeerId::Janus(ssrc),
+                frame,
+            })
+        });
+        match frame {
+            Some(frame) => out.push(frame),
+            None if feed.left => played_out.push(id.clone()),
+            None => {}
+        }
+    }
+    for id in played_out {
+        if let Some(feed) = feeds.remove(&id) {
+            if departed.len() == DEPARTED_KEPT {
+                departed.pop_front();
+            }
+            departed.push_back(feed.info(id));
+        }
+    }
+}
+
+/// Every feed playing, then those gone (the last [`DEPARTED_KEPT`]).
+pub(super) fn infos(feeds: &HashMap<String, Feed>, departed: &VecDeque<FeedInfo>) -> Vec<FeedInfo> {
+    let mut out: Vec<FeedInfo> = feeds.iter().map(|(id, f)| f.info(id.clone())).collect();
+    out.sort_by(|a, b| a.feed.cmp(&b.feed));
+    out.extend(departed.iter().cloned());
+    out
 }

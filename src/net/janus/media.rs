@@ -22,12 +22,12 @@ use str0m::{Candidate, Event, IceConnectionState, Input, Output, Rtc};
 
 use super::JanusError;
 use super::candidates::{self, IceServers};
-use super::feeds::{Feed, FeedInfo, MediaStats};
+use super::feeds::{self, Feed, FeedInfo, MediaStats};
 use crate::codec::any::PayloadMap;
 use crate::net::jitter::JitterConfig;
 use crate::net::peer::PeerReceiver;
 use crate::net::rtp::{Rtp, RtpHeader};
-use crate::net::transport::{Driver, PeerFrame, PeerId, SansIo, Transmit, TransmitKind};
+use crate::net::transport::{Driver, PeerFrame, SansIo, Transmit, TransmitKind};
 use crate::net::turn::TurnClient;
 
 /// How long the socket thread waits at most for a datagram: a connection's timeout that an
@@ -37,9 +37,6 @@ const POLL: Duration = Duration::from_millis(2);
 const IDLE: Duration = Duration::from_secs(1);
 /// How long a join waits for a TURN allocation.
 const TURN_WAIT: Duration = Duration::from_secs(4);
-/// Publishers that left and played out, kept (without their decoders) for the summary; the
-/// oldest go first, so that a room of churning publishers holds no more than this.
-const DEPARTED_KEPT: usize = 64;
 
 /// The media side of a room: shared by the room's signalling and the receive tick, its thread
 /// stops when the last owner drops it.
@@ -186,7 +183,7 @@ impl Media {
 
     /// The next 20 ms of every subscribed publisher that is playing.
     pub fn pull(&self, now: Instant, out: &mut Vec<PeerFrame>) {
-        self.driver.access(|core| core.pull(now, out));
+        self.driver.with_waiting(|core| core.pull(now, out));
     }
 
     pub fn feeds(&self) -> Vec<FeedInfo> {
@@ -248,6 +245,8 @@ struct MediaCore {
     jitter: JitterConfig,
     /// The latest time the core was given.
     now: Instant,
+    /// When the datagram being handled arrived (the kernel's stamp), for its RTP packets.
+    arrived: Option<Instant>,
     conns: Vec<Conn>,
     feeds: HashMap<String, Feed>,
     /// Publishers gone and played out, oldest first.
@@ -259,9 +258,13 @@ struct MediaCore {
 impl SansIo for MediaCore {
     const BUFFER: usize = 2000;
 
-    fn handle_datagram(&mut self, data: &[u8], source: SocketAddr, now: Instant) {
-        self.now = now;
-        self.datagram(data, source, now);
+    fn handle_datagram(&mut self, data: &[u8], source: SocketAddr, arrived: Instant) {
+        // str0m's clock only moves on; the jitter buffers get the kernel's arrival stamp,
+        // which a burst read after a stall has from before the last timeout handled.
+        self.now = self.now.max(arrived);
+        self.arrived = Some(arrived);
+        self.datagram(data, source, self.now);
+        self.arrived = None;
         self.conns.retain(|c| c.alive);
     }
 
@@ -318,6 +321,7 @@ impl MediaCore {
             epoch: now,
             jitter,
             now,
+            arrived: None,
             conns: Vec::new(),
             feeds: HashMap::new(),
             departed: VecDeque::new(),
@@ -477,7 +481,7 @@ impl MediaCore {
                             header,
                             payload: &p.payload,
                         },
-                        p.timestamp,
+                        self.arrived.unwrap_or(p.timestamp),
                     );
                 }
             }
@@ -656,45 +660,23 @@ impl MediaCore {
         } else {
             self.stats.send_errors += 1;
         }
-        self.after(i, Ok(()));
+        // str0m's pacer lets a packet out only at a timeout handled after the last one left:
+        // handled here, the packet leaves with this call instead of when the socket thread
+        // next wakes (up to 20 ms later on a quiet machine, 60 on a busy one: jitter that
+        // every listener has to buffer).
+        let now = now.max(self.now);
+        self.now = now;
+        let result = self.conns[i].rtc.handle_input(Input::Timeout(now));
+        self.after(i, result.map_err(|e| e.to_string()));
     }
 
     /// The next 20 ms of every subscribed publisher that is playing.
     fn pull(&mut self, now: Instant, out: &mut Vec<PeerFrame>) {
-        let mut played_out = Vec::new();
-        for (id, feed) in &mut self.feeds {
-            let frame = feed.ssrc.and_then(|ssrc| {
-                feed.receiver.pull(now).map(|frame| PeerFrame {
-                    peer: PeerId::Janus(ssrc),
-                    frame,
-                })
-            });
-            match frame {
-                Some(frame) => out.push(frame),
-                None if feed.left => played_out.push(id.clone()),
-                None => {}
-            }
-        }
-        for id in played_out {
-            if let Some(feed) = self.feeds.remove(&id) {
-                if self.departed.len() == DEPARTED_KEPT {
-                    self.departed.pop_front();
-                }
-                self.departed.push_back(feed.info(id));
-            }
-        }
+        feeds::pull(&mut self.feeds, &mut self.departed, now, out);
     }
 
-    /// Every publisher playing, then those gone (the last [`DEPARTED_KEPT`]).
     fn feeds(&self) -> Vec<FeedInfo> {
-        let mut out: Vec<FeedInfo> = self
-            .feeds
-            .iter()
-            .map(|(id, f)| f.info(id.clone()))
-            .collect();
-        out.sort_by(|a, b| a.feed.cmp(&b.feed));
-        out.extend(self.departed.iter().cloned());
-        out
+        feeds::infos(&self.feeds, &self.departed)
     }
 }
 

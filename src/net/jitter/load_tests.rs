@@ -26,6 +26,17 @@ struct Run {
 }
 
 fn run(packets: u32, filed: impl Fn(u32) -> f64, pulled: impl Fn(u32) -> f64) -> Run {
+    run_stamped(packets, &filed, &filed, pulled)
+}
+
+/// As [`run`], packet `i` filed at `filed(i)` but stamped `stamped(i)`: the kernel's arrival
+/// time, where the filing thread read it later.
+fn run_stamped(
+    packets: u32,
+    filed: impl Fn(u32) -> f64,
+    stamped: impl Fn(u32) -> f64,
+    pulled: impl Fn(u32) -> f64,
+) -> Run {
     let t0 = Instant::now();
     let at = |s: f64| t0 + Duration::from_secs_f64(s.max(0.0));
     let mut jb = JitterBuffer::with_clock(JitterConfig::default(), t0, CLOCK);
@@ -55,7 +66,7 @@ fn run(packets: u32, filed: impl Fn(u32) -> f64, pulled: impl Fn(u32) -> f64) ->
                 payload: &i.to_le_bytes(),
                 duration: STEP,
                 on_grid: true,
-                at: at(time),
+                at: at(stamped(i)),
             });
             next += 1;
         }
@@ -262,4 +273,67 @@ fn a_stream_that_resumes_after_a_stall_plays_on_not_dropped_as_late() {
     assert!((1..=2).contains(&out.stats.resumed), "{what}");
     // What was concealed was before the stall's packets came, a frame or two at most.
     assert!(out.concealed.len() <= 4, "{what}: {:?}", out.concealed);
+}
+
+/// A clean run's outcome: the stream of `packets` filed and stamped on time, pulled on time.
+fn clean(packets: u32) -> Run {
+    run(packets, |i| sent(i) + 0.001, |k| 0.02 * f64::from(k))
+}
+
+/// A stall of 150 ms every 2 s, from 1 s on: when a thread that wanted to run at `t` runs.
+fn stalled(t: f64) -> f64 {
+    let phase = t % 2.0;
+    if (1.0..1.15).contains(&phase) {
+        t - phase + 1.15
+    } else {
+        t
+    }
+}
+
+#[test]
+fn a_burst_read_after_a_stall_is_no_jitter_when_stamped_by_the_kernel() {
+    // The receiving process stalls for 150 ms every 2 s: its socket thread reads what came
+    // meanwhile in a burst and its puller makes the pulls of the stall late (asked for their
+    // ticks); or the socket thread alone stalls, and the puller reads what is waiting on the
+    // socket before it pulls. The kernel stamped each packet as it came, 20 ms apart: target,
+    // drift and concealment are as on a clean stream.
+    let packets = 1000;
+    let quiet = clean(packets);
+    let arrived = |i: u32| sent(i) + 0.001;
+    // The first pull at or after the packet's arrival reads it, if the reader has not.
+    let drained = |i: u32| stalled(arrived(i)).min((arrived(i) / 0.02).ceil() * 0.02);
+    let whole = run_stamped(
+        packets,
+        |i| stalled(arrived(i)) + 0.0001,
+        arrived,
+        |k| stalled(0.02 * f64::from(k)) + 0.0002,
+    );
+    let reader = run_stamped(packets, drained, arrived, |k| 0.02 * f64::from(k));
+    for (out, what) in [(whole, "the process"), (reader, "the reader")] {
+        let what = format!(
+            "{what} stalled: {:?} targets {:?}\nclean {:?}",
+            out.stats, out.targets, quiet.stats
+        );
+        all_played(&out, packets, &what);
+        assert_eq!(out.concealed, vec![], "{what}");
+        let counts = |r: &Run| {
+            let s = r.stats;
+            (s.late, s.forced, s.stretched, s.missing, s.dropped)
+        };
+        assert_eq!(counts(&out), counts(&quiet), "{what}");
+        assert_eq!(out.targets, quiet.targets, "{what}");
+        assert!(out.stats.drift_ppm.abs() < 100.0, "{what}");
+    }
+    // Stamped when read instead, the same bursts are jitter: the target rises for them.
+    let unstamped = run(
+        packets,
+        |i| stalled(arrived(i)) + 0.0001,
+        |k| stalled(0.02 * f64::from(k)) + 0.0002,
+    );
+    let highest = |r: &Run| r.targets.iter().copied().fold(0.0, f64::max);
+    assert!(
+        highest(&unstamped) > highest(&quiet) + 40.0,
+        "{:?}",
+        unstamped.targets
+    );
 }

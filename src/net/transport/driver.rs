@@ -11,6 +11,8 @@ use std::sync::{Arc, Mutex, MutexGuard};
 use std::thread::JoinHandle;
 use std::time::{Duration, Instant};
 
+use super::stamp;
+
 /// A datagram for the socket.
 #[derive(Debug)]
 pub struct Transmit {
@@ -35,7 +37,8 @@ pub trait SansIo {
     /// Bytes of the buffer a datagram is read into (one that fills it may have been cut
     /// short).
     const BUFFER: usize;
-    /// A datagram from `from` that arrived at `now`.
+    /// A datagram from `from` that arrived at `now`: the kernel's receive stamp, which may be
+    /// a little before the time the core was last given (a burst read after a stall).
     fn handle_datagram(&mut self, data: &[u8], from: SocketAddr, now: Instant);
     /// When [`Self::handle_timeout`] is next due.
     fn poll_timeout(&self) -> Instant;
@@ -46,6 +49,9 @@ pub trait SansIo {
     /// A datagram from [`Self::poll_transmit`] went out (`sent`) or failed to.
     fn transmitted(&mut self, transmit: Transmit, sent: bool);
 }
+
+/// The most waiting datagrams [`Driver::with_waiting`] reads.
+const WAITING_MOST: usize = 64;
 
 struct Shared<C> {
     core: Mutex<C>,
@@ -98,10 +104,12 @@ impl<C: SansIo + Send + 'static> Driver<C> {
         poll: Duration,
     ) -> std::io::Result<Self> {
         socket.set_read_timeout(Some(poll))?;
+        stamp::enable(&socket);
         let reader = socket.try_clone()?;
         let rtcp_reader = match &rtcp {
             Some(rtcp) => {
                 rtcp.set_read_timeout(Some(poll))?;
+                stamp::enable(rtcp);
                 Some(rtcp.try_clone()?)
             }
             None => None,
@@ -152,6 +160,24 @@ impl<C: SansIo> Driver<C> {
         f(&mut lock(&self.shared.core))
     }
 
+    /// Hands the core the datagrams waiting on the socket (the socket thread held up: a busy
+    /// machine), then runs `f` on it and sends what both queued. A puller that plays from the
+    /// core calls this, so that what arrived in time is played, whichever thread ran.
+    pub fn with_waiting<T>(&self, f: impl FnOnce(&mut C) -> T) -> T {
+        let mut core = lock(&self.shared.core);
+        let mut buf = vec![0u8; C::BUFFER];
+        // At most a socket buffer's worth: a flood is left to the socket thread.
+        for _ in 0..WAITING_MOST {
+            let Ok((n, from, arrived)) = stamp::recv_waiting(&self.shared.socket, &mut buf) else {
+                break;
+            };
+            core.handle_datagram(&buf[..n.min(buf.len())], from, arrived);
+        }
+        let out = f(&mut core);
+        self.shared.flush(&mut core);
+        out
+    }
+
     pub fn socket(&self) -> &UdpSocket {
         &self.shared.socket
     }
@@ -191,14 +217,15 @@ fn run<C: SansIo>(shared: &Shared<C>, socket: &UdpSocket, poll: Duration) {
             waits = Some(wait);
         }
         // Errors are timeouts, and ICMP errors from earlier sends: neither stops the thread.
-        let received = socket.recv_from(&mut buf).ok();
+        let received = stamp::recv_from(socket, &mut buf).ok();
         let now = Instant::now();
         if received.is_none() && now < deadline {
             continue;
         }
         let mut core = lock(&shared.core);
-        if let Some((n, from)) = received {
-            core.handle_datagram(&buf[..n.min(buf.len())], from, now);
+        if let Some((n, from, arrived)) = received {
+            // When it arrived, not when this thread got to it (a busy machine).
+            core.handle_datagram(&buf[..n.min(buf.len())], from, arrived);
         }
         if now >= core.poll_timeout() {
             core.handle_timeout(now);
@@ -211,12 +238,11 @@ fn run<C: SansIo>(shared: &Shared<C>, socket: &UdpSocket, poll: Duration) {
 fn read_into<C: SansIo>(shared: &Shared<C>, socket: &UdpSocket) {
     let mut buf = vec![0u8; C::BUFFER];
     while !shared.stop.load(Ordering::Relaxed) {
-        let Ok((n, from)) = socket.recv_from(&mut buf) else {
+        let Ok((n, from, arrived)) = stamp::recv_from(socket, &mut buf) else {
             continue;
         };
-        let now = Instant::now();
         let mut core = lock(&shared.core);
-        core.handle_datagram(&buf[..n.min(buf.len())], from, now);
+        core.handle_datagram(&buf[..n.min(buf.len())], from, arrived);
         shared.flush(&mut core);
     }
 }
