@@ -47,6 +47,10 @@ pub struct AnimateArgs {
     /// A model file from `lipcall train` instead of the built-in network.
     #[arg(long, value_name = "FILE")]
     pub model: Option<PathBuf>,
+    /// A control network (`train --controls`) run beside the viseme network: the head's width
+    /// and rounding are its own, everything else the viseme network's (lip-sync v4).
+    #[arg(long, value_name = "FILE")]
+    pub articulation: Option<PathBuf>,
     /// Compare with a baseline instead of the network: `jaw` opens the jaw with the energy.
     // A bool behind a valued flag: the hidden "" is the default when --baseline is absent.
     #[arg(id = "baseline", long = "baseline", value_name = "BASELINE",
@@ -103,7 +107,7 @@ pub fn receiver_features(input: &Path) -> Result<(u32, Vec<i16>, Vec<FrameFeatur
 
 pub fn weight_track(args: &AnimateArgs) -> Result<Animation> {
     let (rate, pcm, features) = receiver_features(&args.input)?;
-    let model = super::lipsync::load_model(args.model.as_deref())?;
+    let model = super::lipsync::load_model(args.model.as_deref(), args.articulation.as_deref())?;
     let visemes = match &args.visemes {
         Some(arg) => Some(VisemeSet::parse(arg).with_context(|| format!("--visemes {arg}"))?),
         None => None,

@@ -5,6 +5,7 @@ use std::path::{Path, PathBuf};
 
 use anyhow::{Context, Result, bail};
 
+use crate::lipsync::controls::{CONTROL_COUNT, CONTROL_NAMES};
 use crate::lipsync::decompose::{decompose_track, table_i, table_i_reduced};
 use crate::lipsync::markers::MarkerTrack;
 use crate::lipsync::mouth::VisemeShapes;
@@ -124,6 +125,11 @@ pub struct TrainArgs {
     /// decomposed onto --visemes in the receiver; with --grid, s1's lips are control targets.
     #[arg(long)]
     pub controls: bool,
+    /// With --controls: the controls the loss teaches, comma-separated (aperture, width, jaw,
+    /// rounding, closure, lower_lip_tuck; default all). `width,rounding` trains an articulation
+    /// network for `--articulation` beside a viseme network.
+    #[arg(long, value_name = "NAMES", requires = "controls", value_parser = parse_learnt_controls)]
+    pub learn_controls: Option<[bool; CONTROL_COUNT]>,
     /// Hold out each dialect region of the non-test speakers in turn, report the pooled
     /// held-out scores, then train the model on all of them for the folds' median best epoch.
     #[arg(long)]
@@ -277,6 +283,7 @@ fn train_config(args: &TrainArgs, split: &SpeakerSplit, snap: Option<f32>) -> Re
         allow_over_budget: args.allow_over_budget,
         nested_fold_epochs: args.nested_epochs,
         controls: args.controls,
+        learnt_controls: args.learn_controls.unwrap_or([true; CONTROL_COUNT]),
         ..TrainConfig::default()
     })
 }
@@ -502,10 +509,35 @@ fn print_an4_summary(summary: &plan::An4Summary, weight: f32) {
 }
 
 /// The model `--model` names, or the built-in one.
-pub fn load_model(path: Option<&Path>) -> Result<Model> {
-    match path {
-        Some(path) => Ok(Model::load(path).context("cannot load the model")?),
-        None => Ok(lipsync::default_model()),
+/// Control names (`CONTROL_NAMES`), comma-separated, as a mask in control order.
+fn parse_learnt_controls(text: &str) -> Result<[bool; CONTROL_COUNT], String> {
+    let mut mask = [false; CONTROL_COUNT];
+    for name in text.split(',').map(str::trim) {
+        let Some(i) = CONTROL_NAMES.iter().position(|n| *n == name) else {
+            return Err(format!(
+                "{name:?} is no control (one of {})",
+                CONTROL_NAMES.join(", ")
+            ));
+        };
+        mask[i] = true;
+    }
+    Ok(mask)
+}
+
+pub fn load_model(path: Option<&Path>, articulation: Option<&Path>) -> Result<Model> {
+    let model = match path {
+        Some(path) => Model::load(path).context("cannot load the model")?,
+        None => lipsync::default_model(),
+    };
+    match articulation {
+        Some(path) => {
+            let articulation =
+                Model::load(path).context("cannot load the articulation network")?;
+            model
+                .with_articulation(articulation)
+                .map_err(|e| anyhow::anyhow!("{}: {e}", path.display()))
+        }
+        None => Ok(model),
     }
 }
 
