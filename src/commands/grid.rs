@@ -22,7 +22,8 @@ use crate::train::grid::{self, AUDIO_FRAME_S, LipClip};
 use crate::train::grid_shapes::{self, ContourClip, KeyRule};
 use crate::train::lag::{self, ClipSeries};
 use crate::train::video::{
-    VideoTraining, centre_each_clip, map_onto_head, prepare_clips, score_clips, score_controls, vary_voices,
+    VideoTraining, centre_each_clip, map_onto_head, prepare_clips, score_clips, score_controls,
+    vary_voices,
 };
 use crate::vocab::{Viseme, VisemeSet};
 

@@ -531,8 +531,7 @@ pub fn load_model(path: Option<&Path>, articulation: Option<&Path>) -> Result<Mo
     };
     match articulation {
         Some(path) => {
-            let articulation =
-                Model::load(path).context("cannot load the articulation network")?;
+            let articulation = Model::load(path).context("cannot load the articulation network")?;
             model
                 .with_articulation(articulation)
                 .map_err(|e| anyhow::anyhow!("{}: {e}", path.display()))

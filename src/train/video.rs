@@ -11,10 +11,10 @@
 use std::sync::Arc;
 
 use crate::call::pipeline::{PeerPipeline, run_stream};
+use crate::lipsync::mouth::{Cue, cues, lip_aperture};
 use crate::lipsync::network::Model;
 use crate::lipsync::reproject::ReprojectError;
 use crate::lipsync::{Animator, LipSyncOptions};
-use crate::lipsync::mouth::{Cue, cues, lip_aperture};
 use crate::train::augment::{Rng, warp_frames};
 use crate::train::codec_features::{CodecFeatures, CodecPath};
 use crate::train::corpus::{BoxError, CorpusError};

@@ -160,7 +160,9 @@ impl Model {
     /// within the control budget.
     pub fn with_articulation(mut self, articulation: Model) -> Result<Self, String> {
         if self.has_control_outputs() || !articulation.has_control_outputs() {
-            return Err("an articulation network (control outputs) goes beside a viseme network".into());
+            return Err(
+                "an articulation network (control outputs) goes beside a viseme network".into(),
+            );
         }
         if articulation.articulation.is_some() {
             return Err("an articulation network cannot carry one of its own".into());
