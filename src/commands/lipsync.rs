@@ -130,6 +130,10 @@ pub struct TrainArgs {
     /// network for `--articulation` beside a viseme network.
     #[arg(long, value_name = "NAMES", requires = "controls", value_parser = parse_learnt_controls)]
     pub learn_controls: Option<[bool; CONTROL_COUNT]>,
+    /// With --controls: multiply the trained network's width output by K (docs/model.md: the
+    /// articulation network is shipped to heads at x4, so that their width moves visibly).
+    #[arg(long, value_name = "K", requires = "controls")]
+    pub width_gain: Option<f32>,
     /// Hold out each dialect region of the non-test speakers in turn, report the pooled
     /// held-out scores, then train the model on all of them for the folds' median best epoch.
     #[arg(long)]
@@ -320,7 +324,10 @@ pub fn train(args: &TrainArgs) -> Result<()> {
         plan::codec_versions(args.versions)
     );
     let trained = plan::train_held_out(&corpus, &split, &config, args.versions, snap, sharpness)?;
-    let report = trained.report;
+    let mut report = trained.report;
+    if let Some(gain) = args.width_gain {
+        report.model.scale_width_output(gain);
+    }
     report
         .model
         .save(&args.out)
@@ -453,7 +460,7 @@ fn train_cross_validated(args: &TrainArgs) -> Result<()> {
         regions.iter().map(|(_, s)| s.len()).sum::<usize>(),
         cv.epochs
     );
-    let report = plan::train_on_all_regions(
+    let mut report = plan::train_on_all_regions(
         &config,
         &groups,
         &cv,
@@ -462,6 +469,9 @@ fn train_cross_validated(args: &TrainArgs) -> Result<()> {
         args.versions,
         args.an4_weight,
     )?;
+    if let Some(gain) = args.width_gain {
+        report.model.scale_width_output(gain);
+    }
     report
         .model
         .save(&args.out)

@@ -306,6 +306,29 @@ mod tests {
     }
 
     #[test]
+    fn a_width_gain_scales_the_width_shown_and_nothing_else() {
+        let plain = default_model();
+        let art = articulation_beside(&plain, 0.4);
+        let mut gained = art.clone();
+        gained.scale_width_output(4.0);
+        let mut viseme_net = plain.clone();
+        viseme_net.scale_width_output(4.0);
+        assert_eq!(viseme_net, plain, "a viseme network has no width output");
+        let one = plain.clone().with_articulation(art).unwrap();
+        let four = plain.clone().with_articulation(gained).unwrap();
+        let (mut a, mut b) = (ModelAnimator::new(&one), ModelAnimator::new(&four));
+        let mut w = vec![0.0; 5];
+        let mut f = FrameFeatures::silent();
+        f.energy_db = -30.0;
+        f.lsp = std::array::from_fn(|i| 0.27 * (i + 1) as f32);
+        a.animate(&f, &mut w);
+        b.animate(&f, &mut w);
+        let (x, y) = (a.controls().unwrap(), b.controls().unwrap());
+        assert!(x.width.abs() > 1e-4 && (y.width - 4.0 * x.width).abs() < 1e-5);
+        assert_eq!((x.aperture, x.rounding), (y.aperture, y.rounding));
+    }
+
+    #[test]
     fn articulation_networks_must_fit_beside_the_viseme_network() {
         let plain = default_model();
         let mut ahead = articulation_beside(&plain, 0.5);

@@ -155,6 +155,22 @@ impl Model {
             + self.articulation.as_ref().map_or(0, |a| a.multiply_adds())
     }
 
+    /// Multiplies a control network's width output by `gain` (its output layer's width row and
+    /// bias), noted in the file: a regression's width moves less than real lips, and a head must
+    /// move visibly for a viewer (or a face tracker) to follow it. No-op for viseme outputs.
+    pub fn scale_width_output(&mut self, gain: f32) {
+        if !self.has_control_outputs() || !gain.is_finite() {
+            return;
+        }
+        let row = 1;
+        for w in &mut self.w2[row * self.hidden..(row + 1) * self.hidden] {
+            *w *= gain;
+        }
+        self.b2[row] *= gain;
+        self.notes
+            .push(format!("width output scaled by {gain} after training"));
+    }
+
     /// Runs `articulation` beside this viseme network: its width and rounding replace those
     /// of the weights' controls. Both must see the same future frames, and together stay
     /// within the control budget.
