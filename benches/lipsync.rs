@@ -79,14 +79,14 @@ fn bench(c: &mut Criterion) {
         bench_pushes(c, &name, &mut lipsync, &frames);
     }
 
-    // Lip-sync v4: an articulation network (24 hidden units) beside the viseme network; its
+    // Lip-sync v4: an articulation network (16 hidden units, as docs/model.md's) beside the viseme network; its
     // cost does not depend on its weights.
     let mut articulation = Model::zeros_with(
         model.visemes.clone(),
         model.scaling.clone(),
         model.context,
         model.dynamics,
-        24,
+        16,
     )
     .with_control_outputs();
     articulation.lookahead = model.lookahead;
