@@ -9,6 +9,7 @@ use std::hint::black_box;
 
 use criterion::{Criterion, criterion_group, criterion_main};
 use lipcall::lipsync::life::LifeGenerator;
+use lipcall::lipsync::network::Model;
 use lipcall::lipsync::{LipSync, LipSyncOptions, default_model};
 use lipcall::vocab::FRAME_SIZE;
 use lipcall::vocab::FrameFeatures;
@@ -77,6 +78,35 @@ fn bench(c: &mut Criterion) {
         let name = format!("receiver push re-projected onto {size} visemes");
         bench_pushes(c, &name, &mut lipsync, &frames);
     }
+
+    // Lip-sync v4: an articulation network (16 hidden units, as docs/model.md's) beside the viseme network; its
+    // cost does not depend on its weights.
+    let mut articulation = Model::zeros_with(
+        model.visemes.clone(),
+        model.scaling.clone(),
+        model.context,
+        model.dynamics,
+        16,
+    )
+    .with_control_outputs();
+    articulation.lookahead = model.lookahead;
+    articulation.speaker_norm = model.speaker_norm.clone();
+    articulation.w1.fill(0.01);
+    let paired = model.clone().with_articulation(articulation).unwrap();
+    let mut lipsync = LipSync::new(&paired, &LipSyncOptions::default()).unwrap();
+    let name = format!(
+        "receiver push with an articulation network ({} MACs)",
+        paired.multiply_adds()
+    );
+    let mut tag = 0u64;
+    c.bench_function(&name, |b| {
+        b.iter(|| {
+            let out =
+                lipsync.push_with_controls(tag, black_box(&frames[tag as usize % frames.len()]));
+            tag += 1;
+            black_box(out.map(|(t, w, c)| (t, w[0], c.width)));
+        })
+    });
 
     // A voiced buzz gliding between 100 and 160 Hz, at speech level.
     let voiced: Vec<[i16; FRAME_SIZE]> = (0..64)

@@ -49,6 +49,7 @@ fn evaluate_scores_the_weights_animate_writes() {
         mouth_close_up: false,
         visemes: None,
         model: None,
+        articulation: None,
         baseline_jaw: false,
         closure_bias: 0.0,
         life: false,

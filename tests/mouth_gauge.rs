@@ -110,6 +110,7 @@ fn speech_gaps(head: &HeadModel) -> Vec<f32> {
         mouth_close_up: false,
         visemes: None,
         model: None,
+        articulation: None,
         baseline_jaw: false,
         closure_bias: 0.0,
         life: false,

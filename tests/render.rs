@@ -973,6 +973,7 @@ fn animate_frames(
         mouth_close_up: false,
         visemes: None,
         model: None,
+        articulation: None,
         baseline_jaw: false,
         closure_bias: 0.0,
         life,

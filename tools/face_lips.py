@@ -135,7 +135,7 @@ def clips(data, sets, s1_every):
     return out
 
 
-def render_and_track(lipcall, wav, head, model, work_dir):
+def render_and_track(lipcall, wav, head, model, work_dir, extra=()):
     """Per rendered frame (aperture, width) or None, and the weights' design-table values
     (cached as CSVs in work_dir)."""
     face_csv, weights_csv = work_dir / "face.csv", work_dir / "weights.csv"
@@ -147,6 +147,7 @@ def render_and_track(lipcall, wav, head, model, work_dir):
             cmd += ["--head", str(head)]
         if model:
             cmd += ["--model", str(model)]
+        cmd += list(extra)
         subprocess.run(cmd, check=True, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
         frames = sorted(frames_dir.glob("frame_*.png"))
         rows = [lips(p) for p in track_points(frames, USED, static=False)]
@@ -187,6 +188,10 @@ def main():
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--head", type=pathlib.Path, help="a glTF/GLB head (default: the bundled one)")
     ap.add_argument("--model", type=pathlib.Path, help="a model file (default: the built-in one)")
+    ap.add_argument("--drive", choices=("visemes", "controls"), default="visemes",
+                    help="how animate drives the head (default: %(default)s)")
+    ap.add_argument("--articulation", type=pathlib.Path,
+                    help="an articulation network beside the model (animate --articulation)")
     ap.add_argument("--sets", default="other,s1", help="other, s1 or both (default: %(default)s)")
     ap.add_argument("--s1-every", type=int, default=10, metavar="N",
                     help="every N-th of s1's 100 held-out clips (default: %(default)s)")
@@ -206,9 +211,14 @@ def main():
         sys.exit("no lipcall binary: cargo build --release, or give --lipcall")
     sets = args.sets.split(",")
     tag = (args.head.stem if args.head else "default") + (
-        f"+{args.model.stem}" if args.model else "")
+        f"+{args.model.stem}" if args.model else "") + (
+        "+controls" if args.drive == "controls" else "") + (
+        f"+{args.articulation.stem}" if args.articulation else "")
+    extra = ["--drive", args.drive] + (
+        ["--articulation", str(args.articulation)] if args.articulation else [])
     todo = clips(args.data, sets, args.s1_every)
-    print(f"head {args.head or 'bundled'}, model {args.model or 'built-in'}, {lipcall}; "
+    print(f"head {args.head or 'bundled'}, model {args.model or 'built-in'}, drive {args.drive}, "
+          f"articulation {args.articulation or 'none'}, {lipcall}; "
           f"{len(todo)} clips; frame k of the render against frame k of the video, no lag")
     per_set = {}
     table = []
@@ -219,7 +229,7 @@ def main():
             subprocess.run(["sox", str(flac), "-b", "16", str(wav)], check=True)
         work_dir = args.work / tag / name
         work_dir.mkdir(parents=True, exist_ok=True)
-        face, weights = render_and_track(lipcall, wav, args.head, args.model, work_dir)
+        face, weights = render_and_track(lipcall, wav, args.head, args.model, work_dir, extra)
         video = read_video(track)
         ps = pairs(face, video, weights)
         s = scores(ps)

@@ -234,6 +234,8 @@ pub fn run_stream<A: Animator + ?Sized>(
 #[derive(Debug, Clone, Default, PartialEq)]
 pub struct Track {
     pub rows: Vec<Vec<f32>>,
+    /// Each row's articulatory controls ([`LipSync::controls`]).
+    pub controls: Vec<Controls>,
     /// The living face's pose of each row; empty when it is off.
     pub poses: Vec<FacePose>,
 }
@@ -247,10 +249,12 @@ pub fn stream_track<A: Animator + ?Sized>(
     let life = pipeline.life.on;
     let mut track = Track {
         rows: Vec::with_capacity(features.len()),
+        controls: Vec::with_capacity(features.len()),
         poses: Vec::with_capacity(if life { features.len() } else { 0 }),
     };
     run_stream(pipeline, features, pcm, |out| {
         track.rows.push(out.weights.to_vec());
+        track.controls.push(out.controls);
         if life {
             track.poses.push(out.pose);
         }

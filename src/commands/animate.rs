@@ -11,7 +11,7 @@ use crate::call::csv;
 use crate::call::media::MediaFile;
 use crate::call::pipeline::{PeerPipeline, Track, stream_track};
 use crate::lipsync::LipSyncOptions;
-use crate::lipsync::viseme_controls::from_full;
+use crate::lipsync::controls::Controls;
 use crate::render::head::Expression;
 use crate::render::{self, FrameOptions, Framing, HeadModel};
 use crate::vocab::FRAME_SIZE;
@@ -47,6 +47,10 @@ pub struct AnimateArgs {
     /// A model file from `lipcall train` instead of the built-in network.
     #[arg(long, value_name = "FILE")]
     pub model: Option<PathBuf>,
+    /// A control network (`train --controls`) run beside the viseme network: the head's width
+    /// and rounding are its own, everything else the viseme network's (lip-sync v4).
+    #[arg(long, value_name = "FILE")]
+    pub articulation: Option<PathBuf>,
     /// Compare with a baseline instead of the network: `jaw` opens the jaw with the energy.
     // A bool behind a valued flag: the hidden "" is the default when --baseline is absent.
     #[arg(id = "baseline", long = "baseline", value_name = "BASELINE",
@@ -87,6 +91,8 @@ pub enum Drive {
 pub struct Animation {
     pub visemes: VisemeSet,
     pub rows: Vec<Vec<f32>>,
+    /// Each row's articulatory controls (what `--drive controls` shows).
+    pub controls: Vec<Controls>,
     /// The living face's pose of each row (empty when it is off).
     pub poses: Vec<FacePose>,
     pub rate: u32,
@@ -103,7 +109,7 @@ pub fn receiver_features(input: &Path) -> Result<(u32, Vec<i16>, Vec<FrameFeatur
 
 pub fn weight_track(args: &AnimateArgs) -> Result<Animation> {
     let (rate, pcm, features) = receiver_features(&args.input)?;
-    let model = super::lipsync::load_model(args.model.as_deref())?;
+    let model = super::lipsync::load_model(args.model.as_deref(), args.articulation.as_deref())?;
     let visemes = match &args.visemes {
         Some(arg) => Some(VisemeSet::parse(arg).with_context(|| format!("--visemes {arg}"))?),
         None => None,
@@ -115,11 +121,16 @@ pub fn weight_track(args: &AnimateArgs) -> Result<Animation> {
     };
     // Frame by frame as the app makes them, from the same features and decoded samples.
     let mut pipeline = PeerPipeline::new(&model, &options, args.seed, args.life)?;
-    let Track { rows, poses } = stream_track(&mut pipeline, &features, &pcm);
+    let Track {
+        rows,
+        controls,
+        poses,
+    } = stream_track(&mut pipeline, &features, &pcm);
     let target = pipeline.visemes().clone();
     Ok(Animation {
         visemes: target,
         rows,
+        controls,
         poses,
         rate,
         pcm,
@@ -198,11 +209,8 @@ fn render_frames(
         Drive::Visemes => None,
     };
     if let Some(drive) = drive {
-        for (_, row) in &mut rows {
-            *row = drive
-                .weights(&from_full(&track.visemes.to_full(row)))
-                .0
-                .to_vec();
+        for ((_, row), controls) in rows.iter_mut().zip(&track.controls) {
+            *row = drive.weights(controls).0.to_vec();
         }
         names = VISEME_NAMES.to_vec();
     }

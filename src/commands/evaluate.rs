@@ -22,6 +22,10 @@ pub struct EvaluateArgs {
     /// Model file (default: the built-in model).
     #[arg(long, value_name = "FILE")]
     pub model: Option<PathBuf>,
+    /// A control network (`train --controls`) run beside the viseme network: width and
+    /// rounding are its own (lip-sync v4); the weights, and so the TIMIT scores, are unchanged.
+    #[arg(long, value_name = "FILE")]
+    pub articulation: Option<PathBuf>,
     #[arg(long, value_name = "DIR", default_value = DEFAULT_CORPUS)]
     pub corpus: PathBuf,
     /// The codec path the features come through: Speex (the walker's LSPs), Opus from the
@@ -82,7 +86,7 @@ pub fn evaluate(args: &EvaluateArgs) -> Result<()> {
         }
         (None, Some(_)) => None,
     };
-    let mut model = load_model(args.model.as_deref())?;
+    let mut model = load_model(args.model.as_deref(), args.articulation.as_deref())?;
     let [bitstream, nlsf, analysis] = [
         FeatureFamily::Bitstream,
         FeatureFamily::Nlsf,

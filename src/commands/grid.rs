@@ -22,7 +22,8 @@ use crate::train::grid::{self, AUDIO_FRAME_S, LipClip};
 use crate::train::grid_shapes::{self, ContourClip, KeyRule};
 use crate::train::lag::{self, ClipSeries};
 use crate::train::video::{
-    VideoTraining, centre_each_clip, map_onto_head, prepare_clips, score_clips, vary_voices,
+    VideoTraining, centre_each_clip, map_onto_head, prepare_clips, score_clips, score_controls,
+    vary_voices,
 };
 use crate::vocab::{Viseme, VisemeSet};
 
@@ -320,6 +321,11 @@ pub fn evaluate_lips(args: &LipEvalArgs, model: &Model, path: CodecPath) -> Resu
                 s.clips, s.frames, s.aperture_r, s.width_r, s.clip_aperture_r, s.clip_width_r
             );
         }
+        let s = score_controls(model, &prepared)?;
+        println!(
+            "| {name} ({} clips, {} frames) | network's controls (aperture, width) | {:.3} | {:.3} | {:.3} / {:.3} |",
+            s.clips, s.frames, s.aperture_r, s.width_r, s.clip_aperture_r, s.clip_width_r
+        );
     }
     Ok(())
 }

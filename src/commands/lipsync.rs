@@ -5,6 +5,7 @@ use std::path::{Path, PathBuf};
 
 use anyhow::{Context, Result, bail};
 
+use crate::lipsync::controls::{CONTROL_COUNT, CONTROL_NAMES};
 use crate::lipsync::decompose::{decompose_track, table_i, table_i_reduced};
 use crate::lipsync::markers::MarkerTrack;
 use crate::lipsync::mouth::VisemeShapes;
@@ -124,6 +125,15 @@ pub struct TrainArgs {
     /// decomposed onto --visemes in the receiver; with --grid, s1's lips are control targets.
     #[arg(long)]
     pub controls: bool,
+    /// With --controls: the controls the loss teaches, comma-separated (aperture, width, jaw,
+    /// rounding, closure, lower_lip_tuck; default all). `width,rounding` trains an articulation
+    /// network for `--articulation` beside a viseme network.
+    #[arg(long, value_name = "NAMES", requires = "controls", value_parser = parse_learnt_controls)]
+    pub learn_controls: Option<[bool; CONTROL_COUNT]>,
+    /// With --controls: multiply the trained network's width output by K (docs/model.md: the
+    /// articulation network is shipped to heads at x4, so that their width moves visibly).
+    #[arg(long, value_name = "K", requires = "controls")]
+    pub width_gain: Option<f32>,
     /// Hold out each dialect region of the non-test speakers in turn, report the pooled
     /// held-out scores, then train the model on all of them for the folds' median best epoch.
     #[arg(long)]
@@ -277,6 +287,7 @@ fn train_config(args: &TrainArgs, split: &SpeakerSplit, snap: Option<f32>) -> Re
         allow_over_budget: args.allow_over_budget,
         nested_fold_epochs: args.nested_epochs,
         controls: args.controls,
+        learnt_controls: args.learn_controls.unwrap_or([true; CONTROL_COUNT]),
         ..TrainConfig::default()
     })
 }
@@ -313,7 +324,10 @@ pub fn train(args: &TrainArgs) -> Result<()> {
         plan::codec_versions(args.versions)
     );
     let trained = plan::train_held_out(&corpus, &split, &config, args.versions, snap, sharpness)?;
-    let report = trained.report;
+    let mut report = trained.report;
+    if let Some(gain) = args.width_gain {
+        report.model.scale_width_output(gain);
+    }
     report
         .model
         .save(&args.out)
@@ -446,7 +460,7 @@ fn train_cross_validated(args: &TrainArgs) -> Result<()> {
         regions.iter().map(|(_, s)| s.len()).sum::<usize>(),
         cv.epochs
     );
-    let report = plan::train_on_all_regions(
+    let mut report = plan::train_on_all_regions(
         &config,
         &groups,
         &cv,
@@ -455,6 +469,9 @@ fn train_cross_validated(args: &TrainArgs) -> Result<()> {
         args.versions,
         args.an4_weight,
     )?;
+    if let Some(gain) = args.width_gain {
+        report.model.scale_width_output(gain);
+    }
     report
         .model
         .save(&args.out)
@@ -502,10 +519,34 @@ fn print_an4_summary(summary: &plan::An4Summary, weight: f32) {
 }
 
 /// The model `--model` names, or the built-in one.
-pub fn load_model(path: Option<&Path>) -> Result<Model> {
-    match path {
-        Some(path) => Ok(Model::load(path).context("cannot load the model")?),
-        None => Ok(lipsync::default_model()),
+/// Control names (`CONTROL_NAMES`), comma-separated, as a mask in control order.
+fn parse_learnt_controls(text: &str) -> Result<[bool; CONTROL_COUNT], String> {
+    let mut mask = [false; CONTROL_COUNT];
+    for name in text.split(',').map(str::trim) {
+        let Some(i) = CONTROL_NAMES.iter().position(|n| *n == name) else {
+            return Err(format!(
+                "{name:?} is no control (one of {})",
+                CONTROL_NAMES.join(", ")
+            ));
+        };
+        mask[i] = true;
+    }
+    Ok(mask)
+}
+
+pub fn load_model(path: Option<&Path>, articulation: Option<&Path>) -> Result<Model> {
+    let model = match path {
+        Some(path) => Model::load(path).context("cannot load the model")?,
+        None => lipsync::default_model(),
+    };
+    match articulation {
+        Some(path) => {
+            let articulation = Model::load(path).context("cannot load the articulation network")?;
+            model
+                .with_articulation(articulation)
+                .map_err(|e| anyhow::anyhow!("{}: {e}", path.display()))
+        }
+        None => Ok(model),
     }
 }
 

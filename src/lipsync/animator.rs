@@ -5,7 +5,7 @@ use std::sync::Arc;
 
 use super::controls::{CONTROL_COUNT, Controls};
 use super::network::{InferenceState, Model};
-use super::viseme_controls::ControlDecomposer;
+use super::viseme_controls::{self, ControlDecomposer};
 use crate::vocab::FeatureFamily;
 use crate::vocab::FrameFeatures;
 use crate::vocab::VisemeSet;
@@ -50,6 +50,17 @@ pub struct ModelAnimator<'a> {
     decomposer: Option<Arc<ControlDecomposer>>,
     controls: [f32; CONTROL_COUNT],
     previous: Vec<f32>,
+    /// The model's articulation network with its own stream state and scratch.
+    articulation: Option<Articulation<'a>>,
+}
+
+/// A viseme network's articulation network running beside it ([`Model::articulation`]).
+#[derive(Debug, Clone)]
+struct Articulation<'a> {
+    model: &'a Model,
+    state: InferenceState,
+    scratch: InferenceState,
+    controls: [f32; CONTROL_COUNT],
 }
 
 const FAMILIES: [FeatureFamily; 3] = [
@@ -86,6 +97,12 @@ impl<'a> ModelAnimator<'a> {
         if let Some(first) = previous.first_mut() {
             *first = 1.0;
         }
+        let articulation = model.articulation.as_deref().map(|a| Articulation {
+            model: a,
+            state: a.new_state(),
+            scratch: a.new_state(),
+            controls: [0.0; CONTROL_COUNT],
+        });
         Self {
             model,
             scratch: state.clone(),
@@ -95,6 +112,7 @@ impl<'a> ModelAnimator<'a> {
             decomposer,
             controls: [0.0; CONTROL_COUNT],
             previous,
+            articulation,
         }
     }
 
@@ -141,6 +159,10 @@ impl Animator for ModelAnimator<'_> {
 
     fn reset(&mut self) {
         self.model.reset(&mut self.state);
+        if let Some(a) = &mut self.articulation {
+            a.model.reset(&mut a.state);
+            a.controls = [0.0; CONTROL_COUNT];
+        }
         self.last = FrameFeatures::silent();
         self.controls = [0.0; CONTROL_COUNT];
         self.previous.fill(0.0);
@@ -160,9 +182,21 @@ impl Animator for ModelAnimator<'_> {
         let snap = self.closure_snap(features.family);
         self.model
             .step_with_snap(&mut self.state, features, weights, snap);
+        if let Some(a) = &mut self.articulation {
+            a.model
+                .step_with_snap(&mut a.state, features, &mut a.controls, 0.0);
+            self.previous.copy_from_slice(weights);
+        }
     }
 
     fn controls(&self) -> Option<Controls> {
+        if let Some(a) = &self.articulation {
+            let mut controls = viseme_controls::from_weights(&self.model.visemes, &self.previous);
+            let own = Controls::from_array(a.controls);
+            controls.width = own.width;
+            controls.rounding = own.rounding;
+            return Some(controls);
+        }
         self.model
             .has_control_outputs()
             .then(|| Controls::from_array(self.controls))
@@ -184,6 +218,14 @@ impl Animator for ModelAnimator<'_> {
         }
         let snap = self.closure_snap(self.last.family);
         self.model.infer(&mut self.scratch, weights, snap);
+        if let Some(a) = &mut self.articulation {
+            a.scratch.copy_from(&a.state);
+            for _ in 0..extra {
+                a.model.push_frame(&mut a.scratch, &self.last);
+            }
+            a.model.infer(&mut a.scratch, &mut a.controls, 0.0);
+            self.previous.copy_from_slice(weights);
+        }
     }
 }
 
@@ -209,6 +251,96 @@ mod tests {
         assert_eq!(snap(&model, -1.0), 0.0);
         assert!((snap(&model, 1.0) - (1.0 - network::CLOSURE_BIAS_SPAN)).abs() < 1e-6);
         assert!(parse_closure_bias("-0.5").is_ok() && parse_closure_bias("1.5").is_err());
+    }
+
+    /// A control network of the default model's shape whose width follows the newest frame's
+    /// energy input and whose rounding is fixed at `rounding`.
+    fn articulation_beside(model: &Model, rounding: f32) -> Model {
+        let mut a = Model::zeros_with(
+            model.visemes.clone(),
+            model.scaling.clone(),
+            model.context,
+            model.dynamics,
+            1,
+        )
+        .with_control_outputs();
+        a.lookahead = model.lookahead;
+        a.speaker_norm = model.speaker_norm.clone();
+        a.w1.fill(0.01);
+        a.w2[1] = 0.05;
+        a.b2[3] = (rounding / (1.0 - rounding)).ln();
+        a
+    }
+
+    #[test]
+    fn an_articulation_network_gives_width_and_rounding_and_leaves_the_weights() {
+        let plain = default_model();
+        let paired = plain
+            .clone()
+            .with_articulation(articulation_beside(&plain, 0.7))
+            .unwrap();
+        assert!(paired.multiply_adds() > plain.multiply_adds());
+        let (mut a, mut b) = (ModelAnimator::new(&plain), ModelAnimator::new(&paired));
+        let (mut wa, mut wb) = (vec![0.0; 5], vec![0.0; 5]);
+        let mut widths = Vec::new();
+        for n in 0..12 {
+            let mut f = FrameFeatures::silent();
+            f.energy_db = -60.0 + 4.0 * n as f32;
+            f.lsp = std::array::from_fn(|i| 0.25 * (i + 1) as f32 + 0.01 * (n % 3) as f32);
+            a.animate(&f, &mut wa);
+            b.animate(&f, &mut wb);
+            assert_eq!(wa, wb, "the weights are the viseme network's");
+            let own = a.controls();
+            let shown = b.controls().expect("a paired model has controls");
+            let derived = viseme_controls::from_weights(&plain.visemes, &wa);
+            assert!(own.is_none());
+            assert_eq!(shown.aperture, derived.aperture);
+            assert_eq!(shown.closure, derived.closure);
+            assert!((shown.rounding - 0.7).abs() < 1e-4, "{shown:?}");
+            widths.push(shown.width);
+        }
+        assert!(widths.windows(2).any(|w| w[0] != w[1]), "{widths:?}");
+        b.peek(1, &mut wb);
+        a.peek(1, &mut wa);
+        assert_eq!(wa, wb);
+    }
+
+    #[test]
+    fn a_width_gain_scales_the_width_shown_and_nothing_else() {
+        let plain = default_model();
+        let art = articulation_beside(&plain, 0.4);
+        let mut gained = art.clone();
+        gained.scale_width_output(4.0);
+        let mut viseme_net = plain.clone();
+        viseme_net.scale_width_output(4.0);
+        assert_eq!(viseme_net, plain, "a viseme network has no width output");
+        let one = plain.clone().with_articulation(art).unwrap();
+        let four = plain.clone().with_articulation(gained).unwrap();
+        let (mut a, mut b) = (ModelAnimator::new(&one), ModelAnimator::new(&four));
+        let mut w = vec![0.0; 5];
+        let mut f = FrameFeatures::silent();
+        f.energy_db = -30.0;
+        f.lsp = std::array::from_fn(|i| 0.27 * (i + 1) as f32);
+        a.animate(&f, &mut w);
+        b.animate(&f, &mut w);
+        let (x, y) = (a.controls().unwrap(), b.controls().unwrap());
+        assert!(x.width.abs() > 1e-4 && (y.width - 4.0 * x.width).abs() < 1e-5);
+        assert_eq!((x.aperture, x.rounding), (y.aperture, y.rounding));
+    }
+
+    #[test]
+    fn articulation_networks_must_fit_beside_the_viseme_network() {
+        let plain = default_model();
+        let mut ahead = articulation_beside(&plain, 0.5);
+        ahead.lookahead = 0;
+        assert!(plain.clone().with_articulation(ahead).is_err());
+        assert!(plain.clone().with_articulation(plain.clone()).is_err());
+        let mut big = articulation_beside(&plain, 0.5);
+        big.hidden = 60;
+        big.w1 = vec![0.0; 60 * big.inputs()];
+        big.b1 = vec![0.0; 60];
+        big.w2 = vec![0.0; 60 * CONTROL_COUNT];
+        assert!(plain.with_articulation(big).is_err());
     }
 
     #[test]

@@ -3,6 +3,7 @@
 
 use std::path::PathBuf;
 
+use crate::lipsync::controls::CONTROL_COUNT;
 use crate::lipsync::mouth::VisemeShapes;
 use crate::lipsync::network::Dynamics;
 use crate::train::control_targets::ControlVideo;
@@ -84,6 +85,10 @@ pub struct TrainConfig {
     pub controls: bool,
     /// For a control network: s1's measured lips as control targets beside the phones'.
     pub control_video: Option<ControlVideo>,
+    /// For a control network: which controls the loss teaches (in `Controls::to_array` order);
+    /// the others are left untrained, as for an articulation network whose aperture, jaw,
+    /// closure and tuck the viseme network beside it gives.
+    pub learnt_controls: [bool; CONTROL_COUNT],
 }
 
 impl Default for TrainConfig {
@@ -123,6 +128,7 @@ impl Default for TrainConfig {
             lip_validation: None,
             controls: false,
             control_video: None,
+            learnt_controls: [true; CONTROL_COUNT],
         }
     }
 }

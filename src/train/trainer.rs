@@ -318,6 +318,7 @@ impl Run {
             (Some(video), _) if !config.controls => append_video(&mut train_data, &model, video),
             _ => {}
         }
+        forget_unlearnt(&mut train_data, config);
         let control_scale = control_scale(&train_data);
         train_data.control_scale = control_scale;
         if train_data.frames() == 0 {
@@ -343,6 +344,7 @@ impl Run {
         utterances: &[PreparedUtterance],
     ) -> Result<Dataset, TrainError> {
         let mut data = prepare_frames(&self.model, config, utterances)?;
+        forget_unlearnt(&mut data, config);
         data.control_scale = self.control_scale;
         Ok(data)
     }
@@ -417,6 +419,20 @@ impl Run {
                         * ((*m / correction1) / ((*v / correction2).sqrt() + epsilon)
                             + config.weight_decay * *p);
                 }
+            }
+        }
+    }
+}
+
+/// Marks the controls `config` does not teach as unknown in every frame of a control network.
+fn forget_unlearnt(data: &mut Dataset, config: &TrainConfig) {
+    if !config.controls {
+        return;
+    }
+    for known in &mut data.known {
+        for (k, learnt) in known.iter_mut().zip(config.learnt_controls) {
+            if !learnt {
+                *k = 0.0;
             }
         }
     }

@@ -10,8 +10,11 @@
 
 use std::sync::Arc;
 
-use crate::lipsync::Animator;
+use crate::call::pipeline::{PeerPipeline, run_stream};
 use crate::lipsync::mouth::{Cue, cues, lip_aperture};
+use crate::lipsync::network::Model;
+use crate::lipsync::reproject::ReprojectError;
+use crate::lipsync::{Animator, LipSyncOptions};
 use crate::train::augment::{Rng, warp_frames};
 use crate::train::codec_features::{CodecFeatures, CodecPath};
 use crate::train::corpus::{BoxError, CorpusError};
@@ -241,6 +244,54 @@ pub fn score_clips(animator: &mut dyn Animator, clips: &[VideoClip]) -> LipScore
         clips: clips.len(),
         frames,
     }
+}
+
+/// Scores the controls (aperture, width) that `model`'s receiver gives each frame, as a head
+/// driven by controls shows them, against `clips`' lips: one call per speaker, as
+/// [`score_clips`] runs it.
+pub fn score_controls(model: &Model, clips: &[VideoClip]) -> Result<LipScores, ReprojectError> {
+    let mut pipeline = PeerPipeline::new(model, &LipSyncOptions::default(), 0, false)?;
+    let mut current: Option<&str> = None;
+    let mut pooled = [(Vec::new(), Vec::new()), (Vec::new(), Vec::new())];
+    let mut per_clip = [0.0f64; LIP_CUES];
+    let mut frames = 0;
+    for clip in clips {
+        if current != Some(clip.speaker.as_str()) {
+            pipeline.reset();
+            current = Some(clip.speaker.as_str());
+        }
+        let mut shown = vec![None; clip.features.len()];
+        run_stream(&mut pipeline, &clip.features, &[], |frame| {
+            if let Some(slot) = shown.get_mut(frame.tag as usize) {
+                *slot = Some([frame.controls.aperture, frame.controls.width]);
+            }
+        });
+        let mut own = [(Vec::new(), Vec::new()), (Vec::new(), Vec::new())];
+        for (lips, head) in clip.lips.iter().zip(&shown) {
+            let (Some(lips), Some(head)) = (lips, head) else {
+                continue;
+            };
+            frames += 1;
+            for cue in 0..LIP_CUES {
+                for (h, v) in [&mut pooled[cue], &mut own[cue]] {
+                    h.push(head[cue] as f64);
+                    v.push(lips[cue] as f64);
+                }
+            }
+        }
+        for (sum, (h, v)) in per_clip.iter_mut().zip(&own) {
+            *sum += pearson(h, v);
+        }
+    }
+    let clips_n = clips.len().max(1) as f64;
+    Ok(LipScores {
+        aperture_r: pearson(&pooled[0].0, &pooled[0].1),
+        width_r: pearson(&pooled[1].0, &pooled[1].1),
+        clip_aperture_r: per_clip[0] / clips_n,
+        clip_width_r: per_clip[1] / clips_n,
+        clips: clips.len(),
+        frames,
+    })
 }
 
 #[cfg(test)]

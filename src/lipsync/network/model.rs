@@ -1,5 +1,7 @@
 //! The network's shape: [`Model`], its size and budget.
 
+use std::sync::Arc;
+
 use super::normalise::{Dynamics, FEATURES_PER_FRAME, InputScaling, SpeakerNorm, frame_width};
 use crate::lipsync::controls::CONTROL_COUNT;
 use crate::vocab::{Viseme, VisemeSet};
@@ -69,6 +71,10 @@ pub struct Model {
     pub b2: Vec<f32>,
     /// Free text kept as comment lines at the top of the file (provenance of the weights).
     pub notes: Vec<String>,
+    /// A control network run beside a viseme network (lip-sync v4, issue 47): the weights and
+    /// their aperture, jaw, closure and tuck stay this network's, its width and rounding are
+    /// the articulation network's own (real mouths spread and round apart from the viseme).
+    pub articulation: Option<Arc<Model>>,
 }
 
 impl Model {
@@ -107,6 +113,7 @@ impl Model {
             w2: vec![0.0; outputs * hidden],
             b2: vec![0.0; outputs],
             notes: Vec::new(),
+            articulation: None,
         }
     }
 
@@ -141,9 +148,55 @@ impl Model {
         }
     }
 
-    /// Multiply-adds of one frame through both layers.
+    /// Multiply-adds of one frame through both layers (and the articulation network's).
     pub fn multiply_adds(&self) -> usize {
-        self.inputs() * self.hidden + self.hidden * self.outputs()
+        self.inputs() * self.hidden
+            + self.hidden * self.outputs()
+            + self.articulation.as_ref().map_or(0, |a| a.multiply_adds())
+    }
+
+    /// Multiplies a control network's width output by `gain` (its output layer's width row and
+    /// bias), noted in the file: a regression's width moves less than real lips, and a head must
+    /// move visibly for a viewer (or a face tracker) to follow it. No-op for viseme outputs.
+    pub fn scale_width_output(&mut self, gain: f32) {
+        if !self.has_control_outputs() || !gain.is_finite() {
+            return;
+        }
+        let row = 1;
+        for w in &mut self.w2[row * self.hidden..(row + 1) * self.hidden] {
+            *w *= gain;
+        }
+        self.b2[row] *= gain;
+        self.notes
+            .push(format!("width output scaled by {gain} after training"));
+    }
+
+    /// Runs `articulation` beside this viseme network: its width and rounding replace those
+    /// of the weights' controls. Both must see the same future frames, and together stay
+    /// within the control budget.
+    pub fn with_articulation(mut self, articulation: Model) -> Result<Self, String> {
+        if self.has_control_outputs() || !articulation.has_control_outputs() {
+            return Err(
+                "an articulation network (control outputs) goes beside a viseme network".into(),
+            );
+        }
+        if articulation.articulation.is_some() {
+            return Err("an articulation network cannot carry one of its own".into());
+        }
+        if articulation.lookahead != self.lookahead {
+            return Err(format!(
+                "the articulation network looks {} frame(s) ahead, the viseme network {}",
+                articulation.lookahead, self.lookahead
+            ));
+        }
+        self.articulation = Some(Arc::new(articulation));
+        let cost = self.multiply_adds();
+        if cost > CONTROL_MULTIPLY_ADD_BUDGET {
+            return Err(format!(
+                "the two networks cost {cost} multiply-adds, over the {CONTROL_MULTIPLY_ADD_BUDGET} allowed"
+            ));
+        }
+        Ok(self)
     }
 
     /// The names of the visemes the output weights drive, in output order (a head must have

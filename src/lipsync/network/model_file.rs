@@ -334,6 +334,7 @@ impl Model {
             w2,
             b2,
             notes: lines.notes,
+            articulation: None,
         })
     }
 
