@@ -51,12 +51,12 @@ use super::listen::dialable;
 use super::lookup::Lookups;
 use super::mumble_call::{MumbleCall, MumbleJoin, MumbleView};
 use super::retire::Retirer;
+use super::revival::Revival;
 use super::ring_notice::RingNotice;
 use super::roster::Roster;
 use super::settings::DEFAULT_CODEC;
 use super::sip_call::{PhoneCommand, PhoneStatus, SipPhone, is_sip_address};
 use super::timing::{RelayWatch, Ticker};
-use output::OutputRevival;
 
 /// The peers' status and the relay's are refreshed every this many ticks (200 ms).
 const STATUS_TICKS: u32 = 10;
@@ -302,7 +302,7 @@ struct Worker {
     /// The output device chosen, opening.
     outputs: DeviceOpener<OpenedOutput>,
     /// A lost output opened again: when next, and how long after a failure.
-    revival: OutputRevival,
+    revival: Revival,
     /// The microphone chosen, opening.
     inputs: DeviceOpener<Capture>,
     /// The controls last handed to the UI: the next microphone keeps their mute and
@@ -368,7 +368,7 @@ impl Worker {
             lookups: Lookups::default(),
             posted: None,
             speaker_test_until: None,
-            revival: OutputRevival::default(),
+            revival: Revival::default(),
             outputs: DeviceOpener::new("output device"),
             inputs: DeviceOpener::new("microphone"),
             mic_controls: None,

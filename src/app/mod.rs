@@ -18,6 +18,7 @@ pub mod mumble_call;
 pub mod peer;
 pub mod peer_panel;
 mod retire;
+mod revival;
 pub mod ring_notice;
 mod ringing;
 pub mod roster;

@@ -3,38 +3,15 @@
 //! device stalled on a starved machine) is opened again, 2 s after the loss, then less and
 //! less often.
 
-use std::time::{Duration, Instant};
+use std::time::Instant;
 
 use super::{Worker, describe_output, lock};
 use crate::audio::{DeviceChoice, Playback};
-use crate::net::backoff::Backoff;
-
-/// The first try to open a lost output again, and the longest wait between tries.
-const REVIVAL_FLOOR: Duration = Duration::from_secs(2);
-const REVIVAL_CEILING: Duration = Duration::from_secs(30);
-
-#[derive(Debug)]
-pub(super) struct OutputRevival {
-    backoff: Backoff,
-    next: Option<Instant>,
-    /// The device opening is a revival: a failure waits for the next try, quietly.
-    opening: bool,
-}
-
-impl Default for OutputRevival {
-    fn default() -> Self {
-        Self {
-            backoff: Backoff::new(REVIVAL_FLOOR, REVIVAL_CEILING),
-            next: None,
-            opening: false,
-        }
-    }
-}
 
 impl Worker {
     /// Opens `choice` off the worker ([`Worker::follow_output`] swaps it in).
     pub(super) fn open_output(&mut self, choice: DeviceChoice) -> anyhow::Result<()> {
-        self.revival.opening = false;
+        self.revival.chosen();
         self.start_output(choice)
     }
 
@@ -51,15 +28,14 @@ impl Worker {
         let Some((choice, opened)) = self.outputs.opened(Instant::now()) else {
             return;
         };
-        let revived = std::mem::take(&mut self.revival.opening);
         let mut s = lock(&self.shared);
         let swapped =
             opened.and_then(|o| s.playback.use_output(choice, o).map_err(|e| e.to_string()));
         s.output_status = describe_output(s.playback.status());
+        let revived = self.revival.finished(swapped.is_ok());
         match swapped {
             Ok(retired) => {
                 drop(s);
-                self.revival.backoff.reset();
                 if revived {
                     tracing::info!("the output device is back");
                 }
@@ -81,23 +57,14 @@ impl Worker {
             s.playback.lost_output().cloned()
         };
         let Some(choice) = lost else {
-            self.revival.next = None;
+            self.revival.playing();
             return;
         };
-        if self.outputs.is_opening() {
+        if self.outputs.is_opening() || !self.revival.due(now) {
             return;
         }
-        let next = *self
-            .revival
-            .next
-            .get_or_insert_with(|| now + self.revival.backoff.next_wait());
-        if now < next {
-            return;
-        }
-        self.revival.next = None;
-        self.revival.opening = true;
         if let Err(e) = self.start_output(choice) {
-            self.revival.opening = false;
+            self.revival.finished(false);
             tracing::debug!("the lost output device: {e}");
         }
     }
