@@ -21,7 +21,7 @@ use std::time::{Duration, Instant};
 
 use common::pulse::NullSink;
 use common::pulse_running;
-use lipcall::app::engine::{CallPhase, CallSpec, Command as EngineCommand, lock};
+use lipcall::app::engine::{CallPhase, CallSpec, Command as EngineCommand, Engine, lock};
 use lipcall::codec::any::Codec;
 
 /// How long the child calls for.
@@ -36,6 +36,16 @@ fn engine_calls_with_its_microphone() {
         return;
     };
     let (address, frame_ms) = spec.split_once(' ').expect("ADDRESS FRAME_MS");
+    let engine = calling_in_opus(address, frame_ms.parse().expect("a frame length"));
+    std::thread::sleep(CALL);
+    let status = lock(&engine.shared).input_status.clone();
+    eprintln!("input: {status}");
+    engine.send(EngineCommand::Leave);
+}
+
+/// An engine with a real microphone (the default source) that calls `address` in Opus with
+/// `frame_ms` frames once the microphone is open.
+fn calling_in_opus(address: &str, frame_ms: u8) -> Engine {
     let engine = common::app::engine_with_audio("Mouth", None);
     common::app::wait_for(
         &engine,
@@ -46,13 +56,10 @@ fn engine_calls_with_its_microphone() {
     engine.send(EngineCommand::Call(Box::new(CallSpec {
         address: address.into(),
         codec: Codec::Opus,
-        frame_ms: frame_ms.parse().expect("a frame length"),
+        frame_ms,
         ..CallSpec::default()
     })));
-    std::thread::sleep(CALL);
-    let status = lock(&engine.shared).input_status.clone();
-    eprintln!("input: {status}");
-    engine.send(EngineCommand::Leave);
+    engine
 }
 
 /// One Opus packet heard: when, and its RTP timestamp.
@@ -211,19 +218,7 @@ fn sip_packets_received(frame_ms: u8, answer_args: &[&str]) -> f64 {
     let port = common::sip::free_port(false);
     let heard = dir.path().join("heard.wav");
     let answer = common::sip::lipcall_answering_with(dir.path(), port, "30", &heard, answer_args);
-    let engine = common::app::engine_with_audio("Mouth", None);
-    common::app::wait_for(
-        &engine,
-        "the microphone opened",
-        Duration::from_secs(10),
-        |s| s.mic.is_some(),
-    );
-    engine.send(EngineCommand::Call(Box::new(CallSpec {
-        address: format!("sip:lipcall@127.0.0.1:{port}"),
-        codec: Codec::Opus,
-        frame_ms,
-        ..CallSpec::default()
-    })));
+    let engine = calling_in_opus(&format!("sip:lipcall@127.0.0.1:{port}"), frame_ms);
     common::app::wait_for(&engine, "in the call", Duration::from_secs(20), |s| {
         matches!(s.call.phase, CallPhase::InCall { .. })
     });

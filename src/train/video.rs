@@ -210,40 +210,63 @@ pub struct LipScores {
     pub frames: usize,
 }
 
+/// What a face showed against the lips measured, frame by frame, pooled and per clip.
+#[derive(Default)]
+struct LipTally {
+    pooled: [(Vec<f64>, Vec<f64>); LIP_CUES],
+    clip: [(Vec<f64>, Vec<f64>); LIP_CUES],
+    per_clip: [f64; LIP_CUES],
+    clips: usize,
+    frames: usize,
+}
+
+impl LipTally {
+    fn frame(&mut self, shown: [f32; LIP_CUES], lips: &[f32; LIP_CUES]) {
+        self.frames += 1;
+        for cue in 0..LIP_CUES {
+            for (h, v) in [&mut self.pooled[cue], &mut self.clip[cue]] {
+                h.push(f64::from(shown[cue]));
+                v.push(f64::from(lips[cue]));
+            }
+        }
+    }
+
+    fn end_clip(&mut self) {
+        self.clips += 1;
+        for (sum, (h, v)) in self.per_clip.iter_mut().zip(&mut self.clip) {
+            *sum += pearson(h, v);
+            h.clear();
+            v.clear();
+        }
+    }
+
+    fn scores(&self) -> LipScores {
+        let clips = self.clips.max(1) as f64;
+        LipScores {
+            aperture_r: pearson(&self.pooled[0].0, &self.pooled[0].1),
+            width_r: pearson(&self.pooled[1].0, &self.pooled[1].1),
+            clip_aperture_r: self.per_clip[0] / clips,
+            clip_width_r: self.per_clip[1] / clips,
+            clips: self.clips,
+            frames: self.frames,
+        }
+    }
+}
+
 /// Scores `animator` on `clips` (their lips unshifted: the face against the real face).
 pub fn score_clips(animator: &mut dyn Animator, clips: &[VideoClip]) -> LipScores {
     let set = animator.visemes().clone();
     let k = set.len();
     let shown = predict_streams(animator, &streams(clips));
-    let mut pooled = [(Vec::new(), Vec::new()), (Vec::new(), Vec::new())];
-    let mut per_clip = [0.0f64; LIP_CUES];
-    let mut frames = 0;
+    let mut tally = LipTally::default();
     for (clip, weights) in clips.iter().zip(&shown) {
-        let mut own = [(Vec::new(), Vec::new()), (Vec::new(), Vec::new())];
         for (n, lips) in clip.lips.iter().enumerate() {
             let Some(lips) = lips else { continue };
-            frames += 1;
-            let head = head_lips(&set, &weights[n * k..(n + 1) * k]);
-            for cue in 0..LIP_CUES {
-                for (h, v) in [&mut pooled[cue], &mut own[cue]] {
-                    h.push(head[cue] as f64);
-                    v.push(lips[cue] as f64);
-                }
-            }
+            tally.frame(head_lips(&set, &weights[n * k..(n + 1) * k]), lips);
         }
-        for (sum, (h, v)) in per_clip.iter_mut().zip(&own) {
-            *sum += pearson(h, v);
-        }
+        tally.end_clip();
     }
-    let clips_n = clips.len().max(1) as f64;
-    LipScores {
-        aperture_r: pearson(&pooled[0].0, &pooled[0].1),
-        width_r: pearson(&pooled[1].0, &pooled[1].1),
-        clip_aperture_r: per_clip[0] / clips_n,
-        clip_width_r: per_clip[1] / clips_n,
-        clips: clips.len(),
-        frames,
-    }
+    tally.scores()
 }
 
 /// Scores the controls (aperture, width) that `model`'s receiver gives each frame, as a head
@@ -252,9 +275,7 @@ pub fn score_clips(animator: &mut dyn Animator, clips: &[VideoClip]) -> LipScore
 pub fn score_controls(model: &Model, clips: &[VideoClip]) -> Result<LipScores, ReprojectError> {
     let mut pipeline = PeerPipeline::new(model, &LipSyncOptions::default(), 0, false)?;
     let mut current: Option<&str> = None;
-    let mut pooled = [(Vec::new(), Vec::new()), (Vec::new(), Vec::new())];
-    let mut per_clip = [0.0f64; LIP_CUES];
-    let mut frames = 0;
+    let mut tally = LipTally::default();
     for clip in clips {
         if current != Some(clip.speaker.as_str()) {
             pipeline.reset();
@@ -266,32 +287,14 @@ pub fn score_controls(model: &Model, clips: &[VideoClip]) -> Result<LipScores, R
                 *slot = Some([frame.controls.aperture, frame.controls.width]);
             }
         });
-        let mut own = [(Vec::new(), Vec::new()), (Vec::new(), Vec::new())];
         for (lips, head) in clip.lips.iter().zip(&shown) {
-            let (Some(lips), Some(head)) = (lips, head) else {
-                continue;
-            };
-            frames += 1;
-            for cue in 0..LIP_CUES {
-                for (h, v) in [&mut pooled[cue], &mut own[cue]] {
-                    h.push(head[cue] as f64);
-                    v.push(lips[cue] as f64);
-                }
+            if let (Some(lips), Some(head)) = (lips, head) {
+                tally.frame(*head, lips);
             }
         }
-        for (sum, (h, v)) in per_clip.iter_mut().zip(&own) {
-            *sum += pearson(h, v);
-        }
+        tally.end_clip();
     }
-    let clips_n = clips.len().max(1) as f64;
-    Ok(LipScores {
-        aperture_r: pearson(&pooled[0].0, &pooled[0].1),
-        width_r: pearson(&pooled[1].0, &pooled[1].1),
-        clip_aperture_r: per_clip[0] / clips_n,
-        clip_width_r: per_clip[1] / clips_n,
-        clips: clips.len(),
-        frames,
-    })
+    Ok(tally.scores())
 }
 
 #[cfg(test)]
