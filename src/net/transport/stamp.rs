@@ -148,13 +148,22 @@ mod tests {
         enable(&receiver);
         let sender = UdpSocket::bind("127.0.0.1:0").unwrap();
         let to = receiver.local_addr().unwrap();
+        let mut buf = [0u8; 16];
+        // Linux turns its receive stamps on a moment after the first socket asks (deferred
+        // work); until then a datagram is stamped at its read. Wait until one is stamped early.
+        let on = (0..50).any(|_| {
+            sender.send_to(&[9], to).unwrap();
+            std::thread::sleep(Duration::from_millis(30));
+            let (_, _, at) = recv_from(&receiver, &mut buf).unwrap();
+            Instant::now() - at >= Duration::from_millis(20)
+        });
+        assert!(on, "the kernel never stamped a datagram before its read");
         // Five datagrams 30 ms apart while the reader is away; read together 150 ms later.
         for k in 0..5u8 {
             sender.send_to(&[k], to).unwrap();
             std::thread::sleep(Duration::from_millis(30));
         }
         std::thread::sleep(Duration::from_millis(150));
-        let mut buf = [0u8; 16];
         let mut stamps = Vec::new();
         for k in 0..5u8 {
             let (n, from, at) = recv_from(&receiver, &mut buf).unwrap();
