@@ -142,15 +142,11 @@ fn median(mut v: Vec<f64>) -> f64 {
 }
 
 fn check_pulse() -> bool {
-    if pulse_running() {
-        return true;
+    let running = pulse_running();
+    if !running {
+        common::unavailable("a PulseAudio server (bash .ci/pulse-null-sink.sh)");
     }
-    assert!(
-        std::env::var_os("CI").is_none(),
-        "CI must provide PulseAudio"
-    );
-    eprintln!("skipped: no PulseAudio server");
-    false
+    running
 }
 
 #[test]
