@@ -73,10 +73,8 @@ impl Worker {
             {
                 let s = lock(&self.shared);
                 heard.sort_by_key(|c| {
-                    (
-                        s.peers.joined_at(c.addr).is_none(),
-                        s.peers.joined_at(c.addr),
-                    )
+                    let joined = s.peers.joined_at(c.addr);
+                    (joined.is_none(), joined)
                 });
             }
             self.consent.keep_heard(&heard);
