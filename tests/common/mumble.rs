@@ -77,7 +77,9 @@ impl Murmur {
         murmur
     }
 
-    fn launch(&mut self) {
+    /// Starts the stopped server again (same database and certificate, same port), once it
+    /// listens and has its certificate.
+    pub fn launch(&mut self) {
         let child = Command::new("murmurd")
             .arg("-fg")
             .arg("-ini")
