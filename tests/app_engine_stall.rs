@@ -1,6 +1,6 @@
 //! The app's engine never waits on a peer or a server: dialling a SIP host that never answers,
 //! leaving a Janus room whose server hangs, and joining a Mumble server that accepts and says
-//! nothing all happen off the worker, whose every pass comes within 50 ms of the last (a pass
+//! nothing all happen off the worker, whose every pass comes within 250 ms of the last (a pass
 //! that blocks holds up every peer's audio and face). So does looking up the host of a call
 //! (direct, SIP, a Janus room) when the resolver never answers, deriving a passphrase's room key,
 //! and opening an output device or a microphone (the
@@ -18,8 +18,9 @@ use lipcall::audio::DeviceChoice;
 use lipcall::codec::any::Codec;
 use lipcall::net::sip::register::Account;
 
-/// The longest the worker's loop may take between two passes.
-const STALL: Duration = Duration::from_millis(50);
+/// The longest the worker's loop may take between two passes. Waiting on a silent peer costs
+/// a pass its timeout (half a second at least); a busy CI machine alone has cost one 52 ms.
+const STALL: Duration = Duration::from_millis(250);
 
 fn call(engine: &Engine, address: &str, room: Option<&str>) {
     engine.send(Command::Call(Box::new(CallSpec {

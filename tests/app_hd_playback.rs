@@ -114,11 +114,19 @@ fn play_through_the_engine(sink: &str, codec: &str, file: &Path) -> Vec<i16> {
         .spawn()
         .expect("parec (pulseaudio-utils) runs");
     let mut out = parec.stdout.take().unwrap();
+    // The child starts once the recording runs (the monitor streams the sink's silence): a
+    // recording that started late, on a busy machine, missed the first second of the speech.
+    let (started, running) = std::sync::mpsc::channel();
     let reader = std::thread::spawn(move || {
-        let mut bytes = Vec::new();
+        let mut bytes = vec![0u8; 9600];
+        let _ = out.read_exact(&mut bytes);
+        let _ = started.send(());
         let _ = out.read_to_end(&mut bytes);
         bytes
     });
+    running
+        .recv_timeout(Duration::from_secs(20))
+        .expect("parec records the sink's monitor");
     let child = Command::new(std::env::current_exe().unwrap())
         .args([
             "--exact",
@@ -184,6 +192,11 @@ fn the_app_plays_each_peer_at_its_own_band() {
             share.1,
             source_share.0,
             source_share.1
+        );
+        assert!(
+            heard.len() > source_pcm.len(),
+            "{codec}: {:.1} s recorded, shorter than the speech",
+            heard.len() as f64 / f64::from(RATE)
         );
         // Something was played: the speech, well above the null sink's digital silence.
         assert!(
