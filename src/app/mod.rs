@@ -15,6 +15,7 @@ pub mod engine;
 pub mod listen;
 mod lookup;
 pub mod mumble_call;
+mod off_worker;
 pub mod peer;
 pub mod peer_panel;
 mod retire;
