@@ -62,8 +62,9 @@ pub struct LipSync<'m, A: Animator + ?Sized = dyn Animator + Send + 'm> {
     raw: Vec<f32>,
     out: Vec<f32>,
     rest: Vec<f32>,
-    /// The controls of the frame last given out (the network's, or its weights' measured ones).
-    controls: Controls,
+    /// A control network's controls of the frame last given out (none in silence, or from a
+    /// viseme network: the weights' own are blended only when asked for).
+    network_controls: Option<Controls>,
     model: PhantomData<&'m ()>,
 }
 
@@ -135,7 +136,7 @@ impl<'m, A: Animator + ?Sized> LipSync<'m, A> {
             pending: [(0, false); MAX_LOOKAHEAD + 1],
             pending_len: 0,
             flushed: 0,
-            controls: Controls::default(),
+            network_controls: None,
             model: PhantomData,
         })
     }
@@ -204,13 +205,13 @@ impl<'m, A: Animator + ?Sized> LipSync<'m, A> {
         features: &FrameFeatures,
     ) -> Option<(u64, &[f32], Controls)> {
         let (tag, _) = self.push(tag, features)?;
-        Some((tag, &self.out, self.controls))
+        Some((tag, &self.out, self.controls()))
     }
 
     /// [`LipSync::flush`] with the frame's controls.
     pub fn flush_with_controls(&mut self) -> Option<(u64, &[f32], Controls)> {
         let (tag, _) = self.flush()?;
-        Some((tag, &self.out, self.controls))
+        Some((tag, &self.out, self.controls()))
     }
 
     /// [`LipSync::push`] with the weights spread over all 15 visemes (what a head takes).
@@ -233,18 +234,17 @@ impl<'m, A: Animator + ?Sized> LipSync<'m, A> {
     /// the controls of the weights shown (each viseme's measured ones, blended); rest in
     /// silence. What a head that takes controls is driven by.
     pub fn controls(&self) -> Controls {
-        self.controls
+        self.network_controls
+            .unwrap_or_else(|| viseme_controls::from_weights(self.reprojector.target(), &self.out))
     }
 
     fn finish(&mut self, silent: bool) -> &[f32] {
         if silent {
             self.out.copy_from_slice(&self.rest);
-            self.controls = viseme_controls::from_weights(self.reprojector.target(), &self.out);
+            self.network_controls = None;
         } else {
             self.reprojector.project(&self.raw, &mut self.out);
-            self.controls = self.animator.controls().unwrap_or_else(|| {
-                viseme_controls::from_weights(self.reprojector.target(), &self.out)
-            });
+            self.network_controls = self.animator.controls();
         }
         &self.out
     }
