@@ -244,3 +244,59 @@ fn a_restarted_murmur_is_said_and_rejoined_and_the_call_goes_on() {
         .unwrap_or_else(|| panic!("{received}"));
     assert!(field(ann, "played") > 100, "{received}");
 }
+
+/// A TCP relay on loopback to `to` that holds each connection `hold` before passing it on (a
+/// server slow to answer the handshake).
+fn slow_tcp_relay(to: std::net::SocketAddr, hold: Duration) -> std::net::SocketAddr {
+    use std::net::{Shutdown, TcpListener, TcpStream};
+    let listener = TcpListener::bind("127.0.0.1:0").unwrap();
+    let at = listener.local_addr().unwrap();
+    std::thread::spawn(move || {
+        for client in listener.incoming().take(4).flatten() {
+            std::thread::spawn(move || {
+                std::thread::sleep(hold);
+                let Ok(server) = TcpStream::connect(to) else {
+                    return;
+                };
+                let pump = |mut from: TcpStream, mut to: TcpStream| {
+                    std::thread::spawn(move || {
+                        let _ = std::io::copy(&mut from, &mut to);
+                        let _ = to.shutdown(Shutdown::Write);
+                    })
+                };
+                pump(client.try_clone().unwrap(), server.try_clone().unwrap());
+                pump(server, client);
+            });
+        }
+    });
+    at
+}
+
+/// `--seconds` counts from the command's start, the join included: a server that takes 2 s
+/// to let us in leaves a 4 s receive 2 s in the channel (it was 2 s to join, then 4 more).
+#[test]
+fn seconds_count_the_join_too() {
+    if !runs_here("seconds_count_the_join_too") {
+        return;
+    }
+    let dir = tempfile::tempdir().unwrap();
+    let murmur = Murmur::start(dir.path(), "");
+    let slow = slow_tcp_relay(murmur.address().parse().unwrap(), Duration::from_secs(2));
+    let started = std::time::Instant::now();
+    let rx = spawn(
+        lipcall_as(dir.path(), "rx")
+            .args(["receive", "--mumble", &slow.to_string(), "--name", "Rx"])
+            .args(["--tcp-only", "--seconds", "4"]),
+    );
+    let (_, received) = finish(rx, Duration::from_secs(20), "lipcall receive --seconds 4");
+    let took = started.elapsed();
+    eprintln!("--seconds 4 with a 2 s join took {took:?}: {received}");
+    assert!(
+        received.contains("lipcall: joined as session"),
+        "{received}"
+    );
+    assert!(
+        took >= Duration::from_secs(4) && took < Duration::from_secs(5),
+        "took {took:?}: {received}"
+    );
+}

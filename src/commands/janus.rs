@@ -84,8 +84,8 @@ fn no_answer_in_time(seconds: Option<f64>) -> anyhow::Error {
     anyhow!("no answer from Janus in time: not in the room after the {seconds} s of --seconds")
 }
 
-/// Publishes a file's audio in the room, paced in real time, for at most `seconds` from the
-/// first packet; the join too may take no longer than `seconds`.
+/// Publishes a file's audio in the room, paced in real time, until `seconds` after the start,
+/// the join included.
 pub fn send(
     input: &std::path::Path,
     janus: &JanusArgs,
@@ -98,12 +98,13 @@ pub fn send(
     if packets.is_empty() {
         bail!("{}: no audio to send", input.display());
     }
+    let until = deadline(seconds);
     let stop = stop_flag()?;
     let joining = || format!("publishing in room {:?} on {}", janus.room, janus.url);
     let mut link = JanusLink::start(janus.config(false, "lipcall"), true)
         .map_err(anyhow::Error::new)
         .with_context(joining)?;
-    let notices = match link.wait_joined(&stop, deadline(seconds)) {
+    let notices = match link.wait_joined(&stop, until) {
         JoinWait::Joined(notices) => notices,
         JoinWait::Failed(e) => return Err(pin_hint(e)).with_context(joining),
         JoinWait::Stopped => {
@@ -117,8 +118,7 @@ pub fn send(
         .ok_or_else(|| anyhow!("joined, yet not in the room"))?;
     announce_security();
     print_notices(&notices);
-    // From the first packet on.
-    let pacing = Pacing::new(seconds)?;
+    let pacing = Pacing::new(until)?;
     let clock = f64::from(codec.clock_rate());
     let ticks: u64 = packets.iter().map(|(_, t)| u64::from(*t)).sum();
     eprintln!(
@@ -300,12 +300,13 @@ pub fn receive_with(
     let (model, mut recorder) = args.out.open()?;
     let server = server_addr(&args.janus.url)?;
     let joining = || format!("joining room {:?} on {}", args.janus.room, args.janus.url);
-    // The join may take no longer than the whole receive was to last.
+    // The join counts in the receive's --seconds.
     let seconds = args.out.seconds;
+    let until = deadline(seconds);
     let mut link = JanusLink::start(args.janus.config(true, "lipcall-receiver"), false)
         .map_err(anyhow::Error::new)
         .with_context(joining)?;
-    let notices = match link.wait_joined(&stop, deadline(seconds)) {
+    let notices = match link.wait_joined(&stop, until) {
         JoinWait::Joined(notices) => notices,
         JoinWait::Failed(e) => return Err(pin_hint(e)).with_context(joining),
         JoinWait::Stopped => {
@@ -327,7 +328,7 @@ pub fn receive_with(
     let played = play(
         &mut link,
         JANUS,
-        args.out.seconds,
+        until,
         model.as_ref(),
         on_frame,
         &mut recorder,

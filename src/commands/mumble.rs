@@ -132,14 +132,14 @@ fn print_notice(notice: &Notice) {
     }
 }
 
-/// Connects and joins (the channel asked for, if any) within `seconds` (where given); says
-/// whose certificate we trust. None when a signal came first.
+/// Connects and joins (the channel asked for, if any) by `until` (`seconds` after the start);
+/// says whose certificate we trust. None when a signal came first.
 fn connect(
     args: &MumbleArgs,
     stop: &AtomicBool,
     seconds: Option<f64>,
+    until: Option<Instant>,
 ) -> Result<Option<Connection>> {
-    let until = deadline(seconds);
     let dir = identity::default_dir()
         .context("no folder for the client certificate: set HOME or XDG_CONFIG_HOME")?;
     let config = ConnectConfig {
@@ -226,8 +226,8 @@ fn no_answer_in_time(seconds: Option<f64>) -> anyhow::Error {
     )
 }
 
-/// Sends a file's audio to the channel, paced in real time, for at most `seconds` from the
-/// first packet; the join too may take no longer than `seconds`.
+/// Sends a file's audio to the channel, paced in real time, until `seconds` after the start,
+/// the join included.
 pub fn send(input: &Path, args: &MumbleArgs, seconds: Option<f64>, frame_ms: u8) -> Result<()> {
     let mut settings = EncoderSettings::default();
     settings.opus.frame_ms = frame_ms;
@@ -235,12 +235,12 @@ pub fn send(input: &Path, args: &MumbleArgs, seconds: Option<f64>, frame_ms: u8)
     if packets.is_empty() {
         bail!("{}: no audio to send", input.display());
     }
+    let until = deadline(seconds);
     let stop = stop_flag()?;
-    let Some(mut connection) = connect(args, &stop, seconds)? else {
+    let Some(mut connection) = connect(args, &stop, seconds, until)? else {
         return Ok(());
     };
-    // From the first packet on.
-    let pacing = Pacing::new(seconds)?;
+    let pacing = Pacing::new(until)?;
     let clock = f64::from(codec.clock_rate());
     let ticks: u64 = packets.iter().map(|(_, t)| u64::from(*t)).sum();
     eprintln!(
@@ -295,7 +295,8 @@ pub struct MumbleReceiveArgs {
 pub fn receive(args: &MumbleReceiveArgs) -> Result<()> {
     let stop = stop_flag()?;
     let (model, mut recorder) = args.out.open()?;
-    let Some(connection) = connect(&args.mumble, &stop, args.out.seconds)? else {
+    let until = deadline(args.out.seconds);
+    let Some(connection) = connect(&args.mumble, &stop, args.out.seconds, until)? else {
         return recorder.finish();
     };
     for notice in connection.poll() {
@@ -310,7 +311,7 @@ pub fn receive(args: &MumbleReceiveArgs) -> Result<()> {
     let played = play(
         &mut link,
         MUMBLE,
-        args.out.seconds,
+        until,
         model.as_ref(),
         &mut |_, _, _| {},
         &mut recorder,

@@ -110,11 +110,11 @@ pub(crate) struct Pacing {
 }
 
 impl Pacing {
-    /// From now on for `seconds` (to the file's end without it), and until SIGINT or SIGTERM.
-    pub(crate) fn new(seconds: Option<f64>) -> Result<Self> {
+    /// Until `until` (to the file's end without it), and until SIGINT or SIGTERM.
+    pub(crate) fn new(until: Option<Instant>) -> Result<Self> {
         Ok(Self {
             stop: stop_flag()?,
-            until: deadline(seconds),
+            until,
         })
     }
 }
@@ -265,9 +265,9 @@ pub struct SendArgs {
     /// Use this SSRC (hex) instead of a random one, for set-ups that need it in advance.
     #[arg(long, value_parser = parse_hex_u32)]
     pub ssrc: Option<u32>,
-    /// Stop after this many seconds (otherwise at the file's end); with --janus or --mumble,
-    /// counted from the first packet (joining that takes longer fails). Ctrl-C (SIGINT) or SIGTERM ends the send at any time,
-    /// saying goodbye to the peers.
+    /// Stop this many seconds after the start (otherwise at the file's end); with --janus or
+    /// --mumble the join counts too (a join not done by then fails). Ctrl-C (SIGINT) or
+    /// SIGTERM ends the send at any time, saying goodbye to the peers.
     #[arg(long, allow_hyphen_values = true, value_parser = super::parse_seconds)]
     pub seconds: Option<f64>,
 }
@@ -301,7 +301,7 @@ pub fn send(args: &SendArgs) -> Result<()> {
     config.ssrc = args.ssrc;
     config.codec = codec;
     config.payloads = payloads;
-    let pacing = Pacing::new(args.seconds)?;
+    let pacing = Pacing::new(deadline(args.seconds))?;
     let session = Session::start(config)?;
     if args.room.is_some() {
         wait_for_relay(&session, &pacing.stop, pacing.until)?;
@@ -450,8 +450,8 @@ pub struct ReceiveArgs {
     pub features: Option<PathBuf>,
     #[command(flatten)]
     pub key: KeyArgs,
-    /// Stop after this many seconds in the call (joining a relay or Janus room that takes
-    /// longer fails). Without it, the receive ends once everyone who called has left: said
+    /// Stop this many seconds after the start, joining a relay room, a Janus room or a Mumble
+    /// server included (a join not done by then fails). Without it, the receive ends once everyone who called has left: said
     /// BYE, or sent nothing for --peer-timeout. Before anyone calls it waits. Ctrl-C (SIGINT)
     /// or SIGTERM ends it at any time; the files written so far are finished and whole
     /// either way.
@@ -519,9 +519,7 @@ pub fn receive_with(
         args.weights.as_deref(),
     )?;
     announce_security(&config.key);
-    let until = args
-        .seconds
-        .map(|s| Instant::now() + Duration::from_secs_f64(s));
+    let until = deadline(args.seconds);
     let mut session = Session::start(config)?;
     eprintln!("lipcall: listening on {}", session.local_addr()?);
     if args.room.is_some() {
@@ -530,7 +528,7 @@ pub fn receive_with(
     let played = play(
         &mut session,
         DIRECT,
-        args.seconds,
+        until,
         model.as_ref(),
         on_frame,
         &mut recorder,

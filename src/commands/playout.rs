@@ -5,7 +5,7 @@
 use std::collections::{HashSet, VecDeque};
 use std::path::Path;
 use std::sync::atomic::AtomicBool;
-use std::time::{Duration, Instant};
+use std::time::Instant;
 
 use anyhow::Result;
 
@@ -200,19 +200,18 @@ pub(crate) fn print_event(event: &LinkEvent, words: Wording) {
 }
 
 /// The receive loop: pulls every 20 ms, mixes, runs each peer's pipeline when a model is
-/// given, and streams what it plays to `recorder`. Ends after `seconds`, when every peer has
-/// left (without `seconds`), when the link says the call failed or is over, or when `stop` is
+/// given, and streams what it plays to `recorder`. Ends at `until` (the command's `--seconds`,
+/// counted from its start), when every peer has left (without it), when the link says the call failed or is over, or when `stop` is
 /// set (SIGINT, SIGTERM).
 pub(crate) fn play<'m>(
     link: &mut dyn Link,
     words: Wording,
-    seconds: Option<f64>,
+    until: Option<Instant>,
     model: Option<&'m Model>,
     on_frame: &mut dyn FnMut(u32, f64, &FrameFeatures),
     recorder: &mut Recorder,
     stop: &AtomicBool,
 ) -> Result<()> {
-    let limit = seconds.map(Duration::from_secs_f64);
     let start = Instant::now();
     let mut tracks: Vec<PeerTrack> = Vec::new();
     let mut frames: Vec<PeerFrame> = Vec::new();
@@ -229,7 +228,7 @@ pub(crate) fn play<'m>(
             eprintln!("lipcall: stopped by a signal; finishing the outputs");
             break Ok(());
         }
-        if limit.is_some_and(|l| due.duration_since(start) >= l) {
+        if until.is_some_and(|until| due >= until) {
             break Ok(());
         }
         frames.clear();
@@ -242,7 +241,7 @@ pub(crate) fn play<'m>(
             break Ok(());
         }
         link.pull(due, &mut frames);
-        if frames.is_empty() && timeline.is_some() && limit.is_none() && link.all_left() {
+        if frames.is_empty() && timeline.is_some() && until.is_none() && link.all_left() {
             break Ok(());
         }
         if frames.is_empty() && link.over() {

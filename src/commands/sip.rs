@@ -267,14 +267,14 @@ fn run_call(
     {
         eprintln!("lipcall: warning: DTMF {keys:?} not sent: the peer agreed no telephone-events");
     }
-    let remaining = limit.map(|l| l.saturating_sub(start.elapsed()).as_secs_f64());
+    let until = limit.and_then(|l| start.checked_add(l));
     link.play(packets);
-    let played = match remaining {
-        Some(s) if s <= 0.0 => Ok(()),
+    let played = match until {
+        Some(until) if Instant::now() >= until => Ok(()),
         _ => play(
             &mut link,
             DIRECT,
-            remaining,
+            until,
             model.as_ref(),
             &mut |_, _, _| {},
             &mut recorder,
