@@ -586,13 +586,15 @@ impl Worker {
             self.send_mic();
             self.follow_lookup();
             self.follow_output();
-            self.revive_output(Instant::now());
             self.follow_input();
             self.follow_link();
             self.refresh_mumble();
             self.follow_phone();
             self.follow_ring();
             if let Some(tick) = ticker.poll(Instant::now()) {
+                // The output's health (a lock and a walk over the peers' clocks) once a tick,
+                // not on every pass the microphone or the mixer wakes.
+                self.revive_output(Instant::now());
                 if let Some(demo) = &mut self.demo {
                     demo.tick();
                 }
