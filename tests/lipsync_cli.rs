@@ -131,6 +131,8 @@ fn bad_usage_exits_2() {
         &["train", "--visemes", "PP,PP"][..],
         &["evaluate", "--quality", "11"],
         &["decompose", "--markers", "x.csv"],
+        &["train", "--smoothing", "0.95"],
+        &["train", "--smoothing", "NaN"],
     ] {
         let out = lipcall(args);
         let code = out.status.code();
@@ -163,6 +165,8 @@ fn tiny_training_writes_model_curves_and_plot_then_evaluates() {
         "4",
         "--snap",
         "off",
+        "--smoothing",
+        "0.5",
         "--quiet",
         "--out",
         model.to_str().unwrap(),
@@ -174,11 +178,9 @@ fn tiny_training_writes_model_curves_and_plot_then_evaluates() {
     assert!(out.status.success(), "{}", stderr(&out));
     let text = String::from_utf8_lossy(&out.stdout);
     assert!(text.contains("jaw baseline"), "{text}");
-    assert!(
-        std::fs::read_to_string(&model)
-            .unwrap()
-            .contains("lipcall-viseme-mlp 3")
-    );
+    let file = std::fs::read_to_string(&model).unwrap();
+    assert!(file.contains("lipcall-viseme-mlp 3"), "{file}");
+    assert!(file.contains("\nsmoothing 0.5\n"), "{file}");
     assert_eq!(std::fs::read_to_string(&curves).unwrap().lines().count(), 4);
     assert!(std::fs::read(&plot).unwrap().starts_with(b"\x89PNG"));
     assert!(stderr(&out).contains("wrote the model to"));

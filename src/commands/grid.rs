@@ -22,8 +22,8 @@ use crate::train::grid::{self, AUDIO_FRAME_S, LipClip};
 use crate::train::grid_shapes::{self, ContourClip, KeyRule};
 use crate::train::lag::{self, ClipSeries};
 use crate::train::video::{
-    VideoTraining, centre_each_clip, map_onto_head, prepare_clips, score_clips, score_controls,
-    vary_voices,
+    VideoTraining, centre_each_clip, map_onto_head, mix_calls, prepare_clips, score_clips,
+    score_controls, vary_voices,
 };
 use crate::vocab::{Viseme, VisemeSet};
 
@@ -141,6 +141,11 @@ pub struct LipTrainArgs {
     /// newcomer's first seconds) instead of all of them one long call.
     #[arg(long)]
     pub lip_calls: bool,
+    /// Every second s1 clip version a call of its own, the rest one long call: the network
+    /// meets the speaker normalisation both unsettled (a call's first seconds, each of the
+    /// other speakers' clips) and settled.
+    #[arg(long, conflicts_with = "lip_calls")]
+    pub lip_mixed_calls: bool,
     /// Early stopping also watches the other speakers' lips (the clips never trained on, each
     /// mapped onto the head's scale by its own mean and spread): validation across speakers.
     #[arg(long)]
@@ -162,6 +167,26 @@ pub struct LipEvalArgs {
     /// step wrote here (s1's held-out clips and the other speakers').
     #[arg(long, value_name = "DIR")]
     pub grid: Option<PathBuf>,
+    /// Which of those clips: s1's held-out ones (cheap to tune on), the other speakers'
+    /// (validation: look sparingly), or both.
+    #[arg(long, value_name = "SET", value_enum, default_value_t = LipSet::Both)]
+    pub lip_set: LipSet,
+    /// Also score the network's width against the lips of up to this many frames before and
+    /// after each audio frame (does the tracked width lead or trail the sound?).
+    #[arg(long, value_name = "FRAMES", default_value_t = 0, value_parser = clap::value_parser!(u8).range(0..=5))]
+    pub lip_lags: u8,
+    /// Each of s1's held-out clips a call of its own (the speaker normalisation starts afresh,
+    /// as it does for each other speaker's clip) instead of all of them one long call.
+    #[arg(long)]
+    pub lip_calls: bool,
+}
+
+/// The GRID clips `evaluate --grid` scores.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, clap::ValueEnum)]
+pub enum LipSet {
+    HeldOut,
+    Others,
+    Both,
 }
 
 /// s1's training clips (all but the held-out tenth), the first `limit`.
@@ -204,6 +229,9 @@ pub fn video_training(
     )?;
     if args.lip_calls || args.lip_warp > 0.0 {
         vary_voices(&mut prepared, args.lip_warp, recipe::SEED);
+    }
+    if args.lip_mixed_calls {
+        mix_calls(&mut prepared);
     }
     if args.lip_centre {
         centre_each_clip(&mut prepared);
@@ -270,20 +298,35 @@ pub fn control_video(args: &LipTrainArgs, codec: &CodecFeatures) -> Result<Optio
     }
     let clips = s1_training_clips(root, args.lip_clips)?;
     let shift = -((args.lip_shift_ms / 20) as i32);
-    let prepared = prepare_clips(
+    let mut prepared = prepare_clips(
         codec,
         &clips,
         &augmentation_settings(),
         args.lip_versions,
         shift,
     )?;
+    if args.lip_calls || args.lip_warp > 0.0 {
+        vary_voices(&mut prepared, args.lip_warp, recipe::SEED);
+    }
+    if args.lip_mixed_calls {
+        mix_calls(&mut prepared);
+    }
     let clips = control_clips(&prepared, Some(&args.lip_alignments))?;
     let frames = clips.iter().flat_map(|c| &c.targets).flatten().count();
     eprintln!(
         "measured lips as control targets: {} clip versions of s1's training clips, {frames} \
-         tracked frames, weight {}",
+         tracked frames, weight {}, {} ms earlier than their audio frames, warp {}{}",
         clips.len(),
-        args.lip_weight
+        args.lip_weight,
+        args.lip_shift_ms,
+        args.lip_warp,
+        if args.lip_calls {
+            ", each clip its own call"
+        } else if args.lip_mixed_calls {
+            ", every second clip version its own call"
+        } else {
+            ""
+        }
     );
     Ok(Some(ControlVideo {
         clips: Arc::new(clips),
@@ -304,12 +347,26 @@ pub fn evaluate_lips(args: &LipEvalArgs, model: &Model, path: CodecPath) -> Resu
         .filter(|(i, _)| grid::s1_held_out(*i))
         .map(|(_, c)| c)
         .collect();
-    let others = grid::load_clips(root, "other")?;
+    let others = match args.lip_set {
+        LipSet::HeldOut => Vec::new(),
+        _ => grid::load_clips(root, "other")?,
+    };
+    let sets = [("s1 held out", &held_out), ("9 other speakers", &others)];
+    let sets = match args.lip_set {
+        LipSet::HeldOut => &sets[..1],
+        LipSet::Others => &sets[1..],
+        LipSet::Both => &sets[..],
+    };
     println!("measured lips (GRID), {path}: Pearson r of the face's lips against the video's");
     println!("| clips | animator | aperture r | width r | per-clip mean aperture r / width r |");
     println!("|---|---|---|---|---|");
-    for (name, clips) in [("s1 held out", &held_out), ("9 other speakers", &others)] {
-        let prepared = prepare_clips(&codec, clips, &[path], 1, 0)?;
+    for &(name, clips) in sets {
+        let mut prepared = prepare_clips(&codec, clips, &[path], 1, 0)?;
+        if args.lip_calls {
+            for clip in &mut prepared {
+                clip.speaker.clone_from(&clip.name);
+            }
+        }
         let rows: [(&str, Box<dyn Animator>); 2] = [
             ("network", Box::new(ModelAnimator::new(model))),
             ("jaw baseline", Box::new(JawBaseline::from_model(model))),
@@ -321,11 +378,19 @@ pub fn evaluate_lips(args: &LipEvalArgs, model: &Model, path: CodecPath) -> Resu
                 s.clips, s.frames, s.aperture_r, s.width_r, s.clip_aperture_r, s.clip_width_r
             );
         }
-        let s = score_controls(model, &prepared)?;
+        let s = score_controls(model, &prepared, 0)?;
         println!(
             "| {name} ({} clips, {} frames) | network's controls (aperture, width) | {:.3} | {:.3} | {:.3} / {:.3} |",
             s.clips, s.frames, s.aperture_r, s.width_r, s.clip_aperture_r, s.clip_width_r
         );
+        let lags = i32::from(args.lip_lags);
+        for lag in (-lags..=lags).filter(|&lag| lag != 0) {
+            let s = score_controls(model, &prepared, lag)?;
+            println!(
+                "| {name} | network's controls against the lips {lag:+} frames on | {:.3} | {:.3} | {:.3} / {:.3} |",
+                s.aperture_r, s.width_r, s.clip_aperture_r, s.clip_width_r
+            );
+        }
     }
     Ok(())
 }

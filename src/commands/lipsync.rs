@@ -134,6 +134,11 @@ pub struct TrainArgs {
     /// articulation network is shipped to heads at x4, so that their width moves visibly).
     #[arg(long, value_name = "K", requires = "controls")]
     pub width_gain: Option<f32>,
+    /// The trained network's outputs shown as a running mean, each frame's own counting
+    /// 1 - S (the model file's `smoothing`; docs/model.md: the articulation network ships at
+    /// 0.6); 0 = none.
+    #[arg(long, value_name = "S", default_value_t = 0.0, value_parser = parse_smoothing)]
+    pub smoothing: f32,
     /// Hold out each dialect region of the non-test speakers in turn, report the pooled
     /// held-out scores, then train the model on all of them for the folds' median best epoch.
     #[arg(long)]
@@ -199,6 +204,16 @@ fn parse_snap(text: &str) -> Result<Option<f32>> {
             Ok(t) if t > 0.0 && t <= 1.0 => Ok(Some(t)),
             _ => bail!("--snap takes auto, off or a threshold in (0, 1], not {text:?}"),
         },
+    }
+}
+
+fn parse_smoothing(text: &str) -> Result<f32, String> {
+    use crate::lipsync::network::MAX_SMOOTHING;
+    match text.parse::<f32>() {
+        Ok(s) if (0.0..=MAX_SMOOTHING).contains(&s) => Ok(s),
+        _ => Err(format!(
+            "{text:?} is not a number from 0 to {MAX_SMOOTHING}"
+        )),
     }
 }
 
@@ -328,6 +343,7 @@ pub fn train(args: &TrainArgs) -> Result<()> {
     if let Some(gain) = args.width_gain {
         report.model.scale_width_output(gain);
     }
+    report.model.smoothing = args.smoothing;
     report
         .model
         .save(&args.out)
@@ -472,6 +488,7 @@ fn train_cross_validated(args: &TrainArgs) -> Result<()> {
     if let Some(gain) = args.width_gain {
         report.model.scale_width_output(gain);
     }
+    report.model.smoothing = args.smoothing;
     report
         .model
         .save(&args.out)

@@ -230,6 +230,26 @@ impl Animator for ModelAnimator<'_> {
 }
 
 #[cfg(test)]
+/// A control network of the default model's shape whose width follows the newest frame's
+/// energy input and whose rounding is fixed at `rounding`.
+pub(crate) fn articulation_beside(model: &Model, rounding: f32) -> Model {
+    let mut a = Model::zeros_with(
+        model.visemes.clone(),
+        model.scaling.clone(),
+        model.context,
+        model.dynamics,
+        1,
+    )
+    .with_control_outputs();
+    a.lookahead = model.lookahead;
+    a.speaker_norm = model.speaker_norm.clone();
+    a.w1.fill(0.01);
+    a.w2[1] = 0.05;
+    a.b2[3] = (rounding / (1.0 - rounding)).ln();
+    a
+}
+
+#[cfg(test)]
 mod tests {
     use super::*;
     use crate::lipsync::{default_model, network};
@@ -251,25 +271,6 @@ mod tests {
         assert_eq!(snap(&model, -1.0), 0.0);
         assert!((snap(&model, 1.0) - (1.0 - network::CLOSURE_BIAS_SPAN)).abs() < 1e-6);
         assert!(parse_closure_bias("-0.5").is_ok() && parse_closure_bias("1.5").is_err());
-    }
-
-    /// A control network of the default model's shape whose width follows the newest frame's
-    /// energy input and whose rounding is fixed at `rounding`.
-    fn articulation_beside(model: &Model, rounding: f32) -> Model {
-        let mut a = Model::zeros_with(
-            model.visemes.clone(),
-            model.scaling.clone(),
-            model.context,
-            model.dynamics,
-            1,
-        )
-        .with_control_outputs();
-        a.lookahead = model.lookahead;
-        a.speaker_norm = model.speaker_norm.clone();
-        a.w1.fill(0.01);
-        a.w2[1] = 0.05;
-        a.b2[3] = (rounding / (1.0 - rounding)).ln();
-        a
     }
 
     #[test]

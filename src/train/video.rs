@@ -123,6 +123,18 @@ pub fn vary_voices(clips: &mut [VideoClip], warp: f32, seed: u64) {
     }
 }
 
+/// Every second clip (with two codec versions a clip: one version of each) a call of its own,
+/// as a newcomer's first seconds are, moved after the rest, which stay one long call, as later
+/// in a call: a network taught both meets the speaker normalisation settled and unsettled.
+pub fn mix_calls(clips: &mut Vec<VideoClip>) {
+    let (long, mut own): (Vec<_>, Vec<_>) =
+        clips.drain(..).enumerate().partition(|(i, _)| i % 2 == 0);
+    for (i, clip) in &mut own {
+        clip.speaker = format!("{}-{i}", clip.speaker);
+    }
+    clips.extend(long.into_iter().chain(own).map(|(_, clip)| clip));
+}
+
 /// Moves each clip's lips so that their mean is that of all clips, measure by measure: what
 /// differs between recordings (the head turned a little, the camera nearer) is not what a
 /// voice says, and the score (r within a clip) never sees it.
@@ -271,8 +283,13 @@ pub fn score_clips(animator: &mut dyn Animator, clips: &[VideoClip]) -> LipScore
 
 /// Scores the controls (aperture, width) that `model`'s receiver gives each frame, as a head
 /// driven by controls shows them, against `clips`' lips: one call per speaker, as
-/// [`score_clips`] runs it.
-pub fn score_controls(model: &Model, clips: &[VideoClip]) -> Result<LipScores, ReprojectError> {
+/// [`score_clips`] runs it. The controls of frame n meet the lips of frame n + `lag` (0: as
+/// recorded; -1: lips a frame earlier, as for lips that lead their sound).
+pub fn score_controls(
+    model: &Model,
+    clips: &[VideoClip],
+    lag: i32,
+) -> Result<LipScores, ReprojectError> {
     let mut pipeline = PeerPipeline::new(model, &LipSyncOptions::default(), 0, false)?;
     let mut current: Option<&str> = None;
     let mut tally = LipTally::default();
@@ -287,8 +304,11 @@ pub fn score_controls(model: &Model, clips: &[VideoClip]) -> Result<LipScores, R
                 *slot = Some([frame.controls.aperture, frame.controls.width]);
             }
         });
-        for (lips, head) in clip.lips.iter().zip(&shown) {
-            if let (Some(lips), Some(head)) = (lips, head) {
+        for (n, head) in shown.iter().enumerate() {
+            let lips = n
+                .checked_add_signed(lag as isize)
+                .and_then(|m| clip.lips.get(m));
+            if let (Some(Some(lips)), Some(head)) = (lips, head) {
                 tally.frame(*head, lips);
             }
         }
@@ -368,5 +388,112 @@ mod tests {
         vary_voices(&mut unwarped, 0.0, 7);
         assert_eq!(unwarped[1].features, clip.features);
         assert_eq!(unwarped[1].speaker, "grid-s1-1");
+    }
+
+    #[test]
+    fn mixed_calls_keep_half_the_clips_one_call_and_give_the_rest_their_own() {
+        let clip = |name: &str| VideoClip {
+            speaker: "grid-s1".into(),
+            name: name.into(),
+            features: vec![FrameFeatures::silent(); 2],
+            lips: vec![None; 2],
+        };
+        let mut clips: Vec<VideoClip> = ["a", "a", "b", "b", "c"].map(clip).into();
+        mix_calls(&mut clips);
+        let order: Vec<(&str, &str)> = clips
+            .iter()
+            .map(|c| (c.name.as_str(), c.speaker.as_str()))
+            .collect();
+        assert_eq!(
+            order,
+            [
+                ("a", "grid-s1"),
+                ("b", "grid-s1"),
+                ("c", "grid-s1"),
+                ("a", "grid-s1-1"),
+                ("b", "grid-s1-3")
+            ]
+        );
+    }
+
+    /// `evaluate --grid`'s "network's controls" row: the receiver's own width, frame by frame,
+    /// one call per speaker; the lips of frame n + lag meet the controls of frame n.
+    #[test]
+    fn the_controls_score_reads_the_receivers_width_per_frame_and_lag() {
+        use crate::call::pipeline::stream_track;
+        use crate::lipsync::animator::articulation_beside;
+        use crate::lipsync::default_model;
+
+        let plain = default_model();
+        let paired = plain
+            .clone()
+            .with_articulation(articulation_beside(&plain, 0.5))
+            .unwrap();
+        let mut rng = Rng::new(11);
+        let talk = |rng: &mut Rng| -> Vec<FrameFeatures> {
+            (0..80)
+                .map(|n| {
+                    let mut f = FrameFeatures::silent();
+                    f.energy_db = -45.0 + 35.0 * rng.next_f32();
+                    f.lsp = std::array::from_fn(|i| 0.27 * (i + 1) as f32 + 0.02 * (n % 5) as f32);
+                    f
+                })
+                .collect()
+        };
+        let features = [talk(&mut rng), talk(&mut rng)];
+        // The second clip follows the first in one call, as the score runs them.
+        let mut pipeline =
+            PeerPipeline::new(&paired, &LipSyncOptions::default(), 0, false).unwrap();
+        let own: Vec<Vec<[f32; 2]>> = features
+            .iter()
+            .map(|f| {
+                let track = stream_track(&mut pipeline, f, &[]);
+                assert_eq!(track.controls.len(), f.len());
+                track
+                    .controls
+                    .iter()
+                    .map(|c| [c.aperture, c.width])
+                    .collect()
+            })
+            .collect();
+        let clips_trailing = |by: usize, sign: f32| -> Vec<VideoClip> {
+            own.iter()
+                .zip(&features)
+                .enumerate()
+                .map(|(c, (own, f))| VideoClip {
+                    speaker: "grid-s1".into(),
+                    name: format!("c{c}"),
+                    features: f.clone(),
+                    lips: (0..own.len())
+                        .map(|n| {
+                            let [a, w] = own[n.checked_sub(by)?];
+                            // Every 7th frame untracked; each clip at its own offset and scale.
+                            (n % 7 != 3).then_some([0.1 + a, 0.5 + c as f32 + sign * 3.0 * w])
+                        })
+                        .collect(),
+                })
+                .collect()
+        };
+        let same = score_controls(&paired, &clips_trailing(0, 1.0), 0).unwrap();
+        assert_eq!((same.clips, same.frames), (2, 2 * (80 - 11)));
+        assert!(
+            same.clip_width_r > 0.999 && same.clip_aperture_r > 0.999,
+            "{same:?}"
+        );
+        assert!(same.width_r < 0.9, "pooled over two offsets: {same:?}");
+        let flipped = score_controls(&paired, &clips_trailing(0, -1.0), 0).unwrap();
+        assert!(flipped.clip_width_r < -0.999, "{flipped:?}");
+        let trailing = clips_trailing(1, 1.0);
+        let on_time = score_controls(&paired, &trailing, 0).unwrap();
+        let a_frame_on = score_controls(&paired, &trailing, 1).unwrap();
+        let a_frame_back = score_controls(&paired, &trailing, -1).unwrap();
+        assert!(a_frame_on.clip_width_r > 0.999, "{a_frame_on:?}");
+        assert!(on_time.clip_width_r < 0.9 && a_frame_back.clip_width_r < 0.9);
+        // The viseme network alone shows the width its weights derive, not the articulation's.
+        let alone = score_controls(&plain, &clips_trailing(0, 1.0), 0).unwrap();
+        assert!(
+            alone.clip_width_r < 0.9 && alone.clip_aperture_r > 0.999,
+            "{alone:?}"
+        );
     }
 }
