@@ -254,6 +254,7 @@ impl JitterBuffer {
     /// Plays on from slot `index` at the time the next slot was to play.
     fn resume_at(&mut self, index: i64) {
         let at = self.slot_time(self.next);
+        self.corrector.resumed(self.next - index);
         for _ in index..self.next {
             self.corrector.grew();
             self.stats.stretched += 1;
