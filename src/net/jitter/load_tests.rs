@@ -328,7 +328,14 @@ fn a_burst_read_after_a_stall_is_no_jitter_when_stamped_by_the_kernel() {
         assert_eq!(out.concealed, vec![], "{what}");
         let counts = |r: &Run| {
             let s = r.stats;
-            (s.late, s.forced, s.stretched, s.missing, s.dropped)
+            (
+                s.late,
+                s.forced,
+                s.stretched,
+                s.missing,
+                s.dropped,
+                s.held_upstream,
+            )
         };
         assert_eq!(counts(&out), counts(&quiet), "{what}");
         assert_eq!(out.targets, quiet.targets, "{what}");
@@ -381,7 +388,11 @@ fn a_lone_upstream_stall_is_played_late_once_and_the_delay_comes_back_down() {
         all_played(&out, packets, &what);
         assert!(out.concealed.len() <= 2, "{what}: {:?}", out.concealed);
         assert_eq!((out.stats.late, out.stats.forced), (0, 0), "{what}");
-        assert_eq!(out.stats.resumed, 1, "{what}");
+        assert_eq!(
+            (out.stats.resumed, out.stats.held_upstream),
+            (1, 1),
+            "{what}"
+        );
         let highest = out.targets.iter().copied().fold(0.0, f64::max);
         let clean_highest = quiet.targets.iter().copied().fold(0.0, f64::max);
         assert!(highest <= clean_highest + 1e-6, "{what}");

@@ -88,6 +88,10 @@ const MAX_PACKET_FRAMES: u32 = 64;
 const START_FRAMES: u32 = 4;
 /// The most frames a start waits for in all.
 const START_WAIT: u32 = 20;
+/// A packet this much later (seconds) than its timestamp's step from the newest before it
+/// says was held up before it reached us: counted and logged (kernel-stamped arrivals: our own
+/// thread's starvation does not show).
+pub const HELD_UPSTREAM: f64 = 0.25;
 
 #[derive(Debug)]
 struct Entry {
