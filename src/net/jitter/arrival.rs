@@ -6,7 +6,7 @@ use std::time::Instant;
 
 use super::packets::FRAME_SECONDS;
 use super::timeline::{MAX_DROPOUT, MAX_MISORDER, SeqCheck};
-use super::{Arrival, Entry, JitterBuffer, MAX_PACKET_FRAMES, State};
+use super::{Arrival, Entry, HELD_UPSTREAM, JitterBuffer, MAX_PACKET_FRAMES, State};
 
 impl JitterBuffer {
     /// A new stream on this SSRC (a redial): sequence state starts over, counters go on, and its
@@ -155,6 +155,14 @@ impl JitterBuffer {
             raw = self.rebase(ext_ts, now);
         } else if let Some((last_off, last_at)) = self.newest {
             let ahead = self.timeline.seconds(raw - last_off) - (now - last_at);
+            if newest && -ahead >= HELD_UPSTREAM {
+                self.stats.held_upstream += 1;
+                tracing::debug!(
+                    held_ms = (-ahead * 1000.0).round(),
+                    at = now,
+                    "jitter: the stream was held up before this receiver"
+                );
+            }
             if newest && (raw < last_off || ahead > max_delay) {
                 raw = self.rebase(ext_ts, now);
             } else if !newest && raw >= last_off {
@@ -254,6 +262,7 @@ impl JitterBuffer {
     /// Plays on from slot `index` at the time the next slot was to play.
     fn resume_at(&mut self, index: i64) {
         let at = self.slot_time(self.next);
+        self.corrector.resumed(self.next - index);
         for _ in index..self.next {
             self.corrector.grew();
             self.stats.stretched += 1;

@@ -76,6 +76,8 @@ pub(super) struct Corrector {
     want: Want,
     /// Quiet frames played in a row.
     quiet_run: u32,
+    /// Frames played since the last pause (a run of `QUIET_RUN` quiet frames).
+    since_pause: u32,
     /// The next pop inserts a frame (a pause is on and the delay is short).
     insert_next: bool,
     /// The last pop handed out received audio (which may be dropped).
@@ -97,6 +99,7 @@ impl Corrector {
             since_adjust: 0,
             want: Want::Nothing,
             quiet_run: 0,
+            since_pause: 0,
             insert_next: false,
             handed_audio: false,
             start_base: f64::NAN,
@@ -114,6 +117,13 @@ impl Corrector {
         self.quiet_run = 0;
         self.insert_next = false;
         self.since_adjust = 0;
+    }
+
+    /// Playout resumed `frames` frames behind after a stall upstream: the delay the stall
+    /// added is surplus, as a held-up start's is, shed in the next pauses down to where the
+    /// delay was before it.
+    pub fn resumed(&mut self, frames: i64) {
+        self.start_base += frames as f64 * FRAME_SECONDS;
     }
 
     /// The timeline lost its slack (a new one): the slack kept says nothing of it.
@@ -181,7 +191,15 @@ impl Corrector {
             // Asked for after a quiet frame (`played`).
             return Adjust::Stretch;
         }
-        if self.since_adjust >= QUIET_INTERVAL && self.slack.len() >= 10 {
+        // With frames of surplus to shed (a stall's, a held-up start's) every quiet frame of a
+        // pause may go: the stall's delay is gone within a pause or two.
+        let surplus = self.start_base - base;
+        let interval = if surplus >= 2.0 * FRAME_SECONDS {
+            1
+        } else {
+            QUIET_INTERVAL
+        };
+        if self.since_adjust >= interval && self.slack.len() >= 10 {
             // The worst slack, each packet's projected to now along the drift: against a
             // drifting sender the oldest packets' slack is no longer what the buffer keeps.
             let drift = self.trend.drift();
@@ -208,7 +226,7 @@ impl Corrector {
                 .iter()
                 .filter(|&&(t, s, held)| !held && s + drift * (now - t) < limits.grow_forced)
                 .count();
-            if self.start_base - base >= HELD_UP {
+            if surplus >= HELD_UP {
                 let spare = limits.grow_quiet + self.margin + pull_jitter + FRAME_SECONDS;
                 limits.shrink_quiet = limits.shrink_quiet.min(spare);
             }
@@ -216,12 +234,22 @@ impl Corrector {
             if forcing > worst && due && room {
                 return Adjust::ForcedStretch;
             }
+            if self.since_adjust < QUIET_INTERVAL && low >= limits.grow_quiet {
+                // Between two quick sheds: nothing but shrinking is due yet.
+                if low > limits.shrink_quiet {
+                    self.want = Want::Shrink;
+                }
+                return Adjust::None;
+            }
             if low < limits.grow_quiet && room {
                 self.want = Want::Grow;
             } else if self.slack.len() >= SLACK_WINDOW / 2 && low > limits.shrink_quiet {
                 // Shrinking waits for a fuller picture: start-up bursts look like spare delay.
                 self.want = Want::Shrink;
-                if due && low > limits.shrink_forced && can_skip() {
+                // Surplus is shed in pauses; a loud frame goes only when none came for as long
+                // as speech usually goes on without one (a sound that never pauses).
+                let no_pause = f64::from(self.since_pause) * FRAME_SECONDS >= ANTICIPATION;
+                if due && no_pause && low > limits.shrink_forced && can_skip() {
                     return Adjust::ForcedSkip;
                 }
             }
@@ -295,12 +323,15 @@ impl Corrector {
     pub fn played(&mut self, loudness: Loudness, playing: bool, next_here: bool) -> Correction {
         if loudness == Loudness::Audible || !playing {
             self.quiet_run = 0;
+            self.since_pause = self.since_pause.saturating_add(1);
             return Correction::Keep;
         }
         self.quiet_run = self.quiet_run.saturating_add(1);
         if self.quiet_run < QUIET_RUN {
+            self.since_pause = self.since_pause.saturating_add(1);
             return Correction::Keep;
         }
+        self.since_pause = 0;
         match std::mem::replace(&mut self.want, Want::Nothing) {
             Want::Grow => {
                 self.insert_next = true;

@@ -2,6 +2,12 @@
 //! (arrival less its RTP time) is noted; the fastest over a window is the `base`, the spread
 //! above it the network's jitter, and the pull clock's own jitter adds to it. A sender's clock
 //! drifting against ours shows as a steady trend (`Trend`), which is no jitter.
+//!
+//! Spikes. A packet far above the spread the others show (a stall upstream: the sender or a
+//! relay starved, its packets then coming in a burst) is a spike, left out of the spread: one
+//! lone stall does not hold the delay up for the rest of the call. Spikes that repeat (two
+//! starting within `PEAK_PERIOD`) are the path's jitter: while they do, the target covers the
+//! highest of them (as WebRTC NetEq's delay-peak detector).
 
 use std::collections::VecDeque;
 
@@ -11,17 +17,30 @@ use super::trend::Trend;
 
 /// Pulls whose timing gives the pull clock's jitter.
 const PULL_WINDOW: usize = 50;
+/// A packet more than this (seconds), and more than the spread, above the spread the others
+/// show is a spike: three frames, beyond what a busy sender's pacing adds.
+const SPIKE_ABOVE: f64 = 0.06;
+/// Spikes that start within this many seconds of each other repeat; one is forgotten after it.
+const PEAK_PERIOD: f64 = 10.0;
+/// Spikes remembered at most (a stall every 2 s fills them within `PEAK_PERIOD`).
+const PEAKS: usize = 8;
 
 /// The delay the buffer aims at, from the packets' delays and the pulls' timing (seconds).
 #[derive(Debug)]
 pub(super) struct DelayEstimator {
     config: JitterConfig,
-    /// Recent packets' arrival and relative delay (arrival less RTP time), seconds.
-    delays: VecDeque<(f64, f64)>,
+    /// Recent packets' arrival and relative delay (arrival less RTP time), seconds, and
+    /// whether each was a spike.
+    delays: VecDeque<(f64, f64, bool)>,
+    /// Recent spikes: when each started and how far above the fastest it rose (seconds).
+    peaks: VecDeque<(f64, f64)>,
+    /// The last packet was a spike: one that follows it is of the same peak.
+    in_peak: bool,
     /// The relative delays' trend: a sender's clock drifting against ours.
     transit_trend: Trend,
     sorted: Vec<f64>,
-    /// The 97th percentile of the packets' delays above the fastest (seconds), once known.
+    /// The 97th percentile of the packets' delays above the fastest, spikes left out
+    /// (seconds), once known.
     spread: Option<f64>,
     /// The fastest relative delay, projected to now along the drift.
     base: f64,
@@ -40,6 +59,8 @@ impl DelayEstimator {
         Self {
             config,
             delays: VecDeque::with_capacity(config.window),
+            peaks: VecDeque::with_capacity(PEAKS),
+            in_peak: false,
             transit_trend: Trend::new(),
             sorted: Vec::with_capacity(config.window),
             spread: None,
@@ -56,6 +77,8 @@ impl DelayEstimator {
     /// Forgets the packets' delays (a new timeline); the pulls' timing stays.
     pub fn reset(&mut self) {
         self.delays.clear();
+        self.peaks.clear();
+        self.in_peak = false;
         self.transit_trend.clear();
         self.spread = None;
         self.base = 0.0;
@@ -94,27 +117,66 @@ impl DelayEstimator {
         if self.delays.len() == self.config.window {
             self.delays.pop_front();
         }
-        self.delays.push_back((now, r));
         self.transit_trend.note(now, r);
         let drift = self.transit_trend.drift();
-        let at_now = |&(t, r): &(f64, f64)| r + drift * (now - t);
-        self.base = self.delays.iter().map(at_now).fold(f64::INFINITY, f64::min);
-        if self.delays.len() < 10 {
-            return;
-        }
+        let at_now = |&(t, r, _): &(f64, f64, bool)| r + drift * (now - t);
+        self.base = self.delays.iter().map(at_now).fold(r, f64::min);
+        let spike = self.spike(now, r - self.base);
+        self.delays.push_back((now, r, spike));
         let base = self.base;
         self.sorted.clear();
-        self.sorted
-            .extend(self.delays.iter().map(|d| at_now(d) - base));
+        self.sorted.extend(
+            self.delays
+                .iter()
+                .filter(|d| !d.2)
+                .map(|d| at_now(d) - base),
+        );
+        if self.sorted.len() < 10 {
+            return;
+        }
         self.sorted.sort_by(f64::total_cmp);
         self.spread = Some(self.sorted[(self.sorted.len() - 1) * 97 / 100]);
         self.update_target();
     }
 
-    /// The target delay: the packets' spread and the pull clock's own jitter, plus the margin.
+    /// Whether a packet arriving at `now`, `excess` seconds above the fastest, is a spike; a
+    /// spike's first packet starts a peak, the ones that follow it are of that peak.
+    fn spike(&mut self, now: f64, excess: f64) -> bool {
+        while self
+            .peaks
+            .front()
+            .is_some_and(|&(t, _)| now - t > PEAK_PERIOD)
+        {
+            self.peaks.pop_front();
+        }
+        let spike = self
+            .spread
+            .is_some_and(|spread| excess > spread + spread.max(SPIKE_ABOVE));
+        if spike {
+            match self.peaks.back_mut() {
+                Some((_, height)) if self.in_peak => *height = height.max(excess),
+                _ => {
+                    if self.peaks.len() == PEAKS {
+                        self.peaks.pop_front();
+                    }
+                    self.peaks.push_back((now, excess));
+                }
+            }
+        }
+        self.in_peak = spike;
+        spike
+    }
+
+    /// The target delay: the packets' spread and the pull clock's own jitter, plus the margin;
+    /// while spikes repeat, the highest of them.
     fn update_target(&mut self) {
         let Some(spread) = self.spread else { return };
-        let target = spread + self.pull_jitter + self.config.margin.as_secs_f64();
+        let peak = if self.peaks.len() >= 2 {
+            self.peaks.iter().map(|&(_, h)| h).fold(spread, f64::max)
+        } else {
+            spread
+        };
+        let target = peak + self.pull_jitter + self.config.margin.as_secs_f64();
         self.target = target.clamp(
             self.config.min_delay.as_secs_f64(),
             self.config.max_delay.as_secs_f64(),

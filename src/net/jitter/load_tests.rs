@@ -23,6 +23,8 @@ struct Run {
     stats: JitterStats,
     /// The target delay (ms) after each second.
     targets: Vec<f64>,
+    /// The delay played at (ms) after each second.
+    delays: Vec<f64>,
 }
 
 fn run(packets: u32, filed: impl Fn(u32) -> f64, pulled: impl Fn(u32) -> f64) -> Run {
@@ -49,6 +51,7 @@ fn run_stamped(
         concealed: Vec::new(),
         stats: JitterStats::default(),
         targets: Vec::new(),
+        delays: Vec::new(),
     };
     let mut next = 0;
     let mut last_played = None;
@@ -111,6 +114,7 @@ fn run_stamped(
         }
         if k % 50 == 49 {
             out.targets.push(jb.stats().target_delay_ms);
+            out.delays.push(jb.stats().current_delay_ms);
         }
     }
     out.stats = jb.stats();
@@ -125,7 +129,13 @@ fn sent(i: u32) -> f64 {
 fn all_played(run: &Run, packets: u32, what: &str) {
     let mut expected: Vec<u32> = (0..packets).filter(|i| !run.dropped.contains(i)).collect();
     expected.dedup();
-    assert_eq!(run.played, expected, "{what}: {:?}", run.stats);
+    if run.played != expected {
+        let missing: Vec<&u32> = expected
+            .iter()
+            .filter(|i| !run.played.contains(i))
+            .collect();
+        panic!("{what}: not played {missing:?}");
+    }
     assert!(
         run.dropped.iter().all(|&i| i % 50 >= 40),
         "a loud frame dropped: {what}: {:?}",
@@ -318,7 +328,14 @@ fn a_burst_read_after_a_stall_is_no_jitter_when_stamped_by_the_kernel() {
         assert_eq!(out.concealed, vec![], "{what}");
         let counts = |r: &Run| {
             let s = r.stats;
-            (s.late, s.forced, s.stretched, s.missing, s.dropped)
+            (
+                s.late,
+                s.forced,
+                s.stretched,
+                s.missing,
+                s.dropped,
+                s.held_upstream,
+            )
         };
         assert_eq!(counts(&out), counts(&quiet), "{what}");
         assert_eq!(out.targets, quiet.targets, "{what}");
@@ -336,4 +353,81 @@ fn a_burst_read_after_a_stall_is_no_jitter_when_stamped_by_the_kernel() {
         "{:?}",
         unstamped.targets
     );
+}
+
+/// A stream held up upstream (its sender or a relay starved) from packet `from` on for
+/// `stall` seconds: what was sent meanwhile comes in a burst after it, stamped as it came.
+fn held_upstream(i: u32, from: u32, stall: f64) -> f64 {
+    let burst = sent(from) + stall + 0.0002 * f64::from(i.saturating_sub(from));
+    let on_time = sent(i) + 0.001;
+    if i >= from {
+        on_time.max(burst)
+    } else {
+        on_time
+    }
+}
+
+#[test]
+fn a_lone_upstream_stall_is_played_late_once_and_the_delay_comes_back_down() {
+    // One stall of 300 to 400 ms in speech at 5.1 s: its packets are played late once (the
+    // gap concealed, then the stream resumes), the target does not rise for a lone spike, and
+    // the delay the stall added is shed in the next pauses: within 4 s the stream plays at the
+    // delay a clean stream plays at, for the rest of the call.
+    let packets = 1500;
+    let quiet = clean(packets);
+    for stall in [0.3, 0.35, 0.4] {
+        let out = run(
+            packets,
+            |i| held_upstream(i, 255, stall),
+            |k| 0.02 * f64::from(k),
+        );
+        let what = format!(
+            "stall {stall}: {:?}\ntargets {:?}\ndelays {:?}\nclean delays {:?}",
+            out.stats, out.targets, out.delays, quiet.delays
+        );
+        all_played(&out, packets, &what);
+        assert!(out.concealed.len() <= 2, "{what}: {:?}", out.concealed);
+        assert_eq!((out.stats.late, out.stats.forced), (0, 0), "{what}");
+        assert_eq!(
+            (out.stats.resumed, out.stats.held_upstream),
+            (1, 1),
+            "{what}"
+        );
+        let highest = out.targets.iter().copied().fold(0.0, f64::max);
+        let clean_highest = quiet.targets.iter().copied().fold(0.0, f64::max);
+        assert!(highest <= clean_highest + 1e-6, "{what}");
+        for second in 9..out.delays.len() {
+            assert!(
+                out.delays[second] <= quiet.delays[second] + 1.0,
+                "second {second}: {what}"
+            );
+        }
+        assert!(out.stats.drift_ppm.abs() < 100.0, "{what}");
+    }
+}
+
+#[test]
+fn stalls_that_repeat_raise_the_target_and_keep_it_up() {
+    // A truly jittery path: 300 ms stalls every 2 s from 1.1 s to 21.1 s. The first stalls
+    // are played late (and shed); once they repeat the target covers them, and the later ones
+    // cost nothing: no concealment after the first seconds, nothing late.
+    let packets = 1500;
+    let starts: Vec<u32> = (0..10).map(|n| 55 + 100 * n).collect();
+    let out = run(
+        packets,
+        |i| {
+            let from = starts.iter().copied().filter(|&s| s <= i).max();
+            from.map_or(sent(i) + 0.001, |from| held_upstream(i, from, 0.3))
+        },
+        |k| 0.02 * f64::from(k),
+    );
+    let what = format!(
+        "{:?}\ntargets {:?}\ndelays {:?}\nconcealed {:?}",
+        out.stats, out.targets, out.delays, out.concealed
+    );
+    all_played(&out, packets, &what);
+    assert_eq!(out.stats.late, 0, "{what}");
+    assert!(out.targets[6..21].iter().all(|&t| t >= 250.0), "{what}");
+    assert!(out.concealed.iter().all(|&(k, _)| k < 300), "{what}");
+    assert!(out.stats.drift_ppm.abs() < 100.0, "{what}");
 }

@@ -41,7 +41,9 @@
 //! Starts, stalls and a busy machine. A stream that stalls with nothing buffered in the first
 //! frames of a talk spurt is waited for (a subscription whose first packet came through ahead
 //! of the rest), and packets that come after a stall, following the last one played, resume
-//! the stream from where it stopped instead of being dropped as late. A packet filed before
+//! the stream from where it stopped instead of being dropped as late; a lone stall's packets
+//! are left out of the spread (spikes count only when they repeat, `estimator`) and the delay
+//! it added is shed in the next pauses. A packet filed before
 //! its slot is pulled came in time even when stamped after the slot's tick (a puller held up
 //! by a busy machine): it asks for delay in a pause, never a frame inserted in speech. Drift
 //! comes from a robust fit that leaves a stall's blocks out (`trend`).
@@ -88,6 +90,10 @@ const MAX_PACKET_FRAMES: u32 = 64;
 const START_FRAMES: u32 = 4;
 /// The most frames a start waits for in all.
 const START_WAIT: u32 = 20;
+/// A packet this much later (seconds) than its timestamp's step from the newest before it
+/// says was held up before it reached us: counted and logged (kernel-stamped arrivals: our own
+/// thread's starvation does not show).
+pub const HELD_UPSTREAM: f64 = 0.25;
 
 #[derive(Debug)]
 struct Entry {

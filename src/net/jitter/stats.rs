@@ -40,6 +40,10 @@ pub struct JitterStats {
     pub resumed: u64,
     /// Packets held back while a far sequence number waits for its successor (RFC 3550 A.1).
     pub probation: u64,
+    /// Times the stream was held up before it reached this receiver (its sender or a relay
+    /// stalled): a packet that came [`super::HELD_UPSTREAM`] seconds or more later than its
+    /// timestamp's step from the one before says.
+    pub held_upstream: u64,
     /// RFC 3550 interarrival jitter in ms.
     pub jitter_ms: f64,
     pub target_delay_ms: f64,
