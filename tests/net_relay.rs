@@ -65,6 +65,11 @@ struct Heard {
     pcm: HashMap<u32, Vec<i16>>,
 }
 
+/// Pulls after the last frame sent: a second, for the delay a stall of this busy thread
+/// (the flood beside it) adds, which a tone that never pauses gives the buffer no pause to
+/// shed.
+const TAIL: u32 = 50;
+
 /// Runs the call in real time: every talker sends a frame per tick, everyone pulls.
 fn call(talkers: &[(&Session, Vec<Vec<u8>>)], listeners: &[&Session]) -> Vec<Heard> {
     let start = Instant::now();
@@ -76,7 +81,7 @@ fn call(talkers: &[(&Session, Vec<Vec<u8>>)], listeners: &[&Session]) -> Vec<Hea
         })
         .collect();
     let mut frames: Vec<PeerFrame> = Vec::new();
-    for k in 0..FRAMES + 30 {
+    for k in 0..FRAMES + TAIL {
         let due = start + Duration::from_millis(20) * k;
         if let Some(wait) = due.checked_duration_since(Instant::now()) {
             std::thread::sleep(wait);
