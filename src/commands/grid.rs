@@ -22,8 +22,8 @@ use crate::train::grid::{self, AUDIO_FRAME_S, LipClip};
 use crate::train::grid_shapes::{self, ContourClip, KeyRule};
 use crate::train::lag::{self, ClipSeries};
 use crate::train::video::{
-    VideoTraining, centre_each_clip, map_onto_head, mix_calls, prepare_clips, score_clips,
-    score_controls, vary_voices,
+    VideoClip, VideoTraining, centre_each_clip, map_onto_head, mix_calls, prepare_clips,
+    score_clips, score_controls, vary_voices,
 };
 use crate::vocab::{Viseme, VisemeSet};
 
@@ -189,6 +189,17 @@ pub enum LipSet {
     Both,
 }
 
+/// The training clip versions as calls: each its own (`--lip-calls`, and with `--lip-warp`
+/// each its own voice), or every second one (`--lip-mixed-calls`); else one long call.
+fn split_into_calls(prepared: &mut Vec<VideoClip>, args: &LipTrainArgs) {
+    if args.lip_calls || args.lip_warp > 0.0 {
+        vary_voices(prepared, args.lip_warp, recipe::SEED);
+    }
+    if args.lip_mixed_calls {
+        mix_calls(prepared);
+    }
+}
+
 /// s1's training clips (all but the held-out tenth), the first `limit`.
 fn s1_training_clips(root: &Path, limit: usize) -> Result<Vec<LipClip>> {
     Ok(grid::load_clips(root, "s1")?
@@ -227,12 +238,7 @@ pub fn video_training(
         args.lip_versions,
         shift,
     )?;
-    if args.lip_calls || args.lip_warp > 0.0 {
-        vary_voices(&mut prepared, args.lip_warp, recipe::SEED);
-    }
-    if args.lip_mixed_calls {
-        mix_calls(&mut prepared);
-    }
+    split_into_calls(&mut prepared, args);
     if args.lip_centre {
         centre_each_clip(&mut prepared);
     }
@@ -305,12 +311,7 @@ pub fn control_video(args: &LipTrainArgs, codec: &CodecFeatures) -> Result<Optio
         args.lip_versions,
         shift,
     )?;
-    if args.lip_calls || args.lip_warp > 0.0 {
-        vary_voices(&mut prepared, args.lip_warp, recipe::SEED);
-    }
-    if args.lip_mixed_calls {
-        mix_calls(&mut prepared);
-    }
+    split_into_calls(&mut prepared, args);
     let clips = control_clips(&prepared, Some(&args.lip_alignments))?;
     let frames = clips.iter().flat_map(|c| &c.targets).flatten().count();
     eprintln!(
@@ -363,9 +364,7 @@ pub fn evaluate_lips(args: &LipEvalArgs, model: &Model, path: CodecPath) -> Resu
     for &(name, clips) in sets {
         let mut prepared = prepare_clips(&codec, clips, &[path], 1, 0)?;
         if args.lip_calls {
-            for clip in &mut prepared {
-                clip.speaker.clone_from(&clip.name);
-            }
+            vary_voices(&mut prepared, 0.0, recipe::SEED);
         }
         let rows: [(&str, Box<dyn Animator>); 2] = [
             ("network", Box::new(ModelAnimator::new(model))),
@@ -378,14 +377,17 @@ pub fn evaluate_lips(args: &LipEvalArgs, model: &Model, path: CodecPath) -> Resu
                 s.clips, s.frames, s.aperture_r, s.width_r, s.clip_aperture_r, s.clip_width_r
             );
         }
-        let s = score_controls(model, &prepared, 0)?;
+        let most = i32::from(args.lip_lags);
+        let lags: Vec<i32> = std::iter::once(0)
+            .chain((-most..=most).filter(|&lag| lag != 0))
+            .collect();
+        let scores = score_controls(model, &prepared, &lags)?;
+        let s = &scores[0];
         println!(
             "| {name} ({} clips, {} frames) | network's controls (aperture, width) | {:.3} | {:.3} | {:.3} / {:.3} |",
             s.clips, s.frames, s.aperture_r, s.width_r, s.clip_aperture_r, s.clip_width_r
         );
-        let lags = i32::from(args.lip_lags);
-        for lag in (-lags..=lags).filter(|&lag| lag != 0) {
-            let s = score_controls(model, &prepared, lag)?;
+        for (lag, s) in lags.iter().zip(&scores).skip(1) {
             println!(
                 "| {name} | network's controls against the lips {lag:+} frames on | {:.3} | {:.3} | {:.3} / {:.3} |",
                 s.aperture_r, s.width_r, s.clip_aperture_r, s.clip_width_r

@@ -283,16 +283,17 @@ pub fn score_clips(animator: &mut dyn Animator, clips: &[VideoClip]) -> LipScore
 
 /// Scores the controls (aperture, width) that `model`'s receiver gives each frame, as a head
 /// driven by controls shows them, against `clips`' lips: one call per speaker, as
-/// [`score_clips`] runs it. The controls of frame n meet the lips of frame n + `lag` (0: as
-/// recorded; -1: lips a frame earlier, as for lips that lead their sound).
+/// [`score_clips`] runs it. A score per lag in `lags`, the network run once: the controls of
+/// frame n meet the lips of frame n + lag (0: as recorded; -1: lips a frame earlier, as for
+/// lips that lead their sound).
 pub fn score_controls(
     model: &Model,
     clips: &[VideoClip],
-    lag: i32,
-) -> Result<LipScores, ReprojectError> {
+    lags: &[i32],
+) -> Result<Vec<LipScores>, ReprojectError> {
     let mut pipeline = PeerPipeline::new(model, &LipSyncOptions::default(), 0, false)?;
     let mut current: Option<&str> = None;
-    let mut tally = LipTally::default();
+    let mut tallies: Vec<LipTally> = lags.iter().map(|_| LipTally::default()).collect();
     for clip in clips {
         if current != Some(clip.speaker.as_str()) {
             pipeline.reset();
@@ -304,17 +305,19 @@ pub fn score_controls(
                 *slot = Some([frame.controls.aperture, frame.controls.width]);
             }
         });
-        for (n, head) in shown.iter().enumerate() {
-            let lips = n
-                .checked_add_signed(lag as isize)
-                .and_then(|m| clip.lips.get(m));
-            if let (Some(Some(lips)), Some(head)) = (lips, head) {
-                tally.frame(*head, lips);
+        for (&lag, tally) in lags.iter().zip(&mut tallies) {
+            for (n, head) in shown.iter().enumerate() {
+                let lips = n
+                    .checked_add_signed(lag as isize)
+                    .and_then(|m| clip.lips.get(m));
+                if let (Some(Some(lips)), Some(head)) = (lips, head) {
+                    tally.frame(*head, lips);
+                }
             }
+            tally.end_clip();
         }
-        tally.end_clip();
     }
-    Ok(tally.scores())
+    Ok(tallies.iter().map(LipTally::scores).collect())
 }
 
 #[cfg(test)]
@@ -474,23 +477,32 @@ mod tests {
                 })
                 .collect()
         };
-        let same = score_controls(&paired, &clips_trailing(0, 1.0), 0).unwrap();
+        let at = |model: &Model, clips: &[VideoClip], lags: &[i32]| {
+            score_controls(model, clips, lags).unwrap()
+        };
+        let [same] = &at(&paired, &clips_trailing(0, 1.0), &[0])[..] else {
+            panic!("a score per lag")
+        };
         assert_eq!((same.clips, same.frames), (2, 2 * (80 - 11)));
         assert!(
             same.clip_width_r > 0.999 && same.clip_aperture_r > 0.999,
             "{same:?}"
         );
         assert!(same.width_r < 0.9, "pooled over two offsets: {same:?}");
-        let flipped = score_controls(&paired, &clips_trailing(0, -1.0), 0).unwrap();
+        let [flipped] = &at(&paired, &clips_trailing(0, -1.0), &[0])[..] else {
+            panic!("a score per lag")
+        };
         assert!(flipped.clip_width_r < -0.999, "{flipped:?}");
         let trailing = clips_trailing(1, 1.0);
-        let on_time = score_controls(&paired, &trailing, 0).unwrap();
-        let a_frame_on = score_controls(&paired, &trailing, 1).unwrap();
-        let a_frame_back = score_controls(&paired, &trailing, -1).unwrap();
+        let [on_time, a_frame_on, a_frame_back] = &at(&paired, &trailing, &[0, 1, -1])[..] else {
+            panic!("a score per lag")
+        };
         assert!(a_frame_on.clip_width_r > 0.999, "{a_frame_on:?}");
         assert!(on_time.clip_width_r < 0.9 && a_frame_back.clip_width_r < 0.9);
         // The viseme network alone shows the width its weights derive, not the articulation's.
-        let alone = score_controls(&plain, &clips_trailing(0, 1.0), 0).unwrap();
+        let [alone] = &at(&plain, &clips_trailing(0, 1.0), &[0])[..] else {
+            panic!("a score per lag")
+        };
         assert!(
             alone.clip_width_r < 0.9 && alone.clip_aperture_r > 0.999,
             "{alone:?}"
