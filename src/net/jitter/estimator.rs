@@ -204,3 +204,37 @@ impl DelayEstimator {
         self.last_pull = Some(now);
     }
 }
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// A sender that stalls its stream every 200 ms for 6 s makes a spike each time: those kept
+    /// stay within their cap while they repeat, and 12 s without one forgets them all.
+    #[test]
+    fn spikes_kept_are_capped_and_forgotten() {
+        let mut estimator = DelayEstimator::new(JitterConfig::default());
+        let mut now = 0.0;
+        let mut packet = |estimator: &mut DelayEstimator, r: f64| {
+            now += 0.02;
+            estimator.observe(now, r);
+        };
+        for _ in 0..50 {
+            packet(&mut estimator, 0.0);
+        }
+        for k in 0..300 {
+            packet(&mut estimator, if k % 10 == 0 { 0.3 } else { 0.0 });
+            assert!(estimator.peaks.len() <= PEAKS);
+        }
+        assert_eq!(estimator.peaks.len(), PEAKS, "30 spikes made");
+        assert!(
+            estimator.target() >= 0.3,
+            "repeating spikes raise the target"
+        );
+        for _ in 0..600 {
+            packet(&mut estimator, 0.0);
+        }
+        assert!(estimator.peaks.is_empty(), "{:?}", estimator.peaks);
+        assert!(estimator.target() < 0.1, "{}", estimator.target());
+    }
+}
