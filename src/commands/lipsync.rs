@@ -207,6 +207,18 @@ fn parse_snap(text: &str) -> Result<Option<f32>> {
     }
 }
 
+/// Saves the trained model to `--out` with what the command line asks of its file (the width
+/// output's gain, the smoothing).
+fn save_trained(model: &mut Model, args: &TrainArgs) -> Result<()> {
+    if let Some(gain) = args.width_gain {
+        model.scale_width_output(gain);
+    }
+    model.smoothing = args.smoothing;
+    model
+        .save(&args.out)
+        .with_context(|| format!("cannot save the model to {}", args.out.display()))
+}
+
 fn parse_smoothing(text: &str) -> Result<f32, String> {
     use crate::lipsync::network::MAX_SMOOTHING;
     match text.parse::<f32>() {
@@ -340,14 +352,7 @@ pub fn train(args: &TrainArgs) -> Result<()> {
     );
     let trained = plan::train_held_out(&corpus, &split, &config, args.versions, snap, sharpness)?;
     let mut report = trained.report;
-    if let Some(gain) = args.width_gain {
-        report.model.scale_width_output(gain);
-    }
-    report.model.smoothing = args.smoothing;
-    report
-        .model
-        .save(&args.out)
-        .with_context(|| format!("cannot save the model to {}", args.out.display()))?;
+    save_trained(&mut report.model, args)?;
     let validation_utts = plan::pick(&corpus, &split.validation, args.utterances)?;
     let low = plan::prepare_each(
         &CodecFeatures::new(),
@@ -485,14 +490,7 @@ fn train_cross_validated(args: &TrainArgs) -> Result<()> {
         args.versions,
         args.an4_weight,
     )?;
-    if let Some(gain) = args.width_gain {
-        report.model.scale_width_output(gain);
-    }
-    report.model.smoothing = args.smoothing;
-    report
-        .model
-        .save(&args.out)
-        .with_context(|| format!("cannot save the model to {}", args.out.display()))?;
+    save_trained(&mut report.model, args)?;
     eprintln!("wrote the model to {}", args.out.display());
     let card = args.out.with_extension("card.md");
     let sources = CardSources {
