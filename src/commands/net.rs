@@ -451,10 +451,10 @@ pub struct ReceiveArgs {
     #[command(flatten)]
     pub key: KeyArgs,
     /// Stop this many seconds after the start, joining a relay room, a Janus room or a Mumble
-    /// server included (a join not done by then fails). Without it, the receive ends once everyone who called has left: said
-    /// BYE, or sent nothing for --peer-timeout. Before anyone calls it waits. Ctrl-C (SIGINT)
-    /// or SIGTERM ends it at any time; the files written so far are finished and whole
-    /// either way.
+    /// server included (a join not done by then fails). Without it, the receive ends once
+    /// everyone who called has left: said BYE, or sent nothing for --peer-timeout. Before
+    /// anyone calls it waits. Ctrl-C (SIGINT) or SIGTERM ends it at any time; the files
+    /// written so far are finished and whole either way.
     #[arg(long, allow_hyphen_values = true, value_parser = super::parse_seconds)]
     pub seconds: Option<f64>,
     /// A peer that sent nothing (no RTP, no RTCP) for this many seconds has left (in a
